@@ -1,0 +1,40 @@
+"""The two objectives of the paper, and a few diagnostics, computed from an episode log alone.
+
+f_acc = (1/T) Σ_i ||ee_i − ee_des_i||           mean Cartesian error, m
+f_t   = (1/T) Σ_i ||u_i − u_(i−1)||²            mean squared torque change per tick, (N·m)²
+
+T is the number of ticks the episode was planned to run. u_0, the torque before the first tick,
+is taken equal to the first applied torque: the robot was already holding it, so starting does
+not count as a change. A diverged episode is scored as if every tick it did not run had the
+worst error and the worst torque change, so it is never preferred to one that finished, and the
+later it diverged the less it is penalised.
+"""
+
+import numpy as np
+
+from schemas.episode import Scores
+from schemas.episode_log import EpisodeLog
+
+DIVERGED_TICK_ERROR = 1.0  # m: more than any real tracking error (the arm's reach is 0.82 m)
+SATURATION_TOLERANCE = 1e-9  # N·m: a torque this close to its limit is saturated
+
+
+def score(log: EpisodeLog) -> Scores:
+    meta = log.metadata
+    planned = meta.ticks_planned
+    missing = planned - log.ticks
+    limits = np.asarray(meta.torque_limits)
+
+    errors = np.linalg.norm(log.ee - log.ee_des, axis=1)
+    worst_change = float(np.sum((2.0 * limits) ** 2))  # from one limit to the other on every joint
+    changes = float(np.sum(np.diff(log.tau, axis=0) ** 2))
+    saturated = np.any(np.abs(log.tau) >= limits - SATURATION_TOLERANCE, axis=1)
+
+    return Scores(
+        f_acc=(float(errors.sum()) + missing * DIVERGED_TICK_ERROR) / planned,
+        f_t=(changes + missing * worst_change) / planned,
+        max_error=float(errors.max()) if log.ticks else DIVERGED_TICK_ERROR,
+        saturated_fraction=float(saturated.mean()) if log.ticks else 0.0,
+        diverged=meta.diverged,
+        ticks=log.ticks,
+    )

@@ -1,0 +1,16 @@
+"""Scores as a person reads them."""
+
+from rich.console import Console
+from rich.table import Table
+
+from schemas.episode import Scores
+
+
+def print_scores(scores: Scores, source: str) -> None:
+    table = Table(title=source, show_header=False, title_justify="left")
+    table.add_row("f_acc", f"{scores.f_acc * 1000:.3f} mm", "mean end-effector error")
+    table.add_row("f_t", f"{scores.f_t:.4g} (N·m)²", "mean squared torque change per tick")
+    table.add_row("max error", f"{scores.max_error * 1000:.3f} mm", "")
+    table.add_row("saturated", f"{scores.saturated_fraction:.1%}", "of ticks, any joint")
+    table.add_row("diverged", "yes" if scores.diverged else "no", f"{scores.ticks} ticks run")
+    Console().print(table)

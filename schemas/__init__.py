@@ -1,0 +1,23 @@
+"""The wire contract: every message, file layout and key every other package agrees on."""
+
+from schemas.episode import EpisodeMetadata, EpisodeSpec, Scores
+from schemas.episode_log import CHANNELS, EpisodeLog
+from schemas.gains import PDGains
+from schemas.robot import JOINT_NAMES, N_JOINTS, TORQUE_LIMITS, ModelSpec
+from schemas.trajectory import CONTROL_PERIOD, TrajectoryKind, TrajectorySpec
+
+__all__ = [
+    "CHANNELS",
+    "CONTROL_PERIOD",
+    "JOINT_NAMES",
+    "N_JOINTS",
+    "TORQUE_LIMITS",
+    "EpisodeLog",
+    "EpisodeMetadata",
+    "EpisodeSpec",
+    "ModelSpec",
+    "PDGains",
+    "Scores",
+    "TrajectoryKind",
+    "TrajectorySpec",
+]

@@ -1,0 +1,53 @@
+"""The episode log: what one episode recorded, tick by tick, and the MCAP channels that carry it.
+
+The channel contract (topics, ROS 2 message types, what each field holds) is part of the wire
+contract: dataset consumers and tools such as ros2 bag, Foxglove and PlotJuggler depend on it.
+schemas/README.md documents it for humans; this module is its single source of truth.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from schemas.episode import EpisodeMetadata
+
+JOINT_STATE = "sensor_msgs/msg/JointState"
+POINT_STAMPED = "geometry_msgs/msg/PointStamped"
+
+
+@dataclass(frozen=True)
+class Channel:
+    topic: str
+    message_type: str
+    frame_id: str
+    fields: tuple[tuple[str, str], ...]  # (message field, EpisodeLog attribute)
+
+
+CHANNELS = (
+    Channel(
+        "/joint_states", JOINT_STATE, "", (("position", "q"), ("velocity", "qd"), ("effort", "tau"))
+    ),
+    Channel("/joint_reference", JOINT_STATE, "", (("position", "q_des"), ("velocity", "qd_des"))),
+    Channel("/ee/actual", POINT_STAMPED, "world", (("point", "ee"),)),
+    Channel("/ee/desired", POINT_STAMPED, "world", (("point", "ee_des"),)),
+)
+METADATA_NAME = "gainfarm.episode"
+
+
+@dataclass(frozen=True)
+class EpisodeLog:
+    """One row per 2 ms control tick. Joint arrays are (n, 7), positions (n, 3), SI units."""
+
+    t: np.ndarray  # simulated time since the episode started, s
+    q: np.ndarray  # measured link-side joint positions, rad
+    qd: np.ndarray  # measured joint velocities, rad/s
+    tau: np.ndarray  # applied (saturated) joint torques, N·m
+    q_des: np.ndarray  # reference joint positions, rad
+    qd_des: np.ndarray  # reference joint velocities, rad/s
+    ee: np.ndarray  # flange position in the world frame, m
+    ee_des: np.ndarray  # desired flange position, m
+    metadata: EpisodeMetadata
+
+    @property
+    def ticks(self) -> int:
+        return len(self.t)

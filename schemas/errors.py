@@ -1,0 +1,38 @@
+"""Bad input gets one clear error line and a non-zero exit: the shared rules of every CLI."""
+
+import sys
+
+import click
+from pydantic import ValidationError
+
+USAGE_ERROR = 2
+
+
+class CliError(click.ClickException):
+    """A problem with what the user asked for, said in one line."""
+
+    exit_code = USAGE_ERROR
+
+
+def describe(error: ValidationError) -> str:
+    """'field: what is wrong' for the first problem, and how many more there are."""
+    first = error.errors()[0]
+    where = ".".join(str(part) for part in first["loc"]) or "value"
+    more = error.error_count() - 1
+    suffix = f" (and {more} more problem{'s' if more > 1 else ''})" if more else ""
+    return f"{where}: {first['msg']}{suffix}"
+
+
+def run_app(command: click.Command, program: str) -> None:
+    """Run a click command, turning every user error into `program: error: ...` on one line."""
+    try:
+        command.main(prog_name=program, standalone_mode=False)
+    except click.exceptions.NoArgsIsHelpError as help_request:
+        click.echo(help_request.ctx.get_help() if help_request.ctx else "", err=True)
+        sys.exit(USAGE_ERROR)
+    except click.ClickException as error:
+        click.echo(f"{program}: error: {error.format_message()}", err=True)
+        sys.exit(error.exit_code)
+    except (click.Abort, KeyboardInterrupt):
+        click.echo(f"{program}: interrupted", err=True)
+        sys.exit(130)

@@ -1,0 +1,119 @@
+"""`worker`: the sim-cobot's command line. For now: simulate one episode and score it."""
+
+import json
+import math
+from pathlib import Path
+
+import click
+from pydantic import ValidationError
+
+from analytic.objectives import score
+from analytic.report import print_scores
+from schemas.episode import EpisodeSpec
+from schemas.errors import CliError, describe, run_app
+from schemas.gains import PDGains
+from schemas.mcap_episode import write_episode
+from schemas.robot import N_JOINTS, ModelSpec
+from schemas.trajectory import TrajectoryKind, TrajectorySpec
+from worker.episode import run_episode
+from worker.ik import UnreachablePath
+
+# Stiff enough to track every default trajectory within a few centimetres, soft enough not to
+# saturate: a sensible first episode, not a tuned controller (tuning is the analytic layer's job).
+DEFAULT_KP = "2000,2000,1200,1200,400,200,100"
+DEFAULT_KD = "60,60,40,40,10,5,2"
+
+
+@click.group(help=__doc__, no_args_is_help=True)
+def app() -> None:
+    pass
+
+
+@app.command()
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path),
+    default="episode.mcap",
+    show_default=True,
+    help="where to write the MCAP episode log",
+)
+@click.option(
+    "--trajectory",
+    type=click.Choice([k.value for k in TrajectoryKind]),
+    default="spiral",
+    show_default=True,
+    help="end-effector path",
+)
+@click.option("--duration", type=float, default=5.0, show_default=True, help="seconds")
+@click.option("--kp", default=DEFAULT_KP, show_default=True, help="7 gains A1..A7, N·m/rad")
+@click.option("--kd", default=DEFAULT_KD, show_default=True, help="7 gains A1..A7, N·m·s/rad")
+@click.option(
+    "--model",
+    type=click.Choice(["flexible", "rigid"]),
+    default="flexible",
+    show_default=True,
+    help="elastic or rigid joints",
+)
+@click.option(
+    "--seed",
+    type=int,
+    default=0,
+    show_default=True,
+    help="seed of the random trajectory's waypoints",
+)
+@click.option("--gravity-compensation", is_flag=True, help="add g(q_des) feed-forward to the PD")
+@click.option("--json", "as_json", is_flag=True, help="print the scores as one JSON object")
+def episode(
+    out: Path,
+    trajectory: str,
+    duration: float,
+    kp: str,
+    kd: str,
+    model: str,
+    seed: int,
+    gravity_compensation: bool,
+    as_json: bool,
+) -> None:
+    """Simulate one PD episode on the iiwa 14, write its MCAP log and print its scores."""
+    try:
+        spec = EpisodeSpec(
+            gains=PDGains(kp=_gains("--kp", kp), kd=_gains("--kd", kd)),
+            trajectory=TrajectorySpec(kind=trajectory, duration=duration, seed=seed),
+            model=ModelSpec(joints=model),
+            gravity_compensation=gravity_compensation,
+        )
+    except ValidationError as error:
+        raise CliError(describe(error)) from None
+    if not out.parent.is_dir():
+        raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
+    try:
+        log = run_episode(spec)
+    except UnreachablePath as error:
+        raise CliError(str(error)) from None
+    try:
+        write_episode(log, out)
+    except OSError as error:
+        raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
+    scores = score(log)
+    if as_json:
+        click.echo(json.dumps({**scores.model_dump(), "log": str(out)}))
+    else:
+        print_scores(scores, source=str(out))
+
+
+def _gains(option: str, text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        raise CliError(
+            f"{option}: expected {N_JOINTS} comma-separated numbers, got {text!r}"
+        ) from None
+    if len(values) != N_JOINTS:
+        raise CliError(f"{option}: expected {N_JOINTS} gains (A1..A7), got {len(values)}")
+    if not all(math.isfinite(v) and v >= 0 for v in values):
+        raise CliError(f"{option}: gains must be finite and non-negative, got {text!r}")
+    return values
+
+
+def main() -> None:
+    run_app(app, "worker")

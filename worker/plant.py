@@ -1,0 +1,59 @@
+"""Sensor/actuator layer: the simulated cobot. Torques in, link-side joint states out."""
+
+import mujoco
+import numpy as np
+
+from models import compile_model
+from schemas.robot import JOINT_NAMES, ModelSpec
+
+FLANGE = "flange"
+
+
+class Plant:
+    """One simulated iiwa 14 (rigid or elastic joints) with its state.
+
+    The robot's joint state is link-side: in the elastic variant each joint's angle is the sum of
+    its motor and spring hinges. `link_map` is the (7, nq) matrix with q = link_map @ qpos (and
+    q̇ = link_map @ qvel); the tick loop folds it into its gain matrices.
+    """
+
+    def __init__(self, spec: ModelSpec) -> None:
+        self.spec = spec
+        self.model = compile_model(spec)
+        self.data = mujoco.MjData(self.model)
+        self.substeps = spec.substeps
+        self.link_map = _link_map(self.model)
+        self.torque_limits = self.model.actuator_ctrlrange[:, 1].copy()
+        driven = [self.model.joint(name) for name in _driven_joints(spec)]
+        self.joint_range = np.array([joint.range for joint in driven])
+        self._driven_qpos = np.array([self.model.jnt_qposadr[joint.id] for joint in driven])
+        self.flange = self.model.site(FLANGE).id
+
+    def reset(self, q: np.ndarray) -> None:
+        """At rest at link angles `q`, springs relaxed (each motor angle equals its link angle)."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[self._driven_qpos] = q
+        mujoco.mj_forward(self.model, self.data)
+
+    def flange_positions(self, qpos: np.ndarray) -> np.ndarray:
+        """Flange position (n, 3) for each raw state in `qpos` (n, nq), by forward kinematics."""
+        scratch = mujoco.MjData(self.model)
+        out = np.empty((len(qpos), 3))
+        for k, row in enumerate(qpos):
+            scratch.qpos[:] = row
+            mujoco.mj_kinematics(self.model, scratch)
+            out[k] = scratch.site_xpos[self.flange]
+        return out
+
+
+def _driven_joints(spec: ModelSpec) -> list[str]:
+    return [f"{n}_motor" for n in JOINT_NAMES] if spec.joints == "flexible" else list(JOINT_NAMES)
+
+
+def _link_map(model: mujoco.MjModel) -> np.ndarray:
+    """Sum every hinge of link i (its one hinge, or motor + spring) into joint i's angle."""
+    link_map = np.zeros((len(JOINT_NAMES), model.nq))
+    for j in range(model.njnt):
+        joint_index = JOINT_NAMES.index(model.joint(j).name.split("_")[0])
+        link_map[joint_index, model.jnt_qposadr[j]] = 1.0
+    return link_map
