@@ -6,6 +6,7 @@ from typing import Annotated
 from pydantic import BaseModel, ConfigDict, Field
 
 CONTROL_PERIOD = 0.002  # s: the paper's 500 Hz loop
+CONTROL_PERIOD_NS = 2_000_000  # the same, in the integer nanoseconds of log times
 MIN_DURATION = 0.1  # s: shorter is not a trajectory, just a jolt
 MAX_DURATION = 120.0  # s: the paper uses 3-6 s; longer is certainly a typo
 

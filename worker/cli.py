@@ -55,6 +55,10 @@ def app() -> None:
     help="elastic or rigid joints",
 )
 @click.option(
+    "--center", default="0.55,0,0.4", show_default=True, help="x,y,z of the path's centre, m"
+)
+@click.option("--size", type=float, default=0.12, show_default=True, help="path half-width, m")
+@click.option(
     "--seed",
     type=int,
     default=0,
@@ -70,6 +74,8 @@ def episode(
     kp: str,
     kd: str,
     model: str,
+    center: str,
+    size: float,
     seed: int,
     gravity_compensation: bool,
     as_json: bool,
@@ -78,7 +84,13 @@ def episode(
     try:
         spec = EpisodeSpec(
             gains=PDGains(kp=_gains("--kp", kp), kd=_gains("--kd", kd)),
-            trajectory=TrajectorySpec(kind=trajectory, duration=duration, seed=seed),
+            trajectory=TrajectorySpec(
+                kind=trajectory,
+                duration=duration,
+                center=_numbers("--center", center, 3),
+                size=size,
+                seed=seed,
+            ),
             model=ModelSpec(joints=model),
             gravity_compensation=gravity_compensation,
         )
@@ -101,15 +113,20 @@ def episode(
         print_scores(scores, source=str(out))
 
 
-def _gains(option: str, text: str) -> tuple[float, ...]:
+def _numbers(option: str, text: str, count: int) -> tuple[float, ...]:
     try:
         values = tuple(float(part) for part in text.split(","))
     except ValueError:
         raise CliError(
-            f"{option}: expected {N_JOINTS} comma-separated numbers, got {text!r}"
+            f"{option}: expected {count} comma-separated numbers, got {text!r}"
         ) from None
-    if len(values) != N_JOINTS:
-        raise CliError(f"{option}: expected {N_JOINTS} gains (A1..A7), got {len(values)}")
+    if len(values) != count:
+        raise CliError(f"{option}: expected {count} numbers, got {len(values)}")
+    return values
+
+
+def _gains(option: str, text: str) -> tuple[float, ...]:
+    values = _numbers(option, text, N_JOINTS)
     if not all(math.isfinite(v) and v >= 0 for v in values):
         raise CliError(f"{option}: gains must be finite and non-negative, got {text!r}")
     return values

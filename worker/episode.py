@@ -1,8 +1,8 @@
 """One episode: the system, control and sensor/actuator layers stepping together at 500 Hz.
 
 The tick loop is the hot path (thousands of episodes, thousands of ticks each): it only copies
-the state into preallocated logs, evaluates the PD law as two 7x14 matrix-vector products and
-steps the physics. Everything else (reference, feed-forward, kinematics of the log, divergence
+the state into preallocated logs, evaluates the PD law as one matrix-vector product and steps
+the physics. Everything else (reference, feed-forward, kinematics of the log, divergence
 checks) is done in bulk, once per episode or once per block of ticks.
 """
 
@@ -34,13 +34,17 @@ def run_episode(spec: EpisodeSpec) -> EpisodeLog:
     plant.reset(reference.q[0])
 
     ticks = len(reference.t)
-    qpos = np.empty((ticks, plant.model.nq))
-    qvel = np.empty((ticks, plant.model.nv))
+    state = np.empty((ticks, plant.model.nq + plant.model.nv))
     torque = np.empty((ticks, len(JOINT_NAMES)))
-    ticks_run, divergence = _simulate(plant, controller, feedforward, reference, qpos, qvel, torque)
+    flange = np.empty((ticks, 3))
+    ticks_run, divergence = _simulate(
+        plant, controller, feedforward, reference, state, torque, flange
+    )
 
-    q = qpos[:ticks_run] @ plant.link_map.T
-    qd = qvel[:ticks_run] @ plant.link_map.T
+    # MuJoCo clamped each command to the motor's ctrlrange (the torque limit) when applying it;
+    # clamping is exact, so doing the same here in bulk logs exactly the torques applied.
+    applied = np.clip(torque[:ticks_run], -plant.torque_limits, plant.torque_limits)
+    qpos, qvel = np.split(state[:ticks_run], [plant.model.nq], axis=1)
     metadata = EpisodeMetadata(
         spec=spec,
         ticks_planned=ticks,
@@ -52,12 +56,12 @@ def run_episode(spec: EpisodeSpec) -> EpisodeLog:
     )
     return EpisodeLog(
         t=reference.t[:ticks_run].copy(),
-        q=q,
-        qd=qd,
-        tau=torque[:ticks_run],
+        q=qpos @ plant.link_map.T,
+        qd=qvel @ plant.link_map.T,
+        tau=applied,
         q_des=reference.q[:ticks_run].copy(),
         qd_des=reference.qd[:ticks_run].copy(),
-        ee=plant.flange_positions(qpos[:ticks_run]),
+        ee=flange[:ticks_run],
         ee_des=reference.ee[:ticks_run].copy(),
         metadata=metadata,
     )
@@ -68,49 +72,59 @@ def _simulate(
     controller: PDController,
     feedforward: np.ndarray,
     reference: Reference,
-    qpos_log: np.ndarray,
-    qvel_log: np.ndarray,
+    state_log: np.ndarray,
     torque_log: np.ndarray,
+    flange_log: np.ndarray,
 ) -> tuple[int, str]:
-    """Run the tick loop; return (ticks kept in the logs, divergence reason or "")."""
-    model, data, substeps = plant.model, plant.data, plant.substeps
-    qpos, qvel, ctrl = data.qpos, data.qvel, data.ctrl
+    """Run the tick loop; return (ticks kept in the logs, divergence reason or "").
+
+    Each tick: mj_step1 brings the kinematics up to the current state (so the flange position is
+    this tick's), the state is sensed, the PD command is set, mj_step2 integrates, and the
+    remaining physics substeps run. The command is logged unclamped; see run_episode.
+    """
+    model, data = plant.model, plant.data
+    ctrl, flange = data.ctrl, data.site_xpos[plant.flange]
     kp_state, kd_state = controller.state_gains(plant.link_map)
-    high = controller.torque_limits
-    low = -high
-    kp_term = np.empty(len(high))
-    kd_term = np.empty(len(high))
-    step = mujoco.mj_step
+    state_gain = np.hstack([kp_state, kd_state])  # Kp q + Kd q̇ = state_gain @ (qpos, qvel)
+    feedback = np.empty(len(controller.kp))
+    sense, signature = (
+        mujoco.mj_getState,
+        mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL,
+    )
+    step1, step2, step = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step
+    substeps = plant.substeps - 1
+    dot, subtract, copy = np.dot, np.subtract, np.copyto
     ticks = len(feedforward)
     for start in range(0, ticks, CHECK_EVERY):
         stop = min(start + CHECK_EVERY, ticks)
-        for k in range(start, stop):
-            np.copyto(qpos_log[k], qpos)
-            np.copyto(qvel_log[k], qvel)
-            u = torque_log[k]
-            np.dot(kp_state, qpos, out=kp_term)
-            np.dot(kd_state, qvel, out=kd_term)
-            np.subtract(feedforward[k], kp_term, out=u)
-            np.subtract(u, kd_term, out=u)
-            np.minimum(u, high, out=u)
-            np.maximum(u, low, out=u)
-            np.copyto(ctrl, u)
-            step(model, data, substeps)
-        bad_tick, reason = _first_divergence(
-            plant, qpos_log[start:stop], qvel_log[start:stop], reference.q[start:stop]
+        block = zip(
+            state_log[start:stop],
+            torque_log[start:stop],
+            flange_log[start:stop],
+            feedforward[start:stop],
+            strict=True,
         )
+        for state, torque, flange_position, reference_term in block:
+            step1(model, data)
+            sense(model, data, state, signature)
+            copy(flange_position, flange)
+            dot(state_gain, state, out=feedback)
+            subtract(reference_term, feedback, out=ctrl)
+            copy(torque, ctrl)
+            step2(model, data)
+            if substeps:
+                step(model, data, substeps)
+        bad_tick, reason = _first_divergence(plant, state_log[start:stop], reference.q[start:stop])
         if bad_tick is not None:
             return start + bad_tick, f"{reason} at t = {(start + bad_tick) * CONTROL_PERIOD:.3f} s"
     return ticks, ""
 
 
-def _first_divergence(
-    plant: Plant, qpos: np.ndarray, qvel: np.ndarray, q_des: np.ndarray
-) -> tuple[int | None, str]:
+def _first_divergence(plant: Plant, state: np.ndarray, q_des: np.ndarray) -> tuple[int | None, str]:
     """First tick of a block where the state is non-finite, out of range or lost, and why."""
-    finite = np.isfinite(qpos).all(axis=1) & np.isfinite(qvel).all(axis=1)
+    finite = np.isfinite(state).all(axis=1)
     with np.errstate(invalid="ignore"):
-        q = qpos @ plant.link_map.T
+        q = state[:, : plant.model.nq] @ plant.link_map.T
         out_of_range = (q < plant.joint_range[:, 0]) | (q > plant.joint_range[:, 1])
         lost = np.abs(q - q_des) > MAX_JOINT_ERROR
     checks = (

@@ -35,16 +35,6 @@ class Plant:
         self.data.qpos[self._driven_qpos] = q
         mujoco.mj_forward(self.model, self.data)
 
-    def flange_positions(self, qpos: np.ndarray) -> np.ndarray:
-        """Flange position (n, 3) for each raw state in `qpos` (n, nq), by forward kinematics."""
-        scratch = mujoco.MjData(self.model)
-        out = np.empty((len(qpos), 3))
-        for k, row in enumerate(qpos):
-            scratch.qpos[:] = row
-            mujoco.mj_kinematics(self.model, scratch)
-            out[k] = scratch.site_xpos[self.flange]
-        return out
-
 
 def _driven_joints(spec: ModelSpec) -> list[str]:
     return [f"{n}_motor" for n in JOINT_NAMES] if spec.joints == "flexible" else list(JOINT_NAMES)

@@ -5,13 +5,14 @@ s in [0, 1], traversed with minimum-jerk timing s(t), so the robot starts and en
 """
 
 import numpy as np
-from scipy.interpolate import CubicSpline
+from scipy.interpolate import PchipInterpolator
 
-from schemas.trajectory import CONTROL_PERIOD, TrajectoryKind, TrajectorySpec
+from schemas.trajectory import CONTROL_PERIOD_NS, TrajectoryKind, TrajectorySpec
 
 
 def sample_times(spec: TrajectorySpec) -> np.ndarray:
-    return np.arange(spec.ticks) * CONTROL_PERIOD
+    """Tick times in s, computed from whole nanoseconds so that log times round-trip exactly."""
+    return np.arange(spec.ticks) * CONTROL_PERIOD_NS / 1e9
 
 
 def minimum_jerk(tau: np.ndarray) -> np.ndarray:
@@ -34,13 +35,16 @@ def _spiral(spec: TrajectorySpec, s: np.ndarray) -> np.ndarray:
 
 
 def _random(spec: TrajectorySpec, s: np.ndarray) -> np.ndarray:
-    """A clamped cubic spline through seeded waypoints drawn in a cube of half-width `size`."""
+    """A smooth curve through seeded waypoints drawn in a cube of half-width `size`.
+
+    PCHIP rather than a cubic spline: it is C¹ and never overshoots its waypoints, so the
+    path stays inside the cube the spec promises (and inside the reachable workspace).
+    """
     rng = np.random.default_rng(spec.seed)
     points = rng.uniform(-spec.size, spec.size, size=(spec.waypoints, 3))
     # Chord-length knots keep the speed even between near and far waypoints.
     knots = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-    spline = CubicSpline(knots / knots[-1], points, bc_type="clamped")
-    return spline(s)
+    return PchipInterpolator(knots / knots[-1], points)(s)
 
 
 def _pyramid(spec: TrajectorySpec, s: np.ndarray) -> np.ndarray:

@@ -1,0 +1,64 @@
+import math
+
+import pytest
+from pydantic import ValidationError
+
+from schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
+from schemas.errors import describe
+
+SEVEN = (1.0,) * 7
+
+
+@pytest.mark.parametrize(
+    "kp",
+    [(1.0,) * 6, (1.0,) * 8, (*SEVEN[:6], math.nan), (*SEVEN[:6], -1.0), (*SEVEN[:6], math.inf)],
+)
+def test_gains_reject_wrong_count_nan_negative_and_infinite(kp):
+    with pytest.raises(ValidationError):
+        PDGains(kp=kp, kd=SEVEN)
+
+
+def test_gains_accept_seven_non_negative_numbers():
+    gains = PDGains(kp=SEVEN, kd=(0.0,) * 7)
+    assert gains.kp == SEVEN and gains.kd == (0.0,) * 7
+
+
+@pytest.mark.parametrize("duration", [0.0, -1.0, 0.05, 1e6, math.nan, math.inf])
+def test_trajectory_rejects_absurd_durations(duration):
+    with pytest.raises(ValidationError):
+        TrajectorySpec(duration=duration)
+
+
+def test_trajectory_rejects_unknown_kind():
+    with pytest.raises(ValidationError):
+        TrajectorySpec(kind="circle")
+
+
+def test_ticks_cover_both_ends_of_the_duration():
+    assert TrajectorySpec(duration=5.0).ticks == 2501
+    assert TrajectorySpec(duration=3.0).ticks == 1501
+
+
+def test_model_spec_records_explicit_elastic_parameters():
+    spec = ModelSpec()
+    assert spec.joints == "flexible"
+    assert len(spec.stiffness) == len(spec.spring_damping) == len(spec.rotor_inertia) == 7
+    with pytest.raises(ValidationError):
+        ModelSpec(substeps=0)
+    with pytest.raises(ValidationError):
+        ModelSpec(stiffness=(0.0,) * 7)
+
+
+def test_specs_are_hashable_and_round_trip_through_json():
+    spec = EpisodeSpec(gains=PDGains(kp=SEVEN, kd=SEVEN))
+    again = EpisodeSpec.model_validate_json(spec.model_dump_json())
+    assert again == spec and hash(again) == hash(spec)
+
+
+def test_describe_names_the_field_and_counts_the_rest():
+    with pytest.raises(ValidationError) as caught:
+        PDGains(kp=(math.nan,) * 7, kd=(-1.0,) * 7)
+    message = describe(caught.value)
+    assert message.startswith("kp.0:")
+    assert "more problems" in message
+    assert "\n" not in message

@@ -1,0 +1,89 @@
+import mujoco
+import numpy as np
+
+from analytic.objectives import score
+from schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
+from tests.helpers import SOFT_GAINS, TRACKING_GAINS
+from worker.control import PDController
+from worker.episode import run_episode
+from worker.plant import Plant
+from worker.reference import reference_for
+
+SHORT = TrajectorySpec(duration=2.0)
+
+
+def test_without_torque_the_arm_falls_under_gravity():
+    log = run_episode(EpisodeSpec(gains=PDGains(kp=(0,) * 7, kd=(0,) * 7), trajectory=SHORT))
+    assert np.all(log.tau == 0)
+    assert log.ee[min(100, log.ticks - 1), 2] < log.ee[0, 2] - 0.05  # dropped 5 cm in 0.2 s
+    assert log.metadata.diverged  # and it keeps falling until it leaves the joint range
+
+
+def test_high_gains_track_far_better_than_low_gains(tracking_log):
+    soft = score(run_episode(EpisodeSpec(gains=SOFT_GAINS, trajectory=SHORT)))
+    stiff = score(tracking_log)
+    assert not soft.diverged and not stiff.diverged
+    assert stiff.f_acc < 0.5 * soft.f_acc
+
+
+def test_applied_torques_obey_the_pd_law_and_never_exceed_the_limits():
+    aggressive = PDGains(kp=(8000,) * 7, kd=(50, 50, 50, 50, 10, 5, 2))
+    log = run_episode(EpisodeSpec(gains=aggressive, trajectory=SHORT))
+    limits = np.array(log.metadata.torque_limits)
+    assert np.all(np.abs(log.tau) <= limits)
+    assert np.any(np.abs(log.tau) == limits)  # these gains do saturate
+    law = PDController.from_gains(aggressive, limits)
+    np.testing.assert_allclose(
+        log.tau, law.torque(log.q, log.qd, log.q_des, log.qd_des), rtol=1e-9, atol=1e-9
+    )
+
+
+def test_episode_starts_at_rest_on_the_reference(tracking_log):
+    np.testing.assert_allclose(tracking_log.q[0], tracking_log.q_des[0], atol=1e-12)
+    np.testing.assert_allclose(tracking_log.qd[0], 0.0, atol=1e-12)
+    np.testing.assert_allclose(tracking_log.ee[0], tracking_log.ee_des[0], atol=1e-3)
+    assert tracking_log.ticks == SHORT.ticks
+
+
+def test_gravity_compensation_improves_tracking():
+    plain = score(run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT)))
+    compensated = score(
+        run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT, gravity_compensation=True))
+    )
+    assert compensated.f_acc < 0.5 * plain.f_acc
+
+
+def test_flexible_joints_deflect_under_load_and_rigid_ones_cannot():
+    spec = ModelSpec()
+    plant = Plant(spec)
+    reference = reference_for(SHORT)
+    plant.reset(reference.q[0])
+    plant.data.ctrl[:] = reference.gravity[0]
+    mujoco.mj_step(plant.model, plant.data, 500)  # settle, holding gravity with the motors
+    deflection = plant.data.qpos[1::2]  # the spring hinges: link angle minus motor angle
+    expected = -reference.gravity[0] / np.array(spec.stiffness)
+    np.testing.assert_allclose(deflection[1], expected[1], rtol=0.1)
+    assert abs(deflection[1]) > 1e-3
+    assert Plant(ModelSpec(joints="rigid")).model.nq == 7
+
+
+def test_flexible_and_rigid_robots_behave_differently_under_the_same_gains():
+    rigid = run_episode(
+        EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT, model=ModelSpec(joints="rigid"))
+    )
+    flexible = run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT))
+    assert np.abs(rigid.q - flexible.q).max() > 1e-4
+
+
+def test_divergence_ends_the_episode_early_with_a_valid_flagged_log(diverged_log):
+    meta = diverged_log.metadata
+    assert meta.diverged and "at t =" in meta.divergence
+    assert 0 < meta.ticks_run < meta.ticks_planned == SHORT.ticks
+    assert diverged_log.ticks == meta.ticks_run
+    assert np.isfinite(diverged_log.q).all() and np.isfinite(diverged_log.tau).all()
+
+
+def test_same_spec_gives_the_same_episode(tracking_log):
+    again = run_episode(tracking_log.metadata.spec)
+    np.testing.assert_array_equal(again.q, tracking_log.q)
+    np.testing.assert_array_equal(again.tau, tracking_log.tau)
