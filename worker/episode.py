@@ -20,7 +20,7 @@ from worker.control import PDController
 from worker.plant import Plant
 from worker.reference import Reference, reference_for
 
-CHECK_EVERY = 50  # ticks between divergence checks (0.1 s): cheap, and early enough
+CHECK_EVERY = 250  # ticks between divergence checks (0.5 s): cheap, and early enough
 MAX_JOINT_ERROR = 1.0  # rad: a tracking error this large is a lost arm, not a tuning trade-off
 
 
@@ -78,9 +78,9 @@ def _simulate(
 ) -> tuple[int, str]:
     """Run the tick loop; return (ticks kept in the logs, divergence reason or "").
 
-    Each tick: mj_step1 brings the kinematics up to the current state (so the flange position is
-    this tick's), the state is sensed, the PD command is set, mj_step2 integrates, and the
-    remaining physics substeps run. The command is logged unclamped; see run_episode.
+    Each tick: sense the state, set the PD command, take the first physics step, then log the
+    flange position (mj_step computes kinematics before it integrates, so site_xpos is still this
+    tick's), then take the remaining substeps. The command is logged unclamped; see run_episode.
     """
     model, data = plant.model, plant.data
     ctrl, flange = data.ctrl, data.site_xpos[plant.flange]
@@ -91,8 +91,8 @@ def _simulate(
         mujoco.mj_getState,
         mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL,
     )
-    step1, step2, step = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step
-    substeps = plant.substeps - 1
+    step = mujoco.mj_step
+    remaining_substeps = plant.substeps - 1
     dot, subtract, copy = np.dot, np.subtract, np.copyto
     ticks = len(feedforward)
     for start in range(0, ticks, CHECK_EVERY):
@@ -105,15 +105,14 @@ def _simulate(
             strict=True,
         )
         for state, torque, flange_position, reference_term in block:
-            step1(model, data)
             sense(model, data, state, signature)
-            copy(flange_position, flange)
             dot(state_gain, state, out=feedback)
             subtract(reference_term, feedback, out=ctrl)
             copy(torque, ctrl)
-            step2(model, data)
-            if substeps:
-                step(model, data, substeps)
+            step(model, data)
+            copy(flange_position, flange)
+            if remaining_substeps:
+                step(model, data, remaining_substeps)
         bad_tick, reason = _first_divergence(plant, state_log[start:stop], reference.q[start:stop])
         if bad_tick is not None:
             return start + bad_tick, f"{reason} at t = {(start + bad_tick) * CONTROL_PERIOD:.3f} s"

@@ -2,6 +2,7 @@ import mujoco
 import numpy as np
 
 from analytic.objectives import score
+from models import compile_model
 from schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
 from tests.helpers import SOFT_GAINS, TRACKING_GAINS
 from worker.control import PDController
@@ -87,3 +88,13 @@ def test_same_spec_gives_the_same_episode(tracking_log):
     again = run_episode(tracking_log.metadata.spec)
     np.testing.assert_array_equal(again.q, tracking_log.q)
     np.testing.assert_array_equal(again.tau, tracking_log.tau)
+
+
+def test_logged_flange_positions_are_the_kinematics_of_the_logged_joint_angles(tracking_log):
+    # The flange is logged mid-tick (after the first physics step); it must still be this tick's.
+    model = compile_model(ModelSpec(joints="rigid"))
+    data = mujoco.MjData(model)
+    for k in (0, 1, 500, tracking_log.ticks - 1):
+        data.qpos[:] = tracking_log.q[k]
+        mujoco.mj_kinematics(model, data)
+        np.testing.assert_allclose(data.site("flange").xpos, tracking_log.ee[k], atol=1e-9)
