@@ -24,9 +24,9 @@ class Plant:
         self.substeps = spec.substeps
         self.link_map = _link_map(self.model)
         self.torque_limits = self.model.actuator_ctrlrange[:, 1].copy()
-        driven = [self.model.joint(name) for name in _driven_joints(spec)]
-        self.joint_range = np.array([joint.range for joint in driven])
-        self._driven_qpos = np.array([self.model.jnt_qposadr[joint.id] for joint in driven])
+        driven = self.model.actuator_trnid[:, 0]  # the hinge each motor turns, A1..A7
+        self.joint_range = self.model.jnt_range[driven].copy()
+        self._driven_qpos = self.model.jnt_qposadr[driven]
         self.flange = self.model.site(FLANGE).id
 
     def reset(self, q: np.ndarray) -> None:
@@ -34,10 +34,6 @@ class Plant:
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[self._driven_qpos] = q
         mujoco.mj_forward(self.model, self.data)
-
-
-def _driven_joints(spec: ModelSpec) -> list[str]:
-    return [f"{n}_motor" for n in JOINT_NAMES] if spec.joints == "flexible" else list(JOINT_NAMES)
 
 
 def _link_map(model: mujoco.MjModel) -> np.ndarray:
