@@ -1,12 +1,13 @@
 """One episode: the system, control and sensor/actuator layers stepping together at 500 Hz.
 
 The tick loop is the hot path (thousands of episodes, thousands of ticks each): it only copies
-the state into preallocated logs, evaluates the PD law as one matrix-vector product and steps
-the physics. Everything else (reference, feed-forward, kinematics of the log, divergence
-checks) is done in bulk, once per episode or once per block of ticks.
+the state and flange position into preallocated logs, evaluates the PD law as one matrix-vector
+product and steps the physics. Everything else (reference, feed-forward, torque clamping in the
+log, divergence checks) is done in bulk, once per episode or once per block of ticks.
 """
 
 import platform
+from functools import cache
 from importlib.metadata import version
 
 import mujoco
@@ -139,6 +140,7 @@ def _first_divergence(plant: Plant, state: np.ndarray, q_des: np.ndarray) -> tup
     return first
 
 
+@cache
 def software_versions() -> dict[str, str]:
     return {
         "gainfarm": version("gainfarm"),
