@@ -1,5 +1,6 @@
 """Bad input gets one clear error line and a non-zero exit: the shared rules of every CLI."""
 
+import logging
 import sys
 
 import click
@@ -36,3 +37,15 @@ def run_app(command: click.Command, program: str) -> None:
     except (click.Abort, KeyboardInterrupt):
         click.echo(f"{program}: interrupted", err=True)
         sys.exit(130)
+
+
+LOG_LEVELS = ("debug", "info", "warning", "error")
+
+
+def setup_logging(program: str, level: str) -> None:
+    """Services log one line per event to stderr, each prefixed by the program that wrote it."""
+    logging.basicConfig(
+        level=level.upper(),
+        format=f"%(asctime)s {program} %(levelname)s %(message)s",
+        datefmt="%H:%M:%S",
+    )

@@ -17,9 +17,7 @@ CRCs its Writer would give them, so that any MCAP reader and any ROS 2 decoder r
 
 import io
 import json
-import os
 import struct
-import tempfile
 import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -53,6 +51,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from schemas.episode import EpisodeMetadata
 from schemas.episode_log import CHANNELS, METADATA_NAME, Channel, EpisodeLog
+from schemas.files import write_atomically
 from schemas.robot import JOINT_NAMES, N_JOINTS
 
 NANOSECONDS = 1_000_000_000
@@ -228,21 +227,12 @@ def _constant_bytes(dtype: np.dtype) -> np.ndarray:
 
 def write_episode(log: EpisodeLog, path: Path) -> int:
     """Write `log` to `path` atomically (a temporary file, then a rename); return its size."""
-    path = Path(path)
-    content = _mcap_bytes(log)
-    fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
-    try:
-        os.fchmod(fd, 0o644)  # mkstemp's 0600 would hide the log from the rest of the farm
-        with os.fdopen(fd, "wb") as stream:
-            stream.write(content)
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
+    content = episode_bytes(log)
+    write_atomically(Path(path), content)
     return len(content)
 
 
-def _mcap_bytes(log: EpisodeLog) -> bytes:
+def episode_bytes(log: EpisodeLog) -> bytes:
     """The whole file, in the order and with the records mcap.writer.Writer would emit for it.
 
     One RecordBuilder holds the whole file from the magic on, so its count is the file offset
@@ -455,8 +445,13 @@ def _write_summary(
 
 def read_episode(path: Path) -> EpisodeLog:
     """Read an episode log written by write_episode; NotAnEpisodeLog if it is not one."""
+    return decode_episode(Path(path).read_bytes(), str(path))
+
+
+def decode_episode(content: bytes, source: str = "episode log") -> EpisodeLog:
+    """Decode the bytes of an episode log; `source` names them in the NotAnEpisodeLog message."""
+    path = source
     try:
-        content = Path(path).read_bytes()
         if not content.startswith(MCAP0_MAGIC):
             raise NotAnEpisodeLog(f"{path}: not an MCAP file (no MCAP magic at its start)")
         if len(content) < 2 * len(MCAP0_MAGIC) or not content.endswith(MCAP0_MAGIC):
@@ -477,7 +472,7 @@ def read_episode(path: Path) -> EpisodeLog:
     return _assemble(path, metadata, messages)
 
 
-def _read_metadata(path: Path, reader: McapReader) -> EpisodeMetadata:
+def _read_metadata(path: str, reader: McapReader) -> EpisodeMetadata:
     for record in reader.iter_metadata():
         if record.name == METADATA_NAME:
             try:
@@ -489,7 +484,7 @@ def _read_metadata(path: Path, reader: McapReader) -> EpisodeMetadata:
     raise NotAnEpisodeLog(f"{path}: no {METADATA_NAME!r} metadata record: not an episode log")
 
 
-def _check_channels(path: Path, summary: Summary) -> None:
+def _check_channels(path: str, summary: Summary) -> None:
     """The channels must be CHANNELS, with the ids write_episode gives them."""
     for channel_id, channel in enumerate(CHANNELS, start=1):
         record = summary.channels.get(channel_id)
@@ -507,7 +502,7 @@ def _check_channels(path: Path, summary: Summary) -> None:
             )
 
 
-def _chunk_messages(path: Path, content: bytes, index: ChunkIndex) -> bytes:
+def _chunk_messages(path: str, content: bytes, index: ChunkIndex) -> bytes:
     """The Message records of the chunk at `index`, decompressed and CRC-checked, without the
     Schema and Channel records that may precede them."""
     start = index.chunk_start_offset
@@ -526,7 +521,7 @@ def _chunk_messages(path: Path, content: bytes, index: ChunkIndex) -> bytes:
     return data[position:]
 
 
-def _decompress(path: Path, chunk: Chunk) -> bytes:
+def _decompress(path: str, chunk: Chunk) -> bytes:
     if chunk.compression == "zstd":
         data = zstandard.ZstdDecompressor().decompress(
             chunk.data, max_output_size=chunk.uncompressed_size
@@ -544,7 +539,7 @@ def _decompress(path: Path, chunk: Chunk) -> bytes:
     return data
 
 
-def _assemble(path: Path, metadata: EpisodeMetadata, messages: bytes) -> EpisodeLog:
+def _assemble(path: str, metadata: EpisodeMetadata, messages: bytes) -> EpisodeLog:
     """View the Message records as ticks, check them against the template, slice out columns."""
     layout = _tick_layout()
     ticks = metadata.ticks_run

@@ -1,7 +1,13 @@
-"""`worker`: the sim-cobot's command line. For now: simulate one episode and score it."""
+"""`worker`: a simulated cobot. Serve a farm (`start`), or run one episode by hand (`episode`)."""
 
 import json
+import logging
 import math
+import os
+import re
+import signal
+import socket
+import threading
 from pathlib import Path
 
 import click
@@ -10,13 +16,14 @@ from pydantic import ValidationError
 from analytic.objectives import score
 from analytic.report import print_scores
 from schemas.episode import EpisodeSpec
-from schemas.errors import CliError, describe, run_app
+from schemas.errors import LOG_LEVELS, CliError, describe, run_app, setup_logging
 from schemas.gains import PDGains
 from schemas.mcap_episode import write_episode
 from schemas.robot import N_JOINTS, ModelSpec
 from schemas.trajectory import TrajectoryKind, TrajectorySpec
 from worker.episode import run_episode
 from worker.ik import UnreachablePath
+from worker.service import CobotWorker, NameTaken
 
 # Stiff enough to track every default trajectory within a few centimetres, soft enough not to
 # saturate: a sensible first episode, not a tuned controller (tuning is the analytic layer's job).
@@ -111,6 +118,47 @@ def episode(
         click.echo(json.dumps({**scores.model_dump(), "log": str(out)}))
     else:
         print_scores(scores, source=str(out))
+
+
+@app.command()
+@click.option(
+    "--connect",
+    multiple=True,
+    default=["tcp/127.0.0.1:7447"],
+    show_default=True,
+    help="the broker's Zenoh endpoint (repeat for several)",
+)
+@click.option("--name", help="unique name of this cobot in the farm  [default: HOST-PID]")
+@click.option("--log-level", type=click.Choice(LOG_LEVELS), default="info", show_default=True)
+def start(connect: tuple[str, ...], name: str | None, log_level: str) -> None:
+    """Serve a farm: ask the broker for jobs while free, run them, return their logs.
+
+    SIGTERM or Ctrl-C: the job in progress is finished and returned, then the worker exits.
+    """
+    setup_logging("worker", log_level)
+    name = name or re.sub(r"[^A-Za-z0-9_.\-]", "-", f"{socket.gethostname()}-{os.getpid()}")
+    stop = threading.Event()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, lambda *_: stop.set())
+    log = logging.getLogger("gainfarm.worker")
+    waiting = False
+    while not stop.is_set():
+        try:
+            cobot = CobotWorker(connect, name)
+        except ValidationError as error:
+            raise CliError(f"--name: {describe(error)}") from None
+        except (NameTaken, ValueError) as error:
+            raise CliError(str(error)) from None
+        except ConnectionError as error:
+            if not waiting:  # a farm's workers often start before its broker
+                log.warning("%s; retrying every second", error)
+                waiting = True
+            stop.wait(1.0)
+            continue
+        with cobot:
+            log.info("worker %s serving %s", name, ", ".join(connect))
+            done = cobot.serve(stop)
+        log.info("worker %s stopped after %d jobs", name, done)
 
 
 def _numbers(option: str, text: str, count: int) -> tuple[float, ...]:

@@ -1,0 +1,211 @@
+"""The farm's messages: what travels between analytic processes, the broker and the workers.
+
+Every message is JSON and carries `protocol`. `decode` is the one way in: it checks size, JSON,
+protocol version and schema, and says in one line what was wrong, so that every listener can
+reject a bad message with a reason and go on serving. The key expressions are in schemas.keys.
+"""
+
+import json
+from enum import StrEnum
+from typing import Annotated, Literal, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from schemas.episode import EpisodeSpec
+from schemas.errors import describe
+
+PROTOCOL_VERSION = 1
+
+# Names become key-expression chunks, so they may not contain '/', '*', '$', '?' or '#'.
+Name = Annotated[str, Field(pattern=r"^[A-Za-z0-9_.\-]{1,64}$")]
+
+# The broker holds a free worker's lease request at most this long before answering "no work now,
+# ask again"; a worker that hears nothing for much longer knows the broker is gone.
+LEASE_HOLD_SECONDS = 1.0
+
+MAX_MESSAGE_BYTES = 4 * 1024 * 1024  # a submission of thousands of jobs fits; a runaway does not
+MAX_EPISODE_BYTES = 256 * 1024 * 1024  # a 120 s episode is ~26 MB
+
+
+class BadMessage(ValueError):
+    """A message that cannot be accepted; str() is the one-line reason."""
+
+
+class WireMessage(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    protocol: Literal[1] = PROTOCOL_VERSION
+
+    def to_bytes(self) -> bytes:
+        return self.model_dump_json().encode()
+
+
+class Job(BaseModel):
+    """One candidate to evaluate: a controller on a trajectory, named by its study."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    job_id: Name
+    episode: EpisodeSpec
+
+
+class Submission(WireMessage):
+    """Analytic → broker: queue these jobs for `study` (whose analytic process must be alive)."""
+
+    study: Name
+    jobs: list[Job] = Field(max_length=10_000)
+
+
+class Rejection(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    job_id: str
+    reason: str
+
+
+class SubmitReply(WireMessage):
+    """Broker → analytic: what became of each job of a Submission."""
+
+    study: str
+    queued: list[str] = []
+    already_pending: list[str] = Field([], description="queued or leased already: a resubmission")
+    rejected: list[Rejection] = []
+
+
+class LeaseRequest(WireMessage):
+    """Worker → broker: I am free; give me a job (the broker may hold this for a while)."""
+
+    worker: Name
+
+
+class Lease(BaseModel):
+    """The right to run one job, until `expires_in` seconds from now."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    lease_id: str
+    study: Name
+    job: Job
+    expires_in: float = Field(gt=0)
+
+
+class LeaseReply(WireMessage):
+    """Broker → worker: a lease, or none (no work now: ask again)."""
+
+    lease: Lease | None = None
+
+
+class JobStatus(StrEnum):
+    ok = "ok"  # the episode ran to its end
+    diverged = "diverged"  # it ran, and was cut short: still data, penalised by the objectives
+    failed = "failed"  # it could not run (e.g. the path is out of reach); `reason` says why
+
+
+class Timings(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    simulate_s: float = Field(ge=0, description="reference, then the tick loop")
+    encode_s: float = Field(ge=0, description="the MCAP episode log, in memory")
+
+
+class Result(WireMessage):
+    """Worker → analytic (and broker): how a job went. Sent as the attachment of a sample whose
+    payload is the MCAP episode log (empty when the job failed)."""
+
+    study: Name
+    job_id: Name
+    lease_id: str
+    worker: Name
+    status: JobStatus
+    reason: str = ""
+    episode_bytes: int = Field(ge=0)
+    timings: Timings
+
+
+class WorkerState(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    name: str
+    busy: bool
+    job: str = Field("", description="study/job_id of its lease, if busy")
+    jobs_done: int
+
+
+class StudyState(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    name: str
+    queued: int
+    leased: int
+    done: int
+
+
+class BrokerStatus(WireMessage):
+    """Broker → anyone who asks: the farm at a glance."""
+
+    uptime_s: float
+    workers: list[WorkerState]
+    studies: list[StudyState]
+    jobs_done: int
+    jobs_per_s: float = Field(description="completions per second over the last minute")
+    requeued: int = Field(description="leases that expired or whose worker died")
+    rejected: int = Field(description="bad messages and jobs turned away")
+
+
+MESSAGES: tuple[type[WireMessage], ...] = (
+    Submission,
+    SubmitReply,
+    LeaseRequest,
+    LeaseReply,
+    Result,
+    BrokerStatus,
+)
+
+M = TypeVar("M", bound=WireMessage)
+
+
+def decode(kind: type[M], raw: bytes | None, limit: int = MAX_MESSAGE_BYTES) -> M:
+    """Parse `raw` as a `kind` message, or raise BadMessage saying why not."""
+    if raw is None:
+        raise BadMessage(f"{kind.__name__}: empty message")
+    if len(raw) > limit:
+        raise BadMessage(f"{kind.__name__}: {len(raw)} bytes, over the limit of {limit}")
+    try:
+        fields = json.loads(raw)
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise BadMessage(f"{kind.__name__}: not JSON ({error})") from None
+    if not isinstance(fields, dict):
+        raise BadMessage(f"{kind.__name__}: not a JSON object")
+    version = fields.get("protocol")
+    if version != PROTOCOL_VERSION:
+        raise BadMessage(
+            f"{kind.__name__}: protocol version {version!r} is not {PROTOCOL_VERSION}, "
+            "the one this gainfarm speaks"
+        )
+    try:
+        return kind.model_validate(fields)
+    except ValidationError as error:
+        raise BadMessage(f"{kind.__name__}: {describe(error)}") from None
+
+
+class _SubmissionEnvelope(WireMessage):
+    study: Name
+    jobs: list[object] = Field(max_length=10_000)
+
+
+def decode_submission(raw: bytes | None) -> tuple[str, list[Job], list[Rejection]]:
+    """A Submission, job by job: one bad job is rejected with its reason, the rest still queue.
+
+    BadMessage if the envelope itself (size, JSON, version, study, list of jobs) is bad.
+    """
+    envelope = decode(_SubmissionEnvelope, raw)
+    jobs: list[Job] = []
+    rejected: list[Rejection] = []
+    for index, fields in enumerate(envelope.jobs):
+        try:
+            jobs.append(Job.model_validate(fields))
+        except ValidationError as error:
+            job_id = fields.get("job_id") if isinstance(fields, dict) else None
+            name = job_id if isinstance(job_id, str) else f"jobs[{index}]"
+            rejected.append(Rejection(job_id=name, reason=describe(error)))
+    return envelope.study, jobs, rejected

@@ -1,0 +1,43 @@
+"""One leased job, start to finish: simulate it, encode its log, say how it went. No Zenoh here.
+
+A job that cannot run is a result too (status failed, with the reason), never an exception that
+would take the worker down: the farm goes on serving, and the analytic side learns why.
+"""
+
+import time
+
+from schemas.mcap_episode import episode_bytes
+from schemas.wire import JobStatus, Lease, Result, Timings
+from worker.episode import run_episode
+from worker.ik import UnreachablePath
+
+
+def execute(lease: Lease, worker: str) -> tuple[Result, bytes]:
+    """Run the lease's episode; return its Result and the MCAP bytes (empty if it failed)."""
+    started = time.perf_counter()
+    content = b""
+    reason = ""
+    try:
+        log = run_episode(lease.job.episode)
+    except UnreachablePath as error:
+        status, reason = JobStatus.failed, str(error)
+    except Exception as error:  # a bug or a bad spec must not kill a cobot serving a farm
+        status, reason = JobStatus.failed, f"{type(error).__name__}: {error}"
+    else:
+        status = JobStatus.diverged if log.metadata.diverged else JobStatus.ok
+        reason = log.metadata.divergence
+    simulated = time.perf_counter()
+    if status != JobStatus.failed:
+        content = episode_bytes(log)
+    encoded = time.perf_counter()
+    result = Result(
+        study=lease.study,
+        job_id=lease.job.job_id,
+        lease_id=lease.lease_id,
+        worker=worker,
+        status=status,
+        reason=reason,
+        episode_bytes=len(content),
+        timings=Timings(simulate_s=simulated - started, encode_s=encoded - simulated),
+    )
+    return result, content
