@@ -1,14 +1,30 @@
-"""`analytic`: the analytic layer's command line. For now: score an episode log."""
+"""`analytic`: the analytic layer. Score an episode log (`evaluate`), evaluate candidates on the
+farm (`batch`)."""
 
+import contextlib
 import json
+import os
+import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import click
+from pydantic import TypeAdapter, ValidationError
+from rich.console import Console
+from rich.progress import Progress
+from rich.table import Table
 
+from analytic.batch import EVALUATIONS, batch_jobs, run_batch
+from analytic.farm import DEFAULT_DEADLINE, Evaluation, FarmClient, FarmUnavailable
+from analytic.local import local_farm
 from analytic.objectives import score
 from analytic.report import print_scores
-from schemas.errors import CliError, run_app
+from schemas.errors import CliError, describe, run_app
+from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import NotAnEpisodeLog, read_episode
+from schemas.robot import ModelSpec
+from schemas.trajectory import TrajectoryKind, TrajectorySpec
+from schemas.wire import BadMessage
 
 
 @click.group(help=__doc__, no_args_is_help=True)
@@ -31,6 +47,159 @@ def evaluate(log: Path, as_json: bool) -> None:
         click.echo(json.dumps({**scores.model_dump(), "log": str(log)}))
     else:
         print_scores(scores, source=str(log))
+
+
+@app.command()
+@click.option("--connect", multiple=True, help="a running broker's Zenoh endpoint")
+@click.option("--local", is_flag=True, help="run the farm here: a broker in this process, workers")
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1, max=64),
+    default=1,
+    show_default=True,
+    help="with --local: how many worker processes",
+)
+@click.option(
+    "--gains",
+    "gains_file",
+    type=click.Path(path_type=Path),
+    help='JSON list of candidates, [{"kp": [7], "kd": [7]}, ...]  [default: the default gains]',
+)
+@click.option(
+    "--trajectory",
+    "kinds",
+    multiple=True,
+    type=click.Choice([kind.value for kind in TrajectoryKind]),
+    default=["spiral"],
+    show_default=True,
+    help="repeat for several",
+)
+@click.option("--duration", type=float, default=5.0, show_default=True, help="seconds")
+@click.option(
+    "--model", type=click.Choice(["flexible", "rigid"]), default="flexible", show_default=True
+)
+@click.option(
+    "--run-dir",
+    type=click.Path(path_type=Path),
+    help="where episodes/ and evaluations.json go  [default: runs/batch-TIME]",
+)
+@click.option(
+    "--deadline",
+    type=click.FloatRange(min=1),
+    default=DEFAULT_DEADLINE,
+    show_default=True,
+    help="seconds before an unanswered job is resubmitted",
+)
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object per evaluation")
+def batch(
+    connect: tuple[str, ...],
+    local: bool,
+    workers: int,
+    gains_file: Path | None,
+    kinds: tuple[str, ...],
+    duration: float,
+    model: str,
+    run_dir: Path | None,
+    deadline: float,
+    as_json: bool,
+) -> None:
+    """Evaluate candidate gains on trajectories through the farm; keep and score every episode."""
+    if bool(connect) == local:
+        raise CliError("say where the farm is: --connect ENDPOINT or --local")
+    candidates = _candidates(gains_file)
+    try:
+        trajectories = [TrajectorySpec(kind=kind, duration=duration) for kind in kinds]
+    except ValidationError as error:
+        raise CliError(describe(error)) from None
+    jobs = batch_jobs(candidates, trajectories, ModelSpec(joints=model))
+    run_dir = run_dir or Path("runs") / time.strftime("batch-%Y%m%d-%H%M%S")
+    if (run_dir / EVALUATIONS).exists():
+        raise CliError(f"--run-dir: {str(run_dir)!r} already holds a batch; choose another")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise CliError(f"--run-dir: cannot create {str(run_dir)!r}: {error.strerror}") from None
+    with _farm(connect, local, workers) as endpoints:
+        try:
+            farm = FarmClient(endpoints, f"batch-{os.getpid()}", run_dir, deadline=deadline)
+        except (ValueError, ConnectionError) as error:
+            raise CliError(str(error)) from None
+        with farm, Progress(transient=True, disable=as_json) as progress:
+            task = progress.add_task("evaluating", total=len(jobs))
+
+            def report(evaluation: Evaluation) -> None:
+                progress.advance(task)
+                if as_json:
+                    click.echo(json.dumps(_summary(evaluation)))
+
+            try:
+                evaluations = run_batch(farm, jobs, report)
+            except BadMessage as error:
+                raise CliError(str(error)) from None
+    if not as_json:
+        _print_evaluations(evaluations, run_dir)
+
+
+@contextlib.contextmanager
+def _farm(connect: tuple[str, ...], local: bool, workers: int) -> Iterator[list[str]]:
+    if not local:
+        yield list(connect)
+        return
+    try:
+        with local_farm(workers) as endpoint:
+            yield [endpoint]
+    except (ValueError, ConnectionError, FarmUnavailable) as error:
+        raise CliError(f"local farm: {error}") from None
+
+
+def _candidates(path: Path | None) -> list[PDGains]:
+    if path is None:
+        return [DEFAULT_GAINS]
+    try:
+        candidates = TypeAdapter(list[PDGains]).validate_json(path.read_bytes())
+    except OSError as error:
+        raise CliError(f"--gains: cannot read {str(path)!r}: {error.strerror}") from None
+    except ValidationError as error:
+        raise CliError(f"--gains: {describe(error)}") from None
+    if not candidates:
+        raise CliError("--gains: the list of candidates is empty")
+    return candidates
+
+
+def _summary(evaluation: Evaluation) -> dict[str, object]:
+    scores = evaluation.scores.model_dump() if evaluation.scores else {}
+    episode = str(evaluation.episode) if evaluation.episode else None
+    return {
+        "job_id": evaluation.job_id,
+        "status": evaluation.status,
+        **scores,
+        "reason": evaluation.reason,
+        "episode": episode,
+    }
+
+
+def _print_evaluations(evaluations: list[Evaluation], run_dir: Path) -> None:
+    table = Table(
+        "job",
+        "status",
+        "f_acc (mm)",
+        "f_t ((N·m)²)",
+        "worker",
+        title=f"{run_dir}/{EVALUATIONS}",
+        title_justify="left",
+    )
+    for evaluation in evaluations:
+        scores = evaluation.scores
+        table.add_row(
+            evaluation.job_id,
+            evaluation.status
+            if not evaluation.reason
+            else f"{evaluation.status}: {evaluation.reason}",
+            f"{scores.f_acc * 1000:.3f}" if scores else "",
+            f"{scores.f_t:.4g}" if scores else "",
+            evaluation.worker,
+        )
+    Console().print(table)
 
 
 def main() -> None:

@@ -20,6 +20,7 @@ from pathlib import Path
 import zenoh
 
 from analytic.objectives import score
+from broker.status import BrokerUnavailable, query_status
 from schemas import keys
 from schemas.episode import EpisodeSpec, Scores
 from schemas.files import write_atomically
@@ -117,7 +118,7 @@ class FarmClient:
         return len(self._pending) + len(self._ready)
 
     def status(self) -> BrokerStatus:
-        return broker_status(self.session)
+        return query_status(self.session)
 
     def submit(self, specs: Mapping[str, EpisodeSpec]) -> None:
         """Queue one job per (job id, spec). A job id may not be pending already."""
@@ -168,8 +169,8 @@ class FarmClient:
         give_up = time.monotonic() + ANSWER_SECONDS
         while time.monotonic() < give_up:
             try:
-                status = broker_status(self.session, timeout=1.0)
-            except FarmUnavailable:
+                status = query_status(self.session, timeout=1.0)
+            except BrokerUnavailable:
                 time.sleep(0.1)
                 continue
             if any(study.name == self.study for study in status.studies):
@@ -288,10 +289,3 @@ class FarmClient:
             attempts=pending.attempts,
             timings=None,
         )
-
-
-def broker_status(session: zenoh.Session, timeout: float = ANSWER_SECONDS) -> BrokerStatus:
-    for reply in session.get(keys.STATUS, timeout=timeout):
-        if reply.ok is not None:
-            return decode(BrokerStatus, reply.ok.payload.to_bytes())
-    raise FarmUnavailable("no gainfarm broker answered a status query")

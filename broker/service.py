@@ -44,6 +44,7 @@ class Broker:
         lease_seconds: float = 60.0,
         hold_seconds: float = LEASE_HOLD_SECONDS,
     ):
+        self.endpoints = list(listen)
         self.queue: LeaseQueue[zenoh.Query] = LeaseQueue(lease_seconds)
         self.hold_seconds = hold_seconds
         self.rejected = 0

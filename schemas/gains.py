@@ -17,3 +17,8 @@ class PDGains(BaseModel):
 
     kp: PerJointGains
     kd: PerJointGains
+
+
+# Stiff enough to track every default trajectory within a few centimetres, soft enough not to
+# saturate: a sensible first controller, not a tuned one (tuning is the analytic layer's job).
+DEFAULT_GAINS = PDGains(kp=(2000, 2000, 1200, 1200, 400, 200, 100), kd=(60, 60, 40, 40, 10, 5, 2))

@@ -1,9 +1,15 @@
 """Shared fixtures: real episodes simulated in MuJoCo, kept short so the suite stays fast."""
 
-import pytest
+from collections.abc import Iterator
 
+import pytest
+import zenoh
+
+from analytic.local import free_port
+from broker.service import Broker
 from schemas import EpisodeSpec, TrajectorySpec
 from schemas.episode_log import EpisodeLog
+from schemas.transport import open_session
 from tests.helpers import TRACKING_GAINS, WEAK_GAINS
 from worker.episode import run_episode
 
@@ -18,3 +24,18 @@ def tracking_log() -> EpisodeLog:
 def diverged_log() -> EpisodeLog:
     """Gains far too soft to hold the arm up: it falls and the episode is stopped early."""
     return run_episode(EpisodeSpec(gains=WEAK_GAINS, trajectory=TrajectorySpec(duration=2.0)))
+
+
+@pytest.fixture
+def broker() -> Iterator[Broker]:
+    """A broker (a Zenoh router) on a free loopback port, with multicast scouting off."""
+    with Broker([f"tcp/127.0.0.1:{free_port()}"], lease_seconds=30.0) as running:
+        yield running
+
+
+@pytest.fixture
+def session(broker: Broker) -> Iterator[zenoh.Session]:
+    """A plain client session connected to `broker`, for playing any part by hand."""
+    client = open_session("client", connect=broker.endpoints)
+    yield client
+    client.close()

@@ -17,7 +17,7 @@ from analytic.objectives import score
 from analytic.report import print_scores
 from schemas.episode import EpisodeSpec
 from schemas.errors import LOG_LEVELS, CliError, describe, run_app, setup_logging
-from schemas.gains import PDGains
+from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import write_episode
 from schemas.robot import N_JOINTS, ModelSpec
 from schemas.trajectory import TrajectoryKind, TrajectorySpec
@@ -25,10 +25,8 @@ from worker.episode import run_episode
 from worker.ik import UnreachablePath
 from worker.service import CobotWorker, NameTaken
 
-# Stiff enough to track every default trajectory within a few centimetres, soft enough not to
-# saturate: a sensible first episode, not a tuned controller (tuning is the analytic layer's job).
-DEFAULT_KP = "2000,2000,1200,1200,400,200,100"
-DEFAULT_KD = "60,60,40,40,10,5,2"
+DEFAULT_KP = ",".join(f"{gain:g}" for gain in DEFAULT_GAINS.kp)
+DEFAULT_KD = ",".join(f"{gain:g}" for gain in DEFAULT_GAINS.kd)
 
 
 @click.group(help=__doc__, no_args_is_help=True)

@@ -1,0 +1,3 @@
+from analytic.cli import main
+
+main()

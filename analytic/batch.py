@@ -1,0 +1,62 @@
+"""Evaluate a fixed set of candidate gains on a set of trajectories, through the farm.
+
+The farm's plainest use, and NSGA-II's building block: every (candidate, trajectory) pair is one
+job; each evaluation is scored from its log; the run directory ends up with episodes/ and an
+evaluations.json that says which file holds what.
+"""
+
+import json
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from analytic.farm import Evaluation, FarmClient
+from schemas.episode import EpisodeSpec
+from schemas.files import write_atomically
+from schemas.gains import PDGains
+from schemas.robot import ModelSpec
+from schemas.trajectory import TrajectorySpec
+
+EVALUATIONS = "evaluations.json"
+
+
+def batch_jobs(
+    candidates: Sequence[PDGains], trajectories: Sequence[TrajectorySpec], model: ModelSpec
+) -> dict[str, EpisodeSpec]:
+    """Job id → spec, one per pair; ids say which candidate on which trajectory."""
+    return {
+        f"c{index:03d}-{number}-{trajectory.kind.value}": EpisodeSpec(
+            gains=gains, trajectory=trajectory, model=model
+        )
+        for index, gains in enumerate(candidates)
+        for number, trajectory in enumerate(trajectories)
+    }
+
+
+def run_batch(
+    farm: FarmClient,
+    jobs: dict[str, EpisodeSpec],
+    on_evaluation: Callable[[Evaluation], None] = lambda _: None,
+) -> list[Evaluation]:
+    """Submit every job, collect every evaluation (in job order), write evaluations.json."""
+    farm.submit(jobs)
+    evaluations = {}
+    for evaluation in farm.results():
+        evaluations[evaluation.job_id] = evaluation
+        on_evaluation(evaluation)
+    ordered = [evaluations[job_id] for job_id in jobs if job_id in evaluations]
+    records = [evaluation_record(evaluation, farm.episodes.parent) for evaluation in ordered]
+    write_atomically(farm.episodes.parent / EVALUATIONS, json.dumps(records, indent=1).encode())
+    return ordered
+
+
+def evaluation_record(evaluation: Evaluation, run_dir: Path) -> dict[str, object]:
+    return {
+        "job_id": evaluation.job_id,
+        "status": evaluation.status,
+        "reason": evaluation.reason,
+        "scores": evaluation.scores.model_dump() if evaluation.scores else None,
+        "episode": str(evaluation.episode.relative_to(run_dir)) if evaluation.episode else None,
+        "spec": evaluation.spec.model_dump(mode="json"),
+        "worker": evaluation.worker,
+        "attempts": evaluation.attempts,
+    }

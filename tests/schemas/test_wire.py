@@ -1,0 +1,85 @@
+"""The wire contract: every message decodes only when it is whole, current and valid."""
+
+import json
+
+import pytest
+
+from schemas import json_schema
+from schemas.wire import (
+    MAX_MESSAGE_BYTES,
+    PROTOCOL_VERSION,
+    BadMessage,
+    Job,
+    LeaseRequest,
+    Result,
+    Submission,
+    decode,
+    decode_submission,
+)
+from tests.helpers import short_spec
+
+
+def test_json_schema_files_are_generated_from_the_current_models() -> None:
+    assert json_schema.stale() == [], "run: python -m schemas.json_schema"
+
+
+def test_every_message_carries_the_protocol_version() -> None:
+    for name, content in json_schema.rendered().items():
+        assert json.loads(content)["properties"]["protocol"]["const"] == PROTOCOL_VERSION, name
+
+
+def test_a_message_round_trips() -> None:
+    submission = Submission(study="s", jobs=[Job(job_id="j1", episode=short_spec())])
+    assert decode(Submission, submission.to_bytes()) == submission
+
+
+@pytest.mark.parametrize(
+    ("raw", "reason"),
+    [
+        (None, "empty message"),
+        (b"{not json", "not JSON"),
+        (b"\xff\xfe", "not JSON"),
+        (b"[1, 2]", "not a JSON object"),
+        (b'{"worker": "w"}', "protocol version None is not 1"),
+        (b'{"protocol": 2, "worker": "w"}', "protocol version 2 is not 1"),
+        (b'{"protocol": 1}', "worker: Field required"),
+        (b'{"protocol": 1, "worker": "a/b"}', "worker: String should match pattern"),
+        (b'{"protocol": 1, "worker": "w", "extra": 1}', "extra: Extra inputs are not permitted"),
+        (b" " * (MAX_MESSAGE_BYTES + 1), "over the limit"),
+    ],
+)
+def test_a_bad_message_is_refused_with_its_reason(raw: bytes | None, reason: str) -> None:
+    with pytest.raises(BadMessage, match=reason) as refused:
+        decode(LeaseRequest, raw)
+    assert "\n" not in str(refused.value)
+
+
+def test_a_submission_is_judged_job_by_job() -> None:
+    good = Job(job_id="good", episode=short_spec()).model_dump(mode="json")
+    bad = {**good, "job_id": "bad", "episode": {"gains": {"kp": [1], "kd": [1]}}}
+    raw = json.dumps({"protocol": 1, "study": "s", "jobs": [good, bad, 42]}).encode()
+    study, jobs, rejected = decode_submission(raw)
+    assert study == "s"
+    assert [job.job_id for job in jobs] == ["good"]
+    assert [rejection.job_id for rejection in rejected] == ["bad", "jobs[2]"]
+    assert "episode.gains.kp" in rejected[0].reason
+
+
+def test_a_submission_with_a_bad_envelope_is_refused_whole() -> None:
+    with pytest.raises(BadMessage, match="study"):
+        decode_submission(b'{"protocol": 1, "study": "no/slashes", "jobs": []}')
+
+
+def test_a_result_names_must_be_key_safe() -> None:
+    fields = dict(
+        study="s",
+        job_id="j",
+        lease_id="l",
+        worker="w",
+        status="ok",
+        episode_bytes=0,
+        timings={"simulate_s": 0.1, "encode_s": 0.0},
+    )
+    Result(**fields)
+    with pytest.raises(ValueError, match="job_id"):
+        Result(**{**fields, "job_id": "j/*"})
