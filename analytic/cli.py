@@ -110,7 +110,7 @@ def batch(
     try:
         trajectories = [TrajectorySpec(kind=kind, duration=duration) for kind in kinds]
     except ValidationError as error:
-        raise CliError(describe(error)) from None
+        raise CliError(f"--{describe(error)}") from None  # duration is the only field left open
     jobs = batch_jobs(candidates, trajectories, ModelSpec(joints=model))
     run_dir = run_dir or Path("runs") / time.strftime("batch-%Y%m%d-%H%M%S")
     if (run_dir / EVALUATIONS).exists():

@@ -131,17 +131,20 @@ class LeaseQueue(Generic[W]):
         outcome.assignments = self._wake_parked()
         return outcome
 
-    def complete(self, study_name: str, job_id: str) -> bool:
-        """A result arrived: True if it is the job's first, False for a duplicate or stray."""
+    def complete(self, study_name: str, job_id: str, worker_name: str) -> bool:
+        """`worker_name` sent a result: True if it is the job's first, False for a duplicate or
+        a stray. A late result from an expired lease counts too, and the job need not run again.
+        """
         study = self._studies.get(study_name)
         if study is None or job_id in study.done:
             return False
         lease = study.leased.pop(job_id, None)
         if lease is not None:
+            # If the job was leased again, its new worker is still busy with it: that worker is
+            # freed when it next asks for work.
             worker = self._workers.get(lease.worker)
-            if worker is not None and worker.lease is lease:
+            if lease.worker == worker_name and worker is not None and worker.lease is lease:
                 worker.lease = None
-                worker.jobs_done += 1
         elif job_id in study.queued_ids:  # a late result from an expired lease: the job was
             # waiting to be leased again, and need not be
             study.queue.remove(next(item for item in study.queue if item.job.job_id == job_id))
@@ -149,6 +152,9 @@ class LeaseQueue(Generic[W]):
         else:
             return False
         study.done.add(job_id)
+        sender = self._workers.get(worker_name)
+        if sender is not None:
+            sender.jobs_done += 1
         self.jobs_done += 1
         now = self._clock()
         self._completions.append(now)
@@ -162,12 +168,13 @@ class LeaseQueue(Generic[W]):
         """A worker is free and asks for work: a lease now, or None and the waiter is parked.
 
         The second value is a waiter this one replaces (the same worker asked again), to be
-        answered with "no work". A worker asks only when free, so a lease it still holds was
-        abandoned and goes back to its queue.
+        answered with "no work". A worker asks only when free, so it is done with any lease it
+        still holds; but that lease's result may still be on its way (it travels on another
+        key, and Zenoh does not order the two), so the lease stands until its result or its
+        expiry.
         """
         worker = self._workers.setdefault(worker_name, _Worker(worker_name))
-        if worker.lease is not None:
-            self._requeue(worker.lease)
+        worker.lease = None
         replaced = self._parked.pop(worker_name, None)
         lease = self._next_lease(worker)
         if lease is None:
@@ -197,7 +204,8 @@ class LeaseQueue(Generic[W]):
         """Take back every lease past its expiry."""
         now = self._clock()
         for study in list(self._studies.values()):
-            for lease in [lease for lease in study.leased.values() if lease.expires <= now]:
+            expired = [lease for lease in study.leased.values() if lease.expires <= now]
+            for lease in reversed(expired):  # each goes to the front: the oldest ends up first
                 self._requeue(lease)
         return self._wake_parked()
 

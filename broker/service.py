@@ -152,7 +152,7 @@ class Broker:
             log.warning("ignored a result on %s: %s", sample.key_expr, error)
             return
         with self._lock:
-            first = self.queue.complete(result.study, result.job_id)
+            first = self.queue.complete(result.study, result.job_id, result.worker)
         if not first:
             log.info("duplicate result for %s/%s ignored", result.study, result.job_id)
 

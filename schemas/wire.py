@@ -17,7 +17,9 @@ from schemas.errors import describe
 PROTOCOL_VERSION = 1
 
 # Names become key-expression chunks, so they may not contain '/', '*', '$', '?' or '#'.
-Name = Annotated[str, Field(pattern=r"^[A-Za-z0-9_.\-]{1,64}$")]
+NAME_PATTERN = r"^[A-Za-z0-9_.\-]{1,64}$"
+NAME_RULE = "1 to 64 letters, digits, '_', '.' or '-'"
+Name = Annotated[str, Field(pattern=NAME_PATTERN)]
 
 # The broker holds a free worker's lease request at most this long before answering "no work now,
 # ask again"; a worker that hears nothing for much longer knows the broker is gone.

@@ -21,6 +21,7 @@ from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import write_episode
 from schemas.robot import N_JOINTS, ModelSpec
 from schemas.trajectory import TrajectoryKind, TrajectorySpec
+from schemas.wire import NAME_PATTERN, NAME_RULE
 from worker.episode import run_episode
 from worker.ik import UnreachablePath
 from worker.service import CobotWorker, NameTaken
@@ -135,6 +136,8 @@ def start(connect: tuple[str, ...], name: str | None, log_level: str) -> None:
     """
     setup_logging("worker", log_level)
     name = name or re.sub(r"[^A-Za-z0-9_.\-]", "-", f"{socket.gethostname()}-{os.getpid()}")
+    if not re.fullmatch(NAME_PATTERN, name):
+        raise CliError(f"--name: {name!r} is not {NAME_RULE}")
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
@@ -143,8 +146,6 @@ def start(connect: tuple[str, ...], name: str | None, log_level: str) -> None:
     while not stop.is_set():
         try:
             cobot = CobotWorker(connect, name)
-        except ValidationError as error:
-            raise CliError(f"--name: {describe(error)}") from None
         except (NameTaken, ValueError) as error:
             raise CliError(str(error)) from None
         except ConnectionError as error:

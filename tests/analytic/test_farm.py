@@ -1,0 +1,278 @@
+"""The analytic side's client on a real farm: a broker, worker processes, Zenoh on loopback."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from analytic.farm import FarmClient, FarmUnavailable
+from analytic.local import local_farm, spawn_worker, stop_workers
+from analytic.objectives import score
+from broker.service import Broker
+from schemas import keys
+from schemas.gains import PDGains
+from schemas.mcap_episode import read_episode
+from schemas.wire import JobStatus, Result, Timings
+from tests.helpers import SOFT_GAINS, TRACKING_GAINS, short_spec, wait_for
+
+
+def test_several_workers_share_a_batch_and_every_episode_is_kept_and_scored(
+    tmp_path: Path,
+) -> None:
+    specs = {f"j{n}": short_spec(duration=1.0 + 0.1 * n) for n in range(8)}
+    with local_farm(workers=2) as endpoint, FarmClient([endpoint], "s", tmp_path) as farm:
+        farm.submit(specs)
+        evaluations = list(farm.results(timeout=120))
+        workers = {worker.name: worker.jobs_done for worker in farm.status().workers}
+    assert sorted(evaluation.job_id for evaluation in evaluations) == sorted(specs)
+    assert set(workers) == {"local-0", "local-1"} and all(workers.values())
+    for evaluation in evaluations:
+        assert evaluation.status == "ok" and evaluation.attempts == 1
+        assert evaluation.episode == tmp_path / "episodes" / f"{evaluation.job_id}.mcap"
+        log = read_episode(evaluation.episode)
+        assert log.metadata.spec == specs[evaluation.job_id]
+        assert score(log) == evaluation.scores
+    assert not list((tmp_path / "episodes").glob(".*"))  # no temporary files left behind
+
+
+def test_a_worker_killed_mid_job_loses_no_evaluation_and_none_is_counted_twice(
+    broker: Broker, tmp_path: Path
+) -> None:
+    endpoint = broker.endpoints[0]
+    workers = [spawn_worker(endpoint, "victim"), spawn_worker(endpoint, "survivor")]
+    try:
+        with FarmClient([endpoint], "s", tmp_path) as farm:
+            wait_for(lambda: len(broker.status().workers) == 2, timeout=30, what="workers")
+            # Long enough (about a second of simulation each) to be killed in the middle.
+            specs = {f"j{n}": short_spec(duration=50.0 + n) for n in range(4)}
+            farm.submit(specs)
+            wait_for(lambda: _busy(broker, "victim"), timeout=30, what="the victim to start")
+            workers[0].send_signal(signal.SIGKILL)
+            evaluations = list(farm.results(timeout=120))
+            assert farm.duplicates == 0
+    finally:
+        stop_workers(workers)
+    assert sorted(evaluation.job_id for evaluation in evaluations) == sorted(specs)
+    assert all(evaluation.status == "ok" for evaluation in evaluations)
+    assert {evaluation.worker for evaluation in evaluations} >= {"survivor"}
+    assert broker.queue.requeued >= 1
+    assert broker.queue.jobs_done == len(specs)
+
+
+def _busy(broker: Broker, name: str) -> bool:
+    return any(worker.name == name and worker.busy for worker in broker.status().workers)
+
+
+def test_two_analytic_processes_share_the_farm(broker: Broker, tmp_path: Path) -> None:
+    endpoint = broker.endpoints[0]
+    candidates = tmp_path / "candidates.json"
+    candidates.write_text(
+        json.dumps([gains.model_dump() for gains in (TRACKING_GAINS, SOFT_GAINS)])
+    )
+    workers = [spawn_worker(endpoint, f"w{n}") for n in range(2)]
+    try:
+        command = [
+            sys.executable,
+            "-m",
+            "analytic",
+            "batch",
+            "--connect",
+            endpoint,
+            "--gains",
+            str(candidates),
+            "--duration",
+            "1",
+            "--json",
+        ]
+        runs = [
+            subprocess.Popen(
+                [*command, "--run-dir", str(tmp_path / name)],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            for name in ("a", "b")
+        ]
+        outputs = [run.communicate(timeout=120) for run in runs]
+    finally:
+        stop_workers(workers)
+    for run, (out, err) in zip(runs, outputs, strict=True):
+        assert run.returncode == 0, err
+        assert [json.loads(line)["status"] for line in out.splitlines()] == ["ok", "ok"]
+    for name in ("a", "b"):
+        records = json.loads((tmp_path / name / "evaluations.json").read_text())
+        assert [record["job_id"] for record in records] == ["c000-0-spiral", "c001-0-spiral"]
+        assert all((tmp_path / name / record["episode"]).is_file() for record in records)
+    assert broker.queue.jobs_done == 4
+
+
+def test_a_job_the_broker_lost_is_resubmitted_at_its_deadline(
+    broker: Broker, tmp_path: Path
+) -> None:
+    with FarmClient(broker.endpoints, "s", tmp_path, deadline=0.5) as farm:
+        farm.submit({"j": short_spec()})
+        # The broker forgets every job of the study (as if it had restarted)...
+        broker.queue.close_study("s")
+        broker.queue.open_study("s")
+        # ... so only the client's resubmission brings the job to the worker.
+        worker = spawn_worker(broker.endpoints[0], "w")
+        try:
+            [evaluation] = list(farm.results(timeout=60))
+        finally:
+            stop_workers([worker])
+    assert evaluation.status == "ok" and evaluation.attempts == 2
+
+
+def test_a_job_still_queued_at_its_deadline_is_not_another_attempt(
+    broker: Broker, tmp_path: Path
+) -> None:
+    with FarmClient(broker.endpoints, "s", tmp_path, deadline=0.3, attempts=2) as farm:
+        farm.submit({"j": short_spec()})
+        assert list(farm.results(timeout=1.0)) == []  # overdue thrice, but the broker has it
+        worker = spawn_worker(broker.endpoints[0], "w")
+        try:
+            [evaluation] = list(farm.results(timeout=60))
+        finally:
+            stop_workers([worker])
+    assert evaluation.status == "ok" and evaluation.attempts == 1
+
+
+def test_a_job_without_a_result_after_every_attempt_is_reported_lost(
+    broker: Broker, tmp_path: Path
+) -> None:
+    with FarmClient(broker.endpoints, "s", tmp_path, deadline=0.2, attempts=1) as farm:
+        farm.submit({"j": short_spec()})
+        broker.queue.close_study("s")
+        broker.queue.open_study("s")
+        [evaluation] = list(farm.results(timeout=10))
+    assert evaluation.status == "lost" and evaluation.reason == "no result after 1 attempts"
+    assert evaluation.scores is None and evaluation.episode is None
+
+
+def test_bad_results_on_the_studys_key_are_ignored_or_reported(
+    broker: Broker, session: zenoh.Session, tmp_path: Path
+) -> None:
+    with FarmClient(broker.endpoints, "s", tmp_path, deadline=60) as farm:
+        farm.submit({"j1": short_spec(), "j2": short_spec(duration=0.6)})
+        good = Result(
+            study="s",
+            job_id="j1",
+            lease_id="x",
+            worker="liar",
+            status=JobStatus.ok,
+            episode_bytes=5,
+            timings=Timings(simulate_s=0, encode_s=0),
+        )
+        session.put(keys.result("s", "j1"), b"hello", attachment=b"garbage")
+        session.put(keys.result("s", "j1"), b"hello")
+        session.put(
+            keys.result("s", "nope"),
+            b"",
+            attachment=good.model_copy(update={"job_id": "nope"}).to_bytes(),
+        )
+        session.put(keys.result("s", "j1"), b"hello", attachment=good.to_bytes())
+        worker = spawn_worker(broker.endpoints[0], "w")
+        try:
+            evaluations = {evaluation.job_id: evaluation for evaluation in farm.results(60)}
+        finally:
+            stop_workers([worker])
+        assert farm.ignored == 2 and farm.duplicates >= 1
+    assert evaluations["j1"].status == "failed"
+    assert evaluations["j1"].reason.startswith("unusable episode log: ")
+    assert evaluations["j2"].status == "ok"
+    assert not (tmp_path / "episodes" / "j1.mcap").exists()
+
+
+def test_a_diverged_episode_is_an_evaluation_with_penalised_scores(
+    broker: Broker, tmp_path: Path
+) -> None:
+    weak = PDGains(kp=(5,) * 7, kd=(1,) * 7)
+    worker = spawn_worker(broker.endpoints[0], "w")
+    try:
+        with FarmClient(broker.endpoints, "s", tmp_path) as farm:
+            farm.submit({"falls": short_spec(duration=2.0, gains=weak)})
+            [evaluation] = list(farm.results(timeout=60))
+    finally:
+        stop_workers([worker])
+    assert evaluation.status == "diverged" and evaluation.scores.diverged
+    assert evaluation.reason and evaluation.episode.is_file()
+
+
+def test_a_study_can_be_open_in_one_process_only(broker: Broker, tmp_path: Path) -> None:
+    with (
+        FarmClient(broker.endpoints, "s", tmp_path),
+        pytest.raises(FarmUnavailable, match="already open"),
+    ):
+        FarmClient(broker.endpoints, "s", tmp_path)
+
+
+def test_no_broker_is_a_clear_error(tmp_path: Path) -> None:
+    from analytic.local import free_port
+
+    with Broker([f"tcp/127.0.0.1:{free_port()}"]) as other:
+        endpoint = other.endpoints[0]
+    with pytest.raises(ConnectionError, match="cannot open a Zenoh client session"):
+        FarmClient([endpoint], "s", tmp_path)
+
+
+def test_batch_command_in_local_mode(tmp_path: Path) -> None:
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "analytic",
+            "batch",
+            "--local",
+            "--workers",
+            "2",
+            "--trajectory",
+            "spiral",
+            "--trajectory",
+            "random",
+            "--duration",
+            "1.5",
+            "--run-dir",
+            str(tmp_path / "run"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "COLUMNS": "200"},
+    )
+    assert run.returncode == 0, run.stderr
+    records = json.loads((tmp_path / "run" / "evaluations.json").read_text())
+    assert [record["status"] for record in records] == ["ok", "ok"]
+    assert "c000-1-random" in run.stdout
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        ([], "say where the farm is: --connect ENDPOINT or --local"),
+        (["--local", "--connect", "tcp/127.0.0.1:7447"], "say where the farm is"),
+        (["--local", "--gains", "missing.json"], "--gains: cannot read 'missing.json'"),
+        (
+            ["--local", "--duration", "0"],
+            "--duration: Input should be greater than or equal to 0.1",
+        ),
+    ],
+)
+def test_batch_command_refuses_bad_input_in_one_line(
+    arguments: list[str], message: str, tmp_path: Path
+) -> None:
+    run = subprocess.run(
+        [sys.executable, "-m", "analytic", "batch", *arguments],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert run.returncode == 2
+    assert run.stderr.startswith("analytic: error: ") and message in run.stderr
+    assert len(run.stderr.splitlines()) == 1
+    assert not (tmp_path / "runs").exists()
