@@ -1,0 +1,80 @@
+"""`broker start` and `broker status` as a user runs them: real processes, real Zenoh."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+from analytic.local import free_port, spawn_worker, stop_workers
+
+
+def broker_command(*arguments: str) -> list[str]:
+    return [sys.executable, "-m", "broker", *arguments]
+
+
+def status(endpoint: str, *extra: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        broker_command("status", "--connect", endpoint, *extra),
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "COLUMNS": "160"},
+    )
+
+
+def test_a_started_broker_serves_workers_reports_them_and_stops_on_sigterm() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    broker = subprocess.Popen(
+        broker_command("start", "--listen", endpoint),
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    worker = spawn_worker(endpoint, "cobot-7")
+    try:
+        give_up = time.monotonic() + 30
+        while True:
+            run = status(endpoint, "--json")
+            if run.returncode == 0 and json.loads(run.stdout)["workers"]:
+                break
+            assert time.monotonic() < give_up, run.stderr
+            time.sleep(0.2)
+        farm = json.loads(run.stdout)
+        assert farm["protocol"] == 1
+        assert farm["workers"] == [{"name": "cobot-7", "busy": False, "job": "", "jobs_done": 0}]
+        table = status(endpoint)
+        assert table.returncode == 0
+        assert "1 workers (0 busy)" in table.stdout and "cobot-7" in table.stdout
+    finally:
+        stop_workers([worker])
+        broker.send_signal(signal.SIGTERM)
+        _, log = broker.communicate(timeout=30)
+    assert broker.returncode == 0
+    assert "broker listening on " + endpoint in log
+    assert "worker cobot-7 joined" in log
+
+
+def test_a_broker_that_cannot_listen_says_so_in_one_line() -> None:
+    taken = free_port()
+    with subprocess.Popen(broker_command("start", "--listen", f"tcp/127.0.0.1:{taken}")) as first:
+        time.sleep(1.0)
+        run = subprocess.run(
+            broker_command("start", "--listen", f"tcp/127.0.0.1:{taken}"),
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        first.terminate()
+    assert run.returncode == 2
+    assert run.stderr.startswith("broker: error: --listen: cannot open a Zenoh router session")
+    assert len(run.stderr.splitlines()) == 1
+
+
+def test_a_bad_endpoint_is_one_line() -> None:
+    run = subprocess.run(
+        broker_command("start", "--listen", "nonsense"), capture_output=True, text=True, timeout=60
+    )
+    assert run.returncode == 2
+    assert run.stderr.startswith("broker: error: --listen: bad endpoint: Endpoints must be")
+    assert len(run.stderr.splitlines()) == 1
