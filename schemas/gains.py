@@ -21,4 +21,7 @@ class PDGains(BaseModel):
 
 # Stiff enough to track every default trajectory within a few centimetres, soft enough not to
 # saturate: a sensible first controller, not a tuned one (tuning is the analytic layer's job).
-DEFAULT_GAINS = PDGains(kp=(2000, 2000, 1200, 1200, 400, 200, 100), kd=(60, 60, 40, 40, 10, 5, 2))
+# Kd is deliberately low: on the elastic joints, link-side damping much above this feeds the
+# joint's spring mode, and A2/A4 then oscillate with a slowly growing amplitude (Kd 60/40 makes a
+# 10 s spiral's torque changes grow a thousandfold); with these, 20 s episodes settle.
+DEFAULT_GAINS = PDGains(kp=(2000, 2000, 1200, 1200, 400, 200, 100), kd=(20, 20, 15, 15, 4, 2, 1))
