@@ -43,7 +43,7 @@ log = logging.getLogger("gainfarm.analytic")
 
 DEFAULT_DEADLINE = 600.0  # s from (re)submission: a backstop; leases and liveliness act sooner
 DEFAULT_ATTEMPTS = 3
-SUBMIT_CHUNK = 500  # jobs per Submission message
+SUBMIT_CHUNK = 100  # jobs per Submission: the broker parses each in one go, holding the GIL
 ANSWER_SECONDS = 10.0  # how long the broker has to answer a submission or a status query
 
 
@@ -236,8 +236,12 @@ class FarmClient:
             self.ignored += 1
             log.warning("ignored a result: %s", error)
             return None
+        if result.study != self.study:
+            self.ignored += 1
+            log.warning("ignored a result of study %r on this study's key", result.study)
+            return None
         pending = self._pending.pop(result.job_id, None)
-        if pending is None or result.study != self.study:
+        if pending is None:  # already evaluated (or never submitted here): counted once
             self.duplicates += 1
             return None
         common = dict(
