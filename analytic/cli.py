@@ -1,9 +1,11 @@
-"""`analytic`: the analytic layer. Score an episode log (`evaluate`), evaluate candidates on the
-farm (`batch`)."""
+"""`analytic`: the analytic layer. Tune gains with NSGA-II on the farm (`start`, `resume`), score
+an episode log (`evaluate`), evaluate fixed candidates on the farm (`batch`)."""
 
 import contextlib
 import json
 import os
+import pickle
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -11,7 +13,7 @@ from pathlib import Path
 import click
 from pydantic import TypeAdapter, ValidationError
 from rich.console import Console
-from rich.progress import Progress
+from rich.progress import Progress, SpinnerColumn, TextColumn
 from rich.table import Table
 
 from analytic.batch import EVALUATIONS, batch_jobs, run_batch
@@ -19,6 +21,8 @@ from analytic.farm import DEFAULT_DEADLINE, Evaluation, FarmClient, FarmUnavaila
 from analytic.local import local_farm
 from analytic.objectives import score
 from analytic.report import print_scores
+from analytic.run import CONFIG, RunConfig, TuningRun
+from analytic.run import Progress as RunProgress
 from schemas.errors import CliError, describe, run_app
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import NotAnEpisodeLog, read_episode
@@ -138,6 +142,156 @@ def batch(
                 raise CliError(str(error)) from None
     if not as_json:
         _print_evaluations(evaluations, run_dir)
+
+
+@app.command()
+@click.option(
+    "--pop",
+    type=click.IntRange(min=4, max=1000),
+    default=30,
+    show_default=True,
+    help="population size",
+)
+@click.option(
+    "--trajectory",
+    "kinds",
+    multiple=True,
+    type=click.Choice([kind.value for kind in TrajectoryKind]),
+    default=["spiral"],
+    show_default=True,
+    help="one: a specific controller; several (repeat): a generic one, objectives averaged",
+)
+@click.option("--duration", type=float, default=5.0, show_default=True, help="seconds")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--generations", type=click.IntRange(min=1), help="stop after N generations")
+@click.option("--evaluations", type=click.IntRange(min=1), help="stop after N evaluations")
+@click.option(
+    "--model", type=click.Choice(["flexible", "rigid"]), default="flexible", show_default=True
+)
+@click.option("--connect", multiple=True, help="a running broker's Zenoh endpoint")
+@click.option("--local", is_flag=True, help="run the farm here (the default without --connect)")
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1, max=64),
+    default=1,
+    show_default=True,
+    help="local worker processes",
+)
+@click.option("--out", type=click.Path(path_type=Path), help="run directory  [default: runs/TIME]")
+@click.option(
+    "--keep",
+    type=click.Choice(["all", "front"]),
+    default="all",
+    show_default=True,
+    help="which episode logs to keep",
+)
+def start(
+    pop: int,
+    kinds: tuple[str, ...],
+    duration: float,
+    seed: int,
+    generations: int | None,
+    evaluations: int | None,
+    model: str,
+    connect: tuple[str, ...],
+    local: bool,
+    workers: int,
+    out: Path | None,
+    keep: str,
+) -> None:
+    """Tune the 14 PD gains with NSGA-II on the farm: maximise accuracy, minimise torque steps.
+
+    Stops after --generations, after --evaluations, or (by default) when the hypervolume has
+    stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
+    """
+    if connect and local:
+        raise CliError("--connect and --local exclude each other")
+    if generations and evaluations:
+        raise CliError("--generations and --evaluations exclude each other")
+    try:
+        config = RunConfig(
+            pop=pop,
+            seed=seed,
+            trajectories=tuple(TrajectorySpec(kind=kind, duration=duration) for kind in kinds),
+            model=ModelSpec(joints=model),
+            generations=generations,
+            evaluations=evaluations,
+            keep=keep,
+        )
+    except ValidationError as error:
+        raise CliError(describe(error)) from None
+    out = out or Path("runs") / time.strftime("%Y%m%d-%H%M%S")
+    try:
+        run = TuningRun.create(out, config)
+    except FileExistsError as error:
+        raise CliError(f"--out: {error}") from None
+    except OSError as error:
+        raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
+    _tune(run, connect, workers)
+
+
+@app.command()
+@click.argument("run_dir", type=click.Path(path_type=Path))
+@click.option("--connect", multiple=True, help="a running broker's Zenoh endpoint")
+@click.option("--local", is_flag=True, help="run the farm here (the default without --connect)")
+@click.option("--workers", type=click.IntRange(min=1, max=64), default=1, show_default=True)
+def resume(run_dir: Path, connect: tuple[str, ...], local: bool, workers: int) -> None:
+    """Continue a stopped run from its last checkpoint."""
+    if connect and local:
+        raise CliError("--connect and --local exclude each other")
+    if not (run_dir / CONFIG).is_file():
+        raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG})")
+    try:
+        run = TuningRun.open(run_dir)
+    except (OSError, ValueError, EOFError, pickle.UnpicklingError) as error:
+        raise CliError(f"{str(run_dir)!r}: unreadable run ({error})") from None
+    if run.finished:
+        raise CliError(f"{str(run_dir)!r} has finished: {run.state.stopped}")
+    _tune(run, connect, workers)
+
+
+def _tune(run: TuningRun, connect: tuple[str, ...], workers: int) -> None:
+    console = Console(stderr=True)
+    try:
+        with _farm(connect, not connect, workers) as endpoints:
+            try:
+                farm = FarmClient(endpoints, f"run-{os.getpid()}", run.directory)
+            except (ValueError, ConnectionError) as error:
+                raise CliError(str(error)) from None
+            with (
+                farm,
+                Progress(
+                    SpinnerColumn(),
+                    TextColumn("{task.description}"),
+                    console=console,
+                    transient=True,
+                ) as progress,
+            ):
+                task = progress.add_task("starting")
+                connected = len(farm.status().workers)
+
+                def show(step: RunProgress) -> None:
+                    rate = step.evaluations / step.elapsed if step.elapsed else 0.0
+                    progress.update(
+                        task,
+                        description=(
+                            f"generation {step.generation} · {step.evaluations} evaluations · "
+                            f"{rate:.1f}/s · hypervolume {step.hypervolume:.4f} · best error "
+                            f"{step.best_f_acc * 1000:.2f} mm · {connected} workers"
+                        ),
+                    )
+
+                reason = run.run(farm, show)
+    except KeyboardInterrupt:
+        generations = len(run.state.history)
+        click.echo(
+            f"analytic: stopped after {generations} generations; "
+            f"continue with: analytic resume {run.directory}",
+            err=True,
+        )
+        sys.exit(130)
+    console.print(f"stopped: {reason}")
+    console.print(f"front, history, figures and report in {run.directory}/")
 
 
 @contextlib.contextmanager

@@ -1,0 +1,124 @@
+"""The evolution step: NSGA-II (pymoo) through ask and tell, and the hypervolume of its front.
+
+Pure: no farm, no files. The caller evaluates each asked generation however it likes (the farm,
+in any order) and tells the objectives back in the order asked, so the outcome depends on the seed
+and the objectives only, never on which result arrived first.
+"""
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from pymoo.algorithms.moo.nsga2 import NSGA2
+from pymoo.core.problem import Problem
+from pymoo.indicators.hv import HV
+from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
+
+from analytic.search_space import SearchSpace
+from schemas.episode import Scores
+from schemas.gains import PDGains
+
+# The hypervolume is taken in a normalised objective space, the same for every run so that runs
+# compare: f_acc linearly, 0 → 0 and REFERENCE_POINT[0] → 1; f_t logarithmically, F_T_FLOOR → 0
+# and REFERENCE_POINT[1] → 1 (torque smoothness spans decades: a step from 100 to 10 (N·m)² is
+# worth as much as one from 1 to 0.1). The reference point is (1, 1) there: a controller worse
+# than 20 cm mean error or 10^4 (N·m)² mean squared torque step adds nothing. (The paper
+# normalises by the worst values among the controllers tested; a fixed point keeps the figure
+# comparable across runs and monotone within one.)
+REFERENCE_POINT = (0.2, 1e4)  # f_acc in m, f_t in (N·m)²
+F_T_FLOOR = 1e-2  # (N·m)²: smoother than this counts as perfectly smooth
+
+# The objectives of a candidate with no episode to score (its path out of reach, or lost): worse
+# than any diverged episode, so NSGA-II ranks it last and moves on.
+NO_EPISODE = (10.0, 1e12)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    gains: PDGains
+    objectives: tuple[float, float]  # f_acc, f_t: means over the trajectory set
+
+
+def objectives(scores: Sequence[Scores | None]) -> tuple[float, float]:
+    """A candidate's objectives over its trajectories: the means of f_acc and f_t (the generic
+    controller's; one trajectory gives the specific controller's)."""
+    if not scores or any(score is None for score in scores):
+        return NO_EPISODE
+    return (
+        float(np.mean([score.f_acc for score in scores])),
+        float(np.mean([score.f_t for score in scores])),
+    )
+
+
+class GainProblem(Problem):
+    """The decision space for pymoo; evaluation happens outside, through ask and tell."""
+
+    def __init__(self, space: SearchSpace):
+        super().__init__(n_var=len(space.lower), n_obj=2, xl=space.lower, xu=space.upper)
+
+
+class Evolution:
+    """NSGA-II over the gains. Picklable: a checkpoint is this object, random state included."""
+
+    def __init__(self, pop_size: int, seed: int, space: SearchSpace | None = None):
+        self.space = space or SearchSpace()
+        self.algorithm = NSGA2(pop_size=pop_size, eliminate_duplicates=True)
+        self.algorithm.setup(GainProblem(self.space), seed=seed, verbose=False)
+        self._asked = None
+        self.generation = 0
+        self.evaluations = 0
+        # Every non-dominated point seen. NSGA-II's own population can drop a front member when
+        # crowding trims a large first front; the archive never does, so its hypervolume never
+        # falls and the front reported is the best found.
+        self._archive_x = np.empty((0, len(self.space.lower)))
+        self._archive_f = np.empty((0, 2))
+
+    def ask(self) -> list[PDGains]:
+        """The next generation's candidates (the first is the random initial population)."""
+        if self._asked is None:
+            self._asked = self.algorithm.ask()
+        return [self.space.gains(x) for x in self._asked.get("X")]
+
+    def tell(self, objectives: Sequence[tuple[float, float]]) -> None:
+        """The objectives of the candidates last asked, in the order asked."""
+        if self._asked is None or len(objectives) != len(self._asked):
+            raise ValueError("tell() takes one pair of objectives per candidate asked")
+        f = np.asarray(objectives, dtype=float)
+        self._asked.set("F", f)
+        self.algorithm.tell(infills=self._asked)
+        x = np.vstack([self._archive_x, self._asked.get("X")])
+        f = np.vstack([self._archive_f, f])
+        first = NonDominatedSorting().do(f, only_non_dominated_front=True)
+        first = np.sort(first)  # keep the archive's order independent of the sorter's
+        self._archive_x, self._archive_f = x[first], f[first]
+        self.evaluations += len(self._asked)
+        self._asked = None
+        self.generation += 1
+
+    def front(self) -> list[Candidate]:
+        """The non-dominated candidates among all evaluated so far, by f_acc."""
+        members = [
+            Candidate(self.space.gains(x), (float(f[0]), float(f[1])))
+            for x, f in zip(self._archive_x, self._archive_f, strict=True)
+        ]
+        return sorted(members, key=lambda member: member.objectives)
+
+
+def normalise(
+    points: Sequence[tuple[float, float]], reference: tuple[float, float] = REFERENCE_POINT
+) -> np.ndarray:
+    """Objectives in the space the hypervolume is measured in (see REFERENCE_POINT)."""
+    f = np.asarray(points, dtype=float).reshape(-1, 2)
+    f_acc = f[:, 0] / reference[0]
+    f_t = np.log(np.maximum(f[:, 1], F_T_FLOOR) / F_T_FLOOR) / np.log(reference[1] / F_T_FLOOR)
+    return np.column_stack([f_acc, f_t])
+
+
+def hypervolume(
+    points: Sequence[tuple[float, float]], reference: tuple[float, float] = REFERENCE_POINT
+) -> float:
+    """Hypervolume of `points`, normalised, against the reference point: in [0, 1]."""
+    if not points:
+        return 0.0
+    normalised = normalise(points, reference)
+    return float(HV(ref_point=np.ones(2))(normalised))

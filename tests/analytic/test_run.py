@@ -1,0 +1,184 @@
+"""Tuning runs end to end on a local farm: the guarantees of `analytic start` and `resume`."""
+
+import itertools
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from analytic.farm import FarmClient
+from analytic.figures import read_front, read_history
+from analytic.local import free_port, local_farm
+from analytic.objectives import score
+from analytic.run import Progress, RunConfig, TuningRun
+from schemas import EpisodeSpec, PDGains, TrajectorySpec
+from worker.episode import run_episode
+
+TINY = RunConfig(pop=6, seed=7, trajectories=(TrajectorySpec(duration=0.5),), generations=3)
+
+
+@pytest.fixture(scope="module")
+def farm_endpoint() -> Iterator[str]:
+    """One local farm (a broker here, 2 worker processes) shared by this module's runs."""
+    with local_farm(workers=2) as endpoint:
+        yield endpoint
+
+
+def tune(directory: Path, endpoint: str, config: RunConfig = TINY, **hooks) -> TuningRun:
+    run = TuningRun.create(directory, config)
+    with FarmClient([endpoint], f"test-{directory.name}", directory) as farm:
+        run.run(farm, **hooks)
+    return run
+
+
+def test_a_tiny_run_records_everything(tmp_path: Path, farm_endpoint: str) -> None:
+    run = tune(tmp_path / "run", farm_endpoint)
+    directory = run.directory
+    for name in (
+        "config.json",
+        "checkpoint.pkl",
+        "history.csv",
+        "front.csv",
+        "pareto.png",
+        "hypervolume.png",
+        "report.md",
+    ):
+        assert (directory / name).is_file(), name
+    assert RunConfig.model_validate_json((directory / "config.json").read_text()) == TINY
+    history = read_history(directory / "history.csv")
+    assert [row.generation for row in history] == [1, 2, 3]
+    assert [row.evaluations for row in history] == [6, 12, 18]
+    assert len(list((directory / "episodes").glob("*.mcap"))) == 18
+    assert run.state.stopped == "3 generations"
+    assert "3 generations" in (directory / "report.md").read_text()
+
+
+def test_the_hypervolume_never_falls_and_the_front_is_non_dominated(
+    tmp_path: Path, farm_endpoint: str
+) -> None:
+    config = TINY.model_copy(update={"generations": 5, "pop": 8})
+    run = tune(tmp_path / "run", farm_endpoint, config)
+    hypervolumes = [row.hypervolume for row in read_history(run.directory / "history.csv")]
+    assert all(later >= earlier for earlier, later in itertools.pairwise(hypervolumes))
+    assert hypervolumes[-1] > 0
+    front = read_front(run.directory / "front.csv")
+    assert len(front) >= 1
+    for a, b in itertools.permutations(front, 2):
+        dominates = a.f_acc <= b.f_acc and a.f_t <= b.f_t and (a.f_acc, a.f_t) != (b.f_acc, b.f_t)
+        assert not dominates
+    # And nothing evaluated dominates a front member.
+    for f_acc, f_t in run.state.evaluated:
+        assert not any(f_acc < m.f_acc and f_t < m.f_t for m in front)
+
+
+def test_a_front_member_simulated_again_reproduces_its_objectives(
+    tmp_path: Path, farm_endpoint: str
+) -> None:
+    run = tune(tmp_path / "run", farm_endpoint)
+    member = read_front(run.directory / "front.csv")[0]
+    spec = EpisodeSpec(gains=PDGains(kp=member.kp, kd=member.kd), trajectory=TINY.trajectories[0])
+    scores = score(run_episode(spec))
+    assert (scores.f_acc, scores.f_t) == (member.f_acc, member.f_t)
+
+
+def test_the_front_is_the_same_on_one_worker_as_on_two(tmp_path: Path, farm_endpoint: str) -> None:
+    two = tune(tmp_path / "two", farm_endpoint)
+    with local_farm(workers=1) as endpoint:
+        one = tune(tmp_path / "one", endpoint)
+    assert (one.directory / "front.csv").read_bytes() == (two.directory / "front.csv").read_bytes()
+    assert [row[:5] for row in _history(one)] == [row[:5] for row in _history(two)]
+
+
+def _history(run: TuningRun) -> list[tuple]:
+    return [
+        (r.generation, r.evaluations, r.hypervolume, r.best_f_acc, r.best_f_t, r.wall_seconds)
+        for r in read_history(run.directory / "history.csv")
+    ]
+
+
+class Interrupt(Exception):
+    pass
+
+
+def test_a_stopped_and_resumed_run_ends_where_an_uninterrupted_one_does(
+    tmp_path: Path, farm_endpoint: str
+) -> None:
+    whole = tune(tmp_path / "whole", farm_endpoint)
+
+    def stop_in_generation_two(progress: Progress) -> None:
+        if progress.generation == 2 and progress.evaluations > 14:
+            raise Interrupt  # as Ctrl-C would, halfway through a generation
+
+    stopped = tmp_path / "stopped"
+    with pytest.raises(Interrupt):
+        tune(stopped, farm_endpoint, on_progress=stop_in_generation_two)
+    assert len(read_history(stopped / "history.csv")) == 2
+    resumed = TuningRun.open(stopped)
+    assert not resumed.finished
+    with FarmClient([farm_endpoint], "test-resumed", stopped) as farm:
+        resumed.run(farm, on_progress=lambda _: None)
+    assert (stopped / "front.csv").read_bytes() == (whole.directory / "front.csv").read_bytes()
+
+
+def analytic(*arguments: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "analytic", *arguments],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "COLUMNS": "200"},
+    )
+
+
+def test_start_and_resume_commands(tmp_path: Path) -> None:
+    run = analytic(
+        "start",
+        "--pop",
+        "4",
+        "--generations",
+        "2",
+        "--duration",
+        "0.5",
+        "--out",
+        "run",
+        cwd=tmp_path,
+    )
+    assert run.returncode == 0, run.stderr
+    assert "stopped: 2 generations" in run.stderr
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert config["pop"] == 4 and config["generations"] == 2
+    again = analytic("resume", "run", cwd=tmp_path)
+    assert again.returncode == 2
+    assert again.stderr == "analytic: error: 'run' has finished: 2 generations\n"
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["--pop", "2"], "--pop"),
+        (["--generations", "2", "--evaluations", "10"], "exclude each other"),
+        (["--local", "--connect", "tcp/127.0.0.1:7447"], "exclude each other"),
+        (["--duration", "500"], "duration: Input should be less than or equal to 120"),
+        (["--out", "/proc/no/such/dir"], "--out: cannot write"),
+        (["--connect", "tcp/127.0.0.1:PORT"], "cannot open a Zenoh client session"),
+    ],
+)
+def test_start_refuses_bad_input_in_one_line(
+    arguments: list[str], message: str, tmp_path: Path
+) -> None:
+    arguments = [a.replace("PORT", str(free_port())) for a in arguments]
+    run = analytic("start", *arguments, cwd=tmp_path)
+    assert run.returncode == 2, run.stderr
+    assert run.stderr.startswith("analytic: error: ") and message in run.stderr
+    assert len(run.stderr.splitlines()) == 1
+
+
+def test_resume_of_a_directory_without_a_run_is_one_line(tmp_path: Path) -> None:
+    run = analytic("resume", "nothing-here", cwd=tmp_path)
+    assert run.returncode == 2
+    assert run.stderr == "analytic: error: 'nothing-here' holds no run (no config.json)\n"
