@@ -185,6 +185,12 @@ def batch(
     show_default=True,
     help="which episode logs to keep",
 )
+@click.option(
+    "--async",
+    "asynchronous",
+    is_flag=True,
+    help="steady-state NSGA-II: a new candidate as soon as any result returns",
+)
 def start(
     pop: int,
     kinds: tuple[str, ...],
@@ -198,6 +204,7 @@ def start(
     workers: int,
     out: Path | None,
     keep: str,
+    asynchronous: bool,
 ) -> None:
     """Tune the 14 PD gains with NSGA-II on the farm: maximise accuracy, minimise torque steps.
 
@@ -217,6 +224,7 @@ def start(
             generations=generations,
             evaluations=evaluations,
             keep=keep,
+            asynchronous=asynchronous,
         )
     except ValidationError as error:
         raise CliError(describe(error)) from None

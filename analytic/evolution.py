@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from pymoo.algorithms.moo.nsga2 import NSGA2
+from pymoo.core.population import Population
 from pymoo.core.problem import Problem
 from pymoo.indicators.hv import HV
 from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
@@ -60,9 +61,21 @@ class GainProblem(Problem):
 class Evolution:
     """NSGA-II over the gains. Picklable: a checkpoint is this object, random state included."""
 
-    def __init__(self, pop_size: int, seed: int, space: SearchSpace | None = None):
+    def __init__(
+        self,
+        pop_size: int,
+        seed: int,
+        space: SearchSpace | None = None,
+        steady_state: bool = False,
+    ):
+        """Generational NSGA-II asks a whole generation at a time. The steady-state variant
+        (mu + 1) asks one offspring at a time (ask_one) and takes each result as it comes
+        (tell_one), so that no worker waits for a generation's slowest episode."""
         self.space = space or SearchSpace()
-        self.algorithm = NSGA2(pop_size=pop_size, eliminate_duplicates=True)
+        self.pop_size = pop_size
+        self.algorithm = NSGA2(
+            pop_size=pop_size, n_offsprings=1 if steady_state else None, eliminate_duplicates=True
+        )
         self.algorithm.setup(GainProblem(self.space), seed=seed, verbose=False)
         self._asked = None
         self.generation = 0
@@ -83,17 +96,34 @@ class Evolution:
         """The objectives of the candidates last asked, in the order asked."""
         if self._asked is None or len(objectives) != len(self._asked):
             raise ValueError("tell() takes one pair of objectives per candidate asked")
+        self._tell(self._asked, objectives)
+        self._asked = None
+        self.generation += 1
+
+    def ask_one(self) -> tuple[Population, PDGains]:
+        """Steady state, after the first generation: one new candidate, and the handle to tell
+        its objectives with."""
+        if self._asked is not None or self.generation == 0:
+            raise RuntimeError("ask_one() follows a first generation asked and told whole")
+        offspring = self.algorithm.ask()
+        while len(offspring) == 0:  # every offspring was a duplicate: draw again
+            offspring = self.algorithm.ask()
+        return offspring[:1], self.space.gains(offspring.get("X")[0])
+
+    def tell_one(self, handle: Population, objectives: tuple[float, float]) -> None:
+        self._tell(handle, [objectives])
+        self.generation = self.evaluations // self.pop_size
+
+    def _tell(self, individuals: Population, objectives: Sequence[tuple[float, float]]) -> None:
         f = np.asarray(objectives, dtype=float)
-        self._asked.set("F", f)
-        self.algorithm.tell(infills=self._asked)
-        x = np.vstack([self._archive_x, self._asked.get("X")])
+        individuals.set("F", f)
+        self.algorithm.tell(infills=individuals)
+        x = np.vstack([self._archive_x, individuals.get("X")])
         f = np.vstack([self._archive_f, f])
         first = NonDominatedSorting().do(f, only_non_dominated_front=True)
         first = np.sort(first)  # keep the archive's order independent of the sorter's
         self._archive_x, self._archive_f = x[first], f[first]
-        self.evaluations += len(self._asked)
-        self._asked = None
-        self.generation += 1
+        self.evaluations += len(individuals)
 
     def front(self) -> list[Candidate]:
         """The non-dominated candidates among all evaluated so far, by f_acc."""

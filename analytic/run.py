@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
+from pymoo.core.population import Population
 
 from analytic.evolution import REFERENCE_POINT, Evolution, hypervolume, objectives
 from analytic.farm import Evaluation, FarmClient
@@ -60,6 +61,7 @@ class RunConfig(BaseModel):
     tolerance: float = Field(CONVERGENCE_TOLERANCE, gt=0)
     window: int = Field(CONVERGENCE_WINDOW, ge=1)
     reference_point: tuple[float, float] = REFERENCE_POINT
+    asynchronous: bool = Field(False, description="steady-state NSGA-II, not generational")
     keep: Literal["all", "front"] = "all"
 
     @property
@@ -81,6 +83,7 @@ class RunState:
     episodes: dict[PDGains, list[str]] = field(default_factory=dict)  # kept logs per candidate
     wall_seconds: float = 0.0
     stopped: str | None = None
+    serial: int = 0  # steady-state candidates asked so far: their job ids' numbers
 
 
 @dataclass(frozen=True)
@@ -106,7 +109,7 @@ class TuningRun:
             raise FileExistsError(f"{directory} already holds a run; resume it or choose another")
         directory.mkdir(parents=True, exist_ok=True)
         write_atomically(directory / CONFIG, config.model_dump_json(indent=2).encode())
-        return cls(directory, config, RunState(Evolution(config.pop, config.seed)))
+        return cls(directory, config, RunState(_evolution(config)))
 
     @classmethod
     def open(cls, directory: Path) -> "TuningRun":
@@ -117,7 +120,7 @@ class TuningRun:
         if checkpoint.exists():
             state = pickle.loads(checkpoint.read_bytes())
         else:  # stopped before its first generation ended
-            state = RunState(Evolution(config.pop, config.seed))
+            state = RunState(_evolution(config))
         return cls(directory, config, state)
 
     @property
@@ -128,76 +131,106 @@ class TuningRun:
         self, farm: FarmClient, on_progress: Callable[[Progress], None] = lambda _: None
     ) -> str:
         """Evolve until the termination says stop; return why it stopped."""
-        termination = self.config.termination
         started = time.monotonic() - self.state.wall_seconds
         while self.state.stopped is None:
-            evolution = self.state.evolution
-            candidates = evolution.ask()
-            jobs = self._jobs(evolution.generation, candidates)
-            results = self._evaluate(farm, jobs, candidates, started, on_progress)
-            evolution.tell(
-                [objectives([results[job_id].scores for job_id in ids]) for ids in jobs.values()]
-            )
-            self._record(candidates, jobs, results, time.monotonic() - started)
-            hypervolumes = [row.hypervolume for row in self.state.history]
-            self.state.stopped = termination.reason(hypervolumes, evolution.evaluations)
-            self._checkpoint()
+            if self.config.asynchronous and self.state.evolution.generation > 0:
+                self._steady_state(farm, started, on_progress)
+            else:
+                self._generation(farm, started, on_progress)
         self.write_figures()
         return self.state.stopped
 
-    # --- one generation ----------------------------------------------------------------------
+    # --- generational: a whole generation out, then told in the order asked -------------------
 
-    def _jobs(self, generation: int, candidates: list[PDGains]) -> dict[PDGains, list[str]]:
-        return {
-            gains: [
-                f"g{generation:04d}-c{index:03d}-t{number}"
-                for number in range(len(self.config.trajectories))
-            ]
+    def _generation(
+        self, farm: FarmClient, started: float, on_progress: Callable[[Progress], None]
+    ) -> None:
+        evolution = self.state.evolution
+        candidates = evolution.ask()
+        jobs = {
+            gains: self._job_ids(f"g{evolution.generation:04d}-c{index:03d}")
             for index, gains in enumerate(candidates)
         }
-
-    def _evaluate(
-        self,
-        farm: FarmClient,
-        jobs: dict[PDGains, list[str]],
-        candidates: list[PDGains],
-        started: float,
-        on_progress: Callable[[Progress], None],
-    ) -> dict[str, Evaluation]:
-        specs = {
-            job_id: EpisodeSpec(gains=gains, trajectory=trajectory, model=self.config.model)
-            for gains in candidates
-            for job_id, trajectory in zip(jobs[gains], self.config.trajectories, strict=True)
-        }
-        farm.submit(specs)
+        farm.submit(self._specs(jobs))
         results: dict[str, Evaluation] = {}
-        done_before = self.state.evolution.evaluations
-        best = self.state.history[-1] if self.state.history else None
         for evaluation in farm.results():
             results[evaluation.job_id] = evaluation
-            on_progress(
-                Progress(
-                    generation=self.state.evolution.generation,
-                    evaluations=done_before + len(results) // len(self.config.trajectories),
-                    hypervolume=best.hypervolume if best else 0.0,
-                    best_f_acc=best.best_f_acc if best else float("nan"),
-                    elapsed=time.monotonic() - started,
-                )
-            )
-        return results
+            on_progress(self._progress(len(results) // len(self.config.trajectories), started))
+        found = [self._candidate_done(gains, jobs[gains], results) for gains in candidates]
+        evolution.tell(found)
+        self._generation_done(started)
 
-    def _record(
-        self,
-        candidates: list[PDGains],
-        jobs: dict[PDGains, list[str]],
-        results: dict[str, Evaluation],
-        wall_seconds: float,
+    # --- steady state: each candidate told as it returns, a new one asked at once -------------
+
+    def _steady_state(
+        self, farm: FarmClient, started: float, on_progress: Callable[[Progress], None]
     ) -> None:
+        """Keep a few candidates per worker in flight so that none waits; a "generation" here is
+        every `pop` evaluations, for the history, the termination and the checkpoint."""
+        evolution = self.state.evolution
+        in_flight: dict[str, tuple[Population, PDGains, list[str]]] = {}
+        results: dict[str, Evaluation] = {}
+
+        def launch() -> None:
+            handle, gains = evolution.ask_one()
+            self.state.serial += 1
+            name = f"s{self.state.serial:06d}"
+            in_flight[name] = (handle, gains, self._job_ids(name))
+            farm.submit(self._specs({gains: in_flight[name][2]}))
+
+        for _ in range(max(2, 2 * len(farm.status().workers))):
+            launch()
+        for evaluation in farm.results():
+            results[evaluation.job_id] = evaluation
+            name = evaluation.job_id.rsplit("-t", 1)[0]
+            handle, gains, ids = in_flight[name]
+            if not all(job_id in results for job_id in ids):
+                continue
+            del in_flight[name]
+            evolution.tell_one(handle, self._candidate_done(gains, ids, results))
+            on_progress(self._progress(0, started))
+            if evolution.evaluations % self.config.pop == 0:
+                self._generation_done(started)
+                if self.state.stopped is not None:
+                    return  # what is still in flight is dropped with the study
+            launch()
+
+    # --- bookkeeping -------------------------------------------------------------------------
+
+    def _job_ids(self, candidate: str) -> list[str]:
+        return [f"{candidate}-t{number}" for number in range(len(self.config.trajectories))]
+
+    def _specs(self, jobs: dict[PDGains, list[str]]) -> dict[str, EpisodeSpec]:
+        return {
+            job_id: EpisodeSpec(gains=gains, trajectory=trajectory, model=self.config.model)
+            for gains, ids in jobs.items()
+            for job_id, trajectory in zip(ids, self.config.trajectories, strict=True)
+        }
+
+    def _progress(self, evaluations_in_flight: int, started: float) -> Progress:
+        best = self.state.history[-1] if self.state.history else None
+        return Progress(
+            generation=self.state.evolution.generation,
+            evaluations=self.state.evolution.evaluations + evaluations_in_flight,
+            hypervolume=best.hypervolume if best else 0.0,
+            best_f_acc=best.best_f_acc if best else float("nan"),
+            elapsed=time.monotonic() - started,
+        )
+
+    def _candidate_done(
+        self, gains: PDGains, job_ids: list[str], results: dict[str, Evaluation]
+    ) -> tuple[float, float]:
+        """A candidate's objectives, with its episodes and point recorded."""
+        found = objectives([results[job_id].scores for job_id in job_ids])
+        self.state.evaluated.append(found)
+        self.state.episodes[gains] = [i for i in job_ids if results[i].episode is not None]
+        return found
+
+    def _generation_done(self, started: float) -> None:
+        """History row, front, pruned episodes, termination verdict and checkpoint."""
         state = self.state
-        for gains in candidates:
-            state.evaluated.append(objectives([results[i].scores for i in jobs[gains]]))
-            state.episodes[gains] = [i for i in jobs[gains] if results[i].episode is not None]
         front = state.evolution.front()
+        state.wall_seconds = time.monotonic() - started
         state.history.append(
             HistoryRow(
                 generation=state.evolution.generation,
@@ -207,10 +240,9 @@ class TuningRun:
                 ),
                 best_f_acc=min(member.objectives[0] for member in front),
                 best_f_t=min(member.objectives[1] for member in front),
-                wall_seconds=wall_seconds,
+                wall_seconds=state.wall_seconds,
             )
         )
-        state.wall_seconds = wall_seconds
         if self.config.keep == "front":
             keep = {member.gains for member in front}
             for gains in [gains for gains in state.episodes if gains not in keep]:
@@ -221,6 +253,9 @@ class TuningRun:
         ]
         write_atomically(self.directory / "front.csv", front_csv(members))
         write_atomically(self.directory / "history.csv", history_csv(state.history))
+        hypervolumes = [row.hypervolume for row in state.history]
+        state.stopped = self.config.termination.reason(hypervolumes, state.evolution.evaluations)
+        self._checkpoint()
 
     def _checkpoint(self) -> None:
         write_atomically(self.directory / CHECKPOINT, pickle.dumps(self.state))
@@ -232,7 +267,11 @@ class TuningRun:
             FrontMember(member.gains.kp, member.gains.kd, *member.objectives)
             for member in self.state.evolution.front()
         ]
-        title = f"{self.config.mode} controller, pop {self.config.pop}, seed {self.config.seed}"
+        search = "steady-state" if self.config.asynchronous else "generational"
+        title = (
+            f"{self.config.mode} controller, {search} NSGA-II, "
+            f"pop {self.config.pop}, seed {self.config.seed}"
+        )
         plot_pareto(self.directory / "pareto.png", front, self.state.evaluated, title=title)
         plot_hypervolume(self.directory / "hypervolume.png", self.state.history, title=title)
         trajectories = ", ".join(
@@ -244,7 +283,7 @@ class TuningRun:
             title=f"gainfarm run {self.directory.name}",
             config_lines=[
                 f"{self.config.mode} controller on {trajectories}",
-                f"NSGA-II, population {self.config.pop}, seed {self.config.seed}",
+                f"{search} NSGA-II, population {self.config.pop}, seed {self.config.seed}",
                 f"{self.config.model.joints} joints; reference point "
                 f"f_acc {self.config.reference_point[0]} m, f_t {self.config.reference_point[1]}",
             ],
@@ -252,3 +291,7 @@ class TuningRun:
             front=front,
             converged=self.state.stopped or "stopped before it ended",
         )
+
+
+def _evolution(config: RunConfig) -> Evolution:
+    return Evolution(config.pop, config.seed, steady_state=config.asynchronous)

@@ -182,3 +182,41 @@ def test_resume_of_a_directory_without_a_run_is_one_line(tmp_path: Path) -> None
     run = analytic("resume", "nothing-here", cwd=tmp_path)
     assert run.returncode == 2
     assert run.stderr == "analytic: error: 'nothing-here' holds no run (no config.json)\n"
+
+
+def test_a_steady_state_run_records_a_row_every_pop_evaluations(
+    tmp_path: Path, farm_endpoint: str
+) -> None:
+    config = TINY.model_copy(update={"asynchronous": True, "generations": 4})
+    run = tune(tmp_path / "run", farm_endpoint, config)
+    history = read_history(run.directory / "history.csv")
+    assert [row.evaluations for row in history] == [6, 12, 18, 24]
+    hypervolumes = [row.hypervolume for row in history]
+    assert all(later >= earlier for earlier, later in itertools.pairwise(hypervolumes))
+    assert len(run.state.evaluated) >= 24
+    assert "steady-state" in (run.directory / "report.md").read_text()
+
+
+def test_the_front_is_the_same_when_a_worker_dies_on_the_way(
+    tmp_path: Path, farm_endpoint: str
+) -> None:
+    from analytic.local import spawn_worker, stop_workers
+    from broker.service import Broker
+
+    calm = tune(tmp_path / "calm", farm_endpoint)
+    with Broker([f"tcp/127.0.0.1:{free_port()}"]) as broker:
+        endpoint = broker.endpoints[0]
+        workers = [spawn_worker(endpoint, "victim"), spawn_worker(endpoint, "survivor")]
+
+        def kill_the_victim(progress: Progress) -> None:
+            if progress.generation == 1 and workers[0].poll() is None:
+                workers[0].kill()
+
+        try:
+            rough = tune(tmp_path / "rough", endpoint, on_progress=kill_the_victim)
+        finally:
+            stop_workers(workers)
+        assert workers[0].returncode == -9
+    assert (rough.directory / "front.csv").read_bytes() == (
+        calm.directory / "front.csv"
+    ).read_bytes()
