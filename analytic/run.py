@@ -84,6 +84,7 @@ class RunState:
     wall_seconds: float = 0.0
     stopped: str | None = None
     serial: int = 0  # steady-state candidates asked so far: their job ids' numbers
+    busy_seconds: float = 0.0  # workers' time on this run's episodes (simulate + encode)
 
 
 @dataclass(frozen=True)
@@ -155,6 +156,7 @@ class TuningRun:
         results: dict[str, Evaluation] = {}
         for evaluation in farm.results():
             results[evaluation.job_id] = evaluation
+            self._account(evaluation)
             on_progress(self._progress(len(results) // len(self.config.trajectories), started))
         found = [self._candidate_done(gains, jobs[gains], results) for gains in candidates]
         evolution.tell(found)
@@ -182,6 +184,7 @@ class TuningRun:
             launch()
         for evaluation in farm.results():
             results[evaluation.job_id] = evaluation
+            self._account(evaluation)
             name = evaluation.job_id.rsplit("-t", 1)[0]
             handle, gains, ids = in_flight[name]
             if not all(job_id in results for job_id in ids):
@@ -196,6 +199,11 @@ class TuningRun:
             launch()
 
     # --- bookkeeping -------------------------------------------------------------------------
+
+    def _account(self, evaluation: Evaluation) -> None:
+        if evaluation.timings is not None:
+            timings = evaluation.timings
+            self.state.busy_seconds += timings.simulate_s + timings.encode_s
 
     def _job_ids(self, candidate: str) -> list[str]:
         return [f"{candidate}-t{number}" for number in range(len(self.config.trajectories))]

@@ -220,3 +220,38 @@ def test_the_front_is_the_same_when_a_worker_dies_on_the_way(
     assert (rough.directory / "front.csv").read_bytes() == (
         calm.directory / "front.csv"
     ).read_bytes()
+
+
+def test_ctrl_c_stops_cleanly_and_resume_goes_on(tmp_path: Path) -> None:
+    import signal
+    import time
+
+    command = [
+        sys.executable,
+        "-m",
+        "analytic",
+        "start",
+        "--pop",
+        "4",
+        "--generations",
+        "500",
+        "--duration",
+        "0.5",
+        "--out",
+        "run",
+    ]
+    running = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.PIPE, text=True)
+    history = tmp_path / "run" / "history.csv"
+    give_up = time.monotonic() + 120
+    while not (history.exists() and len(read_history(history)) >= 2):
+        assert time.monotonic() < give_up and running.poll() is None
+        time.sleep(0.1)
+    running.send_signal(signal.SIGINT)
+    _, err = running.communicate(timeout=60)
+    assert running.returncode == 130
+    assert "continue with: analytic resume run" in err
+    assert "Traceback" not in err
+    done = len(read_history(history))
+    run = TuningRun.open(tmp_path / "run")
+    assert not run.finished and len(run.state.history) == done
+    assert run.config.generations == 500
