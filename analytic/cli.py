@@ -17,6 +17,8 @@ from rich.progress import Progress, SpinnerColumn, TextColumn
 from rich.table import Table
 
 from analytic.batch import EVALUATIONS, batch_jobs, run_batch
+from analytic.dataset import NoEpisodes
+from analytic.dataset import build as build_dataset
 from analytic.farm import DEFAULT_DEADLINE, Evaluation, FarmClient, FarmUnavailable
 from analytic.local import local_farm
 from analytic.objectives import score
@@ -300,6 +302,36 @@ def _tune(run: TuningRun, connect: tuple[str, ...], workers: int) -> None:
         sys.exit(130)
     console.print(f"stopped: {reason}")
     console.print(f"front, history, figures and report in {run.directory}/")
+
+
+@app.command()
+@click.argument("run_dirs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="dataset directory")
+@click.option(
+    "--select",
+    "selection",
+    type=click.Choice(["front", "knee"]),
+    default="front",
+    show_default=True,
+    help="every Pareto-front controller, or each run's knee",
+)
+def dataset(run_dirs: tuple[Path, ...], out: Path, selection: str) -> None:
+    """Gather tuned controllers' episodes into a dataset: MCAP logs, Parquet tables, a card."""
+    for run_dir in run_dirs:
+        if not (run_dir / CONFIG).is_file():
+            raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG})")
+    if out.exists():
+        raise CliError(f"--out: {str(out)!r} already exists")
+    try:
+        counts = build_dataset(list(run_dirs), out, selection)
+    except NoEpisodes as error:
+        raise CliError(str(error)) from None
+    except OSError as error:
+        raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
+    click.echo(
+        f"{out}: {counts['episodes']} episodes, {counts['ticks']:,} ticks, "
+        f"{counts['controllers']} controllers from {counts['runs']} runs"
+    )
 
 
 @contextlib.contextmanager
