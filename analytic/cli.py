@@ -16,6 +16,7 @@ from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn
 from rich.table import Table
 
+from analytic import studies
 from analytic.batch import EVALUATIONS, batch_jobs, run_batch
 from analytic.dataset import NoEpisodes
 from analytic.dataset import build as build_dataset
@@ -25,6 +26,7 @@ from analytic.objectives import score
 from analytic.report import print_scores
 from analytic.run import CONFIG, RunConfig, TuningRun
 from analytic.run import Progress as RunProgress
+from analytic.studies import Study
 from schemas.errors import CliError, describe, run_app
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import NotAnEpisodeLog, read_episode
@@ -332,6 +334,112 @@ def dataset(run_dirs: tuple[Path, ...], out: Path, selection: str) -> None:
         f"{out}: {counts['episodes']} episodes, {counts['ticks']:,} ticks, "
         f"{counts['controllers']} controllers from {counts['runs']} runs"
     )
+
+
+@app.command()
+@click.argument("name", type=click.Choice(["popsize", "generic-vs-specific", "speed"]))
+@click.option(
+    "--reps",
+    type=click.IntRange(min=1),
+    default=5,
+    show_default=True,
+    help="repetitions (seeds 0..reps-1)",
+)
+@click.option(
+    "--sizes", default="10,20,30,50,80", show_default=True, help="popsize: population sizes"
+)
+@click.option(
+    "--durations", default="3,4,5,6", show_default=True, help="speed: spiral durations, s"
+)
+@click.option("--pop", type=click.IntRange(min=4, max=1000), default=30, show_default=True)
+@click.option(
+    "--duration",
+    type=float,
+    default=5.0,
+    show_default=True,
+    help="trajectory duration, s (popsize, generic-vs-specific)",
+)
+@click.option("--generations", type=click.IntRange(min=1), help="per run, instead of converging")
+@click.option("--evaluations", type=click.IntRange(min=1), help="per run, instead of converging")
+@click.option("--connect", multiple=True, help="a running broker's Zenoh endpoint")
+@click.option("--local", is_flag=True, help="run the farm here (the default without --connect)")
+@click.option("--workers", type=click.IntRange(min=1, max=64), default=1, show_default=True)
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path),
+    required=True,
+    help="study directory (an existing one is resumed)",
+)
+def experiment(
+    name: str,
+    reps: int,
+    sizes: str,
+    durations: str,
+    pop: int,
+    duration: float,
+    generations: int | None,
+    evaluations: int | None,
+    connect: tuple[str, ...],
+    local: bool,
+    workers: int,
+    out: Path,
+) -> None:
+    """Rerun one of the paper's studies: popsize, generic-vs-specific or speed."""
+    if connect and local:
+        raise CliError("--connect and --local exclude each other")
+    if generations and evaluations:
+        raise CliError("--generations and --evaluations exclude each other")
+    size_list = [int(v) for v in _numbers("--sizes", sizes)]
+    duration_list = _numbers("--durations", durations)
+    try:
+        base = RunConfig(
+            pop=pop,
+            trajectories=(TrajectorySpec(duration=duration),),
+            generations=generations,
+            evaluations=evaluations,
+            keep="front",
+        )
+        for size in size_list:
+            RunConfig(pop=size)
+        for value in duration_list:
+            TrajectorySpec(duration=value)
+    except ValidationError as error:
+        raise CliError(describe(error)) from None
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise CliError(f"--out: cannot create {str(out)!r}: {error.strerror}") from None
+    console = Console(stderr=True)
+    try:
+        with (
+            _farm(connect, not connect, workers) as endpoints,
+            Progress(
+                SpinnerColumn(), TextColumn("{task.description}"), console=console, transient=True
+            ) as progress,
+        ):
+            task = progress.add_task(name)
+            study = Study(out, endpoints, lambda text: progress.update(task, description=text))
+            try:
+                if name == "popsize":
+                    studies.popsize(study, base, size_list, reps)
+                elif name == "generic-vs-specific":
+                    studies.generic_vs_specific(study, base, reps)
+                else:
+                    studies.speed(study, base, duration_list, reps)
+            except ValueError as error:
+                raise CliError(str(error)) from None
+    except KeyboardInterrupt:
+        click.echo("analytic: stopped; run the same command again to go on", err=True)
+        sys.exit(130)
+    console.print(f"{name}: report, figures and results.csv in {out}/")
+
+
+def _numbers(option: str, text: str) -> list[float]:
+    try:
+        values = [float(part) for part in text.split(",")]
+    except ValueError:
+        raise CliError(f"{option}: expected comma-separated numbers, got {text!r}") from None
+    return values
 
 
 @contextlib.contextmanager

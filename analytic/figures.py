@@ -214,7 +214,7 @@ def _new_figure() -> Figure:
     return figure
 
 
-def _save_png(figure: Figure, path: Path) -> None:
+def save_png(figure: Figure, path: Path) -> None:
     """Render in memory first, so a failed render writes nothing and the write is one rename."""
     buffer = io.BytesIO()
     # No Software/date metadata: the same figure gives the same bytes on any matplotlib.
@@ -297,7 +297,7 @@ def plot_pareto(
         )
     if not finite:
         axes.text(0.5, 0.5, "no evaluations yet", transform=axes.transAxes, ha="center")
-    _save_png(figure, path)
+    save_png(figure, path)
 
 
 def plot_hypervolume(path: Path, history: Sequence[HistoryRow], title: str = "") -> None:
@@ -321,7 +321,7 @@ def plot_hypervolume(path: Path, history: Sequence[HistoryRow], title: str = "")
     axes.grid(True, alpha=0.3)
     if not history:
         axes.text(0.5, 0.5, "no generations yet", transform=axes.transAxes, ha="center")
-    _save_png(figure, path)
+    save_png(figure, path)
 
 
 # --- report ------------------------------------------------------------------------------------

@@ -69,6 +69,14 @@ class RunConfig(BaseModel):
         return Termination(self.generations, self.evaluations, self.tolerance, self.window)
 
     @property
+    def termination_text(self) -> str:
+        if self.generations:
+            return f"{self.generations} generations"
+        if self.evaluations:
+            return f"{self.evaluations} evaluations"
+        return f"until converged (< {self.tolerance:.1%} over {self.window} generations)"
+
+    @property
     def mode(self) -> str:
         return "specific" if len(self.trajectories) == 1 else "generic"
 

@@ -1,0 +1,87 @@
+"""Each of the paper's studies at toy size, on a real local farm."""
+
+import csv
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from analytic import studies
+from analytic.local import local_farm
+from analytic.run import RunConfig
+from analytic.studies import Study, non_dominated
+from schemas import TrajectorySpec
+
+BASE = RunConfig(pop=4, trajectories=(TrajectorySpec(duration=0.4),), generations=2, keep="front")
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def endpoints() -> Iterator[list[str]]:
+    with local_farm(workers=2) as endpoint:
+        yield [endpoint]
+
+
+def rows(path: Path) -> list[dict[str, str]]:
+    with path.open() as stream:
+        return list(csv.DictReader(stream))
+
+
+def test_popsize(tmp_path: Path, endpoints: list[str]) -> None:
+    messages: list[str] = []
+    studies.popsize(Study(tmp_path, endpoints, messages.append), BASE, sizes=[4, 6], reps=2)
+    results = rows(tmp_path / "results.csv")
+    assert [(r["pop"], r["rep"]) for r in results] == [
+        ("4", "0"),
+        ("4", "1"),
+        ("6", "0"),
+        ("6", "1"),
+    ]
+    assert [r["evaluations"] for r in results] == ["8", "8", "12", "12"]
+    assert all(0 < float(r["hypervolume"]) <= 1 for r in results)
+    assert (tmp_path / "popsize.png").read_bytes().startswith(PNG)
+    report = (tmp_path / "report.md").read_text()
+    assert "| 4 |" in report and "| 6 |" in report and "The paper found" in report
+    assert messages  # progress was shown
+    # Resumable: a second pass finds every run finished and simulates nothing more.
+    before = {path: path.stat().st_mtime_ns for path in tmp_path.glob("runs/*/checkpoint.pkl")}
+    studies.popsize(Study(tmp_path, endpoints), BASE, sizes=[4, 6], reps=2)
+    after = {path: path.stat().st_mtime_ns for path in tmp_path.glob("runs/*/checkpoint.pkl")}
+    assert before == after and len(before) == 4
+
+
+def test_generic_vs_specific(tmp_path: Path, endpoints: list[str]) -> None:
+    studies.generic_vs_specific(Study(tmp_path, endpoints), BASE, reps=1)
+    results = rows(tmp_path / "results.csv")
+    assert [r["controller"] for r in results] == ["generic", "specific"]
+    generic = tmp_path / "runs" / "generic-rep0" / "config.json"
+    assert generic.read_text().count('"kind"') == 3  # tuned on all three trajectories
+    assert len(list((tmp_path / "cross" / "generic-rep0" / "episodes").glob("*.mcap"))) >= 1
+    assert (tmp_path / "generic-vs-specific.png").read_bytes().startswith(PNG)
+    assert "specific controller's median hypervolume" in (tmp_path / "report.md").read_text()
+
+
+def test_speed(tmp_path: Path, endpoints: list[str]) -> None:
+    studies.speed(Study(tmp_path, endpoints), BASE, durations=[0.4, 0.6], reps=1)
+    results = rows(tmp_path / "results.csv")
+    assert [(r["tuned_on_s"], r["evaluated_on_s"]) for r in results] == [
+        ("0.4", "0.4"),
+        ("0.4", "0.6"),
+        ("0.6", "0.4"),
+        ("0.6", "0.6"),
+    ]
+    assert all(float(r["median_error_of_most_accurate_m"]) > 0 for r in results)
+    assert (tmp_path / "speed.png").read_bytes().startswith(PNG)
+    assert "| 0.4 s |" in (tmp_path / "report.md").read_text()
+
+
+def test_a_study_uses_one_reference_point_the_worst_tested(tmp_path: Path) -> None:
+    study = Study(tmp_path, [])
+    study.tested = [(0.1, 10.0), (0.3, 1.0), (0.2, 50.0)]
+    assert study.reference == (0.3, 50.0)
+    assert study.hypervolume([(0.3, 50.0)]) == 0.0
+    assert 0 < study.hypervolume([(0.1, 10.0)]) < study.hypervolume([(0.1, 10.0), (0.05, 40.0)])
+
+
+def test_non_dominated() -> None:
+    assert non_dominated([(1, 5), (2, 2), (3, 3), (1, 5)]) == [(1, 5), (2, 2), (1, 5)]
