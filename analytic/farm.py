@@ -47,6 +47,9 @@ SUBMIT_CHUNK = 100  # jobs per Submission: the broker parses each in one go, hol
 ANSWER_SECONDS = 10.0  # how long the broker has to answer a submission or a status query
 
 
+BROKER_BACK = b"\0broker-back"  # an inbox marker, never a real attachment (those are JSON)
+
+
 class FarmUnavailable(ConnectionError):
     """No broker answered, or the study is already open elsewhere."""
 
@@ -150,6 +153,9 @@ class FarmClient:
             except queue.Empty:
                 self._chase_overdue()
                 continue
+            if attachment is BROKER_BACK:
+                self._rejoin()
+                continue
             evaluation = self._receive(attachment, content)
             if evaluation is not None:
                 yield evaluation
@@ -164,8 +170,14 @@ class FarmClient:
             keys.study_results(self.study), self._on_result
         )
         self._token = self.session.liveliness().declare_token(token_key)
-        # The broker learns of the study from the token; wait until it has, so that the first
-        # submission cannot overtake it.
+        self._broker_watch = self.session.liveliness().declare_subscriber(
+            keys.ALIVE_BROKER, self._on_broker_token
+        )
+        self._await_study(", ".join(connect))
+
+    def _await_study(self, where: str) -> None:
+        """The broker learns of the study from the token; wait until it has, so that a
+        submission cannot overtake it."""
         give_up = time.monotonic() + ANSWER_SECONDS
         while time.monotonic() < give_up:
             try:
@@ -176,7 +188,21 @@ class FarmClient:
             if any(study.name == self.study for study in status.studies):
                 return
             time.sleep(0.02)
-        raise FarmUnavailable(f"no gainfarm broker answered at {', '.join(connect)}")
+        raise FarmUnavailable(f"no gainfarm broker answered at {where}")
+
+    def _on_broker_token(self, sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:  # a broker (re)started, with an empty queue
+            self._inbox.put((BROKER_BACK, b""))
+
+    def _rejoin(self) -> None:
+        """A new broker knows none of our jobs: once it knows the study, submit them all again.
+        Its restart lost them, the worker did not fail them: no attempt is counted."""
+        log.warning("a broker (re)started; resubmitting %d pending jobs", len(self._pending))
+        self._await_study("the restarted broker")
+        now = time.monotonic()
+        for pending in self._pending.values():
+            pending.deadline = now + self.deadline
+        self._send([Job(job_id=job_id, episode=p.spec) for job_id, p in self._pending.items()])
 
     def _on_result(self, sample: zenoh.Sample) -> None:
         attachment = sample.attachment.to_bytes() if sample.attachment is not None else None

@@ -61,6 +61,8 @@ class Broker:
             self.session.declare_queryable(keys.STATUS, self._on_status),
             self.session.declare_subscriber(keys.ALL_RESULTS, self._on_result),
         ]
+        # Last, once it can serve: clients that see it appear resubmit what they still wait for.
+        self._entities.append(liveliness.declare_token(keys.ALIVE_BROKER))
         self._ticker = threading.Thread(target=self._tick, name="broker-ticker", daemon=True)
         self._ticker.start()
         log.info("broker listening on %s", ", ".join(listen))

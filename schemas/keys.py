@@ -9,6 +9,7 @@ STATUS = f"{ROOT}/broker/status"  # queryable: (nothing) → BrokerStatus
 ALL_RESULTS = f"{ROOT}/study/*/result/*"
 ALIVE_WORKERS = f"{ROOT}/alive/worker/*"
 ALIVE_STUDIES = f"{ROOT}/alive/study/*"
+ALIVE_BROKER = f"{ROOT}/alive/broker"  # appears anew when a broker (re)starts: its queue is empty
 
 
 def result(study: str, job_id: str) -> str:

@@ -255,3 +255,31 @@ def test_ctrl_c_stops_cleanly_and_resume_goes_on(tmp_path: Path) -> None:
     run = TuningRun.open(tmp_path / "run")
     assert not run.finished and len(run.state.history) == done
     assert run.config.generations == 500
+
+
+def test_the_front_is_the_same_when_the_broker_restarts_mid_run(
+    tmp_path: Path, farm_endpoint: str
+) -> None:
+    from analytic.local import spawn_worker, stop_workers
+    from broker.service import Broker
+
+    calm = tune(tmp_path / "calm", farm_endpoint)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    brokers = [Broker([endpoint])]
+    workers = [spawn_worker(endpoint, f"w{n}") for n in range(2)]
+
+    def restart_the_broker(progress: Progress) -> None:
+        if progress.generation == 1 and len(brokers) == 1:
+            brokers[0].close()  # its queue, leases and study are gone with it
+            brokers.append(Broker([endpoint]))
+
+    try:
+        rough = tune(tmp_path / "rough", endpoint, on_progress=restart_the_broker)
+    finally:
+        stop_workers(workers)
+        brokers[-1].close()
+    assert len(brokers) == 2 and brokers[1].queue.jobs_done > 0
+    assert rough.state.evolution.evaluations == calm.state.evolution.evaluations
+    assert (rough.directory / "front.csv").read_bytes() == (
+        calm.directory / "front.csv"
+    ).read_bytes()
