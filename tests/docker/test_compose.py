@@ -1,0 +1,409 @@
+"""docker/: the image and the compose file, checked without a Docker engine.
+
+Every command they run is parsed by the real click commands (nothing is run), so a renamed option
+or subcommand breaks these tests rather than a deployment.
+"""
+
+import itertools
+import json
+import re
+import shlex
+import tomllib
+from collections.abc import Iterator
+from functools import cache
+from pathlib import Path, PurePosixPath
+
+import click
+import pytest
+import yaml
+
+import analytic.cli
+import broker.cli
+import worker.cli
+from analytic.local import STOP_SECONDS
+
+ROOT = Path(__file__).resolve().parents[2]
+DOCKER = ROOT / "docker"
+COMPOSE_FILE = DOCKER / "compose.yaml"
+DOCKERFILE = DOCKER / "Dockerfile"
+README = DOCKER / "README.md"
+PROGRAMS: dict[str, click.Group] = {
+    "broker": broker.cli.app,
+    "worker": worker.cli.app,
+    "analytic": analytic.cli.app,
+}
+FARM_PORT = 7447
+
+
+# --- reading the files -------------------------------------------------------------------------
+
+
+@cache
+def compose() -> dict:
+    return yaml.safe_load(COMPOSE_FILE.read_text())
+
+
+def service(name: str) -> dict:
+    return compose()["services"][name]
+
+
+def interpolate(text: str) -> str:
+    """Compose's `${VAR:-default}` as it reads with no environment: every variable needs one."""
+
+    def default(match: re.Match[str]) -> str:
+        assert match["default"] is not None, f"{match[0]} has no default in {COMPOSE_FILE.name}"
+        return match["default"]
+
+    text = re.sub(r"\$\{(?P<name>\w+)(?::?-(?P<default>[^}]*))?\}", default, text)
+    assert not re.search(r"(?<!\$)\$(?!\$)", text), f"uninterpolated $ in {text!r}"
+    return text.replace("$$", "$")
+
+
+def argv(command: str | list[str]) -> list[str]:
+    """A compose `command`/`test` as the argument vector the container gets."""
+    if isinstance(command, str):
+        return shlex.split(interpolate(command))
+    return [interpolate(str(part)) for part in command]
+
+
+def healthcheck_argv(check: dict) -> list[str]:
+    kind, *rest = check["test"]
+    assert kind in ("CMD", "CMD-SHELL"), check["test"]
+    return rest if kind == "CMD" else shlex.split(rest[0])
+
+
+def dockerfile_instructions() -> list[tuple[str, str]]:
+    """(INSTRUCTION, arguments) with continuation lines joined and comments dropped."""
+    text = re.sub(r"\\\n", " ", DOCKERFILE.read_text())
+    lines = [line.strip() for line in text.splitlines()]
+    return [
+        (line.split(None, 1)[0].upper(), line.split(None, 1)[1] if " " in line else "")
+        for line in lines
+        if line and not line.startswith("#")
+    ]
+
+
+def instruction(name: str) -> list[str]:
+    return [arguments for kind, arguments in dockerfile_instructions() if kind == name]
+
+
+def dockerfile_cmd() -> list[str]:
+    (cmd,) = instruction("CMD")
+    assert cmd.startswith("["), "CMD in exec form, so the CLI is PID 1 and gets SIGTERM"
+    return json.loads(cmd)
+
+
+def readme_commands() -> Iterator[list[str]]:
+    """Each command line of the README's bash blocks as tokens, comments dropped."""
+    for block in re.findall(r"```bash\n(.*?)```", README.read_text(), flags=re.S):
+        for line in re.sub(r"\\\n", " ", block).splitlines():
+            if tokens := shlex.split(line, comments=True):
+                yield tokens
+
+
+def segments(tokens: list[str]) -> Iterator[list[str]]:
+    """A shell line split at pipes and command separators."""
+    current: list[str] = []
+    for token in tokens:
+        if token in ("|", "||", "&&", ";"):
+            yield current
+            current = []
+        else:
+            current.append(token.rstrip(";"))
+    yield current
+
+
+# --- the CLI check -----------------------------------------------------------------------------
+
+
+def parse_invocation(args: list[str]) -> tuple[str, dict]:
+    """Parse `PROGRAM SUBCOMMAND ...` with the real click commands; (subcommand, its params).
+
+    click.UsageError (unknown subcommand or option, bad value, missing argument) if it is not
+    a valid invocation. Nothing is invoked.
+    """
+    program, *rest = args
+    assert program in PROGRAMS, f"{program!r} is not a gainfarm command"
+    group = PROGRAMS[program]
+    assert group.params == [], "the groups take no options, so the subcommand comes first"
+    with group.make_context(program, list(rest)) as context:
+        name, command, remaining = group.resolve_command(context, list(rest))
+        assert name is not None and command is not None
+        with command.make_context(name, remaining, parent=context) as sub:
+            return name, sub.params
+
+
+def gainfarm_invocations() -> list[tuple[str, list[str]]]:
+    """Every gainfarm command the compose file and the Dockerfile run, with where it is."""
+    found = [("Dockerfile CMD", dockerfile_cmd())]
+    for name, spec in compose()["services"].items():
+        if "command" in spec:
+            found.append((f"{name}.command", argv(spec["command"])))
+        if "healthcheck" in spec:
+            found.append((f"{name}.healthcheck", healthcheck_argv(spec["healthcheck"])))
+    return found
+
+
+def endpoint(value: str) -> tuple[str, int]:
+    match = re.fullmatch(r"tcp/(?P<host>[^:/]+):(?P<port>\d+)", value)
+    assert match, f"{value!r} is not a tcp/HOST:PORT endpoint"
+    return match["host"], int(match["port"])
+
+
+def container_port(mapping: str | int | dict) -> int:
+    """The container side of a `ports` entry: 7447, "7447:7447", "127.0.0.1:7447:7447/tcp"."""
+    if isinstance(mapping, dict):
+        return int(mapping["target"])
+    return int(str(mapping).rsplit(":", 1)[-1].split("/")[0])
+
+
+def seconds(duration: str | int) -> float:
+    """A compose duration such as 30s, 1m30s or 90."""
+    if isinstance(duration, int):
+        return float(duration)
+    parts = re.fullmatch(r"(?:(\d+)h)?(?:(\d+)m)?(?:(\d+)s)?", duration)
+    assert parts and duration, f"unreadable duration {duration!r}"
+    hours, minutes, secs = (int(part or 0) for part in parts.groups())
+    return hours * 3600.0 + minutes * 60.0 + secs
+
+
+def ignored(path: str, patterns: list[str]) -> bool:
+    """Docker's .dockerignore rule: the last pattern matching the path or a parent wins."""
+    excluded = False
+    parts = PurePosixPath(path).parts
+    for pattern in patterns:
+        negated = pattern.startswith("!")
+        body = pattern.removeprefix("!").strip("/")
+        regex = re.escape(body).replace(r"\*\*/", "(?:.*/)?").replace(r"\*\*", ".*")
+        regex = regex.replace(r"\*", "[^/]*").replace(r"\?", "[^/]")
+        prefixes = ("/".join(parts[:n]) for n in range(1, len(parts) + 1))
+        if any(re.fullmatch(regex, prefix) for prefix in prefixes):
+            excluded = not negated
+    return excluded
+
+
+# --- the CLI check catches what it should --------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["worker", "start", "--conect", "tcp/broker:7447"],
+        ["worker", "begin", "--connect", "tcp/broker:7447"],
+        ["analytic", "start", "--pop", "3"],
+        ["analytic", "resume"],
+        ["broker", "start", "--lease-seconds", "soon"],
+    ],
+)
+def test_the_cli_check_rejects_what_the_cli_would(args: list[str]) -> None:
+    with pytest.raises(click.UsageError):
+        parse_invocation(args)
+
+
+def test_the_cli_check_returns_the_parsed_options() -> None:
+    name, params = parse_invocation(["broker", "status", "--connect", "tcp/h:1", "--json"])
+    assert name == "status"
+    assert params == {"connect": ("tcp/h:1",), "as_json": True}
+
+
+# --- compose.yaml ------------------------------------------------------------------------------
+
+
+def test_compose_runs_a_broker_workers_and_an_analytic_from_one_image() -> None:
+    services = compose()["services"]
+    assert {"broker", "worker", "analytic"} <= set(services)
+    images = {
+        (spec["image"], json.dumps(spec["build"], sort_keys=True)) for spec in services.values()
+    }
+    assert len(images) == 1, "every service builds and runs the same image"
+
+
+@pytest.mark.parametrize("name", ["broker", "worker", "analytic"])
+def test_the_build_context_is_the_repo_root_and_the_dockerfile_exists(name: str) -> None:
+    build = service(name)["build"]
+    context = (COMPOSE_FILE.parent / build["context"]).resolve()
+    assert context == ROOT
+    assert (context / "pyproject.toml").is_file()
+    dockerfile = (context / build["dockerfile"]).resolve()
+    assert dockerfile == DOCKERFILE and dockerfile.is_file()
+    # BuildKit reads <Dockerfile>.dockerignore beside a Dockerfile outside the context root.
+    assert dockerfile.with_name(f"{dockerfile.name}.dockerignore").is_file()
+
+
+@pytest.mark.parametrize(
+    ("where", "args"), gainfarm_invocations(), ids=[where for where, _ in gainfarm_invocations()]
+)
+def test_every_command_is_a_valid_invocation_of_the_real_cli(where: str, args: list[str]) -> None:
+    try:
+        parse_invocation(args)
+    except click.UsageError as error:
+        pytest.fail(f"{where}: {shlex.join(args)}: {error.format_message()}")
+
+
+def test_the_broker_listens_where_everyone_connects_and_publishes_that_port() -> None:
+    name, params = parse_invocation(argv(service("broker")["command"]))
+    assert name == "start"
+    ((host, port),) = [endpoint(listen) for listen in params["listen"]]
+    assert host == "0.0.0.0", "a container must listen beyond its loopback"
+    assert port == FARM_PORT
+    assert port in [container_port(mapping) for mapping in service("broker")["ports"]]
+    for client in ("worker", "analytic"):
+        _, client_params = parse_invocation(argv(service(client)["command"]))
+        assert [endpoint(value) for value in client_params["connect"]] == [("broker", port)]
+
+
+def test_the_broker_is_healthy_when_broker_status_answers_on_its_port() -> None:
+    args = healthcheck_argv(service("broker")["healthcheck"])
+    name, params = parse_invocation(args)
+    assert args[0] == "broker" and name == "status"
+    assert [endpoint(value) for value in params["connect"]] == [("127.0.0.1", FARM_PORT)]
+
+
+def test_workers_scale_wait_for_a_healthy_broker_and_finish_their_episode_on_stop() -> None:
+    worker = service("worker")
+    assert "container_name" not in worker, "a fixed container name cannot be scaled"
+    assert "ports" not in worker, "published ports would collide between replicas"
+    _, params = parse_invocation(argv(worker["command"]))
+    assert params["name"] is None, "replicas must get the HOST-PID default, not one fixed name"
+    assert worker["depends_on"]["broker"]["condition"] == "service_healthy"
+    assert worker["restart"] == "on-failure"
+    assert seconds(worker["stop_grace_period"]) >= STOP_SECONDS
+
+
+def test_the_analytic_is_a_one_shot_job_writing_into_the_runs_volume() -> None:
+    analytic = service("analytic")
+    assert analytic["profiles"], "not started by a plain `up`"
+    assert analytic["restart"] == "no"  # quoted in YAML: a bare no would be the boolean
+    assert analytic["depends_on"]["broker"]["condition"] == "service_healthy"
+    name, params = parse_invocation(argv(analytic["command"]))
+    assert name == "start" and params["connect"]
+    mounts = [str(volume).split(":") for volume in analytic["volumes"]]
+    named = [(source, target) for source, target, *_ in mounts if source in compose()["volumes"]]
+    assert named, "the runs are kept in a named volume"
+    assert any(params["out"].is_relative_to(target) for _, target in named)
+    assert params["out"] != Path(named[0][1]), "a run directory inside the volume, not its root"
+
+
+def test_every_compose_variable_has_a_default() -> None:
+    for where, args in gainfarm_invocations():
+        assert all("$" not in arg for arg in args), where
+
+
+# --- the Dockerfile ----------------------------------------------------------------------------
+
+
+def test_the_image_is_python_3_11() -> None:
+    bases = instruction("FROM")
+    assert bases
+    for base in bases:
+        assert re.fullmatch(r"python:3\.11(-slim)?(-\w+)?", base.split()[0]), base
+
+
+def test_the_image_installs_the_project_from_the_context_without_extras() -> None:
+    copies = [arguments.split() for arguments in instruction("COPY")]
+    (destination,) = [args[-1] for args in copies if args[:-1] == ["."]]
+    installs = [
+        arguments.split("pip install", 1)[1].split("&&")[0].split()
+        for arguments in instruction("RUN")
+        if "pip install" in arguments
+    ]
+    assert installs, "no pip install in the Dockerfile"
+    (targets,) = [[arg for arg in args if not arg.startswith("-")] for args in installs]
+    assert targets in ([destination], ["."]), targets
+    assert "[" not in " ".join(targets), "no extras (tests, dev tools) in the image"
+
+
+def test_the_build_context_holds_what_pip_install_needs_and_nothing_else() -> None:
+    ignore = DOCKERFILE.with_name("Dockerfile.dockerignore").read_text().splitlines()
+    patterns = [line.strip() for line in ignore if line.strip() and not line.startswith("#")]
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    packages = [
+        name.rstrip("*") for name in project["tool"]["setuptools"]["packages"]["find"]["include"]
+    ]
+    needed = ["pyproject.toml", project["project"]["readme"]]
+    for package in packages:
+        needed += [str(path.relative_to(ROOT)) for path in (ROOT / package).rglob("*")]
+    needed = [path for path in needed if "__pycache__" not in path]
+    assert "models/iiwa14.xml" in needed
+    assert [path for path in needed if ignored(path, patterns)] == []
+    for unwanted in (".git/HEAD", ".venv/bin/python", "runs/x/front.csv", "tests/conftest.py"):
+        assert ignored(unwanted, patterns), unwanted
+    assert ignored("worker/__pycache__/cli.cpython-311.pyc", patterns)
+
+
+def test_the_image_runs_as_a_non_root_user() -> None:
+    users = instruction("USER")
+    assert users, "no USER: the container would run as root"
+    assert users[-1].split(":")[0] not in ("root", "0")
+
+
+def test_the_default_command_is_a_broker_on_the_exposed_port() -> None:
+    name, params = parse_invocation(dockerfile_cmd())
+    assert dockerfile_cmd()[0] == "broker" and name == "start"
+    assert [endpoint(value)[1] for value in params["listen"]] == [FARM_PORT]
+    assert instruction("EXPOSE") == [str(FARM_PORT)]
+    assert instruction("ENTRYPOINT") == [], "the command alone picks the role"
+
+
+# --- the README --------------------------------------------------------------------------------
+
+
+def test_the_readme_compose_commands_use_this_compose_file_and_its_services() -> None:
+    services = compose()["services"]
+    profiles = {profile for spec in services.values() for profile in spec.get("profiles", [])}
+    count = 0
+    for tokens in readme_commands():
+        for segment in segments(tokens):
+            if "compose" not in segment:
+                continue
+            at = segment.index("compose")
+            assert segment[at - 1 : at + 2] == ["docker", "compose", "-f"], segment
+            assert (ROOT / segment[at + 2]).resolve() == COMPOSE_FILE, segment
+            count += 1
+            rest = segment[at + 3 :]
+            while rest[0] == "--profile":
+                assert rest[1] in profiles, segment
+                rest = rest[2:]
+            verb, *args = rest
+            if verb in ("run", "exec"):
+                assert next(arg for arg in args if not arg.startswith("-")) in services, segment
+            for flag, value in itertools.pairwise(args):
+                if flag == "--scale":
+                    assert value.split("=")[0] in services, segment
+    assert count >= 5
+
+
+def test_the_readme_documents_the_farm_up_scaled_and_a_run() -> None:
+    commands = [shlex.join(tokens) for tokens in readme_commands()]
+    assert any(" up " in command and "--scale worker=" in command for command in commands)
+    assert any("run --rm analytic" in command for command in commands)
+
+
+def test_every_gainfarm_command_in_the_readme_is_valid() -> None:
+    seen = set()
+    resumed = []
+    for tokens in readme_commands():
+        for segment in segments(tokens):
+            for index, token in enumerate(segment[:-1]):
+                group = PROGRAMS.get(token)
+                if group is None or segment[index + 1] not in group.commands:
+                    continue  # e.g. a service name, or `--scale worker=8`
+                args = segment[index:]
+                try:
+                    name, params = parse_invocation(args)
+                except click.UsageError as error:
+                    pytest.fail(f"README: {shlex.join(args)}: {error.format_message()}")
+                seen.add((token, name))
+                if name == "resume":
+                    resumed.append(params["run_dir"])
+                break
+    assert {
+        ("worker", "start"),
+        ("broker", "status"),
+        ("analytic", "start"),
+        ("analytic", "resume"),
+        ("analytic", "experiment"),
+    } <= seen
+    # The resume example continues the run the analytic service starts by default.
+    _, params = parse_invocation(argv(service("analytic")["command"]))
+    assert params["out"] in resumed
