@@ -7,7 +7,7 @@ import os
 import pickle
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import click
@@ -27,7 +27,7 @@ from analytic.report import print_scores
 from analytic.run import CONFIG, RunConfig, TuningRun
 from analytic.run import Progress as RunProgress
 from analytic.studies import Study
-from schemas.errors import CliError, describe, run_app
+from schemas.errors import CliError, describe, parse_numbers, run_app
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import NotAnEpisodeLog, read_episode
 from schemas.robot import ModelSpec
@@ -38,6 +38,31 @@ from schemas.wire import BadMessage
 @click.group(help=__doc__, no_args_is_help=True)
 def app() -> None:
     pass
+
+
+def farm_options(command: Callable[..., None]) -> Callable[..., None]:
+    """--connect, --local and --workers: where the farm is, the same for every command."""
+    options = [
+        click.option("--connect", multiple=True, help="a running broker's Zenoh endpoint"),
+        click.option(
+            "--local", is_flag=True, help="run the farm here: a broker in this process, workers"
+        ),
+        click.option(
+            "--workers",
+            type=click.IntRange(min=1, max=64),
+            default=1,
+            show_default=True,
+            help="with a local farm: how many worker processes",
+        ),
+    ]
+    for option in reversed(options):
+        command = option(command)
+    return command
+
+
+def _check_farm(connect: tuple[str, ...], local: bool) -> None:
+    if connect and local:
+        raise CliError("--connect and --local exclude each other")
 
 
 @app.command()
@@ -58,15 +83,7 @@ def evaluate(log: Path, as_json: bool) -> None:
 
 
 @app.command()
-@click.option("--connect", multiple=True, help="a running broker's Zenoh endpoint")
-@click.option("--local", is_flag=True, help="run the farm here: a broker in this process, workers")
-@click.option(
-    "--workers",
-    type=click.IntRange(min=1, max=64),
-    default=1,
-    show_default=True,
-    help="with --local: how many worker processes",
-)
+@farm_options
 @click.option(
     "--gains",
     "gains_file",
@@ -112,7 +129,7 @@ def batch(
     as_json: bool,
 ) -> None:
     """Evaluate candidate gains on trajectories through the farm; keep and score every episode."""
-    if bool(connect) == local:
+    if bool(connect) == local:  # batch has no default farm: exactly one of the two
         raise CliError("say where the farm is: --connect ENDPOINT or --local")
     candidates = _candidates(gains_file)
     try:
@@ -127,7 +144,7 @@ def batch(
         run_dir.mkdir(parents=True, exist_ok=True)
     except OSError as error:
         raise CliError(f"--run-dir: cannot create {str(run_dir)!r}: {error.strerror}") from None
-    with _farm(connect, local, workers) as endpoints:
+    with _farm(connect, workers) as endpoints:
         try:
             farm = FarmClient(endpoints, f"batch-{os.getpid()}", run_dir, deadline=deadline)
         except (ValueError, ConnectionError) as error:
@@ -172,15 +189,7 @@ def batch(
 @click.option(
     "--model", type=click.Choice(["flexible", "rigid"]), default="flexible", show_default=True
 )
-@click.option("--connect", multiple=True, help="a running broker's Zenoh endpoint")
-@click.option("--local", is_flag=True, help="run the farm here (the default without --connect)")
-@click.option(
-    "--workers",
-    type=click.IntRange(min=1, max=64),
-    default=1,
-    show_default=True,
-    help="local worker processes",
-)
+@farm_options
 @click.option("--out", type=click.Path(path_type=Path), help="run directory  [default: runs/TIME]")
 @click.option(
     "--keep",
@@ -215,8 +224,7 @@ def start(
     Stops after --generations, after --evaluations, or (by default) when the hypervolume has
     stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
     """
-    if connect and local:
-        raise CliError("--connect and --local exclude each other")
+    _check_farm(connect, local)
     if generations and evaluations:
         raise CliError("--generations and --evaluations exclude each other")
     try:
@@ -244,13 +252,10 @@ def start(
 
 @app.command()
 @click.argument("run_dir", type=click.Path(path_type=Path))
-@click.option("--connect", multiple=True, help="a running broker's Zenoh endpoint")
-@click.option("--local", is_flag=True, help="run the farm here (the default without --connect)")
-@click.option("--workers", type=click.IntRange(min=1, max=64), default=1, show_default=True)
+@farm_options
 def resume(run_dir: Path, connect: tuple[str, ...], local: bool, workers: int) -> None:
     """Continue a stopped run from its last checkpoint."""
-    if connect and local:
-        raise CliError("--connect and --local exclude each other")
+    _check_farm(connect, local)
     if not (run_dir / CONFIG).is_file():
         raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG})")
     try:
@@ -265,7 +270,7 @@ def resume(run_dir: Path, connect: tuple[str, ...], local: bool, workers: int) -
 def _tune(run: TuningRun, connect: tuple[str, ...], workers: int) -> None:
     console = Console(stderr=True)
     try:
-        with _farm(connect, not connect, workers) as endpoints:
+        with _farm(connect, workers) as endpoints:
             try:
                 farm = FarmClient(endpoints, f"run-{os.getpid()}", run.directory)
             except (ValueError, ConnectionError) as error:
@@ -361,9 +366,7 @@ def dataset(run_dirs: tuple[Path, ...], out: Path, selection: str) -> None:
 )
 @click.option("--generations", type=click.IntRange(min=1), help="per run, instead of converging")
 @click.option("--evaluations", type=click.IntRange(min=1), help="per run, instead of converging")
-@click.option("--connect", multiple=True, help="a running broker's Zenoh endpoint")
-@click.option("--local", is_flag=True, help="run the farm here (the default without --connect)")
-@click.option("--workers", type=click.IntRange(min=1, max=64), default=1, show_default=True)
+@farm_options
 @click.option(
     "--out",
     type=click.Path(path_type=Path),
@@ -385,12 +388,11 @@ def experiment(
     out: Path,
 ) -> None:
     """Rerun one of the paper's studies: popsize, generic-vs-specific or speed."""
-    if connect and local:
-        raise CliError("--connect and --local exclude each other")
+    _check_farm(connect, local)
     if generations and evaluations:
         raise CliError("--generations and --evaluations exclude each other")
-    size_list = [int(v) for v in _numbers("--sizes", sizes)]
-    duration_list = _numbers("--durations", durations)
+    size_list = [int(v) for v in parse_numbers("--sizes", sizes)]
+    duration_list = list(parse_numbers("--durations", durations))
     try:
         base = RunConfig(
             pop=pop,
@@ -412,7 +414,7 @@ def experiment(
     console = Console(stderr=True)
     try:
         with (
-            _farm(connect, not connect, workers) as endpoints,
+            _farm(connect, workers) as endpoints,
             Progress(
                 SpinnerColumn(), TextColumn("{task.description}"), console=console, transient=True
             ) as progress,
@@ -434,17 +436,10 @@ def experiment(
     console.print(f"{name}: report, figures and results.csv in {out}/")
 
 
-def _numbers(option: str, text: str) -> list[float]:
-    try:
-        values = [float(part) for part in text.split(",")]
-    except ValueError:
-        raise CliError(f"{option}: expected comma-separated numbers, got {text!r}") from None
-    return values
-
-
 @contextlib.contextmanager
-def _farm(connect: tuple[str, ...], local: bool, workers: int) -> Iterator[list[str]]:
-    if not local:
+def _farm(connect: tuple[str, ...], workers: int) -> Iterator[list[str]]:
+    """The endpoints to use: the given broker's, or else a local farm's."""
+    if connect:
         yield list(connect)
         return
     try:

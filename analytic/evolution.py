@@ -120,8 +120,7 @@ class Evolution:
         self.algorithm.tell(infills=individuals)
         x = np.vstack([self._archive_x, individuals.get("X")])
         f = np.vstack([self._archive_f, f])
-        first = NonDominatedSorting().do(f, only_non_dominated_front=True)
-        first = np.sort(first)  # keep the archive's order independent of the sorter's
+        first = non_dominated_indices(f)
         self._archive_x, self._archive_f = x[first], f[first]
         self.evaluations += len(individuals)
 
@@ -132,6 +131,14 @@ class Evolution:
             for x, f in zip(self._archive_x, self._archive_f, strict=True)
         ]
         return sorted(members, key=lambda member: member.objectives)
+
+
+def non_dominated_indices(f: np.ndarray) -> np.ndarray:
+    """Indices of the rows of `f` no other row dominates, in their original order."""
+    if len(f) == 0:
+        return np.empty(0, dtype=int)
+    first = NonDominatedSorting().do(np.asarray(f, dtype=float), only_non_dominated_front=True)
+    return np.sort(first)
 
 
 def normalise(

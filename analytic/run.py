@@ -25,7 +25,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 from pymoo.core.population import Population
 
-from analytic.evolution import REFERENCE_POINT, Evolution, hypervolume, objectives
+from analytic.evolution import REFERENCE_POINT, Candidate, Evolution, hypervolume, objectives
 from analytic.farm import Evaluation, FarmClient
 from analytic.figures import (
     FrontMember,
@@ -264,10 +264,7 @@ class TuningRun:
             for gains in [gains for gains in state.episodes if gains not in keep]:
                 for job_id in state.episodes.pop(gains):
                     (self.directory / "episodes" / f"{job_id}.mcap").unlink(missing_ok=True)
-        members = [
-            FrontMember(member.gains.kp, member.gains.kd, *member.objectives) for member in front
-        ]
-        write_atomically(self.directory / "front.csv", front_csv(members))
+        write_atomically(self.directory / "front.csv", front_csv(_rows(front)))
         write_atomically(self.directory / "history.csv", history_csv(state.history))
         hypervolumes = [row.hypervolume for row in state.history]
         state.stopped = self.config.termination.reason(hypervolumes, state.evolution.evaluations)
@@ -279,10 +276,7 @@ class TuningRun:
     # --- the record --------------------------------------------------------------------------
 
     def write_figures(self) -> None:
-        front = [
-            FrontMember(member.gains.kp, member.gains.kd, *member.objectives)
-            for member in self.state.evolution.front()
-        ]
+        front = _rows(self.state.evolution.front())
         search = "steady-state" if self.config.asynchronous else "generational"
         title = (
             f"{self.config.mode} controller, {search} NSGA-II, "
@@ -311,3 +305,8 @@ class TuningRun:
 
 def _evolution(config: RunConfig) -> Evolution:
     return Evolution(config.pop, config.seed, steady_state=config.asynchronous)
+
+
+def _rows(front: list[Candidate]) -> list[FrontMember]:
+    """The front as front.csv and the figures show it."""
+    return [FrontMember(member.gains.kp, member.gains.kd, *member.objectives) for member in front]

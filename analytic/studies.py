@@ -16,9 +16,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 from matplotlib.figure import Figure
 
-from analytic.evolution import NO_EPISODE, Candidate, hypervolume
+from analytic.evolution import NO_EPISODE, Candidate, hypervolume, non_dominated_indices
 from analytic.farm import FarmClient
 from analytic.figures import save_png
 from analytic.run import RunConfig, TuningRun
@@ -88,7 +89,7 @@ class Study:
 
 
 def non_dominated(points: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
-    return [p for p in points if not any(q[0] <= p[0] and q[1] <= p[1] and q != p for q in points)]
+    return [points[index] for index in non_dominated_indices(np.asarray(points).reshape(-1, 2))]
 
 
 def front_points(run: TuningRun) -> list[tuple[float, float]]:

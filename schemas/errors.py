@@ -24,6 +24,20 @@ def describe(error: ValidationError) -> str:
     return f"{where}: {first['msg']}{suffix}"
 
 
+def parse_numbers(option: str, text: str, count: int | None = None) -> tuple[float, ...]:
+    """Comma-separated numbers from an option's value (exactly `count` of them, if given)."""
+    expected = f"{count} " if count is not None else ""
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        raise CliError(
+            f"{option}: expected {expected}comma-separated numbers, got {text!r}"
+        ) from None
+    if count is not None and len(values) != count:
+        raise CliError(f"{option}: expected {count} numbers, got {len(values)}")
+    return values
+
+
 def run_app(command: click.Command, program: str) -> None:
     """Run a click command, turning every user error into `program: error: ...` on one line."""
     try:

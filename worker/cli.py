@@ -16,7 +16,7 @@ from pydantic import ValidationError
 from analytic.objectives import score
 from analytic.report import print_scores
 from schemas.episode import EpisodeSpec
-from schemas.errors import LOG_LEVELS, CliError, describe, run_app, setup_logging
+from schemas.errors import LOG_LEVELS, CliError, describe, parse_numbers, run_app, setup_logging
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import write_episode
 from schemas.robot import N_JOINTS, ModelSpec
@@ -93,7 +93,7 @@ def episode(
             trajectory=TrajectorySpec(
                 kind=trajectory,
                 duration=duration,
-                center=_numbers("--center", center, 3),
+                center=parse_numbers("--center", center, 3),
                 size=size,
                 seed=seed,
             ),
@@ -160,20 +160,8 @@ def start(connect: tuple[str, ...], name: str | None, log_level: str) -> None:
         log.info("worker %s stopped after %d jobs", name, done)
 
 
-def _numbers(option: str, text: str, count: int) -> tuple[float, ...]:
-    try:
-        values = tuple(float(part) for part in text.split(","))
-    except ValueError:
-        raise CliError(
-            f"{option}: expected {count} comma-separated numbers, got {text!r}"
-        ) from None
-    if len(values) != count:
-        raise CliError(f"{option}: expected {count} numbers, got {len(values)}")
-    return values
-
-
 def _gains(option: str, text: str) -> tuple[float, ...]:
-    values = _numbers(option, text, N_JOINTS)
+    values = parse_numbers(option, text, N_JOINTS)
     if not all(math.isfinite(v) and v >= 0 for v in values):
         raise CliError(f"{option}: gains must be finite and non-negative, got {text!r}")
     return values

@@ -25,7 +25,9 @@ class NameTaken(RuntimeError):
 
 class CobotWorker:
     def __init__(self, connect: Sequence[str], name: str):
-        self.name = LeaseRequest(worker=name).worker  # validated: it becomes a key chunk
+        request = LeaseRequest(worker=name)  # validates the name: it becomes a key chunk
+        self.name = request.worker
+        self._request = request.to_bytes()
         self.jobs_done = 0
         self.session = open_session("client", connect=connect)
         try:
@@ -35,7 +37,6 @@ class CobotWorker:
         except BaseException:
             self.session.close()
             raise
-        self._request = LeaseRequest(worker=name).to_bytes()
 
     def __enter__(self) -> "CobotWorker":
         return self
