@@ -31,6 +31,7 @@ from schemas.errors import CliError, describe, parse_numbers, run_app
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import NotAnEpisodeLog, read_episode
 from schemas.robot import ModelSpec
+from schemas.security import TlsIdentity, load_identity
 from schemas.trajectory import TrajectoryKind, TrajectorySpec
 from schemas.wire import BadMessage
 
@@ -41,9 +42,14 @@ def app() -> None:
 
 
 def farm_options(command: Callable[..., None]) -> Callable[..., None]:
-    """--connect, --local and --workers: where the farm is, the same for every command."""
+    """--connect, --tls, --local and --workers: where the farm is, the same for every command."""
     options = [
         click.option("--connect", multiple=True, help="a running broker's Zenoh endpoint"),
+        click.option(
+            "--tls",
+            type=click.Path(path_type=Path),
+            help="a secure farm: directory with ca.pem, analytic.pem and analytic.key",
+        ),
         click.option(
             "--local", is_flag=True, help="run the farm here: a broker in this process, workers"
         ),
@@ -60,9 +66,16 @@ def farm_options(command: Callable[..., None]) -> Callable[..., None]:
     return command
 
 
-def _check_farm(connect: tuple[str, ...], local: bool) -> None:
+def _check_farm(connect: tuple[str, ...], local: bool, tls: Path | None) -> TlsIdentity | None:
+    """The analytic identity to connect with, if the farm is secure."""
     if connect and local:
         raise CliError("--connect and --local exclude each other")
+    if tls is not None and not connect:
+        raise CliError("--tls needs --connect: a local farm runs on loopback, unsecured")
+    try:
+        return load_identity(tls, "analytic")
+    except ValueError as error:
+        raise CliError(f"--tls: {error}") from None
 
 
 @app.command()
@@ -118,6 +131,7 @@ def evaluate(log: Path, as_json: bool) -> None:
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object per evaluation")
 def batch(
     connect: tuple[str, ...],
+    tls: Path | None,
     local: bool,
     workers: int,
     gains_file: Path | None,
@@ -129,8 +143,9 @@ def batch(
     as_json: bool,
 ) -> None:
     """Evaluate candidate gains on trajectories through the farm; keep and score every episode."""
-    if bool(connect) == local:  # batch has no default farm: exactly one of the two
+    if not connect and not local:  # batch has no default farm
         raise CliError("say where the farm is: --connect ENDPOINT or --local")
+    identity = _check_farm(connect, local, tls)
     candidates = _candidates(gains_file)
     try:
         trajectories = [TrajectorySpec(kind=kind, duration=duration) for kind in kinds]
@@ -146,7 +161,9 @@ def batch(
         raise CliError(f"--run-dir: cannot create {str(run_dir)!r}: {error.strerror}") from None
     with _farm(connect, workers) as endpoints:
         try:
-            farm = FarmClient(endpoints, f"batch-{os.getpid()}", run_dir, deadline=deadline)
+            farm = FarmClient(
+                endpoints, f"batch-{os.getpid()}", run_dir, deadline=deadline, identity=identity
+            )
         except (ValueError, ConnectionError) as error:
             raise CliError(str(error)) from None
         with farm, Progress(transient=True, disable=as_json) as progress:
@@ -213,6 +230,7 @@ def start(
     evaluations: int | None,
     model: str,
     connect: tuple[str, ...],
+    tls: Path | None,
     local: bool,
     workers: int,
     out: Path | None,
@@ -224,7 +242,7 @@ def start(
     Stops after --generations, after --evaluations, or (by default) when the hypervolume has
     stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
     """
-    _check_farm(connect, local)
+    identity = _check_farm(connect, local, tls)
     if generations and evaluations:
         raise CliError("--generations and --evaluations exclude each other")
     try:
@@ -247,15 +265,17 @@ def start(
         raise CliError(f"--out: {error}") from None
     except OSError as error:
         raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
-    _tune(run, connect, workers)
+    _tune(run, connect, workers, identity)
 
 
 @app.command()
 @click.argument("run_dir", type=click.Path(path_type=Path))
 @farm_options
-def resume(run_dir: Path, connect: tuple[str, ...], local: bool, workers: int) -> None:
+def resume(
+    run_dir: Path, connect: tuple[str, ...], tls: Path | None, local: bool, workers: int
+) -> None:
     """Continue a stopped run from its last checkpoint."""
-    _check_farm(connect, local)
+    identity = _check_farm(connect, local, tls)
     if not (run_dir / CONFIG).is_file():
         raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG})")
     try:
@@ -264,15 +284,17 @@ def resume(run_dir: Path, connect: tuple[str, ...], local: bool, workers: int) -
         raise CliError(f"{str(run_dir)!r}: unreadable run ({error})") from None
     if run.finished:
         raise CliError(f"{str(run_dir)!r} has finished: {run.state.stopped}")
-    _tune(run, connect, workers)
+    _tune(run, connect, workers, identity)
 
 
-def _tune(run: TuningRun, connect: tuple[str, ...], workers: int) -> None:
+def _tune(
+    run: TuningRun, connect: tuple[str, ...], workers: int, identity: TlsIdentity | None
+) -> None:
     console = Console(stderr=True)
     try:
         with _farm(connect, workers) as endpoints:
             try:
-                farm = FarmClient(endpoints, f"run-{os.getpid()}", run.directory)
+                farm = FarmClient(endpoints, f"run-{os.getpid()}", run.directory, identity=identity)
             except (ValueError, ConnectionError) as error:
                 raise CliError(str(error)) from None
             with (
@@ -383,12 +405,13 @@ def experiment(
     generations: int | None,
     evaluations: int | None,
     connect: tuple[str, ...],
+    tls: Path | None,
     local: bool,
     workers: int,
     out: Path,
 ) -> None:
     """Rerun one of the paper's studies: popsize, generic-vs-specific or speed."""
-    _check_farm(connect, local)
+    identity = _check_farm(connect, local, tls)
     if generations and evaluations:
         raise CliError("--generations and --evaluations exclude each other")
     size_list = [int(v) for v in parse_numbers("--sizes", sizes)]
@@ -420,7 +443,12 @@ def experiment(
             ) as progress,
         ):
             task = progress.add_task(name)
-            study = Study(out, endpoints, lambda text: progress.update(task, description=text))
+            study = Study(
+                out,
+                endpoints,
+                lambda text: progress.update(task, description=text),
+                identity=identity,
+            )
             try:
                 if name == "popsize":
                     studies.popsize(study, base, size_list, reps)

@@ -25,6 +25,7 @@ from schemas import keys
 from schemas.episode import EpisodeSpec, Scores
 from schemas.files import write_atomically
 from schemas.mcap_episode import NotAnEpisodeLog, decode_episode
+from schemas.security import TlsIdentity
 from schemas.transport import open_session
 from schemas.wire import (
     MAX_EPISODE_BYTES,
@@ -86,6 +87,7 @@ class FarmClient:
         *,
         deadline: float = DEFAULT_DEADLINE,
         attempts: int = DEFAULT_ATTEMPTS,
+        identity: TlsIdentity | None = None,
     ):
         Submission(study=study, jobs=[])  # validates the name before it becomes a key
         self.study = study
@@ -98,7 +100,7 @@ class FarmClient:
         self._pending: dict[str, _Pending] = {}
         self._ready: list[Evaluation] = []
         self._inbox: queue.SimpleQueue[tuple[bytes | None, bytes]] = queue.SimpleQueue()
-        self.session = open_session("client", connect=connect)
+        self.session = open_session("client", connect=connect, identity=identity)
         try:
             self._open_study(connect)
         except BaseException:

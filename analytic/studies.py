@@ -25,6 +25,7 @@ from analytic.figures import save_png
 from analytic.run import RunConfig, TuningRun
 from schemas.episode import EpisodeSpec
 from schemas.files import write_atomically
+from schemas.security import TlsIdentity
 from schemas.trajectory import TrajectoryKind, TrajectorySpec
 
 ALL_KINDS = (TrajectoryKind.spiral, TrajectoryKind.random, TrajectoryKind.pyramid)
@@ -37,6 +38,7 @@ class Study:
     out: Path
     endpoints: list[str]
     on_progress: Callable[[str], None] = lambda _: None
+    identity: TlsIdentity | None = None  # the analytic credentials of a secure farm
     tested: list[tuple[float, float]] = field(default_factory=list)
 
     def tune(self, name: str, config: RunConfig) -> TuningRun:
@@ -47,7 +49,9 @@ class Study:
         if run.config != config:
             raise ValueError(f"{directory} holds a run of another configuration")
         if not run.finished:
-            with FarmClient(self.endpoints, f"{self.out.name}-{name}", directory) as farm:
+            with FarmClient(
+                self.endpoints, f"{self.out.name}-{name}", directory, identity=self.identity
+            ) as farm:
                 run.run(
                     farm,
                     lambda step: self.on_progress(
@@ -62,7 +66,9 @@ class Study:
     ) -> list[tuple[float, float]]:
         """Objectives of `members` on another trajectory (the farm simulates them again)."""
         directory = self.out / "cross" / name
-        with FarmClient(self.endpoints, f"{self.out.name}-x-{name}", directory) as farm:
+        with FarmClient(
+            self.endpoints, f"{self.out.name}-x-{name}", directory, identity=self.identity
+        ) as farm:
             farm.submit(
                 {
                     f"m{index:03d}": EpisodeSpec(

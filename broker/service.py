@@ -15,6 +15,7 @@ import zenoh
 
 from broker.queue import Assignment, LeaseQueue, UnknownStudy
 from schemas import keys
+from schemas.security import TlsIdentity
 from schemas.transport import open_session
 from schemas.wire import (
     LEASE_HOLD_SECONDS,
@@ -43,7 +44,10 @@ class Broker:
         listen: Sequence[str] = (DEFAULT_LISTEN,),
         lease_seconds: float = 60.0,
         hold_seconds: float = LEASE_HOLD_SECONDS,
+        identity: TlsIdentity | None = None,
     ):
+        """With `identity` (the broker's TLS credentials) the router runs the secure profile:
+        TLS with mutual authentication, and the access policy of schemas/security.py."""
         self.endpoints = list(listen)
         self.queue: LeaseQueue[zenoh.Query] = LeaseQueue(lease_seconds)
         self.hold_seconds = hold_seconds
@@ -51,7 +55,7 @@ class Broker:
         self._lock = threading.Lock()
         self._held: deque[tuple[float, str, zenoh.Query]] = deque()  # by deadline: hold is fixed
         self._closed = threading.Event()
-        self.session = open_session("router", listen=listen)
+        self.session = open_session("router", listen=listen, identity=identity)
         liveliness = self.session.liveliness()
         self._entities = [
             liveliness.declare_subscriber(keys.ALIVE_STUDIES, self._on_study_token, history=True),

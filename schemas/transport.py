@@ -1,7 +1,9 @@
 """Zenoh sessions as the farm opens them: explicit endpoints, no multicast scouting.
 
 Every process names where to listen or connect; discovery by multicast would let two farms on one
-network find each other by accident.
+network find each other by accident. With a TLS identity the session is the secure profile
+(schemas/security.py): TLS links only, both sides authenticated, and a router enforcing the access
+policy.
 """
 
 import json
@@ -11,13 +13,18 @@ from typing import Literal
 
 import zenoh
 
+from schemas.security import TlsIdentity, access_control
+
 
 def session_config(
     mode: Literal["router", "client", "peer"],
     listen: Sequence[str] = (),
     connect: Sequence[str] = (),
+    identity: TlsIdentity | None = None,
 ) -> zenoh.Config:
-    """ValueError, in one line, for an endpoint Zenoh cannot parse."""
+    """ValueError, in one line, for an endpoint Zenoh cannot parse or one that does not match
+    whether the session is secure."""
+    _check_protocols([*listen, *connect], secure=identity is not None)
     config = zenoh.Config()
     try:
         config.insert_json5("mode", json.dumps(mode))
@@ -27,16 +34,32 @@ def session_config(
         raise ValueError(f"bad endpoint: {_plain(error)}") from None
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("scouting/gossip/enabled", "false")
+    if identity is not None:
+        identity.check()
+        side = "router" if mode == "router" else "client"
+        config.insert_json5("transport/link/tls", json.dumps(identity.zenoh_tls(side)))
+        config.insert_json5("transport/link/protocols", json.dumps(["tls"]))
+        if mode == "router":
+            config.insert_json5("access_control", json.dumps(access_control()))
     return config
+
+
+def _check_protocols(endpoints: Sequence[str], secure: bool) -> None:
+    for endpoint in endpoints:
+        if secure and not endpoint.startswith("tls/"):
+            raise ValueError(f"{endpoint}: a secure session takes tls/ endpoints only")
+        if not secure and endpoint.startswith("tls/"):
+            raise ValueError(f"{endpoint}: a tls/ endpoint needs TLS credentials (--tls DIR)")
 
 
 def open_session(
     mode: Literal["router", "client", "peer"],
     listen: Sequence[str] = (),
     connect: Sequence[str] = (),
+    identity: TlsIdentity | None = None,
 ) -> zenoh.Session:
     """Open a session; ConnectionError with the endpoints in its message if that fails."""
-    config = session_config(mode, listen, connect)
+    config = session_config(mode, listen, connect, identity)
     try:
         return zenoh.open(config)
     except zenoh.ZError as error:

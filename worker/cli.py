@@ -20,6 +20,7 @@ from schemas.errors import LOG_LEVELS, CliError, describe, parse_numbers, run_ap
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import write_episode
 from schemas.robot import N_JOINTS, ModelSpec
+from schemas.security import load_identity
 from schemas.trajectory import TrajectoryKind, TrajectorySpec
 from schemas.wire import NAME_PATTERN, NAME_RULE
 from worker.episode import run_episode
@@ -128,8 +129,13 @@ def episode(
     help="the broker's Zenoh endpoint (repeat for several)",
 )
 @click.option("--name", help="unique name of this cobot in the farm  [default: HOST-PID]")
+@click.option(
+    "--tls",
+    type=click.Path(path_type=Path),
+    help="a secure farm: directory with ca.pem, worker.pem and worker.key",
+)
 @click.option("--log-level", type=click.Choice(LOG_LEVELS), default="info", show_default=True)
-def start(connect: tuple[str, ...], name: str | None, log_level: str) -> None:
+def start(connect: tuple[str, ...], name: str | None, tls: Path | None, log_level: str) -> None:
     """Serve a farm: ask the broker for jobs while free, run them, return their logs.
 
     SIGTERM or Ctrl-C: the job in progress is finished and returned, then the worker exits.
@@ -138,6 +144,10 @@ def start(connect: tuple[str, ...], name: str | None, log_level: str) -> None:
     name = name or re.sub(r"[^A-Za-z0-9_.\-]", "-", f"{socket.gethostname()}-{os.getpid()}")
     if not re.fullmatch(NAME_PATTERN, name):
         raise CliError(f"--name: {name!r} is not {NAME_RULE}")
+    try:
+        identity = load_identity(tls, "worker")
+    except ValueError as error:
+        raise CliError(f"--tls: {error}") from None
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
@@ -145,7 +155,7 @@ def start(connect: tuple[str, ...], name: str | None, log_level: str) -> None:
     waiting = False
     while not stop.is_set():
         try:
-            cobot = CobotWorker(connect, name)
+            cobot = CobotWorker(connect, name, identity)
         except (NameTaken, ValueError) as error:
             raise CliError(str(error)) from None
         except ConnectionError as error:

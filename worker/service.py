@@ -9,6 +9,7 @@ from collections.abc import Sequence
 import zenoh
 
 from schemas import keys
+from schemas.security import TlsIdentity
 from schemas.transport import open_session
 from schemas.wire import LEASE_HOLD_SECONDS, BadMessage, LeaseReply, LeaseRequest, decode
 from worker.job import execute
@@ -24,12 +25,12 @@ class NameTaken(RuntimeError):
 
 
 class CobotWorker:
-    def __init__(self, connect: Sequence[str], name: str):
+    def __init__(self, connect: Sequence[str], name: str, identity: TlsIdentity | None = None):
         request = LeaseRequest(worker=name)  # validates the name: it becomes a key chunk
         self.name = request.worker
         self._request = request.to_bytes()
         self.jobs_done = 0
-        self.session = open_session("client", connect=connect)
+        self.session = open_session("client", connect=connect, identity=identity)
         try:
             if any(True for _ in self.session.liveliness().get(keys.alive_worker(name), timeout=1)):
                 raise NameTaken(f"a worker named {name!r} is already connected to this farm")

@@ -254,7 +254,10 @@ def test_batch_command_in_local_mode(tmp_path: Path) -> None:
     ("arguments", "message"),
     [
         ([], "say where the farm is: --connect ENDPOINT or --local"),
-        (["--local", "--connect", "tcp/127.0.0.1:7447"], "say where the farm is"),
+        (
+            ["--local", "--connect", "tcp/127.0.0.1:7447"],
+            "--connect and --local exclude each other",
+        ),
         (["--local", "--gains", "missing.json"], "--gains: cannot read 'missing.json'"),
         (
             ["--local", "--duration", "0"],

@@ -25,6 +25,7 @@ from analytic.local import STOP_SECONDS
 ROOT = Path(__file__).resolve().parents[2]
 DOCKER = ROOT / "docker"
 COMPOSE_FILE = DOCKER / "compose.yaml"
+SECURE_FILE = DOCKER / "compose.secure.yaml"
 DOCKERFILE = DOCKER / "Dockerfile"
 README = DOCKER / "README.md"
 PROGRAMS: dict[str, click.Group] = {
@@ -45,6 +46,25 @@ def compose() -> dict:
 
 def service(name: str) -> dict:
     return compose()["services"][name]
+
+
+@cache
+def secure_overrides() -> dict:
+    return yaml.safe_load(SECURE_FILE.read_text())
+
+
+def secure_service(name: str) -> dict:
+    """A service as `-f compose.yaml -f compose.secure.yaml` gives it: Compose's merge rules for
+    the keys used here (scalars and health-check keys replaced, mappings merged, lists added)."""
+    merged = dict(compose()["services"].get(name, {}))
+    for key, value in secure_overrides()["services"][name].items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = {**merged[key], **value}
+        elif isinstance(value, list) and key in ("volumes", "ports") and key in merged:
+            merged[key] = [*merged[key], *value]
+        else:
+            merged[key] = value
+    return merged
 
 
 def interpolate(text: str) -> str:
@@ -136,17 +156,18 @@ def parse_invocation(args: list[str]) -> tuple[str, dict]:
 def gainfarm_invocations() -> list[tuple[str, list[str]]]:
     """Every gainfarm command the compose file and the Dockerfile run, with where it is."""
     found = [("Dockerfile CMD", dockerfile_cmd())]
-    for name, spec in compose()["services"].items():
-        if "command" in spec:
-            found.append((f"{name}.command", argv(spec["command"])))
-        if "healthcheck" in spec:
-            found.append((f"{name}.healthcheck", healthcheck_argv(spec["healthcheck"])))
+    for prefix, services in (("", compose()), ("secure ", secure_overrides())):
+        for name, spec in services["services"].items():
+            if "command" in spec:
+                found.append((f"{prefix}{name}.command", argv(spec["command"])))
+            if "test" in spec.get("healthcheck", {}):
+                found.append((f"{prefix}{name}.healthcheck", healthcheck_argv(spec["healthcheck"])))
     return found
 
 
-def endpoint(value: str) -> tuple[str, int]:
-    match = re.fullmatch(r"tcp/(?P<host>[^:/]+):(?P<port>\d+)", value)
-    assert match, f"{value!r} is not a tcp/HOST:PORT endpoint"
+def endpoint(value: str, protocol: str = "tcp") -> tuple[str, int]:
+    match = re.fullmatch(rf"{protocol}/(?P<host>[^:/]+):(?P<port>\d+)", value)
+    assert match, f"{value!r} is not a {protocol}/HOST:PORT endpoint"
     return match["host"], int(match["port"])
 
 
@@ -203,7 +224,7 @@ def test_the_cli_check_rejects_what_the_cli_would(args: list[str]) -> None:
 def test_the_cli_check_returns_the_parsed_options() -> None:
     name, params = parse_invocation(["broker", "status", "--connect", "tcp/h:1", "--json"])
     assert name == "status"
-    assert params == {"connect": ("tcp/h:1",), "as_json": True}
+    assert params == {"connect": ("tcp/h:1",), "tls": None, "role": "broker", "as_json": True}
 
 
 # --- compose.yaml ------------------------------------------------------------------------------
@@ -289,6 +310,64 @@ def test_every_compose_variable_has_a_default() -> None:
         assert all("$" not in arg for arg in args), where
 
 
+# --- compose.secure.yaml ------------------------------------------------------------------------
+
+
+def test_the_secure_profile_overrides_only_services_of_the_farm() -> None:
+    overrides = secure_overrides()["services"]
+    assert set(overrides) - set(compose()["services"]) == {"certs"}
+    assert secure_service("certs")["image"] == service("broker")["image"]
+
+
+def _mounted(spec: dict, directory: Path) -> list[str]:
+    """The volumes `spec` mounts at `directory`, as 'name' or 'name:ro'."""
+    mounts = [str(volume).split(":") for volume in spec.get("volumes", [])]
+    return [
+        ":".join([source, *options])
+        for source, target, *options in mounts
+        if target == str(directory)
+    ]
+
+
+def test_the_secure_farm_speaks_tls_with_each_role_holding_the_generated_credentials() -> None:
+    name, certs = parse_invocation(argv(secure_service("certs")["command"]))
+    assert name == "certs" and certs["if_missing"], "every `up` runs it: it must keep the CA"
+    credentials = certs["directory"]
+    assert _mounted(secure_service("certs"), credentials) == ["certs"]
+    assert "certs" in secure_overrides()["volumes"]
+
+    broker = secure_service("broker")
+    _, params = parse_invocation(argv(broker["command"]))
+    assert [endpoint(value, "tls") for value in params["listen"]] == [("0.0.0.0", FARM_PORT)]
+    assert params["tls"] == credentials
+    assert broker["depends_on"]["certs"]["condition"] == "service_completed_successfully"
+    _, check = parse_invocation(healthcheck_argv(broker["healthcheck"]))
+    ((check_host, check_port),) = [endpoint(value, "tls") for value in check["connect"]]
+    assert check_port == FARM_PORT and check["tls"] == credentials
+    # Clients verify the broker's certificate against the name they dial.
+    assert {"broker", check_host} <= set(certs["hosts"])
+
+    for role in ("broker", "worker", "analytic"):
+        spec = secure_service(role)
+        assert _mounted(spec, credentials) == ["certs:ro"], role
+        if role != "broker":
+            _, params = parse_invocation(argv(spec["command"]))
+            assert [endpoint(value, "tls") for value in params["connect"]] == [
+                ("broker", FARM_PORT)
+            ]
+            assert params["tls"] == credentials
+            assert spec["depends_on"]["broker"]["condition"] == "service_healthy"
+
+
+def test_the_image_has_a_writable_place_for_the_credentials_volume() -> None:
+    _, certs = parse_invocation(argv(secure_service("certs")["command"]))
+    (run,) = [arguments for arguments in instruction("RUN") if "useradd" in arguments]
+    assert (
+        f"mkdir /runs {certs['directory']}" in run
+        and str(certs["directory"]) in run.split("chown")[1]
+    )
+
+
 # --- the Dockerfile ----------------------------------------------------------------------------
 
 
@@ -361,6 +440,9 @@ def test_the_readme_compose_commands_use_this_compose_file_and_its_services() ->
             assert (ROOT / segment[at + 2]).resolve() == COMPOSE_FILE, segment
             count += 1
             rest = segment[at + 3 :]
+            if rest[0] == "-f":  # the secure profile goes over the base file
+                assert (ROOT / rest[1]).resolve() == SECURE_FILE, segment
+                rest = rest[2:]
             while rest[0] == "--profile":
                 assert rest[1] in profiles, segment
                 rest = rest[2:]
