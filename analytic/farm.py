@@ -46,6 +46,7 @@ DEFAULT_DEADLINE = 600.0  # s from (re)submission: a backstop; leases and liveli
 DEFAULT_ATTEMPTS = 3
 SUBMIT_CHUNK = 100  # jobs per Submission: the broker parses each in one go, holding the GIL
 ANSWER_SECONDS = 10.0  # how long the broker has to answer a submission or a status query
+RECHECK_SECONDS = 1.0  # a resubmitted job the broker still had: ask again this soon
 
 
 BROKER_BACK = b"\0broker-back"  # an inbox marker, never a real attachment (those are JSON)
@@ -268,7 +269,7 @@ class FarmClient:
             self.ignored += 1
             log.warning("ignored a result of study %r on this study's key", result.study)
             return None
-        pending = self._pending.pop(result.job_id, None)
+        pending = self._pending.get(result.job_id)
         if pending is None:  # already evaluated (or never submitted here): counted once
             self.duplicates += 1
             return None
@@ -280,6 +281,7 @@ class FarmClient:
             timings=result.timings,
         )
         if result.status == JobStatus.failed:
+            del self._pending[result.job_id]
             return Evaluation(
                 **common, status="failed", scores=None, episode=None, reason=result.reason
             )
@@ -290,13 +292,8 @@ class FarmClient:
             if episode.metadata.spec != pending.spec:
                 raise NotAnEpisodeLog("the log is of another episode than the one submitted")
         except NotAnEpisodeLog as error:
-            return Evaluation(
-                **common,
-                status="failed",
-                scores=None,
-                episode=None,
-                reason=f"unusable episode log: {error}",
-            )
+            return self._run_again(result, pending, f"unusable episode log: {error}")
+        del self._pending[result.job_id]
         path = self.episodes / f"{result.job_id}.mcap"
         write_atomically(path, content)
         return Evaluation(
@@ -306,6 +303,21 @@ class FarmClient:
             episode=path,
             reason=result.reason,
         )
+
+    def _run_again(self, result: Result, pending: _Pending, reason: str) -> Evaluation | None:
+        """A log damaged on its way is a lost result, not the job's outcome: the episode is
+        deterministic, so run it again (an attempt) rather than score nothing."""
+        log.warning("job %s from %s: %s", result.job_id, result.worker, reason)
+        if pending.attempts >= self.attempts:
+            del self._pending[result.job_id]
+            return self._failed(result.job_id, pending, f"{reason} (attempt {pending.attempts})")
+        pending.attempts += 1
+        # The broker may not have closed the damaged lease yet and answer "already pending":
+        # look again soon rather than after a whole deadline.
+        still_pending = self._send([Job(job_id=result.job_id, episode=pending.spec)])
+        wait = RECHECK_SECONDS if result.job_id in still_pending else self.deadline
+        pending.deadline = time.monotonic() + wait
+        return None
 
     def _failed(
         self, job_id: str, pending: _Pending, reason: str, status: str = "failed"

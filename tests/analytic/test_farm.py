@@ -182,10 +182,32 @@ def test_bad_results_on_the_studys_key_are_ignored_or_reported(
         finally:
             stop_workers([worker])
         assert farm.ignored == 2 and farm.duplicates >= 1
-    assert evaluations["j1"].status == "failed"
-    assert evaluations["j1"].reason.startswith("unusable episode log: ")
-    assert evaluations["j2"].status == "ok"
-    assert not (tmp_path / "episodes" / "j1.mcap").exists()
+    # The liar's log was unusable: that is a lost result, so j1 ran again, on the real worker.
+    assert evaluations["j1"].status == "ok" and evaluations["j1"].attempts == 2
+    assert evaluations["j1"].worker == "w"
+    assert read_episode(tmp_path / "episodes" / "j1.mcap").metadata.spec == short_spec()
+    assert evaluations["j2"].status == "ok" and evaluations["j2"].attempts == 1
+
+
+def test_an_unusable_log_on_the_last_attempt_fails_the_job_with_the_reason(
+    broker: Broker, session: zenoh.Session, tmp_path: Path
+) -> None:
+    with FarmClient(broker.endpoints, "s", tmp_path, attempts=1) as farm:
+        farm.submit({"j": short_spec()})
+        truncated = Result(
+            study="s",
+            job_id="j",
+            lease_id="x",
+            worker="liar",
+            status=JobStatus.ok,
+            episode_bytes=10,
+            timings=Timings(simulate_s=0, encode_s=0),
+        )
+        session.put(keys.result("s", "j"), b"hello", attachment=truncated.to_bytes())
+        [evaluation] = list(farm.results(timeout=10))
+    assert evaluation.status == "failed" and evaluation.worker == ""
+    assert evaluation.reason == "unusable episode log: 5 bytes, not the 10 sent (attempt 1)"
+    assert not (tmp_path / "episodes" / "j.mcap").exists()
 
 
 def test_a_diverged_episode_is_an_evaluation_with_penalised_scores(

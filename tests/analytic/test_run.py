@@ -2,21 +2,30 @@
 
 import itertools
 import json
+import logging
 import os
+import signal
 import subprocess
 import sys
-from collections.abc import Iterator
+import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 
 from analytic.farm import FarmClient
 from analytic.figures import read_front, read_history
-from analytic.local import free_port, local_farm
+from analytic.local import free_port, local_farm, spawn_worker, stop_workers
 from analytic.objectives import score
 from analytic.run import Progress, RunConfig, TuningRun
-from schemas import EpisodeSpec, PDGains, TrajectorySpec
+from broker.service import Broker
+from schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
+from schemas.mcap_episode import read_episode
+from schemas.transport import open_session
+from tests.helpers import ask_for_work, wait_for
 from worker.episode import run_episode
+from worker.job import execute
 
 TINY = RunConfig(pop=6, seed=7, trajectories=(TrajectorySpec(duration=0.5),), generations=3)
 
@@ -26,6 +35,19 @@ def farm_endpoint() -> Iterator[str]:
     """One local farm (a broker here, 2 worker processes) shared by this module's runs."""
     with local_farm(workers=2) as endpoint:
         yield endpoint
+
+
+@pytest.fixture(scope="module")
+def calm(farm_endpoint: str, tmp_path_factory: pytest.TempPathFactory) -> TuningRun:
+    """TINY without faults: what every fault test's run must end with."""
+    return tune(tmp_path_factory.mktemp("calm") / "calm", farm_endpoint)
+
+
+def assert_same_outcome(rough: TuningRun, calm: TuningRun) -> None:
+    assert rough.finished and rough.state.stopped == calm.state.stopped
+    assert rough.state.evolution.evaluations == calm.state.evolution.evaluations
+    front = (rough.directory / "front.csv").read_bytes()
+    assert front == (calm.directory / "front.csv").read_bytes()
 
 
 def tune(directory: Path, endpoint: str, config: RunConfig = TINY, **hooks) -> TuningRun:
@@ -198,12 +220,8 @@ def test_a_steady_state_run_records_a_row_every_pop_evaluations(
 
 
 def test_the_front_is_the_same_when_a_worker_dies_on_the_way(
-    tmp_path: Path, farm_endpoint: str
+    tmp_path: Path, calm: TuningRun
 ) -> None:
-    from analytic.local import spawn_worker, stop_workers
-    from broker.service import Broker
-
-    calm = tune(tmp_path / "calm", farm_endpoint)
     with Broker([f"tcp/127.0.0.1:{free_port()}"]) as broker:
         endpoint = broker.endpoints[0]
         workers = [spawn_worker(endpoint, "victim"), spawn_worker(endpoint, "survivor")]
@@ -217,9 +235,7 @@ def test_the_front_is_the_same_when_a_worker_dies_on_the_way(
         finally:
             stop_workers(workers)
         assert workers[0].returncode == -9
-    assert (rough.directory / "front.csv").read_bytes() == (
-        calm.directory / "front.csv"
-    ).read_bytes()
+    assert_same_outcome(rough, calm)
 
 
 def test_ctrl_c_stops_cleanly_and_resume_goes_on(tmp_path: Path) -> None:
@@ -258,12 +274,8 @@ def test_ctrl_c_stops_cleanly_and_resume_goes_on(tmp_path: Path) -> None:
 
 
 def test_the_front_is_the_same_when_the_broker_restarts_mid_run(
-    tmp_path: Path, farm_endpoint: str
+    tmp_path: Path, calm: TuningRun
 ) -> None:
-    from analytic.local import spawn_worker, stop_workers
-    from broker.service import Broker
-
-    calm = tune(tmp_path / "calm", farm_endpoint)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     brokers = [Broker([endpoint])]
     workers = [spawn_worker(endpoint, f"w{n}") for n in range(2)]
@@ -279,7 +291,91 @@ def test_the_front_is_the_same_when_the_broker_restarts_mid_run(
         stop_workers(workers)
         brokers[-1].close()
     assert len(brokers) == 2 and brokers[1].queue.jobs_done > 0
-    assert rough.state.evolution.evaluations == calm.state.evolution.evaluations
-    assert (rough.directory / "front.csv").read_bytes() == (
-        calm.directory / "front.csv"
-    ).read_bytes()
+    assert_same_outcome(rough, calm)
+
+
+def test_the_front_is_the_same_when_the_analytic_process_is_killed_and_resumed(
+    tmp_path: Path, calm: TuningRun
+) -> None:
+    with local_farm(workers=2) as endpoint:
+        arguments = ["--connect", endpoint]
+        config = ["--pop", "6", "--seed", "7", "--duration", "0.5", "--generations", "3"]
+        command = [sys.executable, "-m", "analytic", "start", *config, *arguments, "--out", "run"]
+        running = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.DEVNULL)
+        history = tmp_path / "run" / "history.csv"
+        # Killed mid-generation two, with its jobs queued and running on the farm.
+        wait_for(lambda: history.exists() or running.poll() is not None, 120, "generation one")
+        running.kill()
+        assert running.wait(10) == -signal.SIGKILL
+        assert not TuningRun.open(tmp_path / "run").finished
+        resumed = analytic("resume", "run", *arguments, cwd=tmp_path)
+        assert resumed.returncode == 0, resumed.stderr
+    rough = TuningRun.open(tmp_path / "run")
+    assert rough.config == calm.config
+    assert_same_outcome(rough, calm)
+
+
+class Saboteur(threading.Thread):
+    """A worker whose logs arrive damaged: it leases jobs and runs them for real, but each log is
+    mangled on its way back (truncated, or with bytes flipped in its data)."""
+
+    DAMAGES: ClassVar[list[Callable[[bytes], bytes]]] = [
+        lambda log: log[: len(log) // 2],
+        lambda log: log[:4000] + bytes(b ^ 0xFF for b in log[4000:4400]) + log[4400:],
+    ]
+
+    def __init__(self, endpoint: str):
+        super().__init__(name="saboteur", daemon=True)
+        self.endpoint = endpoint
+        self.damaged: list[str] = []
+        self.stop = threading.Event()
+
+    def run(self) -> None:
+        session = open_session("client", connect=[self.endpoint])
+        _token = session.liveliness().declare_token(keys.alive_worker("saboteur"))
+        try:
+            for damage in self.DAMAGES:
+                lease = None
+                while lease is None and not self.stop.is_set():
+                    lease = ask_for_work(session, "saboteur")
+                if lease is None:
+                    return
+                result, log = execute(lease, "saboteur")
+                # The attachment tells the truth about what was sent: the damage is in transit.
+                session.put(
+                    keys.result(lease.study, lease.job.job_id),
+                    damage(log),
+                    attachment=result.to_bytes(),
+                )
+                self.damaged.append(lease.job.job_id)
+        finally:
+            session.close()
+
+
+def test_the_front_is_the_same_when_a_worker_returns_damaged_logs(
+    tmp_path: Path, calm: TuningRun, caplog: pytest.LogCaptureFixture
+) -> None:
+    with Broker([f"tcp/127.0.0.1:{free_port()}"]) as broker:
+        endpoint = broker.endpoints[0]
+        saboteur = Saboteur(endpoint)
+        saboteur.start()
+        # Known to the broker first, the saboteur is sure to take some of the first leases.
+        wait_for(
+            lambda: "saboteur" in [worker.name for worker in broker.queue.worker_states()],
+            what="the saboteur to join",
+        )
+        worker = spawn_worker(endpoint, "honest")
+        try:
+            with caplog.at_level(logging.WARNING, logger="gainfarm.analytic"):
+                rough = tune(tmp_path / "rough", endpoint)
+        finally:
+            stop_workers([worker])
+            saboteur.stop.set()
+            saboteur.join(10)
+    assert len(saboteur.damaged) == len(Saboteur.DAMAGES)
+    refused = [r.getMessage() for r in caplog.records if "unusable episode log" in r.getMessage()]
+    assert len(refused) == len(Saboteur.DAMAGES)
+    assert_same_outcome(rough, calm)
+    # Each damaged job was simply run again: every kept log is whole and of its own job.
+    for damaged in saboteur.damaged:
+        assert read_episode(rough.directory / "episodes" / f"{damaged}.mcap").ticks > 0

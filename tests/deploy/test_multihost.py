@@ -1,0 +1,330 @@
+"""The farm across hosts, for real: every role in its own Linux network namespace, on a LAN.
+
+Each host (the broker, the analytic process, two workers and an operator's console) is a network
+namespace with one address on a private /24 and nothing else but `lo`. The LAN is a Linux bridge
+in a namespace of its own, the switch, with one veth pair per host: the machine's own network,
+routes and firewall (which may well drop bridged traffic) are never touched, and the subnet exists
+only inside the namespaces, so it cannot collide with anything. Every process reaches the broker
+over real TCP through the bridge, on the explicit endpoint it is given. Needs root and iproute2.
+"""
+
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from analytic.figures import read_history
+from schemas.wire import BrokerStatus, WorkerState
+from tests.helpers import wait_for
+
+SUBNET = "10.213.47"
+HOSTS = {"broker": 2, "analytic": 3, "worker-1": 4, "worker-2": 5, "console": 6}
+BROKER_PORT = 7447
+# 10 s spirals: a worker's first one (it computes the trajectory's reference too) takes a few
+# hundred ms of wall time, long enough to pull a cable while it runs.
+RUN = ("--pop", "4", "--generations", "2", "--duration", "10", "--seed", "0")
+EVALUATIONS = 8  # pop × generations, one trajectory
+LEASE_SECONDS = 2.0
+ZENOH_LEASE_SECONDS = 10.0  # Zenoh's default transport lease: a silent link is closed after it
+STOP_SECONDS = 15.0  # a worker finishes its episode before leaving on SIGTERM
+
+# An operator's `broker status`, asked every 10 ms and printed as JSON lines: one CLI call per
+# look would take a second to start, far too slow to catch a worker in the middle of an episode.
+WATCH = """
+import sys, time
+from broker.status import BrokerUnavailable, query_status
+from schemas.transport import open_session
+while True:
+    try:
+        session = open_session("client", connect=[sys.argv[1]])
+        break
+    except ConnectionError:  # the broker is not listening yet
+        time.sleep(0.1)
+while True:
+    try:
+        print(query_status(session, timeout=1.0).model_dump_json(), flush=True)
+    except BrokerUnavailable:
+        pass
+    time.sleep(0.01)
+"""
+
+
+def ip(*arguments: str) -> None:
+    subprocess.run(["ip", *arguments], check=True, capture_output=True, text=True, timeout=30)
+
+
+class Lan:
+    """Namespaces named after this process (parallel runs do not clash), the processes started
+    in them, and their logs."""
+
+    def __init__(self, logs: Path):
+        self.prefix = f"gf{os.getpid()}"
+        self.switch = f"{self.prefix}-lan"
+        self.logs = logs
+        self.processes: list[subprocess.Popen] = []
+
+    def namespace(self, host: str) -> str:
+        return f"{self.prefix}-{host}"
+
+    def address(self, host: str) -> str:
+        return f"{SUBNET}.{HOSTS[host]}"
+
+    @property
+    def endpoint(self) -> str:
+        return f"tcp/{self.address('broker')}:{BROKER_PORT}"
+
+    def build(self) -> None:
+        self.demolish()  # a namespace left by a crashed run that had this pid
+        ip("netns", "add", self.switch)
+        ip("-n", self.switch, "link", "add", "lan", "type", "bridge")
+        ip("-n", self.switch, "link", "set", "lan", "up")
+        for host in HOSTS:
+            namespace = self.namespace(host)
+            ip("netns", "add", namespace)
+            ip("-n", namespace, "link", "set", "lo", "up")
+            # The switch's port is named after the host; the host sees a plain eth0.
+            veth = ("type", "veth", "peer", "eth0", "netns", namespace)
+            ip("-n", self.switch, "link", "add", host, *veth)
+            ip("-n", self.switch, "link", "set", host, "master", "lan", "up")
+            ip("-n", namespace, "addr", "add", f"{self.address(host)}/24", "dev", "eth0")
+            ip("-n", namespace, "link", "set", "eth0", "up")
+
+    def demolish(self) -> None:
+        for namespace in [self.switch, *map(self.namespace, HOSTS)]:
+            subprocess.run(["ip", "netns", "del", namespace], capture_output=True, timeout=30)
+
+    def stop_everything(self) -> None:
+        for process in self.processes:
+            if process.poll() is None:
+                process.terminate()
+        for process in self.processes:
+            try:
+                process.wait(STOP_SECONDS)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+    def command(self, host: str, *arguments: str) -> list[str]:
+        return ["ip", "netns", "exec", self.namespace(host), sys.executable, *arguments]
+
+    def spawn(self, host: str, label: str, *arguments: str) -> subprocess.Popen:
+        """Start `python ARGUMENTS` on `host`; its output goes to LABEL.log."""
+        with (self.logs / f"{label}.log").open("wb") as log:
+            process = subprocess.Popen(
+                self.command(host, *arguments),
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                cwd=self.logs,
+                env={**os.environ, "COLUMNS": "200"},
+            )
+        self.processes.append(process)
+        return process
+
+    def run(self, host: str, *arguments: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            self.command(host, *arguments),
+            capture_output=True,
+            text=True,
+            timeout=120,
+            cwd=self.logs,
+            env={**os.environ, "COLUMNS": "200"},
+        )
+
+    def start_broker(self, lease_seconds: float) -> subprocess.Popen:
+        return self.spawn(
+            "broker",
+            "broker",
+            *("-m", "broker", "start", "--listen", self.endpoint),
+            *("--lease-seconds", str(lease_seconds)),
+        )
+
+    def start_worker(self, host: str) -> subprocess.Popen:
+        return self.spawn(
+            host, host, "-m", "worker", "start", "--connect", self.endpoint, "--name", host
+        )
+
+    def start_study(self, out: Path) -> subprocess.Popen:
+        return self.spawn(
+            "analytic",
+            "analytic",
+            *("-m", "analytic", "start", "--connect", self.endpoint, *RUN, "--out", str(out)),
+        )
+
+    def watch(self) -> "Watch":
+        process = subprocess.Popen(
+            self.command("console", "-c", WATCH, self.endpoint),
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+        )
+        self.processes.append(process)
+        return Watch(process)
+
+    def unplug(self, host: str) -> None:
+        """Pull the host's cable out of the switch: its own eth0 just loses carrier, and no
+        process on either side is told anything."""
+        ip("-n", self.switch, "link", "set", host, "down")
+
+    def plug(self, host: str) -> None:
+        ip("-n", self.switch, "link", "set", host, "up")
+
+    def tail(self, label: str, lines: int = 30) -> str:
+        text = (self.logs / f"{label}.log").read_text(errors="replace")
+        return f"--- {label}.log ---\n" + "\n".join(text.splitlines()[-lines:])
+
+
+class Watch:
+    """The latest status the console saw, and how many it has seen."""
+
+    def __init__(self, process: subprocess.Popen):
+        self.latest: BrokerStatus | None = None
+        self.seen = 0
+        self._reader = threading.Thread(target=self._read, args=(process,), daemon=True)
+        self._reader.start()
+
+    def _read(self, process: subprocess.Popen) -> None:
+        for line in process.stdout:
+            if line.endswith("\n"):  # the last, when the watch is killed, may be cut short
+                self.latest = BrokerStatus.model_validate_json(line)
+                self.seen += 1
+
+    def fresh(self) -> BrokerStatus:
+        """A status the broker gave after this call: the one being printed now may be older."""
+        seen = self.seen
+        wait_for(lambda: self.seen >= seen + 2, 10, "a fresh status")
+        return self.latest
+
+    def workers(self) -> dict[str, WorkerState]:
+        return {worker.name: worker for worker in self.latest.workers} if self.latest else {}
+
+    def busy(self, name: str) -> bool:
+        worker = self.workers().get(name)
+        return worker is not None and worker.busy
+
+
+@pytest.fixture
+def lan(tmp_path: Path) -> Iterator[Lan]:
+    network = Lan(tmp_path)
+    try:
+        network.build()
+        yield network
+    finally:
+        try:
+            network.stop_everything()
+        finally:
+            network.demolish()
+
+
+@pytest.fixture(scope="module")
+def local_front(tmp_path_factory: pytest.TempPathFactory) -> bytes:
+    """front.csv of the same run on a farm of one process on this machine, over loopback."""
+    out = tmp_path_factory.mktemp("local") / "run"
+    command = ["-m", "analytic", "start", "--local", "--workers", "1", *RUN, "--out", str(out)]
+    done = subprocess.run(
+        [sys.executable, *command],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    return (out / "front.csv").read_bytes()
+
+
+def check_run(out: Path, local_front: bytes) -> None:
+    """The run did every evaluation once and found exactly the local farm's front."""
+    history = read_history(out / "history.csv")
+    assert [(row.generation, row.evaluations) for row in history] == [(1, 4), (2, EVALUATIONS)]
+    assert len(list((out / "episodes").glob("*.mcap"))) == EVALUATIONS
+    assert (out / "front.csv").read_bytes() == local_front
+
+
+def test_a_study_across_hosts_finds_the_front_a_local_farm_finds(
+    lan: Lan, local_front: bytes, tmp_path: Path
+) -> None:
+    lan.start_broker(lease_seconds=60.0)
+    watch = lan.watch()
+    for host in ("worker-1", "worker-2"):
+        lan.start_worker(host)
+    # Both connected and asking for work before the study starts, so that both get some.
+    wait_for(lambda: {"worker-1", "worker-2"} <= set(watch.workers()), 60, "both workers")
+    out = tmp_path / "run"
+    study = lan.start_study(out)
+    assert study.wait(120) == 0, lan.tail("analytic")
+    assert "stopped: 2 generations" in (tmp_path / "analytic.log").read_text()
+    check_run(out, local_front)
+    # What the broker says, asked by the operator's real command from another host.
+    asked = lan.run("console", "-m", "broker", "status", "--connect", lan.endpoint, "--json")
+    assert asked.returncode == 0, asked.stderr
+    farm = BrokerStatus.model_validate_json(asked.stdout)
+    assert farm.jobs_done == EVALUATIONS and farm.requeued == 0
+    done = {worker.name: worker.jobs_done for worker in farm.workers}
+    assert set(done) == {"worker-1", "worker-2"}
+    assert all(count >= 1 for count in done.values()), done
+    assert sum(done.values()) == EVALUATIONS
+
+
+def test_a_worker_cut_off_for_longer_than_its_lease_loses_nothing_and_serves_again(
+    lan: Lan, local_front: bytes, tmp_path: Path
+) -> None:
+    lan.start_broker(lease_seconds=LEASE_SECONDS)
+    watch = lan.watch()
+    victim = lan.start_worker("worker-1")
+    survivor = lan.start_worker("worker-2")
+    wait_for(lambda: {"worker-1", "worker-2"} <= set(watch.workers()), 60, "both workers")
+    out = tmp_path / "run"
+    study = lan.start_study(out)
+
+    # The broker marks a worker busy when it grants the lease, so the cable goes while the
+    # victim's episode runs (its first, reference included, takes hundreds of ms).
+    wait_for(lambda: watch.busy("worker-1"), 60, "worker-1 to get a job")
+    lan.unplug("worker-1")
+    cut = time.monotonic()
+    held = {worker.name: worker for worker in watch.fresh().workers}["worker-1"]
+    assert held.busy, f"worker-1 handed its result in before the cut: {held}"
+
+    # Its lease runs out, the job goes back to the queue, and the other worker does it.
+    wait_for(
+        lambda: watch.latest.requeued >= 1, LEASE_SECONDS + 5, "the broker to take the job back"
+    )
+    assert study.wait(120) == 0, lan.tail("analytic")
+    check_run(out, local_front)
+    wait_for(lambda: watch.latest.jobs_done == EVALUATIONS, 5, "the broker to count the run")
+    assert watch.latest.requeued == 1
+    assert watch.workers()["worker-2"].jobs_done == EVALUATIONS - held.jobs_done
+
+    # Out longer than Zenoh's lease too: the broker closes the silent link, and the victim's
+    # session its own end (at its lease, or sooner: a put blocked 5 s closes the link).
+    wait_for(
+        lambda: "worker-1" not in watch.workers(),
+        ZENOH_LEASE_SECONDS + 10,
+        "the broker to see worker-1 gone",
+    )
+    time.sleep(max(0.0, cut + ZENOH_LEASE_SECONDS + 2 - time.monotonic()))
+    assert victim.poll() is None, lan.tail("worker-1")
+    # The victim did finish the episode it held; its result never counted (checked above).
+    assert f"{held.job}: ok" in (tmp_path / "worker-1.log").read_text()
+    lan.plug("worker-1")
+    wait_for(lambda: "worker-1" in watch.workers(), 60, "worker-1 to come back")
+
+    # And it serves again: with worker-2 gone, a batch from the analytic host is worker-1's.
+    survivor.terminate()
+    assert survivor.wait(STOP_SECONDS) == 0
+    wait_for(lambda: "worker-2" not in watch.workers(), 10, "worker-2 to leave")
+    batch = tmp_path / "batch"
+    done = lan.run(
+        "analytic",
+        *("-m", "analytic", "batch", "--connect", lan.endpoint, "--duration", "0.5"),
+        *("--run-dir", str(batch), "--json"),
+    )
+    assert done.returncode == 0, done.stderr + lan.tail("worker-1")
+    [record] = json.loads((batch / "evaluations.json").read_text())
+    assert (record["status"], record["worker"], record["attempts"]) == ("ok", "worker-1", 1)
+    wait_for(lambda: watch.workers()["worker-1"].jobs_done == 1, 5, "the broker to count it")
