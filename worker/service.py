@@ -18,6 +18,7 @@ log = logging.getLogger("gainfarm.worker")
 
 ANSWER_MARGIN = 5.0  # s beyond the broker's longest hold before a lease request counts as lost
 RETRY_SECONDS = 1.0  # pause after a broker that did not answer or answered with an error
+ZENOH_TIMEOUT = "Timeout"  # the payload of the error reply Zenoh makes when a query times out
 
 
 class NameTaken(RuntimeError):
@@ -81,7 +82,10 @@ class CobotWorker:
         )
         for reply in replies:
             if reply.ok is None:
-                log.warning("the broker refused a lease request: %s", _text(reply.err.payload))
+                reason = _text(reply.err.payload)
+                if reason == ZENOH_TIMEOUT:  # Zenoh's own error reply: nobody answered in time
+                    break
+                log.warning("the broker refused a lease request: %s", reason)
                 return None
             try:
                 return decode(LeaseReply, reply.ok.payload.to_bytes())

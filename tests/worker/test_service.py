@@ -119,19 +119,24 @@ def test_bad_names_and_endpoints_are_one_line_errors() -> None:
 
 
 def test_a_worker_shrugs_off_bad_lease_replies(caplog) -> None:
-    """A broker stand-in answers the first lease requests with garbage, an error and an unknown
-    protocol version, then with a real lease: the worker logs each, keeps asking, runs the job."""
+    """A broker stand-in answers the first lease requests with garbage, an error, an unknown
+    protocol version and silence, then with a real lease: the worker logs each, keeps asking,
+    runs the job."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     fake = open_session("router", listen=[endpoint])
     lease = Lease(
         lease_id="l1", study="s", job={"job_id": "j", "episode": short_spec()}, expires_in=60
     )
-    answers = [b"not json", None, b'{"protocol": 7}', LeaseReply(lease=lease).to_bytes()]
+    silence = b""
+    answers = [b"not json", None, b'{"protocol": 7}', silence, LeaseReply(lease=lease).to_bytes()]
     results: list[Result] = []
+    unanswered: list[zenoh.Query] = []
 
     def answer(query: zenoh.Query) -> None:
         payload = answers.pop(0) if answers else LeaseReply().to_bytes()
-        if payload is None:
+        if payload is silence:
+            unanswered.append(query)  # held, never answered: the worker's query times out
+        elif payload is None:
             query.reply_err(b"go away")
         else:
             query.reply(keys.LEASE, payload)
@@ -153,3 +158,5 @@ def test_a_worker_shrugs_off_bad_lease_replies(caplog) -> None:
     assert "not JSON" in caplog.text
     assert "go away" in caplog.text
     assert "protocol version 7" in caplog.text
+    assert unanswered and "no broker answered" in caplog.text
+    assert "refused a lease request: Timeout" not in caplog.text  # Zenoh's timeout is not a refusal
