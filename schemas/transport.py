@@ -34,6 +34,11 @@ def session_config(
         raise ValueError(f"bad endpoint: {_plain(error)}") from None
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("scouting/gossip/enabled", "false")
+    # Zenoh would move large samples between processes of one host through shared memory, but
+    # every sender maps a 16 MiB pool into each receiver and it stays mapped after the sender
+    # exits: with workers coming and going, the broker and the clients grew by 16 MiB per worker
+    # ever started (bench/soak.py). Loopback TCP is fast enough for episode logs.
+    config.insert_json5("transport/shared_memory/enabled", "false")
     if identity is not None:
         identity.check()
         side = "router" if mode == "router" else "client"

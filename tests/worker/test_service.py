@@ -7,6 +7,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import zenoh
 
@@ -53,6 +54,29 @@ def test_a_worker_process_serves_jobs_and_a_failing_job_does_not_stop_it(
     assert ran.episode_bytes == len(content)
     assert decode_episode(content).metadata.spec == short_spec()
     assert broker.queue.jobs_done == 2
+
+
+def _zenoh_shared_memory() -> list[str]:
+    """This process's mappings of Zenoh shared-memory segments."""
+    maps = Path("/proc/self/maps").read_text().splitlines()
+    return [line for line in maps if line.endswith(".zenoh")]
+
+
+def test_workers_that_come_and_go_leave_no_memory_behind_in_the_broker(
+    broker: Broker, session: zenoh.Session
+) -> None:
+    inbox = Inbox(session, "s")
+    _token = open_study(session, broker, "s")
+    before = _zenoh_shared_memory()
+    for index in range(3):
+        worker = spawn_worker(broker.endpoints[0], f"passing-{index}")
+        submit(session, "s", {f"j{index}": short_spec()})
+        done = index + 1
+        wait_for(lambda done=done: len(inbox.received) == done, timeout=60, what="the result")
+        worker.terminate()
+        assert worker.wait(15) == 0
+    assert all(len(content) > 100_000 for _, content in inbox.received)  # logs, not crumbs
+    assert _zenoh_shared_memory() == before
 
 
 def test_sigterm_mid_job_finishes_and_returns_the_job_then_exits(
