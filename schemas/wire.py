@@ -9,7 +9,7 @@ import json
 from enum import StrEnum
 from typing import Annotated, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from schemas.episode import EpisodeSpec
 from schemas.errors import describe
@@ -37,6 +37,13 @@ class WireMessage(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     protocol: Literal[1] = PROTOCOL_VERSION
+
+    @field_validator("protocol", mode="before")
+    @classmethod
+    def _a_number(cls, version: object) -> object:
+        if isinstance(version, bool):  # JSON true equals 1 to Python: not a version (hypothesis)
+            raise ValueError(f"protocol version {version!r} is not a number")
+        return version
 
     def to_bytes(self) -> bytes:
         return self.model_dump_json().encode()
@@ -185,7 +192,7 @@ def decode(kind: type[M], raw: bytes | None, limit: int = MAX_MESSAGE_BYTES) -> 
     if not isinstance(fields, dict):
         raise BadMessage(f"{kind.__name__}: not a JSON object")
     version = fields.get("protocol")
-    if version != PROTOCOL_VERSION:
+    if version != PROTOCOL_VERSION or isinstance(version, bool):
         raise BadMessage(
             f"{kind.__name__}: protocol version {version!r} is not {PROTOCOL_VERSION}, "
             "the one this gainfarm speaks"

@@ -7,7 +7,18 @@ import zenoh
 
 from broker.service import Broker
 from schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
-from schemas.wire import Job, Lease, LeaseReply, LeaseRequest, Submission, SubmitReply, decode
+from schemas.wire import (
+    Job,
+    JobStatus,
+    Lease,
+    LeaseReply,
+    LeaseRequest,
+    Result,
+    Submission,
+    SubmitReply,
+    Timings,
+    decode,
+)
 
 TRACKING_GAINS = PDGains(kp=(2000, 2000, 1200, 1200, 400, 200, 100), kd=(60, 60, 40, 40, 10, 5, 2))
 SOFT_GAINS = PDGains(kp=(200, 200, 120, 120, 40, 20, 10), kd=(20, 20, 12, 12, 4, 2, 1))
@@ -53,6 +64,17 @@ def submit(session: zenoh.Session, study: str, specs: dict[str, EpisodeSpec]) ->
     ok, payload = query(session, keys.SUBMIT, Submission(study=study, jobs=jobs).to_bytes())
     assert ok, payload
     return decode(SubmitReply, payload)
+
+
+def result_for(study: str, job_id: str, worker: str = "w", **fields: object) -> Result:
+    """A Result as a worker would send it, made by hand; `fields` override the defaults."""
+    defaults: dict[str, object] = {
+        "lease_id": "by-hand",
+        "status": JobStatus.ok,
+        "episode_bytes": 0,
+        "timings": Timings(simulate_s=0.0, encode_s=0.0),
+    }
+    return Result(study=study, job_id=job_id, worker=worker, **{**defaults, **fields})
 
 
 def ask_for_work(session: zenoh.Session, worker: str) -> Lease | None:

@@ -17,8 +17,7 @@ from broker.service import Broker
 from schemas import keys
 from schemas.gains import PDGains
 from schemas.mcap_episode import read_episode
-from schemas.wire import JobStatus, Result, Timings
-from tests.helpers import SOFT_GAINS, TRACKING_GAINS, short_spec, wait_for
+from tests.helpers import SOFT_GAINS, TRACKING_GAINS, result_for, short_spec, wait_for
 
 
 def test_several_workers_share_a_batch_and_every_episode_is_kept_and_scored(
@@ -159,15 +158,7 @@ def test_bad_results_on_the_studys_key_are_ignored_or_reported(
 ) -> None:
     with FarmClient(broker.endpoints, "s", tmp_path, deadline=60) as farm:
         farm.submit({"j1": short_spec(), "j2": short_spec(duration=0.6)})
-        good = Result(
-            study="s",
-            job_id="j1",
-            lease_id="x",
-            worker="liar",
-            status=JobStatus.ok,
-            episode_bytes=5,
-            timings=Timings(simulate_s=0, encode_s=0),
-        )
+        good = result_for("s", "j1", worker="liar", episode_bytes=5)
         session.put(keys.result("s", "j1"), b"hello", attachment=b"garbage")
         session.put(keys.result("s", "j1"), b"hello")
         session.put(
@@ -194,15 +185,7 @@ def test_an_unusable_log_on_the_last_attempt_fails_the_job_with_the_reason(
 ) -> None:
     with FarmClient(broker.endpoints, "s", tmp_path, attempts=1) as farm:
         farm.submit({"j": short_spec()})
-        truncated = Result(
-            study="s",
-            job_id="j",
-            lease_id="x",
-            worker="liar",
-            status=JobStatus.ok,
-            episode_bytes=10,
-            timings=Timings(simulate_s=0, encode_s=0),
-        )
+        truncated = result_for("s", "j", worker="liar", episode_bytes=10)
         session.put(keys.result("s", "j"), b"hello", attachment=truncated.to_bytes())
         [evaluation] = list(farm.results(timeout=10))
     assert evaluation.status == "failed" and evaluation.worker == ""

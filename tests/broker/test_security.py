@@ -19,8 +19,8 @@ from broker.service import Broker
 from schemas import keys
 from schemas.security import Role, TlsIdentity
 from schemas.transport import open_session
-from schemas.wire import Job, JobStatus, LeaseRequest, Result, Submission, Timings
-from tests.helpers import short_spec, wait_for
+from schemas.wire import Job, JobStatus, LeaseRequest, Submission
+from tests.helpers import result_for, short_spec, wait_for
 
 DENIED_SECONDS = 1.0  # a denied query is dropped, not refused: wait this long for no answer
 
@@ -153,16 +153,7 @@ def test_an_analytic_identity_cannot_pose_as_a_worker(
         request = LeaseRequest(worker="impostor").to_bytes()
         assert _answers(analytic, keys.LEASE, request) == []
         _token = analytic.liveliness().declare_token(keys.alive_worker("impostor"))
-        forged = Result(
-            study="s",
-            job_id="j",
-            lease_id="forged",
-            worker="impostor",
-            status=JobStatus.failed,
-            reason="forged",
-            episode_bytes=0,
-            timings=Timings(simulate_s=0, encode_s=0),
-        )
+        forged = result_for("s", "j", worker="impostor", status=JobStatus.failed)
         analytic.put(keys.result("s", "j"), b"", attachment=forged.to_bytes())
         assert list(farm.results(timeout=2.0)) == []
         assert _queued(secure_broker, "s") == 1

@@ -10,25 +10,10 @@ from schemas import keys
 from schemas.transport import open_session
 from schemas.wire import (
     BrokerStatus,
-    JobStatus,
     LeaseRequest,
-    Result,
-    Timings,
     decode,
 )
-from tests.helpers import ask_for_work, open_study, query, short_spec, submit, wait_for
-
-
-def result_for(study: str, job_id: str, worker: str = "w") -> Result:
-    return Result(
-        study=study,
-        job_id=job_id,
-        lease_id="by-hand",
-        worker=worker,
-        status=JobStatus.ok,
-        episode_bytes=0,
-        timings=Timings(simulate_s=0.0, encode_s=0.0),
-    )
+from tests.helpers import ask_for_work, open_study, query, result_for, short_spec, submit, wait_for
 
 
 def status(session: zenoh.Session) -> BrokerStatus:

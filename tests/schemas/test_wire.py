@@ -42,6 +42,7 @@ def test_a_message_round_trips() -> None:
         (b"[1, 2]", "not a JSON object"),
         (b'{"worker": "w"}', "protocol version None is not 1"),
         (b'{"protocol": 2, "worker": "w"}', "protocol version 2 is not 1"),
+        (b'{"protocol": true, "worker": "w"}', "protocol version True is not 1"),
         (b'{"protocol": 1}', "worker: Field required"),
         (b'{"protocol": 1, "worker": "a/b"}', "worker: String should match pattern"),
         (b'{"protocol": 1, "worker": "w", "extra": 1}', "extra: Extra inputs are not permitted"),
