@@ -22,6 +22,10 @@ from schemas.wire import Job, Lease, Rejection, StudyState, WorkerState
 W = TypeVar("W")
 
 THROUGHPUT_WINDOW = 60.0  # s
+# A worker's last result and the loss of its liveliness token travel apart, and the token's loss
+# often arrives first (a worker stopped with SIGTERM hands in its job, then leaves): wait this
+# long for the result before the job goes to another worker (bench/soak.py counted the reruns).
+LOST_WORKER_GRACE = 1.0  # s
 
 
 class UnknownStudy(KeyError):
@@ -48,7 +52,7 @@ class _Study:
     queue: deque[_Queued] = field(default_factory=deque)
     queued_ids: set[str] = field(default_factory=set)
     leased: dict[str, _Lease] = field(default_factory=dict)  # by job id
-    done: set[str] = field(default_factory=set)
+    done: int = 0
     last_served: int = 0
 
 
@@ -124,7 +128,6 @@ class LeaseQueue(Generic[W]):
             if job.job_id in study.queued_ids or job.job_id in study.leased:
                 outcome.already_pending.append(job.job_id)
                 continue
-            study.done.discard(job.job_id)
             study.queue.append(_Queued(study_name, job))
             study.queued_ids.add(job.job_id)
             outcome.queued.append(job.job_id)
@@ -136,7 +139,7 @@ class LeaseQueue(Generic[W]):
         a stray. A late result from an expired lease counts too, and the job need not run again.
         """
         study = self._studies.get(study_name)
-        if study is None or job_id in study.done:
+        if study is None:
             return False
         lease = study.leased.pop(job_id, None)
         if lease is not None:
@@ -151,7 +154,7 @@ class LeaseQueue(Generic[W]):
             study.queued_ids.discard(job_id)
         else:
             return False
-        study.done.add(job_id)
+        study.done += 1
         sender = self._workers.get(worker_name)
         if sender is not None:
             sender.jobs_done += 1
@@ -192,12 +195,14 @@ class LeaseQueue(Generic[W]):
         self._workers.setdefault(name, _Worker(name))
 
     def worker_lost(self, name: str) -> tuple[list[Assignment[W]], W | None]:
-        """A worker died: its job goes back to the queue (perhaps straight to a parked worker).
-        Also returns its own parked waiter, if any, for the adapter to let go of."""
+        """A worker died: its job goes back to the queue once its result has had
+        LOST_WORKER_GRACE to arrive (`expire` does it). Also returns its own parked waiter, if
+        any, for the adapter to let go of."""
         worker = self._workers.pop(name, None)
         orphan = self._parked.pop(name, None)
         if worker is not None and worker.lease is not None:
-            self._requeue(worker.lease)
+            lease = worker.lease
+            lease.expires = min(lease.expires, self._clock() + LOST_WORKER_GRACE)
         return self._wake_parked(), orphan
 
     def expire(self) -> list[Assignment[W]]:
@@ -230,7 +235,7 @@ class LeaseQueue(Generic[W]):
                 name=study.name,
                 queued=len(study.queue),
                 leased=len(study.leased),
-                done=len(study.done),
+                done=study.done,
             )
             for study in sorted(self._studies.values(), key=lambda study: study.name)
         ]

@@ -5,7 +5,13 @@ from dataclasses import dataclass
 
 import pytest
 
-from broker.queue import THROUGHPUT_WINDOW, Assignment, LeaseQueue, UnknownStudy
+from broker.queue import (
+    LOST_WORKER_GRACE,
+    THROUGHPUT_WINDOW,
+    Assignment,
+    LeaseQueue,
+    UnknownStudy,
+)
 from schemas.episode import EpisodeSpec
 from schemas.gains import PDGains
 from schemas.wire import Job, Lease, StudyState, WorkerState
@@ -318,8 +324,8 @@ def test_jobs_expiring_together_go_back_in_their_original_order() -> None:
 # --- lost and abandoning workers ---------------------------------------------------------------
 
 
-def test_a_lost_worker_s_job_goes_back_to_the_front_of_its_queue() -> None:
-    queue, _ = make_queue("s")
+def test_a_lost_worker_s_job_goes_back_to_the_front_of_its_queue_after_a_grace() -> None:
+    queue, clock = make_queue("s")
     queue.submit("s", jobs("j1", "j2", "j3"))
     take(queue, "w1")  # j1
 
@@ -327,20 +333,25 @@ def test_a_lost_worker_s_job_goes_back_to_the_front_of_its_queue() -> None:
 
     assert assignments == []
     assert orphan is None
-    assert queue.requeued == 1
     assert [w.name for w in queue.worker_states()] == []
+    # Its result may still be on the way: the job waits for it a moment, not a whole lease.
+    assert queue.expire() == [] and queue.requeued == 0
+    clock.advance(LOST_WORKER_GRACE)
+    assert queue.expire() == []
+    assert queue.requeued == 1
     assert job_ids_in_lease_order(queue, 3) == ["j1", "j2", "j3"]
 
 
 def test_a_lost_worker_s_job_goes_straight_to_a_parked_worker() -> None:
-    queue, _ = make_queue("s")
+    queue, clock = make_queue("s")
     queue.submit("s", jobs("j1"))
     take(queue, "w1")
     waiter = park(queue, "w2")
 
-    assignments, orphan = queue.worker_lost("w1")
+    assert queue.worker_lost("w1") == ([], None)
+    clock.advance(LOST_WORKER_GRACE)
+    assignments = queue.expire()
 
-    assert orphan is None
     assert [(a.waiter, a.lease.job.job_id) for a in assignments] == [(waiter, "j1")]
     assert queue.worker_states() == [WorkerState(name="w2", busy=True, job="s/j1", jobs_done=0)]
 
@@ -460,11 +471,27 @@ def test_a_late_result_for_an_expired_and_re_leased_job_completes_it_once() -> N
     assert queue.requeued == 1
 
 
+def test_a_result_overtaken_by_its_worker_s_departure_still_completes_the_job() -> None:
+    queue, clock = make_queue("s")
+    queue.submit("s", jobs("j1"))
+    take(queue, "w1")
+    waiter = park(queue, "w2")
+    queue.worker_lost("w1")  # a worker stopped with SIGTERM: its token's loss came first
+    clock.advance(LOST_WORKER_GRACE / 2)
+
+    assert queue.complete("s", "j1", "w1") is True
+    clock.advance(LOST_WORKER_GRACE)
+    assert queue.expire() == []  # nothing to run twice
+    assert queue.requeued == 0 and queue.withdraw("w2", waiter) is True
+
+
 def test_a_result_after_the_worker_was_lost_completes_the_requeued_job() -> None:
-    queue, _ = make_queue("s")
+    queue, clock = make_queue("s")
     queue.submit("s", jobs("j1"))
     take(queue, "w1")
     queue.worker_lost("w1")
+    clock.advance(LOST_WORKER_GRACE)
+    queue.expire()
     assert state(queue, "s").queued == 1
 
     assert queue.complete("s", "j1", "w1") is True
@@ -506,7 +533,7 @@ def test_resubmitting_a_done_job_queues_it_again() -> None:
 
     assert submitted.queued == ["j1"]
     assert submitted.already_pending == []
-    assert state(queue, "s") == StudyState(name="s", queued=1, leased=0, done=0)
+    assert state(queue, "s") == StudyState(name="s", queued=1, leased=0, done=1)
     assert take(queue, "w1").job.job_id == "j1"
     assert queue.complete("s", "j1", "w1") is True  # its new result counts
     assert queue.jobs_done == 2
@@ -683,6 +710,8 @@ def test_requeued_counts_expiries_and_losses() -> None:
     assert queue.requeued == 0
 
     queue.worker_lost("w2")
+    clock.advance(LOST_WORKER_GRACE)
+    queue.expire()
     assert queue.requeued == 1
     clock.advance(LEASE_SECONDS)
     queue.expire()  # w1's and w3's leases

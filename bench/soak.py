@@ -1,0 +1,678 @@
+"""Soak the farm: a long stream of short jobs while workers come and go, and the memory of every
+process over time.
+
+    python bench/soak.py [--minutes 60 | --quick] [--workers-min 1] [--workers-max 4] [--seed 0]
+        [--sample-seconds 5] [--out soak.csv] [--events events.csv] [--broker-log broker.log]
+
+The broker runs as a subprocess (`python -m broker start`), so its memory is its own, and so do
+the workers (`python -m worker start`). One resident worker serves the whole run, so that a
+worker-side leak shows as a slope; the others churn: every `--churn-seconds` a seeded draw starts
+one, stops one with SIGTERM (it finishes its job first) or SIGKILLs one the broker sees busy,
+keeping between `--workers-min` and `--workers-max` (`--no-churn`: a fixed pool, to tell leaks
+from churn). A FarmClient in this process keeps `--pending` short jobs in flight (0.2-0.5 s
+episodes, a few ms of simulation each) and submits more as results come in. At the end it drains
+(no more submissions, every pending job waited for), then stops the workers and the broker.
+
+Every `--sample-seconds` it reads VmRSS, RssAnon and RssShmem from /proc/PID/status of the broker,
+this process and each worker; `--out` gets them as CSV (seconds, role, name, pid, rss_mib,
+anon_mib, shmem_mib; plus "workers max" and "workers mean" rows per sample). The summary gives
+jobs submitted, completed, lost (reported lost after every attempt, or still pending after the
+drain), duplicated (results the client received for a job it had evaluated already, plus any
+evaluation handed out twice), retried (evaluated only after a resubmission at the deadline);
+worker starts, stops and kills; RSS at start, after the warm-up and at the end with its slope
+after the warm-up (least squares, MiB/hour) for the broker, the client and the resident worker;
+throughput. Exit status 1 if a job was lost or duplicated, or a worker died unbidden or hung.
+
+Everything listens on loopback, on a port the kernel picked as free; nothing touches a farm on 7447.
+"""
+
+import csv
+import io
+import logging
+import os
+import random
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import click
+import numpy as np
+
+from analytic.farm import Evaluation, FarmClient
+from analytic.local import STOP_SECONDS, free_port, spawn_worker
+from broker.status import BrokerUnavailable
+from schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
+from schemas.files import write_atomically
+from schemas.gains import DEFAULT_GAINS
+from schemas.trajectory import TrajectoryKind
+from schemas.transport import open_session
+from schemas.wire import BadMessage, BrokerStatus
+
+STUDY = "soak"
+DURATIONS = (0.2, 0.3, 0.4, 0.5)  # s of simulated motion per job
+RANDOM_SEEDS = (0, 1)
+# Action weights of one churn step; kills are the rarer event, as in a real farm.
+CHURN_WEIGHTS = {"start": 0.4, "stop": 0.4, "kill": 0.2}
+BROKER_START_SECONDS = 30.0
+PROGRESS_SECONDS = 60.0
+CSV_EVERY_SAMPLES = 12  # rewrite --out this often, so a crashed soak still leaves its samples
+
+
+# --- memory ------------------------------------------------------------------------------------
+
+
+STATUS_FIELDS = ("VmRSS", "RssAnon", "RssShmem")
+
+
+def resident_mib(pid: int) -> tuple[float, float, float] | None:
+    """VmRSS of a live process, and its RssAnon and RssShmem parts, in MiB; None once it has
+    gone (a zombie has no VmRSS). The parts tell a heap that grows from shared memory mapped in
+    (Zenoh's transport puts large payloads of local peers in shared-memory segments)."""
+    found: dict[str, float] = {}
+    try:
+        with open(f"/proc/{pid}/status") as status:
+            for line in status:
+                key, _, value = line.partition(":")
+                if key in STATUS_FIELDS:
+                    found[key] = int(value.split()[0]) / 1024
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+    if len(found) < len(STATUS_FIELDS):
+        return None
+    return found["VmRSS"], found["RssAnon"], found["RssShmem"]
+
+
+@dataclass(frozen=True)
+class Sample:
+    seconds: float
+    role: str  # broker, client, worker, workers
+    name: str
+    pid: int
+    rss_mib: float
+    anon_mib: float
+    shmem_mib: float
+
+
+class Sampler:
+    """Samples the RSS of registered processes on its own thread, so a stalled client loop (a
+    hang is one of the things a soak looks for) does not stall the record of memory."""
+
+    def __init__(self, period: float, out: Path | None, started: float):
+        self.period = period
+        self.out = out
+        self.started = started
+        self.samples: list[Sample] = []
+        self._processes: dict[int, tuple[str, str]] = {}  # pid → (role, name)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="soak-sampler", daemon=True)
+
+    def watch(self, pid: int, role: str, name: str) -> None:
+        with self._lock:
+            self._processes[pid] = (role, name)
+
+    def forget(self, pid: int) -> None:
+        with self._lock:
+            self._processes.pop(pid, None)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.sample()
+        self.write()
+
+    def sample(self) -> None:
+        now = time.monotonic() - self.started
+        with self._lock:
+            processes = list(self._processes.items())
+        workers = []
+        for pid, (role, name) in processes:
+            resident = resident_mib(pid)
+            if resident is None:
+                continue
+            self.samples.append(Sample(now, role, name, pid, *resident))
+            if role == "worker":
+                workers.append(resident)
+        if workers:
+            columns = list(zip(*workers, strict=True))
+            self.samples.append(Sample(now, "workers", "max", 0, *map(max, columns)))
+            self.samples.append(Sample(now, "workers", "mean", 0, *map(statistics.fmean, columns)))
+
+    def write(self) -> None:
+        if self.out is None:
+            return
+        text = io.StringIO()
+        writer = csv.writer(text, lineterminator="\n")
+        writer.writerow(["seconds", "role", "name", "pid", "rss_mib", "anon_mib", "shmem_mib"])
+        for s in list(self.samples):
+            mib = (f"{value:.2f}" for value in (s.rss_mib, s.anon_mib, s.shmem_mib))
+            writer.writerow([f"{s.seconds:.1f}", s.role, s.name, s.pid, *mib])
+        write_atomically(self.out, text.getvalue().encode())
+
+    def series(
+        self, role: str, name: str, column: str = "rss_mib"
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(seconds, MiB) of one process, or of one aggregate row."""
+        rows = [
+            (s.seconds, getattr(s, column))
+            for s in self.samples
+            if s.role == role and s.name == name
+        ]
+        array = np.array(rows, dtype=float).reshape(-1, 2)
+        return array[:, 0], array[:, 1]
+
+    def _run(self) -> None:
+        count = 0
+        while not self._stop.wait(self.period):
+            self.sample()
+            count += 1
+            if count % CSV_EVERY_SAMPLES == 0:
+                self.write()
+
+
+# --- processes ---------------------------------------------------------------------------------
+
+
+def start_broker(endpoint: str, lease_seconds: float, log: Path | None) -> subprocess.Popen:
+    stderr = log.open("ab") if log is not None else None
+    command = [sys.executable, "-m", "broker", "start", "--listen", endpoint]
+    command += ["--lease-seconds", str(lease_seconds)]
+    command += ["--log-level", "info" if log is not None else "warning"]
+    broker = subprocess.Popen(command, stdin=subprocess.DEVNULL, stderr=stderr)
+    if stderr is not None:
+        stderr.close()  # the child holds its own copy
+    # Wait for the broker's liveliness token, which it declares last: a FarmClient opened
+    # before it would see it appear, take it for a broker restart and resubmit everything.
+    give_up = time.monotonic() + BROKER_START_SECONDS
+    while time.monotonic() < give_up:
+        if broker.poll() is not None:
+            raise RuntimeError(f"the broker exited with status {broker.returncode} at start")
+        try:
+            session = open_session("client", connect=[endpoint])
+        except ConnectionError:  # not listening yet
+            time.sleep(0.1)
+            continue
+        try:
+            while time.monotonic() < give_up and broker.poll() is None:
+                if any(True for _ in session.liveliness().get(keys.ALIVE_BROKER, timeout=1)):
+                    return broker
+                time.sleep(0.05)
+        finally:
+            session.close()
+    broker.kill()
+    raise RuntimeError(f"the broker was not serving on {endpoint} after {BROKER_START_SECONDS:g} s")
+
+
+@dataclass
+class WorkerPool:
+    """Worker subprocesses: one resident, the rest started, stopped and killed by `churn`."""
+
+    endpoint: str
+    sampler: Sampler
+    rng: random.Random
+    low: int
+    high: int
+    started: float
+    live: dict[str, subprocess.Popen] = field(default_factory=dict)
+    stopping: dict[str, tuple[subprocess.Popen, float]] = field(default_factory=dict)
+    resident: str = ""
+    serial: int = 0
+    starts: int = 0
+    stops: int = 0
+    kills: int = 0
+    died: list[str] = field(default_factory=list)  # exited without being told to
+    hung: list[str] = field(default_factory=list)  # did not finish within STOP_SECONDS of SIGTERM
+    stop_codes: Counter[int] = field(default_factory=Counter)
+    events: list[tuple[float, str, str, str]] = field(default_factory=list)
+
+    def note(self, event: str, name: str) -> None:
+        """Keep what happened to whom and when, in wall-clock time too, to read beside the
+        broker's log when a job goes astray."""
+        seconds = time.monotonic() - self.started
+        self.events.append((seconds, time.strftime("%H:%M:%S"), event, name))
+
+    def write_events(self, path: Path) -> None:
+        text = io.StringIO()
+        writer = csv.writer(text, lineterminator="\n")
+        writer.writerow(["seconds", "clock", "event", "worker"])
+        writer.writerows((f"{seconds:.2f}", *rest) for seconds, *rest in self.events)
+        write_atomically(path, text.getvalue().encode())
+
+    def start(self) -> None:
+        name = f"soak-{self.serial}"
+        self.serial += 1
+        process = spawn_worker(self.endpoint, name)
+        self.live[name] = process
+        self.sampler.watch(process.pid, "worker", name)
+        self.starts += 1
+        self.resident = self.resident or name
+        self.note("start", name)
+
+    def stop(self, name: str) -> None:
+        process = self.live.pop(name)
+        process.terminate()
+        self.stopping[name] = (process, time.monotonic())
+        self.stops += 1
+        self.note("sigterm", name)
+
+    def kill(self, name: str) -> None:
+        process = self.live.pop(name)
+        process.kill()
+        process.wait()
+        self.sampler.forget(process.pid)
+        self.kills += 1
+        self.note("sigkill", name)
+
+    def reap(self) -> None:
+        """Collect stopped workers, SIGKILL those past STOP_SECONDS, notice any that died."""
+        now = time.monotonic()
+        for name, (process, since) in list(self.stopping.items()):
+            if process.poll() is None and now - since > STOP_SECONDS:
+                self.hung.append(name)
+                self.note("hung", name)
+                process.kill()
+                process.wait()
+            if process.poll() is not None:
+                del self.stopping[name]
+                self.sampler.forget(process.pid)
+                self.stop_codes[process.returncode] += 1
+        for name, process in list(self.live.items()):
+            if process.poll() is not None:
+                self.died.append(f"{name} (status {process.returncode})")
+                self.note("died", name)
+                del self.live[name]
+                self.sampler.forget(process.pid)
+                if name == self.resident:
+                    self.resident = ""
+        while len(self.live) < self.low:
+            self.start()
+
+    def churn(self, busy: set[str]) -> None:
+        """One seeded step: start a worker, SIGTERM one, or SIGKILL one that is mid-job."""
+        self.reap()
+        action = self.rng.choices(list(CHURN_WEIGHTS), weights=list(CHURN_WEIGHTS.values()))[0]
+        others = sorted(name for name in self.live if name != self.resident)
+        if action == "kill" and not busy & set(others):
+            action = "stop"  # no job to interrupt: a plain stop keeps the draw's rhythm
+        if action != "start" and not others:
+            action = "start"
+        if action == "start" and len(self.live) >= self.high:
+            action = "stop"
+        if action != "start" and not others:
+            return  # only the resident, and no room for another worker
+        if action == "start":
+            self.start()
+            return
+        if len(self.live) - 1 < self.low:  # the replacement first: never below the minimum
+            self.start()
+        if action == "kill":
+            self.kill(self.rng.choice(sorted(busy & set(others))))
+        else:
+            self.stop(self.rng.choice(others))
+
+    def close(self) -> None:
+        for name in list(self.live):
+            self.stop(name)
+        give_up = time.monotonic() + STOP_SECONDS + 1
+        while self.stopping and time.monotonic() < give_up:
+            self.reap_stopping()
+            time.sleep(0.1)
+        self.reap_stopping(force=True)
+
+    def reap_stopping(self, force: bool = False) -> None:
+        for name, (process, _) in list(self.stopping.items()):
+            if force and process.poll() is None:
+                self.hung.append(name)
+                self.note("hung", name)
+                process.kill()
+                process.wait()
+            if process.poll() is not None:
+                del self.stopping[name]
+                self.sampler.forget(process.pid)
+                self.stop_codes[process.returncode] += 1
+
+
+# --- jobs --------------------------------------------------------------------------------------
+
+
+def job_spec(rng: random.Random) -> EpisodeSpec:
+    """A short episode. Few distinct trajectories (16), so the workers' reference cache (64
+    entries) keeps hitting, as it does in a real study; gains vary freely."""
+    kind = rng.choice(list(TrajectoryKind))
+    seed = rng.choice(RANDOM_SEEDS) if kind == TrajectoryKind.random else 0
+    trajectory = TrajectorySpec(kind=kind, duration=rng.choice(DURATIONS), seed=seed)
+    gains = PDGains(
+        kp=tuple(k * rng.uniform(0.7, 1.3) for k in DEFAULT_GAINS.kp),
+        kd=tuple(k * rng.uniform(0.7, 1.3) for k in DEFAULT_GAINS.kd),
+    )
+    return EpisodeSpec(gains=gains, trajectory=trajectory)
+
+
+@dataclass
+class Ledger:
+    """What came back for each job. Job ids are serial numbers, and times seen are kept in a
+    bytearray, one byte per job: a set of ids would grow this process by megabytes an hour and
+    blur the client's own memory slope."""
+
+    submitted: int = 0
+    seen: bytearray = field(default_factory=bytearray)
+    statuses: Counter[str] = field(default_factory=Counter)
+    evaluated_twice: int = 0
+    retried: list[str] = field(default_factory=list)  # job ids evaluated after a resubmission
+    lost_reasons: list[str] = field(default_factory=list)
+
+    def next_ids(self, count: int) -> list[str]:
+        ids = [f"j{self.submitted + index}" for index in range(count)]
+        self.submitted += count
+        self.seen.extend(bytes(count))
+        return ids
+
+    def record(self, evaluation: Evaluation) -> None:
+        index = int(evaluation.job_id.removeprefix("j"))
+        if self.seen[index]:
+            self.evaluated_twice += 1
+        self.seen[index] = min(self.seen[index] + 1, 255)
+        self.statuses[evaluation.status] += 1
+        if evaluation.attempts > 1:
+            self.retried.append(f"{evaluation.job_id} (from {evaluation.worker or '-'})")
+        if evaluation.status == "lost":
+            self.lost_reasons.append(f"{evaluation.job_id}: {evaluation.reason}")
+        if evaluation.episode is not None:
+            evaluation.episode.unlink(missing_ok=True)  # hours of logs would fill the disk
+
+    @property
+    def completed(self) -> int:
+        return sum(count for status, count in self.statuses.items() if status != "lost")
+
+    def unanswered(self) -> int:
+        return self.seen.count(0)
+
+
+# --- the soak ----------------------------------------------------------------------------------
+
+
+def slope(seconds: np.ndarray, mib: np.ndarray) -> str:
+    """Least-squares MiB per hour, as text."""
+    if seconds.size < 3 or np.ptp(seconds) == 0:
+        return "n/a"
+    return f"{np.polyfit(seconds / 3600, mib, 1)[0]:+.1f} MiB/h"
+
+
+def memory(sampler: Sampler, role: str, name: str, warm_up: float) -> str | None:
+    """RSS at start, after the warm-up and at the end, and its slope after the warm-up; the
+    same for its anonymous and shared-memory parts."""
+    seconds, rss = sampler.series(role, name)
+    if seconds.size == 0:
+        return None
+    late = seconds >= warm_up
+    if not late.any():
+        late[-1] = True
+    _, anon = sampler.series(role, name, "anon_mib")
+    _, shmem = sampler.series(role, name, "shmem_mib")
+    return (
+        f"{rss[0]:.1f} MiB at start, {rss[late][0]:.1f} after warm-up, {rss[-1]:.1f} at end "
+        f"(anonymous {anon[-1]:.1f}, shared memory {shmem[-1]:.1f}); slope after warm-up "
+        f"{slope(seconds[late], rss[late])} (anonymous {slope(seconds[late], anon[late])}, "
+        f"shared memory {slope(seconds[late], shmem[late])})"
+    )
+
+
+class ClientWarnings(logging.Handler):
+    """Counts FarmClient's warnings by message (a rejoin after the broker's token appeared, a
+    resubmission at the deadline, an ignored result) and echoes the first few of each: they are
+    a soak's early signs of trouble, and FarmClient keeps no counter of its own for them."""
+
+    def __init__(self, started: float):
+        super().__init__(logging.WARNING)
+        self.started = started
+        self.counts: Counter[str] = Counter()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.counts[str(record.msg)] += 1
+        if self.counts[str(record.msg)] <= 3:
+            echo(self.started, f"client warning: {record.getMessage()}")
+
+
+def broker_status(farm: FarmClient) -> BrokerStatus | None:
+    try:
+        return farm.status()
+    except (BrokerUnavailable, BadMessage):
+        return None
+
+
+def echo(started: float, text: str) -> None:
+    click.echo(f"[{time.monotonic() - started:7.1f} s] {text}")
+
+
+@click.command(help=__doc__.split("\n\n")[0])
+@click.option("--minutes", type=click.FloatRange(min=0.1), default=60.0, show_default=True)
+@click.option("--quick", is_flag=True, help="a 1-minute smoke run (overrides --minutes)")
+@click.option("--workers-min", type=click.IntRange(min=1), default=1, show_default=True)
+@click.option("--workers-max", type=click.IntRange(min=1), default=4, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True, help="seeds jobs and churn")
+@click.option("--sample-seconds", type=click.FloatRange(min=0.1), default=5.0, show_default=True)
+@click.option(
+    "--churn-seconds",
+    type=click.FloatRange(min=0.1),
+    default=5.0,
+    show_default=True,
+    help="time between worker starts, stops and kills",
+)
+@click.option(
+    "--churn/--no-churn",
+    default=True,
+    show_default=True,
+    help="workers come and go; without, a fixed --workers-min, to tell leaks from churn",
+)
+@click.option(
+    "--pending",
+    type=click.IntRange(min=1),
+    default=16,
+    show_default=True,
+    help="jobs the client keeps in flight",
+)
+@click.option(
+    "--warm-up-minutes",
+    type=click.FloatRange(min=0),
+    help="memory before this is left out of the slopes  [default: a fifth of the run, ≤ 5]",
+)
+@click.option(
+    "--deadline",
+    type=click.FloatRange(min=1),
+    default=60.0,
+    show_default=True,
+    help="s before the client resubmits a job with no result",
+)
+@click.option("--attempts", type=click.IntRange(min=1), default=3, show_default=True)
+@click.option("--lease-seconds", type=click.FloatRange(min=0.1), default=60.0, show_default=True)
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="CSV of memory samples: seconds, role, name, pid, rss_mib, anon_mib, shmem_mib",
+)
+@click.option(
+    "--events",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="CSV of worker starts, SIGTERMs, SIGKILLs: seconds, clock, event, worker",
+)
+@click.option(
+    "--broker-log",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="the broker's log at info level (otherwise warnings on stderr)",
+)
+def main(
+    minutes: float,
+    quick: bool,
+    workers_min: int,
+    workers_max: int,
+    seed: int,
+    sample_seconds: float,
+    churn_seconds: float,
+    churn: bool,
+    pending: int,
+    warm_up_minutes: float | None,
+    deadline: float,
+    attempts: int,
+    lease_seconds: float,
+    out: Path | None,
+    events: Path | None,
+    broker_log: Path | None,
+) -> None:
+    if workers_max < workers_min:
+        raise click.BadParameter("must be at least --workers-min", param_hint="--workers-max")
+    if quick:
+        minutes, sample_seconds, churn_seconds = 1.0, min(sample_seconds, 2.0), 3.0
+    warm_up = 60 * (warm_up_minutes if warm_up_minutes is not None else min(minutes / 5, 5.0))
+    if out is not None and not out.parent.is_dir():
+        raise click.BadParameter(f"{out.parent} is not a directory", param_hint="--out")
+
+    started = time.monotonic()
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    sampler = Sampler(sample_seconds, out, started)
+    ledger = Ledger()
+    job_rng, churn_rng = random.Random(seed), random.Random(seed + 1)
+    pool = WorkerPool(endpoint, sampler, churn_rng, workers_min, workers_max, started)
+    broker = start_broker(endpoint, lease_seconds, broker_log)
+    sampler.watch(broker.pid, "broker", "broker")
+    sampler.watch(os.getpid(), "client", "client")
+    final_status: BrokerStatus | None = None
+    broker_code: int | None = None
+    duplicates = ignored = 0
+    warnings = ClientWarnings(started)
+    logging.getLogger("gainfarm.analytic").addHandler(warnings)
+    try:
+        pool.start()  # the resident
+        while len(pool.live) < workers_min:
+            pool.start()
+        sampler.start()
+        echo(started, f"broker on {endpoint}, {len(pool.live)} workers; soaking {minutes:g} min")
+        with (
+            tempfile.TemporaryDirectory(prefix="soak-") as scratch,
+            FarmClient(
+                [endpoint], STUDY, Path(scratch), deadline=deadline, attempts=attempts
+            ) as farm,
+        ):
+
+            def top_up() -> None:
+                want = pending - farm.pending
+                if want > 0:
+                    farm.submit({job: job_spec(job_rng) for job in ledger.next_ids(want)})
+
+            end = started + 60 * minutes
+            next_churn = time.monotonic() + churn_seconds
+            next_progress = time.monotonic() + PROGRESS_SECONDS
+            last_result = time.monotonic()
+            top_up()
+            while time.monotonic() < end:
+                for evaluation in farm.results(timeout=0.2):
+                    ledger.record(evaluation)
+                    last_result = time.monotonic()
+                    if farm.pending <= pending // 2:
+                        top_up()
+                top_up()
+                now = time.monotonic()
+                if now >= next_churn:
+                    next_churn = now + churn_seconds
+                    if churn:
+                        status = broker_status(farm)
+                        busy = {w.name for w in status.workers if w.busy} if status else set()
+                        pool.churn(busy)
+                    else:
+                        pool.reap()
+                if now >= next_progress:
+                    next_progress = now + PROGRESS_SECONDS
+                    rate = ledger.completed / (now - started)
+                    echo(
+                        started,
+                        f"{ledger.completed:,} done ({rate:.1f}/s), {farm.pending} pending, "
+                        f"{len(pool.live)} workers, {pool.starts} starts, {pool.stops} stops, "
+                        f"{pool.kills} kills; last result {now - last_result:.1f} s ago",
+                    )
+            echo(started, f"draining {farm.pending} pending jobs")
+            pool.reap()
+            drained = time.monotonic()
+            for evaluation in farm.results(timeout=deadline * attempts + 30):
+                ledger.record(evaluation)
+            echo(started, f"drained in {time.monotonic() - drained:.1f} s")
+            finished = time.monotonic()
+            final_status = broker_status(farm)
+            duplicates, ignored = farm.duplicates, farm.ignored
+    finally:
+        pool.close()
+        broker.terminate()
+        try:
+            broker_code = broker.wait(STOP_SECONDS)
+        except subprocess.TimeoutExpired:
+            broker.kill()
+            broker.wait()
+        sampler.stop()
+        if events is not None:
+            pool.write_events(events)
+
+    lost = ledger.statuses["lost"] + ledger.unanswered()
+    duplicated = duplicates + ledger.evaluated_twice
+    lines = [
+        f"soak: {minutes:g} min, workers {workers_min}-{workers_max}, seed {seed}, "
+        f"{pending} jobs in flight, "
+        + (f"churn every {churn_seconds:g} s" if churn else "no churn")
+        + f", warm-up {warm_up:.0f} s",
+        f"jobs submitted: {ledger.submitted:,}",
+        f"jobs completed: {ledger.completed:,} ("
+        + ", ".join(f"{s} {n:,}" for s, n in sorted(ledger.statuses.items()) if s != "lost")
+        + ")",
+        f"jobs lost: {lost} ({ledger.statuses['lost']} reported lost, "
+        f"{ledger.unanswered()} never answered)",
+        f"jobs duplicated: {duplicated} ({duplicates} duplicate results received, "
+        f"{ledger.evaluated_twice} evaluations of a job already evaluated)",
+        f"jobs retried after the deadline: {len(ledger.retried)}"
+        + (f" ({', '.join(ledger.retried[:10])})" if ledger.retried else "")
+        + f"; results ignored: {ignored}",
+        "client warnings: "
+        + (", ".join(f"{n} x {msg!r}" for msg, n in warnings.counts.items()) or "none"),
+        f"throughput: {ledger.completed / (finished - started):.1f} jobs/s over "
+        f"{finished - started:.0f} s",
+        f"workers: {pool.starts} starts, {pool.stops} SIGTERM stops, {pool.kills} SIGKILLs; "
+        f"stop statuses {dict(pool.stop_codes)}; died unbidden: {pool.died or 0}; "
+        f"hung on SIGTERM: {pool.hung or 0}",
+    ]
+    if final_status is not None:
+        lines.append(
+            f"broker: {final_status.jobs_done:,} jobs done, {final_status.requeued} requeued, "
+            f"{final_status.rejected} rejected; exit status {broker_code}"
+        )
+    for role, name, label in (
+        ("broker", "broker", "broker RSS"),
+        ("client", "client", "client RSS"),
+        ("worker", pool.resident, f"resident worker {pool.resident} RSS"),
+    ):
+        found = memory(sampler, role, name, warm_up)
+        if found is not None:
+            lines.append(f"{label}: {found}")
+    _, peaks = sampler.series("workers", "max")
+    _, means = sampler.series("workers", "mean")
+    if peaks.size:
+        workers = len({s.pid for s in sampler.samples if s.role == "worker"})
+        lines.append(
+            f"worker RSS: peak {peaks.max():.1f} MiB, mean {means.mean():.1f} MiB "
+            f"over {workers} workers"
+        )
+    for reason in ledger.lost_reasons[:10]:
+        lines.append(f"  lost {reason}")
+    click.echo("\n".join(lines))
+    if lost or duplicated or pool.died or pool.hung:
+        raise SystemExit(1)
+
+
+if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # so `finally` stops the farm
+    main()
