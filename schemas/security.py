@@ -45,9 +45,9 @@ class TlsIdentity:
             if not path.is_file():
                 raise ValueError(f"no {path} (make development credentials with `broker certs`)")
 
-    def zenoh_tls(self, mode: Literal["router", "client"]) -> dict[str, Any]:
+    def zenoh_tls(self, listening: bool) -> dict[str, Any]:
         """The `transport/link/tls` section: present our certificate, demand the peer's."""
-        side = "listen" if mode == "router" else "connect"
+        side = "listen" if listening else "connect"
         return {
             "root_ca_certificate": str(self.ca),
             f"{side}_certificate": str(self.certificate),

@@ -41,8 +41,8 @@ def session_config(
     config.insert_json5("transport/shared_memory/enabled", "false")
     if identity is not None:
         identity.check()
-        side = "router" if mode == "router" else "client"
-        config.insert_json5("transport/link/tls", json.dumps(identity.zenoh_tls(side)))
+        tls = identity.zenoh_tls(listening=mode == "router")
+        config.insert_json5("transport/link/tls", json.dumps(tls))
         config.insert_json5("transport/link/protocols", json.dumps(["tls"]))
         if mode == "router":
             config.insert_json5("access_control", json.dumps(access_control()))

@@ -53,6 +53,12 @@ def sessions(secure_broker: Broker, credentials: Path) -> Iterator[dict[Role, ze
         session.close()
 
 
+def _analytic(broker: Broker, credentials: Path, study: str) -> FarmClient:
+    """An analytic process's client on the secure farm, with the analytic credentials."""
+    identity = TlsIdentity(credentials, "analytic")
+    return FarmClient(broker.endpoints, study, credentials / study, identity=identity)
+
+
 def _queued(broker: Broker, study: str) -> int:
     return sum(state.queued for state in broker.queue.study_states() if state.name == study)
 
@@ -63,7 +69,7 @@ def _workers(broker: Broker) -> list[str]:
 
 def _tls_client(endpoint: str, identity: TlsIdentity, present_certificate: bool) -> zenoh.Config:
     """A client configuration by hand, since open_session always presents a certificate."""
-    tls = identity.zenoh_tls("client")
+    tls = identity.zenoh_tls(listening=False)
     if not present_certificate:
         tls = {"root_ca_certificate": tls["root_ca_certificate"]}
     config = zenoh.Config()
@@ -84,12 +90,7 @@ def test_a_secure_farm_runs_jobs_end_to_end(secure_broker: Broker, credentials: 
     command = [sys.executable, "-m", "worker", "start", "--connect", endpoint, "--tls", tls]
     worker = subprocess.Popen([*command, "--name", "secure-1", "--log-level", "warning"])
     try:
-        with FarmClient(
-            secure_broker.endpoints,
-            "secure",
-            credentials / "run",
-            identity=TlsIdentity(credentials, "analytic"),
-        ) as farm:
+        with _analytic(secure_broker, credentials, "secure") as farm:
             farm.submit({"a": short_spec(), "b": short_spec(duration=0.3)})
             evaluations = list(farm.results(timeout=60))
     finally:
@@ -141,12 +142,7 @@ def test_an_analytic_identity_cannot_pose_as_a_worker(
     secure_broker: Broker, sessions: dict[Role, zenoh.Session], credentials: Path
 ) -> None:
     analytic = sessions["analytic"]
-    with FarmClient(
-        secure_broker.endpoints,
-        "s",
-        credentials / "pose",
-        identity=TlsIdentity(credentials, "analytic"),
-    ) as farm:
+    with _analytic(secure_broker, credentials, "s") as farm:
         farm.submit({"j": short_spec()})
         wait_for(lambda: _queued(secure_broker, "s") == 1, what="the job to queue")
         # It cannot take the job, register as a worker, or slip a result in.
