@@ -9,7 +9,7 @@ import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from analytic.farm import Evaluation, FarmClient
+from analytic.evaluator import Evaluation, Evaluator
 from schemas.episode import EpisodeSpec
 from schemas.files import write_atomically
 from schemas.gains import PDGains
@@ -33,29 +33,31 @@ def batch_jobs(
 
 
 def run_batch(
-    farm: FarmClient,
+    evaluator: Evaluator,
     jobs: dict[str, EpisodeSpec],
+    run_dir: Path,
     on_evaluation: Callable[[Evaluation], None] = lambda _: None,
 ) -> list[Evaluation]:
-    """Submit every job, collect every evaluation (in job order), write evaluations.json."""
-    farm.submit(jobs)
+    """Submit every job, collect every evaluation (in job order), write
+    run_dir/evaluations.json (the evaluator keeps the logs in run_dir/episodes/)."""
+    evaluator.submit(jobs)
     evaluations = {}
-    for evaluation in farm.results():
+    for evaluation in evaluator.results():
         evaluations[evaluation.job_id] = evaluation
         on_evaluation(evaluation)
     ordered = [evaluations[job_id] for job_id in jobs if job_id in evaluations]
-    records = [evaluation_record(evaluation, farm.episodes.parent) for evaluation in ordered]
-    write_atomically(farm.episodes.parent / EVALUATIONS, json.dumps(records, indent=1).encode())
+    records = [evaluation_record(evaluation, run_dir) for evaluation in ordered]
+    write_atomically(run_dir / EVALUATIONS, json.dumps(records, indent=1).encode())
     return ordered
 
 
 def evaluation_record(evaluation: Evaluation, run_dir: Path) -> dict[str, object]:
     return {
         "job_id": evaluation.job_id,
-        "status": evaluation.status,
+        "status": evaluation.status.value,
         "reason": evaluation.reason,
         "scores": evaluation.scores.model_dump() if evaluation.scores else None,
-        "episode": str(evaluation.episode.relative_to(run_dir)) if evaluation.episode else None,
+        "episode": str(evaluation.log.relative_to(run_dir)) if evaluation.log else None,
         "spec": evaluation.spec.model_dump(mode="json"),
         "worker": evaluation.worker,
         "attempts": evaluation.attempts,

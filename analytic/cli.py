@@ -7,7 +7,7 @@ import os
 import pickle
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import click
@@ -16,24 +16,27 @@ from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn
 from rich.table import Table
 
-from analytic import studies
+from analytic import experiments
 from analytic.batch import EVALUATIONS, batch_jobs, run_batch
+from analytic.config import RunConfig
 from analytic.dataset import NoEpisodes
 from analytic.dataset import build as build_dataset
-from analytic.farm import DEFAULT_DEADLINE, Evaluation, FarmClient, FarmUnavailable
+from analytic.evaluator import Evaluation
+from analytic.experiments import Experiment
+from analytic.farm import DEFAULT_DEADLINE, FarmClient, FarmUnavailable
 from analytic.local import local_farm
-from analytic.objectives import score
-from analytic.report import print_scores
-from analytic.run import CONFIG, RunConfig, TuningRun
-from analytic.run import Progress as RunProgress
-from analytic.studies import Study
-from schemas.errors import CliError, describe, parse_numbers, run_app
+from analytic.records import CONFIG_JSON
+from analytic.run import RunProgress, TuningRun
+from cli import options
+from cli.app import CliError, parse_numbers, run_app
+from cli.scores import show_scores
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import NotAnEpisodeLog, read_episode
+from schemas.objectives import score
 from schemas.robot import ModelSpec
-from schemas.security import TlsIdentity, load_identity
-from schemas.trajectory import TrajectoryKind, TrajectorySpec
-from schemas.wire import BadMessage
+from schemas.security import TlsIdentity
+from schemas.trajectory import TrajectorySpec
+from schemas.wire import BadMessage, describe
 
 
 @click.group(help=__doc__, no_args_is_help=True)
@@ -41,29 +44,21 @@ def app() -> None:
     pass
 
 
-def farm_options(command: Callable[..., None]) -> Callable[..., None]:
-    """--connect, --tls, --local and --workers: where the farm is, the same for every command."""
-    options = [
-        click.option("--connect", multiple=True, help="a running broker's Zenoh endpoint"),
-        click.option(
-            "--tls",
-            type=click.Path(path_type=Path),
-            help="a secure farm: directory with ca.pem, analytic.pem and analytic.key",
-        ),
-        click.option(
-            "--local", is_flag=True, help="run the farm here: a broker in this process, workers"
-        ),
-        click.option(
-            "--workers",
-            type=click.IntRange(min=1, max=64),
-            default=1,
-            show_default=True,
-            help="with a local farm: how many worker processes",
-        ),
-    ]
-    for option in reversed(options):
-        command = option(command)
-    return command
+# Where the farm is, the same for every command that uses one.
+farm_options = options.stack(
+    click.option("--connect", multiple=True, help="a running broker's Zenoh endpoint"),
+    options.tls("a secure farm: directory with ca.pem, analytic.pem and analytic.key"),
+    click.option(
+        "--local", is_flag=True, help="run the farm here: a broker in this process, workers"
+    ),
+    click.option(
+        "--workers",
+        type=click.IntRange(min=1, max=64),
+        default=1,
+        show_default=True,
+        help="with a local farm: how many worker processes",
+    ),
+)
 
 
 def _check_farm(connect: tuple[str, ...], local: bool, tls: Path | None) -> TlsIdentity | None:
@@ -72,10 +67,7 @@ def _check_farm(connect: tuple[str, ...], local: bool, tls: Path | None) -> TlsI
         raise CliError("--connect and --local exclude each other")
     if tls is not None and not connect:
         raise CliError("--tls needs --connect: a local farm runs on loopback, unsecured")
-    try:
-        return load_identity(tls, "analytic")
-    except ValueError as error:
-        raise CliError(f"--tls: {error}") from None
+    return options.identity(tls, "analytic")
 
 
 @app.command()
@@ -89,10 +81,7 @@ def evaluate(log: Path, as_json: bool) -> None:
         scores = score(read_episode(log))
     except NotAnEpisodeLog as error:
         raise CliError(str(error)) from None
-    if as_json:
-        click.echo(json.dumps({**scores.model_dump(), "log": str(log)}))
-    else:
-        print_scores(scores, source=str(log))
+    show_scores(scores, log, as_json)
 
 
 @app.command()
@@ -103,19 +92,9 @@ def evaluate(log: Path, as_json: bool) -> None:
     type=click.Path(path_type=Path),
     help='JSON list of candidates, [{"kp": [7], "kd": [7]}, ...]  [default: the default gains]',
 )
-@click.option(
-    "--trajectory",
-    "kinds",
-    multiple=True,
-    type=click.Choice([kind.value for kind in TrajectoryKind]),
-    default=["spiral"],
-    show_default=True,
-    help="repeat for several",
-)
-@click.option("--duration", type=float, default=5.0, show_default=True, help="seconds")
-@click.option(
-    "--model", type=click.Choice(["flexible", "rigid"]), default="flexible", show_default=True
-)
+@options.trajectory(multiple=True, help="repeat for several")
+@options.duration()
+@options.model(help=None)
 @click.option(
     "--run-dir",
     type=click.Path(path_type=Path),
@@ -175,7 +154,7 @@ def batch(
                     click.echo(json.dumps(_summary(evaluation)))
 
             try:
-                evaluations = run_batch(farm, jobs, report)
+                evaluations = run_batch(farm, jobs, run_dir, report)
             except BadMessage as error:
                 raise CliError(str(error)) from None
     if not as_json:
@@ -183,29 +162,15 @@ def batch(
 
 
 @app.command()
-@click.option(
-    "--pop",
-    type=click.IntRange(min=4, max=1000),
-    default=30,
-    show_default=True,
-    help="population size",
-)
-@click.option(
-    "--trajectory",
-    "kinds",
+@options.pop()
+@options.trajectory(
     multiple=True,
-    type=click.Choice([kind.value for kind in TrajectoryKind]),
-    default=["spiral"],
-    show_default=True,
     help="one: a specific controller; several (repeat): a generic one, objectives averaged",
 )
-@click.option("--duration", type=float, default=5.0, show_default=True, help="seconds")
+@options.duration()
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
-@click.option("--generations", type=click.IntRange(min=1), help="stop after N generations")
-@click.option("--evaluations", type=click.IntRange(min=1), help="stop after N evaluations")
-@click.option(
-    "--model", type=click.Choice(["flexible", "rigid"]), default="flexible", show_default=True
-)
+@options.termination()
+@options.model(help=None)
 @farm_options
 @click.option("--out", type=click.Path(path_type=Path), help="run directory  [default: runs/TIME]")
 @click.option(
@@ -243,8 +208,6 @@ def start(
     stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
     """
     identity = _check_farm(connect, local, tls)
-    if generations and evaluations:
-        raise CliError("--generations and --evaluations exclude each other")
     try:
         config = RunConfig(
             pop=pop,
@@ -276,8 +239,8 @@ def resume(
 ) -> None:
     """Continue a stopped run from its last checkpoint."""
     identity = _check_farm(connect, local, tls)
-    if not (run_dir / CONFIG).is_file():
-        raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG})")
+    if not (run_dir / CONFIG_JSON).is_file():
+        raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG_JSON})")
     try:
         run = TuningRun.open(run_dir)
     except (OSError, ValueError, EOFError, pickle.UnpicklingError) as error:
@@ -347,8 +310,8 @@ def _tune(
 def dataset(run_dirs: tuple[Path, ...], out: Path, selection: str) -> None:
     """Gather tuned controllers' episodes into a dataset: MCAP logs, Parquet tables, a card."""
     for run_dir in run_dirs:
-        if not (run_dir / CONFIG).is_file():
-            raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG})")
+        if not (run_dir / CONFIG_JSON).is_file():
+            raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG_JSON})")
     if out.exists():
         raise CliError(f"--out: {str(out)!r} already exists")
     try:
@@ -378,22 +341,15 @@ def dataset(run_dirs: tuple[Path, ...], out: Path, selection: str) -> None:
 @click.option(
     "--durations", default="3,4,5,6", show_default=True, help="speed: spiral durations, s"
 )
-@click.option("--pop", type=click.IntRange(min=4, max=1000), default=30, show_default=True)
-@click.option(
-    "--duration",
-    type=float,
-    default=5.0,
-    show_default=True,
-    help="trajectory duration, s (popsize, generic-vs-specific)",
-)
-@click.option("--generations", type=click.IntRange(min=1), help="per run, instead of converging")
-@click.option("--evaluations", type=click.IntRange(min=1), help="per run, instead of converging")
+@options.pop()
+@options.duration(help="trajectory duration, s (popsize, generic-vs-specific)")
+@options.termination(per_run=True)
 @farm_options
 @click.option(
     "--out",
     type=click.Path(path_type=Path),
     required=True,
-    help="study directory (an existing one is resumed)",
+    help="experiment directory (an existing one is resumed)",
 )
 def experiment(
     name: str,
@@ -412,8 +368,6 @@ def experiment(
 ) -> None:
     """Rerun one of the paper's studies: popsize, generic-vs-specific or speed."""
     identity = _check_farm(connect, local, tls)
-    if generations and evaluations:
-        raise CliError("--generations and --evaluations exclude each other")
     size_list = [int(v) for v in parse_numbers("--sizes", sizes)]
     duration_list = list(parse_numbers("--durations", durations))
     try:
@@ -443,19 +397,18 @@ def experiment(
             ) as progress,
         ):
             task = progress.add_task(name)
-            study = Study(
+            experiment = Experiment(
                 out,
-                endpoints,
+                lambda study, directory: FarmClient(endpoints, study, directory, identity=identity),
                 lambda text: progress.update(task, description=text),
-                identity=identity,
             )
             try:
                 if name == "popsize":
-                    studies.popsize(study, base, size_list, reps)
+                    experiments.popsize(experiment, base, size_list, reps)
                 elif name == "generic-vs-specific":
-                    studies.generic_vs_specific(study, base, reps)
+                    experiments.generic_vs_specific(experiment, base, reps)
                 else:
-                    studies.speed(study, base, duration_list, reps)
+                    experiments.speed(experiment, base, duration_list, reps)
             except ValueError as error:
                 raise CliError(str(error)) from None
     except KeyboardInterrupt:
@@ -493,10 +446,10 @@ def _candidates(path: Path | None) -> list[PDGains]:
 
 def _summary(evaluation: Evaluation) -> dict[str, object]:
     scores = evaluation.scores.model_dump() if evaluation.scores else {}
-    episode = str(evaluation.episode) if evaluation.episode else None
+    episode = str(evaluation.log) if evaluation.log else None
     return {
         "job_id": evaluation.job_id,
-        "status": evaluation.status,
+        "status": evaluation.status.value,
         **scores,
         "reason": evaluation.reason,
         "episode": episode,

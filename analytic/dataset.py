@@ -22,12 +22,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from analytic.evolution import Candidate, normalise
-from analytic.objectives import score
-from analytic.run import TuningRun
+from analytic.evolution import normalise
+from analytic.records import FrontMember, RunRecord, read_run
 from schemas.episode_log import EpisodeLog
 from schemas.files import write_atomically
 from schemas.mcap_episode import read_episode
+from schemas.objectives import score
 from schemas.robot import JOINT_NAMES
 
 Selection = Literal["front", "knee"]
@@ -48,12 +48,12 @@ class Source:
     episode_id: str
     run: str
     path: Path
-    candidate: Candidate
+    member: FrontMember
 
 
-def select(run: TuningRun, selection: Selection) -> list[Candidate]:
+def select(run: RunRecord, selection: Selection) -> list[FrontMember]:
     """The front, or its knee: the member nearest the ideal point in the hypervolume's space."""
-    front = run.state.evolution.front()
+    front = run.front
     if selection == "front" or not front:
         return front
     normalised = normalise([member.objectives for member in front], run.config.reference_point)
@@ -61,15 +61,16 @@ def select(run: TuningRun, selection: Selection) -> list[Candidate]:
 
 
 def sources(run_dirs: Sequence[Path], selection: Selection) -> list[Source]:
+    """Every kept log of the selected members, read from each run's front.json."""
     found = []
     for run_dir in run_dirs:
-        run = TuningRun.open(run_dir)
+        run = read_run(run_dir)
         name = Path(run_dir).resolve().name
-        for candidate in select(run, selection):
-            for job_id in run.state.episodes.get(candidate.gains, []):
-                path = Path(run_dir) / "episodes" / f"{job_id}.mcap"
+        for member in select(run, selection):
+            for episode in member.episodes:
+                path = Path(run_dir) / episode
                 if path.is_file():
-                    found.append(Source(f"{name}-{job_id}", name, path, candidate))
+                    found.append(Source(f"{name}-{path.stem}", name, path, member))
     if not found:
         raise NoEpisodes(
             "none of the selected controllers has an episode log in its run's episodes/"
@@ -111,8 +112,8 @@ def episode_row(source: Source, log: EpisodeLog) -> dict[str, object]:
         "trajectory_spec": spec.trajectory.model_dump_json(),
         "model": spec.model.model_dump_json(),
         "gravity_compensation": spec.gravity_compensation,
-        "candidate_f_acc": source.candidate.objectives[0],
-        "candidate_f_t": source.candidate.objectives[1],
+        "candidate_f_acc": source.member.f_acc,
+        "candidate_f_t": source.member.f_t,
     }
     return row
 
@@ -138,7 +139,7 @@ def build(run_dirs: Sequence[Path], out: Path, selection: Selection = "front") -
         counts = {
             "episodes": len(rows),
             "ticks": sum(table.num_rows for table in ticks),
-            "controllers": len({source.candidate.gains for source in chosen}),
+            "controllers": len({source.member.gains for source in chosen}),
             "runs": len({source.run for source in chosen}),
         }
         write_atomically(staging / "README.md", card(counts, run_dirs, selection).encode())

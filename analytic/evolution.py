@@ -16,7 +16,6 @@ from pymoo.indicators.hv import HV
 from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
 
 from analytic.search_space import SearchSpace
-from schemas.episode import Scores
 from schemas.gains import PDGains
 
 # The hypervolume is taken in a normalised objective space, the same for every run so that runs
@@ -29,26 +28,11 @@ from schemas.gains import PDGains
 REFERENCE_POINT = (0.2, 1e4)  # f_acc in m, f_t in (N·m)²
 F_T_FLOOR = 1e-2  # (N·m)²: smoother than this counts as perfectly smooth
 
-# The objectives of a candidate with no episode to score (its path out of reach, or lost): worse
-# than any diverged episode, so NSGA-II ranks it last and moves on.
-NO_EPISODE = (10.0, 1e12)
-
 
 @dataclass(frozen=True)
 class Candidate:
     gains: PDGains
     objectives: tuple[float, float]  # f_acc, f_t: means over the trajectory set
-
-
-def objectives(scores: Sequence[Scores | None]) -> tuple[float, float]:
-    """A candidate's objectives over its trajectories: the means of f_acc and f_t (the generic
-    controller's; one trajectory gives the specific controller's)."""
-    if not scores or any(score is None for score in scores):
-        return NO_EPISODE
-    return (
-        float(np.mean([score.f_acc for score in scores])),
-        float(np.mean([score.f_t for score in scores])),
-    )
 
 
 class GainProblem(Problem):

@@ -1,4 +1,5 @@
-"""The analytic side's door to the farm: submit candidates, get scored evaluations back.
+"""The analytic side's door to the farm: submit candidates, get scored evaluations back. An
+`Evaluator` (analytic.evaluator) whose jobs run on any number of cobots.
 
     with FarmClient(["tcp/127.0.0.1:7447"], study="spiral-pop30", run_dir=Path("runs/a")) as farm:
         farm.submit({"g0-spiral": spec, ...})
@@ -19,12 +20,13 @@ from pathlib import Path
 
 import zenoh
 
-from analytic.objectives import score
+from analytic.evaluator import Evaluation, EvaluationStatus
 from broker.status import BrokerUnavailable, query_status
 from schemas import keys
-from schemas.episode import EpisodeSpec, Scores
+from schemas.episode import EpisodeSpec
 from schemas.files import write_atomically
 from schemas.mcap_episode import NotAnEpisodeLog, decode_episode
+from schemas.objectives import score
 from schemas.security import TlsIdentity
 from schemas.transport import open_session
 from schemas.wire import (
@@ -36,7 +38,6 @@ from schemas.wire import (
     Result,
     Submission,
     SubmitReply,
-    Timings,
     decode,
 )
 
@@ -54,22 +55,6 @@ BROKER_BACK = b"\0broker-back"  # an inbox marker, never a real attachment (thos
 
 class FarmUnavailable(ConnectionError):
     """No broker answered, or the study is already open elsewhere."""
-
-
-@dataclass(frozen=True)
-class Evaluation:
-    """One job's outcome. `scores` and `episode` are set when the episode ran (ok or diverged);
-    `lost` means no result came after every attempt."""
-
-    job_id: str
-    spec: EpisodeSpec
-    status: str  # a JobStatus value, or "lost"
-    scores: Scores | None
-    episode: Path | None
-    reason: str
-    worker: str
-    attempts: int
-    timings: Timings | None
 
 
 @dataclass
@@ -126,15 +111,20 @@ class FarmClient:
     def status(self) -> BrokerStatus:
         return query_status(self.session)
 
+    @property
+    def capacity(self) -> int:
+        """The workers connected to the farm now: how many jobs can run at once."""
+        return len(self.status().workers)
+
     def submit(self, specs: Mapping[str, EpisodeSpec]) -> None:
         """Queue one job per (job id, spec). A job id may not be pending already."""
         clash = sorted(set(specs) & set(self._pending))
         if clash:
             raise ValueError(f"job ids already pending: {', '.join(clash[:5])}")
-        jobs = [Job(job_id=job_id, episode=spec) for job_id, spec in specs.items()]
+        jobs = [Job(job_id=job_id, spec=spec) for job_id, spec in specs.items()]
         expiry = time.monotonic() + self.deadline
         for job in jobs:
-            self._pending[job.job_id] = _Pending(job.episode, expiry)
+            self._pending[job.job_id] = _Pending(job.spec, expiry)
         self._send(jobs)
 
     def results(self, timeout: float | None = None) -> Iterator[Evaluation]:
@@ -205,7 +195,7 @@ class FarmClient:
         now = time.monotonic()
         for pending in self._pending.values():
             pending.deadline = now + self.deadline
-        self._send([Job(job_id=job_id, episode=p.spec) for job_id, p in self._pending.items()])
+        self._send([Job(job_id=job_id, spec=p.spec) for job_id, p in self._pending.items()])
 
     def _on_result(self, sample: zenoh.Sample) -> None:
         attachment = sample.attachment.to_bytes() if sample.attachment is not None else None
@@ -247,11 +237,11 @@ class FarmClient:
             if pending.attempts >= self.attempts:
                 del self._pending[job_id]
                 reason = f"no result after {pending.attempts} attempts"
-                self._ready.append(self._failed(job_id, pending, reason, status="lost"))
+                self._ready.append(self._failed(job_id, pending, reason, EvaluationStatus.lost))
                 continue
             pending.attempts += 1
             pending.deadline = now + self.deadline
-            again.append(Job(job_id=job_id, episode=pending.spec))
+            again.append(Job(job_id=job_id, spec=pending.spec))
         if again:
             log.warning("resubmitting %d overdue jobs", len(again))
             for job_id in self._send(again):  # merely slow, not lost: not another attempt
@@ -283,7 +273,11 @@ class FarmClient:
         if result.status == JobStatus.failed:
             del self._pending[result.job_id]
             return Evaluation(
-                **common, status="failed", scores=None, episode=None, reason=result.reason
+                **common,
+                status=EvaluationStatus.failed,
+                scores=None,
+                log=None,
+                reason=result.reason,
             )
         try:
             if len(content) > MAX_EPISODE_BYTES or len(content) != result.episode_bytes:
@@ -298,9 +292,9 @@ class FarmClient:
         write_atomically(path, content)
         return Evaluation(
             **common,
-            status=result.status.value,
+            status=EvaluationStatus(result.status.value),
             scores=score(episode),
-            episode=path,
+            log=path,
             reason=result.reason,
         )
 
@@ -314,20 +308,24 @@ class FarmClient:
         pending.attempts += 1
         # The broker may not have closed the damaged lease yet and answer "already pending":
         # look again soon rather than after a whole deadline.
-        still_pending = self._send([Job(job_id=result.job_id, episode=pending.spec)])
+        still_pending = self._send([Job(job_id=result.job_id, spec=pending.spec)])
         wait = RECHECK_SECONDS if result.job_id in still_pending else self.deadline
         pending.deadline = time.monotonic() + wait
         return None
 
     def _failed(
-        self, job_id: str, pending: _Pending, reason: str, status: str = "failed"
+        self,
+        job_id: str,
+        pending: _Pending,
+        reason: str,
+        status: EvaluationStatus = EvaluationStatus.failed,
     ) -> Evaluation:
         return Evaluation(
             job_id=job_id,
             spec=pending.spec,
             status=status,
             scores=None,
-            episode=None,
+            log=None,
             reason=reason,
             worker="",
             attempts=pending.attempts,

@@ -1,215 +1,30 @@
-"""A run directory's numbers as a person reads them: two figures, a short report and the CSVs.
+"""Figures of a run and of the paper's experiments, drawn from plain data, written as PNGs.
 
-This is edge code and holds no state: every function takes plain data and a path chosen by the
-caller, so it can be called on a finished run or after every generation of one in progress. Each
-file appears whole or not at all (through `schemas.files.write_atomically`): a reader refreshing
-the report mid-run, or a crash mid-write, never sees a half-written PNG or CSV.
-
-The CSV layout lives here and only here, so the writer of a run and every reader of it agree.
-Floats are written repr-exact (shortest round-tripping form), so reading a file back gives the
-very same numbers and two identical runs give byte-identical files.
+Edge code with no state: every function takes plain data and a path chosen by the caller, so it
+can be called on a finished run or after every generation of one in progress. Each PNG appears
+whole or not at all, so a reader refreshing mid-run never sees half a file.
 
 Figures are drawn on a bare `matplotlib.figure.Figure` with the Agg canvas, never through
 pyplot: no global figure registry to leak, no GUI backend, safe beside the run loop's threads.
 """
 
-import csv
 import io
 import math
-import operator
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from analytic.records import FrontMember, HistoryRow, sorted_front
 from schemas.files import write_atomically
 
-JOINTS = 7
 DPI = 120
 FIGURE_SIZE = (7.0, 5.0)  # inches: 840 × 600 px at DPI
 
-# The names a run directory uses; the report links to the figures by these relative names.
-PARETO_PNG = "pareto.png"
-HYPERVOLUME_PNG = "hypervolume.png"
-FRONT_CSV = "front.csv"
-HISTORY_CSV = "history.csv"
-REPORT_MD = "report.md"
 
-HISTORY_FIELDS = (
-    "generation",
-    "evaluations",
-    "hypervolume",
-    "best_f_acc",
-    "best_f_t",
-    "wall_seconds",
-)
-FRONT_FIELDS = (
-    *(f"kp{joint}" for joint in range(1, JOINTS + 1)),
-    *(f"kd{joint}" for joint in range(1, JOINTS + 1)),
-    "f_acc",
-    "f_t",
-)
-
-
-@dataclass(frozen=True)
-class HistoryRow:
-    """One generation of a run, one line of history.csv.
-
-    `evaluations` and `wall_seconds` are cumulative since the start of the run; `best_f_acc` (m)
-    and `best_f_t` ((N·m)²) are the best value of each objective found so far.
-    """
-
-    generation: int
-    evaluations: int
-    hypervolume: float
-    best_f_acc: float
-    best_f_t: float
-    wall_seconds: float
-
-    def __post_init__(self) -> None:
-        # Normalise numpy scalars to Python numbers: repr(np.float64(1.0)) is "np.float64(1.0)",
-        # which would corrupt the CSV, and equality with rows read back should just work.
-        # operator.index refuses a float generation rather than silently truncating it.
-        object.__setattr__(self, "generation", operator.index(self.generation))
-        object.__setattr__(self, "evaluations", operator.index(self.evaluations))
-        for name in ("hypervolume", "best_f_acc", "best_f_t", "wall_seconds"):
-            object.__setattr__(self, name, float(getattr(self, name)))
-
-
-@dataclass(frozen=True)
-class FrontMember:
-    """One non-dominated controller, one line of front.csv: its 14 gains and its two scores.
-
-    f_acc is in metres, f_t in (N·m)². Gains may be given as any sequence (a numpy row, say);
-    they are stored as tuples of Python floats so members compare and hash by value.
-    """
-
-    kp: tuple[float, ...]
-    kd: tuple[float, ...]
-    f_acc: float
-    f_t: float
-
-    def __post_init__(self) -> None:
-        for name in ("kp", "kd"):
-            gains = tuple(float(gain) for gain in getattr(self, name))
-            if len(gains) != JOINTS:
-                raise ValueError(f"{name} needs {JOINTS} gains, got {len(gains)}")
-            object.__setattr__(self, name, gains)
-        object.__setattr__(self, "f_acc", float(self.f_acc))
-        object.__setattr__(self, "f_t", float(self.f_t))
-
-
-# --- CSV ---------------------------------------------------------------------------------------
-
-
-def _exact(value: float) -> str:
-    """The shortest text that reads back as exactly `value` (float's repr), numpy-proof."""
-    return repr(float(value))
-
-
-def _nan_last(value: float) -> tuple[bool, float]:
-    """A sort key that puts NaN after every number instead of scrambling the order."""
-    return (math.isnan(value), value)
-
-
-def _front_order(member: FrontMember) -> tuple:
-    """f_acc, then f_t, then the gains: a total order, so equal fronts give equal files."""
-    return (_nan_last(member.f_acc), _nan_last(member.f_t), member.kp, member.kd)
-
-
-def sorted_front(front: Iterable[FrontMember]) -> list[FrontMember]:
-    """The front in the order every output shows it: most accurate first."""
-    return sorted(front, key=_front_order)
-
-
-def _csv_bytes(header: Sequence[str], rows: Iterable[Sequence[str]]) -> bytes:
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(header)
-    writer.writerows(rows)
-    return buffer.getvalue().encode("utf-8")
-
-
-def history_csv(history: Sequence[HistoryRow]) -> bytes:
-    """history.csv's content, rows in the order given (the order the generations ran)."""
-    return _csv_bytes(
-        HISTORY_FIELDS,
-        (
-            (
-                str(row.generation),
-                str(row.evaluations),
-                _exact(row.hypervolume),
-                _exact(row.best_f_acc),
-                _exact(row.best_f_t),
-                _exact(row.wall_seconds),
-            )
-            for row in history
-        ),
-    )
-
-
-def front_csv(front: Sequence[FrontMember]) -> bytes:
-    """front.csv's content, sorted by f_acc then f_t so equal fronts give byte-identical files."""
-    return _csv_bytes(
-        FRONT_FIELDS,
-        (
-            (
-                *map(_exact, member.kp),
-                *map(_exact, member.kd),
-                _exact(member.f_acc),
-                _exact(member.f_t),
-            )
-            for member in sorted_front(front)
-        ),
-    )
-
-
-def _read_rows(path: Path, fields: Sequence[str]) -> list[dict[str, str]]:
-    """The rows of a CSV, refusing one whose header is not exactly `fields` (another format)."""
-    with Path(path).open(newline="", encoding="utf-8") as stream:
-        reader = csv.DictReader(stream)
-        if tuple(reader.fieldnames or ()) != tuple(fields):
-            raise ValueError(
-                f"{path}: expected columns {','.join(fields)}, got {reader.fieldnames}"
-            )
-        return list(reader)
-
-
-def read_history(path: Path) -> list[HistoryRow]:
-    """history.csv as written by `history_csv`, in file order."""
-    return [
-        HistoryRow(
-            generation=int(row["generation"]),
-            evaluations=int(row["evaluations"]),
-            hypervolume=float(row["hypervolume"]),
-            best_f_acc=float(row["best_f_acc"]),
-            best_f_t=float(row["best_f_t"]),
-            wall_seconds=float(row["wall_seconds"]),
-        )
-        for row in _read_rows(path, HISTORY_FIELDS)
-    ]
-
-
-def read_front(path: Path) -> list[FrontMember]:
-    """front.csv as written by `front_csv`, in file order (already sorted by f_acc)."""
-    return [
-        FrontMember(
-            kp=tuple(float(row[f"kp{joint}"]) for joint in range(1, JOINTS + 1)),
-            kd=tuple(float(row[f"kd{joint}"]) for joint in range(1, JOINTS + 1)),
-            f_acc=float(row["f_acc"]),
-            f_t=float(row["f_t"]),
-        )
-        for row in _read_rows(path, FRONT_FIELDS)
-    ]
-
-
-# --- figures -----------------------------------------------------------------------------------
-
-
-def _new_figure() -> Figure:
-    figure = Figure(figsize=FIGURE_SIZE, dpi=DPI, layout="constrained")
+def _new_figure(size: tuple[float, float] = FIGURE_SIZE) -> Figure:
+    figure = Figure(figsize=size, dpi=DPI, layout="constrained")
     FigureCanvasAgg(figure)  # Agg explicitly: no backend lookup, no display needed
     return figure
 
@@ -324,103 +139,82 @@ def plot_hypervolume(path: Path, history: Sequence[HistoryRow], title: str = "")
     save_png(figure, path)
 
 
-# --- report ------------------------------------------------------------------------------------
+# --- the experiments' figures --------------------------------------------------------------------
 
 
-def _duration(seconds: float) -> str:
-    """Wall time the way a person says it: 42.0 s, 3 min 07 s, 2 h 05 min."""
-    if not math.isfinite(seconds):
-        return str(seconds)
-    if seconds < 60:
-        return f"{seconds:.1f} s"
-    minutes, second = divmod(round(seconds), 60)
-    if minutes < 60:
-        return f"{minutes} min {second:02d} s"
-    hours, minute = divmod(minutes, 60)
-    return f"{hours} h {minute:02d} min"
-
-
-def gains_text(member: FrontMember) -> str:
-    """A member's 14 gains on one short line: 'kp 2000 2000 1200 … / kd 20 20 15 …'."""
-    kp = " ".join(f"{gain:.4g}" for gain in member.kp)
-    kd = " ".join(f"{gain:.4g}" for gain in member.kd)
-    return f"kp {kp} / kd {kd}"
-
-
-def front_table_row(rank: int, member: FrontMember) -> str:
-    """One line of the report's front table (public so a test or a caller can find it)."""
-    return f"| {rank} | {member.f_acc * 1000:.3f} | {member.f_t:.4g} | {gains_text(member)} |"
-
-
-def report_markdown(
-    *,
-    title: str,
-    config_lines: Sequence[str],
-    history: Sequence[HistoryRow],
-    front: Sequence[FrontMember],
-    converged: str,
-) -> str:
-    """The text of report.md (see `write_report`)."""
-    lines = [f"# {title}", "", "## Configuration", ""]
-    lines += [f"- {line}" for line in config_lines] or ["- (none given)"]
-    lines += ["", "## Summary", ""]
-    if history:
-        last = history[-1]
-        lines += [
-            f"- generations: {len(history)}",
-            f"- evaluations: {last.evaluations}",
-            f"- final hypervolume: {last.hypervolume:.6g}",
-            f"- best f_acc: {last.best_f_acc * 1000:.3f} mm; best f_t: {last.best_f_t:.4g} (N·m)²",
-            f"- wall time: {_duration(last.wall_seconds)}",
-        ]
-    else:
-        lines.append("- no generation finished yet")
-    if converged:
-        lines.append(f"- {converged}")
-
-    members = sorted_front(front)
-    lines += ["", f"## Pareto front ({len(members)} members, most accurate first)", ""]
-    if members:
-        lines += [
-            "| # | f_acc (mm) | f_t ((N·m)²) | gains |",
-            "|---:|---:|---:|---|",
-            *(front_table_row(rank, member) for rank, member in enumerate(members, start=1)),
-        ]
-    else:
-        lines.append("No members yet.")
-
-    lines += [
-        "",
-        "## Figures",
-        "",
-        f"![Pareto front]({PARETO_PNG})",
-        "",
-        f"![Hypervolume against evaluations]({HYPERVOLUME_PNG})",
-        "",
-        f"The numbers at full precision: [{FRONT_CSV}]({FRONT_CSV}) (the front, gains and scores) "
-        f"and [{HISTORY_CSV}]({HISTORY_CSV}) (one row per generation).",
-        "",
-    ]
-    return "\n".join(lines)
-
-
-def write_report(
-    path: Path,
-    *,
-    title: str,
-    config_lines: Sequence[str],
-    history: Sequence[HistoryRow],
-    front: Sequence[FrontMember],
-    converged: str,
+def plot_popsize(
+    path: Path, hypervolumes: dict[int, list[float]], evaluations: dict[int, list[int]]
 ) -> None:
-    """A short report.md at `path`: configuration, summary, the front as a table, the figures.
-
-    `converged` is the caller's one-line verdict on why the run stopped (or that it has not),
-    e.g. "converged after 240 evaluations (hypervolume gain < 0.1% over 3 generations)". The
-    figures and CSVs are linked by their standard names relative to the report, so write them
-    into the same directory. The table is rounded for reading; front.csv holds the exact values.
-    """
-    text = report_markdown(
-        title=title, config_lines=config_lines, history=history, front=front, converged=converged
+    """Box plots per population size: final hypervolume, and evaluations to stop."""
+    figure = _new_figure((10, 4))
+    left, right = figure.subplots(1, 2)
+    labels = [str(size) for size in hypervolumes]
+    left.boxplot(list(hypervolumes.values()), tick_labels=labels)
+    left.set(
+        xlabel="population size", ylabel="hypervolume (study reference)", title="final hypervolume"
     )
-    write_atomically(Path(path), text.encode("utf-8"))
+    right.boxplot([evaluations[size] for size in hypervolumes], tick_labels=labels)
+    right.set(xlabel="population size", ylabel="evaluations", title="evaluations to stop")
+    save_png(figure, path)
+
+
+def plot_generic_vs_specific(
+    path: Path,
+    hypervolumes: dict[str, list[float]],
+    fronts: dict[str, list[tuple[float, float]]],
+) -> None:
+    """Hypervolume box plots per kind of controller, and one repetition's fronts."""
+    figure = _new_figure((10, 4))
+    left, right = figure.subplots(1, 2)
+    left.boxplot(list(hypervolumes.values()), tick_labels=list(hypervolumes))
+    left.set(ylabel="hypervolume on the pyramid", title="hypervolume")
+    for (kind, points), marker in zip(fronts.items(), ("o", "s"), strict=False):
+        right.plot(
+            [p[0] * 1000 for p in points],
+            [p[1] for p in points],
+            marker=marker,
+            label=f"{kind} (rep 0)",
+        )
+    right.set(
+        xlabel="f_acc (mm)", ylabel="f_t ((N·m)²)", yscale="log", title="fronts on the pyramid"
+    )
+    right.legend()
+    save_png(figure, path)
+
+
+def plot_speed(
+    path: Path,
+    durations: Sequence[float],
+    hypervolume: dict[tuple[float, float], float],
+    error: dict[tuple[float, float], float],
+) -> None:
+    """Two matrices, tuned-on duration against evaluated-on duration: the median hypervolume and
+    the most accurate controller's error."""
+    figure = _new_figure((10, 4.5))
+    left, right = figure.subplots(1, 2)
+    for axes, values, title, fmt in (
+        (left, hypervolume, "median hypervolume", "{:.3f}"),
+        (
+            right,
+            {k: v * 1000 for k, v in error.items()},
+            "most accurate controller's error (mm)",
+            "{:.2f}",
+        ),
+    ):
+        grid = [[values[(t, u)] for u in durations] for t in durations]
+        image = axes.imshow(grid, cmap="viridis")
+        for i, row in enumerate(grid):
+            for j, value in enumerate(row):
+                axes.text(j, i, fmt.format(value), ha="center", va="center", color="white")
+        labels = [f"{d:g} s" for d in durations]
+        axes.set(
+            xticks=range(len(durations)),
+            xticklabels=labels,
+            yticks=range(len(durations)),
+            yticklabels=labels,
+            xlabel="evaluated on",
+            ylabel="tuned on",
+            title=title,
+        )
+        figure.colorbar(image, ax=axes)
+    save_png(figure, path)

@@ -1,13 +1,15 @@
-"""A tuning run: NSGA-II generations evaluated on the farm, recorded in a run directory.
+"""A tuning run: NSGA-II generations evaluated by an evaluator, recorded in a run directory.
 
-The Study of this package, in Optuna's sense: the evolution step (analytic.evolution) is the
-sampler, the farm evaluates, and the run directory is the storage. After every generation the
-run writes, each file atomically:
+A Study in Optuna's sense: the evolution step (analytic.evolution) is the sampler, an evaluator
+(analytic.evaluator: the farm, or this process) runs the episodes, and the run directory is the
+storage. After every generation the run writes, each file atomically (analytic.records):
 
     config.json      everything needed to repeat the run (written once)
-    checkpoint.pkl   the evolution with its random state, the history, the evaluated points
+    checkpoint.pkl   the evolution with its random state, for resuming only
     history.csv      one row per generation: evaluations, hypervolume, best f_acc and f_t, wall s
     front.csv        the non-dominated gains and their objectives
+    front.json       the same front with each member's episode logs
+    evaluated.csv    every candidate's objectives, in the order told
     episodes/        the MCAP logs (all, or only the front's with keep="front")
 
 and at the end pareto.png, hypervolume.png and report.md. A stopped run continues from its last
@@ -15,70 +17,44 @@ checkpoint; the interrupted generation runs again, with the same candidates and 
 (deterministic) episodes, so the front is the one an uninterrupted run finds.
 """
 
+import io
 import pickle
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict, Field
 from pymoo.core.population import Population
 
-from analytic.evolution import REFERENCE_POINT, Candidate, Evolution, hypervolume, objectives
-from analytic.farm import Evaluation, FarmClient
-from analytic.figures import (
+from analytic.config import RunConfig
+from analytic.evaluator import Evaluation, Evaluator
+from analytic.evolution import Candidate, Evolution, hypervolume
+from analytic.figures import plot_hypervolume, plot_pareto
+from analytic.records import (
+    CONFIG_JSON,
+    EPISODES,
+    EVALUATED_CSV,
+    FRONT_CSV,
+    FRONT_JSON,
+    HISTORY_CSV,
+    HYPERVOLUME_PNG,
+    PARETO_PNG,
+    REPORT_MD,
     FrontMember,
     HistoryRow,
+    evaluated_csv,
     front_csv,
+    front_json,
     history_csv,
-    plot_hypervolume,
-    plot_pareto,
-    write_report,
 )
-from analytic.termination import CONVERGENCE_TOLERANCE, CONVERGENCE_WINDOW, Termination
+from analytic.reports import write_report
 from schemas.episode import EpisodeSpec
 from schemas.files import write_atomically
 from schemas.gains import PDGains
-from schemas.robot import ModelSpec
-from schemas.trajectory import TrajectorySpec
+from schemas.objectives import objectives
 
-CONFIG = "config.json"
 CHECKPOINT = "checkpoint.pkl"
-
-
-class RunConfig(BaseModel):
-    """Everything that decides a run's outcome (plus how to keep its episodes)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    pop: int = Field(30, ge=4, le=1000, description="population size")
-    seed: int = Field(0, ge=0)
-    trajectories: tuple[TrajectorySpec, ...] = Field((TrajectorySpec(),), min_length=1)
-    model: ModelSpec = ModelSpec()
-    generations: int | None = Field(None, ge=1)
-    evaluations: int | None = Field(None, ge=1)
-    tolerance: float = Field(CONVERGENCE_TOLERANCE, gt=0)
-    window: int = Field(CONVERGENCE_WINDOW, ge=1)
-    reference_point: tuple[float, float] = REFERENCE_POINT
-    asynchronous: bool = Field(False, description="steady-state NSGA-II, not generational")
-    keep: Literal["all", "front"] = "all"
-
-    @property
-    def termination(self) -> Termination:
-        return Termination(self.generations, self.evaluations, self.tolerance, self.window)
-
-    @property
-    def termination_text(self) -> str:
-        if self.generations:
-            return f"{self.generations} generations"
-        if self.evaluations:
-            return f"{self.evaluations} evaluations"
-        return f"until converged (< {self.tolerance:.1%} over {self.window} generations)"
-
-    @property
-    def mode(self) -> str:
-        return "specific" if len(self.trajectories) == 1 else "generic"
 
 
 @dataclass
@@ -96,7 +72,9 @@ class RunState:
 
 
 @dataclass(frozen=True)
-class Progress:
+class RunProgress:
+    """Where a run stands, after each evaluation: for a progress line."""
+
     generation: int
     evaluations: int
     hypervolume: float
@@ -114,20 +92,20 @@ class TuningRun:
     def create(cls, directory: Path, config: RunConfig) -> "TuningRun":
         """A new run in `directory` (FileExistsError if it already holds one)."""
         directory = Path(directory)
-        if (directory / CONFIG).exists():
+        if (directory / CONFIG_JSON).exists():
             raise FileExistsError(f"{directory} already holds a run; resume it or choose another")
         directory.mkdir(parents=True, exist_ok=True)
-        write_atomically(directory / CONFIG, config.model_dump_json(indent=2).encode())
+        write_atomically(directory / CONFIG_JSON, config.model_dump_json(indent=2).encode())
         return cls(directory, config, RunState(_evolution(config)))
 
     @classmethod
     def open(cls, directory: Path) -> "TuningRun":
         """The run in `directory`, as its last checkpoint left it."""
         directory = Path(directory)
-        config = RunConfig.model_validate_json((directory / CONFIG).read_bytes())
+        config = RunConfig.model_validate_json((directory / CONFIG_JSON).read_bytes())
         checkpoint = directory / CHECKPOINT
         if checkpoint.exists():
-            state = pickle.loads(checkpoint.read_bytes())
+            state = _Unpickler(io.BytesIO(checkpoint.read_bytes())).load()
         else:  # stopped before its first generation ended
             state = RunState(_evolution(config))
         return cls(directory, config, state)
@@ -136,23 +114,27 @@ class TuningRun:
     def finished(self) -> bool:
         return self.state.stopped is not None
 
+    def front(self) -> list[FrontMember]:
+        """The best front found so far, most accurate first, each member with its kept logs."""
+        return _rows(self.state.evolution.front(), self.state.episodes)
+
     def run(
-        self, farm: FarmClient, on_progress: Callable[[Progress], None] = lambda _: None
+        self, evaluator: Evaluator, on_progress: Callable[[RunProgress], None] = lambda _: None
     ) -> str:
         """Evolve until the termination says stop; return why it stopped."""
         started = time.monotonic() - self.state.wall_seconds
         while self.state.stopped is None:
             if self.config.asynchronous and self.state.evolution.generation > 0:
-                self._steady_state(farm, started, on_progress)
+                self._steady_state(evaluator, started, on_progress)
             else:
-                self._generation(farm, started, on_progress)
+                self._generation(evaluator, started, on_progress)
         self.write_figures()
         return self.state.stopped
 
     # --- generational: a whole generation out, then told in the order asked -------------------
 
     def _generation(
-        self, farm: FarmClient, started: float, on_progress: Callable[[Progress], None]
+        self, evaluator: Evaluator, started: float, on_progress: Callable[[RunProgress], None]
     ) -> None:
         evolution = self.state.evolution
         candidates = evolution.ask()
@@ -160,9 +142,9 @@ class TuningRun:
             gains: self._job_ids(f"g{evolution.generation:04d}-c{index:03d}")
             for index, gains in enumerate(candidates)
         }
-        farm.submit(self._specs(jobs))
+        evaluator.submit(self._specs(jobs))
         results: dict[str, Evaluation] = {}
-        for evaluation in farm.results():
+        for evaluation in evaluator.results():
             results[evaluation.job_id] = evaluation
             self._account(evaluation)
             on_progress(self._progress(len(results) // len(self.config.trajectories), started))
@@ -173,7 +155,7 @@ class TuningRun:
     # --- steady state: each candidate told as it returns, a new one asked at once -------------
 
     def _steady_state(
-        self, farm: FarmClient, started: float, on_progress: Callable[[Progress], None]
+        self, evaluator: Evaluator, started: float, on_progress: Callable[[RunProgress], None]
     ) -> None:
         """Keep a few candidates per worker in flight so that none waits; a "generation" here is
         every `pop` evaluations, for the history, the termination and the checkpoint."""
@@ -186,11 +168,11 @@ class TuningRun:
             self.state.serial += 1
             name = f"s{self.state.serial:06d}"
             in_flight[name] = (handle, gains, self._job_ids(name))
-            farm.submit(self._specs({gains: in_flight[name][2]}))
+            evaluator.submit(self._specs({gains: in_flight[name][2]}))
 
-        for _ in range(max(2, 2 * len(farm.status().workers))):
+        for _ in range(max(2, 2 * evaluator.capacity)):
             launch()
-        for evaluation in farm.results():
+        for evaluation in evaluator.results():
             results[evaluation.job_id] = evaluation
             self._account(evaluation)
             name = evaluation.job_id.rsplit("-t", 1)[0]
@@ -223,9 +205,9 @@ class TuningRun:
             for job_id, trajectory in zip(ids, self.config.trajectories, strict=True)
         }
 
-    def _progress(self, evaluations_in_flight: int, started: float) -> Progress:
+    def _progress(self, evaluations_in_flight: int, started: float) -> RunProgress:
         best = self.state.history[-1] if self.state.history else None
-        return Progress(
+        return RunProgress(
             generation=self.state.evolution.generation,
             evaluations=self.state.evolution.evaluations + evaluations_in_flight,
             hypervolume=best.hypervolume if best else 0.0,
@@ -239,7 +221,7 @@ class TuningRun:
         """A candidate's objectives, with its episodes and point recorded."""
         found = objectives([results[job_id].scores for job_id in job_ids])
         self.state.evaluated.append(found)
-        self.state.episodes[gains] = [i for i in job_ids if results[i].episode is not None]
+        self.state.episodes[gains] = [i for i in job_ids if results[i].log is not None]
         return found
 
     def _generation_done(self, started: float) -> None:
@@ -263,9 +245,14 @@ class TuningRun:
             keep = {member.gains for member in front}
             for gains in [gains for gains in state.episodes if gains not in keep]:
                 for job_id in state.episodes.pop(gains):
-                    (self.directory / "episodes" / f"{job_id}.mcap").unlink(missing_ok=True)
-        write_atomically(self.directory / "front.csv", front_csv(_rows(front)))
-        write_atomically(self.directory / "history.csv", history_csv(state.history))
+                    (self.directory / EPISODES / f"{job_id}.mcap").unlink(missing_ok=True)
+        # The plain record, history last: a reader that finds a generation in history.csv
+        # finds the front and the points of that generation too.
+        rows = _rows(front, state.episodes)
+        write_atomically(self.directory / EVALUATED_CSV, evaluated_csv(state.evaluated))
+        write_atomically(self.directory / FRONT_JSON, front_json(rows))
+        write_atomically(self.directory / FRONT_CSV, front_csv(rows))
+        write_atomically(self.directory / HISTORY_CSV, history_csv(state.history))
         hypervolumes = [row.hypervolume for row in state.history]
         state.stopped = self.config.termination.reason(hypervolumes, state.evolution.evaluations)
         self._checkpoint()
@@ -276,20 +263,20 @@ class TuningRun:
     # --- the record --------------------------------------------------------------------------
 
     def write_figures(self) -> None:
-        front = _rows(self.state.evolution.front())
+        front = self.front()
         search = "steady-state" if self.config.asynchronous else "generational"
         title = (
             f"{self.config.mode} controller, {search} NSGA-II, "
             f"pop {self.config.pop}, seed {self.config.seed}"
         )
-        plot_pareto(self.directory / "pareto.png", front, self.state.evaluated, title=title)
-        plot_hypervolume(self.directory / "hypervolume.png", self.state.history, title=title)
+        plot_pareto(self.directory / PARETO_PNG, front, self.state.evaluated, title=title)
+        plot_hypervolume(self.directory / HYPERVOLUME_PNG, self.state.history, title=title)
         trajectories = ", ".join(
             f"{trajectory.kind.value} {trajectory.duration:g} s"
             for trajectory in self.config.trajectories
         )
         write_report(
-            self.directory / "report.md",
+            self.directory / REPORT_MD,
             title=f"gainfarm run {self.directory.name}",
             config_lines=[
                 f"{self.config.mode} controller on {trajectories}",
@@ -307,6 +294,26 @@ def _evolution(config: RunConfig) -> Evolution:
     return Evolution(config.pop, config.seed, steady_state=config.asynchronous)
 
 
-def _rows(front: list[Candidate]) -> list[FrontMember]:
-    """The front as front.csv and the figures show it."""
-    return [FrontMember(member.gains.kp, member.gains.kd, *member.objectives) for member in front]
+def _rows(front: list[Candidate], episodes: dict[PDGains, list[str]]) -> list[FrontMember]:
+    """The front as the record keeps it: gains, objectives and the logs kept of each member."""
+    return [
+        FrontMember(
+            member.gains.kp,
+            member.gains.kd,
+            *member.objectives,
+            episodes=tuple(f"{EPISODES}/{job}.mcap" for job in episodes.get(member.gains, [])),
+        )
+        for member in front
+    ]
+
+
+class _Unpickler(pickle.Unpickler):
+    """Reads checkpoints written before the run's row types moved to analytic.records."""
+
+    MOVED: ClassVar[dict[tuple[str, str], str]] = {
+        ("analytic.figures", "HistoryRow"): "analytic.records",
+        ("analytic.figures", "FrontMember"): "analytic.records",
+    }
+
+    def find_class(self, module: str, name: str) -> Any:
+        return super().find_class(self.MOVED.get((module, name), module), name)

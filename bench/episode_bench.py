@@ -17,9 +17,9 @@ from pathlib import Path
 
 import mujoco
 
-from analytic.objectives import score
 from schemas import EpisodeSpec, PDGains, TrajectorySpec
 from schemas.mcap_episode import read_episode, write_episode
+from schemas.objectives import score
 from worker.cli import DEFAULT_KD, DEFAULT_KP
 from worker.episode import run_episode
 from worker.plant import Plant

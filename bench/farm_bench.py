@@ -57,12 +57,12 @@ import zenoh
 
 from analytic.farm import SUBMIT_CHUNK, FarmClient
 from analytic.local import free_port, local_farm
-from analytic.objectives import score
 from broker.service import Broker
 from schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
 from schemas.files import write_atomically
 from schemas.gains import DEFAULT_GAINS
 from schemas.mcap_episode import decode_episode, episode_bytes
+from schemas.objectives import score
 from schemas.transport import open_session
 from schemas.wire import (
     LEASE_HOLD_SECONDS,
@@ -205,7 +205,7 @@ class Study:
             Submission(
                 study=self.name,
                 jobs=[
-                    Job(job_id=f"j{n}", episode=spec)
+                    Job(job_id=f"j{n}", spec=spec)
                     for n in range(start, min(start + SUBMIT_CHUNK, count))
                 ],
             ).to_bytes()

@@ -14,8 +14,9 @@ from rich.table import Table
 from broker.certs import DEFAULT_HOSTS, write_dev_credentials
 from broker.service import DEFAULT_LISTEN, Broker
 from broker.status import BrokerUnavailable, query_status
-from schemas.errors import LOG_LEVELS, CliError, run_app, setup_logging
-from schemas.security import Role, TlsIdentity, load_identity
+from cli import options
+from cli.app import CliError, run_app, setup_logging
+from schemas.security import Role
 from schemas.transport import open_session
 from schemas.wire import BadMessage, BrokerStatus
 
@@ -42,17 +43,15 @@ def app() -> None:
     show_default=True,
     help="a job not returned this long after its lease goes back to the queue",
 )
-@click.option(
-    "--tls",
-    type=click.Path(path_type=Path),
-    help="secure profile: TLS with client certificates and per-role access control; "
-    "directory with ca.pem, broker.pem and broker.key (see `broker certs`)",
+@options.tls(
+    "secure profile: TLS with client certificates and per-role access control; "
+    "directory with ca.pem, broker.pem and broker.key (see `broker certs`)"
 )
-@click.option("--log-level", type=click.Choice(LOG_LEVELS), default="info", show_default=True)
+@options.log_level()
 def start(listen: tuple[str, ...], lease_seconds: float, tls: Path | None, log_level: str) -> None:
     """Route the farm and schedule its jobs until SIGTERM or Ctrl-C."""
     setup_logging("broker", log_level)
-    identity = _identity(tls, "broker")
+    identity = options.identity(tls, "broker")
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
@@ -70,14 +69,12 @@ def start(listen: tuple[str, ...], lease_seconds: float, tls: Path | None, log_l
 @click.option(
     "--connect",
     multiple=True,
-    default=["tcp/127.0.0.1:7447"],
+    default=[options.DEFAULT_CONNECT],
     show_default=True,
     help="the broker's Zenoh endpoint",
 )
-@click.option(
-    "--tls",
-    type=click.Path(path_type=Path),
-    help="a secure farm: directory with ca.pem and the broker's (or another role's) pem and key",
+@options.tls(
+    "a secure farm: directory with ca.pem and the broker's (or another role's) pem and key"
 )
 @click.option(
     "--as",
@@ -90,7 +87,7 @@ def start(listen: tuple[str, ...], lease_seconds: float, tls: Path | None, log_l
 @click.option("--json", "as_json", is_flag=True, help="print the status as one JSON object")
 def status(connect: tuple[str, ...], tls: Path | None, role: Role, as_json: bool) -> None:
     """Show the farm: workers, queue depth per study, throughput."""
-    identity = _identity(tls, role)
+    identity = options.identity(tls, role)
     try:
         session = open_session("client", connect=connect, identity=identity)
     except (ValueError, ConnectionError) as error:
@@ -154,13 +151,6 @@ def certs(directory: Path, hosts: tuple[str, ...], days: int, if_missing: bool) 
         )
     else:
         click.echo(f"{directory}/ already holds a complete set of credentials; kept them")
-
-
-def _identity(tls: Path | None, role: Role) -> TlsIdentity | None:
-    try:
-        return load_identity(tls, role)
-    except ValueError as error:
-        raise CliError(f"--tls: {error}") from None
 
 
 @app.command()

@@ -12,7 +12,6 @@ from typing import Annotated, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from schemas.episode import EpisodeSpec
-from schemas.errors import describe
 
 PROTOCOL_VERSION = 1
 
@@ -55,7 +54,7 @@ class Job(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     job_id: Name
-    episode: EpisodeSpec
+    spec: EpisodeSpec  # the episode to simulate
 
 
 class Submission(WireMessage):
@@ -171,6 +170,18 @@ MESSAGES: tuple[type[WireMessage], ...] = (
 )
 
 M = TypeVar("M", bound=WireMessage)
+
+
+def describe(error: ValidationError) -> str:
+    """'field: what is wrong' for the first problem, and how many more there are; a rule about
+    several fields (a model validator's) is its message alone."""
+    first = error.errors()[0]
+    more = error.error_count() - 1
+    suffix = f" (and {more} more problem{'s' if more > 1 else ''})" if more else ""
+    if not first["loc"] and first["type"] == "value_error":
+        return f"{first['msg'].removeprefix('Value error, ')}{suffix}"
+    where = ".".join(str(part) for part in first["loc"]) or "value"
+    return f"{where}: {first['msg']}{suffix}"
 
 
 def decode(kind: type[M], raw: bytes | None, limit: int = MAX_MESSAGE_BYTES) -> M:

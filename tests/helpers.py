@@ -2,11 +2,16 @@
 
 import time
 from collections.abc import Callable
+from pathlib import Path
 
+import numpy as np
 import zenoh
 
+from analytic.records import FrontMember, HistoryRow
 from broker.service import Broker
-from schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
+from schemas import EpisodeMetadata, EpisodeSpec, PDGains, TrajectorySpec, keys
+from schemas.episode_log import EpisodeLog
+from schemas.robot import TORQUE_LIMITS
 from schemas.wire import (
     Job,
     JobStatus,
@@ -60,7 +65,7 @@ def open_study(session: zenoh.Session, broker: Broker, study: str) -> zenoh.Live
 
 
 def submit(session: zenoh.Session, study: str, specs: dict[str, EpisodeSpec]) -> SubmitReply:
-    jobs = [Job(job_id=job_id, episode=spec) for job_id, spec in specs.items()]
+    jobs = [Job(job_id=job_id, spec=spec) for job_id, spec in specs.items()]
     ok, payload = query(session, keys.SUBMIT, Submission(study=study, jobs=jobs).to_bytes())
     assert ok, payload
     return decode(SubmitReply, payload)
@@ -81,3 +86,60 @@ def ask_for_work(session: zenoh.Session, worker: str) -> Lease | None:
     ok, payload = query(session, keys.LEASE, LeaseRequest(worker=worker).to_bytes())
     assert ok, payload
     return decode(LeaseReply, payload).lease
+
+
+# --- a run's records ------------------------------------------------------------------------
+
+KP = (2000.0, 2000.0, 1200.0, 1200.0, 400.0, 200.0, 100.0)
+KD = (20.0, 20.0, 15.0, 15.0, 4.0, 2.0, 1.0)
+
+# A run's records for the tests of its files: deliberately out of order, with values that a
+# rounded format would not round-trip.
+SAMPLE_FRONT = (
+    FrontMember(kp=KP, kd=KD, f_acc=0.0123456789012345, f_t=0.1 + 0.2),
+    FrontMember(kp=tuple(k / 3 for k in KP), kd=KD, f_acc=0.045, f_t=1e-3 / 7),
+    FrontMember(kp=tuple(k * 1.5 for k in KP), kd=tuple(k / 7 for k in KD), f_acc=0.002, f_t=4.2e4),
+)
+SAMPLE_HISTORY = (
+    HistoryRow(1, 30, 0.5, 0.05, 10.0, 12.5),
+    HistoryRow(2, 60, 0.75 + 1e-12, 0.01, 1.0, 3700.25),
+    HistoryRow(3, 90, 0.8, 0.002, 1e-3 / 7, 7300.0),
+)
+SAMPLE_CONVERGED = "converged after 90 evaluations (hypervolume gain < 0.1% over 3 generations)"
+
+
+def leftovers(directory: Path) -> list[Path]:
+    """Temporary files an atomic write left behind (there should be none)."""
+    return [path for path in directory.iterdir() if path.name.endswith(".part")]
+
+
+# --- an episode log made by hand ------------------------------------------------------------
+
+
+def crafted_log(planned: int = 3, diverged: bool = False) -> EpisodeLog:
+    """Three ticks with errors 0.3, 0.4 and 0 m and torque steps small enough to add by hand."""
+    tau = np.zeros((3, 7))
+    tau[1, 0] = 3.0  # step 1: (3)² = 9
+    tau[2, 0], tau[2, 6] = 3.0, 40.0  # step 2: (40)² = 1600, and A7 at its limit
+    ee_des = np.zeros((3, 3))
+    ee = np.array([[0.3, 0.0, 0.0], [0.0, 0.4, 0.0], [0.0, 0.0, 0.0]])
+    zeros = np.zeros((3, 7))
+    metadata = EpisodeMetadata(
+        spec=EpisodeSpec(gains=PDGains(kp=(1,) * 7, kd=(1,) * 7)),
+        ticks_planned=planned,
+        ticks_run=3,
+        torque_limits=TORQUE_LIMITS,
+        diverged=diverged,
+        versions={},
+    )
+    return EpisodeLog(
+        t=np.arange(3) * 0.002,
+        q=zeros,
+        qd=zeros,
+        tau=tau,
+        q_des=zeros,
+        qd_des=zeros,
+        ee=ee,
+        ee_des=ee_des,
+        metadata=metadata,
+    )

@@ -1,6 +1,5 @@
 """`worker`: a simulated cobot. Serve a farm (`start`), or run one episode by hand (`episode`)."""
 
-import json
 import logging
 import math
 import os
@@ -13,16 +12,16 @@ from pathlib import Path
 import click
 from pydantic import ValidationError
 
-from analytic.objectives import score
-from analytic.report import print_scores
+from cli import options
+from cli.app import CliError, parse_numbers, run_app, setup_logging
+from cli.scores import show_scores
 from schemas.episode import EpisodeSpec
-from schemas.errors import LOG_LEVELS, CliError, describe, parse_numbers, run_app, setup_logging
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import write_episode
+from schemas.objectives import score
 from schemas.robot import N_JOINTS, ModelSpec
-from schemas.security import load_identity
-from schemas.trajectory import TrajectoryKind, TrajectorySpec
-from schemas.wire import NAME_PATTERN, NAME_RULE
+from schemas.trajectory import TrajectorySpec
+from schemas.wire import NAME_PATTERN, NAME_RULE, describe
 from worker.episode import run_episode
 from worker.ik import UnreachablePath
 from worker.service import CobotWorker, NameTaken
@@ -44,23 +43,11 @@ def app() -> None:
     show_default=True,
     help="where to write the MCAP episode log",
 )
-@click.option(
-    "--trajectory",
-    type=click.Choice([k.value for k in TrajectoryKind]),
-    default="spiral",
-    show_default=True,
-    help="end-effector path",
-)
-@click.option("--duration", type=float, default=5.0, show_default=True, help="seconds")
+@options.trajectory()
+@options.duration()
 @click.option("--kp", default=DEFAULT_KP, show_default=True, help="7 gains A1..A7, N·m/rad")
 @click.option("--kd", default=DEFAULT_KD, show_default=True, help="7 gains A1..A7, N·m·s/rad")
-@click.option(
-    "--model",
-    type=click.Choice(["flexible", "rigid"]),
-    default="flexible",
-    show_default=True,
-    help="elastic or rigid joints",
-)
+@options.model()
 @click.option(
     "--center", default="0.55,0,0.4", show_default=True, help="x,y,z of the path's centre, m"
 )
@@ -113,28 +100,20 @@ def episode(
         write_episode(log, out)
     except OSError as error:
         raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
-    scores = score(log)
-    if as_json:
-        click.echo(json.dumps({**scores.model_dump(), "log": str(out)}))
-    else:
-        print_scores(scores, source=str(out))
+    show_scores(score(log), out, as_json)
 
 
 @app.command()
 @click.option(
     "--connect",
     multiple=True,
-    default=["tcp/127.0.0.1:7447"],
+    default=[options.DEFAULT_CONNECT],
     show_default=True,
     help="the broker's Zenoh endpoint (repeat for several)",
 )
 @click.option("--name", help="unique name of this cobot in the farm  [default: HOST-PID]")
-@click.option(
-    "--tls",
-    type=click.Path(path_type=Path),
-    help="a secure farm: directory with ca.pem, worker.pem and worker.key",
-)
-@click.option("--log-level", type=click.Choice(LOG_LEVELS), default="info", show_default=True)
+@options.tls("a secure farm: directory with ca.pem, worker.pem and worker.key")
+@options.log_level()
 def start(connect: tuple[str, ...], name: str | None, tls: Path | None, log_level: str) -> None:
     """Serve a farm: ask the broker for jobs while free, run them, return their logs.
 
@@ -144,10 +123,7 @@ def start(connect: tuple[str, ...], name: str | None, tls: Path | None, log_leve
     name = name or re.sub(r"[^A-Za-z0-9_.\-]", "-", f"{socket.gethostname()}-{os.getpid()}")
     if not re.fullmatch(NAME_PATTERN, name):
         raise CliError(f"--name: {name!r} is not {NAME_RULE}")
-    try:
-        identity = load_identity(tls, "worker")
-    except ValueError as error:
-        raise CliError(f"--tls: {error}") from None
+    identity = options.identity(tls, "worker")
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())

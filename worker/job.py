@@ -1,24 +1,36 @@
-"""One leased job, start to finish: simulate it, encode its log, say how it went. No Zenoh here.
+"""One job, start to finish: simulate it, encode its log, say how it went. No Zenoh here.
 
 A job that cannot run is a result too (status failed, with the reason), never an exception that
 would take the worker down: the farm goes on serving, and the analytic side learns why.
 """
 
 import time
+from dataclasses import dataclass
 
+from schemas.episode import EpisodeSpec
 from schemas.mcap_episode import episode_bytes
 from schemas.wire import JobStatus, Lease, Result, Timings
 from worker.episode import run_episode
 from worker.ik import UnreachablePath
 
 
-def execute(lease: Lease, worker: str) -> tuple[Result, bytes]:
-    """Run the lease's episode; return its Result and the MCAP bytes (empty if it failed)."""
+@dataclass(frozen=True)
+class Outcome:
+    """How an episode went, and its MCAP log (empty if it could not run)."""
+
+    status: JobStatus
+    reason: str
+    content: bytes
+    timings: Timings
+
+
+def simulate(spec: EpisodeSpec) -> Outcome:
+    """Run the episode and encode its log; never raises for a spec that cannot run."""
     started = time.perf_counter()
     content = b""
     reason = ""
     try:
-        log = run_episode(lease.job.episode)
+        log = run_episode(spec)
     except UnreachablePath as error:
         status, reason = JobStatus.failed, str(error)
     except Exception as error:  # a bug or a bad spec must not kill a cobot serving a farm
@@ -30,14 +42,21 @@ def execute(lease: Lease, worker: str) -> tuple[Result, bytes]:
     if status != JobStatus.failed:
         content = episode_bytes(log)
     encoded = time.perf_counter()
+    timings = Timings(simulate_s=simulated - started, encode_s=encoded - simulated)
+    return Outcome(status, reason, content, timings)
+
+
+def execute(lease: Lease, worker: str) -> tuple[Result, bytes]:
+    """Run the lease's episode; return its Result and the MCAP bytes (empty if it failed)."""
+    outcome = simulate(lease.job.spec)
     result = Result(
         study=lease.study,
         job_id=lease.job.job_id,
         lease_id=lease.lease_id,
         worker=worker,
-        status=status,
-        reason=reason,
-        episode_bytes=len(content),
-        timings=Timings(simulate_s=simulated - started, encode_s=encoded - simulated),
+        status=outcome.status,
+        reason=outcome.reason,
+        episode_bytes=len(outcome.content),
+        timings=outcome.timings,
     )
-    return result, content
+    return result, outcome.content

@@ -3,7 +3,7 @@ import subprocess
 import sys
 
 from schemas.mcap_episode import write_episode
-from tests.analytic.test_objectives import crafted_log
+from tests.helpers import crafted_log
 
 ANALYTIC = [sys.executable, "-c", "from analytic.cli import main; main()"]
 

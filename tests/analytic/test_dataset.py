@@ -10,10 +10,11 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from analytic.config import RunConfig
 from analytic.dataset import NoEpisodes, build
 from analytic.farm import FarmClient
 from analytic.local import local_farm
-from analytic.run import RunConfig, TuningRun
+from analytic.run import TuningRun
 from schemas import TrajectorySpec
 from schemas.mcap_episode import read_episode
 from schemas.robot import JOINT_NAMES

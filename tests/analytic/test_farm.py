@@ -12,11 +12,11 @@ import zenoh
 
 from analytic.farm import FarmClient, FarmUnavailable
 from analytic.local import local_farm, spawn_worker, stop_workers
-from analytic.objectives import score
 from broker.service import Broker
 from schemas import keys
 from schemas.gains import PDGains
 from schemas.mcap_episode import read_episode
+from schemas.objectives import score
 from tests.helpers import SOFT_GAINS, TRACKING_GAINS, result_for, short_spec, wait_for
 
 
@@ -32,8 +32,8 @@ def test_several_workers_share_a_batch_and_every_episode_is_kept_and_scored(
     assert set(workers) == {"local-0", "local-1"} and all(workers.values())
     for evaluation in evaluations:
         assert evaluation.status == "ok" and evaluation.attempts == 1
-        assert evaluation.episode == tmp_path / "episodes" / f"{evaluation.job_id}.mcap"
-        log = read_episode(evaluation.episode)
+        assert evaluation.log == tmp_path / "episodes" / f"{evaluation.job_id}.mcap"
+        log = read_episode(evaluation.log)
         assert log.metadata.spec == specs[evaluation.job_id]
         assert score(log) == evaluation.scores
     assert not list((tmp_path / "episodes").glob(".*"))  # no temporary files left behind
@@ -150,7 +150,7 @@ def test_a_job_without_a_result_after_every_attempt_is_reported_lost(
         broker.queue.open_study("s")
         [evaluation] = list(farm.results(timeout=10))
     assert evaluation.status == "lost" and evaluation.reason == "no result after 1 attempts"
-    assert evaluation.scores is None and evaluation.episode is None
+    assert evaluation.scores is None and evaluation.log is None
 
 
 def test_bad_results_on_the_studys_key_are_ignored_or_reported(
@@ -205,7 +205,7 @@ def test_a_diverged_episode_is_an_evaluation_with_penalised_scores(
     finally:
         stop_workers([worker])
     assert evaluation.status == "diverged" and evaluation.scores.diverged
-    assert evaluation.reason and evaluation.episode.is_file()
+    assert evaluation.reason and evaluation.log.is_file()
 
 
 def test_a_study_can_be_open_in_one_process_only(broker: Broker, tmp_path: Path) -> None:

@@ -14,14 +14,15 @@ from typing import ClassVar
 
 import pytest
 
+from analytic.config import RunConfig
 from analytic.farm import FarmClient
-from analytic.figures import read_front, read_history
 from analytic.local import free_port, local_farm, spawn_worker, stop_workers
-from analytic.objectives import score
-from analytic.run import Progress, RunConfig, TuningRun
+from analytic.records import read_front, read_history
+from analytic.run import RunProgress, TuningRun
 from broker.service import Broker
 from schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
 from schemas.mcap_episode import read_episode
+from schemas.objectives import score
 from schemas.transport import open_session
 from tests.helpers import ask_for_work, wait_for
 from worker.episode import run_episode
@@ -131,7 +132,7 @@ def test_a_stopped_and_resumed_run_ends_where_an_uninterrupted_one_does(
 ) -> None:
     whole = tune(tmp_path / "whole", farm_endpoint)
 
-    def stop_in_generation_two(progress: Progress) -> None:
+    def stop_in_generation_two(progress: RunProgress) -> None:
         if progress.generation == 2 and progress.evaluations > 14:
             raise Interrupt  # as Ctrl-C would, halfway through a generation
 
@@ -226,7 +227,7 @@ def test_the_front_is_the_same_when_a_worker_dies_on_the_way(
         endpoint = broker.endpoints[0]
         workers = [spawn_worker(endpoint, "victim"), spawn_worker(endpoint, "survivor")]
 
-        def kill_the_victim(progress: Progress) -> None:
+        def kill_the_victim(progress: RunProgress) -> None:
             if progress.generation == 1 and workers[0].poll() is None:
                 workers[0].kill()
 
@@ -280,7 +281,7 @@ def test_the_front_is_the_same_when_the_broker_restarts_mid_run(
     brokers = [Broker([endpoint])]
     workers = [spawn_worker(endpoint, f"w{n}") for n in range(2)]
 
-    def restart_the_broker(progress: Progress) -> None:
+    def restart_the_broker(progress: RunProgress) -> None:
         if progress.generation == 1 and len(brokers) == 1:
             brokers[0].close()  # its queue, leases and study are gone with it
             brokers.append(Broker([endpoint]))

@@ -31,7 +31,7 @@ json_values = st.recursive(
     max_leaves=12,
 )
 VALID = {
-    keys.SUBMIT: Submission(study="fuzz", jobs=[Job(job_id="j", episode=short_spec())]),
+    keys.SUBMIT: Submission(study="fuzz", jobs=[Job(job_id="j", spec=short_spec())]),
     keys.LEASE: LeaseRequest(worker="fuzz-worker"),
 }
 

@@ -48,7 +48,7 @@ def make_queue(*studies: str, lease_seconds: float = LEASE_SECONDS) -> tuple[Que
 
 
 def jobs(*job_ids: str) -> list[Job]:
-    return [Job(job_id=job_id, episode=EPISODE) for job_id in job_ids]
+    return [Job(job_id=job_id, spec=EPISODE) for job_id in job_ids]
 
 
 def take(queue: Queue, worker: str) -> Lease:

@@ -131,7 +131,7 @@ def test_a_worker_identity_cannot_publish_jobs(
 ) -> None:
     _token = sessions["analytic"].liveliness().declare_token(keys.alive_study("s"))
     wait_for(lambda: secure_broker.queue.has_study("s"), what="the broker to open the study")
-    forged = Submission(study="s", jobs=[Job(job_id="forged", episode=short_spec())])
+    forged = Submission(study="s", jobs=[Job(job_id="forged", spec=short_spec())])
     assert _answers(sessions["worker"], keys.SUBMIT, forged.to_bytes()) == []
     # The same submission from the analytic identity is answered and queued.
     assert len(_answers(sessions["analytic"], keys.SUBMIT, forged.to_bytes())) == 1

@@ -30,7 +30,7 @@ def test_a_job_is_leased_to_a_free_worker_and_completed_by_its_result(
     assert reply.queued == ["j1"] and not reply.rejected
     lease = ask_for_work(session, "w")
     assert lease is not None and lease.job.job_id == "j1" and lease.study == "s"
-    assert lease.job.episode == short_spec()
+    assert lease.job.spec == short_spec()
     session.put(keys.result("s", "j1"), b"", attachment=result_for("s", "j1").to_bytes())
     wait_for(lambda: broker.queue.jobs_done == 1, what="the result to complete the job")
     farm = status(session)

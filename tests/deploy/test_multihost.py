@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from analytic.figures import read_history
+from analytic.records import read_history
 from schemas.wire import BrokerStatus, WorkerState
 from tests.helpers import wait_for
 

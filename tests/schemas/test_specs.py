@@ -4,7 +4,7 @@ import pytest
 from pydantic import ValidationError
 
 from schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
-from schemas.errors import describe
+from schemas.wire import describe
 
 SEVEN = (1.0,) * 7
 

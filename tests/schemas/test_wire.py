@@ -29,7 +29,7 @@ def test_every_message_carries_the_protocol_version() -> None:
 
 
 def test_a_message_round_trips() -> None:
-    submission = Submission(study="s", jobs=[Job(job_id="j1", episode=short_spec())])
+    submission = Submission(study="s", jobs=[Job(job_id="j1", spec=short_spec())])
     assert decode(Submission, submission.to_bytes()) == submission
 
 
@@ -56,14 +56,14 @@ def test_a_bad_message_is_refused_with_its_reason(raw: bytes | None, reason: str
 
 
 def test_a_submission_is_judged_job_by_job() -> None:
-    good = Job(job_id="good", episode=short_spec()).model_dump(mode="json")
-    bad = {**good, "job_id": "bad", "episode": {"gains": {"kp": [1], "kd": [1]}}}
+    good = Job(job_id="good", spec=short_spec()).model_dump(mode="json")
+    bad = {**good, "job_id": "bad", "spec": {"gains": {"kp": [1], "kd": [1]}}}
     raw = json.dumps({"protocol": 1, "study": "s", "jobs": [good, bad, 42]}).encode()
     study, jobs, rejected = decode_submission(raw)
     assert study == "s"
     assert [job.job_id for job in jobs] == ["good"]
     assert [rejection.job_id for rejection in rejected] == ["bad", "jobs[2]"]
-    assert "episode.gains.kp" in rejected[0].reason
+    assert "spec.gains.kp" in rejected[0].reason
 
 
 def test_a_submission_with_a_bad_envelope_is_refused_whole() -> None:

@@ -1,9 +1,9 @@
 import mujoco
 import numpy as np
 
-from analytic.objectives import score
 from models import compile_model
 from schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
+from schemas.objectives import score
 from tests.helpers import SOFT_GAINS, TRACKING_GAINS
 from worker.control import PDController
 from worker.episode import run_episode

@@ -149,7 +149,7 @@ def test_a_worker_shrugs_off_bad_lease_replies(caplog) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     fake = open_session("router", listen=[endpoint])
     lease = Lease(
-        lease_id="l1", study="s", job={"job_id": "j", "episode": short_spec()}, expires_in=60
+        lease_id="l1", study="s", job={"job_id": "j", "spec": short_spec()}, expires_in=60
     )
     silence = b""
     answers = [b"not json", None, b'{"protocol": 7}', silence, LeaseReply(lease=lease).to_bytes()]

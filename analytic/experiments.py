@@ -1,75 +1,83 @@
-"""The paper's studies, as reruns on the farm: population size, generic against specific
-controllers, trajectory speed.
+"""The paper's experiments, as reruns: population size, generic against specific controllers,
+trajectory speed.
 
-A study is a set of tuning runs (one directory each under OUT/runs/, resumable: a finished run is
-kept, an unfinished one resumed), then cross-evaluations of their fronts where the study needs
-them, then results.csv, figures and report.md. Within a study every hypervolume uses one common
-reference point, as the paper does: the worst f_acc and f_t among all controllers the study tested
-(runs and cross-evaluations; candidates with no episode left out), in the same normalised space as
-a run's (f_t on a log scale).
+An experiment is a set of tuning runs (one directory each under OUT/runs/, resumable: a finished
+run is kept, an unfinished one resumed), then cross-evaluations of their fronts where the
+experiment needs them, then results.csv, a figure and report.md. Within an experiment every
+hypervolume uses one common reference point, as the paper does: the worst f_acc and f_t among all
+controllers the experiment tested (runs and cross-evaluations; candidates with no episode left
+out), in the same normalised space as a run's (f_t on a log scale).
+
+This module computes; analytic.figures draws and analytic.reports words what it hands them. The
+runs are read back from their plain files (analytic.records), never from their checkpoints.
 """
 
-import csv
-import io
 import statistics
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from matplotlib.figure import Figure
 
-from analytic.evolution import NO_EPISODE, Candidate, hypervolume, non_dominated_indices
-from analytic.farm import FarmClient
-from analytic.figures import save_png
-from analytic.run import RunConfig, TuningRun
+from analytic.config import RunConfig
+from analytic.evaluator import Evaluator
+from analytic.evolution import hypervolume, non_dominated_indices
+from analytic.figures import plot_generic_vs_specific, plot_popsize, plot_speed
+from analytic.records import CONFIG_JSON, FrontMember, RunRecord, read_run, results_csv
+from analytic.reports import write_experiment_report
+from analytic.run import TuningRun
 from schemas.episode import EpisodeSpec
 from schemas.files import write_atomically
-from schemas.security import TlsIdentity
+from schemas.objectives import NO_EPISODE
 from schemas.trajectory import TrajectoryKind, TrajectorySpec
 
 ALL_KINDS = (TrajectoryKind.spiral, TrajectoryKind.random, TrajectoryKind.pyramid)
 
+# An evaluator for one run or cross-evaluation: given the farm study name it may use and the
+# directory its logs go to, a context manager (FarmClient, InProcessEvaluator).
+EvaluatorFactory = Callable[[str, Path], AbstractContextManager[Evaluator]]
+
 
 @dataclass
-class Study:
-    """Runs and cross-evaluations on one farm, with a common reference point."""
+class Experiment:
+    """Runs and cross-evaluations with a common reference point, written under `out`."""
 
     out: Path
-    endpoints: list[str]
+    evaluator: EvaluatorFactory
     on_progress: Callable[[str], None] = lambda _: None
-    identity: TlsIdentity | None = None  # the analytic credentials of a secure farm
     tested: list[tuple[float, float]] = field(default_factory=list)
 
-    def tune(self, name: str, config: RunConfig) -> TuningRun:
+    def tune(self, name: str, config: RunConfig) -> RunRecord:
+        """The run `name` of `config`: kept if finished, resumed if not, started if new."""
         directory = self.out / "runs" / name
-        run = (
-            TuningRun.open(directory) if directory.exists() else TuningRun.create(directory, config)
-        )
-        if run.config != config:
+        record = read_run(directory) if (directory / CONFIG_JSON).exists() else None
+        if record is not None and record.config != config:
             raise ValueError(f"{directory} holds a run of another configuration")
-        if not run.finished:
-            with FarmClient(
-                self.endpoints, f"{self.out.name}-{name}", directory, identity=self.identity
-            ) as farm:
+        if record is None or record.stopped is None:
+            run = TuningRun.open(directory) if record else TuningRun.create(directory, config)
+            with self.evaluator(f"{self.out.name}-{name}", directory) as evaluator:
                 run.run(
-                    farm,
+                    evaluator,
                     lambda step: self.on_progress(
                         f"{name}: generation {step.generation}, {step.evaluations} evaluations"
                     ),
                 )
-        self.tested += [point for point in run.state.evaluated if point != NO_EPISODE]
-        return run
+            record = read_run(directory)
+        self.tested += [point for point in record.evaluated if point != NO_EPISODE]
+        return record
 
     def evaluate(
-        self, name: str, members: Sequence[Candidate], trajectory: TrajectorySpec, config: RunConfig
+        self,
+        name: str,
+        members: Sequence[FrontMember],
+        trajectory: TrajectorySpec,
+        config: RunConfig,
     ) -> list[tuple[float, float]]:
-        """Objectives of `members` on another trajectory (the farm simulates them again)."""
+        """Objectives of `members` on another trajectory (simulated again)."""
         directory = self.out / "cross" / name
-        with FarmClient(
-            self.endpoints, f"{self.out.name}-x-{name}", directory, identity=self.identity
-        ) as farm:
-            farm.submit(
+        with self.evaluator(f"{self.out.name}-x-{name}", directory) as evaluator:
+            evaluator.submit(
                 {
                     f"m{index:03d}": EpisodeSpec(
                         gains=member.gains, trajectory=trajectory, model=config.model
@@ -77,7 +85,7 @@ class Study:
                     for index, member in enumerate(members)
                 }
             )
-            found = {e.job_id: e for e in farm.results()}
+            found = {e.job_id: e for e in evaluator.results()}
         points = [
             (found[key].scores.f_acc, found[key].scores.f_t) if found[key].scores else NO_EPISODE
             for key in sorted(found)
@@ -93,22 +101,25 @@ class Study:
     def hypervolume(self, points: Sequence[tuple[float, float]]) -> float:
         return hypervolume(non_dominated(points), self.reference)
 
+    def write_results(self, rows: list[dict[str, object]]) -> None:
+        write_atomically(self.out / "results.csv", results_csv(rows))
+
 
 def non_dominated(points: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
     return [points[index] for index in non_dominated_indices(np.asarray(points).reshape(-1, 2))]
 
 
-def front_points(run: TuningRun) -> list[tuple[float, float]]:
-    return [member.objectives for member in run.state.evolution.front()]
+def front_points(record: RunRecord) -> list[tuple[float, float]]:
+    return [member.objectives for member in record.front]
 
 
-# --- the three studies ---------------------------------------------------------------------
+# --- the three experiments -------------------------------------------------------------------
 
 
-def popsize(study: Study, base: RunConfig, sizes: Sequence[int], reps: int) -> None:
+def popsize(experiment: Experiment, base: RunConfig, sizes: Sequence[int], reps: int) -> None:
     """Evaluations to converge and final hypervolume, for each population size."""
     runs = {
-        (size, rep): study.tune(
+        (size, rep): experiment.tune(
             f"pop{size}-rep{rep}", base.model_copy(update={"pop": size, "seed": rep})
         )
         for size in sizes
@@ -119,32 +130,20 @@ def popsize(study: Study, base: RunConfig, sizes: Sequence[int], reps: int) -> N
             "pop": size,
             "rep": rep,
             "seed": rep,
-            "evaluations": run.state.evolution.evaluations,
-            "hypervolume": study.hypervolume(front_points(run)),
-            "wall_seconds": run.state.wall_seconds,
-            "stopped": run.state.stopped,
+            "evaluations": run.evaluations,
+            "hypervolume": experiment.hypervolume(front_points(run)),
+            "wall_seconds": run.wall_seconds,
+            "stopped": run.stopped,
         }
         for (size, rep), run in runs.items()
     ]
-    _write_csv(study.out / "results.csv", rows)
+    experiment.write_results(rows)
     by_size = {size: [row for row in rows if row["pop"] == size] for size in sizes}
-    figure = Figure(figsize=(10, 4))
-    left, right = figure.subplots(1, 2)
-    labels = [str(size) for size in sizes]
-    left.boxplot([[r["hypervolume"] for r in by_size[s]] for s in sizes], tick_labels=labels)
-    left.set(
-        xlabel="population size", ylabel="hypervolume (study reference)", title="final hypervolume"
-    )
-    right.boxplot([[r["evaluations"] for r in by_size[s]] for s in sizes], tick_labels=labels)
-    right.set(xlabel="population size", ylabel="evaluations", title="evaluations to stop")
-    figure.tight_layout()
-    save_png(figure, study.out / "popsize.png")
+    hypervolumes = {s: [r["hypervolume"] for r in by_size[s]] for s in sizes}
+    evaluations = {s: [r["evaluations"] for r in by_size[s]] for s in sizes}
+    plot_popsize(experiment.out / "popsize.png", hypervolumes, evaluations)
     medians = {
-        s: (
-            statistics.median(r["hypervolume"] for r in by_size[s]),
-            statistics.median(r["evaluations"] for r in by_size[s]),
-        )
-        for s in sizes
+        s: (statistics.median(hypervolumes[s]), statistics.median(evaluations[s])) for s in sizes
     }
     best_hv = max(sizes, key=lambda s: medians[s][0])
     # The trade-off: the smallest population whose median hypervolume is within 1 % of the best.
@@ -157,10 +156,10 @@ def popsize(study: Study, base: RunConfig, sizes: Sequence[int], reps: int) -> N
         f"evaluations. The paper found a population near 30 the best trade-off: "
         + ("this holds here." if 20 <= trade_off <= 50 else "here the trade-off lies elsewhere.")
     )
-    _report(study, "Population size", base, reps, table, verdict, ["popsize.png"])
+    _report(experiment, "Population size", base, reps, table, verdict, ["popsize.png"])
 
 
-def generic_vs_specific(study: Study, base: RunConfig, reps: int) -> None:
+def generic_vs_specific(experiment: Experiment, base: RunConfig, reps: int) -> None:
     """A generic controller (all trajectories) against a specific one (the pyramid), both
     evaluated on the pyramid."""
     duration = base.trajectories[0].duration
@@ -168,52 +167,37 @@ def generic_vs_specific(study: Study, base: RunConfig, reps: int) -> None:
     generic_set = tuple(TrajectorySpec(kind=kind, duration=duration) for kind in ALL_KINDS)
     fronts: dict[str, list[list[tuple[float, float]]]] = {"generic": [], "specific": []}
     for rep in range(reps):
-        specific = study.tune(
+        specific = experiment.tune(
             f"specific-rep{rep}", base.model_copy(update={"trajectories": (pyramid,), "seed": rep})
         )
-        generic = study.tune(
+        generic = experiment.tune(
             f"generic-rep{rep}", base.model_copy(update={"trajectories": generic_set, "seed": rep})
         )
         fronts["specific"].append(front_points(specific))
-        members = generic.state.evolution.front()
-        fronts["generic"].append(study.evaluate(f"generic-rep{rep}", members, pyramid, base))
+        fronts["generic"].append(
+            experiment.evaluate(f"generic-rep{rep}", generic.front, pyramid, base)
+        )
     rows = [
         {
             "controller": kind,
             "rep": rep,
             "seed": rep,
-            "hypervolume_on_pyramid": study.hypervolume(points),
+            "hypervolume_on_pyramid": experiment.hypervolume(points),
             "best_f_acc": min(p[0] for p in points),
         }
         for kind, per_rep in fronts.items()
         for rep, points in enumerate(per_rep)
     ]
-    _write_csv(study.out / "results.csv", rows)
-    figure = Figure(figsize=(10, 4))
-    left, right = figure.subplots(1, 2)
-    left.boxplot(
-        [[r["hypervolume_on_pyramid"] for r in rows if r["controller"] == kind] for kind in fronts],
-        tick_labels=list(fronts),
-    )
-    left.set(ylabel="hypervolume on the pyramid", title="hypervolume")
-    for kind, marker in (("specific", "o"), ("generic", "s")):
-        points = sorted(non_dominated(fronts[kind][0]))
-        right.plot(
-            [p[0] * 1000 for p in points],
-            [p[1] for p in points],
-            marker=marker,
-            label=f"{kind} (rep 0)",
-        )
-    right.set(
-        xlabel="f_acc (mm)", ylabel="f_t ((N·m)²)", yscale="log", title="fronts on the pyramid"
-    )
-    right.legend()
-    figure.tight_layout()
-    save_png(figure, study.out / "generic-vs-specific.png")
+    experiment.write_results(rows)
     values = {
         kind: [r["hypervolume_on_pyramid"] for r in rows if r["controller"] == kind]
         for kind in fronts
     }
+    plot_generic_vs_specific(
+        experiment.out / "generic-vs-specific.png",
+        values,
+        {kind: sorted(non_dominated(fronts[kind][0])) for kind in ("specific", "generic")},
+    )
     median = {kind: statistics.median(values[kind]) for kind in fronts}
     table = ["| controller | median hypervolume on the pyramid |", "|---|---:|"]
     table += [f"| {kind} | {median[kind]:.4f} |" for kind in fronts]
@@ -234,7 +218,7 @@ def generic_vs_specific(study: Study, base: RunConfig, reps: int) -> None:
         f"found specific controllers better: {finding}."
     )
     _report(
-        study,
+        experiment,
         "Generic against specific controllers",
         base,
         reps,
@@ -244,32 +228,33 @@ def generic_vs_specific(study: Study, base: RunConfig, reps: int) -> None:
     )
 
 
-def speed(study: Study, base: RunConfig, durations: Sequence[float], reps: int) -> None:
+def speed(experiment: Experiment, base: RunConfig, durations: Sequence[float], reps: int) -> None:
     """Tune on spirals of each duration; evaluate every tuned front on every duration."""
     spirals = {d: TrajectorySpec(kind=TrajectoryKind.spiral, duration=d) for d in durations}
     matrix: dict[tuple[float, float], list[list[tuple[float, float]]]] = {}
     errors: dict[tuple[float, float], list[float]] = {}
     for rep in range(reps):
         for tuned in durations:
-            run = study.tune(
+            run = experiment.tune(
                 f"spiral{tuned:g}s-rep{rep}",
                 base.model_copy(update={"trajectories": (spirals[tuned],), "seed": rep}),
             )
-            members = run.state.evolution.front()
+            members = run.front
             for used in durations:
                 points = (
                     front_points(run)
                     if used == tuned
-                    else study.evaluate(
+                    else experiment.evaluate(
                         f"spiral{tuned:g}s-rep{rep}-on{used:g}s", members, spirals[used], base
                     )
                 )
                 matrix.setdefault((tuned, used), []).append(points)
                 # The most accurate controller (on its own trajectory) and its error on `used`.
-                most_accurate = min(range(len(members)), key=lambda i: members[i].objectives[0])
+                most_accurate = min(range(len(members)), key=lambda i: members[i].f_acc)
                 errors.setdefault((tuned, used), []).append(points[most_accurate][0])
     hv = {
-        key: statistics.median(study.hypervolume(p) for p in value) for key, value in matrix.items()
+        key: statistics.median(experiment.hypervolume(p) for p in value)
+        for key, value in matrix.items()
     }
     error = {key: statistics.median(value) for key, value in errors.items()}
     rows = [
@@ -282,36 +267,8 @@ def speed(study: Study, base: RunConfig, durations: Sequence[float], reps: int) 
         for t in durations
         for u in durations
     ]
-    _write_csv(study.out / "results.csv", rows)
-    figure = Figure(figsize=(10, 4.5))
-    left, right = figure.subplots(1, 2)
-    for axes, values, title, fmt in (
-        (left, hv, "median hypervolume", "{:.3f}"),
-        (
-            right,
-            {k: v * 1000 for k, v in error.items()},
-            "most accurate controller's error (mm)",
-            "{:.2f}",
-        ),
-    ):
-        grid = [[values[(t, u)] for u in durations] for t in durations]
-        image = axes.imshow(grid, cmap="viridis")
-        for i, row in enumerate(grid):
-            for j, value in enumerate(row):
-                axes.text(j, i, fmt.format(value), ha="center", va="center", color="white")
-        labels = [f"{d:g} s" for d in durations]
-        axes.set(
-            xticks=range(len(durations)),
-            xticklabels=labels,
-            yticks=range(len(durations)),
-            yticklabels=labels,
-            xlabel="evaluated on",
-            ylabel="tuned on",
-            title=title,
-        )
-        figure.colorbar(image, ax=axes)
-    figure.tight_layout()
-    save_png(figure, study.out / "speed.png")
+    experiment.write_results(rows)
+    plot_speed(experiment.out / "speed.png", durations, hv, error)
     own = {d: error[(d, d)] for d in durations}
     transfer = [error[(t, u)] / own[u] - 1 for t in durations for u in durations if t != u]
     table = [
@@ -343,22 +300,11 @@ def speed(study: Study, base: RunConfig, durations: Sequence[float], reps: int) 
             "the controller tuned for that speed (the paper: moving a controller to another "
             f"speed costs little{': this holds here' if cost < 0.25 else ': not so here'})."
         )
-    _report(study, "Trajectory speed", base, reps, table, verdict, ["speed.png"])
-
-
-# --- writing -----------------------------------------------------------------------------
-
-
-def _write_csv(path: Path, rows: list[dict[str, object]]) -> None:
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]))
-    writer.writeheader()
-    writer.writerows(rows)
-    write_atomically(path, buffer.getvalue().encode())
+    _report(experiment, "Trajectory speed", base, reps, table, verdict, ["speed.png"])
 
 
 def _report(
-    study: Study,
+    experiment: Experiment,
     title: str,
     base: RunConfig,
     reps: int,
@@ -366,21 +312,18 @@ def _report(
     verdict: str,
     figures: list[str],
 ) -> None:
-    reference = study.reference
-    lines = [
-        f"# {title}",
-        "",
-        f"- {reps} repetitions (seeds 0..{reps - 1}); base configuration: population "
-        f"{base.pop}, {base.termination_text}, {base.model.joints} joints",
-        f"- common reference point: f_acc {reference[0]:.4g} m, f_t {reference[1]:.4g} (N·m)² "
-        "(the worst among all controllers tested in this study)",
-        "- runs in `runs/`, raw numbers in `results.csv`",
-        "",
-        *table,
-        "",
-        verdict,
-        "",
-        *[f"![{name}]({name})" for name in figures],
-        "",
-    ]
-    write_atomically(study.out / "report.md", "\n".join(lines).encode())
+    reference = experiment.reference
+    write_experiment_report(
+        experiment.out / "report.md",
+        title=title,
+        setup=[
+            f"{reps} repetitions (seeds 0..{reps - 1}); base configuration: population "
+            f"{base.pop}, {base.termination_text}, {base.model.joints} joints",
+            f"common reference point: f_acc {reference[0]:.4g} m, f_t {reference[1]:.4g} (N·m)² "
+            "(the worst among all controllers tested in this experiment)",
+            "runs in `runs/`, raw numbers in `results.csv`",
+        ],
+        table=table,
+        verdict=verdict,
+        figures=figures,
+    )

@@ -1,9 +1,22 @@
-"""Scores as a person reads them."""
+"""Scores as a person reads them, or as one JSON object: what `worker episode` and
+`analytic evaluate` print for an episode log."""
 
+import json
+from pathlib import Path
+
+import click
 from rich.console import Console
 from rich.table import Table
 
 from schemas.episode import Scores
+
+
+def show_scores(scores: Scores, log: Path, as_json: bool) -> None:
+    """One JSON object (the scores and the log's path) with `as_json`, else a table."""
+    if as_json:
+        click.echo(json.dumps({**scores.model_dump(), "log": str(log)}))
+    else:
+        print_scores(scores, source=str(log))
 
 
 def print_scores(scores: Scores, source: str) -> None:

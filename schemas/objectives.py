@@ -1,4 +1,8 @@
-"""The two objectives of the paper, and a few diagnostics, computed from an episode log alone.
+"""The two objectives of the paper, and a few diagnostics, computed from an episode log alone;
+and a candidate's objectives over its trajectory set.
+
+They live in the contract because every package must agree on them: a worker prints the scores of
+the episode it ran (`worker episode`) exactly as the analytic side scores the same log.
 
 f_acc = (1/T) Σ_i ||ee_i − ee_des_i||           mean Cartesian error, m
 f_t   = (1/T) Σ_i ||u_i − u_(i−1)||²            mean squared torque change per tick, (N·m)²
@@ -10,6 +14,8 @@ worst error and the worst torque change, so it is never preferred to one that fi
 later it diverged the less it is penalised.
 """
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from schemas.episode import Scores
@@ -17,6 +23,10 @@ from schemas.episode_log import EpisodeLog
 
 DIVERGED_TICK_ERROR = 1.0  # m: more than any real tracking error (the arm's reach is 0.82 m)
 SATURATION_TOLERANCE = 1e-9  # N·m: a torque this close to its limit is saturated
+
+# The objectives of a candidate with no episode to score (its path out of reach, or lost): worse
+# than any diverged episode, so NSGA-II ranks it last and moves on.
+NO_EPISODE = (10.0, 1e12)
 
 
 def score(log: EpisodeLog) -> Scores:
@@ -37,4 +47,15 @@ def score(log: EpisodeLog) -> Scores:
         saturated_fraction=float(saturated.mean()) if log.ticks else 0.0,
         diverged=meta.diverged,
         ticks=log.ticks,
+    )
+
+
+def objectives(scores: Sequence[Scores | None]) -> tuple[float, float]:
+    """A candidate's objectives over its trajectories: the means of f_acc and f_t (the generic
+    controller's; one trajectory gives the specific controller's)."""
+    if not scores or any(score is None for score in scores):
+        return NO_EPISODE
+    return (
+        float(np.mean([score.f_acc for score in scores])),
+        float(np.mean([score.f_t for score in scores])),
     )

@@ -1,4 +1,4 @@
-"""Each of the paper's studies at toy size, on a real local farm."""
+"""Each of the paper's experiments at toy size, on a real local farm."""
 
 import csv
 from collections.abc import Iterator
@@ -6,10 +6,11 @@ from pathlib import Path
 
 import pytest
 
-from analytic import studies
+from analytic import experiments
+from analytic.config import RunConfig
+from analytic.experiments import EvaluatorFactory, Experiment, non_dominated
+from analytic.farm import FarmClient
 from analytic.local import local_farm
-from analytic.run import RunConfig
-from analytic.studies import Study, non_dominated
 from schemas import TrajectorySpec
 
 BASE = RunConfig(pop=4, trajectories=(TrajectorySpec(duration=0.4),), generations=2, keep="front")
@@ -22,6 +23,10 @@ def endpoints() -> Iterator[list[str]]:
         yield [endpoint]
 
 
+def on_farm(endpoints: list[str]) -> EvaluatorFactory:
+    return lambda study, directory: FarmClient(endpoints, study, directory)
+
+
 def rows(path: Path) -> list[dict[str, str]]:
     with path.open() as stream:
         return list(csv.DictReader(stream))
@@ -29,7 +34,9 @@ def rows(path: Path) -> list[dict[str, str]]:
 
 def test_popsize(tmp_path: Path, endpoints: list[str]) -> None:
     messages: list[str] = []
-    studies.popsize(Study(tmp_path, endpoints, messages.append), BASE, sizes=[4, 6], reps=2)
+    experiments.popsize(
+        Experiment(tmp_path, on_farm(endpoints), messages.append), BASE, sizes=[4, 6], reps=2
+    )
     results = rows(tmp_path / "results.csv")
     assert [(r["pop"], r["rep"]) for r in results] == [
         ("4", "0"),
@@ -45,13 +52,13 @@ def test_popsize(tmp_path: Path, endpoints: list[str]) -> None:
     assert messages  # progress was shown
     # Resumable: a second pass finds every run finished and simulates nothing more.
     before = {path: path.stat().st_mtime_ns for path in tmp_path.glob("runs/*/checkpoint.pkl")}
-    studies.popsize(Study(tmp_path, endpoints), BASE, sizes=[4, 6], reps=2)
+    experiments.popsize(Experiment(tmp_path, on_farm(endpoints)), BASE, sizes=[4, 6], reps=2)
     after = {path: path.stat().st_mtime_ns for path in tmp_path.glob("runs/*/checkpoint.pkl")}
     assert before == after and len(before) == 4
 
 
 def test_generic_vs_specific(tmp_path: Path, endpoints: list[str]) -> None:
-    studies.generic_vs_specific(Study(tmp_path, endpoints), BASE, reps=1)
+    experiments.generic_vs_specific(Experiment(tmp_path, on_farm(endpoints)), BASE, reps=1)
     results = rows(tmp_path / "results.csv")
     assert [r["controller"] for r in results] == ["generic", "specific"]
     generic = tmp_path / "runs" / "generic-rep0" / "config.json"
@@ -62,7 +69,7 @@ def test_generic_vs_specific(tmp_path: Path, endpoints: list[str]) -> None:
 
 
 def test_speed(tmp_path: Path, endpoints: list[str]) -> None:
-    studies.speed(Study(tmp_path, endpoints), BASE, durations=[0.4, 0.6], reps=1)
+    experiments.speed(Experiment(tmp_path, on_farm(endpoints)), BASE, durations=[0.4, 0.6], reps=1)
     results = rows(tmp_path / "results.csv")
     assert [(r["tuned_on_s"], r["evaluated_on_s"]) for r in results] == [
         ("0.4", "0.4"),
@@ -76,7 +83,7 @@ def test_speed(tmp_path: Path, endpoints: list[str]) -> None:
 
 
 def test_a_study_uses_one_reference_point_the_worst_tested(tmp_path: Path) -> None:
-    study = Study(tmp_path, [])
+    study = Experiment(tmp_path, on_farm([]))
     study.tested = [(0.1, 10.0), (0.3, 1.0), (0.2, 50.0)]
     assert study.reference == (0.3, 50.0)
     assert study.hypervolume([(0.3, 50.0)]) == 0.0

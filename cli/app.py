@@ -4,7 +4,6 @@ import logging
 import sys
 
 import click
-from pydantic import ValidationError
 
 USAGE_ERROR = 2
 
@@ -13,15 +12,6 @@ class CliError(click.ClickException):
     """A problem with what the user asked for, said in one line."""
 
     exit_code = USAGE_ERROR
-
-
-def describe(error: ValidationError) -> str:
-    """'field: what is wrong' for the first problem, and how many more there are."""
-    first = error.errors()[0]
-    where = ".".join(str(part) for part in first["loc"]) or "value"
-    more = error.error_count() - 1
-    suffix = f" (and {more} more problem{'s' if more > 1 else ''})" if more else ""
-    return f"{where}: {first['msg']}{suffix}"
 
 
 def parse_numbers(option: str, text: str, count: int | None = None) -> tuple[float, ...]:
@@ -51,9 +41,6 @@ def run_app(command: click.Command, program: str) -> None:
     except (click.Abort, KeyboardInterrupt):
         click.echo(f"{program}: interrupted", err=True)
         sys.exit(130)
-
-
-LOG_LEVELS = ("debug", "info", "warning", "error")
 
 
 def setup_logging(program: str, level: str) -> None:

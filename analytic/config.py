@@ -1,0 +1,50 @@
+"""A tuning run's configuration: everything that decides its outcome, validated as a whole."""
+
+from typing import Literal, Self
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from analytic.evolution import REFERENCE_POINT
+from analytic.termination import CONVERGENCE_TOLERANCE, CONVERGENCE_WINDOW, Termination
+from schemas.robot import ModelSpec
+from schemas.trajectory import TrajectorySpec
+
+
+class RunConfig(BaseModel):
+    """Everything that decides a run's outcome (plus how to keep its episodes)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    pop: int = Field(30, ge=4, le=1000, description="population size")
+    seed: int = Field(0, ge=0)
+    trajectories: tuple[TrajectorySpec, ...] = Field((TrajectorySpec(),), min_length=1)
+    model: ModelSpec = ModelSpec()
+    generations: int | None = Field(None, ge=1)
+    evaluations: int | None = Field(None, ge=1)
+    tolerance: float = Field(CONVERGENCE_TOLERANCE, gt=0)
+    window: int = Field(CONVERGENCE_WINDOW, ge=1)
+    reference_point: tuple[float, float] = REFERENCE_POINT
+    asynchronous: bool = Field(False, description="steady-state NSGA-II, not generational")
+    keep: Literal["all", "front"] = "all"
+
+    @model_validator(mode="after")
+    def _one_termination(self) -> Self:
+        if self.generations is not None and self.evaluations is not None:
+            raise ValueError("generations and evaluations exclude each other")
+        return self
+
+    @property
+    def termination(self) -> Termination:
+        return Termination(self.generations, self.evaluations, self.tolerance, self.window)
+
+    @property
+    def termination_text(self) -> str:
+        if self.generations:
+            return f"{self.generations} generations"
+        if self.evaluations:
+            return f"{self.evaluations} evaluations"
+        return f"until converged (< {self.tolerance:.1%} over {self.window} generations)"
+
+    @property
+    def mode(self) -> str:
+        return "specific" if len(self.trajectories) == 1 else "generic"

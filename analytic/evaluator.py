@@ -1,0 +1,57 @@
+"""The seam between a tuning run and whatever simulates its episodes.
+
+A run hands an evaluator episode specs under job ids and takes back one `Evaluation` per job, in
+whatever order they complete; it never learns whether they ran on a farm of a hundred cobots
+(`analytic.farm.FarmClient`) or one after another in this process
+(`analytic.inprocess.InProcessEvaluator`). pymoo's runner and Optuna's injectable storage play
+the same part: the loop is written once, and tested in milliseconds with a stand-in.
+"""
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+from typing import Protocol
+
+from schemas.episode import EpisodeSpec, Scores
+from schemas.wire import Timings
+
+
+class EvaluationStatus(StrEnum):
+    ok = "ok"  # the episode ran to its end
+    diverged = "diverged"  # it was stopped early; its log and penalised scores still count
+    failed = "failed"  # it could not run (an unreachable path, a damaged log every attempt)
+    lost = "lost"  # no result came after every attempt
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """One job's outcome. `scores` is set when the episode ran (ok or diverged), and `log` when
+    its MCAP log was kept."""
+
+    job_id: str
+    spec: EpisodeSpec
+    status: EvaluationStatus
+    scores: Scores | None
+    log: Path | None
+    reason: str
+    worker: str
+    attempts: int
+    timings: Timings | None
+
+
+class Evaluator(Protocol):
+    """Runs episodes for a tuning run. Every job submitted yields exactly one evaluation."""
+
+    @property
+    def capacity(self) -> int:
+        """How many jobs can run at once now (a farm's workers): how many to keep in flight."""
+        ...
+
+    def submit(self, specs: Mapping[str, EpisodeSpec]) -> None:
+        """Queue one job per (job id, spec); a job id may not be pending already."""
+        ...
+
+    def results(self) -> Iterator[Evaluation]:
+        """Evaluations of the submitted jobs as they complete, until none is pending."""
+        ...

@@ -1,0 +1,89 @@
+"""An evaluator with no farm: every job runs here, one after another, when its results are asked.
+
+By default a job is what a worker makes of it (worker.job.simulate: the MuJoCo episode and its
+MCAP log), then what the farm client makes of the log (decoded, scored, kept in
+`run_dir/episodes/`), so a run gives the same front here as on a farm. Given `scorer`, a function
+of the spec, it simulates nothing and keeps no log: the tuning loop's own tests, and toy problems,
+run in milliseconds.
+"""
+
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
+
+from analytic.evaluator import Evaluation, EvaluationStatus
+from schemas.episode import EpisodeSpec, Scores
+from schemas.files import write_atomically
+from schemas.mcap_episode import decode_episode
+from schemas.objectives import score
+from schemas.wire import JobStatus
+
+WORKER = "in-process"  # the worker name evaluations carry
+
+
+class InProcessEvaluator:
+    def __init__(
+        self,
+        run_dir: Path | None = None,
+        *,
+        scorer: Callable[[EpisodeSpec], Scores] | None = None,
+    ):
+        """Keep logs in `run_dir`/episodes/ (none without a run directory); score each job with
+        `scorer` instead of simulating it, if given."""
+        self.episodes = Path(run_dir) / "episodes" if run_dir is not None else None
+        if self.episodes is not None:
+            self.episodes.mkdir(parents=True, exist_ok=True)
+        self.scorer = scorer
+        self._pending: dict[str, EpisodeSpec] = {}
+
+    @property
+    def capacity(self) -> int:
+        return 1
+
+    @property
+    def pending(self) -> int:
+        return len(self._pending)
+
+    def submit(self, specs: Mapping[str, EpisodeSpec]) -> None:
+        clash = sorted(set(specs) & set(self._pending))
+        if clash:
+            raise ValueError(f"job ids already pending: {', '.join(clash[:5])}")
+        self._pending.update(specs)
+
+    def results(self) -> Iterator[Evaluation]:
+        """Run the pending jobs in the order submitted (jobs submitted meanwhile included)."""
+        while self._pending:
+            job_id = next(iter(self._pending))
+            yield self._evaluate(job_id, self._pending.pop(job_id))
+
+    def _evaluate(self, job_id: str, spec: EpisodeSpec) -> Evaluation:
+        common = dict(job_id=job_id, spec=spec, worker=WORKER, attempts=1)
+        if self.scorer is not None:
+            scores = self.scorer(spec)
+            status = EvaluationStatus.diverged if scores.diverged else EvaluationStatus.ok
+            return Evaluation(
+                **common, status=status, scores=scores, log=None, reason="", timings=None
+            )
+        from worker.job import simulate  # MuJoCo is loaded only when an episode is simulated
+
+        outcome = simulate(spec)
+        if outcome.status == JobStatus.failed:
+            return Evaluation(
+                **common,
+                status=EvaluationStatus.failed,
+                scores=None,
+                log=None,
+                reason=outcome.reason,
+                timings=outcome.timings,
+            )
+        log = None
+        if self.episodes is not None:
+            log = self.episodes / f"{job_id}.mcap"
+            write_atomically(log, outcome.content)
+        return Evaluation(
+            **common,
+            status=EvaluationStatus(outcome.status.value),
+            scores=score(decode_episode(outcome.content, f"episode of {job_id}")),
+            log=log,
+            reason=outcome.reason,
+            timings=outcome.timings,
+        )

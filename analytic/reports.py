@@ -1,0 +1,143 @@
+"""Reports in plain words: a run's report.md, and an experiment's with its verdict.
+
+Like the figures, edge code on plain data: the caller computes, these functions only say it.
+"""
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+from analytic.records import (
+    FRONT_CSV,
+    HISTORY_CSV,
+    HYPERVOLUME_PNG,
+    PARETO_PNG,
+    FrontMember,
+    HistoryRow,
+    sorted_front,
+)
+from schemas.files import write_atomically
+
+
+def _duration(seconds: float) -> str:
+    """Wall time the way a person says it: 42.0 s, 3 min 07 s, 2 h 05 min."""
+    if not math.isfinite(seconds):
+        return str(seconds)
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    minutes, second = divmod(round(seconds), 60)
+    if minutes < 60:
+        return f"{minutes} min {second:02d} s"
+    hours, minute = divmod(minutes, 60)
+    return f"{hours} h {minute:02d} min"
+
+
+def gains_text(member: FrontMember) -> str:
+    """A member's 14 gains on one short line: 'kp 2000 2000 1200 … / kd 20 20 15 …'."""
+    kp = " ".join(f"{gain:.4g}" for gain in member.kp)
+    kd = " ".join(f"{gain:.4g}" for gain in member.kd)
+    return f"kp {kp} / kd {kd}"
+
+
+def front_table_row(rank: int, member: FrontMember) -> str:
+    """One line of the report's front table (public so a test or a caller can find it)."""
+    return f"| {rank} | {member.f_acc * 1000:.3f} | {member.f_t:.4g} | {gains_text(member)} |"
+
+
+def report_markdown(
+    *,
+    title: str,
+    config_lines: Sequence[str],
+    history: Sequence[HistoryRow],
+    front: Sequence[FrontMember],
+    converged: str,
+) -> str:
+    """The text of report.md (see `write_report`)."""
+    lines = [f"# {title}", "", "## Configuration", ""]
+    lines += [f"- {line}" for line in config_lines] or ["- (none given)"]
+    lines += ["", "## Summary", ""]
+    if history:
+        last = history[-1]
+        lines += [
+            f"- generations: {len(history)}",
+            f"- evaluations: {last.evaluations}",
+            f"- final hypervolume: {last.hypervolume:.6g}",
+            f"- best f_acc: {last.best_f_acc * 1000:.3f} mm; best f_t: {last.best_f_t:.4g} (N·m)²",
+            f"- wall time: {_duration(last.wall_seconds)}",
+        ]
+    else:
+        lines.append("- no generation finished yet")
+    if converged:
+        lines.append(f"- {converged}")
+
+    members = sorted_front(front)
+    lines += ["", f"## Pareto front ({len(members)} members, most accurate first)", ""]
+    if members:
+        lines += [
+            "| # | f_acc (mm) | f_t ((N·m)²) | gains |",
+            "|---:|---:|---:|---|",
+            *(front_table_row(rank, member) for rank, member in enumerate(members, start=1)),
+        ]
+    else:
+        lines.append("No members yet.")
+
+    lines += [
+        "",
+        "## Figures",
+        "",
+        f"![Pareto front]({PARETO_PNG})",
+        "",
+        f"![Hypervolume against evaluations]({HYPERVOLUME_PNG})",
+        "",
+        f"The numbers at full precision: [{FRONT_CSV}]({FRONT_CSV}) (the front, gains and scores) "
+        f"and [{HISTORY_CSV}]({HISTORY_CSV}) (one row per generation).",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def write_report(
+    path: Path,
+    *,
+    title: str,
+    config_lines: Sequence[str],
+    history: Sequence[HistoryRow],
+    front: Sequence[FrontMember],
+    converged: str,
+) -> None:
+    """A short report.md at `path`: configuration, summary, the front as a table, the figures.
+
+    `converged` is the caller's one-line verdict on why the run stopped (or that it has not),
+    e.g. "converged after 240 evaluations (hypervolume gain < 0.1% over 3 generations)". The
+    figures and CSVs are linked by their standard names relative to the report, so write them
+    into the same directory. The table is rounded for reading; front.csv holds the exact values.
+    """
+    text = report_markdown(
+        title=title, config_lines=config_lines, history=history, front=front, converged=converged
+    )
+    write_atomically(Path(path), text.encode("utf-8"))
+
+
+def write_experiment_report(
+    path: Path,
+    *,
+    title: str,
+    setup: Sequence[str],
+    table: Sequence[str],
+    verdict: str,
+    figures: Sequence[str],
+) -> None:
+    """An experiment's report.md: how it was run, its table, its verdict and its figures."""
+    lines = [
+        f"# {title}",
+        "",
+        *[f"- {line}" for line in setup],
+        "",
+        *table,
+        "",
+        verdict,
+        "",
+        *[f"![{name}]({name})" for name in figures],
+        "",
+    ]
+    write_atomically(Path(path), "\n".join(lines).encode())

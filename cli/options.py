@@ -1,0 +1,110 @@
+"""The options several commands share, each written once: same name, type, default and help.
+
+A decorator per option (or group of options that always go together); the choices come from the
+contract (schemas/), so a new trajectory kind or model variant reaches every command by itself.
+"""
+
+import typing
+from collections.abc import Callable
+from pathlib import Path
+from typing import TypeVar
+
+import click
+
+from cli.app import CliError
+from schemas.robot import ModelSpec
+from schemas.security import Role, TlsIdentity, load_identity
+from schemas.trajectory import TrajectoryKind
+
+F = TypeVar("F", bound=Callable[..., object])
+
+TRAJECTORY_KINDS = [kind.value for kind in TrajectoryKind]
+MODEL_JOINTS = list(typing.get_args(ModelSpec.model_fields["joints"].annotation))
+DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+LOG_LEVELS = ("debug", "info", "warning", "error")
+
+
+def stack(*options: Callable[[F], F]) -> Callable[[F], F]:
+    """Apply `options` so that they appear in --help in the order given."""
+
+    def decorate(command: F) -> F:
+        for option in reversed(options):
+            command = option(command)
+        return command
+
+    return decorate
+
+
+def trajectory(multiple: bool = False, help: str = "end-effector path") -> Callable[[F], F]:
+    """--trajectory: one kind (parameter `trajectory`), or several (parameter `kinds`)."""
+    if multiple:
+        return click.option(
+            "--trajectory",
+            "kinds",
+            multiple=True,
+            type=click.Choice(TRAJECTORY_KINDS),
+            default=[TrajectoryKind.spiral.value],
+            show_default=True,
+            help=help,
+        )
+    return click.option(
+        "--trajectory",
+        type=click.Choice(TRAJECTORY_KINDS),
+        default=TrajectoryKind.spiral.value,
+        show_default=True,
+        help=help,
+    )
+
+
+def duration(help: str = "seconds") -> Callable[[F], F]:
+    """--duration of the trajectory; its range is checked where the TrajectorySpec is made."""
+    return click.option("--duration", type=float, default=5.0, show_default=True, help=help)
+
+
+def model(help: str | None = "elastic or rigid joints") -> Callable[[F], F]:
+    """--model: the joints of the simulated robot, as ModelSpec names them."""
+    return click.option(
+        "--model",
+        type=click.Choice(MODEL_JOINTS),
+        default=ModelSpec().joints,
+        show_default=True,
+        help=help,
+    )
+
+
+def pop(help: str = "population size") -> Callable[[F], F]:
+    return click.option(
+        "--pop", type=click.IntRange(min=4, max=1000), default=30, show_default=True, help=help
+    )
+
+
+def termination(per_run: bool = False) -> Callable[[F], F]:
+    """--generations and --evaluations (which exclude each other: RunConfig says so)."""
+    when = "per run, instead of converging: " if per_run else ""
+    return stack(
+        click.option(
+            "--generations", type=click.IntRange(min=1), help=f"{when}stop after N generations"
+        ),
+        click.option(
+            "--evaluations", type=click.IntRange(min=1), help=f"{when}stop after N evaluations"
+        ),
+    )
+
+
+def tls(help: str) -> Callable[[F], F]:
+    """--tls DIR: the credentials of a secure farm (load them with `identity`)."""
+    return click.option("--tls", type=click.Path(path_type=Path), help=help)
+
+
+def identity(directory: Path | None, role: Role) -> TlsIdentity | None:
+    """The `role` identity in a --tls directory (None without one), or one line naming --tls."""
+    try:
+        return load_identity(directory, role)
+    except ValueError as error:
+        raise CliError(f"--tls: {error}") from None
+
+
+def log_level() -> Callable[[F], F]:
+    return click.option(
+        "--log-level", type=click.Choice(LOG_LEVELS), default="info", show_default=True
+    )
