@@ -28,7 +28,7 @@ from schemas.files import write_atomically
 from schemas.mcap_episode import NotAnEpisodeLog, decode_episode
 from schemas.objectives import score
 from schemas.security import TlsIdentity
-from schemas.transport import open_session
+from schemas.transport import open_session, token_held
 from schemas.wire import (
     MAX_EPISODE_BYTES,
     BadMessage,
@@ -157,7 +157,7 @@ class FarmClient:
 
     def _open_study(self, connect: Sequence[str]) -> None:
         token_key = keys.alive_study(self.study)
-        if any(True for _ in self.session.liveliness().get(token_key, timeout=1)):
+        if token_held(self.session, token_key):
             raise FarmUnavailable(f"study {self.study!r} is already open in another process")
         self._subscriber = self.session.declare_subscriber(
             keys.study_results(self.study), self._on_result

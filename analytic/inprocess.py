@@ -35,6 +35,12 @@ class InProcessEvaluator:
         self.scorer = scorer
         self._pending: dict[str, EpisodeSpec] = {}
 
+    def __enter__(self) -> "InProcessEvaluator":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._pending.clear()  # as a farm client drops its study's queued jobs when it closes
+
     @property
     def capacity(self) -> int:
         return 1

@@ -119,16 +119,22 @@ class TuningRun:
         return _rows(self.state.evolution.front(), self.state.episodes)
 
     def run(
-        self, evaluator: Evaluator, on_progress: Callable[[RunProgress], None] = lambda _: None
+        self,
+        evaluator: Evaluator,
+        on_progress: Callable[[RunProgress], None] = lambda _: None,
+        *,
+        report: bool = True,
     ) -> str:
-        """Evolve until the termination says stop; return why it stopped."""
+        """Evolve until the termination says stop; return why it stopped. With `report`, draw
+        the figures and write report.md at the end (the records are written either way)."""
         started = time.monotonic() - self.state.wall_seconds
         while self.state.stopped is None:
             if self.config.asynchronous and self.state.evolution.generation > 0:
                 self._steady_state(evaluator, started, on_progress)
             else:
                 self._generation(evaluator, started, on_progress)
-        self.write_figures()
+        if report:
+            self.write_figures()
         return self.state.stopped
 
     # --- generational: a whole generation out, then told in the order asked -------------------

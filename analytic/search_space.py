@@ -37,6 +37,3 @@ class SearchSpace:
         """The controller a decision vector stands for."""
         values = np.power(10.0, np.clip(x, self.lower, self.upper))
         return PDGains(kp=tuple(values[:N_JOINTS].tolist()), kd=tuple(values[N_JOINTS:].tolist()))
-
-    def vector(self, gains: PDGains) -> np.ndarray:
-        return np.log10(np.array(gains.kp + gains.kd))

@@ -112,9 +112,6 @@ class LeaseQueue(Generic[W]):
                 worker.lease = None
         return len(study.queue)
 
-    def has_study(self, name: str) -> bool:
-        return name in self._studies
-
     # --- jobs ------------------------------------------------------------------------------
 
     def submit(self, study_name: str, jobs: Iterable[Job]) -> Submitted[W]:

@@ -9,6 +9,7 @@ Both variants come from that file, so they never drift apart:
   kinetic energy is ½ I q̇² + ½ B θ̇², exactly Spong's.
 """
 
+import logging
 from functools import lru_cache
 from importlib.resources import files
 
@@ -17,7 +18,10 @@ import mujoco
 from schemas.robot import JOINT_NAMES, ModelSpec
 from schemas.trajectory import CONTROL_PERIOD
 
+log = logging.getLogger("gainfarm.models")
+
 RIGID_MJCF = files("models").joinpath("iiwa14.xml")
+FLANGE = "flange"  # the site at the flange's centre: the end effector every trajectory moves
 
 
 def build_spec(spec: ModelSpec) -> mujoco.MjSpec:
@@ -46,4 +50,11 @@ def build_spec(spec: ModelSpec) -> mujoco.MjSpec:
 @lru_cache(maxsize=16)
 def compile_model(spec: ModelSpec) -> mujoco.MjModel:
     """Compiled model for `spec`; cached, because a worker runs thousands of episodes on one."""
+    # An unstable simulation is data (the episode is flagged as diverged), not a warning for
+    # stdout and a MUJOCO_LOG.TXT in whatever directory the process runs in: MuJoCo's default.
+    mujoco.set_mju_user_warning(_log_warning)
     return build_spec(spec).compile()
+
+
+def _log_warning(message: str) -> None:
+    log.debug("MuJoCo: %s", message)

@@ -73,6 +73,12 @@ def open_session(
         raise ConnectionError(f"cannot open a Zenoh {mode} session on {where}: {reason}") from None
 
 
+def token_held(session: zenoh.Session, key: str, timeout: float = 1.0) -> bool:
+    """Whether some session holds a liveliness token on `key` now: a worker's or a study's name
+    already taken, a broker up. Waits at most `timeout` s for the answers."""
+    return any(True for _ in session.liveliness().get(key, timeout=timeout))
+
+
 def _plain(error: Exception) -> str:
     """Zenoh's message without the Rust source locations it appends."""
     text = re.sub(r"\s+at \S+\.rs:\d+\.?", "", str(error))

@@ -8,6 +8,7 @@ import numpy as np
 import zenoh
 
 from analytic.records import FrontMember, HistoryRow
+from broker.queue import LeaseQueue
 from broker.service import Broker
 from schemas import EpisodeMetadata, EpisodeSpec, PDGains, TrajectorySpec, keys
 from schemas.episode_log import EpisodeLog
@@ -60,8 +61,13 @@ def open_study(session: zenoh.Session, broker: Broker, study: str) -> zenoh.Live
 
     Keep the token: Zenoh undeclares it when it is garbage-collected."""
     token = session.liveliness().declare_token(keys.alive_study(study))
-    wait_for(lambda: broker.queue.has_study(study), what=f"the broker to open {study}")
+    wait_for(lambda: study in open_studies(broker.queue), what=f"the broker to open {study}")
     return token
+
+
+def open_studies(queue: LeaseQueue) -> set[str]:
+    """The names of the studies a broker's queue has open."""
+    return {state.name for state in queue.study_states()}
 
 
 def submit(session: zenoh.Session, study: str, specs: dict[str, EpisodeSpec]) -> SubmitReply:

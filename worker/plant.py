@@ -3,10 +3,8 @@
 import mujoco
 import numpy as np
 
-from models import compile_model
+from models import FLANGE, compile_model
 from schemas.robot import JOINT_NAMES, ModelSpec
-
-FLANGE = "flange"
 
 
 class Plant:

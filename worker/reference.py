@@ -10,7 +10,7 @@ from functools import lru_cache
 import mujoco
 import numpy as np
 
-from models import compile_model
+from models import FLANGE, compile_model
 from schemas.robot import ModelSpec
 from schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from worker.ik import solve_path
@@ -18,7 +18,6 @@ from worker.trajectories import cartesian_path, sample_times
 
 # Kinematics and gravity do not depend on the elastic-joint parameters: the rigid chain serves all.
 _KINEMATIC_MODEL = ModelSpec(joints="rigid", substeps=1)
-FLANGE = "flange"
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ import zenoh
 
 from schemas import keys
 from schemas.security import TlsIdentity
-from schemas.transport import open_session
+from schemas.transport import open_session, token_held
 from schemas.wire import LEASE_HOLD_SECONDS, BadMessage, LeaseReply, LeaseRequest, decode
 from worker.job import execute
 
@@ -33,7 +33,7 @@ class CobotWorker:
         self.jobs_done = 0
         self.session = open_session("client", connect=connect, identity=identity)
         try:
-            if any(True for _ in self.session.liveliness().get(keys.alive_worker(name), timeout=1)):
+            if token_held(self.session, keys.alive_worker(name)):
                 raise NameTaken(f"a worker named {name!r} is already connected to this farm")
             self._token = self.session.liveliness().declare_token(keys.alive_worker(name))
         except BaseException:

@@ -16,6 +16,7 @@ import pytest
 
 from analytic.config import RunConfig
 from analytic.farm import FarmClient
+from analytic.inprocess import InProcessEvaluator
 from analytic.local import free_port, local_farm, spawn_worker, stop_workers
 from analytic.records import read_front, read_history
 from analytic.run import RunProgress, TuningRun
@@ -106,6 +107,17 @@ def test_a_front_member_simulated_again_reproduces_its_objectives(
     spec = EpisodeSpec(gains=PDGains(kp=member.kp, kd=member.kd), trajectory=TINY.trajectories[0])
     scores = score(run_episode(spec))
     assert (scores.f_acc, scores.f_t) == (member.f_acc, member.f_t)
+
+
+def test_the_front_is_the_same_in_this_process_as_on_the_farm(
+    tmp_path: Path, calm: TuningRun
+) -> None:
+    run = TuningRun.create(tmp_path / "here", TINY)
+    run.run(InProcessEvaluator(run.directory))
+    assert_same_outcome(run, calm)
+    assert sorted(p.name for p in (run.directory / "episodes").glob("*.mcap")) == sorted(
+        p.name for p in (calm.directory / "episodes").glob("*.mcap")
+    )
 
 
 def test_the_front_is_the_same_on_one_worker_as_on_two(tmp_path: Path, farm_endpoint: str) -> None:

@@ -15,6 +15,7 @@ from broker.queue import (
 from schemas.episode import EpisodeSpec
 from schemas.gains import PDGains
 from schemas.wire import Job, Lease, StudyState, WorkerState
+from tests.helpers import open_studies
 
 EPISODE = EpisodeSpec(gains=PDGains(kp=(100.0,) * 7, kd=(10.0,) * 7))
 LEASE_SECONDS = 10.0
@@ -101,8 +102,7 @@ def test_open_study_is_idempotent_and_keeps_its_queue() -> None:
     queue, _ = make_queue("s")
     queue.submit("s", jobs("j1", "j2"))
     queue.open_study("s")
-    assert queue.has_study("s")
-    assert not queue.has_study("other")
+    assert open_studies(queue) == {"s"}
     assert state(queue, "s") == StudyState(name="s", queued=2, leased=0, done=0)
 
 
@@ -563,7 +563,7 @@ def test_close_study_drops_its_queue_and_frees_its_workers() -> None:
 
     assert queue.close_study("s") == 3
 
-    assert not queue.has_study("s")
+    assert "s" not in open_studies(queue)
     assert [s.name for s in queue.study_states()] == ["t"]
     assert queue.worker_states() == [
         WorkerState(name="w1", busy=False, job="", jobs_done=0),

@@ -20,7 +20,7 @@ from schemas import keys
 from schemas.security import Role, TlsIdentity
 from schemas.transport import open_session
 from schemas.wire import Job, JobStatus, LeaseRequest, Submission
-from tests.helpers import result_for, short_spec, wait_for
+from tests.helpers import open_studies, result_for, short_spec, wait_for
 
 DENIED_SECONDS = 1.0  # a denied query is dropped, not refused: wait this long for no answer
 
@@ -130,7 +130,7 @@ def test_a_worker_identity_cannot_publish_jobs(
     secure_broker: Broker, sessions: dict[Role, zenoh.Session]
 ) -> None:
     _token = sessions["analytic"].liveliness().declare_token(keys.alive_study("s"))
-    wait_for(lambda: secure_broker.queue.has_study("s"), what="the broker to open the study")
+    wait_for(lambda: "s" in open_studies(secure_broker.queue), what="the broker to open the study")
     forged = Submission(study="s", jobs=[Job(job_id="forged", spec=short_spec())])
     assert _answers(sessions["worker"], keys.SUBMIT, forged.to_bytes()) == []
     # The same submission from the analytic identity is answered and queued.

@@ -13,7 +13,16 @@ from schemas.wire import (
     LeaseRequest,
     decode,
 )
-from tests.helpers import ask_for_work, open_study, query, result_for, short_spec, submit, wait_for
+from tests.helpers import (
+    ask_for_work,
+    open_studies,
+    open_study,
+    query,
+    result_for,
+    short_spec,
+    submit,
+    wait_for,
+)
 
 
 def status(session: zenoh.Session) -> BrokerStatus:
@@ -99,7 +108,7 @@ def test_a_study_whose_analytic_process_goes_has_its_queued_jobs_dropped(
     submit(analytic, "gone", {f"j{n}": short_spec() for n in range(3)})
     assert status(session).studies[0].queued == 3
     analytic.close()
-    wait_for(lambda: not broker.queue.has_study("gone"), what="the study to be closed")
+    wait_for(lambda: "gone" not in open_studies(broker.queue), what="the study to be closed")
     assert status(session).studies == []
     assert ask_for_work(session, "w") is None
 

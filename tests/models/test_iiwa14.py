@@ -1,3 +1,6 @@
+import subprocess
+import sys
+
 import mujoco
 import numpy as np
 import pytest
@@ -49,3 +52,23 @@ def test_exported_mjcf_compiles_to_the_same_model():
     reloaded = mujoco.MjModel.from_xml_string(xml)
     assert reloaded.nq == 14
     np.testing.assert_allclose(reloaded.jnt_stiffness, compile_model(ModelSpec()).jnt_stiffness)
+
+
+def test_an_unstable_simulation_leaves_no_log_file_and_prints_nothing(tmp_path):
+    # MuJoCo's default for its warnings: a line on stdout and MUJOCO_LOG.TXT in the cwd.
+    script = (
+        "import mujoco\n"
+        "from models import compile_model\n"
+        "from schemas.robot import ModelSpec\n"
+        "model = compile_model(ModelSpec())\n"
+        "data = mujoco.MjData(model)\n"
+        "data.qpos[:] = 1e20\n"
+        "mujoco.mj_step(model, data)\n"
+        "print(data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number)\n"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=60
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout == "1\n"  # the warning happened, and nothing but the script printed
+    assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,20 @@
+"""A run's configuration is validated as a whole, whoever builds it (the CLI or a script)."""
+
+import pytest
+from pydantic import ValidationError
+
+from analytic.config import RunConfig
+from schemas.wire import describe
+
+
+def test_generations_and_evaluations_exclude_each_other() -> None:
+    with pytest.raises(ValidationError) as raised:
+        RunConfig(generations=3, evaluations=90)
+    assert describe(raised.value) == "generations and evaluations exclude each other"
+
+
+def test_the_termination_follows_the_config() -> None:
+    assert RunConfig(generations=3).termination_text == "3 generations"
+    assert RunConfig(evaluations=90).termination.evaluations == 90
+    assert RunConfig().termination_text.startswith("until converged")
+    assert RunConfig().mode == "specific"

@@ -1,0 +1,175 @@
+"""The tuning loop's guarantees with an in-process evaluator: no farm, no simulation, milliseconds.
+
+The evaluator scores each candidate with tests.analytic.toy's function of its gains, which has a
+real front for NSGA-II to find. The same guarantees are tested on a real farm in test_run.py.
+"""
+
+import itertools
+import random
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+
+import pytest
+
+from analytic.config import RunConfig
+from analytic.evaluator import Evaluation
+from analytic.inprocess import InProcessEvaluator
+from analytic.records import read_front, read_history, read_run
+from analytic.run import RunProgress, TuningRun
+from schemas import EpisodeSpec, TrajectorySpec
+from tests.analytic.toy import toy_scores
+
+TINY = RunConfig(pop=6, seed=7, trajectories=(TrajectorySpec(duration=0.5),), generations=3)
+
+
+class Shuffled(InProcessEvaluator):
+    """Hands evaluations back in a random order, as a farm of many workers does."""
+
+    def __init__(self, seed: int):
+        super().__init__(scorer=toy_scores)
+        self.order = random.Random(seed)
+        self._queued: dict[str, EpisodeSpec] = {}
+
+    def submit(self, specs: Mapping[str, EpisodeSpec]) -> None:
+        self._queued.update(specs)
+
+    def results(self) -> Iterator[Evaluation]:
+        while self._queued:
+            job_ids = list(self._queued)
+            self.order.shuffle(job_ids)
+            batch = {job_id: self._queued.pop(job_id) for job_id in job_ids}
+            super().submit(batch)
+            yield from super().results()
+
+
+class Interrupt(Exception):
+    pass
+
+
+def tune(
+    directory: Path, config: RunConfig = TINY, report: bool = False, **hooks: object
+) -> TuningRun:
+    """A run of the toy problem; the figures and report (0.3 s of drawing) only if asked."""
+    run = TuningRun.create(directory, config)
+    run.run(InProcessEvaluator(scorer=toy_scores), report=report, **hooks)
+    return run
+
+
+def test_a_generational_run_records_every_generation_and_a_non_dominated_front(
+    tmp_path: Path,
+) -> None:
+    run = tune(tmp_path / "run", TINY.model_copy(update={"generations": 5}))
+    history = read_history(run.directory / "history.csv")
+    assert [row.generation for row in history] == [1, 2, 3, 4, 5]
+    assert [row.evaluations for row in history] == [6, 12, 18, 24, 30]
+    hypervolumes = [row.hypervolume for row in history]
+    assert all(later >= earlier for earlier, later in itertools.pairwise(hypervolumes))
+    assert hypervolumes[-1] > hypervolumes[0] > 0  # the toy problem has room to improve
+    front = read_front(run.directory / "front.csv")
+    for a, b in itertools.permutations(front, 2):
+        assert not (a.f_acc <= b.f_acc and a.f_t <= b.f_t and a.objectives != b.objectives)
+    for f_acc, f_t in run.state.evaluated:
+        assert not any(f_acc < m.f_acc and f_t < m.f_t for m in front)
+    assert run.state.stopped == "5 generations"
+
+
+def test_the_run_directory_reads_back_without_the_checkpoint(tmp_path: Path) -> None:
+    run = tune(tmp_path / "run")
+    (run.directory / "checkpoint.pkl").unlink()
+    record = read_run(run.directory)
+    assert record.config == TINY
+    assert record.stopped == run.state.stopped == "3 generations"
+    assert record.evaluations == 18 and record.evaluated == run.state.evaluated
+    assert [m.objectives for m in record.front] == [
+        m.objectives for m in run.state.evolution.front()
+    ]
+    assert record.front == run.front()
+
+
+def test_the_front_is_the_same_whatever_order_the_results_come_in(tmp_path: Path) -> None:
+    fronts = []
+    for seed in range(3):
+        run = TuningRun.create(tmp_path / f"run{seed}", TINY)
+        run.run(Shuffled(seed), report=False)
+        fronts.append((run.directory / "front.csv").read_bytes())
+    in_order = tune(tmp_path / "in-order")
+    assert fronts == [(in_order.directory / "front.csv").read_bytes()] * 3
+
+
+def test_the_same_seed_gives_the_same_front_and_another_seed_another(tmp_path: Path) -> None:
+    one, two = tune(tmp_path / "one"), tune(tmp_path / "two")
+    other = tune(tmp_path / "other", TINY.model_copy(update={"seed": 8}))
+    front = (one.directory / "front.csv").read_bytes()
+    assert (two.directory / "front.csv").read_bytes() == front
+    assert (other.directory / "front.csv").read_bytes() != front
+
+
+def test_a_stopped_and_resumed_run_ends_where_an_uninterrupted_one_does(tmp_path: Path) -> None:
+    whole = tune(tmp_path / "whole")
+
+    def stop_in_generation_two(progress: RunProgress) -> None:
+        if progress.generation == 2 and progress.evaluations > 14:
+            raise Interrupt  # as Ctrl-C would, halfway through a generation
+
+    stopped = tmp_path / "stopped"
+    with pytest.raises(Interrupt):
+        tune(stopped, on_progress=stop_in_generation_two)
+    assert len(read_history(stopped / "history.csv")) == 2
+    resumed = TuningRun.open(stopped)
+    assert not resumed.finished
+    resumed.run(InProcessEvaluator(scorer=toy_scores), report=False)
+    assert (stopped / "front.csv").read_bytes() == (whole.directory / "front.csv").read_bytes()
+    assert (stopped / "evaluated.csv").read_bytes() == (
+        whole.directory / "evaluated.csv"
+    ).read_bytes()
+
+
+def test_a_run_stopped_before_its_first_generation_starts_again(tmp_path: Path) -> None:
+    def stop_at_once(progress: RunProgress) -> None:
+        raise Interrupt
+
+    with pytest.raises(Interrupt):
+        tune(tmp_path / "run", on_progress=stop_at_once)
+    assert read_run(tmp_path / "run").stopped is None
+    resumed = TuningRun.open(tmp_path / "run")
+    resumed.run(InProcessEvaluator(scorer=toy_scores), report=False)
+    assert resumed.state.stopped == "3 generations"
+
+
+def test_a_steady_state_run_records_a_row_every_pop_evaluations(tmp_path: Path) -> None:
+    config = TINY.model_copy(update={"asynchronous": True, "generations": 4})
+    run = tune(tmp_path / "run", config, report=True)
+    history = read_history(run.directory / "history.csv")
+    assert [row.evaluations for row in history] == [6, 12, 18, 24]
+    hypervolumes = [row.hypervolume for row in history]
+    assert all(later >= earlier for earlier, later in itertools.pairwise(hypervolumes))
+    assert len(run.state.evaluated) >= 24
+    assert "steady-state" in (run.directory / "report.md").read_text()
+
+
+def test_a_run_stops_after_its_evaluations(tmp_path: Path) -> None:
+    config = TINY.model_copy(update={"generations": None, "evaluations": 20})
+    run = tune(tmp_path / "run", config)
+    assert run.state.stopped == "24 evaluations"  # whole generations: the first past 20
+    assert read_run(run.directory).stopped == "24 evaluations"
+
+
+def test_a_run_stops_when_the_hypervolume_stops_growing(tmp_path: Path) -> None:
+    config = TINY.model_copy(update={"generations": None, "tolerance": 0.05, "window": 2})
+    run = tune(tmp_path / "run", config)
+    hypervolumes = [row.hypervolume for row in run.state.history]
+    assert run.state.stopped.startswith("converged after")
+    assert hypervolumes[-1] - hypervolumes[-3] <= 0.05 * hypervolumes[-3]
+    assert all(  # and not a generation earlier
+        later - earlier > 0.05 * earlier
+        for earlier, later in zip(hypervolumes[:-3], hypervolumes[2:-1], strict=True)
+    )
+
+
+def test_keep_front_keeps_only_the_front_members_logs(tmp_path: Path) -> None:
+    config = TINY.model_copy(update={"keep": "front"})
+    run = TuningRun.create(tmp_path / "run", config)
+    run.run(InProcessEvaluator(tmp_path / "run"), report=False)  # real episodes, logs kept
+    kept = sorted(path.name for path in (run.directory / "episodes").glob("*.mcap"))
+    listed = sorted(Path(episode).name for m in run.front() for episode in m.episodes)
+    assert kept == listed and 1 <= len(kept) < 18

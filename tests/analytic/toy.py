@@ -1,0 +1,19 @@
+"""A toy objective for the tuning loop's fast tests: a smooth function of the gains that trades
+accuracy against torque steps as the real episodes do (stiffer gains: smaller error, larger
+torque steps), so NSGA-II has a real front to find, in microseconds per candidate."""
+
+import numpy as np
+
+from schemas import EpisodeSpec, Scores
+from schemas.gains import DEFAULT_GAINS
+
+
+def toy_scores(spec: EpisodeSpec) -> Scores:
+    """Stiffer: more accurate and rougher; more damping: rougher still, a little more accurate."""
+    kp = np.array(spec.gains.kp) / np.array(DEFAULT_GAINS.kp)
+    kd = np.array(spec.gains.kd) / np.array(DEFAULT_GAINS.kd)
+    f_acc = float(np.mean(0.01 / kp + 0.002 / kd))
+    f_t = float(np.mean(kp**2 + 0.5 * kd))
+    return Scores(
+        f_acc=f_acc, f_t=f_t, max_error=2 * f_acc, saturated_fraction=0.0, diverged=False, ticks=1
+    )
