@@ -366,7 +366,7 @@ def experiment(
     workers: int,
     out: Path,
 ) -> None:
-    """Rerun one of the paper's studies: popsize, generic-vs-specific or speed."""
+    """Rerun one of the paper's experiments: popsize, generic-vs-specific or speed."""
     identity = _check_farm(connect, local, tls)
     size_list = [int(v) for v in parse_numbers("--sizes", sizes)]
     duration_list = list(parse_numbers("--durations", durations))

@@ -151,7 +151,7 @@ def plot_popsize(
     labels = [str(size) for size in hypervolumes]
     left.boxplot(list(hypervolumes.values()), tick_labels=labels)
     left.set(
-        xlabel="population size", ylabel="hypervolume (study reference)", title="final hypervolume"
+        xlabel="population size", ylabel="hypervolume (common reference)", title="final hypervolume"
     )
     right.boxplot([evaluations[size] for size in hypervolumes], tick_labels=labels)
     right.set(xlabel="population size", ylabel="evaluations", title="evaluations to stop")

@@ -1,6 +1,6 @@
 """A tuning run: NSGA-II generations evaluated by an evaluator, recorded in a run directory.
 
-A Study in Optuna's sense: the evolution step (analytic.evolution) is the sampler, an evaluator
+Optuna's Study, in its shape: the evolution step (analytic.evolution) is the sampler, an evaluator
 (analytic.evaluator: the farm, or this process) runs the episodes, and the run directory is the
 storage. After every generation the run writes, each file atomically (analytic.records):
 
@@ -47,6 +47,7 @@ from analytic.records import (
     front_csv,
     front_json,
     history_csv,
+    sorted_front,
 )
 from analytic.reports import write_report
 from schemas.episode import EpisodeSpec
@@ -116,7 +117,7 @@ class TuningRun:
 
     def front(self) -> list[FrontMember]:
         """The best front found so far, most accurate first, each member with its kept logs."""
-        return _rows(self.state.evolution.front(), self.state.episodes)
+        return sorted_front(_rows(self.state.evolution.front(), self.state.episodes))
 
     def run(
         self,

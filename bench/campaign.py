@@ -1,33 +1,52 @@
-"""The paper's whole campaign on one machine: the three studies, 5 repetitions each, population
-30 (population sizes 10-80 in the population study), every run to convergence.
+"""The paper's whole campaign on one machine: its three experiments, 5 repetitions each,
+population 30 (population sizes 10-80 in the population-size experiment), every run to
+convergence.
 
     python bench/campaign.py [--out campaign] [--workers 2] [--reps 5]
 
-Runs each study as its command line (`analytic experiment ...`) in turn, prints the wall time of
-each and of the whole; the studies' reports are in OUT/<study>/report.md.
+Runs each experiment as its command line (`analytic experiment ...`) in turn, on a local farm,
+and prints the wall time of each and of the whole; the reports are in OUT/<experiment>/report.md.
 """
 
-import argparse
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-STUDIES = {
+import click
+
+EXPERIMENTS = {
     "popsize": ["--sizes", "10,20,30,50,80"],
     "generic-vs-specific": [],
     "speed": ["--durations", "3,4,5,6"],
 }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("campaign"))
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--reps", type=int, default=5)
-    options = parser.parse_args()
-    walls = {}
-    for name, extra in STUDIES.items():
+@click.command(help=__doc__.split("\n\n")[0])
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("campaign"),
+    show_default=True,
+    help="one directory per experiment in it (an existing one is resumed)",
+)
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1),
+    default=2,
+    show_default=True,
+    help="local worker processes",
+)
+@click.option(
+    "--reps",
+    type=click.IntRange(min=1),
+    default=5,
+    show_default=True,
+    help="repetitions per experiment",
+)
+def main(out: Path, workers: int, reps: int) -> None:
+    walls: dict[str, float] = {}
+    for name, extra in EXPERIMENTS.items():
         started = time.perf_counter()
         subprocess.run(
             [
@@ -37,18 +56,18 @@ def main() -> None:
                 "experiment",
                 name,
                 "--reps",
-                str(options.reps),
+                str(reps),
                 "--workers",
-                str(options.workers),
+                str(workers),
                 "--out",
-                str(options.out / name),
+                str(out / name),
                 *extra,
             ],
             check=True,
         )
         walls[name] = time.perf_counter() - started
         print(f"{name}: {walls[name] / 60:.1f} min", flush=True)
-    print(f"whole campaign: {sum(walls.values()) / 60:.1f} min on {options.workers} workers")
+    print(f"whole campaign: {sum(walls.values()) / 60:.1f} min on {workers} workers")
 
 
 if __name__ == "__main__":

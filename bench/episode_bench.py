@@ -8,25 +8,28 @@ times from the same state, with the motors holding the arm against gravity (so t
 tracking episode, it neither falls into the joint limits nor does anything else).
 """
 
-import argparse
 import statistics
 import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
 
+import click
 import mujoco
+from common import print_table
 
-from schemas import EpisodeSpec, PDGains, TrajectorySpec
+from schemas import EpisodeSpec, TrajectorySpec
+from schemas.gains import DEFAULT_GAINS
 from schemas.mcap_episode import read_episode, write_episode
 from schemas.objectives import score
-from worker.cli import DEFAULT_KD, DEFAULT_KP
 from worker.episode import run_episode
 from worker.plant import Plant
 from worker.reference import reference_for
 
 
 def bare_loop(spec: EpisodeSpec) -> Callable[[], None]:
+    """The episode's model stepped as many times from its first state, the motors holding the
+    arm against gravity: the cost of the physics alone."""
     reference = reference_for(spec.trajectory)
     plant = Plant(spec.model)
 
@@ -39,16 +42,17 @@ def bare_loop(spec: EpisodeSpec) -> Callable[[], None]:
     return run
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=15)
-    parser.add_argument("--duration", type=float, default=5.0)
-    args = parser.parse_args()
-
-    gains = PDGains(
-        kp=tuple(map(float, DEFAULT_KP.split(","))), kd=tuple(map(float, DEFAULT_KD.split(",")))
-    )
-    spec = EpisodeSpec(gains=gains, trajectory=TrajectorySpec(duration=args.duration))
+@click.command(help=__doc__.split("\n\n")[0])
+@click.option("--repeats", type=click.IntRange(min=1), default=15, show_default=True)
+@click.option(
+    "--duration",
+    type=click.FloatRange(min=0, min_open=True),
+    default=5.0,
+    show_default=True,
+    help="s per episode",
+)
+def main(repeats: int, duration: float) -> None:
+    spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=TrajectorySpec(duration=duration))
     reference_for(spec.trajectory)  # the IK runs once per trajectory; it is not per-episode cost
     with tempfile.TemporaryDirectory() as scratch:
         path = Path(scratch) / "episode.mcap"
@@ -60,7 +64,7 @@ def main() -> None:
             "score from MCAP": lambda: score(read_episode(path)),
         }
         times: dict[str, list[float]] = {name: [] for name in cases}
-        for _ in range(args.repeats):
+        for _ in range(repeats):
             for name, case in cases.items():
                 start = time.perf_counter()
                 case()
@@ -69,17 +73,18 @@ def main() -> None:
     median = {name: statistics.median(values) for name, values in times.items()}
     bare, episode = median["bare mj_step loop"], median["episode + MCAP log"]
     print(
-        f"{args.duration:g} s episode, {spec.trajectory.ticks} ticks, {spec.model.joints} joints, "
-        f"{spec.model.substeps} physics steps per tick, median of {args.repeats}\n"
+        f"{duration:g} s episode, {spec.trajectory.ticks} ticks, {spec.model.joints} joints, "
+        f"{spec.model.substeps} physics steps per tick, median of {repeats}\n"
     )
-    print("| case | ms | ratio |")
-    print("|---|---:|---:|")
-    for name, seconds in median.items():
+
+    def row(name: str, seconds: float) -> tuple[str, str, str]:
         base, label = (
             (episode, "of episode + log") if name == "score from MCAP" else (bare, "x bare")
         )
-        print(f"| {name} | {seconds * 1000:.1f} | {seconds / base:.2f} {label} |")
-    print(f"\nreal-time factor (episode + log): {args.duration / episode:.0f}x")
+        return name, f"{seconds * 1000:.1f}", f"{seconds / base:.2f} {label}"
+
+    print_table(("case", "ms", "ratio"), "lrr", (row(*item) for item in median.items()))
+    print(f"\nreal-time factor (episode + log): {duration / episode:.0f}x")
     print(f"bytes per episode: {size:,}")
 
 

@@ -1,6 +1,7 @@
 """Generational against steady-state NSGA-II on the same local farm, in one run.
 
     python bench/evolution_bench.py [--pop 30] [--generations 10] [--workers 2] [--seed 1]
+        [--rounds 2]
 
 Both modes tune a generic controller (spiral, random and pyramid, 5 s each: three jobs per
 candidate, of unequal cost since diverging episodes stop early) with the same population, seed and
@@ -9,86 +10,113 @@ the wall time it was reached at, and the workers' utilisation (their time on epi
 workers × wall time). The modes alternate `--rounds` times; the figures are medians.
 """
 
-import argparse
 import statistics
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
+import click
+from common import print_table
+
+from analytic.config import RunConfig
 from analytic.farm import FarmClient
 from analytic.local import local_farm
-from analytic.run import RunConfig, TuningRun
+from analytic.run import TuningRun
 from schemas import TrajectorySpec
 
 TRAJECTORIES = tuple(
     TrajectorySpec(kind=kind, duration=5.0) for kind in ("spiral", "random", "pyramid")
 )
+MODES = ("generational", "steady-state")
 
 
-def tune(endpoint: str, workers: int, config: RunConfig, directory: Path) -> dict[str, object]:
+@dataclass(frozen=True)
+class Tuned:
+    """One run, from its history: a row per generation (per `pop` evaluations)."""
+
+    evaluations: list[int]
+    hypervolume: list[float]
+    wall: list[float]  # s from the run's start
+    utilisation: float  # the workers' time on its episodes over workers × wall time
+    evaluations_per_s: float
+
+
+def tune(endpoint: str, workers: int, config: RunConfig, directory: Path) -> Tuned:
     run = TuningRun.create(directory, config)
     with FarmClient([endpoint], directory.name, directory) as farm:
         run.run(farm)
     history = run.state.history
     wall = history[-1].wall_seconds
-    return {
-        "evaluations": [row.evaluations for row in history],
-        "hypervolume": [row.hypervolume for row in history],
-        "wall": [row.wall_seconds for row in history],
-        "utilisation": run.state.busy_seconds / (workers * wall),
-        "evaluations_per_s": history[-1].evaluations / wall,
-    }
+    return Tuned(
+        evaluations=[row.evaluations for row in history],
+        hypervolume=[row.hypervolume for row in history],
+        wall=[row.wall_seconds for row in history],
+        utilisation=run.state.busy_seconds / (workers * wall),
+        evaluations_per_s=history[-1].evaluations / wall,
+    )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--pop", type=int, default=30)
-    parser.add_argument("--generations", type=int, default=10)
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--rounds", type=int, default=2)
-    options = parser.parse_args()
-    runs: dict[str, list[dict[str, object]]] = {"generational": [], "steady-state": []}
-    with local_farm(options.workers) as endpoint, tempfile.TemporaryDirectory() as scratch:
-        for round_number in range(options.rounds):
-            for mode in runs:
+@click.command(help=__doc__.split("\n\n")[0])
+@click.option("--pop", type=click.IntRange(4, 1000), default=30, show_default=True)
+@click.option(
+    "--generations",
+    type=click.IntRange(min=1),
+    default=10,
+    show_default=True,
+    help="evaluation budget, in generations of pop candidates",
+)
+@click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True)
+@click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True)
+@click.option(
+    "--rounds",
+    type=click.IntRange(min=1),
+    default=2,
+    show_default=True,
+    help="runs of each mode, alternating",
+)
+def main(pop: int, generations: int, workers: int, seed: int, rounds: int) -> None:
+    runs: dict[str, list[Tuned]] = {mode: [] for mode in MODES}
+    with local_farm(workers) as endpoint, tempfile.TemporaryDirectory() as scratch:
+        for round_number in range(rounds):
+            for mode in MODES:
                 config = RunConfig(
-                    pop=options.pop,
-                    seed=options.seed,
+                    pop=pop,
+                    seed=seed,
                     trajectories=TRAJECTORIES,
-                    generations=options.generations,
+                    generations=generations,
                     asynchronous=mode == "steady-state",
                 )
                 directory = Path(scratch) / f"{mode}-{round_number}"
-                runs[mode].append(tune(endpoint, options.workers, config, directory))
-                result = runs[mode][-1]
+                result = tune(endpoint, workers, config, directory)
+                runs[mode].append(result)
                 print(
                     f"round {round_number + 1}, {mode}: hypervolume "
-                    f"{result['hypervolume'][-1]:.4f} after {result['evaluations'][-1]} "
-                    f"evaluations in {result['wall'][-1]:.1f} s, utilisation "
-                    f"{result['utilisation']:.1%}",
+                    f"{result.hypervolume[-1]:.4f} after {result.evaluations[-1]} "
+                    f"evaluations in {result.wall[-1]:.1f} s, utilisation "
+                    f"{result.utilisation:.1%}",
                     flush=True,
                 )
     print()
     print(
-        f"pop {options.pop}, {options.generations} x pop evaluations, {options.workers} workers,"
-        f" generic controller on 3 x 5 s trajectories; medians of {options.rounds} rounds"
+        f"pop {pop}, {generations} x pop evaluations, {workers} workers,"
+        f" generic controller on 3 x 5 s trajectories; medians of {rounds} rounds"
     )
-    print("| evaluations | generational HV | at wall s | steady-state HV | at wall s |")
-    print("|---:|---:|---:|---:|---:|")
-    generational, steady = runs["generational"], runs["steady-state"]
 
-    def median(results: list[dict[str, object]], key: str, index: int) -> float:
-        return statistics.median(result[key][index] for result in results)
+    def median(mode: str, series: str, index: int) -> float:
+        return statistics.median(getattr(result, series)[index] for result in runs[mode])
 
-    for index, evaluations in enumerate(generational[0]["evaluations"]):
-        print(
-            f"| {evaluations} | {median(generational, 'hypervolume', index):.4f} | "
-            f"{median(generational, 'wall', index):.1f} | "
-            f"{median(steady, 'hypervolume', index):.4f} | {median(steady, 'wall', index):.1f} |"
-        )
+    rows = []
+    for index, evaluations in enumerate(runs[MODES[0]][0].evaluations):
+        row = [str(evaluations)]
+        for mode in MODES:
+            row.append(f"{median(mode, 'hypervolume', index):.4f}")
+            row.append(f"{median(mode, 'wall', index):.1f}")
+        rows.append(row)
+    header = ("evaluations", "generational HV", "at wall s", "steady-state HV", "at wall s")
+    print_table(header, "rrrrr", rows)
     for mode, results in runs.items():
-        utilisation = statistics.median(result["utilisation"] for result in results)
-        rate = statistics.median(result["evaluations_per_s"] for result in results)
+        utilisation = statistics.median(result.utilisation for result in results)
+        rate = statistics.median(result.evaluations_per_s for result in results)
         print(f"{mode}: worker utilisation {utilisation:.1%}, {rate:.1f} candidates/s")
 
 

@@ -15,13 +15,13 @@ episodes, a few ms of simulation each) and submits more as results come in. At t
 
 Every `--sample-seconds` it reads VmRSS, RssAnon and RssShmem from /proc/PID/status of the broker,
 this process and each worker; `--out` gets them as CSV (seconds, role, name, pid, rss_mib,
-anon_mib, shmem_mib; plus "workers max" and "workers mean" rows per sample). The summary gives
-jobs submitted, completed, lost (reported lost after every attempt, or still pending after the
-drain), duplicated (results the client received for a job it had evaluated already, plus any
-evaluation handed out twice), retried (evaluated only after a resubmission at the deadline);
-worker starts, stops and kills; RSS at start, after the warm-up and at the end with its slope
-after the warm-up (least squares, MiB/hour) for the broker, the client and the resident worker;
-throughput. Exit status 1 if a job was lost or duplicated, or a worker died unbidden or hung.
+anon_mib, shmem_mib; plus "workers max" and "workers mean" rows per sample), `--events` the
+workers' starts, SIGTERMs and SIGKILLs. A ledger keeps what came back for each job. At the end it
+prints its figures (bench/soak_summary.py, which says how each is measured, and which also
+reads an `--out` CSV on its own): jobs submitted, completed, lost, duplicated and retried; worker
+starts, stops and kills; memory at start, after the warm-up and at the end with its slope after
+the warm-up for the broker, the client and the resident worker; throughput. Exit status 1 if a
+job was lost or duplicated, or a worker died unbidden or hung.
 
 Everything listens on loopback, on a port the kernel picked as free; nothing touches a farm on 7447.
 """
@@ -43,16 +43,26 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import click
-import numpy as np
+from common import loopback_endpoint, scaled_gains
+from soak_summary import (
+    Ledger,
+    Sample,
+    WorkerTally,
+    broker_line,
+    job_lines,
+    memory_lines,
+    samples_csv,
+)
 
-from analytic.farm import Evaluation, FarmClient
-from analytic.local import STOP_SECONDS, free_port, spawn_worker
+from analytic.evaluator import Evaluation
+from analytic.farm import FarmClient
+from analytic.local import STOP_SECONDS, spawn_worker
 from broker.status import BrokerUnavailable
-from schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
+from schemas import EpisodeSpec, TrajectorySpec, keys
 from schemas.files import write_atomically
 from schemas.gains import DEFAULT_GAINS
 from schemas.trajectory import TrajectoryKind
-from schemas.transport import open_session
+from schemas.transport import open_session, token_held
 from schemas.wire import BadMessage, BrokerStatus
 
 STUDY = "soak"
@@ -87,17 +97,6 @@ def resident_mib(pid: int) -> tuple[float, float, float] | None:
     if len(found) < len(STATUS_FIELDS):
         return None
     return found["VmRSS"], found["RssAnon"], found["RssShmem"]
-
-
-@dataclass(frozen=True)
-class Sample:
-    seconds: float
-    role: str  # broker, client, worker, workers
-    name: str
-    pid: int
-    rss_mib: float
-    anon_mib: float
-    shmem_mib: float
 
 
 class Sampler:
@@ -149,27 +148,8 @@ class Sampler:
             self.samples.append(Sample(now, "workers", "mean", 0, *map(statistics.fmean, columns)))
 
     def write(self) -> None:
-        if self.out is None:
-            return
-        text = io.StringIO()
-        writer = csv.writer(text, lineterminator="\n")
-        writer.writerow(["seconds", "role", "name", "pid", "rss_mib", "anon_mib", "shmem_mib"])
-        for s in list(self.samples):
-            mib = (f"{value:.2f}" for value in (s.rss_mib, s.anon_mib, s.shmem_mib))
-            writer.writerow([f"{s.seconds:.1f}", s.role, s.name, s.pid, *mib])
-        write_atomically(self.out, text.getvalue().encode())
-
-    def series(
-        self, role: str, name: str, column: str = "rss_mib"
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """(seconds, MiB) of one process, or of one aggregate row."""
-        rows = [
-            (s.seconds, getattr(s, column))
-            for s in self.samples
-            if s.role == role and s.name == name
-        ]
-        array = np.array(rows, dtype=float).reshape(-1, 2)
-        return array[:, 0], array[:, 1]
+        if self.out is not None:
+            write_atomically(self.out, samples_csv(list(self.samples)))
 
     def _run(self) -> None:
         count = 0
@@ -204,7 +184,7 @@ def start_broker(endpoint: str, lease_seconds: float, log: Path | None) -> subpr
             continue
         try:
             while time.monotonic() < give_up and broker.poll() is None:
-                if any(True for _ in session.liveliness().get(keys.ALIVE_BROKER, timeout=1)):
+                if token_held(session, keys.ALIVE_BROKER):
                     return broker
                 time.sleep(0.05)
         finally:
@@ -227,12 +207,7 @@ class WorkerPool:
     stopping: dict[str, tuple[subprocess.Popen, float]] = field(default_factory=dict)
     resident: str = ""
     serial: int = 0
-    starts: int = 0
-    stops: int = 0
-    kills: int = 0
-    died: list[str] = field(default_factory=list)  # exited without being told to
-    hung: list[str] = field(default_factory=list)  # did not finish within STOP_SECONDS of SIGTERM
-    stop_codes: Counter[int] = field(default_factory=Counter)
+    tally: WorkerTally = field(default_factory=WorkerTally)
     events: list[tuple[float, str, str, str]] = field(default_factory=list)
 
     def note(self, event: str, name: str) -> None:
@@ -254,7 +229,7 @@ class WorkerPool:
         process = spawn_worker(self.endpoint, name)
         self.live[name] = process
         self.sampler.watch(process.pid, "worker", name)
-        self.starts += 1
+        self.tally.starts += 1
         self.resident = self.resident or name
         self.note("start", name)
 
@@ -262,7 +237,7 @@ class WorkerPool:
         process = self.live.pop(name)
         process.terminate()
         self.stopping[name] = (process, time.monotonic())
-        self.stops += 1
+        self.tally.stops += 1
         self.note("sigterm", name)
 
     def kill(self, name: str) -> None:
@@ -270,7 +245,7 @@ class WorkerPool:
         process.kill()
         process.wait()
         self.sampler.forget(process.pid)
-        self.kills += 1
+        self.tally.kills += 1
         self.note("sigkill", name)
 
     def reap(self) -> None:
@@ -278,17 +253,17 @@ class WorkerPool:
         now = time.monotonic()
         for name, (process, since) in list(self.stopping.items()):
             if process.poll() is None and now - since > STOP_SECONDS:
-                self.hung.append(name)
+                self.tally.hung.append(name)
                 self.note("hung", name)
                 process.kill()
                 process.wait()
             if process.poll() is not None:
                 del self.stopping[name]
                 self.sampler.forget(process.pid)
-                self.stop_codes[process.returncode] += 1
+                self.tally.stop_codes[process.returncode] += 1
         for name, process in list(self.live.items()):
             if process.poll() is not None:
-                self.died.append(f"{name} (status {process.returncode})")
+                self.tally.died.append(f"{name} (status {process.returncode})")
                 self.note("died", name)
                 del self.live[name]
                 self.sampler.forget(process.pid)
@@ -332,14 +307,14 @@ class WorkerPool:
     def reap_stopping(self, force: bool = False) -> None:
         for name, (process, _) in list(self.stopping.items()):
             if force and process.poll() is None:
-                self.hung.append(name)
+                self.tally.hung.append(name)
                 self.note("hung", name)
                 process.kill()
                 process.wait()
             if process.poll() is not None:
                 del self.stopping[name]
                 self.sampler.forget(process.pid)
-                self.stop_codes[process.returncode] += 1
+                self.tally.stop_codes[process.returncode] += 1
 
 
 # --- jobs --------------------------------------------------------------------------------------
@@ -351,80 +326,14 @@ def job_spec(rng: random.Random) -> EpisodeSpec:
     kind = rng.choice(list(TrajectoryKind))
     seed = rng.choice(RANDOM_SEEDS) if kind == TrajectoryKind.random else 0
     trajectory = TrajectorySpec(kind=kind, duration=rng.choice(DURATIONS), seed=seed)
-    gains = PDGains(
-        kp=tuple(k * rng.uniform(0.7, 1.3) for k in DEFAULT_GAINS.kp),
-        kd=tuple(k * rng.uniform(0.7, 1.3) for k in DEFAULT_GAINS.kd),
+    gains = scaled_gains(
+        [rng.uniform(0.7, 1.3) for _ in DEFAULT_GAINS.kp],
+        [rng.uniform(0.7, 1.3) for _ in DEFAULT_GAINS.kd],
     )
     return EpisodeSpec(gains=gains, trajectory=trajectory)
 
 
-@dataclass
-class Ledger:
-    """What came back for each job. Job ids are serial numbers, and times seen are kept in a
-    bytearray, one byte per job: a set of ids would grow this process by megabytes an hour and
-    blur the client's own memory slope."""
-
-    submitted: int = 0
-    seen: bytearray = field(default_factory=bytearray)
-    statuses: Counter[str] = field(default_factory=Counter)
-    evaluated_twice: int = 0
-    retried: list[str] = field(default_factory=list)  # job ids evaluated after a resubmission
-    lost_reasons: list[str] = field(default_factory=list)
-
-    def next_ids(self, count: int) -> list[str]:
-        ids = [f"j{self.submitted + index}" for index in range(count)]
-        self.submitted += count
-        self.seen.extend(bytes(count))
-        return ids
-
-    def record(self, evaluation: Evaluation) -> None:
-        index = int(evaluation.job_id.removeprefix("j"))
-        if self.seen[index]:
-            self.evaluated_twice += 1
-        self.seen[index] = min(self.seen[index] + 1, 255)
-        self.statuses[evaluation.status] += 1
-        if evaluation.attempts > 1:
-            self.retried.append(f"{evaluation.job_id} (from {evaluation.worker or '-'})")
-        if evaluation.status == "lost":
-            self.lost_reasons.append(f"{evaluation.job_id}: {evaluation.reason}")
-        if evaluation.episode is not None:
-            evaluation.episode.unlink(missing_ok=True)  # hours of logs would fill the disk
-
-    @property
-    def completed(self) -> int:
-        return sum(count for status, count in self.statuses.items() if status != "lost")
-
-    def unanswered(self) -> int:
-        return self.seen.count(0)
-
-
 # --- the soak ----------------------------------------------------------------------------------
-
-
-def slope(seconds: np.ndarray, mib: np.ndarray) -> str:
-    """Least-squares MiB per hour, as text."""
-    if seconds.size < 3 or np.ptp(seconds) == 0:
-        return "n/a"
-    return f"{np.polyfit(seconds / 3600, mib, 1)[0]:+.1f} MiB/h"
-
-
-def memory(sampler: Sampler, role: str, name: str, warm_up: float) -> str | None:
-    """RSS at start, after the warm-up and at the end, and its slope after the warm-up; the
-    same for its anonymous and shared-memory parts."""
-    seconds, rss = sampler.series(role, name)
-    if seconds.size == 0:
-        return None
-    late = seconds >= warm_up
-    if not late.any():
-        late[-1] = True
-    _, anon = sampler.series(role, name, "anon_mib")
-    _, shmem = sampler.series(role, name, "shmem_mib")
-    return (
-        f"{rss[0]:.1f} MiB at start, {rss[late][0]:.1f} after warm-up, {rss[-1]:.1f} at end "
-        f"(anonymous {anon[-1]:.1f}, shared memory {shmem[-1]:.1f}); slope after warm-up "
-        f"{slope(seconds[late], rss[late])} (anonymous {slope(seconds[late], anon[late])}, "
-        f"shared memory {slope(seconds[late], shmem[late])})"
-    )
 
 
 class ClientWarnings(logging.Handler):
@@ -498,7 +407,8 @@ def echo(started: float, text: str) -> None:
 @click.option(
     "--out",
     type=click.Path(dir_okay=False, path_type=Path),
-    help="CSV of memory samples: seconds, role, name, pid, rss_mib, anon_mib, shmem_mib",
+    help="CSV of memory samples: seconds, role, name, pid, rss_mib, anon_mib, shmem_mib "
+    "(bench/soak_summary.py reads it)",
 )
 @click.option(
     "--events",
@@ -537,7 +447,7 @@ def main(
         raise click.BadParameter(f"{out.parent} is not a directory", param_hint="--out")
 
     started = time.monotonic()
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = loopback_endpoint()
     sampler = Sampler(sample_seconds, out, started)
     ledger = Ledger()
     job_rng, churn_rng = random.Random(seed), random.Random(seed + 1)
@@ -547,7 +457,6 @@ def main(
     sampler.watch(os.getpid(), "client", "client")
     final_status: BrokerStatus | None = None
     broker_code: int | None = None
-    duplicates = ignored = 0
     warnings = ClientWarnings(started)
     logging.getLogger("gainfarm.analytic").addHandler(warnings)
     try:
@@ -563,6 +472,11 @@ def main(
             ) as farm,
         ):
 
+            def take(evaluation: Evaluation) -> None:
+                ledger.record(evaluation)
+                if evaluation.log is not None:
+                    evaluation.log.unlink(missing_ok=True)  # hours of logs would fill the disk
+
             def top_up() -> None:
                 want = pending - farm.pending
                 if want > 0:
@@ -575,7 +489,7 @@ def main(
             top_up()
             while time.monotonic() < end:
                 for evaluation in farm.results(timeout=0.2):
-                    ledger.record(evaluation)
+                    take(evaluation)
                     last_result = time.monotonic()
                     if farm.pending <= pending // 2:
                         top_up()
@@ -595,18 +509,19 @@ def main(
                     echo(
                         started,
                         f"{ledger.completed:,} done ({rate:.1f}/s), {farm.pending} pending, "
-                        f"{len(pool.live)} workers, {pool.starts} starts, {pool.stops} stops, "
-                        f"{pool.kills} kills; last result {now - last_result:.1f} s ago",
+                        f"{len(pool.live)} workers, {pool.tally.starts} starts, "
+                        f"{pool.tally.stops} stops, {pool.tally.kills} kills; "
+                        f"last result {now - last_result:.1f} s ago",
                     )
             echo(started, f"draining {farm.pending} pending jobs")
             pool.reap()
             drained = time.monotonic()
             for evaluation in farm.results(timeout=deadline * attempts + 30):
-                ledger.record(evaluation)
+                take(evaluation)
             echo(started, f"drained in {time.monotonic() - drained:.1f} s")
             finished = time.monotonic()
             final_status = broker_status(farm)
-            duplicates, ignored = farm.duplicates, farm.ignored
+            ledger.duplicate_results, ledger.ignored = farm.duplicates, farm.ignored
     finally:
         pool.close()
         broker.terminate()
@@ -619,57 +534,20 @@ def main(
         if events is not None:
             pool.write_events(events)
 
-    lost = ledger.statuses["lost"] + ledger.unanswered()
-    duplicated = duplicates + ledger.evaluated_twice
     lines = [
         f"soak: {minutes:g} min, workers {workers_min}-{workers_max}, seed {seed}, "
         f"{pending} jobs in flight, "
         + (f"churn every {churn_seconds:g} s" if churn else "no churn")
         + f", warm-up {warm_up:.0f} s",
-        f"jobs submitted: {ledger.submitted:,}",
-        f"jobs completed: {ledger.completed:,} ("
-        + ", ".join(f"{s} {n:,}" for s, n in sorted(ledger.statuses.items()) if s != "lost")
-        + ")",
-        f"jobs lost: {lost} ({ledger.statuses['lost']} reported lost, "
-        f"{ledger.unanswered()} never answered)",
-        f"jobs duplicated: {duplicated} ({duplicates} duplicate results received, "
-        f"{ledger.evaluated_twice} evaluations of a job already evaluated)",
-        f"jobs retried after the deadline: {len(ledger.retried)}"
-        + (f" ({', '.join(ledger.retried[:10])})" if ledger.retried else "")
-        + f"; results ignored: {ignored}",
-        "client warnings: "
-        + (", ".join(f"{n} x {msg!r}" for msg, n in warnings.counts.items()) or "none"),
-        f"throughput: {ledger.completed / (finished - started):.1f} jobs/s over "
-        f"{finished - started:.0f} s",
-        f"workers: {pool.starts} starts, {pool.stops} SIGTERM stops, {pool.kills} SIGKILLs; "
-        f"stop statuses {dict(pool.stop_codes)}; died unbidden: {pool.died or 0}; "
-        f"hung on SIGTERM: {pool.hung or 0}",
+        *job_lines(ledger, warnings.counts, finished - started),
+        pool.tally.line(),
     ]
     if final_status is not None:
-        lines.append(
-            f"broker: {final_status.jobs_done:,} jobs done, {final_status.requeued} requeued, "
-            f"{final_status.rejected} rejected; exit status {broker_code}"
-        )
-    for role, name, label in (
-        ("broker", "broker", "broker RSS"),
-        ("client", "client", "client RSS"),
-        ("worker", pool.resident, f"resident worker {pool.resident} RSS"),
-    ):
-        found = memory(sampler, role, name, warm_up)
-        if found is not None:
-            lines.append(f"{label}: {found}")
-    _, peaks = sampler.series("workers", "max")
-    _, means = sampler.series("workers", "mean")
-    if peaks.size:
-        workers = len({s.pid for s in sampler.samples if s.role == "worker"})
-        lines.append(
-            f"worker RSS: peak {peaks.max():.1f} MiB, mean {means.mean():.1f} MiB "
-            f"over {workers} workers"
-        )
-    for reason in ledger.lost_reasons[:10]:
-        lines.append(f"  lost {reason}")
+        lines.append(broker_line(final_status, broker_code))
+    lines += memory_lines(sampler.samples, pool.resident, warm_up)
+    lines += [f"  lost {reason}" for reason in ledger.lost_reasons[:10]]
     click.echo("\n".join(lines))
-    if lost or duplicated or pool.died or pool.hung:
+    if ledger.lost or ledger.duplicated or pool.tally.died or pool.tally.hung:
         raise SystemExit(1)
 
 

@@ -1,0 +1,175 @@
+"""The broker's capacity: no-op jobs per second and lease latency, with the rest of the farm in a
+second process.
+
+    python bench/broker_capacity.py [--quick] [--jobs 20000] [--runs 3] [--noop-workers 8]
+
+The broker runs alone in this process. A second process plays the rest of the farm: a submitting
+client holding the study's liveliness token, and K no-op workers, each a thread with its own
+client session and liveliness token, that ask for a lease and at once put an ok Result with an
+empty log. With 2 cores, this gives the broker (Zenoh's router, its callbacks, the queue) a core
+and the load the other, instead of one GIL for both. Jobs per second is the broker's own count of
+jobs done over the time from the workers' start to the last completion; lease latency is from a
+worker's get to the reply carrying a lease, as the worker sees it. Two settings, alternating, each
+run several times (the figures are those of the run with the median jobs per second):
+
+- "live": the submitter sends Submissions as big as FarmClient's (SUBMIT_CHUNK jobs) while the
+  workers run, keeping a few thousand jobs queued: the broker decodes submissions and leases at
+  once;
+- "pre-filled": every job is queued before the workers start: leasing and results alone.
+
+The CPU time per job of the broker's process (over the same interval) and of the load process is
+printed too; the load costs about as much as the broker, so the two cores are near full.
+
+Everything listens on loopback, on a port the kernel picked as free; nothing touches a farm on 7447.
+"""
+
+import threading
+import time
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+
+import click
+from common import SPAWN, FakeAnalytic, NoopWorker, loopback_endpoint, percentile_ms
+
+from analytic.farm import SUBMIT_CHUNK
+from broker.service import Broker
+from schemas.transport import open_session
+
+AHEAD = 2_000  # jobs the live submitter keeps queued beyond those completed
+
+
+def noop_load(endpoint: str, jobs: int, workers: int, prefill: bool, parent: Connection) -> None:
+    """The load: a submitter and `workers` no-op workers. Sends the time it starts, works until
+    the parent (which sees the broker's count of jobs done) says stop, then sends what it
+    measured."""
+    submitter = FakeAnalytic(endpoint, "bench-noop")
+    payloads = submitter.submissions(jobs)
+    if prefill:
+        for payload in payloads:
+            submitter.submit(payload)
+        payloads = []
+    sessions = [open_session("client", connect=[endpoint]) for _ in range(workers)]
+    farm = [NoopWorker(session, f"noop-{i}", submitter.study) for i, session in enumerate(sessions)]
+    stop = threading.Event()
+    threads = [threading.Thread(target=worker.serve, args=(stop,)) for worker in farm]
+
+    def done() -> int:
+        return sum(worker.completed for worker in farm)
+
+    parent.send(time.monotonic())
+    cpu = time.process_time()
+    for thread in threads:
+        thread.start()
+    for index, payload in enumerate(payloads):
+        while index * SUBMIT_CHUNK - done() > AHEAD:
+            time.sleep(0.001)
+        submitter.submit(payload)
+    parent.recv()
+    cpu = time.process_time() - cpu
+    stop.set()
+    for thread in threads:
+        thread.join()
+    parent.send(
+        {
+            "latencies": [latency for worker in farm for _, latency in worker.leases],
+            "results": done(),
+            "cpu": cpu,
+        }
+    )
+    for worker in farm:
+        worker.close()
+    for session in sessions:
+        session.close()
+    submitter.close()
+
+
+@dataclass
+class Capacity:
+    prefill: bool
+    jobs_per_s: float
+    p50_ms: float
+    p99_ms: float
+    broker_us: float  # CPU time of the broker's process per job
+    load_us: float  # CPU time of the load process per job
+    requeued: int  # leases the broker took back and queued again
+    duplicates: int  # results for jobs already done
+
+
+def capacity(jobs: int, workers: int, prefill: bool) -> Capacity:
+    endpoint = loopback_endpoint()
+    with Broker([endpoint]) as broker:
+        here, there = SPAWN.Pipe()
+        load = SPAWN.Process(target=noop_load, args=(endpoint, jobs, workers, prefill, there))
+        load.start()
+        started: float = here.recv()
+        cpu = time.process_time()
+        while broker.queue.jobs_done < jobs:  # a poll every 2 ms costs the broker next to nothing
+            if not load.is_alive():
+                done = broker.queue.jobs_done
+                raise RuntimeError(f"the load process ended with {done} of {jobs} jobs done")
+            time.sleep(0.002)
+        finished, cpu = time.monotonic(), time.process_time() - cpu
+        here.send("stop")
+        outcome = here.recv()
+        load.join()
+        requeued = broker.queue.requeued
+    return Capacity(
+        prefill=prefill,
+        jobs_per_s=jobs / (finished - started),
+        p50_ms=percentile_ms(outcome["latencies"], 50),
+        p99_ms=percentile_ms(outcome["latencies"], 99),
+        broker_us=cpu / jobs * 1e6,
+        load_us=outcome["cpu"] / jobs * 1e6,
+        requeued=requeued,
+        duplicates=outcome["results"] - jobs,
+    )
+
+
+def capacities(jobs: int, workers: int, runs: int) -> tuple[Capacity, Capacity]:
+    """The live and the pre-filled setting, alternating; of each, the run with the median
+    jobs per second (the upper median for an even number of runs)."""
+    found: dict[bool, list[Capacity]] = {False: [], True: []}
+    for index in range(runs):
+        for prefill in (False, True):
+            run = capacity(jobs, workers, prefill)
+            found[prefill].append(run)
+            print(
+                f"  run {index + 1}/{runs}, {'pre-filled' if prefill else 'live'}: "
+                f"{run.jobs_per_s:,.0f} jobs/s, lease p50 {run.p50_ms:.1f} ms, "
+                f"p99 {run.p99_ms:.1f} ms; CPU per job: broker {run.broker_us:.0f} µs, "
+                f"load {run.load_us:.0f} µs; {run.requeued:,} requeued, "
+                f"{run.duplicates:,} duplicate results",
+                flush=True,
+            )
+
+    def median(runs: list[Capacity]) -> Capacity:
+        return sorted(runs, key=lambda run: run.jobs_per_s)[len(runs) // 2]
+
+    return median(found[False]), median(found[True])
+
+
+@click.command(help=__doc__.split("\n\n")[0])
+@click.option("--quick", is_flag=True, help="a smoke run of under a minute")
+@click.option(
+    "--jobs", type=click.IntRange(min=1), help="per run  [default: 20,000; --quick: 3,000]"
+)
+@click.option(
+    "--runs", type=click.IntRange(min=1), help="runs per setting  [default: 3; --quick: 1]"
+)
+@click.option("--noop-workers", type=click.IntRange(min=1), default=8, show_default=True)
+def main(quick: bool, jobs: int | None, runs: int | None, noop_workers: int) -> None:
+    jobs = jobs or (3_000 if quick else 20_000)
+    runs = runs or (1 if quick else 3)
+    print(f"broker: {jobs:,} no-op jobs per run, {noop_workers} no-op workers", flush=True)
+    live, prefilled = capacities(jobs, noop_workers, runs)
+    print()
+    for run, setting in ((live, "submitting meanwhile"), (prefilled, "queue pre-filled")):
+        print(
+            f"broker: {run.jobs_per_s:,.0f} no-op jobs/s, lease latency "
+            f"p50 {run.p50_ms:.1f} ms, p99 {run.p99_ms:.1f} ms ({noop_workers} no-op "
+            f"workers, {setting}; median of {runs} runs)"
+        )
+
+
+if __name__ == "__main__":
+    main()
