@@ -220,7 +220,7 @@ def start(
             asynchronous=asynchronous,
         )
     except ValidationError as error:
-        raise CliError(describe(error)) from None
+        raise CliError(_config_problem(error)) from None
     out = out or Path("runs") / time.strftime("%Y%m%d-%H%M%S")
     try:
         run = TuningRun.create(out, config)
@@ -383,7 +383,7 @@ def experiment(
         for value in duration_list:
             TrajectorySpec(duration=value)
     except ValidationError as error:
-        raise CliError(describe(error)) from None
+        raise CliError(_config_problem(error)) from None
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as error:
@@ -415,6 +415,12 @@ def experiment(
         click.echo("analytic: stopped; run the same command again to go on", err=True)
         sys.exit(130)
     console.print(f"{name}: report, figures and results.csv in {out}/")
+
+
+def _config_problem(error: ValidationError) -> str:
+    """A RunConfig's complaint in one line; its rule on the termination names the options."""
+    text = describe(error)
+    return text.replace("generations and evaluations", "--generations and --evaluations")
 
 
 @contextlib.contextmanager

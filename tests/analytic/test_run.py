@@ -196,7 +196,7 @@ def test_start_and_resume_commands(tmp_path: Path) -> None:
     ("arguments", "message"),
     [
         (["--pop", "2"], "--pop"),
-        (["--generations", "2", "--evaluations", "10"], "exclude each other"),
+        (["--generations", "2", "--evaluations", "10"], "--generations and --evaluations exclude"),
         (["--local", "--connect", "tcp/127.0.0.1:7447"], "exclude each other"),
         (["--duration", "500"], "duration: Input should be less than or equal to 120"),
         (["--out", "/proc/no/such/dir"], "--out: cannot write"),
