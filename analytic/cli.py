@@ -7,8 +7,9 @@ import os
 import pickle
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TypeVar
 
 import click
 from pydantic import TypeAdapter, ValidationError
@@ -19,7 +20,7 @@ from rich.table import Table
 from analytic import experiments
 from analytic.batch import EVALUATIONS, batch_jobs, run_batch
 from analytic.config import RunConfig
-from analytic.dataset import NoEpisodes
+from analytic.dataset import NoEpisodes, UnreadableRun
 from analytic.dataset import build as build_dataset
 from analytic.evaluator import Evaluation
 from analytic.experiments import Experiment
@@ -27,6 +28,7 @@ from analytic.farm import DEFAULT_DEADLINE, FarmClient, FarmUnavailable
 from analytic.local import local_farm
 from analytic.records import CONFIG_JSON
 from analytic.run import RunProgress, TuningRun
+from analytic.tuning import run_study
 from cli import options
 from cli.app import CliError, parse_numbers, run_app
 from cli.scores import show_scores
@@ -38,10 +40,42 @@ from schemas.security import TlsIdentity
 from schemas.trajectory import TrajectorySpec
 from schemas.wire import BadMessage, describe
 
+F = TypeVar("F", bound=Callable[..., object])
+
 
 @click.group(help=__doc__, no_args_is_help=True)
 def app() -> None:
     pass
+
+
+def _bounds(field: str) -> click.IntRange:
+    """The range RunConfig allows a field, as click's type: one rule, stated once."""
+    limits = {
+        name: getattr(rule, name)
+        for rule in RunConfig.model_fields[field].metadata
+        for name in ("ge", "le")
+        if hasattr(rule, name)
+    }
+    return click.IntRange(min=limits.get("ge"), max=limits.get("le"))
+
+
+def pop_option() -> Callable[[F], F]:
+    return click.option(
+        "--pop", type=_bounds("pop"), default=30, show_default=True, help="population size"
+    )
+
+
+def termination_options(per_run: bool = False) -> Callable[[F], F]:
+    """--generations and --evaluations (which exclude each other: RunConfig says so)."""
+    when = "per run, instead of converging: " if per_run else ""
+    return options.stack(
+        click.option(
+            "--generations", type=_bounds("generations"), help=f"{when}stop after N generations"
+        ),
+        click.option(
+            "--evaluations", type=_bounds("evaluations"), help=f"{when}stop after N evaluations"
+        ),
+    )
 
 
 # Where the farm is, the same for every command that uses one.
@@ -162,14 +196,14 @@ def batch(
 
 
 @app.command()
-@options.pop()
+@pop_option()
 @options.trajectory(
     multiple=True,
     help="one: a specific controller; several (repeat): a generic one, objectives averaged",
 )
 @options.duration()
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
-@options.termination()
+@termination_options()
 @options.model(help=None)
 @farm_options
 @click.option("--out", type=click.Path(path_type=Path), help="run directory  [default: runs/TIME]")
@@ -257,7 +291,7 @@ def _tune(
     try:
         with _farm(connect, workers) as endpoints:
             try:
-                farm = FarmClient(endpoints, f"run-{os.getpid()}", run.directory, identity=identity)
+                farm = FarmClient(endpoints, run_study(), run.directory, identity=identity)
             except (ValueError, ConnectionError) as error:
                 raise CliError(str(error)) from None
             with (
@@ -316,7 +350,7 @@ def dataset(run_dirs: tuple[Path, ...], out: Path, selection: str) -> None:
         raise CliError(f"--out: {str(out)!r} already exists")
     try:
         counts = build_dataset(list(run_dirs), out, selection)
-    except NoEpisodes as error:
+    except (NoEpisodes, UnreadableRun) as error:
         raise CliError(str(error)) from None
     except OSError as error:
         raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
@@ -341,9 +375,9 @@ def dataset(run_dirs: tuple[Path, ...], out: Path, selection: str) -> None:
 @click.option(
     "--durations", default="3,4,5,6", show_default=True, help="speed: spiral durations, s"
 )
-@options.pop()
+@pop_option()
 @options.duration(help="trajectory duration, s (popsize, generic-vs-specific)")
-@options.termination(per_run=True)
+@termination_options(per_run=True)
 @farm_options
 @click.option(
     "--out",
@@ -425,7 +459,8 @@ def _config_problem(error: ValidationError) -> str:
 
 @contextlib.contextmanager
 def _farm(connect: tuple[str, ...], workers: int) -> Iterator[list[str]]:
-    """The endpoints to use: the given broker's, or else a local farm's."""
+    """The endpoints to use: the given broker's, or else a local farm's (a local farm that
+    cannot start is one line; what goes wrong later in the block is not relabelled)."""
     if connect:
         yield list(connect)
         return

@@ -24,6 +24,7 @@ import pyarrow.parquet as pq
 
 from analytic.evolution import normalise
 from analytic.records import FrontMember, RunRecord, read_run
+from analytic.run import upgrade
 from schemas.episode_log import EpisodeLog
 from schemas.files import write_atomically
 from schemas.mcap_episode import read_episode
@@ -38,6 +39,10 @@ AXES = ("x", "y", "z")
 
 
 class NoEpisodes(ValueError):
+    pass
+
+
+class UnreadableRun(ValueError):
     pass
 
 
@@ -64,11 +69,15 @@ def sources(run_dirs: Sequence[Path], selection: Selection) -> list[Source]:
     """Every kept log of the selected members, read from each run's front.json."""
     found = []
     for run_dir in run_dirs:
-        run = read_run(run_dir)
+        try:
+            upgrade(run_dir)
+            run = read_run(run_dir)
+        except (OSError, ValueError) as error:
+            raise UnreadableRun(f"{str(run_dir)!r}: unreadable run ({error})") from None
         name = Path(run_dir).resolve().name
         for member in select(run, selection):
-            for episode in member.episodes:
-                path = Path(run_dir) / episode
+            for log in member.logs:
+                path = Path(run_dir) / log
                 if path.is_file():
                     found.append(Source(f"{name}-{path.stem}", name, path, member))
     if not found:

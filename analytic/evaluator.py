@@ -7,13 +7,16 @@ whatever order they complete; it never learns whether they ran on a farm of a hu
 the same part: the loop is written once, and tested in milliseconds with a stand-in.
 """
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
 from typing import Protocol
 
 from schemas.episode import EpisodeSpec, Scores
+from schemas.files import write_atomically
+from schemas.mcap_episode import NotAnEpisodeLog, decode_episode
+from schemas.objectives import score
 from schemas.wire import Timings
 
 
@@ -40,8 +43,22 @@ class Evaluation:
     timings: Timings | None
 
 
+def accept_log(content: bytes, spec: EpisodeSpec, path: Path | None, source: str) -> Scores:
+    """What every evaluator does with an episode's log: decode it, check that it is the episode
+    of `spec`, keep it at `path` (atomically; not at all without a path) and score it.
+    NotAnEpisodeLog, naming `source`, if it is not a whole log of that episode."""
+    episode = decode_episode(content, source)
+    if episode.metadata.spec != spec:
+        raise NotAnEpisodeLog("the log is of another episode than the one submitted")
+    if path is not None:
+        write_atomically(path, content)
+    return score(episode)
+
+
 class Evaluator(Protocol):
-    """Runs episodes for a tuning run. Every job submitted yields exactly one evaluation."""
+    """Runs episodes for a tuning run. Every job submitted yields exactly one evaluation (unless
+    cancelled). A kept log is at RUN/episodes/<job id>.mcap, RUN being the run directory the
+    evaluator was made for: the run prunes and indexes logs by that convention."""
 
     @property
     def capacity(self) -> int:
@@ -54,4 +71,9 @@ class Evaluator(Protocol):
 
     def results(self) -> Iterator[Evaluation]:
         """Evaluations of the submitted jobs as they complete, until none is pending."""
+        ...
+
+    def cancel(self, job_ids: Iterable[str]) -> None:
+        """Forget these jobs: no evaluation of them will be yielded (a run that stops drops
+        what it still has in flight)."""
         ...

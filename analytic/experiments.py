@@ -24,9 +24,22 @@ from analytic.config import RunConfig
 from analytic.evaluator import Evaluator
 from analytic.evolution import hypervolume, non_dominated_indices
 from analytic.figures import plot_generic_vs_specific, plot_popsize, plot_speed
-from analytic.records import CONFIG_JSON, FrontMember, RunRecord, read_run, results_csv
-from analytic.reports import write_experiment_report
-from analytic.run import TuningRun
+from analytic.records import (
+    CONFIG_JSON,
+    REPORT_MD,
+    FrontMember,
+    RunRecord,
+    read_run,
+    results_csv,
+)
+from analytic.reports import (
+    controllers_table,
+    experiment_setup,
+    popsize_table,
+    speed_table,
+    write_experiment_report,
+)
+from analytic.run import TuningRun, upgrade
 from schemas.episode import EpisodeSpec
 from schemas.files import write_atomically
 from schemas.objectives import NO_EPISODE
@@ -51,10 +64,12 @@ class Experiment:
     def tune(self, name: str, config: RunConfig) -> RunRecord:
         """The run `name` of `config`: kept if finished, resumed if not, started if new."""
         directory = self.out / "runs" / name
-        record = read_run(directory) if (directory / CONFIG_JSON).exists() else None
+        record = _read(directory) if (directory / CONFIG_JSON).exists() else None
         if record is not None and record.config != config:
             raise ValueError(f"{directory} holds a run of another configuration")
-        if record is None or record.stopped is None:
+        # Finished means stopped and reported: a run killed between its last records and its
+        # figures is opened again, which only draws them.
+        if record is None or record.stopped is None or not (directory / REPORT_MD).exists():
             run = TuningRun.open(directory) if record else TuningRun.create(directory, config)
             with self.evaluator(f"{self.out.name}-{name}", directory) as evaluator:
                 run.run(
@@ -63,7 +78,7 @@ class Experiment:
                         f"{name}: generation {step.generation}, {step.evaluations} evaluations"
                     ),
                 )
-            record = read_run(directory)
+            record = _read(directory)
         self.tested += [point for point in record.evaluated if point != NO_EPISODE]
         return record
 
@@ -103,6 +118,15 @@ class Experiment:
 
     def write_results(self, rows: list[dict[str, object]]) -> None:
         write_atomically(self.out / "results.csv", results_csv(rows))
+
+
+def _read(directory: Path) -> RunRecord:
+    """A run of the experiment from its plain files; ValueError naming it if unreadable."""
+    try:
+        upgrade(directory)
+        return read_run(directory)
+    except (OSError, ValueError) as error:
+        raise ValueError(f"{directory}: unreadable run ({error})") from None
 
 
 def non_dominated(points: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
@@ -148,8 +172,7 @@ def popsize(experiment: Experiment, base: RunConfig, sizes: Sequence[int], reps:
     best_hv = max(sizes, key=lambda s: medians[s][0])
     # The trade-off: the smallest population whose median hypervolume is within 1 % of the best.
     trade_off = min(s for s in sizes if medians[s][0] >= 0.99 * medians[best_hv][0])
-    table = ["| population | median hypervolume | median evaluations |", "|---:|---:|---:|"]
-    table += [f"| {s} | {medians[s][0]:.4f} | {medians[s][1]:.0f} |" for s in sizes]
+    table = popsize_table(medians)
     verdict = (
         f"The best median hypervolume comes with population {best_hv}; the smallest population "
         f"within 1 % of it is {trade_off}, at a median of {medians[trade_off][1]:.0f} "
@@ -199,8 +222,7 @@ def generic_vs_specific(experiment: Experiment, base: RunConfig, reps: int) -> N
         {kind: sorted(non_dominated(fronts[kind][0])) for kind in ("specific", "generic")},
     )
     median = {kind: statistics.median(values[kind]) for kind in fronts}
-    table = ["| controller | median hypervolume on the pyramid |", "|---|---:|"]
-    table += [f"| {kind} | {median[kind]:.4f} |" for kind in fronts]
+    table = controllers_table(median)
     lead = median["specific"] - median["generic"]
     spread = max((statistics.stdev(v) for v in values.values() if len(v) > 1), default=0.0)
     if lead > spread:
@@ -271,14 +293,7 @@ def speed(experiment: Experiment, base: RunConfig, durations: Sequence[float], r
     plot_speed(experiment.out / "speed.png", durations, hv, error)
     own = {d: error[(d, d)] for d in durations}
     transfer = [error[(t, u)] / own[u] - 1 for t in durations for u in durations if t != u]
-    table = [
-        "| tuned on | " + " | ".join(f"on {d:g} s" for d in durations) + " |",
-        "|---|" + "---:|" * len(durations),
-    ]
-    table += [
-        f"| {t:g} s | " + " | ".join(f"{error[(t, u)] * 1000:.2f} mm" for u in durations) + " |"
-        for t in durations
-    ]
+    table = speed_table(durations, error)
     ordered = sorted(durations)
     on_own = ", ".join(f"{own[d] * 1000:.2f} mm at {d:g} s" for d in ordered)
     gain = own[ordered[0]] - own[ordered[-1]]
@@ -312,17 +327,10 @@ def _report(
     verdict: str,
     figures: list[str],
 ) -> None:
-    reference = experiment.reference
     write_experiment_report(
         experiment.out / "report.md",
         title=title,
-        setup=[
-            f"{reps} repetitions (seeds 0..{reps - 1}); base configuration: population "
-            f"{base.pop}, {base.termination_text}, {base.model.joints} joints",
-            f"common reference point: f_acc {reference[0]:.4g} m, f_t {reference[1]:.4g} (N·m)² "
-            "(the worst among all controllers tested in this experiment)",
-            "runs in `runs/`, raw numbers in `results.csv`",
-        ],
+        setup=experiment_setup(base, reps, experiment.reference),
         table=table,
         verdict=verdict,
         figures=figures,

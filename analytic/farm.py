@@ -14,19 +14,17 @@ job once however many results arrive for it, and scores every episode from its l
 import logging
 import queue
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import zenoh
 
-from analytic.evaluator import Evaluation, EvaluationStatus
+from analytic.evaluator import Evaluation, EvaluationStatus, accept_log
 from broker.status import BrokerUnavailable, query_status
 from schemas import keys
 from schemas.episode import EpisodeSpec
-from schemas.files import write_atomically
-from schemas.mcap_episode import NotAnEpisodeLog, decode_episode
-from schemas.objectives import score
+from schemas.mcap_episode import NotAnEpisodeLog
 from schemas.security import TlsIdentity
 from schemas.transport import open_session, token_held
 from schemas.wire import (
@@ -77,8 +75,8 @@ class FarmClient:
     ):
         Submission(study=study, jobs=[])  # validates the name before it becomes a key
         self.study = study
-        self.episodes = Path(run_dir) / "episodes"
-        self.episodes.mkdir(parents=True, exist_ok=True)
+        self.log_dir = Path(run_dir) / "episodes"
+        self.log_dir.mkdir(parents=True, exist_ok=True)
         self.deadline = deadline
         self.attempts = attempts
         self.duplicates = 0
@@ -126,6 +124,14 @@ class FarmClient:
         for job in jobs:
             self._pending[job.job_id] = _Pending(job.spec, expiry)
         self._send(jobs)
+
+    def cancel(self, job_ids: Iterable[str]) -> None:
+        """Stop waiting for these jobs; a result that still comes for one is counted as a
+        duplicate and dropped. (The broker may still run them: the study's token decides.)"""
+        dropped = set(job_ids)
+        for job_id in dropped:
+            self._pending.pop(job_id, None)
+        self._ready = [evaluation for evaluation in self._ready if evaluation.job_id not in dropped]
 
     def results(self, timeout: float | None = None) -> Iterator[Evaluation]:
         """Yield evaluations as they complete, until none is pending (or `timeout` s pass)."""
@@ -279,21 +285,19 @@ class FarmClient:
                 log=None,
                 reason=result.reason,
             )
+        path = self.log_dir / f"{result.job_id}.mcap"
         try:
             if len(content) > MAX_EPISODE_BYTES or len(content) != result.episode_bytes:
                 raise NotAnEpisodeLog(f"{len(content)} bytes, not the {result.episode_bytes} sent")
-            episode = decode_episode(content, f"episode of {result.job_id} from {result.worker}")
-            if episode.metadata.spec != pending.spec:
-                raise NotAnEpisodeLog("the log is of another episode than the one submitted")
+            source = f"episode of {result.job_id} from {result.worker}"
+            scores = accept_log(content, pending.spec, path, source)
         except NotAnEpisodeLog as error:
             return self._run_again(result, pending, f"unusable episode log: {error}")
         del self._pending[result.job_id]
-        path = self.episodes / f"{result.job_id}.mcap"
-        write_atomically(path, content)
         return Evaluation(
             **common,
             status=EvaluationStatus(result.status.value),
-            scores=score(episode),
+            scores=scores,
             log=path,
             reason=result.reason,
         )

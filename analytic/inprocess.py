@@ -7,14 +7,12 @@ of the spec, it simulates nothing and keeps no log: the tuning loop's own tests,
 run in milliseconds.
 """
 
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 
-from analytic.evaluator import Evaluation, EvaluationStatus
+from analytic.evaluator import Evaluation, EvaluationStatus, accept_log
 from schemas.episode import EpisodeSpec, Scores
-from schemas.files import write_atomically
-from schemas.mcap_episode import decode_episode
-from schemas.objectives import score
+from schemas.mcap_episode import NotAnEpisodeLog
 from schemas.wire import JobStatus
 
 WORKER = "in-process"  # the worker name evaluations carry
@@ -29,9 +27,9 @@ class InProcessEvaluator:
     ):
         """Keep logs in `run_dir`/episodes/ (none without a run directory); score each job with
         `scorer` instead of simulating it, if given."""
-        self.episodes = Path(run_dir) / "episodes" if run_dir is not None else None
-        if self.episodes is not None:
-            self.episodes.mkdir(parents=True, exist_ok=True)
+        self.log_dir = Path(run_dir) / "episodes" if run_dir is not None else None
+        if self.log_dir is not None:
+            self.log_dir.mkdir(parents=True, exist_ok=True)
         self.scorer = scorer
         self._pending: dict[str, EpisodeSpec] = {}
 
@@ -54,6 +52,10 @@ class InProcessEvaluator:
         if clash:
             raise ValueError(f"job ids already pending: {', '.join(clash[:5])}")
         self._pending.update(specs)
+
+    def cancel(self, job_ids: Iterable[str]) -> None:
+        for job_id in job_ids:
+            self._pending.pop(job_id, None)
 
     def results(self) -> Iterator[Evaluation]:
         """Run the pending jobs in the order submitted (jobs submitted meanwhile included)."""
@@ -81,14 +83,22 @@ class InProcessEvaluator:
                 reason=outcome.reason,
                 timings=outcome.timings,
             )
-        log = None
-        if self.episodes is not None:
-            log = self.episodes / f"{job_id}.mcap"
-            write_atomically(log, outcome.content)
+        log = self.log_dir / f"{job_id}.mcap" if self.log_dir is not None else None
+        try:
+            scores = accept_log(outcome.content, spec, log, f"episode of {job_id}")
+        except NotAnEpisodeLog as error:  # a bug here, not a transport fault: say so, go on
+            return Evaluation(
+                **common,
+                status=EvaluationStatus.failed,
+                scores=None,
+                log=None,
+                reason=f"unusable episode log: {error}",
+                timings=outcome.timings,
+            )
         return Evaluation(
             **common,
             status=EvaluationStatus(outcome.status.value),
-            scores=score(decode_episode(outcome.content, f"episode of {job_id}")),
+            scores=scores,
             log=log,
             reason=outcome.reason,
             timings=outcome.timings,

@@ -8,7 +8,7 @@ import contextlib
 import socket
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 
 from broker.service import Broker
 
@@ -49,6 +49,17 @@ def stop_workers(workers: list[subprocess.Popen]) -> None:
         except subprocess.TimeoutExpired:
             worker.kill()
             worker.wait()
+
+
+@contextlib.contextmanager
+def farm_endpoints(connect: Sequence[str] = (), workers: int = 1) -> Iterator[list[str]]:
+    """Where the farm is: the broker at `connect`, or else a local farm of `workers` processes
+    started for the block."""
+    if connect:
+        yield list(connect)
+        return
+    with local_farm(workers) as endpoint:
+        yield [endpoint]
 
 
 @contextlib.contextmanager

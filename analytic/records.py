@@ -28,8 +28,6 @@ from analytic.config import RunConfig
 from schemas.gains import PDGains
 from schemas.robot import N_JOINTS
 
-JOINTS = N_JOINTS
-
 # The names a run directory uses; the report links to the figures by these relative names.
 PARETO_PNG = "pareto.png"
 HYPERVOLUME_PNG = "hypervolume.png"
@@ -50,8 +48,8 @@ HISTORY_FIELDS = (
     "wall_seconds",
 )
 FRONT_FIELDS = (
-    *(f"kp{joint}" for joint in range(1, JOINTS + 1)),
-    *(f"kd{joint}" for joint in range(1, JOINTS + 1)),
+    *(f"kp{joint}" for joint in range(1, N_JOINTS + 1)),
+    *(f"kd{joint}" for joint in range(1, N_JOINTS + 1)),
     "f_acc",
     "f_t",
 )
@@ -87,26 +85,26 @@ class FrontMember:
     """One non-dominated controller, one line of front.csv: its 14 gains and its two scores.
 
     f_acc is in metres, f_t in (N·m)². Gains may be given as any sequence (a numpy row, say);
-    they are stored as tuples of Python floats so members compare and hash by value. `episodes`
-    are the member's kept logs, relative to the run directory, one per trajectory (front.json
-    holds them; front.csv does not).
+    they are stored as tuples of Python floats so members compare and hash by value. `logs` are
+    the member's kept episode logs, relative to the run directory, one per trajectory whose
+    episode ran (front.json holds them, front.csv does not; they take no part in comparisons).
     """
 
     kp: tuple[float, ...]
     kd: tuple[float, ...]
     f_acc: float
     f_t: float
-    episodes: tuple[str, ...] = ()
+    logs: tuple[str, ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
         for name in ("kp", "kd"):
             gains = tuple(float(gain) for gain in getattr(self, name))
-            if len(gains) != JOINTS:
-                raise ValueError(f"{name} needs {JOINTS} gains, got {len(gains)}")
+            if len(gains) != N_JOINTS:
+                raise ValueError(f"{name} needs {N_JOINTS} gains, got {len(gains)}")
             object.__setattr__(self, name, gains)
         object.__setattr__(self, "f_acc", float(self.f_acc))
         object.__setattr__(self, "f_t", float(self.f_t))
-        object.__setattr__(self, "episodes", tuple(str(path) for path in self.episodes))
+        object.__setattr__(self, "logs", tuple(str(path) for path in self.logs))
 
     @property
     def gains(self) -> PDGains:
@@ -209,8 +207,8 @@ def read_front(path: Path) -> list[FrontMember]:
     """front.csv as written by `front_csv`, in file order (already sorted by f_acc)."""
     return [
         FrontMember(
-            kp=tuple(float(row[f"kp{joint}"]) for joint in range(1, JOINTS + 1)),
-            kd=tuple(float(row[f"kd{joint}"]) for joint in range(1, JOINTS + 1)),
+            kp=tuple(float(row[f"kp{joint}"]) for joint in range(1, N_JOINTS + 1)),
+            kd=tuple(float(row[f"kd{joint}"]) for joint in range(1, N_JOINTS + 1)),
             f_acc=float(row["f_acc"]),
             f_t=float(row["f_t"]),
         )
@@ -235,7 +233,7 @@ def front_json(front: Sequence[FrontMember]) -> bytes:
             "kd": list(member.kd),
             "f_acc": member.f_acc,
             "f_t": member.f_t,
-            "episodes": list(member.episodes),
+            "logs": list(member.logs),
         }
         for member in sorted_front(front)
     ]

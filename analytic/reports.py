@@ -7,6 +7,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
+from analytic.config import RunConfig
 from analytic.records import (
     FRONT_CSV,
     HISTORY_CSV,
@@ -17,6 +18,30 @@ from analytic.records import (
     sorted_front,
 )
 from schemas.files import write_atomically
+
+
+def _search(config: RunConfig) -> str:
+    return "steady-state" if config.asynchronous else "generational"
+
+
+def run_title(config: RunConfig) -> str:
+    """A run's figures' title: what was tuned, how."""
+    return (
+        f"{config.mode} controller, {_search(config)} NSGA-II, pop {config.pop}, seed {config.seed}"
+    )
+
+
+def run_setup(config: RunConfig) -> list[str]:
+    """A run's configuration as its report lists it."""
+    trajectories = ", ".join(
+        f"{trajectory.kind.value} {trajectory.duration:g} s" for trajectory in config.trajectories
+    )
+    return [
+        f"{config.mode} controller on {trajectories}",
+        f"{_search(config)} NSGA-II, population {config.pop}, seed {config.seed}",
+        f"{config.model.joints} joints; reference point "
+        f"f_acc {config.reference_point[0]} m, f_t {config.reference_point[1]}",
+    ]
 
 
 def _duration(seconds: float) -> str:
@@ -116,6 +141,43 @@ def write_report(
         title=title, config_lines=config_lines, history=history, front=front, converged=converged
     )
     write_atomically(Path(path), text.encode("utf-8"))
+
+
+def experiment_setup(base: RunConfig, reps: int, reference: tuple[float, float]) -> list[str]:
+    """How an experiment was run, as its report lists it."""
+    return [
+        f"{reps} repetitions (seeds 0..{reps - 1}); base configuration: population "
+        f"{base.pop}, {base.termination_text}, {base.model.joints} joints",
+        f"common reference point: f_acc {reference[0]:.4g} m, f_t {reference[1]:.4g} (N·m)² "
+        "(the worst among all controllers tested in this experiment)",
+        "runs in `runs/`, raw numbers in `results.csv`",
+    ]
+
+
+def popsize_table(medians: dict[int, tuple[float, float]]) -> list[str]:
+    """Population size → (median hypervolume, median evaluations), as a Markdown table."""
+    table = ["| population | median hypervolume | median evaluations |", "|---:|---:|---:|"]
+    return table + [
+        f"| {s} | {hv:.4f} | {evaluations:.0f} |" for s, (hv, evaluations) in medians.items()
+    ]
+
+
+def controllers_table(medians: dict[str, float]) -> list[str]:
+    """Kind of controller → median hypervolume on the pyramid, as a Markdown table."""
+    table = ["| controller | median hypervolume on the pyramid |", "|---|---:|"]
+    return table + [f"| {kind} | {median:.4f} |" for kind, median in medians.items()]
+
+
+def speed_table(durations: Sequence[float], error: dict[tuple[float, float], float]) -> list[str]:
+    """The most accurate controller's error, tuned-on duration against evaluated-on duration."""
+    table = [
+        "| tuned on | " + " | ".join(f"on {d:g} s" for d in durations) + " |",
+        "|---|" + "---:|" * len(durations),
+    ]
+    return table + [
+        f"| {t:g} s | " + " | ".join(f"{error[(t, u)] * 1000:.2f} mm" for u in durations) + " |"
+        for t in durations
+    ]
 
 
 def write_experiment_report(

@@ -49,7 +49,7 @@ from analytic.records import (
     history_csv,
     sorted_front,
 )
-from analytic.reports import write_report
+from analytic.reports import run_setup, run_title, write_report
 from schemas.episode import EpisodeSpec
 from schemas.files import write_atomically
 from schemas.gains import PDGains
@@ -65,7 +65,7 @@ class RunState:
     evolution: Evolution
     history: list[HistoryRow] = field(default_factory=list)
     evaluated: list[tuple[float, float]] = field(default_factory=list)
-    episodes: dict[PDGains, list[str]] = field(default_factory=dict)  # kept logs per candidate
+    episodes: dict[PDGains, list[str]] = field(default_factory=dict)  # job ids of kept logs
     wall_seconds: float = 0.0
     stopped: str | None = None
     serial: int = 0  # steady-state candidates asked so far: their job ids' numbers
@@ -92,6 +92,8 @@ class TuningRun:
     @classmethod
     def create(cls, directory: Path, config: RunConfig) -> "TuningRun":
         """A new run in `directory` (FileExistsError if it already holds one)."""
+        # model_copy(update=...) skips validation: check the whole config once more.
+        config = RunConfig.model_validate(config.model_dump())
         directory = Path(directory)
         if (directory / CONFIG_JSON).exists():
             raise FileExistsError(f"{directory} already holds a run; resume it or choose another")
@@ -149,12 +151,18 @@ class TuningRun:
             gains: self._job_ids(f"g{evolution.generation:04d}-c{index:03d}")
             for index, gains in enumerate(candidates)
         }
-        evaluator.submit(self._specs(jobs))
+        specs = self._specs(jobs)
         results: dict[str, Evaluation] = {}
-        for evaluation in evaluator.results():
-            results[evaluation.job_id] = evaluation
-            self._account(evaluation)
-            on_progress(self._progress(len(results) // len(self.config.trajectories), started))
+        evaluator.submit(specs)
+        try:
+            for evaluation in evaluator.results():
+                if evaluation.job_id not in specs:
+                    continue  # not this generation's (another user of the evaluator left it)
+                results[evaluation.job_id] = evaluation
+                self._account(evaluation)
+                on_progress(self._progress(len(results) // len(self.config.trajectories), started))
+        finally:  # stopped mid-generation (Ctrl-C): leave nothing queued in the evaluator
+            evaluator.cancel([job_id for job_id in specs if job_id not in results])
         found = [self._candidate_done(gains, jobs[gains], results) for gains in candidates]
         evolution.tell(found)
         self._generation_done(started)
@@ -165,7 +173,8 @@ class TuningRun:
         self, evaluator: Evaluator, started: float, on_progress: Callable[[RunProgress], None]
     ) -> None:
         """Keep a few candidates per worker in flight so that none waits; a "generation" here is
-        every `pop` evaluations, for the history, the termination and the checkpoint."""
+        every `pop` evaluations, for the history, the termination and the checkpoint. When the
+        run stops, the candidates still in flight are dropped (a resumed run asks anew)."""
         evolution = self.state.evolution
         in_flight: dict[str, tuple[Population, PDGains, list[str]]] = {}
         results: dict[str, Evaluation] = {}
@@ -177,23 +186,35 @@ class TuningRun:
             in_flight[name] = (handle, gains, self._job_ids(name))
             evaluator.submit(self._specs({gains: in_flight[name][2]}))
 
-        for _ in range(max(2, 2 * evaluator.capacity)):
-            launch()
-        for evaluation in evaluator.results():
-            results[evaluation.job_id] = evaluation
-            self._account(evaluation)
-            name = evaluation.job_id.rsplit("-t", 1)[0]
-            handle, gains, ids = in_flight[name]
-            if not all(job_id in results for job_id in ids):
-                continue
-            del in_flight[name]
-            evolution.tell_one(handle, self._candidate_done(gains, ids, results))
-            on_progress(self._progress(0, started))
-            if evolution.evaluations % self.config.pop == 0:
-                self._generation_done(started)
-                if self.state.stopped is not None:
-                    return  # what is still in flight is dropped with the study
-            launch()
+        try:
+            for _ in range(max(2, 2 * evaluator.capacity)):
+                launch()
+            for evaluation in evaluator.results():
+                name = evaluation.job_id.rsplit("-t", 1)[0]
+                if name not in in_flight:
+                    continue  # not this run's (another user of the evaluator left it)
+                results[evaluation.job_id] = evaluation
+                self._account(evaluation)
+                handle, gains, ids = in_flight[name]
+                if not all(job_id in results for job_id in ids):
+                    continue
+                del in_flight[name]
+                evolution.tell_one(handle, self._candidate_done(gains, ids, results))
+                on_progress(self._progress(0, started))
+                if evolution.evaluations % self.config.pop == 0:
+                    self._generation_done(started)
+                    if self.state.stopped is not None:
+                        return
+                launch()
+        finally:
+            evaluator.cancel(
+                [
+                    job_id
+                    for _, _, ids in in_flight.values()
+                    for job_id in ids
+                    if job_id not in results
+                ]
+            )
 
     # --- bookkeeping -------------------------------------------------------------------------
 
@@ -253,13 +274,7 @@ class TuningRun:
             for gains in [gains for gains in state.episodes if gains not in keep]:
                 for job_id in state.episodes.pop(gains):
                     (self.directory / EPISODES / f"{job_id}.mcap").unlink(missing_ok=True)
-        # The plain record, history last: a reader that finds a generation in history.csv
-        # finds the front and the points of that generation too.
-        rows = _rows(front, state.episodes)
-        write_atomically(self.directory / EVALUATED_CSV, evaluated_csv(state.evaluated))
-        write_atomically(self.directory / FRONT_JSON, front_json(rows))
-        write_atomically(self.directory / FRONT_CSV, front_csv(rows))
-        write_atomically(self.directory / HISTORY_CSV, history_csv(state.history))
+        self.write_records()
         hypervolumes = [row.hypervolume for row in state.history]
         state.stopped = self.config.termination.reason(hypervolumes, state.evolution.evaluations)
         self._checkpoint()
@@ -269,28 +284,26 @@ class TuningRun:
 
     # --- the record --------------------------------------------------------------------------
 
+    def write_records(self) -> None:
+        """The plain files of where the run stands (analytic.records), history.csv last: a
+        reader that finds a generation in history.csv finds its front and points too. (A crash
+        between history.csv and the checkpoint leaves the plain files a generation ahead: a
+        resume runs that generation again, to the same, deterministic, result.)"""
+        rows = _rows(self.state.evolution.front(), self.state.episodes)
+        write_atomically(self.directory / EVALUATED_CSV, evaluated_csv(self.state.evaluated))
+        write_atomically(self.directory / FRONT_JSON, front_json(rows))
+        write_atomically(self.directory / FRONT_CSV, front_csv(rows))
+        write_atomically(self.directory / HISTORY_CSV, history_csv(self.state.history))
+
     def write_figures(self) -> None:
-        front = self.front()
-        search = "steady-state" if self.config.asynchronous else "generational"
-        title = (
-            f"{self.config.mode} controller, {search} NSGA-II, "
-            f"pop {self.config.pop}, seed {self.config.seed}"
-        )
+        """pareto.png, hypervolume.png and report.md, from where the run stands."""
+        front, title = self.front(), run_title(self.config)
         plot_pareto(self.directory / PARETO_PNG, front, self.state.evaluated, title=title)
         plot_hypervolume(self.directory / HYPERVOLUME_PNG, self.state.history, title=title)
-        trajectories = ", ".join(
-            f"{trajectory.kind.value} {trajectory.duration:g} s"
-            for trajectory in self.config.trajectories
-        )
         write_report(
             self.directory / REPORT_MD,
             title=f"gainfarm run {self.directory.name}",
-            config_lines=[
-                f"{self.config.mode} controller on {trajectories}",
-                f"{search} NSGA-II, population {self.config.pop}, seed {self.config.seed}",
-                f"{self.config.model.joints} joints; reference point "
-                f"f_acc {self.config.reference_point[0]} m, f_t {self.config.reference_point[1]}",
-            ],
+            config_lines=run_setup(self.config),
             history=self.state.history,
             front=front,
             converged=self.state.stopped or "stopped before it ended",
@@ -308,10 +321,18 @@ def _rows(front: list[Candidate], episodes: dict[PDGains, list[str]]) -> list[Fr
             member.gains.kp,
             member.gains.kd,
             *member.objectives,
-            episodes=tuple(f"{EPISODES}/{job}.mcap" for job in episodes.get(member.gains, [])),
+            logs=tuple(f"{EPISODES}/{job}.mcap" for job in episodes.get(member.gains, [])),
         )
         for member in front
     ]
+
+
+def upgrade(directory: Path) -> None:
+    """Give a run written before front.json and evaluated.csv existed those files, from its
+    checkpoint, so that it reads like any other (analytic.records.read_run)."""
+    directory = Path(directory)
+    if (directory / CHECKPOINT).exists() and not (directory / FRONT_JSON).exists():
+        TuningRun.open(directory).write_records()
 
 
 class _Unpickler(pickle.Unpickler):

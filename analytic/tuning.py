@@ -9,7 +9,7 @@ from pathlib import Path
 from analytic.config import RunConfig
 from analytic.evaluator import Evaluator
 from analytic.farm import FarmClient
-from analytic.local import local_farm
+from analytic.local import farm_endpoints
 from analytic.records import CONFIG_JSON
 from analytic.run import RunProgress, TuningRun
 from schemas.security import TlsIdentity
@@ -58,10 +58,13 @@ def _evaluator(
     if evaluator is not None:
         yield evaluator
         return
-    study = f"run-{os.getpid()}"
-    if connect:
-        with FarmClient(connect, study, directory, identity=identity) as farm:
-            yield farm
-        return
-    with local_farm(workers) as endpoint, FarmClient([endpoint], study, directory) as farm:
+    with (
+        farm_endpoints(connect, workers) as endpoints,
+        FarmClient(endpoints, run_study(), directory, identity=identity) as farm,
+    ):
         yield farm
+
+
+def run_study() -> str:
+    """The farm's name for this process's tuning run (analytic start, resume, tune)."""
+    return f"run-{os.getpid()}"

@@ -27,6 +27,7 @@ from schemas.wire import (
     LEASE_HOLD_SECONDS,
     Job,
     JobStatus,
+    LeaseRequest,
     Result,
     Submission,
     SubmitReply,
@@ -132,7 +133,7 @@ class NoopWorker:
     def __init__(self, session: zenoh.Session, name: str, study: str):
         self.session = session
         self._token = session.liveliness().declare_token(keys.alive_worker(name))
-        self._request = json.dumps({"protocol": 1, "worker": name}).encode()
+        self._request = LeaseRequest(worker=name).to_bytes()
         self._result = Result(
             study=study,
             job_id="x",

@@ -26,13 +26,10 @@ from pathlib import Path
 import click
 from common import SPAWN, episode_specs
 
-from analytic.evaluator import EvaluationStatus
+from analytic.evaluator import EvaluationStatus, accept_log
 from analytic.farm import FarmClient
 from analytic.local import local_farm
 from schemas import EpisodeSpec
-from schemas.files import write_atomically
-from schemas.mcap_episode import decode_episode
-from schemas.objectives import score
 from worker.job import simulate
 
 WORKERS = 2  # farm workers and pool processes
@@ -46,11 +43,8 @@ def pool_task(task: tuple[str, EpisodeSpec]) -> tuple[str, bytes]:
 
 def keep(content: bytes, spec: EpisodeSpec, path: Path) -> None:
     """What FarmClient does with a result's log: decode, check, write atomically, score."""
-    episode = decode_episode(content, path.name)
-    if episode.metadata.spec != spec or episode.metadata.diverged:
-        raise RuntimeError(f"{path.name}: not the episode submitted, or diverged")
-    write_atomically(path, content)
-    score(episode)
+    if accept_log(content, spec, path, path.name).diverged:
+        raise RuntimeError(f"{path.name}: diverged")
 
 
 def farm_round(farm: FarmClient, specs: list[EpisodeSpec], tag: str) -> float:

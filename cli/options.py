@@ -72,25 +72,6 @@ def model(help: str | None = "elastic or rigid joints") -> Callable[[F], F]:
     )
 
 
-def pop(help: str = "population size") -> Callable[[F], F]:
-    return click.option(
-        "--pop", type=click.IntRange(min=4, max=1000), default=30, show_default=True, help=help
-    )
-
-
-def termination(per_run: bool = False) -> Callable[[F], F]:
-    """--generations and --evaluations (which exclude each other: RunConfig says so)."""
-    when = "per run, instead of converging: " if per_run else ""
-    return stack(
-        click.option(
-            "--generations", type=click.IntRange(min=1), help=f"{when}stop after N generations"
-        ),
-        click.option(
-            "--evaluations", type=click.IntRange(min=1), help=f"{when}stop after N evaluations"
-        ),
-    )
-
-
 def tls(help: str) -> Callable[[F], F]:
     """--tls DIR: the credentials of a secure farm (load them with `identity`)."""
     return click.option("--tls", type=click.Path(path_type=Path), help=help)

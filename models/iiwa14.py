@@ -52,7 +52,9 @@ def compile_model(spec: ModelSpec) -> mujoco.MjModel:
     """Compiled model for `spec`; cached, because a worker runs thousands of episodes on one."""
     # An unstable simulation is data (the episode is flagged as diverged), not a warning for
     # stdout and a MUJOCO_LOG.TXT in whatever directory the process runs in: MuJoCo's default.
-    mujoco.set_mju_user_warning(_log_warning)
+    # A handler the process installed itself is left in place.
+    if mujoco.get_mju_user_warning() is None:
+        mujoco.set_mju_user_warning(_log_warning)
     return build_spec(spec).compile()
 
 

@@ -13,7 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from schemas.episode import EpisodeSpec
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2  # 2: a Job's episode spec is `spec` (was `episode`)
 
 # Names become key-expression chunks, so they may not contain '/', '*', '$', '?' or '#'.
 NAME_PATTERN = r"^[A-Za-z0-9_.\-]{1,64}$"
@@ -35,7 +35,7 @@ class BadMessage(ValueError):
 class WireMessage(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    protocol: Literal[1] = PROTOCOL_VERSION
+    protocol: Literal[2] = PROTOCOL_VERSION
 
     @field_validator("protocol", mode="before")
     @classmethod

@@ -1,9 +1,12 @@
 """A run's configuration is validated as a whole, whoever builds it (the CLI or a script)."""
 
+from pathlib import Path
+
 import pytest
 from pydantic import ValidationError
 
 from analytic.config import RunConfig
+from analytic.run import TuningRun
 from schemas.wire import describe
 
 
@@ -18,3 +21,10 @@ def test_the_termination_follows_the_config() -> None:
     assert RunConfig(evaluations=90).termination.evaluations == 90
     assert RunConfig().termination_text.startswith("until converged")
     assert RunConfig().mode == "specific"
+
+
+def test_a_run_refuses_a_config_that_skipped_validation(tmp_path: Path) -> None:
+    both = RunConfig(generations=3).model_copy(update={"evaluations": 90})  # no validation
+    with pytest.raises(ValidationError, match="exclude each other"):
+        TuningRun.create(tmp_path / "run", both)
+    assert not (tmp_path / "run").exists()

@@ -104,3 +104,20 @@ def test_dataset_command_errors_are_one_line(tmp_path: Path) -> None:
     )
     assert run.returncode == 2
     assert run.stderr == "analytic: error: 'nowhere' holds no run (no config.json)\n"
+
+
+def test_dataset_of_an_unreadable_run_names_it_in_one_line(run_dir: Path, tmp_path: Path) -> None:
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    for name in ("config.json", "history.csv", "evaluated.csv"):
+        (broken / name).write_bytes((run_dir / name).read_bytes())
+    (broken / "front.json").write_text("{not json")
+    run = subprocess.run(
+        [sys.executable, "-m", "analytic", "dataset", str(broken), "--out", str(tmp_path / "x")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert run.returncode == 2
+    assert run.stderr.startswith(f"analytic: error: {str(broken)!r}: unreadable run")
+    assert run.stderr.count("\n") == 1 and not (tmp_path / "x").exists()

@@ -10,8 +10,10 @@ from analytic import experiments
 from analytic.config import RunConfig
 from analytic.experiments import EvaluatorFactory, Experiment, non_dominated
 from analytic.farm import FarmClient
+from analytic.inprocess import InProcessEvaluator
 from analytic.local import local_farm
 from schemas import TrajectorySpec
+from tests.analytic.toy import toy_scores
 
 BASE = RunConfig(pop=4, trajectories=(TrajectorySpec(duration=0.4),), generations=2, keep="front")
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -82,13 +84,38 @@ def test_speed(tmp_path: Path, endpoints: list[str]) -> None:
     assert "| 0.4 s |" in (tmp_path / "report.md").read_text()
 
 
-def test_a_study_uses_one_reference_point_the_worst_tested(tmp_path: Path) -> None:
-    study = Experiment(tmp_path, on_farm([]))
-    study.tested = [(0.1, 10.0), (0.3, 1.0), (0.2, 50.0)]
-    assert study.reference == (0.3, 50.0)
-    assert study.hypervolume([(0.3, 50.0)]) == 0.0
-    assert 0 < study.hypervolume([(0.1, 10.0)]) < study.hypervolume([(0.1, 10.0), (0.05, 40.0)])
+def test_an_experiment_uses_one_reference_point_the_worst_tested(tmp_path: Path) -> None:
+    experiment = Experiment(tmp_path, on_farm([]))
+    experiment.tested = [(0.1, 10.0), (0.3, 1.0), (0.2, 50.0)]
+    assert experiment.reference == (0.3, 50.0)
+    assert experiment.hypervolume([(0.3, 50.0)]) == 0.0
+    assert (
+        0
+        < experiment.hypervolume([(0.1, 10.0)])
+        < experiment.hypervolume([(0.1, 10.0), (0.05, 40.0)])
+    )
 
 
 def test_non_dominated() -> None:
     assert non_dominated([(1, 5), (2, 2), (3, 3), (1, 5)]) == [(1, 5), (2, 2), (1, 5)]
+
+
+def test_an_experiment_runs_on_any_evaluator_and_resumes_without_rerunning(
+    tmp_path: Path,
+) -> None:
+    def in_process(study: str, directory: Path) -> InProcessEvaluator:
+        return InProcessEvaluator(scorer=toy_scores)
+
+    experiments.popsize(Experiment(tmp_path, in_process), BASE, sizes=[4, 6], reps=2)
+    results = rows(tmp_path / "results.csv")
+    assert [r["evaluations"] for r in results] == ["8", "8", "12", "12"]
+    assert all(r["stopped"] == "2 generations" for r in results)
+    before = (tmp_path / "results.csv").read_bytes()
+    checkpoints = {p: p.stat().st_mtime_ns for p in tmp_path.glob("runs/*/checkpoint.pkl")}
+
+    def no_evaluator(study: str, directory: Path) -> InProcessEvaluator:
+        raise AssertionError(f"{study} ran again")
+
+    experiments.popsize(Experiment(tmp_path, no_evaluator), BASE, sizes=[4, 6], reps=2)
+    assert (tmp_path / "results.csv").read_bytes() == before
+    assert {p: p.stat().st_mtime_ns for p in tmp_path.glob("runs/*/checkpoint.pkl")} == checkpoints

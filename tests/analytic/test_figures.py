@@ -8,7 +8,7 @@ import pytest
 
 from analytic.figures import plot_hypervolume, plot_pareto
 from analytic.records import FrontMember
-from tests.helpers import KD, KP, SAMPLE_FRONT, SAMPLE_HISTORY, leftovers
+from tests.analytic.samples import KD, KP, SAMPLE_FRONT, SAMPLE_HISTORY, leftovers
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

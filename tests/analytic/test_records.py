@@ -10,12 +10,18 @@ from analytic.records import (
     HISTORY_FIELDS,
     FrontMember,
     HistoryRow,
+    evaluated_csv,
     front_csv,
+    front_json,
     history_csv,
+    read_evaluated,
     read_front,
+    read_front_json,
     read_history,
+    results_csv,
+    sorted_front,
 )
-from tests.helpers import KD, KP, SAMPLE_FRONT, SAMPLE_HISTORY
+from tests.analytic.samples import KD, KP, SAMPLE_FRONT, SAMPLE_HISTORY
 
 
 def test_csvs_round_trip_exactly(tmp_path: Path) -> None:
@@ -63,3 +69,42 @@ def test_reading_a_csv_of_another_format_is_refused(tmp_path: Path) -> None:
     (tmp_path / "history.csv").write_bytes(front_csv(SAMPLE_FRONT))
     with pytest.raises(ValueError, match="expected columns"):
         read_history(tmp_path / "history.csv")
+
+
+def test_front_json_round_trips_with_each_members_logs(tmp_path: Path) -> None:
+    front = [
+        FrontMember(m.kp, m.kd, m.f_acc, m.f_t, logs=(f"episodes/c{i}-t0.mcap",))
+        for i, m in enumerate(SAMPLE_FRONT)
+    ]
+    (tmp_path / "front.json").write_bytes(front_json(front))
+    read = read_front_json(tmp_path / "front.json")
+    assert read == sorted_front(front)  # front.csv's order
+    assert [m.logs for m in read] == [m.logs for m in sorted_front(front)]
+    assert read == read_front(_csv(tmp_path, front))  # the same members as front.csv's
+
+
+def _csv(directory: Path, front: list[FrontMember]) -> Path:
+    (directory / "front.csv").write_bytes(front_csv(front))
+    return directory / "front.csv"
+
+
+def test_reading_a_front_json_of_another_format_is_refused(tmp_path: Path) -> None:
+    for content in ("{not json", '{"front": []}', '{"members": [{"kp": [1]}]}'):
+        (tmp_path / "front.json").write_text(content)
+        with pytest.raises(ValueError, match=r"not a front\.json"):
+            read_front_json(tmp_path / "front.json")
+
+
+def test_evaluated_points_round_trip_exactly(tmp_path: Path) -> None:
+    points = [(0.1 + 0.2, 1e-3 / 7), (0.0123456789012345, 4.2e4), (10.0, 1e12)]
+    (tmp_path / "evaluated.csv").write_bytes(evaluated_csv(points))
+    assert read_evaluated(tmp_path / "evaluated.csv") == points
+
+
+def test_results_csv_keeps_the_rows_columns_in_order() -> None:
+    rows = [{"pop": 4, "rep": 0, "hypervolume": 0.5}, {"pop": 6, "rep": 1, "hypervolume": 0.25}]
+    assert results_csv(rows).decode().splitlines() == [
+        "pop,rep,hypervolume",
+        "4,0,0.5",
+        "6,1,0.25",
+    ]

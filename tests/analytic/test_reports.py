@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 from analytic.reports import front_table_row, write_report
-from tests.helpers import SAMPLE_CONVERGED, SAMPLE_FRONT, SAMPLE_HISTORY, leftovers
+from tests.analytic.samples import SAMPLE_CONVERGED, SAMPLE_FRONT, SAMPLE_HISTORY, leftovers
 
 
 def test_report_holds_the_summary_the_sorted_table_and_the_links(tmp_path: Path) -> None:

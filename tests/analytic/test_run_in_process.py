@@ -6,7 +6,7 @@ real front for NSGA-II to find. The same guarantees are tested on a real farm in
 
 import itertools
 import random
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
 import pytest
@@ -15,7 +15,7 @@ from analytic.config import RunConfig
 from analytic.evaluator import Evaluation
 from analytic.inprocess import InProcessEvaluator
 from analytic.records import read_front, read_history, read_run
-from analytic.run import RunProgress, TuningRun
+from analytic.run import RunProgress, TuningRun, upgrade
 from schemas import EpisodeSpec, TrajectorySpec
 from tests.analytic.toy import toy_scores
 
@@ -32,6 +32,11 @@ class Shuffled(InProcessEvaluator):
 
     def submit(self, specs: Mapping[str, EpisodeSpec]) -> None:
         self._queued.update(specs)
+
+    def cancel(self, job_ids: Iterable[str]) -> None:
+        for job_id in job_ids:
+            self._queued.pop(job_id, None)
+        super().cancel(job_ids)
 
     def results(self) -> Iterator[Evaluation]:
         while self._queued:
@@ -171,5 +176,38 @@ def test_keep_front_keeps_only_the_front_members_logs(tmp_path: Path) -> None:
     run = TuningRun.create(tmp_path / "run", config)
     run.run(InProcessEvaluator(tmp_path / "run"), report=False)  # real episodes, logs kept
     kept = sorted(path.name for path in (run.directory / "episodes").glob("*.mcap"))
-    listed = sorted(Path(episode).name for m in run.front() for episode in m.episodes)
+    listed = sorted(Path(episode).name for m in run.front() for episode in m.logs)
     assert kept == listed and 1 <= len(kept) < 18
+
+
+def test_a_run_that_stops_leaves_nothing_in_flight_for_the_next(tmp_path: Path) -> None:
+    evaluator = InProcessEvaluator(scorer=toy_scores)
+    steady = TINY.model_copy(update={"asynchronous": True})
+    first = TuningRun.create(tmp_path / "first", steady)
+    first.run(evaluator, report=False)
+    assert evaluator.pending == 0  # the candidates in flight when it stopped were dropped
+
+    def stop_in_generation_two(progress: RunProgress) -> None:
+        if progress.generation == 2 and progress.evaluations > 14:
+            raise Interrupt
+
+    second = TuningRun.create(tmp_path / "second", TINY)
+    with pytest.raises(Interrupt):
+        second.run(evaluator, stop_in_generation_two, report=False)
+    assert evaluator.pending == 0
+    resumed = TuningRun.open(tmp_path / "second")
+    resumed.run(evaluator, report=False)  # the same evaluator: nothing stale comes back
+    assert (tmp_path / "second" / "front.csv").read_bytes() == (
+        tune(tmp_path / "whole").directory / "front.csv"
+    ).read_bytes()
+
+
+def test_a_run_from_before_front_json_is_upgraded_from_its_checkpoint(tmp_path: Path) -> None:
+    run = tune(tmp_path / "run")
+    expected = read_run(run.directory)
+    for name in ("front.json", "evaluated.csv"):  # what runs of earlier versions lack
+        (run.directory / name).unlink()
+    with pytest.raises(FileNotFoundError):
+        read_run(run.directory)
+    upgrade(run.directory)
+    assert read_run(run.directory) == expected

@@ -8,6 +8,7 @@ import sys
 import time
 
 from analytic.local import free_port, spawn_worker, stop_workers
+from schemas.wire import PROTOCOL_VERSION
 
 
 def broker_command(*arguments: str) -> list[str]:
@@ -41,7 +42,7 @@ def test_a_started_broker_serves_workers_reports_them_and_stops_on_sigterm() -> 
             assert time.monotonic() < give_up, run.stderr
             time.sleep(0.2)
         farm = json.loads(run.stdout)
-        assert farm["protocol"] == 1
+        assert farm["protocol"] == PROTOCOL_VERSION
         assert farm["workers"] == [{"name": "cobot-7", "busy": False, "job": "", "jobs_done": 0}]
         table = status(endpoint)
         assert table.returncode == 0

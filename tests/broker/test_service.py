@@ -9,6 +9,7 @@ from broker.service import Broker
 from schemas import keys
 from schemas.transport import open_session
 from schemas.wire import (
+    PROTOCOL_VERSION,
     BrokerStatus,
     LeaseRequest,
     decode,
@@ -132,7 +133,7 @@ def test_two_studies_share_the_workers(broker: Broker, session: zenoh.Session) -
 BAD_PAYLOADS = [
     b"{oops",
     b'{"protocol": 99, "worker": "w", "study": "s", "jobs": []}',
-    b'{"protocol": 1, "unexpected": true}',
+    b'{"protocol": %d, "unexpected": true}' % PROTOCOL_VERSION,
     b"x" * (5 * 1024 * 1024),
 ]
 
@@ -155,7 +156,7 @@ def test_a_bad_query_is_refused_with_a_reason_and_the_broker_serves_on(
 
 @pytest.mark.parametrize(
     "attachment",
-    [None, b"nonsense", b'{"protocol": 1, "study": "s"}'],
+    [None, b"nonsense", b'{"protocol": %d, "study": "s"}' % PROTOCOL_VERSION],
     ids=["none", "json", "schema"],
 )
 def test_a_bad_result_is_ignored_with_a_reason(

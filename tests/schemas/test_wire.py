@@ -18,6 +18,8 @@ from schemas.wire import (
 )
 from tests.helpers import short_spec
 
+V = PROTOCOL_VERSION
+
 
 def test_json_schema_files_are_generated_from_the_current_models() -> None:
     assert json_schema.stale() == [], "run: python -m schemas.json_schema"
@@ -40,12 +42,16 @@ def test_a_message_round_trips() -> None:
         (b"{not json", "not JSON"),
         (b"\xff\xfe", "not JSON"),
         (b"[1, 2]", "not a JSON object"),
-        (b'{"worker": "w"}', "protocol version None is not 1"),
-        (b'{"protocol": 2, "worker": "w"}', "protocol version 2 is not 1"),
-        (b'{"protocol": true, "worker": "w"}', "protocol version True is not 1"),
-        (b'{"protocol": 1}', "worker: Field required"),
-        (b'{"protocol": 1, "worker": "a/b"}', "worker: String should match pattern"),
-        (b'{"protocol": 1, "worker": "w", "extra": 1}', "extra: Extra inputs are not permitted"),
+        (b'{"worker": "w"}', f"protocol version None is not {V}"),
+        (b'{"protocol": 1, "worker": "w"}', f"protocol version 1 is not {V}"),
+        (b'{"protocol": 3, "worker": "w"}', f"protocol version 3 is not {V}"),
+        (b'{"protocol": true, "worker": "w"}', f"protocol version True is not {V}"),
+        (b'{"protocol": %d}' % V, "worker: Field required"),
+        (b'{"protocol": %d, "worker": "a/b"}' % V, "worker: String should match pattern"),
+        (
+            b'{"protocol": %d, "worker": "w", "extra": 1}' % V,
+            "extra: Extra inputs are not permitted",
+        ),
         (b" " * (MAX_MESSAGE_BYTES + 1), "over the limit"),
     ],
 )
@@ -58,7 +64,7 @@ def test_a_bad_message_is_refused_with_its_reason(raw: bytes | None, reason: str
 def test_a_submission_is_judged_job_by_job() -> None:
     good = Job(job_id="good", spec=short_spec()).model_dump(mode="json")
     bad = {**good, "job_id": "bad", "spec": {"gains": {"kp": [1], "kd": [1]}}}
-    raw = json.dumps({"protocol": 1, "study": "s", "jobs": [good, bad, 42]}).encode()
+    raw = json.dumps({"protocol": V, "study": "s", "jobs": [good, bad, 42]}).encode()
     study, jobs, rejected = decode_submission(raw)
     assert study == "s"
     assert [job.job_id for job in jobs] == ["good"]
@@ -68,7 +74,7 @@ def test_a_submission_is_judged_job_by_job() -> None:
 
 def test_a_submission_with_a_bad_envelope_is_refused_whole() -> None:
     with pytest.raises(BadMessage, match="study"):
-        decode_submission(b'{"protocol": 1, "study": "no/slashes", "jobs": []}')
+        decode_submission(b'{"protocol": %d, "study": "no/slashes", "jobs": []}' % V)
 
 
 def test_a_result_names_must_be_key_safe() -> None:
