@@ -61,7 +61,11 @@ def _bounds(field: str) -> click.IntRange:
 
 def pop_option() -> Callable[[F], F]:
     return click.option(
-        "--pop", type=_bounds("pop"), default=30, show_default=True, help="population size"
+        "--pop",
+        type=_bounds("pop"),
+        default=RunConfig.model_fields["pop"].default,
+        show_default=True,
+        help="population size",
     )
 
 

@@ -156,8 +156,6 @@ class TuningRun:
         evaluator.submit(specs)
         try:
             for evaluation in evaluator.results():
-                if evaluation.job_id not in specs:
-                    continue  # not this generation's (another user of the evaluator left it)
                 results[evaluation.job_id] = evaluation
                 self._account(evaluation)
                 on_progress(self._progress(len(results) // len(self.config.trajectories), started))
@@ -191,8 +189,6 @@ class TuningRun:
                 launch()
             for evaluation in evaluator.results():
                 name = evaluation.job_id.rsplit("-t", 1)[0]
-                if name not in in_flight:
-                    continue  # not this run's (another user of the evaluator left it)
                 results[evaluation.job_id] = evaluation
                 self._account(evaluation)
                 handle, gains, ids = in_flight[name]

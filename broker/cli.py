@@ -66,13 +66,7 @@ def start(listen: tuple[str, ...], lease_seconds: float, tls: Path | None, log_l
 
 
 @app.command()
-@click.option(
-    "--connect",
-    multiple=True,
-    default=[options.DEFAULT_CONNECT],
-    show_default=True,
-    help="the broker's Zenoh endpoint",
-)
+@options.connect("the broker's Zenoh endpoint")
 @options.tls(
     "a secure farm: directory with ca.pem and the broker's (or another role's) pem and key"
 )

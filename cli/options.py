@@ -72,6 +72,13 @@ def model(help: str | None = "elastic or rigid joints") -> Callable[[F], F]:
     )
 
 
+def connect(help: str) -> Callable[[F], F]:
+    """--connect ENDPOINT (repeatable), the farm's broker on this host by default."""
+    return click.option(
+        "--connect", multiple=True, default=[DEFAULT_CONNECT], show_default=True, help=help
+    )
+
+
 def tls(help: str) -> Callable[[F], F]:
     """--tls DIR: the credentials of a secure farm (load them with `identity`)."""
     return click.option("--tls", type=click.Path(path_type=Path), help=help)

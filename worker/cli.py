@@ -104,13 +104,7 @@ def episode(
 
 
 @app.command()
-@click.option(
-    "--connect",
-    multiple=True,
-    default=[options.DEFAULT_CONNECT],
-    show_default=True,
-    help="the broker's Zenoh endpoint (repeat for several)",
-)
+@options.connect("the broker's Zenoh endpoint (repeat for several)")
 @click.option("--name", help="unique name of this cobot in the farm  [default: HOST-PID]")
 @options.tls("a secure farm: directory with ca.pem, worker.pem and worker.key")
 @options.log_level()
