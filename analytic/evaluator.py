@@ -7,7 +7,7 @@ whatever order they complete; it never learns whether they ran on a farm of a hu
 the same part: the loop is written once, and tested in milliseconds with a stand-in.
 """
 
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -41,6 +41,7 @@ class Evaluation:
     worker: str
     attempts: int
     timings: Timings | None
+    digest: str | None = None  # the log's SHA-256: replicas of an episode agree bit for bit
 
 
 def accept_log(content: bytes, spec: EpisodeSpec, path: Path | None, source: str) -> Scores:
@@ -65,8 +66,15 @@ class Evaluator(Protocol):
         """How many jobs can run at once now (a farm's workers): how many to keep in flight."""
         ...
 
-    def submit(self, specs: Mapping[str, EpisodeSpec]) -> None:
-        """Queue one job per (job id, spec); a job id may not be pending already."""
+    def submit(
+        self, specs: Mapping[str, EpisodeSpec], avoid: Mapping[str, Sequence[str]] | None = None
+    ) -> None:
+        """Queue one job per (job id, spec); a job id may not be pending already. `avoid` names,
+        per job id, workers that may not run it (a replica must run elsewhere)."""
+        ...
+
+    def distrust(self, worker: str) -> None:
+        """Give `worker` none of this evaluator's jobs from now on (it returned a false log)."""
         ...
 
     def results(self) -> Iterator[Evaluation]:

@@ -9,8 +9,15 @@
 The client holds the study's liveliness token (the broker drops the study's queued jobs when it
 goes), keeps a deadline per job and resubmits a job whose result has not come by then, counts each
 job once however many results arrive for it, and scores every episode from its log.
+
+A result counts only once the broker confirms it: the broker takes a result from the worker that
+holds the job's lease alone, and tells the study which one it took (lease, worker and the log's
+SHA-256). Anyone else's result for the job, however well made, is ignored, and so is any answer
+that does not come from the broker. A broker that does not answer costs no job an attempt: the
+client waits for it, and says so (`waiting`).
 """
 
+import hashlib
 import logging
 import queue
 import time
@@ -23,14 +30,18 @@ import zenoh
 from analytic.evaluator import Evaluation, EvaluationStatus, accept_log
 from broker.status import BrokerUnavailable, query_status
 from schemas import keys
+from schemas.ask import ask
 from schemas.episode import EpisodeSpec
 from schemas.mcap_episode import NotAnEpisodeLog
 from schemas.security import TlsIdentity
 from schemas.transport import open_session, token_held
 from schemas.wire import (
     MAX_EPISODE_BYTES,
+    Accepted,
     BadMessage,
     BrokerStatus,
+    ConfirmReply,
+    ConfirmRequest,
     Job,
     JobStatus,
     Result,
@@ -46,9 +57,11 @@ DEFAULT_ATTEMPTS = 3
 SUBMIT_CHUNK = 100  # jobs per Submission: the broker parses each in one go, holding the GIL
 ANSWER_SECONDS = 10.0  # how long the broker has to answer a submission or a status query
 RECHECK_SECONDS = 1.0  # a resubmitted job the broker still had: ask again this soon
+CONFIRM_BATCH = 1000  # results confirmed in one question to the broker
 
 
-BROKER_BACK = b"\0broker-back"  # an inbox marker, never a real attachment (those are JSON)
+BROKER_BACK = b"\0broker-back"  # inbox markers, never a real attachment (those are JSON)
+BROKER_GONE = b"\0broker-gone"
 
 
 class FarmUnavailable(ConnectionError):
@@ -60,6 +73,15 @@ class _Pending:
     spec: EpisodeSpec
     deadline: float
     attempts: int = 1
+    avoid: tuple[str, ...] = ()  # workers that may not run it
+
+
+@dataclass(frozen=True)
+class _Arrival:
+    """A result as it arrived, waiting for the broker to confirm it."""
+
+    result: Result
+    content: bytes
 
 
 class FarmClient:
@@ -81,8 +103,12 @@ class FarmClient:
         self.attempts = attempts
         self.duplicates = 0
         self.ignored = 0
+        self.unconfirmed = 0  # results the broker did not take: forged, or from a stale lease
+        self.waiting: str | None = None  # why the client is waiting for the broker, if it is
         self._pending: dict[str, _Pending] = {}
         self._ready: list[Evaluation] = []
+        self._arrived: dict[str, list[_Arrival]] = {}  # by job id, until the broker confirms
+        self._distrusted: set[str] = set()
         self._inbox: queue.SimpleQueue[tuple[bytes | None, bytes]] = queue.SimpleQueue()
         self.session = open_session("client", connect=connect, identity=identity)
         try:
@@ -114,16 +140,23 @@ class FarmClient:
         """The workers connected to the farm now: how many jobs can run at once."""
         return len(self.status().workers)
 
-    def submit(self, specs: Mapping[str, EpisodeSpec]) -> None:
-        """Queue one job per (job id, spec). A job id may not be pending already."""
+    def submit(
+        self, specs: Mapping[str, EpisodeSpec], avoid: Mapping[str, Sequence[str]] | None = None
+    ) -> None:
+        """Queue one job per (job id, spec). A job id may not be pending already. `avoid` names,
+        per job id, workers that may not run it (a replica must run elsewhere)."""
         clash = sorted(set(specs) & set(self._pending))
         if clash:
             raise ValueError(f"job ids already pending: {', '.join(clash[:5])}")
-        jobs = [Job(job_id=job_id, spec=spec) for job_id, spec in specs.items()]
+        avoid = avoid or {}
         expiry = time.monotonic() + self.deadline
-        for job in jobs:
-            self._pending[job.job_id] = _Pending(job.spec, expiry)
-        self._send(jobs)
+        for job_id, spec in specs.items():
+            self._pending[job_id] = _Pending(spec, expiry, avoid=tuple(avoid.get(job_id, ())))
+        self._send([self._job(job_id) for job_id in specs])
+
+    def distrust(self, worker: str) -> None:
+        """Give `worker` none of this study's jobs from now on, resubmissions included."""
+        self._distrusted.add(worker)
 
     def cancel(self, job_ids: Iterable[str]) -> None:
         """Stop waiting for these jobs; a result that still comes for one is counted as a
@@ -131,6 +164,7 @@ class FarmClient:
         dropped = set(job_ids)
         for job_id in dropped:
             self._pending.pop(job_id, None)
+            self._arrived.pop(job_id, None)
         self._ready = [evaluation for evaluation in self._ready if evaluation.job_id not in dropped]
 
     def results(self, timeout: float | None = None) -> Iterator[Evaluation]:
@@ -147,17 +181,32 @@ class FarmClient:
             wake = min(pending.deadline for pending in self._pending.values())
             if give_up is not None:
                 wake = min(wake, give_up)
+            if self._arrived:  # results the broker did not confirm yet: ask again soon
+                wake = min(wake, now + RECHECK_SECONDS)
             try:
-                attachment, content = self._inbox.get(timeout=max(wake - now, 0.0))
+                message = self._inbox.get(timeout=max(wake - now, 0.0))
             except queue.Empty:
+                self._confirm()
                 self._chase_overdue()
                 continue
-            if attachment is BROKER_BACK:
-                self._rejoin()
-                continue
-            evaluation = self._receive(attachment, content)
-            if evaluation is not None:
-                yield evaluation
+            for attachment, content in [message, *self._drain()]:
+                if attachment is BROKER_BACK:
+                    self._rejoin()
+                elif attachment is BROKER_GONE:
+                    self._broker_gone()
+                else:
+                    self._arrive(attachment, content)
+            self._confirm()
+
+    def _drain(self) -> list[tuple[bytes | None, bytes]]:
+        """Whatever else is in the inbox now: its results are confirmed in one question."""
+        messages = []
+        while len(messages) < CONFIRM_BATCH:
+            try:
+                messages.append(self._inbox.get_nowait())
+            except queue.Empty:
+                break
+        return messages
 
     # --- inside ----------------------------------------------------------------------------
 
@@ -192,51 +241,100 @@ class FarmClient:
     def _on_broker_token(self, sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.PUT:  # a broker (re)started, with an empty queue
             self._inbox.put((BROKER_BACK, b""))
+        else:
+            self._inbox.put((BROKER_GONE, b""))
+
+    def _broker_gone(self) -> None:
+        self._wait_for_broker("the broker is gone")
+
+    def _wait_for_broker(self, why: str) -> None:
+        """No answer from the broker is no verdict on any job: wait, saying so, and spend no
+        attempts until it answers again."""
+        if self.waiting is None:
+            log.warning("%s; waiting for it (%d jobs pending)", why, len(self._pending))
+        self.waiting = why
+        later = time.monotonic() + self.deadline
+        for pending in self._pending.values():
+            pending.deadline = max(pending.deadline, later)
+
+    def _broker_answers(self) -> bool:
+        """Whether the broker answers now; clears `waiting` when it does again."""
+        answered = ask(self.session, keys.STATUS, timeout=ANSWER_SECONDS) is not None
+        if answered and self.waiting is not None:
+            log.warning("the broker answers again")
+            self.waiting = None
+        return answered
 
     def _rejoin(self) -> None:
         """A new broker knows none of our jobs: once it knows the study, submit them all again.
         Its restart lost them, the worker did not fail them: no attempt is counted."""
         log.warning("a broker (re)started; resubmitting %d pending jobs", len(self._pending))
-        self._await_study("the restarted broker")
+        self.waiting = None
+        try:
+            self._await_study("the restarted broker")
+        except FarmUnavailable as error:
+            self._wait_for_broker(str(error))
+            return
         now = time.monotonic()
         for pending in self._pending.values():
             pending.deadline = now + self.deadline
-        self._send([Job(job_id=job_id, spec=p.spec) for job_id, p in self._pending.items()])
+        self._send([self._job(job_id) for job_id in self._pending])
+
+    def _job(self, job_id: str) -> Job:
+        pending = self._pending[job_id]
+        avoid = sorted({*pending.avoid, *self._distrusted})
+        return Job(job_id=job_id, spec=pending.spec, avoid=avoid)
 
     def _on_result(self, sample: zenoh.Sample) -> None:
         attachment = sample.attachment.to_bytes() if sample.attachment is not None else None
         self._inbox.put((attachment, sample.payload.to_bytes()))
 
     def _send(self, jobs: list[Job]) -> set[str]:
-        """Submit `jobs`; return the ids the broker still had queued or running."""
-        still_pending: set[str] = set()
+        """Submit `jobs`; return the ids the broker did not newly queue: those it still had
+        queued or running, those it deferred (its queue is full) and those it did not hear."""
+        not_queued: set[str] = set()
         for start in range(0, len(jobs), SUBMIT_CHUNK):
             chunk = jobs[start : start + SUBMIT_CHUNK]
             reply = self._ask(Submission(study=self.study, jobs=chunk))
-            if reply is None:  # the deadline will resubmit them
-                log.warning("the broker did not answer a submission of %d jobs", len(chunk))
+            if reply is None:  # the deadline will resubmit them, once the broker answers
+                self._wait_for_broker("the broker did not answer a submission")
+                not_queued.update(job.job_id for job in chunk)
                 continue
-            still_pending.update(reply.already_pending)
+            not_queued.update(reply.already_pending)
+            not_queued.update(reply.deferred)
+            if reply.deferred:  # a full queue is no verdict: submit them again soon
+                log.warning("the broker deferred %d jobs: its queue is full", len(reply.deferred))
+                soon = time.monotonic() + RECHECK_SECONDS
+                for job_id in reply.deferred:
+                    if job_id in self._pending:
+                        self._pending[job_id].deadline = soon
             for rejection in reply.rejected:
                 pending = self._pending.pop(rejection.job_id, None)
                 if pending is not None:
                     self._ready.append(self._failed(rejection.job_id, pending, rejection.reason))
-        return still_pending
+        return not_queued
 
     def _ask(self, submission: Submission) -> SubmitReply | None:
-        for reply in self.session.get(
-            keys.SUBMIT, payload=submission.to_bytes(), timeout=ANSWER_SECONDS
-        ):
-            if reply.ok is None:
-                reason = reply.err.payload.to_bytes().decode(errors="replace")
-                raise BadMessage(f"the broker refused a submission: {reason}")
-            return decode(SubmitReply, reply.ok.payload.to_bytes())
-        return None
+        answer = ask(
+            self.session, keys.submit(self.study), submission.to_bytes(), timeout=ANSWER_SECONDS
+        )
+        if answer is None:
+            return None
+        if answer.payload is None:
+            raise BadMessage(f"the broker refused a submission: {answer.error}")
+        return decode(SubmitReply, answer.payload)
 
     def _chase_overdue(self) -> None:
-        """Resubmit every job past its deadline; give up on those out of attempts."""
+        """Resubmit every job past its deadline; give up on those out of attempts. Only while
+        the broker answers: without it, no job's time runs out."""
         now = time.monotonic()
         overdue = [job_id for job_id, pending in self._pending.items() if pending.deadline <= now]
+        if not overdue:
+            return
+        if not self._broker_answers():
+            self._wait_for_broker("no answer from the broker")
+            return
+        now = time.monotonic()
         again = []
         for job_id in overdue:
             pending = self._pending[job_id]
@@ -247,28 +345,74 @@ class FarmClient:
                 continue
             pending.attempts += 1
             pending.deadline = now + self.deadline
-            again.append(Job(job_id=job_id, spec=pending.spec))
+            again.append(self._job(job_id))
         if again:
             log.warning("resubmitting %d overdue jobs", len(again))
             for job_id in self._send(again):  # merely slow, not lost: not another attempt
                 if job_id in self._pending:
                     self._pending[job_id].attempts -= 1
 
-    def _receive(self, attachment: bytes | None, content: bytes) -> Evaluation | None:
+    def _arrive(self, attachment: bytes | None, content: bytes) -> None:
+        """Check a result as it arrives; keep it for the broker to confirm."""
         try:
             result = decode(Result, attachment)
         except BadMessage as error:
             self.ignored += 1
             log.warning("ignored a result: %s", error)
-            return None
+            return
         if result.study != self.study:
             self.ignored += 1
             log.warning("ignored a result of study %r on this study's key", result.study)
-            return None
-        pending = self._pending.get(result.job_id)
-        if pending is None:  # already evaluated (or never submitted here): counted once
+            return
+        if result.job_id not in self._pending:  # already evaluated (or never submitted here)
             self.duplicates += 1
-            return None
+            return
+        if hashlib.sha256(content).hexdigest() != result.digest:
+            self.ignored += 1
+            log.warning("ignored a result for %s whose log is not its digest's", result.job_id)
+            return
+        self._arrived.setdefault(result.job_id, []).append(_Arrival(result, content))
+
+    def _confirm(self) -> None:
+        """Ask the broker which of the arrived results it took; each job's confirmed one is
+        its evaluation, and every other is ignored. Unanswered: they wait for the next ask."""
+        if not self._arrived:
+            return
+        job_ids = list(self._arrived)[:CONFIRM_BATCH]
+        request = ConfirmRequest(study=self.study, job_ids=job_ids)
+        answer = ask(self.session, keys.confirm(self.study), request.to_bytes(), ANSWER_SECONDS)
+        if answer is None:
+            self._wait_for_broker("the broker did not confirm results")
+            return
+        try:
+            if answer.payload is None:
+                raise BadMessage(f"the broker refused to confirm results: {answer.error}")
+            reply = decode(ConfirmReply, answer.payload)
+        except BadMessage as error:
+            log.warning("%s", error)
+            return
+        taken = {accepted.job_id: accepted for accepted in reply.accepted}
+        for job_id in job_ids:
+            arrivals = self._arrived.pop(job_id)
+            accepted = taken.get(job_id)
+            confirmed = [a for a in arrivals if accepted and _matches(a.result, accepted)]
+            for arrival in arrivals:
+                if not confirmed or arrival is not confirmed[0]:
+                    self.unconfirmed += 1
+                    log.warning(
+                        "ignored a result for %s from %r: not the one the broker took",
+                        job_id,
+                        arrival.result.worker,
+                    )
+            if confirmed and job_id in self._pending:
+                evaluation = self._receive(confirmed[0].result, confirmed[0].content)
+                if evaluation is not None:
+                    self._ready.append(evaluation)
+
+    def _receive(self, result: Result, content: bytes) -> Evaluation | None:
+        """The evaluation a confirmed result makes (None if its log is unusable: it runs
+        again)."""
+        pending = self._pending[result.job_id]
         common = dict(
             job_id=result.job_id,
             spec=pending.spec,
@@ -300,6 +444,7 @@ class FarmClient:
             scores=scores,
             log=path,
             reason=result.reason,
+            digest=result.digest,
         )
 
     def _run_again(self, result: Result, pending: _Pending, reason: str) -> Evaluation | None:
@@ -312,7 +457,7 @@ class FarmClient:
         pending.attempts += 1
         # The broker may not have closed the damaged lease yet and answer "already pending":
         # look again soon rather than after a whole deadline.
-        still_pending = self._send([Job(job_id=result.job_id, spec=pending.spec)])
+        still_pending = self._send([self._job(result.job_id)])
         wait = RECHECK_SECONDS if result.job_id in still_pending else self.deadline
         pending.deadline = time.monotonic() + wait
         return None
@@ -335,3 +480,12 @@ class FarmClient:
             attempts=pending.attempts,
             timings=None,
         )
+
+
+def _matches(result: Result, accepted: Accepted) -> bool:
+    """Whether `result` is the one the broker took: its lease, its worker, its very log."""
+    return (result.lease_id, result.worker, result.digest) == (
+        accepted.lease_id,
+        accepted.worker,
+        accepted.digest,
+    )

@@ -7,7 +7,8 @@ of the spec, it simulates nothing and keeps no log: the tuning loop's own tests,
 run in milliseconds.
 """
 
-from collections.abc import Callable, Iterable, Iterator, Mapping
+import hashlib
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 from analytic.evaluator import Evaluation, EvaluationStatus, accept_log
@@ -47,11 +48,17 @@ class InProcessEvaluator:
     def pending(self) -> int:
         return len(self._pending)
 
-    def submit(self, specs: Mapping[str, EpisodeSpec]) -> None:
+    def submit(
+        self, specs: Mapping[str, EpisodeSpec], avoid: Mapping[str, Sequence[str]] | None = None
+    ) -> None:
+        """`avoid` has no meaning here: this process is the one worker."""
         clash = sorted(set(specs) & set(self._pending))
         if clash:
             raise ValueError(f"job ids already pending: {', '.join(clash[:5])}")
         self._pending.update(specs)
+
+    def distrust(self, worker: str) -> None:
+        """Nothing to do: this process is the one worker, and nobody replicates it."""
 
     def cancel(self, job_ids: Iterable[str]) -> None:
         for job_id in job_ids:
@@ -102,4 +109,5 @@ class InProcessEvaluator:
             log=log,
             reason=outcome.reason,
             timings=outcome.timings,
+            digest=hashlib.sha256(outcome.content).hexdigest(),
         )

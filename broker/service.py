@@ -1,19 +1,28 @@
-"""The broker on the wire: a Zenoh router in this process, and the LeaseQueue behind three
-queryables, one result subscriber and two liveliness subscribers.
+"""The broker on the wire: a Zenoh router in this process, and the LeaseQueue behind five
+queryables (submit, lease, complete, confirm, status) and two liveliness subscribers.
 
 Everything Zenoh stays here; every scheduling decision is the queue's. Zenoh calls back on its
-own threads, so one lock guards the queue, and replies go out after it is released.
+own threads, so one lock guards the queue, and replies go out after it is released. Results
+themselves (episode logs) never pass through the broker's code: a worker hands in the Result to
+the broker, then sends the log to the study; the study asks the broker which results it took.
 """
 
+import functools
 import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import zenoh
 
-from broker.queue import Assignment, LeaseQueue, UnknownStudy
+from broker.queue import (
+    DEFAULT_MAX_QUEUED,
+    DEFAULT_MAX_QUEUED_PER_STUDY,
+    Assignment,
+    LeaseQueue,
+    UnknownStudy,
+)
 from schemas import keys
 from schemas.security import TlsIdentity
 from schemas.transport import open_session
@@ -21,11 +30,15 @@ from schemas.wire import (
     LEASE_HOLD_SECONDS,
     BadMessage,
     BrokerStatus,
+    CompletionReply,
+    ConfirmReply,
+    ConfirmRequest,
     LeaseReply,
     LeaseRequest,
     Rejection,
     Result,
     SubmitReply,
+    WireMessage,
     decode,
     decode_submission,
 )
@@ -34,6 +47,22 @@ log = logging.getLogger("gainfarm.broker")
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
 TICK_SECONDS = 0.05  # how often held requests and leases are checked for expiry
+
+
+def _guarded(handler: Callable[["Broker", zenoh.Query], None]) -> Callable:
+    """Whatever a query does to a handler, it gets an answer and the broker serves on."""
+
+    @functools.wraps(handler)
+    def serve(self: "Broker", query: zenoh.Query) -> None:
+        try:
+            handler(self, query)
+        except BadMessage as error:
+            self._reject_query(query, str(error))
+        except Exception:  # a bug, not the sender's fault: say so, and keep serving
+            log.exception("failed to answer a query on %s", query.key_expr)
+            self._reject_query(query, "the broker failed to answer (see its log)")
+
+    return serve
 
 
 class Broker:
@@ -45,11 +74,21 @@ class Broker:
         lease_seconds: float = 60.0,
         hold_seconds: float = LEASE_HOLD_SECONDS,
         identity: TlsIdentity | None = None,
+        *,
+        max_queued: int = DEFAULT_MAX_QUEUED,
+        max_queued_per_study: int = DEFAULT_MAX_QUEUED_PER_STUDY,
+        submit_rate: float | None = None,
     ):
         """With `identity` (the broker's TLS credentials) the router runs the secure profile:
-        TLS with mutual authentication, and the access policy of schemas/security.py."""
+        TLS with mutual authentication, and the access policy of schemas/security.py. The
+        queue caps and the submission rate (jobs/s per study) bound what studies can queue."""
         self.endpoints = list(listen)
-        self.queue: LeaseQueue[zenoh.Query] = LeaseQueue(lease_seconds)
+        self.queue: LeaseQueue[zenoh.Query] = LeaseQueue(
+            lease_seconds,
+            max_queued=max_queued,
+            max_queued_per_study=max_queued_per_study,
+            submit_rate=submit_rate,
+        )
         self.hold_seconds = hold_seconds
         self.rejected = 0
         self._lock = threading.Lock()
@@ -60,10 +99,11 @@ class Broker:
         self._entities = [
             liveliness.declare_subscriber(keys.ALIVE_STUDIES, self._on_study_token, history=True),
             liveliness.declare_subscriber(keys.ALIVE_WORKERS, self._on_worker_token, history=True),
-            self.session.declare_queryable(keys.SUBMIT, self._on_submit),
-            self.session.declare_queryable(keys.LEASE, self._on_lease_request),
+            self.session.declare_queryable(keys.SUBMIT_ANY, self._on_submit),
+            self.session.declare_queryable(keys.LEASE_ANY, self._on_lease_request),
+            self.session.declare_queryable(keys.COMPLETE_ANY, self._on_complete),
+            self.session.declare_queryable(keys.CONFIRM_ANY, self._on_confirm),
             self.session.declare_queryable(keys.STATUS, self._on_status),
-            self.session.declare_subscriber(keys.ALL_RESULTS, self._on_result),
         ]
         # Last, once it can serve: clients that see it appear resubmit what they still wait for.
         self._entities.append(liveliness.declare_token(keys.ALIVE_BROKER))
@@ -96,16 +136,17 @@ class Broker:
                 jobs_per_s=self.queue.jobs_per_second(),
                 requeued=self.queue.requeued,
                 rejected=self.rejected,
+                worker_count=self.queue.worker_count(),
+                study_count=self.queue.study_count(),
+                queued=self.queue.queued(),
             )
 
     # --- queryables ------------------------------------------------------------------------
 
+    @_guarded
     def _on_submit(self, query: zenoh.Query) -> None:
-        try:
-            study, jobs, rejected = decode_submission(_payload(query))
-        except BadMessage as error:
-            self._reject_query(query, error)
-            return
+        study, jobs, rejected = decode_submission(_payload(query))
+        _check_named(query, study, "study")
         with self._lock:
             try:
                 outcome = self.queue.submit(study, jobs)
@@ -118,21 +159,21 @@ class Broker:
             study=study,
             queued=outcome.queued if outcome else [],
             already_pending=outcome.already_pending if outcome else [],
+            deferred=outcome.deferred if outcome else [],
             rejected=rejected,
         )
-        for rejection in rejected:
+        for rejection in rejected[:10]:  # a flood of bad jobs must not flood the log
             log.warning("rejected job %s/%s: %s", study, rejection.job_id, rejection.reason)
-        query.reply(keys.SUBMIT, reply.to_bytes())
-        query.drop()
+        if reply.deferred:
+            log.warning("study %s: %d jobs deferred (queue full)", study, len(reply.deferred))
+        _answer(query, reply)
         if outcome:
             self._deliver(outcome.assignments)
 
+    @_guarded
     def _on_lease_request(self, query: zenoh.Query) -> None:
-        try:
-            request = decode(LeaseRequest, _payload(query))
-        except BadMessage as error:
-            self._reject_query(query, error)
-            return
+        request = decode(LeaseRequest, _payload(query))
+        _check_named(query, request.worker, "worker")
         with self._lock:
             lease, replaced = self.queue.request(request.worker, query)
             if lease is None:
@@ -142,25 +183,34 @@ class Broker:
         if lease is not None:
             _answer(query, LeaseReply(lease=lease))
 
+    @_guarded
+    def _on_complete(self, query: zenoh.Query) -> None:
+        """A worker hands in a Result before it sends it: taken only from the lease holder."""
+        result = decode(Result, _payload(query))
+        _check_named(query, result.worker, "worker")
+        with self._lock:
+            refusal = self.queue.complete(
+                result.study, result.job_id, result.lease_id, result.worker, result.digest
+            )
+            if refusal is not None:
+                self.rejected += 1
+        if refusal is not None:
+            log.info("result for %s/%s refused: %s", result.study, result.job_id, refusal)
+        _answer(query, CompletionReply(accepted=refusal is None, reason=refusal or ""))
+
+    @_guarded
+    def _on_confirm(self, query: zenoh.Query) -> None:
+        request = decode(ConfirmRequest, _payload(query))
+        _check_named(query, request.study, "study")
+        with self._lock:
+            accepted = self.queue.accepted(request.study, request.job_ids)
+        _answer(query, ConfirmReply(study=request.study, accepted=accepted))
+
+    @_guarded
     def _on_status(self, query: zenoh.Query) -> None:
-        query.reply(keys.STATUS, self.status().to_bytes())
-        query.drop()
+        _answer(query, self.status())
 
     # --- subscribers -----------------------------------------------------------------------
-
-    def _on_result(self, sample: zenoh.Sample) -> None:
-        attachment = sample.attachment.to_bytes() if sample.attachment is not None else None
-        try:
-            result = decode(Result, attachment)
-        except BadMessage as error:
-            with self._lock:
-                self.rejected += 1
-            log.warning("ignored a result on %s: %s", sample.key_expr, error)
-            return
-        with self._lock:
-            first = self.queue.complete(result.study, result.job_id, result.worker)
-        if not first:
-            log.info("duplicate result for %s/%s ignored", result.study, result.job_id)
 
     def _on_worker_token(self, sample: zenoh.Sample) -> None:
         name = keys.last_chunk(str(sample.key_expr))
@@ -210,23 +260,35 @@ class Broker:
         for assignment in assignments:
             _answer(assignment.waiter, LeaseReply(lease=assignment.lease))
 
-    def _reject_query(self, query: zenoh.Query, error: BadMessage) -> None:
+    def _reject_query(self, query: zenoh.Query, reason: str) -> None:
         with self._lock:
             self.rejected += 1
-        log.warning("rejected a query on %s: %s", query.key_expr, error)
-        query.reply_err(str(error).encode())
-        query.drop()
+        log.warning("rejected a query on %s: %s", query.key_expr, reason)
+        try:
+            query.reply_err(reason.encode())
+        except zenoh.ZError as error:
+            log.warning("could not answer a query: %s", error)
+        finally:
+            query.drop()
 
 
 def _payload(query: zenoh.Query) -> bytes | None:
     return query.payload.to_bytes() if query.payload is not None else None
 
 
-def _answer(query: zenoh.Query, reply: LeaseReply) -> None:
-    """Reply and let go; a worker that vanished meanwhile is the liveliness token's business."""
+def _check_named(query: zenoh.Query, name: str, what: str) -> None:
+    """A service's key names whom the query acts for (the access policy checks the key): the
+    message must name the same."""
+    chunk = keys.last_chunk(str(query.key_expr))
+    if chunk != name:
+        raise BadMessage(f"the message's {what} {name!r} is not the key's {chunk!r}")
+
+
+def _answer(query: zenoh.Query, reply: WireMessage) -> None:
+    """Reply and let go; a client that vanished meanwhile is the liveliness token's business."""
     try:
-        query.reply(keys.LEASE, reply.to_bytes())
+        query.reply(query.key_expr, reply.to_bytes())
     except zenoh.ZError as error:
-        log.warning("could not answer a lease request: %s", error)
+        log.warning("could not answer a query on %s: %s", query.key_expr, error)
     finally:
         query.drop()

@@ -3,7 +3,8 @@
 import zenoh
 
 from schemas import keys
-from schemas.wire import BrokerStatus, decode
+from schemas.ask import ask
+from schemas.wire import BadMessage, BrokerStatus, decode
 
 
 class BrokerUnavailable(ConnectionError):
@@ -12,7 +13,9 @@ class BrokerUnavailable(ConnectionError):
 
 def query_status(session: zenoh.Session, timeout: float = 10.0) -> BrokerStatus:
     """The broker's BrokerStatus; BrokerUnavailable if none answers, BadMessage if garbled."""
-    for reply in session.get(keys.STATUS, timeout=timeout):
-        if reply.ok is not None:
-            return decode(BrokerStatus, reply.ok.payload.to_bytes())
-    raise BrokerUnavailable("no gainfarm broker answered a status query")
+    answer = ask(session, keys.STATUS, timeout=timeout)
+    if answer is None:
+        raise BrokerUnavailable("no gainfarm broker answered a status query")
+    if answer.payload is None:
+        raise BadMessage(f"the broker refused a status query: {answer.error}")
+    return decode(BrokerStatus, answer.payload)

@@ -1,15 +1,43 @@
-"""The key-expression space: every Zenoh key the farm uses is spelled here and nowhere else."""
+"""The key-expression space: every Zenoh key the farm uses is spelled here and nowhere else.
+
+The broker's services carry the name they act for in their last chunk (the study a submission is
+for, the worker asking for a lease), so that the secure profile's access policy can let each
+participant use only its own (schemas/security.py); the broker checks that the message says the
+same name as its key.
+"""
 
 ROOT = "gainfarm"
 
-SUBMIT = f"{ROOT}/broker/submit"  # queryable: Submission → SubmitReply
-LEASE = f"{ROOT}/broker/lease"  # queryable: LeaseRequest → LeaseReply, held while there is no work
 STATUS = f"{ROOT}/broker/status"  # queryable: (nothing) → BrokerStatus
+SUBMIT_ANY = f"{ROOT}/broker/submit/*"
+LEASE_ANY = f"{ROOT}/broker/lease/*"
+COMPLETE_ANY = f"{ROOT}/broker/complete/*"
+CONFIRM_ANY = f"{ROOT}/broker/confirm/*"
 
 ALL_RESULTS = f"{ROOT}/study/*/result/*"
 ALIVE_WORKERS = f"{ROOT}/alive/worker/*"
 ALIVE_STUDIES = f"{ROOT}/alive/study/*"
 ALIVE_BROKER = f"{ROOT}/alive/broker"  # appears anew when a broker (re)starts: its queue is empty
+
+
+def submit(study: str) -> str:
+    """Queryable: Submission → SubmitReply, for the study in the last chunk."""
+    return f"{ROOT}/broker/submit/{study}"
+
+
+def lease(worker: str) -> str:
+    """Queryable: LeaseRequest → LeaseReply, held while there is no work."""
+    return f"{ROOT}/broker/lease/{worker}"
+
+
+def complete(worker: str) -> str:
+    """Queryable: Completion → CompletionReply; a worker hands in a result before it sends it."""
+    return f"{ROOT}/broker/complete/{worker}"
+
+
+def confirm(study: str) -> str:
+    """Queryable: ConfirmRequest → ConfirmReply; which results of the study the broker accepted."""
+    return f"{ROOT}/broker/confirm/{study}"
 
 
 def result(study: str, job_id: str) -> str:
@@ -33,3 +61,7 @@ def alive_study(study: str) -> str:
 
 def last_chunk(key: str) -> str:
     return key.rsplit("/", 1)[-1]
+
+
+SUBMIT = SUBMIT_ANY  # transitional names, until schemas/security.py moves to per-name rules
+LEASE = LEASE_ANY

@@ -1,5 +1,6 @@
 """Constants and helpers the tests share."""
 
+import hashlib
 import time
 from collections.abc import Callable
 
@@ -9,9 +10,11 @@ import zenoh
 from broker.queue import LeaseQueue
 from broker.service import Broker
 from schemas import EpisodeMetadata, EpisodeSpec, PDGains, TrajectorySpec, keys
+from schemas.ask import ask
 from schemas.episode_log import EpisodeLog
 from schemas.robot import TORQUE_LIMITS
 from schemas.wire import (
+    CompletionReply,
     Job,
     JobStatus,
     Lease,
@@ -46,12 +49,13 @@ def short_spec(duration: float = 0.5, gains: PDGains = TRACKING_GAINS, **traject
 
 
 def query(session: zenoh.Session, key: str, payload: bytes | None = None) -> tuple[bool, bytes]:
-    """(ok, payload) of the one reply to a query; fails the test if nobody answers."""
-    for reply in session.get(key, payload=payload, timeout=5.0):
-        if reply.ok is not None:
-            return True, reply.ok.payload.to_bytes()
-        return False, reply.err.payload.to_bytes()
-    raise AssertionError(f"no reply on {key}")
+    """(ok, payload) of the broker's reply to a query; fails the test if it does not answer."""
+    answer = ask(session, key, payload, timeout=5.0)
+    if answer is None:
+        raise AssertionError(f"no reply on {key}")
+    if answer.payload is not None:
+        return True, answer.payload
+    return False, (answer.error or "").encode()
 
 
 def open_study(session: zenoh.Session, broker: Broker, study: str) -> zenoh.LivelinessToken:
@@ -70,7 +74,7 @@ def open_studies(queue: LeaseQueue) -> set[str]:
 
 def submit(session: zenoh.Session, study: str, specs: dict[str, EpisodeSpec]) -> SubmitReply:
     jobs = [Job(job_id=job_id, spec=spec) for job_id, spec in specs.items()]
-    ok, payload = query(session, keys.SUBMIT, Submission(study=study, jobs=jobs).to_bytes())
+    ok, payload = query(session, keys.submit(study), Submission(study=study, jobs=jobs).to_bytes())
     assert ok, payload
     return decode(SubmitReply, payload)
 
@@ -81,15 +85,23 @@ def result_for(study: str, job_id: str, worker: str = "w", **fields: object) -> 
         "lease_id": "by-hand",
         "status": JobStatus.ok,
         "episode_bytes": 0,
+        "digest": hashlib.sha256(b"").hexdigest(),
         "timings": Timings(simulate_s=0.0, encode_s=0.0),
     }
     return Result(study=study, job_id=job_id, worker=worker, **{**defaults, **fields})
 
 
 def ask_for_work(session: zenoh.Session, worker: str) -> Lease | None:
-    ok, payload = query(session, keys.LEASE, LeaseRequest(worker=worker).to_bytes())
+    ok, payload = query(session, keys.lease(worker), LeaseRequest(worker=worker).to_bytes())
     assert ok, payload
     return decode(LeaseReply, payload).lease
+
+
+def hand_in(session: zenoh.Session, result: Result) -> CompletionReply:
+    """Hand a result in to the broker, as a worker does before it sends it."""
+    ok, payload = query(session, keys.complete(result.worker), result.to_bytes())
+    assert ok, payload
+    return decode(CompletionReply, payload)
 
 
 # --- an episode log made by hand ------------------------------------------------------------

@@ -4,6 +4,7 @@ A job that cannot run is a result too (status failed, with the reason), never an
 would take the worker down: the farm goes on serving, and the analytic side learns why.
 """
 
+import hashlib
 import time
 from dataclasses import dataclass
 
@@ -12,6 +13,8 @@ from schemas.mcap_episode import episode_bytes
 from schemas.wire import JobStatus, Lease, Result, Timings
 from worker.episode import run_episode
 from worker.ik import UnreachablePath
+
+REASON_LIMIT = 2000  # characters: Result.reason's bound
 
 
 @dataclass(frozen=True)
@@ -55,8 +58,9 @@ def execute(lease: Lease, worker: str) -> tuple[Result, bytes]:
         lease_id=lease.lease_id,
         worker=worker,
         status=outcome.status,
-        reason=outcome.reason,
+        reason=outcome.reason[:REASON_LIMIT],
         episode_bytes=len(outcome.content),
+        digest=hashlib.sha256(outcome.content).hexdigest(),
         timings=outcome.timings,
     )
     return result, outcome.content

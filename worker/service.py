@@ -1,24 +1,36 @@
-"""The sim-cobot on the wire: connect, hold a liveliness token, ask for work when free, return
-each result with its episode log. One process is one cobot.
+"""The sim-cobot on the wire: connect, hold a liveliness token, ask for work when free, hand in
+each result to the broker and, once it takes it, send it with its episode log to the study. One
+process is one cobot.
 """
 
 import logging
 import threading
+import time
 from collections.abc import Sequence
 
 import zenoh
 
 from schemas import keys
+from schemas.ask import ask
 from schemas.security import TlsIdentity
 from schemas.transport import open_session, token_held
-from schemas.wire import LEASE_HOLD_SECONDS, BadMessage, LeaseReply, LeaseRequest, decode
+from schemas.wire import (
+    LEASE_HOLD_SECONDS,
+    BadMessage,
+    CompletionReply,
+    Lease,
+    LeaseReply,
+    LeaseRequest,
+    Result,
+    decode,
+)
 from worker.job import execute
 
 log = logging.getLogger("gainfarm.worker")
 
 ANSWER_MARGIN = 5.0  # s beyond the broker's longest hold before a lease request counts as lost
 RETRY_SECONDS = 1.0  # pause after a broker that did not answer or answered with an error
-ZENOH_TIMEOUT = "Timeout"  # the payload of the error reply Zenoh makes when a query times out
+ANSWER_SECONDS = 10.0  # how long the broker has to take a handed-in result
 
 
 class NameTaken(RuntimeError):
@@ -31,6 +43,7 @@ class CobotWorker:
         self.name = request.worker
         self._request = request.to_bytes()
         self.jobs_done = 0
+        self.refused = 0  # results the broker did not take (e.g. the lease had gone elsewhere)
         self.session = open_session("client", connect=connect, identity=identity)
         try:
             if token_held(self.session, keys.alive_worker(name)):
@@ -58,43 +71,68 @@ class CobotWorker:
             if reply is None:
                 stop.wait(RETRY_SECONDS)
             elif reply.lease is not None:
-                result, content = execute(reply.lease, self.name)
-                self.session.put(
-                    keys.result(result.study, result.job_id),
-                    content,
-                    attachment=result.to_bytes(),
-                    congestion_control=zenoh.CongestionControl.BLOCK,
-                )
-                self.jobs_done += 1
-                log.info(
-                    "%s/%s: %s in %.3f s",
-                    result.study,
-                    result.job_id,
-                    result.status.value,
-                    result.timings.simulate_s + result.timings.encode_s,
-                )
+                self._run(reply.lease, stop)
         return self.jobs_done
+
+    def _run(self, lease: Lease, stop: threading.Event) -> None:
+        give_up = time.monotonic() + lease.expires_in
+        result, content = execute(lease, self.name)
+        if not self._hand_in(result, give_up, stop):
+            return
+        self.session.put(
+            keys.result(result.study, result.job_id),
+            content,
+            attachment=result.to_bytes(),
+            congestion_control=zenoh.CongestionControl.BLOCK,
+        )
+        self.jobs_done += 1
+        log.info(
+            "%s/%s: %s in %.3f s",
+            result.study,
+            result.job_id,
+            result.status.value,
+            result.timings.simulate_s + result.timings.encode_s,
+        )
+
+    def _hand_in(self, result: Result, give_up: float, stop: threading.Event) -> bool:
+        """Hand the result in to the broker: True once it takes it. A broker that does not
+        answer is asked again until the lease would have expired (then the job is another's)."""
+        while True:
+            answer = ask(self.session, keys.complete(self.name), result.to_bytes(), ANSWER_SECONDS)
+            if answer is not None:
+                break
+            if time.monotonic() >= give_up or stop.is_set():
+                log.warning("%s/%s: no broker took the result", result.study, result.job_id)
+                return False
+            stop.wait(RETRY_SECONDS)
+        try:
+            if answer.payload is None:
+                raise BadMessage(f"refused: {answer.error}")
+            verdict = decode(CompletionReply, answer.payload)
+        except BadMessage as error:
+            verdict = CompletionReply(accepted=False, reason=str(error))
+        if not verdict.accepted:
+            self.refused += 1
+            log.warning(
+                "%s/%s: the broker did not take the result: %s",
+                result.study,
+                result.job_id,
+                verdict.reason,
+            )
+        return verdict.accepted
 
     def _ask_for_work(self) -> LeaseReply | None:
         """The broker's answer, or None if there was no usable one."""
-        replies = self.session.get(
-            keys.LEASE, payload=self._request, timeout=LEASE_HOLD_SECONDS + ANSWER_MARGIN
-        )
-        for reply in replies:
-            if reply.ok is None:
-                reason = _text(reply.err.payload)
-                if reason == ZENOH_TIMEOUT:  # Zenoh's own error reply: nobody answered in time
-                    break
-                log.warning("the broker refused a lease request: %s", reason)
-                return None
-            try:
-                return decode(LeaseReply, reply.ok.payload.to_bytes())
-            except BadMessage as error:
-                log.warning("ignored a bad lease reply: %s", error)
-                return None
-        log.warning("no broker answered on %s; asking again", keys.LEASE)
-        return None
-
-
-def _text(payload: zenoh.ZBytes) -> str:
-    return payload.to_bytes().decode(errors="replace")
+        key = keys.lease(self.name)
+        answer = ask(self.session, key, self._request, LEASE_HOLD_SECONDS + ANSWER_MARGIN)
+        if answer is None:
+            log.warning("no broker answered on %s; asking again", key)
+            return None
+        if answer.payload is None:
+            log.warning("the broker refused a lease request: %s", answer.error)
+            return None
+        try:
+            return decode(LeaseReply, answer.payload)
+        except BadMessage as error:
+            log.warning("ignored a bad lease reply: %s", error)
+            return None

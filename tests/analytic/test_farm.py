@@ -1,5 +1,6 @@
 """The analytic side's client on a real farm: a broker, worker processes, Zenoh on loopback."""
 
+import hashlib
 import json
 import os
 import signal
@@ -17,7 +18,15 @@ from schemas import keys
 from schemas.gains import PDGains
 from schemas.mcap_episode import read_episode
 from schemas.objectives import score
-from tests.helpers import SOFT_GAINS, TRACKING_GAINS, result_for, short_spec, wait_for
+from tests.helpers import (
+    SOFT_GAINS,
+    TRACKING_GAINS,
+    ask_for_work,
+    hand_in,
+    result_for,
+    short_spec,
+    wait_for,
+)
 
 
 def test_several_workers_share_a_batch_and_every_episode_is_kept_and_scored(
@@ -158,23 +167,26 @@ def test_bad_results_on_the_studys_key_are_ignored_or_reported(
 ) -> None:
     with FarmClient(broker.endpoints, "s", tmp_path, deadline=60) as farm:
         farm.submit({"j1": short_spec(), "j2": short_spec(duration=0.6)})
-        good = result_for("s", "j1", worker="liar", episode_bytes=5)
+        digest = hashlib.sha256(b"hello").hexdigest()
+        forged = result_for("s", "j1", worker="liar", episode_bytes=5, digest=digest)
         session.put(keys.result("s", "j1"), b"hello", attachment=b"garbage")
         session.put(keys.result("s", "j1"), b"hello")
+        session.put(keys.result("s", "j1"), b"hullo", attachment=forged.to_bytes())
         session.put(
             keys.result("s", "nope"),
             b"",
-            attachment=good.model_copy(update={"job_id": "nope"}).to_bytes(),
+            attachment=forged.model_copy(update={"job_id": "nope"}).to_bytes(),
         )
-        session.put(keys.result("s", "j1"), b"hello", attachment=good.to_bytes())
+        session.put(keys.result("s", "j1"), b"hello", attachment=forged.to_bytes())
         worker = spawn_worker(broker.endpoints[0], "w")
         try:
             evaluations = {evaluation.job_id: evaluation for evaluation in farm.results(60)}
         finally:
             stop_workers([worker])
-        assert farm.ignored == 2 and farm.duplicates >= 1
-    # The liar's log was unusable: that is a lost result, so j1 ran again, on the real worker.
-    assert evaluations["j1"].status == "ok" and evaluations["j1"].attempts == 2
+        # Garbage, no attachment, a log that is not its digest's; a job never submitted; and a
+        # well-made result the broker never took, since "liar" held no lease.
+        assert farm.ignored == 3 and farm.duplicates >= 1 and farm.unconfirmed == 1
+    assert evaluations["j1"].status == "ok" and evaluations["j1"].attempts == 1
     assert evaluations["j1"].worker == "w"
     assert read_episode(tmp_path / "episodes" / "j1.mcap").metadata.spec == short_spec()
     assert evaluations["j2"].status == "ok" and evaluations["j2"].attempts == 1
@@ -185,7 +197,15 @@ def test_an_unusable_log_on_the_last_attempt_fails_the_job_with_the_reason(
 ) -> None:
     with FarmClient(broker.endpoints, "s", tmp_path, attempts=1) as farm:
         farm.submit({"j": short_spec()})
-        truncated = result_for("s", "j", worker="liar", episode_bytes=10)
+        # A worker that holds the lease, and sends a broken log: the broker takes it (it cannot
+        # read logs), and the analytic finds it unusable.
+        lease = ask_for_work(session, "broken")
+        assert lease is not None
+        digest = hashlib.sha256(b"hello").hexdigest()
+        truncated = result_for(
+            "s", "j", worker="broken", lease_id=lease.lease_id, episode_bytes=10, digest=digest
+        )
+        assert hand_in(session, truncated).accepted
         session.put(keys.result("s", "j"), b"hello", attachment=truncated.to_bytes())
         [evaluation] = list(farm.results(timeout=10))
     assert evaluation.status == "failed" and evaluation.worker == ""

@@ -1,12 +1,17 @@
 """The broker's scheduling core, LeaseQueue: pure Python on a fake clock, no Zenoh, no threads."""
 
+import hashlib
 from collections import Counter
 from dataclasses import dataclass
 
 import pytest
 
 from broker.queue import (
+    DEFAULT_MAX_QUEUED,
+    DEFAULT_MAX_QUEUED_PER_STUDY,
     LOST_WORKER_GRACE,
+    MAX_LISTED,
+    RATE_BURST_SECONDS,
     THROUGHPUT_WINDOW,
     Assignment,
     LeaseQueue,
@@ -14,7 +19,7 @@ from broker.queue import (
 )
 from schemas.episode import EpisodeSpec
 from schemas.gains import PDGains
-from schemas.wire import Job, Lease, StudyState, WorkerState
+from schemas.wire import Accepted, Job, Lease, StudyState, WorkerState
 from tests.helpers import open_studies
 
 EPISODE = EpisodeSpec(gains=PDGains(kp=(100.0,) * 7, kd=(10.0,) * 7))
@@ -40,20 +45,42 @@ class Waiter:
 Queue = LeaseQueue[Waiter]
 
 
-def make_queue(*studies: str, lease_seconds: float = LEASE_SECONDS) -> tuple[Queue, FakeClock]:
+def make_queue(
+    *studies: str,
+    lease_seconds: float = LEASE_SECONDS,
+    max_queued: int = DEFAULT_MAX_QUEUED,
+    max_queued_per_study: int = DEFAULT_MAX_QUEUED_PER_STUDY,
+    submit_rate: float | None = None,
+) -> tuple[Queue, FakeClock]:
     clock = FakeClock()
-    queue: Queue = LeaseQueue(lease_seconds=lease_seconds, clock=clock)
+    queue: Queue = LeaseQueue(
+        lease_seconds=lease_seconds,
+        clock=clock,
+        max_queued=max_queued,
+        max_queued_per_study=max_queued_per_study,
+        submit_rate=submit_rate,
+    )
     for study in studies:
         queue.open_study(study)
     return queue, clock
 
 
-def jobs(*job_ids: str) -> list[Job]:
-    return [Job(job_id=job_id, spec=EPISODE) for job_id in job_ids]
+def jobs(*job_ids: str, avoid: tuple[str, ...] = ()) -> list[Job]:
+    return [Job(job_id=job_id, spec=EPISODE, avoid=list(avoid)) for job_id in job_ids]
+
+
+def digest_of(text: str) -> str:
+    """A SHA-256 hex digest, as a worker computes of its episode log."""
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+DIGEST = digest_of("an episode log")
 
 
 def take(queue: Queue, worker: str) -> Lease:
-    """`worker` asks for work and must get a lease straight away."""
+    """`worker` (a real one: its liveliness token stands) asks for work and must get a lease
+    straight away."""
+    queue.worker_joined(worker)
     lease, replaced = queue.request(worker, Waiter(worker))
     assert lease is not None, f"{worker} got no lease"
     assert replaced is None
@@ -61,12 +88,31 @@ def take(queue: Queue, worker: str) -> Lease:
 
 
 def park(queue: Queue, worker: str) -> Waiter:
-    """`worker` asks for work and must be parked."""
+    """`worker` (a real one: its liveliness token stands) asks for work and must be parked."""
+    queue.worker_joined(worker)
     waiter = Waiter(worker)
     lease, replaced = queue.request(worker, waiter)
     assert lease is None, f"{worker} got {lease}"
     assert replaced is None
     return waiter
+
+
+def hand_in(queue: Queue, lease: Lease, worker: str, digest: str = DIGEST) -> str | None:
+    """`worker` hands in a result for `lease`'s job under `lease`'s id: None if it is taken."""
+    return queue.complete(lease.study, lease.job.job_id, lease.lease_id, worker, digest)
+
+
+def refused(reason: str | None, mentioning: str) -> bool:
+    """A result was turned away, with a reason that names what was wrong."""
+    return isinstance(reason, str) and mentioning in reason
+
+
+def assert_counts_add_up(queue: Queue) -> None:
+    """The totals agree with the per-study and per-worker records, whatever the listing limit."""
+    studies = queue.study_states(limit=queue.study_count() + 1)
+    assert len(studies) == queue.study_count()
+    assert sum(s.queued for s in studies) == queue.queued() >= 0
+    assert len(queue.worker_states(limit=queue.worker_count() + 1)) == queue.worker_count()
 
 
 def state(queue: Queue, study: str) -> StudyState:
@@ -393,7 +439,7 @@ def test_a_worker_asking_again_before_its_result_arrives_keeps_its_lease() -> No
     assert second.job.job_id == "j2"
     assert state(queue, "s") == StudyState(name="s", queued=0, leased=2, done=0)
     assert worker(queue, "w1") == WorkerState(name="w1", busy=True, job="s/j2", jobs_done=0)
-    assert queue.complete("s", "j1", "w1") is True  # the result, late
+    assert hand_in(queue, first, "w1") is None  # the result, late
     assert worker(queue, "w1") == WorkerState(name="w1", busy=True, job="s/j2", jobs_done=1)
     clock.advance(LEASE_SECONDS)
     queue.expire()  # had the result been lost, the expiry would have taken j1 back
@@ -406,13 +452,16 @@ def test_a_worker_asking_again_before_its_result_arrives_keeps_its_lease() -> No
 def test_only_the_first_result_for_a_job_counts() -> None:
     queue, clock = make_queue("s")
     queue.submit("s", jobs("j1", "j2"))
-    take(queue, "w1")
+    lease = take(queue, "w1")
     clock.advance(1.0)
 
-    assert queue.complete("s", "j1", "w1") is True
-    assert queue.complete("s", "j1", "w1") is False  # duplicate
-    assert queue.complete("s", "nope", "w1") is False  # stray: never submitted
-    assert queue.complete("other", "j1", "w1") is False  # unknown study
+    assert hand_in(queue, lease, "w1") is None
+    assert refused(hand_in(queue, lease, "w1", digest_of("another")), "j1")  # duplicate
+    stray = queue.complete("s", "nope", lease.lease_id, "w1", DIGEST)  # never submitted
+    assert refused(stray, "nope")
+    unknown = queue.complete("other", "j1", lease.lease_id, "w1", DIGEST)  # unknown study
+    assert refused(unknown, "other")
+    assert queue.accepted("s", ["j1"])[0].digest == DIGEST  # the first one's
 
     assert queue.jobs_done == 1
     assert state(queue, "s") == StudyState(name="s", queued=1, leased=0, done=1)
@@ -422,48 +471,50 @@ def test_only_the_first_result_for_a_job_counts() -> None:
 def test_a_result_for_a_closed_study_is_not_counted() -> None:
     queue, _ = make_queue("s")
     queue.submit("s", jobs("j1"))
-    take(queue, "w1")
+    lease = take(queue, "w1")
     queue.close_study("s")
 
-    assert queue.complete("s", "j1", "w1") is False
+    assert refused(hand_in(queue, lease, "w1"), "s")
     assert queue.jobs_done == 0
     assert worker(queue, "w1").jobs_done == 0
 
     queue.open_study("s")  # reopened under the same name: a fresh study
-    assert queue.complete("s", "j1", "w1") is False
+    assert refused(hand_in(queue, lease, "w1"), "j1")
+    assert queue.accepted("s", ["j1"]) == []
     assert state(queue, "s") == StudyState(name="s", queued=0, leased=0, done=0)
 
 
 def test_a_late_result_for_an_expired_and_requeued_job_completes_it() -> None:
     queue, clock = make_queue("s")
     queue.submit("s", jobs("j1", "j2"))
-    take(queue, "w1")
+    first = take(queue, "w1")
     clock.advance(LEASE_SECONDS)
     queue.expire()
     assert state(queue, "s") == StudyState(name="s", queued=2, leased=0, done=0)
 
-    assert queue.complete("s", "j1", "w1") is True  # w1 was slow, not dead
+    assert hand_in(queue, first, "w1") is None  # w1 was slow, not dead
+    assert_counts_add_up(queue)
 
     assert state(queue, "s") == StudyState(name="s", queued=1, leased=0, done=1)
     assert queue.jobs_done == 1
     assert take(queue, "w2").job.job_id == "j2"
     park(queue, "w3")  # j1 is not leased again
-    assert queue.complete("s", "j1", "w1") is False
+    assert refused(hand_in(queue, first, "w1"), "j1")
 
 
 def test_a_late_result_for_an_expired_and_re_leased_job_completes_it_once() -> None:
     queue, clock = make_queue("s")
     queue.submit("s", jobs("j1"))
-    take(queue, "w1")
+    first = take(queue, "w1")
     clock.advance(LEASE_SECONDS)
     queue.expire()
-    take(queue, "w2")  # j1 again
+    second = take(queue, "w2")  # j1 again
 
-    assert queue.complete("s", "j1", "w1") is True  # w1's late result
+    assert hand_in(queue, first, "w1") is None  # w1's late result, under its own lease's id
     # w1 gets the credit; w2 is still busy with the job until it asks for work again.
     assert worker(queue, "w1") == WorkerState(name="w1", busy=False, job="", jobs_done=1)
     assert worker(queue, "w2").busy and worker(queue, "w2").jobs_done == 0
-    assert queue.complete("s", "j1", "w2") is False  # w2's result, a duplicate
+    assert refused(hand_in(queue, second, "w2"), "j1")  # w2's result, a duplicate
     assert queue.jobs_done == 1
     assert state(queue, "s") == StudyState(name="s", queued=0, leased=0, done=1)
     park(queue, "w2")  # asking again frees it, and the done job is not requeued
@@ -474,12 +525,12 @@ def test_a_late_result_for_an_expired_and_re_leased_job_completes_it_once() -> N
 def test_a_result_overtaken_by_its_worker_s_departure_still_completes_the_job() -> None:
     queue, clock = make_queue("s")
     queue.submit("s", jobs("j1"))
-    take(queue, "w1")
+    lease = take(queue, "w1")
     waiter = park(queue, "w2")
     queue.worker_lost("w1")  # a worker stopped with SIGTERM: its token's loss came first
     clock.advance(LOST_WORKER_GRACE / 2)
 
-    assert queue.complete("s", "j1", "w1") is True
+    assert hand_in(queue, lease, "w1") is None
     clock.advance(LOST_WORKER_GRACE)
     assert queue.expire() == []  # nothing to run twice
     assert queue.requeued == 0 and queue.withdraw("w2", waiter) is True
@@ -488,13 +539,14 @@ def test_a_result_overtaken_by_its_worker_s_departure_still_completes_the_job() 
 def test_a_result_after_the_worker_was_lost_completes_the_requeued_job() -> None:
     queue, clock = make_queue("s")
     queue.submit("s", jobs("j1"))
-    take(queue, "w1")
+    lease = take(queue, "w1")
     queue.worker_lost("w1")
     clock.advance(LOST_WORKER_GRACE)
     queue.expire()
     assert state(queue, "s").queued == 1
 
-    assert queue.complete("s", "j1", "w1") is True
+    assert hand_in(queue, lease, "w1") is None
+    assert queue.queued() == 0
     assert state(queue, "s") == StudyState(name="s", queued=0, leased=0, done=1)
     park(queue, "w2")
 
@@ -526,16 +578,18 @@ def test_a_job_twice_in_one_submission_is_queued_once() -> None:
 def test_resubmitting_a_done_job_queues_it_again() -> None:
     queue, _ = make_queue("s")
     queue.submit("s", jobs("j1"))
-    take(queue, "w1")
-    assert queue.complete("s", "j1", "w1") is True
+    first = take(queue, "w1")
+    assert hand_in(queue, first, "w1") is None
 
     submitted = queue.submit("s", jobs("j1"))
 
     assert submitted.queued == ["j1"]
     assert submitted.already_pending == []
     assert state(queue, "s") == StudyState(name="s", queued=1, leased=0, done=1)
-    assert take(queue, "w1").job.job_id == "j1"
-    assert queue.complete("s", "j1", "w1") is True  # its new result counts
+    again = take(queue, "w1")
+    assert again.job.job_id == "j1"
+    assert refused(hand_in(queue, first, "w1"), first.lease_id)  # the old run's lease is over
+    assert hand_in(queue, again, "w1") is None  # its new result counts
     assert queue.jobs_done == 2
 
 
@@ -543,10 +597,12 @@ def test_the_same_job_id_in_two_studies_is_two_jobs() -> None:
     queue, _ = make_queue("a", "b")
     assert queue.submit("a", jobs("j1")).queued == ["j1"]
     assert queue.submit("b", jobs("j1")).queued == ["j1"]
-    take(queue, "w1")
-    take(queue, "w2")
-    assert queue.complete("a", "j1", "w1") is True
-    assert queue.complete("b", "j1", "w1") is True
+    in_a, in_b = take(queue, "w1"), take(queue, "w2")
+    assert (in_a.study, in_b.study) == ("a", "b")
+    # a's lease is not b's: the same job id in another study is another job
+    assert refused(queue.complete("b", "j1", in_a.lease_id, "w1", DIGEST), in_a.lease_id)
+    assert hand_in(queue, in_a, "w1") is None
+    assert hand_in(queue, in_b, "w2") is None
     assert [s.done for s in queue.study_states()] == [1, 1]
 
 
@@ -610,14 +666,17 @@ def test_two_studies_share_the_workers_evenly() -> None:
     workers = [f"w{n}" for n in range(4)]
 
     handed: list[str] = []
+    leases: dict[str, Lease] = {}
     for name in workers:
-        handed.append(take(queue, name).study)
+        leases[name] = take(queue, name)
+        handed.append(leases[name].study)
     for _ in range(8):
         for name in workers:
-            held = worker(queue, name).job
-            study, job_id = held.split("/")
-            assert queue.complete(study, job_id, name) is True
-            handed.append(take(queue, name).study)
+            held = leases[name]
+            assert worker(queue, name).job == f"{held.study}/{held.job.job_id}"
+            assert hand_in(queue, held, name) is None
+            leases[name] = take(queue, name)
+            handed.append(leases[name].study)
             running = Counter(w.job.split("/")[0] for w in queue.worker_states() if w.busy)
             assert running == {"a": 2, "b": 2}
 
@@ -648,8 +707,8 @@ def test_a_study_that_completes_faster_gets_the_next_worker() -> None:
     assert [lease.study for lease in leases.values()] == ["a", "b", "a", "b"]
 
     # Both of b's jobs finish; a still runs two, so the next two workers both go to b.
-    assert queue.complete("b", leases["w2"].job.job_id, "w2") is True
-    assert queue.complete("b", leases["w4"].job.job_id, "w4") is True
+    assert hand_in(queue, leases["w2"], "w2") is None
+    assert hand_in(queue, leases["w4"], "w4") is None
     assert [take(queue, name).study for name in ("w2", "w4")] == ["b", "b"]
 
 
@@ -682,10 +741,11 @@ def test_worker_and_study_states_report_the_farm() -> None:
     queue.worker_joined("zed")  # twice: still one worker
     assert queue.worker_states() == [WorkerState(name="zed", busy=False, job="", jobs_done=0)]
     queue.submit("alpha", jobs("a1", "a2", "a3"))
-    assert take(queue, "w1").job.job_id == "a1"
+    a1 = take(queue, "w1")
+    assert a1.job.job_id == "a1"
     queue.submit("beta", jobs("b1"))
     assert take(queue, "w2").job.job_id == "b1"  # beta runs fewer
-    assert queue.complete("alpha", "a1", "w1") is True
+    assert hand_in(queue, a1, "w1") is None
     assert take(queue, "w1").job.job_id == "a2"  # beta has nothing queued
 
     assert queue.worker_states() == [  # by name
@@ -697,6 +757,8 @@ def test_worker_and_study_states_report_the_farm() -> None:
         StudyState(name="alpha", queued=1, leased=1, done=1),
         StudyState(name="beta", queued=0, leased=1, done=0),
     ]
+    assert (queue.worker_count(), queue.study_count(), queue.queued()) == (3, 2, 1)
+    assert_counts_add_up(queue)
     assert queue.jobs_done == 1
     assert queue.requeued == 0
 
@@ -728,7 +790,7 @@ def test_jobs_per_second_over_the_last_minute() -> None:
     clock.advance(10.0)
     for name in ("w1", "w2", "w3", "w4", "w5"):
         lease = take(queue, name)
-        assert queue.complete("s", lease.job.job_id, name) is True
+        assert hand_in(queue, lease, name) is None
     assert queue.uptime() == 10.0
     assert queue.jobs_per_second() == pytest.approx(5 / 10.0)  # younger than a minute
 
@@ -739,7 +801,7 @@ def test_jobs_per_second_over_the_last_minute() -> None:
     assert queue.jobs_per_second() == 0.0
     for name in ("w1", "w2", "w3"):
         lease = take(queue, name)
-        assert queue.complete("s", lease.job.job_id, name) is True
+        assert hand_in(queue, lease, name) is None
     assert queue.jobs_per_second() == pytest.approx(3 / THROUGHPUT_WINDOW)
     assert queue.jobs_done == 8
 
@@ -747,11 +809,524 @@ def test_jobs_per_second_over_the_last_minute() -> None:
 def test_duplicates_and_strays_do_not_count_toward_throughput() -> None:
     queue, clock = make_queue("s")
     queue.submit("s", jobs("j1"))
-    take(queue, "w1")
+    lease = take(queue, "w1")
     clock.advance(20.0)
-    queue.complete("s", "j1", "w1")
-    queue.complete("s", "j1", "w1")
-    queue.complete("s", "stray", "w1")
-    queue.complete("gone", "j1", "w1")
+    assert hand_in(queue, lease, "w2") is not None  # forged: not w2's lease
+    assert queue.complete("s", "j1", "made-up", "w1", DIGEST) is not None  # forged: no such lease
+    assert hand_in(queue, lease, "w1") is None
+    assert hand_in(queue, lease, "w1") is not None
+    assert queue.complete("s", "stray", lease.lease_id, "w1", DIGEST) is not None
+    assert queue.complete("gone", "j1", lease.lease_id, "w1", DIGEST) is not None
     assert queue.jobs_done == 1
     assert queue.jobs_per_second() == pytest.approx(1 / 20.0)
+
+
+# --- forged results ----------------------------------------------------------------------------
+
+
+def test_a_result_under_another_worker_s_lease_is_refused_and_the_job_stays_leased() -> None:
+    queue, _ = make_queue("s")
+    queue.submit("s", jobs("j1", "j2"))
+    mine = take(queue, "w1")  # j1
+    theirs = take(queue, "w2")  # j2
+
+    # w2 hands in j1 under w1's lease id (say it overheard it): the lease is not w2's.
+    assert refused(hand_in(queue, mine, "w2"), mine.lease_id)
+    # w1 hands in j2, w2's job, under its own lease id: that lease is not one of j2's.
+    assert refused(queue.complete("s", "j2", mine.lease_id, "w1", DIGEST), mine.lease_id)
+
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=2, done=0)
+    assert queue.jobs_done == 0 and queue.jobs_per_second() == 0.0
+    assert queue.accepted("s", ["j1", "j2"]) == []
+    assert worker(queue, "w1") == WorkerState(name="w1", busy=True, job="s/j1", jobs_done=0)
+    assert worker(queue, "w2") == WorkerState(name="w2", busy=True, job="s/j2", jobs_done=0)
+    # The rightful results still count.
+    assert hand_in(queue, mine, "w1") is None
+    assert hand_in(queue, theirs, "w2") is None
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=0, done=2)
+    assert_counts_add_up(queue)
+
+
+def test_a_result_under_a_made_up_lease_id_is_refused() -> None:
+    queue, clock = make_queue("s")
+    queue.submit("s", jobs("j1"))
+    lease = take(queue, "w1")
+
+    for made_up in ("made-up", lease.lease_id + "x", lease.lease_id.upper() + "Q", ""):
+        assert refused(queue.complete("s", "j1", made_up, "w1", DIGEST), "j1")
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=1, done=0)
+    assert worker(queue, "w1").busy is True
+
+    clock.advance(LEASE_SECONDS)  # the lease still expires as usual: nothing completed it
+    queue.expire()
+    assert state(queue, "s") == StudyState(name="s", queued=1, leased=0, done=0)
+    assert queue.requeued == 1
+    assert queue.accepted("s", ["j1"]) == []
+
+
+def test_a_result_for_a_job_never_leased_is_refused_and_it_stays_queued() -> None:
+    queue, _ = make_queue("s")
+    queue.submit("s", jobs("j1", "j2"))
+    lease = take(queue, "w1")  # j1; j2 was never leased
+
+    assert refused(queue.complete("s", "j2", lease.lease_id, "w1", DIGEST), "j2")
+    assert refused(queue.complete("s", "j2", "guess", "w2", DIGEST), "j2")
+
+    assert state(queue, "s") == StudyState(name="s", queued=1, leased=1, done=0)
+    assert queue.queued() == 1 and queue.jobs_done == 0
+    assert queue.accepted("s", ["j2"]) == []
+    assert take(queue, "w2").job.job_id == "j2"  # still there to run
+    assert_counts_add_up(queue)
+
+
+def test_a_late_result_under_an_expired_lease_counts_only_from_its_own_worker() -> None:
+    queue, clock = make_queue("s")
+    queue.submit("s", jobs("j1"))
+    first = take(queue, "w1")
+    clock.advance(LEASE_SECONDS)
+    queue.expire()
+    second = take(queue, "w2")  # j1 again, under a new lease
+
+    assert refused(hand_in(queue, first, "w2"), first.lease_id)  # w2 under w1's lease
+    assert refused(hand_in(queue, first, "w3"), first.lease_id)  # a stranger under it
+    assert refused(hand_in(queue, second, "w1"), second.lease_id)  # w1 under w2's lease
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=1, done=0)
+    assert queue.jobs_done == 0
+
+    assert hand_in(queue, first, "w1", digest_of("w1's log")) is None  # late, but its own
+    assert queue.accepted("s", ["j1"]) == [
+        Accepted(job_id="j1", lease_id=first.lease_id, worker="w1", digest=digest_of("w1's log"))
+    ]
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=0, done=1)
+
+
+def test_a_late_result_under_an_expired_lease_of_a_queued_job_completes_it() -> None:
+    queue, clock = make_queue("s")
+    queue.submit("s", jobs("j1"))
+    first = take(queue, "w1")
+    clock.advance(LEASE_SECONDS)
+    queue.expire()  # j1 back in the queue, no one to lease it
+    assert queue.queued() == 1
+
+    assert refused(hand_in(queue, first, "w2"), first.lease_id)
+    assert queue.queued() == 1
+    assert hand_in(queue, first, "w1") is None
+    assert queue.queued() == 0
+    assert [a.lease_id for a in queue.accepted("s", ["j1"])] == [first.lease_id]
+    assert_counts_add_up(queue)
+
+
+# --- accepted results --------------------------------------------------------------------------
+
+
+def test_accepted_returns_the_taken_result_s_lease_worker_and_digest() -> None:
+    queue, _ = make_queue("s")
+    queue.submit("s", jobs("j1", "j2", "j3", "j4"))
+    one, two = take(queue, "w1"), take(queue, "w2")  # j1, j2
+    take(queue, "w3")  # j3 leased, not done; j4 queued
+
+    assert hand_in(queue, one, "w1", digest_of("j1")) is None
+    assert hand_in(queue, two, "w2", digest_of("j2")) is None
+    assert refused(hand_in(queue, one, "w1", digest_of("j1 again")), "j1")  # changes nothing
+
+    taken_one = Accepted(job_id="j1", lease_id=one.lease_id, worker="w1", digest=digest_of("j1"))
+    taken_two = Accepted(job_id="j2", lease_id=two.lease_id, worker="w2", digest=digest_of("j2"))
+    assert queue.accepted("s", ["j1"]) == [taken_one]
+    assert queue.accepted("s", ["j2", "j1"]) == [taken_two, taken_one]  # in the order asked
+    # Nothing for jobs leased, queued, never submitted, or of an unknown study.
+    assert queue.accepted("s", ["j3", "j4", "nope"]) == []
+    assert queue.accepted("s", []) == []
+    assert queue.accepted("other", ["j1"]) == []
+    assert queue.accepted("s", ["j3", "j1", "nope"]) == [taken_one]
+
+
+def test_a_closed_study_s_accepted_results_are_forgotten() -> None:
+    queue, _ = make_queue("s")
+    queue.submit("s", jobs("j1"))
+    assert hand_in(queue, take(queue, "w1"), "w1") is None
+    assert len(queue.accepted("s", ["j1"])) == 1
+
+    queue.close_study("s")
+    assert queue.accepted("s", ["j1"]) == []
+    queue.open_study("s")  # a fresh study under the same name
+    assert queue.accepted("s", ["j1"]) == []
+
+
+def test_a_done_job_run_again_has_its_new_result_accepted() -> None:
+    queue, _ = make_queue("s")
+    queue.submit("s", jobs("j1"))
+    first = take(queue, "w1")
+    assert hand_in(queue, first, "w1", digest_of("first")) is None
+
+    queue.submit("s", jobs("j1"))  # its result was lost on the way: run it again
+    again = take(queue, "w2")
+    assert refused(hand_in(queue, first, "w1", digest_of("stale")), first.lease_id)
+    assert hand_in(queue, again, "w2", digest_of("second")) is None
+    assert queue.accepted("s", ["j1"]) == [
+        Accepted(job_id="j1", lease_id=again.lease_id, worker="w2", digest=digest_of("second"))
+    ]
+
+
+# --- jobs that avoid workers -------------------------------------------------------------------
+
+
+def test_a_job_avoiding_a_worker_goes_to_another_that_asks() -> None:
+    queue, _ = make_queue("s")
+    queue.submit("s", jobs("j1", avoid=("w1",)))
+
+    waiter = park(queue, "w1")  # the only job avoids w1: it waits, parked first
+    assert state(queue, "s") == StudyState(name="s", queued=1, leased=0, done=0)
+    lease = take(queue, "w2")
+    assert lease.job.job_id == "j1"
+    assert lease.job.avoid == ["w1"]
+
+    # w1 is still parked, and takes the next job that does not avoid it.
+    submitted = queue.submit("s", jobs("j2"))
+    assert [(a.waiter, a.lease.job.job_id) for a in submitted.assignments] == [(waiter, "j2")]
+    assert_counts_add_up(queue)
+
+
+def test_a_worker_passes_over_a_job_that_avoids_it_for_the_next() -> None:
+    queue, _ = make_queue("s")
+    queue.submit("s", [*jobs("j1", avoid=("w1", "w9")), *jobs("j2", "j3")])
+
+    assert take(queue, "w1").job.job_id == "j2"  # j1 stays at the front
+    assert take(queue, "w2").job.job_id == "j1"
+    assert take(queue, "w3").job.job_id == "j3"
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=3, done=0)
+    assert_counts_add_up(queue)
+
+
+def test_a_parked_worker_a_job_avoids_is_passed_over_for_the_next_parked() -> None:
+    queue, _ = make_queue("s")
+    first, second, third = park(queue, "w1"), park(queue, "w2"), park(queue, "w3")
+
+    submitted = queue.submit("s", jobs("j1", avoid=("w1", "w2")))
+    assert [(a.waiter, a.lease.job.job_id) for a in submitted.assignments] == [(third, "j1")]
+
+    # w1 and w2 are still parked, oldest first.
+    submitted = queue.submit("s", jobs("j2", "j3"))
+    assert [(a.waiter, a.lease.job.job_id) for a in submitted.assignments] == [
+        (first, "j2"),
+        (second, "j3"),
+    ]
+    assert queue.worker_states() == [
+        WorkerState(name="w1", busy=True, job="s/j2", jobs_done=0),
+        WorkerState(name="w2", busy=True, job="s/j3", jobs_done=0),
+        WorkerState(name="w3", busy=True, job="s/j1", jobs_done=0),
+    ]
+
+
+def test_a_parked_worker_takes_a_later_job_when_the_first_avoids_it() -> None:
+    queue, _ = make_queue("s")
+    waiter = park(queue, "w1")
+
+    submitted = queue.submit("s", [*jobs("j1", avoid=("w1",)), *jobs("j2")])
+
+    assert [(a.waiter, a.lease.job.job_id) for a in submitted.assignments] == [(waiter, "j2")]
+    assert state(queue, "s") == StudyState(name="s", queued=1, leased=1, done=0)
+    assert take(queue, "w2").job.job_id == "j1"
+
+
+def test_a_job_avoiding_every_worker_waits() -> None:
+    queue, clock = make_queue("s")
+    waiters = {name: park(queue, name) for name in ("w1", "w2")}
+
+    submitted = queue.submit("s", jobs("j1", avoid=("w1", "w2")))
+
+    assert submitted.queued == ["j1"] and submitted.assignments == []
+    lease, replaced = queue.request("w1", Waiter("w1"))  # asking again does not change that
+    assert lease is None and replaced is waiters["w1"]
+    clock.advance(LEASE_SECONDS)
+    assert queue.expire() == []
+    assert state(queue, "s") == StudyState(name="s", queued=1, leased=0, done=0)
+    assert queue.queued() == 1
+    assert take(queue, "w3").job.job_id == "j1"  # a worker it does not avoid runs it
+    assert queue.withdraw("w2", waiters["w2"]) is True
+
+
+def test_an_expired_job_is_not_handed_back_to_a_parked_worker_it_avoids() -> None:
+    queue, clock = make_queue("s")
+    queue.submit("s", jobs("j1", avoid=("w2",)))
+    take(queue, "w1")
+    avoided, other = park(queue, "w2"), park(queue, "w3")
+
+    clock.advance(LEASE_SECONDS)
+    assignments = queue.expire()
+
+    assert [(a.waiter, a.lease.job.job_id) for a in assignments] == [(other, "j1")]
+    assert queue.withdraw("w2", avoided) is True
+
+
+def test_a_job_a_worker_avoids_lets_another_study_serve_it() -> None:
+    queue, _ = make_queue("a", "b")
+    queue.submit("b", jobs("b1"))
+    assert take(queue, "w0").study == "b"  # b runs one, so a comes first from now on
+    queue.submit("a", jobs("a1", avoid=("w1",)))
+    queue.submit("b", jobs("b2"))
+
+    assert take(queue, "w1").job.job_id == "b2"  # a's only job avoids w1
+    assert take(queue, "w2").job.job_id == "a1"
+
+
+# --- memory: workers are remembered only while they matter -------------------------------------
+
+
+def test_made_up_names_asking_for_work_are_forgotten_once_withdrawn() -> None:
+    queue, _ = make_queue("s")
+    real = park(queue, "w1")  # joined, parked
+    queue.worker_joined("w2")  # joined, idle
+    flood = {f"ghost-{n:05d}": Waiter(f"ghost-{n:05d}") for n in range(10_000)}
+
+    for name, waiter in flood.items():
+        assert queue.request(name, waiter) == (None, None)  # no work: parked
+
+    assert queue.worker_count() == 10_002
+    listed = queue.worker_states()
+    assert len(listed) == MAX_LISTED
+    assert [w.name for w in listed] == sorted(["w1", "w2", *flood])[:MAX_LISTED]
+    assert_counts_add_up(queue)
+
+    for name, waiter in flood.items():
+        assert queue.withdraw(name, waiter) is True
+
+    assert queue.worker_count() == 2
+    assert queue.worker_states() == [
+        WorkerState(name="w1", busy=False, job="", jobs_done=0),
+        WorkerState(name="w2", busy=False, job="", jobs_done=0),
+    ]
+    assert len(queue.worker_states()) <= MAX_LISTED
+    submitted = queue.submit("s", jobs("j1"))  # the real parked worker is still served
+    assert [a.waiter for a in submitted.assignments] == [real]
+
+
+def test_a_made_up_name_is_forgotten_once_its_lease_ends() -> None:
+    queue, clock = make_queue("s", "t")
+    queue.submit("s", jobs("j1", "j2", "j3"))
+
+    # Its result is taken: it holds nothing any more.
+    done, _ = queue.request("ghost", Waiter("ghost"))
+    assert done is not None and done.job.job_id == "j1"
+    assert queue.worker_count() == 1
+    assert hand_in(queue, done, "ghost") is None
+    assert queue.worker_count() == 0 and queue.jobs_done == 1
+
+    # Its lease expires.
+    lease, _ = queue.request("ghost", Waiter("ghost"))
+    assert lease is not None and lease.job.job_id == "j2"
+    assert queue.worker_count() == 1
+    clock.advance(LEASE_SECONDS)
+    queue.expire()
+    assert queue.worker_count() == 0 and queue.requeued == 1
+
+    # Its study is closed.
+    queue.submit("t", jobs("t1"))
+    lease, _ = queue.request("ghost", Waiter("ghost"))
+    assert lease is not None and lease.study == "t"  # t has been served least recently
+    assert queue.close_study("t") == 0
+    assert queue.worker_count() == 0
+
+    # It asks again while its result is on the way, is parked, and is withdrawn: it is
+    # forgotten, yet the lease it held stands and its result still counts.
+    held, _ = queue.request("ghost", Waiter("ghost"))
+    assert held is not None and held.job.job_id == "j2"
+    after, _ = queue.request("ghost", Waiter("ghost"))
+    assert after is not None and after.job.job_id == "j3"
+    waiter = Waiter("ghost")
+    assert queue.request("ghost", waiter) == (None, None)  # nothing left: parked
+    assert queue.worker_count() == 1
+    assert queue.withdraw("ghost", waiter) is True
+    assert queue.worker_count() == 0
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=2, done=1)
+    assert hand_in(queue, held, "ghost") is None
+    assert hand_in(queue, after, "ghost") is None
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=0, done=3)
+    assert queue.worker_count() == 0
+    assert_counts_add_up(queue)
+
+
+def test_a_joined_worker_is_remembered_while_idle_and_forgotten_when_lost() -> None:
+    queue, clock = make_queue("s")
+    waiter = park(queue, "w1")
+    assert queue.withdraw("w1", waiter) is True
+    assert queue.worker_states() == [WorkerState(name="w1", busy=False, job="", jobs_done=0)]
+
+    queue.submit("s", jobs("j1"))
+    lease = take(queue, "w1")
+    assert hand_in(queue, lease, "w1") is None
+    clock.advance(LEASE_SECONDS)
+    queue.expire()
+    assert queue.worker_states() == [WorkerState(name="w1", busy=False, job="", jobs_done=1)]
+
+    queue.worker_lost("w1")
+    assert queue.worker_count() == 0 and queue.worker_states() == []
+
+
+def test_states_list_the_first_by_name_and_counts_give_the_totals() -> None:
+    queue, _ = make_queue()
+    names = [f"s{n:03d}" for n in range(MAX_LISTED + 50)]
+    for name in reversed(names):
+        queue.open_study(name)
+        queue.submit(name, jobs("j1", "j2"))
+    for n in range(5):
+        queue.worker_joined(f"w{n}")
+
+    assert queue.study_count() == MAX_LISTED + 50
+    assert [s.name for s in queue.study_states()] == names[:MAX_LISTED]
+    assert [s.name for s in queue.study_states(limit=3)] == names[:3]
+    assert queue.queued() == 2 * (MAX_LISTED + 50)
+    assert queue.worker_count() == 5
+    assert [w.name for w in queue.worker_states(limit=2)] == ["w0", "w1"]
+    assert queue.worker_states(limit=0) == []
+    assert_counts_add_up(queue)
+
+
+# --- caps and the submission rate --------------------------------------------------------------
+
+
+def test_jobs_past_a_study_s_cap_are_deferred_until_there_is_room() -> None:
+    queue, clock = make_queue("s", "t", max_queued_per_study=3)
+
+    submitted = queue.submit("s", jobs("j1", "j2", "j3", "j4", "j5"))
+    assert submitted.queued == ["j1", "j2", "j3"]
+    assert submitted.deferred == ["j4", "j5"]
+    assert submitted.already_pending == []
+    assert queue.queued() == 3 and state(queue, "s").queued == 3
+    assert queue.submit("t", jobs("t1", "t2", "t3")).deferred == []  # each study has its cap
+    assert_counts_add_up(queue)
+
+    again = queue.submit("s", jobs("j1", "j4"))  # j1 is pending; j4 still has no room
+    assert (again.queued, again.already_pending, again.deferred) == ([], ["j1"], ["j4"])
+
+    assert take(queue, "w1").job.job_id == "j1"  # a leased job leaves the queue: room for one
+    later = queue.submit("s", jobs("j4", "j5"))
+    assert (later.queued, later.deferred) == (["j4"], ["j5"])
+    assert state(queue, "s") == StudyState(name="s", queued=3, leased=1, done=0)
+    assert_counts_add_up(queue)
+
+    # An expired lease's job comes back though the queue is full: it is not lost.
+    clock.advance(LEASE_SECONDS)
+    queue.expire()
+    assert state(queue, "s") == StudyState(name="s", queued=4, leased=0, done=0)
+    assert queue.queued() == 7
+    assert queue.submit("s", jobs("j5")).deferred == ["j5"]
+    assert_counts_add_up(queue)
+
+
+def test_jobs_past_the_total_cap_are_deferred_across_studies() -> None:
+    queue, _ = make_queue("a", "b", max_queued=4)
+
+    assert queue.submit("a", jobs("a1", "a2", "a3")).queued == ["a1", "a2", "a3"]
+    submitted = queue.submit("b", jobs("b1", "b2", "b3"))
+    assert (submitted.queued, submitted.deferred) == (["b1"], ["b2", "b3"])
+    assert queue.submit("a", jobs("a4")).deferred == ["a4"]
+    assert queue.queued() == 4
+    assert_counts_add_up(queue)
+
+    lease = take(queue, "w1")
+    assert queue.queued() == 3
+    assert hand_in(queue, lease, "w1") is None  # done: no change to what is queued
+    later = queue.submit("b", jobs("b2", "b3"))
+    assert (later.queued, later.deferred) == (["b2"], ["b3"])
+    assert queue.queued() == 4
+
+    assert queue.close_study("a") == 2  # a's queue is gone: room for b
+    assert queue.queued() == 2
+    assert queue.submit("b", jobs("b3")).queued == ["b3"]
+    assert_counts_add_up(queue)
+
+
+def test_a_study_over_its_submission_rate_is_deferred_until_time_passes() -> None:
+    rate = 2.0  # jobs per second: bursts of 20
+    burst = int(rate * RATE_BURST_SECONDS)
+    queue, clock = make_queue("s", "t", submit_rate=rate)
+    names = [f"j{n}" for n in range(burst + 5)]
+
+    submitted = queue.submit("s", jobs(*names))
+    assert submitted.queued == names[:burst]
+    assert submitted.deferred == names[burst:]
+    assert queue.queued() == burst
+    # Resubmitting pending jobs costs nothing, and each study has its own allowance.
+    assert queue.submit("s", jobs("j0")).already_pending == ["j0"]
+    assert len(queue.submit("t", jobs(*(f"t{n}" for n in range(burst)))).queued) == burst
+
+    clock.advance(1.0)  # two more
+    later = queue.submit("s", jobs(*names[burst:]))
+    assert later.queued == names[burst : burst + 2]
+    assert later.deferred == names[burst + 2 :]
+    assert queue.submit("s", jobs(names[-1])).deferred == [names[-1]]  # none left now
+
+    clock.advance(0.25)  # half a job's worth: not yet
+    assert queue.submit("s", jobs(names[-1])).deferred == [names[-1]]
+    clock.advance(0.25)
+    assert queue.submit("s", jobs(names[-1])).queued == [names[-1]]
+
+    clock.advance(1000.0)  # a long pause earns one burst, not more
+    fresh = [f"k{n}" for n in range(burst + 10)]
+    submitted = queue.submit("s", jobs(*fresh))
+    assert (len(submitted.queued), len(submitted.deferred)) == (burst, 10)
+    assert_counts_add_up(queue)
+
+
+def test_a_deferred_job_is_handed_to_a_parked_worker_once_it_is_queued() -> None:
+    queue, clock = make_queue("s", submit_rate=0.1)  # one job at a time, one per 10 s
+    waiter = park(queue, "w1")
+    first = queue.submit("s", jobs("j1", "j2"))
+    assert (first.queued, first.deferred) == (["j1"], ["j2"])
+    assert [(a.waiter, a.lease.job.job_id) for a in first.assignments] == [(waiter, "j1")]
+
+    later = park(queue, "w2")
+    assert queue.submit("s", jobs("j2")).assignments == []  # still deferred
+    clock.advance(10.0)
+    submitted = queue.submit("s", jobs("j2"))
+    assert [(a.waiter, a.lease.job.job_id) for a in submitted.assignments] == [(later, "j2")]
+
+
+# --- totals ------------------------------------------------------------------------------------
+
+
+def test_queued_counts_every_study_s_queue_through_a_job_s_life() -> None:
+    queue, clock = make_queue("a", "b")
+    assert queue.queued() == 0
+    queue.submit("a", jobs("a1", "a2", "a3"))
+    queue.submit("b", jobs("b1", "b2"))
+    queue.submit("a", jobs("a1"))  # already pending: not counted twice
+    assert queue.queued() == 5
+    assert_counts_add_up(queue)
+
+    leases = {name: take(queue, name) for name in ("w1", "w2", "w3")}  # a1, b1, a2
+    assert queue.queued() == 2
+    assert_counts_add_up(queue)
+
+    assert hand_in(queue, leases["w1"], "w1") is None  # a leased job done: queue unchanged
+    assert queue.queued() == 2
+    clock.advance(LEASE_SECONDS)
+    queue.expire()  # b1 and a2 come back
+    assert queue.queued() == 4
+    assert_counts_add_up(queue)
+
+    assert hand_in(queue, leases["w3"], "w3") is None  # a2's late result: out of the queue
+    assert queue.queued() == 3
+    assert refused(hand_in(queue, leases["w3"], "w3"), "a2")
+    assert queue.queued() == 3
+    assert_counts_add_up(queue)
+
+    assert take(queue, "w4").job.job_id == "b1"  # b was served less recently than a
+    assert queue.queued() == 2
+    assert queue.close_study("b") == 1  # b2: its leased b1 was not queued
+    assert queue.queued() == 1  # a3
+    clock.advance(LEASE_SECONDS)
+    assert queue.expire() == []  # the closed study's lease does not come back
+    assert queue.queued() == 1
+    assert take(queue, "w5").job.job_id == "a3"
+    assert queue.queued() == 0
+    assert_counts_add_up(queue)
+
+
+def test_a_slow_submission_rate_still_lets_jobs_through() -> None:
+    rate = 0.5 / RATE_BURST_SECONDS  # one job every 20 s: a burst would be worth half a job
+    queue, clock = make_queue("s", submit_rate=rate)
+    assert queue.submit("s", jobs("j1")).queued == ["j1"]
+    assert queue.submit("s", jobs("j2")).deferred == ["j2"]
+    clock.advance(1 / rate)
+    assert queue.submit("s", jobs("j2")).queued == ["j2"]
