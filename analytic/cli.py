@@ -3,8 +3,6 @@ an episode log (`evaluate`), evaluate fixed candidates on the farm (`batch`)."""
 
 import contextlib
 import json
-import os
-import pickle
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -19,6 +17,7 @@ from rich.table import Table
 
 from analytic import experiments
 from analytic.batch import EVALUATIONS, batch_jobs, run_batch
+from analytic.checkpoint import CheckpointRefused
 from analytic.config import RunConfig
 from analytic.dataset import NoEpisodes, UnreadableRun
 from analytic.dataset import build as build_dataset
@@ -27,8 +26,8 @@ from analytic.experiments import Experiment
 from analytic.farm import DEFAULT_DEADLINE, FarmClient, FarmUnavailable
 from analytic.local import local_farm
 from analytic.records import CONFIG_JSON
-from analytic.run import RunProgress, TuningRun
-from analytic.tuning import run_study
+from analytic.run import RunBusy, RunProgress, TuningRun
+from analytic.tuning import new_study_name
 from cli import options
 from cli.app import CliError, parse_numbers, run_app
 from cli.scores import show_scores
@@ -179,7 +178,7 @@ def batch(
     with _farm(connect, workers) as endpoints:
         try:
             farm = FarmClient(
-                endpoints, f"batch-{os.getpid()}", run_dir, deadline=deadline, identity=identity
+                endpoints, new_study_name(run_dir), run_dir, deadline=deadline, identity=identity
             )
         except (ValueError, ConnectionError) as error:
             raise CliError(str(error)) from None
@@ -264,8 +263,12 @@ def start(
         run = TuningRun.create(out, config)
     except FileExistsError as error:
         raise CliError(f"--out: {error}") from None
+    except RunBusy as error:
+        raise CliError(f"--out: {error}") from None
     except OSError as error:
-        raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
+        raise CliError(
+            f"--out: cannot write {str(error.filename or out)!r}: {error.strerror}"
+        ) from None
     _tune(run, connect, workers, identity)
 
 
@@ -281,9 +284,17 @@ def resume(
         raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG_JSON})")
     try:
         run = TuningRun.open(run_dir)
-    except (OSError, ValueError, EOFError, pickle.UnpicklingError) as error:
+    except (RunBusy, CheckpointRefused) as error:
+        raise CliError(str(error)) from None
+    except OSError as error:  # its lock or run.json cannot be written, or a file read
+        where = f"{str(error.filename)!r}: " if error.filename else ""
+        raise CliError(
+            f"{str(run_dir)!r}: cannot open the run: {where}{error.strerror or error}"
+        ) from None
+    except ValueError as error:
         raise CliError(f"{str(run_dir)!r}: unreadable run ({error})") from None
     if run.finished:
+        run.close()
         raise CliError(f"{str(run_dir)!r} has finished: {run.state.stopped}")
     _tune(run, connect, workers, identity)
 
@@ -291,11 +302,13 @@ def resume(
 def _tune(
     run: TuningRun, connect: tuple[str, ...], workers: int, identity: TlsIdentity | None
 ) -> None:
+    """Run `run` (open, so holding its lock) on the farm, and close it."""
     console = Console(stderr=True)
     try:
-        with _farm(connect, workers) as endpoints:
+        with run, _farm(connect, workers) as endpoints:
+            study = new_study_name(run.directory)
             try:
-                farm = FarmClient(endpoints, run_study(), run.directory, identity=identity)
+                farm = FarmClient(endpoints, study, run.directory, identity=identity)
             except (ValueError, ConnectionError) as error:
                 raise CliError(str(error)) from None
             with (
@@ -322,6 +335,10 @@ def _tune(
                     )
 
                 reason = run.run(farm, show)
+    except OSError as error:
+        if isinstance(error, ConnectionError):  # the farm's: said where it happens
+            raise
+        raise _unwritable(error, f"go on with: analytic resume {run.directory}") from None
     except KeyboardInterrupt:
         generations = len(run.state.history)
         click.echo(
@@ -437,7 +454,10 @@ def experiment(
             task = progress.add_task(name)
             experiment = Experiment(
                 out,
-                lambda study, directory: FarmClient(endpoints, study, directory, identity=identity),
+                # The experiment's own study names are neither unique nor short enough.
+                lambda _study, directory: FarmClient(
+                    endpoints, new_study_name(directory), directory, identity=identity
+                ),
                 lambda text: progress.update(task, description=text),
             )
             try:
@@ -447,12 +467,24 @@ def experiment(
                     experiments.generic_vs_specific(experiment, base, reps)
                 else:
                     experiments.speed(experiment, base, duration_list, reps)
-            except ValueError as error:
+            except (ValueError, RunBusy) as error:
                 raise CliError(str(error)) from None
+    except OSError as error:
+        if isinstance(error, ConnectionError):
+            raise
+        raise _unwritable(error, "run the same command again to go on") from None
     except KeyboardInterrupt:
         click.echo("analytic: stopped; run the same command again to go on", err=True)
         sys.exit(130)
     console.print(f"{name}: report, figures and results.csv in {out}/")
+
+
+def _unwritable(error: OSError, then: str) -> CliError:
+    """A file of a run that could not be written (disk full, read-only, no permission), in one
+    line: the files are each whole or absent and the checkpoint is the last good one, so once
+    the cause is gone the run goes on as `then` says."""
+    where = f" {str(error.filename)!r}" if error.filename else ""
+    return CliError(f"cannot write{where}: {error.strerror or error}; once it can, {then}")
 
 
 def _config_problem(error: ValidationError) -> str:

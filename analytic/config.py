@@ -26,6 +26,11 @@ class RunConfig(BaseModel):
     reference_point: tuple[float, float] = REFERENCE_POINT
     asynchronous: bool = Field(False, description="steady-state NSGA-II, not generational")
     keep: Literal["all", "front"] = "all"
+    replicate: bool = Field(
+        True,
+        description="on a farm of 2+ workers, another worker reruns each front entrant's "
+        "episodes and the logs must agree bit for bit (analytic/replication.py)",
+    )
 
     @model_validator(mode="after")
     def _one_termination(self) -> Self:

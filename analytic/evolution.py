@@ -69,6 +69,16 @@ class Evolution:
         # falls and the front reported is the best found.
         self._archive_x = np.empty((0, len(self.space.lower)))
         self._archive_f = np.empty((0, 2))
+        # Every point told, dominated or not: a corrected point (validation by replication,
+        # analytic.replication) can uncover one that a false one had dominated.
+        self._seen_x = np.empty((0, len(self.space.lower)))
+        self._seen_f = np.empty((0, 2))
+
+    def __setstate__(self, state: dict) -> None:
+        """Checkpoints from before `_seen_*` know only the archive: it stands in for them."""
+        self.__dict__.update(state)
+        if "_seen_x" not in state:
+            self._seen_x, self._seen_f = self._archive_x.copy(), self._archive_f.copy()
 
     def ask(self) -> list[PDGains]:
         """The next generation's candidates (the first is the random initial population)."""
@@ -102,11 +112,27 @@ class Evolution:
         f = np.asarray(objectives, dtype=float)
         individuals.set("F", f)
         self.algorithm.tell(infills=individuals)
+        self._seen_x = np.vstack([self._seen_x, individuals.get("X")])
+        self._seen_f = np.vstack([self._seen_f, f])
         x = np.vstack([self._archive_x, individuals.get("X")])
         f = np.vstack([self._archive_f, f])
         first = non_dominated_indices(f)
         self._archive_x, self._archive_f = x[first], f[first]
         self.evaluations += len(individuals)
+
+    def correct(self, gains: PDGains, objectives: tuple[float, float]) -> None:
+        """A candidate's objectives were false (a replica outvoted its log): take the true ones,
+        in the archive, among the points seen and in NSGA-II's population."""
+        for row, x in enumerate(self._seen_x):
+            if self.space.gains(x) == gains:
+                self._seen_f[row] = objectives
+        first = non_dominated_indices(self._seen_f)
+        self._archive_x, self._archive_f = self._seen_x[first], self._seen_f[first]
+        population = self.algorithm.pop
+        if population is not None:
+            for individual in population:
+                if self.space.gains(individual.X) == gains:
+                    individual.set("F", np.asarray(objectives, dtype=float))
 
     def front(self) -> list[Candidate]:
         """The non-dominated candidates among all evaluated so far, by f_acc."""

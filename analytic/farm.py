@@ -367,10 +367,6 @@ class FarmClient:
         if result.job_id not in self._pending:  # already evaluated (or never submitted here)
             self.duplicates += 1
             return
-        if hashlib.sha256(content).hexdigest() != result.digest:
-            self.ignored += 1
-            log.warning("ignored a result for %s whose log is not its digest's", result.job_id)
-            return
         self._arrived.setdefault(result.job_id, []).append(_Arrival(result, content))
 
     def _confirm(self) -> None:
@@ -433,6 +429,8 @@ class FarmClient:
         try:
             if len(content) > MAX_EPISODE_BYTES or len(content) != result.episode_bytes:
                 raise NotAnEpisodeLog(f"{len(content)} bytes, not the {result.episode_bytes} sent")
+            if hashlib.sha256(content).hexdigest() != result.digest:
+                raise NotAnEpisodeLog("its bytes are not the ones the worker handed in")
             source = f"episode of {result.job_id} from {result.worker}"
             scores = accept_log(content, pending.spec, path, source)
         except NotAnEpisodeLog as error:

@@ -7,12 +7,14 @@ identical runs give byte-identical files. Each file appears whole or not at all 
 `schemas.files.write_atomically`).
 
     config.json     the RunConfig (analytic.config)
+    run.json        the run's identity (RunIdentity): a random id, which its checkpoint carries
+    run.lock        held by the one process writing the run (schemas.files.Lock); says which
     history.csv     one HistoryRow per generation
     front.csv       the front: one FrontMember per line, most accurate first
     front.json      the front again, each member with the episode logs it left (the index the
                     dataset reads; as evaluations.json is for a batch)
     evaluated.csv   every candidate's objectives, in the order told: the cloud behind the front
-    checkpoint.pkl  the evolution's own state, for `analytic resume` only
+    checkpoint.pkl  the evolution's own state, for `analytic resume` only (analytic.checkpoint)
 """
 
 import csv
@@ -20,6 +22,8 @@ import io
 import json
 import math
 import operator
+import re
+import secrets
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +41,8 @@ REPORT_MD = "report.md"
 FRONT_JSON = "front.json"
 EVALUATED_CSV = "evaluated.csv"
 CONFIG_JSON = "config.json"
+RUN_JSON = "run.json"
+LOCK = "run.lock"
 EPISODES = "episodes"
 
 HISTORY_FIELDS = (
@@ -247,6 +253,49 @@ def read_front_json(path: Path) -> list[FrontMember]:
         return [FrontMember(**member) for member in members]
     except (KeyError, TypeError, json.JSONDecodeError) as error:
         raise ValueError(f"{path}: not a front.json ({error})") from None
+
+
+RUN_ID = re.compile(r"[0-9a-f]{32}")
+
+
+@dataclass(frozen=True)
+class RunIdentity:
+    """Which run a directory holds, as run.json says: a random id, given when the run was created
+    (a run from before run ids gets one when it is first opened), which its checkpoint must
+    carry. Not part of the RunConfig: two runs of one configuration are still two runs."""
+
+    run_id: str
+    # A run from before run ids: the SHA-256 of the id-less checkpoint it had when it got its id,
+    # the one id-less checkpoint it accepts (analytic.checkpoint).
+    legacy_checkpoint: str | None = None
+
+    @classmethod
+    def new(cls, legacy_checkpoint: str | None = None) -> "RunIdentity":
+        return cls(secrets.token_hex(16), legacy_checkpoint)
+
+
+def run_json(identity: RunIdentity) -> bytes:
+    """run.json's content."""
+    fields = {"run_id": identity.run_id}
+    if identity.legacy_checkpoint is not None:
+        fields["legacy_checkpoint"] = identity.legacy_checkpoint
+    return json.dumps(fields, indent=1).encode()
+
+
+def read_identity(path: Path) -> RunIdentity:
+    """run.json as written by `run_json`; ValueError naming it if it is not one."""
+    try:
+        fields = json.loads(Path(path).read_bytes())
+        identity = RunIdentity(fields["run_id"], fields.get("legacy_checkpoint"))
+    except (KeyError, TypeError, AttributeError, UnicodeDecodeError, json.JSONDecodeError):
+        identity = None
+    if identity is None or not (
+        isinstance(identity.run_id, str)
+        and RUN_ID.fullmatch(identity.run_id)
+        and isinstance(identity.legacy_checkpoint, str | None)
+    ):
+        raise ValueError(f"{path}: not a run.json (a run id of 32 hex digits)")
+    return identity
 
 
 @dataclass(frozen=True)

@@ -17,10 +17,26 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 from analytic.evaluator import Evaluation, Evaluator
+from schemas.episode import Scores
 
 log = logging.getLogger("gainfarm.analytic")
 
 REPLICA = "-r"  # a replica's job id is the original's with this and the replica's number
+
+
+@dataclass(frozen=True)
+class Ran:
+    """One episode as it ran: all a run keeps to validate it later. `digest` and `scores` are
+    None for an episode that could not run."""
+
+    job_id: str
+    worker: str
+    digest: str | None
+    scores: Scores | None
+
+    @classmethod
+    def of(cls, evaluation: Evaluation) -> "Ran":
+        return cls(evaluation.job_id, evaluation.worker, evaluation.digest, evaluation.scores)
 
 
 @dataclass
@@ -63,8 +79,11 @@ def validate(evaluator: Evaluator, originals: Iterable[Evaluation], ledger: Ledg
         ledger.extra_evaluations += len(replicas)
         if round_ == 1:
             ledger.replicated += len(replicas)
-        for evaluation in _until_done(evaluator, set(replicas), others):
-            votes[replicas[evaluation.job_id]].append(evaluation)
+        try:
+            for evaluation in _until_done(evaluator, set(replicas), others):
+                votes[replicas[evaluation.job_id]].append(evaluation)
+        finally:  # stopped while waiting (Ctrl-C): leave no replica queued in the evaluator
+            evaluator.cancel(replicas)
         undecided = set()
         for job_id in replicas.values():
             verdict = _count(votes[job_id])
@@ -130,11 +149,10 @@ def _settle(
                 sum(1 for other in votes if other.digest == majority),
             )
     original = standing[job_id]
-    if original.digest != majority and original.log is not None:
-        # The majority's log takes the original's place, where the run keeps its logs.
+    if original.digest != majority:
         winner = next(vote for vote in votes if vote.digest == majority)
-        if winner.log is not None:
-            winner.log.replace(original.log)
+        if winner.log is not None and original.log is not None:
+            winner.log.replace(original.log)  # the majority's log, where the run keeps logs
         standing[job_id] = dataclasses.replace(winner, job_id=job_id, log=original.log)
     for vote in votes[1:]:  # replicas, once counted, are not kept
         if vote.log is not None:

@@ -5,7 +5,9 @@ Optuna's Study, in its shape: the evolution step (analytic.evolution) is the sam
 storage. After every generation the run writes, each file atomically (analytic.records):
 
     config.json      everything needed to repeat the run (written once)
-    checkpoint.pkl   the evolution with its random state, for resuming only
+    run.json         the run's id (written once), which its checkpoint carries
+    run.lock         held by the one process writing the run
+    checkpoint.pkl   the evolution with its random state, for resuming only (analytic.checkpoint)
     history.csv      one row per generation: evaluations, hypervolume, best f_acc and f_t, wall s
     front.csv        the non-dominated gains and their objectives
     front.json       the same front with each member's episode logs
@@ -15,20 +17,25 @@ storage. After every generation the run writes, each file atomically (analytic.r
 and at the end pareto.png, hypervolume.png and report.md. A stopped run continues from its last
 checkpoint; the interrupted generation runs again, with the same candidates and the same
 (deterministic) episodes, so the front is the one an uninterrupted run finds.
+
+One process writes a run at a time: `create` and `open` take the run's lock (RunBusy if another
+process holds it) and keep it until `close()` (or the end of a `with`, or the process). Holding
+it, they first delete what writes killed halfway left behind (schemas.files.remove_leftovers).
+A write that fails (disk full, read-only) raises OSError naming the file; each file is whole or
+absent, the checkpoint is written last, so a later resume continues from the last good one.
 """
 
-import io
-import pickle
+import hashlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
 
 from pymoo.core.population import Population
 
+from analytic.checkpoint import CheckpointRefused, decode, encode
 from analytic.config import RunConfig
-from analytic.evaluator import Evaluation, Evaluator
+from analytic.evaluator import Evaluation, EvaluationStatus, Evaluator
 from analytic.evolution import Candidate, Evolution, hypervolume
 from analytic.figures import plot_hypervolume, plot_pareto
 from analytic.records import (
@@ -39,23 +46,42 @@ from analytic.records import (
     FRONT_JSON,
     HISTORY_CSV,
     HYPERVOLUME_PNG,
+    LOCK,
     PARETO_PNG,
     REPORT_MD,
+    RUN_JSON,
     FrontMember,
     HistoryRow,
+    RunIdentity,
     evaluated_csv,
     front_csv,
     front_json,
     history_csv,
+    read_identity,
+    run_json,
     sorted_front,
 )
+from analytic.replication import Ledger, Ran, validate
 from analytic.reports import run_setup, run_title, write_report
 from schemas.episode import EpisodeSpec
-from schemas.files import write_atomically
+from schemas.files import Lock, Locked, remove_leftovers, write_atomically
 from schemas.gains import PDGains
 from schemas.objectives import objectives
 
 CHECKPOINT = "checkpoint.pkl"
+
+
+class RunBusy(Exception):
+    """Another process is writing the run (a start or resume of it is running)."""
+
+    def __init__(self, directory: Path, holder: str):
+        self.directory = Path(directory)
+        self.holder = holder
+        by = holder or "another process"
+        super().__init__(
+            f"{str(self.directory)!r} is in use: {by} is running it (one start or resume of a "
+            "run at a time)"
+        )
 
 
 @dataclass
@@ -70,6 +96,14 @@ class RunState:
     stopped: str | None = None
     serial: int = 0  # steady-state candidates asked so far: their job ids' numbers
     busy_seconds: float = 0.0  # workers' time on this run's episodes (simulate + encode)
+    # Each candidate's episodes as they ran (who, the log's SHA-256, the scores), and the job ids
+    # of those replication has validated (analytic.replication).
+    provenance: dict[PDGains, tuple[Ran, ...]] = field(default_factory=dict)
+    validated: set[str] = field(default_factory=set)
+
+    def __setstate__(self, state: dict) -> None:
+        """Checkpoints from before validation by replication have nothing to validate."""
+        self.__dict__.update({"provenance": {}, "validated": set(), **state})
 
 
 @dataclass(frozen=True)
@@ -84,34 +118,78 @@ class RunProgress:
 
 
 class TuningRun:
-    def __init__(self, directory: Path, config: RunConfig, state: RunState):
+    def __init__(
+        self,
+        directory: Path,
+        config: RunConfig,
+        state: RunState,
+        identity: RunIdentity,
+        lock: Lock,
+    ):
         self.directory = Path(directory)
         self.config = config
         self.state = state
+        self.identity = identity
+        self._lock = lock
+        self.replication = Ledger()  # what validation cost and found, in this process
 
     @classmethod
     def create(cls, directory: Path, config: RunConfig) -> "TuningRun":
-        """A new run in `directory` (FileExistsError if it already holds one)."""
+        """A new run in `directory` (FileExistsError if it already holds one), holding its lock."""
         # model_copy(update=...) skips validation: check the whole config once more.
         config = RunConfig.model_validate(config.model_dump())
         directory = Path(directory)
-        if (directory / CONFIG_JSON).exists():
-            raise FileExistsError(f"{directory} already holds a run; resume it or choose another")
+        _refuse_existing(directory)
         directory.mkdir(parents=True, exist_ok=True)
-        write_atomically(directory / CONFIG_JSON, config.model_dump_json(indent=2).encode())
-        return cls(directory, config, RunState(_evolution(config)))
+        lock = _lock(directory)
+        try:
+            _refuse_existing(directory)  # again, holding the lock: two starts on one --out
+            remove_leftovers(directory)
+            identity = RunIdentity.new()
+            # run.json first: config.json is what says a run is here.
+            write_atomically(directory / RUN_JSON, run_json(identity))
+            write_atomically(directory / CONFIG_JSON, config.model_dump_json(indent=2).encode())
+        except BaseException:
+            lock.release()
+            raise
+        return cls(directory, config, RunState(_evolution(config)), identity, lock)
 
     @classmethod
     def open(cls, directory: Path) -> "TuningRun":
-        """The run in `directory`, as its last checkpoint left it."""
+        """The run in `directory`, as its last checkpoint left it, holding its lock.
+        CheckpointRefused if the checkpoint is not this run's own."""
         directory = Path(directory)
         config = RunConfig.model_validate_json((directory / CONFIG_JSON).read_bytes())
-        checkpoint = directory / CHECKPOINT
-        if checkpoint.exists():
-            state = _Unpickler(io.BytesIO(checkpoint.read_bytes())).load()
-        else:  # stopped before its first generation ended
-            state = RunState(_evolution(config))
-        return cls(directory, config, state)
+        lock = _lock(directory)
+        try:
+            remove_leftovers(directory)
+            identity = _identity(directory)
+            checkpoint = directory / CHECKPOINT
+            if checkpoint.exists():
+                state = decode(checkpoint.read_bytes(), checkpoint, identity)
+                if not (isinstance(state, RunState) and isinstance(state.evolution, Evolution)):
+                    raise CheckpointRefused(f"{checkpoint}: not a gainfarm checkpoint (no run)")
+            else:  # stopped before its first generation ended
+                state = RunState(_evolution(config))
+        except BaseException:
+            lock.release()
+            raise
+        return cls(directory, config, state, identity, lock)
+
+    def close(self) -> None:
+        """Release the run's lock: another process may open it now, and this object only
+        reads (its state and front stay as they were)."""
+        self._lock.release()
+
+    def __enter__(self) -> "TuningRun":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _check_open(self) -> None:
+        if not self._lock.held:
+            raise RuntimeError(f"{self.directory}: this run was closed; open it again to write")
 
     @property
     def finished(self) -> bool:
@@ -130,12 +208,15 @@ class TuningRun:
     ) -> str:
         """Evolve until the termination says stop; return why it stopped. With `report`, draw
         the figures and write report.md at the end (the records are written either way)."""
+        self._check_open()
         started = time.monotonic() - self.state.wall_seconds
         while self.state.stopped is None:
             if self.config.asynchronous and self.state.evolution.generation > 0:
                 self._steady_state(evaluator, started, on_progress)
             else:
                 self._generation(evaluator, started, on_progress)
+        if self.config.replicate:
+            self._validate_front(evaluator)
         if report:
             self.write_figures()
         return self.state.stopped
@@ -212,6 +293,62 @@ class TuningRun:
                 ]
             )
 
+    # --- validation by replication -----------------------------------------------------------
+
+    def _validate_front(self, evaluator: Evaluator) -> None:
+        """Before the run reports its front, another worker replicates every front member's
+        episodes (analytic.replication). A member outvoted takes its true objectives; that can
+        uncover a candidate it had falsely dominated, so this goes on until every member of the
+        front is validated. Records and checkpoint are written again if anything was checked."""
+        if evaluator.capacity < 2:  # a farm of one has nobody to ask
+            return
+        state = self.state
+        checked = False
+        while True:
+            todo = {
+                member.gains: state.provenance.get(member.gains, ())
+                for member in state.evolution.front()
+            }
+            originals = [
+                self._evaluation(gains, ran)
+                for gains, episodes in todo.items()
+                for ran in episodes
+                if ran.job_id not in state.validated
+            ]
+            if not originals:
+                break
+            checked = True
+            standing = validate(evaluator, originals, self.replication).standing
+            state.validated.update(evaluation.job_id for evaluation in originals)
+            for gains, episodes in todo.items():
+                now = tuple(
+                    Ran.of(standing[r.job_id]) if r.job_id in standing else r for r in episodes
+                )
+                if now != episodes:
+                    state.provenance[gains] = now
+                    state.evolution.correct(gains, objectives([ran.scores for ran in now]))
+        if checked:
+            self.write_records()
+            self._checkpoint()
+
+    def _evaluation(self, gains: PDGains, ran: Ran) -> Evaluation:
+        """An original as validation takes it: the episode's spec, who ran it, its log."""
+        trajectory = self.config.trajectories[int(ran.job_id.rsplit("-t", 1)[1])]
+        spec = EpisodeSpec(gains=gains, trajectory=trajectory, model=self.config.model)
+        log = self.directory / EPISODES / f"{ran.job_id}.mcap"
+        return Evaluation(
+            job_id=ran.job_id,
+            spec=spec,
+            status=EvaluationStatus.ok,
+            scores=ran.scores,
+            log=log if log.exists() else None,
+            reason="",
+            worker=ran.worker,
+            attempts=1,
+            timings=None,
+            digest=ran.digest,
+        )
+
     # --- bookkeeping -------------------------------------------------------------------------
 
     def _account(self, evaluation: Evaluation) -> None:
@@ -246,6 +383,7 @@ class TuningRun:
         found = objectives([results[job_id].scores for job_id in job_ids])
         self.state.evaluated.append(found)
         self.state.episodes[gains] = [i for i in job_ids if results[i].log is not None]
+        self.state.provenance[gains] = tuple(Ran.of(results[job_id]) for job_id in job_ids)
         return found
 
     def _generation_done(self, started: float) -> None:
@@ -276,7 +414,7 @@ class TuningRun:
         self._checkpoint()
 
     def _checkpoint(self) -> None:
-        write_atomically(self.directory / CHECKPOINT, pickle.dumps(self.state))
+        write_atomically(self.directory / CHECKPOINT, encode(self.state, self.identity))
 
     # --- the record --------------------------------------------------------------------------
 
@@ -285,6 +423,7 @@ class TuningRun:
         reader that finds a generation in history.csv finds its front and points too. (A crash
         between history.csv and the checkpoint leaves the plain files a generation ahead: a
         resume runs that generation again, to the same, deterministic, result.)"""
+        self._check_open()
         rows = _rows(self.state.evolution.front(), self.state.episodes)
         write_atomically(self.directory / EVALUATED_CSV, evaluated_csv(self.state.evaluated))
         write_atomically(self.directory / FRONT_JSON, front_json(rows))
@@ -293,6 +432,7 @@ class TuningRun:
 
     def write_figures(self) -> None:
         """pareto.png, hypervolume.png and report.md, from where the run stands."""
+        self._check_open()
         front, title = self.front(), run_title(self.config)
         plot_pareto(self.directory / PARETO_PNG, front, self.state.evaluated, title=title)
         plot_hypervolume(self.directory / HYPERVOLUME_PNG, self.state.history, title=title)
@@ -323,21 +463,42 @@ def _rows(front: list[Candidate], episodes: dict[PDGains, list[str]]) -> list[Fr
     ]
 
 
+def _refuse_existing(directory: Path) -> None:
+    if (directory / CONFIG_JSON).exists():
+        raise FileExistsError(f"{directory} already holds a run; resume it or choose another")
+
+
+def _lock(directory: Path) -> Lock:
+    try:
+        return Lock(directory / LOCK)
+    except Locked as locked:
+        raise RunBusy(directory, locked.holder) from None
+
+
+def _identity(directory: Path) -> RunIdentity:
+    """The run's identity from run.json. A run from before run ids gets one now, which pins the
+    id-less checkpoint it has (analytic.checkpoint): one atomic write, so a kill cannot leave
+    the run half-upgraded."""
+    if (directory / RUN_JSON).exists():
+        return read_identity(directory / RUN_JSON)
+    checkpoint = directory / CHECKPOINT
+    legacy = hashlib.sha256(checkpoint.read_bytes()).hexdigest() if checkpoint.exists() else None
+    identity = RunIdentity.new(legacy)
+    write_atomically(directory / RUN_JSON, run_json(identity))
+    return identity
+
+
 def upgrade(directory: Path) -> None:
     """Give a run written before front.json and evaluated.csv existed those files, from its
-    checkpoint, so that it reads like any other (analytic.records.read_run)."""
+    checkpoint, so that it reads like any other (analytic.records.read_run); opening it gives it
+    a run id too. A run that needs nothing is not opened (nor locked, nor written: a reader of
+    an archive of runs may have no write access). One that another process is running is left
+    to it: that process writes the records."""
     directory = Path(directory)
     if (directory / CHECKPOINT).exists() and not (directory / FRONT_JSON).exists():
-        TuningRun.open(directory).write_records()
-
-
-class _Unpickler(pickle.Unpickler):
-    """Reads checkpoints written before the run's row types moved to analytic.records."""
-
-    MOVED: ClassVar[dict[tuple[str, str], str]] = {
-        ("analytic.figures", "HistoryRow"): "analytic.records",
-        ("analytic.figures", "FrontMember"): "analytic.records",
-    }
-
-    def find_class(self, module: str, name: str) -> Any:
-        return super().find_class(self.MOVED.get((module, name), module), name)
+        try:
+            run = TuningRun.open(directory)
+        except RunBusy:
+            return
+        with run:
+            run.write_records()

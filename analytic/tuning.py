@@ -1,7 +1,8 @@
 """`tune`: a tuning run in one call, composed as pymoo's `minimize` composes its parts."""
 
 import contextlib
-import os
+import re
+import secrets
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -13,6 +14,10 @@ from analytic.local import farm_endpoints
 from analytic.records import CONFIG_JSON
 from analytic.run import RunProgress, TuningRun
 from schemas.security import TlsIdentity
+from schemas.wire import NAME_PATTERN
+
+OWNER = re.compile(r"[A-Za-z0-9_-]{1,32}")  # a participant name of the secure profile
+STUDY_RANDOM_HEX = 8
 
 
 def tune(
@@ -31,19 +36,23 @@ def tune(
     The episodes run on `evaluator` if one is given (an InProcessEvaluator, say); else on the
     farm whose broker is at `connect`; else on a local farm of `workers` processes started for
     this call. `out` (default runs/TIME) is the run directory; one that already holds a run of
-    the same configuration is resumed (or returned as it is, if finished).
+    the same configuration is resumed (or returned as it is, if finished). The run returned is
+    closed (analytic.run: another process may open it); `TuningRun.open` it to write it again.
+    RunBusy if another process is running it.
     """
     config = config or RunConfig()
     directory = Path(out) if out is not None else Path("runs") / time.strftime("%Y%m%d-%H%M%S")
     if (directory / CONFIG_JSON).exists():
         run = TuningRun.open(directory)
         if run.config != config:
+            run.close()
             raise ValueError(f"{directory} holds a run of another configuration")
     else:
         run = TuningRun.create(directory, config)
-    if not run.finished:
-        with _evaluator(run.directory, evaluator, connect, workers, identity) as chosen:
-            run.run(chosen, on_progress)
+    with run:
+        if not run.finished:
+            with _evaluator(run.directory, evaluator, connect, workers, identity) as chosen:
+                run.run(chosen, on_progress)
     return run
 
 
@@ -60,11 +69,30 @@ def _evaluator(
         return
     with (
         farm_endpoints(connect, workers) as endpoints,
-        FarmClient(endpoints, run_study(), directory, identity=identity) as farm,
+        FarmClient(endpoints, new_study_name(directory), directory, identity=identity) as farm,
     ):
         yield farm
 
 
-def run_study() -> str:
-    """The farm's name for this process's tuning run (analytic start, resume, tune)."""
-    return f"run-{os.getpid()}"
+def new_study_name(directory: Path, owner: str | None = None) -> str:
+    """A farm study name for work on `directory` (a run's, a batch's): `[OWNER.]SLUG-RANDOM`,
+    SLUG the directory's name made safe, RANDOM 8 hex digits new on every call.
+
+    Unique with no coordination (32 random bits): two processes on one farm (two containers
+    are both PID 1), even of directories of one name, do not share a name, which the broker
+    would refuse the second of. A resume takes a new name too: nothing of the farm's is kept
+    across it (the broker drops a study's queue when its client goes, and the resumed run
+    submits again every job it still needs), and the old process's liveliness token may
+    outlive it a while, which would refuse the old name. `owner`, a participant name of the
+    secure profile (letters, digits, _ and -), prefixes the name so that a farm can scope
+    studies per identity.
+    """
+    if owner is not None and not OWNER.fullmatch(owner):
+        raise ValueError(f"study owner {owner!r}: 1 to 32 letters, digits, _ or -")
+    prefix = f"{owner}." if owner else ""
+    # Only A-Z a-z 0-9 _ -: no dot, so the first dot always ends the owner.
+    slug = re.sub(r"[^A-Za-z0-9_]+", "-", Path(directory).absolute().name).strip("-") or "run"
+    room = 64 - len(prefix) - 1 - STUDY_RANDOM_HEX
+    name = f"{prefix}{slug[:room].rstrip('-') or 'run'}-{secrets.token_hex(STUDY_RANDOM_HEX // 2)}"
+    assert re.fullmatch(NAME_PATTERN, name), name  # the wire's rule, so a key chunk
+    return name

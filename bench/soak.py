@@ -54,6 +54,7 @@ from soak_summary import (
     samples_csv,
 )
 
+from analytic import replication
 from analytic.evaluator import Evaluation
 from analytic.farm import FarmClient
 from analytic.local import STOP_SECONDS, spawn_worker
@@ -403,6 +404,13 @@ def echo(started: float, text: str) -> None:
     help="s before the client resubmits a job with no result",
 )
 @click.option("--attempts", type=click.IntRange(min=1), default=3, show_default=True)
+@click.option(
+    "--replicate-every",
+    type=click.IntRange(min=0),
+    default=10,
+    show_default=True,
+    help="validate every Nth episode by replication on another worker (0: none)",
+)
 @click.option("--lease-seconds", type=click.FloatRange(min=0.1), default=60.0, show_default=True)
 @click.option(
     "--out",
@@ -433,6 +441,7 @@ def main(
     warm_up_minutes: float | None,
     deadline: float,
     attempts: int,
+    replicate_every: int,
     lease_seconds: float,
     out: Path | None,
     events: Path | None,
@@ -450,6 +459,7 @@ def main(
     endpoint = loopback_endpoint()
     sampler = Sampler(sample_seconds, out, started)
     ledger = Ledger()
+    replicas = replication.Ledger()
     job_rng, churn_rng = random.Random(seed), random.Random(seed + 1)
     pool = WorkerPool(endpoint, sampler, churn_rng, workers_min, workers_max, started)
     broker = start_broker(endpoint, lease_seconds, broker_log)
@@ -474,6 +484,14 @@ def main(
 
             def take(evaluation: Evaluation) -> None:
                 ledger.record(evaluation)
+                if (
+                    replicate_every
+                    and evaluation.digest is not None
+                    and ledger.completed % replicate_every == 0
+                ):
+                    # Another worker runs it again; what arrives meanwhile is taken after.
+                    for other in replication.validate(farm, [evaluation], replicas).others:
+                        take(other)
                 if evaluation.log is not None:
                     evaluation.log.unlink(missing_ok=True)  # hours of logs would fill the disk
 
@@ -541,13 +559,23 @@ def main(
         + f", warm-up {warm_up:.0f} s",
         *job_lines(ledger, warnings.counts, finished - started),
         pool.tally.line(),
+        f"replication: {replicas.replicated} episodes replicated "
+        f"({replicas.extra_evaluations} extra evaluations), "
+        f"{replicas.disagreements} disagreements, {replicas.undecided} undecided, "
+        f"dissenters: {', '.join(sorted(replicas.dissenters)) or 'none'}",
     ]
     if final_status is not None:
         lines.append(broker_line(final_status, broker_code))
     lines += memory_lines(sampler.samples, pool.resident, warm_up)
     lines += [f"  lost {reason}" for reason in ledger.lost_reasons[:10]]
     click.echo("\n".join(lines))
-    if ledger.lost or ledger.duplicated or pool.tally.died or pool.tally.hung:
+    if (
+        ledger.lost
+        or ledger.duplicated
+        or pool.tally.died
+        or pool.tally.hung
+        or replicas.dissenters
+    ):
         raise SystemExit(1)
 
 

@@ -1,23 +1,111 @@
-"""Files appear whole or not at all: every file gainfarm writes goes through here."""
+"""Files appear whole or not at all: every file gainfarm writes goes through here. And a directory
+one process writes at a time: the lock that says which."""
 
+import fcntl
 import os
+import socket
 import tempfile
+import weakref
 from pathlib import Path
+
+# A write in progress: `.NAME.RANDOM.part` beside NAME (tempfile.mkstemp's prefix and suffix).
+PART_PREFIX = "."
+PART_SUFFIX = ".part"
 
 
 def write_atomically(path: Path, content: bytes, mode: int = 0o644) -> None:
     """Write `content` to a temporary file beside `path`, then rename it into place.
 
     A reader (or a crash) never sees a half-written file, and a failed write leaves nothing behind.
-    The default mode lets the rest of the farm read the file; private keys pass 0o600.
+    The default mode lets the rest of the farm read the file; private keys pass 0o600. An OSError
+    (disk full, read-only, no permission) names `path`, not the temporary file, so that it can be
+    shown to the user as it is.
     """
     path = Path(path)
-    fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    temporary = None
     try:
+        fd, temporary = tempfile.mkstemp(
+            dir=path.parent, prefix=f"{PART_PREFIX}{path.name}.", suffix=PART_SUFFIX
+        )
         os.fchmod(fd, mode)
         with os.fdopen(fd, "wb") as stream:
             stream.write(content)
         os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
+    except BaseException as error:
+        if temporary is not None:
+            Path(temporary).unlink(missing_ok=True)
+        if isinstance(error, OSError) and error.errno is not None:
+            error.filename, error.filename2 = str(path), None
         raise
+
+
+def remove_leftovers(directory: Path) -> list[Path]:
+    """Delete the temporary files of writes that never finished (a process killed between its
+    write and its rename) in `directory` and below; return them. Only the one process that
+    writes `directory` may call this, holding its lock: another's write in progress looks the
+    same."""
+    found = [
+        Path(parent) / name
+        for parent, _, names in os.walk(directory)  # not into symlinked directories
+        for name in names
+        if name.startswith(PART_PREFIX) and name.endswith(PART_SUFFIX)
+    ]
+    for path in found:
+        path.unlink(missing_ok=True)  # a symlink itself, never what it points to
+    return found
+
+
+class Locked(Exception):
+    """Another process holds the lock."""
+
+    def __init__(self, path: Path, holder: str):
+        self.path = Path(path)
+        self.holder = holder  # "process PID on HOST", or "" if it could not be read
+        by = f" by {holder}" if holder else ""
+        super().__init__(f"{self.path} is held{by}")
+
+
+class Lock:
+    """An exclusive lock on the file `path` (created if missing), taken at once or not at all
+    (Locked). It is flock(2)'s: the kernel drops it when the process ends however it ends (kill
+    -9 included), so no stale lock ever needs clearing, and it holds across processes of
+    different PID namespaces (two containers) that share the file. The file says who holds it,
+    for the message of the one refused. Released by `release()`, by `with`, or when the object
+    is collected."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        # Read-only: the lock needs no write access, and a descriptor open for writing would keep
+        # the file system from being remounted read-only under a run. Not inheritable (Python's
+        # default), so no child process can keep the lock alive.
+        # No following a symlink: the holder's name must not be written through one.
+        fd = os.open(self.path, os.O_RDONLY | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 200, 0).decode(errors="replace").strip()
+            os.close(fd)
+            raise Locked(self.path, " ".join(holder.split())) from None
+        except BaseException:
+            os.close(fd)
+            raise
+        self._release = weakref.finalize(self, os.close, fd)
+        try:  # only now, holding the lock, may the holder's name be replaced
+            writing = os.open(self.path, os.O_WRONLY | os.O_TRUNC | os.O_NOFOLLOW)
+            with os.fdopen(writing, "w") as stream:
+                stream.write(f"process {os.getpid()} on {socket.gethostname()}\n")
+        except OSError:  # the holder's name is a courtesy: a full disk must not lose the lock
+            pass
+
+    @property
+    def held(self) -> bool:
+        return self._release.alive
+
+    def release(self) -> None:
+        self._release()
+
+    def __enter__(self) -> "Lock":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()

@@ -29,7 +29,6 @@ import zstandard
 from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
-from mcap.reader import McapReader, make_reader
 from mcap.records import Channel as ChannelRecord
 from mcap.records import (
     Chunk,
@@ -44,6 +43,7 @@ from mcap.records import (
     Statistics,
     SummaryOffset,
 )
+from mcap.stream_reader import StreamReader
 from mcap.summary import Summary
 from mcap.writer import MCAP0_MAGIC
 from pydantic import ValidationError
@@ -53,6 +53,7 @@ from schemas.episode import EpisodeMetadata
 from schemas.episode_log import CHANNELS, METADATA_NAME, Channel, EpisodeLog
 from schemas.files import write_atomically
 from schemas.robot import JOINT_NAMES, N_JOINTS
+from schemas.wire import MAX_EPISODE_BYTES
 
 NANOSECONDS = 1_000_000_000
 CHUNK_SIZE = 4 * 1024 * 1024  # uncompressed bytes of messages per chunk, at most (~12 s of ticks)
@@ -76,6 +77,13 @@ _MESSAGE_HEADER = [
     ("publish_time", "<u8"),
 ]
 _RECORD_PREFIX = 1 + 8  # opcode and record length, before every record's content
+_FOOTER_LENGTH = 8 + 8 + 4  # a Footer's content: summary start, summary offset start, CRC
+# What a reader takes in besides the messages, bounded far above what write_episode writes (1.6
+# to 1.8 kB of summary, 0.9 kB of metadata, 1.1 kB of Schema and Channel records in the first
+# chunk), so that no length or count a file states makes the reader allocate in proportion to it.
+_MAX_SUMMARY_BYTES = 1024 * 1024  # the summary section and its summary offsets
+_MAX_METADATA_BYTES = 1024 * 1024  # the Metadata record
+_MAX_DEFINITION_BYTES = 1024 * 1024  # the records before the messages, in all chunks together
 _SCHEMA_ENCODING = "ros2msg"
 _MESSAGE_ENCODING = "cdr"
 _PROFILE = "ros2"
@@ -86,6 +94,7 @@ _UNREADABLE = (
     EOFError,
     ValueError,
     struct.error,
+    OverflowError,  # an offset or length past what io.BytesIO can seek or read
     zstandard.ZstdError,
     RuntimeError,  # lz4.frame's errors
     ImportError,  # lz4 is optional
@@ -449,38 +458,115 @@ def read_episode(path: Path) -> EpisodeLog:
 
 
 def decode_episode(content: bytes, source: str = "episode log") -> EpisodeLog:
-    """Decode the bytes of an episode log; `source` names them in the NotAnEpisodeLog message."""
+    """Decode the bytes of an episode log; `source` names them in the NotAnEpisodeLog message.
+
+    Whatever the bytes, NotAnEpisodeLog is the only error: the logs come from other machines, and
+    the process reading them must outlive a hostile one. Every offset, length and size the file
+    states is checked against the file and against this reader's own bounds before anything is
+    read or allocated in proportion to it.
+    """
     path = source
     try:
         if not content.startswith(MCAP0_MAGIC):
             raise NotAnEpisodeLog(f"{path}: not an MCAP file (no MCAP magic at its start)")
         if len(content) < 2 * len(MCAP0_MAGIC) or not content.endswith(MCAP0_MAGIC):
             raise NotAnEpisodeLog(f"{path}: truncated MCAP file (no MCAP magic at its end)")
-        reader = make_reader(io.BytesIO(content))
-        summary = reader.get_summary()
-        if summary is None:
-            raise NotAnEpisodeLog(f"{path}: MCAP file without a summary section")
-        metadata = _read_metadata(path, reader)
+        summary = _read_summary(path, content)
+        metadata = _read_metadata(path, content, summary)
         _check_channels(path, summary)
-        chunks = sorted(summary.chunk_indexes, key=lambda index: index.chunk_start_offset)
-        messages = b"".join(_chunk_messages(path, content, index) for index in chunks)
+        bound = _decompression_bound(path, metadata)
+        return _assemble(path, metadata, _read_messages(path, content, summary, bound))
     except NotAnEpisodeLog:
         raise
     except _UNREADABLE as error:
-        reason = str(error).replace("\n", " ") or type(error).__name__
+        reason = " ".join(str(error).split())[:300] or type(error).__name__
         raise NotAnEpisodeLog(f"{path}: not a readable MCAP file ({reason})") from None
-    return _assemble(path, metadata, messages)
+    except Exception as error:  # anything else the bytes provoke is still not an episode log
+        reason = " ".join(f"{type(error).__name__}: {error}".split())[:300]
+        raise NotAnEpisodeLog(f"{path}: undecodable ({reason})") from None
 
 
-def _read_metadata(path: str, reader: McapReader) -> EpisodeMetadata:
-    for record in reader.iter_metadata():
-        if record.name == METADATA_NAME:
-            try:
-                fields = {key: json.loads(value) for key, value in record.metadata.items()}
-                return EpisodeMetadata.model_validate(fields)
-            except (ValueError, ValidationError) as error:
-                reason = str(error).replace("\n", " ")
-                raise NotAnEpisodeLog(f"{path}: invalid episode metadata: {reason}") from None
+def _record_span(path: str, content: bytes, offset: int, opcode: Opcode, limit: int) -> range:
+    """Where the content of the `opcode` record at `offset` lies: within the file, and no longer
+    than `limit`, whatever length the record states."""
+    name = opcode.name.lower()
+    data_end = len(content) - len(MCAP0_MAGIC)
+    start = offset + _RECORD_PREFIX
+    if start > data_end or content[offset] != opcode:
+        raise NotAnEpisodeLog(f"{path}: no {name} record at offset {offset}")
+    length = int.from_bytes(content[offset + 1 : start], "little")
+    if length > data_end - start:
+        raise NotAnEpisodeLog(f"{path}: the {name} record at offset {offset} runs past the file")
+    if length > limit:
+        raise NotAnEpisodeLog(
+            f"{path}: the {name} record at offset {offset} is {length} bytes, "
+            f"over this reader's limit of {limit}"
+        )
+    return range(start, start + length)
+
+
+def _record(path: str, content: bytes, offset: int, opcode: Opcode, limit: int) -> ReadDataStream:
+    """The content of a small record as a stream of its own bytes, so that the lengths and map
+    sizes inside it cannot make the mcap library read on into the rest of the file."""
+    span = _record_span(path, content, offset, opcode, limit)
+    return ReadDataStream(io.BytesIO(content[span.start : span.stop]))
+
+
+def _read_summary(path: str, content: bytes) -> Summary:
+    """The summary section that the footer points to. Read here, not with mcap.reader: its
+    get_summary and iter_metadata decompress any Chunk record they meet (to the size the chunk
+    claims) and read records from a stream over the whole file."""
+    data_end = len(content) - len(MCAP0_MAGIC)
+    footer_offset = data_end - _RECORD_PREFIX - _FOOTER_LENGTH
+    if footer_offset < len(MCAP0_MAGIC):
+        raise NotAnEpisodeLog(f"{path}: truncated MCAP file (too short for a footer)")
+    footer = Footer.read(_record(path, content, footer_offset, Opcode.FOOTER, _FOOTER_LENGTH))
+    start = footer.summary_start
+    if start == 0:
+        raise NotAnEpisodeLog(f"{path}: MCAP file without a summary section")
+    if not len(MCAP0_MAGIC) <= start <= footer_offset:
+        raise NotAnEpisodeLog(f"{path}: its footer points outside the file for its summary")
+    if footer_offset - start > _MAX_SUMMARY_BYTES:
+        raise NotAnEpisodeLog(
+            f"{path}: a summary section of {footer_offset - start} bytes, over this reader's "
+            f"limit of {_MAX_SUMMARY_BYTES}"
+        )
+    # As in Writer.finish: the CRC covers the summary section and the footer up to the CRC.
+    if footer.summary_crc not in (0, zlib.crc32(content[start : data_end - 4])):
+        raise NotAnEpisodeLog(f"{path}: the summary section is corrupt (CRC mismatch)")
+    summary = Summary()
+    stream = io.BytesIO(content[start:])  # the summary, the footer and the closing magic
+    reader = StreamReader(
+        stream, skip_magic=True, emit_chunks=True, record_size_limit=_MAX_SUMMARY_BYTES
+    )
+    for record in reader.records:  # up to and including the footer
+        if isinstance(record, Schema):
+            summary.schemas[record.id] = record
+        elif isinstance(record, ChannelRecord):
+            summary.channels[record.id] = record
+        elif isinstance(record, ChunkIndex):
+            summary.chunk_indexes.append(record)
+        elif isinstance(record, MetadataIndex):
+            summary.metadata_indexes.append(record)
+        elif isinstance(record, Statistics):
+            summary.statistics = record
+    return summary
+
+
+def _read_metadata(path: str, content: bytes, summary: Summary) -> EpisodeMetadata:
+    for index in summary.metadata_indexes:
+        if index.name != METADATA_NAME:
+            continue
+        stream = _record(path, content, index.offset, Opcode.METADATA, _MAX_METADATA_BYTES)
+        record = Metadata.read(stream)
+        if record.name != METADATA_NAME:
+            continue
+        try:
+            fields = {key: json.loads(value) for key, value in record.metadata.items()}
+            return EpisodeMetadata.model_validate(fields)
+        except (ValueError, ValidationError, RecursionError) as error:  # JSON too deep too
+            reason = " ".join(str(error).split())[:300]
+            raise NotAnEpisodeLog(f"{path}: invalid episode metadata: {reason}") from None
     raise NotAnEpisodeLog(f"{path}: no {METADATA_NAME!r} metadata record: not an episode log")
 
 
@@ -502,41 +588,85 @@ def _check_channels(path: str, summary: Summary) -> None:
             )
 
 
-def _chunk_messages(path: str, content: bytes, index: ChunkIndex) -> bytes:
-    """The Message records of the chunk at `index`, decompressed and CRC-checked, without the
-    Schema and Channel records that may precede them."""
-    start = index.chunk_start_offset
-    if content[start : start + 1] != bytes([Opcode.CHUNK]):
-        raise NotAnEpisodeLog(f"{path}: no chunk at offset {start}")
-    record = io.BytesIO(content)
-    record.seek(start + _RECORD_PREFIX)
-    chunk = Chunk.read(ReadDataStream(record))
-    data = _decompress(path, chunk)
+def _decompression_bound(path: str, metadata: EpisodeMetadata) -> int:
+    """The most bytes the chunks of this log may decompress to, all together: the Message records
+    of the ticks its metadata says ran, and room for the records before them. It is this reader's
+    bound, not the sender's: the ticks are at most those of the episode's trajectory, whose
+    duration the spec caps (MAX_DURATION), and the whole is capped by MAX_EPISODE_BYTES."""
+    ticks, planned = metadata.ticks_run, metadata.spec.trajectory.ticks
+    if ticks > planned:
+        raise NotAnEpisodeLog(f"{path}: {ticks} ticks run, more than the {planned} of its path")
+    return min(ticks * _tick_layout().size + _MAX_DEFINITION_BYTES, MAX_EPISODE_BYTES)
+
+
+def _read_messages(path: str, content: bytes, summary: Summary, bound: int) -> bytes:
+    """The Message records of all chunks in file order, joined; the chunks decompress to `bound`
+    bytes at most, all together. (The decompressed chunks are freed on return, before the
+    columns are sliced out.)"""
+    parts = []
+    for index in sorted(summary.chunk_indexes, key=lambda index: index.chunk_start_offset):
+        records = _chunk_records(path, content, index.chunk_start_offset, bound)
+        bound -= len(records)
+        parts.append(_messages(records))
+    return b"".join(parts)
+
+
+def _chunk_records(path: str, content: bytes, offset: int, bound: int) -> bytes:
+    """The records of the chunk at `offset`, decompressed (to `bound` bytes at most) and
+    CRC-checked."""
+    span = _record_span(path, content, offset, Opcode.CHUNK, len(content))
+    # Not _record: a stream over the whole content shares its buffer, and the chunk's data is
+    # copied once, as it is read; the only sizes inside it are the compression's and the data's.
+    stream = io.BytesIO(content)
+    stream.seek(span.start)
+    chunk = Chunk.read(ReadDataStream(stream))
+    if stream.tell() > span.stop:
+        raise NotAnEpisodeLog(f"{path}: the chunk at offset {offset} runs past its record")
+    data = _decompress(f"{path}: the chunk at offset {offset}", chunk, bound)
     if chunk.uncompressed_crc not in (0, zlib.crc32(data)):
-        raise NotAnEpisodeLog(f"{path}: chunk at offset {start} is corrupt (CRC mismatch)")
-    position = 0
-    while position < len(data) and data[position] != Opcode.MESSAGE:
-        length = int.from_bytes(data[position + 1 : position + _RECORD_PREFIX], "little")
-        position += _RECORD_PREFIX + length
-    return data[position:]
+        raise NotAnEpisodeLog(f"{path}: chunk at offset {offset} is corrupt (CRC mismatch)")
+    return data
 
 
-def _decompress(path: str, chunk: Chunk) -> bytes:
-    if chunk.compression == "zstd":
-        data = zstandard.ZstdDecompressor().decompress(
-            chunk.data, max_output_size=chunk.uncompressed_size
+def _decompress(where: str, chunk: Chunk, bound: int) -> bytes:
+    """A chunk's records, decompressed to `bound` bytes at most. The chunk's uncompressed_size is
+    the sender's claim: it is checked against the bound before anything is allocated, and the
+    output is never allowed to grow past it, whatever the compressed data says."""
+    size = chunk.uncompressed_size
+    if size > bound:
+        raise NotAnEpisodeLog(
+            f"{where} claims {size} bytes uncompressed, more than the {bound} this episode's "
+            "messages can take"
         )
+    if chunk.compression == "zstd":
+        # One byte more than claimed tells a longer output from an exact one. Not
+        # ZstdDecompressor.decompress: it allocates the content size the frame header states,
+        # whatever its max_output_size; a stream reader allocates what it is asked to read, and
+        # is as fast.
+        with zstandard.ZstdDecompressor().stream_reader(chunk.data) as reader:
+            data = reader.read(size + 1)
     elif chunk.compression == "lz4":
         import lz4.frame  # optional, as in the mcap library: write_episode uses zstd
 
-        data = lz4.frame.decompress(chunk.data)
+        data = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=size + 1)
     elif chunk.compression == "":
         data = chunk.data
     else:
-        raise NotAnEpisodeLog(f"{path}: unsupported chunk compression {chunk.compression!r}")
-    if len(data) != chunk.uncompressed_size:
-        raise NotAnEpisodeLog(f"{path}: chunk decompresses to the wrong size")
+        raise NotAnEpisodeLog(f"{where} has an unsupported compression {chunk.compression!r}")
+    if len(data) != size:
+        got = "more" if len(data) > size else str(len(data))
+        raise NotAnEpisodeLog(f"{where} decompresses to {got} bytes, not the {size} it claims")
     return data
+
+
+def _messages(records: bytes) -> memoryview:
+    """A chunk's Message records, without the Schema and Channel records that may precede them
+    (a view, not a copy: the chunks are joined next)."""
+    position = 0
+    while position < len(records) and records[position] != Opcode.MESSAGE:
+        length = int.from_bytes(records[position + 1 : position + _RECORD_PREFIX], "little")
+        position += _RECORD_PREFIX + length
+    return memoryview(records)[position:]
 
 
 def _assemble(path: str, metadata: EpisodeMetadata, messages: bytes) -> EpisodeLog:

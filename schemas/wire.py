@@ -13,7 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from schemas.episode import EpisodeSpec
 
-PROTOCOL_VERSION = 2  # 2: a Job's episode spec is `spec` (was `episode`)
+PROTOCOL_VERSION = 3  # 3: results handed in to the broker and confirmed by it; 2: Job.spec
 
 # Names become key-expression chunks, so they may not contain '/', '*', '$', '?' or '#'.
 NAME_PATTERN = r"^[A-Za-z0-9_.\-]{1,64}$"
@@ -35,7 +35,7 @@ class BadMessage(ValueError):
 class WireMessage(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    protocol: Literal[2] = PROTOCOL_VERSION
+    protocol: Literal[3] = PROTOCOL_VERSION
 
     @field_validator("protocol", mode="before")
     @classmethod
@@ -55,6 +55,9 @@ class Job(BaseModel):
 
     job_id: Name
     spec: EpisodeSpec  # the episode to simulate
+    avoid: list[Name] = Field(
+        [], max_length=64, description="workers that may not run it: a replica runs elsewhere"
+    )
 
 
 class Submission(WireMessage):
@@ -77,6 +80,7 @@ class SubmitReply(WireMessage):
     study: str
     queued: list[str] = []
     already_pending: list[str] = Field([], description="queued or leased already: a resubmission")
+    deferred: list[str] = Field([], description="not queued, the queue is full: submit later")
     rejected: list[Rejection] = []
 
 
@@ -91,7 +95,7 @@ class Lease(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    lease_id: str
+    lease_id: Name  # random: only the worker it was handed to knows it
     study: Name
     job: Job
     expires_in: float = Field(gt=0)
@@ -116,18 +120,56 @@ class Timings(BaseModel):
     encode_s: float = Field(ge=0, description="the MCAP episode log, in memory")
 
 
+DIGEST_PATTERN = r"^[0-9a-f]{64}$"
+
+
 class Result(WireMessage):
-    """Worker → analytic (and broker): how a job went. Sent as the attachment of a sample whose
-    payload is the MCAP episode log (empty when the job failed)."""
+    """Worker → broker, then → analytic: how a job went. The worker hands it in to the broker
+    first (a Completion query: the broker checks that this worker holds this lease), then sends
+    it as the attachment of a sample whose payload is the MCAP episode log (empty when the job
+    failed), whose SHA-256 is `digest`."""
 
     study: Name
     job_id: Name
-    lease_id: str
+    lease_id: Name
     worker: Name
     status: JobStatus
-    reason: str = ""
+    reason: str = Field("", max_length=2000)
     episode_bytes: int = Field(ge=0)
+    digest: Annotated[str, Field(pattern=DIGEST_PATTERN)]
     timings: Timings
+
+
+class CompletionReply(WireMessage):
+    """Broker → worker: whether the broker took the Result as its job's (else: do not send it)."""
+
+    accepted: bool
+    reason: str = ""
+
+
+class Accepted(BaseModel):
+    """The result the broker took for a job: only the lease holder could hand it in."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    job_id: Name
+    lease_id: Name
+    worker: Name
+    digest: Annotated[str, Field(pattern=DIGEST_PATTERN)]
+
+
+class ConfirmRequest(WireMessage):
+    """Analytic → broker: which results did you accept for these jobs of my study?"""
+
+    study: Name
+    job_ids: list[Name] = Field(max_length=10_000)
+
+
+class ConfirmReply(WireMessage):
+    """Broker → analytic: the accepted result of each job asked about that has one."""
+
+    study: Name
+    accepted: list[Accepted] = []
 
 
 class WorkerState(BaseModel):
@@ -158,6 +200,9 @@ class BrokerStatus(WireMessage):
     jobs_per_s: float = Field(description="completions per second over the last minute")
     requeued: int = Field(description="leases that expired or whose worker died")
     rejected: int = Field(description="bad messages and jobs turned away")
+    worker_count: int = Field(0, description="all workers; `workers` lists the first ones")
+    study_count: int = Field(0, description="all studies; `studies` lists the first ones")
+    queued: int = Field(0, description="jobs queued in every study")
 
 
 MESSAGES: tuple[type[WireMessage], ...] = (
@@ -166,6 +211,9 @@ MESSAGES: tuple[type[WireMessage], ...] = (
     LeaseRequest,
     LeaseReply,
     Result,
+    CompletionReply,
+    ConfirmRequest,
+    ConfirmReply,
     BrokerStatus,
 )
 
@@ -185,33 +233,68 @@ def describe(error: ValidationError) -> str:
 
 
 def decode(kind: type[M], raw: bytes | None, limit: int = MAX_MESSAGE_BYTES) -> M:
-    """Parse `raw` as a `kind` message, or raise BadMessage saying why not."""
+    """Parse `raw` as a `kind` message, or raise BadMessage saying why not.
+
+    Whatever the bytes, BadMessage is the only error that leaves: every listener catches it and
+    goes on serving, so anything else a sender can provoke would take the listener down.
+    """
     if raw is None:
         raise BadMessage(f"{kind.__name__}: empty message")
     if len(raw) > limit:
         raise BadMessage(f"{kind.__name__}: {len(raw)} bytes, over the limit of {limit}")
+    try:
+        return _decoded(kind, raw)
+    except BadMessage:
+        raise
+    except RecursionError:  # not expected past pydantic's depth limit; a last line of defence
+        raise BadMessage(f"{kind.__name__}: nested too deeply") from None
+    except Exception as error:  # e.g. a validator's own TypeError: still the sender's fault
+        reason = _one_line(f"{type(error).__name__}: {error}")
+        raise BadMessage(f"{kind.__name__}: undecodable ({reason})") from None
+
+
+def _decoded(kind: type[M], raw: bytes) -> M:
+    """decode's work: the fast path for a good message, then the reason a bad one is bad."""
     try:  # the fast path, in one pass of pydantic's own JSON parser
         message = kind.model_validate_json(raw)
         if "protocol" in message.model_fields_set:  # a message must say its version
             return message
-    except ValidationError:
-        pass  # the slow path says what exactly is wrong
+    except ValidationError as error:
+        first = error.errors(include_url=False, include_context=False, include_input=False)[0]
+        if first["type"] == "json_invalid":
+            # pydantic's parser is the one that decides what JSON is; json.loads must never see
+            # what it refused: json.loads recurses on "[[[[..." until RecursionError.
+            if not raw.isascii():
+                try:
+                    raw.decode()
+                except UnicodeDecodeError as bad:
+                    where = f"byte {raw[bad.start]:#04x} at {bad.start}"
+                    raise BadMessage(f"{kind.__name__}: not JSON (not UTF-8: {where})") from None
+            reason = first["msg"].removeprefix("Invalid JSON: ")
+            raise BadMessage(f"{kind.__name__}: not JSON ({reason})") from None
+    # JSON that pydantic's parser accepted, so within its limits of depth and number size.
     try:
         fields = json.loads(raw)
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+    except ValueError as error:  # JSONDecodeError, UnicodeDecodeError, too many digits
         raise BadMessage(f"{kind.__name__}: not JSON ({error})") from None
     if not isinstance(fields, dict):
         raise BadMessage(f"{kind.__name__}: not a JSON object")
     version = fields.get("protocol")
     if version != PROTOCOL_VERSION or isinstance(version, bool):
         raise BadMessage(
-            f"{kind.__name__}: protocol version {version!r} is not {PROTOCOL_VERSION}, "
+            f"{kind.__name__}: protocol version {version!r:.40} is not {PROTOCOL_VERSION}, "
             "the one this gainfarm speaks"
         )
     try:
         return kind.model_validate(fields)
     except ValidationError as error:
-        raise BadMessage(f"{kind.__name__}: {describe(error)}") from None
+        raise BadMessage(f"{kind.__name__}: {_one_line(describe(error))}") from None
+
+
+def _one_line(reason: str, limit: int = 300) -> str:
+    """A reason fit for one log line: it may quote the sender's field names and messages."""
+    reason = " ".join(reason.splitlines())
+    return reason if len(reason) <= limit else f"{reason[: limit - 3]}..."
 
 
 class _SubmissionEnvelope(WireMessage):
@@ -229,7 +312,7 @@ def decode_submission(raw: bytes | None) -> tuple[str, list[Job], list[Rejection
             submission = Submission.model_validate_json(raw)
             if "protocol" in submission.model_fields_set:
                 return submission.study, list(submission.jobs), []
-        except ValidationError:
+        except Exception:  # whatever it was, the slow path below says why, as BadMessage
             pass
     envelope = decode(_SubmissionEnvelope, raw)
     jobs: list[Job] = []
@@ -237,8 +320,12 @@ def decode_submission(raw: bytes | None) -> tuple[str, list[Job], list[Rejection
     for index, fields in enumerate(envelope.jobs):
         try:
             jobs.append(Job.model_validate(fields))
-        except ValidationError as error:
+        except Exception as error:  # a ValidationError, or a validator's own: one bad job
             job_id = fields.get("job_id") if isinstance(fields, dict) else None
             name = job_id if isinstance(job_id, str) else f"jobs[{index}]"
-            rejected.append(Rejection(job_id=name, reason=describe(error)))
+            if isinstance(error, ValidationError):
+                reason = describe(error)
+            else:
+                reason = f"undecodable ({type(error).__name__}: {error})"
+            rejected.append(Rejection(job_id=name, reason=_one_line(reason)))
     return envelope.study, jobs, rejected

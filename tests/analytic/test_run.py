@@ -25,7 +25,7 @@ from schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
 from schemas.mcap_episode import read_episode
 from schemas.objectives import score
 from schemas.transport import open_session
-from tests.helpers import ask_for_work, wait_for
+from tests.helpers import ask_for_work, hand_in, wait_for
 from worker.episode import run_episode
 from worker.job import execute
 
@@ -354,7 +354,8 @@ class Saboteur(threading.Thread):
                 if lease is None:
                     return
                 result, log = execute(lease, "saboteur")
-                # The attachment tells the truth about what was sent: the damage is in transit.
+                # Handed in whole, as a worker does; the damage is in transit.
+                assert hand_in(session, result).accepted
                 session.put(
                     keys.result(lease.study, lease.job.job_id),
                     damage(log),

@@ -54,9 +54,10 @@ class Interrupt(Exception):
 def tune(
     directory: Path, config: RunConfig = TINY, report: bool = False, **hooks: object
 ) -> TuningRun:
-    """A run of the toy problem; the figures and report (0.3 s of drawing) only if asked."""
-    run = TuningRun.create(directory, config)
-    run.run(InProcessEvaluator(scorer=toy_scores), report=report, **hooks)
+    """A run of the toy problem; the figures and report (0.3 s of drawing) only if asked. The run
+    returned is closed (its lock released), as one interrupted is."""
+    with TuningRun.create(directory, config) as run:
+        run.run(InProcessEvaluator(scorer=toy_scores), report=report, **hooks)
     return run
 
 
@@ -192,7 +193,7 @@ def test_a_run_that_stops_leaves_nothing_in_flight_for_the_next(tmp_path: Path) 
             raise Interrupt
 
     second = TuningRun.create(tmp_path / "second", TINY)
-    with pytest.raises(Interrupt):
+    with pytest.raises(Interrupt), second:
         second.run(evaluator, stop_in_generation_two, report=False)
     assert evaluator.pending == 0
     resumed = TuningRun.open(tmp_path / "second")

@@ -44,7 +44,7 @@ def test_a_message_round_trips() -> None:
         (b"[1, 2]", "not a JSON object"),
         (b'{"worker": "w"}', f"protocol version None is not {V}"),
         (b'{"protocol": 1, "worker": "w"}', f"protocol version 1 is not {V}"),
-        (b'{"protocol": 3, "worker": "w"}', f"protocol version 3 is not {V}"),
+        (b'{"protocol": 2, "worker": "w"}', f"protocol version 2 is not {V}"),
         (b'{"protocol": true, "worker": "w"}', f"protocol version True is not {V}"),
         (b'{"protocol": %d}' % V, "worker: Field required"),
         (b'{"protocol": %d, "worker": "a/b"}' % V, "worker: String should match pattern"),
@@ -85,8 +85,11 @@ def test_a_result_names_must_be_key_safe() -> None:
         worker="w",
         status="ok",
         episode_bytes=0,
+        digest="0" * 64,
         timings={"simulate_s": 0.1, "encode_s": 0.0},
     )
     Result(**fields)
+    with pytest.raises(ValueError, match="digest"):
+        Result(**{**fields, "digest": "not a sha-256"})
     with pytest.raises(ValueError, match="job_id"):
         Result(**{**fields, "job_id": "j/*"})

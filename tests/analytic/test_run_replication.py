@@ -1,0 +1,128 @@
+"""Validation by replication inside a tuning run, in milliseconds: a stand-in farm of named
+workers (the evaluator seam), one of which lies about the scores of the jobs it runs."""
+
+import hashlib
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from pathlib import Path
+
+from analytic.config import RunConfig
+from analytic.evaluator import Evaluation, EvaluationStatus
+from analytic.run import TuningRun
+from schemas.episode import EpisodeSpec
+from tests.analytic.toy import toy_scores
+
+CONFIG = RunConfig(pop=8, generations=4, seed=3)
+
+
+class ToyFarm:
+    """Workers take jobs in turn, skipping any a job avoids or the farm distrusts; a liar
+    returns a log a little better than the truth."""
+
+    def __init__(self, workers: Sequence[str], liars: Iterable[str] = ()):
+        self.workers = list(workers)
+        self.liars = set(liars)
+        self.distrusted: set[str] = set()
+        self.ran: dict[str, str] = {}  # job id → worker
+        self._pending: dict[str, tuple[EpisodeSpec, tuple[str, ...]]] = {}
+        self._turn = 0
+
+    @property
+    def capacity(self) -> int:
+        return len(self.workers)
+
+    def submit(
+        self, specs: Mapping[str, EpisodeSpec], avoid: Mapping[str, Sequence[str]] | None = None
+    ) -> None:
+        for job_id, spec in specs.items():
+            self._pending[job_id] = (spec, tuple((avoid or {}).get(job_id, ())))
+
+    def distrust(self, worker: str) -> None:
+        self.distrusted.add(worker)
+
+    def cancel(self, job_ids: Iterable[str]) -> None:
+        for job_id in job_ids:
+            self._pending.pop(job_id, None)
+
+    def results(self) -> Iterator[Evaluation]:
+        while self._pending:
+            job_id, (spec, avoid) = next(iter(self._pending.items()))
+            del self._pending[job_id]
+            yield self._run(job_id, spec, avoid)
+
+    def _run(self, job_id: str, spec: EpisodeSpec, avoid: tuple[str, ...]) -> Evaluation:
+        allowed = [w for w in self.workers if w not in avoid and w not in self.distrusted]
+        worker = allowed[self._turn % len(allowed)]
+        self._turn += 1
+        self.ran[job_id] = worker
+        scores = toy_scores(spec)
+        log = spec.model_dump_json().encode()
+        if worker in self.liars:
+            scores = scores.model_copy(update={"f_acc": scores.f_acc * 0.5})
+            log += b" (altered)"
+        return Evaluation(
+            job_id=job_id,
+            spec=spec,
+            status=EvaluationStatus.ok,
+            scores=scores,
+            log=None,
+            reason="",
+            worker=worker,
+            attempts=1,
+            timings=None,
+            digest=hashlib.sha256(log).hexdigest(),
+        )
+
+
+def run(tmp_path: Path, name: str, farm: ToyFarm, config: RunConfig = CONFIG) -> TuningRun:
+    tuning = TuningRun.create(tmp_path / name, config)
+    tuning.run(farm, report=False)
+    return tuning
+
+
+def front(tuning: TuningRun) -> list[tuple[float, float]]:
+    return [member.objectives for member in tuning.front()]
+
+
+def false_members(tuning: TuningRun) -> list[tuple[float, float]]:
+    """Front members whose objectives are not what their gains truly score."""
+    false = []
+    for member in tuning.front():
+        spec = EpisodeSpec(gains=member.gains, trajectory=tuning.config.trajectories[0])
+        truth = toy_scores(spec)
+        if member.objectives != (truth.f_acc, truth.f_t):
+            false.append(member.objectives)
+    return false
+
+
+def test_a_liar_is_outvoted_named_and_kept_out_of_the_front(tmp_path: Path) -> None:
+    lied_to = ToyFarm(["h1", "liar", "h2", "h3"], liars=["liar"])
+    checked = run(tmp_path, "checked", lied_to)
+    assert front(checked) and false_members(checked) == []
+    assert checked.replication.dissenters == {"liar"} == lied_to.distrusted
+    assert checked.replication.disagreements >= 1 and checked.replication.undecided == 0
+    # Replication costs the front entrants' episodes again, not every evaluation.
+    evaluations = checked.state.evolution.evaluations
+    assert 0 < checked.replication.extra_evaluations < evaluations
+    # Without validation, the liar's flattering scores reach the front.
+    unchecked = run(
+        tmp_path,
+        "unchecked",
+        ToyFarm(["h1", "liar", "h2", "h3"], liars=["liar"]),
+        CONFIG.model_copy(update={"replicate": False}),
+    )
+    assert false_members(unchecked) != []
+
+
+def test_an_honest_farm_validates_without_changing_the_front(tmp_path: Path) -> None:
+    plain = run(
+        tmp_path, "plain", ToyFarm(["h1", "h2"]), CONFIG.model_copy(update={"replicate": False})
+    )
+    checked = run(tmp_path, "checked", ToyFarm(["h1", "h2"]))
+    assert front(checked) == front(plain)
+    assert checked.replication.disagreements == 0 and not checked.replication.dissenters
+    assert checked.replication.replicated == checked.replication.extra_evaluations > 0
+
+
+def test_a_farm_of_one_worker_does_not_replicate(tmp_path: Path) -> None:
+    alone = run(tmp_path, "alone", ToyFarm(["h1"]))
+    assert alone.replication.extra_evaluations == 0
