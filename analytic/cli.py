@@ -84,7 +84,12 @@ def termination_options(per_run: bool = False) -> Callable[[F], F]:
 # Where the farm is, the same for every command that uses one.
 farm_options = options.stack(
     click.option("--connect", multiple=True, help="a running broker's Zenoh endpoint"),
-    options.tls("a secure farm: directory with ca.pem, analytic.pem and analytic.key"),
+    options.tls("a secure farm: directory with ca.pem and an analytic participant's pair"),
+    click.option(
+        "--as",
+        "participant",
+        help="with --tls: the analytic participant to be, if DIR holds several",
+    ),
     click.option(
         "--local", is_flag=True, help="run the farm here: a broker in this process, workers"
     ),
@@ -98,13 +103,23 @@ farm_options = options.stack(
 )
 
 
-def _check_farm(connect: tuple[str, ...], local: bool, tls: Path | None) -> TlsIdentity | None:
+def _check_farm(
+    connect: tuple[str, ...], local: bool, tls: Path | None, participant: str | None
+) -> TlsIdentity | None:
     """The analytic identity to connect with, if the farm is secure."""
     if connect and local:
         raise CliError("--connect and --local exclude each other")
     if tls is not None and not connect:
         raise CliError("--tls needs --connect: a local farm runs on loopback, unsecured")
-    return options.identity(tls, "analytic")
+    if participant is not None and tls is None:
+        raise CliError("--as needs --tls: a participant is a secure farm's identity")
+    return options.identity(tls, "analytic", participant)
+
+
+def _study_name(directory: Path, identity: TlsIdentity | None) -> str:
+    """A new study name for work on `directory`; on a secure farm its owner's, as the access
+    policy requires (docs/security.md)."""
+    return new_study_name(directory, owner=identity.name if identity is not None else None)
 
 
 @app.command()
@@ -148,6 +163,7 @@ def evaluate(log: Path, as_json: bool) -> None:
 def batch(
     connect: tuple[str, ...],
     tls: Path | None,
+    participant: str | None,
     local: bool,
     workers: int,
     gains_file: Path | None,
@@ -161,7 +177,7 @@ def batch(
     """Evaluate candidate gains on trajectories through the farm; keep and score every episode."""
     if not connect and not local:  # batch has no default farm
         raise CliError("say where the farm is: --connect ENDPOINT or --local")
-    identity = _check_farm(connect, local, tls)
+    identity = _check_farm(connect, local, tls, participant)
     candidates = _candidates(gains_file)
     try:
         trajectories = [TrajectorySpec(kind=kind, duration=duration) for kind in kinds]
@@ -178,7 +194,11 @@ def batch(
     with _farm(connect, workers) as endpoints:
         try:
             farm = FarmClient(
-                endpoints, new_study_name(run_dir), run_dir, deadline=deadline, identity=identity
+                endpoints,
+                _study_name(run_dir, identity),
+                run_dir,
+                deadline=deadline,
+                identity=identity,
             )
         except (ValueError, ConnectionError) as error:
             raise CliError(str(error)) from None
@@ -223,6 +243,13 @@ def batch(
     is_flag=True,
     help="steady-state NSGA-II: a new candidate as soon as any result returns",
 )
+@click.option(
+    "--replicate/--no-replicate",
+    default=True,
+    show_default=True,
+    help="on a farm of 2+ workers, validate the front: another worker reruns each member's "
+    "episodes and the logs must agree bit for bit",
+)
 def start(
     pop: int,
     kinds: tuple[str, ...],
@@ -233,18 +260,20 @@ def start(
     model: str,
     connect: tuple[str, ...],
     tls: Path | None,
+    participant: str | None,
     local: bool,
     workers: int,
     out: Path | None,
     keep: str,
     asynchronous: bool,
+    replicate: bool,
 ) -> None:
     """Tune the 14 PD gains with NSGA-II on the farm: maximise accuracy, minimise torque steps.
 
     Stops after --generations, after --evaluations, or (by default) when the hypervolume has
     stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
     """
-    identity = _check_farm(connect, local, tls)
+    identity = _check_farm(connect, local, tls, participant)
     try:
         config = RunConfig(
             pop=pop,
@@ -255,6 +284,7 @@ def start(
             evaluations=evaluations,
             keep=keep,
             asynchronous=asynchronous,
+            replicate=replicate,
         )
     except ValidationError as error:
         raise CliError(_config_problem(error)) from None
@@ -276,10 +306,15 @@ def start(
 @click.argument("run_dir", type=click.Path(path_type=Path))
 @farm_options
 def resume(
-    run_dir: Path, connect: tuple[str, ...], tls: Path | None, local: bool, workers: int
+    run_dir: Path,
+    connect: tuple[str, ...],
+    tls: Path | None,
+    participant: str | None,
+    local: bool,
+    workers: int,
 ) -> None:
     """Continue a stopped run from its last checkpoint."""
-    identity = _check_farm(connect, local, tls)
+    identity = _check_farm(connect, local, tls, participant)
     if not (run_dir / CONFIG_JSON).is_file():
         raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG_JSON})")
     try:
@@ -306,7 +341,7 @@ def _tune(
     console = Console(stderr=True)
     try:
         with run, _farm(connect, workers) as endpoints:
-            study = new_study_name(run.directory)
+            study = _study_name(run.directory, identity)
             try:
                 farm = FarmClient(endpoints, study, run.directory, identity=identity)
             except (ValueError, ConnectionError) as error:
@@ -322,6 +357,9 @@ def _tune(
             ):
                 task = progress.add_task("starting")
                 connected = len(farm.status().workers)
+                farm.on_wait = lambda why: progress.update(
+                    task, description=f"waiting for the broker: {why}" if why else "resuming"
+                )
 
                 def show(step: RunProgress) -> None:
                     rate = step.evaluations / step.elapsed if step.elapsed else 0.0
@@ -348,6 +386,14 @@ def _tune(
         )
         sys.exit(130)
     console.print(f"stopped: {reason}")
+    ledger = run.replication
+    if ledger.replicated:
+        console.print(
+            f"front validated by replication: {ledger.replicated} episodes run again "
+            f"({ledger.extra_evaluations} extra evaluations, {ledger.seconds:.1f} s), "
+            f"{ledger.disagreements} disagreements, {ledger.undecided} undecided"
+            + (f"; distrusted: {', '.join(sorted(ledger.dissenters))}" if ledger.dissenters else "")
+        )
     console.print(f"front, history, figures and report in {run.directory}/")
 
 
@@ -417,12 +463,13 @@ def experiment(
     evaluations: int | None,
     connect: tuple[str, ...],
     tls: Path | None,
+    participant: str | None,
     local: bool,
     workers: int,
     out: Path,
 ) -> None:
     """Rerun one of the paper's experiments: popsize, generic-vs-specific or speed."""
-    identity = _check_farm(connect, local, tls)
+    identity = _check_farm(connect, local, tls, participant)
     size_list = [int(v) for v in parse_numbers("--sizes", sizes)]
     duration_list = list(parse_numbers("--durations", durations))
     try:
@@ -455,8 +502,8 @@ def experiment(
             experiment = Experiment(
                 out,
                 # The experiment's own study names are neither unique nor short enough.
-                lambda _study, directory: FarmClient(
-                    endpoints, new_study_name(directory), directory, identity=identity
+                lambda _name, directory: FarmClient(
+                    endpoints, _study_name(directory, identity), directory, identity=identity
                 ),
                 lambda text: progress.update(task, description=text),
             )

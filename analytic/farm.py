@@ -21,7 +21,7 @@ import hashlib
 import logging
 import queue
 import time
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -105,6 +105,8 @@ class FarmClient:
         self.ignored = 0
         self.unconfirmed = 0  # results the broker did not take: forged, or from a stale lease
         self.waiting: str | None = None  # why the client is waiting for the broker, if it is
+        # Told each time `waiting` changes (a progress line says so); the reason, or None.
+        self.on_wait: Callable[[str | None], None] = lambda why: None
         self._pending: dict[str, _Pending] = {}
         self._ready: list[Evaluation] = []
         self._arrived: dict[str, list[_Arrival]] = {}  # by job id, until the broker confirms
@@ -138,7 +140,7 @@ class FarmClient:
     @property
     def capacity(self) -> int:
         """The workers connected to the farm now: how many jobs can run at once."""
-        return len(self.status().workers)
+        return self.status().worker_count
 
     def submit(
         self, specs: Mapping[str, EpisodeSpec], avoid: Mapping[str, Sequence[str]] | None = None
@@ -250,9 +252,10 @@ class FarmClient:
     def _wait_for_broker(self, why: str) -> None:
         """No answer from the broker is no verdict on any job: wait, saying so, and spend no
         attempts until it answers again."""
-        if self.waiting is None:
+        if self.waiting is None:  # said once, with the first reason, until it answers again
             log.warning("%s; waiting for it (%d jobs pending)", why, len(self._pending))
-        self.waiting = why
+            self.waiting = why
+            self.on_wait(why)
         later = time.monotonic() + self.deadline
         for pending in self._pending.values():
             pending.deadline = max(pending.deadline, later)
@@ -263,13 +266,16 @@ class FarmClient:
         if answered and self.waiting is not None:
             log.warning("the broker answers again")
             self.waiting = None
+            self.on_wait(None)
         return answered
 
     def _rejoin(self) -> None:
         """A new broker knows none of our jobs: once it knows the study, submit them all again.
         Its restart lost them, the worker did not fail them: no attempt is counted."""
         log.warning("a broker (re)started; resubmitting %d pending jobs", len(self._pending))
-        self.waiting = None
+        if self.waiting is not None:
+            self.waiting = None
+            self.on_wait(None)
         try:
             self._await_study("the restarted broker")
         except FarmUnavailable as error:

@@ -3,14 +3,18 @@ second process.
 
     python bench/broker_capacity.py [--quick] [--jobs 20000] [--runs 3] [--noop-workers 8]
 
-The broker runs alone in this process. A second process plays the rest of the farm: a submitting
-client holding the study's liveliness token, and K no-op workers, each a thread with its own
-client session and liveliness token, that ask for a lease and at once put an ok Result with an
-empty log. With 2 cores, this gives the broker (Zenoh's router, its callbacks, the queue) a core
-and the load the other, instead of one GIL for both. Jobs per second is the broker's own count of
-jobs done over the time from the workers' start to the last completion; lease latency is from a
-worker's get to the reply carrying a lease, as the worker sees it. Two settings, alternating, each
-run several times (the figures are those of the run with the median jobs per second):
+The broker runs alone in this process. A second process plays the rest of the farm: a client
+holding the study's liveliness token that submits, and confirms the results it receives with the
+broker in batches as FarmClient does, and K no-op workers, each a thread with its own client
+session and liveliness token, that ask for a lease, at once hand in an ok Result with an empty log
+and, once the broker takes it, put it. With 2 cores, this gives the broker (Zenoh's router, its
+callbacks, the queue) a core and the load the other, instead of one GIL for both. Jobs per second
+is the broker's own count of jobs done (results it took) over the time from the workers' start to
+the last completion; lease latency is from a worker's get to the reply carrying a lease, as the
+worker sees it; hand-in latency from a worker's hand-in to the broker's verdict. The client's
+confirmations are counted per round trip (results asked about at once, and its time), and per
+result from its arrival to its confirmation. Two settings, alternating, each run several times
+(the figures are those of the run with the median jobs per second):
 
 - "live": the submitter sends Submissions as big as FarmClient's (SUBMIT_CHUNK jobs) while the
   workers run, keeping a few thousand jobs queued: the broker decodes submissions and leases at
@@ -69,10 +73,17 @@ def noop_load(endpoint: str, jobs: int, workers: int, prefill: bool, parent: Con
     stop.set()
     for thread in threads:
         thread.join()
+    submitter.wait_confirmed(done())  # the last few results are still being confirmed
     parent.send(
         {
             "latencies": [latency for worker in farm for _, latency in worker.leases],
+            "hand_ins": [latency for worker in farm for latency in worker.hand_ins],
             "results": done(),
+            "refused": sum(worker.refused for worker in farm),
+            "confirmed": submitter.confirmed,
+            "unconfirmed": submitter.unconfirmed,
+            "rounds": submitter.rounds,
+            "waits": submitter.waits,
             "cpu": cpu,
         }
     )
@@ -92,7 +103,15 @@ class Capacity:
     broker_us: float  # CPU time of the broker's process per job
     load_us: float  # CPU time of the load process per job
     requeued: int  # leases the broker took back and queued again
-    duplicates: int  # results for jobs already done
+    refused: int  # results the broker did not take (a job done already: a duplicate)
+    hand_in_p50_ms: float
+    hand_in_p99_ms: float
+    confirm_rounds: int  # the client's confirmation queries
+    confirm_batch: float  # results per confirmation query, on average
+    confirm_p50_ms: float  # a confirmation query's round trip
+    confirm_p99_ms: float
+    wait_p50_ms: float  # a result's arrival at the client to its confirmation
+    wait_p99_ms: float
 
 
 def capacity(jobs: int, workers: int, prefill: bool) -> Capacity:
@@ -113,6 +132,12 @@ def capacity(jobs: int, workers: int, prefill: bool) -> Capacity:
         outcome = here.recv()
         load.join()
         requeued = broker.queue.requeued
+    if outcome["unconfirmed"] or outcome["confirmed"] != outcome["results"]:
+        raise RuntimeError(
+            f"{outcome['confirmed']} of {outcome['results']} results confirmed, "
+            f"{outcome['unconfirmed']} not"
+        )
+    rounds = outcome["rounds"]
     return Capacity(
         prefill=prefill,
         jobs_per_s=jobs / (finished - started),
@@ -121,7 +146,15 @@ def capacity(jobs: int, workers: int, prefill: bool) -> Capacity:
         broker_us=cpu / jobs * 1e6,
         load_us=outcome["cpu"] / jobs * 1e6,
         requeued=requeued,
-        duplicates=outcome["results"] - jobs,
+        refused=outcome["refused"],
+        hand_in_p50_ms=percentile_ms(outcome["hand_ins"], 50),
+        hand_in_p99_ms=percentile_ms(outcome["hand_ins"], 99),
+        confirm_rounds=len(rounds),
+        confirm_batch=outcome["confirmed"] / len(rounds),
+        confirm_p50_ms=percentile_ms((seconds for _, seconds in rounds), 50),
+        confirm_p99_ms=percentile_ms((seconds for _, seconds in rounds), 99),
+        wait_p50_ms=percentile_ms(outcome["waits"], 50),
+        wait_p99_ms=percentile_ms(outcome["waits"], 99),
     )
 
 
@@ -138,7 +171,15 @@ def capacities(jobs: int, workers: int, runs: int) -> tuple[Capacity, Capacity]:
                 f"{run.jobs_per_s:,.0f} jobs/s, lease p50 {run.p50_ms:.1f} ms, "
                 f"p99 {run.p99_ms:.1f} ms; CPU per job: broker {run.broker_us:.0f} µs, "
                 f"load {run.load_us:.0f} µs; {run.requeued:,} requeued, "
-                f"{run.duplicates:,} duplicate results",
+                f"{run.refused:,} results refused",
+                flush=True,
+            )
+            print(
+                f"    hand-in p50 {run.hand_in_p50_ms:.1f} ms, p99 {run.hand_in_p99_ms:.1f} ms; "
+                f"{run.confirm_rounds:,} confirmations of {run.confirm_batch:.1f} results on "
+                f"average, round trip p50 {run.confirm_p50_ms:.1f} ms, p99 "
+                f"{run.confirm_p99_ms:.1f} ms; a result confirmed p50 {run.wait_p50_ms:.1f} ms, "
+                f"p99 {run.wait_p99_ms:.1f} ms after it arrived",
                 flush=True,
             )
 
@@ -167,7 +208,10 @@ def main(quick: bool, jobs: int | None, runs: int | None, noop_workers: int) -> 
         print(
             f"broker: {run.jobs_per_s:,.0f} no-op jobs/s, lease latency "
             f"p50 {run.p50_ms:.1f} ms, p99 {run.p99_ms:.1f} ms ({noop_workers} no-op "
-            f"workers, {setting}; median of {runs} runs)"
+            f"workers, {setting}; median of {runs} runs); hand-in p50 "
+            f"{run.hand_in_p50_ms:.1f} ms, p99 {run.hand_in_p99_ms:.1f} ms; confirmation round "
+            f"trip p50 {run.confirm_p50_ms:.1f} ms, p99 {run.confirm_p99_ms:.1f} ms "
+            f"({run.confirm_batch:.1f} results each)"
         )
 
 

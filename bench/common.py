@@ -1,15 +1,19 @@
 """What several benchmarks share: loopback endpoints, episode specs, percentiles and tables, and
-stand-ins for the farm around a broker (an analytic client that only submits, workers that only
-lease and report).
+stand-ins for the farm around a broker (an analytic client that submits and confirms results but
+evaluates nothing, workers that only lease, hand in and report).
 
-The stand-ins speak the farm's wire protocol as cheaply as they can (Submissions prebuilt as
-bytes, replies read with json rather than pydantic): the load they put on a broker should cost as
-little of the machine as it can, so that the broker's figures are the broker's.
+The stand-ins speak the farm's wire protocol (version 3) as cheaply as they can (Submissions
+prebuilt as bytes, replies read with json rather than pydantic): the load they put on a broker
+should cost as little of the machine as it can, so that the broker's figures are the broker's.
+They ask the broker as the farm's own clients do (schemas.ask), so the broker serves the same
+queries as it does for a FarmClient and a CobotWorker.
 """
 
 import contextlib
+import hashlib
 import json
 import multiprocessing
+import queue
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -17,14 +21,16 @@ from collections.abc import Callable, Iterable, Sequence
 import numpy as np
 import zenoh
 
-from analytic.farm import ANSWER_SECONDS, SUBMIT_CHUNK
+from analytic.farm import ANSWER_SECONDS, CONFIRM_BATCH, SUBMIT_CHUNK
 from analytic.local import free_port
 from broker.status import BrokerUnavailable, query_status
 from schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
+from schemas.ask import Answer, ask
 from schemas.gains import DEFAULT_GAINS
 from schemas.transport import open_session
 from schemas.wire import (
     LEASE_HOLD_SECONDS,
+    PROTOCOL_VERSION,
     Job,
     JobStatus,
     LeaseRequest,
@@ -83,20 +89,45 @@ def print_table(header: Sequence[str], align: str, rows: Iterable[Sequence[str]]
 # --- stand-ins for the farm around a broker ----------------------------------------------------
 
 
+def _answered(answer: Answer | None, what: str) -> bytes:
+    """The payload of the broker's answer; RuntimeError if it refused or did not answer."""
+    if answer is None:
+        raise RuntimeError(f"the broker did not answer {what}")
+    if answer.payload is None:
+        raise RuntimeError(f"the broker refused {what}: {answer.error}")
+    return answer.payload
+
+
 class FakeAnalytic:
-    """An analytic client that only submits: it holds study `study`'s liveliness token and sends
-    Submissions prebuilt as bytes. It evaluates nothing; its jobs' results go unread."""
+    """An analytic client that submits and confirms, and evaluates nothing: it holds study
+    `study`'s liveliness token, sends Submissions prebuilt as bytes, and, as FarmClient does,
+    checks each result's digest and asks the broker which ones it took, in batches of whatever
+    arrived while the previous question was out (at most CONFIRM_BATCH)."""
 
     def __init__(self, endpoint: str, study: str):
         self.study = study
+        self.confirmed = 0  # results the broker confirmed
+        self.unconfirmed = 0  # results it did not (there should be none)
+        self.bad_digests = 0
+        self.rounds: list[tuple[int, float]] = []  # (results asked about, round trip s)
+        self.waits: list[float] = []  # s from a result's arrival to its confirmation
+        self._key = keys.confirm(study)
+        self._arrivals: queue.SimpleQueue[tuple[float, dict]] = queue.SimpleQueue()
+        self._stop = threading.Event()
         self.session = open_session("client", connect=[endpoint])
+        self._subscriber = self.session.declare_subscriber(
+            keys.study_results(study), self._on_result
+        )
         self._token = self.session.liveliness().declare_token(keys.alive_study(study))
+        self._confirmer = threading.Thread(target=self._confirm, name="fake-analytic-confirm")
+        self._confirmer.start()
         give_up = time.monotonic() + ANSWER_SECONDS
         while time.monotonic() < give_up:  # until the broker has seen the token, as FarmClient
             with contextlib.suppress(BrokerUnavailable):  # no answer yet: ask again
                 if any(s.name == study for s in query_status(self.session, timeout=1.0).studies):
                     return
             time.sleep(0.02)
+        self.close()
         raise ConnectionError(f"the broker at {endpoint} never opened study {study}")
 
     def submissions(self, count: int) -> list[bytes]:
@@ -115,24 +146,76 @@ class FakeAnalytic:
         ]
 
     def submit(self, payload: bytes) -> None:
-        for reply in self.session.get(keys.SUBMIT, payload=payload, timeout=ANSWER_SECONDS):
-            if reply.ok is None or decode(SubmitReply, reply.ok.payload.to_bytes()).rejected:
-                raise RuntimeError("the broker refused a submission")
-            return
-        raise RuntimeError("the broker did not answer a submission")
+        answer = ask(self.session, keys.submit(self.study), payload, ANSWER_SECONDS)
+        reply = decode(SubmitReply, _answered(answer, "a submission"))
+        if reply.rejected:
+            raise RuntimeError(f"the broker rejected jobs: {reply.rejected[0].reason}")
+        if reply.deferred:
+            raise RuntimeError(f"the broker deferred {len(reply.deferred)} jobs: queue full")
 
     def close(self) -> None:
+        self._stop.set()
+        self._confirmer.join()
         self._token.undeclare()
         self.session.close()
 
+    def _on_result(self, sample: zenoh.Sample) -> None:
+        result = json.loads(sample.attachment.to_bytes())
+        if hashlib.sha256(sample.payload.to_bytes()).hexdigest() != result["digest"]:
+            self.bad_digests += 1
+            return
+        self._arrivals.put((time.monotonic(), result))
+
+    def _confirm(self) -> None:
+        while not self._stop.is_set():
+            try:
+                batch = [self._arrivals.get(timeout=0.1)]
+            except queue.Empty:
+                continue
+            with contextlib.suppress(queue.Empty):
+                while len(batch) < CONFIRM_BATCH:
+                    batch.append(self._arrivals.get_nowait())
+            request = {
+                "protocol": PROTOCOL_VERSION,
+                "study": self.study,
+                "job_ids": [result["job_id"] for _, result in batch],
+            }
+            asked = time.monotonic()
+            answer = ask(self.session, self._key, json.dumps(request).encode(), ANSWER_SECONDS)
+            accepted = json.loads(_answered(answer, "a confirmation"))["accepted"]
+            answered = time.monotonic()
+            self.rounds.append((len(batch), answered - asked))
+            taken = {(a["job_id"], a["lease_id"], a["worker"], a["digest"]) for a in accepted}
+            for arrived, result in batch:
+                fields = (result["job_id"], result["lease_id"], result["worker"], result["digest"])
+                if fields in taken:
+                    self.confirmed += 1
+                    self.waits.append(answered - arrived)
+                else:
+                    self.unconfirmed += 1
+
+    def wait_confirmed(self, count: int, timeout: float = ANSWER_SECONDS) -> None:
+        """Wait until `count` results were confirmed; RuntimeError if they are not in time."""
+        give_up = time.monotonic() + timeout
+        while self.confirmed < count:
+            if time.monotonic() > give_up:
+                raise RuntimeError(f"{self.confirmed} of {count} results confirmed")
+            time.sleep(0.01)
+
+
+EMPTY_LOG = b""  # what a NoopWorker sends as an episode log
+
 
 class NoopWorker:
-    """Asks for a lease, runs the job (by default: does nothing) and puts an ok Result with an
-    empty log, on a session it may share with other NoopWorkers."""
+    """Asks for a lease, runs the job (by default: does nothing), hands in an ok Result with an
+    empty log and, once the broker takes it, puts it, on a session it may share with other
+    NoopWorkers."""
 
     def __init__(self, session: zenoh.Session, name: str, study: str):
         self.session = session
         self._token = session.liveliness().declare_token(keys.alive_worker(name))
+        self._lease_key = keys.lease(name)
+        self._complete_key = keys.complete(name)
         self._request = LeaseRequest(worker=name).to_bytes()
         self._result = Result(
             study=study,
@@ -140,23 +223,21 @@ class NoopWorker:
             lease_id="x",
             worker=name,
             status=JobStatus.ok,
-            episode_bytes=0,
+            episode_bytes=len(EMPTY_LOG),
+            digest=hashlib.sha256(EMPTY_LOG).hexdigest(),
             timings=Timings(simulate_s=0.0, encode_s=0.0),
         ).model_dump(mode="json")
         self.leases: list[tuple[float, float]] = []  # (monotonic time asked, latency s)
+        self.hand_ins: list[float] = []  # s from handing in a result to the broker's verdict
         self.runs: list[tuple[str, float, float]] = []  # (job id, start, end) of each job run
-        self.completed = 0  # results put
+        self.completed = 0  # results the broker took, and put
+        self.refused = 0  # results the broker did not take
 
     def serve(self, stop: threading.Event, run: Callable[[], None] | None = None) -> None:
         while not stop.is_set():
             asked = time.monotonic()
-            lease = None
-            for reply in self.session.get(
-                keys.LEASE, payload=self._request, timeout=LEASE_HOLD_SECONDS + 5.0
-            ):
-                if reply.ok is None:
-                    raise RuntimeError("the broker refused a lease request")
-                lease = json.loads(reply.ok.payload.to_bytes())["lease"]
+            answer = ask(self.session, self._lease_key, self._request, LEASE_HOLD_SECONDS + 5.0)
+            lease = json.loads(_answered(answer, "a lease request"))["lease"]
             if lease is None:  # no work now: ask again
                 continue
             self.leases.append((asked, time.monotonic() - asked))
@@ -166,10 +247,18 @@ class NoopWorker:
                 run()
                 self.runs.append((job_id, started, time.monotonic()))
             result = {**self._result, "job_id": job_id, "lease_id": lease["lease_id"]}
+            attachment = json.dumps(result).encode()
+            handed = time.monotonic()
+            answer = ask(self.session, self._complete_key, attachment, ANSWER_SECONDS)
+            verdict = json.loads(_answered(answer, "a hand-in"))
+            self.hand_ins.append(time.monotonic() - handed)
+            if not verdict["accepted"]:
+                self.refused += 1
+                continue
             self.session.put(
                 keys.result(lease["study"], job_id),
-                b"",
-                attachment=json.dumps(result).encode(),
+                EMPTY_LOG,
+                attachment=attachment,
                 congestion_control=zenoh.CongestionControl.BLOCK,  # as CobotWorker: no drops
             )
             self.completed += 1

@@ -488,6 +488,7 @@ def main(
                     replicate_every
                     and evaluation.digest is not None
                     and ledger.completed % replicate_every == 0
+                    and len(pool.live) >= 2  # a replica must run on another worker
                 ):
                     # Another worker runs it again; what arrives meanwhile is taken after.
                     for other in replication.validate(farm, [evaluation], replicas).others:

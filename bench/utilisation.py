@@ -5,10 +5,11 @@
 
 The broker runs alone in this process. A second process runs the simulated workers (threads over
 8 shared sessions, each worker with its own name and liveliness token) that lease a job, sleep for
-the job's duration and put a no-op Result; the queue is filled up front. Utilisation is the time
-spent sleeping within a window that starts after a warm-up of two jobs' duration, over the number
-of workers x the window. The lease latency's 99th percentile is of the leases asked for within the
-window.
+the job's duration, hand in a no-op Result and, once the broker takes it, put it; the queue is
+filled up front, and the submitting client confirms the results it receives with the broker, as
+FarmClient does. Utilisation is the time spent sleeping within a window that starts after a
+warm-up of two jobs' duration, over the number of workers x the window. The lease latency's 99th
+percentile is of the leases asked for within the window; the hand-in latency's is of all.
 
 Everything listens on loopback, on a port the kernel picked as free; nothing touches a farm on 7447.
 """
@@ -60,6 +61,7 @@ def sleepy_load(
     stop.set()
     for thread in threads:
         thread.join()
+    submitter.wait_confirmed(sum(worker.completed for worker in farm))  # the last ones
     runs = [run for worker in farm for run in worker.runs]
     seen = Counter(job_id for job_id, _, _ in runs)
     parent.send(
@@ -76,6 +78,10 @@ def sleepy_load(
                 for asked, latency in worker.leases
                 if start <= asked < end
             ],
+            "hand_ins": [latency for worker in farm for latency in worker.hand_ins],
+            "refused": sum(worker.refused for worker in farm),
+            "confirmed": submitter.confirmed,
+            "unconfirmed": submitter.unconfirmed,
         }
     )
     for worker in farm:
@@ -92,6 +98,9 @@ class Utilisation:
     repeated: int  # job runs of a job that had run already (its lease was taken back)
     requeued: int
     p99_ms: float
+    hand_in_p99_ms: float
+    refused: int  # results the broker did not take
+    confirmed: int  # results the submitting client had confirmed
 
 
 def utilisation(workers: int, job_seconds: float, warm_up: float, window: float) -> Utilisation:
@@ -113,6 +122,9 @@ def utilisation(workers: int, job_seconds: float, warm_up: float, window: float)
         repeated=outcome["repeated"],
         requeued=requeued,
         p99_ms=percentile_ms(outcome["latencies"], 99),
+        hand_in_p99_ms=percentile_ms(outcome["hand_ins"], 99),
+        refused=outcome["refused"],
+        confirmed=outcome["confirmed"],
     )
 
 
@@ -138,7 +150,9 @@ def main(quick: bool, sim_workers: int, job_seconds: float, window: float | None
     busy = utilisation(sim_workers, job_seconds, warm_up, window)
     print(
         f"  {busy.completed:,} jobs run, {busy.repeated} of them again after a requeue "
-        f"({busy.requeued} requeued); lease latency p99 {busy.p99_ms:.1f} ms in the window"
+        f"({busy.requeued} requeued); lease latency p99 {busy.p99_ms:.1f} ms in the window; "
+        f"hand-in p99 {busy.hand_in_p99_ms:.1f} ms, {busy.refused} refused; "
+        f"{busy.confirmed:,} results confirmed"
     )
     print()
     print(

@@ -6,17 +6,31 @@ import signal
 import threading
 from importlib.metadata import version as package_version
 from pathlib import Path
+from typing import cast
 
 import click
 from rich.console import Console
 from rich.table import Table
 
-from broker.certs import DEFAULT_HOSTS, write_dev_credentials
+from broker.certs import (
+    DEFAULT_ANALYTICS,
+    DEFAULT_HOSTS,
+    DEFAULT_WORKERS,
+    write_dev_credentials,
+)
+from broker.certs import revoke as revoke_identity
+from broker.queue import DEFAULT_MAX_QUEUED, DEFAULT_MAX_QUEUED_PER_STUDY
 from broker.service import DEFAULT_LISTEN, Broker
 from broker.status import BrokerUnavailable, query_status
 from cli import options
 from cli.app import CliError, run_app, setup_logging
-from schemas.security import Role
+from schemas.security import (
+    PARTICIPANT_RULE,
+    ROLES,
+    Role,
+    is_participant_name,
+    participants,
+)
 from schemas.transport import open_session
 from schemas.wire import BadMessage, BrokerStatus
 
@@ -44,19 +58,61 @@ def app() -> None:
     help="a job not returned this long after its lease goes back to the queue",
 )
 @options.tls(
-    "secure profile: TLS with client certificates and per-role access control; "
-    "directory with ca.pem, broker.pem and broker.key (see `broker certs`)"
+    "secure profile: TLS with client certificates and per-participant access control; "
+    "directory with ca.pem, broker.pem, broker.key and the certificate of every participant "
+    "let in (see `broker certs`)"
+)
+@click.option(
+    "--max-queued",
+    type=click.IntRange(min=1),
+    default=DEFAULT_MAX_QUEUED,
+    show_default=True,
+    help="jobs queued in all studies together; more are deferred (submitted again later)",
+)
+@click.option(
+    "--max-queued-per-study",
+    type=click.IntRange(min=1),
+    default=DEFAULT_MAX_QUEUED_PER_STUDY,
+    show_default=True,
+    help="jobs queued in one study; more are deferred",
+)
+@click.option(
+    "--submit-rate",
+    type=click.FloatRange(min=0, min_open=True),
+    help="jobs per second a study may submit (bursts of 10 s worth)  [default: no limit]",
 )
 @options.log_level()
-def start(listen: tuple[str, ...], lease_seconds: float, tls: Path | None, log_level: str) -> None:
+def start(
+    listen: tuple[str, ...],
+    lease_seconds: float,
+    tls: Path | None,
+    max_queued: int,
+    max_queued_per_study: int,
+    submit_rate: float | None,
+    log_level: str,
+) -> None:
     """Route the farm and schedule its jobs until SIGTERM or Ctrl-C."""
     setup_logging("broker", log_level)
     identity = options.identity(tls, "broker")
+    if identity is not None:
+        # The access policy is fixed when the router opens: say whom it lets in.
+        allowed = participants(identity.directory)
+        names = ", ".join(participant.common_name for participant in allowed) or "nobody"
+        log.info("secure profile: %s may use the farm", names)
+        if not allowed:
+            log.warning("no participant certificates in %s: only the broker may do anything", tls)
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
     try:
-        broker = Broker(listen, lease_seconds=lease_seconds, identity=identity)
+        broker = Broker(
+            listen,
+            lease_seconds=lease_seconds,
+            identity=identity,
+            max_queued=max_queued,
+            max_queued_per_study=max_queued_per_study,
+            submit_rate=submit_rate,
+        )
     except (ValueError, ConnectionError) as error:
         raise CliError(f"--listen: {error}") from None
     with broker:
@@ -67,21 +123,22 @@ def start(listen: tuple[str, ...], lease_seconds: float, tls: Path | None, log_l
 
 @app.command()
 @options.connect("the broker's Zenoh endpoint")
-@options.tls(
-    "a secure farm: directory with ca.pem and the broker's (or another role's) pem and key"
-)
+@options.tls("a secure farm: directory with ca.pem and the broker's (or a participant's) pair")
 @click.option(
     "--as",
-    "role",
-    type=click.Choice(["broker", "analytic", "worker"]),
+    "who",
     default="broker",
     show_default=True,
-    help="with --tls: whose credentials to use",
+    help="with --tls: whose credentials to use: broker, a role (its only identity in the "
+    "directory), or a participant, role.NAME (e.g. worker.cobot-1)",
 )
 @click.option("--json", "as_json", is_flag=True, help="print the status as one JSON object")
-def status(connect: tuple[str, ...], tls: Path | None, role: Role, as_json: bool) -> None:
+def status(connect: tuple[str, ...], tls: Path | None, who: str, as_json: bool) -> None:
     """Show the farm: workers, queue depth per study, throughput."""
-    identity = options.identity(tls, role)
+    role, _, name = who.partition(".")
+    if role not in ROLES:
+        raise CliError(f"--as: {who!r} is not broker, analytic[.NAME] or worker[.NAME]")
+    identity = options.identity(tls, cast(Role, role), name or None, name_option="--as")
     try:
         session = open_session("client", connect=connect, identity=identity)
     except (ValueError, ConnectionError) as error:
@@ -100,24 +157,59 @@ def status(connect: tuple[str, ...], tls: Path | None, role: Role, as_json: bool
 
 def print_status(farm: BrokerStatus) -> None:
     console = Console()
-    busy = sum(worker.busy for worker in farm.workers)
     console.print(
-        f"up {farm.uptime_s:.0f} s · {len(farm.workers)} workers ({busy} busy) · "
-        f"{farm.jobs_done} jobs done · {farm.jobs_per_s:.1f} jobs/s over the last minute · "
+        f"up {farm.uptime_s:.0f} s · {farm.worker_count} workers ({farm.busy} busy) · "
+        f"{farm.study_count} studies · "
+        f"{farm.queued} queued · {farm.jobs_done} jobs done · "
+        f"{farm.jobs_per_s:.1f} jobs/s over the last minute · "
         f"{farm.requeued} requeued · {farm.rejected} rejected"
     )
-    studies = Table("study", "queued", "running", "done", title="studies", title_justify="left")
+    studies = Table(
+        "study",
+        "queued",
+        "running",
+        "done",
+        title=_listed("studies", farm.studies, farm.study_count),
+    )
     for study in farm.studies:
         studies.add_row(study.name, str(study.queued), str(study.leased), str(study.done))
-    workers = Table("worker", "state", "job", "jobs done", title="workers", title_justify="left")
+    workers = Table(
+        "worker",
+        "state",
+        "job",
+        "jobs done",
+        title=_listed("workers", farm.workers, farm.worker_count),
+    )
     for worker in farm.workers:
         state = "busy" if worker.busy else "idle"
         workers.add_row(worker.name, state, worker.job, str(worker.jobs_done))
+    studies.title_justify = workers.title_justify = "left"
     console.print(studies, workers)
+
+
+def _listed(what: str, listed: list, total: int) -> str:
+    """A table's title: the status lists the first few of many (it must stay a small message)."""
+    return what if len(listed) == total else f"{what} (the first {len(listed)} of {total})"
 
 
 @app.command()
 @click.argument("directory", type=click.Path(path_type=Path))
+@click.option(
+    "--analytic",
+    "analytics",
+    multiple=True,
+    metavar="NAME",
+    help="issue an analytic participant's identity (its studies are named NAME.*); repeat for "
+    f"several  [default with a new CA: {', '.join(DEFAULT_ANALYTICS)}]",
+)
+@click.option(
+    "--worker",
+    "workers",
+    multiple=True,
+    metavar="NAME",
+    help="issue a worker's identity (it serves as `worker start --name NAME`); repeat for "
+    f"several  [default with a new CA: {', '.join(DEFAULT_WORKERS)}]",
+)
 @click.option(
     "--host",
     "hosts",
@@ -128,23 +220,68 @@ def print_status(farm: BrokerStatus) -> None:
 )
 @click.option("--days", type=click.IntRange(min=1), default=365, show_default=True)
 @click.option(
-    "--if-missing", is_flag=True, help="leave a complete set of credentials as it is (exit 0)"
+    "--if-missing",
+    is_flag=True,
+    help="keep the identities already there and issue only the missing ones (exit 0)",
 )
-def certs(directory: Path, hosts: tuple[str, ...], days: int, if_missing: bool) -> None:
-    """Make development credentials for a secure farm: a CA, and a certificate and key for
-    each role (broker, analytic, worker) whose common name is the role."""
+@click.option(
+    "--revoke",
+    multiple=True,
+    metavar="ROLE.NAME",
+    help="revoke an identity (worker.cobot-3, or a name only one participant has): it is "
+    "denied everything once the broker restarts, and its name is never issued again",
+)
+def certs(
+    directory: Path,
+    analytics: tuple[str, ...],
+    workers: tuple[str, ...],
+    hosts: tuple[str, ...],
+    days: int,
+    if_missing: bool,
+    revoke: tuple[str, ...],
+) -> None:
+    """Make development credentials for a secure farm: a CA, the broker's certificate and key,
+    and one per participant, whose common name is ROLE.NAME (analytic.alice, worker.cobot-3).
+    Run again on the same DIR, it adds the participants named, signed by the same CA."""
+    if revoke:
+        if analytics or workers:
+            raise CliError("--revoke: revoke and issue in separate runs")
+        _revoke(directory, revoke)
+        return
+    for option, names in (("--analytic", analytics), ("--worker", workers)):
+        for name in names:
+            if not is_participant_name(name):
+                raise CliError(f"{option}: {name!r} is not a participant name: {PARTICIPANT_RULE}")
     try:
-        written = write_dev_credentials(directory, hosts, days, if_missing)
+        issued = write_dev_credentials(directory, hosts, days, if_missing, analytics, workers)
     except FileExistsError as error:
         raise CliError(str(error)) from None
     except OSError as error:
         raise CliError(f"cannot write {str(directory)!r}: {error.strerror}") from None
-    if written:
+    except ValueError as error:
+        raise CliError(str(error)) from None
+    made = sorted({path.stem for path in issued.written} - {"ca"})
+    if made:
         click.echo(
-            f"wrote {len(written)} files to {directory}/; a host needs ca.pem and its role's"
+            f"wrote {len(issued.written)} files to {directory}/ ({', '.join(made)}); a host needs "
+            "ca.pem and its own pair, the broker's host every participant's .pem"
         )
     else:
-        click.echo(f"{directory}/ already holds a complete set of credentials; kept them")
+        click.echo(f"{directory}/ already holds those credentials; kept them")
+
+
+def _revoke(directory: Path, revoke: tuple[str, ...]) -> None:
+    for who in revoke:
+        try:
+            identity = revoke_identity(directory, who)
+        except ValueError as error:
+            raise CliError(f"--revoke: {error}") from None
+        except OSError as error:
+            raise CliError(f"cannot write {str(directory)!r}: {error.strerror}") from None
+        click.echo(
+            f"revoked {identity.common_name}; restart the broker to lock it out "
+            "(delete its .pem there too if the broker keeps its credentials elsewhere)"
+        )
 
 
 @app.command()

@@ -205,8 +205,8 @@ class LeaseQueue(Generic[W]):
             item = next(item for item in study.queue if item.job.job_id == job_id)
         elif job_id in study.accepted:
             return f"job {job_id!r} is done already"
-        else:
-            return f"no job {job_id!r} in study {study_name!r}"
+        else:  # never submitted, or done and confirmed
+            return f"no job {job_id!r} waits for a result in study {study_name!r}"
         holder = item.leases.get(lease_id)
         if holder is None:
             return f"lease {lease_id!r} is not one of job {job_id!r}'s"
@@ -228,7 +228,7 @@ class LeaseQueue(Generic[W]):
         study.accepted[job_id] = Accepted(
             job_id=job_id, lease_id=lease_id, worker=worker_name, digest=digest
         )
-        if len(study.accepted) > self.max_queued_per_study:  # long since confirmed: forget
+        if len(study.accepted) > self.max_queued_per_study:  # never confirmed: forget the oldest
             del study.accepted[next(iter(study.accepted))]
         study.done += 1
         sender = self._workers.get(worker_name)
@@ -241,12 +241,14 @@ class LeaseQueue(Generic[W]):
             self._completions.popleft()
         return None
 
-    def accepted(self, study_name: str, job_ids: Iterable[str]) -> list[Accepted]:
-        """The results taken for these jobs of the study, for those that have one."""
+    def confirm(self, study_name: str, job_ids: Iterable[str]) -> list[Accepted]:
+        """The results taken for these jobs of the study, for those that have one; each is
+        then forgotten (its study has been told), so the broker keeps only what is unconfirmed.
+        """
         study = self._studies.get(study_name)
         if study is None:
             return []
-        return [study.accepted[job_id] for job_id in job_ids if job_id in study.accepted]
+        return [study.accepted.pop(job_id) for job_id in job_ids if job_id in study.accepted]
 
     # --- workers ---------------------------------------------------------------------------
 
@@ -304,6 +306,9 @@ class LeaseQueue(Generic[W]):
 
     def worker_count(self) -> int:
         return len(self._workers)
+
+    def busy(self) -> int:
+        return sum(1 for worker in self._workers.values() if worker.lease is not None)
 
     def study_count(self) -> int:
         return len(self._studies)

@@ -137,6 +137,7 @@ class Broker:
                 requeued=self.queue.requeued,
                 rejected=self.rejected,
                 worker_count=self.queue.worker_count(),
+                busy=self.queue.busy(),
                 study_count=self.queue.study_count(),
                 queued=self.queue.queued(),
             )
@@ -203,7 +204,7 @@ class Broker:
         request = decode(ConfirmRequest, _payload(query))
         _check_named(query, request.study, "study")
         with self._lock:
-            accepted = self.queue.accepted(request.study, request.job_ids)
+            accepted = self.queue.confirm(request.study, request.job_ids)
         _answer(query, ConfirmReply(study=request.study, accepted=accepted))
 
     @_guarded

@@ -13,7 +13,7 @@ import click
 
 from cli.app import CliError
 from schemas.robot import ModelSpec
-from schemas.security import Role, TlsIdentity, load_identity
+from schemas.security import Role, TlsIdentity, UnknownIdentity, load_identity
 from schemas.trajectory import TrajectoryKind
 
 F = TypeVar("F", bound=Callable[..., object])
@@ -84,10 +84,17 @@ def tls(help: str) -> Callable[[F], F]:
     return click.option("--tls", type=click.Path(path_type=Path), help=help)
 
 
-def identity(directory: Path | None, role: Role) -> TlsIdentity | None:
-    """The `role` identity in a --tls directory (None without one), or one line naming --tls."""
+def identity(
+    directory: Path | None, role: Role, name: str | None = None, name_option: str = "--as"
+) -> TlsIdentity | None:
+    """The identity in a --tls directory (None without one): participant `name`'s, or without a
+    name the directory's only identity of `role`. One line otherwise, naming `name_option` when
+    the name is what is wrong (not there, or needed to choose among several) and --tls when a
+    file is missing."""
     try:
-        return load_identity(directory, role)
+        return load_identity(directory, role, name)
+    except UnknownIdentity as error:
+        raise CliError(f"{name_option}: {error}") from None
     except ValueError as error:
         raise CliError(f"--tls: {error}") from None
 

@@ -201,6 +201,7 @@ class BrokerStatus(WireMessage):
     requeued: int = Field(description="leases that expired or whose worker died")
     rejected: int = Field(description="bad messages and jobs turned away")
     worker_count: int = Field(0, description="all workers; `workers` lists the first ones")
+    busy: int = Field(0, description="workers running a job")
     study_count: int = Field(0, description="all studies; `studies` lists the first ones")
     queued: int = Field(0, description="jobs queued in every study")
 
@@ -300,6 +301,9 @@ def _one_line(reason: str, limit: int = 300) -> str:
 class _SubmissionEnvelope(WireMessage):
     study: Name
     jobs: list[object] = Field(max_length=10_000)
+
+
+_SubmissionEnvelope.__name__ = "Submission"  # its reasons speak of the message it stands for
 
 
 def decode_submission(raw: bytes | None) -> tuple[str, list[Job], list[Rejection]]:

@@ -105,8 +105,14 @@ def episode(
 
 @app.command()
 @options.connect("the broker's Zenoh endpoint (repeat for several)")
-@click.option("--name", help="unique name of this cobot in the farm  [default: HOST-PID]")
-@options.tls("a secure farm: directory with ca.pem, worker.pem and worker.key")
+@click.option(
+    "--name",
+    help="unique name of this cobot in the farm; with --tls, its identity's name  "
+    "[default: HOST-PID; with --tls, the only worker identity in DIR]",
+)
+@options.tls(
+    "a secure farm: directory with ca.pem and this worker's worker.NAME.pem and worker.NAME.key"
+)
 @options.log_level()
 def start(connect: tuple[str, ...], name: str | None, tls: Path | None, log_level: str) -> None:
     """Serve a farm: ask the broker for jobs while free, run them, return their logs.
@@ -114,10 +120,13 @@ def start(connect: tuple[str, ...], name: str | None, tls: Path | None, log_leve
     SIGTERM or Ctrl-C: the job in progress is finished and returned, then the worker exits.
     """
     setup_logging("worker", log_level)
+    # On a secure farm the router lets a worker lease only under its certificate's name.
+    identity = options.identity(tls, "worker", name, name_option="--name")
+    if identity is not None:
+        name = identity.name
     name = name or re.sub(r"[^A-Za-z0-9_.\-]", "-", f"{socket.gethostname()}-{os.getpid()}")
     if not re.fullmatch(NAME_PATTERN, name):
         raise CliError(f"--name: {name!r} is not {NAME_RULE}")
-    identity = options.identity(tls, "worker")
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())

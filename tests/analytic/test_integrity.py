@@ -137,9 +137,12 @@ def test_a_broker_that_moved_away_leaves_the_run_waiting_not_failing(tmp_path: P
         farm.submit({"j": short_spec()})
     finally:
         first.close()
+    told: list[str | None] = []
+    farm.on_wait = told.append
     with Broker([f"tcp/127.0.0.1:{free_port()}"]), farm:
         assert list(farm.results(timeout=5)) == []
         assert farm.pending == 1 and farm.waiting is not None
+        assert told == [farm.waiting]  # said once, for the progress line
 
 
 def test_a_broker_that_comes_back_gets_the_pending_jobs_again(tmp_path: Path) -> None:

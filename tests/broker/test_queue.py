@@ -461,7 +461,7 @@ def test_only_the_first_result_for_a_job_counts() -> None:
     assert refused(stray, "nope")
     unknown = queue.complete("other", "j1", lease.lease_id, "w1", DIGEST)  # unknown study
     assert refused(unknown, "other")
-    assert queue.accepted("s", ["j1"])[0].digest == DIGEST  # the first one's
+    assert queue.confirm("s", ["j1"])[0].digest == DIGEST  # the first one's
 
     assert queue.jobs_done == 1
     assert state(queue, "s") == StudyState(name="s", queued=1, leased=0, done=1)
@@ -480,7 +480,7 @@ def test_a_result_for_a_closed_study_is_not_counted() -> None:
 
     queue.open_study("s")  # reopened under the same name: a fresh study
     assert refused(hand_in(queue, lease, "w1"), "j1")
-    assert queue.accepted("s", ["j1"]) == []
+    assert queue.confirm("s", ["j1"]) == []
     assert state(queue, "s") == StudyState(name="s", queued=0, leased=0, done=0)
 
 
@@ -837,7 +837,7 @@ def test_a_result_under_another_worker_s_lease_is_refused_and_the_job_stays_leas
 
     assert state(queue, "s") == StudyState(name="s", queued=0, leased=2, done=0)
     assert queue.jobs_done == 0 and queue.jobs_per_second() == 0.0
-    assert queue.accepted("s", ["j1", "j2"]) == []
+    assert queue.confirm("s", ["j1", "j2"]) == []
     assert worker(queue, "w1") == WorkerState(name="w1", busy=True, job="s/j1", jobs_done=0)
     assert worker(queue, "w2") == WorkerState(name="w2", busy=True, job="s/j2", jobs_done=0)
     # The rightful results still count.
@@ -861,7 +861,7 @@ def test_a_result_under_a_made_up_lease_id_is_refused() -> None:
     queue.expire()
     assert state(queue, "s") == StudyState(name="s", queued=1, leased=0, done=0)
     assert queue.requeued == 1
-    assert queue.accepted("s", ["j1"]) == []
+    assert queue.confirm("s", ["j1"]) == []
 
 
 def test_a_result_for_a_job_never_leased_is_refused_and_it_stays_queued() -> None:
@@ -874,7 +874,7 @@ def test_a_result_for_a_job_never_leased_is_refused_and_it_stays_queued() -> Non
 
     assert state(queue, "s") == StudyState(name="s", queued=1, leased=1, done=0)
     assert queue.queued() == 1 and queue.jobs_done == 0
-    assert queue.accepted("s", ["j2"]) == []
+    assert queue.confirm("s", ["j2"]) == []
     assert take(queue, "w2").job.job_id == "j2"  # still there to run
     assert_counts_add_up(queue)
 
@@ -894,7 +894,7 @@ def test_a_late_result_under_an_expired_lease_counts_only_from_its_own_worker() 
     assert queue.jobs_done == 0
 
     assert hand_in(queue, first, "w1", digest_of("w1's log")) is None  # late, but its own
-    assert queue.accepted("s", ["j1"]) == [
+    assert queue.confirm("s", ["j1"]) == [
         Accepted(job_id="j1", lease_id=first.lease_id, worker="w1", digest=digest_of("w1's log"))
     ]
     assert state(queue, "s") == StudyState(name="s", queued=0, leased=0, done=1)
@@ -912,14 +912,14 @@ def test_a_late_result_under_an_expired_lease_of_a_queued_job_completes_it() -> 
     assert queue.queued() == 1
     assert hand_in(queue, first, "w1") is None
     assert queue.queued() == 0
-    assert [a.lease_id for a in queue.accepted("s", ["j1"])] == [first.lease_id]
+    assert [a.lease_id for a in queue.confirm("s", ["j1"])] == [first.lease_id]
     assert_counts_add_up(queue)
 
 
 # --- accepted results --------------------------------------------------------------------------
 
 
-def test_accepted_returns_the_taken_result_s_lease_worker_and_digest() -> None:
+def test_confirm_returns_the_taken_result_s_lease_worker_and_digest_once() -> None:
     queue, _ = make_queue("s")
     queue.submit("s", jobs("j1", "j2", "j3", "j4"))
     one, two = take(queue, "w1"), take(queue, "w2")  # j1, j2
@@ -931,25 +931,26 @@ def test_accepted_returns_the_taken_result_s_lease_worker_and_digest() -> None:
 
     taken_one = Accepted(job_id="j1", lease_id=one.lease_id, worker="w1", digest=digest_of("j1"))
     taken_two = Accepted(job_id="j2", lease_id=two.lease_id, worker="w2", digest=digest_of("j2"))
-    assert queue.accepted("s", ["j1"]) == [taken_one]
-    assert queue.accepted("s", ["j2", "j1"]) == [taken_two, taken_one]  # in the order asked
     # Nothing for jobs leased, queued, never submitted, or of an unknown study.
-    assert queue.accepted("s", ["j3", "j4", "nope"]) == []
-    assert queue.accepted("s", []) == []
-    assert queue.accepted("other", ["j1"]) == []
-    assert queue.accepted("s", ["j3", "j1", "nope"]) == [taken_one]
+    assert queue.confirm("s", ["j3", "j4", "nope"]) == []
+    assert queue.confirm("s", []) == []
+    assert queue.confirm("other", ["j1"]) == []
+    assert queue.confirm("s", ["j2", "j3", "j1"]) == [taken_two, taken_one]  # in the order asked
+    # Once confirmed, forgotten: the broker keeps only what its study has not been told.
+    assert queue.confirm("s", ["j1", "j2"]) == []
+    assert refused(hand_in(queue, one, "w1", digest_of("j1")), "j1")
 
 
 def test_a_closed_study_s_accepted_results_are_forgotten() -> None:
     queue, _ = make_queue("s")
     queue.submit("s", jobs("j1"))
     assert hand_in(queue, take(queue, "w1"), "w1") is None
-    assert len(queue.accepted("s", ["j1"])) == 1
+    assert len(queue.confirm("s", ["j1"])) == 1
 
     queue.close_study("s")
-    assert queue.accepted("s", ["j1"]) == []
+    assert queue.confirm("s", ["j1"]) == []
     queue.open_study("s")  # a fresh study under the same name
-    assert queue.accepted("s", ["j1"]) == []
+    assert queue.confirm("s", ["j1"]) == []
 
 
 def test_a_done_job_run_again_has_its_new_result_accepted() -> None:
@@ -962,7 +963,7 @@ def test_a_done_job_run_again_has_its_new_result_accepted() -> None:
     again = take(queue, "w2")
     assert refused(hand_in(queue, first, "w1", digest_of("stale")), first.lease_id)
     assert hand_in(queue, again, "w2", digest_of("second")) is None
-    assert queue.accepted("s", ["j1"]) == [
+    assert queue.confirm("s", ["j1"]) == [
         Accepted(job_id="j1", lease_id=again.lease_id, worker="w2", digest=digest_of("second"))
     ]
 

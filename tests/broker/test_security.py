@@ -1,12 +1,18 @@
-"""The secure profile: TLS with mutual authentication, and each role kept to its own keys.
+"""The secure profile: TLS with mutual authentication, and each participant kept to the keys of
+its own name.
 
-Every session here is real: a TLS router with the access policy, clients holding certificates
-from the farm's CA (or from another one), and a real worker process."""
+Every session here is real: a TLS router with the access policy built from its credentials
+directory, and clients holding certificates from the farm's CA (or from another CA, or revoked).
+The router's own queryables stand in for the broker's services, as the broker's run on its router
+session, which the access control does not filter: so the policy is tested by itself, on the key
+space of schemas/keys.py. The last test runs a real broker and a real worker process."""
 
 import json
+import shutil
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
@@ -14,57 +20,188 @@ import zenoh
 
 from analytic.farm import FarmClient
 from analytic.local import free_port
-from broker.certs import write_dev_credentials
+from broker.certs import revoke, write_dev_credentials
 from broker.service import Broker
 from schemas import keys
 from schemas.security import Role, TlsIdentity
 from schemas.transport import open_session
-from schemas.wire import Job, JobStatus, LeaseRequest, Submission
-from tests.helpers import open_studies, result_for, short_spec, wait_for
+from schemas.wire import JobStatus
+from tests.helpers import short_spec, wait_for
 
 DENIED_SECONDS = 1.0  # a denied query is dropped, not refused: wait this long for no answer
+SERVICES = [keys.SUBMIT_ANY, keys.CONFIRM_ANY, keys.LEASE_ANY, keys.COMPLETE_ANY, keys.STATUS]
 
 
 @pytest.fixture(scope="module")
 def credentials(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The broker's directory: alice, bob, mallory (revoked below), workers cobot-1 and -2."""
     directory = tmp_path_factory.mktemp("credentials")
-    write_dev_credentials(directory, ("localhost", "127.0.0.1"))
+    write_dev_credentials(
+        directory, analytics=("alice", "bob", "mallory"), workers=("cobot-1", "cobot-2")
+    )
     return directory
 
 
+@pytest.fixture(scope="module")
+def stolen(credentials: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Mallory's own copy of her credentials, kept after the site revoked her."""
+    directory = tmp_path_factory.mktemp("stolen")
+    for name in ("ca.pem", "analytic.mallory.pem", "analytic.mallory.key"):
+        shutil.copy(credentials / name, directory / name)
+    revoke(credentials, "mallory")
+    return directory
+
+
+@dataclass
+class Router:
+    session: zenoh.Session
+    endpoint: str
+    results: list[str] = field(default_factory=list)  # result keys that reached the router
+    entities: list[object] = field(default_factory=list)  # kept: Zenoh undeclares the collected
+
+    def tokens(self) -> set[str]:
+        """The liveliness tokens the router sees now."""
+        replies = self.session.liveliness().get(f"{keys.ROOT}/alive/**", timeout=0.5)
+        return {str(reply.ok.key_expr) for reply in replies if reply.ok is not None}
+
+
 @pytest.fixture
-def secure_broker(credentials: Path) -> Iterator[Broker]:
+def router(credentials: Path, stolen: Path) -> Iterator[Router]:
+    """A secure router, after mallory's revocation, answering every broker service."""
     endpoint = f"tls/127.0.0.1:{free_port()}"
-    with Broker([endpoint], lease_seconds=30.0, identity=TlsIdentity(credentials, "broker")) as b:
-        yield b
+    session = open_session("router", listen=[endpoint], identity=TlsIdentity(credentials, "broker"))
+    running = Router(session, endpoint)
+    running.entities = [
+        session.declare_queryable(key, lambda query: query.reply(query.key_expr, b"ok"))
+        for key in SERVICES
+    ]
+    running.entities.append(
+        session.declare_subscriber(
+            keys.ALL_RESULTS, lambda sample: running.results.append(str(sample.key_expr))
+        )
+    )
+    yield running
+    session.close()
 
 
 @pytest.fixture
-def sessions(secure_broker: Broker, credentials: Path) -> Iterator[dict[Role, zenoh.Session]]:
-    """One client session per role, each with its own certificate."""
-    opened = {
-        role: open_session(
-            "client", connect=secure_broker.endpoints, identity=TlsIdentity(credentials, role)
-        )
-        for role in ("analytic", "worker")
-    }
-    yield opened
-    for session in opened.values():
+def connect(router: Router) -> Iterator[Callable[..., zenoh.Session]]:
+    """Open client sessions to the router as `role` `name` (from DIR), closed after the test."""
+    opened: list[zenoh.Session] = []
+
+    def client(directory: Path, role: Role, name: str) -> zenoh.Session:
+        identity = TlsIdentity(directory, role, name)
+        opened.append(open_session("client", connect=[router.endpoint], identity=identity))
+        return opened[-1]
+
+    yield client
+    for session in opened:
         session.close()
 
 
-def _analytic(broker: Broker, credentials: Path, study: str) -> FarmClient:
-    """An analytic process's client on the secure farm, with the analytic credentials."""
-    identity = TlsIdentity(credentials, "analytic")
-    return FarmClient(broker.endpoints, study, credentials / study, identity=identity)
+def _answered(session: zenoh.Session, queried: list[str]) -> set[str]:
+    """Which of the keys queried were answered (all in flight at once, to wait only once)."""
+    pending = {key: session.get(key, payload=b"{}", timeout=DENIED_SECONDS) for key in queried}
+    return {key for key, replies in pending.items() if any(r.ok is not None for r in replies)}
 
 
-def _queued(broker: Broker, study: str) -> int:
-    return sum(state.queued for state in broker.queue.study_states() if state.name == study)
+def _collect(session: zenoh.Session, key: str, into: list[str]) -> zenoh.Subscriber:
+    return session.declare_subscriber(key, lambda sample: into.append(str(sample.key_expr)))
 
 
-def _workers(broker: Broker) -> list[str]:
-    return [worker.name for worker in broker.queue.worker_states()]
+def test_a_worker_leases_and_hands_in_only_under_its_own_name(
+    router: Router, connect: Callable[..., zenoh.Session], credentials: Path
+) -> None:
+    worker = connect(credentials, "worker", "cobot-1")
+    allowed = [keys.lease("cobot-1"), keys.complete("cobot-1"), keys.STATUS]
+    squatting = [keys.lease("cobot-2"), keys.complete("cobot-2"), keys.LEASE_ANY]
+    not_its_job = [keys.submit("alice.x"), keys.confirm("alice.x"), keys.lease("cobot-1.x")]
+    assert _answered(worker, allowed + squatting + not_its_job) == set(allowed)
+
+    _denied = worker.liveliness().declare_token(keys.alive_worker("cobot-2"))
+    _token = worker.liveliness().declare_token(keys.alive_worker("cobot-1"))
+    wait_for(lambda: keys.alive_worker("cobot-1") in router.tokens(), what="cobot-1's token")
+    assert keys.alive_worker("cobot-2") not in router.tokens()
+    # A result may go to any study: the broker hands on only those whose lease it holds.
+    worker.put(keys.result("alice.x", "j1"), b"")
+    wait_for(lambda: router.results == [keys.result("alice.x", "j1")], what="the result")
+
+
+def test_an_analytic_participant_uses_only_studies_it_owns(
+    router: Router, connect: Callable[..., zenoh.Session], credentials: Path
+) -> None:
+    alice = connect(credentials, "analytic", "alice")
+    allowed = [keys.submit("alice.x"), keys.confirm("alice.run-ab12"), keys.STATUS]
+    bobs = [keys.submit("bob.x"), keys.confirm("bob.x"), keys.submit("alice")]
+    wildcards = [keys.SUBMIT_ANY, keys.submit("**"), keys.CONFIRM_ANY]
+    not_its_job = [keys.lease("cobot-1"), keys.complete("cobot-1")]
+    assert _answered(alice, allowed + bobs + wildcards + not_its_job) == set(allowed)
+
+    # Subscribing to bob's results, or to everyone's, is refused; so bob's results never reach
+    # alice's session (a second session of hers, since a session hands every sample it does
+    # receive to all of its matching subscribers).
+    prying = connect(credentials, "analytic", "alice")
+    pried: list[str] = []
+    _prying = [
+        _collect(prying, key, pried)
+        for key in (keys.study_results("bob.x"), keys.ALL_RESULTS, f"{keys.ROOT}/**")
+    ]
+    assert _answered(prying, [keys.STATUS])  # the router has taken the declarations above
+    own: list[str] = []
+    _own = _collect(alice, keys.study_results("alice.x"), own)
+    probe = keys.result("alice.x", "probe")
+    wait_for(lambda: router.session.put(probe, b"") or probe in own, what="alice's subscription")
+    for key in (keys.result("bob.x", "j1"), keys.result("alice.x", "j1")):
+        router.session.put(key, b"")
+    wait_for(lambda: keys.result("alice.x", "j1") in own, what="alice's result")
+    assert keys.result("bob.x", "j1") not in own
+    assert pried == []
+
+    # Alice holds her studies' tokens, not bob's nor a worker's, and forges no result.
+    _denied = [
+        alice.liveliness().declare_token(keys.alive_study("bob.x")),
+        alice.liveliness().declare_token(keys.alive_worker("cobot-1")),
+    ]
+    alice.put(keys.result("alice.x", "forged"), b"")
+    _token = alice.liveliness().declare_token(keys.alive_study("alice.x"))
+    wait_for(lambda: keys.alive_study("alice.x") in router.tokens(), what="alice's study token")
+    assert router.tokens() & {keys.alive_study("bob.x"), keys.alive_worker("cobot-1")} == set()
+    assert keys.result("alice.x", "forged") not in router.results
+
+
+def test_a_revoked_participant_connects_but_may_do_nothing(
+    router: Router, connect: Callable[..., zenoh.Session], stolen: Path, credentials: Path
+) -> None:
+    assert not (credentials / "analytic.mallory.pem").exists()
+    mallory = connect(stolen, "analytic", "mallory")  # the CA signed her certificate
+    mallory.put(keys.result("mallory.x", "forged"), b"")  # before her subscriber: not local
+    results: list[str] = []
+    _subscriber = _collect(mallory, keys.study_results("mallory.x"), results)
+    _token = mallory.liveliness().declare_token(keys.alive_study("mallory.x"))
+    assert _answered(mallory, [keys.submit("mallory.x"), keys.STATUS]) == set()
+    sent = keys.result("mallory.x", "j1")
+    router.session.put(sent, b"")
+    wait_for(lambda: sent in router.results, what="the router's own subscriber to get it")
+    assert keys.alive_study("mallory.x") not in router.tokens()  # and half a second for `sent`
+    assert results == []
+    assert router.results == [sent], "her forged result never arrived"
+
+
+def test_a_client_without_a_certificate_from_the_farms_ca_cannot_connect(
+    router: Router, credentials: Path, tmp_path: Path
+) -> None:
+    write_dev_credentials(tmp_path, workers=("cobot-1",))  # another CA, same names
+    with pytest.raises(ConnectionError):
+        open_session(
+            "client", connect=[router.endpoint], identity=TlsIdentity(tmp_path, "worker", "cobot-1")
+        )
+    # The farm's CA, so the client trusts the router, but no certificate of its own to show.
+    identity = TlsIdentity(credentials, "worker", "cobot-1")
+    with pytest.raises(zenoh.ZError, match="Unable to connect"):
+        zenoh.open(_tls_client(router.endpoint, identity, present_certificate=False))
+    zenoh.open(_tls_client(router.endpoint, identity, present_certificate=True)).close()
+    with pytest.raises(ConnectionError):
+        open_session("client", connect=[router.endpoint.replace("tls/", "tcp/")])
 
 
 def _tls_client(endpoint: str, identity: TlsIdentity, present_certificate: bool) -> zenoh.Config:
@@ -80,80 +217,30 @@ def _tls_client(endpoint: str, identity: TlsIdentity, present_certificate: bool)
     return config
 
 
-def _answers(session: zenoh.Session, key: str, payload: bytes) -> list[bytes]:
-    replies = session.get(key, payload=payload, timeout=DENIED_SECONDS)
-    return [reply.ok.payload.to_bytes() for reply in replies if reply.ok is not None]
-
-
-def test_a_secure_farm_runs_jobs_end_to_end(secure_broker: Broker, credentials: Path) -> None:
-    endpoint, tls = secure_broker.endpoints[0], str(credentials)
-    command = [sys.executable, "-m", "worker", "start", "--connect", endpoint, "--tls", tls]
-    worker = subprocess.Popen([*command, "--name", "secure-1", "--log-level", "warning"])
-    try:
-        with _analytic(secure_broker, credentials, "secure") as farm:
-            farm.submit({"a": short_spec(), "b": short_spec(duration=0.3)})
-            evaluations = list(farm.results(timeout=60))
-    finally:
-        worker.terminate()
-        assert worker.wait(15) == 0
+def test_a_secure_farm_runs_jobs_end_to_end(credentials: Path, tmp_path: Path) -> None:
+    """A real broker and a worker process, each with its own identity, and alice's client."""
+    endpoint, tls = f"tls/127.0.0.1:{free_port()}", str(credentials)
+    identity = TlsIdentity(credentials, "broker")
+    with Broker([endpoint], lease_seconds=30.0, identity=identity) as broker:
+        command = [sys.executable, "-m", "worker", "start", "--connect", endpoint, "--tls", tls]
+        # cobot-2 by name (the directory holds two worker identities): the identity's name is
+        # the worker's name.
+        worker = subprocess.Popen([*command, "--name", "cobot-2", "--log-level", "warning"])
+        try:
+            alice = TlsIdentity(credentials, "analytic", "alice")
+            with FarmClient([endpoint], "alice.secure", tmp_path, identity=alice) as farm:
+                farm.submit({"a": short_spec(), "b": short_spec(duration=0.3)})
+                evaluations = list(farm.results(timeout=60))
+            wait_for(lambda: broker.queue.jobs_done == 2, what="the broker to count the jobs")
+            status = [sys.executable, "-m", "broker", "status", "--json", "--connect", endpoint]
+            for who in ("broker", "worker.cobot-1", "analytic.bob"):  # anyone may read it
+                done = subprocess.run(
+                    [*status, "--tls", tls, "--as", who], capture_output=True, text=True, timeout=60
+                )
+                assert done.returncode == 0, done.stderr
+                assert json.loads(done.stdout)["jobs_done"] == 2
+        finally:
+            worker.terminate()
+            assert worker.wait(15) == 0
     assert sorted(e.job_id for e in evaluations) == ["a", "b"]
-    assert all(e.status == JobStatus.ok and e.worker == "secure-1" for e in evaluations)
-    done = subprocess.run(
-        [sys.executable, "-m", "broker", "status", "--json", "--connect", endpoint, "--tls", tls],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert done.returncode == 0, done.stderr
-    assert json.loads(done.stdout)["jobs_done"] == 2
-
-
-def test_a_client_without_a_certificate_from_the_farms_ca_cannot_connect(
-    secure_broker: Broker, credentials: Path, tmp_path: Path
-) -> None:
-    endpoint = secure_broker.endpoints[0]
-    write_dev_credentials(tmp_path, ("localhost", "127.0.0.1"))  # another CA, same role names
-    with pytest.raises(ConnectionError):
-        open_session("client", connect=[endpoint], identity=TlsIdentity(tmp_path, "analytic"))
-    # The farm's CA, so the client trusts the broker, but no certificate of its own to show.
-    identity = TlsIdentity(credentials, "analytic")
-    with pytest.raises(zenoh.ZError, match="Unable to connect"):
-        zenoh.open(_tls_client(endpoint, identity, present_certificate=False))
-    zenoh.open(_tls_client(endpoint, identity, present_certificate=True)).close()  # the control
-    plain = endpoint.replace("tls/", "tcp/")
-    with pytest.raises(ConnectionError):
-        open_session("client", connect=[plain])
-    assert _workers(secure_broker) == []
-
-
-def test_a_worker_identity_cannot_publish_jobs(
-    secure_broker: Broker, sessions: dict[Role, zenoh.Session]
-) -> None:
-    _token = sessions["analytic"].liveliness().declare_token(keys.alive_study("s"))
-    wait_for(lambda: "s" in open_studies(secure_broker.queue), what="the broker to open the study")
-    forged = Submission(study="s", jobs=[Job(job_id="forged", spec=short_spec())])
-    assert _answers(sessions["worker"], keys.SUBMIT, forged.to_bytes()) == []
-    # The same submission from the analytic identity is answered and queued.
-    assert len(_answers(sessions["analytic"], keys.SUBMIT, forged.to_bytes())) == 1
-    wait_for(lambda: _queued(secure_broker, "s") == 1, what="the analytic's job")
-
-
-def test_an_analytic_identity_cannot_pose_as_a_worker(
-    secure_broker: Broker, sessions: dict[Role, zenoh.Session], credentials: Path
-) -> None:
-    analytic = sessions["analytic"]
-    with _analytic(secure_broker, credentials, "s") as farm:
-        farm.submit({"j": short_spec()})
-        wait_for(lambda: _queued(secure_broker, "s") == 1, what="the job to queue")
-        # It cannot take the job, register as a worker, or slip a result in.
-        request = LeaseRequest(worker="impostor").to_bytes()
-        assert _answers(analytic, keys.LEASE, request) == []
-        _token = analytic.liveliness().declare_token(keys.alive_worker("impostor"))
-        forged = result_for("s", "j", worker="impostor", status=JobStatus.failed)
-        analytic.put(keys.result("s", "j"), b"", attachment=forged.to_bytes())
-        assert list(farm.results(timeout=2.0)) == []
-        assert _queued(secure_broker, "s") == 1
-        assert "impostor" not in _workers(secure_broker)
-        # A real worker identity can: it leases the job and its result reaches the client.
-        lease = _answers(sessions["worker"], keys.LEASE, LeaseRequest(worker="real").to_bytes())
-        assert len(lease) == 1 and b'"job_id":"j"' in lease[0]
+    assert all(e.status == JobStatus.ok and e.worker == "cobot-2" for e in evaluations)

@@ -224,7 +224,7 @@ def test_the_cli_check_rejects_what_the_cli_would(args: list[str]) -> None:
 def test_the_cli_check_returns_the_parsed_options() -> None:
     name, params = parse_invocation(["broker", "status", "--connect", "tcp/h:1", "--json"])
     assert name == "status"
-    assert params == {"connect": ("tcp/h:1",), "tls": None, "role": "broker", "as_json": True}
+    assert params == {"connect": ("tcp/h:1",), "tls": None, "who": "broker", "as_json": True}
 
 
 # --- compose.yaml ------------------------------------------------------------------------------
@@ -357,6 +357,12 @@ def test_the_secure_farm_speaks_tls_with_each_role_holding_the_generated_credent
             ]
             assert params["tls"] == credentials
             assert spec["depends_on"]["broker"]["condition"] == "service_healthy"
+    # Each process has an identity of its own, issued by the certs service: the worker's name is
+    # its identity's (the router lets it lease under that name only), and the analytic picks the
+    # only analytic identity there is.
+    _, worker = parse_invocation(argv(secure_service("worker")["command"]))
+    assert worker["name"] in certs["workers"]
+    assert len(certs["analytics"]) == 1
 
 
 def test_the_image_has_a_writable_place_for_the_credentials_volume() -> None:
@@ -440,15 +446,17 @@ def test_the_readme_compose_commands_use_this_compose_file_and_its_services() ->
             assert (ROOT / segment[at + 2]).resolve() == COMPOSE_FILE, segment
             count += 1
             rest = segment[at + 3 :]
+            known = set(services)
             if rest[0] == "-f":  # the secure profile goes over the base file
                 assert (ROOT / rest[1]).resolve() == SECURE_FILE, segment
+                known |= set(secure_overrides()["services"])
                 rest = rest[2:]
             while rest[0] == "--profile":
                 assert rest[1] in profiles, segment
                 rest = rest[2:]
             verb, *args = rest
             if verb in ("run", "exec"):
-                assert next(arg for arg in args if not arg.startswith("-")) in services, segment
+                assert next(arg for arg in args if not arg.startswith("-")) in known, segment
             for flag, value in itertools.pairwise(args):
                 if flag == "--scale":
                     assert value.split("=")[0] in services, segment

@@ -16,7 +16,7 @@ from broker.service import Broker
 from schemas import keys
 from schemas.mcap_episode import decode_episode
 from schemas.transport import open_session
-from schemas.wire import JobStatus, Lease, LeaseReply, Result, decode
+from schemas.wire import CompletionReply, Job, JobStatus, Lease, LeaseReply, Result, decode
 from tests.helpers import open_study, short_spec, submit, wait_for
 from worker.service import CobotWorker
 
@@ -142,45 +142,206 @@ def test_bad_names_and_endpoints_are_one_line_errors() -> None:
         assert len(run.stderr.splitlines()) == 1
 
 
-def test_a_worker_shrugs_off_bad_lease_replies(caplog) -> None:
-    """A broker stand-in answers the first lease requests with garbage, an error, an unknown
-    protocol version and silence, then with a real lease: the worker logs each, keeps asking,
-    runs the job."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    fake = open_session("router", listen=[endpoint])
-    lease = Lease(
-        lease_id="l1", study="s", job={"job_id": "j", "spec": short_spec()}, expires_in=60
-    )
-    silence = b""
-    answers = [b"not json", None, b'{"protocol": 7}', silence, LeaseReply(lease=lease).to_bytes()]
-    results: list[Result] = []
-    unanswered: list[zenoh.Query] = []
+SILENCE = b""  # a scripted answer: hold the query and never answer it
 
-    def answer(query: zenoh.Query) -> None:
-        payload = answers.pop(0) if answers else LeaseReply().to_bytes()
-        if payload is silence:
-            unanswered.append(query)  # held, never answered: the worker's query times out
+
+class FakeBroker:
+    """A broker stand-in that is the router the worker connects to (so the worker trusts its
+    answers): it answers lease requests and hand-ins from scripts, and collects the results
+    sent to study "s"."""
+
+    def __init__(
+        self, leases: list[bytes | None], verdicts: list[bytes | None], delay: float = 0.0
+    ):
+        """`delay`: s before each answer (an impostor's answer, sent at once, comes first)."""
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.delay = delay
+        self.session = open_session("router", listen=[self.endpoint])
+        self.leases, self.verdicts = leases, verdicts
+        self.unanswered: list[zenoh.Query] = []
+        self.handed_in: list[Result] = []
+        self.results: list[Result] = []
+        self._entities = [
+            self.session.declare_queryable(keys.LEASE_ANY, self._on_lease),
+            self.session.declare_queryable(keys.COMPLETE_ANY, self._on_complete),
+            self.session.declare_subscriber(
+                keys.study_results("s"),
+                lambda sample: self.results.append(decode(Result, sample.attachment.to_bytes())),
+            ),
+        ]
+
+    def close(self) -> None:
+        self.session.close()
+
+    def _on_lease(self, query: zenoh.Query) -> None:
+        if keys.last_chunk(str(query.key_expr)) != "w":  # e.g. a probe: not for the scripts
+            query.reply_err(b"not you")
+            return
+        self._answer(query, self.leases.pop(0) if self.leases else LeaseReply().to_bytes())
+
+    def _on_complete(self, query: zenoh.Query) -> None:
+        if keys.last_chunk(str(query.key_expr)) != "w":
+            query.reply_err(b"not you")
+            return
+        self.handed_in.append(decode(Result, query.payload.to_bytes()))
+        accepted = CompletionReply(accepted=True).to_bytes()
+        self._answer(query, self.verdicts.pop(0) if self.verdicts else accepted)
+
+    def _answer(self, query: zenoh.Query, payload: bytes | None) -> None:
+        if self.delay and payload is not SILENCE:
+            threading.Timer(self.delay, self._reply, (query, payload)).start()
+        else:
+            self._reply(query, payload)
+
+    def _reply(self, query: zenoh.Query, payload: bytes | None) -> None:
+        if payload is SILENCE:
+            self.unanswered.append(query)  # held, never answered: the worker's query times out
         elif payload is None:
             query.reply_err(b"go away")
         else:
-            query.reply(keys.LEASE, payload)
+            query.reply(query.key_expr, payload)
 
-    _queryable = fake.declare_queryable(keys.LEASE, answer)
-    _subscriber = fake.declare_subscriber(
-        keys.study_results("s"),
-        lambda sample: results.append(decode(Result, sample.attachment.to_bytes())),
+
+def lease_of(job_id: str) -> LeaseReply:
+    job = Job(job_id=job_id, spec=short_spec())
+    return LeaseReply(lease=Lease(lease_id=f"l-{job_id}", study="s", job=job, expires_in=60))
+
+
+def test_a_worker_shrugs_off_bad_lease_replies(caplog) -> None:
+    """A broker stand-in answers the first lease requests with garbage, an error, an unknown
+    protocol version and silence, then with a real lease: the worker logs each, keeps asking,
+    runs the job, hands it in and sends it."""
+    fake = FakeBroker(
+        [b"not json", None, b'{"protocol": 7}', SILENCE, lease_of("j").to_bytes()], []
     )
     with (
         caplog.at_level(logging.WARNING, logger="gainfarm.worker"),
-        CobotWorker([endpoint], "w") as worker,
+        CobotWorker([fake.endpoint], "w") as worker,
     ):
         stop = threading.Event()
-        worker.serve(stop, max_jobs=1)
+        assert worker.serve(stop, max_jobs=1) == 1
+    wait_for(lambda: fake.results, what="the result")
     fake.close()
-    wait_for(lambda: results, what="the result")
-    assert results[0].job_id == "j" and results[0].status == JobStatus.ok
+    assert [(result.job_id, result.lease_id) for result in fake.handed_in] == [("j", "l-j")]
+    assert fake.results == fake.handed_in  # handed in first, then sent as it was
+    assert fake.results[0].status == JobStatus.ok and worker.refused == 0
     assert "not JSON" in caplog.text
     assert "go away" in caplog.text
     assert "protocol version 7" in caplog.text
-    assert unanswered and "no broker answered" in caplog.text
+    assert fake.unanswered and "no broker answered" in caplog.text
     assert "refused a lease request: Timeout" not in caplog.text  # Zenoh's timeout is not a refusal
+
+
+def test_a_result_the_broker_does_not_take_is_not_sent(caplog) -> None:
+    """The broker refuses one hand-in with a reason, refuses another with an error and garbles
+    a third: the worker sends none of those results, counts them, and serves on."""
+    verdicts = [
+        CompletionReply(accepted=False, reason="the lease went elsewhere").to_bytes(),
+        None,
+        b"garbled",
+    ]
+    jobs = ["refused", "error", "garbled", "taken"]
+    fake = FakeBroker([lease_of(job_id).to_bytes() for job_id in jobs], verdicts)
+    with (
+        caplog.at_level(logging.WARNING, logger="gainfarm.worker"),
+        CobotWorker([fake.endpoint], "w") as worker,
+    ):
+        assert worker.serve(threading.Event(), max_jobs=1) == 1
+    wait_for(lambda: fake.results, what="the result")
+    time.sleep(0.2)  # any result wrongly sent would have arrived by now
+    fake.close()
+    assert [result.job_id for result in fake.handed_in] == jobs
+    assert [result.job_id for result in fake.results] == ["taken"]
+    assert worker.refused == 3
+    assert "the lease went elsewhere" in caplog.text
+    assert "go away" in caplog.text
+    assert "not JSON" in caplog.text
+
+
+class Impostor:
+    """A client of the farm, not its router, that answers every lease request with a made-up
+    lease and every hand-in with a refusal, at once."""
+
+    def __init__(self, endpoints: list[str]):
+        self.session = open_session("client", connect=endpoints)
+        self.asked: list[str] = []
+        self._queryables = [
+            self.session.declare_queryable(key, self._lie)
+            for key in (keys.LEASE_ANY, keys.COMPLETE_ANY)
+        ]
+        # Until the router has its queryables, nobody's queries reach it: probe until they do.
+        probe = open_session("client", connect=endpoints)
+        probes = [keys.lease("probe"), keys.complete("probe")]
+
+        def heard() -> bool:
+            for key in probes:
+                list(probe.get(key, payload=b"probe", target=zenoh.QueryTarget.ALL, timeout=1.0))
+            return all(key in self.asked for key in probes)
+
+        wait_for(heard, what="the impostor's queryables to be known")
+        probe.close()
+        self.asked.clear()
+
+    def _lie(self, query: zenoh.Query) -> None:
+        self.asked.append(str(query.key_expr))
+        if str(query.key_expr).startswith(keys.LEASE_ANY[:-1]):
+            query.reply(query.key_expr, lease_of("forged").to_bytes())
+        else:
+            refusal = CompletionReply(accepted=False, reason="impostor says no")
+            query.reply(query.key_expr, refusal.to_bytes())
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def ignored_answers(caplog) -> list[str]:
+    return [r.getMessage() for r in caplog.records if r.getMessage().startswith("ignored")]
+
+
+def test_a_worker_ignores_an_impostor_offering_leases(
+    broker: Broker, session: zenoh.Session, caplog
+) -> None:
+    """While the broker holds the worker's lease request (no work yet), an impostor answers it
+    with a made-up lease: the worker ignores it, says so, and runs the job the broker leases."""
+    inbox = Inbox(session, "s")
+    _token = open_study(session, broker, "s")
+    impostor = Impostor(broker.endpoints)
+    with (
+        caplog.at_level(logging.WARNING, logger="gainfarm.ask"),
+        CobotWorker(broker.endpoints, "w") as worker,
+    ):
+        serving = threading.Thread(target=worker.serve, args=(threading.Event(), 1))
+        serving.start()
+        wait_for(lambda: keys.lease("w") in impostor.asked, what="the impostor's answer")
+        submit(session, "s", {"real": short_spec()})
+        serving.join(60)
+        assert not serving.is_alive() and worker.jobs_done == 1
+    wait_for(lambda: inbox.received, what="the result")
+    impostor.close()
+    assert [result.job_id for result, _ in inbox.received] == ["real"]
+    assert worker.refused == 0 and broker.queue.jobs_done == 1
+    ignored = ignored_answers(caplog)
+    assert any(keys.lease("w") in message for message in ignored)
+    assert all("which is not the broker" in message for message in ignored)
+
+
+def test_a_worker_ignores_an_impostor_refusing_its_result(caplog) -> None:
+    """The broker (the worker's router) answers after a while; an impostor answers each lease
+    request with a made-up lease and each hand-in with a refusal at once: the worker runs the
+    broker's job and, once the broker takes it, sends its result."""
+    fake = FakeBroker([lease_of("real").to_bytes()], [], delay=0.3)
+    impostor = Impostor([fake.endpoint])
+    with (
+        caplog.at_level(logging.WARNING, logger="gainfarm.ask"),
+        CobotWorker([fake.endpoint], "w") as worker,
+    ):
+        assert worker.serve(threading.Event(), max_jobs=1) == 1
+    wait_for(lambda: fake.results, what="the result")
+    impostor.close()
+    fake.close()
+    assert [result.job_id for result in fake.results] == ["real"]
+    assert worker.refused == 0
+    assert impostor.asked == [keys.lease("w"), keys.complete("w")]
+    ignored = ignored_answers(caplog)
+    assert [message.split()[4] for message in ignored] == [keys.lease("w"), keys.complete("w")]
+    assert all("which is not the broker" in message for message in ignored)
