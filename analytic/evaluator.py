@@ -77,8 +77,9 @@ class Evaluator(Protocol):
         """Give `worker` none of this evaluator's jobs from now on (it returned a false log)."""
         ...
 
-    def results(self) -> Iterator[Evaluation]:
-        """Evaluations of the submitted jobs as they complete, until none is pending."""
+    def results(self, timeout: float | None = None) -> Iterator[Evaluation]:
+        """Evaluations of the submitted jobs as they complete, until none is pending (or, with
+        `timeout`, until that many seconds pass)."""
         ...
 
     def cancel(self, job_ids: Iterable[str]) -> None:

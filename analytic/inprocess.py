@@ -64,8 +64,9 @@ class InProcessEvaluator:
         for job_id in job_ids:
             self._pending.pop(job_id, None)
 
-    def results(self) -> Iterator[Evaluation]:
-        """Run the pending jobs in the order submitted (jobs submitted meanwhile included)."""
+    def results(self, timeout: float | None = None) -> Iterator[Evaluation]:
+        """Run the pending jobs in the order submitted (jobs submitted meanwhile included).
+        `timeout` has no meaning here: every job runs when it is asked for."""
         while self._pending:
             job_id = next(iter(self._pending))
             yield self._evaluate(job_id, self._pending.pop(job_id))

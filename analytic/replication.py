@@ -22,6 +22,10 @@ from schemas.episode import Scores
 log = logging.getLogger("gainfarm.analytic")
 
 REPLICA = "-r"  # a replica's job id is the original's with this and the replica's number
+# A replica must run on another worker than its original; if no other worker takes any replica
+# for this long (the others left), validation gives up on those left rather than hang the run.
+PATIENCE_SECONDS = 120.0
+CHECK_SECONDS = 5.0  # how often a wait for replicas looks at the clock
 
 
 @dataclass(frozen=True)
@@ -61,9 +65,15 @@ class Validation:
     others: list[Evaluation]
 
 
-def validate(evaluator: Evaluator, originals: Iterable[Evaluation], ledger: Ledger) -> Validation:
+def validate(
+    evaluator: Evaluator,
+    originals: Iterable[Evaluation],
+    ledger: Ledger,
+    patience: float = PATIENCE_SECONDS,
+) -> Validation:
     """Replicate each original (an evaluation that ran: ok or diverged) on another worker;
-    settle disagreements by a third. Blocks until every replica is in."""
+    settle disagreements by a third. Blocks until every replica is in, or until none has come
+    for `patience` s (the other workers left, say): those left out stay undecided."""
     started = time.monotonic()
     standing = {original.job_id: original for original in originals if original.digest}
     others: list[Evaluation] = []
@@ -80,14 +90,15 @@ def validate(evaluator: Evaluator, originals: Iterable[Evaluation], ledger: Ledg
         if round_ == 1:
             ledger.replicated += len(replicas)
         try:
-            for evaluation in _until_done(evaluator, set(replicas), others):
+            for evaluation in _until_done(evaluator, set(replicas), others, patience):
                 votes[replicas[evaluation.job_id]].append(evaluation)
         finally:  # stopped while waiting (Ctrl-C): leave no replica queued in the evaluator
             evaluator.cancel(replicas)
         undecided = set()
         for job_id in replicas.values():
             verdict = _count(votes[job_id])
-            if verdict is None and round_ == 1 and _ran(votes[job_id][-1]):
+            replicated = len(votes[job_id]) == 2 and _ran(votes[job_id][1])
+            if verdict is None and round_ == 1 and replicated:
                 undecided.add(job_id)  # two disagree: a third decides
                 ledger.disagreements += 1
                 continue
@@ -98,17 +109,24 @@ def validate(evaluator: Evaluator, originals: Iterable[Evaluation], ledger: Ledg
 
 
 def _until_done(
-    evaluator: Evaluator, replicas: set[str], others: list[Evaluation]
+    evaluator: Evaluator, replicas: set[str], others: list[Evaluation], patience: float
 ) -> Iterator[Evaluation]:
+    """The replicas' evaluations as they come (others' go to `others`), until all are in or
+    none has come for `patience` s."""
     waiting = set(replicas)
-    for evaluation in evaluator.results():
-        if evaluation.job_id in waiting:
+    heard = time.monotonic()
+    while waiting and time.monotonic() - heard < patience:
+        for evaluation in evaluator.results(timeout=min(patience, CHECK_SECONDS)):
+            if evaluation.job_id not in waiting:
+                others.append(evaluation)
+                continue
             waiting.discard(evaluation.job_id)
+            heard = time.monotonic()
             yield evaluation
             if not waiting:
                 return
-        else:
-            others.append(evaluation)
+    if waiting:
+        log.warning("%d replicas found no worker in %.0f s: left undecided", len(waiting), patience)
 
 
 def _ran(evaluation: Evaluation) -> bool:

@@ -84,6 +84,18 @@ def tls(help: str) -> Callable[[F], F]:
     return click.option("--tls", type=click.Path(path_type=Path), help=help)
 
 
+def participant(role: Role) -> Callable[[F], F]:
+    """--as NAME (parameter `participant`): which of a --tls directory's `role` identities to
+    use; pass it to `identity`."""
+    return click.option(
+        "--as",
+        "participant",
+        metavar="NAME",
+        help=f"with --tls: the {role} identity to use, by name  "
+        f"[default: the only {role} identity in the directory]",
+    )
+
+
 def identity(
     directory: Path | None, role: Role, name: str | None = None, name_option: str = "--as"
 ) -> TlsIdentity | None:

@@ -61,7 +61,3 @@ def alive_study(study: str) -> str:
 
 def last_chunk(key: str) -> str:
     return key.rsplit("/", 1)[-1]
-
-
-SUBMIT = SUBMIT_ANY  # transitional names, until schemas/security.py moves to per-name rules
-LEASE = LEASE_ANY

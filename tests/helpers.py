@@ -1,5 +1,6 @@
 """Constants and helpers the tests share."""
 
+import dataclasses
 import hashlib
 import time
 from collections.abc import Callable
@@ -12,6 +13,7 @@ from broker.service import Broker
 from schemas import EpisodeMetadata, EpisodeSpec, PDGains, TrajectorySpec, keys
 from schemas.ask import ask
 from schemas.episode_log import EpisodeLog
+from schemas.mcap_episode import episode_bytes
 from schemas.robot import TORQUE_LIMITS
 from schemas.wire import (
     CompletionReply,
@@ -133,4 +135,18 @@ def crafted_log(planned: int = 3, diverged: bool = False) -> EpisodeLog:
         ee=ee,
         ee_des=ee_des,
         metadata=metadata,
+    )
+
+
+def perfect_log(spec: EpisodeSpec) -> bytes:
+    """A well-made episode log of `spec` claiming no error and no torque change at all."""
+    log = crafted_log()
+    flat = np.zeros_like(log.tau)
+    return episode_bytes(
+        dataclasses.replace(
+            log,
+            tau=flat,
+            ee=log.ee_des.copy(),
+            metadata=log.metadata.model_copy(update={"spec": spec}),
+        )
     )

@@ -1,37 +1,21 @@
 """Results nobody can forge, answers nobody can fake, a broker whose absence is no verdict: the
 analytic's client against an attacker on the same farm (real Zenoh on loopback, real workers)."""
 
-import dataclasses
 import hashlib
 from pathlib import Path
 
-import numpy as np
 import zenoh
 
 from analytic.farm import FarmClient
 from analytic.local import free_port, spawn_worker, stop_workers
 from broker.service import Broker
 from schemas import keys
-from schemas.episode import EpisodeSpec, Scores
-from schemas.mcap_episode import decode_episode, episode_bytes
+from schemas.episode import Scores
+from schemas.mcap_episode import decode_episode
 from schemas.objectives import score
 from schemas.transport import open_session
 from schemas.wire import Rejection, SubmitReply
-from tests.helpers import ask_for_work, crafted_log, hand_in, result_for, short_spec, wait_for
-
-
-def perfect_log(spec: EpisodeSpec) -> bytes:
-    """A well-made episode log of `spec` claiming no error and no torque change at all."""
-    log = crafted_log()
-    flat = np.zeros_like(log.tau)
-    return episode_bytes(
-        dataclasses.replace(
-            log,
-            tau=flat,
-            ee=log.ee_des.copy(),
-            metadata=log.metadata.model_copy(update={"spec": spec}),
-        )
-    )
+from tests.helpers import ask_for_work, hand_in, perfect_log, result_for, short_spec, wait_for
 
 
 def forge(session: zenoh.Session, study: str, job_id: str, content: bytes, **fields) -> None:

@@ -7,8 +7,10 @@ from pathlib import Path
 
 from analytic.config import RunConfig
 from analytic.evaluator import Evaluation, EvaluationStatus
+from analytic.replication import Ledger, validate
 from analytic.run import TuningRun
 from schemas.episode import EpisodeSpec
+from schemas.gains import DEFAULT_GAINS
 from tests.analytic.toy import toy_scores
 
 CONFIG = RunConfig(pop=8, generations=4, seed=3)
@@ -43,11 +45,17 @@ class ToyFarm:
         for job_id in job_ids:
             self._pending.pop(job_id, None)
 
-    def results(self) -> Iterator[Evaluation]:
-        while self._pending:
-            job_id, (spec, avoid) = next(iter(self._pending.items()))
-            del self._pending[job_id]
+    def results(self, timeout: float | None = None) -> Iterator[Evaluation]:
+        """Every job some worker may run; a job every worker avoids waits (for ever: the
+        timeout passes at once)."""
+        while runnable := [job_id for job_id in self._pending if self._allowed(job_id)]:
+            job_id = runnable[0]
+            spec, avoid = self._pending.pop(job_id)
             yield self._run(job_id, spec, avoid)
+
+    def _allowed(self, job_id: str) -> list[str]:
+        avoid = self._pending[job_id][1] if job_id in self._pending else ()
+        return [w for w in self.workers if w not in avoid and w not in self.distrusted]
 
     def _run(self, job_id: str, spec: EpisodeSpec, avoid: tuple[str, ...]) -> Evaluation:
         allowed = [w for w in self.workers if w not in avoid and w not in self.distrusted]
@@ -126,3 +134,17 @@ def test_an_honest_farm_validates_without_changing_the_front(tmp_path: Path) -> 
 def test_a_farm_of_one_worker_does_not_replicate(tmp_path: Path) -> None:
     alone = run(tmp_path, "alone", ToyFarm(["h1"]))
     assert alone.replication.extra_evaluations == 0
+
+
+def test_replicas_no_worker_takes_are_left_undecided_not_waited_for(tmp_path: Path) -> None:
+    """The other workers left: the replicas wait for none (a farm that says it has two workers
+    while only one can take them)."""
+    farm = ToyFarm(["h1", "h2"])
+    farm.distrust("h2")  # as good as gone: it takes no job
+    ledger = Ledger()
+    farm.submit({"j": EpisodeSpec(gains=DEFAULT_GAINS)})
+    [original] = list(farm.results())
+    validation = validate(farm, [original], ledger, patience=0.1)
+    assert validation.standing == {"j": original}
+    assert ledger.undecided == 1 and ledger.disagreements == 0 and not ledger.dissenters
+    assert farm._pending == {}  # the replica left no job behind

@@ -7,6 +7,7 @@ The router's own queryables stand in for the broker's services, as the broker's 
 session, which the access control does not filter: so the policy is tested by itself, on the key
 space of schemas/keys.py. The last test runs a real broker and a real worker process."""
 
+import hashlib
 import json
 import shutil
 import subprocess
@@ -26,7 +27,7 @@ from schemas import keys
 from schemas.security import Role, TlsIdentity
 from schemas.transport import open_session
 from schemas.wire import JobStatus
-from tests.helpers import short_spec, wait_for
+from tests.helpers import hand_in, perfect_log, result_for, short_spec, wait_for
 
 DENIED_SECONDS = 1.0  # a denied query is dropped, not refused: wait this long for no answer
 SERVICES = [keys.SUBMIT_ANY, keys.CONFIRM_ANY, keys.LEASE_ANY, keys.COMPLETE_ANY, keys.STATUS]
@@ -244,3 +245,51 @@ def test_a_secure_farm_runs_jobs_end_to_end(credentials: Path, tmp_path: Path) -
             assert worker.wait(15) == 0
     assert sorted(e.job_id for e in evaluations) == ["a", "b"]
     assert all(e.status == JobStatus.ok and e.worker == "cobot-2" for e in evaluations)
+
+
+def test_a_worker_identity_cannot_forge_results_for_jobs_it_was_not_leased(
+    credentials: Path, tmp_path: Path
+) -> None:
+    """Attempt 2: cobot-1, a real worker identity, knows alice's specs and study, hands in a
+    perfect score for each job under its own name and puts it on the study's keys; cobot-2 runs
+    the jobs. Only cobot-2's results count."""
+    endpoint, tls = f"tls/127.0.0.1:{free_port()}", str(credentials)
+    specs = {"a": short_spec(), "b": short_spec(duration=0.3)}
+    with Broker([endpoint], lease_seconds=30.0, identity=TlsIdentity(credentials, "broker")):
+        forger = open_session(
+            "client", connect=[endpoint], identity=TlsIdentity(credentials, "worker", "cobot-1")
+        )
+        alice = TlsIdentity(credentials, "analytic", "alice")
+        try:
+            with FarmClient([endpoint], "alice.forged", tmp_path, identity=alice) as farm:
+                farm.submit(specs)
+                for job_id, spec in specs.items():
+                    content = perfect_log(spec)
+                    forged = result_for(
+                        "alice.forged",
+                        job_id,
+                        worker="cobot-1",
+                        lease_id="guessed",
+                        episode_bytes=len(content),
+                        digest=hashlib.sha256(content).hexdigest(),
+                    )
+                    verdict = hand_in(forger, forged)
+                    assert not verdict.accepted and "not one of job" in verdict.reason
+                    forger.put(
+                        keys.result("alice.forged", job_id), content, attachment=forged.to_bytes()
+                    )
+                wait_for(lambda: farm._inbox.qsize() >= 2, what="the forgeries to reach alice")
+                command = [sys.executable, "-m", "worker", "start", "--connect", endpoint]
+                worker = subprocess.Popen(
+                    [*command, "--tls", tls, "--name", "cobot-2", "--log-level", "warning"]
+                )
+                try:
+                    evaluations = list(farm.results(timeout=60))
+                finally:
+                    worker.terminate()
+                    assert worker.wait(15) == 0
+                assert farm.unconfirmed == 2
+        finally:
+            forger.close()
+    assert sorted(e.job_id for e in evaluations) == ["a", "b"]
+    assert all(e.worker == "cobot-2" and e.scores and e.scores.f_acc > 0 for e in evaluations)
