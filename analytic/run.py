@@ -25,6 +25,7 @@ A write that fails (disk full, read-only) raises OSError naming the file; each f
 absent, the checkpoint is written last, so a later resume continues from the last good one.
 """
 
+import dataclasses
 import hashlib
 import time
 from collections.abc import Callable
@@ -303,7 +304,7 @@ class TuningRun:
         if evaluator.capacity < 2:  # a farm of one has nobody to ask
             return
         state = self.state
-        checked = False
+        checked = corrected = False
         while True:
             todo = {
                 member.gains: state.provenance.get(member.gains, ())
@@ -325,9 +326,18 @@ class TuningRun:
                     Ran.of(standing[r.job_id]) if r.job_id in standing else r for r in episodes
                 )
                 if now != episodes:
+                    corrected = True
                     state.provenance[gains] = now
                     state.evolution.correct(gains, objectives([ran.scores for ran in now]))
         if checked:
+            if corrected and state.history:  # the last row says what the run reports
+                front = [member.objectives for member in state.evolution.front()]
+                state.history[-1] = dataclasses.replace(
+                    state.history[-1],
+                    hypervolume=hypervolume(front, self.config.reference_point),
+                    best_f_acc=min(f_acc for f_acc, _ in front),
+                    best_f_t=min(f_t for _, f_t in front),
+                )
             self.write_records()
             self._checkpoint()
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from analytic.config import RunConfig
 from analytic.evaluator import Evaluation, EvaluationStatus
+from analytic.evolution import hypervolume
 from analytic.replication import Ledger, validate
 from analytic.run import TuningRun
 from schemas.episode import EpisodeSpec
@@ -106,6 +107,10 @@ def test_a_liar_is_outvoted_named_and_kept_out_of_the_front(tmp_path: Path) -> N
     lied_to = ToyFarm(["h1", "liar", "h2", "h3"], liars=["liar"])
     checked = run(tmp_path, "checked", lied_to)
     assert front(checked) and false_members(checked) == []
+    # The last history row says what the run reports: the validated front's hypervolume.
+    last = checked.state.history[-1]
+    assert last.hypervolume == hypervolume(front(checked), checked.config.reference_point)
+    assert last.best_f_acc == min(f_acc for f_acc, _ in front(checked))
     assert checked.replication.dissenters == {"liar"} == lied_to.distrusted
     assert checked.replication.disagreements >= 1 and checked.replication.undecided == 0
     # Replication costs the front entrants' episodes again, not every evaluation.
