@@ -7,7 +7,6 @@ of the spec, it simulates nothing and keeps no log: the tuning loop's own tests,
 run in milliseconds.
 """
 
-import hashlib
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 
@@ -110,5 +109,5 @@ class InProcessEvaluator:
             log=log,
             reason=outcome.reason,
             timings=outcome.timings,
-            digest=hashlib.sha256(outcome.content).hexdigest(),
+            digest=outcome.digest,
         )

@@ -2,8 +2,12 @@
 
 import dataclasses
 import hashlib
+import os
+import subprocess
+import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import zenoh
@@ -149,4 +153,16 @@ def perfect_log(spec: EpisodeSpec) -> bytes:
             ee=log.ee_des.copy(),
             metadata=log.metadata.model_copy(update={"spec": spec}),
         )
+    )
+
+
+def analytic(*arguments: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    """`python -m analytic ARGUMENTS` in `cwd`, its output captured (wide, for rich's lines)."""
+    return subprocess.run(
+        [sys.executable, "-m", "analytic", *arguments],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "COLUMNS": "200"},
     )

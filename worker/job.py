@@ -26,6 +26,11 @@ class Outcome:
     content: bytes
     timings: Timings
 
+    @property
+    def digest(self) -> str:
+        """The log's SHA-256: what the farm checks a log by, and replicas compare."""
+        return hashlib.sha256(self.content).hexdigest()
+
 
 def simulate(spec: EpisodeSpec) -> Outcome:
     """Run the episode and encode its log; never raises for a spec that cannot run."""
@@ -60,7 +65,7 @@ def execute(lease: Lease, worker: str) -> tuple[Result, bytes]:
         status=outcome.status,
         reason=outcome.reason[:REASON_LIMIT],
         episode_bytes=len(outcome.content),
-        digest=hashlib.sha256(outcome.content).hexdigest(),
+        digest=outcome.digest,
         timings=outcome.timings,
     )
     return result, outcome.content

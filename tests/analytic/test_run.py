@@ -3,7 +3,6 @@
 import itertools
 import json
 import logging
-import os
 import signal
 import subprocess
 import sys
@@ -25,7 +24,7 @@ from schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
 from schemas.mcap_episode import read_episode
 from schemas.objectives import score
 from schemas.transport import open_session
-from tests.helpers import ask_for_work, hand_in, wait_for
+from tests.helpers import analytic, ask_for_work, hand_in, wait_for
 from worker.episode import run_episode
 from worker.job import execute
 
@@ -157,17 +156,6 @@ def test_a_stopped_and_resumed_run_ends_where_an_uninterrupted_one_does(
     with FarmClient([farm_endpoint], "test-resumed", stopped) as farm:
         resumed.run(farm, on_progress=lambda _: None)
     assert (stopped / "front.csv").read_bytes() == (whole.directory / "front.csv").read_bytes()
-
-
-def analytic(*arguments: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "analytic", *arguments],
-        cwd=cwd,
-        capture_output=True,
-        text=True,
-        timeout=300,
-        env={**os.environ, "COLUMNS": "200"},
-    )
 
 
 def test_start_and_resume_commands(tmp_path: Path) -> None:

@@ -31,6 +31,7 @@ from schemas import TrajectorySpec
 from schemas.files import Lock
 from schemas.wire import NAME_PATTERN
 from tests.analytic.toy import toy_scores
+from tests.helpers import analytic
 
 TINY = RunConfig(pop=6, seed=7, trajectories=(TrajectorySpec(duration=0.5),), generations=3)
 
@@ -66,17 +67,6 @@ def resume(directory: Path) -> TuningRun:
     with TuningRun.open(directory) as run:
         run.run(InProcessEvaluator(scorer=toy_scores), report=False)
     return run
-
-
-def analytic(*arguments: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "analytic", *arguments],
-        cwd=cwd,
-        capture_output=True,
-        text=True,
-        timeout=300,
-        env={**os.environ, "COLUMNS": "200"},
-    )
 
 
 def one_error_line(stderr: str) -> str:
