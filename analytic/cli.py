@@ -34,7 +34,7 @@ from cli.scores import show_scores
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import NotAnEpisodeLog, read_episode
 from schemas.objectives import score
-from schemas.robot import ModelSpec
+from schemas.robot import PLANTS
 from schemas.security import TlsIdentity
 from schemas.trajectory import TrajectorySpec
 from schemas.wire import BadMessage, describe
@@ -146,7 +146,9 @@ def evaluate(log: Path, as_json: bool) -> None:
 )
 @options.trajectory(multiple=True, help="repeat for several")
 @options.duration()
+@options.placement()
 @options.model(help=None)
+@options.plant()
 @click.option(
     "--run-dir",
     type=click.Path(path_type=Path),
@@ -169,7 +171,11 @@ def batch(
     gains_file: Path | None,
     kinds: tuple[str, ...],
     duration: float,
+    trajectory_seed: int,
+    center: str,
+    size: float,
     model: str,
+    plant: str,
     run_dir: Path | None,
     deadline: float,
     as_json: bool,
@@ -179,11 +185,8 @@ def batch(
         raise CliError("say where the farm is: --connect ENDPOINT or --local")
     identity = _check_farm(connect, local, tls, participant)
     candidates = _candidates(gains_file)
-    try:
-        trajectories = [TrajectorySpec(kind=kind, duration=duration) for kind in kinds]
-    except ValidationError as error:
-        raise CliError(f"--{describe(error)}") from None  # duration is the only field left open
-    jobs = batch_jobs(candidates, trajectories, ModelSpec(joints=model))
+    trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
+    jobs = batch_jobs(candidates, trajectories, options.model_spec(plant, model))
     run_dir = run_dir or Path("runs") / time.strftime("batch-%Y%m%d-%H%M%S")
     if (run_dir / EVALUATIONS).exists():
         raise CliError(f"--run-dir: {str(run_dir)!r} already holds a batch; choose another")
@@ -225,9 +228,13 @@ def batch(
     help="one: a specific controller; several (repeat): a generic one, objectives averaged",
 )
 @options.duration()
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@options.placement()
+@click.option(
+    "--seed", type=click.IntRange(min=0), default=0, show_default=True, help="NSGA-II's seed"
+)
 @termination_options()
 @options.model(help=None)
+@options.plant()
 @farm_options
 @click.option("--out", type=click.Path(path_type=Path), help="run directory  [default: runs/TIME]")
 @click.option(
@@ -254,10 +261,14 @@ def start(
     pop: int,
     kinds: tuple[str, ...],
     duration: float,
+    trajectory_seed: int,
+    center: str,
+    size: float,
     seed: int,
     generations: int | None,
     evaluations: int | None,
     model: str,
+    plant: str,
     connect: tuple[str, ...],
     tls: Path | None,
     participant: str | None,
@@ -274,12 +285,13 @@ def start(
     stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
     """
     identity = _check_farm(connect, local, tls, participant)
+    trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
     try:
         config = RunConfig(
             pop=pop,
             seed=seed,
-            trajectories=tuple(TrajectorySpec(kind=kind, duration=duration) for kind in kinds),
-            model=ModelSpec(joints=model),
+            trajectories=trajectories,
+            model=options.model_spec(plant, model),
             generations=generations,
             evaluations=evaluations,
             keep=keep,
@@ -444,6 +456,7 @@ def dataset(run_dirs: tuple[Path, ...], out: Path, selection: str) -> None:
 )
 @pop_option()
 @options.duration(help="trajectory duration, s (popsize, generic-vs-specific)")
+@options.plant()
 @termination_options(per_run=True)
 @farm_options
 @click.option(
@@ -459,6 +472,7 @@ def experiment(
     durations: str,
     pop: int,
     duration: float,
+    plant: str,
     generations: int | None,
     evaluations: int | None,
     connect: tuple[str, ...],
@@ -476,6 +490,7 @@ def experiment(
         base = RunConfig(
             pop=pop,
             trajectories=(TrajectorySpec(duration=duration),),
+            model=PLANTS[plant],
             generations=generations,
             evaluations=evaluations,
             keep="front",

@@ -33,7 +33,8 @@ from schemas.robot import JOINT_NAMES
 
 Selection = Literal["front", "knee"]
 
-JOINT_SIGNALS = ("q", "qd", "tau", "q_des", "qd_des")  # rad, rad/s, N·m, rad, rad/s
+# rad, rad/s, N·m, N·m, rad, rad/s, rad, rad/s
+JOINT_SIGNALS = ("q", "qd", "tau", "u", "theta", "theta_d", "q_des", "qd_des")
 CARTESIAN_SIGNALS = ("ee", "ee_des")  # m, in the base frame
 AXES = ("x", "y", "z")
 
@@ -177,19 +178,22 @@ controllers from {counts["runs"]} runs:
 ## Files
 
 - `ticks.parquet`: one row per 2 ms control tick. `episode_id`, `trajectory`, `t` (s since the
-  episode started), {joint_columns} (rad, rad/s, N·m: measured position, velocity, the applied
-  and saturated torque, desired position and velocity), `ee_x..z` and `ee_des_x..z` (flange
-  position and its desired value, m, base frame).
+  episode started), {joint_columns} (what the sensors report: link-side position and
+  velocity, rad and rad/s, the joint torque sensors' reading, N·m; the torque command as applied
+  to the motors, delayed and saturated, N·m; motor-side angle and velocity; desired position
+  and velocity), `ee_x..z` and `ee_des_x..z` (flange position and its desired value, m, base
+  frame). The `model` column says which plant: its friction, delay, sensors and feedback side.
 - `episodes.parquet`: one row per episode. `episode_id`, `run`, `kp_A1..A7`, `kd_A1..A7`,
   `f_acc` (mean end-effector error, m), `f_t` (mean squared torque change per tick, (N·m)²),
   `diverged`, `ticks`, `trajectory`, `duration`, `trajectory_spec` and `model` (JSON),
   `gravity_compensation`, and the controller's objectives over its run's trajectory set.
 - `episodes/<episode_id>.mcap`: the original logs (ROS 2 CDR: `/joint_states`,
-  `/joint_reference`, `/ee/actual`, `/ee/desired`; the channel contract is in gainfarm's
+  `/joint_commands`, `/motor_states`, `/joint_reference`, `/ee/actual`, `/ee/desired`; the
+  channel contract is in gainfarm's
   schemas/README.md), each with its full spec in the `gainfarm.episode` metadata record.
 
 Row `k` of an episode in `ticks.parquet` is tick `k` of its MCAP log: the state sensed at tick `k`
-and the torque then applied until tick `k + 1`.
+and the command then applied until tick `k + 1`.
 
 Made with `analytic dataset ... --select {selection}`.
 """

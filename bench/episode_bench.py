@@ -1,11 +1,13 @@
-"""Cost of one episode against a bare physics loop, and of scoring it from its log.
+"""Cost of one episode on the realistic and the ideal plant, against a C physics loop, and of
+scoring it from its log.
 
     python bench/episode_bench.py [--repeats 15] [--duration 5]
 
 All timings are medians over interleaved repeats in one run, so that the ratios compare like
-with like on a shared, noisy machine. The bare loop steps the same model the same number of
-times from the same state, with the motors holding the arm against gravity (so that, like a
-tracking episode, it neither falls into the joint limits nor does anything else).
+with like on a shared, noisy machine. The C loop is MuJoCo's own `rollout` (mj_step in C, no
+Python per step) on the realistic plant's model, stepped as many times from the same state with
+the motors holding the arm against gravity (so that, like a tracking episode, it neither falls
+into the joint limits nor does anything else): the cost of the physics alone.
 """
 
 import statistics
@@ -16,28 +18,35 @@ from pathlib import Path
 
 import click
 import mujoco
+import numpy as np
 from common import print_table
+from mujoco import rollout
 
 from schemas import EpisodeSpec, TrajectorySpec
 from schemas.gains import DEFAULT_GAINS
 from schemas.mcap_episode import read_episode, write_episode
 from schemas.objectives import score
-from worker.episode import run_episode
+from schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
+from worker.episode import gravity_torques, run_episode
 from worker.plant import Plant
 from worker.reference import reference_for
 
 
-def bare_loop(spec: EpisodeSpec) -> Callable[[], None]:
-    """The episode's model stepped as many times from its first state, the motors holding the
-    arm against gravity: the cost of the physics alone."""
+def c_loop(spec: EpisodeSpec) -> Callable[[], None]:
+    """The episode's model stepped in C as many times from its first state, the motors holding
+    the arm against gravity: the cost of the physics alone."""
     reference = reference_for(spec.trajectory)
     plant = Plant(spec.model)
+    plant.reset(reference.q[0])
+    signature = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    initial = np.empty(mujoco.mj_stateSize(plant.model, signature))
+    mujoco.mj_getState(plant.model, plant.data, initial, signature)
+    steps = spec.trajectory.ticks * plant.substeps
+    hold = gravity_torques(reference.q[:1], spec.model.inertials)
+    control = np.tile(hold, (steps, 1))
 
     def run() -> None:
-        plant.reset(reference.q[0])
-        plant.data.ctrl[:] = reference.gravity[0]
-        for _ in range(spec.trajectory.ticks):
-            mujoco.mj_step(plant.model, plant.data, plant.substeps)
+        rollout.rollout(plant.model, plant.data, initial, control)
 
     return run
 
@@ -52,15 +61,18 @@ def bare_loop(spec: EpisodeSpec) -> Callable[[], None]:
     help="s per episode",
 )
 def main(repeats: int, duration: float) -> None:
-    spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=TrajectorySpec(duration=duration))
-    reference_for(spec.trajectory)  # the IK runs once per trajectory; it is not per-episode cost
+    trajectory = TrajectorySpec(duration=duration)
+    realistic = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=trajectory, model=REALISTIC_PLANT)
+    ideal = realistic.model_copy(update={"model": IDEAL_PLANT})
+    reference_for(trajectory)  # the IK runs once per trajectory; it is not per-episode cost
     with tempfile.TemporaryDirectory() as scratch:
         path = Path(scratch) / "episode.mcap"
-        size = write_episode(run_episode(spec), path)
+        size = write_episode(run_episode(realistic), path)
         cases: dict[str, Callable[[], object]] = {
-            "bare mj_step loop": bare_loop(spec),
-            "episode (simulation + control)": lambda: run_episode(spec),
-            "episode + MCAP log": lambda: write_episode(run_episode(spec), path),
+            "C mj_step loop (rollout)": c_loop(realistic),
+            "ideal episode": lambda: run_episode(ideal),
+            "realistic episode": lambda: run_episode(realistic),
+            "realistic episode + MCAP log": lambda: write_episode(run_episode(realistic), path),
             "score from MCAP": lambda: score(read_episode(path)),
         }
         times: dict[str, list[float]] = {name: [] for name in cases}
@@ -71,20 +83,22 @@ def main(repeats: int, duration: float) -> None:
                 times[name].append(time.perf_counter() - start)
 
     median = {name: statistics.median(values) for name, values in times.items()}
-    bare, episode = median["bare mj_step loop"], median["episode + MCAP log"]
+    bare, ideal_time = median["C mj_step loop (rollout)"], median["ideal episode"]
+    logged = median["realistic episode + MCAP log"]
     print(
-        f"{duration:g} s episode, {spec.trajectory.ticks} ticks, {spec.model.joints} joints, "
-        f"{spec.model.substeps} physics steps per tick, median of {repeats}\n"
+        f"{duration:g} s episode, {trajectory.ticks} ticks, {realistic.model.joints} joints, "
+        f"{realistic.model.substeps} physics steps per tick, median of {repeats}\n"
     )
 
-    def row(name: str, seconds: float) -> tuple[str, str, str]:
-        base, label = (
-            (episode, "of episode + log") if name == "score from MCAP" else (bare, "x bare")
-        )
-        return name, f"{seconds * 1000:.1f}", f"{seconds / base:.2f} {label}"
+    def row(name: str, seconds: float) -> tuple[str, str, str, str]:
+        if name == "score from MCAP":
+            return name, f"{seconds * 1000:.1f}", f"{seconds / logged:.2f} of logged episode", ""
+        return name, f"{seconds * 1000:.1f}", f"{seconds / bare:.2f}", f"{seconds / ideal_time:.2f}"
 
-    print_table(("case", "ms", "ratio"), "lrr", (row(*item) for item in median.items()))
-    print(f"\nreal-time factor (episode + log): {duration / episode:.0f}x")
+    print_table(
+        ("case", "ms", "x C loop", "x ideal"), "lrrr", (row(*item) for item in median.items())
+    )
+    print(f"\nreal-time factor (realistic episode + log): {duration / logged:.0f}x")
     print(f"bytes per episode: {size:,}")
 
 

@@ -10,11 +10,13 @@ from pathlib import Path
 from typing import TypeVar
 
 import click
+from pydantic import ValidationError
 
-from cli.app import CliError
-from schemas.robot import ModelSpec
+from cli.app import CliError, parse_numbers
+from schemas.robot import PLANTS, ModelSpec
 from schemas.security import Role, TlsIdentity, UnknownIdentity, load_identity
-from schemas.trajectory import TrajectoryKind
+from schemas.trajectory import TrajectoryKind, TrajectorySpec
+from schemas.wire import describe
 
 F = TypeVar("F", bound=Callable[..., object])
 
@@ -70,6 +72,72 @@ def model(help: str | None = "elastic or rigid joints") -> Callable[[F], F]:
         show_default=True,
         help=help,
     )
+
+
+def plant() -> Callable[[F], F]:
+    """--plant: the realistic plant (the default) or the first wave's idealised one."""
+    return click.option(
+        "--plant",
+        type=click.Choice(list(PLANTS)),
+        default="realistic",
+        show_default=True,
+        help="realistic: friction, a 1-tick delay, encoders and torque sensors with noise, "
+        "motor-side feedback, KUKA's CAD masses; ideal: the paper's idealised plant",
+    )
+
+
+def model_spec(plant: str, joints: str) -> ModelSpec:
+    """The ModelSpec of `--plant` with `--model`'s joints."""
+    return PLANTS[plant].model_copy(update={"joints": joints})
+
+
+_TRAJECTORY = TrajectorySpec()
+
+
+def placement() -> Callable[[F], F]:
+    """--trajectory-seed, --center and --size: where a trajectory lies and which one it is, so
+    that datasets can cover the workspace."""
+    return stack(
+        click.option(
+            "--trajectory-seed",
+            type=click.IntRange(min=0),
+            default=_TRAJECTORY.seed,
+            show_default=True,
+            help="seed of the random kind's waypoints and the fourier kind's coefficients",
+        ),
+        click.option(
+            "--center",
+            default=",".join(f"{v:g}" for v in _TRAJECTORY.center),
+            show_default=True,
+            help="x,y,z of the path's centre in the base frame, m (not fourier)",
+        ),
+        click.option(
+            "--size",
+            type=float,
+            default=_TRAJECTORY.size,
+            show_default=True,
+            help="the path's half-width, m (not fourier)",
+        ),
+    )
+
+
+_FIELD_OPTIONS = {"seed": "--trajectory-seed", "center": "--center", "size": "--size"}
+
+
+def trajectories(
+    kinds: typing.Iterable[str], duration: float, seed: int, center: str, size: float
+) -> tuple[TrajectorySpec, ...]:
+    """The trajectories the options describe; a bad value is one line naming its option."""
+    point = parse_numbers("--center", center, 3)
+    try:
+        return tuple(
+            TrajectorySpec(kind=kind, duration=duration, seed=seed, center=point, size=size)
+            for kind in kinds
+        )
+    except ValidationError as error:
+        field = str(error.errors()[0]["loc"][0]) if error.errors()[0]["loc"] else ""
+        option = _FIELD_OPTIONS.get(field, f"--{field}" if field else "--trajectory")
+        raise CliError(f"{option}: {describe(error).split(': ', 1)[-1]}") from None
 
 
 def connect(help: str) -> Callable[[F], F]:

@@ -7,6 +7,11 @@ Both variants come from that file, so they never drift apart:
   (deflection q − θ, torsional stiffness K and damping D). The link angle is q = θ + (q − θ), the
   sum of the two. Putting both hinges in one body is the massless-rotor form of the model: the
   kinetic energy is ½ I q̇² + ½ B θ̇², exactly Spong's.
+
+The XML holds the "open" inertial set; `CAD_INERTIALS` below turns it into the "cad" one. Viscous
+friction, when the spec has friction, is the motor hinge's damping. `compile_model` refuses a spec
+whose joint springs MuJoCo cannot integrate stably and accurately at its physics step
+(`check_substeps`). Sources and assumptions for every number: models/README.md.
 """
 
 import logging
@@ -14,6 +19,7 @@ from functools import lru_cache
 from importlib.resources import files
 
 import mujoco
+import numpy as np
 
 from schemas.robot import JOINT_NAMES, ModelSpec
 from schemas.trajectory import CONTROL_PERIOD
@@ -23,6 +29,32 @@ log = logging.getLogger("gainfarm.models")
 RIGID_MJCF = files("models").joinpath("iiwa14.xml")
 FLANGE = "flange"  # the site at the flange's centre: the end effector every trajectory moves
 
+# The "cad" inertial set, as changes to the "open" one in models/iiwa14.xml. Per link: mass in kg
+# (KUKA's CAD masses as noted in drake's iiwa 14 URDF), and where MuJoCo Menagerie's kuka_iiwa_14
+# re-orients the principal axes, their orientation (w x y z, Menagerie's inertial quat). Centres
+# of mass stay the open ones, and the principal inertias are the open ones scaled by the mass
+# ratio (same radii of gyration): both assumptions, as no CAD values for them are published.
+CAD_INERTIALS: dict[str, tuple[float, tuple[float, float, float, float] | None]] = {
+    "link1": (4.0, None),  # assumption: no CAD mass is published; iiwa_stack's value
+    "link2": (3.95, (0.0, 0.0, 1.0, 1.0)),
+    "link3": (3.18, None),
+    "link4": (2.74, (1.0, 1.0, 0.0, 0.0)),
+    "link5": (1.69, None),
+    "link6": (1.8, (1.0, 1.0, 0.0, 0.0)),
+    "link7": (0.31, None),
+}
+
+# Postures at which the springs' modes are analysed: the ready posture, and the arm stretched
+# upright, where the roll joints A1, A3, A5 and A7 turn the least inertia (their fastest modes).
+READY_POSTURE = (0.0, 0.5, 0.0, -1.6, 0.0, 1.0, 0.0)
+UPRIGHT_POSTURE = (0.0,) * 7
+
+# MuJoCo integrates joint stiffness explicitly and joint damping implicitly. For one spring of
+# stiffness K and damping D on an effective inertia m, its step dt is stable while
+# K dt² < 4 m + 2 D dt (with D = 0: ω·dt < 2). Requiring a quarter of that bound keeps it well
+# inside (with D = 0: ω·dt ≤ 1, a frequency error under 5 %).
+MAX_STEP_RATIO = 0.25
+
 
 def build_spec(spec: ModelSpec) -> mujoco.MjSpec:
     """The MuJoCo model description for `spec`, not yet compiled (export it with .to_xml())."""
@@ -30,9 +62,22 @@ def build_spec(spec: ModelSpec) -> mujoco.MjSpec:
     mj.option.timestep = CONTROL_PERIOD / spec.substeps
     # A diverging episode must stay diverged (NaNs are data we detect), not be silently reset.
     mj.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
+    if spec.inertials == "cad":
+        for body, (mass, orientation) in CAD_INERTIALS.items():
+            link = mj.body(body)
+            link.inertia = link.inertia * (mass / link.mass)
+            link.mass = mass
+            if orientation is not None:
+                link.iquat = orientation
     for i, name in enumerate(JOINT_NAMES):
         hinge = mj.joint(name)
         hinge.armature = spec.rotor_inertia[i]
+        if spec.friction is not None:
+            # Viscous friction on the motor side. MuJoCo integrates joint damping implicitly: it
+            # costs nothing and is stable at any step. The Coulomb part is the tick loop's.
+            damping = np.array(hinge.damping)  # MuJoCo 4: (linear, polynomial terms...)
+            damping[0] = spec.friction.viscous[i]
+            hinge.damping = damping
         if spec.joints == "flexible":
             hinge.name = f"{name}_motor"
             mj.actuator(name).target = hinge.name
@@ -49,13 +94,106 @@ def build_spec(spec: ModelSpec) -> mujoco.MjSpec:
 
 @lru_cache(maxsize=16)
 def compile_model(spec: ModelSpec) -> mujoco.MjModel:
-    """Compiled model for `spec`; cached, because a worker runs thousands of episodes on one."""
+    """Compiled model for `spec`; cached, because a worker runs thousands of episodes on one.
+
+    Raises ValueError if the spec's physics step is too long for its joint springs."""
     # An unstable simulation is data (the episode is flagged as diverged), not a warning for
     # stdout and a MUJOCO_LOG.TXT in whatever directory the process runs in: MuJoCo's default.
     # A handler the process installed itself is left in place.
     if mujoco.get_mju_user_warning() is None:
         mujoco.set_mju_user_warning(_log_warning)
-    return build_spec(spec).compile()
+    model = build_spec(spec).compile()
+    check_substeps(spec, model)
+    return model
+
+
+def check_substeps(spec: ModelSpec, model: mujoco.MjModel | None = None) -> None:
+    """Raise ValueError, in one line, if `spec.substeps` is too few for its joint springs."""
+    if spec.joints != "flexible":
+        return
+    ratios = step_ratios(spec, model)
+    if ratios.max() <= MAX_STEP_RATIO:
+        return
+    worst = int(ratios.argmax())
+    raise ValueError(
+        f"substeps={spec.substeps} is too few for {JOINT_NAMES[worst]}'s joint spring "
+        f"(K = {spec.stiffness[worst]:g} N·m/rad): this plant needs substeps >= "
+        f"{min_substeps(spec, model)}"
+    )
+
+
+def min_substeps(spec: ModelSpec, model: mujoco.MjModel | None = None) -> int:
+    """The fewest physics steps per control tick that integrate `spec`'s joint springs well
+    (every joint's step ratio at most MAX_STEP_RATIO); 1 for rigid joints."""
+    if spec.joints != "flexible":
+        return 1
+    inertia = effective_inertias(spec, model)
+    stiffness, damping = np.asarray(spec.stiffness), np.asarray(spec.spring_damping)
+    # The longest step with K dt² = MAX_STEP_RATIO (4 m + 2 D dt): the quadratic's positive root.
+    a, b = MAX_STEP_RATIO * 2 * damping, MAX_STEP_RATIO * 4 * inertia
+    longest = (a + np.sqrt(a**2 + 4 * stiffness * b)) / (2 * stiffness)
+    if not longest.min() > 0:
+        joint = JOINT_NAMES[int(longest.argmin())]
+        raise ValueError(f"{joint}'s spring turns no inertia and has no damping: no step fits it")
+    substeps = max(1, int(np.ceil(CONTROL_PERIOD / longest.min())))
+    while _step_ratios(spec, inertia, CONTROL_PERIOD / substeps).max() > MAX_STEP_RATIO:
+        substeps += 1  # only ever rounding at the boundary
+    return substeps
+
+
+def step_ratios(spec: ModelSpec, model: mujoco.MjModel | None = None) -> np.ndarray:
+    """Per joint, K dt² / (4 m + 2 D dt) at `spec`'s physics step dt: MuJoCo's integration of the
+    joint's spring is stable below 1; `compile_model` wants every one at most MAX_STEP_RATIO.
+    m is the spring's effective inertia (`effective_inertias`)."""
+    return _step_ratios(spec, effective_inertias(spec, model), CONTROL_PERIOD / spec.substeps)
+
+
+def _step_ratios(spec: ModelSpec, inertia: np.ndarray, dt: float) -> np.ndarray:
+    stiffness, damping = np.asarray(spec.stiffness), np.asarray(spec.spring_damping)
+    return stiffness * dt**2 / (4 * inertia + 2 * damping * dt)
+
+
+def effective_inertias(spec: ModelSpec, model: mujoco.MjModel | None = None) -> np.ndarray:
+    """Per joint, the inertia its spring turns, kg·m²: the link side's against the rotor's,
+    I B / (I + B), from the mass matrix with every other joint held; the smaller of its values
+    at READY_POSTURE and UPRIGHT_POSTURE. `model` is `spec`'s compiled flexible model, if at hand.
+    """
+    if model is None:
+        model = build_spec(spec.model_copy(update={"joints": "flexible"})).compile()
+    motor = np.array([model.joint(f"{name}_motor").id for name in JOINT_NAMES])
+    spring = np.array([model.joint(f"{name}_spring").id for name in JOINT_NAMES])
+    m_dof, s_dof = model.jnt_dofadr[motor], model.jnt_dofadr[spring]
+    data = mujoco.MjData(model)
+    mass_matrix = np.zeros((model.nv, model.nv))
+    inertia = np.full(len(JOINT_NAMES), np.inf)
+    for posture in (READY_POSTURE, UPRIGHT_POSTURE):
+        data.qpos[model.jnt_qposadr[motor]] = posture  # springs relaxed
+        mujoco.mj_forward(model, data)
+        mujoco.mj_fullM(model, data, mass_matrix)
+        coupling = mass_matrix[m_dof, s_dof]
+        # The spring's Schur complement: the motor hinge turns with it, the other joints held.
+        schur = mass_matrix[s_dof, s_dof] - coupling**2 / mass_matrix[m_dof, m_dof]
+        # Without a rotor (B = 0) the spring turns nothing: zero, not a rounding error's residue.
+        schur[schur <= 1e-12 * mass_matrix[s_dof, s_dof]] = 0.0
+        inertia = np.minimum(inertia, schur)
+    return inertia
+
+
+def elastic_modes(spec: ModelSpec, posture: tuple[float, ...] = READY_POSTURE) -> np.ndarray:
+    """The 7 undamped elastic modes of `spec`'s flexible plant linearised at `posture`, Hz,
+    ascending: the generalized eigenproblem of the spring stiffness against the mass matrix."""
+    model = build_spec(spec.model_copy(update={"joints": "flexible"})).compile()
+    data = mujoco.MjData(model)
+    motor = model.jnt_qposadr[model.actuator_trnid[:, 0]]
+    data.qpos[motor] = posture
+    mujoco.mj_forward(model, data)
+    mass_matrix = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, mass_matrix)
+    stiffness = np.diag(model.jnt_stiffness[model.dof_jntid])
+    cholesky_inverse = np.linalg.inv(np.linalg.cholesky(mass_matrix))
+    omega_squared = np.linalg.eigvalsh(cholesky_inverse @ stiffness @ cholesky_inverse.T)
+    # The 7 zero eigenvalues are the rigid motions (motor and link turning together).
+    return np.sqrt(np.clip(omega_squared[-len(JOINT_NAMES) :], 0.0, None)) / (2 * np.pi)
 
 
 def _log_warning(message: str) -> None:

@@ -27,6 +27,8 @@ CHANNELS = (
     Channel(
         "/joint_states", JOINT_STATE, "", (("position", "q"), ("velocity", "qd"), ("effort", "tau"))
     ),
+    Channel("/joint_commands", JOINT_STATE, "", (("effort", "u"),)),
+    Channel("/motor_states", JOINT_STATE, "", (("position", "theta"), ("velocity", "theta_d"))),
     Channel("/joint_reference", JOINT_STATE, "", (("position", "q_des"), ("velocity", "qd_des"))),
     Channel("/ee/actual", POINT_STAMPED, "world", (("point", "ee"),)),
     Channel("/ee/desired", POINT_STAMPED, "world", (("point", "ee_des"),)),
@@ -40,8 +42,11 @@ class EpisodeLog:
 
     t: np.ndarray  # simulated time since the episode started, s
     q: np.ndarray  # measured link-side joint positions, rad
-    qd: np.ndarray  # measured joint velocities, rad/s
-    tau: np.ndarray  # applied (saturated) joint torques, N·m
+    qd: np.ndarray  # measured link-side joint velocities, rad/s
+    tau: np.ndarray  # measured joint torques (the torque sensors: spring torque if elastic), N·m
+    u: np.ndarray  # torque commands as applied to the motors (delayed, saturated), N·m
+    theta: np.ndarray  # measured motor-side angles, rad (the link angles if rigid)
+    theta_d: np.ndarray  # measured motor-side velocities, rad/s
     q_des: np.ndarray  # reference joint positions, rad
     qd_des: np.ndarray  # reference joint velocities, rad/s
     ee: np.ndarray  # flange position in the world frame, m

@@ -7,6 +7,8 @@ the episode it ran (`worker episode`) exactly as the analytic side scores the sa
 f_acc = (1/T) Σ_i ||ee_i − ee_des_i||           mean Cartesian error, m
 f_t   = (1/T) Σ_i ||u_i − u_(i−1)||²            mean squared torque change per tick, (N·m)²
 
+u is the torque command as applied (/joint_commands), not the joint torque sensors' reading.
+
 T is the number of ticks the episode was planned to run. u_0, the torque before the first tick,
 is taken equal to the first applied torque: the robot was already holding it, so starting does
 not count as a change. A diverged episode is scored as if every tick it did not run had the
@@ -37,8 +39,8 @@ def score(log: EpisodeLog) -> Scores:
 
     errors = np.linalg.norm(log.ee - log.ee_des, axis=1)
     worst_change = float(np.sum((2.0 * limits) ** 2))  # from one limit to the other on every joint
-    changes = float(np.sum(np.diff(log.tau, axis=0) ** 2))
-    saturated = np.any(np.abs(log.tau) >= limits - SATURATION_TOLERANCE, axis=1)
+    changes = float(np.sum(np.diff(log.u, axis=0) ** 2))
+    saturated = np.any(np.abs(log.u) >= limits - SATURATION_TOLERANCE, axis=1)
 
     return Scores(
         f_acc=(float(errors.sum()) + missing * DIVERGED_TICK_ERROR) / planned,

@@ -1,5 +1,10 @@
-"""The robot model a job runs on: which variant and its (assumed) elastic-joint parameters."""
+"""The robot a job runs on: its published limits, and the simulated plant (ModelSpec).
 
+Every physical number here has a source or is labelled an assumption; models/README.md gives the
+sources and the reasons behind each assumption.
+"""
+
+import math
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -7,12 +12,31 @@ from pydantic import BaseModel, ConfigDict, Field
 N_JOINTS = 7
 JOINT_NAMES = tuple(f"A{i}" for i in range(1, N_JOINTS + 1))
 
-# Data-sheet torque limits of the LBR iiwa 14 R820, N·m; the motors' ctrlrange in models/iiwa14.xml.
-TORQUE_LIMITS = (320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0)
+# --- Published limits of the LBR iiwa 14 R820 ----------------------------------------------------
 
-# Elastic-joint parameters. No authoritative public table exists: these are documented assumptions
-# in the orders of magnitude the reference gives (models/README.md explains the choice).
-DEFAULT_STIFFNESS = (5000.0, 5000.0, 4000.0, 4000.0, 2000.0, 2000.0, 2000.0)  # N·m/rad
+# Torque, N·m (KUKA data sheet); the motors' ctrlrange in models/iiwa14.xml.
+TORQUE_LIMITS = (320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0)
+# Position, rad (KUKA data sheet: ±170, ±120, ±170, ±120, ±170, ±120, ±175°).
+POSITION_LIMITS = (2.96706, 2.0944, 2.96706, 2.0944, 2.96706, 2.0944, 3.05433)
+# Speed, rad/s (KUKA data sheet: 85, 85, 100, 75, 130, 135, 135 °/s).
+SPEED_LIMITS = tuple(math.radians(v) for v in (85.0, 85.0, 100.0, 75.0, 130.0, 135.0, 135.0))
+# Acceleration, rad/s² (as published with drake's iiwa model, from a 2019 thesis).
+ACCELERATION_LIMITS = (8.57, 8.57, 8.74, 11.36, 12.23, 15.72, 15.72)
+
+# --- Elastic joints: assumptions (no authoritative public table exists) --------------------------
+
+# Stiffness presets spanning the plausible range, N·m/rad. "soft" is the first wave's value (and
+# the ideal plant's); harmonic-drive catalogues for this torque class give 1e4-1e5.
+STIFFNESS_PRESETS: dict[str, tuple[float, ...]] = {
+    # The first wave's value (and the ideal plant's); substeps >= 2.
+    "soft": (5000.0, 5000.0, 4000.0, 4000.0, 2000.0, 2000.0, 2000.0),
+    # As stiff as substeps = 2 (1 ms) integrates well with the CAD inertials (models/README.md);
+    # A5-A7 are held there by their links' small inertias, below the catalogue range.
+    "medium": (40000.0, 40000.0, 20000.0, 20000.0, 7000.0, 7000.0, 2000.0),
+    # The catalogue's upper range, scaled by torque class; substeps >= 7 (cad), >= 5 (open).
+    "stiff": (100000.0, 100000.0, 50000.0, 50000.0, 20000.0, 20000.0, 10000.0),
+}
+DEFAULT_STIFFNESS = STIFFNESS_PRESETS["medium"]  # the stiffest 1 ms physics steps integrate well
 DEFAULT_SPRING_DAMPING = (10.0, 10.0, 10.0, 10.0, 5.0, 5.0, 5.0)  # N·m·s/rad
 DEFAULT_ROTOR_INERTIA = (0.4, 0.4, 0.3, 0.3, 0.1, 0.1, 0.1)  # kg·m², reflected through the gear
 
@@ -26,14 +50,86 @@ PerJointNonNegative = Annotated[
 ]
 
 
+class Friction(BaseModel):
+    """Motor-side joint friction: τ_f = viscous·θ̇ + coulomb·tanh(θ̇ / smoothing).
+
+    The tanh makes the Coulomb part smooth near zero velocity (as the sigmoidal model of Gaz et
+    al., RA-L 2019); `smoothing` also keeps it stable when evaluated once per 2 ms tick.
+    Defaults are assumptions (models/README.md): Coulomb 1.5 % of each joint's torque limit.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    viscous: PerJointNonNegative = (0.5, 0.5, 0.3, 0.3, 0.2, 0.1, 0.1)  # N·m·s/rad
+    coulomb: PerJointNonNegative = tuple(round(0.015 * limit, 3) for limit in TORQUE_LIMITS)
+    smoothing: float = Field(0.05, gt=0, le=10, allow_inf_nan=False, description="rad/s")
+
+
+class Sensors(BaseModel):
+    """What the robot's sensors report, and how it differs from the simulator's exact state.
+
+    Positions are quantised to `resolution` after adding Gaussian `noise`; velocities are the
+    mean of the last `velocity_window` differences of those positions (what real-time clients
+    do: KUKA's interface reports no velocity); the joint torque sensor adds `torque_noise`.
+    `exact` sensors report the simulator's state as is (the ideal plant). The noise is drawn
+    from `seed`, so an episode is reproducible and every candidate meets the same noise.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    exact: bool = False
+    resolution: float = Field(
+        2 * math.pi / 2**20, ge=0, le=0.01, allow_inf_nan=False, description="rad per count"
+    )
+    noise: float = Field(2 * math.pi / 2**20, ge=0, le=0.01, allow_inf_nan=False, description="rad")
+    velocity_window: int = Field(3, ge=1, le=50, description="ticks of differences averaged")
+    torque_noise: float = Field(0.1, ge=0, le=10, allow_inf_nan=False, description="N·m")
+    seed: int = Field(0, ge=0, lt=2**63)
+
+
 class ModelSpec(BaseModel):
-    """Which simulated robot runs an episode. Values are explicit so that logs record them."""
+    """Which simulated robot runs an episode. Values are explicit so that logs record them.
+
+    The default is the most realistic plant the published numbers support; `IDEAL_PLANT` is the
+    first wave's idealised one (exact sensors, no friction, no delay, link-side feedback).
+    """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     robot: Literal["iiwa14"] = "iiwa14"
     joints: Literal["flexible", "rigid"] = "flexible"
+    inertials: Literal["open", "cad"] = Field(
+        "cad", description="open descriptions' links (30.6 kg), or KUKA's CAD masses"
+    )
     stiffness: PerJointPositive = DEFAULT_STIFFNESS
     spring_damping: PerJointNonNegative = DEFAULT_SPRING_DAMPING
     rotor_inertia: PerJointNonNegative = DEFAULT_ROTOR_INERTIA
+    friction: Friction | None = Friction()
+    delay: int = Field(1, ge=0, le=50, description="ticks before a command acts")
+    sensors: Sensors = Sensors()
+    feedback: Literal["link", "motor"] = Field(
+        "motor", description="the side whose measured angle the PD feeds back"
+    )
     substeps: int = Field(2, ge=1, le=50, description="physics steps per 2 ms control tick")
+
+    @property
+    def ideal(self) -> bool:
+        """Whether the sensors, actuators and joints are the first wave's idealised ones."""
+        return (
+            self.friction is None
+            and self.delay == 0
+            and self.sensors.exact
+            and self.feedback == "link"
+        )
+
+
+IDEAL_PLANT = ModelSpec(
+    inertials="open",
+    stiffness=STIFFNESS_PRESETS["soft"],
+    friction=None,
+    delay=0,
+    sensors=Sensors(exact=True),
+    feedback="link",
+)
+REALISTIC_PLANT = ModelSpec()
+PLANTS = {"realistic": REALISTIC_PLANT, "ideal": IDEAL_PLANT}

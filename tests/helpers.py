@@ -114,10 +114,10 @@ def hand_in(session: zenoh.Session, result: Result) -> CompletionReply:
 
 
 def crafted_log(planned: int = 3, diverged: bool = False) -> EpisodeLog:
-    """Three ticks with errors 0.3, 0.4 and 0 m and torque steps small enough to add by hand."""
-    tau = np.zeros((3, 7))
-    tau[1, 0] = 3.0  # step 1: (3)² = 9
-    tau[2, 0], tau[2, 6] = 3.0, 40.0  # step 2: (40)² = 1600, and A7 at its limit
+    """Three ticks with errors 0.3, 0.4 and 0 m and command steps small enough to add by hand."""
+    u = np.zeros((3, 7))
+    u[1, 0] = 3.0  # step 1: (3)² = 9
+    u[2, 0], u[2, 6] = 3.0, 40.0  # step 2: (40)² = 1600, and A7 at its limit
     ee_des = np.zeros((3, 3))
     ee = np.array([[0.3, 0.0, 0.0], [0.0, 0.4, 0.0], [0.0, 0.0, 0.0]])
     zeros = np.zeros((3, 7))
@@ -133,7 +133,10 @@ def crafted_log(planned: int = 3, diverged: bool = False) -> EpisodeLog:
         t=np.arange(3) * 0.002,
         q=zeros,
         qd=zeros,
-        tau=tau,
+        tau=u,
+        u=u,
+        theta=zeros,
+        theta_d=zeros,
         q_des=zeros,
         qd_des=zeros,
         ee=ee,
@@ -145,11 +148,12 @@ def crafted_log(planned: int = 3, diverged: bool = False) -> EpisodeLog:
 def perfect_log(spec: EpisodeSpec) -> bytes:
     """A well-made episode log of `spec` claiming no error and no torque change at all."""
     log = crafted_log()
-    flat = np.zeros_like(log.tau)
+    flat = np.zeros_like(log.u)
     return episode_bytes(
         dataclasses.replace(
             log,
             tau=flat,
+            u=flat,
             ee=log.ee_des.copy(),
             metadata=log.metadata.model_copy(update={"spec": spec}),
         )

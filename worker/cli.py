@@ -19,8 +19,7 @@ from schemas.episode import EpisodeSpec
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import write_episode
 from schemas.objectives import score
-from schemas.robot import N_JOINTS, ModelSpec
-from schemas.trajectory import TrajectorySpec
+from schemas.robot import N_JOINTS
 from schemas.wire import NAME_PATTERN, NAME_RULE, describe
 from worker.episode import run_episode
 from worker.ik import UnreachablePath
@@ -48,17 +47,8 @@ def app() -> None:
 @click.option("--kp", default=DEFAULT_KP, show_default=True, help="7 gains A1..A7, N·m/rad")
 @click.option("--kd", default=DEFAULT_KD, show_default=True, help="7 gains A1..A7, N·m·s/rad")
 @options.model()
-@click.option(
-    "--center", default="0.55,0,0.4", show_default=True, help="x,y,z of the path's centre, m"
-)
-@click.option("--size", type=float, default=0.12, show_default=True, help="path half-width, m")
-@click.option(
-    "--seed",
-    type=int,
-    default=0,
-    show_default=True,
-    help="seed of the random trajectory's waypoints",
-)
+@options.plant()
+@options.placement()
 @click.option("--gravity-compensation", is_flag=True, help="add g(q_des) feed-forward to the PD")
 @click.option("--json", "as_json", is_flag=True, help="print the scores as one JSON object")
 def episode(
@@ -68,24 +58,20 @@ def episode(
     kp: str,
     kd: str,
     model: str,
+    plant: str,
+    trajectory_seed: int,
     center: str,
     size: float,
-    seed: int,
     gravity_compensation: bool,
     as_json: bool,
 ) -> None:
     """Simulate one PD episode on the iiwa 14, write its MCAP log and print its scores."""
+    (path,) = options.trajectories([trajectory], duration, trajectory_seed, center, size)
     try:
         spec = EpisodeSpec(
             gains=PDGains(kp=_gains("--kp", kp), kd=_gains("--kd", kd)),
-            trajectory=TrajectorySpec(
-                kind=trajectory,
-                duration=duration,
-                center=parse_numbers("--center", center, 3),
-                size=size,
-                seed=seed,
-            ),
-            model=ModelSpec(joints=model),
+            trajectory=path,
+            model=options.model_spec(plant, model),
             gravity_compensation=gravity_compensation,
         )
     except ValidationError as error:

@@ -1,4 +1,10 @@
-"""Sensor/actuator layer: the simulated cobot. Torques in, link-side joint states out."""
+"""Sensor/actuator layer: the simulated cobot. Torques in, joint states out.
+
+The robot's joint state is link-side: in the elastic variant each joint's angle is the sum of its
+motor and spring hinges, and its motor angle is the motor hinge alone. The maps below turn the
+simulator's generalised coordinates into those angles, so that the tick loop can fold them into
+its gain matrices and the log can be computed in bulk after the episode.
+"""
 
 import mujoco
 import numpy as np
@@ -10,9 +16,9 @@ from schemas.robot import JOINT_NAMES, ModelSpec
 class Plant:
     """One simulated iiwa 14 (rigid or elastic joints) with its state.
 
-    The robot's joint state is link-side: in the elastic variant each joint's angle is the sum of
-    its motor and spring hinges. `link_map` is the (7, nq) matrix with q = link_map @ qpos (and
-    q̇ = link_map @ qvel); the tick loop folds it into its gain matrices.
+    `link_map` and `motor_map` are (7, nq) matrices with q = link_map @ qpos and
+    θ = motor_map @ qpos (the same for velocities: nq = nv, every joint is a hinge). For rigid
+    joints the motor is geared rigidly to the link, so the two maps are equal.
     """
 
     def __init__(self, spec: ModelSpec) -> None:
@@ -21,17 +27,43 @@ class Plant:
         self.data = mujoco.MjData(self.model)
         self.substeps = spec.substeps
         self.link_map = _link_map(self.model)
-        self.torque_limits = self.model.actuator_ctrlrange[:, 1].copy()
         driven = self.model.actuator_trnid[:, 0]  # the hinge each motor turns, A1..A7
+        self.motor_map = np.zeros_like(self.link_map)
+        self.motor_map[np.arange(len(driven)), self.model.jnt_qposadr[driven]] = 1.0
+        self.torque_limits = self.model.actuator_ctrlrange[:, 1].copy()
         self.joint_range = self.model.jnt_range[driven].copy()
+        dofs = self.model.jnt_dofadr[driven]
+        stride = int(dofs[1] - dofs[0])
+        if not np.array_equal(dofs, dofs[0] + stride * np.arange(len(dofs))):
+            raise AssertionError("the motors' hinges are not evenly spaced in the model")
+        # qfrc_applied[motor_dof_slice] is a view of the motors' generalised forces, A1..A7
+        self.motor_dof_slice = slice(int(dofs[0]), int(dofs[-1]) + 1, stride)
         self._driven_qpos = self.model.jnt_qposadr[driven]
         self.flange = self.model.site(FLANGE).id
+
+    @property
+    def elastic(self) -> bool:
+        return self.spec.joints == "flexible"
+
+    @property
+    def feedback_map(self) -> np.ndarray:
+        """The map to the angles the PD feeds back: link-side, or motor-side."""
+        return self.link_map if self.spec.feedback == "link" else self.motor_map
 
     def reset(self, q: np.ndarray) -> None:
         """At rest at link angles `q`, springs relaxed (each motor angle equals its link angle)."""
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[self._driven_qpos] = q
         mujoco.mj_forward(self.model, self.data)
+
+    def joint_torque(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """(n, 7) torque each elastic joint transmits from motor to link, K (θ − q) + D (θ̇ − q̇):
+        what its torque sensor measures, and what drives the link side."""
+        stiffness = np.asarray(self.spec.stiffness)
+        damping = np.asarray(self.spec.spring_damping)
+        deflection = qpos @ (self.motor_map - self.link_map).T  # θ − q, minus the spring hinge
+        rate = qvel @ (self.motor_map - self.link_map).T
+        return stiffness * deflection + damping * rate
 
 
 def _link_map(model: mujoco.MjModel) -> np.ndarray:

@@ -19,9 +19,9 @@ def lying_execute(lease: Lease, name: str) -> tuple[Result, bytes]:
     if not content:
         return result, content
     log = decode_episode(content)
-    tau = log.tau.copy()
-    tau[len(tau) // 2, 3] += 0.01  # N·m: one sample of one joint
-    altered = episode_bytes(dataclasses.replace(log, tau=tau))
+    u = log.u.copy()
+    u[len(u) // 2, 3] += 0.01  # N·m: one sample of one joint's command
+    altered = episode_bytes(dataclasses.replace(log, u=u))
     digest = hashlib.sha256(altered).hexdigest()
     return result.model_copy(update={"episode_bytes": len(altered), "digest": digest}), altered
 

@@ -51,7 +51,7 @@ def test_the_tick_table_is_the_episodes_tick_by_tick(run_dir: Path, tmp_path: Pa
         assert rows.sum() == log.ticks
         np.testing.assert_array_equal(np.array(ticks["t"])[rows], log.t)
         for index, joint in enumerate(JOINT_NAMES):
-            for signal in ("q", "qd", "tau", "q_des", "qd_des"):
+            for signal in ("q", "qd", "tau", "u", "theta", "theta_d", "q_des", "qd_des"):
                 values = np.array(ticks[f"{signal}_{joint}"])[rows]
                 np.testing.assert_array_equal(values, getattr(log, signal)[:, index])
         for index, axis in enumerate("xyz"):

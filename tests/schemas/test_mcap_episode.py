@@ -11,7 +11,7 @@ from mcap_ros2.reader import read_ros2_messages
 from schemas.episode_log import CHANNELS
 from schemas.mcap_episode import NotAnEpisodeLog, read_episode, write_episode
 
-ARRAYS = ("t", "q", "qd", "tau", "q_des", "qd_des", "ee", "ee_des")
+ARRAYS = ("t", "q", "qd", "tau", "u", "theta", "theta_d", "q_des", "qd_des", "ee", "ee_des")
 
 
 def test_round_trip_is_exact(tracking_log, tmp_path):
@@ -39,6 +39,12 @@ def test_an_independent_ros2_decoder_reads_every_channel(tracking_log, tmp_path)
     np.testing.assert_array_equal([m.ros_msg.position for m in states], tracking_log.q)
     np.testing.assert_array_equal([m.ros_msg.velocity for m in states], tracking_log.qd)
     np.testing.assert_array_equal([m.ros_msg.effort for m in states], tracking_log.tau)
+    commands = decoded["/joint_commands"]
+    np.testing.assert_array_equal([m.ros_msg.effort for m in commands], tracking_log.u)
+    assert len(commands[0].ros_msg.position) == len(commands[0].ros_msg.velocity) == 0
+    motors = decoded["/motor_states"]
+    np.testing.assert_array_equal([m.ros_msg.position for m in motors], tracking_log.theta)
+    np.testing.assert_array_equal([m.ros_msg.velocity for m in motors], tracking_log.theta_d)
     reference = decoded["/joint_reference"]
     np.testing.assert_array_equal([m.ros_msg.position for m in reference], tracking_log.q_des)
     np.testing.assert_array_equal([m.ros_msg.velocity for m in reference], tracking_log.qd_des)

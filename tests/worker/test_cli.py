@@ -50,7 +50,8 @@ SEVEN = "1,1,1,1,1,1,1"
         (["--duration", "0"], "duration"),
         (["--duration", "1e9"], "duration"),
         (["--model", "soft"], "soft"),
-        (["--trajectory", "spiral", "--kp", SEVEN, "--seed", "x"], "seed"),
+        (["--plant", "perfect"], "perfect"),
+        (["--trajectory", "spiral", "--kp", SEVEN, "--trajectory-seed", "x"], "trajectory-seed"),
     ],
 )
 def test_bad_input_is_one_clear_line_and_no_file(tmp_path, args, says):

@@ -4,18 +4,20 @@ import numpy as np
 from models import compile_model
 from schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
 from schemas.objectives import score
+from schemas.robot import IDEAL_PLANT
 from tests.helpers import SOFT_GAINS, TRACKING_GAINS
 from worker.control import PDController
-from worker.episode import run_episode
+from worker.episode import gravity_torques, run_episode
 from worker.plant import Plant
 from worker.reference import reference_for
 
 SHORT = TrajectorySpec(duration=2.0)
+IDEAL_RIGID = IDEAL_PLANT.model_copy(update={"joints": "rigid"})
 
 
 def test_without_torque_the_arm_falls_under_gravity():
     log = run_episode(EpisodeSpec(gains=PDGains(kp=(0,) * 7, kd=(0,) * 7), trajectory=SHORT))
-    assert np.all(log.tau == 0)
+    assert np.all(log.u == 0)
     assert log.ee[min(100, log.ticks - 1), 2] < log.ee[0, 2] - 0.05  # dropped 5 cm in 0.2 s
     assert log.metadata.diverged  # and it keeps falling until it leaves the joint range
 
@@ -29,19 +31,34 @@ def test_high_gains_track_far_better_than_low_gains(tracking_log):
 
 def test_applied_torques_obey_the_pd_law_and_never_exceed_the_limits():
     aggressive = PDGains(kp=(8000,) * 7, kd=(50, 50, 50, 50, 10, 5, 2))
-    log = run_episode(EpisodeSpec(gains=aggressive, trajectory=SHORT))
+    log = run_episode(EpisodeSpec(gains=aggressive, trajectory=SHORT, model=IDEAL_PLANT))
     limits = np.array(log.metadata.torque_limits)
-    assert np.all(np.abs(log.tau) <= limits)
-    assert np.any(np.abs(log.tau) == limits)  # these gains do saturate
+    assert np.all(np.abs(log.u) <= limits)
+    assert np.any(np.abs(log.u) == limits)  # these gains do saturate
     law = PDController.from_gains(aggressive, limits)
     np.testing.assert_allclose(
-        log.tau, law.torque(log.q, log.qd, log.q_des, log.qd_des), rtol=1e-9, atol=1e-9
+        log.u, law.torque(log.q, log.qd, log.q_des, log.qd_des), rtol=1e-9, atol=1e-9
     )
 
 
+def test_the_realistic_pd_acts_on_measured_motor_angles_one_tick_late(tracking_log):
+    # The default plant: the PD sees the motor encoders' angles and their differenced velocity,
+    # and its command acts one tick later (the first command holds until then).
+    spec = tracking_log.metadata.spec
+    assert spec.model.feedback == "motor" and spec.model.delay == 1
+    law = PDController.from_gains(spec.gains, np.array(tracking_log.metadata.torque_limits))
+    computed = law.torque(
+        tracking_log.theta, tracking_log.theta_d, tracking_log.q_des, tracking_log.qd_des
+    )
+    np.testing.assert_allclose(tracking_log.u[1:], computed[:-1], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(tracking_log.u[0], computed[0], rtol=1e-9, atol=1e-9)
+
+
 def test_episode_starts_at_rest_on_the_reference(tracking_log):
-    np.testing.assert_allclose(tracking_log.q[0], tracking_log.q_des[0], atol=1e-12)
-    np.testing.assert_allclose(tracking_log.qd[0], 0.0, atol=1e-12)
+    # to within the encoders' noise and counts
+    np.testing.assert_allclose(tracking_log.q[0], tracking_log.q_des[0], atol=5e-5)
+    np.testing.assert_allclose(tracking_log.theta[0], tracking_log.q_des[0], atol=5e-5)
+    np.testing.assert_allclose(tracking_log.qd[0], 0.0, atol=0.05)
     np.testing.assert_allclose(tracking_log.ee[0], tracking_log.ee_des[0], atol=1e-3)
     assert tracking_log.ticks == SHORT.ticks
 
@@ -55,14 +72,15 @@ def test_gravity_compensation_improves_tracking():
 
 
 def test_flexible_joints_deflect_under_load_and_rigid_ones_cannot():
-    spec = ModelSpec()
+    spec = IDEAL_PLANT
     plant = Plant(spec)
     reference = reference_for(SHORT)
     plant.reset(reference.q[0])
-    plant.data.ctrl[:] = reference.gravity[0]
+    gravity = gravity_torques(reference.q[:1], spec.inertials)[0]
+    plant.data.ctrl[:] = gravity
     mujoco.mj_step(plant.model, plant.data, 500)  # settle, holding gravity with the motors
     deflection = plant.data.qpos[1::2]  # the spring hinges: link angle minus motor angle
-    expected = -reference.gravity[0] / np.array(spec.stiffness)
+    expected = -gravity / np.array(spec.stiffness)
     np.testing.assert_allclose(deflection[1], expected[1], rtol=0.1)
     assert abs(deflection[1]) > 1e-3
     assert Plant(ModelSpec(joints="rigid")).model.nq == 7
@@ -81,20 +99,23 @@ def test_divergence_ends_the_episode_early_with_a_valid_flagged_log(diverged_log
     assert meta.diverged and "at t =" in meta.divergence
     assert 0 < meta.ticks_run < meta.ticks_planned == SHORT.ticks
     assert diverged_log.ticks == meta.ticks_run
-    assert np.isfinite(diverged_log.q).all() and np.isfinite(diverged_log.tau).all()
+    for column in (diverged_log.q, diverged_log.tau, diverged_log.u, diverged_log.theta):
+        assert np.isfinite(column).all()
 
 
 def test_same_spec_gives_the_same_episode(tracking_log):
     again = run_episode(tracking_log.metadata.spec)
     np.testing.assert_array_equal(again.q, tracking_log.q)
-    np.testing.assert_array_equal(again.tau, tracking_log.tau)
+    for name in ("q", "qd", "tau", "u", "theta", "theta_d", "ee"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(tracking_log, name), name)
 
 
-def test_logged_flange_positions_are_the_kinematics_of_the_logged_joint_angles(tracking_log):
+def test_logged_flange_positions_are_the_kinematics_of_the_logged_joint_angles():
     # The flange is logged mid-tick (after the first physics step); it must still be this tick's.
+    log = run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT, model=IDEAL_PLANT))
     model = compile_model(ModelSpec(joints="rigid"))
     data = mujoco.MjData(model)
-    for k in (0, 1, 500, tracking_log.ticks - 1):
-        data.qpos[:] = tracking_log.q[k]
+    for k in (0, 1, 500, log.ticks - 1):
+        data.qpos[:] = log.q[k]
         mujoco.mj_kinematics(model, data)
-        np.testing.assert_allclose(data.site("flange").xpos, tracking_log.ee[k], atol=1e-9)
+        np.testing.assert_allclose(data.site("flange").xpos, log.ee[k], atol=1e-9)
