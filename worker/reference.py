@@ -1,23 +1,85 @@
 """System layer, part 3: the joint-space reference an episode tracks, computed once per spec.
 
-The same trajectory is simulated thousands of times with different gains, so the inverse
-kinematics runs once per spec and the result is cached in the worker process.
+Every reference is one a real iiwa 14 can follow: it stays inside the data sheet's joint ranges
+and speed limits (KUKA) and the published acceleration limits (drake's iiwa model), checked here
+when it is built.
+
+- Cartesian kinds: the flange's path and orientation (worker/trajectories.py) are solved by
+  inverse kinematics (worker/ik.py) on a fine grid of the path's progress, and the joint path
+  q(σ) of each rest-to-rest segment is a C² cubic spline through those solutions. Each segment
+  is timed by the minimum-jerk law σ = φ(t/T_i), so joint speed scales as 1/T_i and acceleration
+  as 1/T_i²: a segment's shortest feasible time is T_i* = T·max(speed ratio, √acceleration
+  ratio), exactly. The requested duration is shared among the segments in proportion to T_i*
+  (the pyramid's edges; the other kinds have one segment), so the shortest feasible duration is
+  Σ T_i*; a shorter request raises InfeasibleReference naming it.
+- Fourier: a per-joint finite Fourier series scaled into the limits, always feasible.
+
+The same trajectory is simulated thousands of times with different gains, so this runs once per
+spec and the result is cached in the worker process.
 """
 
+import itertools
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
 import mujoco
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 from models import FLANGE, compile_model
-from schemas.robot import ModelSpec
-from schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
-from worker.ik import solve_path
-from worker.trajectories import cartesian_path, sample_times
+from schemas.robot import (
+    ACCELERATION_LIMITS,
+    JOINT_NAMES,
+    N_JOINTS,
+    POSITION_LIMITS,
+    SPEED_LIMITS,
+    ModelSpec,
+)
+from schemas.trajectory import MIN_DURATION, TrajectoryKind, TrajectorySpec
+from worker.ik import (
+    ORIENTATION_TOLERANCE,
+    REACH_TOLERANCE,
+    READY_POSTURE,
+    UnreachablePath,
+    ready_posture,
+    solve_path,
+)
+from worker.trajectories import (
+    fourier_coefficients,
+    fourier_series,
+    minimum_jerk_derivatives,
+    path_points,
+    rest_points,
+    sample_times,
+    tool_rotations,
+    tool_yaw,
+)
 
 # Kinematics and gravity do not depend on the elastic-joint parameters: the rigid chain serves all.
 _KINEMATIC_MODEL = ModelSpec(joints="rigid", substeps=1)
+_POSITION = np.array(POSITION_LIMITS)
+_SPEED = np.array(SPEED_LIMITS)
+_ACCELERATION = np.array(ACCELERATION_LIMITS)
+
+PATH_SAMPLES = 1000  # IK solutions along a whole Cartesian path (shared by segment length)
+MIN_SEGMENT_SAMPLES = 100  # and at least this many per rest-to-rest segment
+# Samples of a segment's normalised time at which its speed and acceleration peaks are found:
+# finer than the control ticks of any duration up to 20 s, so no tick sees a higher peak.
+LIMIT_SAMPLES = 10001
+LIMIT_TOLERANCE = 1e-9  # relative: a duration exactly at the limit is feasible
+# Fourier excitation: the share of each joint's speed and acceleration limit it may use, its
+# largest excursion from the ready posture, its clearance from the joint ranges, and the lowest
+# height the flange may reach (the robot stands on the floor, z = 0).
+FOURIER_SHARE = 0.85
+FOURIER_SPAN = 1.0  # rad
+FOURIER_RANGE_MARGIN = 0.1  # rad
+FOURIER_FLOOR = 0.1  # m
+_FOURIER_SHRINK = 0.9  # per try, until the flange clears the floor
+
+
+class InfeasibleReference(ValueError):
+    """The path cannot be followed within the robot's speed and acceleration limits in time."""
 
 
 @dataclass(frozen=True)
@@ -29,26 +91,269 @@ class Reference:
     q: np.ndarray  # (n, 7) rad
     qd: np.ndarray  # (n, 7) rad/s
     gravity: np.ndarray  # (n, 7) N·m holding q against gravity, for optional compensation
+    qdd: np.ndarray  # (n, 7) rad/s²
 
 
 @lru_cache(maxsize=64)
 def reference_for(spec: TrajectorySpec) -> Reference:
-    """The joint-space reference for `spec`; raises UnreachablePath if the arm cannot follow it."""
+    """The joint-space reference for `spec`.
+
+    Raises UnreachablePath if the arm cannot reach the path, InfeasibleReference if it cannot
+    follow it within its speed and acceleration limits in `spec.duration`.
+    """
     model = compile_model(_KINEMATIC_MODEL)
-    ee = cartesian_path(spec)
-    q = solve_path(model, FLANGE, ee)
-    qd = np.gradient(q, CONTROL_PERIOD, axis=0)
-    reference = Reference(sample_times(spec), ee, q, qd, _gravity_torques(model, q))
-    for array in (reference.t, reference.ee, reference.q, reference.qd, reference.gravity):
+    t = sample_times(spec)
+    if spec.kind == TrajectoryKind.fourier:
+        q, qd, qdd = _fourier(spec, model, t)
+        ee, _, gravity = _forward(model, q)
+    else:
+        q, qd, qdd, s = _cartesian(spec, t)
+        ee = path_points(spec, s)
+        reached, rotations, gravity = _forward(model, q)
+        _check_pose(spec, s, ee, reached, rotations)
+    if np.any(np.abs(q) > _POSITION):  # the IK keeps clear of the ranges; this is the guarantee
+        raise UnreachablePath(f"the {spec.kind} leaves the joint ranges")
+    reference = Reference(t, ee, q, qd, gravity, qdd)
+    for array in (t, ee, q, qd, gravity, qdd):
         array.flags.writeable = False
     return reference
 
 
-def _gravity_torques(model: mujoco.MjModel, q: np.ndarray) -> np.ndarray:
+# --- Cartesian kinds ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Segment:
+    """One rest-to-rest piece of a joint path: q(σ) for σ in [0, 1], and its peaks at T = 1 s."""
+
+    path: CubicSpline  # σ → q
+    start: float  # the path's progress at σ = 0
+    end: float  # and at σ = 1
+    peak_speed: np.ndarray  # (7,) max |dq/dt| over the segment if it took 1 s, rad/s
+    peak_acceleration: np.ndarray  # (7,) max |d²q/dt²| likewise, rad/s²
+
+    @property
+    def shortest(self) -> float:
+        """Its shortest feasible time, s: speed scales as 1/T and acceleration as 1/T²."""
+        speed = float(np.max(self.peak_speed / _SPEED))
+        acceleration = float(np.max(self.peak_acceleration / _ACCELERATION))
+        return max(speed, math.sqrt(acceleration))
+
+
+def shortest_duration(spec: TrajectorySpec) -> float:
+    """The shortest duration, rounded up to 0.1 s, at which `spec`'s motion is feasible.
+
+    Cartesian kinds: Σ T_i* of its segments (which needs the inverse kinematics, cached); the
+    fourier kind scales itself into the limits at any duration.
+    """
+    if spec.kind == TrajectoryKind.fourier:
+        return MIN_DURATION
+    return round_up(sum(segment.shortest for segment in _segments(_path_of(spec))))
+
+
+def path_progress(spec: TrajectorySpec) -> np.ndarray:
+    """The path's progress s (arc-length fraction) at every control tick of a Cartesian spec.
+
+    reference_for(spec).ee is path_points(spec, s); the tool's twist there is twist_angle(spec, s).
+    Raises as reference_for does.
+    """
+    return _cartesian(spec, sample_times(spec))[3]
+
+
+def _cartesian(
+    spec: TrajectorySpec, t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """q, qd, qdd at the ticks `t`, and the path's progress there."""
+    segments = _segments(_path_of(spec))
+    shortest = np.array([segment.shortest for segment in segments])
+    _check_feasible(spec, segments, shortest)
+    durations = spec.duration * shortest / shortest.sum()
+    starts = np.concatenate([[0.0], np.cumsum(durations)[:-1]])
+    which = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(segments) - 1)
+    q, qd, qdd = (np.empty((len(t), N_JOINTS)) for _ in range(3))
+    progress = np.empty(len(t))
+    for i, segment in enumerate(segments):
+        rows = which == i
+        tau = np.clip((t[rows] - starts[i]) / durations[i], 0.0, 1.0)
+        sigma, rate, acceleration = minimum_jerk_derivatives(tau)
+        dq = segment.path(sigma, 1)
+        q[rows] = segment.path(sigma)
+        qd[rows] = dq * (rate / durations[i])[:, None]
+        qdd[rows] = (
+            segment.path(sigma, 2) * (rate**2)[:, None] + dq * acceleration[:, None]
+        ) / durations[i] ** 2
+        progress[rows] = segment.start + sigma * (segment.end - segment.start)
+    return q, qd, qdd, progress
+
+
+def _path_of(spec: TrajectorySpec) -> TrajectorySpec:
+    """The spec with its duration fixed: the joint path depends on the geometry alone, so the
+    inverse kinematics is shared by every duration of one path (and the limit checks)."""
+    return spec.model_copy(update={"duration": 1.0})
+
+
+@lru_cache(maxsize=16)
+def _segments(spec: TrajectorySpec) -> tuple[_Segment, ...]:
+    """The joint path of each rest-to-rest segment, from one IK pass along the whole path."""
+    model = compile_model(_KINEMATIC_MODEL)
+    rests = rest_points(spec)
+    grids = [
+        np.linspace(0.0, 1.0, max(MIN_SEGMENT_SAMPLES, round(PATH_SAMPLES * (end - start))) + 1)
+        for start, end in itertools.pairwise(rests)
+    ]
+    # Consecutive segments share their rest point: it is solved once.
+    progress = _progress(grids, rests)
+    q = solve_path(
+        model,
+        FLANGE,
+        path_points(spec, progress),
+        tool_rotations(spec, progress),
+        posture=ready_posture(tool_yaw(spec)),
+        progress=progress,
+    )
+    tau = np.linspace(0.0, 1.0, LIMIT_SAMPLES)
+    sigma, rate, acceleration = minimum_jerk_derivatives(tau)
+    segments = []
+    first = 0
+    for grid, (start, end) in zip(grids, itertools.pairwise(rests), strict=True):
+        path = CubicSpline(grid, q[first : first + len(grid)], axis=0)
+        first += len(grid) - 1
+        dq = path(sigma, 1)
+        speed = np.abs(dq * rate[:, None]).max(axis=0)
+        accel = np.abs(path(sigma, 2) * (rate**2)[:, None] + dq * acceleration[:, None])
+        segments.append(_Segment(path, float(start), float(end), speed, accel.max(axis=0)))
+    return tuple(segments)
+
+
+def _progress(grids: list[np.ndarray], rests: np.ndarray) -> np.ndarray:
+    parts = [rests[0] + grids[0] * (rests[1] - rests[0])]
+    for grid, (start, end) in zip(grids[1:], itertools.pairwise(rests[1:]), strict=True):
+        parts.append(start + grid[1:] * (end - start))
+    return np.concatenate(parts)
+
+
+def _check_feasible(
+    spec: TrajectorySpec, segments: tuple[_Segment, ...], shortest: np.ndarray
+) -> None:
+    """Raise InfeasibleReference, naming the binding joint and the shortest duration, if needed."""
+    total = float(shortest.sum())
+    if total <= spec.duration * (1.0 + LIMIT_TOLERANCE):
+        return
+    durations = spec.duration * shortest / total
+    speed = np.max([s.peak_speed / d for s, d in zip(segments, durations, strict=True)], axis=0)
+    accel = np.max(
+        [s.peak_acceleration / d**2 for s, d in zip(segments, durations, strict=True)], axis=0
+    )
+    speed_ratio, accel_ratio = speed / _SPEED, accel / _ACCELERATION
+    binding = np.maximum(speed_ratio, np.sqrt(accel_ratio))
+    joint = int(np.argmax(binding))
+    if speed_ratio[joint] >= math.sqrt(accel_ratio[joint]):
+        need = f"{speed_ratio[joint]:.2f}x its speed limit"
+    else:
+        need = f"{accel_ratio[joint]:.2f}x its acceleration limit"
+    raise InfeasibleReference(
+        f"the {spec.duration:g} s {spec.kind} is too fast for the iiwa 14: "
+        f"{JOINT_NAMES[joint]} would need {need}; "
+        f"the shortest feasible duration is {round_up(total):.1f} s"
+    )
+
+
+def round_up(duration: float) -> float:
+    """The shortest multiple of 0.1 s that the feasibility check accepts for `duration`.
+
+    A hair of rounding error does not add a step (3.9000000001 s is 3.9 s, as the check's
+    tolerance accepts it), and the result is always accepted.
+    """
+    tenths = math.ceil(duration * 10.0 - 1e-9)
+    while tenths / 10.0 * (1.0 + LIMIT_TOLERANCE) < duration:
+        tenths += 1
+    return tenths / 10.0
+
+
+def _check_pose(
+    spec: TrajectorySpec,
+    progress: np.ndarray,
+    desired: np.ndarray,
+    reached: np.ndarray,
+    rotations: np.ndarray,
+) -> None:
+    """The guarantee at every tick, between the IK's grid points too: a jump in the IK's
+    solutions (a branch switch) would show here as a pose missed in between."""
+    miss = np.linalg.norm(reached - desired, axis=1)
+    # The angle between two frames from their Frobenius distance, accurate for small angles.
+    diff = np.linalg.norm(rotations - tool_rotations(spec, progress), axis=(1, 2))
+    turn = 2.0 * np.arcsin(np.minimum(diff / (2.0 * math.sqrt(2.0)), 1.0))
+    worst = int(np.argmax(np.maximum(miss / REACH_TOLERANCE, turn / ORIENTATION_TOLERANCE)))
+    if miss[worst] > REACH_TOLERANCE or turn[worst] > ORIENTATION_TOLERANCE:
+        raise UnreachablePath(
+            f"the {spec.kind} cannot be followed smoothly: at {100 * progress[worst]:.0f} % "
+            f"of the path the flange would miss its pose by {miss[worst] * 1000:.2f} mm "
+            f"and {math.degrees(turn[worst]):.2f}°"
+        )
+
+
+# --- Fourier excitation ---------------------------------------------------------------------
+
+
+def _fourier(
+    spec: TrajectorySpec, model: mujoco.MjModel, t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """q, qd, qdd at `t`: the seeded series, each joint scaled to its binding limit.
+
+    One period per episode (base frequency 1/duration). Each joint's amplitude is the largest
+    that keeps it within FOURIER_SHARE of its speed and acceleration limits, FOURIER_SPAN of the
+    ready posture and FOURIER_RANGE_MARGIN inside its range; then all joints shrink together
+    until the flange stays FOURIER_FLOOR above the floor.
+    """
+    a, b = fourier_coefficients(spec, N_JOINTS)
+    x, dx, ddx = fourier_series(a, b, np.linspace(0.0, 1.0, LIMIT_SAMPLES))
+    room_up = np.minimum(FOURIER_SPAN, _POSITION - FOURIER_RANGE_MARGIN - READY_POSTURE)
+    room_down = np.minimum(FOURIER_SPAN, _POSITION - FOURIER_RANGE_MARGIN + READY_POSTURE)
+    tiny = np.finfo(float).tiny
+    duration = spec.duration
+    scale = np.min(
+        [
+            room_up / np.maximum(x.max(axis=0), tiny),
+            room_down / np.maximum(-x.min(axis=0), tiny),
+            FOURIER_SHARE * _SPEED * duration / np.maximum(np.abs(dx).max(axis=0), tiny),
+            FOURIER_SHARE * _ACCELERATION * duration**2 / np.maximum(np.abs(ddx).max(axis=0), tiny),
+        ],
+        axis=0,
+    )
+    x, dx, ddx = fourier_series(a, b, np.clip(t / duration, 0.0, 1.0))
     data = mujoco.MjData(model)
+    site = model.site(FLANGE).id
+    while True:
+        q = READY_POSTURE + x * scale
+        if _lowest(model, data, site, q) >= FOURIER_FLOOR:
+            break
+        scale = scale * _FOURIER_SHRINK
+    return q, dx * (scale / duration), ddx * (scale / duration**2)
+
+
+def _lowest(model: mujoco.MjModel, data: mujoco.MjData, site: int, q: np.ndarray) -> float:
+    lowest = math.inf
+    for qk in q:
+        data.qpos[:] = qk
+        mujoco.mj_kinematics(model, data)
+        lowest = min(lowest, float(data.site_xpos[site, 2]))
+    return lowest
+
+
+# --- Both -----------------------------------------------------------------------------------
+
+
+def _forward(model: mujoco.MjModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flange positions (n, 3) and orientations (n, 3, 3), and gravity torques (n, 7), at q."""
+    data = mujoco.MjData(model)
+    site = model.site(FLANGE).id
+    positions = np.empty((len(q), 3))
+    rotations = np.empty((len(q), 3, 3))
     torques = np.empty_like(q)
     for k, qk in enumerate(q):
         data.qpos[:] = qk
         mujoco.mj_forward(model, data)  # qvel = 0, so the bias force is gravity alone
+        positions[k] = data.site_xpos[site]
+        rotations[k] = data.site_xmat[site].reshape(3, 3)
         torques[k] = data.qfrc_bias
-    return torques
+    return positions, rotations, torques

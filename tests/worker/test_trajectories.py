@@ -1,39 +1,90 @@
 import numpy as np
 import pytest
 
-from schemas import CONTROL_PERIOD, TrajectoryKind, TrajectorySpec
-from worker.trajectories import cartesian_path, minimum_jerk
+from schemas import TrajectoryKind, TrajectorySpec
+from worker.trajectories import (
+    CARTESIAN_KINDS,
+    RANDOM_MIN_TURN_RADIUS,
+    TOOL_DOWN,
+    fourier_coefficients,
+    fourier_series,
+    minimum_jerk,
+    minimum_jerk_derivatives,
+    path_points,
+    rest_points,
+    tool_rotations,
+    twist_angle,
+)
 
-KINDS = list(TrajectoryKind)
+S = np.linspace(0.0, 1.0, 4001)
 
 
-@pytest.mark.parametrize("kind", KINDS)
-def test_paths_start_and_end_at_rest(kind):
-    path = cartesian_path(TrajectorySpec(kind=kind, duration=3.0))
-    speed = np.linalg.norm(np.diff(path, axis=0), axis=1) / CONTROL_PERIOD
-    assert path.shape == (1501, 3)
-    assert speed[0] < 1e-3 and speed[-1] < 1e-3
-    assert speed.max() > 0.05  # and they do move
+def test_the_kinds_are_the_three_paths_and_the_fourier_excitation():
+    assert set(TrajectoryKind) == {*CARTESIAN_KINDS, TrajectoryKind.fourier}
+    with pytest.raises(ValueError, match="joint space"):
+        path_points(TrajectorySpec(kind="fourier"), S)
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", CARTESIAN_KINDS)
 def test_paths_stay_within_their_size_around_the_centre(kind):
     spec = TrajectorySpec(kind=kind, center=(0.5, 0.1, 0.45), size=0.1)
-    offset = cartesian_path(spec) - np.array(spec.center)
+    offset = path_points(spec, S) - np.array(spec.center)
     assert np.abs(offset).max() <= spec.size + 1e-9
+    assert np.abs(offset).max() > 0.5 * spec.size  # and they fill it
+
+
+@pytest.mark.parametrize("kind", CARTESIAN_KINDS)
+def test_paths_are_parametrised_by_their_arc_length(kind):
+    points = path_points(TrajectorySpec(kind=kind), S)
+    step = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    # Even steps in s are even steps along the path (the pyramid's corners split a step).
+    assert np.percentile(step, 99) / np.median(step) < 1.01
+    assert step.max() <= 1.01 * np.median(step)
+
+
+def test_default_paths_are_of_a_size_a_reviewer_recognises():
+    for kind in CARTESIAN_KINDS:
+        spec = TrajectorySpec(kind=kind)
+        points = path_points(spec, S)
+        extent = points.max(axis=0) - points.min(axis=0)
+        assert 0.08 <= extent[:2].max() <= 0.25, kind
 
 
 def test_random_path_depends_on_its_seed_only():
-    first = cartesian_path(TrajectorySpec(kind="random", seed=1))
-    assert np.array_equal(first, cartesian_path(TrajectorySpec(kind="random", seed=1)))
-    assert not np.allclose(first, cartesian_path(TrajectorySpec(kind="random", seed=2)))
+    first = path_points(TrajectorySpec(kind="random", seed=1), S)
+    assert np.array_equal(first, path_points(TrajectorySpec(kind="random", seed=1), S))
+    assert not np.allclose(first, path_points(TrajectorySpec(kind="random", seed=2), S))
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_random_paths_turn_no_tighter_than_their_minimum_radius(seed):
+    spec = TrajectorySpec(kind="random", seed=seed)
+    s = np.linspace(0.0, 1.0, 20001)
+    points = path_points(spec, s)
+    d1 = np.gradient(points, s, axis=0)
+    d2 = np.gradient(d1, s, axis=0)
+    speed = np.linalg.norm(d1, axis=1)
+    radius = speed**3 / np.linalg.norm(np.cross(d1, d2), axis=1)
+    assert radius[5:-5].min() >= 0.95 * RANDOM_MIN_TURN_RADIUS * spec.size
+
+
+def test_pyramid_rests_only_at_its_corners():
+    spec = TrajectorySpec(kind="pyramid")
+    rests = rest_points(spec)
+    corners = path_points(spec, rests) - np.array(spec.center)
+    h, a = spec.size / 2, spec.size
+    apex = [0.0, 0.0, h]
+    expected = [[a, a, -h], apex, [-a, a, -h], [-a, -a, -h], apex, [a, -a, -h], [a, a, -h]]
+    np.testing.assert_allclose(corners, expected, atol=1e-12)
+    assert rests[0] == 0.0 and rests[-1] == pytest.approx(1.0)
+    for kind in ("spiral", "random"):
+        np.testing.assert_array_equal(rest_points(TrajectorySpec(kind=kind)), [0.0, 1.0])
 
 
 def test_pyramid_turns_sharp_corners_and_spiral_does_not():
     def sharpest_turn(kind: str) -> float:
-        velocity = np.diff(cartesian_path(TrajectorySpec(kind=kind)), axis=0)
-        moving = velocity[np.linalg.norm(velocity, axis=1) > 1e-5]
-        unit = moving / np.linalg.norm(moving, axis=1, keepdims=True)
+        velocity = np.diff(path_points(TrajectorySpec(kind=kind), S), axis=0)
+        unit = velocity / np.linalg.norm(velocity, axis=1, keepdims=True)
         cosines = np.clip(np.sum(unit[1:] * unit[:-1], axis=1), -1, 1)
         return float(np.degrees(np.arccos(cosines)).max())
 
@@ -41,7 +92,69 @@ def test_pyramid_turns_sharp_corners_and_spiral_does_not():
     assert sharpest_turn("spiral") < 10
 
 
-def test_minimum_jerk_is_monotone_from_zero_to_one():
-    s = minimum_jerk(np.linspace(0, 1, 101))
+@pytest.mark.parametrize("twist", [0.0, 0.4, 1.5])
+def test_the_tool_points_down_and_twists_about_its_axis(twist):
+    spec = TrajectorySpec(center=(0.4, 0.4, 0.3), twist=twist)
+    rotations = tool_rotations(spec, S)
+    np.testing.assert_allclose(rotations[:, :, 2], np.tile([0.0, 0.0, -1.0], (len(S), 1)))
+    np.testing.assert_allclose(
+        rotations @ rotations.transpose(0, 2, 1), np.tile(np.eye(3), (len(S), 1, 1)), atol=1e-12
+    )
+    # The heading of the tool's x axis: the centre's bearing (45°), turned by the twist about
+    # the tool axis, which points down (so a positive twist turns it clockwise, seen from above).
+    x = rotations[:, :, 0]
+    heading = np.arctan2(-x[:, 1], -x[:, 0])  # TOOL_DOWN's x axis points to -x
+    angle = np.angle(np.exp(1j * (heading - np.pi / 4 + twist_angle(spec, S))))
+    np.testing.assert_allclose(angle, 0.0, atol=1e-12)
+    assert twist_angle(spec, np.array([0.0, 1.0])) == pytest.approx([0.0, 0.0], abs=1e-12)
+    assert np.ptp(twist_angle(spec, S)) == pytest.approx(2 * twist)
+    np.testing.assert_array_equal(TOOL_DOWN[:, 2], [0.0, 0.0, -1.0])
+
+
+def test_minimum_jerk_is_monotone_from_zero_to_one_with_its_derivatives():
+    tau = np.linspace(0, 1, 10001)
+    s = minimum_jerk(tau)
     assert s[0] == 0 and s[-1] == pytest.approx(1)
     assert np.all(np.diff(s) >= 0)
+    phi, rate, acceleration = minimum_jerk_derivatives(tau)
+    np.testing.assert_array_equal(phi, s)
+    np.testing.assert_allclose(rate[1:-1], np.gradient(phi, tau)[1:-1], atol=1e-6)
+    np.testing.assert_allclose(acceleration[1:-1], np.gradient(rate, tau)[1:-1], atol=1e-3)
+    assert rate[[0, -1]] == pytest.approx([0, 0]) and acceleration[[0, -1]] == pytest.approx([0, 0])
+    assert rate.max() == pytest.approx(1.875)
+
+
+@pytest.mark.parametrize("harmonics", [2, 5, 10])
+def test_fourier_series_start_and_end_at_rest_and_are_periodic(harmonics):
+    spec = TrajectorySpec(kind="fourier", harmonics=harmonics, seed=3)
+    a, b = fourier_coefficients(spec, 7)
+    assert a.shape == b.shape == (7, harmonics)
+    k = np.arange(1, harmonics + 1)
+    np.testing.assert_allclose(a @ k, 0.0, atol=1e-12)
+    np.testing.assert_allclose(b @ k**2, 0.0, atol=1e-12)
+    x, dx, ddx = fourier_series(a, b, np.array([0.0, 1.0]))
+    np.testing.assert_allclose(x, 0.0, atol=1e-12)
+    np.testing.assert_allclose(dx, 0.0, atol=1e-11)
+    np.testing.assert_allclose(ddx, 0.0, atol=1e-10)
+    tau = np.linspace(0, 1, 20001)
+    x, dx, ddx = fourier_series(a, b, tau)
+    np.testing.assert_allclose(dx, np.gradient(x, tau, axis=0), atol=1e-4 * np.abs(dx).max())
+    np.testing.assert_allclose(ddx, np.gradient(dx, tau, axis=0), atol=1e-3 * np.abs(ddx).max())
+    assert np.all(np.ptp(x, axis=0) > 0)  # every joint moves
+
+
+def test_fourier_coefficients_depend_on_the_seed_only():
+    first = fourier_coefficients(TrajectorySpec(kind="fourier", seed=4), 7)
+    again = fourier_coefficients(TrajectorySpec(kind="fourier", seed=4, size=0.2), 7)
+    other = fourier_coefficients(TrajectorySpec(kind="fourier", seed=5), 7)
+    assert all(np.array_equal(x, y) for x, y in zip(first, again, strict=True))
+    assert not np.allclose(first[0], other[0])
+
+
+@pytest.mark.parametrize(
+    "field",
+    [{"twist": -0.1}, {"twist": 2.0}, {"harmonics": 1}, {"harmonics": 11}, {"twist": float("nan")}],
+)
+def test_new_fields_are_bounded(field):
+    with pytest.raises(ValueError):
+        TrajectorySpec(**field)
