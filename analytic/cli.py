@@ -5,7 +5,7 @@ import contextlib
 import json
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import TypeVar
 
@@ -186,6 +186,7 @@ def batch(
     identity = _check_farm(connect, local, tls, participant)
     candidates = _candidates(gains_file)
     trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
+    _followable(trajectories)
     jobs = batch_jobs(candidates, trajectories, options.model_spec(plant, model))
     run_dir = run_dir or Path("runs") / time.strftime("batch-%Y%m%d-%H%M%S")
     if (run_dir / EVALUATIONS).exists():
@@ -286,6 +287,7 @@ def start(
     """
     identity = _check_farm(connect, local, tls, participant)
     trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
+    _followable(trajectories)
     try:
         config = RunConfig(
             pop=pop,
@@ -497,10 +499,14 @@ def experiment(
         )
         for size in size_list:
             RunConfig(pop=size)
-        for value in duration_list:
-            TrajectorySpec(duration=value)
+        if name == "speed":
+            used = [TrajectorySpec(duration=value) for value in duration_list]
+        else:
+            kinds = experiments.ALL_KINDS if name == "generic-vs-specific" else ["spiral"]
+            used = [TrajectorySpec(kind=kind, duration=duration) for kind in kinds]
     except ValidationError as error:
         raise CliError(_config_problem(error)) from None
+    _followable(used, "--durations" if name == "speed" else "--duration")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as error:
@@ -547,6 +553,21 @@ def _unwritable(error: OSError, then: str) -> CliError:
     the cause is gone the run goes on as `then` says."""
     where = f" {str(error.filename)!r}" if error.filename else ""
     return CliError(f"cannot write{where}: {error.strerror or error}; once it can, {then}")
+
+
+def _followable(trajectories: Iterable[TrajectorySpec], option: str = "--duration") -> None:
+    """Refuse, in one line, a trajectory the iiwa cannot follow (out of reach, or too fast for
+    its limits) before any job is sent: every episode of it would fail."""
+    from worker.ik import UnreachablePath  # MuJoCo loads only when a command needs it
+    from worker.reference import InfeasibleReference, reference_for
+
+    for trajectory in trajectories:
+        try:
+            reference_for(trajectory)
+        except InfeasibleReference as error:
+            raise CliError(f"{option}: {error}") from None
+        except UnreachablePath as error:
+            raise CliError(f"--center/--size: {error}") from None
 
 
 def _config_problem(error: ValidationError) -> str:

@@ -2,7 +2,7 @@
 population 30 (population sizes 10-80 in the population-size experiment), every run to
 convergence.
 
-    python bench/campaign.py [--out campaign] [--workers 2] [--reps 5]
+    python bench/campaign.py [--out campaign] [--workers 2] [--reps 5] [--plant realistic|ideal]
 
 Runs each experiment as its command line (`analytic experiment ...`) in turn, on a local farm,
 and prints the wall time of each and of the whole; the reports are in OUT/<experiment>/report.md.
@@ -44,7 +44,14 @@ EXPERIMENTS = {
     show_default=True,
     help="repetitions per experiment",
 )
-def main(out: Path, workers: int, reps: int) -> None:
+@click.option(
+    "--plant",
+    type=click.Choice(["realistic", "ideal"]),
+    default="realistic",
+    show_default=True,
+    help="the simulated plant (ideal: the paper's, as the first wave ran it)",
+)
+def main(out: Path, workers: int, reps: int, plant: str) -> None:
     walls: dict[str, float] = {}
     for name, extra in EXPERIMENTS.items():
         started = time.perf_counter()
@@ -61,6 +68,8 @@ def main(out: Path, workers: int, reps: int) -> None:
                 str(workers),
                 "--out",
                 str(out / name),
+                "--plant",
+                plant,
                 *extra,
             ],
             check=True,

@@ -16,14 +16,14 @@ from worker.episode import run_episode
 
 @pytest.fixture(scope="session")
 def tracking_log() -> EpisodeLog:
-    """A 2 s spiral tracked with stiff gains on the default (flexible) robot."""
-    return run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=TrajectorySpec(duration=2.0)))
+    """A 3 s spiral tracked with stiff gains on the default (realistic, flexible) robot."""
+    return run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=TrajectorySpec(duration=3.0)))
 
 
 @pytest.fixture(scope="session")
 def diverged_log() -> EpisodeLog:
     """Gains far too soft to hold the arm up: it falls and the episode is stopped early."""
-    return run_episode(EpisodeSpec(gains=WEAK_GAINS, trajectory=TrajectorySpec(duration=2.0)))
+    return run_episode(EpisodeSpec(gains=WEAK_GAINS, trajectory=TrajectorySpec(duration=3.0)))
 
 
 @pytest.fixture

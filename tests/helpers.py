@@ -51,6 +51,9 @@ def wait_for(condition: Callable[[], object], timeout: float = 10.0, what: str =
 
 
 def short_spec(duration: float = 0.5, gains: PDGains = TRACKING_GAINS, **trajectory) -> EpisodeSpec:
+    """A short episode; a fourier excitation unless `kind` says otherwise, because it fits the
+    iiwa's limits at any duration (a Cartesian path needs some 3 s)."""
+    trajectory.setdefault("kind", "fourier")
     return EpisodeSpec(gains=gains, trajectory=TrajectorySpec(duration=duration, **trajectory))
 
 

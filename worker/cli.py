@@ -23,6 +23,7 @@ from schemas.robot import N_JOINTS
 from schemas.wire import NAME_PATTERN, NAME_RULE, describe
 from worker.episode import run_episode
 from worker.ik import UnreachablePath
+from worker.reference import InfeasibleReference
 from worker.service import CobotWorker, NameTaken
 
 DEFAULT_KP = ",".join(f"{gain:g}" for gain in DEFAULT_GAINS.kp)
@@ -80,7 +81,7 @@ def episode(
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
     try:
         log = run_episode(spec)
-    except UnreachablePath as error:
+    except (UnreachablePath, InfeasibleReference) as error:
         raise CliError(str(error)) from None
     try:
         write_episode(log, out)

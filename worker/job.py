@@ -13,6 +13,7 @@ from schemas.mcap_episode import episode_bytes
 from schemas.wire import JobStatus, Lease, Result, Timings
 from worker.episode import run_episode
 from worker.ik import UnreachablePath
+from worker.reference import InfeasibleReference
 
 REASON_LIMIT = 2000  # characters: Result.reason's bound
 
@@ -39,7 +40,7 @@ def simulate(spec: EpisodeSpec) -> Outcome:
     reason = ""
     try:
         log = run_episode(spec)
-    except UnreachablePath as error:
+    except (UnreachablePath, InfeasibleReference) as error:
         status, reason = JobStatus.failed, str(error)
     except Exception as error:  # a bug or a bad spec must not kill a cobot serving a farm
         status, reason = JobStatus.failed, f"{type(error).__name__}: {error}"

@@ -22,7 +22,7 @@ from schemas.robot import JOINT_NAMES
 CONFIG = RunConfig(
     pop=4,
     seed=3,
-    trajectories=(TrajectorySpec(duration=0.4), TrajectorySpec(kind="random", duration=0.4)),
+    trajectories=(TrajectorySpec(duration=3.0), TrajectorySpec(kind="random", duration=3.0)),
     generations=2,
 )
 

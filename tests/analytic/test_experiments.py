@@ -15,7 +15,7 @@ from analytic.local import local_farm
 from schemas import TrajectorySpec
 from tests.analytic.toy import toy_scores
 
-BASE = RunConfig(pop=4, trajectories=(TrajectorySpec(duration=0.4),), generations=2, keep="front")
+BASE = RunConfig(pop=4, trajectories=(TrajectorySpec(duration=3.0),), generations=2, keep="front")
 PNG = b"\x89PNG\r\n\x1a\n"
 
 
@@ -71,17 +71,17 @@ def test_generic_vs_specific(tmp_path: Path, endpoints: list[str]) -> None:
 
 
 def test_speed(tmp_path: Path, endpoints: list[str]) -> None:
-    experiments.speed(Experiment(tmp_path, on_farm(endpoints)), BASE, durations=[0.4, 0.6], reps=1)
+    experiments.speed(Experiment(tmp_path, on_farm(endpoints)), BASE, durations=[3.0, 3.5], reps=1)
     results = rows(tmp_path / "results.csv")
     assert [(r["tuned_on_s"], r["evaluated_on_s"]) for r in results] == [
-        ("0.4", "0.4"),
-        ("0.4", "0.6"),
-        ("0.6", "0.4"),
-        ("0.6", "0.6"),
+        ("3.0", "3.0"),
+        ("3.0", "3.5"),
+        ("3.5", "3.0"),
+        ("3.5", "3.5"),
     ]
     assert all(float(r["median_error_of_most_accurate_m"]) > 0 for r in results)
     assert (tmp_path / "speed.png").read_bytes().startswith(PNG)
-    assert "| 0.4 s |" in (tmp_path / "report.md").read_text()
+    assert "| 3 s |" in (tmp_path / "report.md").read_text()
 
 
 def test_an_experiment_uses_one_reference_point_the_worst_tested(tmp_path: Path) -> None:

@@ -93,6 +93,8 @@ def test_two_analytic_processes_share_the_farm(broker: Broker, tmp_path: Path) -
             endpoint,
             "--gains",
             str(candidates),
+            "--trajectory",
+            "fourier",
             "--duration",
             "1",
             "--json",
@@ -114,7 +116,7 @@ def test_two_analytic_processes_share_the_farm(broker: Broker, tmp_path: Path) -
         assert [json.loads(line)["status"] for line in out.splitlines()] == ["ok", "ok"]
     for name in ("a", "b"):
         records = json.loads((tmp_path / name / "evaluations.json").read_text())
-        assert [record["job_id"] for record in records] == ["c000-0-spiral", "c001-0-spiral"]
+        assert [record["job_id"] for record in records] == ["c000-0-fourier", "c001-0-fourier"]
         assert all((tmp_path / name / record["episode"]).is_file() for record in records)
     assert broker.queue.jobs_done == 4
 
@@ -260,7 +262,7 @@ def test_batch_command_in_local_mode(tmp_path: Path) -> None:
             "--trajectory",
             "random",
             "--duration",
-            "1.5",
+            "3",
             "--run-dir",
             str(tmp_path / "run"),
         ],

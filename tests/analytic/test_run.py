@@ -28,7 +28,9 @@ from tests.helpers import analytic, ask_for_work, hand_in, wait_for
 from worker.episode import run_episode
 from worker.job import execute
 
-TINY = RunConfig(pop=6, seed=7, trajectories=(TrajectorySpec(duration=0.5),), generations=3)
+TINY = RunConfig(
+    pop=6, seed=7, trajectories=(TrajectorySpec(kind="fourier", duration=0.5),), generations=3
+)
 
 
 @pytest.fixture(scope="module")
@@ -165,6 +167,8 @@ def test_start_and_resume_commands(tmp_path: Path) -> None:
         "4",
         "--generations",
         "2",
+        "--trajectory",
+        "fourier",
         "--duration",
         "0.5",
         "--out",
@@ -252,6 +256,8 @@ def test_ctrl_c_stops_cleanly_and_resume_goes_on(tmp_path: Path) -> None:
         "4",
         "--generations",
         "500",
+        "--trajectory",
+        "fourier",
         "--duration",
         "0.5",
         "--out",
@@ -300,7 +306,18 @@ def test_the_front_is_the_same_when_the_analytic_process_is_killed_and_resumed(
 ) -> None:
     with local_farm(workers=2) as endpoint:
         arguments = ["--connect", endpoint]
-        config = ["--pop", "6", "--seed", "7", "--duration", "0.5", "--generations", "3"]
+        config = [
+            "--pop",
+            "6",
+            "--seed",
+            "7",
+            "--trajectory",
+            "fourier",
+            "--duration",
+            "0.5",
+            "--generations",
+            "3",
+        ]
         command = [sys.executable, "-m", "analytic", "start", *config, *arguments, "--out", "run"]
         running = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.DEVNULL)
         history = tmp_path / "run" / "history.csv"

@@ -33,7 +33,9 @@ from schemas.wire import NAME_PATTERN
 from tests.analytic.toy import toy_scores
 from tests.helpers import analytic
 
-TINY = RunConfig(pop=6, seed=7, trajectories=(TrajectorySpec(duration=0.5),), generations=3)
+TINY = RunConfig(
+    pop=6, seed=7, trajectories=(TrajectorySpec(kind="fourier", duration=0.5),), generations=3
+)
 
 
 class Interrupt(Exception):
@@ -218,7 +220,7 @@ GENERATIONAL = {
     "generic": TINY.model_copy(
         update={
             "trajectories": tuple(
-                TrajectorySpec(kind=k, duration=0.5) for k in ("spiral", "random", "pyramid")
+                TrajectorySpec(kind="fourier", duration=0.5, seed=seed) for seed in range(3)
             )
         }
     ),
@@ -250,7 +252,9 @@ def test_a_steady_state_run_and_one_of_real_episodes_resume_through_the_allowlis
     steady = TINY.model_copy(update={"asynchronous": True, "generations": 4})
     toy_run(tmp_path / "steady", steady, stop=2)
     assert resume(tmp_path / "steady").state.stopped == "4 generations"
-    real = RunConfig(pop=4, seed=1, trajectories=(TrajectorySpec(duration=0.2),), generations=2)
+    real = RunConfig(
+        pop=4, seed=1, trajectories=(TrajectorySpec(kind="fourier", duration=0.2),), generations=2
+    )
     with TuningRun.create(tmp_path / "real", real) as run:
         run.run(InProcessEvaluator(tmp_path / "real"), report=False)  # timings, kept logs
     with TuningRun.open(tmp_path / "real") as reopened:
@@ -361,7 +365,18 @@ def test_the_lock_dies_with_its_process_however_it_ends(tmp_path: Path) -> None:
 def test_resume_while_start_runs_is_refused_in_one_line_naming_the_process(
     tmp_path: Path,
 ) -> None:
-    config = ["--pop", "4", "--generations", "500", "--duration", "0.5", "--out", "run"]
+    config = [
+        "--pop",
+        "4",
+        "--generations",
+        "50000",  # it must still be running when interrupted, however slow the machine
+        "--trajectory",
+        "fourier",
+        "--duration",
+        "0.5",
+        "--out",
+        "run",
+    ]
     command = [sys.executable, "-m", "analytic", "start", *config]
     running = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.PIPE, text=True)
     history = tmp_path / "run" / "history.csv"
@@ -486,7 +501,16 @@ def test_a_full_or_read_only_disk_is_one_line_and_a_resume_goes_on(
     tmp_path: Path, disk: Disk, fault: str
 ) -> None:
     generations = 3 if fault == "full" else 6
-    options = ["--pop", "4", "--duration", "0.5", "--generations", str(generations)]
+    options = [
+        "--pop",
+        "4",
+        "--trajectory",
+        "fourier",
+        "--duration",
+        "0.5",
+        "--generations",
+        str(generations),
+    ]
     command = [sys.executable, "-m", "analytic", "start", *options, "--out", "disk/run"]
     directory = disk.mount / "run"
     if fault == "full":

@@ -19,7 +19,9 @@ from analytic.run import RunProgress, TuningRun, upgrade
 from schemas import EpisodeSpec, TrajectorySpec
 from tests.analytic.toy import toy_scores
 
-TINY = RunConfig(pop=6, seed=7, trajectories=(TrajectorySpec(duration=0.5),), generations=3)
+TINY = RunConfig(
+    pop=6, seed=7, trajectories=(TrajectorySpec(kind="fourier", duration=0.5),), generations=3
+)
 
 
 class Shuffled(InProcessEvaluator):

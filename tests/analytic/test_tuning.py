@@ -12,7 +12,9 @@ from schemas import TrajectorySpec
 from tests.analytic.toy import toy_scores
 
 README = Path(__file__).parents[2] / "README.md"
-CONFIG = RunConfig(pop=6, seed=1, trajectories=(TrajectorySpec(duration=0.5),), generations=2)
+CONFIG = RunConfig(
+    pop=6, seed=1, trajectories=(TrajectorySpec(kind="fourier", duration=0.5),), generations=2
+)
 
 
 def test_the_readme_example_runs(tmp_path: Path) -> None:

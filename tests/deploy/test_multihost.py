@@ -324,7 +324,17 @@ def test_a_worker_cut_off_for_longer_than_its_lease_loses_nothing_and_serves_aga
     batch = tmp_path / "batch"
     done = lan.run(
         "analytic",
-        *("-m", "analytic", "batch", "--connect", lan.endpoint, "--duration", "0.5"),
+        *(
+            "-m",
+            "analytic",
+            "batch",
+            "--connect",
+            lan.endpoint,
+            "--trajectory",
+            "fourier",
+            "--duration",
+            "0.5",
+        ),
         *("--run-dir", str(batch), "--json"),
     )
     assert done.returncode == 0, done.stderr + lan.tail("worker-1")

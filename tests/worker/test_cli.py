@@ -17,7 +17,7 @@ def run(command: list[str], *args: str) -> subprocess.CompletedProcess:
 def test_episode_writes_a_log_that_analytic_scores_identically(tmp_path):
     out = tmp_path / "ep.mcap"
     simulated = run(
-        WORKER, "episode", "--trajectory", "pyramid", "--duration", "1", "--out", str(out), "--json"
+        WORKER, "episode", "--trajectory", "pyramid", "--duration", "3", "--out", str(out), "--json"
     )
     assert simulated.returncode == 0, simulated.stderr
     worker_scores = json.loads(simulated.stdout)
@@ -29,7 +29,18 @@ def test_episode_writes_a_log_that_analytic_scores_identically(tmp_path):
 
 def test_human_readable_scores(tmp_path):
     out = tmp_path / "ep.mcap"
-    result = run(WORKER, "episode", "--duration", "0.5", "--out", str(out), "--model", "rigid")
+    result = run(
+        WORKER,
+        "episode",
+        "--trajectory",
+        "fourier",
+        "--duration",
+        "0.5",
+        "--out",
+        str(out),
+        "--model",
+        "rigid",
+    )
     assert result.returncode == 0, result.stderr
     assert "f_acc" in result.stdout and "mm" in result.stdout
 
@@ -51,6 +62,7 @@ SEVEN = "1,1,1,1,1,1,1"
         (["--duration", "1e9"], "duration"),
         (["--model", "soft"], "soft"),
         (["--plant", "perfect"], "perfect"),
+        (["--trajectory", "pyramid", "--duration", "0.5"], "shortest feasible duration"),
         (["--trajectory", "spiral", "--kp", SEVEN, "--trajectory-seed", "x"], "trajectory-seed"),
     ],
 )

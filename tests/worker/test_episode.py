@@ -11,7 +11,7 @@ from worker.episode import gravity_torques, run_episode
 from worker.plant import Plant
 from worker.reference import reference_for
 
-SHORT = TrajectorySpec(duration=2.0)
+SHORT = TrajectorySpec(duration=3.0)
 IDEAL_RIGID = IDEAL_PLANT.model_copy(update={"joints": "rigid"})
 
 

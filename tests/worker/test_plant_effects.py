@@ -19,18 +19,20 @@ from worker.reference import Reference
 from worker.sensors import Encoders
 
 DATA = Path(__file__).parent / "data"
-SHORT = TrajectorySpec(duration=1.0)
+SHORT = TrajectorySpec(kind="fourier", duration=1.0)
 EXACT_RIGID = IDEAL_PLANT.model_copy(update={"joints": "rigid"})
 
 
 def _joint_space_reference(q: np.ndarray, ee: np.ndarray | None = None) -> Reference:
     """A reference given directly in joint space (flange positions only matter if given)."""
+    qd = np.gradient(q, CONTROL_PERIOD, axis=0)
     return Reference(
         t=np.arange(len(q)) * CONTROL_PERIOD,
         ee=np.zeros((len(q), 3)) if ee is None else ee,
         q=q,
-        qd=np.gradient(q, CONTROL_PERIOD, axis=0),
+        qd=qd,
         gravity=np.zeros_like(q),
+        qdd=np.gradient(qd, CONTROL_PERIOD, axis=0),
     )
 
 
@@ -143,7 +145,7 @@ def test_on_the_ideal_elastic_plant_the_log_explains_its_own_torque_command():
     # u = ID(q, q̇, q̈) + B θ̈: rigid inverse dynamics of the logged link state (without the
     # rotor inertia) plus the rotor inertia times the logged motor acceleration.
     spec = EpisodeSpec(
-        gains=TRACKING_GAINS, trajectory=TrajectorySpec(duration=2.0), model=IDEAL_PLANT
+        gains=TRACKING_GAINS, trajectory=TrajectorySpec(duration=3.0), model=IDEAL_PLANT
     )
     log = run_episode(spec)
     links = compile_model(

@@ -40,7 +40,7 @@ def test_a_worker_process_serves_jobs_and_a_failing_job_does_not_stop_it(
     _token = open_study(session, broker, "s")
     worker = spawn_worker(broker.endpoints[0], "cobot-1")
     try:
-        out_of_reach = short_spec(center=(3.0, 0.0, 0.4))
+        out_of_reach = short_spec(kind="spiral", duration=3.0, center=(3.0, 0.0, 0.4))
         submit(session, "s", {"far": out_of_reach, "near": short_spec()})
         wait_for(lambda: len(inbox.received) == 2, timeout=60, what="both results")
     finally:
