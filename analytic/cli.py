@@ -3,7 +3,9 @@ an episode log (`evaluate`), evaluate fixed candidates on the farm (`batch`)."""
 
 import contextlib
 import json
+import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -348,11 +350,27 @@ def resume(
     _tune(run, connect, workers, identity)
 
 
+def _remember_interrupts() -> threading.Event:
+    """Ctrl-C raises KeyboardInterrupt as usual, and is also remembered: Python drops an
+    exception raised while a finaliser (__del__, a weakref callback) runs, so a Ctrl-C that lands
+    there would be lost; the run's progress callback raises it again at the next generation."""
+    interrupted = threading.Event()
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+
+        def on_interrupt(signum: int, frame: object) -> None:
+            interrupted.set()
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGINT, on_interrupt)
+    return interrupted
+
+
 def _tune(
     run: TuningRun, connect: tuple[str, ...], workers: int, identity: TlsIdentity | None
 ) -> None:
     """Run `run` (open, so holding its lock) on the farm, and close it."""
     console = Console(stderr=True)
+    interrupted = _remember_interrupts()
     try:
         with run, _farm(connect, workers) as endpoints:
             study = _study_name(run.directory, identity)
@@ -376,6 +394,8 @@ def _tune(
                 )
 
                 def show(step: RunProgress) -> None:
+                    if interrupted.is_set():  # a Ctrl-C that a finaliser swallowed
+                        raise KeyboardInterrupt
                     rate = step.evaluations / step.elapsed if step.elapsed else 0.0
                     progress.update(
                         task,

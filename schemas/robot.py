@@ -5,9 +5,9 @@ sources and the reasons behind each assumption.
 """
 
 import math
-from typing import Annotated, Literal
+from typing import Annotated, Literal, Self
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 N_JOINTS = 7
 JOINT_NAMES = tuple(f"A{i}" for i in range(1, N_JOINTS + 1))
@@ -111,6 +111,14 @@ class ModelSpec(BaseModel):
         "motor", description="the side whose measured angle the PD feeds back"
     )
     substeps: int = Field(2, ge=1, le=50, description="physics steps per 2 ms control tick")
+
+    @model_validator(mode="after")
+    def _rotors_have_inertia(self) -> Self:
+        # An elastic joint's motor side is its rotor alone: without inertia the mass matrix is
+        # singular and the simulation meaningless.
+        if self.joints == "flexible" and min(self.rotor_inertia) <= 0:
+            raise ValueError("rotor_inertia must be positive on every joint of flexible joints")
+        return self
 
     @property
     def ideal(self) -> bool:

@@ -14,6 +14,7 @@ from analytic.inprocess import InProcessEvaluator
 from analytic.local import local_farm
 from schemas import TrajectorySpec
 from tests.analytic.toy import toy_scores
+from tests.helpers import analytic
 
 BASE = RunConfig(pop=4, trajectories=(TrajectorySpec(duration=3.0),), generations=2, keep="front")
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -119,3 +120,20 @@ def test_an_experiment_runs_on_any_evaluator_and_resumes_without_rerunning(
     experiments.popsize(Experiment(tmp_path, no_evaluator), BASE, sizes=[4, 6], reps=2)
     assert (tmp_path / "results.csv").read_bytes() == before
     assert {p: p.stat().st_mtime_ns for p in tmp_path.glob("runs/*/checkpoint.pkl")} == checkpoints
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["speed", "--durations", "1,3"], "--durations: the 1 s spiral is too fast"),
+        (["generic-vs-specific", "--duration", "2"], "--duration: the 2 s "),
+    ],
+)
+def test_an_experiment_the_iiwa_cannot_follow_is_refused_before_anything_is_written(
+    tmp_path: Path, arguments: list[str], message: str
+) -> None:
+    run = analytic("experiment", *arguments, "--local", "--out", "out", cwd=tmp_path)
+    assert run.returncode == 2, run.stderr
+    assert run.stderr.startswith("analytic: error: ") and message in run.stderr
+    assert len(run.stderr.splitlines()) == 1
+    assert not (tmp_path / "out").exists()

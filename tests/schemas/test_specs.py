@@ -47,6 +47,19 @@ def test_model_spec_records_explicit_elastic_parameters():
         ModelSpec(substeps=0)
     with pytest.raises(ValidationError):
         ModelSpec(stiffness=(0.0,) * 7)
+    with pytest.raises(ValidationError, match="rotor_inertia must be positive"):
+        ModelSpec(rotor_inertia=(0.4, 0.4, 0.3, 0.3, 0.1, 0.1, 0.0))
+    assert ModelSpec(joints="rigid", rotor_inertia=(0.0,) * 7).joints == "rigid"
+
+
+def test_the_named_plants_differ_only_where_they_say():
+    from schemas.robot import IDEAL_PLANT, REALISTIC_PLANT, STIFFNESS_PRESETS
+
+    assert IDEAL_PLANT.ideal and not REALISTIC_PLANT.ideal
+    assert IDEAL_PLANT.stiffness == STIFFNESS_PRESETS["soft"]
+    assert REALISTIC_PLANT.stiffness == STIFFNESS_PRESETS["medium"]
+    assert (REALISTIC_PLANT.feedback, REALISTIC_PLANT.delay) == ("motor", 1)
+    assert REALISTIC_PLANT.friction is not None and not REALISTIC_PLANT.sensors.exact
 
 
 def test_specs_are_hashable_and_round_trip_through_json():
