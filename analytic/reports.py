@@ -18,6 +18,7 @@ from analytic.records import (
     sorted_front,
 )
 from schemas.files import write_atomically
+from schemas.robot import PLANTS, ModelSpec
 
 
 def _search(config: RunConfig) -> str:
@@ -39,7 +40,7 @@ def run_setup(config: RunConfig) -> list[str]:
     return [
         f"{config.mode} controller on {trajectories}",
         f"{_search(config)} NSGA-II, population {config.pop}, seed {config.seed}",
-        f"{config.model.joints} joints; reference point "
+        f"{plant_text(config.model)}; reference point "
         f"f_acc {config.reference_point[0]} m, f_t {config.reference_point[1]}",
     ]
 
@@ -143,11 +144,19 @@ def write_report(
     write_atomically(Path(path), text.encode("utf-8"))
 
 
+def plant_text(model: ModelSpec) -> str:
+    """Which plant a run simulated: a named one, or a custom one, and its joints."""
+    for name, plant in PLANTS.items():
+        if model == plant.model_copy(update={"joints": model.joints}):
+            return f"{name} plant, {model.joints} joints"
+    return f"custom plant (see config.json), {model.joints} joints"
+
+
 def experiment_setup(base: RunConfig, reps: int, reference: tuple[float, float]) -> list[str]:
     """How an experiment was run, as its report lists it."""
     return [
         f"{reps} repetitions (seeds 0..{reps - 1}); base configuration: population "
-        f"{base.pop}, {base.termination_text}, {base.model.joints} joints",
+        f"{base.pop}, {base.termination_text}, {plant_text(base.model)}",
         f"common reference point: f_acc {reference[0]:.4g} m, f_t {reference[1]:.4g} (N·m)² "
         "(the worst among all controllers tested in this experiment)",
         "runs in `runs/`, raw numbers in `results.csv`",

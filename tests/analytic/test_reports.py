@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from analytic.reports import front_table_row, write_report
+from analytic.reports import front_table_row, plant_text, write_report
 from tests.analytic.samples import SAMPLE_CONVERGED, SAMPLE_FRONT, SAMPLE_HISTORY, leftovers
 
 
@@ -97,3 +97,14 @@ def test_a_failed_report_write_leaves_the_old_file_whole(
         )
     monkeypatch.undo()
     assert report.read_text() == "earlier report\n" and leftovers(tmp_path) == []
+
+
+def test_a_report_names_the_plant_it_was_simulated_on():
+    from schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
+
+    assert plant_text(REALISTIC_PLANT) == "realistic plant, flexible joints"
+    assert plant_text(IDEAL_PLANT.model_copy(update={"joints": "rigid"})) == (
+        "ideal plant, rigid joints"
+    )
+    custom = REALISTIC_PLANT.model_copy(update={"delay": 3})
+    assert plant_text(custom).startswith("custom plant")

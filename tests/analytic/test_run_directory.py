@@ -395,7 +395,10 @@ def test_resume_while_start_runs_is_refused_in_one_line_naming_the_process(
         assert again.returncode == 2 and "--out" in one_error_line(again.stderr)
     finally:
         running.send_signal(signal.SIGINT)
-        _, err = running.communicate(timeout=60)
+        try:
+            _, err = running.communicate(timeout=60)
+        finally:
+            running.kill()  # never left running, whatever happened above
     assert running.returncode == 130, err
     generations = [row.generation for row in read_history(history)]
     assert generations == list(range(1, len(generations) + 1))  # never went backwards
