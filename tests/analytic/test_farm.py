@@ -124,7 +124,9 @@ def test_two_analytic_processes_share_the_farm(broker: Broker, tmp_path: Path) -
 def test_a_job_the_broker_lost_is_resubmitted_at_its_deadline(
     broker: Broker, tmp_path: Path
 ) -> None:
-    with FarmClient(broker.endpoints, "s", tmp_path, deadline=0.5) as farm:
+    # The deadline outlasts a fresh worker's first episode (model, reference, log), so that the
+    # one resubmission is the lost job's, never a slow episode's.
+    with FarmClient(broker.endpoints, "s", tmp_path, deadline=3.0) as farm:
         farm.submit({"j": short_spec()})
         # The broker forgets every job of the study (as if it had restarted)...
         broker.queue.close_study("s")
@@ -141,9 +143,10 @@ def test_a_job_the_broker_lost_is_resubmitted_at_its_deadline(
 def test_a_job_still_queued_at_its_deadline_is_not_another_attempt(
     broker: Broker, tmp_path: Path
 ) -> None:
-    with FarmClient(broker.endpoints, "s", tmp_path, deadline=0.3, attempts=2) as farm:
+    # The deadline outlasts a fresh worker's first episode, which must not count as overdue.
+    with FarmClient(broker.endpoints, "s", tmp_path, deadline=1.0, attempts=2) as farm:
         farm.submit({"j": short_spec()})
-        assert list(farm.results(timeout=1.0)) == []  # overdue thrice, but the broker has it
+        assert list(farm.results(timeout=3.5)) == []  # overdue thrice, but the broker has it
         worker = spawn_worker(broker.endpoints[0], "w")
         try:
             [evaluation] = list(farm.results(timeout=60))
