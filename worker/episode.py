@@ -1,9 +1,11 @@
 """One episode: the system, control and sensor/actuator layers stepping together at 500 Hz.
 
-The tick loop is the hot path (thousands of episodes, thousands of ticks each): it only copies
-the state and flange position into preallocated logs, evaluates the PD law as one matrix-vector
-product and steps the physics. Everything else (reference, feed-forward, torque clamping in the
-log, divergence checks) is done in bulk, once per episode or once per block of ticks.
+The tick loop is the hot path (thousands of episodes, thousands of ticks each). There are two:
+the first wave's lean loop for exact sensors without delay or friction (the ideal plant, kept
+bit for bit), and the realistic one, with encoders, a delay and motor friction. Each only senses,
+does a few small matrix-vector products and steps the physics; everything else (reference,
+feed-forward, noise, torque clamping in the log, the sensors' readings that the controller does
+not use, divergence checks) is done in bulk, once per episode or once per block of ticks.
 """
 
 import platform

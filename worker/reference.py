@@ -90,7 +90,9 @@ class Reference:
     ee: np.ndarray  # (n, 3) desired flange position, m
     q: np.ndarray  # (n, 7) rad
     qd: np.ndarray  # (n, 7) rad/s
-    gravity: np.ndarray  # (n, 7) N·m holding q against gravity, for optional compensation
+    # (n, 7) N·m holding q against gravity with the default (CAD) inertials; an episode's
+    # compensation uses its own plant's set (worker.episode.gravity_for)
+    gravity: np.ndarray
     qdd: np.ndarray  # (n, 7) rad/s²
 
 
