@@ -9,6 +9,7 @@ not use, divergence checks) is done in bulk, once per episode or once per block 
 """
 
 import platform
+from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import cache, lru_cache
 from importlib.metadata import version
@@ -149,8 +150,7 @@ def _simulate_exact(
     remaining_substeps = plant.substeps - 1
     dot, subtract, copy = np.dot, np.subtract, np.copyto
     ticks = len(feedforward)
-    for start in range(0, ticks, CHECK_EVERY):
-        stop = min(start + CHECK_EVERY, ticks)
+    for start, stop in _blocks(ticks):
         block = zip(
             state_log[start:stop],
             torque_log[start:stop],
@@ -167,9 +167,8 @@ def _simulate_exact(
             copy(flange_position, flange)
             if remaining_substeps:
                 step(model, data, remaining_substeps)
-        bad_tick, reason = _first_divergence(plant, state_log[start:stop], reference.q[start:stop])
-        if bad_tick is not None:
-            return start + bad_tick, f"{reason} at t = {(start + bad_tick) * CONTROL_PERIOD:.3f} s"
+        if stopped := _stopped(plant, state_log, reference, start, stop):
+            return stopped
     return ticks, ""
 
 
@@ -217,8 +216,7 @@ def _simulate(
     angles = measurements[:, :n]  # counts of the fed-back angles (or the angles, if exact)
     slips = measurements[:, sensing.slip]
     ticks = len(command_log)
-    for start in range(0, ticks, CHECK_EVERY):
-        stop = min(start + CHECK_EVERY, ticks)
+    for start, stop in _blocks(ticks):
         block = zip(
             states[start:stop],
             row_log[start:stop],
@@ -245,9 +243,8 @@ def _simulate(
             copy(position, flange)
             if remaining_substeps:
                 step(model, data, remaining_substeps)
-        bad_tick, reason = _first_divergence(plant, states[start:stop], reference.q[start:stop])
-        if bad_tick is not None:
-            return start + bad_tick, f"{reason} at t = {(start + bad_tick) * CONTROL_PERIOD:.3f} s"
+        if stopped := _stopped(plant, states, reference, start, stop):
+            return stopped
     return ticks, ""
 
 
@@ -384,6 +381,23 @@ def _joint_torque(
     if plant.elastic:
         return plant.joint_torque(qpos, qvel)
     return applied - friction_torque(plant.spec.friction, qvel @ plant.motor_map.T)
+
+
+def _blocks(ticks: int) -> Iterator[tuple[int, int]]:
+    """(start, stop) of the blocks of ticks a loop runs between two divergence checks."""
+    for start in range(0, ticks, CHECK_EVERY):
+        yield start, min(start + CHECK_EVERY, ticks)
+
+
+def _stopped(
+    plant: Plant, states: np.ndarray, reference: Reference, start: int, stop: int
+) -> tuple[int, str] | None:
+    """(ticks kept, why) if the episode diverged in ticks [start, stop), else None."""
+    bad_tick, reason = _first_divergence(plant, states[start:stop], reference.q[start:stop])
+    if bad_tick is None:
+        return None
+    tick = start + bad_tick
+    return tick, f"{reason} at t = {tick * CONTROL_PERIOD:.3f} s"
 
 
 def _first_divergence(plant: Plant, state: np.ndarray, q_des: np.ndarray) -> tuple[int | None, str]:

@@ -61,8 +61,8 @@ class Plant:
         what its torque sensor measures, and what drives the link side."""
         stiffness = np.asarray(self.spec.stiffness)
         damping = np.asarray(self.spec.spring_damping)
-        deflection = qpos @ (self.motor_map - self.link_map).T  # θ − q, minus the spring hinge
-        rate = qvel @ (self.motor_map - self.link_map).T
+        spring = (self.motor_map - self.link_map).T  # θ − q: minus the spring hinge's angle
+        deflection, rate = qpos @ spring, qvel @ spring
         return stiffness * deflection + damping * rate
 
 

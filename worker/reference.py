@@ -56,7 +56,7 @@ from worker.trajectories import (
     tool_yaw,
 )
 
-# Kinematics and gravity do not depend on the elastic-joint parameters: the rigid chain serves all.
+# Kinematics do not depend on the elastic-joint parameters or inertials: the rigid chain serves all.
 _KINEMATIC_MODEL = ModelSpec(joints="rigid", substeps=1)
 _POSITION = np.array(POSITION_LIMITS)
 _SPEED = np.array(SPEED_LIMITS)
@@ -90,9 +90,6 @@ class Reference:
     ee: np.ndarray  # (n, 3) desired flange position, m
     q: np.ndarray  # (n, 7) rad
     qd: np.ndarray  # (n, 7) rad/s
-    # (n, 7) N·m holding q against gravity with the default (CAD) inertials; an episode's
-    # compensation uses its own plant's set (worker.episode.gravity_for)
-    gravity: np.ndarray
     qdd: np.ndarray  # (n, 7) rad/s²
 
 
@@ -107,16 +104,16 @@ def reference_for(spec: TrajectorySpec) -> Reference:
     t = sample_times(spec)
     if spec.kind == TrajectoryKind.fourier:
         q, qd, qdd = _fourier(spec, model, t)
-        ee, _, gravity = _forward(model, q)
+        ee, _ = _flange(model, q)
     else:
         q, qd, qdd, s = _cartesian(spec, t)
         ee = path_points(spec, s)
-        reached, rotations, gravity = _forward(model, q)
+        reached, rotations = _flange(model, q)
         _check_pose(spec, s, ee, reached, rotations)
     if np.any(np.abs(q) > _POSITION):  # the IK keeps clear of the ranges; this is the guarantee
         raise UnreachablePath(f"the {spec.kind} leaves the joint ranges")
-    reference = Reference(t, ee, q, qd, gravity, qdd)
-    for array in (t, ee, q, qd, gravity, qdd):
+    reference = Reference(t, ee, q, qd, qdd)
+    for array in (t, ee, q, qd, qdd):
         array.flags.writeable = False
     return reference
 
@@ -345,17 +342,16 @@ def _lowest(model: mujoco.MjModel, data: mujoco.MjData, site: int, q: np.ndarray
 # --- Both -----------------------------------------------------------------------------------
 
 
-def _forward(model: mujoco.MjModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Flange positions (n, 3) and orientations (n, 3, 3), and gravity torques (n, 7), at q."""
+def _flange(model: mujoco.MjModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Flange positions (n, 3) and orientations (n, 3, 3) at q: kinematics alone (the gravity
+    feed-forward depends on the plant's inertials: worker.episode.gravity_for computes it)."""
     data = mujoco.MjData(model)
     site = model.site(FLANGE).id
     positions = np.empty((len(q), 3))
     rotations = np.empty((len(q), 3, 3))
-    torques = np.empty_like(q)
     for k, qk in enumerate(q):
         data.qpos[:] = qk
-        mujoco.mj_forward(model, data)  # qvel = 0, so the bias force is gravity alone
+        mujoco.mj_kinematics(model, data)
         positions[k] = data.site_xpos[site]
         rotations[k] = data.site_xmat[site].reshape(3, 3)
-        torques[k] = data.qfrc_bias
-    return positions, rotations, torques
+    return positions, rotations

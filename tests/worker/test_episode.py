@@ -1,5 +1,6 @@
 import mujoco
 import numpy as np
+import pytest
 
 from models import compile_model
 from schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
@@ -7,7 +8,7 @@ from schemas.objectives import score
 from schemas.robot import IDEAL_PLANT
 from tests.helpers import SOFT_GAINS, TRACKING_GAINS
 from worker.control import PDController
-from worker.episode import gravity_torques, run_episode
+from worker.episode import gravity_for, gravity_torques, run_episode
 from worker.plant import Plant
 from worker.reference import reference_for
 
@@ -119,3 +120,18 @@ def test_logged_flange_positions_are_the_kinematics_of_the_logged_joint_angles()
         data.qpos[:] = log.q[k]
         mujoco.mj_kinematics(model, data)
         np.testing.assert_allclose(data.site("flange").xpos, log.ee[k], atol=1e-9)
+
+
+def test_gravity_feedforward_holds_the_reference_posture():
+    spec = TrajectorySpec(duration=3.0)
+    reference = reference_for(spec)
+    gravity = gravity_for(spec, "cad")
+    # A2 carries most of the arm: tens of N·m, as at the home posture.
+    assert 20 < abs(gravity[0, 1]) < 80
+    model = compile_model(ModelSpec(joints="rigid"))
+    data = mujoco.MjData(model)
+    data.qpos[:] = reference.q[1000]
+    mujoco.mj_forward(model, data)
+    np.testing.assert_allclose(gravity[1000], data.qfrc_bias)
+    with pytest.raises(ValueError):  # cached and shared, so read-only
+        gravity[0] = 1.0

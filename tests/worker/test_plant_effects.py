@@ -31,7 +31,6 @@ def _joint_space_reference(q: np.ndarray, ee: np.ndarray | None = None) -> Refer
         ee=np.zeros((len(q), 3)) if ee is None else ee,
         q=q,
         qd=qd,
-        gravity=np.zeros_like(q),
         qdd=np.gradient(qd, CONTROL_PERIOD, axis=0),
     )
 

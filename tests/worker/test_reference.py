@@ -189,7 +189,7 @@ def test_fourier_excitation_is_always_feasible(duration):
 def test_fourier_excitation_is_reproducible_from_its_seed():
     spec = TrajectorySpec(kind="fourier", duration=3.0, seed=7)
     first, again = reference_for.__wrapped__(spec), reference_for.__wrapped__(spec)
-    for name in ("t", "ee", "q", "qd", "qdd", "gravity"):
+    for name in ("t", "ee", "q", "qd", "qdd"):
         assert np.array_equal(getattr(first, name), getattr(again, name)), name
     other = reference_for(spec.model_copy(update={"seed": 8}))
     assert not np.allclose(first.q, other.q)
@@ -203,7 +203,7 @@ def test_cartesian_references_are_bit_identical_for_one_spec():
     first = reference_for(spec)
     reference_module._segments.cache_clear()  # solve the inverse kinematics again
     again = reference_for.__wrapped__(spec)
-    for name in ("t", "ee", "q", "qd", "qdd", "gravity"):
+    for name in ("t", "ee", "q", "qd", "qdd"):
         assert np.array_equal(getattr(first, name), getattr(again, name)), name
 
 
@@ -211,20 +211,9 @@ def test_references_are_cached_and_read_only():
     spec = TrajectorySpec(duration=3.0)
     first = reference_for(spec)
     assert reference_for(TrajectorySpec(duration=3.0)) is first
-    for name in ("t", "ee", "q", "qd", "qdd", "gravity"):
+    for name in ("t", "ee", "q", "qd", "qdd"):
         with pytest.raises(ValueError):
             getattr(first, name)[0] = 1.0
-
-
-def test_gravity_feedforward_holds_the_reference_posture():
-    reference = reference_for(TrajectorySpec(duration=3.0))
-    # A2 carries most of the arm: tens of N·m, as at the home posture.
-    assert 20 < abs(reference.gravity[0, 1]) < 80
-    model = compile_model(ModelSpec(joints="rigid"))
-    data = mujoco.MjData(model)
-    data.qpos[:] = reference.q[1000]
-    mujoco.mj_forward(model, data)
-    np.testing.assert_allclose(reference.gravity[1000], data.qfrc_bias)
 
 
 def test_a_path_out_of_reach_is_a_clear_error():
