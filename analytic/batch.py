@@ -20,12 +20,16 @@ EVALUATIONS = "evaluations.json"
 
 
 def batch_jobs(
-    candidates: Sequence[PDGains], trajectories: Sequence[TrajectorySpec], model: ModelSpec
+    candidates: Sequence[PDGains],
+    trajectories: Sequence[TrajectorySpec],
+    model: ModelSpec,
+    feedforward: str | None = None,
 ) -> dict[str, EpisodeSpec]:
-    """Job id → spec, one per pair; ids say which candidate on which trajectory."""
+    """Job id → spec, one per pair; ids say which candidate on which trajectory. `feedforward`:
+    the SHA-256 of the learned model every episode adds to its PD, if any."""
     return {
         f"c{index:03d}-{number}-{trajectory.kind.value}": EpisodeSpec(
-            gains=gains, trajectory=trajectory, model=model
+            gains=gains, trajectory=trajectory, model=model, feedforward=feedforward
         )
         for index, gains in enumerate(candidates)
         for number, trajectory in enumerate(trajectories)

@@ -1,5 +1,7 @@
 """`analytic`: the analytic layer. Tune gains with NSGA-II on the farm (`start`, `resume`), score
-an episode log (`evaluate`), evaluate fixed candidates on the farm (`batch`)."""
+an episode log (`evaluate`), evaluate fixed candidates on the farm (`batch`), gather tuned
+controllers' episodes into a dataset (`dataset`), learn the arm's dynamics from it (`learn`), and
+run the paper's experiments (`experiment`)."""
 
 import contextlib
 import json
@@ -21,11 +23,23 @@ from analytic import experiments
 from analytic.batch import EVALUATIONS, batch_jobs, run_batch
 from analytic.checkpoint import CheckpointRefused
 from analytic.config import RunConfig
-from analytic.dataset import NoEpisodes, UnreadableRun
+from analytic.dataset import (
+    DEFAULT_SPLIT,
+    BadRerun,
+    BadSplit,
+    DuplicateEpisodes,
+    NoEpisodes,
+    RerunFailed,
+    UnreadableRun,
+    check_split,
+    read_rerun,
+)
 from analytic.dataset import build as build_dataset
-from analytic.evaluator import Evaluation
+from analytic.evaluator import Evaluation, Evaluator
 from analytic.experiments import Experiment
 from analytic.farm import DEFAULT_DEADLINE, FarmClient, FarmUnavailable
+from analytic.learning import LearnError
+from analytic.learning import learn as learn_model
 from analytic.local import local_farm
 from analytic.records import CONFIG_JSON
 from analytic.run import RunBusy, RunProgress, TuningRun
@@ -33,6 +47,7 @@ from analytic.tuning import new_study_name
 from cli import options
 from cli.app import CliError, parse_numbers, run_app
 from cli.scores import show_scores
+from models.dynamics import KINDS, TARGETS, digest
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import NotAnEpisodeLog, read_episode
 from schemas.objectives import score
@@ -151,6 +166,7 @@ def evaluate(log: Path, as_json: bool) -> None:
 @options.placement()
 @options.model(help=None)
 @options.plant()
+@options.feedforward()
 @click.option(
     "--run-dir",
     type=click.Path(path_type=Path),
@@ -178,6 +194,7 @@ def batch(
     size: float,
     model: str,
     plant: str,
+    feedforward: Path | None,
     run_dir: Path | None,
     deadline: float,
     as_json: bool,
@@ -189,7 +206,9 @@ def batch(
     candidates = _candidates(gains_file)
     trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
     _followable(trajectories)
-    jobs = batch_jobs(candidates, trajectories, options.model_spec(plant, model))
+    learned = options.feedforward_model(feedforward)
+    models = {digest(learned[0]): learned[0]} if learned is not None else {}
+    jobs = batch_jobs(candidates, trajectories, options.model_spec(plant, model), *models)
     run_dir = run_dir or Path("runs") / time.strftime("batch-%Y%m%d-%H%M%S")
     if (run_dir / EVALUATIONS).exists():
         raise CliError(f"--run-dir: {str(run_dir)!r} already holds a batch; choose another")
@@ -205,6 +224,7 @@ def batch(
                 run_dir,
                 deadline=deadline,
                 identity=identity,
+                models=models,
             )
         except (ValueError, ConnectionError) as error:
             raise CliError(str(error)) from None
@@ -238,6 +258,10 @@ def batch(
 @termination_options()
 @options.model(help=None)
 @options.plant()
+@options.feedforward(
+    help="add a learned inverse-dynamics model's torque for the reference to every episode's "
+    "PD and tune the gains on top (a directory from `analytic learn`, or its model.npz)"
+)
 @farm_options
 @click.option("--out", type=click.Path(path_type=Path), help="run directory  [default: runs/TIME]")
 @click.option(
@@ -272,6 +296,7 @@ def start(
     evaluations: int | None,
     model: str,
     plant: str,
+    feedforward: Path | None,
     connect: tuple[str, ...],
     tls: Path | None,
     participant: str | None,
@@ -290,6 +315,7 @@ def start(
     identity = _check_farm(connect, local, tls, participant)
     trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
     _followable(trajectories)
+    learned = options.feedforward_model(feedforward)
     try:
         config = RunConfig(
             pop=pop,
@@ -301,12 +327,13 @@ def start(
             keep=keep,
             asynchronous=asynchronous,
             replicate=replicate,
+            feedforward=digest(learned[0]) if learned is not None else None,
         )
     except ValidationError as error:
         raise CliError(_config_problem(error)) from None
     out = out or Path("runs") / time.strftime("%Y%m%d-%H%M%S")
     try:
-        run = TuningRun.create(out, config)
+        run = TuningRun.create(out, config, learned[0] if learned is not None else None)
     except FileExistsError as error:
         raise CliError(f"--out: {error}") from None
     except RunBusy as error:
@@ -375,7 +402,8 @@ def _tune(
         with run, _farm(connect, workers) as endpoints:
             study = _study_name(run.directory, identity)
             try:
-                farm = FarmClient(endpoints, study, run.directory, identity=identity)
+                models = run.models()
+                farm = FarmClient(endpoints, study, run.directory, identity=identity, models=models)
             except (ValueError, ConnectionError) as error:
                 raise CliError(str(error)) from None
             with (
@@ -442,22 +470,137 @@ def _tune(
     show_default=True,
     help="every Pareto-front controller, or each run's knee",
 )
-def dataset(run_dirs: tuple[Path, ...], out: Path, selection: str) -> None:
+@click.option(
+    "--split",
+    "split_text",
+    metavar="TRAIN,VALIDATION,TEST",
+    default=",".join(f"{value:g}" for value in DEFAULT_SPLIT),
+    show_default=True,
+    help="fractions of the trajectories in each part: the split is by trajectory, never by tick",
+)
+@click.option(
+    "--split-seed",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="seed of the order the trajectories are dealt into the split in",
+)
+@click.option(
+    "--rerun",
+    "rerun_file",
+    type=click.Path(path_type=Path),
+    help="JSON list of trajectories (TrajectorySpec objects): run every selected controller once "
+    "more on each, through the farm (a local one unless --connect), and add those episodes",
+)
+@farm_options
+def dataset(
+    run_dirs: tuple[Path, ...],
+    out: Path,
+    selection: str,
+    split_text: str,
+    split_seed: int,
+    rerun_file: Path | None,
+    connect: tuple[str, ...],
+    tls: Path | None,
+    participant: str | None,
+    local: bool,
+    workers: int,
+) -> None:
     """Gather tuned controllers' episodes into a dataset: MCAP logs, Parquet tables, a card."""
+    identity = _check_farm(connect, local, tls, participant)
+    if rerun_file is None and (connect or local):  # saying so beats ignoring the option
+        raise CliError("--connect and --local need --rerun: only a rerun runs episodes")
     for run_dir in run_dirs:
         if not (run_dir / CONFIG_JSON).is_file():
             raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG_JSON})")
     if out.exists():
         raise CliError(f"--out: {str(out)!r} already exists")
     try:
-        counts = build_dataset(list(run_dirs), out, selection)
-    except (NoEpisodes, UnreadableRun) as error:
+        split = check_split(parse_numbers("--split", split_text, 3))
+        trajectories = read_rerun(rerun_file) if rerun_file is not None else []
+    except BadSplit as error:
+        raise CliError(f"--split: {error}") from None
+    except BadRerun as error:
+        raise CliError(f"--rerun: {error}") from None
+
+    @contextlib.contextmanager
+    def farm(directory: Path) -> Iterator[Evaluator]:
+        """The rerun's farm, as `analytic batch` has it (started only once all is checked)."""
+        with _farm(connect, workers) as endpoints:
+            try:
+                client = FarmClient(
+                    endpoints, _study_name(directory, identity), directory, identity=identity
+                )
+            except (ValueError, ConnectionError) as error:
+                raise CliError(str(error)) from None
+            with client:
+                yield client
+
+    try:
+        counts = build_dataset(
+            list(run_dirs),
+            out,
+            selection,
+            split=split,
+            split_seed=split_seed,
+            rerun_trajectories=trajectories,
+            farm=farm,
+        )
+    except BadSplit as error:  # too few trajectories for the parts asked for
+        raise CliError(f"--split: {error}") from None
+    except BadRerun as error:  # a trajectory the robot cannot follow
+        raise CliError(f"--rerun: {error}") from None
+    except (NoEpisodes, UnreadableRun, DuplicateEpisodes, RerunFailed, BadMessage) as error:
         raise CliError(str(error)) from None
+    except ConnectionError as error:  # the farm's, not the disk's
+        raise CliError(f"farm: {error}") from None
     except OSError as error:
         raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
+    rerun = f", {counts['rerun']} of them rerun" if counts["rerun"] else ""
     click.echo(
-        f"{out}: {counts['episodes']} episodes, {counts['ticks']:,} ticks, "
-        f"{counts['controllers']} controllers from {counts['runs']} runs"
+        f"{out}: {counts['episodes']} episodes{rerun}, {counts['ticks']:,} ticks, "
+        f"{counts['controllers']} controllers from {counts['runs']} runs, "
+        f"{counts['trajectories']} trajectories ({counts['train']} train, "
+        f"{counts['validation']} validation, {counts['test']} test)"
+    )
+
+
+@app.command()
+@click.argument("dataset_dir", metavar="DATASET", type=click.Path(path_type=Path))
+@click.option(
+    "--out", type=click.Path(path_type=Path), required=True, help="model directory to write"
+)
+@click.option(
+    "--target",
+    type=click.Choice(TARGETS),
+    default="inverse",
+    show_default=True,
+    help="inverse: torque u from (q, q̇, q̈); forward: q̈ from (q, q̇, u)",
+)
+@click.option(
+    "--model",
+    "kind",
+    type=click.Choice(KINDS),
+    default="residual",
+    show_default=True,
+    help="rigid: the rigid-body physics prior, untrained; linear: its parameters identified "
+    "by least squares; mlp: a network; residual: the prior plus a network of what it misses",
+)
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+def learn(dataset_dir: Path, out: Path, target: str, kind: str, seed: int) -> None:
+    """Learn the arm's dynamics from a dataset's train split; score on its test split.
+
+    Writes OUT/model.npz (what --feedforward takes), scores.json (nMSE and RMSE per joint),
+    report.md and prediction.png.
+    """
+    try:
+        scores = learn_model(dataset_dir, out, target, kind, seed)
+    except LearnError as error:
+        raise CliError(str(error)) from None
+    nmse = " ".join(f"{joint} {value:.3f}" for joint, value in scores["nmse"].items())
+    click.echo(
+        f"{out}: {kind} {target} model, test nMSE {scores['nmse_mean']:.4f} "
+        f"(mean over A1-A6; mean predictor {scores['mean_predictor_nmse']:.2f}) · {nmse}"
     )
 
 

@@ -26,6 +26,12 @@ class RunConfig(BaseModel):
     reference_point: tuple[float, float] = REFERENCE_POINT
     asynchronous: bool = Field(False, description="steady-state NSGA-II, not generational")
     keep: Literal["all", "front"] = "all"
+    feedforward: str | None = Field(
+        None,
+        pattern=r"^[0-9a-f]{64}$",
+        description="SHA-256 of the learned inverse-dynamics model every episode adds to its PD "
+        "(the gains are tuned on top); the run directory keeps the file as feedforward.npz",
+    )
     replicate: bool = Field(
         True,
         description="on a farm of 2+ workers, another worker reruns each front entrant's "

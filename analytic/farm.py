@@ -94,9 +94,13 @@ class FarmClient:
         deadline: float = DEFAULT_DEADLINE,
         attempts: int = DEFAULT_ATTEMPTS,
         identity: TlsIdentity | None = None,
+        models: Mapping[str, bytes] | None = None,
     ):
+        """`models`: the feed-forward models (file bytes by SHA-256) the study's jobs may name;
+        the client serves them to the workers that ask."""
         Submission(study=study, jobs=[])  # validates the name before it becomes a key
         self.study = study
+        self.models = dict(models or {})
         self.log_dir = Path(run_dir) / "episodes"
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.deadline = deadline
@@ -150,6 +154,9 @@ class FarmClient:
         clash = sorted(set(specs) & set(self._pending))
         if clash:
             raise ValueError(f"job ids already pending: {', '.join(clash[:5])}")
+        unserved = {spec.feedforward for spec in specs.values()} - {None, *self.models}
+        if unserved:
+            raise ValueError(f"jobs name feed-forward models not served: {sorted(unserved)}")
         avoid = avoid or {}
         expiry = time.monotonic() + self.deadline
         for job_id, spec in specs.items():
@@ -219,6 +226,10 @@ class FarmClient:
         self._subscriber = self.session.declare_subscriber(
             keys.study_results(self.study), self._on_result
         )
+        if self.models:
+            self._model_server = self.session.declare_queryable(
+                keys.model(self.study, "*"), self._on_model_query
+            )
         self._token = self.session.liveliness().declare_token(token_key)
         self._broker_watch = self.session.liveliness().declare_subscriber(
             keys.ALIVE_BROKER, self._on_broker_token
@@ -290,6 +301,13 @@ class FarmClient:
         pending = self._pending[job_id]
         avoid = sorted({*pending.avoid, *self._distrusted})
         return Job(job_id=job_id, spec=pending.spec, avoid=avoid)
+
+    def _on_model_query(self, query: zenoh.Query) -> None:
+        wanted = keys.last_chunk(str(query.key_expr))
+        if wanted in self.models:
+            query.reply(query.key_expr, self.models[wanted])
+        else:
+            query.reply_err(f"study {self.study} has no model {wanted[:64]}")
 
     def _on_result(self, sample: zenoh.Sample) -> None:
         attachment = sample.attachment.to_bytes() if sample.attachment is not None else None

@@ -9,11 +9,15 @@ run in milliseconds.
 
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from analytic.evaluator import Evaluation, EvaluationStatus, accept_log
 from schemas.episode import EpisodeSpec, Scores
 from schemas.mcap_episode import NotAnEpisodeLog
 from schemas.wire import JobStatus
+
+if TYPE_CHECKING:
+    from models.dynamics import DynamicsModel
 
 WORKER = "in-process"  # the worker name evaluations carry
 
@@ -24,9 +28,12 @@ class InProcessEvaluator:
         run_dir: Path | None = None,
         *,
         scorer: Callable[[EpisodeSpec], Scores] | None = None,
+        models: Mapping[str, bytes] | None = None,
     ):
         """Keep logs in `run_dir`/episodes/ (none without a run directory); score each job with
-        `scorer` instead of simulating it, if given."""
+        `scorer` instead of simulating it, if given. `models`: the feed-forward model files the
+        jobs may name, by SHA-256."""
+        self.models = dict(models or {})
         self.log_dir = Path(run_dir) / "episodes" if run_dir is not None else None
         if self.log_dir is not None:
             self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -70,6 +77,15 @@ class InProcessEvaluator:
             job_id = next(iter(self._pending))
             yield self._evaluate(job_id, self._pending.pop(job_id))
 
+    def _model(self, wanted: str) -> "DynamicsModel":
+        from models.dynamics import from_bytes  # as MuJoCo: only when an episode is simulated
+
+        from worker.feedforward import ModelUnavailable
+
+        if wanted not in self.models:
+            raise ModelUnavailable(f"feed-forward model {wanted[:12]} was not given")
+        return from_bytes(self.models[wanted])
+
     def _evaluate(self, job_id: str, spec: EpisodeSpec) -> Evaluation:
         common = dict(job_id=job_id, spec=spec, worker=WORKER, attempts=1)
         if self.scorer is not None:
@@ -80,7 +96,7 @@ class InProcessEvaluator:
             )
         from worker.job import simulate  # MuJoCo is loaded only when an episode is simulated
 
-        outcome = simulate(spec)
+        outcome = simulate(spec, self._model)
         if outcome.status == JobStatus.failed:
             return Evaluation(
                 **common,

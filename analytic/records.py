@@ -42,6 +42,7 @@ FRONT_JSON = "front.json"
 EVALUATED_CSV = "evaluated.csv"
 CONFIG_JSON = "config.json"
 RUN_JSON = "run.json"
+FEEDFORWARD = "feedforward.npz"  # the learned model a run's episodes add to their PD, if any
 LOCK = "run.lock"
 EPISODES = "episodes"
 

@@ -37,8 +37,11 @@ def run_setup(config: RunConfig) -> list[str]:
     trajectories = ", ".join(
         f"{trajectory.kind.value} {trajectory.duration:g} s" for trajectory in config.trajectories
     )
+    controller = config.mode + " controller"
+    if config.feedforward is not None:
+        controller = f"{config.mode} PD + learned feed-forward {config.feedforward[:12]}"
     return [
-        f"{config.mode} controller on {trajectories}",
+        f"{controller} on {trajectories}",
         f"{_search(config)} NSGA-II, population {config.pop}, seed {config.seed}",
         f"{plant_text(config.model)}; reference point "
         f"f_acc {config.reference_point[0]} m, f_t {config.reference_point[1]}",

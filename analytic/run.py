@@ -32,6 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from models.dynamics import digest
 from pymoo.core.population import Population
 
 from analytic.checkpoint import CheckpointRefused, decode, encode
@@ -43,6 +44,7 @@ from analytic.records import (
     CONFIG_JSON,
     EPISODES,
     EVALUATED_CSV,
+    FEEDFORWARD,
     FRONT_CSV,
     FRONT_JSON,
     HISTORY_CSV,
@@ -68,6 +70,7 @@ from schemas.episode import EpisodeSpec
 from schemas.files import Lock, Locked, remove_leftovers, write_atomically
 from schemas.gains import PDGains
 from schemas.objectives import objectives
+from schemas.trajectory import TrajectorySpec
 
 CHECKPOINT = "checkpoint.pkl"
 
@@ -135,10 +138,16 @@ class TuningRun:
         self.replication = Ledger()  # what validation cost and found, in this process
 
     @classmethod
-    def create(cls, directory: Path, config: RunConfig) -> "TuningRun":
-        """A new run in `directory` (FileExistsError if it already holds one), holding its lock."""
+    def create(
+        cls, directory: Path, config: RunConfig, feedforward: bytes | None = None
+    ) -> "TuningRun":
+        """A new run in `directory` (FileExistsError if it already holds one), holding its lock.
+        `feedforward` is the model file the config names by its SHA-256, if it names one."""
         # model_copy(update=...) skips validation: check the whole config once more.
         config = RunConfig.model_validate(config.model_dump())
+        given = digest(feedforward) if feedforward is not None else None
+        if given != config.feedforward:
+            raise ValueError(f"the feed-forward model given ({given}) is not the config's")
         directory = Path(directory)
         _refuse_existing(directory)
         directory.mkdir(parents=True, exist_ok=True)
@@ -149,6 +158,8 @@ class TuningRun:
             identity = RunIdentity.new()
             # run.json first: config.json is what says a run is here.
             write_atomically(directory / RUN_JSON, run_json(identity))
+            if feedforward is not None:
+                write_atomically(directory / FEEDFORWARD, feedforward)
             write_atomically(directory / CONFIG_JSON, config.model_dump_json(indent=2).encode())
         except BaseException:
             lock.release()
@@ -191,6 +202,22 @@ class TuningRun:
     def _check_open(self) -> None:
         if not self._lock.held:
             raise RuntimeError(f"{self.directory}: this run was closed; open it again to write")
+
+    def models(self) -> dict[str, bytes]:
+        """The feed-forward model the run's episodes use, by SHA-256, to serve to the workers
+        (ValueError if the run directory's copy is missing or not the one the config names)."""
+        wanted = self.config.feedforward
+        if wanted is None:
+            return {}
+        try:
+            raw = (self.directory / FEEDFORWARD).read_bytes()
+        except OSError as error:
+            raise ValueError(
+                f"{FEEDFORWARD}: cannot read the run's model ({error.strerror})"
+            ) from None
+        if digest(raw) != wanted:
+            raise ValueError(f"{FEEDFORWARD} is not the model config.json names")
+        return {wanted: raw}
 
     @property
     def finished(self) -> bool:
@@ -344,7 +371,7 @@ class TuningRun:
     def _evaluation(self, gains: PDGains, ran: Ran) -> Evaluation:
         """An original as validation takes it: the episode's spec, who ran it, its log."""
         trajectory = self.config.trajectories[int(ran.job_id.rsplit("-t", 1)[1])]
-        spec = EpisodeSpec(gains=gains, trajectory=trajectory, model=self.config.model)
+        spec = self._spec(gains, trajectory)
         log = self.directory / EPISODES / f"{ran.job_id}.mcap"
         return Evaluation(
             job_id=ran.job_id,
@@ -369,9 +396,15 @@ class TuningRun:
     def _job_ids(self, candidate: str) -> list[str]:
         return [f"{candidate}-t{number}" for number in range(len(self.config.trajectories))]
 
+    def _spec(self, gains: PDGains, trajectory: TrajectorySpec) -> EpisodeSpec:
+        config = self.config
+        return EpisodeSpec(
+            gains=gains, trajectory=trajectory, model=config.model, feedforward=config.feedforward
+        )
+
     def _specs(self, jobs: dict[PDGains, list[str]]) -> dict[str, EpisodeSpec]:
         return {
-            job_id: EpisodeSpec(gains=gains, trajectory=trajectory, model=self.config.model)
+            job_id: self._spec(gains, trajectory)
             for gains, ids in jobs.items()
             for job_id, trajectory in zip(ids, self.config.trajectories, strict=True)
         }

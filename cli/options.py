@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TypeVar
 
 import click
+from models.dynamics import BadDynamicsModel, DynamicsModel, from_bytes
 from pydantic import ValidationError
 
 from cli.app import CliError, parse_numbers
@@ -183,3 +184,35 @@ def log_level() -> Callable[[F], F]:
     return click.option(
         "--log-level", type=click.Choice(LOG_LEVELS), default="info", show_default=True
     )
+
+
+MODEL_FILE = "model.npz"  # what `analytic learn --out MODEL` writes the model to
+
+
+def feedforward(
+    help: str = "add a learned inverse-dynamics model's torque for the reference "
+    "to the PD (a directory from `analytic learn`, or its model.npz)",
+) -> Callable[[F], F]:
+    return click.option("--feedforward", type=click.Path(path_type=Path), help=help)
+
+
+def feedforward_model(path: Path | None) -> tuple[bytes, DynamicsModel] | None:
+    """--feedforward's model file as bytes (jobs name it by their SHA-256) and decoded; it must
+    be an inverse-dynamics model of the seven joints."""
+    if path is None:
+        return None
+    file = path / MODEL_FILE if path.is_dir() else path
+    try:
+        raw = file.read_bytes()
+    except OSError as error:
+        raise CliError(f"--feedforward: cannot read {str(file)!r}: {error.strerror}") from None
+    try:
+        model = from_bytes(raw)
+    except BadDynamicsModel as error:
+        raise CliError(f"--feedforward: {str(file)!r}: {error}") from None
+    if model.target != "inverse":
+        raise CliError(
+            f"--feedforward: {str(file)!r} is a {model.target}-dynamics model; a feed-forward "
+            "needs an inverse-dynamics one (analytic learn --target inverse)"
+        )
+    return raw, model

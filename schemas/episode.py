@@ -1,6 +1,8 @@
 """One episode: what to run (EpisodeSpec), what it was (EpisodeMetadata), how it scored (Scores)."""
 
-from pydantic import BaseModel, ConfigDict, Field
+from typing import Self
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas.gains import PDGains
 from schemas.robot import ModelSpec
@@ -18,6 +20,22 @@ class EpisodeSpec(BaseModel):
     gravity_compensation: bool = Field(
         False, description="add g(q_des) feed-forward; the paper tunes a plain PD, so off"
     )
+    feedforward: str | None = Field(
+        None,
+        pattern=r"^[0-9a-f]{64}$",
+        description="SHA-256 of a learned inverse-dynamics model (models/dynamics.py) whose "
+        "torque for the reference (q_des, qd_des, qdd_des) is added to the PD command; the "
+        "worker fetches it from the study once and caches it",
+    )
+
+    @model_validator(mode="after")
+    def _one_feedforward(self) -> Self:
+        if self.feedforward is not None and self.gravity_compensation:
+            raise ValueError(
+                "feedforward and gravity_compensation exclude each other: "
+                "an inverse-dynamics model already holds the arm against gravity"
+            )
+        return self
 
 
 class EpisodeMetadata(BaseModel):

@@ -15,6 +15,7 @@ COMPLETE_ANY = f"{ROOT}/broker/complete/*"
 CONFIRM_ANY = f"{ROOT}/broker/confirm/*"
 
 ALL_RESULTS = f"{ROOT}/study/*/result/*"
+ALL_MODELS = f"{ROOT}/study/*/model/*"
 ALIVE_WORKERS = f"{ROOT}/alive/worker/*"
 ALIVE_STUDIES = f"{ROOT}/alive/study/*"
 ALIVE_BROKER = f"{ROOT}/alive/broker"  # appears anew when a broker (re)starts: its queue is empty
@@ -43,6 +44,12 @@ def confirm(study: str) -> str:
 def result(study: str, job_id: str) -> str:
     """Where a worker puts a job's Result (attachment) and episode log (payload)."""
     return f"{ROOT}/study/{study}/result/{job_id}"
+
+
+def model(study: str, digest: str) -> str:
+    """Queryable: (nothing) → the bytes of the study's feed-forward model with that SHA-256,
+    served by the analytic process that owns the study, fetched once by each worker."""
+    return f"{ROOT}/study/{study}/model/{digest}"
 
 
 def study_results(study: str) -> str:

@@ -216,6 +216,14 @@ def _analytic_rules(name: str) -> list[dict[str, Any]]:
             f"{who} subscribes", ["declare_subscriber"], "ingress", [keys.study_results(studies)]
         ),
         _rule(f"{who} receives", ["put"], "egress", [keys.study_results(studies)]),
+        # It serves its studies' feed-forward models to the workers that ask for them.
+        _rule(
+            f"{who} serves models",
+            ["declare_queryable", "reply"],
+            "ingress",
+            [keys.model(studies, "*")],
+        ),
+        _rule(f"{who} is asked for models", ["query"], "egress", [keys.model(studies, "*")]),
         _rule(
             f"{who} holds its studies",
             ["liveliness_token", "liveliness_query"],
@@ -241,6 +249,10 @@ def _worker_rules(name: str) -> list[dict[str, Any]]:
         _rule(f"{who} asks", ["query"], "ingress", services),
         _rule(f"{who} is answered", ["reply"], "egress", services),
         _rule(f"{who} returns results", ["put"], "ingress", [keys.ALL_RESULTS]),
+        # A job names its feed-forward model by content hash, so any study's may be fetched: a
+        # model that does not hash to the job's digest is refused (worker/feedforward.py).
+        _rule(f"{who} fetches models", ["query"], "ingress", [keys.ALL_MODELS]),
+        _rule(f"{who} receives models", ["reply"], "egress", [keys.ALL_MODELS]),
         _rule(
             f"{who} holds its name",
             ["liveliness_token", "liveliness_query"],

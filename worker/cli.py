@@ -10,6 +10,7 @@ import threading
 from pathlib import Path
 
 import click
+from models.dynamics import digest
 from pydantic import ValidationError
 
 from cli import options
@@ -22,6 +23,7 @@ from schemas.objectives import score
 from schemas.robot import N_JOINTS
 from schemas.wire import NAME_PATTERN, NAME_RULE, describe
 from worker.episode import run_episode
+from worker.feedforward import ModelCache
 from worker.ik import UnreachablePath
 from worker.reference import InfeasibleReference
 from worker.service import CobotWorker, NameTaken
@@ -51,6 +53,7 @@ def app() -> None:
 @options.plant()
 @options.placement()
 @click.option("--gravity-compensation", is_flag=True, help="add g(q_des) feed-forward to the PD")
+@options.feedforward()
 @click.option("--json", "as_json", is_flag=True, help="print the scores as one JSON object")
 def episode(
     out: Path,
@@ -64,23 +67,31 @@ def episode(
     center: str,
     size: float,
     gravity_compensation: bool,
+    feedforward: Path | None,
     as_json: bool,
 ) -> None:
     """Simulate one PD episode on the iiwa 14, write its MCAP log and print its scores."""
     (path,) = options.trajectories([trajectory], duration, trajectory_seed, center, size)
+    learned = options.feedforward_model(feedforward)
+    if learned is not None and gravity_compensation:
+        raise CliError(
+            "--feedforward and --gravity-compensation exclude each other: "
+            "an inverse-dynamics model already holds the arm against gravity"
+        )
     try:
         spec = EpisodeSpec(
             gains=PDGains(kp=_gains("--kp", kp), kd=_gains("--kd", kd)),
             trajectory=path,
             model=options.model_spec(plant, model),
             gravity_compensation=gravity_compensation,
+            feedforward=digest(learned[0]) if learned is not None else None,
         )
     except ValidationError as error:
         raise CliError(describe(error)) from None
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
     try:
-        log = run_episode(spec)
+        log = run_episode(spec, learned[1] if learned is not None else None)
     except (UnreachablePath, InfeasibleReference) as error:
         raise CliError(str(error)) from None
     try:
@@ -100,8 +111,19 @@ def episode(
 @options.tls(
     "a secure farm: directory with ca.pem and this worker's worker.NAME.pem and worker.NAME.key"
 )
+@click.option(
+    "--model-cache",
+    type=click.Path(path_type=Path),
+    help="where fetched feed-forward models are kept  [default: $XDG_CACHE_HOME/gainfarm/models]",
+)
 @options.log_level()
-def start(connect: tuple[str, ...], name: str | None, tls: Path | None, log_level: str) -> None:
+def start(
+    connect: tuple[str, ...],
+    name: str | None,
+    tls: Path | None,
+    model_cache: Path | None,
+    log_level: str,
+) -> None:
     """Serve a farm: ask the broker for jobs while free, run them, return their logs.
 
     SIGTERM or Ctrl-C: the job in progress is finished and returned, then the worker exits.
@@ -118,10 +140,11 @@ def start(connect: tuple[str, ...], name: str | None, tls: Path | None, log_leve
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
     log = logging.getLogger("gainfarm.worker")
+    models = ModelCache(model_cache)  # one for the process: a reconnect keeps what it fetched
     waiting = False
     while not stop.is_set():
         try:
-            cobot = CobotWorker(connect, name, identity)
+            cobot = CobotWorker(connect, name, identity, models)
         except (NameTaken, ValueError) as error:
             raise CliError(str(error)) from None
         except ConnectionError as error:

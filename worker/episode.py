@@ -16,6 +16,7 @@ from importlib.metadata import version
 
 import mujoco
 import numpy as np
+from models.dynamics import DynamicsModel
 
 from models import compile_model
 from schemas.episode import EpisodeMetadata, EpisodeSpec
@@ -32,20 +33,40 @@ MAX_JOINT_ERROR = 1.0  # rad: a tracking error this large is a lost arm, not a t
 _STATE = mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL  # what a tick senses
 
 
-def run_episode(spec: EpisodeSpec) -> EpisodeLog:
-    """Simulate `spec` and return its log. A diverging episode is stopped early and flagged."""
-    inertials = spec.model.inertials
-    gravity = gravity_for(spec.trajectory, inertials) if spec.gravity_compensation else None
-    return simulate(spec, reference_for(spec.trajectory), gravity)
+class MissingModel(ValueError):
+    """The spec names a feed-forward model the caller did not give."""
 
 
-def simulate(spec: EpisodeSpec, reference: Reference, gravity: np.ndarray | None) -> EpisodeLog:
-    """Track `reference` with the spec's controller on its plant; `gravity` is the feed-forward
-    if the spec compensates gravity (run_episode computes both from the spec)."""
+def run_episode(spec: EpisodeSpec, model: DynamicsModel | None = None) -> EpisodeLog:
+    """Simulate `spec` and return its log. A diverging episode is stopped early and flagged.
+    `model` is the inverse-dynamics model the spec's `feedforward` names, if it names one."""
+    reference = reference_for(spec.trajectory)
+    return simulate(spec, reference, compensation(spec, reference, model))
+
+
+def compensation(
+    spec: EpisodeSpec, reference: Reference, model: DynamicsModel | None = None
+) -> np.ndarray | None:
+    """The torque the controller adds to its PD law, per tick: the gravity feed-forward, or a
+    learned model's inverse dynamics of the whole reference, computed in bulk once per episode
+    so that the tick stays as lean as without; None if the spec asks for neither."""
+    if spec.feedforward is not None:
+        if model is None:
+            raise MissingModel(f"feed-forward model {spec.feedforward[:12]} was not given")
+        return model.inverse(reference.q, reference.qd, reference.qdd)
+    if spec.gravity_compensation:
+        return gravity_for(spec.trajectory, spec.model.inertials)
+    return None
+
+
+def simulate(spec: EpisodeSpec, reference: Reference, added: np.ndarray | None) -> EpisodeLog:
+    """Track `reference` with the spec's controller on its plant, `added` (see `compensation`)
+    added to the PD law's torque."""
     plant = Plant(spec.model)
     controller = PDController.from_gains(spec.gains, plant.torque_limits)
-    compensation = gravity if spec.gravity_compensation and gravity is not None else 0.0
-    feedforward = controller.reference_term(reference.q, reference.qd, compensation)
+    feedforward = controller.reference_term(
+        reference.q, reference.qd, 0.0 if added is None else added
+    )
     plant.reset(reference.q[0])
 
     ticks = len(reference.t)

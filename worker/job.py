@@ -6,12 +6,16 @@ would take the worker down: the farm goes on serving, and the analytic side lear
 
 import hashlib
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+
+from models.dynamics import DynamicsModel
 
 from schemas.episode import EpisodeSpec
 from schemas.mcap_episode import episode_bytes
 from schemas.wire import JobStatus, Lease, Result, Timings
 from worker.episode import run_episode
+from worker.feedforward import ModelUnavailable
 from worker.ik import UnreachablePath
 from worker.reference import InfeasibleReference
 
@@ -33,14 +37,23 @@ class Outcome:
         return hashlib.sha256(self.content).hexdigest()
 
 
-def simulate(spec: EpisodeSpec) -> Outcome:
-    """Run the episode and encode its log; never raises for a spec that cannot run."""
+def simulate(spec: EpisodeSpec, model: Callable[[str], DynamicsModel] | None = None) -> Outcome:
+    """Run the episode and encode its log; never raises for a spec that cannot run. `model`
+    gives the feed-forward model of a digest, if the spec names one (ModelUnavailable if it
+    cannot)."""
     started = time.perf_counter()
     content = b""
     reason = ""
     try:
-        log = run_episode(spec)
-    except (UnreachablePath, InfeasibleReference) as error:
+        feedforward = None
+        if spec.feedforward is not None:
+            if model is None:
+                raise ModelUnavailable(
+                    f"feed-forward model {spec.feedforward[:12]}: this worker cannot fetch models"
+                )
+            feedforward = model(spec.feedforward)
+        log = run_episode(spec, feedforward)
+    except (UnreachablePath, InfeasibleReference, ModelUnavailable) as error:
         status, reason = JobStatus.failed, str(error)
     except Exception as error:  # a bug or a bad spec must not kill a cobot serving a farm
         status, reason = JobStatus.failed, f"{type(error).__name__}: {error}"
@@ -55,9 +68,11 @@ def simulate(spec: EpisodeSpec) -> Outcome:
     return Outcome(status, reason, content, timings)
 
 
-def execute(lease: Lease, worker: str) -> tuple[Result, bytes]:
+def execute(
+    lease: Lease, worker: str, model: Callable[[str], DynamicsModel] | None = None
+) -> tuple[Result, bytes]:
     """Run the lease's episode; return its Result and the MCAP bytes (empty if it failed)."""
-    outcome = simulate(lease.job.spec)
+    outcome = simulate(lease.job.spec, model)
     result = Result(
         study=lease.study,
         job_id=lease.job.job_id,

@@ -9,6 +9,7 @@ import time
 from collections.abc import Sequence
 
 import zenoh
+from models.dynamics import DynamicsModel, digest
 
 from schemas import keys
 from schemas.ask import ask
@@ -24,6 +25,7 @@ from schemas.wire import (
     Result,
     decode,
 )
+from worker.feedforward import ModelCache
 from worker.job import execute
 
 log = logging.getLogger("gainfarm.worker")
@@ -31,16 +33,49 @@ log = logging.getLogger("gainfarm.worker")
 ANSWER_MARGIN = 5.0  # s beyond the broker's longest hold before a lease request counts as lost
 RETRY_SECONDS = 1.0  # pause after a broker that did not answer or answered with an error
 ANSWER_SECONDS = 10.0  # how long the broker has to take a handed-in result
+MAX_MODEL_BYTES = 64 * 2**20  # a 21-128-128-128-7 network is 0.3 MB; anything this big is not one
 
 
 class NameTaken(RuntimeError):
     pass
 
 
+def fetch_model(session: zenoh.Session, study: str, wanted: str) -> bytes | None:
+    """The bytes of the model hashing to `wanted`, from whoever serves them, or None. The
+    content hash is the trust: unlike the broker's answers, these may come from any process,
+    and bytes that hash to anything else (or are too large to be a model) are ignored."""
+    key = keys.model(study, wanted)
+    replies = session.get(
+        key,
+        timeout=ANSWER_SECONDS,
+        target=zenoh.QueryTarget.ALL,
+        consolidation=zenoh.ConsolidationMode.NONE,
+    )
+    for reply in replies:
+        if reply.ok is None:
+            continue
+        payload = reply.ok.payload
+        if len(payload) > MAX_MODEL_BYTES:
+            log.warning("ignored a %d-byte answer on %s: too large for a model", len(payload), key)
+            continue
+        raw = payload.to_bytes()
+        if digest(raw) == wanted:
+            return raw
+        log.warning("ignored an answer on %s that hashes to %s", key, digest(raw)[:12])
+    return None
+
+
 class CobotWorker:
-    def __init__(self, connect: Sequence[str], name: str, identity: TlsIdentity | None = None):
+    def __init__(
+        self,
+        connect: Sequence[str],
+        name: str,
+        identity: TlsIdentity | None = None,
+        models: ModelCache | None = None,
+    ):
         request = LeaseRequest(worker=name)  # validates the name: it becomes a key chunk
         self.name = request.worker
+        self.models = models if models is not None else ModelCache()
         self._request = request.to_bytes()
         self.jobs_done = 0
         self.refused = 0  # results the broker did not take (e.g. the lease had gone elsewhere)
@@ -76,7 +111,7 @@ class CobotWorker:
 
     def _run(self, lease: Lease, stop: threading.Event) -> None:
         give_up = time.monotonic() + lease.expires_in
-        result, content = execute(lease, self.name)
+        result, content = execute(lease, self.name, lambda wanted: self._model(lease, wanted))
         if not self._hand_in(result, give_up, stop):
             return
         self.session.put(
@@ -93,6 +128,11 @@ class CobotWorker:
             result.status.value,
             result.timings.simulate_s + result.timings.encode_s,
         )
+
+    def _model(self, lease: Lease, wanted: str) -> DynamicsModel:
+        """The job's feed-forward model, fetched from its study the first time."""
+
+        return self.models.model(wanted, lambda _: fetch_model(self.session, lease.study, wanted))
 
     def _hand_in(self, result: Result, give_up: float, stop: threading.Event) -> bool:
         """Hand the result in to the broker: True once it takes it. A broker that does not

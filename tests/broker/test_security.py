@@ -9,6 +9,7 @@ space of schemas/keys.py. The last test runs a real broker and a real worker pro
 
 import hashlib
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -23,7 +24,9 @@ from analytic.farm import FarmClient
 from analytic.local import free_port
 from broker.certs import revoke, write_dev_credentials
 from broker.service import Broker
+from models.dynamics import digest, rigid_prior, to_bytes
 from schemas import keys
+from schemas.robot import IDEAL_PLANT
 from schemas.security import Role, TlsIdentity
 from schemas.transport import open_session
 from schemas.wire import JobStatus
@@ -218,6 +221,28 @@ def _tls_client(endpoint: str, identity: TlsIdentity, present_certificate: bool)
     return config
 
 
+def test_only_a_studys_owner_serves_its_models_and_any_worker_may_fetch_them(
+    router: Router, connect: Callable[..., zenoh.Session], credentials: Path
+) -> None:
+    alice = connect(credentials, "analytic", "alice")
+    bob = connect(credentials, "analytic", "bob")
+    worker = connect(credentials, "worker", "cobot-1")
+    own, bobs = keys.model("alice.x", "a" * 64), keys.model("alice.x", "b" * 64)
+    _served = [
+        alice.declare_queryable(own, lambda query: query.reply(query.key_expr, b"model")),
+        bob.declare_queryable(bobs, lambda query: query.reply(query.key_expr, b"forged")),
+        bob.declare_queryable(keys.ALL_MODELS, lambda query: query.reply(query.key_expr, b"x")),
+    ]
+    assert _answered(alice, [keys.STATUS]) and _answered(bob, [keys.STATUS])  # declared by now
+    wait_for(lambda: _answered(worker, [own]), what="alice's model to be served")
+    assert _answered(worker, [own, bobs]) == {own}
+    replies = [reply.ok.payload.to_bytes() for reply in worker.get(own, timeout=1.0) if reply.ok]
+    assert replies == [b"model"]  # bob's catch-all queryable was never declared
+    # An analytic participant does not fetch models (another session of bob's: his own
+    # queryables would answer his own query inside his session).
+    assert _answered(connect(credentials, "analytic", "bob"), [own]) == set()
+
+
 def test_a_secure_farm_runs_jobs_end_to_end(credentials: Path, tmp_path: Path) -> None:
     """A real broker and a worker process, each with its own identity, and alice's client."""
     endpoint, tls = f"tls/127.0.0.1:{free_port()}", str(credentials)
@@ -226,24 +251,32 @@ def test_a_secure_farm_runs_jobs_end_to_end(credentials: Path, tmp_path: Path) -
         command = [sys.executable, "-m", "worker", "start", "--connect", endpoint, "--tls", tls]
         # cobot-2 by name (the directory holds two worker identities): the identity's name is
         # the worker's name.
-        worker = subprocess.Popen([*command, "--name", "cobot-2", "--log-level", "warning"])
+        worker = subprocess.Popen(
+            [*command, "--name", "cobot-2", "--log-level", "warning"],
+            env={**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")},
+        )
+        # Job c adds a feed-forward model, which the worker fetches from alice's process.
+        model = to_bytes(rigid_prior(IDEAL_PLANT.model_copy(update={"joints": "rigid"})))
+        with_model = short_spec(duration=0.3).model_copy(update={"feedforward": digest(model)})
         try:
             alice = TlsIdentity(credentials, "analytic", "alice")
-            with FarmClient([endpoint], "alice.secure", tmp_path, identity=alice) as farm:
-                farm.submit({"a": short_spec(), "b": short_spec(duration=0.3)})
+            with FarmClient(
+                [endpoint], "alice.secure", tmp_path, identity=alice, models={digest(model): model}
+            ) as farm:
+                farm.submit({"a": short_spec(), "b": short_spec(duration=0.3), "c": with_model})
                 evaluations = list(farm.results(timeout=60))
-            wait_for(lambda: broker.queue.jobs_done == 2, what="the broker to count the jobs")
+            wait_for(lambda: broker.queue.jobs_done == 3, what="the broker to count the jobs")
             status = [sys.executable, "-m", "broker", "status", "--json", "--connect", endpoint]
             for who in ("broker", "worker.cobot-1", "analytic.bob"):  # anyone may read it
                 done = subprocess.run(
                     [*status, "--tls", tls, "--as", who], capture_output=True, text=True, timeout=60
                 )
                 assert done.returncode == 0, done.stderr
-                assert json.loads(done.stdout)["jobs_done"] == 2
+                assert json.loads(done.stdout)["jobs_done"] == 3
         finally:
             worker.terminate()
             assert worker.wait(15) == 0
-    assert sorted(e.job_id for e in evaluations) == ["a", "b"]
+    assert sorted(e.job_id for e in evaluations) == ["a", "b", "c"]
     assert all(e.status == JobStatus.ok and e.worker == "cobot-2" for e in evaluations)
 
 

@@ -123,12 +123,24 @@ def test_the_policy_names_each_participant_and_only_its_own_keys(tmp_path: Path)
     assert ("query", "ingress", keys.complete("w1")) in worker
     assert ("liveliness_token", "ingress", keys.alive_worker("w1")) in worker
     assert ("put", "ingress", keys.ALL_RESULTS) in worker
+    assert ("declare_queryable", "ingress", keys.model("alice.$*", "*")) in alice
+    assert ("query", "ingress", keys.ALL_MODELS) in worker
     # Everything a participant may send names itself, but for status, the broker's token, and a
-    # worker's results (the broker checks those against its leases).
+    # worker's results (the broker checks those against its leases) and model fetches (the model
+    # must hash to the digest the job names).
     for _, flow, key in alice:
         assert flow == "egress" or "/alice.$*" in key or key in (keys.STATUS, keys.ALIVE_BROKER)
     for _, flow, key in worker:
-        assert flow == "egress" or key.endswith("/w1") or key in (keys.STATUS, keys.ALL_RESULTS)
+        assert (
+            flow == "egress"
+            or key.endswith("/w1")
+            or key
+            in (
+                keys.STATUS,
+                keys.ALL_RESULTS,
+                keys.ALL_MODELS,
+            )
+        )
     assert not {g for g in alice if g[0] == "put" and g[1] == "ingress"}, "alice forges no result"
     assert not {g for g in worker if "submit" in g[2]}, "a worker submits nothing"
     assert granted["broker"] == {

@@ -52,7 +52,8 @@ def test_the_ideal_plant_reproduces_the_first_waves_episodes_exactly():
         )
         q = arrays[f"q{i}"]
         reference = _joint_space_reference(q, arrays[f"ee{i}"])
-        log = simulate(spec, reference, gravity_torques(q, "open"))
+        gravity = gravity_torques(q, "open") if spec.gravity_compensation else None
+        log = simulate(spec, reference, gravity)
         assert score(log).model_dump(mode="json") == record["scores"], i
 
 

@@ -1,0 +1,161 @@
+"""Learning the arm's dynamics (analytic/learning.py) on small datasets of real MuJoCo episodes:
+real scikit-learn training and Pinocchio identification, scored on held-out trajectories."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from analytic import learning
+from analytic.learning import LearnError, fit, learn, read_split, score
+from models.dynamics import digest, from_bytes, load, to_bytes
+from schemas.robot import IDEAL_PLANT, JOINT_NAMES, REALISTIC_PLANT
+from tests.learning_data import SPLITS, write_dataset
+
+REQUIRED = {"nmse", "rmse", "nmse_mean", "nmse_mean_all", "rows", "target", "kind"}
+REQUIRED |= {"mean_predictor_nmse"}
+
+
+@pytest.fixture(scope="module")
+def realistic(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Six training, one validation and two test fourier episodes of 2 s, realistic plant."""
+    return write_dataset(tmp_path_factory.mktemp("data") / "realistic", REALISTIC_PLANT)
+
+
+def _leftovers(directory: Path) -> list[str]:
+    return sorted(path.name for path in directory.iterdir() if path.name.startswith("."))
+
+
+def test_a_split_is_its_rows_without_the_last_ticks(realistic):
+    train, test = read_split(realistic, "train"), read_split(realistic, "test")
+    assert len(set(train.episode_id)) == 6 and len(set(test.episode_id)) == 2
+    assert len(train) == 6 * 1000  # 1001 ticks an episode; the last has no acceleration
+    assert train.q.shape == train.u.shape == train.qdd.shape == (6000, 7)
+    assert np.isfinite(train.qdd).all()
+    assert len(read_split(realistic, "nonexistent")) == 0
+
+
+@pytest.mark.parametrize(
+    ("kind", "target"),
+    [("linear", "inverse"), ("mlp", "inverse"), ("residual", "inverse"), ("residual", "forward")],
+)
+def test_learned_models_beat_the_mean_predictor_on_held_out_trajectories(
+    realistic, tmp_path, kind, target
+):
+    out = tmp_path / "model"
+    scores = learn(realistic, out, target=target, kind=kind)
+    assert set(scores) >= REQUIRED
+    assert set(scores["nmse"]) == set(scores["rmse"]) == set(JOINT_NAMES)
+    assert (scores["kind"], scores["target"], scores["rows"]) == (kind, target, 2000)
+    assert 0.8 < scores["mean_predictor_nmse"] < 1.5
+    assert scores["nmse_mean"] < 0.5, scores["nmse"]
+    assert scores["nmse_mean"] == pytest.approx(
+        np.mean([scores["nmse"][j] for j in JOINT_NAMES[:6]])
+    )
+
+    assert json.loads((out / "scores.json").read_text()) == scores
+    raw = (out / "model.npz").read_bytes()
+    assert digest(raw) == scores["digest"]
+    model = from_bytes(raw)
+    assert (model.kind, model.target) == (kind, target)
+    assert model.about["train_rows"] == 6000
+    report = (out / "report.md").read_text()
+    assert "prediction.png" in report and scores["digest"] in report and "| A6 |" in report
+    assert (out / "prediction.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(p.name for p in out.iterdir()) == [
+        "model.npz",
+        "prediction.png",
+        "report.md",
+        "scores.json",
+    ]
+    assert _leftovers(tmp_path) == []
+
+
+def test_learning_adds_what_the_rigid_prior_leaves_out(realistic, tmp_path):
+    # The realistic plant's friction and elastic joints are not in the rigid physics: the
+    # residual network and the identified friction must explain much of what it misses.
+    prior = score(fit(realistic, "inverse", "rigid"), realistic)
+    residual = score(fit(realistic, "inverse", "residual"), realistic)
+    linear = score(fit(realistic, "inverse", "linear"), realistic)
+    assert residual["nmse_mean"] < 0.8 * prior["nmse_mean"]
+    assert linear["nmse_mean"] < 0.3 * prior["nmse_mean"]
+
+
+def test_a_network_is_the_same_for_the_same_seed(realistic):
+    first = to_bytes(fit(realistic, "inverse", "mlp", seed=1))
+    assert to_bytes(fit(realistic, "inverse", "mlp", seed=1)) == first
+    assert to_bytes(fit(realistic, "inverse", "mlp", seed=2)) != first
+
+
+def test_the_rigid_prior_scores_near_zero_on_a_rigid_plant(tmp_path):
+    # One physics step a tick: the dataset's q̈ is the acceleration MuJoCo integrated.
+    plant = IDEAL_PLANT.model_copy(update={"joints": "rigid", "substeps": 1})
+    dataset = write_dataset(tmp_path / "rigid", plant, [(0, "train"), (1, "test")], 1.0)
+    for target in ("inverse", "forward"):
+        scores = learn(dataset, tmp_path / target, target=target, kind="rigid")
+        assert scores["nmse_mean_all"] < 1e-20, scores["nmse"]
+
+
+def test_a_dataset_of_mixed_plants_uses_the_first_and_says_so(tmp_path):
+    rigid = IDEAL_PLANT.model_copy(update={"joints": "rigid"})
+    dataset = write_dataset(tmp_path / "one", rigid, [(0, "test")], 0.5)
+    other = write_dataset(tmp_path / "two", IDEAL_PLANT, [(1, "test")], 0.5)
+    for name in ("ticks.parquet", "episodes.parquet"):
+        both = pa.concat_tables([pq.read_table(dataset / name), pq.read_table(other / name)])
+        pq.write_table(both, dataset / name)
+    learn(dataset, tmp_path / "model", kind="rigid")
+    assert "mix 2 plants (the same rigid arm)" in (tmp_path / "model" / "report.md").read_text()
+    assert load(tmp_path / "model" / "model.npz").spec.inertials == "open"
+
+
+# --- refusals ---------------------------------------------------------------------------------
+
+
+def _refused(dataset: Path, out: Path, message: str, **options: str) -> None:
+    with pytest.raises(LearnError, match=message) as caught:
+        learn(dataset, out, **options)
+    assert "\n" not in str(caught.value)
+    assert not out.exists()
+    assert _leftovers(out.parent) == []
+
+
+def test_a_linear_forward_model_is_refused(realistic, tmp_path):
+    _refused(
+        realistic, tmp_path / "m", "linear model is inverse only", target="forward", kind="linear"
+    )
+
+
+def test_a_dataset_without_a_test_split_is_refused(tmp_path):
+    dataset = write_dataset(tmp_path / "d", REALISTIC_PLANT, SPLITS[:2], 2.0)
+    _refused(dataset, tmp_path / "m", "the dataset has no test split: build it with --split")
+
+
+def test_a_dataset_without_training_rows_is_refused(tmp_path):
+    dataset = write_dataset(tmp_path / "d", REALISTIC_PLANT, [(7, "test")], 2.0)
+    _refused(dataset, tmp_path / "m", "no rows in its train split", kind="mlp")
+
+
+def test_a_missing_or_unreadable_dataset_is_refused(tmp_path):
+    _refused(tmp_path / "absent", tmp_path / "m", "holds no dataset")
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "episodes.parquet").write_bytes(b"not parquet")
+    _refused(tmp_path / "junk", tmp_path / "m", "unreadable episodes.parquet")
+
+
+def test_an_existing_out_directory_is_refused_and_left_alone(realistic, tmp_path):
+    (tmp_path / "m").mkdir()
+    (tmp_path / "m" / "keep").write_text("mine")
+    with pytest.raises(LearnError, match="already exists"):
+        learn(realistic, tmp_path / "m", kind="rigid")
+    assert [p.name for p in (tmp_path / "m").iterdir()] == ["keep"]
+
+
+def test_a_failure_while_writing_leaves_nothing(realistic, tmp_path, monkeypatch):
+    def full_disk(*args: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(learning, "plot_prediction", full_disk)
+    _refused(realistic, tmp_path / "m", "cannot write .*No space left on device", kind="rigid")

@@ -1,0 +1,182 @@
+"""A learned inverse-dynamics model as the controller's feed-forward: what it buys, and how it
+reaches a worker (by content hash, over the farm, once)."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from analytic.farm import FarmClient
+from analytic.local import local_farm
+from models.dynamics import digest, rigid_prior, to_bytes
+from schemas import EpisodeSpec, TrajectorySpec
+from schemas.mcap_episode import read_episode
+from schemas.objectives import score
+from schemas.robot import IDEAL_PLANT
+from tests.helpers import SOFT_GAINS
+from worker.episode import MissingModel, run_episode
+from worker.feedforward import ModelCache, ModelUnavailable
+from worker.job import simulate
+
+RIGID_IDEAL = IDEAL_PLANT.model_copy(update={"joints": "rigid"})
+TRAJECTORY = TrajectorySpec(kind="fourier", duration=2.0, seed=4)
+
+
+def rigid_model_bytes() -> bytes:
+    """The perfect model of the rigid ideal plant: its own rigid-body dynamics."""
+    return to_bytes(rigid_prior(RIGID_IDEAL))
+
+
+def test_a_perfect_model_cuts_the_tracking_error_by_a_large_factor_at_the_same_gains() -> None:
+    raw = rigid_model_bytes()
+    plain = EpisodeSpec(gains=SOFT_GAINS, trajectory=TRAJECTORY, model=RIGID_IDEAL)
+    learned = plain.model_copy(update={"feedforward": digest(raw)})
+    without = score(run_episode(plain))
+    log = run_episode(learned, rigid_prior(RIGID_IDEAL))
+    with_model = score(log)
+    assert not without.diverged and not with_model.diverged
+    assert without.f_acc > 50 * with_model.f_acc, (without.f_acc, with_model.f_acc)
+    assert log.metadata.spec.feedforward == digest(raw)  # the log says which model
+
+
+def test_a_spec_naming_a_model_needs_the_model() -> None:
+    spec = EpisodeSpec(
+        gains=SOFT_GAINS, trajectory=TRAJECTORY, model=RIGID_IDEAL, feedforward="ab" * 32
+    )
+    with pytest.raises(MissingModel):
+        run_episode(spec)
+    outcome = simulate(spec)  # a worker that cannot fetch: a failed job, not a crash
+    assert outcome.status.value == "failed" and "ababababab" in outcome.reason
+
+
+def test_feedforward_and_gravity_compensation_exclude_each_other() -> None:
+    with pytest.raises(ValueError, match="exclude each other"):
+        EpisodeSpec(
+            gains=SOFT_GAINS,
+            feedforward="ab" * 32,
+            gravity_compensation=True,
+            trajectory=TRAJECTORY,
+        )
+
+
+def test_the_cache_fetches_once_keeps_the_file_and_refuses_what_does_not_hash(
+    tmp_path: Path,
+) -> None:
+    raw = rigid_model_bytes()
+    wanted = digest(raw)
+    asked: list[str] = []
+
+    def fetch(name: str) -> bytes:
+        asked.append(name)
+        return raw
+
+    cache = ModelCache(tmp_path)
+    model = cache.model(wanted, fetch)
+    assert model.target == "inverse" and asked == [wanted] and cache.fetched == 1
+    assert (tmp_path / f"{wanted}.npz").read_bytes() == raw
+    # A new process (a restarted worker) finds it on disk; a corrupted copy is fetched again.
+    assert ModelCache(tmp_path).model(wanted, lambda _: None) is not None
+    (tmp_path / f"{wanted}.npz").write_bytes(raw[:-10])
+    again = ModelCache(tmp_path)
+    again.model(wanted, fetch)
+    assert again.fetched == 1 and len(asked) == 2
+    with pytest.raises(ModelUnavailable, match="hash"):
+        ModelCache(tmp_path / "other").model("cd" * 32, lambda _: raw)
+    with pytest.raises(ModelUnavailable, match="nobody"):
+        ModelCache(tmp_path / "other").model("cd" * 32, lambda _: None)
+    forward = to_bytes(rigid_prior(RIGID_IDEAL, target="forward"))
+    with pytest.raises(ModelUnavailable, match="inverse"):
+        ModelCache(tmp_path / "other").model(digest(forward), lambda _: forward)
+
+
+def test_the_model_reaches_a_worker_that_never_had_the_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(cache))  # the worker processes' cache: empty
+    raw = rigid_model_bytes()
+    wanted = digest(raw)
+    spec = EpisodeSpec(
+        gains=SOFT_GAINS, trajectory=TRAJECTORY, model=RIGID_IDEAL, feedforward=wanted
+    )
+    decoy = to_bytes(
+        rigid_prior(IDEAL_PLANT.model_copy(update={"joints": "rigid", "inertials": "cad"}))
+    )
+    with local_farm(workers=1) as endpoint:
+        # A study that serves other bytes under the digest: the worker refuses them, fails the
+        # job with the reason, and goes on serving.
+        with FarmClient([endpoint], "liar", tmp_path / "liar", models={wanted: decoy}) as farm:
+            farm.submit({"j": spec})
+            (failed,) = list(farm.results(timeout=60))
+        assert failed.status.value == "failed" and wanted[:12] in failed.reason
+        with FarmClient([endpoint], "honest", tmp_path / "run", models={wanted: raw}) as farm:
+            farm.submit(
+                {
+                    "a": spec,
+                    "b": spec.model_copy(
+                        update={"trajectory": TRAJECTORY.model_copy(update={"seed": 5})}
+                    ),
+                }
+            )
+            evaluations = {evaluation.job_id: evaluation for evaluation in farm.results(timeout=60)}
+    assert {evaluation.status.value for evaluation in evaluations.values()} == {"ok"}
+    assert (cache / "gainfarm" / "models" / f"{wanted}.npz").read_bytes() == raw
+    log = read_episode(evaluations["a"].log)
+    assert log.metadata.spec.feedforward == wanted
+    # The farm's episode is the one this process simulates with the same model, bit for bit.
+    assert evaluations["a"].digest == simulate(spec, lambda _: rigid_prior(RIGID_IDEAL)).digest
+
+
+def test_worker_episode_takes_a_model_file_and_refuses_a_bad_one_in_one_line(
+    tmp_path: Path,
+) -> None:
+    model_dir = tmp_path / "model"
+    model_dir.mkdir()
+    (model_dir / "model.npz").write_bytes(rigid_model_bytes())
+    (tmp_path / "forward.npz").write_bytes(to_bytes(rigid_prior(RIGID_IDEAL, target="forward")))
+    (tmp_path / "junk.npz").write_bytes(b"not a model")
+    worker = [sys.executable, "-m", "worker", "episode", "--trajectory", "fourier"]
+    common = [*worker, "--duration", "1", "--plant", "ideal", "--model", "rigid"]
+    ran = subprocess.run(
+        [*common, "--feedforward", str(model_dir), "--out", str(tmp_path / "e.mcap"), "--json"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert ran.returncode == 0, ran.stderr
+    assert read_episode(tmp_path / "e.mcap").metadata.spec.feedforward == digest(
+        rigid_model_bytes()
+    )
+    for bad, expected in [
+        (tmp_path / "junk.npz", "--feedforward"),
+        (tmp_path / "forward.npz", "inverse"),
+        (tmp_path / "missing", "--feedforward"),
+    ]:
+        out = tmp_path / f"{bad.name}.mcap"
+        ran = subprocess.run(
+            [*common, "--feedforward", str(bad), "--out", str(out)],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert ran.returncode != 0 and expected in ran.stderr, ran.stderr
+        assert len(ran.stderr.strip().splitlines()) == 1 and "Traceback" not in ran.stderr
+        assert not out.exists()
+
+
+def test_in_process_evaluation_uses_the_given_model(tmp_path: Path) -> None:
+    from analytic.inprocess import InProcessEvaluator
+
+    raw = rigid_model_bytes()
+    spec = EpisodeSpec(
+        gains=SOFT_GAINS, trajectory=TRAJECTORY, model=RIGID_IDEAL, feedforward=digest(raw)
+    )
+    with InProcessEvaluator(tmp_path, models={digest(raw): raw}) as evaluator:
+        evaluator.submit({"a": spec})
+        (evaluation,) = list(evaluator.results())
+    assert evaluation.status.value == "ok"
+    np.testing.assert_equal(
+        read_episode(evaluation.log).u, run_episode(spec, rigid_prior(RIGID_IDEAL)).u
+    )

@@ -1,0 +1,90 @@
+"""The feed-forward models a worker has: fetched from the farm once, kept on disk by content hash.
+
+A job names its model by SHA-256 (EpisodeSpec.feedforward), not by path: no shared file system is
+assumed. The first job that needs a model asks the farm for it (the study that submitted the job
+serves it); bytes that do not hash to the job's digest are refused, whoever sent them, so a model
+cannot be swapped on the way. Fetched models are written to the cache directory (whole or not at
+all) and so survive the worker's restarts. No Zenoh here: the caller gives the fetch.
+"""
+
+import os
+from collections import OrderedDict
+from collections.abc import Callable
+from pathlib import Path
+
+from models.dynamics import BadDynamicsModel, DynamicsModel, digest, from_bytes
+
+from schemas.files import write_atomically
+
+MEMORY = 8  # models kept decoded: a study uses one, a worker serving a few studies a few
+
+
+class ModelUnavailable(ValueError):
+    """The job's model could not be had: the job fails with this reason, the worker goes on."""
+
+
+def default_cache() -> Path:
+    """$XDG_CACHE_HOME/gainfarm/models, or ~/.cache/gainfarm/models."""
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "gainfarm" / "models"
+
+
+class ModelCache:
+    def __init__(self, directory: Path | None = None):
+        self.directory = Path(directory) if directory is not None else default_cache()
+        self.fetched = 0  # models that came over the farm, not from the disk
+        self._decoded: OrderedDict[str, DynamicsModel] = OrderedDict()
+
+    def model(self, wanted: str, fetch: Callable[[str], bytes | None]) -> DynamicsModel:
+        """The inverse-dynamics model whose file hashes to `wanted`: from memory, from the
+        cache directory, or else from `fetch(wanted)` (None if nobody served it)."""
+        if wanted in self._decoded:
+            self._decoded.move_to_end(wanted)
+            return self._decoded[wanted]
+        name = wanted[:12]
+        raw = self._read(wanted)
+        if raw is None:
+            raw = fetch(wanted)
+            if raw is None:
+                raise ModelUnavailable(f"feed-forward model {name}: nobody on the farm serves it")
+            if digest(raw) != wanted:
+                raise ModelUnavailable(
+                    f"feed-forward model {name}: the bytes served hash to "
+                    f"{digest(raw)[:12]}, refused"
+                )
+            model = self._decode(raw, name)
+            self._write(wanted, raw)
+            self.fetched += 1
+        else:
+            model = self._decode(raw, name)
+        self._decoded[wanted] = model
+        if len(self._decoded) > MEMORY:
+            self._decoded.popitem(last=False)
+        return model
+
+    def _read(self, wanted: str) -> bytes | None:
+        try:
+            raw = (self.directory / f"{wanted}.npz").read_bytes()
+        except OSError:
+            return None
+        return raw if digest(raw) == wanted else None  # a corrupted copy is fetched again
+
+    def _write(self, wanted: str, raw: bytes) -> None:
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            write_atomically(self.directory / f"{wanted}.npz", raw)
+        except OSError:
+            pass  # an unwritable cache costs a fetch per restart, not the job
+
+    @staticmethod
+    def _decode(raw: bytes, name: str) -> DynamicsModel:
+        try:
+            model = from_bytes(raw)
+        except BadDynamicsModel as error:
+            raise ModelUnavailable(f"feed-forward model {name}: {error}") from None
+        if model.target != "inverse":
+            raise ModelUnavailable(
+                f"feed-forward model {name} is a {model.target} model; a feed-forward needs an "
+                "inverse-dynamics one"
+            )
+        return model
