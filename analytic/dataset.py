@@ -105,6 +105,7 @@ COLUMNS = {
     "trajectory_spec": ("", "the TrajectorySpec, JSON"),
     "model": ("", "the plant: ModelSpec, JSON"),
     "gravity_compensation": ("", "g(q_des) feed-forward was on"),
+    "feedforward": ("", "SHA-256 of the learned inverse-dynamics feed-forward, if any"),
     "candidate_f_acc": ("m", "the controller's f_acc over its run's trajectory set"),
     "candidate_f_t": ("(N*m)^2", "the controller's f_t over its run's trajectory set"),
     "kind": ("", "the trajectory's kind"),
@@ -162,6 +163,7 @@ class ChosenRun:
     run_id: str
     model: ModelSpec
     members: list[FrontMember]
+    feedforward: str | None = None  # the learned model its episodes add to the PD, if any
 
 
 @dataclass(frozen=True)
@@ -227,7 +229,11 @@ def choose(run_dirs: Sequence[Path], selection: Selection) -> list[ChosenRun]:
         seen[run_id] = Path(run_dir)
         name = Path(run_dir).resolve().name
         members = select(run, selection)
-        chosen.append(ChosenRun(Path(run_dir), name, run_id, run.config.model, members))
+        chosen.append(
+            ChosenRun(
+                Path(run_dir), name, run_id, run.config.model, members, run.config.feedforward
+            )
+        )
     return chosen
 
 
@@ -404,6 +410,7 @@ def episode_row(source: Source, log: EpisodeLog) -> dict[str, object]:
         "trajectory_spec": spec.trajectory.model_dump_json(),
         "model": spec.model.model_dump_json(),
         "gravity_compensation": spec.gravity_compensation,
+        "feedforward": spec.feedforward or "",
         "candidate_f_acc": source.member.f_acc,
         "candidate_f_t": source.member.f_t,
     }
@@ -560,6 +567,12 @@ def build(
     found = sources(chosen)
     if rerun_trajectories:
         check_rerun(rerun_trajectories)
+        learned = [run.name for run in chosen if run.feedforward is not None]
+        if learned:  # run without its model, its controller would make other data: refuse
+            raise BadRerun(
+                f"run {learned[0]!r} tunes its PD on top of a learned feed-forward; rerunning "
+                "such controllers is not supported yet"
+            )
     reruns = len(rerun_trajectories) * sum(len(run.members) for run in chosen)
     if not found and not reruns:
         raise NoEpisodes(
@@ -732,6 +745,7 @@ test) of the trajectories, ordered by the SHA-256 of `<split seed>:<trajectory_i
   `trajectory_id`, `kp_A1..A7` (N·m/rad), `kd_A1..A7` (N·m·s/rad), `f_acc` (mean end-effector
   error, m), `f_t` (mean squared torque change per tick, (N·m)²), `diverged`, `ticks`,
   `trajectory`, `duration` (s), `trajectory_spec` and `model` (JSON), `gravity_compensation`,
+  `feedforward` (the learned model's SHA-256, or empty),
   `candidate_f_acc`, `candidate_f_t` (the controller's objectives over its run's trajectory set),
   `split`.
 - `trajectories.parquet`: one row per distinct trajectory. `trajectory_id` (the first

@@ -2,6 +2,8 @@
 real scikit-learn training and Pinocchio identification, scored on held-out trajectories."""
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -159,3 +161,40 @@ def test_a_failure_while_writing_leaves_nothing(realistic, tmp_path, monkeypatch
 
     monkeypatch.setattr(learning, "plot_prediction", full_disk)
     _refused(realistic, tmp_path / "m", "cannot write .*No space left on device", kind="rigid")
+
+
+def test_the_learn_command_writes_a_model_the_feedforward_takes_and_refuses_in_one_line(
+    realistic, tmp_path
+):
+    learn_command = [sys.executable, "-m", "analytic", "learn"]
+    ran = subprocess.run(
+        [*learn_command, str(realistic), "--out", str(tmp_path / "m"), "--model", "linear"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert ran.returncode == 0, ran.stderr
+    assert "linear inverse model, test nMSE" in ran.stdout
+    scores = json.loads((tmp_path / "m" / "scores.json").read_text())
+    assert scores["nmse_mean"] < 0.5 and set(scores["nmse"]) == set(JOINT_NAMES)
+    worker = [sys.executable, "-m", "worker", "episode", "--trajectory", "fourier"]
+    ran = subprocess.run(
+        [*worker, "--duration", "1", "--feedforward", str(tmp_path / "m")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
+    assert ran.returncode == 0, ran.stderr
+    no_test = write_dataset(tmp_path / "d", REALISTIC_PLANT, SPLITS[:2], 1.0)
+    for arguments, expected in [
+        ([str(no_test), "--out", str(tmp_path / "n")], "no test split"),
+        ([str(realistic), "--out", str(tmp_path / "n"), "--model", "nope"], "--model"),
+        ([str(realistic), "--out", str(tmp_path / "n"), "--target", "x"], "--target"),
+    ]:
+        ran = subprocess.run(
+            [*learn_command, *arguments], capture_output=True, text=True, timeout=300
+        )
+        assert ran.returncode != 0 and expected in ran.stderr, ran.stderr
+        assert "Traceback" not in ran.stderr
+        assert not (tmp_path / "n").exists()
