@@ -7,15 +7,19 @@ import hashlib
 import signal
 import sys
 import threading
+from collections.abc import Callable
 
 import worker.service
+from models.dynamics import DynamicsModel
 from schemas.mcap_episode import decode_episode, episode_bytes
 from schemas.wire import Lease, Result
 from worker.job import execute
 
 
-def lying_execute(lease: Lease, name: str) -> tuple[Result, bytes]:
-    result, content = execute(lease, name)
+def lying_execute(
+    lease: Lease, name: str, model: Callable[[str], DynamicsModel] | None = None
+) -> tuple[Result, bytes]:
+    result, content = execute(lease, name, model)
     if not content:
         return result, content
     log = decode_episode(content)
