@@ -19,7 +19,7 @@ from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn
 from rich.table import Table
 
-from analytic import experiments
+from analytic import dataset_value, experiments
 from analytic.batch import EVALUATIONS, batch_jobs, run_batch
 from analytic.checkpoint import CheckpointRefused
 from analytic.config import RunConfig
@@ -605,7 +605,9 @@ def learn(dataset_dir: Path, out: Path, target: str, kind: str, seed: int) -> No
 
 
 @app.command()
-@click.argument("name", type=click.Choice(["popsize", "generic-vs-specific", "speed"]))
+@click.argument(
+    "name", type=click.Choice(["popsize", "generic-vs-specific", "speed", "dataset-value"])
+)
 @click.option(
     "--reps",
     type=click.IntRange(min=1),
@@ -619,8 +621,26 @@ def learn(dataset_dir: Path, out: Path, target: str, kind: str, seed: int) -> No
 @click.option(
     "--durations", default="3,4,5,6", show_default=True, help="speed: spiral durations, s"
 )
+@click.option(
+    "--test-trajectories",
+    type=int,
+    default=dataset_value.DEFAULT_TEST_TRAJECTORIES,
+    show_default=True,
+    help="dataset-value: held-out test trajectories (fourier and random-kind, seeds 1000..)",
+)
+@click.option(
+    "--ticks",
+    type=int,
+    help="dataset-value: training rows per condition and repetition  "
+    "[default: the smallest pool's]",
+)
 @pop_option()
-@options.duration(help="trajectory duration, s (popsize, generic-vs-specific)")
+@click.option(
+    "--duration",
+    type=float,
+    help="trajectory duration, s (popsize, generic-vs-specific, dataset-value)  "
+    f"[default: 5; dataset-value: {dataset_value.DEFAULT_DURATION:g}]",
+)
 @options.plant()
 @termination_options(per_run=True)
 @farm_options
@@ -635,8 +655,10 @@ def experiment(
     reps: int,
     sizes: str,
     durations: str,
+    test_trajectories: int,
+    ticks: int | None,
     pop: int,
-    duration: float,
+    duration: float | None,
     plant: str,
     generations: int | None,
     evaluations: int | None,
@@ -647,8 +669,17 @@ def experiment(
     workers: int,
     out: Path,
 ) -> None:
-    """Rerun one of the paper's experiments: popsize, generic-vs-specific or speed."""
+    """Rerun one of the paper's experiments: popsize, generic-vs-specific or speed; or test the
+    paper's claim that tuned controllers' data teach the dynamics better: dataset-value."""
     identity = _check_farm(connect, local, tls, participant)
+    if duration is None:
+        duration = dataset_value.DEFAULT_DURATION if name == "dataset-value" else 5.0
+    if test_trajectories < 1:
+        raise CliError(f"--test-trajectories: {test_trajectories} is not at least 1")
+    if ticks is not None and ticks < 10:
+        # Fewer rows cannot hold a validation part and a training part worth the name.
+        raise CliError(f"--ticks: {ticks} is not at least 10")
+
     size_list = [int(v) for v in parse_numbers("--sizes", sizes)]
     duration_list = list(parse_numbers("--durations", durations))
     try:
@@ -664,11 +695,21 @@ def experiment(
             RunConfig(pop=size)
         if name == "speed":
             used = [TrajectorySpec(duration=value) for value in duration_list]
+        elif name == "dataset-value":
+            used = [
+                *dataset_value.training_trajectories(duration),
+                *dataset_value.test_trajectories(duration, test_trajectories),
+            ]
         else:
             kinds = experiments.ALL_KINDS if name == "generic-vs-specific" else ["spiral"]
             used = [TrajectorySpec(kind=kind, duration=duration) for kind in kinds]
     except ValidationError as error:
         raise CliError(_config_problem(error)) from None
+    if ticks is not None and ticks > dataset_value.smallest_pool(duration):
+        raise CliError(
+            f"--ticks: {ticks} is more than the smallest pool holds at {duration:g} s "
+            f"({dataset_value.smallest_pool(duration)} rows: three episodes)"
+        )
     _followable(used, "--durations" if name == "speed" else "--duration")
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -696,6 +737,8 @@ def experiment(
                     experiments.popsize(experiment, base, size_list, reps)
                 elif name == "generic-vs-specific":
                     experiments.generic_vs_specific(experiment, base, reps)
+                elif name == "dataset-value":
+                    dataset_value.dataset_value(experiment, base, reps, test_trajectories, ticks)
                 else:
                     experiments.speed(experiment, base, duration_list, reps)
             except (ValueError, RunBusy) as error:

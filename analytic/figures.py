@@ -218,3 +218,44 @@ def plot_speed(
         )
         figure.colorbar(image, ax=axes)
     save_png(figure, path)
+
+
+def plot_dataset_value(
+    path: Path, nmse: dict[str, dict[str, list[float]]], reference: float | None = None
+) -> None:
+    """The dataset-value experiment: test nMSE per condition, one panel per model; a point per
+    repetition (jittered sideways so equal values stay visible) and a bar at the mean. A dashed
+    line at `reference` (the untrained rigid prior's nMSE), if given. Log scale when the values
+    span more than a decade, as random gains' data can be far worse than the rest."""
+    models = list(nmse)
+    figure = _new_figure((4.0 * max(1, len(models)), 4.5))
+    panels = figure.subplots(1, max(1, len(models)), sharey=True, squeeze=False)[0]
+    values = [v for per_model in nmse.values() for vs in per_model.values() for v in vs]
+    finite = [v for v in values if math.isfinite(v) and v > 0]
+    logarithmic = bool(finite) and max(finite) > 10 * min(finite)
+    for axes, model in zip(panels, models, strict=False):
+        conditions = list(nmse[model])
+        for index, condition in enumerate(conditions):
+            points = [v for v in nmse[model][condition] if math.isfinite(v)]
+            if not points:
+                continue
+            offsets = [
+                0.15 * (k / (len(points) - 1) - 0.5) if len(points) > 1 else 0.0
+                for k in range(len(points))
+            ]
+            axes.scatter(
+                [index + o for o in offsets], points, s=14, color="tab:blue", alpha=0.6, zorder=2
+            )
+            mean = sum(points) / len(points)
+            axes.hlines(mean, index - 0.3, index + 0.3, color="black", linewidth=2, zorder=3)
+        if reference is not None and math.isfinite(reference):
+            axes.axhline(reference, color="grey", linestyle="--", linewidth=1, label="rigid prior")
+            axes.legend(loc="upper left", fontsize=8)
+        axes.set_xticks(range(len(conditions)))
+        axes.set_xticklabels(conditions, rotation=45, ha="right", fontsize=8)
+        axes.set_title(model)
+        axes.grid(True, axis="y", alpha=0.3)
+        if logarithmic:
+            axes.set_yscale("log")
+    panels[0].set_ylabel("test nMSE (mean A1-A6)")
+    save_png(figure, path)

@@ -6,6 +6,7 @@ Like the figures, edge code on plain data: the caller computes, these functions 
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Protocol
 
 from analytic.config import RunConfig
 from analytic.records import (
@@ -212,6 +213,113 @@ def write_experiment_report(
         verdict,
         "",
         *[f"![{name}]({name})" for name in figures],
+        "",
+    ]
+    write_atomically(Path(path), "\n".join(lines).encode())
+
+
+def dataset_value_table(
+    means: dict[tuple[str, str], tuple[float, float]], reference: float | None = None
+) -> list[str]:
+    """(model, condition) → (mean, sd) of the test nMSE: conditions as rows, models as
+    columns, "mean ± sd"; the rigid prior's single score as a last row, if given."""
+    models = list(dict.fromkeys(model for model, _ in means))
+    conditions = list(dict.fromkeys(condition for _, condition in means))
+
+    def cell(mean: float, sd: float) -> str:
+        return f"{mean:.4f}" if not math.isfinite(sd) else f"{mean:.4f} ± {sd:.4f}"
+
+    table = [
+        "| condition | " + " | ".join(f"{model} nMSE" for model in models) + " |",
+        "|---|" + "---:|" * len(models),
+    ]
+    table += [
+        f"| {condition} | "
+        + " | ".join(cell(*means[(model, condition)]) for model in models)
+        + " |"
+        for condition in conditions
+    ]
+    if reference is not None:
+        table.append(
+            "| (rigid prior, untrained) | " + " | ".join(f"{reference:.4f}" for _ in models) + " |"
+        )
+    return table
+
+
+class PairedComparison(Protocol):
+    """What a comparisons table shows of one paired comparison (analytic.dataset_value's)."""
+
+    model: str
+    condition: str
+    against: str
+    mean_difference: float
+    t: float
+    p: float
+    p_holm: float
+    d_z: float
+    n: int
+
+
+def comparisons_table(comparisons: Sequence[PairedComparison]) -> list[str]:
+    """Paired comparisons as a Markdown table; a difference below zero means lower nMSE. An
+    untested value (too few repetitions) shows as a dash."""
+
+    def number(value: float, fmt: str) -> str:
+        return "–" if math.isnan(value) else format(value, fmt)
+
+    table = [
+        "| model | condition | against | mean difference | t | p | p (Holm) | d_z | n |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for c in comparisons:
+        table.append(
+            f"| {c.model} | {c.condition} | {c.against} | {number(c.mean_difference, '+.4f')} | "
+            f"{number(c.t, '.2f')} | {number(c.p, '.3g')} | {number(c.p_holm, '.3g')} | "
+            f"{number(c.d_z, '+.2f')} | {c.n} |"
+        )
+    return table
+
+
+def write_dataset_value_report(
+    path: Path,
+    *,
+    setup: Sequence[str],
+    means: dict[tuple[str, str], tuple[float, float]],
+    reference: float | None,
+    comparisons: Sequence[PairedComparison],
+    verdict: str,
+    limitations: Sequence[str],
+    figure: str,
+) -> None:
+    """The dataset-value experiment's report.md: setup, nMSE table, comparisons, verdict,
+    limitations, figure."""
+    lines = [
+        "# The value of tuned controllers' data for learning the dynamics",
+        "",
+        *[f"- {line}" for line in setup],
+        "",
+        "## Test nMSE (mean ± sd over repetitions)",
+        "",
+        *dataset_value_table(means, reference),
+        "",
+        "## Verdict",
+        "",
+        verdict,
+        "",
+        "## Paired comparisons",
+        "",
+        "Difference = the condition's nMSE minus the other's, paired by repetition (below zero: "
+        "its data taught more); paired t-test, Cohen's d_z = mean difference / sd of the "
+        "differences; Holm's adjustment across the ten comparisons of each model (the last row, "
+        "best selection against runner-up, is one test of its own).",
+        "",
+        *comparisons_table(comparisons),
+        "",
+        "## Limitations",
+        "",
+        *[f"- {line}" for line in limitations],
+        "",
+        f"![{figure}]({figure})",
         "",
     ]
     write_atomically(Path(path), "\n".join(lines).encode())
