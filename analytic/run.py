@@ -32,7 +32,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from models.dynamics import digest
 from pymoo.core.population import Population
 
 from analytic.checkpoint import CheckpointRefused, decode, encode
@@ -66,8 +65,15 @@ from analytic.records import (
 )
 from analytic.replication import Ledger, Ran, validate
 from analytic.reports import run_setup, run_title, write_report
+from models.dynamics import digest
 from schemas.episode import EpisodeSpec
-from schemas.files import Lock, Locked, remove_leftovers, write_atomically
+from schemas.files import (
+    Lock,
+    Locked,
+    interrupts_deferred,
+    remove_leftovers,
+    write_atomically,
+)
 from schemas.gains import PDGains
 from schemas.objectives import objectives
 from schemas.trajectory import TrajectorySpec
@@ -365,8 +371,9 @@ class TuningRun:
                     best_f_acc=min(f_acc for f_acc, _ in front),
                     best_f_t=min(f_t for _, f_t in front),
                 )
-            self.write_records()
-            self._checkpoint()
+            with interrupts_deferred():  # the records and the checkpoint agree
+                self.write_records()
+                self._checkpoint()
 
     def _evaluation(self, gains: PDGains, ran: Ran) -> Evaluation:
         """An original as validation takes it: the episode's spec, who ran it, its log."""
@@ -451,10 +458,14 @@ class TuningRun:
             for gains in [gains for gains in state.episodes if gains not in keep]:
                 for job_id in state.episodes.pop(gains):
                     (self.directory / EPISODES / f"{job_id}.mcap").unlink(missing_ok=True)
-        self.write_records()
-        hypervolumes = [row.hypervolume for row in state.history]
-        state.stopped = self.config.termination.reason(hypervolumes, state.evolution.evaluations)
-        self._checkpoint()
+        # A Ctrl-C between history.csv and the checkpoint would leave them a generation apart.
+        with interrupts_deferred():
+            self.write_records()
+            hypervolumes = [row.hypervolume for row in state.history]
+            state.stopped = self.config.termination.reason(
+                hypervolumes, state.evolution.evaluations
+            )
+            self._checkpoint()
 
     def _checkpoint(self) -> None:
         write_atomically(self.directory / CHECKPOINT, encode(self.state, self.identity))

@@ -1,16 +1,41 @@
 """Files appear whole or not at all: every file gainfarm writes goes through here. And a directory
 one process writes at a time: the lock that says which."""
 
+import contextlib
 import fcntl
 import os
+import signal
 import socket
 import tempfile
+import threading
 import weakref
+from collections.abc import Iterator
 from pathlib import Path
 
 # A write in progress: `.NAME.RANDOM.part` beside NAME (tempfile.mkstemp's prefix and suffix).
 PART_PREFIX = "."
 PART_SUFFIX = ".part"
+
+
+@contextlib.contextmanager
+def interrupts_deferred() -> Iterator[None]:
+    """Hold a Ctrl-C (SIGINT) until the block is done, then deliver it: files that say one thing
+    together (a run's records and its checkpoint) are all written, or none is. Only the main
+    thread receives signals; elsewhere this does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[object] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(frame))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        if callable(previous):
+            previous(signal.SIGINT, caught[0])
+        elif previous != signal.SIG_IGN:
+            raise KeyboardInterrupt
 
 
 def write_atomically(path: Path, content: bytes, mode: int = 0o644) -> None:
