@@ -9,10 +9,10 @@ nobody can abuse:
 - It is read by `_Unpickler`, which resolves only the (module, name) pairs in ALLOWED: the
   classes a checkpoint of this code holds, recorded by loading real checkpoints of every kind of
   run (generational and steady-state, one trajectory and several, every termination, keep all
-  and front, with real episodes and with a scorer). Each is a plain data class or a pure numeric
-  function; none reaches the file system, a process or `exec`. A stranger's checkpoint naming
-  anything else (os.system, builtins.eval, numpy.testing, ...) is refused before it is resolved,
-  so no code of theirs runs.
+  and front, with real episodes and with a scorer, every --algorithm and --objective-scaling).
+  Each is a plain data class or a pure numeric function; none reaches the file system, a process
+  or `exec`. A stranger's checkpoint naming anything else (os.system, builtins.eval,
+  numpy.testing, ...) is refused before it is resolved, so no code of theirs runs.
 - It is two pickles: a header first (plain data only: no class at all may be resolved in it),
   then the state. The header holds the run id (records.RunIdentity): a checkpoint copied from
   another run is refused on its header, before its state is read at all.
@@ -46,6 +46,9 @@ ALLOWED: frozenset[tuple[str, str]] = frozenset(
         ("analytic.records", "FrontMember"),
         ("analytic.evolution", "Evolution"),
         ("analytic.evolution", "GainProblem"),
+        ("analytic.evolution", "UniformRandom"),
+        ("analytic.evolution", "_by_cv_and_domination"),
+        ("analytic.evolution", "_by_cv_then_random"),
         ("analytic.search_space", "SearchSpace"),
         ("schemas.gains", "PDGains"),
         # numpy arrays, scalars and the random generator (numpy 2 names, then numpy 1's)
@@ -64,6 +67,19 @@ ALLOWED: frozenset[tuple[str, str]] = frozenset(
         # pymoo's NSGA-II, as analytic.evolution sets it up
         ("pymoo.algorithms.moo.nsga2", "NSGA2"),
         ("pymoo.algorithms.moo.nsga2", "binary_tournament"),
+        # pymoo's other algorithms, as analytic.evolution sets them up (--algorithm)
+        ("pymoo.algorithms.moo.age2", "AGEMOEA2"),
+        ("pymoo.algorithms.moo.age2", "AGEMOEA2Survival"),
+        ("pymoo.algorithms.moo.moead", "NeighborhoodSelection"),
+        ("pymoo.algorithms.moo.moead", "ParallelMOEAD"),
+        ("pymoo.algorithms.moo.nsga3", "HyperplaneNormalization"),
+        ("pymoo.algorithms.moo.nsga3", "NSGA3"),
+        ("pymoo.algorithms.moo.nsga3", "ReferenceDirectionSurvival"),
+        ("pymoo.algorithms.moo.sms", "LeastHypervolumeContributionSurvival"),
+        ("pymoo.algorithms.moo.sms", "SMSEMOA"),
+        ("pymoo.core.duplicate", "NoDuplicateElimination"),
+        ("pymoo.decomposition.tchebicheff", "Tchebicheff"),
+        # and the parts every algorithm shares
         ("pymoo.core.callback", "Callback"),
         ("pymoo.core.duplicate", "DefaultDuplicateElimination"),
         ("pymoo.core.duplicate", "default_attr"),

@@ -36,6 +36,7 @@ from analytic.dataset import (
 )
 from analytic.dataset import build as build_dataset
 from analytic.evaluator import Evaluation, Evaluator
+from analytic.evolution import ALGORITHMS, OBJECTIVE_SCALINGS
 from analytic.experiments import Experiment
 from analytic.farm import DEFAULT_DEADLINE, FarmClient, FarmUnavailable
 from analytic.learning import LearnError
@@ -278,6 +279,22 @@ def batch(
     help="steady-state NSGA-II: a new candidate as soon as any result returns",
 )
 @click.option(
+    "--algorithm",
+    type=click.Choice(ALGORITHMS),
+    default=RunConfig.model_fields["algorithm"].default,
+    show_default=True,
+    help="the optimiser: pymoo's NSGA-II, NSGA-III, SMS-EMOA, MOEA/D, AGE-MOEA-II, or uniform "
+    "random sampling (--async: nsga2 only)",
+)
+@click.option(
+    "--objective-scaling",
+    type=click.Choice(OBJECTIVE_SCALINGS),
+    default=RunConfig.model_fields["objective_scaling"].default,
+    show_default=True,
+    help="what the optimiser is told: raw objectives, or log: as the hypervolume sees them "
+    "(f_t on a log scale); the records stay raw",
+)
+@click.option(
     "--replicate/--no-replicate",
     default=True,
     show_default=True,
@@ -305,9 +322,12 @@ def start(
     out: Path | None,
     keep: str,
     asynchronous: bool,
+    algorithm: str,
+    objective_scaling: str,
     replicate: bool,
 ) -> None:
-    """Tune the 14 PD gains with NSGA-II on the farm: maximise accuracy, minimise torque steps.
+    """Tune the 14 PD gains with NSGA-II (or --algorithm) on the farm: maximise accuracy,
+    minimise torque steps.
 
     Stops after --generations, after --evaluations, or (by default) when the hypervolume has
     stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
@@ -326,6 +346,8 @@ def start(
             evaluations=evaluations,
             keep=keep,
             asynchronous=asynchronous,
+            algorithm=algorithm,
+            objective_scaling=objective_scaling,
             replicate=replicate,
             feedforward=digest(learned[0]) if learned is not None else None,
         )
@@ -336,6 +358,8 @@ def start(
         run = TuningRun.create(out, config, learned[0] if learned is not None else None)
     except FileExistsError as error:
         raise CliError(f"--out: {error}") from None
+    except ValueError as error:  # an algorithm this installation cannot run (agemoea2: numba)
+        raise CliError(f"--algorithm: {error}") from None
     except RunBusy as error:
         raise CliError(f"--out: {error}") from None
     except OSError as error:

@@ -4,7 +4,13 @@ from typing import Literal, Self
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from analytic.evolution import REFERENCE_POINT
+from analytic.evolution import (
+    REFERENCE_POINT,
+    STEADY_STATE_ONLY,
+    Algorithm,
+    ObjectiveScaling,
+    steady_state_refusal,
+)
 from analytic.termination import CONVERGENCE_TOLERANCE, CONVERGENCE_WINDOW, Termination
 from schemas.robot import ModelSpec
 from schemas.trajectory import TrajectorySpec
@@ -25,6 +31,16 @@ class RunConfig(BaseModel):
     window: int = Field(CONVERGENCE_WINDOW, ge=1)
     reference_point: tuple[float, float] = REFERENCE_POINT
     asynchronous: bool = Field(False, description="steady-state NSGA-II, not generational")
+    algorithm: Algorithm = Field(
+        "nsga2",
+        description="the optimiser (analytic.evolution.ALGORITHMS): pymoo's NSGA-II, NSGA-III, "
+        "SMS-EMOA, MOEA/D or AGE-MOEA-II, or uniform random sampling",
+    )
+    objective_scaling: ObjectiveScaling = Field(
+        "raw",
+        description="what the optimiser is told: the raw objectives, or (log) the normalised "
+        "ones the hypervolume is taken on, f_t on a log scale; the records stay raw either way",
+    )
     keep: Literal["all", "front"] = "all"
     feedforward: str | None = Field(
         None,
@@ -42,6 +58,8 @@ class RunConfig(BaseModel):
     def _one_termination(self) -> Self:
         if self.generations is not None and self.evaluations is not None:
             raise ValueError("generations and evaluations exclude each other")
+        if self.asynchronous and self.algorithm != STEADY_STATE_ONLY:
+            raise ValueError(steady_state_refusal(self.algorithm))
         return self
 
     @property

@@ -1,19 +1,34 @@
-"""The evolution step: NSGA-II (pymoo) through ask and tell, and the hypervolume of its front.
+"""The evolution step: a multi-objective optimiser (pymoo) through ask and tell, and the
+hypervolume of its front.
 
 Pure: no farm, no files. The caller evaluates each asked generation however it likes (the farm,
 in any order) and tells the objectives back in the order asked, so the outcome depends on the seed
 and the objectives only, never on which result arrived first.
+
+The optimiser is NSGA-II by default; ALGORITHMS lists the others, all pymoo's, generational (a
+whole population asked, then told), and "random": uniform random sampling of the search space, a
+population a generation, the baseline any optimiser must beat. Whatever the optimiser, the front
+is this module's archive of every non-dominated point told, in raw units. The optimiser itself
+may be told the objectives as the hypervolume sees them (objective_scaling "log": `normalise`,
+f_t on a log scale) instead of raw (f_t spans six decades, and crowding on raw f_t neglects the
+smooth end).
 """
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any, Literal, get_args
 
 import numpy as np
+from pymoo.algorithms.moo.moead import ParallelMOEAD
 from pymoo.algorithms.moo.nsga2 import NSGA2
+from pymoo.algorithms.moo.nsga3 import NSGA3, comp_by_cv_then_random
+from pymoo.algorithms.moo.sms import SMSEMOA, cv_and_dom_tournament
 from pymoo.core.population import Population
 from pymoo.core.problem import Problem
 from pymoo.indicators.hv import HV
+from pymoo.operators.selection.tournament import TournamentSelection
 from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
+from pymoo.util.ref_dirs import get_reference_directions
 
 from analytic.search_space import SearchSpace
 from schemas.gains import PDGains
@@ -27,6 +42,12 @@ from schemas.gains import PDGains
 # comparable across runs and monotone within one.)
 REFERENCE_POINT = (0.2, 1e4)  # f_acc in m, f_t in (N·m)²
 F_T_FLOOR = 1e-2  # (N·m)²: smoother than this counts as perfectly smooth
+
+Algorithm = Literal["nsga2", "nsga3", "smsemoa", "moead", "agemoea2", "random"]
+ALGORITHMS: tuple[str, ...] = get_args(Algorithm)
+ObjectiveScaling = Literal["raw", "log"]
+OBJECTIVE_SCALINGS: tuple[str, ...] = get_args(ObjectiveScaling)
+STEADY_STATE_ONLY = "nsga2"  # the one algorithm with a steady-state (ask_one/tell_one) variant
 
 
 @dataclass(frozen=True)
@@ -42,8 +63,88 @@ class GainProblem(Problem):
         super().__init__(n_var=len(space.lower), n_obj=2, xl=space.lower, xu=space.upper)
 
 
+class UniformRandom:
+    """The "random" algorithm: `pop_size` points drawn uniformly from the decision space every
+    generation, whatever came before (ask and tell as pymoo's algorithms have them)."""
+
+    def __init__(self, pop_size: int, space: SearchSpace, seed: int):
+        self.pop_size = pop_size
+        self.lower, self.upper = space.lower, space.upper
+        self.random_state = np.random.default_rng(seed)
+        self.pop = None  # no population: nothing for Evolution.correct to correct
+
+    def ask(self) -> Population:
+        shape = (self.pop_size, len(self.lower))
+        return Population.new(X=self.random_state.uniform(self.lower, self.upper, shape))
+
+    def tell(self, infills: Population) -> None:
+        pass
+
+
+def _by_cv_then_random(pop: Population, P: np.ndarray, **kwargs: Any) -> np.ndarray:
+    """NSGA-III's tournament: pymoo's own function is wrapped by a decorator that pickle cannot
+    name (a checkpoint holds the algorithm), so the algorithm holds this, which calls it."""
+    return comp_by_cv_then_random(pop, P, **kwargs)
+
+
+def _by_cv_and_domination(pop: Population, P: np.ndarray, **kwargs: Any) -> np.ndarray:
+    """SMS-EMOA's tournament, for the same reason."""
+    return cv_and_dom_tournament(pop, P, **kwargs)
+
+
+def reference_directions(pop_size: int) -> np.ndarray:
+    """NSGA-III's and MOEA/D's reference directions: pop_size evenly spread on the 2-objective
+    simplex (Das and Dennis, pop_size - 1 partitions), so that the population is the config's."""
+    return get_reference_directions("das-dennis", 2, n_partitions=pop_size - 1)
+
+
+def optimiser(
+    algorithm: str, pop_size: int, seed: int, space: SearchSpace, steady_state: bool = False
+) -> Any:
+    """`algorithm` (one of ALGORITHMS) set up on the gain problem, to ask and tell."""
+    if algorithm not in ALGORITHMS:
+        raise ValueError(f"unknown algorithm {algorithm!r}: one of {', '.join(ALGORITHMS)}")
+    if steady_state and algorithm != STEADY_STATE_ONLY:
+        raise ValueError(steady_state_refusal(algorithm))
+    if algorithm == "random":
+        return UniformRandom(pop_size, space, seed)
+    if algorithm == "nsga2":
+        method = NSGA2(
+            pop_size=pop_size, n_offsprings=1 if steady_state else None, eliminate_duplicates=True
+        )
+    elif algorithm == "nsga3":
+        method = NSGA3(
+            ref_dirs=reference_directions(pop_size),
+            pop_size=pop_size,
+            selection=TournamentSelection(func_comp=_by_cv_then_random),
+        )
+    elif algorithm == "smsemoa":  # generational: pop offspring, then the least contributors go
+        method = SMSEMOA(
+            pop_size=pop_size, selection=TournamentSelection(func_comp=_by_cv_and_domination)
+        )
+    elif algorithm == "moead":  # the parallel variant: a whole generation asked at once
+        method = ParallelMOEAD(ref_dirs=reference_directions(pop_size))
+    else:
+        try:
+            from pymoo.algorithms.moo.age2 import AGEMOEA2
+        except Exception:  # pymoo raises a bare Exception when numba is missing
+            raise ValueError("algorithm agemoea2 needs numba: pip install numba") from None
+        method = AGEMOEA2(pop_size=pop_size)
+    method.setup(GainProblem(space), seed=seed, verbose=False)
+    return method
+
+
+def steady_state_refusal(algorithm: str) -> str:
+    """Why a steady-state run of `algorithm` is refused, in one line naming the way out."""
+    return (
+        f"steady state (asynchronous, --async) is {STEADY_STATE_ONLY}'s only, not {algorithm}'s: "
+        f"choose algorithm {STEADY_STATE_ONLY}, or drop --async to run {algorithm} generationally"
+    )
+
+
 class Evolution:
-    """NSGA-II over the gains. Picklable: a checkpoint is this object, random state included."""
+    """An optimiser over the gains (NSGA-II by default). Picklable: a checkpoint is this object,
+    random state included."""
 
     def __init__(
         self,
@@ -51,16 +152,27 @@ class Evolution:
         seed: int,
         space: SearchSpace | None = None,
         steady_state: bool = False,
+        algorithm: str = "nsga2",
+        objective_scaling: str = "raw",
+        reference: tuple[float, float] = REFERENCE_POINT,
     ):
-        """Generational NSGA-II asks a whole generation at a time. The steady-state variant
-        (mu + 1) asks one offspring at a time (ask_one) and takes each result as it comes
-        (tell_one), so that no worker waits for a generation's slowest episode."""
+        """Generational algorithms ask a whole generation at a time. NSGA-II's steady-state
+        variant (mu + 1) asks one offspring at a time (ask_one) and takes each result as it
+        comes (tell_one), so that no worker waits for a generation's slowest episode.
+        `objective_scaling` "log" tells the optimiser `normalise(objectives, reference)`
+        instead of the raw objectives; the archive, the front and everything recorded stay raw.
+        """
+        if objective_scaling not in OBJECTIVE_SCALINGS:
+            raise ValueError(
+                f"unknown objective scaling {objective_scaling!r}: one of "
+                f"{', '.join(OBJECTIVE_SCALINGS)}"
+            )
         self.space = space or SearchSpace()
         self.pop_size = pop_size
-        self.algorithm = NSGA2(
-            pop_size=pop_size, n_offsprings=1 if steady_state else None, eliminate_duplicates=True
-        )
-        self.algorithm.setup(GainProblem(self.space), seed=seed, verbose=False)
+        self.algorithm_name = algorithm
+        self.objective_scaling = objective_scaling
+        self.reference = tuple(reference)
+        self.algorithm = optimiser(algorithm, pop_size, seed, self.space, steady_state)
         self._asked = None
         self.generation = 0
         self.evaluations = 0
@@ -75,8 +187,14 @@ class Evolution:
         self._seen_f = np.empty((0, 2))
 
     def __setstate__(self, state: dict) -> None:
-        """Checkpoints from before `_seen_*` know only the archive: it stands in for them."""
-        self.__dict__.update(state)
+        """Checkpoints from before `_seen_*` know only the archive: it stands in for them.
+        Checkpoints from before the choice of algorithm are NSGA-II's, told raw objectives."""
+        defaults = {
+            "algorithm_name": "nsga2",
+            "objective_scaling": "raw",
+            "reference": REFERENCE_POINT,
+        }
+        self.__dict__.update({**defaults, **state})
         if "_seen_x" not in state:
             self._seen_x, self._seen_f = self._archive_x.copy(), self._archive_f.copy()
 
@@ -109,8 +227,8 @@ class Evolution:
         self.generation = self.evaluations // self.pop_size
 
     def _tell(self, individuals: Population, objectives: Sequence[tuple[float, float]]) -> None:
-        f = np.asarray(objectives, dtype=float)
-        individuals.set("F", f)
+        f = np.asarray(objectives, dtype=float).reshape(-1, 2)
+        individuals.set("F", self.seen_by_optimiser(f))
         self.algorithm.tell(infills=individuals)
         self._seen_x = np.vstack([self._seen_x, individuals.get("X")])
         self._seen_f = np.vstack([self._seen_f, f])
@@ -122,7 +240,7 @@ class Evolution:
 
     def correct(self, gains: PDGains, objectives: tuple[float, float]) -> None:
         """A candidate's objectives were false (a replica outvoted its log): take the true ones,
-        in the archive, among the points seen and in NSGA-II's population."""
+        in the archive, among the points seen and in the optimiser's population."""
         for row, x in enumerate(self._seen_x):
             if self.space.gains(x) == gains:
                 self._seen_f[row] = objectives
@@ -132,7 +250,16 @@ class Evolution:
         if population is not None:
             for individual in population:
                 if self.space.gains(individual.X) == gains:
-                    individual.set("F", np.asarray(objectives, dtype=float))
+                    individual.set("F", self.seen_by_optimiser(objectives)[0])
+
+    def seen_by_optimiser(
+        self, objectives: Sequence[tuple[float, float]] | np.ndarray
+    ) -> np.ndarray:
+        """Raw objectives as the optimiser is told them (objective_scaling), one row each."""
+        f = np.asarray(objectives, dtype=float).reshape(-1, 2)
+        if self.objective_scaling == "log":
+            return normalise(f, self.reference)
+        return f
 
     def front(self) -> list[Candidate]:
         """The non-dominated candidates among all evaluated so far, by f_acc."""

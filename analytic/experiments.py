@@ -3,15 +3,25 @@ trajectory speed.
 
 An experiment is a set of tuning runs (one directory each under OUT/runs/, resumable: a finished
 run is kept, an unfinished one resumed), then cross-evaluations of their fronts where the
-experiment needs them, then results.csv, a figure and report.md. Within an experiment every
-hypervolume uses one common reference point, as the paper does: the worst f_acc and f_t among all
-controllers the experiment tested (runs and cross-evaluations; candidates with no episode left
-out), in the same normalised space as a run's (f_t on a log scale).
+experiment needs them, then results.csv, stats.csv (analytic.statistics: tests, effect sizes and
+confidence intervals behind every verdict), normalisation.json, a figure and report.md.
+
+Hypervolumes within a study are taken in one normalised space per problem (one trajectory the
+fronts are judged on): between the ideal and the nadir point of the pooled non-dominated front of
+every front the study judged on that problem, f_acc linearly and f_t on a log scale (as
+analytic.evolution.normalise does), against the reference point 1.1 × (nadir − ideal) beyond the
+ideal, as a fraction of that box. Penalty points (NO_EPISODE, a diverged episode, any point with
+a mean error of DIVERGED_TICK_ERROR or more) never set the ideal or the nadir, so the values
+spread over the range where the controllers really differ. normalisation.json records the ideal
+and the nadir of each problem.
 
 This module computes; analytic.figures draws and analytic.reports words what it hands them. The
 runs are read back from their plain files (analytic.records), never from their checkpoints.
 """
 
+import itertools
+import json
+import math
 import statistics
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
@@ -19,10 +29,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pymoo.indicators.hv import HV
 
+from analytic import statistics as stats
 from analytic.config import RunConfig
 from analytic.evaluator import Evaluator
-from analytic.evolution import hypervolume, non_dominated_indices
+from analytic.evolution import F_T_FLOOR, REFERENCE_POINT, non_dominated_indices
 from analytic.figures import plot_generic_vs_specific, plot_popsize, plot_speed
 from analytic.records import (
     CONFIG_JSON,
@@ -42,24 +54,87 @@ from analytic.reports import (
 from analytic.run import TuningRun, upgrade
 from schemas.episode import EpisodeSpec
 from schemas.files import write_atomically
-from schemas.objectives import NO_EPISODE
+from schemas.objectives import DIVERGED_TICK_ERROR, NO_EPISODE
 from schemas.trajectory import TrajectoryKind, TrajectorySpec
 
 ALL_KINDS = (TrajectoryKind.spiral, TrajectoryKind.random, TrajectoryKind.pyramid)
+MARGIN = 0.1  # the reference point lies this fraction of (nadir - ideal) beyond the nadir
+NORMALISATION_JSON = "normalisation.json"
+STATS_CSV = "stats.csv"
+
+Point = tuple[float, float]
 
 # An evaluator for one run or cross-evaluation: given the farm study name it may use and the
 # directory its logs go to, a context manager (FarmClient, InProcessEvaluator).
 EvaluatorFactory = Callable[[str, Path], AbstractContextManager[Evaluator]]
 
 
+def is_penalty(point: Point, penalised: frozenset[Point] | set[Point] = frozenset()) -> bool:
+    """A penalty rather than a measured controller: no episode, a diverged one (`penalised`), a
+    mean error no finished episode reaches, or a non-finite value."""
+    return (
+        point == NO_EPISODE
+        or point in penalised
+        or not (math.isfinite(point[0]) and math.isfinite(point[1]))
+        or point[0] >= DIVERGED_TICK_ERROR
+    )
+
+
+@dataclass(frozen=True)
+class Normalisation:
+    """The normalised objective space of one problem: ideal → 0, nadir → 1 (f_t on a log
+    scale, floored at F_T_FLOOR)."""
+
+    ideal: Point
+    nadir: Point
+
+    @classmethod
+    def of(
+        cls,
+        point_sets: Sequence[Sequence[Point]],
+        penalised: frozenset[Point] | set[Point] = frozenset(),
+    ) -> "Normalisation":
+        """Between the ideal and the nadir of the pooled non-dominated front of `point_sets`,
+        penalty points left out; the fixed REFERENCE_POINT box if no point is left."""
+        pooled = [p for points in point_sets for p in points if not is_penalty(p, penalised)]
+        if not pooled:
+            return cls(ideal=(0.0, F_T_FLOOR), nadir=REFERENCE_POINT)
+        front = np.asarray(non_dominated(pooled), dtype=float)
+        ideal, nadir = front.min(axis=0), front.max(axis=0)
+        return cls(
+            ideal=(float(ideal[0]), float(ideal[1])), nadir=(float(nadir[0]), float(nadir[1]))
+        )
+
+    def normalise(self, points: Sequence[Point]) -> np.ndarray:
+        f = np.asarray(points, dtype=float).reshape(-1, 2)
+        span_acc = self.nadir[0] - self.ideal[0]
+        f_acc = (f[:, 0] - self.ideal[0]) / (span_acc if span_acc > 0 else 1.0)
+        low, high = (np.log(max(v, F_T_FLOOR)) for v in (self.ideal[1], self.nadir[1]))
+        span_t = high - low
+        f_t = (np.log(np.maximum(f[:, 1], F_T_FLOOR)) - low) / (span_t if span_t > 0 else 1.0)
+        return np.column_stack([f_acc, f_t])
+
+    def hypervolume(self, points: Sequence[Point]) -> float:
+        """The share of the box from the ideal to the reference point that `points` dominate."""
+        finite = [p for p in points if math.isfinite(p[0]) and math.isfinite(p[1])]
+        if not finite:
+            return 0.0
+        reference = np.full(2, 1.0 + MARGIN)
+        return float(HV(ref_point=reference)(self.normalise(finite))) / float(reference.prod())
+
+    def as_dict(self) -> dict[str, list[float]]:
+        return {"ideal": list(self.ideal), "nadir": list(self.nadir)}
+
+
 @dataclass
 class Experiment:
-    """Runs and cross-evaluations with a common reference point, written under `out`."""
+    """Runs and cross-evaluations of one study, written under `out`."""
 
     out: Path
     evaluator: EvaluatorFactory
     on_progress: Callable[[str], None] = lambda _: None
-    tested: list[tuple[float, float]] = field(default_factory=list)
+    # Objectives of diverged episodes met in cross-evaluations: penalties, never a bound.
+    penalised: set[Point] = field(default_factory=set)
 
     def tune(self, name: str, config: RunConfig) -> RunRecord:
         """The run `name` of `config`: kept if finished, resumed if not, started if new."""
@@ -79,7 +154,6 @@ class Experiment:
                     ),
                 )
             record = _read(directory)
-        self.tested += [point for point in record.evaluated if point != NO_EPISODE]
         return record
 
     def evaluate(
@@ -88,7 +162,7 @@ class Experiment:
         members: Sequence[FrontMember],
         trajectory: TrajectorySpec,
         config: RunConfig,
-    ) -> list[tuple[float, float]]:
+    ) -> list[Point]:
         """Objectives of `members` on another trajectory (simulated again)."""
         directory = self.out / "cross" / name
         with self.evaluator(f"{self.out.name}-x-{name}", directory) as evaluator:
@@ -101,23 +175,29 @@ class Experiment:
                 }
             )
             found = {e.job_id: e for e in evaluator.results()}
-        points = [
-            (found[key].scores.f_acc, found[key].scores.f_t) if found[key].scores else NO_EPISODE
-            for key in sorted(found)
-        ]
-        self.tested += [point for point in points if point != NO_EPISODE]
+        points = []
+        for key in sorted(found):
+            scores = found[key].scores
+            point = (scores.f_acc, scores.f_t) if scores else NO_EPISODE
+            if scores and scores.diverged:
+                self.penalised.add(point)
+            points.append(point)
         self.on_progress(f"{name}: {len(points)} controllers evaluated again")
         return points
 
-    @property
-    def reference(self) -> tuple[float, float]:
-        return (max(p[0] for p in self.tested), max(p[1] for p in self.tested))
-
-    def hypervolume(self, points: Sequence[tuple[float, float]]) -> float:
-        return hypervolume(non_dominated(points), self.reference)
+    def normalisation(self, point_sets: Sequence[Sequence[Point]]) -> Normalisation:
+        """The normalised space of one problem, from every front the study judged on it."""
+        return Normalisation.of(point_sets, self.penalised)
 
     def write_results(self, rows: list[dict[str, object]]) -> None:
         write_atomically(self.out / "results.csv", results_csv(rows))
+
+    def write_stats(self, rows: Sequence[stats.StatsRow]) -> None:
+        write_atomically(self.out / STATS_CSV, stats.stats_csv(rows))
+
+    def write_normalisation(self, normalisations: dict[str, Normalisation]) -> None:
+        text = json.dumps({k: n.as_dict() for k, n in normalisations.items()}, indent=2) + "\n"
+        write_atomically(self.out / NORMALISATION_JSON, text.encode())
 
 
 def _read(directory: Path) -> RunRecord:
@@ -137,6 +217,20 @@ def front_points(record: RunRecord) -> list[tuple[float, float]]:
     return [member.objectives for member in record.front]
 
 
+def dominated_count(points: Sequence[Point], by: Sequence[Point]) -> int:
+    """How many of `points` some point of `by` dominates (no worse in both, better in one)."""
+    return sum(
+        any(q[0] <= p[0] and q[1] <= p[1] and (q[0] < p[0] or q[1] < p[1]) for q in by)
+        for p in points
+    )
+
+
+def generic_set(test: TrajectoryKind, duration: float) -> tuple[TrajectorySpec, ...]:
+    """What the generic controller judged on `test` is tuned on: every other kind, never
+    `test` itself."""
+    return tuple(TrajectorySpec(kind=kind, duration=duration) for kind in ALL_KINDS if kind != test)
+
+
 # --- the three experiments -------------------------------------------------------------------
 
 
@@ -149,13 +243,16 @@ def popsize(experiment: Experiment, base: RunConfig, sizes: Sequence[int], reps:
         for size in sizes
         for rep in range(reps)
     }
+    fronts = {key: front_points(run) for key, run in runs.items()}
+    normalisation = experiment.normalisation(list(fronts.values()))
+    experiment.write_normalisation({"all runs": normalisation})
     rows = [
         {
             "pop": size,
             "rep": rep,
             "seed": rep,
             "evaluations": run.evaluations,
-            "hypervolume": experiment.hypervolume(front_points(run)),
+            "hypervolume": normalisation.hypervolume(fronts[(size, rep)]),
             "wall_seconds": run.wall_seconds,
             "stopped": run.stopped,
         }
@@ -163,97 +260,196 @@ def popsize(experiment: Experiment, base: RunConfig, sizes: Sequence[int], reps:
     ]
     experiment.write_results(rows)
     by_size = {size: [row for row in rows if row["pop"] == size] for size in sizes}
-    hypervolumes = {s: [r["hypervolume"] for r in by_size[s]] for s in sizes}
-    evaluations = {s: [r["evaluations"] for r in by_size[s]] for s in sizes}
-    plot_popsize(experiment.out / "popsize.png", hypervolumes, evaluations)
+    hypervolumes = {s: [float(r["hypervolume"]) for r in by_size[s]] for s in sizes}
+    evaluations = {s: [int(r["evaluations"]) for r in by_size[s]] for s in sizes}
+    plot_popsize(
+        experiment.out / "popsize.png",
+        hypervolumes,
+        evaluations,
+        {s: [fronts[(s, rep)] for rep in range(reps)] for s in sizes},
+    )
     medians = {
         s: (statistics.median(hypervolumes[s]), statistics.median(evaluations[s])) for s in sizes
     }
-    best_hv = max(sizes, key=lambda s: medians[s][0])
-    # The trade-off: the smallest population whose median hypervolume is within 1 % of the best.
-    trade_off = min(s for s in sizes if medians[s][0] >= 0.99 * medians[best_hv][0])
-    table = popsize_table(medians)
-    verdict = (
-        f"The best median hypervolume comes with population {best_hv}; the smallest population "
-        f"within 1 % of it is {trade_off}, at a median of {medians[trade_off][1]:.0f} "
-        f"evaluations. The paper found a population near 30 the best trade-off: "
-        + ("this holds here." if 20 <= trade_off <= 50 else "here the trade-off lies elsewhere.")
-    )
-    _report(experiment, "Population size", base, reps, table, verdict, ["popsize.png"])
-
-
-def generic_vs_specific(experiment: Experiment, base: RunConfig, reps: int) -> None:
-    """A generic controller (all trajectories) against a specific one (the pyramid), both
-    evaluated on the pyramid."""
-    duration = base.trajectories[0].duration
-    pyramid = TrajectorySpec(kind=TrajectoryKind.pyramid, duration=duration)
-    generic_set = tuple(TrajectorySpec(kind=kind, duration=duration) for kind in ALL_KINDS)
-    fronts: dict[str, list[list[tuple[float, float]]]] = {"generic": [], "specific": []}
-    for rep in range(reps):
-        specific = experiment.tune(
-            f"specific-rep{rep}", base.model_copy(update={"trajectories": (pyramid,), "seed": rep})
-        )
-        generic = experiment.tune(
-            f"generic-rep{rep}", base.model_copy(update={"trajectories": generic_set, "seed": rep})
-        )
-        fronts["specific"].append(front_points(specific))
-        fronts["generic"].append(
-            experiment.evaluate(f"generic-rep{rep}", generic.front, pyramid, base)
-        )
-    rows = [
-        {
-            "controller": kind,
-            "rep": rep,
-            "seed": rep,
-            "hypervolume_on_pyramid": experiment.hypervolume(points),
-            "best_f_acc": min(p[0] for p in points),
-        }
-        for kind, per_rep in fronts.items()
-        for rep, points in enumerate(per_rep)
-    ]
-    experiment.write_results(rows)
-    values = {
-        kind: [r["hypervolume_on_pyramid"] for r in rows if r["controller"] == kind]
-        for kind in fronts
+    # Each size against the next smaller one: does the larger population gain?
+    ordered = sorted(sizes)
+    steps = list(itertools.pairwise(ordered))
+    compared = {
+        (small, large): stats.compare(hypervolumes[large], hypervolumes[small])
+        for small, large in steps
     }
-    plot_generic_vs_specific(
-        experiment.out / "generic-vs-specific.png",
-        values,
-        {kind: sorted(non_dominated(fronts[kind][0])) for kind in ("specific", "generic")},
-    )
-    median = {kind: statistics.median(values[kind]) for kind in fronts}
-    table = controllers_table(median)
-    lead = median["specific"] - median["generic"]
-    spread = max((statistics.stdev(v) for v in values.values() if len(v) > 1), default=0.0)
-    if lead > spread:
-        finding = "this holds here"
-    elif lead < -spread:
-        finding = "here the generic one is better"
-    else:
-        finding = (
-            f"here the difference ({lead:+.4f}) is within the spread between repetitions "
-            f"(standard deviation up to {spread:.4f}): the two are on a par"
+    stats_rows = [
+        stats.StatsRow("popsize", f"pop {large} vs pop {small}", "hypervolume", result)
+        for (small, large), result in compared.items()
+    ] + [
+        stats.StatsRow(
+            "popsize",
+            f"pop {large} vs pop {small}",
+            "evaluations",
+            stats.compare(evaluations[large], evaluations[small]),
         )
-    verdict = (
-        f"On the pyramid, the specific controller's median hypervolume is "
-        f"{median['specific']:.4f} and the generic one's {median['generic']:.4f}. The paper "
-        f"found specific controllers better: {finding}."
+        for small, large in steps
+    ]
+    experiment.write_stats(stats_rows)
+    lines = [
+        f"- pop {large} against pop {small}: "
+        + stats.decide(result, f"pop {large}", f"pop {small}")
+        for (small, large), result in compared.items()
+    ]
+    if not steps:
+        finding = "One population size only: nothing to compare."
+    elif not all(stats.decidable(result) for result in compared.values()):
+        finding = (
+            f"With {reps} repetitions per size the tests cannot reach p < {stats.ALPHA:g}: "
+            "cannot decide where the hypervolume levels off; more repetitions are needed."
+        )
+    else:
+        gains = [large for (small, large), r in compared.items() if stats.better(r) == "a"]
+        levels_off = max(gains, default=ordered[0])
+        finding = (
+            f"The hypervolume levels off from population {levels_off} (no significant gain "
+            f"between consecutive sizes from there on). The paper found a population near 30 "
+            "the best trade-off: "
+            + ("this holds here." if 20 <= levels_off <= 50 else "here it lies elsewhere.")
+        )
+    verdict = "\n".join(
+        [finding, "", "Each size against the next smaller (two-sided, alpha 0.05):", *lines]
     )
+    table = popsize_table(medians)
     _report(
         experiment,
-        "Generic against specific controllers",
+        "Population size",
         base,
         reps,
         table,
         verdict,
+        ["popsize.png"],
+        {"all runs": normalisation},
+    )
+
+
+def generic_vs_specific(
+    experiment: Experiment,
+    base: RunConfig,
+    reps: int,
+    kinds: Sequence[TrajectoryKind] = ALL_KINDS,
+) -> None:
+    """Held out: for each test trajectory in turn, a generic controller tuned on the other
+    kinds (never the test one) against a specific one tuned on the test trajectory, both judged
+    on it. The generic controller's objectives are the plain averages over its trajectories."""
+    duration = base.trajectories[0].duration
+    fronts: dict[str, dict[str, list[list[Point]]]] = {}
+    for kind in kinds:
+        test = TrajectorySpec(kind=kind, duration=duration)
+        per_kind: dict[str, list[list[Point]]] = {"generic": [], "specific": []}
+        for rep in range(reps):
+            specific = experiment.tune(
+                f"specific-{kind.value}-rep{rep}",
+                base.model_copy(update={"trajectories": (test,), "seed": rep}),
+            )
+            name = f"generic-no-{kind.value}-rep{rep}"
+            generic = experiment.tune(
+                name,
+                base.model_copy(update={"trajectories": generic_set(kind, duration), "seed": rep}),
+            )
+            per_kind["specific"].append(front_points(specific))
+            per_kind["generic"].append(
+                experiment.evaluate(f"{name}-on-{kind.value}", generic.front, test, base)
+            )
+        fronts[kind.value] = per_kind
+    normalisations = {
+        kind: experiment.normalisation([p for sets in per_kind.values() for p in sets])
+        for kind, per_kind in fronts.items()
+    }
+    experiment.write_normalisation({f"on {k}": n for k, n in normalisations.items()})
+    rows = []
+    for kind, per_kind in fronts.items():
+        for controller, other in (("generic", "specific"), ("specific", "generic")):
+            for rep, points in enumerate(per_kind[controller]):
+                rows.append(
+                    {
+                        "test_trajectory": kind,
+                        "controller": controller,
+                        "rep": rep,
+                        "seed": rep,
+                        "hypervolume": normalisations[kind].hypervolume(points),
+                        "best_f_acc": min(p[0] for p in points),
+                        "points": len(points),
+                        "dominated_by_other": dominated_count(points, per_kind[other][rep]),
+                    }
+                )
+    experiment.write_results(rows)
+
+    def values(kind: str, controller: str, column: str) -> list[float]:
+        return [
+            float(r[column])  # type: ignore[arg-type]
+            for r in rows
+            if r["test_trajectory"] == kind and r["controller"] == controller
+        ]
+
+    stats_rows: list[stats.StatsRow] = []
+    lines = []
+    holds = 0
+    for kind in fronts:
+        result = stats.compare(
+            values(kind, "specific", "hypervolume"), values(kind, "generic", "hypervolume")
+        )
+        accuracy = stats.compare(
+            values(kind, "specific", "best_f_acc"), values(kind, "generic", "best_f_acc")
+        )
+        stats_rows += [
+            stats.StatsRow("generic-vs-specific", f"specific vs generic, on {kind}", metric, r)
+            for metric, r in (("hypervolume", result), ("best_f_acc", accuracy))
+        ]
+        holds += stats.better(result) == "a"
+        generic_dominated = int(sum(values(kind, "generic", "dominated_by_other")))
+        specific_dominated = int(sum(values(kind, "specific", "dominated_by_other")))
+        lines.append(
+            f"- on the {kind} (held out of the generic set): "
+            + stats.decide(result, "the specific controller", "the generic one")
+            + f". Specific points dominate {generic_dominated} of "
+            f"{int(sum(values(kind, 'generic', 'points')))} generic points; generic points "
+            f"dominate {specific_dominated} of {int(sum(values(kind, 'specific', 'points')))} "
+            "specific points (each repetition against the same repetition)."
+        )
+    verdict = "\n".join(
+        [
+            f"The paper found specific controllers better than generic ones: by hypervolume this "
+            f"holds significantly on {holds} of {len(fronts)} held-out trajectories.",
+            "",
+            *lines,
+        ]
+    )
+    experiment.write_stats(stats_rows)
+    medians = {
+        (kind, controller): statistics.median(values(kind, controller, "hypervolume"))
+        for kind in fronts
+        for controller in ("specific", "generic")
+    }
+    plot_generic_vs_specific(
+        experiment.out / "generic-vs-specific.png",
+        {
+            kind: {c: values(kind, c, "hypervolume") for c in ("specific", "generic")}
+            for kind in fronts
+        },
+        fronts,
+    )
+    _report(
+        experiment,
+        "Generic against specific controllers (held out)",
+        base,
+        reps,
+        controllers_table(medians),
+        verdict,
         ["generic-vs-specific.png"],
+        {f"on {k}": n for k, n in normalisations.items()},
     )
 
 
 def speed(experiment: Experiment, base: RunConfig, durations: Sequence[float], reps: int) -> None:
     """Tune on spirals of each duration; evaluate every tuned front on every duration."""
     spirals = {d: TrajectorySpec(kind=TrajectoryKind.spiral, duration=d) for d in durations}
-    matrix: dict[tuple[float, float], list[list[tuple[float, float]]]] = {}
+    matrix: dict[tuple[float, float], list[list[Point]]] = {}
     errors: dict[tuple[float, float], list[float]] = {}
     for rep in range(reps):
         for tuned in durations:
@@ -274,10 +470,18 @@ def speed(experiment: Experiment, base: RunConfig, durations: Sequence[float], r
                 # The most accurate controller (on its own trajectory) and its error on `used`.
                 most_accurate = min(range(len(members)), key=lambda i: members[i].f_acc)
                 errors.setdefault((tuned, used), []).append(points[most_accurate][0])
-    hv = {
-        key: statistics.median(experiment.hypervolume(p) for p in value)
-        for key, value in matrix.items()
+    # One normalised space per trajectory evaluated on: fronts on one spiral compare.
+    normalisations = {
+        u: experiment.normalisation([p for t in durations for p in matrix[(t, u)]])
+        for u in durations
     }
+    experiment.write_normalisation({f"on {u:g} s": n for u, n in normalisations.items()})
+    hypervolumes = {
+        (t, u): [normalisations[u].hypervolume(p) for p in matrix[(t, u)]]
+        for t in durations
+        for u in durations
+    }
+    hv = {key: statistics.median(value) for key, value in hypervolumes.items()}
     error = {key: statistics.median(value) for key, value in errors.items()}
     rows = [
         {
@@ -290,32 +494,86 @@ def speed(experiment: Experiment, base: RunConfig, durations: Sequence[float], r
         for u in durations
     ]
     experiment.write_results(rows)
-    plot_speed(experiment.out / "speed.png", durations, hv, error)
-    own = {d: error[(d, d)] for d in durations}
-    transfer = [error[(t, u)] / own[u] - 1 for t in durations for u in durations if t != u]
-    table = speed_table(durations, error)
+    plot_speed(experiment.out / "speed.png", durations, hv, error, matrix)
     ordered = sorted(durations)
-    on_own = ", ".join(f"{own[d] * 1000:.2f} mm at {d:g} s" for d in ordered)
-    gain = own[ordered[0]] - own[ordered[-1]]
-    if gain > 0:
-        # Where the error comes within 10 % of the whole gain of its best value: the plateau.
-        best = min(own.values())
-        plateau = next(d for d in ordered if own[d] - best <= 0.1 * gain)
-        finding = f"falls on faster trajectories and levels off from {plateau:g} s"
-    else:
-        finding = "does not fall on faster trajectories"
-    verdict = (
-        f"The most accurate controller's error on its own spiral: {on_own}. Accuracy "
-        f"{finding} (the paper: it falls, and levels off near 5 s)."
-    )
-    if transfer:
-        cost = statistics.median(transfer)
-        verdict += (
-            f" Run at another speed, it changes its error by a median of {cost:+.0%} against "
-            "the controller tuned for that speed (the paper: moving a controller to another "
-            f"speed costs little{': this holds here' if cost < 0.25 else ': not so here'})."
+    own = {d: error[(d, d)] for d in durations}
+    # Accuracy on its own spiral, each duration against the next shorter one (lower is better).
+    steps = list(itertools.pairwise(ordered))
+    falls = {
+        (fast, slow): stats.compare(errors[(slow, slow)], errors[(fast, fast)])
+        for fast, slow in steps
+    }
+    stats_rows = [
+        stats.StatsRow("speed", f"{slow:g} s vs {fast:g} s, own spiral", "error_m", result)
+        for (fast, slow), result in falls.items()
+    ]
+    transfers = {
+        (t, u): (
+            stats.compare(errors[(t, u)], errors[(u, u)]),
+            stats.compare(hypervolumes[(t, u)], hypervolumes[(u, u)]),
         )
-    _report(experiment, "Trajectory speed", base, reps, table, verdict, ["speed.png"])
+        for u in durations
+        for t in durations
+        if t != u
+    }
+    for (t, u), (err, hyper) in transfers.items():
+        comparison = f"tuned on {t:g} s vs tuned on {u:g} s, on {u:g} s"
+        stats_rows += [
+            stats.StatsRow("speed", comparison, "error_m", err),
+            stats.StatsRow("speed", comparison, "hypervolume", hyper),
+        ]
+    experiment.write_stats(stats_rows)
+    on_own = ", ".join(f"{own[d] * 1000:.2f} mm at {d:g} s" for d in ordered)
+    lines = [
+        f"- {slow:g} s against {fast:g} s, own spiral: "
+        + stats.decide(result, f"{slow:g} s", f"{fast:g} s", higher_is_better=False)
+        for (fast, slow), result in falls.items()
+    ]
+    if not steps:
+        finding = "One duration only: nothing to compare."
+    elif not all(stats.decidable(r) for r in falls.values()):
+        finding = (
+            f"With {reps} repetitions per duration the tests cannot reach p < {stats.ALPHA:g}: "
+            "cannot decide whether or where accuracy levels off; more repetitions are needed."
+        )
+    else:
+        gains = [slow for (fast, slow), r in falls.items() if stats.better(r, False) == "a"]
+        if gains:
+            finding = (
+                f"Accuracy improves significantly on slower spirals and levels off from "
+                f"{max(gains):g} s (no significant gain between consecutive durations from there "
+                "on)."
+            )
+        else:
+            finding = "Accuracy shows no significant change between consecutive durations."
+    verdict_lines = [
+        f"The most accurate controller's error on its own spiral: {on_own}. {finding} (The "
+        "paper: it falls, and levels off near 5 s.)",
+        "",
+        *lines,
+    ]
+    if transfers:
+        worse = sum(stats.better(err, False) == "b" for err, _ in transfers.values())
+        undecidable = sum(not stats.decidable(err) for err, _ in transfers.values())
+        cost = statistics.median(error[(t, u)] / own[u] - 1 for t, u in transfers)
+        verdict_lines += [
+            "",
+            f"Run at another speed, the most accurate controller changes its error by a median of "
+            f"{cost:+.0%} against the one tuned for that speed; it is significantly worse in "
+            f"{worse} of {len(transfers)} cases"
+            + (f" ({undecidable} cannot be decided with {reps} repetitions)" if undecidable else "")
+            + " (the paper: moving a controller to another speed costs little).",
+        ]
+    _report(
+        experiment,
+        "Trajectory speed",
+        base,
+        reps,
+        speed_table(durations, error),
+        "\n".join(verdict_lines),
+        ["speed.png"],
+        {f"on {u:g} s": n for u, n in normalisations.items()},
+    )
 
 
 def _report(
@@ -326,11 +584,14 @@ def _report(
     table: list[str],
     verdict: str,
     figures: list[str],
+    normalisations: dict[str, Normalisation],
 ) -> None:
     write_experiment_report(
         experiment.out / "report.md",
         title=title,
-        setup=experiment_setup(base, reps, experiment.reference),
+        setup=experiment_setup(
+            base, reps, {k: (n.ideal, n.nadir) for k, n in normalisations.items()}
+        ),
         table=table,
         verdict=verdict,
         figures=figures,

@@ -142,43 +142,97 @@ def plot_hypervolume(path: Path, history: Sequence[HistoryRow], title: str = "")
 # --- the experiments' figures --------------------------------------------------------------------
 
 
-def plot_popsize(
-    path: Path, hypervolumes: dict[int, list[float]], evaluations: dict[int, list[int]]
+Point = tuple[float, float]
+
+
+def median_attainment(point_sets: Sequence[Sequence[Point]]) -> list[Point] | None:
+    """The median (50 %) empirical attainment surface of `point_sets` (one set per repetition),
+    sorted by f_acc; penalty points (f_acc ≥ 1 m, non-finite) left out. None if moocore (the
+    EAF's library) is not installed."""
+    try:
+        import moocore
+    except ImportError:
+        return None
+    points, sets = [], []
+    for index, per_rep in enumerate(point_sets, start=1):
+        for f_acc, f_t in per_rep:
+            if math.isfinite(f_acc) and math.isfinite(f_t) and f_acc < 1.0:
+                points.append((f_acc, f_t))
+                sets.append(index)
+    if not points:
+        return []
+    surface = moocore.eaf(points, sets, percentiles=[50])
+    return sorted((float(row[0]), float(row[1])) for row in surface)
+
+
+def _attainment_panel(
+    axes: object, conditions: dict[str, Sequence[Sequence[Point]]], title: str
 ) -> None:
-    """Box plots per population size: final hypervolume, and evaluations to stop."""
-    figure = _new_figure((10, 4))
-    left, right = figure.subplots(1, 2)
+    """Median attainment surfaces, one step line per condition (rep 0's front without moocore),
+    f_acc in mm against f_t on a log axis."""
+    drawn = False
+    for label, point_sets in conditions.items():
+        surface = median_attainment(point_sets)
+        what = "median attainment"
+        if surface is None:
+            surface = sorted(p for p in point_sets[0] if p[0] < 1.0) if point_sets else []
+            what = "rep 0 front"
+        if not surface:
+            continue
+        drawn = True
+        axes.step(  # type: ignore[attr-defined]
+            [p[0] * 1000 for p in surface],
+            [max(p[1], 1e-12) for p in surface],
+            where="post",
+            marker=".",
+            label=f"{label} ({what})",
+        )
+    axes.set(xlabel="f_acc (mm)", ylabel="f_t ((N·m)²)", title=title)  # type: ignore[attr-defined]
+    if drawn:
+        axes.set_yscale("log")  # type: ignore[attr-defined]
+        axes.legend(fontsize=7)  # type: ignore[attr-defined]
+
+
+def plot_popsize(
+    path: Path,
+    hypervolumes: dict[int, list[float]],
+    evaluations: dict[int, list[int]],
+    fronts: dict[int, list[list[Point]]] | None = None,
+) -> None:
+    """Box plots per population size: final hypervolume, and evaluations to stop; and each
+    size's median attainment surface, if `fronts` (per size, one front per repetition)."""
+    figure = _new_figure((15 if fronts else 10, 4))
+    panels = figure.subplots(1, 3 if fronts else 2)
+    left, right = panels[0], panels[1]
     labels = [str(size) for size in hypervolumes]
     left.boxplot(list(hypervolumes.values()), tick_labels=labels)
     left.set(
-        xlabel="population size", ylabel="hypervolume (common reference)", title="final hypervolume"
+        xlabel="population size", ylabel="hypervolume (study normalised)", title="final hypervolume"
     )
     right.boxplot([evaluations[size] for size in hypervolumes], tick_labels=labels)
     right.set(xlabel="population size", ylabel="evaluations", title="evaluations to stop")
+    if fronts:
+        _attainment_panel(
+            panels[2], {f"pop {s}": sets for s, sets in fronts.items()}, "fronts per size"
+        )
     save_png(figure, path)
 
 
 def plot_generic_vs_specific(
     path: Path,
-    hypervolumes: dict[str, list[float]],
-    fronts: dict[str, list[tuple[float, float]]],
+    hypervolumes: dict[str, dict[str, list[float]]],
+    fronts: dict[str, dict[str, list[list[Point]]]],
 ) -> None:
-    """Hypervolume box plots per kind of controller, and one repetition's fronts."""
-    figure = _new_figure((10, 4))
-    left, right = figure.subplots(1, 2)
-    left.boxplot(list(hypervolumes.values()), tick_labels=list(hypervolumes))
-    left.set(ylabel="hypervolume on the pyramid", title="hypervolume")
-    for (kind, points), marker in zip(fronts.items(), ("o", "s"), strict=False):
-        right.plot(
-            [p[0] * 1000 for p in points],
-            [p[1] for p in points],
-            marker=marker,
-            label=f"{kind} (rep 0)",
-        )
-    right.set(
-        xlabel="f_acc (mm)", ylabel="f_t ((N·m)²)", yscale="log", title="fronts on the pyramid"
-    )
-    right.legend()
+    """Per held-out test trajectory (a column each): hypervolume box plots per kind of
+    controller on top, their median attainment surfaces on that trajectory below."""
+    kinds = list(hypervolumes)
+    figure = _new_figure((4.5 * max(1, len(kinds)), 8))
+    panels = figure.subplots(2, max(1, len(kinds)), squeeze=False)
+    for column, kind in enumerate(kinds):
+        top, bottom = panels[0][column], panels[1][column]
+        top.boxplot(list(hypervolumes[kind].values()), tick_labels=list(hypervolumes[kind]))
+        top.set(ylabel=f"hypervolume on the {kind}", title=f"judged on the {kind} (held out)")
+        _attainment_panel(bottom, fronts.get(kind, {}), f"fronts on the {kind}")
     save_png(figure, path)
 
 
@@ -187,11 +241,16 @@ def plot_speed(
     durations: Sequence[float],
     hypervolume: dict[tuple[float, float], float],
     error: dict[tuple[float, float], float],
+    fronts: dict[tuple[float, float], list[list[Point]]] | None = None,
 ) -> None:
     """Two matrices, tuned-on duration against evaluated-on duration: the median hypervolume and
-    the most accurate controller's error."""
-    figure = _new_figure((10, 4.5))
-    left, right = figure.subplots(1, 2)
+    the most accurate controller's error; and, if `fronts` ((tuned on, evaluated on) → one
+    front per repetition), a row of median attainment surfaces, one panel per spiral evaluated
+    on."""
+    columns = max(2, len(durations)) if fronts else 2
+    figure = _new_figure((5 * columns, 9 if fronts else 4.5))
+    panels = figure.subplots(2 if fronts else 1, columns, squeeze=False)
+    left, right = panels[0][0], panels[0][1]
     for axes, values, title, fmt in (
         (left, hypervolume, "median hypervolume", "{:.3f}"),
         (
@@ -217,6 +276,17 @@ def plot_speed(
             title=title,
         )
         figure.colorbar(image, ax=axes)
+    for axes in panels[0][2:]:
+        axes.set_axis_off()
+    if fronts:
+        for column, used in enumerate(durations):
+            _attainment_panel(
+                panels[1][column],
+                {f"tuned on {t:g} s": fronts[(t, used)] for t in durations},
+                f"fronts on the {used:g} s spiral",
+            )
+        for axes in panels[1][len(durations) :]:
+            axes.set_axis_off()
     save_png(figure, path)
 
 

@@ -21,16 +21,27 @@ from analytic.records import (
 from schemas.files import write_atomically
 from schemas.robot import PLANTS, ModelSpec
 
+ALGORITHM_NAMES = {
+    "nsga2": "NSGA-II",
+    "nsga3": "NSGA-III",
+    "smsemoa": "SMS-EMOA",
+    "moead": "MOEA/D",
+    "agemoea2": "AGE-MOEA-II",
+    "random": "uniform random search",
+}
+
 
 def _search(config: RunConfig) -> str:
-    return "steady-state" if config.asynchronous else "generational"
+    """How the run searched: 'generational NSGA-II', 'steady-state NSGA-II', ..."""
+    how = "steady-state" if config.asynchronous else "generational"
+    name = ALGORITHM_NAMES.get(config.algorithm, config.algorithm)
+    scaled = ", told log f_t" if config.objective_scaling == "log" else ""
+    return f"{how} {name}{scaled}"
 
 
 def run_title(config: RunConfig) -> str:
     """A run's figures' title: what was tuned, how."""
-    return (
-        f"{config.mode} controller, {_search(config)} NSGA-II, pop {config.pop}, seed {config.seed}"
-    )
+    return f"{config.mode} controller, {_search(config)}, pop {config.pop}, seed {config.seed}"
 
 
 def run_setup(config: RunConfig) -> list[str]:
@@ -43,7 +54,7 @@ def run_setup(config: RunConfig) -> list[str]:
         controller = f"{config.mode} PD + learned feed-forward {config.feedforward[:12]}"
     return [
         f"{controller} on {trajectories}",
-        f"{_search(config)} NSGA-II, population {config.pop}, seed {config.seed}",
+        f"{_search(config)}, population {config.pop}, seed {config.seed}",
         f"{plant_text(config.model)}; reference point "
         f"f_acc {config.reference_point[0]} m, f_t {config.reference_point[1]}",
     ]
@@ -156,13 +167,25 @@ def plant_text(model: ModelSpec) -> str:
     return f"custom plant (see config.json), {model.joints} joints"
 
 
-def experiment_setup(base: RunConfig, reps: int, reference: tuple[float, float]) -> list[str]:
-    """How an experiment was run, as its report lists it."""
+def experiment_setup(
+    base: RunConfig, reps: int, normalisations: dict[str, tuple[tuple[float, float], ...]]
+) -> list[str]:
+    """How an experiment was run, as its report lists it; `normalisations`: per problem (the
+    trajectory fronts are judged on), the ideal and nadir points the hypervolume spans."""
+    spaces = "; ".join(
+        f"{problem}: f_acc {ideal[0]:.4g}-{nadir[0]:.4g} m, "
+        f"f_t {ideal[1]:.4g}-{nadir[1]:.4g} (N·m)²"
+        for problem, (ideal, nadir) in normalisations.items()
+    )
     return [
         f"{reps} repetitions (seeds 0..{reps - 1}); base configuration: population "
         f"{base.pop}, {base.termination_text}, {plant_text(base.model)}",
-        f"common reference point: f_acc {reference[0]:.4g} m, f_t {reference[1]:.4g} (N·m)² "
-        "(the worst among all controllers tested in this experiment)",
+        "hypervolume normalised between the ideal and the nadir of the pooled non-dominated "
+        f"front of each problem (penalty points left out; f_t on a log scale): {spaces} "
+        "(`normalisation.json`)",
+        "comparisons: Mann-Whitney U (Wilcoxon signed-rank when paired), Vargha-Delaney A12 = "
+        "P(a > b) + 0.5 P(a = b), bootstrap 95 % CI of the difference of medians "
+        "(`stats.csv`); alpha 0.05",
         "runs in `runs/`, raw numbers in `results.csv`",
     ]
 
@@ -175,10 +198,18 @@ def popsize_table(medians: dict[int, tuple[float, float]]) -> list[str]:
     ]
 
 
-def controllers_table(medians: dict[str, float]) -> list[str]:
-    """Kind of controller → median hypervolume on the pyramid, as a Markdown table."""
-    table = ["| controller | median hypervolume on the pyramid |", "|---|---:|"]
-    return table + [f"| {kind} | {median:.4f} |" for kind, median in medians.items()]
+def controllers_table(medians: dict[tuple[str, str], float]) -> list[str]:
+    """(test trajectory, kind of controller) → median hypervolume on that trajectory."""
+    kinds = list(dict.fromkeys(kind for kind, _ in medians))
+    controllers = list(dict.fromkeys(controller for _, controller in medians))
+    table = [
+        "| judged on | " + " | ".join(f"{c} median hypervolume" for c in controllers) + " |",
+        "|---|" + "---:|" * len(controllers),
+    ]
+    return table + [
+        f"| {kind} | " + " | ".join(f"{medians[(kind, c)]:.4f}" for c in controllers) + " |"
+        for kind in kinds
+    ]
 
 
 def speed_table(durations: Sequence[float], error: dict[tuple[float, float], float]) -> list[str]:

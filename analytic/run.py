@@ -154,6 +154,7 @@ class TuningRun:
         given = digest(feedforward) if feedforward is not None else None
         if given != config.feedforward:
             raise ValueError(f"the feed-forward model given ({given}) is not the config's")
+        evolution = _evolution(config)  # before any file: an algorithm that cannot run, no run
         directory = Path(directory)
         _refuse_existing(directory)
         directory.mkdir(parents=True, exist_ok=True)
@@ -170,7 +171,7 @@ class TuningRun:
         except BaseException:
             lock.release()
             raise
-        return cls(directory, config, RunState(_evolution(config)), identity, lock)
+        return cls(directory, config, RunState(evolution), identity, lock)
 
     @classmethod
     def open(cls, directory: Path) -> "TuningRun":
@@ -501,7 +502,14 @@ class TuningRun:
 
 
 def _evolution(config: RunConfig) -> Evolution:
-    return Evolution(config.pop, config.seed, steady_state=config.asynchronous)
+    return Evolution(
+        config.pop,
+        config.seed,
+        steady_state=config.asynchronous,
+        algorithm=config.algorithm,
+        objective_scaling=config.objective_scaling,
+        reference=config.reference_point,
+    )
 
 
 def _rows(front: list[Candidate], episodes: dict[PDGains, list[str]]) -> list[FrontMember]:

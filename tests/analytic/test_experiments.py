@@ -1,6 +1,7 @@
 """Each of the paper's experiments at toy size, on a real local farm."""
 
 import csv
+import json
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -8,16 +9,19 @@ import pytest
 
 from analytic import experiments
 from analytic.config import RunConfig
-from analytic.experiments import EvaluatorFactory, Experiment, non_dominated
+from analytic.experiments import ALL_KINDS, EvaluatorFactory, Experiment, non_dominated
 from analytic.farm import FarmClient
 from analytic.inprocess import InProcessEvaluator
 from analytic.local import local_farm
 from schemas import TrajectorySpec
+from schemas.objectives import NO_EPISODE
+from schemas.trajectory import TrajectoryKind
 from tests.analytic.toy import toy_scores
 from tests.helpers import analytic
 
 BASE = RunConfig(pop=4, trajectories=(TrajectorySpec(duration=3.0),), generations=2, keep="front")
 PNG = b"\x89PNG\r\n\x1a\n"
+STATS_COLUMNS = "study,comparison,metric,median_a,median_b,p_value,a12,ci_low,ci_high,n_a,n_b"
 
 
 @pytest.fixture(scope="module")
@@ -35,6 +39,15 @@ def rows(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(stream))
 
 
+def in_process(study: str, directory: Path) -> InProcessEvaluator:
+    return InProcessEvaluator(scorer=toy_scores)
+
+
+def stats_rows(out: Path) -> list[dict[str, str]]:
+    assert (out / "stats.csv").read_text().splitlines()[0] == STATS_COLUMNS
+    return rows(out / "stats.csv")
+
+
 def test_popsize(tmp_path: Path, endpoints: list[str]) -> None:
     messages: list[str] = []
     experiments.popsize(
@@ -48,10 +61,14 @@ def test_popsize(tmp_path: Path, endpoints: list[str]) -> None:
         ("6", "1"),
     ]
     assert [r["evaluations"] for r in results] == ["8", "8", "12", "12"]
-    assert all(0 < float(r["hypervolume"]) <= 1 for r in results)
+    assert all(0 <= float(r["hypervolume"]) <= 1 for r in results)
     assert (tmp_path / "popsize.png").read_bytes().startswith(PNG)
     report = (tmp_path / "report.md").read_text()
-    assert "| 4 |" in report and "| 6 |" in report and "The paper found" in report
+    assert "| 4 |" in report and "| 6 |" in report
+    # 2 against 2 repetitions: no test can reach 0.05, and the report says so.
+    assert "cannot decide where the hypervolume levels off" in report
+    assert [r["comparison"] for r in stats_rows(tmp_path)] == ["pop 6 vs pop 4"] * 2
+    assert "all runs" in json.loads((tmp_path / "normalisation.json").read_text())
     assert messages  # progress was shown
     # Resumable: a second pass finds every run finished and simulates nothing more.
     before = {path: path.stat().st_mtime_ns for path in tmp_path.glob("runs/*/checkpoint.pkl")}
@@ -61,14 +78,46 @@ def test_popsize(tmp_path: Path, endpoints: list[str]) -> None:
 
 
 def test_generic_vs_specific(tmp_path: Path, endpoints: list[str]) -> None:
-    experiments.generic_vs_specific(Experiment(tmp_path, on_farm(endpoints)), BASE, reps=1)
+    experiments.generic_vs_specific(
+        Experiment(tmp_path, on_farm(endpoints)), BASE, reps=1, kinds=[TrajectoryKind.pyramid]
+    )
     results = rows(tmp_path / "results.csv")
-    assert [r["controller"] for r in results] == ["generic", "specific"]
-    generic = tmp_path / "runs" / "generic-rep0" / "config.json"
-    assert generic.read_text().count('"kind"') == 3  # tuned on all three trajectories
-    assert len(list((tmp_path / "cross" / "generic-rep0" / "episodes").glob("*.mcap"))) >= 1
+    assert [(r["test_trajectory"], r["controller"]) for r in results] == [
+        ("pyramid", "generic"),
+        ("pyramid", "specific"),
+    ]
+    generic = (tmp_path / "runs" / "generic-no-pyramid-rep0" / "config.json").read_text()
+    assert generic.count('"kind"') == 2 and "pyramid" not in generic  # held out
+    cross = tmp_path / "cross" / "generic-no-pyramid-rep0-on-pyramid" / "episodes"
+    assert len(list(cross.glob("*.mcap"))) >= 1
     assert (tmp_path / "generic-vs-specific.png").read_bytes().startswith(PNG)
-    assert "specific controller's median hypervolume" in (tmp_path / "report.md").read_text()
+    report = (tmp_path / "report.md").read_text()
+    assert "on the pyramid (held out of the generic set): cannot decide" in report
+    assert "generic points" in report
+    assert {r["metric"] for r in stats_rows(tmp_path)} == {"hypervolume", "best_f_acc"}
+
+
+def test_generic_vs_specific_holds_each_trajectory_out_in_turn(tmp_path: Path) -> None:
+    experiments.generic_vs_specific(Experiment(tmp_path, in_process), BASE, reps=1)
+    for kind in ALL_KINDS:
+        generic = json.loads(
+            (tmp_path / "runs" / f"generic-no-{kind.value}-rep0" / "config.json").read_text()
+        )
+        kinds = [trajectory["kind"] for trajectory in generic["trajectories"]]
+        assert kind.value not in kinds and len(kinds) == 2
+        specific = json.loads(
+            (tmp_path / "runs" / f"specific-{kind.value}-rep0" / "config.json").read_text()
+        )
+        assert [trajectory["kind"] for trajectory in specific["trajectories"]] == [kind.value]
+    results = rows(tmp_path / "results.csv")
+    assert {r["test_trajectory"] for r in results} == {kind.value for kind in ALL_KINDS}
+    assert all(0 <= int(r["dominated_by_other"]) <= int(r["points"]) for r in results)
+    assert len(stats_rows(tmp_path)) == 6
+    assert set(json.loads((tmp_path / "normalisation.json").read_text())) == {
+        "on spiral",
+        "on random",
+        "on pyramid",
+    }
 
 
 def test_speed(tmp_path: Path, endpoints: list[str]) -> None:
@@ -83,17 +132,32 @@ def test_speed(tmp_path: Path, endpoints: list[str]) -> None:
     assert all(float(r["median_error_of_most_accurate_m"]) > 0 for r in results)
     assert (tmp_path / "speed.png").read_bytes().startswith(PNG)
     assert "| 3 s |" in (tmp_path / "report.md").read_text()
+    assert {r["metric"] for r in stats_rows(tmp_path)} == {"error_m", "hypervolume"}
 
 
-def test_an_experiment_uses_one_reference_point_the_worst_tested(tmp_path: Path) -> None:
+def test_speed_in_process_writes_its_statistics(tmp_path: Path) -> None:
+    experiments.speed(Experiment(tmp_path, in_process), BASE, durations=[3.0, 3.5, 4.0], reps=2)
+    comparisons = {r["comparison"] for r in stats_rows(tmp_path)}
+    assert "3.5 s vs 3 s, own spiral" in comparisons and "4 s vs 3.5 s, own spiral" in comparisons
+    assert "tuned on 3 s vs tuned on 4 s, on 4 s" in comparisons
+    assert (
+        "cannot decide whether or where accuracy levels off" in (tmp_path / "report.md").read_text()
+    )
+
+
+def test_an_experiment_normalises_between_its_pooled_front_penalties_aside(tmp_path: Path) -> None:
     experiment = Experiment(tmp_path, on_farm([]))
-    experiment.tested = [(0.1, 10.0), (0.3, 1.0), (0.2, 50.0)]
-    assert experiment.reference == (0.3, 50.0)
-    assert experiment.hypervolume([(0.3, 50.0)]) == 0.0
+    experiment.penalised.add((0.4, 1e5))  # a diverged episode met in a cross-evaluation
+    fronts = [[(0.1, 10.0), (0.3, 1.0)], [(0.2, 50.0), NO_EPISODE, (0.4, 1e5)]]
+    normalisation = experiment.normalisation(fronts)
+    assert (normalisation.ideal, normalisation.nadir) == ((0.1, 1.0), (0.3, 10.0))
+    assert normalisation.hypervolume([(0.2, 50.0)]) == 0.0  # beyond the reference point
     assert (
         0
-        < experiment.hypervolume([(0.1, 10.0)])
-        < experiment.hypervolume([(0.1, 10.0), (0.05, 40.0)])
+        < normalisation.hypervolume([(0.3, 10.0)])
+        < normalisation.hypervolume([(0.1, 10.0)])
+        < normalisation.hypervolume([(0.1, 10.0), (0.3, 1.0)])
+        <= 1
     )
 
 
@@ -104,13 +168,11 @@ def test_non_dominated() -> None:
 def test_an_experiment_runs_on_any_evaluator_and_resumes_without_rerunning(
     tmp_path: Path,
 ) -> None:
-    def in_process(study: str, directory: Path) -> InProcessEvaluator:
-        return InProcessEvaluator(scorer=toy_scores)
-
     experiments.popsize(Experiment(tmp_path, in_process), BASE, sizes=[4, 6], reps=2)
     results = rows(tmp_path / "results.csv")
     assert [r["evaluations"] for r in results] == ["8", "8", "12", "12"]
     assert all(r["stopped"] == "2 generations" for r in results)
+    assert [r["metric"] for r in stats_rows(tmp_path)] == ["hypervolume", "evaluations"]
     before = (tmp_path / "results.csv").read_bytes()
     checkpoints = {p: p.stat().st_mtime_ns for p in tmp_path.glob("runs/*/checkpoint.pkl")}
 

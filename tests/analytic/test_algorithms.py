@@ -1,0 +1,243 @@
+"""The optimisers behind `analytic start --algorithm`, the objective scaling the optimiser is told,
+and the classical (no-GA) baseline. Tuning runs on the toy problem (tests.analytic.toy)."""
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from analytic.classical import classical_gains, joint_inertias, rule
+from analytic.config import RunConfig
+from analytic.evolution import ALGORITHMS, Evolution, normalise
+from analytic.inprocess import InProcessEvaluator
+from analytic.records import read_run
+from analytic.run import RunProgress, TuningRun
+from analytic.search_space import SearchSpace
+from schemas import EpisodeSpec, TrajectorySpec
+from schemas.objectives import objectives
+from schemas.robot import ModelSpec
+from schemas.wire import describe
+from tests.analytic.test_run_in_process import Interrupt, Shuffled, tune
+from tests.analytic.toy import toy_scores
+from tests.helpers import analytic
+
+TINY = RunConfig(
+    pop=6, seed=7, trajectories=(TrajectorySpec(kind="fourier", duration=0.5),), generations=3
+)
+NUMBA = importlib.util.find_spec("numba") is not None
+EVERY = [
+    pytest.param(
+        name,
+        marks=pytest.mark.skipif(name == "agemoea2" and not NUMBA, reason="needs numba"),
+    )
+    for name in ALGORITHMS
+]
+
+
+def toy_objectives(config: RunConfig, gains) -> tuple[float, float]:
+    """What the toy evaluator finds for `gains`: the raw objectives a run must record."""
+    specs = [
+        EpisodeSpec(gains=gains, trajectory=t, model=config.model) for t in config.trajectories
+    ]
+    return objectives([toy_scores(spec) for spec in specs])
+
+
+@pytest.mark.parametrize("algorithm", EVERY)
+def test_every_algorithm_tunes_and_keeps_the_same_front_guarantee(
+    algorithm: str, tmp_path: Path
+) -> None:
+    config = TINY.model_copy(update={"algorithm": algorithm})
+    whole = tune(tmp_path / "whole", config)
+    assert whole.state.stopped == "3 generations"
+    assert [row.evaluations for row in whole.state.history] == [6, 12, 18]
+    hypervolumes = [row.hypervolume for row in whole.state.history]
+    assert hypervolumes[-1] >= hypervolumes[0] > 0
+    front = (whole.directory / "front.csv").read_bytes()
+    evaluated = (whole.directory / "evaluated.csv").read_bytes()
+    assert read_run(whole.directory).config.algorithm == algorithm
+
+    # the same seed: the same front; another seed: another
+    assert (tune(tmp_path / "again", config).directory / "front.csv").read_bytes() == front
+    other = tune(tmp_path / "other", config.model_copy(update={"seed": 8}))
+    assert (other.directory / "front.csv").read_bytes() != front
+
+    # results in any order: the same front
+    with TuningRun.create(tmp_path / "shuffled", config) as shuffled:
+        shuffled.run(Shuffled(3), report=False)
+    assert (tmp_path / "shuffled" / "front.csv").read_bytes() == front
+
+    # stopped halfway through generation 2, resumed from its checkpoint: the same front
+    def stop_in_generation_two(progress: RunProgress) -> None:
+        if progress.generation == 2 and progress.evaluations > 14:
+            raise Interrupt
+
+    with pytest.raises(Interrupt):
+        tune(tmp_path / "stopped", config, on_progress=stop_in_generation_two)
+    with TuningRun.open(tmp_path / "stopped") as resumed:
+        assert resumed.state.evolution.algorithm_name == algorithm
+        assert not resumed.finished
+        resumed.run(InProcessEvaluator(scorer=toy_scores), report=False)
+    assert (tmp_path / "stopped" / "front.csv").read_bytes() == front
+    assert (tmp_path / "stopped" / "evaluated.csv").read_bytes() == evaluated
+
+
+def test_random_search_draws_a_fresh_uniform_population_every_generation() -> None:
+    evolution = Evolution(6, seed=1, algorithm="random")
+    space = SearchSpace()
+    first = evolution.ask()
+    evolution.tell([(1.0, 1.0)] * 6)
+    second = evolution.ask()
+    assert len(second) == 6 and not set(first) & set(second)
+    for gains in first + second:
+        assert all(
+            lo <= k <= hi for lo, k, hi in zip(space.kp_low, gains.kp, space.kp_high, strict=True)
+        )
+        assert all(
+            lo <= k <= hi for lo, k, hi in zip(space.kd_low, gains.kd, space.kd_high, strict=True)
+        )
+
+
+@pytest.mark.parametrize("algorithm", ["nsga2", "smsemoa"])
+def test_log_scaling_changes_what_the_optimiser_sees_not_what_is_recorded(
+    algorithm: str, tmp_path: Path
+) -> None:
+    raw = tune(tmp_path / "raw", TINY.model_copy(update={"algorithm": algorithm}))
+    config = TINY.model_copy(update={"algorithm": algorithm, "objective_scaling": "log"})
+    log = tune(tmp_path / "log", config)
+    evolution = log.state.evolution
+    # what the optimiser holds: the normalised objectives, not the raw ones
+    population = evolution.algorithm.pop
+    told = population.get("F")
+    truth = [toy_objectives(config, evolution.space.gains(x)) for x in population.get("X")]
+    np.testing.assert_allclose(told, normalise(truth, config.reference_point))
+    assert not np.allclose(told, truth)
+    # what is recorded: raw, the toy's own objectives
+    for member in read_run(log.directory).front:
+        assert member.objectives == pytest.approx(toy_objectives(config, member.gains))
+    for (f_acc, f_t), member in zip(log.state.evaluated[:6], raw.state.evaluated[:6], strict=True):
+        assert (f_acc, f_t) == member  # the first generation is sampled, whatever the scaling
+    assert log.state.history[-1].hypervolume > 0
+    with TuningRun.open(log.directory) as resumed:  # the checkpoint keeps the scaling
+        assert resumed.state.evolution.objective_scaling == "log"
+
+
+def test_corrected_objectives_reach_the_optimiser_scaled() -> None:
+    evolution = Evolution(6, seed=2, objective_scaling="log")
+    asked = evolution.ask()
+    evolution.tell([(0.01 * (i + 1), 10.0 ** (i - 1)) for i in range(6)])
+    member = evolution.front()[0]
+    evolution.correct(member.gains, (0.5, 1e3))
+    row = next(
+        i
+        for i, x in enumerate(evolution.algorithm.pop.get("X"))
+        if evolution.space.gains(x) == member.gains
+    )
+    np.testing.assert_allclose(evolution.algorithm.pop[row].F, normalise([(0.5, 1e3)])[0])
+    assert all(candidate.objectives != (0.5, 1e3) for candidate in evolution.front())
+    assert len(asked) == 6
+
+
+def test_the_config_records_algorithm_and_scaling_and_old_configs_still_load() -> None:
+    config = TINY.model_copy(update={"algorithm": "nsga3", "objective_scaling": "log"})
+    text = config.model_dump_json()
+    assert RunConfig.model_validate_json(text) == config
+    assert json.loads(text)["algorithm"] == "nsga3"
+    old = json.loads(TINY.model_dump_json())
+    del old["algorithm"], old["objective_scaling"]  # a config.json from before the fields
+    loaded = RunConfig.model_validate(old)
+    assert (loaded.algorithm, loaded.objective_scaling) == ("nsga2", "raw")
+    with pytest.raises(ValidationError):
+        RunConfig(algorithm="cmaes")
+    with pytest.raises(ValidationError):
+        RunConfig(objective_scaling="sqrt")
+
+
+def test_steady_state_is_nsga2_only() -> None:
+    with pytest.raises(ValidationError) as raised:
+        RunConfig(asynchronous=True, algorithm="moead")
+    message = describe(raised.value)
+    assert "\n" not in message and "moead" in message and "nsga2" in message
+    with pytest.raises(ValueError, match="nsga2"):
+        Evolution(6, seed=0, steady_state=True, algorithm="nsga3")
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["--algorithm", "cmaes"], "--algorithm"),
+        (["--objective-scaling", "sqrt"], "--objective-scaling"),
+        (["--async", "--algorithm", "smsemoa"], "--async"),
+    ],
+)
+def test_start_refuses_a_bad_algorithm_in_one_line(
+    arguments: list[str], message: str, tmp_path: Path
+) -> None:
+    run = analytic("start", *arguments, cwd=tmp_path)
+    assert run.returncode == 2, run.stderr
+    assert run.stderr.startswith("analytic: error: ") and message in run.stderr
+    assert len(run.stderr.splitlines()) == 1
+    assert not (tmp_path / "runs").exists()
+
+
+def test_start_runs_another_algorithm_and_records_it(tmp_path: Path) -> None:
+    run = analytic(
+        "start",
+        *("--pop", "4", "--generations", "2", "--trajectory", "fourier", "--duration", "0.5"),
+        *("--algorithm", "moead", "--objective-scaling", "log", "--out", "run"),
+        cwd=tmp_path,
+    )
+    assert run.returncode == 0, run.stderr
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert (config["algorithm"], config["objective_scaling"]) == ("moead", "log")
+    assert read_run(tmp_path / "run").evaluations == 8
+
+
+# --- the classical rule ------------------------------------------------------------------------
+
+
+def test_the_classical_rule_for_a_known_inertia() -> None:
+    inertia = [2.0, 1.0, 0.5, 0.5, 0.1, 0.1, 0.05]
+    kp, kd = rule(inertia, omega=10.0, zeta=0.7)
+    np.testing.assert_allclose(kp, [200, 100, 50, 50, 10, 10, 5])
+    np.testing.assert_allclose(kd, [28, 14, 7, 7, 1.4, 1.4, 0.7])
+    wide = SearchSpace(
+        kp_low=(1e-3,) * 7, kp_high=(1e6,) * 7, kd_low=(1e-3,) * 7, kd_high=(1e6,) * 7
+    )
+    grid = classical_gains(inertia, omegas=(10.0, 20.0), dampings=(0.7, 1.0), space=wide)
+    assert grid.clipped == 0 and grid.settings == [(10, 0.7), (10, 1), (20, 0.7), (20, 1)]
+    np.testing.assert_allclose(grid.gains[3].kp, np.array(inertia) * 400)
+    np.testing.assert_allclose(grid.gains[3].kd, np.array(inertia) * 40)
+
+
+def test_the_classical_rule_clips_to_the_search_space() -> None:
+    space = SearchSpace()
+    inertia = [1.0] * 7
+    grid = classical_gains(inertia, omegas=(0.01, 30.0, 1000.0), dampings=(1.0,), space=space)
+    slow, middle, fast = grid.gains
+    assert slow.kp == space.kp_low and slow.kd == space.kd_low  # far below every bound
+    assert fast.kp == space.kp_high and fast.kd == space.kd_high  # far above
+    assert grid.clipped == 3  # 900 N·m/rad on A1 (bounds 200..6000) but 900 > A7's 300
+    assert middle.kp[0] == 900.0 and middle.kd[0] == 60.0
+
+
+def test_the_joint_inertias_include_the_rotors() -> None:
+    without = ModelSpec(joints="rigid", rotor_inertia=(0.0,) * 7)
+    rotors = (0.4, 0.4, 0.3, 0.3, 0.1, 0.1, 0.1)
+    with_rotors = ModelSpec(joints="rigid", rotor_inertia=rotors)
+    bare, full = joint_inertias(without), joint_inertias(with_rotors)
+    assert np.all(bare > 0) and bare.shape == (7,)
+    np.testing.assert_allclose(full - bare, rotors, atol=1e-12)
+
+
+def test_agemoea2_without_numba_is_refused_before_the_run_is_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setitem(sys.modules, "pymoo.algorithms.moo.age2", None)  # as without numba
+    config = TINY.model_copy(update={"algorithm": "agemoea2"})
+    with pytest.raises(ValueError, match="needs numba"):
+        TuningRun.create(tmp_path / "run", config)
+    assert not (tmp_path / "run").exists()

@@ -1,0 +1,121 @@
+"""The statistics behind the experiments' verdicts: the numbers scipy gives, and plain words
+that refuse to decide what the data cannot."""
+
+import csv
+import io
+import math
+
+import pytest
+from scipy import stats as scipy_stats
+
+from analytic import statistics as st
+from analytic.experiments import ALL_KINDS, Normalisation, dominated_count, generic_set, is_penalty
+from schemas.objectives import NO_EPISODE
+from schemas.trajectory import TrajectoryKind
+
+HIGH = [10.0, 11.0, 12.0, 13.0, 14.0, 15.0, 16.0, 17.0]
+LOW = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.5]
+
+
+def parse(data: bytes) -> list[dict[str, str]]:
+    return list(csv.DictReader(io.StringIO(data.decode())))
+
+
+def test_a_clear_difference_is_significant_with_a12_on_the_larger_side() -> None:
+    result = st.compare(HIGH, LOW)
+    expected = scipy_stats.mannwhitneyu(HIGH, LOW, alternative="two-sided")
+    assert result.p_value == pytest.approx(expected.pvalue) and result.p_value < 0.05
+    assert result.a12 == 1.0 and st.compare(LOW, HIGH).a12 == 0.0
+    assert (result.median_a, result.median_b) == (13.5, 3.5)
+    assert result.ci_low <= 10.0 <= result.ci_high and result.ci_low > 0
+    assert (result.n_a, result.n_b) == (8, 8)
+    assert st.decide(result, "high", "low").startswith("high is better than low")
+    assert st.decide(result, "high", "low", higher_is_better=False).startswith(
+        "low is better than high"
+    )
+    assert st.better(result) == "a" and st.better(result, higher_is_better=False) == "b"
+
+
+def test_paired_samples_take_the_wilcoxon_signed_rank_test() -> None:
+    a, b = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0], [2.0, 3.5, 4.0, 5.5, 6.0, 7.5]
+    result = st.compare(a, b, paired=True)
+    assert result.p_value == pytest.approx(scipy_stats.wilcoxon(a, b).pvalue)
+    assert result.test == "Wilcoxon signed-rank" and result.min_p == pytest.approx(2 / 2**6)
+    with pytest.raises(ValueError, match="equal lengths"):
+        st.compare([1.0, 2.0], [1.0], paired=True)
+
+
+def test_identical_samples_cannot_decide() -> None:
+    result = st.compare([0.5] * 8, [0.5] * 8)
+    assert result.p_value == 1.0 and result.a12 == 0.5
+    assert st.decide(result).startswith("cannot decide") and st.better(result) is None
+
+
+def test_three_against_three_can_never_decide_and_says_why() -> None:
+    result = st.compare([10.0, 11.0, 12.0], [1.0, 2.0, 3.0])
+    assert result.min_p == pytest.approx(0.1) == result.p_value  # as far apart as can be
+    assert not st.decidable(result) and st.better(result) is None
+    words = st.decide(result, "big", "small")
+    assert words.startswith("cannot decide") and "0.1" in words and "3 against 3" in words
+
+
+def test_stats_csv_has_exactly_the_agreed_columns_and_scipys_numbers() -> None:
+    rows = [
+        st.StatsRow("study", "high vs low", "hypervolume", st.compare(HIGH, LOW)),
+        st.StatsRow("study", "same", "error_m", st.compare([1.0, 2.0], [1.0, 2.0])),
+    ]
+    written = parse(st.stats_csv(rows))
+    assert list(written[0]) == [
+        "study",
+        "comparison",
+        "metric",
+        "median_a",
+        "median_b",
+        "p_value",
+        "a12",
+        "ci_low",
+        "ci_high",
+        "n_a",
+        "n_b",
+    ]
+    first = written[0]
+    assert first["comparison"] == "high vs low" and first["metric"] == "hypervolume"
+    expected = scipy_stats.mannwhitneyu(HIGH, LOW, alternative="two-sided").pvalue
+    assert float(first["p_value"]) == pytest.approx(expected)
+    assert float(first["a12"]) == 1.0 and (first["n_a"], first["n_b"]) == ("8", "8")
+    assert float(written[1]["p_value"]) == 1.0 and float(written[1]["a12"]) == 0.5
+
+
+def test_a_single_value_a_side_gives_no_interval() -> None:
+    result = st.compare([1.0], [2.0, 3.0])
+    assert math.isnan(result.ci_low) and math.isnan(result.ci_high)
+    assert st.decide(result).startswith("cannot decide")
+
+
+def test_the_normalisation_spans_the_pooled_front_and_ignores_penalty_points() -> None:
+    runs = [[(0.01, 100.0), (0.05, 1.0)], [(0.02, 10.0), (0.08, 50.0)]]  # the last dominated
+    normalisation = Normalisation.of(runs)
+    assert normalisation.ideal == (0.01, 1.0) and normalisation.nadir == (0.05, 100.0)
+    diverged = (0.5, 1e6)
+    with_penalties = Normalisation.of([*runs, [NO_EPISODE, diverged], [(1.0, 0.5)]], {diverged})
+    assert with_penalties == normalisation
+    assert is_penalty(NO_EPISODE) and is_penalty(diverged, {diverged})
+    assert not is_penalty((0.5, 1e6))
+    # The whole range is used: the pooled front scores high, its worst corner little.
+    assert normalisation.hypervolume([(0.05, 100.0)]) == pytest.approx(0.01 / 1.21)
+    assert normalisation.hypervolume([p for points in runs for p in points]) > 0.4
+    assert normalisation.hypervolume([NO_EPISODE]) == 0.0
+    assert normalisation.normalise([(0.03, 10.0)])[0].tolist() == pytest.approx([0.5, 0.5])
+
+
+def test_dominance_counts() -> None:
+    specific = [(0.01, 1.0), (0.02, 0.5)]
+    generic = [(0.02, 2.0), (0.005, 10.0), (0.02, 0.5)]
+    assert dominated_count(generic, specific) == 1  # (0.02, 0.5) ties, is not dominated
+    assert dominated_count(specific, generic) == 0
+
+
+@pytest.mark.parametrize("test", ALL_KINDS)
+def test_the_generic_set_never_holds_the_test_trajectory(test: TrajectoryKind) -> None:
+    kinds = [spec.kind for spec in generic_set(test, 5.0)]
+    assert test not in kinds and len(kinds) == 2
