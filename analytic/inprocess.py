@@ -79,7 +79,6 @@ class InProcessEvaluator:
 
     def _model(self, wanted: str) -> "DynamicsModel":
         from models.dynamics import from_bytes  # as MuJoCo: only when an episode is simulated
-
         from worker.feedforward import ModelUnavailable
 
         if wanted not in self.models:

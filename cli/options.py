@@ -10,10 +10,10 @@ from pathlib import Path
 from typing import TypeVar
 
 import click
-from models.dynamics import BadDynamicsModel, DynamicsModel, from_bytes
 from pydantic import ValidationError
 
 from cli.app import CliError, parse_numbers
+from models.dynamics import BadDynamicsModel, DynamicsModel, from_bytes
 from schemas.robot import PLANTS, ModelSpec
 from schemas.security import Role, TlsIdentity, UnknownIdentity, load_identity
 from schemas.trajectory import TrajectoryKind, TrajectorySpec

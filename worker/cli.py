@@ -10,12 +10,12 @@ import threading
 from pathlib import Path
 
 import click
-from models.dynamics import digest
 from pydantic import ValidationError
 
 from cli import options
 from cli.app import CliError, parse_numbers, run_app, setup_logging
 from cli.scores import show_scores
+from models.dynamics import digest
 from schemas.episode import EpisodeSpec
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import write_episode

@@ -16,9 +16,9 @@ from importlib.metadata import version
 
 import mujoco
 import numpy as np
-from models.dynamics import DynamicsModel
 
 from models import compile_model
+from models.dynamics import DynamicsModel
 from schemas.episode import EpisodeMetadata, EpisodeSpec
 from schemas.episode_log import EpisodeLog
 from schemas.robot import JOINT_NAMES, ModelSpec

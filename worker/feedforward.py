@@ -13,7 +13,6 @@ from collections.abc import Callable
 from pathlib import Path
 
 from models.dynamics import BadDynamicsModel, DynamicsModel, digest, from_bytes
-
 from schemas.files import write_atomically
 
 MEMORY = 8  # models kept decoded: a study uses one, a worker serving a few studies a few

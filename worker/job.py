@@ -10,7 +10,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from models.dynamics import DynamicsModel
-
 from schemas.episode import EpisodeSpec
 from schemas.mcap_episode import episode_bytes
 from schemas.wire import JobStatus, Lease, Result, Timings

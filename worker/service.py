@@ -9,8 +9,8 @@ import time
 from collections.abc import Sequence
 
 import zenoh
-from models.dynamics import DynamicsModel, digest
 
+from models.dynamics import DynamicsModel, digest
 from schemas import keys
 from schemas.ask import ask
 from schemas.security import TlsIdentity
