@@ -78,12 +78,13 @@ class InProcessEvaluator:
             yield self._evaluate(job_id, self._pending.pop(job_id))
 
     def _model(self, wanted: str) -> "DynamicsModel":
-        from models.dynamics import from_bytes  # as MuJoCo: only when an episode is simulated
+        # As MuJoCo: loaded only when an episode is simulated.
+        from models.dynamics import feedforward_from_bytes
         from worker.feedforward import ModelUnavailable
 
         if wanted not in self.models:
             raise ModelUnavailable(f"feed-forward model {wanted[:12]} was not given")
-        return from_bytes(self.models[wanted])
+        return feedforward_from_bytes(self.models[wanted])
 
     def _evaluate(self, job_id: str, spec: EpisodeSpec) -> Evaluation:
         common = dict(job_id=job_id, spec=spec, worker=WORKER, attempts=1)

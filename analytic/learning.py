@@ -32,6 +32,7 @@ from analytic.figures import DPI, save_png
 from analytic.reports import plant_text
 from models.dynamics import (
     KINDS,
+    MODEL_FILE,
     TARGETS,
     DynamicsModel,
     Kind,
@@ -49,7 +50,6 @@ from schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
 
 TICKS = "ticks.parquet"
 EPISODES = "episodes.parquet"
-MODEL_FILE = "model.npz"
 SCORES_FILE = "scores.json"
 REPORT_FILE = "report.md"
 PLOT_FILE = "prediction.png"

@@ -13,7 +13,7 @@ import click
 from pydantic import ValidationError
 
 from cli.app import CliError, parse_numbers
-from models.dynamics import BadDynamicsModel, DynamicsModel, from_bytes
+from models.dynamics import MODEL_FILE, BadDynamicsModel, DynamicsModel, feedforward_from_bytes
 from schemas.robot import PLANTS, ModelSpec
 from schemas.security import Role, TlsIdentity, UnknownIdentity, load_identity
 from schemas.trajectory import TrajectoryKind, TrajectorySpec
@@ -186,9 +186,6 @@ def log_level() -> Callable[[F], F]:
     )
 
 
-MODEL_FILE = "model.npz"  # what `analytic learn --out MODEL` writes the model to
-
-
 def feedforward(
     help: str = "add a learned inverse-dynamics model's torque for the reference "
     "to the PD (a directory from `analytic learn`, or its model.npz)",
@@ -207,12 +204,7 @@ def feedforward_model(path: Path | None) -> tuple[bytes, DynamicsModel] | None:
     except OSError as error:
         raise CliError(f"--feedforward: cannot read {str(file)!r}: {error.strerror}") from None
     try:
-        model = from_bytes(raw)
+        model = feedforward_from_bytes(raw)
     except BadDynamicsModel as error:
         raise CliError(f"--feedforward: {str(file)!r}: {error}") from None
-    if model.target != "inverse":
-        raise CliError(
-            f"--feedforward: {str(file)!r} is a {model.target}-dynamics model; a feed-forward "
-            "needs an inverse-dynamics one (analytic learn --target inverse)"
-        )
     return raw, model

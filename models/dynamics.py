@@ -63,6 +63,7 @@ COULOMB_SMOOTHING = 0.05
 # A file larger than this is not a model of seven joints (a (128,128,128) network is 0.3 MB);
 # checked before anything is decompressed or allocated.
 MAX_FILE_BYTES = 64 * 2**20
+MODEL_FILE = "model.npz"  # the model's file in a directory `analytic learn --out` writes
 _EPOCH = (1980, 1, 1, 0, 0, 0)  # zip entries' timestamp: fixed, so the same model, the same bytes
 
 
@@ -366,6 +367,18 @@ def from_bytes(raw: bytes) -> DynamicsModel:
         network=network,
         about=header["about"],
     )
+
+
+def feedforward_from_bytes(raw: bytes) -> DynamicsModel:
+    """`from_bytes`, for a feed-forward: the model must be an inverse-dynamics one (a torque for
+    the reference), else BadDynamicsModel, one line."""
+    model = from_bytes(raw)
+    if model.target != "inverse":
+        raise BadDynamicsModel(
+            f"a {model.target}-dynamics model; a feed-forward needs an inverse-dynamics one "
+            "(analytic learn --target inverse)"
+        )
+    return model
 
 
 def digest(raw: bytes) -> str:

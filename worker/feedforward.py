@@ -12,7 +12,7 @@ from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
 
-from models.dynamics import BadDynamicsModel, DynamicsModel, digest, from_bytes
+from models.dynamics import BadDynamicsModel, DynamicsModel, digest, feedforward_from_bytes
 from schemas.files import write_atomically
 
 MEMORY = 8  # models kept decoded: a study uses one, a worker serving a few studies a few
@@ -46,10 +46,10 @@ class ModelCache:
             raw = fetch(wanted)
             if raw is None:
                 raise ModelUnavailable(f"feed-forward model {name}: nobody on the farm serves it")
-            if digest(raw) != wanted:
+            served = digest(raw)
+            if served != wanted:
                 raise ModelUnavailable(
-                    f"feed-forward model {name}: the bytes served hash to "
-                    f"{digest(raw)[:12]}, refused"
+                    f"feed-forward model {name}: the bytes served hash to {served[:12]}, refused"
                 )
             model = self._decode(raw, name)
             self._write(wanted, raw)
@@ -78,12 +78,6 @@ class ModelCache:
     @staticmethod
     def _decode(raw: bytes, name: str) -> DynamicsModel:
         try:
-            model = from_bytes(raw)
+            return feedforward_from_bytes(raw)
         except BadDynamicsModel as error:
             raise ModelUnavailable(f"feed-forward model {name}: {error}") from None
-        if model.target != "inverse":
-            raise ModelUnavailable(
-                f"feed-forward model {name} is a {model.target} model; a feed-forward needs an "
-                "inverse-dynamics one"
-            )
-        return model

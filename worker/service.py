@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 import zenoh
 
-from models.dynamics import DynamicsModel, digest
+from models.dynamics import MAX_FILE_BYTES, DynamicsModel, digest
 from schemas import keys
 from schemas.ask import ask
 from schemas.security import TlsIdentity
@@ -33,7 +33,6 @@ log = logging.getLogger("gainfarm.worker")
 ANSWER_MARGIN = 5.0  # s beyond the broker's longest hold before a lease request counts as lost
 RETRY_SECONDS = 1.0  # pause after a broker that did not answer or answered with an error
 ANSWER_SECONDS = 10.0  # how long the broker has to take a handed-in result
-MAX_MODEL_BYTES = 64 * 2**20  # a 21-128-128-128-7 network is 0.3 MB; anything this big is not one
 
 
 class NameTaken(RuntimeError):
@@ -55,7 +54,7 @@ def fetch_model(session: zenoh.Session, study: str, wanted: str) -> bytes | None
         if reply.ok is None:
             continue
         payload = reply.ok.payload
-        if len(payload) > MAX_MODEL_BYTES:
+        if len(payload) > MAX_FILE_BYTES:
             log.warning("ignored a %d-byte answer on %s: too large for a model", len(payload), key)
             continue
         raw = payload.to_bytes()
