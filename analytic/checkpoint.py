@@ -47,6 +47,10 @@ ALLOWED: frozenset[tuple[str, str]] = frozenset(
         ("analytic.evolution", "Evolution"),
         ("analytic.evolution", "GainProblem"),
         ("analytic.evolution", "UniformRandom"),
+        # --algorithm tpe. Not one of Optuna's classes: Study can be called with a storage URL
+        # (a database on disk or the network), so the wrapper pickles plain data only (the points
+        # and objectives told) and replays them into a new study when it is loaded.
+        ("analytic.evolution", "OptunaTPE"),
         ("analytic.evolution", "_by_cv_and_domination"),
         ("analytic.evolution", "_by_cv_then_random"),
         ("analytic.search_space", "SearchSpace"),

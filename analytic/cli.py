@@ -19,7 +19,7 @@ from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn
 from rich.table import Table
 
-from analytic import dataset_value, experiments
+from analytic import algorithm_study, dataset_value, experiments
 from analytic.batch import EVALUATIONS, batch_jobs, run_batch
 from analytic.checkpoint import CheckpointRefused
 from analytic.config import RunConfig
@@ -49,9 +49,10 @@ from cli import options
 from cli.app import CliError, parse_numbers, run_app
 from cli.scores import show_scores
 from models.dynamics import KINDS, TARGETS, digest
+from schemas.episode import EpisodeSpec
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import NotAnEpisodeLog, read_episode
-from schemas.objectives import score
+from schemas.objectives import balancing_weights, score
 from schemas.robot import PLANTS
 from schemas.security import TlsIdentity
 from schemas.trajectory import TrajectorySpec
@@ -249,7 +250,8 @@ def batch(
 @pop_option()
 @options.trajectory(
     multiple=True,
-    help="one: a specific controller; several (repeat): a generic one, objectives averaged",
+    help="one: a specific controller; several (repeat): a generic one, objectives averaged "
+    "(see --balance)",
 )
 @options.duration()
 @options.placement()
@@ -283,8 +285,8 @@ def batch(
     type=click.Choice(ALGORITHMS),
     default=RunConfig.model_fields["algorithm"].default,
     show_default=True,
-    help="the optimiser: pymoo's NSGA-II, NSGA-III, SMS-EMOA, MOEA/D, AGE-MOEA-II, or uniform "
-    "random sampling (--async: nsga2 only)",
+    help="the optimiser: pymoo's NSGA-II, NSGA-III, SMS-EMOA, MOEA/D, AGE-MOEA-II, Optuna's "
+    "TPE, or uniform random sampling (--async: nsga2 only)",
 )
 @click.option(
     "--objective-scaling",
@@ -300,6 +302,14 @@ def batch(
     show_default=True,
     help="on a farm of 2+ workers, validate the front: another worker reruns each member's "
     "episodes and the logs must agree bit for bit",
+)
+@click.option(
+    "--balance/--no-balance",
+    default=True,
+    show_default=True,
+    help="generic: weigh each trajectory's objectives so that all count alike at the default "
+    "gains (simulated here first, one episode per trajectory), rather than the plain means, "
+    "which the roughest trajectory would dominate",
 )
 def start(
     pop: int,
@@ -325,6 +335,7 @@ def start(
     algorithm: str,
     objective_scaling: str,
     replicate: bool,
+    balance: bool,
 ) -> None:
     """Tune the 14 PD gains with NSGA-II (or --algorithm) on the farm: maximise accuracy,
     minimise torque steps.
@@ -353,6 +364,8 @@ def start(
         )
     except ValidationError as error:
         raise CliError(_config_problem(error)) from None
+    if balance and len(trajectories) > 1:
+        config = _balanced(config, learned[0] if learned is not None else None)
     out = out or Path("runs") / time.strftime("%Y%m%d-%H%M%S")
     try:
         run = TuningRun.create(out, config, learned[0] if learned is not None else None)
@@ -399,6 +412,40 @@ def resume(
         run.close()
         raise CliError(f"{str(run_dir)!r} has finished: {run.state.stopped}")
     _tune(run, connect, workers, identity)
+
+
+def _balanced(config: RunConfig, feedforward: bytes | None) -> RunConfig:
+    """`config` with the generic objective balanced by the default gains' scores on each of its
+    trajectories (schemas.objectives.balancing_weights), simulated in this process: a few
+    episodes, before any farm is asked for."""
+    from analytic.inprocess import InProcessEvaluator
+
+    models = {config.feedforward: feedforward} if config.feedforward and feedforward else {}
+    with InProcessEvaluator(models=models) as evaluator:
+        evaluator.submit(
+            {
+                f"t{index}": EpisodeSpec(
+                    gains=DEFAULT_GAINS,
+                    trajectory=trajectory,
+                    model=config.model,
+                    feedforward=config.feedforward,
+                )
+                for index, trajectory in enumerate(config.trajectories)
+            }
+        )
+        found = {evaluation.job_id: evaluation.scores for evaluation in evaluator.results()}
+    reference = []
+    for index, trajectory in enumerate(config.trajectories):
+        scores = found[f"t{index}"]
+        if scores is None or scores.diverged:
+            raise CliError(
+                f"--balance: the default gains do not finish the {trajectory.kind.value} "
+                "trajectory, so there is nothing to balance by; give --no-balance"
+            )
+        reference.append((scores.f_acc, scores.f_t))
+    return RunConfig.model_validate(
+        config.model_dump() | {"objective_weights": balancing_weights(reference)}
+    )
 
 
 def _remember_interrupts() -> threading.Event:
@@ -630,7 +677,8 @@ def learn(dataset_dir: Path, out: Path, target: str, kind: str, seed: int) -> No
 
 @app.command()
 @click.argument(
-    "name", type=click.Choice(["popsize", "generic-vs-specific", "speed", "dataset-value"])
+    "name",
+    type=click.Choice(["popsize", "generic-vs-specific", "speed", "algorithms", "dataset-value"]),
 )
 @click.option(
     "--reps",
@@ -644,6 +692,23 @@ def learn(dataset_dir: Path, out: Path, target: str, kind: str, seed: int) -> No
 )
 @click.option(
     "--durations", default="3,4,5,6", show_default=True, help="speed: spiral durations, s"
+)
+@click.option(
+    "--algorithms",
+    "algorithm_names",
+    default=",".join(ALGORITHMS),
+    show_default=True,
+    help="algorithms: the optimisers compared, comma-separated; the first is the reference "
+    "every other is tested against. Each run gets --evaluations "
+    f"(default {algorithm_study.DEFAULT_BUDGET})",
+)
+@click.option(
+    "--objective-scaling",
+    "scaling_names",
+    default=RunConfig.model_fields["objective_scaling"].default,
+    show_default=True,
+    help="algorithms: what each optimiser is told, comma-separated: "
+    + ", ".join(OBJECTIVE_SCALINGS),
 )
 @click.option(
     "--test-trajectories",
@@ -662,7 +727,7 @@ def learn(dataset_dir: Path, out: Path, target: str, kind: str, seed: int) -> No
 @click.option(
     "--duration",
     type=float,
-    help="trajectory duration, s (popsize, generic-vs-specific, dataset-value)  "
+    help="trajectory duration, s (popsize, generic-vs-specific, algorithms, dataset-value)  "
     f"[default: 5; dataset-value: {dataset_value.DEFAULT_DURATION:g}]",
 )
 @options.plant()
@@ -679,6 +744,8 @@ def experiment(
     reps: int,
     sizes: str,
     durations: str,
+    algorithm_names: str,
+    scaling_names: str,
     test_trajectories: int,
     ticks: int | None,
     pop: int,
@@ -693,9 +760,32 @@ def experiment(
     workers: int,
     out: Path,
 ) -> None:
-    """Rerun one of the paper's experiments: popsize, generic-vs-specific or speed; or test the
-    paper's claim that tuned controllers' data teach the dynamics better: dataset-value."""
+    """Rerun one of the paper's experiments: popsize, generic-vs-specific or speed; compare the
+    optimisers the paper left open: algorithms; or test the paper's claim that tuned
+    controllers' data teach the dynamics better: dataset-value.
+
+    algorithms: each of --algorithms told each --objective-scaling, --reps runs each on the
+    spiral of --duration, every run on the same budget of --evaluations (default 600), against
+    the first algorithm listed, with the classical per-joint PD rule as a baseline without a
+    genetic algorithm; and a check of the convergence rule the other studies stop by.
+    """
     identity = _check_farm(connect, local, tls, participant)
+    chosen: tuple[list[str], list[str]] = ([], [])
+    if name == "algorithms":
+        if generations is not None:
+            raise CliError(
+                "--generations: the algorithms study compares on a budget of evaluations "
+                f"(--evaluations, default {algorithm_study.DEFAULT_BUDGET}), not of generations"
+            )
+        evaluations = evaluations or algorithm_study.DEFAULT_BUDGET
+        chosen = (
+            _names("--algorithms", algorithm_names, ALGORITHMS, "algorithm"),
+            _names("--objective-scaling", scaling_names, OBJECTIVE_SCALINGS, "objective scaling"),
+        )
+        try:
+            algorithm_study.check_runnable(chosen[0], pop)
+        except ValueError as error:  # an algorithm this installation cannot run
+            raise CliError(f"--algorithms: {error}") from None
     if duration is None:
         duration = dataset_value.DEFAULT_DURATION if name == "dataset-value" else 5.0
     if test_trajectories < 1:
@@ -761,6 +851,8 @@ def experiment(
                     experiments.popsize(experiment, base, size_list, reps)
                 elif name == "generic-vs-specific":
                     experiments.generic_vs_specific(experiment, base, reps)
+                elif name == "algorithms":
+                    algorithm_study.algorithms(experiment, base, *chosen, reps)
                 elif name == "dataset-value":
                     dataset_value.dataset_value(experiment, base, reps, test_trajectories, ticks)
                 else:
@@ -775,6 +867,16 @@ def experiment(
         click.echo("analytic: stopped; run the same command again to go on", err=True)
         sys.exit(130)
     console.print(f"{name}: report, figures and results.csv in {out}/")
+
+
+def _names(option: str, text: str, allowed: tuple[str, ...], what: str) -> list[str]:
+    """Comma-separated names from an option's value, each one of `allowed`, none twice."""
+    names = [part.strip() for part in text.split(",")]
+    try:
+        algorithm_study.check_names(names, allowed, what)
+    except ValueError as error:
+        raise CliError(f"{option}: {error}") from None
+    return names
 
 
 def _unwritable(error: OSError, then: str) -> CliError:

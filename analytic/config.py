@@ -1,6 +1,6 @@
 """A tuning run's configuration: everything that decides its outcome, validated as a whole."""
 
-from typing import Literal, Self
+from typing import Annotated, Literal, Self
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -14,6 +14,8 @@ from analytic.evolution import (
 from analytic.termination import CONVERGENCE_TOLERANCE, CONVERGENCE_WINDOW, Termination
 from schemas.robot import ModelSpec
 from schemas.trajectory import TrajectorySpec
+
+PositiveFinite = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
 
 class RunConfig(BaseModel):
@@ -34,12 +36,19 @@ class RunConfig(BaseModel):
     algorithm: Algorithm = Field(
         "nsga2",
         description="the optimiser (analytic.evolution.ALGORITHMS): pymoo's NSGA-II, NSGA-III, "
-        "SMS-EMOA, MOEA/D or AGE-MOEA-II, or uniform random sampling",
+        "SMS-EMOA, MOEA/D or AGE-MOEA-II, Optuna's TPE, or uniform random sampling",
     )
     objective_scaling: ObjectiveScaling = Field(
         "raw",
         description="what the optimiser is told: the raw objectives, or (log) the normalised "
         "ones the hypervolume is taken on, f_t on a log scale; the records stay raw either way",
+    )
+    objective_weights: tuple[tuple[PositiveFinite, PositiveFinite], ...] | None = Field(
+        None,
+        description="a generic controller's objectives are the means over its trajectories, "
+        "weighted per trajectory by these (f_acc weight, f_t weight) pairs, in the order of "
+        "`trajectories` (schemas.objectives.balancing_weights: each trajectory counts alike at "
+        "the default gains); None: the plain means",
     )
     keep: Literal["all", "front"] = "all"
     feedforward: str | None = Field(
@@ -60,6 +69,12 @@ class RunConfig(BaseModel):
             raise ValueError("generations and evaluations exclude each other")
         if self.asynchronous and self.algorithm != STEADY_STATE_ONLY:
             raise ValueError(steady_state_refusal(self.algorithm))
+        weights = self.objective_weights
+        if weights is not None and len(weights) != len(self.trajectories):
+            raise ValueError(
+                f"objective_weights: {len(weights)} pairs for {len(self.trajectories)} "
+                "trajectories (one pair per trajectory)"
+            )
         return self
 
     @property

@@ -42,6 +42,7 @@ from analytic.learning import MEAN_JOINTS, Rows, identify, train_network
 from analytic.records import RunRecord, results_csv
 from analytic.reports import plant_text, write_dataset_value_report
 from analytic.search_space import SearchSpace
+from analytic.statistics import holm
 from models.dynamics import DynamicsModel, rigid_prior
 from schemas.episode import EpisodeSpec, Scores
 from schemas.files import write_atomically
@@ -300,18 +301,6 @@ def paired(
     return Comparison(
         model, condition, against, mean, float(result.statistic), p, p, mean / spread, n
     )
-
-
-def holm(p_values: Sequence[float]) -> list[float]:
-    """Holm's step-down adjustment of a family of p-values (NaN ones stay NaN, not counted)."""
-    tested = [index for index, p in enumerate(p_values) if math.isfinite(p)]
-    order = sorted(tested, key=lambda index: p_values[index])
-    adjusted = [math.nan] * len(p_values)
-    running = 0.0
-    for rank, index in enumerate(order):
-        running = max(running, min(1.0, (len(order) - rank) * p_values[index]))
-        adjusted[index] = running
-    return adjusted
 
 
 def compare(

@@ -1,19 +1,21 @@
-"""The evolution step: a multi-objective optimiser (pymoo) through ask and tell, and the
-hypervolume of its front.
+"""The evolution step: a multi-objective optimiser (pymoo's, or Optuna's TPE) through ask and
+tell, and the hypervolume of its front.
 
 Pure: no farm, no files. The caller evaluates each asked generation however it likes (the farm,
 in any order) and tells the objectives back in the order asked, so the outcome depends on the seed
 and the objectives only, never on which result arrived first.
 
-The optimiser is NSGA-II by default; ALGORITHMS lists the others, all pymoo's, generational (a
-whole population asked, then told), and "random": uniform random sampling of the search space, a
-population a generation, the baseline any optimiser must beat. Whatever the optimiser, the front
-is this module's archive of every non-dominated point told, in raw units. The optimiser itself
-may be told the objectives as the hypervolume sees them (objective_scaling "log": `normalise`,
-f_t on a log scale) instead of raw (f_t spans six decades, and crowding on raw f_t neglects the
-smooth end).
+The optimiser is NSGA-II by default; ALGORITHMS lists the others, all generational (a whole
+population asked, then told): pymoo's NSGA-III, SMS-EMOA, MOEA/D and AGE-MOEA-II; "tpe", Optuna's
+multi-objective TPE through Optuna's ask and tell (OptunaTPE); and "random", uniform random
+sampling of the search space, a population a generation, the baseline any optimiser must beat.
+Whatever the optimiser, the front is this module's archive of every non-dominated point told, in
+raw units. The optimiser itself may be told the objectives as the hypervolume sees them
+(objective_scaling "log": `normalise`, f_t on a log scale) instead of raw (f_t spans six decades,
+and crowding on raw f_t neglects the smooth end).
 """
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, get_args
@@ -43,7 +45,7 @@ from schemas.gains import PDGains
 REFERENCE_POINT = (0.2, 1e4)  # f_acc in m, f_t in (N·m)²
 F_T_FLOOR = 1e-2  # (N·m)²: smoother than this counts as perfectly smooth
 
-Algorithm = Literal["nsga2", "nsga3", "smsemoa", "moead", "agemoea2", "random"]
+Algorithm = Literal["nsga2", "nsga3", "smsemoa", "moead", "agemoea2", "tpe", "random"]
 ALGORITHMS: tuple[str, ...] = get_args(Algorithm)
 ObjectiveScaling = Literal["raw", "log"]
 OBJECTIVE_SCALINGS: tuple[str, ...] = get_args(ObjectiveScaling)
@@ -81,6 +83,122 @@ class UniformRandom:
         pass
 
 
+class OptunaTPE:
+    """The "tpe" algorithm: Optuna's multi-objective TPE (optuna.samplers.TPESampler) through
+    Optuna's ask and tell, `pop_size` trials asked a generation, each decision variable a float
+    between its bounds (already log10 of a gain: the search space is log-scaled). The first
+    generation is uniform random (TPE's startup trials); every later one is sampled from Parzen
+    estimators of the trials told: multivariate (the gains act together: a joint's damping is Kd
+    against Kp), with the constant liar, so that a generation's trials, asked before any of them
+    is told, spread out rather than pile onto one mode.
+
+    Deterministic and picklable without any of Optuna's objects: each generation is asked of a
+    fresh sampler seeded by (seed, generation), so that the sampler carries no random state from
+    one generation to the next (its other state, the search space, is derived from the trials).
+    What is pickled is plain data: the seed, the generations asked, every trial told (its point and
+    the objectives it was told, None for a trial Optuna failed) and the trials asked and not yet
+    told; unpickling replays them into a new in-memory study (optuna.trial.create_trial,
+    study.add_trials), which then asks exactly what the uninterrupted one would have.
+    """
+
+    def __init__(self, pop_size: int, space: SearchSpace, seed: int):
+        self.pop_size = pop_size
+        self.seed = seed
+        self.lower, self.upper = space.lower, space.upper
+        self.names = tuple(f"log10_kp{j + 1}" for j in range(len(space.kp_low))) + tuple(
+            f"log10_kd{j + 1}" for j in range(len(space.kd_low))
+        )
+        self.generations = 0  # generations asked
+        self._told: list[tuple[list[float], list[float] | None]] = []  # in trial number order
+        self._asked: list[list[float]] = []  # the points of the trials asked, not yet told
+        self.pop = None  # no population: nothing for Evolution.correct to correct
+        self._study = self._new_study()
+
+    def __getstate__(self) -> dict:
+        return {key: value for key, value in self.__dict__.items() if key != "_study"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._study = self._new_study()
+
+    def _new_study(self) -> Any:
+        """The study, with every trial told and asked so far replayed into it, in order."""
+        optuna = _optuna()
+        state = optuna.trial.TrialState
+        distributions = {
+            name: optuna.distributions.FloatDistribution(float(low), float(high))
+            for name, low, high in zip(self.names, self.lower, self.upper, strict=True)
+        }
+        trials = [
+            (x, state.COMPLETE if values is not None else state.FAIL, values)
+            for x, values in self._told
+        ] + [(x, state.RUNNING, None) for x in self._asked]
+        study = optuna.create_study(directions=["minimize", "minimize"])
+        study.add_trials(
+            [
+                optuna.trial.create_trial(
+                    state=trial_state,
+                    params=dict(zip(self.names, x, strict=True)),
+                    distributions=distributions,
+                    values=values,
+                )
+                for x, trial_state, values in trials
+            ]
+        )
+        return study
+
+    def _sampler(self, optuna: Any) -> Any:
+        """This generation's sampler: seeded by (seed, generation), nothing carried over."""
+        seed = int(np.random.SeedSequence([self.seed, self.generations]).generate_state(1)[0])
+        with warnings.catch_warnings():  # Optuna 4 calls both options experimental; 5 does not
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            return optuna.samplers.TPESampler(
+                seed=seed, n_startup_trials=self.pop_size, multivariate=True, constant_liar=True
+            )
+
+    def ask(self) -> Population:
+        if self._asked:
+            raise RuntimeError("ask() follows the tell() of the trials asked last")
+        optuna = _optuna()
+        self._study.sampler = self._sampler(optuna)
+        for _ in range(self.pop_size):
+            trial = self._study.ask()
+            self._asked.append(
+                [
+                    trial.suggest_float(name, float(low), float(high))
+                    for name, low, high in zip(self.names, self.lower, self.upper, strict=True)
+                ]
+            )
+        self.generations += 1
+        return Population.new(X=np.array(self._asked, dtype=float))
+
+    def tell(self, infills: Population) -> None:
+        """The objectives (F) of the trials asked last, in the order asked."""
+        if len(infills) != len(self._asked) or not np.array_equal(
+            infills.get("X"), np.array(self._asked, dtype=float).reshape(-1, len(self.names))
+        ):
+            raise ValueError("tell() takes the trials asked last, in the order asked")
+        complete = _optuna().trial.TrialState.COMPLETE
+        first = len(self._told)  # trials are numbered in the order asked, and told in that order
+        for number, (x, f) in enumerate(zip(self._asked, infills.get("F"), strict=True), first):
+            values = [float(value) for value in f]
+            told = self._study.tell(number, values)  # a NaN fails the trial
+            self._told.append((x, values if told.state == complete else None))
+        self._asked = []
+
+
+def _optuna() -> Any:
+    """Optuna, quiet (it logs every trial at INFO); a ValueError if it is not installed."""
+    try:
+        import optuna
+    except ImportError:
+        raise ValueError(
+            "algorithm tpe needs optuna: pip install optuna (gainfarm's moea extra)"
+        ) from None
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    return optuna
+
+
 def _by_cv_then_random(pop: Population, P: np.ndarray, **kwargs: Any) -> np.ndarray:
     """NSGA-III's tournament: pymoo's own function is wrapped by a decorator that pickle cannot
     name (a checkpoint holds the algorithm), so the algorithm holds this, which calls it."""
@@ -108,6 +226,8 @@ def optimiser(
         raise ValueError(steady_state_refusal(algorithm))
     if algorithm == "random":
         return UniformRandom(pop_size, space, seed)
+    if algorithm == "tpe":
+        return OptunaTPE(pop_size, space, seed)
     if algorithm == "nsga2":
         method = NSGA2(
             pop_size=pop_size, n_offsprings=1 if steady_state else None, eliminate_duplicates=True

@@ -54,7 +54,8 @@ from analytic.reports import (
 from analytic.run import TuningRun, upgrade
 from schemas.episode import EpisodeSpec
 from schemas.files import write_atomically
-from schemas.objectives import DIVERGED_TICK_ERROR, NO_EPISODE
+from schemas.gains import DEFAULT_GAINS, PDGains
+from schemas.objectives import DIVERGED_TICK_ERROR, NO_EPISODE, balancing_weights
 from schemas.trajectory import TrajectoryKind, TrajectorySpec
 
 ALL_KINDS = (TrajectoryKind.spiral, TrajectoryKind.random, TrajectoryKind.pyramid)
@@ -133,7 +134,8 @@ class Experiment:
     out: Path
     evaluator: EvaluatorFactory
     on_progress: Callable[[str], None] = lambda _: None
-    # Objectives of diverged episodes met in cross-evaluations: penalties, never a bound.
+    # Objectives of diverged episodes (front members flagged in front.csv, cross-evaluations):
+    # penalties, never a bound of the normalisation.
     penalised: set[Point] = field(default_factory=set)
 
     def tune(self, name: str, config: RunConfig) -> RunRecord:
@@ -154,6 +156,7 @@ class Experiment:
                     ),
                 )
             record = _read(directory)
+        self.penalised.update(m.objectives for m in record.front if m.diverged)
         return record
 
     def evaluate(
@@ -164,14 +167,24 @@ class Experiment:
         config: RunConfig,
     ) -> list[Point]:
         """Objectives of `members` on another trajectory (simulated again)."""
+        return self.evaluate_gains(name, [member.gains for member in members], trajectory, config)
+
+    def evaluate_gains(
+        self,
+        name: str,
+        gains: Sequence[PDGains],
+        trajectory: TrajectorySpec,
+        config: RunConfig,
+    ) -> list[Point]:
+        """Objectives of the controllers `gains` on `trajectory`, in order (simulated again)."""
         directory = self.out / "cross" / name
         with self.evaluator(f"{self.out.name}-x-{name}", directory) as evaluator:
             evaluator.submit(
                 {
                     f"m{index:03d}": EpisodeSpec(
-                        gains=member.gains, trajectory=trajectory, model=config.model
+                        gains=each, trajectory=trajectory, model=config.model
                     )
-                    for index, member in enumerate(members)
+                    for index, each in enumerate(gains)
                 }
             )
             found = {e.job_id: e for e in evaluator.results()}
@@ -223,6 +236,26 @@ def dominated_count(points: Sequence[Point], by: Sequence[Point]) -> int:
         any(q[0] <= p[0] and q[1] <= p[1] and (q[0] < p[0] or q[1] < p[1]) for q in by)
         for p in points
     )
+
+
+def default_points(
+    experiment: Experiment, base: RunConfig, kinds: Sequence[TrajectoryKind]
+) -> dict[TrajectoryKind, Point]:
+    """The default gains' (f_acc, f_t) on each kind's trajectory (at the base's duration and
+    plant), which the generic objective is balanced by; ValueError if one diverges, since a
+    penalty is no scale to balance by."""
+    points = {}
+    for kind in kinds:
+        trajectory = TrajectorySpec(kind=kind, duration=base.trajectories[0].duration)
+        [point] = experiment.evaluate_gains(
+            f"default-gains-on-{kind.value}", [DEFAULT_GAINS], trajectory, base
+        )
+        if is_penalty(point, experiment.penalised):
+            raise ValueError(
+                f"the default gains diverge on the {kind.value}: nothing to balance by"
+            )
+        points[kind] = point
+    return points
 
 
 def generic_set(test: TrajectoryKind, duration: float) -> tuple[TrajectorySpec, ...]:
@@ -336,11 +369,16 @@ def generic_vs_specific(
 ) -> None:
     """Held out: for each test trajectory in turn, a generic controller tuned on the other
     kinds (never the test one) against a specific one tuned on the test trajectory, both judged
-    on it. The generic controller's objectives are the plain averages over its trajectories."""
+    on it. The generic controller's objectives are the means over its trajectories, balanced
+    (schemas.objectives.balancing_weights) so that each trajectory counts alike at the default
+    gains: unweighted, a pyramid's f_t, 10-40 times a spiral's, would make up nearly all of it."""
     duration = base.trajectories[0].duration
+    defaults = default_points(experiment, base, ALL_KINDS)  # every kind some generic set holds
     fronts: dict[str, dict[str, list[list[Point]]]] = {}
     for kind in kinds:
         test = TrajectorySpec(kind=kind, duration=duration)
+        trained_on = generic_set(kind, duration)
+        weights = balancing_weights([defaults[t.kind] for t in trained_on])
         per_kind: dict[str, list[list[Point]]] = {"generic": [], "specific": []}
         for rep in range(reps):
             specific = experiment.tune(
@@ -350,7 +388,9 @@ def generic_vs_specific(
             name = f"generic-no-{kind.value}-rep{rep}"
             generic = experiment.tune(
                 name,
-                base.model_copy(update={"trajectories": generic_set(kind, duration), "seed": rep}),
+                base.model_copy(
+                    update={"trajectories": trained_on, "objective_weights": weights, "seed": rep}
+                ),
             )
             per_kind["specific"].append(front_points(specific))
             per_kind["generic"].append(
@@ -418,6 +458,15 @@ def generic_vs_specific(
             f"holds significantly on {holds} of {len(fronts)} held-out trajectories.",
             "",
             *lines,
+            "",
+            "The generic objective is the mean over the generic set of each trajectory's f_acc "
+            "and f_t, weighted by the inverse of the default gains' values there, so that each "
+            "trajectory counts alike at the default gains. The default gains scored "
+            + "; ".join(
+                f"{kind.value} {1e3 * f_acc:.1f} mm, f_t {f_t:.3g} (N·m)²"
+                for kind, (f_acc, f_t) in defaults.items()
+            )
+            + ".",
         ]
     )
     experiment.write_stats(stats_rows)

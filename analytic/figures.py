@@ -290,6 +290,53 @@ def plot_speed(
     save_png(figure, path)
 
 
+def plot_algorithms(
+    path: Path,
+    fronts: dict[str, list[list[Point]]],
+    curves: dict[str, tuple[Sequence[int], Sequence[float]]],
+    baselines: dict[str, Sequence[Point]] | None = None,
+    levels: dict[str, float] | None = None,
+) -> None:
+    """The optimiser comparison. Left: each condition's median attainment surface (`fronts`:
+    one front per repetition), with the no-GA baselines' points on top (`baselines`: the
+    classical rule's controllers, the default gains). Right: each condition's median
+    hypervolume against evaluations spent (`curves`: evaluations, hypervolumes), with
+    `levels` (the classical rule's hypervolume, the target a run must reach) as lines."""
+    figure = _new_figure((13, 5))
+    left, right = figure.subplots(1, 2)
+    _attainment_panel(left, fronts, "median attainment per condition")
+    drawn = False
+    for (label, points), marker in zip((baselines or {}).items(), "xs^dv", strict=False):
+        kept = [p for p in points if math.isfinite(p[0]) and math.isfinite(p[1]) and p[0] < 1.0]
+        if kept:
+            drawn = True
+            left.scatter(
+                [p[0] * 1000 for p in kept],
+                [max(p[1], 1e-12) for p in kept],
+                marker=marker,
+                color="black",
+                s=24,
+                label=label,
+                zorder=3,
+            )
+    if drawn:
+        left.set_yscale("log")
+        left.legend(fontsize=7)
+    for label, (evaluations, hypervolumes) in curves.items():
+        right.plot(list(evaluations), list(hypervolumes), marker=".", label=label)
+    for (label, level), style in zip((levels or {}).items(), ("--", ":", "-."), strict=False):
+        right.axhline(level, color="0.4", linestyle=style, linewidth=1, label=label)
+    right.set(
+        xlabel="evaluations",
+        ylabel="median hypervolume (study normalised)",
+        title="hypervolume against evaluations",
+    )
+    right.grid(True, alpha=0.3)
+    if curves or levels:
+        right.legend(fontsize=7)
+    save_png(figure, path)
+
+
 def plot_dataset_value(
     path: Path, nmse: dict[str, dict[str, list[float]]], reference: float | None = None
 ) -> None:

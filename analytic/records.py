@@ -10,7 +10,8 @@ identical runs give byte-identical files. Each file appears whole or not at all 
     run.json        the run's identity (RunIdentity): a random id, which its checkpoint carries
     run.lock        held by the one process writing the run (schemas.files.Lock); says which
     history.csv     one HistoryRow per generation
-    front.csv       the front: one FrontMember per line, most accurate first
+    front.csv       the front: one FrontMember per line, most accurate first; `diverged` says
+                    which members' objectives are a divergence penalty, not a measurement
     front.json      the front again, each member with the episode logs it left (the index the
                     dataset reads; as evaluations.json is for a batch)
     evaluated.csv   every candidate's objectives, in the order told: the cloud behind the front
@@ -59,7 +60,10 @@ FRONT_FIELDS = (
     *(f"kd{joint}" for joint in range(1, N_JOINTS + 1)),
     "f_acc",
     "f_t",
+    "diverged",
 )
+# front.csv before the `diverged` column: read as members none of whose episodes diverged.
+LEGACY_FRONT_FIELDS = FRONT_FIELDS[:-1]
 
 
 @dataclass(frozen=True)
@@ -91,10 +95,13 @@ class HistoryRow:
 class FrontMember:
     """One non-dominated controller, one line of front.csv: its 14 gains and its two scores.
 
-    f_acc is in metres, f_t in (N·m)². Gains may be given as any sequence (a numpy row, say);
-    they are stored as tuples of Python floats so members compare and hash by value. `logs` are
-    the member's kept episode logs, relative to the run directory, one per trajectory whose
-    episode ran (front.json holds them, front.csv does not; they take no part in comparisons).
+    f_acc is in metres, f_t in (N·m)². `diverged`: an episode of the member was stopped early,
+    so its objectives carry the divergence penalty (schemas.objectives) and measure no
+    tracking; a study leaves such points out of its normalisation (analytic.experiments).
+    Gains may be given as any sequence (a numpy row, say); they are stored as tuples of Python
+    floats so members compare and hash by value. `logs` are the member's kept episode logs,
+    relative to the run directory, one per trajectory whose episode ran (front.json holds them,
+    front.csv does not; they take no part in comparisons).
     """
 
     kp: tuple[float, ...]
@@ -102,6 +109,7 @@ class FrontMember:
     f_acc: float
     f_t: float
     logs: tuple[str, ...] = field(default=(), compare=False)
+    diverged: bool = False
 
     def __post_init__(self) -> None:
         for name in ("kp", "kd"):
@@ -111,6 +119,8 @@ class FrontMember:
             object.__setattr__(self, name, gains)
         object.__setattr__(self, "f_acc", float(self.f_acc))
         object.__setattr__(self, "f_t", float(self.f_t))
+        if not isinstance(self.diverged, bool):
+            raise ValueError(f"diverged must be true or false, got {self.diverged!r}")
         object.__setattr__(self, "logs", tuple(str(path) for path in self.logs))
 
     @property
@@ -178,21 +188,31 @@ def front_csv(front: Sequence[FrontMember]) -> bytes:
                 *map(_exact, member.kd),
                 _exact(member.f_acc),
                 _exact(member.f_t),
+                str(member.diverged).lower(),
             )
             for member in sorted_front(front)
         ),
     )
 
 
-def _read_rows(path: Path, fields: Sequence[str]) -> list[dict[str, str]]:
-    """The rows of a CSV, refusing one whose header is not exactly `fields` (another format)."""
+def _read_rows(
+    path: Path, fields: Sequence[str], legacy: Sequence[str] | None = None
+) -> list[dict[str, str]]:
+    """The rows of a CSV, refusing one whose header is not exactly `fields` (another format),
+    or `legacy`, the header an older version wrote."""
     with Path(path).open(newline="", encoding="utf-8") as stream:
         reader = csv.DictReader(stream)
-        if tuple(reader.fieldnames or ()) != tuple(fields):
+        if tuple(reader.fieldnames or ()) not in (tuple(fields), tuple(legacy or fields)):
             raise ValueError(
                 f"{path}: expected columns {','.join(fields)}, got {reader.fieldnames}"
             )
         return list(reader)
+
+
+def _flag(text: str, path: Path) -> bool:
+    if text not in ("true", "false"):
+        raise ValueError(f"{path}: diverged must be true or false, got {text!r}")
+    return text == "true"
 
 
 def read_history(path: Path) -> list[HistoryRow]:
@@ -218,8 +238,9 @@ def read_front(path: Path) -> list[FrontMember]:
             kd=tuple(float(row[f"kd{joint}"]) for joint in range(1, N_JOINTS + 1)),
             f_acc=float(row["f_acc"]),
             f_t=float(row["f_t"]),
+            diverged=_flag(row.get("diverged", "false"), path),
         )
-        for row in _read_rows(path, FRONT_FIELDS)
+        for row in _read_rows(path, FRONT_FIELDS, LEGACY_FRONT_FIELDS)
     ]
 
 
@@ -240,6 +261,7 @@ def front_json(front: Sequence[FrontMember]) -> bytes:
             "kd": list(member.kd),
             "f_acc": member.f_acc,
             "f_t": member.f_t,
+            "diverged": member.diverged,
             "logs": list(member.logs),
         }
         for member in sorted_front(front)

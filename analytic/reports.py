@@ -27,6 +27,7 @@ ALGORITHM_NAMES = {
     "smsemoa": "SMS-EMOA",
     "moead": "MOEA/D",
     "agemoea2": "AGE-MOEA-II",
+    "tpe": "Optuna TPE",
     "random": "uniform random search",
 }
 
@@ -52,8 +53,17 @@ def run_setup(config: RunConfig) -> list[str]:
     controller = config.mode + " controller"
     if config.feedforward is not None:
         controller = f"{config.mode} PD + learned feed-forward {config.feedforward[:12]}"
+    weights = config.objective_weights
+    averaged = (
+        ""
+        if weights is None
+        else "; objectives averaged with weights f_acc "
+        + " / ".join(f"{w:.2f}" for w, _ in weights)
+        + ", f_t "
+        + " / ".join(f"{w:.2f}" for _, w in weights)
+    )
     return [
-        f"{controller} on {trajectories}",
+        f"{controller} on {trajectories}{averaged}",
         f"{_search(config)}, population {config.pop}, seed {config.seed}",
         f"{plant_text(config.model)}; reference point "
         f"f_acc {config.reference_point[0]} m, f_t {config.reference_point[1]}",
@@ -222,6 +232,55 @@ def speed_table(durations: Sequence[float], error: dict[tuple[float, float], flo
         f"| {t:g} s | " + " | ".join(f"{error[(t, u)] * 1000:.2f} mm" for u in durations) + " |"
         for t in durations
     ]
+
+
+class ConditionSummary(Protocol):
+    """What the algorithms study's table shows of one condition (analytic.algorithm_study's)."""
+
+    algorithm: str
+    scaling: str
+    runs: int
+    median_hypervolume: float
+    hypervolume_quartiles: tuple[float, float]
+    median_best_f_acc: float  # m
+    median_evaluations_to_target: float  # inf when fewer than half of the runs reach it
+    reached_target: int  # runs that reach it
+
+
+def condition_text(algorithm: str, scaling: str) -> str:
+    """An optimiser and what it is told, as a reader says it: 'NSGA-II, log f_t'."""
+    told = "log f_t" if scaling == "log" else scaling
+    return f"{ALGORITHM_NAMES.get(algorithm, algorithm)}, {told}"
+
+
+def algorithms_table(
+    summaries: Sequence[ConditionSummary], baselines: dict[str, tuple[float, float]]
+) -> list[str]:
+    """One row per condition, then one per no-GA baseline (`baselines`: its name → its
+    hypervolume and best f_acc in m, one deterministic set each, so no spread)."""
+    table = [
+        "| condition | runs | median hypervolume | interquartile range | median best error (mm) "
+        "| median evaluations to 99 % |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for s in summaries:
+        low, high = s.hypervolume_quartiles
+        reached = (
+            "not reached"
+            if math.isinf(s.median_evaluations_to_target)
+            else f"{s.median_evaluations_to_target:.0f}"
+        )
+        table.append(
+            f"| {condition_text(s.algorithm, s.scaling)} | {s.runs} | "
+            f"{s.median_hypervolume:.4f} | {low:.4f}-{high:.4f} | "
+            f"{s.median_best_f_acc * 1000:.3f} | {reached} ({s.reached_target} of {s.runs} "
+            "runs reach it) |"
+        )
+    table += [
+        f"| {name}, no GA | – | {hypervolume:.4f} | – | {best_f_acc * 1000:.3f} | – |"
+        for name, (hypervolume, best_f_acc) in baselines.items()
+    ]
+    return table
 
 
 def write_experiment_report(

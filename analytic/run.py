@@ -37,7 +37,7 @@ from pymoo.core.population import Population
 from analytic.checkpoint import CheckpointRefused, decode, encode
 from analytic.config import RunConfig
 from analytic.evaluator import Evaluation, EvaluationStatus, Evaluator
-from analytic.evolution import Candidate, Evolution, hypervolume
+from analytic.evolution import Evolution, hypervolume
 from analytic.figures import plot_hypervolume, plot_pareto
 from analytic.records import (
     CONFIG_JSON,
@@ -232,7 +232,7 @@ class TuningRun:
 
     def front(self) -> list[FrontMember]:
         """The best front found so far, most accurate first, each member with its kept logs."""
-        return sorted_front(_rows(self.state.evolution.front(), self.state.episodes))
+        return sorted_front(_rows(self.state))
 
     def run(
         self,
@@ -362,7 +362,10 @@ class TuningRun:
                 if now != episodes:
                     corrected = True
                     state.provenance[gains] = now
-                    state.evolution.correct(gains, objectives([ran.scores for ran in now]))
+                    state.evolution.correct(
+                        gains,
+                        objectives([ran.scores for ran in now], self.config.objective_weights),
+                    )
         if checked:
             if corrected and state.history:  # the last row says what the run reports
                 front = [member.objectives for member in state.evolution.front()]
@@ -431,7 +434,9 @@ class TuningRun:
         self, gains: PDGains, job_ids: list[str], results: dict[str, Evaluation]
     ) -> tuple[float, float]:
         """A candidate's objectives, with its episodes and point recorded."""
-        found = objectives([results[job_id].scores for job_id in job_ids])
+        found = objectives(
+            [results[job_id].scores for job_id in job_ids], self.config.objective_weights
+        )
         self.state.evaluated.append(found)
         self.state.episodes[gains] = [i for i in job_ids if results[i].log is not None]
         self.state.provenance[gains] = tuple(Ran.of(results[job_id]) for job_id in job_ids)
@@ -479,7 +484,7 @@ class TuningRun:
         between history.csv and the checkpoint leaves the plain files a generation ahead: a
         resume runs that generation again, to the same, deterministic, result.)"""
         self._check_open()
-        rows = _rows(self.state.evolution.front(), self.state.episodes)
+        rows = _rows(self.state)
         write_atomically(self.directory / EVALUATED_CSV, evaluated_csv(self.state.evaluated))
         write_atomically(self.directory / FRONT_JSON, front_json(rows))
         write_atomically(self.directory / FRONT_CSV, front_csv(rows))
@@ -512,16 +517,21 @@ def _evolution(config: RunConfig) -> Evolution:
     )
 
 
-def _rows(front: list[Candidate], episodes: dict[PDGains, list[str]]) -> list[FrontMember]:
-    """The front as the record keeps it: gains, objectives and the logs kept of each member."""
+def _rows(state: RunState) -> list[FrontMember]:
+    """The front as the record keeps it: gains, objectives, whether an episode diverged, and the
+    logs kept of each member."""
     return [
         FrontMember(
             member.gains.kp,
             member.gains.kd,
             *member.objectives,
-            logs=tuple(f"{EPISODES}/{job}.mcap" for job in episodes.get(member.gains, [])),
+            logs=tuple(f"{EPISODES}/{job}.mcap" for job in state.episodes.get(member.gains, [])),
+            diverged=any(
+                ran.scores is not None and ran.scores.diverged
+                for ran in state.provenance.get(member.gains, ())
+            ),
         )
-        for member in front
+        for member in state.evolution.front()
     ]
 
 

@@ -226,3 +226,15 @@ def stats_csv(rows: Sequence[StatsRow]) -> bytes:
             ]
         )
     return buffer.getvalue().encode()
+
+
+def holm(p_values: Sequence[float]) -> list[float]:
+    """Holm's step-down adjustment of a family of p-values (NaN ones stay NaN, not counted)."""
+    tested = [index for index, p in enumerate(p_values) if math.isfinite(p)]
+    order = sorted(tested, key=lambda index: p_values[index])
+    adjusted = [math.nan] * len(p_values)
+    running = 0.0
+    for rank, index in enumerate(order):
+        running = max(running, min(1.0, (len(order) - rank) * p_values[index]))
+        adjusted[index] = running
+    return adjusted

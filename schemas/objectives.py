@@ -52,12 +52,39 @@ def score(log: EpisodeLog) -> Scores:
     )
 
 
-def objectives(scores: Sequence[Scores | None]) -> tuple[float, float]:
+def objectives(
+    scores: Sequence[Scores | None], weights: Sequence[tuple[float, float]] | None = None
+) -> tuple[float, float]:
     """A candidate's objectives over its trajectories: the means of f_acc and f_t (the generic
-    controller's; one trajectory gives the specific controller's)."""
+    controller's; one trajectory gives the specific controller's), weighted by `weights`, one
+    (f_acc weight, f_t weight) per trajectory (see `balancing_weights`), if given."""
     if not scores or any(score is None for score in scores):
         return NO_EPISODE
-    return (
-        float(np.mean([score.f_acc for score in scores])),
-        float(np.mean([score.f_t for score in scores])),
-    )
+    acc = np.array([score.f_acc for score in scores])
+    t = np.array([score.f_t for score in scores])
+    if weights is None:
+        return float(np.mean(acc)), float(np.mean(t))
+    w = np.asarray(weights, dtype=float).reshape(-1, 2)
+    if len(w) != len(scores):
+        raise ValueError(f"{len(w)} objective weights for {len(scores)} trajectories")
+    return float(acc @ w[:, 0] / w[:, 0].sum()), float(t @ w[:, 1] / w[:, 1].sum())
+
+
+def balancing_weights(
+    reference: Sequence[tuple[float, float]],
+) -> tuple[tuple[float, float], ...]:
+    """Weights for `objectives` under which every trajectory counts alike at the `reference`
+    (f_acc, f_t) of each trajectory (the default gains' there): each objective's weight is inversely
+    proportional to the reference's value of it, and the weights of an objective sum to 1.
+
+    So a trajectory whose f_t is 40 times the others' (a pyramid's corners) no longer makes up
+    most of the mean: at the reference every trajectory contributes the same share, and a
+    change counts by how far it moves a trajectory against its own reference. The weighted
+    mean keeps the objectives' units (m, (N·m)²).
+    """
+    values = np.array(reference, dtype=float).reshape(-1, 2)
+    if values.size == 0 or not np.all(np.isfinite(values) & (values > 0)):
+        raise ValueError("balancing needs a finite, positive f_acc and f_t on every trajectory")
+    inverse = 1.0 / values
+    weights = inverse / inverse.sum(axis=0)
+    return tuple((float(a), float(t)) for a, t in weights)

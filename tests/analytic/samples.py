@@ -12,7 +12,13 @@ KD = (20.0, 20.0, 15.0, 15.0, 4.0, 2.0, 1.0)
 SAMPLE_FRONT = (
     FrontMember(kp=KP, kd=KD, f_acc=0.0123456789012345, f_t=0.1 + 0.2),
     FrontMember(kp=tuple(k / 3 for k in KP), kd=KD, f_acc=0.045, f_t=1e-3 / 7),
-    FrontMember(kp=tuple(k * 1.5 for k in KP), kd=tuple(k / 7 for k in KD), f_acc=0.002, f_t=4.2e4),
+    FrontMember(
+        kp=tuple(k * 1.5 for k in KP),
+        kd=tuple(k / 7 for k in KD),
+        f_acc=0.002,
+        f_t=4.2e4,
+        diverged=True,
+    ),
 )
 SAMPLE_HISTORY = (
     HistoryRow(1, 30, 0.5, 0.05, 10.0, 12.5),

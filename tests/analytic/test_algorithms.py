@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from analytic.checkpoint import ALLOWED, decode, encode
 from analytic.classical import classical_gains, joint_inertias, rule
 from analytic.config import RunConfig
 from analytic.evolution import ALGORITHMS, Evolution, normalise
 from analytic.inprocess import InProcessEvaluator
-from analytic.records import read_run
+from analytic.records import RunIdentity, read_run
 from analytic.run import RunProgress, TuningRun
 from analytic.search_space import SearchSpace
 from schemas import EpisodeSpec, TrajectorySpec
@@ -28,11 +29,15 @@ from tests.helpers import analytic
 TINY = RunConfig(
     pop=6, seed=7, trajectories=(TrajectorySpec(kind="fourier", duration=0.5),), generations=3
 )
-NUMBA = importlib.util.find_spec("numba") is not None
+# The algorithms that need the moea extra, and the package each needs.
+NEEDS = {"agemoea2": "numba", "tpe": "optuna"}
 EVERY = [
     pytest.param(
         name,
-        marks=pytest.mark.skipif(name == "agemoea2" and not NUMBA, reason="needs numba"),
+        marks=pytest.mark.skipif(
+            name in NEEDS and importlib.util.find_spec(NEEDS[name]) is None,
+            reason=f"needs {NEEDS.get(name)}",
+        ),
     )
     for name in ALGORITHMS
 ]
@@ -241,3 +246,40 @@ def test_agemoea2_without_numba_is_refused_before_the_run_is_written(
     with pytest.raises(ValueError, match="needs numba"):
         TuningRun.create(tmp_path / "run", config)
     assert not (tmp_path / "run").exists()
+
+
+def test_tpe_without_optuna_is_refused_before_the_run_is_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setitem(sys.modules, "optuna", None)  # as without optuna
+    config = TINY.model_copy(update={"algorithm": "tpe"})
+    with pytest.raises(ValueError, match="needs optuna") as raised:
+        TuningRun.create(tmp_path / "run", config)
+    assert "\n" not in str(raised.value) and "moea" in str(raised.value)
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.skipif(importlib.util.find_spec("optuna") is None, reason="needs optuna")
+def test_tpe_resumes_from_plain_data_asking_what_it_would_have(tmp_path: Path) -> None:
+    def toy(evolution: Evolution) -> list[tuple[float, float]]:
+        return [toy_objectives(TINY, gains) for gains in evolution.ask()]
+
+    whole = Evolution(6, seed=5, algorithm="tpe")
+    asked = []
+    for _ in range(4):
+        asked.append(whole.ask())
+        whole.tell(toy(whole))
+    assert len({gains for generation in asked for gains in generation}) == 24
+
+    identity = RunIdentity.new()
+    resumed = Evolution(6, seed=5, algorithm="tpe")
+    for generation in range(4):
+        assert resumed.ask() == asked[generation]
+        # a checkpoint between ask and tell, and one between tell and ask: through the
+        # restricted unpickler, which resolves no class of Optuna's
+        resumed = decode(encode(resumed, identity), tmp_path / "checkpoint.pkl", identity)
+        resumed.tell(toy(resumed))
+        resumed = decode(encode(resumed, identity), tmp_path / "checkpoint.pkl", identity)
+    assert resumed.front() == whole.front()
+    assert resumed.ask() == whole.ask()
+    assert all("optuna" not in module for module, _ in ALLOWED)

@@ -6,7 +6,9 @@ import pytest
 from pydantic import ValidationError
 
 from analytic.config import RunConfig
+from analytic.reports import run_setup
 from analytic.run import TuningRun
+from schemas.trajectory import TrajectorySpec
 from schemas.wire import describe
 
 
@@ -28,3 +30,15 @@ def test_a_run_refuses_a_config_that_skipped_validation(tmp_path: Path) -> None:
     with pytest.raises(ValidationError, match="exclude each other"):
         TuningRun.create(tmp_path / "run", both)
     assert not (tmp_path / "run").exists()
+
+
+def test_objective_weights_need_one_positive_pair_per_trajectory() -> None:
+    two = (TrajectorySpec(), TrajectorySpec(kind="pyramid"))
+    config = RunConfig(trajectories=two, objective_weights=((0.7, 0.9), (0.3, 0.1)))
+    assert RunConfig.model_validate_json(config.model_dump_json()) == config
+    assert "weights f_acc 0.70 / 0.30, f_t 0.90 / 0.10" in run_setup(config)[0]
+    with pytest.raises(ValidationError, match="1 pairs for 2 trajectories"):
+        RunConfig(trajectories=two, objective_weights=((1.0, 1.0),))
+    for bad in ((0.0, 1.0), (1.0, float("inf")), (-1.0, 1.0)):
+        with pytest.raises(ValidationError):
+            RunConfig(trajectories=two, objective_weights=(bad, (1.0, 1.0)))

@@ -9,12 +9,21 @@ import pytest
 
 from analytic import experiments
 from analytic.config import RunConfig
-from analytic.experiments import ALL_KINDS, EvaluatorFactory, Experiment, non_dominated
+from analytic.experiments import (
+    ALL_KINDS,
+    EvaluatorFactory,
+    Experiment,
+    Normalisation,
+    non_dominated,
+)
 from analytic.farm import FarmClient
 from analytic.inprocess import InProcessEvaluator
 from analytic.local import local_farm
-from schemas import TrajectorySpec
-from schemas.objectives import NO_EPISODE
+from analytic.records import read_front
+from schemas import EpisodeSpec, Scores, TrajectorySpec
+from schemas.gains import DEFAULT_GAINS
+from schemas.mcap_episode import read_episode
+from schemas.objectives import NO_EPISODE, balancing_weights, score
 from schemas.trajectory import TrajectoryKind
 from tests.analytic.toy import toy_scores
 from tests.helpers import analytic
@@ -88,6 +97,14 @@ def test_generic_vs_specific(tmp_path: Path, endpoints: list[str]) -> None:
     ]
     generic = (tmp_path / "runs" / "generic-no-pyramid-rep0" / "config.json").read_text()
     assert generic.count('"kind"') == 2 and "pyramid" not in generic  # held out
+    # Balanced by the default gains' own episodes on the generic set, read back from their logs.
+    defaults = []
+    for kind in ("spiral", "random"):
+        [log] = (tmp_path / "cross" / f"default-gains-on-{kind}" / "episodes").glob("*.mcap")
+        found = score(read_episode(log))
+        defaults.append((found.f_acc, found.f_t))
+    weights = RunConfig.model_validate_json(generic).objective_weights
+    assert weights == balancing_weights(defaults)
     cross = tmp_path / "cross" / "generic-no-pyramid-rep0-on-pyramid" / "episodes"
     assert len(list(cross.glob("*.mcap"))) >= 1
     assert (tmp_path / "generic-vs-specific.png").read_bytes().startswith(PNG)
@@ -159,6 +176,27 @@ def test_an_experiment_normalises_between_its_pooled_front_penalties_aside(tmp_p
         < normalisation.hypervolume([(0.1, 10.0), (0.3, 1.0)])
         <= 1
     )
+
+
+def soft_diverges(spec: EpisodeSpec) -> Scores:
+    """The toy's scores, flagged diverged for a first joint softer than the default's."""
+    scores = toy_scores(spec)
+    return scores.model_copy(update={"diverged": spec.gains.kp[0] < DEFAULT_GAINS.kp[0]})
+
+
+def test_diverged_front_members_are_flagged_and_never_bound_the_normalisation(
+    tmp_path: Path,
+) -> None:
+    experiment = Experiment(tmp_path, lambda _s, _d: InProcessEvaluator(scorer=soft_diverges))
+    record = experiment.tune("run", BASE.model_copy(update={"pop": 8, "generations": 3}))
+    front = read_front(record.directory / "front.csv")
+    assert [m.diverged for m in front] == [m.kp[0] < DEFAULT_GAINS.kp[0] for m in front]
+    flagged = {m.objectives for m in front if m.diverged}
+    assert flagged and flagged != {m.objectives for m in front}  # both kinds on this front
+    assert experiment.penalised == flagged
+    normalisation = experiment.normalisation([[m.objectives for m in front]])
+    measured = [m.objectives for m in front if not m.diverged]
+    assert normalisation == Normalisation.of([measured])
 
 
 def test_non_dominated() -> None:

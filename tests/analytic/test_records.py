@@ -32,13 +32,20 @@ def test_csvs_round_trip_exactly(tmp_path: Path) -> None:
     assert sorted(front, key=lambda m: m.f_acc) == front  # sorted by f_acc in the file
     assert set(front) == set(SAMPLE_FRONT)
     header = (tmp_path / "front.csv").read_text().splitlines()[0]
-    assert header == ",".join(FRONT_FIELDS) and len(FRONT_FIELDS) == 16
+    assert header == ",".join(FRONT_FIELDS) and len(FRONT_FIELDS) == 17
+    assert [m.diverged for m in front] == [True, False, False]  # the sample's 0.002 m member
     assert history_csv(SAMPLE_HISTORY).decode().splitlines()[0] == ",".join(HISTORY_FIELDS)
 
 
 def test_equal_fronts_give_byte_identical_csvs_whatever_the_order_and_number_type() -> None:
     as_numpy = [
-        FrontMember(kp=np.array(m.kp), kd=np.array(m.kd), f_acc=np.float64(m.f_acc), f_t=m.f_t)
+        FrontMember(
+            kp=np.array(m.kp),
+            kd=np.array(m.kd),
+            f_acc=np.float64(m.f_acc),
+            f_t=m.f_t,
+            diverged=m.diverged,
+        )
         for m in reversed(SAMPLE_FRONT)
     ]
     assert front_csv(as_numpy) == front_csv(SAMPLE_FRONT) == front_csv(list(SAMPLE_FRONT))
@@ -71,15 +78,36 @@ def test_reading_a_csv_of_another_format_is_refused(tmp_path: Path) -> None:
         read_history(tmp_path / "history.csv")
 
 
+def test_a_front_csv_from_before_the_diverged_column_still_reads(tmp_path: Path) -> None:
+    lines = front_csv(SAMPLE_FRONT).decode().splitlines()
+    legacy = [line.rsplit(",", 1)[0] for line in lines]  # the last column dropped
+    (tmp_path / "front.csv").write_text("\n".join(legacy) + "\n")
+    front = read_front(tmp_path / "front.csv")
+    assert [m.objectives for m in front] == [m.objectives for m in sorted_front(SAMPLE_FRONT)]
+    assert not any(m.diverged for m in front)
+
+
+def test_a_diverged_flag_other_than_true_or_false_is_refused(tmp_path: Path) -> None:
+    text = front_csv(SAMPLE_FRONT).decode().replace(",true\n", ",yes\n")
+    (tmp_path / "front.csv").write_text(text)
+    with pytest.raises(ValueError, match="diverged must be true or false, got 'yes'"):
+        read_front(tmp_path / "front.csv")
+    with pytest.raises(ValueError, match="diverged must be true or false"):
+        FrontMember(kp=KP, kd=KD, f_acc=0.01, f_t=1.0, diverged="false")  # type: ignore[arg-type]
+
+
 def test_front_json_round_trips_with_each_members_logs(tmp_path: Path) -> None:
     front = [
-        FrontMember(m.kp, m.kd, m.f_acc, m.f_t, logs=(f"episodes/c{i}-t0.mcap",))
+        FrontMember(
+            m.kp, m.kd, m.f_acc, m.f_t, logs=(f"episodes/c{i}-t0.mcap",), diverged=m.diverged
+        )
         for i, m in enumerate(SAMPLE_FRONT)
     ]
     (tmp_path / "front.json").write_bytes(front_json(front))
     read = read_front_json(tmp_path / "front.json")
     assert read == sorted_front(front)  # front.csv's order
     assert [m.logs for m in read] == [m.logs for m in sorted_front(front)]
+    assert [m.diverged for m in read] == [m.diverged for m in sorted_front(front)]
     assert read == read_front(_csv(tmp_path, front))  # the same members as front.csv's
 
 

@@ -21,8 +21,9 @@ from analytic.records import read_front, read_history
 from analytic.run import RunProgress, TuningRun
 from broker.service import Broker
 from schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
+from schemas.gains import DEFAULT_GAINS
 from schemas.mcap_episode import read_episode
-from schemas.objectives import score
+from schemas.objectives import balancing_weights, score
 from schemas.transport import open_session
 from tests.helpers import analytic, ask_for_work, hand_in, wait_for
 from worker.episode import run_episode
@@ -182,6 +183,27 @@ def test_start_and_resume_commands(tmp_path: Path) -> None:
     again = analytic("resume", "run", cwd=tmp_path)
     assert again.returncode == 2
     assert again.stderr == "analytic: error: 'run' has finished: 2 generations\n"
+
+
+def test_a_generic_start_is_balanced_by_the_default_gains_unless_told_not_to(
+    tmp_path: Path,
+) -> None:
+    both = ["--trajectory", "fourier", "--trajectory", "spiral", "--duration", "2.6"]
+    tiny = ["--pop", "4", "--generations", "1"]
+    run = analytic("start", *tiny, *both, "--out", "balanced", cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    config = RunConfig.model_validate_json((tmp_path / "balanced" / "config.json").read_text())
+    # The default gains' own episodes, simulated here, give the very weights the run recorded.
+    reference = []
+    for trajectory in config.trajectories:
+        spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=trajectory, model=config.model)
+        found = score(run_episode(spec))
+        reference.append((found.f_acc, found.f_t))
+    assert config.objective_weights == balancing_weights(reference)
+    assert "objectives averaged with weights" in (tmp_path / "balanced" / "report.md").read_text()
+    plain = analytic("start", *tiny, *both, "--no-balance", "--out", "plain", cwd=tmp_path)
+    assert plain.returncode == 0, plain.stderr
+    assert json.loads((tmp_path / "plain" / "config.json").read_text())["objective_weights"] is None
 
 
 @pytest.mark.parametrize(

@@ -16,7 +16,8 @@ from analytic.evaluator import Evaluation
 from analytic.inprocess import InProcessEvaluator
 from analytic.records import read_front, read_history, read_run
 from analytic.run import RunProgress, TuningRun, upgrade
-from schemas import EpisodeSpec, TrajectorySpec
+from schemas import EpisodeSpec, Scores, TrajectorySpec
+from schemas.trajectory import TrajectoryKind
 from tests.analytic.toy import toy_scores
 
 TINY = RunConfig(
@@ -214,3 +215,30 @@ def test_a_run_from_before_front_json_is_upgraded_from_its_checkpoint(tmp_path: 
         read_run(run.directory)
     upgrade(run.directory)
     assert read_run(run.directory) == expected
+
+
+def pyramid_rough(spec: EpisodeSpec) -> Scores:
+    """The toy's scores, with a pyramid's torque steps 40 times a spiral's, as the arm's are."""
+    scores = toy_scores(spec)
+    rough = 40.0 if spec.trajectory.kind == TrajectoryKind.pyramid else 1.0
+    return scores.model_copy(update={"f_t": scores.f_t * rough})
+
+
+def test_a_generic_run_weighs_each_trajectory_as_its_config_says(tmp_path: Path) -> None:
+    both = (TrajectorySpec(duration=1.0), TrajectorySpec(kind="pyramid", duration=1.0))
+    weights = ((0.5, 40 / 41), (0.5, 1 / 41))  # each trajectory's f_t counts alike
+    config = RunConfig(pop=4, trajectories=both, generations=2, objective_weights=weights)
+    run = TuningRun.create(tmp_path / "run", config)
+    with run:
+        run.run(InProcessEvaluator(scorer=pyramid_rough), report=False)
+    evaluated = read_run(run.directory).evaluated
+    assert len(evaluated) == 8
+    # Each point is the weighted mean: the spiral's f_acc, and 80/41 of the spiral's f_t
+    # (unweighted, the pyramid would make it 20.5 times).
+    expected = set()
+    for gains in run.state.provenance:
+        alone = toy_scores(EpisodeSpec(gains=gains, trajectory=both[0]))
+        expected.add((alone.f_acc, 80 / 41 * alone.f_t))
+    assert len(expected) == len(set(evaluated))
+    for point in evaluated:
+        assert any(point == pytest.approx(other, rel=1e-12) for other in expected)

@@ -119,3 +119,9 @@ def test_dominance_counts() -> None:
 def test_the_generic_set_never_holds_the_test_trajectory(test: TrajectoryKind) -> None:
     kinds = [spec.kind for spec in generic_set(test, 5.0)]
     assert test not in kinds and len(kinds) == 2
+
+
+def test_holm_steps_down_and_keeps_the_order() -> None:
+    # Sorted 0.01, 0.03, 0.04 times 3, 2, 1: 0.03, 0.06, then max(0.06, 0.04).
+    assert st.holm([0.04, 0.01, 0.03]) == pytest.approx([0.06, 0.03, 0.06])
+    assert st.holm([0.5, math.nan, 0.9]) == pytest.approx([1.0, math.nan, 1.0], nan_ok=True)

@@ -1,6 +1,14 @@
+import numpy as np
 import pytest
 
-from schemas.objectives import DIVERGED_TICK_ERROR, score
+from schemas.episode import Scores
+from schemas.objectives import (
+    DIVERGED_TICK_ERROR,
+    NO_EPISODE,
+    balancing_weights,
+    objectives,
+    score,
+)
 from schemas.robot import TORQUE_LIMITS
 from tests.helpers import crafted_log
 
@@ -25,3 +33,38 @@ def test_a_diverged_episode_is_charged_the_worst_for_every_tick_it_missed():
 def test_diverged_episodes_score_worse_than_finished_ones(tracking_log, diverged_log):
     finished, diverged = score(tracking_log), score(diverged_log)
     assert diverged.f_acc > finished.f_acc and diverged.f_t > finished.f_t
+
+
+def scores(f_acc: float, f_t: float) -> Scores:
+    return Scores(
+        f_acc=f_acc, f_t=f_t, max_error=f_acc, saturated_fraction=0.0, diverged=False, ticks=1
+    )
+
+
+def test_a_candidates_objectives_are_the_plain_means_unless_weighted():
+    both = [scores(0.01, 1.0), scores(0.03, 40.0)]
+    assert objectives(both) == pytest.approx((0.02, 20.5))
+    assert objectives(both, [(3.0, 1.0), (1.0, 1.0)]) == pytest.approx((0.015, 20.5))
+    assert objectives([scores(0.01, 1.0), None]) == NO_EPISODE
+    with pytest.raises(ValueError, match="1 objective weights for 2 trajectories"):
+        objectives(both, [(1.0, 1.0)])
+
+
+def test_balanced_weights_make_every_trajectory_count_alike_at_the_reference():
+    # A pyramid whose f_t is 40 times the spiral's: unweighted it is 98 % of the mean f_t.
+    reference = [(0.01, 1.0), (0.02, 40.0)]
+    weights = balancing_weights(reference)
+    w = np.array(weights)
+    assert w.sum(axis=0) == pytest.approx([1.0, 1.0])
+    shares = w * np.array(reference)  # each trajectory's part of the weighted mean
+    assert shares[0] == pytest.approx(shares[1])
+    # At the reference, the weighted objectives are the harmonic means, in the same units.
+    assert objectives([scores(*point) for point in reference], weights) == pytest.approx(
+        (2 / (1 / 0.01 + 1 / 0.02), 2 / (1 / 1.0 + 1 / 40.0))
+    )
+
+
+@pytest.mark.parametrize("reference", [[], [(0.01, 0.0)], [(0.01, float("nan"))], [(-1, 1)]])
+def test_balancing_needs_a_positive_finite_reference(reference):
+    with pytest.raises(ValueError, match="finite, positive"):
+        balancing_weights(reference)
