@@ -13,10 +13,9 @@ tested.
 Every number is taken in one study normalisation (analytic.experiments.Normalisation), from
 every run's front, penalty points left out (the baselines are measured in it, not part of it):
 
-- hypervolume: of the run's front, the non-dominated set of every point it evaluated. The front
-  (front.json, RunRecord.front) rather than evaluated.csv: the same points, in raw units, but
-  with the corrections validation by replication made to a member a faulty worker had scored
-  (evaluated.csv keeps every point as it was first told, and no gains to match it by).
+- hypervolume: of the run's front (front.json, RunRecord.front), the non-dominated set of every
+  point it evaluated, as validation by replication left them (evaluated.csv carries the same
+  corrections, but a run from before it did not).
 - best f_acc: the front's smallest mean error, in mm.
 - evaluations to 99 %: the first checkpoint (every `pop` evaluations, and the budget) at which
   the non-dominated set of the run's first evaluations (evaluated.csv: the one record of their
@@ -502,10 +501,7 @@ def _verdict(
         for name, (value, best) in baselines.items()
     ]
     stops = [r.stopped_by_rule_at for r in first_algorithm if r.stopped_by_rule_at is not None]
-    rule_text = (
-        f"The convergence rule (hypervolume gain below {rule.tolerance:.1%} over "
-        f"{rule.window} generations, on each run's own hypervolume) "
-    )
+    rule_text = f"The convergence rule ({rule.rule}, on each run's own hypervolume) "
     if rule_check is None:
         lines += [
             "",

@@ -87,7 +87,7 @@ class RunConfig(BaseModel):
             return f"{self.generations} generations"
         if self.evaluations:
             return f"{self.evaluations} evaluations"
-        return f"until converged (< {self.tolerance:.1%} over {self.window} generations)"
+        return f"until converged ({self.termination.rule})"
 
     @property
     def mode(self) -> str:

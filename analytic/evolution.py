@@ -358,12 +358,16 @@ class Evolution:
         self._archive_x, self._archive_f = x[first], f[first]
         self.evaluations += len(individuals)
 
-    def correct(self, gains: PDGains, objectives: tuple[float, float]) -> None:
+    def correct(self, gains: PDGains, objectives: tuple[float, float]) -> list[int]:
         """A candidate's objectives were false (a replica outvoted its log): take the true ones,
-        in the archive, among the points seen and in the optimiser's population."""
+        in the archive, among the points seen and in the optimiser's population. Returns where
+        the candidate was told, as indices into the points told in order (empty for a
+        checkpoint from before every point was kept, whose points seen are its archive)."""
+        rows = []
         for row, x in enumerate(self._seen_x):
             if self.space.gains(x) == gains:
                 self._seen_f[row] = objectives
+                rows.append(row)
         first = non_dominated_indices(self._seen_f)
         self._archive_x, self._archive_f = self._seen_x[first], self._seen_f[first]
         population = self.algorithm.pop
@@ -371,6 +375,7 @@ class Evolution:
             for individual in population:
                 if self.space.gains(individual.X) == gains:
                     individual.set("F", self.seen_by_optimiser(objectives)[0])
+        return rows if len(self._seen_f) == self.evaluations else []
 
     def seen_by_optimiser(
         self, objectives: Sequence[tuple[float, float]] | np.ndarray

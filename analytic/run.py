@@ -362,10 +362,11 @@ class TuningRun:
                 if now != episodes:
                     corrected = True
                     state.provenance[gains] = now
-                    state.evolution.correct(
-                        gains,
-                        objectives([ran.scores for ran in now], self.config.objective_weights),
-                    )
+                    true = objectives([ran.scores for ran in now], self.config.objective_weights)
+                    # evaluated.csv holds the points in the order told: the true one replaces
+                    # the false one there too, so the cloud and the front agree.
+                    for row in state.evolution.correct(gains, true):
+                        state.evaluated[row] = true
         if checked:
             if corrected and state.history:  # the last row says what the run reports
                 front = [member.objectives for member in state.evolution.front()]

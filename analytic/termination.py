@@ -31,6 +31,11 @@ class Termination:
     tolerance: float = CONVERGENCE_TOLERANCE
     window: int = CONVERGENCE_WINDOW
 
+    @property
+    def rule(self) -> str:
+        """The convergence rule in words: 'hypervolume gain below 0.25% over 10 generations'."""
+        return f"hypervolume gain below {self.tolerance * 100:g}% over {self.window} generations"
+
     def reason(self, hypervolumes: list[float], evaluations: int) -> str | None:
         """Why to stop after these generations' hypervolumes, or None to go on."""
         generation = len(hypervolumes)
@@ -42,8 +47,5 @@ class Termination:
             return None
         before, now = hypervolumes[-1 - self.window], hypervolumes[-1]
         if now > 0 and now - before <= self.tolerance * before:
-            return (
-                f"converged after {evaluations} evaluations (hypervolume gain below "
-                f"{self.tolerance:.1%} over {self.window} generations)"
-            )
+            return f"converged after {evaluations} evaluations ({self.rule})"
         return None

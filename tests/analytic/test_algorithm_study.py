@@ -161,7 +161,7 @@ def test_the_convergence_rule_is_checked_on_the_first_algorithms_runs(out: Path)
     assert float(check["median_a"]) == np.median(at_budget)
     assert float(check["median_b"]) == np.median(at_stop)
     assert (
-        "The convergence rule (hypervolume gain below 2.0% over 2 generations"
+        "The convergence rule (hypervolume gain below 2% over 2 generations"
         in (out / "report.md").read_text()
     )
 

@@ -8,6 +8,8 @@ from pathlib import Path
 from analytic.config import RunConfig
 from analytic.evaluator import Evaluation, EvaluationStatus
 from analytic.evolution import hypervolume
+from analytic.experiments import non_dominated
+from analytic.records import read_evaluated
 from analytic.replication import Ledger, validate
 from analytic.run import TuningRun
 from schemas.episode import EpisodeSpec
@@ -107,6 +109,11 @@ def test_a_liar_is_outvoted_named_and_kept_out_of_the_front(tmp_path: Path) -> N
     lied_to = ToyFarm(["h1", "liar", "h2", "h3"], liars=["liar"])
     checked = run(tmp_path, "checked", lied_to)
     assert front(checked) and false_members(checked) == []
+    # The points told, as evaluated.csv keeps them, carry the corrections too: the front is
+    # their non-dominated set.
+    told = read_evaluated(checked.directory / "evaluated.csv")
+    assert set(front(checked)) == set(non_dominated(told))
+    assert set(front(checked)) <= set(told)
     # The last history row says what the run reports: the validated front's hypervolume.
     last = checked.state.history[-1]
     assert last.hypervolume == hypervolume(front(checked), checked.config.reference_point)

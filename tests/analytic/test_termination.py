@@ -20,3 +20,11 @@ def test_convergence_needs_a_whole_window_of_small_gains() -> None:
 
 def test_a_zero_hypervolume_is_never_convergence() -> None:
     assert Termination(window=1).reason([0.0, 0.0, 0.0], 90) is None
+
+
+def test_the_rule_reads_as_set() -> None:
+    assert Termination().rule == "hypervolume gain below 0.25% over 10 generations"
+    reason = Termination(tolerance=0.0025, window=1).reason([1.0, 1.001], 60)
+    assert reason == (
+        "converged after 60 evaluations (hypervolume gain below 0.25% over 1 generations)"
+    )
