@@ -54,6 +54,7 @@ from analytic.experiments import (
 from analytic.figures import plot_algorithms
 from analytic.records import HistoryRow, RunRecord
 from analytic.reports import (
+    ConditionSummary,
     algorithms_table,
     condition_text,
     experiment_setup,
@@ -94,20 +95,6 @@ class RunMeasure:
     curve: list[float]  # hypervolume of the first k evaluations, at each checkpoint
     stopped_by_rule_at: int | None  # None: the rule would not have stopped it within the budget
     hv_at_rule_stop: float | None
-
-
-@dataclass(frozen=True)
-class ConditionSummary:
-    """A condition over its repetitions, as the report's table shows it."""
-
-    algorithm: str
-    scaling: str
-    runs: int
-    median_hypervolume: float
-    hypervolume_quartiles: tuple[float, float]
-    median_best_f_acc: float  # m
-    median_evaluations_to_target: float  # inf when fewer than half of the runs reach it
-    reached_target: int
 
 
 # --- checks, before any run ------------------------------------------------------------------

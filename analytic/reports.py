@@ -5,6 +5,7 @@ Like the figures, edge code on plain data: the caller computes, these functions 
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
@@ -234,8 +235,9 @@ def speed_table(durations: Sequence[float], error: dict[tuple[float, float], flo
     ]
 
 
-class ConditionSummary(Protocol):
-    """What the algorithms study's table shows of one condition (analytic.algorithm_study's)."""
+@dataclass(frozen=True)
+class ConditionSummary:
+    """A condition of the algorithms study over its repetitions, as its table shows it."""
 
     algorithm: str
     scaling: str
