@@ -21,6 +21,7 @@ import hashlib
 import logging
 import queue
 import time
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -56,7 +57,7 @@ DEFAULT_DEADLINE = 600.0  # s from (re)submission: a backstop; leases and liveli
 DEFAULT_ATTEMPTS = 3
 SUBMIT_CHUNK = 100  # jobs per Submission: the broker parses each in one go, holding the GIL
 ANSWER_SECONDS = 10.0  # how long the broker has to answer a submission or a status query
-RECHECK_SECONDS = 1.0  # a resubmitted job the broker still had: ask again this soon
+RECHECK_SECONDS = 1.0  # how often overdue jobs are looked for, and unconfirmed results asked about
 CONFIRM_BATCH = 1000  # results confirmed in one question to the broker
 
 
@@ -112,7 +113,8 @@ class FarmClient:
         # Told each time `waiting` changes (a progress line says so); the reason, or None.
         self.on_wait: Callable[[str | None], None] = lambda why: None
         self._pending: dict[str, _Pending] = {}
-        self._ready: list[Evaluation] = []
+        self._ready: deque[Evaluation] = deque()
+        self._next_chase = 0.0  # when to look for overdue jobs next
         self._arrived: dict[str, list[_Arrival]] = {}  # by job id, until the broker confirms
         self._distrusted: set[str] = set()
         self._inbox: queue.SimpleQueue[tuple[bytes | None, bytes]] = queue.SimpleQueue()
@@ -174,31 +176,25 @@ class FarmClient:
         for job_id in dropped:
             self._pending.pop(job_id, None)
             self._arrived.pop(job_id, None)
-        self._ready = [evaluation for evaluation in self._ready if evaluation.job_id not in dropped]
+        self._ready = deque(e for e in self._ready if e.job_id not in dropped)
 
     def results(self, timeout: float | None = None) -> Iterator[Evaluation]:
         """Yield evaluations as they complete, until none is pending (or `timeout` s pass)."""
         give_up = None if timeout is None else time.monotonic() + timeout
         while self._pending or self._ready:
             while self._ready:
-                yield self._ready.pop(0)
+                yield self._ready.popleft()
             if not self._pending:
                 break
             now = time.monotonic()
             if give_up is not None and now >= give_up:
                 return
-            wake = min(pending.deadline for pending in self._pending.values())
-            if give_up is not None:
-                wake = min(wake, give_up)
-            if self._arrived:  # results the broker did not confirm yet: ask again soon
-                wake = min(wake, now + RECHECK_SECONDS)
+            wake = self._next_chase if give_up is None else min(self._next_chase, give_up)
             try:
-                message = self._inbox.get(timeout=max(wake - now, 0.0))
+                messages = [self._inbox.get(timeout=max(wake - now, 0.0)), *self._drain()]
             except queue.Empty:
-                self._confirm()
-                self._chase_overdue()
-                continue
-            for attachment, content in [message, *self._drain()]:
+                messages = []
+            for attachment, content in messages:
                 if attachment is BROKER_BACK:
                     self._rejoin()
                 elif attachment is BROKER_GONE:
@@ -206,6 +202,11 @@ class FarmClient:
                 else:
                     self._arrive(attachment, content)
             self._confirm()
+            # Only after what arrived is taken in (a job whose result is here is not overdue);
+            # and O(pending), so at most once a RECHECK_SECONDS however fast results come.
+            if time.monotonic() >= self._next_chase:
+                self._chase_overdue()
+                self._next_chase = time.monotonic() + RECHECK_SECONDS
 
     def _drain(self) -> list[tuple[bytes | None, bytes]]:
         """Whatever else is in the inbox now: its results are confirmed in one question."""

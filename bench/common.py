@@ -207,12 +207,14 @@ EMPTY_LOG = b""  # what a NoopWorker sends as an episode log
 
 
 class NoopWorker:
-    """Asks for a lease, runs the job (by default: does nothing), hands in an ok Result with an
-    empty log and, once the broker takes it, puts it, on a session it may share with other
-    NoopWorkers."""
+    """Asks for a lease, runs the job (by default: does nothing), hands in an ok Result with
+    `log` (by default an empty one) and, once the broker takes it, puts it, on a session it may
+    share with other NoopWorkers. With a real episode's log (and jobs that all name its spec),
+    it is a cobot that skips the simulation."""
 
-    def __init__(self, session: zenoh.Session, name: str, study: str):
+    def __init__(self, session: zenoh.Session, name: str, study: str, log: bytes = EMPTY_LOG):
         self.session = session
+        self._log = log
         self._token = session.liveliness().declare_token(keys.alive_worker(name))
         self._lease_key = keys.lease(name)
         self._complete_key = keys.complete(name)
@@ -223,8 +225,8 @@ class NoopWorker:
             lease_id="x",
             worker=name,
             status=JobStatus.ok,
-            episode_bytes=len(EMPTY_LOG),
-            digest=hashlib.sha256(EMPTY_LOG).hexdigest(),
+            episode_bytes=len(log),
+            digest=hashlib.sha256(log).hexdigest(),
             timings=Timings(simulate_s=0.0, encode_s=0.0),
         ).model_dump(mode="json")
         self.leases: list[tuple[float, float]] = []  # (monotonic time asked, latency s)
@@ -257,7 +259,7 @@ class NoopWorker:
                 continue
             self.session.put(
                 keys.result(lease["study"], job_id),
-                EMPTY_LOG,
+                self._log,
                 attachment=attachment,
                 congestion_control=zenoh.CongestionControl.BLOCK,  # as CobotWorker: no drops
             )

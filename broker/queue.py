@@ -1,27 +1,39 @@
 """The broker's scheduler, as plain Python: jobs in, leases out, no Zenoh and no threads.
 
-Studies queue jobs; free workers ask for work and are handed a lease, or wait ("park") until a
-job arrives. One lease per job at a time; a lease expires; a lost worker's lease goes back to the
-front of its queue. A result completes its job only when handed in by the worker the lease named,
-with the lease's id (random, known to that worker alone); the first such result is the job's
-accepted one, the one analytic processes confirm, and every later one is a duplicate. Among the
-studies with queued jobs, the next lease goes to the one with the fewest jobs running, ties to the
-one served least recently: several studies share the workers evenly. A job may name workers to
-avoid (a replica must run elsewhere).
+Studies queue jobs; free workers ask for a batch of work and are handed leases, or wait ("park")
+until a job arrives. One lease per job at a time; a lease expires; a lost worker's leases go back
+to the front of their queues. A worker gets at most its fair share of what is queued at once, so
+a shallow queue is spread over the free workers rather than taken by the first to ask. A result
+completes its job only when handed in by the worker the lease named, with the lease's id (random,
+known to that worker alone); the first such result is the job's accepted one, and every later one
+is a duplicate (but the same hand-in again is taken as it was: a worker retries one whose answer
+it lost). Among the studies with queued jobs, the next lease goes to the one with the fewest jobs
+running, ties to the one served least recently: several studies share the workers evenly. A job
+may name workers to avoid (a replica must run elsewhere).
+
+Accepted results wait, in the order they were taken, for their study to confirm them by job id
+or to collect them by serial: a study pages through them with a cursor, and what it has collected
+is forgotten when it next collects. A study's records are numbered within one queue's life (its
+`epoch`): a study that collected from another broker, or from this one before a restart, starts
+again from the beginning.
 
 Everything the queue remembers is bounded: a worker is remembered while its liveliness token
-stands or it holds a lease or a parked request; queues have caps, and submissions a rate.
+stands or it holds a lease or a parked request; queues have caps, and submissions a rate; a
+study's uncollected results either have a cap that holds back its jobs until it collects, or,
+without one, the oldest are forgotten past the queue's cap.
 
 Waiters are opaque (the Zenoh adapter passes its held queries): methods that can wake a parked
 worker return the Assignments for the caller to deliver.
 """
 
 import heapq
+import math
 import secrets
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from itertools import islice
 from typing import Generic, TypeVar
 
 from schemas.wire import Accepted, Job, Lease, Rejection, StudyState, WorkerState
@@ -37,6 +49,8 @@ MAX_LISTED = 200  # workers and studies a status lists by name: it must stay a s
 DEFAULT_MAX_QUEUED = 100_000  # jobs, all studies together (~3 kB each: ~300 MB at most)
 DEFAULT_MAX_QUEUED_PER_STUDY = 20_000
 RATE_BURST_SECONDS = 10.0  # a rate limit lets this many seconds' worth of jobs through at once
+# Accepted records one collect returns (~200 B each): a reply stays far below the message limit.
+DEFAULT_COLLECT_LIMIT = 1000
 
 
 class UnknownStudy(KeyError):
@@ -64,7 +78,11 @@ class _Study:
     queue: deque[_Queued] = field(default_factory=deque)
     queued_ids: set[str] = field(default_factory=set)
     leased: dict[str, _Lease] = field(default_factory=dict)  # by job id
-    accepted: dict[str, Accepted] = field(default_factory=dict)  # by job id, once done
+    # Results taken and not yet confirmed or collected, by serial: the order they were taken in,
+    # which is the order a collecting study pages through them.
+    accepted: OrderedDict[int, Accepted] = field(default_factory=OrderedDict)
+    serials: dict[str, int] = field(default_factory=dict)  # job id → its record's serial
+    last_serial: int = 0
     done: int = 0
     last_served: int = 0
     allowance: float = 0.0  # jobs it may still submit now, under a rate limit
@@ -74,17 +92,23 @@ class _Study:
 @dataclass
 class _Worker:
     name: str
-    lease: _Lease | None = None
+    leases: dict[str, _Lease] = field(default_factory=dict)  # its current batch, by lease id
     jobs_done: int = 0
     alive: bool = False  # its liveliness token stands
 
 
+@dataclass
+class _Parked(Generic[W]):
+    waiter: W
+    want: int  # how many leases it asked for
+
+
 @dataclass(frozen=True)
 class Assignment(Generic[W]):
-    """Deliver `lease` to the worker that parked `waiter`."""
+    """Deliver `leases` (never empty) to the worker that parked `waiter`."""
 
     waiter: W
-    lease: Lease
+    leases: list[Lease]
 
 
 @dataclass
@@ -105,19 +129,29 @@ class LeaseQueue(Generic[W]):
         max_queued: int = DEFAULT_MAX_QUEUED,
         max_queued_per_study: int = DEFAULT_MAX_QUEUED_PER_STUDY,
         submit_rate: float | None = None,
+        max_uncollected_per_study: int | None = None,
     ):
         """`submit_rate`: jobs per second a study may submit (bursts of RATE_BURST_SECONDS'
-        worth), or None for no limit. Jobs over a cap or the rate are deferred, not queued."""
+        worth), or None for no limit. Jobs over a cap or the rate are deferred, not queued.
+
+        `max_uncollected_per_study`: a study holding this many accepted results its analytic
+        process has not collected gets no more leases until it collects (a slow study cannot
+        make the broker forget its results). None: no hold; past `max_queued_per_study` the
+        oldest uncollected result is forgotten instead."""
         self.lease_seconds = lease_seconds
         self.max_queued = max_queued
         self.max_queued_per_study = max_queued_per_study
         self.submit_rate = submit_rate
+        self.max_uncollected_per_study = max_uncollected_per_study
+        # Serials mean something only within this queue's life: a client that names another
+        # epoch (another broker, or this one before a restart) is sent everything again.
+        self.epoch = secrets.token_hex(8)
         self._queued_total = 0
         self._clock = clock
         self._started = clock()
         self._studies: dict[str, _Study] = {}
         self._workers: dict[str, _Worker] = {}
-        self._parked: OrderedDict[str, W] = OrderedDict()  # worker name → waiter, oldest first
+        self._parked: OrderedDict[str, _Parked[W]] = OrderedDict()  # by worker, oldest first
         self._serial = 0
         self._completions: deque[float] = deque()
         self.jobs_done = 0
@@ -138,10 +172,7 @@ class LeaseQueue(Generic[W]):
         if study is None:
             return 0
         for lease in study.leased.values():
-            worker = self._workers.get(lease.worker)
-            if worker is not None and worker.lease is lease:
-                worker.lease = None
-                self._forget_if_idle(worker)
+            self._release(lease)
         self._queued_total -= len(study.queue)
         return len(study.queue)
 
@@ -194,7 +225,8 @@ class LeaseQueue(Generic[W]):
         """`worker_name` hands in a result for `job_id` under `lease_id`: None if it is taken as
         the job's result, else the reason it is refused. Only the worker a lease was handed to
         may hand in under it; a late result from an expired lease counts too (then the job need
-        not run again), and after the first every other is a duplicate."""
+        not run again), and after the first every other is a duplicate. The accepted hand-in
+        itself, again, is None and counts nothing: its worker lost the answer and retried."""
         study = self._studies.get(study_name)
         if study is None:
             return f"unknown study {study_name!r}"
@@ -203,9 +235,12 @@ class LeaseQueue(Generic[W]):
             item = lease.item
         elif job_id in study.queued_ids:  # expired and waiting to be leased again
             item = next(item for item in study.queue if item.job.job_id == job_id)
-        elif job_id in study.accepted:
+        elif job_id in study.serials:
+            taken = study.accepted[study.serials[job_id]]
+            if (taken.lease_id, taken.worker, taken.digest) == (lease_id, worker_name, digest):
+                return None
             return f"job {job_id!r} is done already"
-        else:  # never submitted, or done and confirmed
+        else:  # never submitted, or done and confirmed or collected
             return f"no job {job_id!r} waits for a result in study {study_name!r}"
         holder = item.leases.get(lease_id)
         if holder is None:
@@ -216,20 +251,15 @@ class LeaseQueue(Generic[W]):
             del study.leased[job_id]
             # If the job was leased again, its new worker is busy with it (or, if that is this
             # same worker, will be refused its second result): it is freed when it next asks.
-            worker = self._workers.get(lease.worker)
-            if lease.worker == worker_name and worker is not None and worker.lease is lease:
-                worker.lease = None
-                self._forget_if_idle(worker)
+            if lease.worker == worker_name:
+                self._release(lease)
         else:
             study.queue.remove(item)
             study.queued_ids.discard(job_id)
             self._queued_total -= 1
-        study.accepted.pop(job_id, None)  # a job run again: its new result is the newest
-        study.accepted[job_id] = Accepted(
-            job_id=job_id, lease_id=lease_id, worker=worker_name, digest=digest
+        self._store(
+            study, Accepted(job_id=job_id, lease_id=lease_id, worker=worker_name, digest=digest)
         )
-        if len(study.accepted) > self.max_queued_per_study:  # never confirmed: forget the oldest
-            del study.accepted[next(iter(study.accepted))]
         study.done += 1
         sender = self._workers.get(worker_name)
         if sender is not None:
@@ -248,30 +278,65 @@ class LeaseQueue(Generic[W]):
         study = self._studies.get(study_name)
         if study is None:
             return []
-        return [study.accepted.pop(job_id) for job_id in job_ids if job_id in study.accepted]
+        confirmed = []
+        for job_id in job_ids:
+            serial = study.serials.pop(job_id, None)
+            if serial is not None:
+                confirmed.append(study.accepted.pop(serial))
+        return confirmed
+
+    def collect(
+        self, study_name: str, epoch: str | None, after: int, limit: int = DEFAULT_COLLECT_LIMIT
+    ) -> tuple[list[Accepted], int]:
+        """The study's accepted results in the order they were taken, up to `limit` of them,
+        and the serial of the last one returned: the cursor to collect after next time.
+
+        Under this queue's `epoch`, the study has every result up to `after`: those are
+        forgotten, and the ones after it returned (if none, the cursor stays at `after`). Under
+        any other epoch (None, another broker's, or this one's before a restart) the serials
+        it knows are not these: it gets the results from the first, and nothing is forgotten.
+        """
+        study = self._studies.get(study_name)
+        if study is None:
+            return [], 0
+        last = 0
+        if epoch == self.epoch:
+            # A cursor past the last serial given would forget results not yet taken: a client
+            # can only have learnt a serial this queue gave, so anything beyond is clipped.
+            last = min(max(after, 0), study.last_serial)
+            while study.accepted and next(iter(study.accepted)) <= last:
+                _, record = study.accepted.popitem(last=False)
+                del study.serials[record.job_id]
+        page = list(islice(study.accepted.items(), max(limit, 0)))
+        if page:
+            last = page[-1][0]
+        return [record for _, record in page], last
 
     # --- workers ---------------------------------------------------------------------------
 
-    def request(self, worker_name: str, waiter: W) -> tuple[Lease | None, W | None]:
-        """A worker is free and asks for work: a lease now, or None and the waiter is parked.
+    def request(self, worker_name: str, waiter: W, want: int = 1) -> tuple[list[Lease], W | None]:
+        """A worker is free and asks for up to `want` jobs: leases now (at most its fair share
+        of what is queued), or none and the waiter is parked (never when it wants none).
 
         The second value is a waiter this one replaces (the same worker asked again), to be
-        answered with "no work". A worker asks only when free, so it is done with any lease it
-        still holds; but that lease's result may still be on its way (it travels on another
-        key, and Zenoh does not order the two), so the lease stands until its result or its
-        expiry.
+        answered with "no work". A worker asks only when done with its batch; but its results
+        may still be on their way (they travel on another key, and Zenoh does not order the
+        two), so its leases stand until their results or their expiry.
         """
         worker = self._workers.setdefault(worker_name, _Worker(worker_name))
-        worker.lease = None
+        worker.leases.clear()
         replaced = self._parked.pop(worker_name, None)
-        lease = self._next_lease(worker)
-        if lease is None:
-            self._parked[worker_name] = waiter
-        return lease, replaced
+        leases = self._grant(worker, min(want, self._fair_share()) if want > 1 else want)
+        if not leases and want > 0:
+            self._parked[worker_name] = _Parked(waiter, want)
+        else:
+            self._forget_if_idle(worker)
+        return leases, replaced.waiter if replaced is not None else None
 
     def withdraw(self, worker_name: str, waiter: W) -> bool:
         """Stop holding `waiter` (the adapter's hold time is up): True if it was still parked."""
-        if self._parked.get(worker_name) is waiter:
+        parked = self._parked.get(worker_name)
+        if parked is not None and parked.waiter is waiter:
             del self._parked[worker_name]
             worker = self._workers.get(worker_name)
             if worker is not None:
@@ -283,18 +348,20 @@ class LeaseQueue(Generic[W]):
         self._workers.setdefault(name, _Worker(name)).alive = True
 
     def worker_lost(self, name: str) -> tuple[list[Assignment[W]], W | None]:
-        """A worker died: its job goes back to the queue once its result has had
+        """A worker died: its jobs go back to the queue once their results have had
         LOST_WORKER_GRACE to arrive (`expire` does it). Also returns its own parked waiter, if
         any, for the adapter to let go of."""
         worker = self._workers.pop(name, None)
         orphan = self._parked.pop(name, None)
-        if worker is not None and worker.lease is not None:
-            lease = worker.lease
-            lease.expires = min(lease.expires, self._clock() + LOST_WORKER_GRACE)
-        return self._wake_parked(), orphan
+        if worker is not None:
+            cut = self._clock() + LOST_WORKER_GRACE
+            for lease in worker.leases.values():
+                lease.expires = min(lease.expires, cut)
+        return self._wake_parked(), orphan.waiter if orphan is not None else None
 
     def expire(self) -> list[Assignment[W]]:
-        """Take back every lease past its expiry."""
+        """Take back every lease past its expiry. Also hands parked workers what has become
+        leasable since (e.g. a study below its uncollected cap again after it collected)."""
         now = self._clock()
         for study in list(self._studies.values()):
             expired = [lease for lease in study.leased.values() if lease.expires <= now]
@@ -308,7 +375,7 @@ class LeaseQueue(Generic[W]):
         return len(self._workers)
 
     def busy(self) -> int:
-        return sum(1 for worker in self._workers.values() if worker.lease is not None)
+        return sum(1 for worker in self._workers.values() if worker.leases)
 
     def study_count(self) -> int:
         return len(self._studies)
@@ -319,17 +386,18 @@ class LeaseQueue(Generic[W]):
     def worker_states(self, limit: int = MAX_LISTED) -> list[WorkerState]:
         """The first `limit` workers by name: a status must stay small however many there are."""
         listed = heapq.nsmallest(limit, self._workers.values(), key=lambda worker: worker.name)
-        return [
-            WorkerState(
-                name=worker.name,
-                busy=worker.lease is not None,
-                job=f"{worker.lease.item.study}/{worker.lease.item.job.job_id}"
-                if worker.lease
-                else "",
-                jobs_done=worker.jobs_done,
+        states = []
+        for worker in listed:
+            first = next(iter(worker.leases.values()), None)
+            states.append(
+                WorkerState(
+                    name=worker.name,
+                    busy=first is not None,
+                    job=f"{first.item.study}/{first.item.job.job_id}" if first else "",
+                    jobs_done=worker.jobs_done,
+                )
             )
-            for worker in listed
-        ]
+        return states
 
     def study_states(self, limit: int = MAX_LISTED) -> list[StudyState]:
         listed = heapq.nsmallest(limit, self._studies.values(), key=lambda study: study.name)
@@ -353,8 +421,29 @@ class LeaseQueue(Generic[W]):
 
     # --- inside ----------------------------------------------------------------------------
 
+    def _fair_share(self) -> int:
+        """Leases one worker may take at once: the queue split among the workers that are, or
+        will soon be, free, so that a batch leaves none of them idle while it runs."""
+        ready = sum(1 for w in self._workers.values() if w.alive or w.name in self._parked)
+        return max(1, math.ceil(self._queued_total / max(1, ready)))
+
+    def _grant(self, worker: _Worker, count: int) -> list[Lease]:
+        """Up to `count` leases, each to the study whose turn it is."""
+        leases: list[Lease] = []
+        while len(leases) < count:
+            lease = self._next_lease(worker)
+            if lease is None:
+                break
+            leases.append(lease)
+        return leases
+
     def _next_lease(self, worker: _Worker) -> Lease | None:
-        waiting = [study for study in self._studies.values() if study.queue]
+        cap = self.max_uncollected_per_study
+        waiting = [
+            study
+            for study in self._studies.values()
+            if study.queue and (cap is None or len(study.accepted) < cap)
+        ]
         waiting.sort(key=lambda study: (len(study.leased), study.last_served))
         for study in waiting:
             item = next((item for item in study.queue if worker.name not in item.job.avoid), None)
@@ -372,38 +461,65 @@ class LeaseQueue(Generic[W]):
         item.leases[lease_id] = worker.name
         lease = _Lease(lease_id, worker.name, item, self._clock() + self.lease_seconds)
         study.leased[item.job.job_id] = lease
-        worker.lease = lease
+        worker.leases[lease_id] = lease
         # The job was validated when it was submitted; skip validating it again on the hot path.
         return Lease.model_construct(
             lease_id=lease_id, study=item.study, job=item.job, expires_in=self.lease_seconds
         )
 
     def _wake_parked(self) -> list[Assignment[W]]:
-        """Hand queued jobs to parked workers, oldest parked first; a worker a job avoids is
-        passed over for it."""
+        """Hand queued jobs to parked workers, oldest parked first, each a batch of up to what
+        it asked for; a worker a job avoids is passed over for it."""
         assignments: list[Assignment[W]] = []
-        for worker_name in list(self._parked):
-            if not any(study.queue for study in self._studies.values()):
+        # The share is taken once, of the queue as it stands: each parked worker then gets the
+        # same, where a share taken anew after each batch would shrink for the later ones.
+        share: int | None = None  # only counted if a batch needs it: it takes a pass
+        for worker_name, parked in list(self._parked.items()):
+            if not self._queued_total:
                 break
+            count = parked.want
+            if count > 1:
+                share = self._fair_share() if share is None else share
+                count = min(count, share)
             worker = self._workers.setdefault(worker_name, _Worker(worker_name))
-            lease = self._next_lease(worker)
-            if lease is not None:
-                waiter = self._parked.pop(worker_name)
-                assignments.append(Assignment(waiter, lease))
+            leases = self._grant(worker, count)
+            if leases:
+                del self._parked[worker_name]
+                assignments.append(Assignment(parked.waiter, leases))
         return assignments
+
+    def _store(self, study: _Study, record: Accepted) -> None:
+        """Keep a job's accepted result, as the newest: a job run again replaces its old one."""
+        old = study.serials.pop(record.job_id, None)
+        if old is not None:
+            del study.accepted[old]
+        study.last_serial += 1
+        study.accepted[study.last_serial] = record
+        study.serials[record.job_id] = study.last_serial
+        # Under an uncollected cap the study's jobs wait instead: this store stays bounded by
+        # the cap plus the leases out when it was reached.
+        if self.max_uncollected_per_study is None and (
+            len(study.accepted) > self.max_queued_per_study
+        ):  # never confirmed nor collected: forget the oldest
+            _, oldest = study.accepted.popitem(last=False)
+            del study.serials[oldest.job_id]
+
+    def _release(self, lease: _Lease) -> None:
+        """The lease's worker no longer holds it (the lease itself may stand, in its study)."""
+        worker = self._workers.get(lease.worker)
+        if worker is not None and worker.leases.get(lease.lease_id) is lease:
+            del worker.leases[lease.lease_id]
+            self._forget_if_idle(worker)
 
     def _forget_if_idle(self, worker: _Worker) -> None:
         """A worker with no token, lease or parked request is forgotten: made-up names asking
         for work cannot fill the broker's memory."""
-        if not worker.alive and worker.lease is None and worker.name not in self._parked:
+        if not worker.alive and not worker.leases and worker.name not in self._parked:
             self._workers.pop(worker.name, None)
 
     def _requeue(self, lease: _Lease) -> None:
         """Put a leased job back at the front of its study's queue: it has waited longest."""
-        worker = self._workers.get(lease.worker)
-        if worker is not None and worker.lease is lease:
-            worker.lease = None
-            self._forget_if_idle(worker)
+        self._release(lease)
         study = self._studies.get(lease.item.study)
         if study is None or study.leased.get(lease.item.job.job_id) is not lease:
             return

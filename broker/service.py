@@ -176,13 +176,14 @@ class Broker:
         request = decode(LeaseRequest, _payload(query))
         _check_named(query, request.worker, "worker")
         with self._lock:
-            lease, replaced = self.queue.request(request.worker, query)
-            if lease is None:
+            # One lease per request: batches wait for a protocol whose reply can carry them.
+            leases, replaced = self.queue.request(request.worker, query, want=1)
+            if not leases:
                 self._held.append((time.monotonic() + self.hold_seconds, request.worker, query))
         if replaced is not None:
             _answer(replaced, LeaseReply())
-        if lease is not None:
-            _answer(query, LeaseReply(lease=lease))
+        if leases:
+            _answer(query, LeaseReply(lease=leases[0]))
 
     @_guarded
     def _on_complete(self, query: zenoh.Query) -> None:
@@ -259,7 +260,8 @@ class Broker:
 
     def _deliver(self, assignments: list[Assignment[zenoh.Query]]) -> None:
         for assignment in assignments:
-            _answer(assignment.waiter, LeaseReply(lease=assignment.lease))
+            # Every waiter asked for one lease (want=1), so each batch is exactly one.
+            _answer(assignment.waiter, LeaseReply(lease=assignment.leases[0]))
 
     def _reject_query(self, query: zenoh.Query, reason: str) -> None:
         with self._lock:

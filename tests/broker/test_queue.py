@@ -51,6 +51,7 @@ def make_queue(
     max_queued: int = DEFAULT_MAX_QUEUED,
     max_queued_per_study: int = DEFAULT_MAX_QUEUED_PER_STUDY,
     submit_rate: float | None = None,
+    max_uncollected_per_study: int | None = None,
 ) -> tuple[Queue, FakeClock]:
     clock = FakeClock()
     queue: Queue = LeaseQueue(
@@ -59,6 +60,7 @@ def make_queue(
         max_queued=max_queued,
         max_queued_per_study=max_queued_per_study,
         submit_rate=submit_rate,
+        max_uncollected_per_study=max_uncollected_per_study,
     )
     for study in studies:
         queue.open_study(study)
@@ -77,11 +79,19 @@ def digest_of(text: str) -> str:
 DIGEST = digest_of("an episode log")
 
 
+def ask(queue: Queue, worker: str, waiter: Waiter) -> tuple[Lease | None, Waiter | None]:
+    """`worker` asks for one job, as the broker's adapter does: the lease it gets at once, if
+    any, and the waiter its request replaces."""
+    leases, replaced = queue.request(worker, waiter)
+    assert len(leases) <= 1
+    return (leases[0] if leases else None), replaced
+
+
 def take(queue: Queue, worker: str) -> Lease:
     """`worker` (a real one: its liveliness token stands) asks for work and must get a lease
     straight away."""
     queue.worker_joined(worker)
-    lease, replaced = queue.request(worker, Waiter(worker))
+    lease, replaced = ask(queue, worker, Waiter(worker))
     assert lease is not None, f"{worker} got no lease"
     assert replaced is None
     return lease
@@ -91,7 +101,7 @@ def park(queue: Queue, worker: str) -> Waiter:
     """`worker` (a real one: its liveliness token stands) asks for work and must be parked."""
     queue.worker_joined(worker)
     waiter = Waiter(worker)
-    lease, replaced = queue.request(worker, waiter)
+    lease, replaced = ask(queue, worker, waiter)
     assert lease is None, f"{worker} got {lease}"
     assert replaced is None
     return waiter
@@ -176,7 +186,7 @@ def test_jobs_are_leased_first_in_first_out_within_a_study() -> None:
 def test_request_returns_a_lease_at_once_when_work_is_queued() -> None:
     queue, _ = make_queue("s", lease_seconds=42.0)
     queue.submit("s", jobs("j1"))
-    lease, replaced = queue.request("w1", Waiter("w1"))
+    lease, replaced = ask(queue, "w1", Waiter("w1"))
     assert replaced is None
     assert lease is not None
     assert lease.study == "s"
@@ -199,8 +209,8 @@ def test_request_without_work_parks_and_a_later_submit_assigns_to_the_waiter() -
     (assignment,) = submitted.assignments
     assert isinstance(assignment, Assignment)
     assert assignment.waiter is waiter
-    assert assignment.lease.study == "s"
-    assert assignment.lease.job.job_id == "j1"
+    assert assignment.leases[0].study == "s"
+    assert assignment.leases[0].job.job_id == "j1"
     assert state(queue, "s") == StudyState(name="s", queued=0, leased=1, done=0)
     assert worker(queue, "w1") == WorkerState(name="w1", busy=True, job="s/j1", jobs_done=0)
     # No longer parked: it cannot be withdrawn, and another job goes unassigned.
@@ -214,10 +224,10 @@ def test_parked_workers_are_served_oldest_first_and_only_while_work_lasts() -> N
     first, second, third = park(queue, "w1"), park(queue, "w2"), park(queue, "w3")
 
     one = queue.submit("s", jobs("j1"))
-    assert [(a.waiter, a.lease.job.job_id) for a in one.assignments] == [(first, "j1")]
+    assert [(a.waiter, a.leases[0].job.job_id) for a in one.assignments] == [(first, "j1")]
 
     two = queue.submit("s", jobs("j2", "j3", "j4"))
-    assert [(a.waiter, a.lease.job.job_id) for a in two.assignments] == [
+    assert [(a.waiter, a.leases[0].job.job_id) for a in two.assignments] == [
         (second, "j2"),
         (third, "j3"),
     ]
@@ -229,7 +239,7 @@ def test_a_second_request_from_the_same_worker_replaces_its_parked_waiter() -> N
     old = park(queue, "w1")
     new = Waiter("w1")
 
-    lease, replaced = queue.request("w1", new)
+    lease, replaced = ask(queue, "w1", new)
 
     assert lease is None
     assert replaced is old
@@ -310,8 +320,8 @@ def test_expire_hands_the_expired_job_to_a_parked_waiter() -> None:
 
     assert len(assignments) == 1
     assert assignments[0].waiter is waiter
-    assert assignments[0].lease.job.job_id == "j1"
-    assert assignments[0].lease.lease_id != old.lease_id
+    assert assignments[0].leases[0].job.job_id == "j1"
+    assert assignments[0].leases[0].lease_id != old.lease_id
     assert queue.requeued == 1
     assert worker(queue, "w1").busy is False
     assert worker(queue, "w2") == WorkerState(name="w2", busy=True, job="s/j1", jobs_done=0)
@@ -398,7 +408,7 @@ def test_a_lost_worker_s_job_goes_straight_to_a_parked_worker() -> None:
     clock.advance(LOST_WORKER_GRACE)
     assignments = queue.expire()
 
-    assert [(a.waiter, a.lease.job.job_id) for a in assignments] == [(waiter, "j1")]
+    assert [(a.waiter, a.leases[0].job.job_id) for a in assignments] == [(waiter, "j1")]
     assert queue.worker_states() == [WorkerState(name="w2", busy=True, job="s/j1", jobs_done=0)]
 
 
@@ -499,7 +509,7 @@ def test_a_late_result_for_an_expired_and_requeued_job_completes_it() -> None:
     assert queue.jobs_done == 1
     assert take(queue, "w2").job.job_id == "j2"
     park(queue, "w3")  # j1 is not leased again
-    assert refused(hand_in(queue, first, "w1"), "j1")
+    assert refused(hand_in(queue, first, "w1", digest_of("another")), "j1")
 
 
 def test_a_late_result_for_an_expired_and_re_leased_job_completes_it_once() -> None:
@@ -727,7 +737,7 @@ def test_expire_wakes_parked_workers_fairly_across_studies() -> None:
     assert [a.waiter for a in assignments] == waiters
     # a and b run none: a was served least recently. Then b runs fewer. Then tied, a again.
     # (Which of a's jobs goes first is test_jobs_expiring_together_go_back_in_their_original_order.)
-    assert [a.lease.study for a in assignments] == ["a", "b", "a"]
+    assert [a.leases[0].study for a in assignments] == ["a", "b", "a"]
     assert state(queue, "a") == StudyState(name="a", queued=1, leased=2, done=0)
     assert state(queue, "b") == StudyState(name="b", queued=0, leased=1, done=0)
 
@@ -814,7 +824,8 @@ def test_duplicates_and_strays_do_not_count_toward_throughput() -> None:
     assert hand_in(queue, lease, "w2") is not None  # forged: not w2's lease
     assert queue.complete("s", "j1", "made-up", "w1", DIGEST) is not None  # forged: no such lease
     assert hand_in(queue, lease, "w1") is None
-    assert hand_in(queue, lease, "w1") is not None
+    assert hand_in(queue, lease, "w1", digest_of("another")) is not None
+    assert hand_in(queue, lease, "w1") is None  # the same hand-in retried: taken, not counted
     assert queue.complete("s", "stray", lease.lease_id, "w1", DIGEST) is not None
     assert queue.complete("gone", "j1", lease.lease_id, "w1", DIGEST) is not None
     assert queue.jobs_done == 1
@@ -983,7 +994,7 @@ def test_a_job_avoiding_a_worker_goes_to_another_that_asks() -> None:
 
     # w1 is still parked, and takes the next job that does not avoid it.
     submitted = queue.submit("s", jobs("j2"))
-    assert [(a.waiter, a.lease.job.job_id) for a in submitted.assignments] == [(waiter, "j2")]
+    assert [(a.waiter, a.leases[0].job.job_id) for a in submitted.assignments] == [(waiter, "j2")]
     assert_counts_add_up(queue)
 
 
@@ -1003,11 +1014,11 @@ def test_a_parked_worker_a_job_avoids_is_passed_over_for_the_next_parked() -> No
     first, second, third = park(queue, "w1"), park(queue, "w2"), park(queue, "w3")
 
     submitted = queue.submit("s", jobs("j1", avoid=("w1", "w2")))
-    assert [(a.waiter, a.lease.job.job_id) for a in submitted.assignments] == [(third, "j1")]
+    assert [(a.waiter, a.leases[0].job.job_id) for a in submitted.assignments] == [(third, "j1")]
 
     # w1 and w2 are still parked, oldest first.
     submitted = queue.submit("s", jobs("j2", "j3"))
-    assert [(a.waiter, a.lease.job.job_id) for a in submitted.assignments] == [
+    assert [(a.waiter, a.leases[0].job.job_id) for a in submitted.assignments] == [
         (first, "j2"),
         (second, "j3"),
     ]
@@ -1024,7 +1035,7 @@ def test_a_parked_worker_takes_a_later_job_when_the_first_avoids_it() -> None:
 
     submitted = queue.submit("s", [*jobs("j1", avoid=("w1",)), *jobs("j2")])
 
-    assert [(a.waiter, a.lease.job.job_id) for a in submitted.assignments] == [(waiter, "j2")]
+    assert [(a.waiter, a.leases[0].job.job_id) for a in submitted.assignments] == [(waiter, "j2")]
     assert state(queue, "s") == StudyState(name="s", queued=1, leased=1, done=0)
     assert take(queue, "w2").job.job_id == "j1"
 
@@ -1036,7 +1047,7 @@ def test_a_job_avoiding_every_worker_waits() -> None:
     submitted = queue.submit("s", jobs("j1", avoid=("w1", "w2")))
 
     assert submitted.queued == ["j1"] and submitted.assignments == []
-    lease, replaced = queue.request("w1", Waiter("w1"))  # asking again does not change that
+    lease, replaced = ask(queue, "w1", Waiter("w1"))  # asking again does not change that
     assert lease is None and replaced is waiters["w1"]
     clock.advance(LEASE_SECONDS)
     assert queue.expire() == []
@@ -1055,7 +1066,7 @@ def test_an_expired_job_is_not_handed_back_to_a_parked_worker_it_avoids() -> Non
     clock.advance(LEASE_SECONDS)
     assignments = queue.expire()
 
-    assert [(a.waiter, a.lease.job.job_id) for a in assignments] == [(other, "j1")]
+    assert [(a.waiter, a.leases[0].job.job_id) for a in assignments] == [(other, "j1")]
     assert queue.withdraw("w2", avoided) is True
 
 
@@ -1080,7 +1091,7 @@ def test_made_up_names_asking_for_work_are_forgotten_once_withdrawn() -> None:
     flood = {f"ghost-{n:05d}": Waiter(f"ghost-{n:05d}") for n in range(10_000)}
 
     for name, waiter in flood.items():
-        assert queue.request(name, waiter) == (None, None)  # no work: parked
+        assert ask(queue, name, waiter) == (None, None)  # no work: parked
 
     assert queue.worker_count() == 10_002
     listed = queue.worker_states()
@@ -1106,14 +1117,14 @@ def test_a_made_up_name_is_forgotten_once_its_lease_ends() -> None:
     queue.submit("s", jobs("j1", "j2", "j3"))
 
     # Its result is taken: it holds nothing any more.
-    done, _ = queue.request("ghost", Waiter("ghost"))
+    done, _ = ask(queue, "ghost", Waiter("ghost"))
     assert done is not None and done.job.job_id == "j1"
     assert queue.worker_count() == 1
     assert hand_in(queue, done, "ghost") is None
     assert queue.worker_count() == 0 and queue.jobs_done == 1
 
     # Its lease expires.
-    lease, _ = queue.request("ghost", Waiter("ghost"))
+    lease, _ = ask(queue, "ghost", Waiter("ghost"))
     assert lease is not None and lease.job.job_id == "j2"
     assert queue.worker_count() == 1
     clock.advance(LEASE_SECONDS)
@@ -1122,19 +1133,19 @@ def test_a_made_up_name_is_forgotten_once_its_lease_ends() -> None:
 
     # Its study is closed.
     queue.submit("t", jobs("t1"))
-    lease, _ = queue.request("ghost", Waiter("ghost"))
+    lease, _ = ask(queue, "ghost", Waiter("ghost"))
     assert lease is not None and lease.study == "t"  # t has been served least recently
     assert queue.close_study("t") == 0
     assert queue.worker_count() == 0
 
     # It asks again while its result is on the way, is parked, and is withdrawn: it is
     # forgotten, yet the lease it held stands and its result still counts.
-    held, _ = queue.request("ghost", Waiter("ghost"))
+    held, _ = ask(queue, "ghost", Waiter("ghost"))
     assert held is not None and held.job.job_id == "j2"
-    after, _ = queue.request("ghost", Waiter("ghost"))
+    after, _ = ask(queue, "ghost", Waiter("ghost"))
     assert after is not None and after.job.job_id == "j3"
     waiter = Waiter("ghost")
-    assert queue.request("ghost", waiter) == (None, None)  # nothing left: parked
+    assert ask(queue, "ghost", waiter) == (None, None)  # nothing left: parked
     assert queue.worker_count() == 1
     assert queue.withdraw("ghost", waiter) is True
     assert queue.worker_count() == 0
@@ -1274,13 +1285,13 @@ def test_a_deferred_job_is_handed_to_a_parked_worker_once_it_is_queued() -> None
     waiter = park(queue, "w1")
     first = queue.submit("s", jobs("j1", "j2"))
     assert (first.queued, first.deferred) == (["j1"], ["j2"])
-    assert [(a.waiter, a.lease.job.job_id) for a in first.assignments] == [(waiter, "j1")]
+    assert [(a.waiter, a.leases[0].job.job_id) for a in first.assignments] == [(waiter, "j1")]
 
     later = park(queue, "w2")
     assert queue.submit("s", jobs("j2")).assignments == []  # still deferred
     clock.advance(10.0)
     submitted = queue.submit("s", jobs("j2"))
-    assert [(a.waiter, a.lease.job.job_id) for a in submitted.assignments] == [(later, "j2")]
+    assert [(a.waiter, a.leases[0].job.job_id) for a in submitted.assignments] == [(later, "j2")]
 
 
 # --- totals ------------------------------------------------------------------------------------
@@ -1308,7 +1319,7 @@ def test_queued_counts_every_study_s_queue_through_a_job_s_life() -> None:
 
     assert hand_in(queue, leases["w3"], "w3") is None  # a2's late result: out of the queue
     assert queue.queued() == 3
-    assert refused(hand_in(queue, leases["w3"], "w3"), "a2")
+    assert refused(hand_in(queue, leases["w3"], "w3", digest_of("another")), "a2")
     assert queue.queued() == 3
     assert_counts_add_up(queue)
 
@@ -1331,3 +1342,292 @@ def test_a_slow_submission_rate_still_lets_jobs_through() -> None:
     assert queue.submit("s", jobs("j2")).deferred == ["j2"]
     clock.advance(1 / rate)
     assert queue.submit("s", jobs("j2")).queued == ["j2"]
+
+
+# --- batches -----------------------------------------------------------------------------------
+
+
+def take_batch(queue: Queue, worker: str, want: int) -> list[Lease]:
+    """`worker` (a real one) asks for up to `want` jobs and must get at least one at once."""
+    queue.worker_joined(worker)
+    leases, replaced = queue.request(worker, Waiter(worker), want=want)
+    assert leases, f"{worker} got no lease"
+    assert replaced is None
+    return leases
+
+
+def test_a_batch_grant_respects_want() -> None:
+    queue, _ = make_queue("s")
+    queue.submit("s", jobs(*(f"j{n}" for n in range(1, 11))))
+
+    batch = take_batch(queue, "w1", want=3)  # alone: its fair share is the whole queue
+
+    assert [lease.job.job_id for lease in batch] == ["j1", "j2", "j3"]
+    assert len({lease.lease_id for lease in batch}) == 3
+    assert state(queue, "s") == StudyState(name="s", queued=7, leased=3, done=0)
+    assert worker(queue, "w1") == WorkerState(name="w1", busy=True, job="s/j1", jobs_done=0)
+    assert queue.busy() == 1  # a worker, however many leases it holds
+    for lease in batch:
+        assert hand_in(queue, lease, "w1") is None
+    assert worker(queue, "w1") == WorkerState(name="w1", busy=False, job="", jobs_done=3)
+    assert queue.busy() == 0
+
+    assert [lease.job.job_id for lease in take_batch(queue, "w1", want=1)] == ["j4"]
+    rest = take_batch(queue, "w1", want=100)  # more than there is: what there is
+    assert [lease.job.job_id for lease in rest] == ["j5", "j6", "j7", "j8", "j9", "j10"]
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=7, done=3)
+    assert_counts_add_up(queue)
+
+
+def test_the_fair_share_spreads_a_shallow_queue_over_free_workers() -> None:
+    queue, _ = make_queue("s")
+    for name in ("w1", "w2", "w3"):
+        queue.worker_joined(name)
+    queue.submit("s", jobs(*(f"j{n}" for n in range(1, 7))))
+
+    # Six jobs, three workers: the first to ask does not take them all.
+    sizes = [len(take_batch(queue, name, want=10)) for name in ("w1", "w2", "w3")]
+
+    assert sizes == [2, 2, 1]  # ceil(6/3), ceil(4/3), ceil(2/3)
+    assert queue.busy() == 3
+    assert state(queue, "s") == StudyState(name="s", queued=1, leased=5, done=0)
+
+    # A deep queue: the share does not bind, `want` does.
+    queue.submit("s", jobs(*(f"k{n}" for n in range(100))))
+    assert len(take_batch(queue, "w1", want=4)) == 4
+    assert_counts_add_up(queue)
+
+
+def test_a_parked_worker_is_woken_with_up_to_the_leases_it_wanted() -> None:
+    queue, _ = make_queue("s")
+    queue.worker_joined("w1")
+    waiter = Waiter("w1")
+    assert queue.request("w1", waiter, want=3) == ([], None)  # no work: parked
+
+    submitted = queue.submit("s", jobs("j1", "j2", "j3", "j4", "j5"))
+
+    (assignment,) = submitted.assignments
+    assert assignment.waiter is waiter
+    assert [lease.job.job_id for lease in assignment.leases] == ["j1", "j2", "j3"]
+    assert state(queue, "s") == StudyState(name="s", queued=2, leased=3, done=0)
+
+    # Two parked workers share a shallow queue evenly; one wanting more than there is gets
+    # what there is.
+    queue, _ = make_queue("s")
+    parked = {name: Waiter(name) for name in ("w1", "w2")}
+    for name, held in parked.items():
+        queue.worker_joined(name)
+        assert queue.request(name, held, want=4) == ([], None)
+    submitted = queue.submit("s", jobs("j1", "j2", "j3", "j4"))
+    assert [
+        (a.waiter, [lease.job.job_id for lease in a.leases]) for a in submitted.assignments
+    ] == [
+        (parked["w1"], ["j1", "j2"]),
+        (parked["w2"], ["j3", "j4"]),
+    ]
+    # Busy workers that hold their token count too: they will soon be free to take a share.
+    held = Waiter("w3")
+    queue.worker_joined("w3")
+    assert queue.request("w3", held, want=5) == ([], None)
+    submitted = queue.submit("s", jobs("j5", "j6"))
+    assert [
+        (a.waiter, [lease.job.job_id for lease in a.leases]) for a in submitted.assignments
+    ] == [(held, ["j5"])]
+    assert_counts_add_up(queue)
+
+
+def test_a_parked_worker_wanting_more_than_there_is_gets_what_there_is() -> None:
+    queue, _ = make_queue("s")
+    waiter = Waiter("w1")
+    queue.worker_joined("w1")
+    assert queue.request("w1", waiter, want=5) == ([], None)
+
+    submitted = queue.submit("s", jobs("j1", "j2"))
+
+    assert [
+        (a.waiter, [lease.job.job_id for lease in a.leases]) for a in submitted.assignments
+    ] == [(waiter, ["j1", "j2"])]
+
+
+def test_wanting_no_lease_never_parks() -> None:
+    queue, _ = make_queue("s")
+    queue.worker_joined("w1")
+    waiter = Waiter("w1")
+
+    assert queue.request("w1", waiter, want=0) == ([], None)
+
+    assert queue.withdraw("w1", waiter) is False  # not parked
+    assert queue.submit("s", jobs("j1")).assignments == []
+    assert queue.request("w1", waiter, want=0) == ([], None)  # work queued: still none
+    assert state(queue, "s") == StudyState(name="s", queued=1, leased=0, done=0)
+
+    # It frees the worker of its batch and lets go of a parked request, as any request does.
+    lease = take(queue, "w1")
+    assert worker(queue, "w1").busy
+    assert queue.request("w1", Waiter("w1"), want=0) == ([], None)
+    assert not worker(queue, "w1").busy
+    parked = park(queue, "w1")
+    assert queue.request("w1", Waiter("w1"), want=0) == ([], parked)
+    assert queue.submit("s", jobs("j2")).assignments == []
+    assert hand_in(queue, lease, "w1") is None  # its lease stood meanwhile
+
+    # A made-up name wanting nothing is not remembered.
+    assert queue.request("ghost", Waiter("ghost"), want=0) == ([], None)
+    assert queue.worker_count() == 1
+    assert_counts_add_up(queue)
+
+
+def test_every_lease_of_a_lost_worker_goes_back_in_order_after_the_grace() -> None:
+    queue, clock = make_queue("s")
+    queue.submit("s", jobs("j1", "j2", "j3", "j4", "j5", "j6"))
+    batch = take_batch(queue, "w1", want=3)  # j1, j2, j3
+    assert take(queue, "w2").job.job_id == "j4"
+
+    assert queue.worker_lost("w1") == ([], None)
+    assert queue.expire() == [] and queue.requeued == 0  # their results may be on the way
+    clock.advance(LOST_WORKER_GRACE)
+    assert queue.expire() == []
+
+    assert queue.requeued == 3
+    assert queue.worker_states() == [WorkerState(name="w2", busy=True, job="s/j4", jobs_done=0)]
+    assert state(queue, "s") == StudyState(name="s", queued=5, leased=1, done=0)
+    assert job_ids_in_lease_order(queue, 5) == ["j1", "j2", "j3", "j5", "j6"]
+    assert all(hand_in(queue, lease, "w1") is None for lease in batch)  # late, still its own
+    assert_counts_add_up(queue)
+
+
+# --- handing in again --------------------------------------------------------------------------
+
+
+def test_the_same_hand_in_again_is_taken_and_counted_once() -> None:
+    queue, clock = make_queue("s")
+    queue.submit("s", jobs("j1"))
+    first = take(queue, "w1")
+    clock.advance(LEASE_SECONDS)
+    queue.expire()
+    second = take(queue, "w2")  # j1 again
+    clock.advance(1.0)
+
+    assert hand_in(queue, first, "w1") is None  # w1's late result
+    assert hand_in(queue, first, "w1") is None  # its answer was lost: w1 hands it in again
+
+    assert queue.jobs_done == 1
+    assert queue.jobs_per_second() == pytest.approx(1 / (LEASE_SECONDS + 1.0))
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=0, done=1)
+    assert worker(queue, "w1").jobs_done == 1
+    # Another digest, or another lease, is another result: refused, as before.
+    assert refused(hand_in(queue, first, "w1", digest_of("another")), "done already")
+    assert refused(hand_in(queue, second, "w2"), "done already")
+    assert refused(queue.complete("s", "j1", first.lease_id, "w2", DIGEST), "done already")
+    assert queue.jobs_done == 1
+    assert queue.confirm("s", ["j1"]) == [
+        Accepted(job_id="j1", lease_id=first.lease_id, worker="w1", digest=DIGEST)
+    ]
+    assert refused(hand_in(queue, first, "w1"), "no job")  # confirmed: forgotten
+
+
+# --- collecting accepted results ---------------------------------------------------------------
+
+
+def accepted_ids(records: list[Accepted]) -> list[str]:
+    return [record.job_id for record in records]
+
+
+def test_collect_pages_through_accepted_results_in_the_order_taken() -> None:
+    queue, _ = make_queue("s")
+    assert queue.collect("nope", queue.epoch, 0) == ([], 0)
+    assert queue.collect("s", None, 0) == ([], 0)
+    assert queue.collect("s", queue.epoch, 0) == ([], 0)
+    queue.submit("s", jobs("j1", "j2", "j3", "j4", "j5"))
+    leases = {lease.job.job_id: lease for lease in take_batch(queue, "w1", want=5)}
+    for job_id in ("j3", "j1", "j5", "j2", "j4"):
+        assert hand_in(queue, leases[job_id], "w1", digest_of(job_id)) is None
+
+    # A study that knows no serial of this queue's starts from the first; nothing is forgotten.
+    records, last = queue.collect("s", None, 0, limit=2)
+    assert records == [
+        Accepted(job_id="j3", lease_id=leases["j3"].lease_id, worker="w1", digest=digest_of("j3")),
+        Accepted(job_id="j1", lease_id=leases["j1"].lease_id, worker="w1", digest=digest_of("j1")),
+    ]
+    assert last == 2
+    everything = ["j3", "j1", "j5", "j2", "j4"]
+    assert accepted_ids(queue.collect("s", None, 0)[0]) == everything
+    other_epoch = make_queue()[0].epoch
+    assert other_epoch != queue.epoch
+    assert queue.collect("s", other_epoch, 4) == (queue.collect("s", None, 0)[0], 5)
+
+    # Under this queue's epoch the cursor pages on, and what is behind it is forgotten.
+    records, last = queue.collect("s", queue.epoch, 2, limit=2)
+    assert (accepted_ids(records), last) == (["j5", "j2"], 4)
+    assert accepted_ids(queue.collect("s", None, 0)[0]) == ["j5", "j2", "j4"]
+    assert queue.confirm("s", ["j3", "j1"]) == []  # collected: gone
+    records, last = queue.collect("s", queue.epoch, last)
+    assert (accepted_ids(records), last) == (["j4"], 5)
+    assert queue.collect("s", queue.epoch, last) == ([], 5)  # all collected: forgotten
+    assert queue.collect("s", None, 0) == ([], 0)
+    assert queue.collect("s", queue.epoch, 99) == ([], 5)  # never past the last serial given
+
+    # Serials go on; a job run again has its new result taken as the newest.
+    queue.submit("s", jobs("j6", "j3"))
+    for lease in take_batch(queue, "w1", want=2):
+        assert hand_in(queue, lease, "w1") is None
+    records, last = queue.collect("s", queue.epoch, 5)
+    assert (accepted_ids(records), last) == (["j6", "j3"], 7)
+    assert queue.study_states() == [StudyState(name="s", queued=0, leased=0, done=7)]
+
+
+def test_confirm_and_collect_share_the_store() -> None:
+    queue, _ = make_queue("s")
+    queue.submit("s", jobs("j1", "j2", "j3"))
+    for lease in take_batch(queue, "w1", want=3):
+        assert hand_in(queue, lease, "w1") is None
+
+    assert accepted_ids(queue.confirm("s", ["j2"])) == ["j2"]
+
+    records, last = queue.collect("s", queue.epoch, 0)
+    assert (accepted_ids(records), last) == (["j1", "j3"], 3)
+    assert queue.collect("s", queue.epoch, last) == ([], 3)
+    assert queue.confirm("s", ["j1", "j3"]) == []
+
+
+def test_without_an_uncollected_cap_the_oldest_results_are_forgotten_past_the_queue_cap() -> None:
+    queue, _ = make_queue("s", max_queued_per_study=3)
+    for n in range(1, 6):
+        queue.submit("s", jobs(f"j{n}"))
+        assert hand_in(queue, take(queue, "w1"), "w1") is None  # never held back
+
+    records, last = queue.collect("s", None, 0)
+    assert (accepted_ids(records), last) == (["j3", "j4", "j5"], 5)
+    assert queue.confirm("s", ["j1", "j2"]) == []
+    assert state(queue, "s").done == 5
+
+
+def test_a_study_at_its_uncollected_cap_gets_no_leases_until_it_collects() -> None:
+    queue, _ = make_queue("s", "t", max_uncollected_per_study=2)
+    queue.submit("s", jobs("j1", "j2", "j3", "j4", "j5"))
+    out = [take(queue, name) for name in ("w1", "w2", "w3")]  # j1, j2, j3
+    for lease, name in zip(out, ("w1", "w2", "w3"), strict=True):
+        assert hand_in(queue, lease, name) is None  # the leases out still count: none dropped
+    assert state(queue, "s") == StudyState(name="s", queued=2, leased=0, done=3)
+
+    waiter = park(queue, "w1")  # s is held back: its jobs wait
+    submitted = queue.submit("t", jobs("t1"))  # another study is not
+    assert [(a.waiter, a.leases[0].job.job_id) for a in submitted.assignments] == [(waiter, "t1")]
+    waiter = park(queue, "w1")
+    assert queue.expire() == []
+    assert queue.confirm("s", []) == []
+    records, last = queue.collect("s", None, 0)  # reading is not collecting: still held back
+    assert (accepted_ids(records), last) == (["j1", "j2", "j3"], 3)
+    assert queue.expire() == []
+    assert state(queue, "s") == StudyState(name="s", queued=2, leased=0, done=3)
+
+    assert queue.collect("s", queue.epoch, 1) == (records[1:], 3)  # two left: at the cap
+    assert queue.expire() == []
+    assert queue.collect("s", queue.epoch, 3) == ([], 3)
+    assignments = queue.expire()  # the ticker's next pass hands the parked worker the job
+    assert [(a.waiter, [lease.job.job_id for lease in a.leases]) for a in assignments] == [
+        (waiter, ["j4"])
+    ]
+    assert take(queue, "w3").job.job_id == "j5"
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=2, done=3)
+    assert_counts_add_up(queue)
