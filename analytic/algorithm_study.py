@@ -241,20 +241,24 @@ def algorithms(
     check_names(scalings, OBJECTIVE_SCALINGS, "objective scaling")
     check_runnable(algorithms, base.pop)
     conditions = [Condition(a, s) for a in algorithms for s in scalings]
-    records = {
-        (condition, rep): experiment.tune(
-            f"{condition.name}-rep{rep}",
-            base.model_copy(
+    names = {
+        (condition, rep): f"{condition.name}-rep{rep}"
+        for condition in conditions
+        for rep in range(reps)
+    }
+    tuned = experiment.tune_many(
+        {
+            name: base.model_copy(
                 update={
                     "algorithm": condition.algorithm,
                     "objective_scaling": condition.scaling,
                     "seed": rep,
                 }
-            ),
-        )
-        for condition in conditions
-        for rep in range(reps)
-    }
+            )
+            for (condition, rep), name in names.items()
+        }
+    )
+    records = {key: tuned[name] for key, name in names.items()}
     classical_gains, classical, default = baseline_points(experiment, base)
     penalised = experiment.penalised
     # The tuned runs alone set the study's space: a stiff classical controller, a little more

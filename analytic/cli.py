@@ -734,6 +734,12 @@ def learn(dataset_dir: Path, out: Path, target: str, kind: str, seed: int) -> No
 @termination_options(per_run=True)
 @farm_options
 @click.option(
+    "--parallel-runs",
+    type=click.IntRange(min=1),
+    help="tuning runs (with their cross-evaluations) at once, each its own study on the farm  "
+    "[default: all of the experiment's]",
+)
+@click.option(
     "--out",
     type=click.Path(path_type=Path),
     required=True,
@@ -758,6 +764,7 @@ def experiment(
     participant: str | None,
     local: bool,
     workers: int,
+    parallel_runs: int | None,
     out: Path,
 ) -> None:
     """Rerun one of the paper's experiments: popsize, generic-vs-specific or speed; compare the
@@ -845,6 +852,7 @@ def experiment(
                     endpoints, _study_name(directory, identity), directory, identity=identity
                 ),
                 lambda text: progress.update(task, description=text),
+                parallel=parallel_runs,
             )
             try:
                 if name == "popsize":

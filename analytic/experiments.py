@@ -2,9 +2,11 @@
 trajectory speed.
 
 An experiment is a set of tuning runs (one directory each under OUT/runs/, resumable: a finished
-run is kept, an unfinished one resumed), then cross-evaluations of their fronts where the
-experiment needs them, then results.csv, stats.csv (analytic.statistics: tests, effect sizes and
-confidence intervals behind every verdict), normalisation.json, a figure and report.md.
+run is kept, an unfinished one resumed), with cross-evaluations of their fronts where the
+experiment needs them, all at once (up to `Experiment.parallel`, each run with its own study on
+the farm, so an experiment is as wide as the farm); then results.csv, stats.csv
+(analytic.statistics: tests, effect sizes and confidence intervals behind every verdict),
+normalisation.json, a figure and report.md.
 
 Hypervolumes within a study are taken in one normalised space per problem (one trajectory the
 fronts are judged on): between the ideal and the nadir point of the pooled non-dominated front of
@@ -19,14 +21,18 @@ This module computes; analytic.figures draws and analytic.reports words what it 
 runs are read back from their plain files (analytic.records), never from their checkpoints.
 """
 
+import functools
 import itertools
 import json
 import math
 import statistics
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor, wait
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 from pymoo.indicators.hv import HV
@@ -57,6 +63,9 @@ from schemas.files import write_atomically
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.objectives import DIVERGED_TICK_ERROR, NO_EPISODE, balancing_weights
 from schemas.trajectory import TrajectoryKind, TrajectorySpec
+
+K = TypeVar("K", bound=Hashable)
+T = TypeVar("T")
 
 ALL_KINDS = (TrajectoryKind.spiral, TrajectoryKind.random, TrajectoryKind.pyramid)
 MARGIN = 0.1  # the reference point lies this fraction of (nadir - ideal) beyond the nadir
@@ -137,6 +146,45 @@ class Experiment:
     # Objectives of diverged episodes (front members flagged in front.csv, cross-evaluations):
     # penalties, never a bound of the normalisation.
     penalised: set[Point] = field(default_factory=set)
+    parallel: int | None = None  # runs and cross-evaluations at once; None: all of them
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _stop: threading.Event = field(default_factory=threading.Event, repr=False)
+
+    def concurrently(self, tasks: Mapping[K, Callable[[], T]]) -> dict[K, T]:
+        """Each task (a run, a run and its cross-evaluation), up to `parallel` at once, keyed in
+        the order given whatever order they finish in: what is written from them does not
+        depend on `parallel`. If one fails (or Ctrl-C stops the wait), the others stop at their
+        next evaluation, and the error is raised once all are done; each run keeps its
+        checkpoint and goes on when the experiment is run again."""
+        width = min(self.parallel or len(tasks), len(tasks))
+        if width <= 1:
+            return {key: task() for key, task in tasks.items()}
+        with ThreadPoolExecutor(width, thread_name_prefix="experiment") as pool:
+            futures = {key: pool.submit(task) for key, task in tasks.items()}
+            try:
+                return {key: future.result() for key, future in futures.items()}
+            except BaseException:
+                self._stop.set()
+                for future in futures.values():
+                    future.cancel()
+                wait(futures.values())
+                raise
+
+    def tune_many(self, plan: Mapping[str, RunConfig]) -> dict[str, RunRecord]:
+        """Every run of `plan` (name → configuration), concurrently, in plan order."""
+        return self.concurrently(
+            {name: functools.partial(self.tune, name, config) for name, config in plan.items()}
+        )
+
+    def _progress(self, text: str) -> None:
+        """A run's progress, and the point where a run stops when the experiment stops."""
+        if self._stop.is_set():
+            raise KeyboardInterrupt
+        self.on_progress(text)
+
+    def _penalise(self, points: Iterable[Point]) -> None:
+        with self._lock:
+            self.penalised.update(points)
 
     def tune(self, name: str, config: RunConfig) -> RunRecord:
         """The run `name` of `config`: kept if finished, resumed if not, started if new."""
@@ -148,15 +196,17 @@ class Experiment:
         # figures is opened again, which only draws them.
         if record is None or record.stopped is None or not (directory / REPORT_MD).exists():
             run = TuningRun.open(directory) if record else TuningRun.create(directory, config)
-            with self.evaluator(f"{self.out.name}-{name}", directory) as evaluator:
+            # Closed however it ends: a run that failed is resumed by this same process when
+            # the experiment goes on.
+            with run, self.evaluator(f"{self.out.name}-{name}", directory) as evaluator:
                 run.run(
                     evaluator,
-                    lambda step: self.on_progress(
+                    lambda step: self._progress(
                         f"{name}: generation {step.generation}, {step.evaluations} evaluations"
                     ),
                 )
             record = _read(directory)
-        self.penalised.update(m.objectives for m in record.front if m.diverged)
+        self._penalise(m.objectives for m in record.front if m.diverged)
         return record
 
     def evaluate(
@@ -193,9 +243,9 @@ class Experiment:
             scores = found[key].scores
             point = (scores.f_acc, scores.f_t) if scores else NO_EPISODE
             if scores and scores.diverged:
-                self.penalised.add(point)
+                self._penalise([point])
             points.append(point)
-        self.on_progress(f"{name}: {len(points)} controllers evaluated again")
+        self._progress(f"{name}: {len(points)} controllers evaluated again")
         return points
 
     def normalisation(self, point_sets: Sequence[Sequence[Point]]) -> Normalisation:
@@ -244,12 +294,21 @@ def default_points(
     """The default gains' (f_acc, f_t) on each kind's trajectory (at the base's duration and
     plant), which the generic objective is balanced by; ValueError if one diverges, since a
     penalty is no scale to balance by."""
+    duration = base.trajectories[0].duration
+    evaluated = experiment.concurrently(
+        {
+            kind: functools.partial(
+                experiment.evaluate_gains,
+                f"default-gains-on-{kind.value}",
+                [DEFAULT_GAINS],
+                TrajectorySpec(kind=kind, duration=duration),
+                base,
+            )
+            for kind in kinds
+        }
+    )
     points = {}
-    for kind in kinds:
-        trajectory = TrajectorySpec(kind=kind, duration=base.trajectories[0].duration)
-        [point] = experiment.evaluate_gains(
-            f"default-gains-on-{kind.value}", [DEFAULT_GAINS], trajectory, base
-        )
+    for kind, [point] in evaluated.items():
         if is_penalty(point, experiment.penalised):
             raise ValueError(
                 f"the default gains diverge on the {kind.value}: nothing to balance by"
@@ -269,13 +328,13 @@ def generic_set(test: TrajectoryKind, duration: float) -> tuple[TrajectorySpec, 
 
 def popsize(experiment: Experiment, base: RunConfig, sizes: Sequence[int], reps: int) -> None:
     """Evaluations to converge and final hypervolume, for each population size."""
-    runs = {
-        (size, rep): experiment.tune(
-            f"pop{size}-rep{rep}", base.model_copy(update={"pop": size, "seed": rep})
-        )
+    plan = {
+        (size, rep): (f"pop{size}-rep{rep}", base.model_copy(update={"pop": size, "seed": rep}))
         for size in sizes
         for rep in range(reps)
     }
+    tuned = experiment.tune_many(dict(plan.values()))
+    runs = {key: tuned[name] for key, (name, _) in plan.items()}
     fronts = {key: front_points(run) for key, run in runs.items()}
     normalisation = experiment.normalisation(list(fronts.values()))
     experiment.write_normalisation({"all runs": normalisation})
@@ -374,29 +433,39 @@ def generic_vs_specific(
     gains: unweighted, a pyramid's f_t, 10-40 times a spiral's, would make up nearly all of it."""
     duration = base.trajectories[0].duration
     defaults = default_points(experiment, base, ALL_KINDS)  # every kind some generic set holds
-    fronts: dict[str, dict[str, list[list[Point]]]] = {}
+
+    def judged_on(test: TrajectorySpec, name: str, config: RunConfig) -> list[Point]:
+        """A run's front as judged on `test`: its own, or simulated again on it."""
+        run = experiment.tune(name, config)
+        if config.trajectories == (test,):
+            return front_points(run)
+        return experiment.evaluate(f"{name}-on-{test.kind.value}", run.front, test, base)
+
+    tasks = {}
     for kind in kinds:
         test = TrajectorySpec(kind=kind, duration=duration)
         trained_on = generic_set(kind, duration)
         weights = balancing_weights([defaults[t.kind] for t in trained_on])
-        per_kind: dict[str, list[list[Point]]] = {"generic": [], "specific": []}
         for rep in range(reps):
-            specific = experiment.tune(
-                f"specific-{kind.value}-rep{rep}",
-                base.model_copy(update={"trajectories": (test,), "seed": rep}),
+            specific = base.model_copy(update={"trajectories": (test,), "seed": rep})
+            generic = base.model_copy(
+                update={"trajectories": trained_on, "objective_weights": weights, "seed": rep}
             )
-            name = f"generic-no-{kind.value}-rep{rep}"
-            generic = experiment.tune(
-                name,
-                base.model_copy(
-                    update={"trajectories": trained_on, "objective_weights": weights, "seed": rep}
-                ),
-            )
-            per_kind["specific"].append(front_points(specific))
-            per_kind["generic"].append(
-                experiment.evaluate(f"{name}-on-{kind.value}", generic.front, test, base)
-            )
-        fronts[kind.value] = per_kind
+            for controller, name, config in (
+                ("specific", f"specific-{kind.value}-rep{rep}", specific),
+                ("generic", f"generic-no-{kind.value}-rep{rep}", generic),
+            ):
+                tasks[(kind.value, controller, rep)] = functools.partial(
+                    judged_on, test, name, config
+                )
+    judged = experiment.concurrently(tasks)
+    fronts: dict[str, dict[str, list[list[Point]]]] = {
+        kind.value: {
+            controller: [judged[(kind.value, controller, rep)] for rep in range(reps)]
+            for controller in ("generic", "specific")
+        }
+        for kind in kinds
+    }
     normalisations = {
         kind: experiment.normalisation([p for sets in per_kind.values() for p in sets])
         for kind, per_kind in fronts.items()
@@ -500,25 +569,35 @@ def speed(experiment: Experiment, base: RunConfig, durations: Sequence[float], r
     spirals = {d: TrajectorySpec(kind=TrajectoryKind.spiral, duration=d) for d in durations}
     matrix: dict[tuple[float, float], list[list[Point]]] = {}
     errors: dict[tuple[float, float], list[float]] = {}
-    for rep in range(reps):
-        for tuned in durations:
-            run = experiment.tune(
-                f"spiral{tuned:g}s-rep{rep}",
-                base.model_copy(update={"trajectories": (spirals[tuned],), "seed": rep}),
-            )
-            members = run.front
-            for used in durations:
-                points = (
-                    front_points(run)
-                    if used == tuned
-                    else experiment.evaluate(
-                        f"spiral{tuned:g}s-rep{rep}-on{used:g}s", members, spirals[used], base
-                    )
-                )
-                matrix.setdefault((tuned, used), []).append(points)
-                # The most accurate controller (on its own trajectory) and its error on `used`.
-                most_accurate = min(range(len(members)), key=lambda i: members[i].f_acc)
-                errors.setdefault((tuned, used), []).append(points[most_accurate][0])
+
+    def tuned_and_moved(tuned: float, rep: int) -> tuple[RunRecord, dict[float, list[Point]]]:
+        """The run on the spiral of `tuned` s, and its front on every spiral."""
+        name = f"spiral{tuned:g}s-rep{rep}"
+        run = experiment.tune(
+            name, base.model_copy(update={"trajectories": (spirals[tuned],), "seed": rep})
+        )
+        return run, {
+            used: front_points(run)
+            if used == tuned
+            else experiment.evaluate(f"{name}-on{used:g}s", run.front, spirals[used], base)
+            for used in durations
+        }
+
+    done = experiment.concurrently(
+        {
+            (rep, tuned): functools.partial(tuned_and_moved, tuned, rep)
+            for rep in range(reps)
+            for tuned in durations
+        }
+    )
+    for (_, tuned), (run, on) in done.items():
+        members = run.front
+        for used in durations:
+            points = on[used]
+            matrix.setdefault((tuned, used), []).append(points)
+            # The most accurate controller (on its own trajectory) and its error on `used`.
+            most_accurate = min(range(len(members)), key=lambda i: members[i].f_acc)
+            errors.setdefault((tuned, used), []).append(points[most_accurate][0])
     # One normalised space per trajectory evaluated on: fronts on one spiral compare.
     normalisations = {
         u: experiment.normalisation([p for t in durations for p in matrix[(t, u)]])

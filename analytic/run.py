@@ -27,6 +27,7 @@ absent, the checkpoint is written last, so a later resume continues from the las
 
 import dataclasses
 import hashlib
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -79,6 +80,9 @@ from schemas.objectives import objectives
 from schemas.trajectory import TrajectorySpec
 
 CHECKPOINT = "checkpoint.pkl"
+# A steady-state run asks the farm how many workers it has this often: a broker status query
+# per evaluation would cost more than the evaluation.
+CAPACITY_SECONDS = 2.0
 
 
 class RunBusy(Exception):
@@ -286,9 +290,11 @@ class TuningRun:
     def _steady_state(
         self, evaluator: Evaluator, started: float, on_progress: Callable[[RunProgress], None]
     ) -> None:
-        """Keep a few candidates per worker in flight so that none waits; a "generation" here is
-        every `pop` evaluations, for the history, the termination and the checkpoint. When the
-        run stops, the candidates still in flight are dropped (a resumed run asks anew)."""
+        """Keep two candidates per worker in flight so that none waits, as many workers as the
+        farm has now (looked up again every CAPACITY_SECONDS: workers come and go, and a farm
+        that grows mid-run is used); a "generation" here is every `pop` evaluations, for the
+        history, the termination and the checkpoint. When the run stops, the candidates still
+        in flight are dropped (a resumed run asks anew)."""
         evolution = self.state.evolution
         in_flight: dict[str, tuple[Population, PDGains, list[str]]] = {}
         results: dict[str, Evaluation] = {}
@@ -300,9 +306,17 @@ class TuningRun:
             in_flight[name] = (handle, gains, self._job_ids(name))
             evaluator.submit(self._specs({gains: in_flight[name][2]}))
 
-        try:
-            for _ in range(max(2, 2 * evaluator.capacity)):
+        wanted, looked = 0, -math.inf
+
+        def top_up() -> None:
+            nonlocal wanted, looked
+            if time.monotonic() - looked >= CAPACITY_SECONDS:
+                wanted, looked = max(2, 2 * evaluator.capacity), time.monotonic()
+            while len(in_flight) < wanted:
                 launch()
+
+        try:
+            top_up()
             for evaluation in evaluator.results():
                 name = evaluation.job_id.rsplit("-t", 1)[0]
                 results[evaluation.job_id] = evaluation
@@ -317,7 +331,7 @@ class TuningRun:
                     self._generation_done(started)
                     if self.state.stopped is not None:
                         return
-                launch()
+                top_up()
         finally:
             evaluator.cancel(
                 [

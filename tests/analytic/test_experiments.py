@@ -2,7 +2,11 @@
 
 import csv
 import json
-from collections.abc import Iterator
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -220,6 +224,99 @@ def test_an_experiment_runs_on_any_evaluator_and_resumes_without_rerunning(
     experiments.popsize(Experiment(tmp_path, no_evaluator), BASE, sizes=[4, 6], reps=2)
     assert (tmp_path / "results.csv").read_bytes() == before
     assert {p: p.stat().st_mtime_ns for p in tmp_path.glob("runs/*/checkpoint.pkl")} == checkpoints
+
+
+def without_wall_times(path: Path) -> list[dict[str, str]]:
+    return [{k: v for k, v in row.items() if k != "wall_seconds"} for row in rows(path)]
+
+
+@pytest.mark.parametrize(
+    ("study", "arguments"),
+    [
+        (experiments.popsize, {"sizes": [4, 6], "reps": 2}),
+        (experiments.generic_vs_specific, {"reps": 2}),
+        (experiments.speed, {"durations": [3.0, 3.5], "reps": 2}),
+    ],
+)
+def test_an_experiment_writes_the_same_results_one_run_at_a_time_as_all_at_once(
+    tmp_path: Path, study: Callable[..., None], arguments: dict[str, object]
+) -> None:
+    for parallel in (1, None):
+        study(
+            Experiment(tmp_path / str(parallel), in_process, parallel=parallel), BASE, **arguments
+        )
+    one, all_at_once = tmp_path / "1", tmp_path / "None"
+    for name in ("stats.csv", "normalisation.json"):
+        assert (one / name).read_bytes() == (all_at_once / name).read_bytes()
+    # Wall times differ from one run to the next; every other column is the same.
+    assert without_wall_times(one / "results.csv") == without_wall_times(
+        all_at_once / "results.csv"
+    )
+
+
+class Interrupted(Exception):
+    pass
+
+
+def test_a_run_that_fails_fails_the_experiment_which_goes_on_when_run_again(
+    tmp_path: Path,
+) -> None:
+    experiments.speed(Experiment(tmp_path / "whole", in_process), BASE, [3.0, 3.5], reps=2)
+    scored: list[str] = []
+
+    def failing(study: str, directory: Path) -> InProcessEvaluator:
+        def score(spec: EpisodeSpec) -> Scores:
+            scored.append(study)
+            if study.endswith("spiral3.5s-rep0") and scored.count(study) == 3:
+                raise Interrupted  # as Ctrl-C or a lost farm would, mid-run
+            return toy_scores(spec)
+
+        return InProcessEvaluator(scorer=score)
+
+    out = tmp_path / "interrupted"
+    with pytest.raises(Interrupted):
+        experiments.speed(Experiment(out, failing), BASE, [3.0, 3.5], reps=2)
+    assert not (out / "results.csv").exists()
+    unfinished = [d.name for d in (out / "runs").iterdir() if not (d / "report.md").exists()]
+    assert "spiral3.5s-rep0" in unfinished
+    experiments.speed(Experiment(out, in_process), BASE, [3.0, 3.5], reps=2)
+    for name in ("results.csv", "stats.csv", "normalisation.json"):
+        assert (out / name).read_bytes() == (tmp_path / "whole" / name).read_bytes()
+
+
+def test_ctrl_c_stops_an_experiment_of_runs_at_once_and_the_same_command_goes_on(
+    tmp_path: Path,
+) -> None:
+    command = [
+        *("experiment", "popsize", "--sizes", "4,6", "--reps", "2", "--pop", "4"),
+        *("--generations", "3", "--duration", "3", "--local", "--workers", "2"),
+        *("--parallel-runs", "3", "--out", "study"),
+    ]
+    running = subprocess.Popen(
+        [sys.executable, "-m", "analytic", *command],
+        cwd=tmp_path,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        give_up = time.monotonic() + 120
+        while not any((tmp_path / "study" / "runs").glob("*/history.csv")):
+            assert time.monotonic() < give_up and running.poll() is None
+            time.sleep(0.05)
+    finally:
+        running.send_signal(signal.SIGINT)
+        try:
+            _, err = running.communicate(timeout=60)
+        finally:
+            running.kill()  # never left running, whatever happened above
+    assert running.returncode == 130, err
+    assert "stopped; run the same command again to go on" in err
+    assert not (tmp_path / "study" / "results.csv").exists()
+    done = analytic(*command, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    results = rows(tmp_path / "study" / "results.csv")
+    assert [r["evaluations"] for r in results] == ["12", "12", "18", "18"]
+    assert all(r["stopped"] == "3 generations" for r in results)
 
 
 @pytest.mark.parametrize(

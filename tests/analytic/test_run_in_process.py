@@ -156,6 +156,42 @@ def test_a_steady_state_run_records_a_row_every_pop_evaluations(tmp_path: Path) 
     assert "steady-state" in (run.directory / "report.md").read_text()
 
 
+class Growing(InProcessEvaluator):
+    """A farm of one worker that grows to eight once its first dozen results are in; records
+    how many jobs were in flight at each submission."""
+
+    def __init__(self) -> None:
+        super().__init__(scorer=toy_scores)
+        self.done = 0
+        self.in_flight: list[int] = []
+
+    @property
+    def capacity(self) -> int:
+        return 1 if self.done < 12 else 8
+
+    def submit(self, specs: Mapping[str, EpisodeSpec]) -> None:
+        super().submit(specs)
+        self.in_flight.append(self.pending)
+
+    def results(self, timeout: float | None = None) -> Iterator[Evaluation]:
+        for evaluation in super().results(timeout):
+            self.done += 1
+            yield evaluation
+
+
+def test_a_steady_state_run_keeps_more_candidates_in_flight_when_the_farm_grows(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr("analytic.run.CAPACITY_SECONDS", 0.0)  # look up the farm every time
+    farm = Growing()
+    config = TINY.model_copy(update={"asynchronous": True, "generations": 5})
+    TuningRun.create(tmp_path / "run", config).run(farm, report=False)
+    first_generation, steady = farm.in_flight[0], farm.in_flight[1:]
+    assert first_generation == config.pop  # generational, as every steady-state run starts
+    assert max(steady[:8]) == 2  # two per worker on a farm of one
+    assert max(steady) == steady[-1] == 16  # and two per worker on the farm of eight it became
+
+
 def test_a_run_stops_after_its_evaluations(tmp_path: Path) -> None:
     config = TINY.model_copy(update={"generations": None, "evaluations": 20})
     run = tune(tmp_path / "run", config)
