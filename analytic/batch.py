@@ -5,11 +5,12 @@ job; each evaluation is scored from its log; the run directory ends up with epis
 evaluations.json that says which file holds what.
 """
 
+import dataclasses
 import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from analytic.evaluator import Evaluation, Evaluator
+from analytic.evaluator import Evaluation, Evaluator, Wanted
 from schemas.episode import EpisodeSpec
 from schemas.files import write_atomically
 from schemas.gains import PDGains
@@ -43,12 +44,26 @@ def run_batch(
     on_evaluation: Callable[[Evaluation], None] = lambda _: None,
 ) -> list[Evaluation]:
     """Submit every job, collect every evaluation (in job order), write
-    run_dir/evaluations.json (the evaluator keeps the logs in run_dir/episodes/)."""
+    run_dir/evaluations.json. Every log is kept in run_dir/episodes/ and scored here: as it
+    comes, or fetched from the worker that keeps it (a farm client that leaves logs with the
+    workers)."""
     evaluator.submit(jobs)
     evaluations = {}
     for evaluation in evaluator.results():
         evaluations[evaluation.job_id] = evaluation
         on_evaluation(evaluation)
+    elsewhere = {
+        job_id: Wanted(evaluation.spec, evaluation.digest, (evaluation.worker,))
+        for job_id, evaluation in evaluations.items()
+        if evaluation.log is None and evaluation.scores is not None and evaluation.digest
+    }
+    for job_id, got in evaluator.fetch(elsewhere).items() if elsewhere else ():
+        evaluations[job_id] = dataclasses.replace(
+            evaluations[job_id],
+            log=got.log,
+            scores=got.scores if got.log is not None else evaluations[job_id].scores,
+            reason=evaluations[job_id].reason or got.reason,
+        )
     ordered = [evaluations[job_id] for job_id in jobs if job_id in evaluations]
     records = [evaluation_record(evaluation, run_dir) for evaluation in ordered]
     write_atomically(run_dir / EVALUATIONS, json.dumps(records, indent=1).encode())

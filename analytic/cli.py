@@ -272,7 +272,8 @@ def batch(
     type=click.Choice(["all", "front"]),
     default="all",
     show_default=True,
-    help="which episode logs to keep",
+    help="which episode logs to keep: all (each comes with its result), or the front's (the "
+    "workers keep the logs and the front's are fetched from them: far fewer bytes on a farm)",
 )
 @click.option(
     "--async",
@@ -474,7 +475,15 @@ def _tune(
             study = _study_name(run.directory, identity)
             try:
                 models = run.models()
-                farm = FarmClient(endpoints, study, run.directory, identity=identity, models=models)
+                farm = FarmClient(
+                    endpoints,
+                    study,
+                    run.directory,
+                    identity=identity,
+                    models=models,
+                    # keep="front": the workers keep the logs, and the front's are fetched.
+                    keep_logs=run.config.keep == "all",
+                )
             except (ValueError, ConnectionError) as error:
                 raise CliError(str(error)) from None
             with (
@@ -848,8 +857,13 @@ def experiment(
             experiment = Experiment(
                 out,
                 # The experiment's own study names are neither unique nor short enough.
+                # Experiments keep their fronts' logs alone: fetched from the workers.
                 lambda _name, directory: FarmClient(
-                    endpoints, _study_name(directory, identity), directory, identity=identity
+                    endpoints,
+                    _study_name(directory, identity),
+                    directory,
+                    identity=identity,
+                    keep_logs=False,
                 ),
                 lambda text: progress.update(task, description=text),
                 parallel=parallel_runs,

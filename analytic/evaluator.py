@@ -56,6 +56,28 @@ def accept_log(content: bytes, spec: EpisodeSpec, path: Path | None, source: str
     return score(episode)
 
 
+@dataclass(frozen=True)
+class Wanted:
+    """A log to fetch: the episode's spec, its SHA-256 (the one the broker took, or the one
+    validation found standing) and the workers that may keep it, asked in turn."""
+
+    spec: EpisodeSpec
+    digest: str
+    holders: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Fetched:
+    """A fetched log, kept at `log` and scored here (None, with `reason`, if none could be had).
+    `digest` is the log's; another than the one wanted only if the episode had to be simulated
+    again and came out different."""
+
+    log: Path | None
+    scores: Scores | None
+    digest: str | None
+    reason: str = ""
+
+
 class Evaluator(Protocol):
     """Runs episodes for a tuning run. Every job submitted yields exactly one evaluation (unless
     cancelled). A kept log is at RUN/episodes/<job id>.mcap, RUN being the run directory the
@@ -85,4 +107,10 @@ class Evaluator(Protocol):
     def cancel(self, job_ids: Iterable[str]) -> None:
         """Forget these jobs: no evaluation of them will be yielded (a run that stops drops
         what it still has in flight)."""
+        ...
+
+    def fetch(self, wanted: Mapping[str, Wanted]) -> dict[str, Fetched]:
+        """The logs of these jobs (by job id), kept at RUN/episodes/<job id>.mcap and scored
+        here: those an evaluator did not keep as their evaluations came (a farm whose workers
+        keep the logs). A log nobody has any more is simulated again."""
         ...

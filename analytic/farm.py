@@ -28,11 +28,11 @@ from pathlib import Path
 
 import zenoh
 
-from analytic.evaluator import Evaluation, EvaluationStatus, accept_log
+from analytic.evaluator import Evaluation, EvaluationStatus, Fetched, Wanted, accept_log
 from broker.status import BrokerUnavailable, query_status
 from schemas import keys
 from schemas.ask import ask
-from schemas.episode import EpisodeSpec
+from schemas.episode import EpisodeSpec, Scores
 from schemas.mcap_episode import NotAnEpisodeLog
 from schemas.security import TlsIdentity
 from schemas.transport import open_session, token_held
@@ -75,6 +75,7 @@ class _Pending:
     deadline: float
     attempts: int = 1
     avoid: tuple[str, ...] = ()  # workers that may not run it
+    keep_log: bool = True  # its log comes with its result; else its worker keeps it
 
 
 @dataclass(frozen=True)
@@ -96,9 +97,12 @@ class FarmClient:
         attempts: int = DEFAULT_ATTEMPTS,
         identity: TlsIdentity | None = None,
         models: Mapping[str, bytes] | None = None,
+        keep_logs: bool = True,
     ):
         """`models`: the feed-forward models (file bytes by SHA-256) the study's jobs may name;
-        the client serves them to the workers that ask."""
+        the client serves them to the workers that ask. `keep_logs`: every job's log comes with
+        its result, is checked, scored here again and kept; else the workers keep the logs, each
+        result brings the scores its worker computed, and `fetch` brings the logs wanted."""
         Submission(study=study, jobs=[])  # validates the name before it becomes a key
         self.study = study
         self.models = dict(models or {})
@@ -106,6 +110,7 @@ class FarmClient:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.deadline = deadline
         self.attempts = attempts
+        self.keep_logs = keep_logs
         self.duplicates = 0
         self.ignored = 0
         self.unconfirmed = 0  # results the broker did not take: forged, or from a stale lease
@@ -149,10 +154,16 @@ class FarmClient:
         return self.status().worker_count
 
     def submit(
-        self, specs: Mapping[str, EpisodeSpec], avoid: Mapping[str, Sequence[str]] | None = None
+        self,
+        specs: Mapping[str, EpisodeSpec],
+        avoid: Mapping[str, Sequence[str]] | None = None,
+        *,
+        keep_log: bool | None = None,
     ) -> None:
         """Queue one job per (job id, spec). A job id may not be pending already. `avoid` names,
-        per job id, workers that may not run it (a replica must run elsewhere)."""
+        per job id, workers that may not run it (a replica must run elsewhere). `keep_log`:
+        whether the logs come with the results (default: `keep_logs`)."""
+        keep = self.keep_logs if keep_log is None else keep_log
         clash = sorted(set(specs) & set(self._pending))
         if clash:
             raise ValueError(f"job ids already pending: {', '.join(clash[:5])}")
@@ -162,7 +173,9 @@ class FarmClient:
         avoid = avoid or {}
         expiry = time.monotonic() + self.deadline
         for job_id, spec in specs.items():
-            self._pending[job_id] = _Pending(spec, expiry, avoid=tuple(avoid.get(job_id, ())))
+            self._pending[job_id] = _Pending(
+                spec, expiry, avoid=tuple(avoid.get(job_id, ())), keep_log=keep
+            )
         self._send([self._job(job_id) for job_id in specs])
 
     def distrust(self, worker: str) -> None:
@@ -217,6 +230,81 @@ class FarmClient:
             except queue.Empty:
                 break
         return messages
+
+    def fetch(self, wanted: Mapping[str, Wanted]) -> dict[str, Fetched]:
+        """The logs of these jobs, from the workers that keep them (each holder asked in turn;
+        only bytes that hash to the wanted digest are taken, whoever answers), written to
+        run_dir/episodes/<job id>.mcap and scored here. A log no holder has any more (its worker
+        is gone, or let it go) is simulated again, episodes being deterministic: as the job
+        `<job id>-k<n>`, on any worker, its log sent with its result."""
+        fetched: dict[str, Fetched] = {}
+        again: dict[str, Wanted] = {}
+        for job_id, want in wanted.items():
+            content = self._fetch_log(want)
+            if content is not None:
+                path = self.log_dir / f"{job_id}.mcap"
+                try:
+                    scores = accept_log(content, want.spec, path, f"log of {job_id}")
+                except NotAnEpisodeLog as error:  # the right bytes of the wrong episode
+                    log.warning("fetched log of %s: %s", job_id, error)
+                else:
+                    fetched[job_id] = Fetched(path, scores, want.digest)
+                    continue
+            again[job_id] = want
+        if again:
+            fetched.update(self._simulate_again(again))
+        return fetched
+
+    def _fetch_log(self, want: Wanted) -> bytes | None:
+        for holder in want.holders:
+            try:
+                key = keys.log(self.study, holder, want.digest)
+                replies = self.session.get(key, timeout=ANSWER_SECONDS)
+            except zenoh.ZError as error:  # e.g. an empty or bad holder name
+                log.warning("cannot ask %r for a log: %s", holder, error)
+                continue
+            for reply in replies:
+                if reply.ok is None:
+                    continue  # it has it no more: ask the next holder
+                if len(reply.ok.payload) > MAX_EPISODE_BYTES:
+                    continue
+                content = reply.ok.payload.to_bytes()
+                if hashlib.sha256(content).hexdigest() == want.digest:
+                    return content
+                log.warning("ignored a log on %s: its bytes are not the ones the broker took", key)
+        return None
+
+    def _simulate_again(self, again: Mapping[str, Wanted]) -> dict[str, Fetched]:
+        reruns = {}
+        for job_id in again:
+            number = 1
+            while f"{job_id}-k{number}" in self._pending:
+                number += 1
+            reruns[f"{job_id}-k{number}"] = job_id
+        log.warning("simulating %d episodes again: their logs are gone", len(reruns))
+        self.submit({rerun: again[job_id].spec for rerun, job_id in reruns.items()}, keep_log=True)
+        found: dict[str, Evaluation] = {}
+        others: list[Evaluation] = []
+        for evaluation in self.results():
+            if evaluation.job_id in reruns:
+                found[evaluation.job_id] = evaluation
+                if len(found) == len(reruns):
+                    break
+            else:
+                others.append(evaluation)  # handed out later, as if it had come after
+        self._ready.extendleft(reversed(others))
+        fetched = {}
+        for rerun, job_id in reruns.items():
+            evaluation = found.get(rerun)
+            if evaluation is None or evaluation.log is None:
+                why = evaluation.reason if evaluation else "not simulated again"
+                fetched[job_id] = Fetched(None, None, None, why)
+                continue
+            path = evaluation.log.replace(self.log_dir / f"{job_id}.mcap")
+            if evaluation.digest != again[job_id].digest:
+                log.warning("%s simulated again is not the log its worker had made", job_id)
+            fetched[job_id] = Fetched(path, evaluation.scores, evaluation.digest)
+        return fetched
 
     # --- inside ----------------------------------------------------------------------------
 
@@ -301,7 +389,7 @@ class FarmClient:
     def _job(self, job_id: str) -> Job:
         pending = self._pending[job_id]
         avoid = sorted({*pending.avoid, *self._distrusted})
-        return Job(job_id=job_id, spec=pending.spec, avoid=avoid)
+        return Job(job_id=job_id, spec=pending.spec, avoid=avoid, keep_log=pending.keep_log)
 
     def _on_model_query(self, query: zenoh.Query) -> None:
         wanted = keys.last_chunk(str(query.key_expr))
@@ -450,6 +538,18 @@ class FarmClient:
                 log=None,
                 reason=result.reason,
             )
+        assert result.scores is not None  # the wire's rule for a job that ran
+        claimed = Scores.model_validate(result.scores.model_dump())
+        if not pending.keep_log:  # its worker keeps the log: `fetch` brings it if wanted
+            del self._pending[result.job_id]
+            return Evaluation(
+                **common,
+                status=EvaluationStatus(result.status.value),
+                scores=claimed,
+                log=None,
+                reason=result.reason,
+                digest=result.digest,
+            )
         path = self.log_dir / f"{result.job_id}.mcap"
         try:
             if len(content) > MAX_EPISODE_BYTES or len(content) != result.episode_bytes:
@@ -460,6 +560,11 @@ class FarmClient:
             scores = accept_log(content, pending.spec, path, source)
         except NotAnEpisodeLog as error:
             return self._run_again(result, pending, f"unusable episode log: {error}")
+        if scores != claimed:  # an honest log, false scores: the worker is not to be trusted
+            path.unlink(missing_ok=True)
+            self.distrust(result.worker)
+            reason = f"its scores are not its log's ({result.worker} is distrusted)"
+            return self._run_again(result, pending, reason)
         del self._pending[result.job_id]
         return Evaluation(
             **common,
@@ -506,9 +611,11 @@ class FarmClient:
 
 
 def _matches(result: Result, accepted: Accepted) -> bool:
-    """Whether `result` is the one the broker took: its lease, its worker, its very log."""
-    return (result.lease_id, result.worker, result.digest) == (
+    """Whether `result` is the one the broker took: its lease, its worker, its very log and the
+    scores its worker handed in with it."""
+    return (result.lease_id, result.worker, result.digest, result.scores) == (
         accepted.lease_id,
         accepted.worker,
         accepted.digest,
+        accepted.scores,
     )

@@ -7,11 +7,12 @@ of the spec, it simulates nothing and keeps no log: the tuning loop's own tests,
 run in milliseconds.
 """
 
+import hashlib
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from analytic.evaluator import Evaluation, EvaluationStatus, accept_log
+from analytic.evaluator import Evaluation, EvaluationStatus, Fetched, Wanted, accept_log
 from schemas.episode import EpisodeSpec, Scores
 from schemas.mcap_episode import NotAnEpisodeLog
 from schemas.wire import JobStatus
@@ -76,6 +77,29 @@ class InProcessEvaluator:
         while self._pending:
             job_id = next(iter(self._pending))
             yield self._evaluate(job_id, self._pending.pop(job_id))
+
+    def fetch(self, wanted: Mapping[str, Wanted]) -> dict[str, Fetched]:
+        """Every log is kept here as it is made, so a fetch only scores it again; one pruned
+        since, or never kept (no run directory), is simulated again. A scorer keeps no logs."""
+        fetched = {}
+        for job_id, want in wanted.items():
+            if self.scorer is not None:
+                fetched[job_id] = Fetched(None, None, None, "scored without an episode: no log")
+                continue
+            path = self.log_dir / f"{job_id}.mcap" if self.log_dir is not None else None
+            if path is not None and path.exists():
+                content = path.read_bytes()
+            else:
+                from worker.job import simulate  # MuJoCo loads only to simulate
+
+                content = simulate(want.spec, self._model).content
+            try:
+                scores = accept_log(content, want.spec, path, f"episode of {job_id}")
+            except NotAnEpisodeLog as error:
+                fetched[job_id] = Fetched(None, None, None, str(error))
+                continue
+            fetched[job_id] = Fetched(path, scores, hashlib.sha256(content).hexdigest())
+        return fetched
 
     def _model(self, wanted: str) -> "DynamicsModel":
         # As MuJoCo: loaded only when an episode is simulated.

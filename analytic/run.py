@@ -27,6 +27,7 @@ absent, the checkpoint is written last, so a later resume continues from the las
 
 import dataclasses
 import hashlib
+import logging
 import math
 import time
 from collections.abc import Callable
@@ -37,8 +38,8 @@ from pymoo.core.population import Population
 
 from analytic.checkpoint import CheckpointRefused, decode, encode
 from analytic.config import RunConfig
-from analytic.evaluator import Evaluation, EvaluationStatus, Evaluator
-from analytic.evolution import Evolution, hypervolume
+from analytic.evaluator import Evaluation, EvaluationStatus, Evaluator, Wanted
+from analytic.evolution import Candidate, Evolution, hypervolume
 from analytic.figures import plot_hypervolume, plot_pareto
 from analytic.records import (
     CONFIG_JSON,
@@ -78,6 +79,8 @@ from schemas.files import (
 from schemas.gains import PDGains
 from schemas.objectives import objectives
 from schemas.trajectory import TrajectorySpec
+
+log = logging.getLogger("gainfarm.analytic")
 
 CHECKPOINT = "checkpoint.pkl"
 # A steady-state run asks the farm how many workers it has this often: a broker status query
@@ -283,7 +286,7 @@ class TuningRun:
             evaluator.cancel([job_id for job_id in specs if job_id not in results])
         found = [self._candidate_done(gains, jobs[gains], results) for gains in candidates]
         evolution.tell(found)
-        self._generation_done(started)
+        self._generation_done(started, evaluator)
 
     # --- steady state: each candidate told as it returns, a new one asked at once -------------
 
@@ -328,7 +331,7 @@ class TuningRun:
                 evolution.tell_one(handle, self._candidate_done(gains, ids, results))
                 on_progress(self._progress(0, started))
                 if evolution.evaluations % self.config.pop == 0:
-                    self._generation_done(started)
+                    self._generation_done(started, evaluator)
                     if self.state.stopped is not None:
                         return
                 top_up()
@@ -376,20 +379,18 @@ class TuningRun:
                 if now != episodes:
                     corrected = True
                     state.provenance[gains] = now
+                    if self.config.keep != "all":  # the outvoted log: the standing one is fetched
+                        self._drop_logs(gains)
                     true = objectives([ran.scores for ran in now], self.config.objective_weights)
                     # evaluated.csv holds the points in the order told: the true one replaces
                     # the false one there too, so the cloud and the front agree.
                     for row in state.evolution.correct(gains, true):
                         state.evaluated[row] = true
+        if self._fetch_front(evaluator):
+            checked = corrected = True
         if checked:
             if corrected and state.history:  # the last row says what the run reports
-                front = [member.objectives for member in state.evolution.front()]
-                state.history[-1] = dataclasses.replace(
-                    state.history[-1],
-                    hypervolume=hypervolume(front, self.config.reference_point),
-                    best_f_acc=min(f_acc for f_acc, _ in front),
-                    best_f_t=min(f_t for _, f_t in front),
-                )
+                state.history[-1] = self._row_of(state.evolution.front(), state.history[-1])
             with interrupts_deferred():  # the records and the checkpoint agree
                 self.write_records()
                 self._checkpoint()
@@ -410,6 +411,77 @@ class TuningRun:
             attempts=1,
             timings=None,
             digest=ran.digest,
+        )
+
+    # --- the front's logs, where workers keep them --------------------------------------------
+
+    def _fetch_front(self, evaluator: Evaluator) -> bool:
+        """Fetch the logs of front members that have none here (an evaluator whose workers keep
+        the logs: analytic.farm), each scored here again. A member whose log does not score as
+        its worker claimed takes the log's scores, and that worker is distrusted; the front can
+        move, so this goes on until every member has its logs. True if a member was corrected.
+        """
+        state = self.state
+        corrected = False
+        tried: set[str] = set()
+        while True:
+            wanted = {
+                ran.job_id: (member.gains, ran)
+                for member in state.evolution.front()
+                if not state.episodes.get(member.gains)
+                for ran in state.provenance.get(member.gains, ())
+                if ran.digest is not None and ran.scores is not None and ran.job_id not in tried
+            }
+            if not wanted:
+                return corrected
+            tried.update(wanted)
+            fetched = evaluator.fetch(
+                {
+                    job_id: Wanted(self._episode_spec(gains, job_id), ran.digest, (ran.worker,))
+                    for job_id, (gains, ran) in wanted.items()
+                    if ran.digest is not None
+                }
+            )
+            changed: dict[PDGains, list[Ran]] = {}
+            for job_id, got in fetched.items():
+                gains, ran = wanted[job_id]
+                if got.log is None:
+                    log.warning("no log of %s could be had: %s", job_id, got.reason)
+                    continue
+                state.episodes.setdefault(gains, []).append(job_id)
+                if got.scores != ran.scores:
+                    log.error(
+                        "worker %r claimed scores for %s that its log does not have: the log's "
+                        "stand, and its results are no longer trusted",
+                        ran.worker,
+                        job_id,
+                    )
+                    evaluator.distrust(ran.worker)
+                    true = Ran(job_id, ran.worker, got.digest, got.scores)
+                    changed.setdefault(gains, list(state.provenance[gains]))
+                    changed[gains] = [true if r.job_id == job_id else r for r in changed[gains]]
+            for gains, now in changed.items():
+                corrected = True
+                state.provenance[gains] = tuple(now)
+                true_point = objectives([r.scores for r in now], self.config.objective_weights)
+                for row in state.evolution.correct(gains, true_point):
+                    state.evaluated[row] = true_point
+
+    def _drop_logs(self, gains: PDGains) -> None:
+        for job_id in self.state.episodes.pop(gains, []):
+            (self.directory / EPISODES / f"{job_id}.mcap").unlink(missing_ok=True)
+
+    def _episode_spec(self, gains: PDGains, job_id: str) -> EpisodeSpec:
+        return self._spec(gains, self.config.trajectories[int(job_id.rsplit("-t", 1)[1])])
+
+    def _row_of(self, front: list[Candidate], row: HistoryRow) -> HistoryRow:
+        """`row` with the hypervolume and bests of `front` (after a correction)."""
+        points = [member.objectives for member in front]
+        return dataclasses.replace(
+            row,
+            hypervolume=hypervolume(points, self.config.reference_point),
+            best_f_acc=min(f_acc for f_acc, _ in points),
+            best_f_t=min(f_t for _, f_t in points),
         )
 
     # --- bookkeeping -------------------------------------------------------------------------
@@ -457,8 +529,8 @@ class TuningRun:
         self.state.provenance[gains] = tuple(Ran.of(results[job_id]) for job_id in job_ids)
         return found
 
-    def _generation_done(self, started: float) -> None:
-        """History row, front, pruned episodes, termination verdict and checkpoint."""
+    def _generation_done(self, started: float, evaluator: Evaluator) -> None:
+        """History row, front, its logs (pruned, or fetched), termination verdict and checkpoint."""
         state = self.state
         front = state.evolution.front()
         state.wall_seconds = time.monotonic() - started
@@ -479,6 +551,9 @@ class TuningRun:
             for gains in [gains for gains in state.episodes if gains not in keep]:
                 for job_id in state.episodes.pop(gains):
                     (self.directory / EPISODES / f"{job_id}.mcap").unlink(missing_ok=True)
+        if self._fetch_front(evaluator):
+            front = state.evolution.front()  # a member's scores were false: the front moved
+            state.history[-1] = self._row_of(front, state.history[-1])
         # A Ctrl-C between history.csv and the checkpoint would leave them a generation apart.
         with interrupts_deferred():
             self.write_records()

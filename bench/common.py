@@ -2,7 +2,7 @@
 stand-ins for the farm around a broker (an analytic client that submits and confirms results but
 evaluates nothing, workers that only lease, hand in and report).
 
-The stand-ins speak the farm's wire protocol (version 3) as cheaply as they can (Submissions
+The stand-ins speak the farm's wire protocol (version 4) as cheaply as they can (Submissions
 prebuilt as bytes, replies read with json rather than pydantic): the load they put on a broker
 should cost as little of the machine as it can, so that the broker's figures are the broker's.
 They ask the broker as the farm's own clients do (schemas.ask), so the broker serves the same
@@ -38,6 +38,7 @@ from schemas.wire import (
     Submission,
     SubmitReply,
     Timings,
+    WireScores,
     decode,
 )
 
@@ -204,6 +205,9 @@ class FakeAnalytic:
 
 
 EMPTY_LOG = b""  # what a NoopWorker sends as an episode log
+NOOP_SCORES = WireScores(  # and the scores it claims for it
+    f_acc=0.01, f_t=0.1, max_error=0.02, saturated_fraction=0.0, diverged=False, ticks=1
+)
 
 
 class NoopWorker:
@@ -212,7 +216,14 @@ class NoopWorker:
     share with other NoopWorkers. With a real episode's log (and jobs that all name its spec),
     it is a cobot that skips the simulation."""
 
-    def __init__(self, session: zenoh.Session, name: str, study: str, log: bytes = EMPTY_LOG):
+    def __init__(
+        self,
+        session: zenoh.Session,
+        name: str,
+        study: str,
+        log: bytes = EMPTY_LOG,
+        scores: WireScores = NOOP_SCORES,
+    ):
         self.session = session
         self._log = log
         self._token = session.liveliness().declare_token(keys.alive_worker(name))
@@ -228,6 +239,7 @@ class NoopWorker:
             episode_bytes=len(log),
             digest=hashlib.sha256(log).hexdigest(),
             timings=Timings(simulate_s=0.0, encode_s=0.0),
+            scores=scores,
         ).model_dump(mode="json")
         self.leases: list[tuple[float, float]] = []  # (monotonic time asked, latency s)
         self.hand_ins: list[float] = []  # s from handing in a result to the broker's verdict
@@ -259,7 +271,7 @@ class NoopWorker:
                 continue
             self.session.put(
                 keys.result(lease["study"], job_id),
-                self._log,
+                self._log if lease["job"]["keep_log"] else EMPTY_LOG,  # else it "keeps" it
                 attachment=attachment,
                 congestion_control=zenoh.CongestionControl.BLOCK,  # as CobotWorker: no drops
             )

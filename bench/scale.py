@@ -49,6 +49,7 @@ from analytic.farm import FarmClient
 from broker.status import BrokerUnavailable, query_status
 from schemas.episode import EpisodeSpec
 from schemas.transport import open_session
+from schemas.wire import WireScores
 from worker.job import simulate
 
 WORKERS_PER_LOAD = 256  # simulated workers per load process
@@ -64,14 +65,16 @@ class Episode:
     spec: EpisodeSpec
     path: Path
     size: int
+    scores: WireScores
 
 
 def premade_episode(duration: float, out: Path) -> Episode:
     spec = episode_specs(1, duration)[0]
     outcome = simulate(spec)
+    assert outcome.scores is not None, outcome.reason
     path = out / "premade.mcap"
     path.write_bytes(outcome.content)
-    return Episode(spec, path, len(outcome.content))
+    return Episode(spec, path, len(outcome.content), WireScores(**outcome.scores.model_dump()))
 
 
 # --- the load ----------------------------------------------------------------------------------
@@ -82,6 +85,7 @@ def sim_load(
     study: str,
     names: list[str],
     log_path: str,
+    scores: dict,
     job_seconds: float,
     stop: threading.Event,
     parent: Connection,
@@ -89,7 +93,11 @@ def sim_load(
     """Serve `names` as simulated workers until `stop`; send back their leases and job runs."""
     log = Path(log_path).read_bytes()
     shared = [open_session("client", connect=[endpoint]) for _ in range(SESSIONS_PER_LOAD)]
-    farm = [NoopWorker(shared[i % len(shared)], name, study, log) for i, name in enumerate(names)]
+    claimed = WireScores(**scores)
+    farm = [
+        NoopWorker(shared[i % len(shared)], name, study, log, claimed)
+        for i, name in enumerate(names)
+    ]
     hold = (lambda: time.sleep(job_seconds)) if job_seconds > 0 else None
 
     def serve(worker: NoopWorker) -> None:
@@ -120,7 +128,9 @@ def sim_load(
 class Load:
     """Load processes serving `workers` simulated workers on study `study`."""
 
-    def __init__(self, endpoint: str, study: str, workers: int, log: Path, job_seconds: float):
+    def __init__(
+        self, endpoint: str, study: str, workers: int, episode: Episode, job_seconds: float
+    ):
         self.stop = SPAWN.Event()
         self.processes = []
         self.pipes = []
@@ -133,7 +143,8 @@ class Load:
                     endpoint,
                     study,
                     names[start : start + WORKERS_PER_LOAD],
-                    str(log),
+                    str(episode.path),
+                    episode.scores.model_dump(),
                     job_seconds,
                     self.stop,
                     sender,
@@ -234,13 +245,17 @@ class Scale:
     lease_p99_ms: float
 
 
-def scale(workers: int, job_seconds: float, window: float, episode: Episode, out: Path) -> Scale:
+def scale(
+    workers: int, job_seconds: float, window: float, episode: Episode, out: Path, send_logs: bool
+) -> Scale:
     endpoint = loopback_endpoint()
     port = int(endpoint.rsplit(":", 1)[1])
     in_flight = 2 * workers
     with (
         broker_process(endpoint, in_flight * 2),
-        FarmClient([endpoint], study=f"scale-{workers}", run_dir=out / f"n{workers}") as client,
+        FarmClient(
+            [endpoint], f"scale-{workers}", out / f"n{workers}", keep_logs=send_logs
+        ) as client,
     ):
         serial = iter(range(10**9))
 
@@ -250,7 +265,7 @@ def scale(workers: int, job_seconds: float, window: float, episode: Episode, out
                 client.submit({f"j{next(serial)}": episode.spec for _ in range(missing)})
 
         top_up()
-        load = Load(endpoint, client.study, workers, episode.path, job_seconds)
+        load = Load(endpoint, client.study, workers, episode, job_seconds)
         try:
             wait_for_workers(client, workers)
             start = time.monotonic() + 2 * job_seconds
@@ -297,15 +312,17 @@ class Ingest:
     cpu_us_per_result: float
 
 
-def ingest(results: int, episode: Episode, out: Path, fast_workers: int = 8) -> Ingest:
+def ingest(
+    results: int, episode: Episode, out: Path, send_logs: bool, fast_workers: int = 8
+) -> Ingest:
     """M results handed in while the client does not read, then yielded as fast as it can."""
     endpoint = loopback_endpoint()
     with (
         broker_process(endpoint, results),
-        FarmClient([endpoint], study="scale-ingest", run_dir=out / "ingest") as client,
+        FarmClient([endpoint], "scale-ingest", out / "ingest", keep_logs=send_logs) as client,
     ):
         client.submit({f"j{index}": episode.spec for index in range(results)})
-        load = Load(endpoint, client.study, fast_workers, episode.path, 0.0)
+        load = Load(endpoint, client.study, fast_workers, episode, 0.0)
         try:
             give_up = time.monotonic() + 60 + results / 20
             while time.monotonic() < give_up:
@@ -367,6 +384,11 @@ def counts(text: str) -> list[int]:
     "--window", type=click.FloatRange(min=0, min_open=True), help="s  [default: 20; --quick: 5]"
 )
 @click.option(
+    "--send-logs",
+    is_flag=True,
+    help="every result brings its log (as `--keep all` runs do); by default the workers keep them",
+)
+@click.option(
     "--ingest",
     "ingest_results",
     type=click.IntRange(min=1),
@@ -380,6 +402,7 @@ def main(
     duration: float,
     window: float | None,
     ingest_results: int | None,
+    send_logs: bool,
 ) -> None:
     try:
         sizes = (
@@ -396,7 +419,7 @@ def main(
         say(f"pre-made episode: {duration:g} s, {episode.size / 1e6:.2f} MB log")
         runs = []
         for workers in sizes:
-            run = scale(workers, job_seconds, window, episode, out)
+            run = scale(workers, job_seconds, window, episode, out, send_logs)
             say(
                 f"N={workers}: utilisation {100 * run.utilisation:.1f} %, "
                 f"{run.results_per_s:.0f} results/s, {run.leases_per_s:.0f} leases/s, "
@@ -405,7 +428,7 @@ def main(
             )
             runs.append(asdict(run))
             shutil.rmtree(out / f"n{workers}", ignore_errors=True)
-        taken = ingest(ingest_results, episode, out)
+        taken = ingest(ingest_results, episode, out, send_logs)
         say(
             f"analytic ingest: {taken.per_s:.0f} results/s over {taken.results} results, "
             f"{taken.cpu_us_per_result:.0f} µs CPU each"
@@ -422,6 +445,7 @@ def main(
                 "job_seconds": job_seconds,
                 "window_s": window,
                 "episode_log_bytes": episode.size,
+                "logs": "sent with each result" if send_logs else "kept by the workers",
             },
             indent=None if as_json else 2,
         )

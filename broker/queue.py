@@ -36,7 +36,15 @@ from dataclasses import dataclass, field
 from itertools import islice
 from typing import Generic, TypeVar
 
-from schemas.wire import Accepted, Job, Lease, Rejection, StudyState, WorkerState
+from schemas.wire import (
+    Accepted,
+    Job,
+    Lease,
+    Rejection,
+    StudyState,
+    WireScores,
+    WorkerState,
+)
 
 W = TypeVar("W")
 
@@ -220,7 +228,13 @@ class LeaseQueue(Generic[W]):
         return max((self.submit_rate or 0.0) * RATE_BURST_SECONDS, 1.0)
 
     def complete(
-        self, study_name: str, job_id: str, lease_id: str, worker_name: str, digest: str
+        self,
+        study_name: str,
+        job_id: str,
+        lease_id: str,
+        worker_name: str,
+        digest: str,
+        scores: WireScores | None = None,
     ) -> str | None:
         """`worker_name` hands in a result for `job_id` under `lease_id`: None if it is taken as
         the job's result, else the reason it is refused. Only the worker a lease was handed to
@@ -258,7 +272,10 @@ class LeaseQueue(Generic[W]):
             study.queued_ids.discard(job_id)
             self._queued_total -= 1
         self._store(
-            study, Accepted(job_id=job_id, lease_id=lease_id, worker=worker_name, digest=digest)
+            study,
+            Accepted(
+                job_id=job_id, lease_id=lease_id, worker=worker_name, digest=digest, scores=scores
+            ),
         )
         study.done += 1
         sender = self._workers.get(worker_name)

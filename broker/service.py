@@ -192,7 +192,12 @@ class Broker:
         _check_named(query, result.worker, "worker")
         with self._lock:
             refusal = self.queue.complete(
-                result.study, result.job_id, result.lease_id, result.worker, result.digest
+                result.study,
+                result.job_id,
+                result.lease_id,
+                result.worker,
+                result.digest,
+                result.scores,
             )
             if refusal is not None:
                 self.rejected += 1

@@ -52,6 +52,17 @@ def model(study: str, digest: str) -> str:
     return f"{ROOT}/study/{study}/model/{digest}"
 
 
+def log(study: str, worker: str, digest: str) -> str:
+    """Queryable: (nothing) → the episode log with that SHA-256 that `worker` made for a job of
+    `study` and keeps (a job without `keep_log`); served by the worker itself."""
+    return f"{ROOT}/study/{study}/log/{worker}/{digest}"
+
+
+def worker_logs(worker: str) -> str:
+    """Every log key a worker serves: what it declares, and what its access policy allows."""
+    return log("*", worker, "*")
+
+
 def study_results(study: str) -> str:
     return f"{ROOT}/study/{study}/result/*"
 

@@ -224,6 +224,9 @@ def _analytic_rules(name: str) -> list[dict[str, Any]]:
             [keys.model(studies, "*")],
         ),
         _rule(f"{who} is asked for models", ["query"], "egress", [keys.model(studies, "*")]),
+        # It fetches its studies' episode logs from the workers that keep them.
+        _rule(f"{who} fetches logs", ["query"], "ingress", [keys.log(studies, "*", "*")]),
+        _rule(f"{who} receives logs", ["reply"], "egress", [keys.log(studies, "*", "*")]),
         _rule(
             f"{who} holds its studies",
             ["liveliness_token", "liveliness_query"],
@@ -253,6 +256,15 @@ def _worker_rules(name: str) -> list[dict[str, Any]]:
         # model that does not hash to the job's digest is refused (worker/feedforward.py).
         _rule(f"{who} fetches models", ["query"], "ingress", [keys.ALL_MODELS]),
         _rule(f"{who} receives models", ["reply"], "egress", [keys.ALL_MODELS]),
+        # It serves the logs it keeps under its own name only; an analytic process checks each
+        # log against the digest the broker took, so a log served is trusted by its hash.
+        _rule(
+            f"{who} serves its logs",
+            ["declare_queryable", "reply"],
+            "ingress",
+            [keys.worker_logs(name)],
+        ),
+        _rule(f"{who} is asked for its logs", ["query"], "egress", [keys.worker_logs(name)]),
         _rule(
             f"{who} holds its name",
             ["liveliness_token", "liveliness_query"],

@@ -9,11 +9,21 @@ import json
 from enum import StrEnum
 from typing import Annotated, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
-from schemas.episode import EpisodeSpec
+from schemas.episode import EpisodeSpec, Scores
 
-PROTOCOL_VERSION = 3  # 3: results handed in to the broker and confirmed by it; 2: Job.spec
+# 4: results carry the worker's scores, and the log only when the job asks to keep it (the worker
+# keeps the others, to be fetched); 3: results handed in to the broker and confirmed by it;
+# 2: Job.spec
+PROTOCOL_VERSION = 4
 
 # Names become key-expression chunks, so they may not contain '/', '*', '$', '?' or '#'.
 NAME_PATTERN = r"^[A-Za-z0-9_.\-]{1,64}$"
@@ -35,7 +45,7 @@ class BadMessage(ValueError):
 class WireMessage(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    protocol: Literal[3] = PROTOCOL_VERSION
+    protocol: Literal[4] = PROTOCOL_VERSION
 
     @field_validator("protocol", mode="before")
     @classmethod
@@ -57,6 +67,11 @@ class Job(BaseModel):
     spec: EpisodeSpec  # the episode to simulate
     avoid: list[Name] = Field(
         [], max_length=64, description="workers that may not run it: a replica runs elsewhere"
+    )
+    keep_log: bool = Field(
+        False,
+        description="send the episode log with the result; else the worker keeps it, to be "
+        "fetched if it is wanted (keys.log)",
     )
 
 
@@ -123,11 +138,19 @@ class Timings(BaseModel):
 DIGEST_PATTERN = r"^[0-9a-f]{64}$"
 
 
+class WireScores(Scores):
+    """An episode's scores as a worker reports them: finite numbers, nothing else."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+
 class Result(WireMessage):
-    """Worker → broker, then → analytic: how a job went. The worker hands it in to the broker
-    first (a Completion query: the broker checks that this worker holds this lease), then sends
-    it as the attachment of a sample whose payload is the MCAP episode log (empty when the job
-    failed), whose SHA-256 is `digest`."""
+    """Worker → broker, then → analytic: how a job went, and the scores the worker computed from
+    its log (schemas.objectives.score, the analytic's own code). The worker hands it in to the
+    broker first (a Completion query: the broker checks that this worker holds this lease and
+    keeps what it took), then sends it as the attachment of a sample whose payload is the MCAP
+    episode log if the job said `keep_log`, else empty (the worker keeps the log). `digest` and
+    `episode_bytes` always describe the log the worker made (both empty when the job failed)."""
 
     study: Name
     job_id: Name
@@ -138,6 +161,13 @@ class Result(WireMessage):
     episode_bytes: int = Field(ge=0)
     digest: Annotated[str, Field(pattern=DIGEST_PATTERN)]
     timings: Timings
+    scores: WireScores | None = None
+
+    @model_validator(mode="after")
+    def _scored_unless_failed(self) -> "Result":
+        if (self.status == JobStatus.failed) != (self.scores is None):
+            raise ValueError("scores: required for an episode that ran, and only for one")
+        return self
 
 
 class CompletionReply(WireMessage):
@@ -156,6 +186,7 @@ class Accepted(BaseModel):
     lease_id: Name
     worker: Name
     digest: Annotated[str, Field(pattern=DIGEST_PATTERN)]
+    scores: WireScores | None = None  # as handed in: what the study counts for the job
 
 
 class ConfirmRequest(WireMessage):

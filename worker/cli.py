@@ -116,15 +116,28 @@ def episode(
     type=click.Path(path_type=Path),
     help="where fetched feed-forward models are kept  [default: $XDG_CACHE_HOME/gainfarm/models]",
 )
+@click.option(
+    "--log-memory",
+    type=click.IntRange(min=16),
+    default=512,
+    show_default=True,
+    metavar="MIB",
+    help="memory for the episode logs this worker keeps to be fetched (jobs that do not send "
+    "their log), MiB",
+)
 @options.log_level()
 def start(
     connect: tuple[str, ...],
     name: str | None,
     tls: Path | None,
     model_cache: Path | None,
+    log_memory: int,
     log_level: str,
 ) -> None:
-    """Serve a farm: ask the broker for jobs while free, run them, return their logs.
+    """Serve a farm: ask the broker for jobs while free, run them, return their results.
+
+    A job's episode log goes with its result if the job asks for it; else the worker keeps it
+    in memory (--log-memory; the least recently used go first) for its study to fetch.
 
     SIGTERM or Ctrl-C: the job in progress is finished and returned, then the worker exits.
     """
@@ -144,7 +157,7 @@ def start(
     waiting = False
     while not stop.is_set():
         try:
-            cobot = CobotWorker(connect, name, identity, models)
+            cobot = CobotWorker(connect, name, identity, models, log_memory * 2**20)
         except (NameTaken, ValueError) as error:
             raise CliError(str(error)) from None
         except ConnectionError as error:

@@ -1,4 +1,7 @@
-"""One job, start to finish: simulate it, encode its log, say how it went. No Zenoh here.
+"""One job, start to finish: simulate it, score and encode its log, say how it went. No Zenoh.
+
+The scores are the analytic side's own (schemas.objectives.score), computed on the episode as
+simulated; they equal the scores of the log decoded from its MCAP bytes exactly (test_job.py).
 
 A job that cannot run is a result too (status failed, with the reason), never an exception that
 would take the worker down: the farm goes on serving, and the analytic side learns why.
@@ -10,9 +13,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from models.dynamics import DynamicsModel
-from schemas.episode import EpisodeSpec
+from schemas.episode import EpisodeSpec, Scores
 from schemas.mcap_episode import episode_bytes
-from schemas.wire import JobStatus, Lease, Result, Timings
+from schemas.objectives import score
+from schemas.wire import JobStatus, Lease, Result, Timings, WireScores
 from worker.episode import run_episode
 from worker.feedforward import ModelUnavailable
 from worker.ik import UnreachablePath
@@ -23,12 +27,13 @@ REASON_LIMIT = 2000  # characters: Result.reason's bound
 
 @dataclass(frozen=True)
 class Outcome:
-    """How an episode went, and its MCAP log (empty if it could not run)."""
+    """How an episode went, its MCAP log and its scores (empty and None if it could not run)."""
 
     status: JobStatus
     reason: str
     content: bytes
     timings: Timings
+    scores: Scores | None = None
 
     @property
     def digest(self) -> str:
@@ -37,12 +42,13 @@ class Outcome:
 
 
 def simulate(spec: EpisodeSpec, model: Callable[[str], DynamicsModel] | None = None) -> Outcome:
-    """Run the episode and encode its log; never raises for a spec that cannot run. `model`
-    gives the feed-forward model of a digest, if the spec names one (ModelUnavailable if it
-    cannot)."""
+    """Run the episode, encode its log and score it; never raises for a spec that cannot run.
+    `model` gives the feed-forward model of a digest, if the spec names one (ModelUnavailable if
+    it cannot)."""
     started = time.perf_counter()
     content = b""
     reason = ""
+    scores = None
     try:
         feedforward = None
         if spec.feedforward is not None:
@@ -61,16 +67,23 @@ def simulate(spec: EpisodeSpec, model: Callable[[str], DynamicsModel] | None = N
         reason = log.metadata.divergence
     simulated = time.perf_counter()
     if status != JobStatus.failed:
-        content = episode_bytes(log)
+        try:  # scores the wire cannot carry (not finite) would be a bug: the job fails, not all
+            content = episode_bytes(log)
+            scores = score(log)
+            WireScores(**scores.model_dump())
+        except Exception as error:
+            status, content, scores = JobStatus.failed, b"", None
+            reason = " ".join(f"its log: {type(error).__name__}: {error}".split())
     encoded = time.perf_counter()
     timings = Timings(simulate_s=simulated - started, encode_s=encoded - simulated)
-    return Outcome(status, reason, content, timings)
+    return Outcome(status, reason, content, timings, scores)
 
 
 def execute(
     lease: Lease, worker: str, model: Callable[[str], DynamicsModel] | None = None
 ) -> tuple[Result, bytes]:
-    """Run the lease's episode; return its Result and the MCAP bytes (empty if it failed)."""
+    """Run the lease's episode; return its Result, with its scores, and the MCAP bytes (empty if
+    it failed)."""
     outcome = simulate(lease.job.spec, model)
     result = Result(
         study=lease.study,
@@ -82,5 +95,6 @@ def execute(
         episode_bytes=len(outcome.content),
         digest=outcome.digest,
         timings=outcome.timings,
+        scores=None if outcome.scores is None else WireScores(**outcome.scores.model_dump()),
     )
     return result, outcome.content

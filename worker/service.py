@@ -1,8 +1,12 @@
 """The sim-cobot on the wire: connect, hold a liveliness token, ask for work when free, hand in
-each result to the broker and, once it takes it, send it with its episode log to the study. One
-process is one cobot.
+each result to the broker and, once it takes it, send it to the study. One process is one cobot.
+
+The episode log goes along with the result only when the job asks for it (Job.keep_log);
+otherwise the worker keeps the log in memory (a LogStore, bounded: the least recently used go
+first) and serves it by its digest, to the study whose job made it, on keys.log.
 """
 
+import contextlib
 import logging
 import threading
 import time
@@ -19,6 +23,7 @@ from schemas.wire import (
     LEASE_HOLD_SECONDS,
     BadMessage,
     CompletionReply,
+    JobStatus,
     Lease,
     LeaseReply,
     LeaseRequest,
@@ -27,12 +32,14 @@ from schemas.wire import (
 )
 from worker.feedforward import ModelCache
 from worker.job import execute
+from worker.logstore import LogStore
 
 log = logging.getLogger("gainfarm.worker")
 
 ANSWER_MARGIN = 5.0  # s beyond the broker's longest hold before a lease request counts as lost
 RETRY_SECONDS = 1.0  # pause after a broker that did not answer or answered with an error
 ANSWER_SECONDS = 10.0  # how long the broker has to take a handed-in result
+LOG_MEMORY = 512 * 2**20  # bytes of kept episode logs: some 20 of 120 s, hundreds of short ones
 
 
 class NameTaken(RuntimeError):
@@ -71,10 +78,13 @@ class CobotWorker:
         name: str,
         identity: TlsIdentity | None = None,
         models: ModelCache | None = None,
+        log_memory: int = LOG_MEMORY,
     ):
+        """`log_memory`: bytes of episode logs kept for the studies to fetch."""
         request = LeaseRequest(worker=name)  # validates the name: it becomes a key chunk
         self.name = request.worker
         self.models = models if models is not None else ModelCache()
+        self.logs = LogStore(log_memory)
         self._request = request.to_bytes()
         self.jobs_done = 0
         self.refused = 0  # results the broker did not take (e.g. the lease had gone elsewhere)
@@ -83,6 +93,10 @@ class CobotWorker:
             if token_held(self.session, keys.alive_worker(name)):
                 raise NameTaken(f"a worker named {name!r} is already connected to this farm")
             self._token = self.session.liveliness().declare_token(keys.alive_worker(name))
+            # Undeclared when the session closes.
+            self._logs_queryable = self.session.declare_queryable(
+                keys.worker_logs(self.name), self._on_log_query
+            )
         except BaseException:
             self.session.close()
             raise
@@ -113,9 +127,20 @@ class CobotWorker:
         result, content = execute(lease, self.name, lambda wanted: self._model(lease, wanted))
         if not self._hand_in(result, give_up, stop):
             return
+        sent = content if lease.job.keep_log else b""
+        if not lease.job.keep_log and result.status != JobStatus.failed:
+            # Kept before the result goes out: a study may fetch the log the moment it arrives.
+            if len(content) > self.logs.max_bytes:
+                log.warning(
+                    "%s/%s: its %d-byte log is larger than the log memory; not kept",
+                    result.study,
+                    result.job_id,
+                    len(content),
+                )
+            self.logs.keep(result.study, result.digest, content)
         self.session.put(
             keys.result(result.study, result.job_id),
-            content,
+            sent,
             attachment=result.to_bytes(),
             congestion_control=zenoh.CongestionControl.BLOCK,
         )
@@ -127,6 +152,26 @@ class CobotWorker:
             result.status.value,
             result.timings.simulate_s + result.timings.encode_s,
         )
+
+    def _on_log_query(self, query: zenoh.Query) -> None:
+        """Serve a kept log: gainfarm/study/{study}/log/{worker}/{digest} → its bytes, to that
+        study only. Runs on Zenoh's threads; whatever the query, it answers and never raises."""
+        try:
+            key = str(query.key_expr)
+            chunks = key.split("/")
+            study, digest = (chunks[2], chunks[5]) if len(chunks) == 6 else ("", "")
+            if key != keys.log(study, self.name, digest):  # e.g. another worker's, or gainfarm/**
+                query.reply_err(f"not a log key of worker {self.name}: {_shown(key)}")
+                return
+            content = self.logs.get(study, digest)
+            if content is None:
+                query.reply_err(f"no such log: {_shown(key)} (never made, or no longer kept)")
+                return
+            query.reply(query.key_expr, content)
+        except Exception as error:  # a bad query must not take the worker's queryable down
+            log.warning("a log query failed: %s", _shown(f"{type(error).__name__}: {error}"))
+            with contextlib.suppress(Exception):  # e.g. the query had already been answered
+                query.reply_err("this worker could not answer the query")
 
     def _model(self, lease: Lease, wanted: str) -> DynamicsModel:
         """The job's feed-forward model, fetched from its study the first time."""
@@ -175,3 +220,9 @@ class CobotWorker:
         except BadMessage as error:
             log.warning("ignored a bad lease reply: %s", error)
             return None
+
+
+def _shown(text: str, limit: int = 200) -> str:
+    """`text` fit for one line of a reply or a log: whatever a querier sent, bounded."""
+    text = " ".join(text.split())
+    return text if len(text) <= limit else f"{text[: limit - 3]}..."

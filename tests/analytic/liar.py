@@ -1,6 +1,7 @@
 """A worker that lies subtly: it runs each episode honestly, then changes one torque sample in
-the log it returns (a valid log, scored almost the same). Run as
-`python -m tests.analytic.liar ENDPOINT NAME` by the replication tests."""
+the log it returns (a valid log, with the scores that log has: almost the same). Or, with
+`--scores`, one that returns its honest log and claims scores 10 % better than the log's. Run as
+`python -m tests.analytic.liar ENDPOINT NAME [--scores]` by the replication tests."""
 
 import dataclasses
 import hashlib
@@ -12,7 +13,8 @@ from collections.abc import Callable
 import worker.service
 from models.dynamics import DynamicsModel
 from schemas.mcap_episode import decode_episode, episode_bytes
-from schemas.wire import Lease, Result
+from schemas.objectives import score
+from schemas.wire import Lease, Result, WireScores
 from worker.job import execute
 
 
@@ -27,12 +29,24 @@ def lying_execute(
     u[len(u) // 2, 3] += 0.01  # N·m: one sample of one joint's command
     altered = episode_bytes(dataclasses.replace(log, u=u))
     digest = hashlib.sha256(altered).hexdigest()
-    return result.model_copy(update={"episode_bytes": len(altered), "digest": digest}), altered
+    scores = WireScores(**score(decode_episode(altered)).model_dump())
+    update = {"episode_bytes": len(altered), "digest": digest, "scores": scores}
+    return result.model_copy(update=update), altered
+
+
+def boasting_execute(
+    lease: Lease, name: str, model: Callable[[str], DynamicsModel] | None = None
+) -> tuple[Result, bytes]:
+    result, content = execute(lease, name, model)
+    if result.scores is None:
+        return result, content
+    better = {"f_acc": 0.9 * result.scores.f_acc, "f_t": 0.9 * result.scores.f_t}
+    return result.model_copy(update={"scores": result.scores.model_copy(update=better)}), content
 
 
 def main() -> None:
     endpoint, name = sys.argv[1:3]
-    worker.service.execute = lying_execute
+    worker.service.execute = boasting_execute if "--scores" in sys.argv[3:] else lying_execute
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     with worker.service.CobotWorker([endpoint], name) as cobot:

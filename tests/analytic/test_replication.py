@@ -1,6 +1,7 @@
 """Validation by replication on a real farm: an honest farm agrees with itself, and a worker that
 changes one torque sample of its logs is outvoted, named and given no more jobs."""
 
+import dataclasses
 import hashlib
 import subprocess
 import sys
@@ -8,18 +9,24 @@ from pathlib import Path
 
 import pytest
 
+from analytic.evaluator import Wanted
 from analytic.farm import FarmClient
 from analytic.local import spawn_worker, stop_workers
 from analytic.replication import Ledger, validate
 from broker.service import Broker
+from schemas.mcap_episode import read_episode
+from schemas.objectives import score
 from tests.helpers import short_spec, wait_for
 
 SPECS = {f"c{i}": short_spec(duration=0.4 + 0.1 * i) for i in range(3)}
 
 
 def spawn_liar(endpoint: str, name: str) -> subprocess.Popen:
+    """A liar ("liar…": alters its logs) or a boaster ("boaster…": claims better scores)."""
+    how = ["--scores"] if name.startswith("boaster") else []
     return subprocess.Popen(
-        [sys.executable, "-m", "tests.analytic.liar", endpoint, name], stdin=subprocess.DEVNULL
+        [sys.executable, "-m", "tests.analytic.liar", endpoint, name, *how],
+        stdin=subprocess.DEVNULL,
     )
 
 
@@ -32,7 +39,7 @@ def workers(broker: Broker, request: pytest.FixtureRequest):
     names: list[str] = request.param
     processes = [
         spawn_liar(broker.endpoints[0], name)
-        if name.startswith("liar")
+        if name.startswith(("liar", "boaster"))
         else spawn_worker(broker.endpoints[0], name)
         for name in names
     ]
@@ -78,3 +85,48 @@ def test_a_worker_that_alters_one_torque_sample_is_outvoted_and_named(
         farm.submit({"later": short_spec()})
         [later] = list(farm.results(60))
         assert later.worker in {"h1", "h2"}
+
+
+@pytest.mark.parametrize("workers", [["boaster", "h1"]], indirect=True)
+def test_scores_better_than_the_log_has_are_caught_where_the_log_is_read(
+    broker: Broker, workers, tmp_path: Path
+) -> None:
+    boasted = {"b0": short_spec(duration=0.5)}
+    # Logs sent with the results: read as they come, so the claim never counts.
+    with FarmClient(broker.endpoints, "sent", tmp_path / "sent") as farm:
+        farm.submit(boasted, avoid={"b0": ["h1"]})
+        assert list(farm.results(10)) == []  # refused, then the boaster gets no more jobs
+        farm.submit({"b1": short_spec(duration=0.5)})
+        [later] = list(farm.results(60))
+        assert later.worker == "h1" and later.scores == score(read_episode(later.log))
+    # Logs kept by the workers: the claim counts until the log is fetched and read.
+    with FarmClient(broker.endpoints, "kept", tmp_path / "kept", keep_logs=False) as farm:
+        farm.submit(boasted, avoid={"b0": ["h1"]})
+        [claimed] = list(farm.results(60))
+        assert claimed.worker == "boaster" and claimed.log is None
+        wanted = Wanted(claimed.spec, claimed.digest, ("boaster",))
+        fetched = farm.fetch({"b0": wanted})["b0"]
+    assert fetched.digest == claimed.digest and sha256(fetched.log) == claimed.digest
+    truth = score(read_episode(fetched.log))
+    assert fetched.scores == truth and claimed.scores != truth
+    assert claimed.scores.f_acc == pytest.approx(0.9 * truth.f_acc)
+
+
+@pytest.mark.parametrize("workers", [["h1", "h2"]], indirect=True)
+def test_a_log_is_fetched_from_its_worker_or_else_simulated_again(
+    broker: Broker, workers, tmp_path: Path
+) -> None:
+    with FarmClient(broker.endpoints, "s", tmp_path, keep_logs=False) as farm:
+        farm.submit(SPECS)
+        evaluations = {e.job_id: e for e in farm.results(60)}
+        assert all(e.log is None and e.digest for e in evaluations.values())
+        wanted = {
+            job_id: Wanted(e.spec, e.digest, (e.worker,)) for job_id, e in evaluations.items()
+        }
+        wanted["c0"] = dataclasses.replace(wanted["c0"], holders=("nobody",))  # a holder gone
+        fetched = farm.fetch(wanted)
+    for job_id, got in fetched.items():
+        assert got.log == tmp_path / "episodes" / f"{job_id}.mcap"
+        assert got.digest == evaluations[job_id].digest == sha256(got.log)
+        assert got.scores == evaluations[job_id].scores == score(read_episode(got.log))
+    assert not list((tmp_path / "episodes").glob("*-k*"))  # the rerun's log took the job's name

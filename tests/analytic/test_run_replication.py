@@ -6,7 +6,7 @@ from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 from analytic.config import RunConfig
-from analytic.evaluator import Evaluation, EvaluationStatus
+from analytic.evaluator import Evaluation, EvaluationStatus, Fetched, Wanted
 from analytic.evolution import hypervolume
 from analytic.experiments import non_dominated
 from analytic.records import read_evaluated
@@ -21,11 +21,22 @@ CONFIG = RunConfig(pop=8, generations=4, seed=3)
 
 class ToyFarm:
     """Workers take jobs in turn, skipping any a job avoids or the farm distrusts; a liar
-    returns a log a little better than the truth."""
+    returns a log a little better than the truth; a boaster returns the true log and claims
+    better scores than it has. The workers keep the logs: with `log_dir`, `fetch` writes each
+    wanted one there and scores it truly (the toy log is the spec); without, there are none."""
 
-    def __init__(self, workers: Sequence[str], liars: Iterable[str] = ()):
+    def __init__(
+        self,
+        workers: Sequence[str],
+        liars: Iterable[str] = (),
+        boasters: Iterable[str] = (),
+        log_dir: Path | None = None,
+    ):
         self.workers = list(workers)
         self.liars = set(liars)
+        self.boasters = set(boasters)
+        self.log_dir = log_dir
+        self.fetched: list[str] = []
         self.distrusted: set[str] = set()
         self.ran: dict[str, str] = {}  # job id → worker
         self._pending: dict[str, tuple[EpisodeSpec, tuple[str, ...]]] = {}
@@ -56,6 +67,19 @@ class ToyFarm:
             spec, avoid = self._pending.pop(job_id)
             yield self._run(job_id, spec, avoid)
 
+    def fetch(self, wanted: Mapping[str, Wanted]) -> dict[str, Fetched]:
+        fetched = {}
+        for job_id, want in wanted.items():
+            self.fetched.append(job_id)
+            if self.log_dir is None:
+                fetched[job_id] = Fetched(None, None, None, "the toy farm keeps no logs")
+                continue
+            self.log_dir.mkdir(parents=True, exist_ok=True)
+            path = self.log_dir / f"{job_id}.mcap"
+            path.write_bytes(want.spec.model_dump_json().encode())
+            fetched[job_id] = Fetched(path, toy_scores(want.spec), want.digest)
+        return fetched
+
     def _allowed(self, job_id: str) -> list[str]:
         avoid = self._pending[job_id][1] if job_id in self._pending else ()
         return [w for w in self.workers if w not in avoid and w not in self.distrusted]
@@ -70,6 +94,8 @@ class ToyFarm:
         if worker in self.liars:
             scores = scores.model_copy(update={"f_acc": scores.f_acc * 0.5})
             log += b" (altered)"
+        if worker in self.boasters:
+            scores = scores.model_copy(update={"f_acc": scores.f_acc * 0.5})
         return Evaluation(
             job_id=job_id,
             spec=spec,
@@ -160,3 +186,27 @@ def test_replicas_no_worker_takes_are_left_undecided_not_waited_for(tmp_path: Pa
     assert validation.standing == {"j": original}
     assert ledger.undecided == 1 and ledger.disagreements == 0 and not ledger.dissenters
     assert farm._pending == {}  # the replica left no job behind
+
+
+def test_a_worker_claiming_better_scores_than_its_honest_logs_is_caught_where_they_are_read(
+    tmp_path: Path,
+) -> None:
+    # Replication votes on the logs, which are honest: only scoring the fetched logs again
+    # catches the claims. Every front member's logs are fetched, so no false claim stays in it.
+    farm = ToyFarm(
+        ["h1", "boaster", "h2"], boasters=["boaster"], log_dir=tmp_path / "run" / "episodes"
+    )
+    tuning = run(tmp_path, "run", farm)
+    assert farm.distrusted == {"boaster"} and farm.fetched
+    assert front(tuning) and false_members(tuning) == []
+    told = read_evaluated(tuning.directory / "evaluated.csv")
+    assert set(front(tuning)) == set(non_dominated(told))
+    for member in tuning.front():
+        assert member.logs and all((tuning.directory / log).exists() for log in member.logs)
+
+
+def test_without_logs_to_fetch_a_run_keeps_what_it_was_told(tmp_path: Path) -> None:
+    farm = ToyFarm(["h1", "h2"])
+    tuning = run(tmp_path, "run", farm)
+    assert farm.fetched and not farm.distrusted and false_members(tuning) == []
+    assert all(member.logs == () for member in tuning.front())

@@ -104,7 +104,13 @@ def test_a_job_is_leased_to_a_free_worker_and_completed_by_its_result(
         ("w", False, 1)
     ]
     assert confirm(session, "s", ["j1"]) == [
-        Accepted(job_id="j1", lease_id=lease.lease_id, worker="w", digest=result.digest)
+        Accepted(
+            job_id="j1",
+            lease_id=lease.lease_id,
+            worker="w",
+            digest=result.digest,
+            scores=result.scores,
+        )
     ]
     # The same result handed in again is a duplicate: refused, and the job counted once.
     again = hand_in(session, result)

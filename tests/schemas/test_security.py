@@ -125,15 +125,18 @@ def test_the_policy_names_each_participant_and_only_its_own_keys(tmp_path: Path)
     assert ("put", "ingress", keys.ALL_RESULTS) in worker
     assert ("declare_queryable", "ingress", keys.model("alice.$*", "*")) in alice
     assert ("query", "ingress", keys.ALL_MODELS) in worker
+    assert ("declare_queryable", "ingress", keys.worker_logs("w1")) in worker
+    assert ("query", "ingress", keys.log("alice.$*", "*", "*")) in alice
     # Everything a participant may send names itself, but for status, the broker's token, and a
     # worker's results (the broker checks those against its leases) and model fetches (the model
-    # must hash to the digest the job names).
+    # must hash to the digest the job names). A worker serves logs under its own name alone.
     for _, flow, key in alice:
         assert flow == "egress" or "/alice.$*" in key or key in (keys.STATUS, keys.ALIVE_BROKER)
     for _, flow, key in worker:
         assert (
             flow == "egress"
             or key.endswith("/w1")
+            or key == keys.worker_logs("w1")
             or key
             in (
                 keys.STATUS,

@@ -77,6 +77,40 @@ def test_a_submission_with_a_bad_envelope_is_refused_whole() -> None:
         decode_submission(b'{"protocol": %d, "study": "no/slashes", "jobs": []}' % V)
 
 
+SCORES = {
+    "f_acc": 0.01,
+    "f_t": 0.2,
+    "max_error": 0.03,
+    "saturated_fraction": 0.0,
+    "diverged": False,
+    "ticks": 10,
+}
+
+
+def test_a_result_carries_scores_exactly_when_its_episode_ran() -> None:
+    fields = dict(
+        study="s",
+        job_id="j",
+        lease_id="l",
+        worker="w",
+        episode_bytes=0,
+        digest="0" * 64,
+        timings={"simulate_s": 0.1, "encode_s": 0.0},
+    )
+    ran = Result(**fields, status="ok", scores=SCORES)
+    assert decode(Result, ran.to_bytes()) == ran  # exact floats both ways
+    Result(**fields, status="failed")
+    for status, scores in (("ok", None), ("diverged", None), ("failed", SCORES)):
+        with pytest.raises(ValueError, match="scores: required for an episode that ran"):
+            Result(**fields, status=status, scores=scores)
+    for bad in (float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="f_acc"):
+            Result(**fields, status="ok", scores={**SCORES, "f_acc": bad})
+    raw = ran.to_bytes().replace(b'"ticks":10', b'"ticks":10,"extra":1')
+    with pytest.raises(BadMessage, match="extra"):
+        decode(Result, raw)
+
+
 def test_a_result_names_must_be_key_safe() -> None:
     fields = dict(
         study="s",
@@ -87,6 +121,7 @@ def test_a_result_names_must_be_key_safe() -> None:
         episode_bytes=0,
         digest="0" * 64,
         timings={"simulate_s": 0.1, "encode_s": 0.0},
+        scores=SCORES,
     )
     Result(**fields)
     with pytest.raises(ValueError, match="digest"):

@@ -1,6 +1,7 @@
 """The sim-cobot as a farm member: a real `worker start` process, and a worker facing a broker
 that talks nonsense."""
 
+import hashlib
 import logging
 import signal
 import subprocess
@@ -9,15 +10,27 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
 import zenoh
 
 from analytic.local import free_port, spawn_worker
 from broker.service import Broker
-from schemas import keys
+from schemas import EpisodeSpec, keys
 from schemas.mcap_episode import decode_episode
+from schemas.objectives import score
 from schemas.transport import open_session
-from schemas.wire import CompletionReply, Job, JobStatus, Lease, LeaseReply, Result, decode
-from tests.helpers import open_study, short_spec, submit, wait_for
+from schemas.wire import (
+    CompletionReply,
+    Job,
+    JobStatus,
+    Lease,
+    LeaseReply,
+    Result,
+    Submission,
+    SubmitReply,
+    decode,
+)
+from tests.helpers import open_study, query, short_spec, wait_for
 from worker.service import CobotWorker
 
 
@@ -33,27 +46,72 @@ class Inbox:
         self.received.append((result, sample.payload.to_bytes()))
 
 
+def submit(
+    session: zenoh.Session, study: str, specs: dict[str, EpisodeSpec], keep_log: bool = True
+) -> SubmitReply:
+    """Submit jobs as an analytic process does; by default they ask for their logs."""
+    jobs = [Job(job_id=job_id, spec=spec, keep_log=keep_log) for job_id, spec in specs.items()]
+    ok, payload = query(session, keys.submit(study), Submission(study=study, jobs=jobs).to_bytes())
+    assert ok, payload
+    reply = decode(SubmitReply, payload)
+    assert reply.queued == list(specs), reply
+    return reply
+
+
+def get_log(
+    session: zenoh.Session, key: str, payload: bytes | None = None
+) -> list[tuple[bool, bytes]]:
+    """Every answer to a query on a log key, as (ok, payload): the log, or the reason not."""
+    replies = session.get(key, payload=payload, timeout=5.0)
+    return [
+        (True, reply.ok.payload.to_bytes())
+        if reply.ok is not None
+        else (False, reply.err.payload.to_bytes())
+        for reply in replies
+    ]
+
+
+def spawn(endpoint: str, name: str, *options: str) -> subprocess.Popen:
+    """`worker start` as a farm runs it, with `options`."""
+    command = [sys.executable, "-m", "worker", "start", "--connect", endpoint, "--name", name]
+    return subprocess.Popen(
+        [*command, "--log-level", "warning", *options], stdin=subprocess.DEVNULL
+    )
+
+
 def test_a_worker_process_serves_jobs_and_a_failing_job_does_not_stop_it(
     broker: Broker, session: zenoh.Session
 ) -> None:
+    """Jobs that ask for their logs get them with their results; one that does not finds it
+    kept by the worker (in the --log-memory it was given, the least allowed)."""
     inbox = Inbox(session, "s")
     _token = open_study(session, broker, "s")
-    worker = spawn_worker(broker.endpoints[0], "cobot-1")
+    worker = spawn(broker.endpoints[0], "cobot-1", "--log-memory", "16")
     try:
         out_of_reach = short_spec(kind="spiral", duration=3.0, center=(3.0, 0.0, 0.4))
         submit(session, "s", {"far": out_of_reach, "near": short_spec()})
-        wait_for(lambda: len(inbox.received) == 2, timeout=60, what="both results")
+        submit(session, "s", {"kept": short_spec(seed=1)}, keep_log=False)
+        wait_for(lambda: len(inbox.received) == 3, timeout=60, what="the results")
+        kept, empty = next((r, c) for r, c in inbox.received if r.job_id == "kept")
+        fetched = get_log(session, keys.log("s", "cobot-1", kept.digest))
     finally:
         worker.terminate()
         assert worker.wait(15) == 0
     results = {result.job_id: (result, content) for result, content in inbox.received}
     failed, nothing = results["far"]
     assert failed.status == JobStatus.failed and "reach" in failed.reason and nothing == b""
+    assert failed.scores is None
     ran, content = results["near"]
     assert ran.status == JobStatus.ok and ran.worker == "cobot-1"
     assert ran.episode_bytes == len(content)
     assert decode_episode(content).metadata.spec == short_spec()
-    assert broker.queue.jobs_done == 2
+    assert ran.scores is not None
+    assert ran.scores.model_dump() == score(decode_episode(content)).model_dump()
+    assert kept.status == JobStatus.ok and empty == b""
+    ((ok, log),) = fetched
+    assert ok and hashlib.sha256(log).hexdigest() == kept.digest
+    assert decode_episode(log).metadata.spec == short_spec(seed=1)
+    assert broker.queue.jobs_done == 3
 
 
 def _zenoh_shared_memory() -> list[str]:
@@ -135,6 +193,8 @@ def test_bad_names_and_endpoints_are_one_line_errors() -> None:
     for arguments, message in [
         (["--name", "a/b"], "--name: 'a/b' is not 1 to 64 letters, digits"),
         (["--connect", "nonsense"], "bad endpoint"),
+        (["--log-memory", "8"], "--log-memory"),
+        (["--log-memory", "lots"], "--log-memory"),
     ]:
         run = run_worker(*arguments)
         assert run.returncode == 2
@@ -345,3 +405,124 @@ def test_a_worker_ignores_an_impostor_refusing_its_result(caplog) -> None:
     ignored = ignored_answers(caplog)
     assert [message.split()[4] for message in ignored] == [keys.lease("w"), keys.complete("w")]
     assert all("which is not the broker" in message for message in ignored)
+
+
+def test_a_log_not_sent_is_kept_and_served_to_its_study_alone(
+    broker: Broker, session: zenoh.Session
+) -> None:
+    """A job that does not ask for its log: its result comes with the worker's scores and no
+    log; the worker serves the log by its digest to the study, and an error to any other question;
+    then it runs a job that asks for its log, which comes with the result and is not kept."""
+    inbox = Inbox(session, "s")
+    _token = open_study(session, broker, "s")
+    with CobotWorker(broker.endpoints, "w") as worker:
+        serving = threading.Thread(target=worker.serve, args=(threading.Event(), 2))
+        serving.start()
+        submit(session, "s", {"kept": short_spec()}, keep_log=False)
+        wait_for(lambda: inbox.received, timeout=60, what="the result")
+        ((result, payload),) = inbox.received
+        assert result.status == JobStatus.ok and payload == b""
+        ((ok, content),) = get_log(session, keys.log("s", "w", result.digest))
+        assert ok and hashlib.sha256(content).hexdigest() == result.digest
+        assert len(content) == result.episode_bytes
+        assert result.scores is not None
+        assert result.scores.model_dump() == score(decode_episode(content)).model_dump()
+        for wrong in (keys.log("t", "w", result.digest), keys.log("s", "w", "0" * 64)):
+            ((ok, reason),) = get_log(session, wrong)
+            assert not ok
+            assert reason.decode() == f"no such log: {wrong} (never made, or no longer kept)"
+        submit(session, "s", {"sent": short_spec(seed=2)})
+        serving.join(60)
+        assert not serving.is_alive() and worker.jobs_done == 2
+        wait_for(lambda: len(inbox.received) == 2, what="the second result")
+        sent, log = inbox.received[1]
+        assert sent.job_id == "sent" and hashlib.sha256(log).hexdigest() == sent.digest
+        assert decode_episode(log).metadata.spec == short_spec(seed=2)
+        assert sent.scores is not None
+        assert sent.scores.model_dump() == score(decode_episode(log)).model_dump()
+        assert len(worker.logs) == 1 and worker.logs.bytes == len(content)  # only the first
+        ((ok, _),) = get_log(session, keys.log("s", "w", sent.digest))
+        assert not ok
+    assert broker.queue.jobs_done == 2
+
+
+class StubQuery:
+    """A query as the log queryable sees it, for what the wire cannot send it."""
+
+    def __init__(self, key: object, answered: bool = False):
+        self.key_expr = key
+        self.answered = answered  # its replies fail, as a query already answered does
+        self.replies: list[tuple[bool, object]] = []
+
+    def reply(self, key: object, payload: bytes) -> None:
+        self._reply(True, payload)
+
+    def reply_err(self, payload: str) -> None:
+        self._reply(False, payload)
+
+    def _reply(self, ok: bool, payload: object) -> None:
+        if self.answered:
+            raise zenoh.ZError("already answered")
+        self.replies.append((ok, payload))
+
+
+class Unprintable:
+    def __str__(self) -> str:
+        raise RuntimeError("no key")
+
+
+def test_garbage_on_the_log_queryable_never_takes_the_worker_down(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Wildcards, other workers' keys, huge chunks, parameters and payloads, a store that fails:
+    each gets an error reply, never a log, and the worker then runs a job and serves its log."""
+    fake = FakeBroker([lease_of("j").to_bytes()], [])
+    client = open_session("client", connect=[fake.endpoint])
+    probe = keys.log("s", "w", "0" * 64)
+    with (
+        caplog.at_level(logging.WARNING, logger="gainfarm.worker"),
+        CobotWorker([fake.endpoint], "w") as worker,
+    ):
+        missing = f"no such log: {probe} (never made, or no longer kept)".encode()
+        wait_for(lambda: get_log(client, probe) == [(False, missing)], what="the log queryable")
+        garbage: list[tuple[str, bytes | None]] = [
+            (keys.log("s", "w", "not-a-digest"), None),
+            (keys.log("s", "w", "*"), None),
+            (keys.log("*", "w", "*"), None),
+            (keys.log("s", "*", "*"), None),
+            (f"{keys.ROOT}/study/s/log/w/**", None),
+            (f"{keys.ROOT}/**", None),
+            (keys.log("s" * 300, "w", "d" * 5000), b"\xff" * 100_000),
+            (f"{probe}?a=b;;=;c=%00&d", b"garbage"),
+        ]
+        for key, payload in garbage:
+            replies = get_log(client, key, payload)
+            assert replies and not any(ok for ok, _ in replies), (key, replies)
+            assert b"Timeout" not in [reason for _, reason in replies]  # every one answered
+            assert all(len(reason.splitlines()) == 1 for _, reason in replies)
+
+        def broken(study: str, digest: str) -> bytes | None:
+            raise RuntimeError("the store broke")
+
+        worker.logs.get = broken  # type: ignore[method-assign]
+        ((ok, reason),) = get_log(client, probe)
+        assert not ok and reason == b"this worker could not answer the query"
+        del worker.logs.get
+        # What the wire does not carry: another worker's key, a key that cannot be read, a
+        # query whose replies fail. The callback answers what it can and returns.
+        other = StubQuery(keys.log("s", "other", "0" * 64))
+        worker._on_log_query(other)
+        assert other.replies == [(False, f"not a log key of worker w: {other.key_expr}")]
+        unreadable, answered = StubQuery(Unprintable()), StubQuery(probe, answered=True)
+        worker._on_log_query(unreadable)
+        assert unreadable.replies == [(False, "this worker could not answer the query")]
+        worker._on_log_query(answered)
+        assert answered.replies == []
+        assert worker.serve(threading.Event(), max_jobs=1) == 1
+        wait_for(lambda: fake.results, what="the result")
+        (result,) = fake.results
+        ((ok, content),) = get_log(client, keys.log("s", "w", result.digest))
+        assert ok and hashlib.sha256(content).hexdigest() == result.digest
+    client.close()
+    fake.close()
+    assert "the store broke" in caplog.text and "no key" in caplog.text

@@ -1,0 +1,80 @@
+"""One job as a worker runs it: the scores it reports are the analytic side's scores of the very
+log it made, bit for bit."""
+
+import hashlib
+
+import pytest
+
+from models.dynamics import digest, rigid_prior, to_bytes
+from schemas import EpisodeSpec, TrajectorySpec
+from schemas.episode import Scores
+from schemas.mcap_episode import decode_episode
+from schemas.objectives import score
+from schemas.robot import IDEAL_PLANT
+from schemas.wire import Job, JobStatus, Lease, Result, WireScores
+from tests.helpers import SOFT_GAINS, WEAK_GAINS, short_spec
+from worker.job import execute, simulate
+
+RIGID_IDEAL = IDEAL_PLANT.model_copy(update={"joints": "rigid"})
+FEEDFORWARD = to_bytes(rigid_prior(RIGID_IDEAL))
+
+EPISODES = {
+    "tracked": (short_spec(), None),
+    "diverged": (EpisodeSpec(gains=WEAK_GAINS, trajectory=TrajectorySpec(duration=3.0)), None),
+    "feed-forward": (
+        EpisodeSpec(
+            gains=SOFT_GAINS,
+            trajectory=TrajectorySpec(kind="fourier", duration=0.5, seed=4),
+            model=RIGID_IDEAL,
+            feedforward=digest(FEEDFORWARD),
+        ),
+        lambda _: rigid_prior(RIGID_IDEAL),
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(EPISODES))
+def test_the_scores_of_the_episode_are_those_of_its_encoded_log_exactly(name: str) -> None:
+    spec, model = EPISODES[name]
+    outcome = simulate(spec, model)
+    assert outcome.status == (JobStatus.diverged if name == "diverged" else JobStatus.ok)
+    decoded = decode_episode(outcome.content)
+    assert type(outcome.scores) is Scores
+    assert outcome.scores == score(decoded)  # every float equal, not merely close
+    assert outcome.scores.diverged == (name == "diverged")
+    assert outcome.scores.ticks == decoded.ticks == decoded.metadata.ticks_run
+
+
+def lease(spec: EpisodeSpec, keep_log: bool = False) -> Lease:
+    job = Job(job_id="j", spec=spec, keep_log=keep_log)
+    return Lease(lease_id="l", study="s", job=job, expires_in=60)
+
+
+def test_the_result_carries_the_scores_and_describes_the_log() -> None:
+    result, content = execute(lease(short_spec()), "w")
+    assert result.status == JobStatus.ok and result.worker == "w"
+    assert isinstance(result.scores, WireScores)
+    assert result.scores.model_dump() == score(decode_episode(content)).model_dump()
+    assert result.digest == hashlib.sha256(content).hexdigest()
+    assert result.episode_bytes == len(content) > 0
+    assert Result.model_validate_json(result.to_bytes()) == result  # it travels as it is
+
+
+def test_a_job_that_cannot_run_has_no_scores_and_no_log() -> None:
+    out_of_reach = short_spec(kind="spiral", duration=3.0, center=(3.0, 0.0, 0.4))
+    result, content = execute(lease(out_of_reach), "w")
+    assert result.status == JobStatus.failed and "reach" in result.reason
+    assert result.scores is None and content == b""
+    assert result.digest == hashlib.sha256(b"").hexdigest() and result.episode_bytes == 0
+
+
+def test_scores_the_wire_cannot_carry_fail_the_job_instead_of_the_worker(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    def not_finite(log: object) -> Scores:
+        return score(log).model_copy(update={"f_t": float("nan")})
+
+    monkeypatch.setattr("worker.job.score", not_finite)
+    result, content = execute(lease(short_spec()), "w")
+    assert result.status == JobStatus.failed and result.scores is None and content == b""
+    assert "f_t" in result.reason and "\n" not in result.reason
