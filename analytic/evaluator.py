@@ -76,6 +76,7 @@ class Fetched:
     scores: Scores | None
     digest: str | None
     reason: str = ""
+    source: str = ""  # the worker the log came from (the one that ran it again, if it had to)
 
 
 class Evaluator(Protocol):

@@ -240,7 +240,7 @@ class FarmClient:
         fetched: dict[str, Fetched] = {}
         again: dict[str, Wanted] = {}
         for job_id, want in wanted.items():
-            content = self._fetch_log(want)
+            content, holder = self._fetch_log(want)
             if content is not None:
                 path = self.log_dir / f"{job_id}.mcap"
                 try:
@@ -248,14 +248,15 @@ class FarmClient:
                 except NotAnEpisodeLog as error:  # the right bytes of the wrong episode
                     log.warning("fetched log of %s: %s", job_id, error)
                 else:
-                    fetched[job_id] = Fetched(path, scores, want.digest)
+                    fetched[job_id] = Fetched(path, scores, want.digest, source=holder)
                     continue
             again[job_id] = want
         if again:
             fetched.update(self._simulate_again(again))
         return fetched
 
-    def _fetch_log(self, want: Wanted) -> bytes | None:
+    def _fetch_log(self, want: Wanted) -> tuple[bytes | None, str]:
+        """The log's bytes and the holder that had them, or None."""
         for holder in want.holders:
             try:
                 key = keys.log(self.study, holder, want.digest)
@@ -270,9 +271,9 @@ class FarmClient:
                     continue
                 content = reply.ok.payload.to_bytes()
                 if hashlib.sha256(content).hexdigest() == want.digest:
-                    return content
+                    return content, holder
                 log.warning("ignored a log on %s: its bytes are not the ones the broker took", key)
-        return None
+        return None, ""
 
     def _simulate_again(self, again: Mapping[str, Wanted]) -> dict[str, Fetched]:
         reruns = {}
@@ -303,7 +304,9 @@ class FarmClient:
             path = evaluation.log.replace(self.log_dir / f"{job_id}.mcap")
             if evaluation.digest != again[job_id].digest:
                 log.warning("%s simulated again is not the log its worker had made", job_id)
-            fetched[job_id] = Fetched(path, evaluation.scores, evaluation.digest)
+            fetched[job_id] = Fetched(
+                path, evaluation.scores, evaluation.digest, source=evaluation.worker
+            )
         return fetched
 
     # --- inside ----------------------------------------------------------------------------

@@ -98,7 +98,8 @@ class InProcessEvaluator:
             except NotAnEpisodeLog as error:
                 fetched[job_id] = Fetched(None, None, None, str(error))
                 continue
-            fetched[job_id] = Fetched(path, scores, hashlib.sha256(content).hexdigest())
+            digest = hashlib.sha256(content).hexdigest()
+            fetched[job_id] = Fetched(path, scores, digest, source=WORKER)
         return fetched
 
     def _model(self, wanted: str) -> "DynamicsModel":

@@ -129,4 +129,6 @@ def test_a_log_is_fetched_from_its_worker_or_else_simulated_again(
         assert got.log == tmp_path / "episodes" / f"{job_id}.mcap"
         assert got.digest == evaluations[job_id].digest == sha256(got.log)
         assert got.scores == evaluations[job_id].scores == score(read_episode(got.log))
+        assert got.source == evaluations[job_id].worker or job_id == "c0"
+    assert fetched["c0"].source in {"h1", "h2"}  # whichever ran it again
     assert not list((tmp_path / "episodes").glob("*-k*"))  # the rerun's log took the job's name

@@ -1,6 +1,6 @@
 """The farm across hosts, for real: every role in its own Linux network namespace, on a LAN.
 
-Each host (the broker, the analytic process, two workers and an operator's console) is a network
+Each host (the broker, the analytic process, four workers and an operator's console) is a network
 namespace with one address on a private /24 and nothing else but `lo`. The LAN is a Linux bridge
 in a namespace of its own, the switch, with one veth pair per host: the machine's own network,
 routes and firewall (which may well drop bridged traffic) are never touched, and the subnet exists
@@ -8,6 +8,7 @@ only inside the namespaces, so it cannot collide with anything. Every process re
 over real TCP through the bridge, on the explicit endpoint it is given. Needs root and iproute2.
 """
 
+import hashlib
 import json
 import os
 import subprocess
@@ -20,11 +21,22 @@ from pathlib import Path
 import pytest
 
 from analytic.records import read_history
+from schemas.mcap_episode import read_episode
+from schemas.objectives import score
 from schemas.wire import BrokerStatus, WorkerState
 from tests.helpers import wait_for
 
 SUBNET = "10.213.47"
-HOSTS = {"broker": 2, "analytic": 3, "worker-1": 4, "worker-2": 5, "console": 6}
+HOSTS = {
+    "broker": 2,
+    "analytic": 3,
+    "worker-1": 4,
+    "worker-2": 5,
+    "console": 6,
+    "worker-3": 7,
+    "worker-4": 8,
+}
+WORKERS = ("worker-1", "worker-2", "worker-3", "worker-4")
 BROKER_PORT = 7447
 # 10 s spirals: a worker's first one (it computes the trajectory's reference too) takes a few
 # hundred ms of wall time, long enough to pull a cable while it runs.
@@ -253,10 +265,10 @@ def test_a_study_across_hosts_finds_the_front_a_local_farm_finds(
 ) -> None:
     lan.start_broker(lease_seconds=60.0)
     watch = lan.watch()
-    for host in ("worker-1", "worker-2"):
+    for host in WORKERS:
         lan.start_worker(host)
-    # Both connected and asking for work before the study starts, so that both get some.
-    wait_for(lambda: {"worker-1", "worker-2"} <= set(watch.workers()), 60, "both workers")
+    # All connected and asking for work before the study starts, so that each gets some.
+    wait_for(lambda: set(WORKERS) <= set(watch.workers()), 60, "the four workers")
     out = tmp_path / "run"
     study = lan.start_study(out)
     assert study.wait(120) == 0, lan.tail("analytic")
@@ -268,7 +280,7 @@ def test_a_study_across_hosts_finds_the_front_a_local_farm_finds(
     farm = BrokerStatus.model_validate_json(asked.stdout)
     assert farm.jobs_done == EVALUATIONS and farm.requeued == 0
     done = {worker.name: worker.jobs_done for worker in farm.workers}
-    assert set(done) == {"worker-1", "worker-2"}
+    assert set(done) == set(WORKERS)
     assert all(count >= 1 for count in done.values()), done
     assert sum(done.values()) == EVALUATIONS
 
@@ -341,3 +353,84 @@ def test_a_worker_cut_off_for_longer_than_its_lease_loses_nothing_and_serves_aga
     [record] = json.loads((batch / "evaluations.json").read_text())
     assert (record["status"], record["worker"], record["attempts"]) == ("ok", "worker-1", 1)
     wait_for(lambda: watch.workers()["worker-1"].jobs_done == 1, 5, "the broker to count it")
+
+
+# On the analytic host: four jobs whose logs stay with the workers; prints who ran each, waits for
+# a line on stdin, then fetches the four logs from the workers that ran them and prints where
+# each came from.
+FETCH = """
+import json, sys
+from pathlib import Path
+from analytic.evaluator import Wanted
+from analytic.farm import FarmClient
+from schemas import EpisodeSpec, TrajectorySpec
+from schemas.gains import DEFAULT_GAINS
+endpoint, out = sys.argv[1:3]
+specs = {
+    f"j{i}": EpisodeSpec(
+        gains=DEFAULT_GAINS, trajectory=TrajectorySpec(kind="fourier", duration=1.0 + 0.1 * i)
+    )
+    for i in range(4)
+}
+with FarmClient([endpoint], "fetch", Path(out), keep_logs=False) as farm:
+    farm.submit(specs)
+    done = {e.job_id: e for e in farm.results(120)}
+    print(json.dumps({j: [e.worker, e.digest] for j, e in sorted(done.items())}), flush=True)
+    sys.stdin.readline()
+    wanted = {j: Wanted(e.spec, e.digest, (e.worker,)) for j, e in done.items()}
+    got = farm.fetch(wanted)
+    print(json.dumps({j: [f.source, f.digest, str(f.log)] for j, f in got.items()}), flush=True)
+"""
+
+
+def test_the_fronts_logs_are_fetched_from_the_workers_even_after_the_host_that_made_one_is_gone(
+    lan: Lan, local_front: bytes, tmp_path: Path
+) -> None:
+    lan.start_broker(lease_seconds=60.0)
+    watch = lan.watch()
+    workers = {host: lan.start_worker(host) for host in WORKERS}
+    wait_for(lambda: set(WORKERS) <= set(watch.workers()), 60, "the four workers")
+
+    # A run that keeps its front's logs alone, validated by replication: the workers keep every
+    # log, and the front's are fetched from them and scored again here.
+    out = tmp_path / "run"
+    keep_front = [part for part in RUN if part != "--no-replicate"]
+    study = lan.spawn(
+        "analytic",
+        "analytic",
+        *("-m", "analytic", "start", "--connect", lan.endpoint, *keep_front),
+        *("--keep", "front", "--out", str(out)),
+    )
+    assert study.wait(180) == 0, lan.tail("analytic")
+    assert (out / "front.csv").read_bytes() == local_front
+    for member in json.loads((out / "front.json").read_text())["members"]:
+        [log] = member["logs"]
+        scores = score(read_episode(out / log))
+        assert (scores.f_acc, scores.f_t) == (member["f_acc"], member["f_t"])
+
+    # A log whose worker's host is gone is simulated again elsewhere, to the same bytes.
+    fetcher = subprocess.Popen(
+        lan.command("analytic", "-c", FETCH, lan.endpoint, str(tmp_path / "fetch")),
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        cwd=tmp_path,
+    )
+    lan.processes.append(fetcher)
+    ran = json.loads(fetcher.stdout.readline())
+    makers = {job: worker for job, (worker, _) in ran.items()}
+    gone = makers["j0"]
+    lan.unplug(gone)
+    workers[gone].kill()
+    workers[gone].wait()
+    fetcher.stdin.write("go\n")
+    fetcher.stdin.flush()
+    fetched = json.loads(fetcher.stdout.readline())
+    assert fetcher.wait(60) == 0
+    for job, (_, digest, path) in fetched.items():
+        assert digest == ran[job][1] == hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    assert fetched["j0"][0] in set(WORKERS) - {gone}  # run again elsewhere, to the same bytes
+    assert {job: fetched[job][0] for job in makers if job != "j0"} == {
+        job: worker for job, worker in makers.items() if job != "j0"
+    }
