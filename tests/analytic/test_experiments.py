@@ -115,7 +115,12 @@ def test_generic_vs_specific(tmp_path: Path, endpoints: list[str]) -> None:
     report = (tmp_path / "report.md").read_text()
     assert "on the pyramid (held out of the generic set): cannot decide" in report
     assert "generic points" in report
-    assert {r["metric"] for r in stats_rows(tmp_path)} == {"hypervolume", "best_f_acc"}
+    assert {r["metric"] for r in stats_rows(tmp_path)} == {
+        "hypervolume",
+        "best_f_acc",
+        "dominated_share",
+    }
+    assert "By dominance, paired by repetition: cannot decide" in report  # 1 pair
 
 
 def test_generic_vs_specific_holds_each_trajectory_out_in_turn(tmp_path: Path) -> None:
@@ -133,7 +138,12 @@ def test_generic_vs_specific_holds_each_trajectory_out_in_turn(tmp_path: Path) -
     results = rows(tmp_path / "results.csv")
     assert {r["test_trajectory"] for r in results} == {kind.value for kind in ALL_KINDS}
     assert all(0 <= int(r["dominated_by_other"]) <= int(r["points"]) for r in results)
-    assert len(stats_rows(tmp_path)) == 6
+    assert len(stats_rows(tmp_path)) == 9
+    assert {r["metric"] for r in stats_rows(tmp_path)} == {
+        "hypervolume",
+        "best_f_acc",
+        "dominated_share",
+    }
     assert set(json.loads((tmp_path / "normalisation.json").read_text())) == {
         "on spiral",
         "on random",
