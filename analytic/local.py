@@ -21,7 +21,10 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
-def spawn_worker(endpoint: str, name: str, log_level: str = "warning") -> subprocess.Popen:
+def spawn_worker(
+    endpoint: str, name: str, log_level: str = "warning", *options: str
+) -> subprocess.Popen:
+    """`worker start` in a process of its own; `options`: more of its command-line options."""
     return subprocess.Popen(
         [
             sys.executable,
@@ -34,6 +37,7 @@ def spawn_worker(endpoint: str, name: str, log_level: str = "warning") -> subpro
             name,
             "--log-level",
             log_level,
+            *options,
         ],
         stdin=subprocess.DEVNULL,
     )

@@ -10,8 +10,11 @@ worker-side leak shows as a slope; the others churn: every `--churn-seconds` a s
 one, stops one with SIGTERM (it finishes its job first) or SIGKILLs one the broker sees busy,
 keeping between `--workers-min` and `--workers-max` (`--no-churn`: a fixed pool, to tell leaks
 from churn). A FarmClient in this process keeps `--pending` short jobs in flight (0.2-0.5 s
-episodes, a few ms of simulation each) and submits more as results come in. At the end it drains
-(no more submissions, every pending job waited for), then stops the workers and the broker.
+episodes, a few ms of simulation each) and submits more as results come in. The workers keep the
+logs, and every `--fetch-every`th episode's log is fetched a churn period after its result, when
+its worker may be gone (then it is simulated again elsewhere, to the same bytes); a log that
+cannot be had counts as a job lost. At the end it drains (no more submissions, every pending job
+waited for, every fetch done), then stops the workers and the broker.
 
 Every `--sample-seconds` it reads VmRSS, RssAnon and RssShmem from /proc/PID/status of the broker,
 this process and each worker; `--out` gets them as CSV (seconds, role, name, pid, rss_mib,
@@ -38,7 +41,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -55,7 +58,7 @@ from soak_summary import (
 )
 
 from analytic import replication
-from analytic.evaluator import Evaluation
+from analytic.evaluator import Evaluation, Wanted
 from analytic.farm import FarmClient
 from analytic.local import STOP_SECONDS, spawn_worker
 from broker.status import BrokerUnavailable
@@ -72,6 +75,7 @@ RANDOM_SEEDS = (0, 1)
 CHURN_WEIGHTS = {"start": 0.4, "stop": 0.4, "kill": 0.2}
 BROKER_START_SECONDS = 30.0
 PROGRESS_SECONDS = 60.0
+LOG_MEMORY_MIB = 16  # each worker's kept logs: full within a minute of short jobs
 CSV_EVERY_SAMPLES = 12  # rewrite --out this often, so a crashed soak still leaves its samples
 
 
@@ -226,7 +230,8 @@ class WorkerPool:
     def start(self) -> None:
         name = f"soak-{self.serial}"
         self.serial += 1
-        process = spawn_worker(self.endpoint, name)
+        # A small log store fills within the warm-up: past it, a growing worker is a leak.
+        process = spawn_worker(self.endpoint, name, "warning", "--log-memory", str(LOG_MEMORY_MIB))
         self.live[name] = process
         self.sampler.watch(process.pid, "worker", name)
         self.tally.starts += 1
@@ -410,6 +415,15 @@ def echo(started: float, text: str) -> None:
     show_default=True,
     help="validate every Nth episode by replication on another worker (0: none)",
 )
+@click.option(
+    "--fetch-every",
+    type=click.IntRange(min=0),
+    default=10,
+    show_default=True,
+    help="the workers keep the logs, and every Nth episode's is fetched a churn period later, "
+    "when its worker may be gone (simulated again elsewhere then); 0: every log comes with its "
+    "result",
+)
 @click.option("--lease-seconds", type=click.FloatRange(min=0.1), default=60.0, show_default=True)
 @click.option(
     "--out",
@@ -441,6 +455,7 @@ def main(
     deadline: float,
     attempts: int,
     replicate_every: int,
+    fetch_every: int,
     lease_seconds: float,
     out: Path | None,
     events: Path | None,
@@ -477,9 +492,33 @@ def main(
         with (
             tempfile.TemporaryDirectory(prefix="soak-") as scratch,
             FarmClient(
-                [endpoint], STUDY, Path(scratch), deadline=deadline, attempts=attempts
+                [endpoint],
+                STUDY,
+                Path(scratch),
+                deadline=deadline,
+                attempts=attempts,
+                keep_logs=fetch_every == 0,
             ) as farm,
         ):
+            to_fetch: deque[tuple[float, Evaluation]] = deque()  # (when, evaluation)
+
+            def fetch_due(everything: bool = False) -> None:
+                while to_fetch and (everything or to_fetch[0][0] <= time.monotonic()):
+                    _, evaluation = to_fetch.popleft()
+                    assert evaluation.digest is not None
+                    wanted = Wanted(evaluation.spec, evaluation.digest, (evaluation.worker,))
+                    got = farm.fetch({evaluation.job_id: wanted})[evaluation.job_id]
+                    if got.log is None or got.digest != evaluation.digest:
+                        ledger.fetches["failed"] += 1
+                        ledger.lost_reasons.append(
+                            f"{evaluation.job_id}: log not fetched ({got.reason or got.digest})"
+                        )
+                    elif got.source == evaluation.worker:
+                        ledger.fetches["from its worker"] += 1
+                    else:
+                        ledger.fetches["simulated again"] += 1
+                    if got.log is not None:
+                        got.log.unlink(missing_ok=True)
 
             def take(evaluation: Evaluation) -> None:
                 ledger.record(evaluation)
@@ -494,6 +533,13 @@ def main(
                         take(other)
                 if evaluation.log is not None:
                     evaluation.log.unlink(missing_ok=True)  # hours of logs would fill the disk
+                if (
+                    fetch_every
+                    and evaluation.digest is not None
+                    and evaluation.scores is not None
+                    and ledger.completed % fetch_every == 0
+                ):
+                    to_fetch.append((time.monotonic() + churn_seconds, evaluation))
 
             def top_up() -> None:
                 want = pending - farm.pending
@@ -512,6 +558,7 @@ def main(
                     if farm.pending <= pending // 2:
                         top_up()
                 top_up()
+                fetch_due()
                 now = time.monotonic()
                 if now >= next_churn:
                     next_churn = now + churn_seconds
@@ -536,6 +583,7 @@ def main(
             drained = time.monotonic()
             for evaluation in farm.results(timeout=deadline * attempts + 30):
                 take(evaluation)
+            fetch_due(everything=True)
             echo(started, f"drained in {time.monotonic() - drained:.1f} s")
             finished = time.monotonic()
             final_status = broker_status(farm)

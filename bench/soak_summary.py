@@ -151,6 +151,9 @@ class Ledger:
     lost_reasons: list[str] = field(default_factory=list)
     duplicate_results: int = 0  # FarmClient's: results received for a job evaluated already
     ignored: int = 0  # FarmClient's: results it could not read
+    # Logs fetched from the workers that keep them: from the worker that ran the job, simulated
+    # again elsewhere (that worker was gone), or failed (which counts as a job lost).
+    fetches: Counter[str] = field(default_factory=Counter)
 
     def next_ids(self, count: int) -> list[str]:
         ids = [f"j{self.submitted + index}" for index in range(count)]
@@ -178,7 +181,7 @@ class Ledger:
 
     @property
     def lost(self) -> int:
-        return self.statuses[EvaluationStatus.lost] + self.unanswered()
+        return self.statuses[EvaluationStatus.lost] + self.unanswered() + self.fetches["failed"]
 
     @property
     def duplicated(self) -> int:
@@ -198,7 +201,10 @@ def job_lines(ledger: Ledger, warnings: Counter[str], seconds: float) -> list[st
         f"jobs submitted: {ledger.submitted:,}",
         f"jobs completed: {ledger.completed:,} ({completed})",
         f"jobs lost: {ledger.lost} ({ledger.statuses[EvaluationStatus.lost]} reported lost, "
-        f"{ledger.unanswered()} never answered)",
+        f"{ledger.unanswered()} never answered, {ledger.fetches['failed']} logs not fetched)",
+        f"logs fetched: {ledger.fetches['from its worker']:,} from the worker that ran the job, "
+        f"{ledger.fetches['simulated again']:,} simulated again (that worker was gone), "
+        f"{ledger.fetches['failed']} failed",
         f"jobs duplicated: {ledger.duplicated} ({ledger.duplicate_results} duplicate results "
         f"received, {ledger.evaluated_twice} evaluations of a job already evaluated)",
         f"jobs retried after the deadline: {len(ledger.retried)}{retried}; "
