@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from analytic.batch import run_batch
 from analytic.farm import FarmClient, FarmUnavailable
 from analytic.local import local_farm, spawn_worker, stop_workers
 from broker.service import Broker
@@ -46,6 +47,24 @@ def test_several_workers_share_a_batch_and_every_episode_is_kept_and_scored(
         assert log.metadata.spec == specs[evaluation.job_id]
         assert score(log) == evaluation.scores
     assert not list((tmp_path / "episodes").glob(".*"))  # no temporary files left behind
+
+
+def test_a_batch_keeps_every_log_even_when_the_workers_keep_them(tmp_path: Path) -> None:
+    # The results bring their workers' scores alone; run_batch fetches every log, checks it by
+    # its digest and scores it again here, as a batch promises.
+    specs = {f"j{n}": short_spec(duration=0.5 + 0.1 * n) for n in range(4)}
+    with (
+        local_farm(workers=2) as endpoint,
+        FarmClient([endpoint], "s", tmp_path, keep_logs=False) as farm,
+    ):
+        evaluations = run_batch(farm, specs, tmp_path)
+    assert [e.job_id for e in evaluations] == list(specs)
+    records = json.loads((tmp_path / "evaluations.json").read_text())
+    for evaluation, record in zip(evaluations, records, strict=True):
+        assert evaluation.log == tmp_path / "episodes" / f"{evaluation.job_id}.mcap"
+        assert record["episode"] == f"episodes/{evaluation.job_id}.mcap"
+        assert hashlib.sha256(evaluation.log.read_bytes()).hexdigest() == evaluation.digest
+        assert score(read_episode(evaluation.log)) == evaluation.scores
 
 
 def test_a_worker_killed_mid_job_loses_no_evaluation_and_none_is_counted_twice(
