@@ -317,6 +317,14 @@ def default_points(
     return points
 
 
+def level_from(gains: Sequence[float], ordered: Sequence[float]) -> float | None:
+    """Where a measure levels off over the settings `ordered` (ascending), given the settings
+    with a significant gain over the next smaller one: the largest of those (the first setting
+    if there is none); None if that is the largest setting tried, where it still rises."""
+    top = max(gains, default=ordered[0])
+    return None if gains and top == ordered[-1] else top
+
+
 def generic_set(test: TrajectoryKind, duration: float) -> tuple[TrajectorySpec, ...]:
     """What the generic controller judged on `test` is tuned on: every other kind, never
     `test` itself."""
@@ -397,13 +405,21 @@ def popsize(experiment: Experiment, base: RunConfig, sizes: Sequence[int], reps:
         )
     else:
         gains = [large for (small, large), r in compared.items() if stats.better(r) == "a"]
-        levels_off = max(gains, default=ordered[0])
-        finding = (
-            f"The hypervolume levels off from population {levels_off} (no significant gain "
-            f"between consecutive sizes from there on). The paper found a population near 30 "
-            "the best trade-off: "
-            + ("this holds here." if 20 <= levels_off <= 50 else "here it lies elsewhere.")
-        )
+        levels_off = level_from(gains, ordered)
+        if levels_off is None:
+            finding = (
+                f"The hypervolume still rises significantly at the largest population tried "
+                f"({ordered[-1]}): it does not level off within these sizes. The paper found a "
+                "population near 30 the best trade-off: weigh the gains above against the "
+                "evaluations each size costs."
+            )
+        else:
+            finding = (
+                f"The hypervolume levels off from population {levels_off} (no significant gain "
+                f"between consecutive sizes from there on). The paper found a population near "
+                "30 the best trade-off: "
+                + ("this holds here." if 20 <= levels_off <= 50 else "here it lies elsewhere.")
+            )
     verdict = "\n".join(
         [finding, "", "Each size against the next smaller (two-sided, alpha 0.05):", *lines]
     )
@@ -692,7 +708,12 @@ def speed(experiment: Experiment, base: RunConfig, durations: Sequence[float], r
         )
     else:
         gains = [slow for (fast, slow), r in falls.items() if stats.better(r, False) == "a"]
-        if gains:
+        if gains and level_from(gains, ordered) is None:
+            finding = (
+                f"Accuracy still improves significantly at the slowest spiral tried "
+                f"({max(gains):g} s): it does not level off within these durations."
+            )
+        elif gains:
             finding = (
                 f"Accuracy improves significantly on slower spirals and levels off from "
                 f"{max(gains):g} s (no significant gain between consecutive durations from there "

@@ -213,6 +213,14 @@ def test_diverged_front_members_are_flagged_and_never_bound_the_normalisation(
     assert normalisation == Normalisation.of([measured])
 
 
+def test_a_measure_levels_off_after_its_last_significant_gain_unless_that_is_the_last_step() -> (
+    None
+):
+    assert experiments.level_from([20, 30], [10, 20, 30, 50, 80]) == 30
+    assert experiments.level_from([], [10, 20, 30]) == 10
+    assert experiments.level_from([20, 80], [10, 20, 30, 50, 80]) is None  # still rising
+
+
 def test_non_dominated() -> None:
     assert non_dominated([(1, 5), (2, 2), (3, 3), (1, 5)]) == [(1, 5), (2, 2), (1, 5)]
 
