@@ -379,8 +379,7 @@ class TuningRun:
                 if now != episodes:
                     corrected = True
                     state.provenance[gains] = now
-                    if self.config.keep != "all":  # the outvoted log: the standing one is fetched
-                        self._drop_logs(gains)
+                    self._drop_stale_logs(gains, now)
                     true = objectives([ran.scores for ran in now], self.config.objective_weights)
                     # evaluated.csv holds the points in the order told: the true one replaces
                     # the false one there too, so the cloud and the front agree.
@@ -428,9 +427,11 @@ class TuningRun:
             wanted = {
                 ran.job_id: (member.gains, ran)
                 for member in state.evolution.front()
-                if not state.episodes.get(member.gains)
                 for ran in state.provenance.get(member.gains, ())
-                if ran.digest is not None and ran.scores is not None and ran.job_id not in tried
+                if ran.job_id not in state.episodes.get(member.gains, ())
+                and ran.digest is not None
+                and ran.scores is not None
+                and ran.job_id not in tried
             }
             if not wanted:
                 return corrected
@@ -467,9 +468,17 @@ class TuningRun:
                 for row in state.evolution.correct(gains, true_point):
                     state.evaluated[row] = true_point
 
-    def _drop_logs(self, gains: PDGains) -> None:
-        for job_id in self.state.episodes.pop(gains, []):
-            (self.directory / EPISODES / f"{job_id}.mcap").unlink(missing_ok=True)
+    def _drop_stale_logs(self, gains: PDGains, standing: tuple[Ran, ...]) -> None:
+        """Validation outvoted some of a member's episodes: a log kept here that is not the
+        standing one's (a log fetched from the outvoted worker) goes, to be fetched anew."""
+        kept = self.state.episodes.get(gains, [])
+        for ran in standing:
+            path = self.directory / EPISODES / f"{ran.job_id}.mcap"
+            if ran.job_id in kept and (
+                not path.exists() or hashlib.sha256(path.read_bytes()).hexdigest() != ran.digest
+            ):
+                path.unlink(missing_ok=True)
+                kept.remove(ran.job_id)
 
     def _episode_spec(self, gains: PDGains, job_id: str) -> EpisodeSpec:
         return self._spec(gains, self.config.trajectories[int(job_id.rsplit("-t", 1)[1])])

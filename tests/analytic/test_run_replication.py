@@ -76,8 +76,12 @@ class ToyFarm:
                 continue
             self.log_dir.mkdir(parents=True, exist_ok=True)
             path = self.log_dir / f"{job_id}.mcap"
-            path.write_bytes(want.spec.model_dump_json().encode())
-            fetched[job_id] = Fetched(path, toy_scores(want.spec), want.digest)
+            log = want.spec.model_dump_json().encode()
+            if want.holders[0] in self.liars:  # it serves the log it made
+                log += b" (altered)"
+            path.write_bytes(log)
+            digest = hashlib.sha256(log).hexdigest()
+            fetched[job_id] = Fetched(path, toy_scores(want.spec), digest, source=want.holders[0])
         return fetched
 
     def _allowed(self, job_id: str) -> list[str]:
@@ -210,3 +214,19 @@ def test_without_logs_to_fetch_a_run_keeps_what_it_was_told(tmp_path: Path) -> N
     tuning = run(tmp_path, "run", farm)
     assert farm.fetched and not farm.distrusted and false_members(tuning) == []
     assert all(member.logs == () for member in tuning.front())
+
+
+def test_a_front_member_keeps_the_standing_log_when_its_first_was_a_liars(tmp_path: Path) -> None:
+    # The liar's log, fetched when its candidate entered the front, is outvoted by validation:
+    # it goes, and the majority's is fetched from a worker that made it.
+    farm = ToyFarm(["h1", "liar", "h2"], liars=["liar"], log_dir=tmp_path / "run" / "episodes")
+    tuning = run(tmp_path, "run", farm)
+    assert "liar" in farm.distrusted and false_members(tuning) == []
+    for member in tuning.front():
+        ran = {r.job_id: r for r in tuning.state.provenance[member.gains]}
+        assert member.logs
+        for log in member.logs:
+            job_id = Path(log).stem
+            content = (tuning.directory / log).read_bytes()
+            assert hashlib.sha256(content).hexdigest() == ran[job_id].digest
+            assert not content.endswith(b"(altered)")
