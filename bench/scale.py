@@ -273,8 +273,10 @@ def scale(
             yielded: list[float] = []
             bytes_at: dict[str, int] = {}
             while time.monotonic() < end:
-                for _ in client.results(timeout=0.2):
+                for evaluation in client.results(timeout=0.2):
                     yielded.append(time.monotonic())
+                    if evaluation.log is not None:  # --send-logs: minutes of logs fill a disk
+                        evaluation.log.unlink()
                     if len(yielded) % 16 == 0:
                         top_up()
                     if "start" not in bytes_at and time.monotonic() >= start:
@@ -336,7 +338,11 @@ def ingest(
             load.finish()
         cpu = resource.getrusage(resource.RUSAGE_SELF)
         started = time.perf_counter()
-        taken = sum(1 for _ in client.results())
+        taken = 0
+        for evaluation in client.results():
+            taken += 1
+            if evaluation.log is not None:
+                evaluation.log.unlink()
         elapsed = time.perf_counter() - started
         after = resource.getrusage(resource.RUSAGE_SELF)
     if taken != results:
