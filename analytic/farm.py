@@ -7,14 +7,19 @@
             ...  # in completion order, each scored from its MCAP log, kept in run_dir/episodes/
 
 The client holds the study's liveliness token (the broker drops the study's queued jobs when it
-goes), keeps a deadline per job and resubmits a job whose result has not come by then, counts each
-job once however many results arrive for it, and scores every episode from its log.
+goes), keeps a deadline per job and resubmits a job whose result has not come by then, and counts
+each job once however many results arrive for it.
+
+Every result brings the scores its worker computed from its log. With `keep_logs` (the default)
+the log comes along too: it must be the digest's bytes and score as claimed, and is kept. Without
+it the worker keeps the log, the evaluation is the worker's scores, and `fetch` brings the logs
+wanted later (checked by their digest and scored again here; a log gone is simulated again).
 
 A result counts only once the broker confirms it: the broker takes a result from the worker that
-holds the job's lease alone, and tells the study which one it took (lease, worker and the log's
-SHA-256). Anyone else's result for the job, however well made, is ignored, and so is any answer
-that does not come from the broker. A broker that does not answer costs no job an attempt: the
-client waits for it, and says so (`waiting`).
+holds the job's lease alone, and tells the study which one it took (lease, worker, the log's
+SHA-256 and the scores). Anyone else's result for the job, however well made, is ignored, and so
+is any answer that does not come from the broker. A broker that does not answer costs no job an
+attempt: the client waits for it, and says so (`waiting`).
 """
 
 import hashlib
