@@ -536,6 +536,7 @@ class FarmClient:
             worker=result.worker,
             attempts=pending.attempts,
             timings=result.timings,
+            reason=result.reason,
         )
         if result.status == JobStatus.failed:
             del self._pending[result.job_id]
@@ -544,20 +545,13 @@ class FarmClient:
                 status=EvaluationStatus.failed,
                 scores=None,
                 log=None,
-                reason=result.reason,
             )
         assert result.scores is not None  # the wire's rule for a job that ran
         claimed = Scores.model_validate(result.scores.model_dump())
+        ran = dict(common, status=EvaluationStatus(result.status.value), digest=result.digest)
         if not pending.keep_log:  # its worker keeps the log: `fetch` brings it if wanted
             del self._pending[result.job_id]
-            return Evaluation(
-                **common,
-                status=EvaluationStatus(result.status.value),
-                scores=claimed,
-                log=None,
-                reason=result.reason,
-                digest=result.digest,
-            )
+            return Evaluation(**ran, scores=claimed, log=None)
         path = self.log_dir / f"{result.job_id}.mcap"
         try:
             if len(content) > MAX_EPISODE_BYTES or len(content) != result.episode_bytes:
@@ -574,14 +568,7 @@ class FarmClient:
             reason = f"its scores are not its log's ({result.worker} is distrusted)"
             return self._run_again(result, pending, reason)
         del self._pending[result.job_id]
-        return Evaluation(
-            **common,
-            status=EvaluationStatus(result.status.value),
-            scores=scores,
-            log=path,
-            reason=result.reason,
-            digest=result.digest,
-        )
+        return Evaluation(**ran, scores=scores, log=path)
 
     def _run_again(self, result: Result, pending: _Pending, reason: str) -> Evaluation | None:
         """A log damaged on its way is a lost result, not the job's outcome: the episode is

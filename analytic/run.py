@@ -378,13 +378,8 @@ class TuningRun:
                 )
                 if now != episodes:
                     corrected = True
-                    state.provenance[gains] = now
+                    self._correct(gains, now)
                     self._drop_stale_logs(gains, now)
-                    true = objectives([ran.scores for ran in now], self.config.objective_weights)
-                    # evaluated.csv holds the points in the order told: the true one replaces
-                    # the false one there too, so the cloud and the front agree.
-                    for row in state.evolution.correct(gains, true):
-                        state.evaluated[row] = true
         if self._fetch_front(evaluator):
             checked = corrected = True
         if checked:
@@ -463,10 +458,16 @@ class TuningRun:
                     changed[gains] = [true if r.job_id == job_id else r for r in changed[gains]]
             for gains, now in changed.items():
                 corrected = True
-                state.provenance[gains] = tuple(now)
-                true_point = objectives([r.scores for r in now], self.config.objective_weights)
-                for row in state.evolution.correct(gains, true_point):
-                    state.evaluated[row] = true_point
+                self._correct(gains, tuple(now))
+
+    def _correct(self, gains: PDGains, standing: tuple[Ran, ...]) -> None:
+        """A candidate's episodes as they truly ran, and the objectives they give, everywhere
+        the run keeps them: evaluated.csv holds the points in the order told, so the true one
+        replaces the false one there too, and the cloud and the front agree."""
+        self.state.provenance[gains] = standing
+        true = objectives([ran.scores for ran in standing], self.config.objective_weights)
+        for row in self.state.evolution.correct(gains, true):
+            self.state.evaluated[row] = true
 
     def _drop_stale_logs(self, gains: PDGains, standing: tuple[Ran, ...]) -> None:
         """Validation outvoted some of a member's episodes: a log kept here that is not the
