@@ -1,3 +1,11 @@
-from analytic.cli import main
+"""`analytic` and `python -m analytic`: Ctrl-C is taken over before analytic.cli's imports begin."""
 
-main()
+from cli.interrupts import launch
+
+
+def main() -> None:
+    launch("analytic.cli", "analytic")
+
+
+if __name__ == "__main__":
+    main()

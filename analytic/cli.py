@@ -1,22 +1,20 @@
-"""`analytic`: the analytic layer. Tune gains with NSGA-II on the farm (`start`, `resume`), score
-an episode log (`evaluate`), evaluate fixed candidates on the farm (`batch`), gather tuned
-controllers' episodes into a dataset (`dataset`), learn the arm's dynamics from it (`learn`), and
-run the paper's experiments (`experiment`)."""
+"""`analytic`: the analytic layer. Tune gains with NSGA-II on the farm (`start`, `resume`), take a
+run's controller out of it (`export`), score an episode log (`evaluate`), evaluate fixed
+candidates on the farm (`batch`), gather tuned controllers' episodes into a dataset (`dataset`),
+learn the arm's dynamics from it (`learn`), run the paper's experiments (`experiment`), and watch
+an episode as a video (`replay`)."""
 
 import contextlib
 import json
-import signal
-import sys
-import threading
+import shutil
 import time
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import TypeVar
 
 import click
-from pydantic import TypeAdapter, ValidationError
+from pydantic import ValidationError
 from rich.console import Console
-from rich.progress import Progress, SpinnerColumn, TextColumn
 from rich.table import Table
 
 from analytic import algorithm_study, dataset_value, experiments
@@ -38,18 +36,27 @@ from analytic.dataset import build as build_dataset
 from analytic.evaluator import Evaluation, Evaluator
 from analytic.evolution import ALGORITHMS, OBJECTIVE_SCALINGS
 from analytic.experiments import Experiment
+from analytic.export import FORMATS, BadMember, BadRun, describe_pick, picks
+from analytic.export import controller as exported_controller
+from analytic.export import render as render_controller
 from analytic.farm import DEFAULT_DEADLINE, FarmClient, FarmUnavailable
 from analytic.learning import LearnError
 from analytic.learning import learn as learn_model
 from analytic.local import local_farm
-from analytic.records import CONFIG_JSON
+from analytic.progress import Display, RunDisplay
+from analytic.records import CONFIG_JSON, FRONT_FIELDS, read_front
+from analytic.replay import DEFAULT_FPS, DEFAULT_HEIGHT, DEFAULT_WIDTH, ReplayError
+from analytic.replay import replay as replay_episode
 from analytic.run import RunBusy, RunProgress, TuningRun
 from analytic.tuning import new_study_name
-from cli import options
-from cli.app import CliError, parse_numbers, run_app
-from cli.scores import show_scores
+from broker.status import query_status
+from cli import interrupts, options
+from cli.app import CliError, parse_numbers, program_group, run_app
+from cli.scores import DIVERGED_TEXT, show_scores
 from models.dynamics import KINDS, TARGETS, digest
+from schemas.controller import BadGains, read_gains
 from schemas.episode import EpisodeSpec
+from schemas.files import write_atomically
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import NotAnEpisodeLog, read_episode
 from schemas.objectives import balancing_weights, score
@@ -59,9 +66,12 @@ from schemas.trajectory import TrajectorySpec
 from schemas.wire import BadMessage, describe
 
 F = TypeVar("F", bound=Callable[..., object])
+# Without a terminal, an experiment's progress is a plain line this often at most: its runs go
+# on side by side, each a line per evaluation.
+EXPERIMENT_LOG_SECONDS = 10.0
 
 
-@click.group(help=__doc__, no_args_is_help=True)
+@program_group(__doc__)
 def app() -> None:
     pass
 
@@ -141,7 +151,7 @@ def _study_name(directory: Path, identity: TlsIdentity | None) -> str:
     return new_study_name(directory, owner=identity.name if identity is not None else None)
 
 
-@app.command()
+@app.command(short_help="Score an episode from its MCAP log alone.")
 @click.argument("log", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="print the scores as one JSON object")
 def evaluate(log: Path, as_json: bool) -> None:
@@ -155,13 +165,51 @@ def evaluate(log: Path, as_json: bool) -> None:
     show_scores(scores, log, as_json)
 
 
-@app.command()
+@app.command(short_help="Render an episode log as a video.")
+@click.argument("log", type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="the MP4 to write")
+@click.option(
+    "--fps",
+    type=click.IntRange(min=1, max=120),
+    default=DEFAULT_FPS,
+    show_default=True,
+    help="frames per second of simulated time",
+)
+@click.option(
+    "--width",
+    type=click.IntRange(min=16, max=3840),
+    default=DEFAULT_WIDTH,
+    show_default=True,
+    help="pixels, even",
+)
+@click.option(
+    "--height",
+    type=click.IntRange(min=16, max=2160),
+    default=DEFAULT_HEIGHT,
+    show_default=True,
+    help="pixels, even",
+)
+def replay(log: Path, out: Path, fps: int, width: int, height: int) -> None:
+    """Render an episode log as a video: the arm (MuJoCo, offscreen), the reference path (green)
+    and the path the flange took (magenta)."""
+    if not log.is_file():
+        raise CliError(f"{str(log)!r}: no such file")
+    try:
+        frames = replay_episode(log, out, fps, width, height)
+    except ReplayError as error:
+        raise CliError(str(error)) from None
+    click.echo(f"{out}: {frames} frames, {width}x{height} at {fps} fps")
+
+
+@app.command(short_help="Evaluate given gains on the farm; keep every episode.")
 @farm_options
 @click.option(
     "--gains",
     "gains_file",
     type=click.Path(path_type=Path),
-    help='JSON list of candidates, [{"kp": [7], "kd": [7]}, ...]  [default: the default gains]',
+    help="the candidates: a controller from `analytic export`, a JSON list of "
+    '{"kp": [7], "kd": [7]} objects, or a run\'s front.csv (every member)  '
+    "[default: the default gains]",
 )
 @options.trajectory(multiple=True, help="repeat for several")
 @options.duration()
@@ -214,39 +262,52 @@ def batch(
     run_dir = run_dir or Path("runs") / time.strftime("batch-%Y%m%d-%H%M%S")
     if (run_dir / EVALUATIONS).exists():
         raise CliError(f"--run-dir: {str(run_dir)!r} already holds a batch; choose another")
+    forget = _claim(run_dir, "--run-dir")
+    begun = False  # once the farm answers, the episodes are the batch's: kept, even if stopped
     try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise CliError(f"--run-dir: cannot create {str(run_dir)!r}: {error.strerror}") from None
-    with _farm(connect, workers) as endpoints:
         try:
-            farm = FarmClient(
-                endpoints,
-                _study_name(run_dir, identity),
-                run_dir,
-                deadline=deadline,
-                identity=identity,
-                models=models,
-            )
-        except (ValueError, ConnectionError) as error:
-            raise CliError(str(error)) from None
-        with farm, Progress(transient=True, disable=as_json) as progress:
-            task = progress.add_task("evaluating", total=len(jobs))
-
-            def report(evaluation: Evaluation) -> None:
-                progress.advance(task)
-                if as_json:
-                    click.echo(json.dumps(_summary(evaluation)))
-
+            run_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise CliError(f"--run-dir: cannot create {str(run_dir)!r}: {error.strerror}") from None
+        with _farm(connect, workers) as endpoints:
             try:
-                evaluations = run_batch(farm, jobs, run_dir, report)
-            except BadMessage as error:
-                raise CliError(str(error)) from None
+                farm = FarmClient(
+                    endpoints,
+                    _study_name(run_dir, identity),
+                    run_dir,
+                    deadline=deadline,
+                    identity=identity,
+                    models=models,
+                )
+            except (ValueError, ConnectionError) as error:
+                raise CliError(_farm_problem(connect, error)) from None
+            begun = True
+            with farm, Display(enabled=not as_json) as display:
+                done = 0
+
+                def report(evaluation: Evaluation) -> None:
+                    nonlocal done
+                    interrupts.check()
+                    done += 1
+                    display.show(f"{done} of {len(jobs)} evaluated")
+                    if done * 10 // len(jobs) != (done - 1) * 10 // len(jobs):  # every tenth
+                        display.log(f"{done} of {len(jobs)} evaluated")
+                    if as_json:
+                        click.echo(json.dumps(_summary(evaluation)))
+
+                try:
+                    evaluations = run_batch(farm, jobs, run_dir, report)
+                except BadMessage as error:
+                    raise CliError(str(error)) from None
+    except (CliError, KeyboardInterrupt):
+        if not begun:
+            forget()
+        raise
     if not as_json:
         _print_evaluations(evaluations, run_dir)
 
 
-@app.command()
+@app.command(short_help="Tune the 14 PD gains on the farm (NSGA-II by default).")
 @pop_option()
 @options.trajectory(
     multiple=True,
@@ -270,10 +331,11 @@ def batch(
 @click.option(
     "--keep",
     type=click.Choice(["all", "front"]),
-    default="all",
+    default="front",
     show_default=True,
-    help="which episode logs to keep: all (each comes with its result), or the front's (the "
-    "workers keep the logs and the front's are fetched from them: far fewer bytes on a farm)",
+    help="which episode logs to keep: the front's (the workers keep the logs and the front's "
+    "are fetched from them), or all (each comes with its result and is kept: about 1.5 MB "
+    "per 5 s episode, every evaluation's)",
 )
 @click.option(
     "--async",
@@ -368,6 +430,9 @@ def start(
     if balance and len(trajectories) > 1:
         config = _balanced(config, learned[0] if learned is not None else None)
     out = out or Path("runs") / time.strftime("%Y%m%d-%H%M%S")
+    if (out / CONFIG_JSON).exists():
+        raise CliError(f"--out: {str(out)!r} already holds a run; resume it or choose another")
+    forget = _claim(out, "--out")
     try:
         run = TuningRun.create(out, config, learned[0] if learned is not None else None)
     except FileExistsError as error:
@@ -377,13 +442,14 @@ def start(
     except RunBusy as error:
         raise CliError(f"--out: {error}") from None
     except OSError as error:
+        forget()
         raise CliError(
             f"--out: cannot write {str(error.filename or out)!r}: {error.strerror}"
         ) from None
-    _tune(run, connect, workers, identity)
+    _tune(run, connect, workers, identity, forget)
 
 
-@app.command()
+@app.command(short_help="Continue a stopped run from its last checkpoint.")
 @click.argument("run_dir", type=click.Path(path_type=Path))
 @farm_options
 def resume(
@@ -449,35 +515,25 @@ def _balanced(config: RunConfig, feedforward: bytes | None) -> RunConfig:
     )
 
 
-def _remember_interrupts() -> threading.Event:
-    """Ctrl-C raises KeyboardInterrupt as usual, and is also remembered: Python drops an
-    exception raised while a finaliser (__del__, a weakref callback) runs, so a Ctrl-C that lands
-    there would be lost; the run's progress callback raises it again at the next generation."""
-    interrupted = threading.Event()
-    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-
-        def on_interrupt(signum: int, frame: object) -> None:
-            interrupted.set()
-            raise KeyboardInterrupt
-
-        signal.signal(signal.SIGINT, on_interrupt)
-    return interrupted
-
-
 def _tune(
-    run: TuningRun, connect: tuple[str, ...], workers: int, identity: TlsIdentity | None
+    run: TuningRun,
+    connect: tuple[str, ...],
+    workers: int,
+    identity: TlsIdentity | None,
+    forget: Callable[[], None] | None = None,
 ) -> None:
-    """Run `run` (open, so holding its lock) on the farm, and close it."""
+    """Run `run` (open, so holding its lock) on the farm, and close it. `forget`, for a run
+    this command created: if the farm cannot be had (or Ctrl-C comes first), nothing has run,
+    and it removes what the command made."""
     console = Console(stderr=True)
-    interrupted = _remember_interrupts()
+    begun = False
     try:
         with run, _farm(connect, workers) as endpoints:
-            study = _study_name(run.directory, identity)
+            models = _run_models(run)
             try:
-                models = run.models()
                 farm = FarmClient(
                     endpoints,
-                    study,
+                    _study_name(run.directory, identity),
                     run.directory,
                     identity=identity,
                     models=models,
@@ -485,61 +541,110 @@ def _tune(
                     keep_logs=run.config.keep == "all",
                 )
             except (ValueError, ConnectionError) as error:
-                raise CliError(str(error)) from None
+                raise CliError(_farm_problem(connect, error)) from None
+            begun = True
             with (
                 farm,
-                Progress(
-                    SpinnerColumn(),
-                    TextColumn("{task.description}"),
-                    console=console,
-                    transient=True,
-                ) as progress,
+                Display(console) as display,
+                RunDisplay(display, lambda: _workers(farm), lambda: farm.waiting) as shown,
             ):
-                task = progress.add_task("starting")
-                connected = len(farm.status().workers)
-                farm.on_wait = lambda why: progress.update(
-                    task, description=f"waiting for the broker: {why}" if why else "resuming"
-                )
 
                 def show(step: RunProgress) -> None:
-                    if interrupted.is_set():  # a Ctrl-C that a finaliser swallowed
-                        raise KeyboardInterrupt
-                    rate = step.evaluations / step.elapsed if step.elapsed else 0.0
-                    progress.update(
-                        task,
-                        description=(
-                            f"generation {step.generation} · {step.evaluations} evaluations · "
-                            f"{rate:.1f}/s · hypervolume {step.hypervolume:.4f} · best error "
-                            f"{step.best_f_acc * 1000:.2f} mm · {connected} workers"
-                        ),
-                    )
+                    interrupts.check()  # between evaluations: a Ctrl-C Python held back
+                    shown.step(step)
 
                 reason = run.run(farm, show)
+    except CliError:
+        if not begun and forget is not None:
+            forget()
+        raise
     except OSError as error:
         if isinstance(error, ConnectionError):  # the farm's: said where it happens
             raise
         raise _unwritable(error, f"go on with: analytic resume {run.directory}") from None
     except KeyboardInterrupt:
+        if not begun and forget is not None:  # nothing ran: nothing to resume
+            forget()
+            interrupts.stop("analytic")
         generations = len(run.state.history)
-        click.echo(
-            f"analytic: stopped after {generations} generations; "
+        interrupts.stop(
+            "analytic",
+            f"stopped after {generations} generations; "
             f"continue with: analytic resume {run.directory}",
-            err=True,
         )
-        sys.exit(130)
-    console.print(f"stopped: {reason}")
+    # Plain lines, whole however long: rich would wrap them at 80 columns off a terminal.
+    click.echo(f"stopped: {reason}", err=True)
     ledger = run.replication
     if ledger.replicated:
-        console.print(
+        click.echo(
             f"front validated by replication: {ledger.replicated} episodes run again "
             f"({ledger.extra_evaluations} extra evaluations, {ledger.seconds:.1f} s), "
             f"{ledger.disagreements} disagreements, {ledger.undecided} undecided"
-            + (f"; distrusted: {', '.join(sorted(ledger.dissenters))}" if ledger.dissenters else "")
+            + (
+                f"; distrusted: {', '.join(sorted(ledger.dissenters))}" if ledger.dissenters else ""
+            ),
+            err=True,
         )
-    console.print(f"front, history, figures and report in {run.directory}/")
+    click.echo(f"front, history, figures and report in {run.directory}/", err=True)
+    chosen = picks(run.front())
+    if chosen:  # last, what to do next; each line within 80 columns for a short run directory
+        click.echo(f"controller to use: {describe_pick(chosen[0])}", err=True)
+        click.echo(f"its gains: analytic export {run.directory}", err=True)
 
 
-@app.command()
+def _run_models(run: TuningRun) -> dict[str, bytes]:
+    """The feed-forward model the run's episodes use, served to the workers."""
+    try:
+        return run.models()
+    except ValueError as error:
+        raise CliError(f"{str(run.directory)!r}: {error}") from None
+
+
+def _workers(farm: FarmClient) -> int | None:
+    """How many workers the farm has now; None if the broker does not answer within 2 s."""
+    try:
+        return query_status(farm.session, timeout=2.0).worker_count
+    except Exception:  # no answer, a garbled one, or the session closed as the run ended
+        return None
+
+
+def _farm_problem(connect: tuple[str, ...], error: Exception) -> str:
+    """Why the farm cannot be had, in one line naming the option that chose it."""
+    return f"{'--connect' if connect else 'local farm'}: {error}"
+
+
+def _claim(directory: Path, option: str) -> Callable[[], None]:
+    """Check that `directory` (given as `option`) is new or empty, in one line if not; return
+    what removes everything this command then puts there, for a start that fails before anything
+    runs: the directory, with the parents it needed, or only what is in it if it was there."""
+    if directory.exists() and not directory.is_dir():
+        raise CliError(f"{option}: {str(directory)!r} is a file, not a directory")
+    try:
+        if directory.is_dir() and any(directory.iterdir()):
+            raise CliError(
+                f"{option}: {str(directory)!r} is not empty: choose a new or an empty directory"
+            )
+    except OSError as error:
+        raise CliError(f"{option}: cannot read {str(directory)!r}: {error.strerror}") from None
+    new = None  # the outermost directory this command will make
+    ancestor = directory
+    while not ancestor.exists():
+        new, ancestor = ancestor, ancestor.parent
+
+    def forget() -> None:
+        if new is not None:
+            shutil.rmtree(new, ignore_errors=True)
+            return
+        for child in directory.iterdir():
+            if child.is_dir() and not child.is_symlink():
+                shutil.rmtree(child, ignore_errors=True)
+            else:
+                child.unlink(missing_ok=True)
+
+    return forget
+
+
+@app.command(short_help="Gather tuned controllers' episodes into a dataset.")
 @click.argument("run_dirs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="dataset directory")
 @click.option(
@@ -612,7 +717,7 @@ def dataset(
                     endpoints, _study_name(directory, identity), directory, identity=identity
                 )
             except (ValueError, ConnectionError) as error:
-                raise CliError(str(error)) from None
+                raise CliError(_farm_problem(connect, error)) from None
             with client:
                 yield client
 
@@ -633,7 +738,7 @@ def dataset(
     except (NoEpisodes, UnreadableRun, DuplicateEpisodes, RerunFailed, BadMessage) as error:
         raise CliError(str(error)) from None
     except ConnectionError as error:  # the farm's, not the disk's
-        raise CliError(f"farm: {error}") from None
+        raise CliError(_farm_problem(connect, error)) from None
     except OSError as error:
         raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
     rerun = f", {counts['rerun']} of them rerun" if counts["rerun"] else ""
@@ -645,7 +750,7 @@ def dataset(
     )
 
 
-@app.command()
+@app.command(short_help="Learn the arm's dynamics from a dataset.")
 @click.argument("dataset_dir", metavar="DATASET", type=click.Path(path_type=Path))
 @click.option(
     "--out", type=click.Path(path_type=Path), required=True, help="model directory to write"
@@ -684,7 +789,7 @@ def learn(dataset_dir: Path, out: Path, target: str, kind: str, seed: int) -> No
     )
 
 
-@app.command()
+@app.command(short_help="Rerun the paper's experiments, or compare optimisers.")
 @click.argument(
     "name",
     type=click.Choice(["popsize", "generic-vs-specific", "speed", "algorithms", "dataset-value"]),
@@ -846,14 +951,16 @@ def experiment(
     except OSError as error:
         raise CliError(f"--out: cannot create {str(out)!r}: {error.strerror}") from None
     console = Console(stderr=True)
+
+    def progress(text: str) -> None:
+        """A run's step (called from the runs' threads): the place a Ctrl-C stops them."""
+        interrupts.check()
+        display.show(text)
+        display.every(text, EXPERIMENT_LOG_SECONDS)
+
     try:
-        with (
-            _farm(connect, workers) as endpoints,
-            Progress(
-                SpinnerColumn(), TextColumn("{task.description}"), console=console, transient=True
-            ) as progress,
-        ):
-            task = progress.add_task(name)
+        with _farm(connect, workers) as endpoints, Display(console) as display:
+            display.show(name)
             experiment = Experiment(
                 out,
                 # The experiment's own study names are neither unique nor short enough.
@@ -865,7 +972,7 @@ def experiment(
                     identity=identity,
                     keep_logs=False,
                 ),
-                lambda text: progress.update(task, description=text),
+                progress,
                 parallel=parallel_runs,
             )
             try:
@@ -883,12 +990,11 @@ def experiment(
                 raise CliError(str(error)) from None
     except OSError as error:
         if isinstance(error, ConnectionError):
-            raise
+            raise CliError(_farm_problem(connect, error)) from None
         raise _unwritable(error, "run the same command again to go on") from None
     except KeyboardInterrupt:
-        click.echo("analytic: stopped; run the same command again to go on", err=True)
-        sys.exit(130)
-    console.print(f"{name}: report, figures and results.csv in {out}/")
+        interrupts.stop("analytic", "stopped; run the same command again to go on")
+    click.echo(f"{name}: report, figures and results.csv in {out}/", err=True)
 
 
 def _names(option: str, text: str, allowed: tuple[str, ...], what: str) -> list[str]:
@@ -945,17 +1051,26 @@ def _farm(connect: tuple[str, ...], workers: int) -> Iterator[list[str]]:
 
 
 def _candidates(path: Path | None) -> list[PDGains]:
+    """--gains' candidates: an exported controller or a JSON list of gains
+    (schemas.controller.read_gains), or every member of a run's front.csv."""
     if path is None:
         return [DEFAULT_GAINS]
     try:
-        candidates = TypeAdapter(list[PDGains]).validate_json(path.read_bytes())
+        raw = path.read_bytes()
     except OSError as error:
         raise CliError(f"--gains: cannot read {str(path)!r}: {error.strerror}") from None
-    except ValidationError as error:
-        raise CliError(f"--gains: {describe(error)}") from None
-    if not candidates:
-        raise CliError("--gains: the list of candidates is empty")
-    return candidates
+    if raw.startswith(FRONT_FIELDS[0].encode() + b","):  # a CSV whose header is front.csv's
+        try:
+            front = read_front(path)
+        except ValueError as error:
+            raise CliError(f"--gains: {str(path)!r}: {error}") from None
+        if not front:
+            raise CliError(f"--gains: {str(path)!r} is a front.csv with no members")
+        return [member.gains for member in front]
+    try:
+        return read_gains(raw)
+    except BadGains as error:
+        raise CliError(f"--gains: {str(path)!r}: {error}") from None
 
 
 def _summary(evaluation: Evaluation) -> dict[str, object]:
@@ -992,6 +1107,60 @@ def _print_evaluations(evaluations: list[Evaluation], run_dir: Path) -> None:
             evaluation.worker,
         )
     Console().print(table)
+    if any(evaluation.scores and evaluation.scores.diverged for evaluation in evaluations):
+        Console().print(DIVERGED_TEXT, highlight=False)
+
+
+# --- analytic export: a run's controller, out of the run ------------------------------------------
+
+
+@app.command(short_help="Write a run's controller (the knee by default) to use.")
+@click.argument("run_dir", metavar="RUN", type=click.Path(path_type=Path))
+@click.option(
+    "--member",
+    default="knee",
+    show_default=True,
+    metavar="knee|accurate|smooth|N",
+    help="which front member: the knee (the best compromise), the most accurate, the "
+    "smoothest, or row N of front.csv (the report's #)",
+)
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(FORMATS),
+    default="json",
+    show_default=True,
+    help="json: what `analytic batch --gains` and `worker episode --gains` read; yaml: the "
+    "same document; ros2_control: a controller_manager parameter file running the gains as a "
+    "PD on the effort interface",
+)
+@click.option(
+    "--out", type=click.Path(path_type=Path), help="file to write  [default: standard output]"
+)
+def export(run_dir: Path, member: str, fmt: str, out: Path | None) -> None:
+    """Write a run's controller: one front member's gains, with its joints, units, scores and
+    the run it came from."""
+    try:
+        chosen = exported_controller(run_dir, member)
+    except BadRun as error:
+        raise CliError(str(error)) from None
+    except BadMember as error:
+        raise CliError(f"--member: {error}") from None
+    content = render_controller(chosen, fmt)
+    if out is None:
+        click.echo(content.decode(), nl=False)
+        return
+    if not out.parent.is_dir():
+        raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
+    try:
+        write_atomically(out, content)
+    except OSError as error:
+        raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror or error}") from None
+    click.echo(
+        f"{out}: {chosen.member.selected} of {run_dir} (front.csv row {chosen.member.row}: "
+        f"{chosen.member.f_acc * 1000:.3f} mm, f_t {chosen.member.f_t:.4g} (N·m)²), {fmt}",
+        err=True,
+    )
 
 
 def main() -> None:

@@ -24,7 +24,6 @@ import json
 import math
 import os
 import shutil
-import tempfile
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import AbstractContextManager
@@ -46,7 +45,7 @@ from analytic.records import RUN_JSON, FrontMember, RunRecord, read_identity, re
 from analytic.run import RunBusy, TuningRun, upgrade
 from analytic.tuning import new_study_name
 from schemas.episode_log import EpisodeLog
-from schemas.files import write_atomically
+from schemas.files import staging_directory, write_atomically
 from schemas.mcap_episode import NotAnEpisodeLog, read_episode
 from schemas.objectives import score
 from schemas.robot import JOINT_NAMES, ModelSpec
@@ -441,6 +440,8 @@ def read_source(source: Source) -> Episode:
         log = read_episode(source.path)
     except NotAnEpisodeLog as error:
         raise UnreadableRun(str(error)) from None
+    if log.ticks == 0:  # an episode keeps at least its first tick: the arm starts on its path
+        raise UnreadableRun(f"{source.path}: an episode log without a single tick: damaged")
     if log.metadata.control_period != CONTROL_PERIOD:  # qdd and the schema assume one period
         raise UnreadableRun(
             f"{source.path}: control period {log.metadata.control_period} s, "
@@ -589,7 +590,7 @@ def build(
     known = [episode.trajectory for episode in episodes] + list(rerun_trajectories) * bool(reruns)
     assign_splits([trajectory_id(trajectory) for trajectory in known], fractions, split_seed)
     out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.", suffix=".part"))
+    staging = staging_directory(out)
     try:
         (staging / "episodes").mkdir()
         linked = sum(
@@ -753,9 +754,10 @@ test) of the trajectories, ordered by the SHA-256 of `<split seed>:<trajectory_i
   `size` (m), `duration` (s), `twist` (rad), `turns`, `waypoints`, `harmonics`, `spec` (the
   TrajectorySpec as canonical JSON: sorted keys, no spaces), `split`, `episodes`.
 - `episodes/<episode_id>.mcap`: the original logs (ROS 2 CDR: `/joint_states`,
-  `/joint_commands`, `/motor_states`, `/joint_reference`, `/ee/actual`, `/ee/desired`; the
-  channel contract is in gainfarm's schemas/README.md), each with its full spec in the
-  `gainfarm.episode` metadata record. They are {logs}.{rerun}{caution}
+  `/joint_commands`, `/motor_states`, `/joint_reference`, `/ee/actual`, `/ee/desired`, and in
+  recent logs, for ROS 2 tools such as Foxglove, `/tf` and `/robot_description`: the arm's links
+  at 50 Hz and its URDF; the channel contract is in gainfarm's schemas/README.md), each with its
+  full spec in the `gainfarm.episode` metadata record. They are {logs}.{rerun}{caution}
 
 Every Parquet column carries its unit (`unit`: rad, rad/s, rad/s^2, N*m, m, s, or empty for ids
 and counts) and a `description` in its field metadata; each table's schema metadata holds the

@@ -7,7 +7,7 @@ whatever order they complete; it never learns whether they ran on a farm of a hu
 the same part: the loop is written once, and tested in milliseconds with a stand-in.
 """
 
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -42,6 +42,10 @@ class Evaluation:
     attempts: int
     timings: Timings | None
     digest: str | None = None  # the log's SHA-256: replicas of an episode agree bit for bit
+
+
+# What an evaluator does with a log: (content, spec, where to keep it, whose it is) → its scores.
+ReadLog = Callable[[bytes, EpisodeSpec, Path | None, str], Scores]
 
 
 def accept_log(content: bytes, spec: EpisodeSpec, path: Path | None, source: str) -> Scores:

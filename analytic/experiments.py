@@ -57,7 +57,7 @@ from analytic.reports import (
     speed_table,
     write_experiment_report,
 )
-from analytic.run import TuningRun, upgrade
+from analytic.run import RunBusy, TuningRun, upgrade
 from schemas.episode import EpisodeSpec
 from schemas.files import write_atomically
 from schemas.gains import DEFAULT_GAINS, PDGains
@@ -71,6 +71,8 @@ ALL_KINDS = (TrajectoryKind.spiral, TrajectoryKind.random, TrajectoryKind.pyrami
 MARGIN = 0.1  # the reference point lies this fraction of (nadir - ideal) beyond the nadir
 NORMALISATION_JSON = "normalisation.json"
 STATS_CSV = "stats.csv"
+BUSY_POLL_SECONDS = 2.0  # how often a run another process is running is looked at again
+_BUSY = object()  # what a task whose run another process is running gives first
 
 Point = tuple[float, float]
 
@@ -88,6 +90,14 @@ def is_penalty(point: Point, penalised: frozenset[Point] | set[Point] = frozense
         or not (math.isfinite(point[0]) and math.isfinite(point[1]))
         or point[0] >= DIVERGED_TICK_ERROR
     )
+
+
+def _unless_busy(task: Callable[[], T]) -> T | object:
+    """The task's result, or _BUSY if another process is running its run."""
+    try:
+        return task()
+    except RunBusy:
+        return _BUSY
 
 
 @dataclass(frozen=True)
@@ -155,7 +165,25 @@ class Experiment:
         the order given whatever order they finish in: what is written from them does not
         depend on `parallel`. If one fails (or Ctrl-C stops the wait), the others stop at their
         next evaluation, and the error is raised once all are done; each run keeps its
-        checkpoint and goes on when the experiment is run again."""
+        checkpoint and goes on when the experiment is run again.
+
+        Several processes may share an experiment (the same command, the same --out, on one
+        file system): a task whose run another process is running (RunBusy) is passed over, and
+        done once this process has done every other, when that process lets the run go (a run
+        whose process died is resumed here)."""
+        first = self._at_once(
+            {key: functools.partial(_unless_busy, task) for key, task in tasks.items()}
+        )
+        later = self._at_once(
+            {
+                key: functools.partial(self._when_free, tasks[key])
+                for key, done in first.items()
+                if done is _BUSY
+            }
+        )
+        return {key: later[key] if key in later else first[key] for key in tasks}
+
+    def _at_once(self, tasks: Mapping[K, Callable[[], T]]) -> dict[K, T]:
         width = min(self.parallel or len(tasks), len(tasks))
         if width <= 1:
             return {key: task() for key, task in tasks.items()}
@@ -169,6 +197,15 @@ class Experiment:
                     future.cancel()
                 wait(futures.values())
                 raise
+
+    def _when_free(self, task: Callable[[], T]) -> T:
+        """`task`, once no other process is running its run."""
+        while True:
+            try:
+                return task()
+            except RunBusy as busy:
+                self._progress(f"{busy.directory.name}: run by {busy.holder or 'another process'}")
+                self._stop.wait(BUSY_POLL_SECONDS)
 
     def tune_many(self, plan: Mapping[str, RunConfig]) -> dict[str, RunRecord]:
         """Every run of `plan` (name → configuration), concurrently, in plan order."""
@@ -195,7 +232,10 @@ class Experiment:
         # Finished means stopped and reported: a run killed between its last records and its
         # figures is opened again, which only draws them.
         if record is None or record.stopped is None or not (directory / REPORT_MD).exists():
-            run = TuningRun.open(directory) if record else TuningRun.create(directory, config)
+            try:
+                run = TuningRun.open(directory) if record else TuningRun.create(directory, config)
+            except FileExistsError:  # another process created it since: it is running it
+                raise RunBusy(directory, "") from None
             # Closed however it ends: a run that failed is resumed by this same process when
             # the experiment goes on.
             with run, self.evaluator(f"{self.out.name}-{name}", directory) as evaluator:
@@ -433,6 +473,7 @@ def popsize(experiment: Experiment, base: RunConfig, sizes: Sequence[int], reps:
         verdict,
         ["popsize.png"],
         {"all runs": normalisation},
+        populations=sizes,
     )
 
 
@@ -748,6 +789,7 @@ def speed(experiment: Experiment, base: RunConfig, durations: Sequence[float], r
         "\n".join(verdict_lines),
         ["speed.png"],
         {f"on {u:g} s": n for u, n in normalisations.items()},
+        durations=durations,
     )
 
 
@@ -760,12 +802,20 @@ def _report(
     verdict: str,
     figures: list[str],
     normalisations: dict[str, Normalisation],
+    populations: Sequence[int] = (),
+    durations: Sequence[float] = (),
 ) -> None:
+    """The experiment's report.md; `populations` and `durations`: what its runs used, when they
+    are not the base configuration's one population and duration."""
     write_experiment_report(
         experiment.out / "report.md",
         title=title,
         setup=experiment_setup(
-            base, reps, {k: (n.ideal, n.nadir) for k, n in normalisations.items()}
+            base,
+            reps,
+            {k: (n.ideal, n.nadir) for k, n in normalisations.items()},
+            populations=populations,
+            durations=durations,
         ),
         table=table,
         verdict=verdict,

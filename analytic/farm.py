@@ -33,7 +33,14 @@ from pathlib import Path
 
 import zenoh
 
-from analytic.evaluator import Evaluation, EvaluationStatus, Fetched, Wanted, accept_log
+from analytic.evaluator import (
+    Evaluation,
+    EvaluationStatus,
+    Fetched,
+    ReadLog,
+    Wanted,
+    accept_log,
+)
 from broker.status import BrokerUnavailable, query_status
 from schemas import keys
 from schemas.ask import ask
@@ -103,11 +110,14 @@ class FarmClient:
         identity: TlsIdentity | None = None,
         models: Mapping[str, bytes] | None = None,
         keep_logs: bool = True,
+        read_log: ReadLog = accept_log,
     ):
         """`models`: the feed-forward models (file bytes by SHA-256) the study's jobs may name;
         the client serves them to the workers that ask. `keep_logs`: every job's log comes with
         its result, is checked, scored here again and kept; else the workers keep the logs, each
-        result brings the scores its worker computed, and `fetch` brings the logs wanted."""
+        result brings the scores its worker computed, and `fetch` brings the logs wanted.
+        `read_log` checks, keeps and scores a log (another only for simulated workers, whose
+        "logs" are not episodes: bench/campaign.py --simulated)."""
         Submission(study=study, jobs=[])  # validates the name before it becomes a key
         self.study = study
         self.models = dict(models or {})
@@ -116,6 +126,7 @@ class FarmClient:
         self.deadline = deadline
         self.attempts = attempts
         self.keep_logs = keep_logs
+        self.read_log = read_log
         self.duplicates = 0
         self.ignored = 0
         self.unconfirmed = 0  # results the broker did not take: forged, or from a stale lease
@@ -249,7 +260,7 @@ class FarmClient:
             if content is not None:
                 path = self.log_dir / f"{job_id}.mcap"
                 try:
-                    scores = accept_log(content, want.spec, path, f"log of {job_id}")
+                    scores = self.read_log(content, want.spec, path, f"log of {job_id}")
                 except NotAnEpisodeLog as error:  # the right bytes of the wrong episode
                     log.warning("fetched log of %s: %s", job_id, error)
                 else:
@@ -559,7 +570,7 @@ class FarmClient:
             if hashlib.sha256(content).hexdigest() != result.digest:
                 raise NotAnEpisodeLog("its bytes are not the ones the worker handed in")
             source = f"episode of {result.job_id} from {result.worker}"
-            scores = accept_log(content, pending.spec, path, source)
+            scores = self.read_log(content, pending.spec, path, source)
         except NotAnEpisodeLog as error:
             return self._run_again(result, pending, f"unusable episode log: {error}")
         if scores != claimed:  # an honest log, false scores: the worker is not to be trusted

@@ -16,7 +16,8 @@ from pathlib import Path
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from analytic.records import FrontMember, HistoryRow, sorted_front
+from analytic.export import Pick
+from analytic.records import Baseline, FrontMember, HistoryRow, sorted_front
 from schemas.files import write_atomically
 
 DPI = 120
@@ -37,13 +38,36 @@ def save_png(figure: Figure, path: Path) -> None:
     write_atomically(Path(path), buffer.getvalue())
 
 
+# How each pick is marked on a run's Pareto figure (analytic.export.picks names them).
+PICK_STYLES = {
+    "knee": ("*", 260, "gold", "knee (the controller to use)"),
+    "accurate": ("^", 110, "tab:blue", "most accurate"),
+    "smooth": ("s", 90, "tab:green", "smoothest"),
+}
+
+
 def plot_pareto(
     path: Path,
     front: Sequence[FrontMember],
     evaluated: Sequence[tuple[float, float]] = (),
     title: str = "",
+    picks: Sequence[Pick] = (),
+    baseline: Baseline | None = None,
 ) -> None:
-    """Every evaluation (f_acc, f_t) in light grey with the front on top, as a PNG at `path`.
+    """The figure of `pareto_figure`, as a PNG at `path`."""
+    save_png(pareto_figure(front, evaluated, title, picks, baseline), path)
+
+
+def pareto_figure(
+    front: Sequence[FrontMember],
+    evaluated: Sequence[tuple[float, float]] = (),
+    title: str = "",
+    picks: Sequence[Pick] = (),
+    baseline: Baseline | None = None,
+) -> Figure:
+    """Every evaluation (f_acc, f_t) in light grey with the front on top; the `picks` (knee,
+    most accurate, smoothest) marked and labelled with their front.csv rows, and the default
+    gains' point (`baseline`) as a black cross, unless it diverged (a penalty, named in a note).
 
     f_acc is drawn in mm; f_t on a log axis, since a run's f_t spans orders of magnitude (a
     diverged episode is charged the worst torque change for every tick it missed). A log axis
@@ -54,20 +78,23 @@ def plot_pareto(
     """
     cloud = [(float(f_acc), float(f_t)) for f_acc, f_t in evaluated]
     members = [(member.f_acc, member.f_t) for member in sorted_front(front)]
+    reference = [baseline.objectives] if baseline is not None and not baseline.diverged else []
 
     finite = [
         (f_acc, f_t)
-        for f_acc, f_t in cloud + members
+        for f_acc, f_t in cloud + members + reference
         if math.isfinite(f_acc) and math.isfinite(f_t)
     ]
     positive = [f_t for _, f_t in finite if f_t > 0]
     log_scale = bool(positive)
     floor = min(positive) / 10 if positive else 0.0
     notes = []
-    if dropped := len(cloud) + len(members) - len(finite):
+    if dropped := len(cloud) + len(members) + len(reference) - len(finite):
         notes.append(f"{dropped} point(s) with a non-finite objective not drawn")
     if log_scale and (clipped := sum(1 for _, f_t in finite if f_t <= 0)):
         notes.append(f"{clipped} point(s) with f_t ≤ 0 drawn at the axis floor")
+    if baseline is not None and baseline.diverged:
+        notes.append("default gains diverged: their penalty point is not drawn")
 
     def drawable(points: list[tuple[float, float]]) -> tuple[list[float], list[float]]:
         kept = [(x, y) for x, y in points if math.isfinite(x) and math.isfinite(y)]
@@ -93,13 +120,39 @@ def plot_pareto(
         label=f"Pareto front ({len(members)})",
         zorder=3,
     )
+    for chosen in picks:
+        marker, size, colour, name = PICK_STYLES[chosen.name]
+        x, y = drawable([chosen.member.objectives])
+        axes.scatter(
+            x,
+            y,
+            marker=marker,
+            s=size,
+            color=colour,
+            edgecolor="black",
+            linewidth=0.8,
+            label=f"{name}: row {chosen.row}, {chosen.member.f_acc * 1000:.2f} mm, "
+            f"{chosen.member.f_t:.3g}",
+            zorder=5,
+        )
+    if reference:
+        x, y = drawable(reference)
+        axes.scatter(
+            x,
+            y,
+            marker="X",
+            s=110,
+            color="black",
+            label=f"default gains: {reference[0][0] * 1000:.2f} mm, {reference[0][1]:.3g}",
+            zorder=4,
+        )
     if log_scale:
         axes.set_yscale("log")
     axes.set_xlabel("f_acc: mean end-effector error (mm)")
     axes.set_ylabel("f_t: mean squared torque change per tick ((N·m)²)")
-    axes.set_title(title or "Pareto front")
+    axes.set_title(title or "Pareto front", fontsize=10)
     axes.grid(True, which="major", alpha=0.3)
-    axes.legend(loc="upper right")
+    axes.legend(loc="upper right", fontsize=8)
     if notes:  # top left: the front lies low and the legend sits top right
         axes.text(
             0.01,
@@ -112,7 +165,7 @@ def plot_pareto(
         )
     if not finite:
         axes.text(0.5, 0.5, "no evaluations yet", transform=axes.transAxes, ha="center")
-    save_png(figure, path)
+    return figure
 
 
 def plot_hypervolume(path: Path, history: Sequence[HistoryRow], title: str = "") -> None:
@@ -236,6 +289,15 @@ def plot_generic_vs_specific(
     save_png(figure, path)
 
 
+def text_colour(background: Sequence[float]) -> str:
+    """Black or white, whichever reads better on `background` (RGB(A), 0-1): the one of
+    higher WCAG contrast, from the background's relative luminance."""
+    linear = [c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4 for c in background[:3]]
+    luminance = 0.2126 * linear[0] + 0.7152 * linear[1] + 0.0722 * linear[2]
+    # Contrast with black (L + 0.05) / 0.05 against with white 1.05 / (L + 0.05).
+    return "black" if (luminance + 0.05) ** 2 > 0.05 * 1.05 else "white"
+
+
 def plot_speed(
     path: Path,
     durations: Sequence[float],
@@ -264,7 +326,10 @@ def plot_speed(
         image = axes.imshow(grid, cmap="viridis")
         for i, row in enumerate(grid):
             for j, value in enumerate(row):
-                axes.text(j, i, fmt.format(value), ha="center", va="center", color="white")
+                cell = image.cmap(image.norm(value))
+                axes.text(
+                    j, i, fmt.format(value), ha="center", va="center", color=text_colour(cell)
+                )
         labels = [f"{d:g} s" for d in durations]
         axes.set(
             xticks=range(len(durations)),

@@ -16,7 +16,6 @@ gigabytes, for networks this small (3 × 128 units, tens of thousands of rows) o
 import json
 import math
 import shutil
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,7 +44,7 @@ from models.dynamics import (
     rigid_spec,
     to_bytes,
 )
-from schemas.files import write_atomically
+from schemas.files import staging_directory, write_atomically
 from schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
 
 TICKS = "ticks.parquet"
@@ -383,9 +382,7 @@ def learn(
     }
     try:
         out_dir.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(
-            tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}.", suffix=".part")
-        )
+        staging = staging_directory(out_dir)
     except OSError as error:
         raise LearnError(f"cannot write {str(out_dir)!r}: {error.strerror}") from None
     try:

@@ -15,6 +15,8 @@ identical runs give byte-identical files. Each file appears whole or not at all 
     front.json      the front again, each member with the episode logs it left (the index the
                     dataset reads; as evaluations.json is for a batch)
     evaluated.csv   every candidate's objectives, in the order told: the cloud behind the front
+    baseline.json   the default gains' point on the run's trajectories, evaluated once when
+                    the run reports: what the tuned controllers are measured against
     checkpoint.pkl  the evolution's own state, for `analytic resume` only (analytic.checkpoint)
 """
 
@@ -41,6 +43,7 @@ HISTORY_CSV = "history.csv"
 REPORT_MD = "report.md"
 FRONT_JSON = "front.json"
 EVALUATED_CSV = "evaluated.csv"
+BASELINE_JSON = "baseline.json"
 CONFIG_JSON = "config.json"
 RUN_JSON = "run.json"
 FEEDFORWARD = "feedforward.npz"  # the learned model a run's episodes add to their PD, if any
@@ -276,6 +279,53 @@ def read_front_json(path: Path) -> list[FrontMember]:
         return [FrontMember(**member) for member in members]
     except (KeyError, TypeError, json.JSONDecodeError) as error:
         raise ValueError(f"{path}: not a front.json ({error})") from None
+
+
+@dataclass(frozen=True)
+class Baseline:
+    """The default gains' objectives on a run's trajectories, as the run's candidates are
+    scored (the same weights), one line of baseline.json. `diverged`: an episode was stopped
+    early or could not run, so the point is a penalty. `episodes`: each trajectory's job id,
+    status and scores, for the record (no part in comparisons)."""
+
+    gains: PDGains
+    f_acc: float
+    f_t: float
+    diverged: bool
+    episodes: tuple[dict, ...] = field(default=(), compare=False)
+
+    @property
+    def objectives(self) -> tuple[float, float]:
+        return (self.f_acc, self.f_t)
+
+
+def baseline_json(baseline: Baseline) -> bytes:
+    """baseline.json's content."""
+    return json.dumps(
+        {
+            "gains": baseline.gains.model_dump(),
+            "f_acc": baseline.f_acc,
+            "f_t": baseline.f_t,
+            "diverged": baseline.diverged,
+            "episodes": list(baseline.episodes),
+        },
+        indent=1,
+    ).encode()
+
+
+def read_baseline(path: Path) -> Baseline:
+    """baseline.json as written by `baseline_json`; ValueError naming it if it is not one."""
+    try:
+        fields = json.loads(Path(path).read_bytes())
+        return Baseline(
+            gains=PDGains.model_validate(fields["gains"]),
+            f_acc=float(fields["f_acc"]),
+            f_t=float(fields["f_t"]),
+            diverged=bool(fields["diverged"]),
+            episodes=tuple(fields.get("episodes", ())),
+        )
+    except (KeyError, TypeError, ValueError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path}: not a baseline.json ({error})") from None
 
 
 RUN_ID = re.compile(r"[0-9a-f]{32}")

@@ -10,17 +10,21 @@ from pathlib import Path
 from typing import Protocol
 
 from analytic.config import RunConfig
+from analytic.export import Pick, plant_name, point_groups
 from analytic.records import (
     FRONT_CSV,
     HISTORY_CSV,
     HYPERVOLUME_PNG,
     PARETO_PNG,
+    Baseline,
     FrontMember,
     HistoryRow,
     sorted_front,
 )
+from schemas.controller import UNITS
 from schemas.files import write_atomically
-from schemas.robot import PLANTS, ModelSpec
+from schemas.objectives import DIVERGED_TICK_ERROR
+from schemas.robot import JOINT_NAMES, ModelSpec
 
 ALGORITHM_NAMES = {
     "nsga2": "NSGA-II",
@@ -41,9 +45,22 @@ def _search(config: RunConfig) -> str:
     return f"{how} {name}{scaled}"
 
 
+def trajectories_text(config: RunConfig) -> str:
+    """The run's trajectories and their duration: 'spiral 5 s', 'spiral, random, pyramid 3 s'."""
+    kinds = [trajectory.kind.value for trajectory in config.trajectories]
+    durations = {trajectory.duration for trajectory in config.trajectories}
+    if len(durations) == 1:
+        return f"{', '.join(kinds)} {durations.pop():g} s"
+    return ", ".join(f"{t.kind.value} {t.duration:g} s" for t in config.trajectories)
+
+
 def run_title(config: RunConfig) -> str:
-    """A run's figures' title: what was tuned, how."""
-    return f"{config.mode} controller, {_search(config)}, pop {config.pop}, seed {config.seed}"
+    """A run's figures' title: what it was tuned on (trajectories and their duration, plant,
+    population), then how."""
+    return (
+        f"{config.mode} controller on {trajectories_text(config)}, {plant_text(config.model)}, "
+        f"population {config.pop}\n{_search(config)}, seed {config.seed}"
+    )
 
 
 def run_setup(config: RunConfig) -> list[str]:
@@ -91,9 +108,109 @@ def gains_text(member: FrontMember) -> str:
     return f"kp {kp} / kd {kd}"
 
 
-def front_table_row(rank: int, member: FrontMember) -> str:
-    """One line of the report's front table (public so a test or a caller can find it)."""
-    return f"| {rank} | {member.f_acc * 1000:.3f} | {member.f_t:.4g} | {gains_text(member)} |"
+UNITS_LINE = (
+    f"Units: kp in {UNITS['kp']} and kd in {UNITS['kd']}, one per joint "
+    f"{JOINT_NAMES[0]}..{JOINT_NAMES[-1]}; f_acc is the mean end-effector error (front.csv: m; "
+    "here: mm), f_t the mean squared torque change per 2 ms tick in (N·m)²."
+)
+DIVERGED_NOTE = (
+    "*diverged*: an episode of the member was stopped early; every tick it did not run is "
+    f"charged {DIVERGED_TICK_ERROR:g} m of error and the largest possible torque change, so its "
+    "f_acc and f_t are a penalty, not a measurement (its mean error can exceed the largest error "
+    "measured)."
+)
+
+
+def shown(member: FrontMember) -> tuple[str, str, bool]:
+    """A member's scores as the report shows them: members alike here share a line."""
+    return (f"{member.f_acc * 1000:.3f}", f"{member.f_t:.4g}", member.diverged)
+
+
+def _error(member: FrontMember | Baseline) -> str:
+    """f_acc in mm, marked when it is a divergence penalty."""
+    return f"{member.f_acc * 1000:.3f}" + (" *diverged*" if member.diverged else "")
+
+
+def front_table_row(rank: int, member: FrontMember, count: int = 1) -> str:
+    """One line of the report's front table (public so a test or a caller can find it): the
+    member at front.csv row `rank`, and how many members from there on share its scores."""
+    rows = f"{count} (rows {rank}-{rank + count - 1})" if count > 1 else "1"
+    return f"| {rank} | {_error(member)} | {member.f_t:.4g} | {rows} | {gains_text(member)} |"
+
+
+PICK_NAMES = {"knee": "**knee** (use this)", "accurate": "most accurate", "smooth": "smoothest"}
+
+
+def _dominates(a: tuple[float, float], b: tuple[float, float]) -> bool:
+    return a[0] <= b[0] and a[1] <= b[1] and a != b
+
+
+def baseline_text(front: Sequence[FrontMember], baseline: Baseline, knee: FrontMember) -> str:
+    """How the front fares against the default gains, in one sentence."""
+    if baseline.diverged:
+        return "The default gains diverged on these trajectories: their scores are a penalty."
+    better = sum(
+        1 for m in front if not m.diverged and _dominates(m.objectives, baseline.objectives)
+    )
+    text = (
+        f"{better} of the front's {len(front)} members dominate the default gains (as accurate "
+        "and as smooth, and better in one)"
+    )
+    if _dominates(baseline.objectives, knee.objectives):
+        text += "; the default gains dominate the knee: the run has not beaten them there yet"
+    return text + "."
+
+
+def controllers_section(
+    picks: Sequence[Pick],
+    baseline: Baseline | None,
+    run_dir: str = "RUN",
+    front: Sequence[FrontMember] = (),
+) -> list[str]:
+    """The report's answer to "which controller?": the knee, the most accurate and the
+    smoothest member with their gains, beside the default gains and how the front fares
+    against them; how the knee is chosen, and how to take it out of the run."""
+    lines = ["## The controller to use", ""]
+    if not picks:
+        return [*lines, "No front yet.", ""]
+    lines += [
+        f"| | front.csv row | f_acc (mm) | f_t ((N·m)²) | kp ({UNITS['kp']}) "
+        f"{JOINT_NAMES[0]}..{JOINT_NAMES[-1]} | kd ({UNITS['kd']}) |",
+        "|---|---:|---:|---:|---|---|",
+    ]
+    for chosen in picks:
+        member = chosen.member
+        shared = f" ({chosen.sharing} members share it)" if chosen.sharing > 1 else ""
+        lines.append(
+            f"| {PICK_NAMES[chosen.name]} | {chosen.row}{shared} | {_error(member)} | "
+            f"{member.f_t:.4g} | {' '.join(f'{g:.4g}' for g in member.kp)} | "
+            f"{' '.join(f'{g:.4g}' for g in member.kd)} |"
+        )
+    if baseline is not None:
+        lines.append(
+            f"| default gains (not tuned) | – | {_error(baseline)} | {baseline.f_t:.4g} | "
+            f"{' '.join(f'{g:.4g}' for g in baseline.gains.kp)} | "
+            f"{' '.join(f'{g:.4g}' for g in baseline.gains.kd)} |"
+        )
+    if baseline is not None and front:
+        lines += ["", baseline_text(front, baseline, picks[0].member)]
+    lines += [
+        "",
+        "The knee is the member whose worse objective is the least bad once both are taken on a "
+        "log scale (a front spans decades in each) and normalised between the front's ideal and "
+        "nadir points: the minimum of pymoo's achievement scalarisation function with equal "
+        "weights, ties to the lowest row; diverged members are never picked unless all are. It "
+        "gives up neither accuracy nor smoothness for the other.",
+        "",
+        f"Take it out of the run: `analytic export {run_dir}` writes its gains as JSON (which "
+        "`analytic batch --gains` and `worker episode --gains` read); `--format ros2_control` "
+        "as a ros2_control controller configuration; `--member accurate|smooth|N` another "
+        "member (N: its front.csv row).",
+        "",
+        UNITS_LINE,
+        "",
+    ]
+    return lines
 
 
 def report_markdown(
@@ -103,9 +220,15 @@ def report_markdown(
     history: Sequence[HistoryRow],
     front: Sequence[FrontMember],
     converged: str,
+    picks: Sequence[Pick] = (),
+    baseline: Baseline | None = None,
+    run_dir: str = "RUN",
 ) -> str:
     """The text of report.md (see `write_report`)."""
-    lines = [f"# {title}", "", "## Configuration", ""]
+    lines = [f"# {title}", ""]
+    if picks:
+        lines += controllers_section(picks, baseline, run_dir, front)
+    lines += ["## Configuration", ""]
     lines += [f"- {line}" for line in config_lines] or ["- (none given)"]
     lines += ["", "## Summary", ""]
     if history:
@@ -123,13 +246,24 @@ def report_markdown(
         lines.append(f"- {converged}")
 
     members = sorted_front(front)
-    lines += ["", f"## Pareto front ({len(members)} members, most accurate first)", ""]
+    groups = point_groups(members, shown)
+    points = (
+        f", {len(groups)} distinct at the precision shown" if len(groups) != len(members) else ""
+    )
+    lines += ["", f"## Pareto front ({len(members)} members{points}, most accurate first)", ""]
     if members:
         lines += [
-            "| # | f_acc (mm) | f_t ((N·m)²) | gains |",
-            "|---:|---:|---:|---|",
-            *(front_table_row(rank, member) for rank, member in enumerate(members, start=1)),
+            "Members whose scores agree to the precision shown share one line (the first one's "
+            "gains are shown; front.csv lists each, at full precision).",
+            "",
+            "| # (front.csv row) | f_acc (mm) | f_t ((N·m)²) | members | gains: kp "
+            f"({UNITS['kp']}) / kd ({UNITS['kd']}), {JOINT_NAMES[0]}..{JOINT_NAMES[-1]} |",
+            "|---:|---:|---:|---:|---|",
+            *(front_table_row(row, members[row - 1], count) for row, count in groups),
         ]
+        if any(member.diverged for member in members):
+            lines += ["", DIVERGED_NOTE]
+        lines += ["", UNITS_LINE]
     else:
         lines.append("No members yet.")
 
@@ -156,8 +290,13 @@ def write_report(
     history: Sequence[HistoryRow],
     front: Sequence[FrontMember],
     converged: str,
+    picks: Sequence[Pick] = (),
+    baseline: Baseline | None = None,
+    run_dir: str = "RUN",
 ) -> None:
-    """A short report.md at `path`: configuration, summary, the front as a table, the figures.
+    """A short report.md at `path`: the controller to use (`picks`, beside the default gains'
+    `baseline`; `run_dir` for the export command it shows), configuration, summary, the front
+    as a table (members with identical scores on one line), the figures.
 
     `converged` is the caller's one-line verdict on why the run stopped (or that it has not),
     e.g. "converged after 240 evaluations (hypervolume gain < 0.1% over 3 generations)". The
@@ -165,32 +304,57 @@ def write_report(
     into the same directory. The table is rounded for reading; front.csv holds the exact values.
     """
     text = report_markdown(
-        title=title, config_lines=config_lines, history=history, front=front, converged=converged
+        title=title,
+        config_lines=config_lines,
+        history=history,
+        front=front,
+        converged=converged,
+        picks=picks,
+        baseline=baseline,
+        run_dir=run_dir,
     )
     write_atomically(Path(path), text.encode("utf-8"))
 
 
 def plant_text(model: ModelSpec) -> str:
     """Which plant a run simulated: a named one, or a custom one, and its joints."""
-    for name, plant in PLANTS.items():
-        if model == plant.model_copy(update={"joints": model.joints}):
-            return f"{name} plant, {model.joints} joints"
-    return f"custom plant (see config.json), {model.joints} joints"
+    name = plant_name(model)
+    if name == "custom":
+        return f"custom plant (see config.json), {model.joints} joints"
+    return f"{name} plant, {model.joints} joints"
 
 
 def experiment_setup(
-    base: RunConfig, reps: int, normalisations: dict[str, tuple[tuple[float, float], ...]]
+    base: RunConfig,
+    reps: int,
+    normalisations: dict[str, tuple[tuple[float, float], ...]],
+    *,
+    populations: Sequence[int] = (),
+    durations: Sequence[float] = (),
 ) -> list[str]:
     """How an experiment was run, as its report lists it; `normalisations`: per problem (the
-    trajectory fronts are judged on), the ideal and nadir points the hypervolume spans."""
+    trajectory fronts are judged on), the ideal and nadir points the hypervolume spans.
+    `populations` and `durations`: what the runs used when they vary (the popsize and speed
+    experiments), else the base configuration's population and trajectory duration hold."""
+    population = (
+        "populations " + ", ".join(str(size) for size in populations)
+        if populations
+        else f"population {base.pop}"
+    )
+    seconds = durations or sorted({t.duration for t in base.trajectories})
+    duration = (
+        ("trajectory durations " if len(seconds) > 1 else "trajectory duration ")
+        + ", ".join(f"{d:g}" for d in seconds)
+        + " s"
+    )
     spaces = "; ".join(
         f"{problem}: f_acc {ideal[0]:.4g}-{nadir[0]:.4g} m, "
         f"f_t {ideal[1]:.4g}-{nadir[1]:.4g} (N·m)²"
         for problem, (ideal, nadir) in normalisations.items()
     )
     return [
-        f"{reps} repetitions (seeds 0..{reps - 1}); base configuration: population "
-        f"{base.pop}, {base.termination_text}, {plant_text(base.model)}",
+        f"{reps} repetitions (seeds 0..{reps - 1}); runs of {population}, {duration}, "
+        f"{base.termination_text}, {plant_text(base.model)}",
         "hypervolume normalised between the ideal and the nadir of the pooled non-dominated "
         f"front of each problem (penalty points left out; f_t on a log scale): {spaces} "
         "(`normalisation.json`)",

@@ -14,7 +14,8 @@ storage. After every generation the run writes, each file atomically (analytic.r
     evaluated.csv    every candidate's objectives, in the order told
     episodes/        the MCAP logs (all, or only the front's with keep="front")
 
-and at the end pareto.png, hypervolume.png and report.md. A stopped run continues from its last
+and at the end baseline.json (the default gains on the run's trajectories, evaluated once),
+pareto.png, hypervolume.png and report.md. A stopped run continues from its last
 checkpoint; the interrupted generation runs again, with the same candidates and the same
 (deterministic) episodes, so the front is the one an uninterrupted run finds.
 
@@ -40,8 +41,10 @@ from analytic.checkpoint import CheckpointRefused, decode, encode
 from analytic.config import RunConfig
 from analytic.evaluator import Evaluation, EvaluationStatus, Evaluator, Wanted
 from analytic.evolution import Candidate, Evolution, hypervolume
+from analytic.export import picks
 from analytic.figures import plot_hypervolume, plot_pareto
 from analytic.records import (
+    BASELINE_JSON,
     CONFIG_JSON,
     EPISODES,
     EVALUATED_CSV,
@@ -54,13 +57,16 @@ from analytic.records import (
     PARETO_PNG,
     REPORT_MD,
     RUN_JSON,
+    Baseline,
     FrontMember,
     HistoryRow,
     RunIdentity,
+    baseline_json,
     evaluated_csv,
     front_csv,
     front_json,
     history_csv,
+    read_baseline,
     read_identity,
     run_json,
     sorted_front,
@@ -76,7 +82,7 @@ from schemas.files import (
     remove_leftovers,
     write_atomically,
 )
-from schemas.gains import PDGains
+from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.objectives import objectives
 from schemas.trajectory import TrajectorySpec
 
@@ -125,13 +131,16 @@ class RunState:
 
 @dataclass(frozen=True)
 class RunProgress:
-    """Where a run stands, after each evaluation: for a progress line."""
+    """Where a run stands, after each evaluation and once more as each generation ends (with
+    `ended`, its records and checkpoint written): for a progress line. `generation` counts the
+    generations ended; `hypervolume` and `best_f_acc` are the last ended one's (NaN before)."""
 
     generation: int
     evaluations: int
     hypervolume: float
     best_f_acc: float
     elapsed: float
+    ended: bool = False
 
 
 class TuningRun:
@@ -248,8 +257,9 @@ class TuningRun:
         *,
         report: bool = True,
     ) -> str:
-        """Evolve until the termination says stop; return why it stopped. With `report`, draw
-        the figures and write report.md at the end (the records are written either way)."""
+        """Evolve until the termination says stop; return why it stopped. With `report`, evaluate
+        the default gains once (baseline.json), draw the figures and write report.md at the end
+        (the records are written either way)."""
         self._check_open()
         started = time.monotonic() - self.state.wall_seconds
         while self.state.stopped is None:
@@ -260,8 +270,50 @@ class TuningRun:
         if self.config.replicate:
             self._validate_front(evaluator)
         if report:
+            self.baseline(evaluator)
             self.write_figures()
         return self.state.stopped
+
+    def baseline(self, evaluator: Evaluator | None = None) -> Baseline | None:
+        """The default gains' point on the run's trajectories, scored as the candidates are: from
+        baseline.json, or (given an evaluator) evaluated now, one job per trajectory, and kept
+        there. Episodes are deterministic, so once is enough. None if there is none yet."""
+        path = self.directory / BASELINE_JSON
+        if path.exists():
+            try:
+                kept = read_baseline(path)
+            except ValueError:
+                kept = None
+            if kept is not None and kept.gains == DEFAULT_GAINS:
+                return kept
+        if evaluator is None:
+            return None
+        jobs = {f"baseline-t{number}": number for number in range(len(self.config.trajectories))}
+        specs = {
+            job_id: self._spec(DEFAULT_GAINS, self.config.trajectories[number])
+            for job_id, number in jobs.items()
+        }
+        evaluator.submit(specs)
+        found = {evaluation.job_id: evaluation for evaluation in evaluator.results()}
+        scores = [found[job_id].scores if job_id in found else None for job_id in jobs]
+        f_acc, f_t = objectives(scores, self.config.objective_weights)
+        baseline = Baseline(
+            gains=DEFAULT_GAINS,
+            f_acc=f_acc,
+            f_t=f_t,
+            diverged=any(s is None or s.diverged for s in scores),
+            episodes=tuple(
+                {
+                    "job_id": job_id,
+                    "status": found[job_id].status.value if job_id in found else "lost",
+                    "reason": found[job_id].reason if job_id in found else "no result",
+                    "scores": s.model_dump() if s is not None else None,
+                }
+                for job_id, s in zip(jobs, scores, strict=True)
+            ),
+        )
+        write_atomically(path, baseline_json(baseline))
+        return baseline
 
     # --- generational: a whole generation out, then told in the order asked -------------------
 
@@ -287,6 +339,7 @@ class TuningRun:
         found = [self._candidate_done(gains, jobs[gains], results) for gains in candidates]
         evolution.tell(found)
         self._generation_done(started, evaluator)
+        on_progress(self._progress(0, started, ended=True))
 
     # --- steady state: each candidate told as it returns, a new one asked at once -------------
 
@@ -296,8 +349,9 @@ class TuningRun:
         """Keep two candidates per worker in flight so that none waits, as many workers as the
         farm has now (looked up again every CAPACITY_SECONDS: workers come and go, and a farm
         that grows mid-run is used); a "generation" here is every `pop` evaluations, for the
-        history, the termination and the checkpoint. When the run stops, the candidates still
-        in flight are dropped (a resumed run asks anew)."""
+        history, the termination and the checkpoint. A budget of evaluations is kept exactly:
+        no candidate is asked beyond it, and the last, partial "generation" ends with it. When
+        the run stops, the candidates still in flight are dropped (a resumed run asks anew)."""
         evolution = self.state.evolution
         in_flight: dict[str, tuple[Population, PDGains, list[str]]] = {}
         results: dict[str, Evaluation] = {}
@@ -310,12 +364,13 @@ class TuningRun:
             evaluator.submit(self._specs({gains: in_flight[name][2]}))
 
         wanted, looked = 0, -math.inf
+        budget = self.config.evaluations or math.inf
 
         def top_up() -> None:
             nonlocal wanted, looked
             if time.monotonic() - looked >= CAPACITY_SECONDS:
                 wanted, looked = max(2, 2 * evaluator.capacity), time.monotonic()
-            while len(in_flight) < wanted:
+            while len(in_flight) < wanted and evolution.evaluations + len(in_flight) < budget:
                 launch()
 
         try:
@@ -330,8 +385,9 @@ class TuningRun:
                 del in_flight[name]
                 evolution.tell_one(handle, self._candidate_done(gains, ids, results))
                 on_progress(self._progress(0, started))
-                if evolution.evaluations % self.config.pop == 0:
+                if evolution.evaluations % self.config.pop == 0 or evolution.evaluations >= budget:
                     self._generation_done(started, evaluator)
+                    on_progress(self._progress(0, started, ended=True))
                     if self.state.stopped is not None:
                         return
                 top_up()
@@ -517,14 +573,17 @@ class TuningRun:
             for job_id, trajectory in zip(ids, self.config.trajectories, strict=True)
         }
 
-    def _progress(self, evaluations_in_flight: int, started: float) -> RunProgress:
+    def _progress(
+        self, evaluations_in_flight: int, started: float, ended: bool = False
+    ) -> RunProgress:
         best = self.state.history[-1] if self.state.history else None
         return RunProgress(
-            generation=self.state.evolution.generation,
+            generation=best.generation if ended and best else self.state.evolution.generation,
             evaluations=self.state.evolution.evaluations + evaluations_in_flight,
-            hypervolume=best.hypervolume if best else 0.0,
-            best_f_acc=best.best_f_acc if best else float("nan"),
+            hypervolume=best.hypervolume if best else math.nan,
+            best_f_acc=best.best_f_acc if best else math.nan,
             elapsed=time.monotonic() - started,
+            ended=ended,
         )
 
     def _candidate_done(
@@ -544,9 +603,12 @@ class TuningRun:
         state = self.state
         front = state.evolution.front()
         state.wall_seconds = time.monotonic() - started
+        generation = state.evolution.generation
+        if self.config.asynchronous and state.evolution.evaluations % self.config.pop:
+            generation += 1  # the last, partial one, which a budget of evaluations ended
         state.history.append(
             HistoryRow(
-                generation=state.evolution.generation,
+                generation=generation,
                 evaluations=state.evolution.evaluations,
                 hypervolume=hypervolume(
                     [member.objectives for member in front], self.config.reference_point
@@ -591,10 +653,19 @@ class TuningRun:
         write_atomically(self.directory / HISTORY_CSV, history_csv(self.state.history))
 
     def write_figures(self) -> None:
-        """pareto.png, hypervolume.png and report.md, from where the run stands."""
+        """pareto.png, hypervolume.png and report.md, from where the run stands: the knee, the
+        most accurate and the smoothest member marked, beside the default gains (if evaluated)."""
         self._check_open()
         front, title = self.front(), run_title(self.config)
-        plot_pareto(self.directory / PARETO_PNG, front, self.state.evaluated, title=title)
+        chosen, baseline = picks(front), self.baseline()
+        plot_pareto(
+            self.directory / PARETO_PNG,
+            front,
+            self.state.evaluated,
+            title=title,
+            picks=chosen,
+            baseline=baseline,
+        )
         plot_hypervolume(self.directory / HYPERVOLUME_PNG, self.state.history, title=title)
         write_report(
             self.directory / REPORT_MD,
@@ -603,6 +674,9 @@ class TuningRun:
             history=self.state.history,
             front=front,
             converged=self.state.stopped or "stopped before it ended",
+            picks=chosen,
+            baseline=baseline,
+            run_dir=str(self.directory),
         )
 
 

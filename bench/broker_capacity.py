@@ -2,18 +2,22 @@
 second process.
 
     python bench/broker_capacity.py [--quick] [--jobs 20000] [--runs 3] [--noop-workers 8]
+                                    [--batch 1,8]
 
 The broker runs alone in this process. A second process plays the rest of the farm: a client
 holding the study's liveliness token that submits, and confirms the results it receives with the
 broker in batches as FarmClient does, and K no-op workers, each a thread with its own client
-session and liveliness token, that ask for a lease, at once hand in an ok Result with an empty log
-and, once the broker takes it, put it. With 2 cores, this gives the broker (Zenoh's router, its
-callbacks, the queue) a core and the load the other, instead of one GIL for both. Jobs per second
-is the broker's own count of jobs done (results it took) over the time from the workers' start to
-the last completion; lease latency is from a worker's get to the reply carrying a lease, as the
-worker sees it; hand-in latency from a worker's hand-in to the broker's verdict. The client's
-confirmations are counted per round trip (results asked about at once, and its time), and per
-result from its arrival to its confirmation. Two settings, alternating, each run several times
+session and liveliness token, that ask for a batch of up to `--batch` leases, at once hand in ok
+Results with an empty log with the next request and put those the broker takes. A worker asks for
+batches of one when its jobs are long and for bigger ones when they are short (worker/service.py:
+about BATCH_SECONDS of work at a time), so the broker answers one query per batch. With 2 cores,
+this gives the broker (Zenoh's router, its callbacks, the queue) a core and the load the other,
+instead of one GIL for both. Jobs per second is the broker's own count of jobs done (results it
+took) over the time from the workers' start to the last completion; lease latency is from a
+worker's get to the reply carrying leases, as the worker sees it; hand-in latency from a request
+that hands results in to the verdicts. The client's confirmations are counted per round trip
+(results asked about at once, and its time), and per result from its arrival to its
+confirmation. Two settings, alternating, each run several times
 (the figures are those of the run with the median jobs per second):
 
 - "live": the submitter sends Submissions as big as FarmClient's (SUBMIT_CHUNK jobs) while the
@@ -38,11 +42,14 @@ from common import SPAWN, FakeAnalytic, NoopWorker, loopback_endpoint, percentil
 from analytic.farm import SUBMIT_CHUNK
 from broker.service import Broker
 from schemas.transport import open_session
+from schemas.wire import MAX_BATCH
 
 AHEAD = 2_000  # jobs the live submitter keeps queued beyond those completed
 
 
-def noop_load(endpoint: str, jobs: int, workers: int, prefill: bool, parent: Connection) -> None:
+def noop_load(
+    endpoint: str, jobs: int, workers: int, prefill: bool, batch: int, parent: Connection
+) -> None:
     """The load: a submitter and `workers` no-op workers. Sends the time it starts, works until
     the parent (which sees the broker's count of jobs done) says stop, then sends what it
     measured."""
@@ -53,7 +60,10 @@ def noop_load(endpoint: str, jobs: int, workers: int, prefill: bool, parent: Con
             submitter.submit(payload)
         payloads = []
     sessions = [open_session("client", connect=[endpoint]) for _ in range(workers)]
-    farm = [NoopWorker(session, f"noop-{i}", submitter.study) for i, session in enumerate(sessions)]
+    farm = [
+        NoopWorker(session, f"noop-{i}", submitter.study, batch=batch)
+        for i, session in enumerate(sessions)
+    ]
     stop = threading.Event()
     threads = [threading.Thread(target=worker.serve, args=(stop,)) for worker in farm]
 
@@ -97,6 +107,7 @@ def noop_load(endpoint: str, jobs: int, workers: int, prefill: bool, parent: Con
 @dataclass
 class Capacity:
     prefill: bool
+    batch: int
     jobs_per_s: float
     p50_ms: float
     p99_ms: float
@@ -114,11 +125,13 @@ class Capacity:
     wait_p99_ms: float
 
 
-def capacity(jobs: int, workers: int, prefill: bool) -> Capacity:
+def capacity(jobs: int, workers: int, prefill: bool, batch: int) -> Capacity:
     endpoint = loopback_endpoint()
     with Broker([endpoint]) as broker:
         here, there = SPAWN.Pipe()
-        load = SPAWN.Process(target=noop_load, args=(endpoint, jobs, workers, prefill, there))
+        load = SPAWN.Process(
+            target=noop_load, args=(endpoint, jobs, workers, prefill, batch, there)
+        )
         load.start()
         started: float = here.recv()
         cpu = time.process_time()
@@ -140,6 +153,7 @@ def capacity(jobs: int, workers: int, prefill: bool) -> Capacity:
     rounds = outcome["rounds"]
     return Capacity(
         prefill=prefill,
+        batch=batch,
         jobs_per_s=jobs / (finished - started),
         p50_ms=percentile_ms(outcome["latencies"], 50),
         p99_ms=percentile_ms(outcome["latencies"], 99),
@@ -158,16 +172,17 @@ def capacity(jobs: int, workers: int, prefill: bool) -> Capacity:
     )
 
 
-def capacities(jobs: int, workers: int, runs: int) -> tuple[Capacity, Capacity]:
+def capacities(jobs: int, workers: int, runs: int, batch: int) -> tuple[Capacity, Capacity]:
     """The live and the pre-filled setting, alternating; of each, the run with the median
     jobs per second (the upper median for an even number of runs)."""
     found: dict[bool, list[Capacity]] = {False: [], True: []}
     for index in range(runs):
         for prefill in (False, True):
-            run = capacity(jobs, workers, prefill)
+            run = capacity(jobs, workers, prefill, batch)
             found[prefill].append(run)
             print(
-                f"  run {index + 1}/{runs}, {'pre-filled' if prefill else 'live'}: "
+                f"  batch {batch}, run {index + 1}/{runs}, "
+                f"{'pre-filled' if prefill else 'live'}: "
                 f"{run.jobs_per_s:,.0f} jobs/s, lease p50 {run.p50_ms:.1f} ms, "
                 f"p99 {run.p99_ms:.1f} ms; CPU per job: broker {run.broker_us:.0f} µs, "
                 f"load {run.load_us:.0f} µs; {run.requeued:,} requeued, "
@@ -189,6 +204,16 @@ def capacities(jobs: int, workers: int, runs: int) -> tuple[Capacity, Capacity]:
     return median(found[False]), median(found[True])
 
 
+def batch_sizes(_ctx: click.Context, _param: click.Parameter, text: str) -> list[int]:
+    try:
+        sizes = [int(part) for part in text.split(",")]
+    except ValueError:
+        sizes = []
+    if not sizes or any(not 1 <= size <= MAX_BATCH for size in sizes):
+        raise click.BadParameter(f"comma-separated sizes from 1 to {MAX_BATCH}, got {text!r}")
+    return sizes
+
+
 @click.command(help=__doc__.split("\n\n")[0])
 @click.option("--quick", is_flag=True, help="a smoke run of under a minute")
 @click.option(
@@ -198,21 +223,35 @@ def capacities(jobs: int, workers: int, runs: int) -> tuple[Capacity, Capacity]:
     "--runs", type=click.IntRange(min=1), help="runs per setting  [default: 3; --quick: 1]"
 )
 @click.option("--noop-workers", type=click.IntRange(min=1), default=8, show_default=True)
-def main(quick: bool, jobs: int | None, runs: int | None, noop_workers: int) -> None:
+@click.option(
+    "--batch",
+    default="1,8",
+    show_default=True,
+    callback=batch_sizes,
+    help="leases a worker asks for at once; each size is measured",
+)
+def main(
+    quick: bool, jobs: int | None, runs: int | None, noop_workers: int, batch: list[int]
+) -> None:
     jobs = jobs or (3_000 if quick else 20_000)
     runs = runs or (1 if quick else 3)
     print(f"broker: {jobs:,} no-op jobs per run, {noop_workers} no-op workers", flush=True)
-    live, prefilled = capacities(jobs, noop_workers, runs)
+    found = [(size, capacities(jobs, noop_workers, runs, size)) for size in batch]
     print()
-    for run, setting in ((live, "submitting meanwhile"), (prefilled, "queue pre-filled")):
-        print(
-            f"broker: {run.jobs_per_s:,.0f} no-op jobs/s, lease latency "
-            f"p50 {run.p50_ms:.1f} ms, p99 {run.p99_ms:.1f} ms ({noop_workers} no-op "
-            f"workers, {setting}; median of {runs} runs); hand-in p50 "
-            f"{run.hand_in_p50_ms:.1f} ms, p99 {run.hand_in_p99_ms:.1f} ms; confirmation round "
-            f"trip p50 {run.confirm_p50_ms:.1f} ms, p99 {run.confirm_p99_ms:.1f} ms "
-            f"({run.confirm_batch:.1f} results each)"
-        )
+    for size, (live, prefilled) in found:
+        for run, setting in ((live, "submitting meanwhile"), (prefilled, "queue pre-filled")):
+            print(
+                f"broker: {run.jobs_per_s:,.0f} no-op jobs/s in batches of {size}, lease latency "
+                f"p50 {run.p50_ms:.1f} ms, p99 {run.p99_ms:.1f} ms ({noop_workers} no-op "
+                f"workers, {setting}; median of {runs} runs); hand-in p50 "
+                f"{run.hand_in_p50_ms:.1f} ms, p99 {run.hand_in_p99_ms:.1f} ms; confirmation "
+                f"round trip p50 {run.confirm_p50_ms:.1f} ms, p99 {run.confirm_p99_ms:.1f} ms "
+                f"({run.confirm_batch:.1f} results each)"
+            )
+    if len(found) > 1:
+        base = found[0][1][0].jobs_per_s
+        for size, (live, _) in found[1:]:
+            print(f"batches of {size} against {found[0][0]}, live: {live.jobs_per_s / base:.2f}×")
 
 
 if __name__ == "__main__":

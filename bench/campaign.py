@@ -3,17 +3,49 @@ population 30 (population sizes 10-80 in the population-size experiment), every 
 convergence.
 
     python bench/campaign.py [--out campaign] [--workers 2] [--reps 5] [--plant realistic|ideal]
+    python bench/campaign.py --simulated 2,64 [--job-seconds 0.2] [--reps 1] [--out DIR]
+                             [--experiments popsize,generic-vs-specific,speed]
 
 Runs each experiment as its command line (`analytic experiment ...`) in turn, on a local farm,
 and prints the wall time of each and of the whole; the reports are in OUT/<experiment>/report.md.
+
+With --simulated N,M,...: the same experiments (the same code, called in this process with each
+experiment's runs all at once) on N simulated workers, then on M...: the real broker in its own
+process, simulated cobots in load processes (bench/surrogate.py: the real worker code, its batches,
+hand-ins and kept logs, around a stand-in for the physics that takes --job-seconds per 5 s episode
+and scores with the tuning loop's toy objective). It prints each campaign's wall time and the
+strong-scaling efficiency of each against the fewest workers: (T_fewest x N_fewest) / (T x N),
+and the share of the workers' time spent in episodes. The surrogate is the same whatever the farm,
+so every campaign runs the same evaluations.
 """
 
+import contextlib
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import click
+from common import SPAWN, loopback_endpoint
+from scale import broker_process
+from surrogate import read_surrogate_log, surrogate
+
+from analytic import experiments
+from analytic.config import RunConfig
+from analytic.experiments import Experiment
+from analytic.farm import FarmClient
+from broker.status import BrokerUnavailable, query_status
+from schemas import TrajectorySpec
+from schemas.robot import PLANTS
+from schemas.transport import open_session
+from worker.service import CobotWorker
+
+WORKERS_PER_LOAD = 32  # simulated cobots per load process, each with its own session
+SIZES = (10, 20, 30, 50, 80)
+DURATIONS = (3.0, 4.0, 5.0, 6.0)
 
 EXPERIMENTS = {
     "popsize": ["--sizes", "10,20,30,50,80"],
@@ -51,9 +83,41 @@ EXPERIMENTS = {
     show_default=True,
     help="the simulated plant (ideal: the paper's, as the first wave ran it)",
 )
-def main(out: Path, workers: int, reps: int, plant: str) -> None:
+@click.option(
+    "--experiments",
+    "chosen",
+    default=",".join(EXPERIMENTS),
+    show_default=True,
+    callback=lambda _c, _p, text: _experiments(text),
+    help="comma-separated: which of the campaign's experiments",
+)
+@click.option(
+    "--simulated",
+    callback=lambda _c, _p, text: _counts(text),
+    help="comma-separated worker counts: the campaign on each, simulated (see above)",
+)
+@click.option(
+    "--job-seconds",
+    type=click.FloatRange(min=0, min_open=True),
+    default=0.2,
+    show_default=True,
+    help="--simulated: the time a simulated 5 s episode takes",
+)
+def main(
+    out: Path,
+    workers: int,
+    reps: int,
+    plant: str,
+    simulated: list[int] | None,
+    job_seconds: float,
+    chosen: list[str],
+) -> None:
+    if simulated:
+        simulated_campaigns(out, simulated, job_seconds, reps, plant, chosen)
+        return
     walls: dict[str, float] = {}
-    for name, extra in EXPERIMENTS.items():
+    for name in chosen:
+        extra = EXPERIMENTS[name]
         started = time.perf_counter()
         subprocess.run(
             [
@@ -77,6 +141,146 @@ def main(out: Path, workers: int, reps: int, plant: str) -> None:
         walls[name] = time.perf_counter() - started
         print(f"{name}: {walls[name] / 60:.1f} min", flush=True)
     print(f"whole campaign: {sum(walls.values()) / 60:.1f} min on {workers} workers")
+
+
+def _experiments(text: str) -> list[str]:
+    chosen = text.split(",")
+    unknown = [name for name in chosen if name not in EXPERIMENTS]
+    if unknown or len(set(chosen)) != len(chosen):
+        raise click.BadParameter(f"names from {', '.join(EXPERIMENTS)}, each once; got {text!r}")
+    return chosen
+
+
+def _counts(text: str | None) -> list[int] | None:
+    if text is None:
+        return None
+    try:
+        counts = [int(part) for part in text.split(",")]
+    except ValueError:
+        counts = []
+    if not counts or min(counts) < 1:
+        raise click.BadParameter(f"comma-separated worker counts, got {text!r}")
+    return counts
+
+
+# --- simulated --------------------------------------------------------------------------------
+
+
+def cobots(
+    endpoint: str, names: list[str], job_seconds: float, busy: Any, stop: threading.Event
+) -> None:
+    """A load process: `names` as simulated cobots until `stop`, their episodes' time in `busy`."""
+    run = surrogate(job_seconds, busy)
+    farm = [CobotWorker([endpoint], name, simulate=run) for name in names]
+    threads = [threading.Thread(target=cobot.serve, args=(stop,)) for cobot in farm]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    for cobot in farm:
+        cobot.close()
+
+
+@contextlib.contextmanager
+def simulated_farm(workers: int, job_seconds: float, busy: Any):
+    """A broker and `workers` simulated cobots, all joined; yields the broker's endpoint."""
+    endpoint = loopback_endpoint()
+    stop = SPAWN.Event()
+    with broker_process(endpoint, 100_000):
+        names = [f"sim-{index}" for index in range(workers)]
+        loads = [
+            SPAWN.Process(
+                target=cobots,
+                args=(endpoint, names[start : start + WORKERS_PER_LOAD], job_seconds, busy, stop),
+            )
+            for start in range(0, workers, WORKERS_PER_LOAD)
+        ]
+        for load in loads:
+            load.start()
+        try:
+            session = open_session("client", connect=[endpoint])
+            try:
+                give_up = time.monotonic() + 30 + workers / 5
+                while True:
+                    with contextlib.suppress(BrokerUnavailable):
+                        if query_status(session, timeout=2.0).worker_count >= workers:
+                            break
+                    if time.monotonic() > give_up:
+                        raise RuntimeError(f"{workers} simulated cobots did not all join")
+                    time.sleep(0.2)
+            finally:
+                session.close()
+            yield endpoint
+        finally:
+            stop.set()
+            for load in loads:
+                load.join(60)
+                if load.is_alive():
+                    load.kill()
+
+
+def experiment_runs(
+    base: RunConfig, reps: int, chosen: list[str]
+) -> dict[str, Callable[[Experiment], None]]:
+    """The campaign's `chosen` experiments, as the CLI runs them."""
+    runs = {
+        "popsize": lambda experiment: experiments.popsize(experiment, base, SIZES, reps),
+        "generic-vs-specific": lambda experiment: experiments.generic_vs_specific(
+            experiment, base, reps
+        ),
+        "speed": lambda experiment: experiments.speed(experiment, base, DURATIONS, reps),
+    }
+    return {name: runs[name] for name in chosen}
+
+
+def simulated_campaign(
+    out: Path, workers: int, job_seconds: float, reps: int, plant: str, chosen: list[str]
+) -> tuple[float, float]:
+    """The campaign on `workers` simulated cobots: its wall time, and the workers' time in
+    episodes over workers x wall time."""
+    base = RunConfig(
+        pop=30,
+        trajectories=(TrajectorySpec(duration=5.0),),
+        model=PLANTS[plant],
+        keep="front",
+    )
+    busy = SPAWN.Value("d", 0.0)
+    wall = 0.0
+    with simulated_farm(workers, job_seconds, busy) as endpoint:
+        for name, run in experiment_runs(base, reps, chosen).items():
+
+            def client(_name: str, directory: Path) -> FarmClient:
+                study = f"sim-{workers}-{directory.parent.name}-{directory.name}"[-64:]
+                return FarmClient(
+                    [endpoint], study, directory, keep_logs=False, read_log=read_surrogate_log
+                )
+
+            started = time.perf_counter()
+            run(Experiment(out / name, client))
+            took = time.perf_counter() - started
+            wall += took
+            print(f"  {workers} workers, {name}: {took:.1f} s", flush=True)
+        time.sleep(0.5)  # the last episodes' time reaches `busy`
+    return wall, busy.value / (workers * wall)
+
+
+def simulated_campaigns(
+    out: Path, counts: list[int], job_seconds: float, reps: int, plant: str, chosen: list[str]
+) -> None:
+    walls = {}
+    for workers in counts:
+        directory = out / f"simulated-{workers}"
+        wall, utilisation = simulated_campaign(directory, workers, job_seconds, reps, plant, chosen)
+        walls[workers] = wall
+        print(
+            f"campaign on {workers} simulated workers: {wall:.1f} s, the workers in episodes "
+            f"{utilisation:.1%} of the time",
+            flush=True,
+        )
+    fewest = min(counts)
+    for workers in sorted(set(counts) - {fewest}):
+        efficiency = walls[fewest] * fewest / (walls[workers] * workers)
+        print(f"strong-scaling efficiency, {workers} against {fewest} workers: {efficiency:.2f}")
 
 
 if __name__ == "__main__":

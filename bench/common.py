@@ -2,9 +2,10 @@
 stand-ins for the farm around a broker (an analytic client that submits and confirms results but
 evaluates nothing, workers that only lease, hand in and report).
 
-The stand-ins speak the farm's wire protocol (version 4) as cheaply as they can (Submissions
-prebuilt as bytes, replies read with json rather than pydantic): the load they put on a broker
-should cost as little of the machine as it can, so that the broker's figures are the broker's.
+The stand-ins speak the farm's wire protocol (schemas.wire.PROTOCOL_VERSION) as cheaply as they
+can (Submissions prebuilt as bytes, replies read with json rather than pydantic): the load they
+put on a broker should cost as little of the machine as it can, so that the broker's figures are
+the broker's.
 They ask the broker as the farm's own clients do (schemas.ask), so the broker serves the same
 queries as it does for a FarmClient and a CobotWorker.
 """
@@ -33,7 +34,6 @@ from schemas.wire import (
     PROTOCOL_VERSION,
     Job,
     JobStatus,
-    LeaseRequest,
     Result,
     Submission,
     SubmitReply,
@@ -211,10 +211,10 @@ NOOP_SCORES = WireScores(  # and the scores it claims for it
 
 
 class NoopWorker:
-    """Asks for a lease, runs the job (by default: does nothing), hands in an ok Result with
-    `log` (by default an empty one) and, once the broker takes it, puts it, on a session it may
-    share with other NoopWorkers. With a real episode's log (and jobs that all name its spec),
-    it is a cobot that skips the simulation."""
+    """Asks for up to `batch` leases, runs each job (by default: does nothing), hands in ok
+    Results with `log` (by default an empty one) with its next request and puts each one the
+    broker takes, on a session it may share with other NoopWorkers. With a real episode's log
+    (and jobs that all name its spec), it is a cobot that skips the simulation."""
 
     def __init__(
         self,
@@ -223,13 +223,14 @@ class NoopWorker:
         study: str,
         log: bytes = EMPTY_LOG,
         scores: WireScores = NOOP_SCORES,
+        batch: int = 1,
     ):
         self.session = session
         self._log = log
         self._token = session.liveliness().declare_token(keys.alive_worker(name))
         self._lease_key = keys.lease(name)
-        self._complete_key = keys.complete(name)
-        self._request = LeaseRequest(worker=name).to_bytes()
+        self._name = name
+        self._batch = batch
         self._result = Result(
             study=study,
             job_id="x",
@@ -242,37 +243,56 @@ class NoopWorker:
             scores=scores,
         ).model_dump(mode="json")
         self.leases: list[tuple[float, float]] = []  # (monotonic time asked, latency s)
-        self.hand_ins: list[float] = []  # s from handing in a result to the broker's verdict
+        self.hand_ins: list[float] = []  # s from handing results in to the broker's verdicts
         self.runs: list[tuple[str, float, float]] = []  # (job id, start, end) of each job run
         self.completed = 0  # results the broker took, and put
         self.refused = 0  # results the broker did not take
 
     def serve(self, stop: threading.Event, run: Callable[[], None] | None = None) -> None:
-        while not stop.is_set():
+        done: list[tuple[dict, dict]] = []  # (lease, result) to hand in with the next request
+        while not stop.is_set() or done:
+            want = 0 if stop.is_set() else self._batch
+            request = {
+                "protocol": PROTOCOL_VERSION,
+                "worker": self._name,
+                "want": want,
+                "results": [result for _, result in done],
+            }
             asked = time.monotonic()
-            answer = ask(self.session, self._lease_key, self._request, LEASE_HOLD_SECONDS + 5.0)
-            lease = json.loads(_answered(answer, "a lease request"))["lease"]
-            if lease is None:  # no work now: ask again
-                continue
-            self.leases.append((asked, time.monotonic() - asked))
-            job_id = lease["job"]["job_id"]
-            if run is not None:
-                started = time.monotonic()
-                run()
-                self.runs.append((job_id, started, time.monotonic()))
-            result = {**self._result, "job_id": job_id, "lease_id": lease["lease_id"]}
-            attachment = json.dumps(result).encode()
-            handed = time.monotonic()
-            answer = ask(self.session, self._complete_key, attachment, ANSWER_SECONDS)
-            verdict = json.loads(_answered(answer, "a hand-in"))
-            self.hand_ins.append(time.monotonic() - handed)
-            if not verdict["accepted"]:
+            answer = ask(
+                self.session,
+                self._lease_key,
+                json.dumps(request).encode(),
+                LEASE_HOLD_SECONDS + 5.0,
+            )
+            reply = json.loads(_answered(answer, "a lease request"))
+            answered = time.monotonic()
+            if done:
+                self.hand_ins.append(answered - asked)
+            self._send(done, reply["verdicts"])
+            done = []
+            if reply["leases"]:
+                self.leases.append((asked, answered - asked))
+            for lease in reply["leases"]:
+                job_id = lease["job"]["job_id"]
+                if run is not None:
+                    started = time.monotonic()
+                    run()
+                    self.runs.append((job_id, started, time.monotonic()))
+                done.append(
+                    (lease, {**self._result, "job_id": job_id, "lease_id": lease["lease_id"]})
+                )
+
+    def _send(self, done: list[tuple[dict, dict]], verdicts: list[dict]) -> None:
+        taken = {(v["job_id"], v["lease_id"]) for v in verdicts if v["accepted"]}
+        for lease, result in done:
+            if (result["job_id"], result["lease_id"]) not in taken:
                 self.refused += 1
                 continue
             self.session.put(
-                keys.result(lease["study"], job_id),
+                keys.result(lease["study"], result["job_id"]),
                 self._log if lease["job"]["keep_log"] else EMPTY_LOG,  # else it "keeps" it
-                attachment=attachment,
+                attachment=json.dumps(result).encode(),
                 congestion_control=zenoh.CongestionControl.BLOCK,  # as CobotWorker: no drops
             )
             self.completed += 1

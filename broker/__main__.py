@@ -1,3 +1,11 @@
-from broker.cli import main
+"""`broker` and `python -m broker`: Ctrl-C is taken over before broker.cli's imports begin."""
 
-main()
+from cli.interrupts import launch
+
+
+def main() -> None:
+    launch("broker.cli", "broker")
+
+
+if __name__ == "__main__":
+    main()

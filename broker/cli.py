@@ -4,13 +4,18 @@ development credentials for a secure farm (`certs`)."""
 import logging
 import signal
 import threading
+import time
+from contextlib import nullcontext
 from importlib.metadata import version as package_version
 from pathlib import Path
 from typing import cast
 
 import click
-from rich.console import Console
+import zenoh
+from rich.console import Console, Group
+from rich.live import Live
 from rich.table import Table
+from rich.text import Text
 
 from broker.certs import (
     DEFAULT_ANALYTICS,
@@ -22,8 +27,8 @@ from broker.certs import revoke as revoke_identity
 from broker.queue import DEFAULT_MAX_QUEUED, DEFAULT_MAX_QUEUED_PER_STUDY
 from broker.service import DEFAULT_LISTEN, Broker
 from broker.status import BrokerUnavailable, query_status
-from cli import options
-from cli.app import CliError, run_app, setup_logging
+from cli import interrupts, options
+from cli.app import CliError, program_group, run_app, setup_logging
 from schemas.security import (
     PARTICIPANT_RULE,
     ROLES,
@@ -37,7 +42,7 @@ from schemas.wire import BadMessage, BrokerStatus
 log = logging.getLogger("gainfarm.broker")
 
 
-@click.group(help=__doc__, no_args_is_help=True)
+@program_group(__doc__)
 def app() -> None:
     pass
 
@@ -132,8 +137,30 @@ def start(
     help="with --tls: whose credentials to use: broker, a role (its only identity in the "
     "directory), or a participant, role.NAME (e.g. worker.cobot-1)",
 )
-@click.option("--json", "as_json", is_flag=True, help="print the status as one JSON object")
-def status(connect: tuple[str, ...], tls: Path | None, who: str, as_json: bool) -> None:
+@click.option(
+    "--json", "as_json", is_flag=True, help="print the status as one JSON object (a line each)"
+)
+@click.option(
+    "--watch",
+    is_flag=True,
+    help="look again every --interval until Ctrl-C (exit status 130): on a terminal the view "
+    "is redrawn in place, elsewhere a line is printed each time",
+)
+@click.option(
+    "--interval",
+    type=click.FloatRange(min=0.1),
+    default=2.0,
+    show_default=True,
+    help="with --watch: seconds between looks",
+)
+def status(
+    connect: tuple[str, ...],
+    tls: Path | None,
+    who: str,
+    as_json: bool,
+    watch: bool,
+    interval: float,
+) -> None:
     """Show the farm: workers, queue depth per study, throughput."""
     role, _, name = who.partition(".")
     if role not in ROLES:
@@ -144,26 +171,64 @@ def status(connect: tuple[str, ...], tls: Path | None, who: str, as_json: bool) 
     except (ValueError, ConnectionError) as error:
         raise CliError(f"--connect: {error}") from None
     try:
-        farm = query_status(session, timeout=5.0)
-    except (BrokerUnavailable, BadMessage) as error:
-        raise CliError(str(error)) from None
+        farm = _look(session)
+        if not watch:
+            if as_json:
+                click.echo(farm.model_dump_json())
+            else:
+                Console().print(status_view(farm))
+            return
+        _watch(session, farm, as_json, interval)
     finally:
         session.close()
-    if as_json:
-        click.echo(farm.model_dump_json())
-    else:
-        print_status(farm)
 
 
-def print_status(farm: BrokerStatus) -> None:
+def _look(session: zenoh.Session) -> BrokerStatus:
+    try:
+        return query_status(session, timeout=5.0)
+    except (BrokerUnavailable, BadMessage) as error:
+        raise CliError(f"--connect: {error}") from None
+
+
+def _watch(session: zenoh.Session, farm: BrokerStatus, as_json: bool, interval: float) -> None:
+    """`broker status --watch`: until Ctrl-C. A broker that stops answering is said so, and
+    asked again at the next look."""
     console = Console()
-    console.print(
+    redrawn = console.is_terminal and not as_json
+    screen = Live(status_view(farm), console=console, auto_refresh=False) if redrawn else None
+    with screen or nullcontext():
+        shown: BrokerStatus | str = farm
+        while True:
+            if screen is None:
+                if isinstance(shown, str):
+                    click.echo(shown, err=True)
+                else:
+                    click.echo(shown.model_dump_json() if as_json else summary(shown))
+            time.sleep(interval)
+            interrupts.check()
+            try:
+                shown = _look(session)
+            except CliError as error:
+                shown = error.format_message()
+            if screen is not None:
+                screen.update(
+                    Text(shown) if isinstance(shown, str) else status_view(shown), refresh=True
+                )
+
+
+def summary(farm: BrokerStatus) -> str:
+    """The farm in one line."""
+    return (
         f"up {farm.uptime_s:.0f} s · {farm.worker_count} workers ({farm.busy} busy) · "
         f"{farm.study_count} studies · "
         f"{farm.queued} queued · {farm.jobs_done} jobs done · "
         f"{farm.jobs_per_s:.1f} jobs/s over the last minute · "
         f"{farm.requeued} requeued · {farm.rejected} rejected"
     )
+
+
+def status_view(farm: BrokerStatus) -> Group:
+    """The farm as a person reads it: the summary line, its studies and its workers."""
     studies = Table(
         "study",
         "queued",
@@ -184,7 +249,7 @@ def print_status(farm: BrokerStatus) -> None:
         state = "busy" if worker.busy else "idle"
         workers.add_row(worker.name, state, worker.job, str(worker.jobs_done))
     studies.title_justify = workers.title_justify = "left"
-    console.print(studies, workers)
+    return Group(Text(summary(farm)), studies, workers)
 
 
 def _listed(what: str, listed: list, total: int) -> str:
@@ -192,7 +257,7 @@ def _listed(what: str, listed: list, total: int) -> str:
     return what if len(listed) == total else f"{what} (the first {len(listed)} of {total})"
 
 
-@app.command()
+@app.command(short_help="Make development credentials for a secure farm.")
 @click.argument("directory", type=click.Path(path_type=Path))
 @click.option(
     "--analytic",
@@ -218,7 +283,13 @@ def _listed(what: str, listed: list, total: int) -> str:
     show_default=True,
     help="a name or address clients dial the broker by (repeat for several)",
 )
-@click.option("--days", type=click.IntRange(min=1), default=365, show_default=True)
+@click.option(
+    "--days",
+    type=click.IntRange(min=1),
+    default=365,
+    show_default=True,
+    help="how long the certificates issued now are valid",
+)
 @click.option(
     "--if-missing",
     is_flag=True,
@@ -263,8 +334,9 @@ def certs(
     made = sorted({path.stem for path in issued.written} - {"ca"})
     if made:
         click.echo(
-            f"wrote {len(issued.written)} files to {directory}/ ({', '.join(made)}); a host needs "
-            "ca.pem and its own pair, the broker's host every participant's .pem"
+            f"wrote {len(issued.written)} files to {directory}/ ({', '.join(made)}); every host "
+            "needs ca.pem and its own NAME.pem and NAME.key, and the broker's host also needs "
+            "every participant's .pem"
         )
     else:
         click.echo(f"{directory}/ already holds those credentials; kept them")

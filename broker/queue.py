@@ -331,9 +331,12 @@ class LeaseQueue(Generic[W]):
 
     # --- workers ---------------------------------------------------------------------------
 
-    def request(self, worker_name: str, waiter: W, want: int = 1) -> tuple[list[Lease], W | None]:
+    def request(
+        self, worker_name: str, waiter: W, want: int = 1, wait: bool = True
+    ) -> tuple[list[Lease], W | None]:
         """A worker is free and asks for up to `want` jobs: leases now (at most its fair share
-        of what is queued), or none and the waiter is parked (never when it wants none).
+        of what is queued), or none and the waiter is parked (unless it wants none, or not to
+        `wait`: e.g. it handed results in, whose verdicts it needs now).
 
         The second value is a waiter this one replaces (the same worker asked again), to be
         answered with "no work". A worker asks only when done with its batch; but its results
@@ -344,7 +347,7 @@ class LeaseQueue(Generic[W]):
         worker.leases.clear()
         replaced = self._parked.pop(worker_name, None)
         leases = self._grant(worker, min(want, self._fair_share()) if want > 1 else want)
-        if not leases and want > 0:
+        if not leases and want > 0 and wait:
             self._parked[worker_name] = _Parked(waiter, want)
         else:
             self._forget_if_idle(worker)

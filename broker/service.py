@@ -1,10 +1,11 @@
-"""The broker on the wire: a Zenoh router in this process, and the LeaseQueue behind five
-queryables (submit, lease, complete, confirm, status) and two liveliness subscribers.
+"""The broker on the wire: a Zenoh router in this process, and the LeaseQueue behind four
+queryables (submit, lease, confirm, status) and two liveliness subscribers.
 
 Everything Zenoh stays here; every scheduling decision is the queue's. Zenoh calls back on its
 own threads, so one lock guards the queue, and replies go out after it is released. Results
-themselves (episode logs) never pass through the broker's code: a worker hands in the Result to
-the broker, then sends the log to the study; the study asks the broker which results it took.
+themselves (episode logs) never pass through the broker's code: a worker hands in the Results of
+a batch of leases with its next lease request, then sends each taken one to its study; the study
+asks the broker which results it took.
 """
 
 import functools
@@ -30,14 +31,13 @@ from schemas.wire import (
     LEASE_HOLD_SECONDS,
     BadMessage,
     BrokerStatus,
-    CompletionReply,
     ConfirmReply,
     ConfirmRequest,
     LeaseReply,
     LeaseRequest,
     Rejection,
-    Result,
     SubmitReply,
+    Verdict,
     WireMessage,
     decode,
     decode_submission,
@@ -101,7 +101,6 @@ class Broker:
             liveliness.declare_subscriber(keys.ALIVE_WORKERS, self._on_worker_token, history=True),
             self.session.declare_queryable(keys.SUBMIT_ANY, self._on_submit),
             self.session.declare_queryable(keys.LEASE_ANY, self._on_lease_request),
-            self.session.declare_queryable(keys.COMPLETE_ANY, self._on_complete),
             self.session.declare_queryable(keys.CONFIRM_ANY, self._on_confirm),
             self.session.declare_queryable(keys.STATUS, self._on_status),
         ]
@@ -173,37 +172,41 @@ class Broker:
 
     @_guarded
     def _on_lease_request(self, query: zenoh.Query) -> None:
+        """A worker hands in its last batch's results and asks for more work. A result is taken
+        only from the lease holder; a request that hands results in is answered at once (its
+        worker sends them on only once it knows the verdicts), one that does not is held."""
         request = decode(LeaseRequest, _payload(query))
         _check_named(query, request.worker, "worker")
+        verdicts = []
         with self._lock:
-            # One lease per request: batches wait for a protocol whose reply can carry them.
-            leases, replaced = self.queue.request(request.worker, query, want=1)
-            if not leases:
+            for result in request.results:
+                refusal = self.queue.complete(
+                    result.study,
+                    result.job_id,
+                    result.lease_id,
+                    result.worker,
+                    result.digest,
+                    result.scores,
+                )
+                if refusal is not None:
+                    self.rejected += 1
+                    log.info("result for %s/%s refused: %s", result.study, result.job_id, refusal)
+                verdicts.append(
+                    Verdict(
+                        job_id=result.job_id,
+                        lease_id=result.lease_id,
+                        accepted=refusal is None,
+                        reason=refusal or "",
+                    )
+                )
+            wait = not request.results
+            leases, replaced = self.queue.request(request.worker, query, request.want, wait)
+            if not leases and wait and request.want > 0:
                 self._held.append((time.monotonic() + self.hold_seconds, request.worker, query))
         if replaced is not None:
             _answer(replaced, LeaseReply())
-        if leases:
-            _answer(query, LeaseReply(lease=leases[0]))
-
-    @_guarded
-    def _on_complete(self, query: zenoh.Query) -> None:
-        """A worker hands in a Result before it sends it: taken only from the lease holder."""
-        result = decode(Result, _payload(query))
-        _check_named(query, result.worker, "worker")
-        with self._lock:
-            refusal = self.queue.complete(
-                result.study,
-                result.job_id,
-                result.lease_id,
-                result.worker,
-                result.digest,
-                result.scores,
-            )
-            if refusal is not None:
-                self.rejected += 1
-        if refusal is not None:
-            log.info("result for %s/%s refused: %s", result.study, result.job_id, refusal)
-        _answer(query, CompletionReply(accepted=refusal is None, reason=refusal or ""))
+        if leases or not wait or request.want == 0:
+            _answer(query, LeaseReply(leases=leases, verdicts=verdicts))
 
     @_guarded
     def _on_confirm(self, query: zenoh.Query) -> None:
@@ -265,8 +268,7 @@ class Broker:
 
     def _deliver(self, assignments: list[Assignment[zenoh.Query]]) -> None:
         for assignment in assignments:
-            # Every waiter asked for one lease (want=1), so each batch is exactly one.
-            _answer(assignment.waiter, LeaseReply(lease=assignment.leases[0]))
+            _answer(assignment.waiter, LeaseReply(leases=assignment.leases))
 
     def _reject_query(self, query: zenoh.Query, reason: str) -> None:
         with self._lock:

@@ -9,6 +9,14 @@ from rich.console import Console
 from rich.table import Table
 
 from schemas.episode import Scores
+from schemas.objectives import DIVERGED_TICK_ERROR
+
+# Why a diverged episode's mean error can exceed its largest: said wherever scores are shown.
+DIVERGED_TEXT = (
+    "diverged: the episode was stopped early; every tick it did not run is charged "
+    f"{DIVERGED_TICK_ERROR:g} m of error and the largest possible torque change, so f_acc and "
+    "f_t are a penalty, not a measurement (f_acc can exceed the max error measured)"
+)
 
 
 def show_scores(scores: Scores, log: Path, as_json: bool) -> None:
@@ -26,4 +34,7 @@ def print_scores(scores: Scores, source: str) -> None:
     table.add_row("max error", f"{scores.max_error * 1000:.3f} mm", "")
     table.add_row("saturated", f"{scores.saturated_fraction:.1%}", "of ticks, any joint")
     table.add_row("diverged", "yes" if scores.diverged else "no", f"{scores.ticks} ticks run")
-    Console().print(table)
+    console = Console()
+    console.print(table)
+    if scores.diverged:
+        console.print(DIVERGED_TEXT, highlight=False)

@@ -35,6 +35,18 @@ CHANNELS = (
 )
 METADATA_NAME = "gainfarm.episode"
 
+# Channels made from the log for ROS 2 tools (Foxglove's 3D panel, rviz, ros2 bag play), not
+# columns of it: the readers ignore them. /robot_description holds the arm's URDF (models/urdf.py)
+# once, at the first tick, latched (transient local, as robot_state_publisher offers it); /tf
+# the arm's links, each from its parent, every TF_EVERY ticks and at the last.
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+STRING = "std_msgs/msg/String"
+TF_TOPIC = "/tf"
+DESCRIPTION_TOPIC = "/robot_description"
+# 50 Hz: smooth to the eye (a screen shows 60 frames a second, `analytic replay` 30), a tenth of
+# the full rate's bytes, and nothing is lost to a plot: /joint_states has every tick.
+TF_EVERY = 10
+
 
 @dataclass(frozen=True)
 class EpisodeLog:

@@ -4,6 +4,7 @@ one process writes at a time: the lock that says which."""
 import contextlib
 import fcntl
 import os
+import secrets
 import signal
 import socket
 import tempfile
@@ -62,6 +63,22 @@ def write_atomically(path: Path, content: bytes, mode: int = 0o644) -> None:
         if isinstance(error, OSError) and error.errno is not None:
             error.filename, error.filename2 = str(path), None
         raise
+
+
+def staging_directory(target: Path) -> Path:
+    """A new, empty directory beside `target`, named as a write in progress (`.NAME.RANDOM.part`),
+    to fill and then rename to `target`: the directory appears whole or not at all. Its mode is
+    the umask's, as any directory made here (tempfile.mkdtemp would make it 0700, and the
+    renamed result unreadable to the rest of the farm)."""
+    target = Path(target)
+    for _ in range(100):
+        path = target.parent / f"{PART_PREFIX}{target.name}.{secrets.token_hex(4)}{PART_SUFFIX}"
+        try:
+            path.mkdir()  # mode 0o777, less the umask
+        except FileExistsError:
+            continue
+        return path
+    raise FileExistsError(f"no free name for a temporary directory beside {target}")
 
 
 def remove_leftovers(directory: Path) -> list[Path]:

@@ -11,7 +11,6 @@ ROOT = "gainfarm"
 STATUS = f"{ROOT}/broker/status"  # queryable: (nothing) → BrokerStatus
 SUBMIT_ANY = f"{ROOT}/broker/submit/*"
 LEASE_ANY = f"{ROOT}/broker/lease/*"
-COMPLETE_ANY = f"{ROOT}/broker/complete/*"
 CONFIRM_ANY = f"{ROOT}/broker/confirm/*"
 
 ALL_RESULTS = f"{ROOT}/study/*/result/*"
@@ -27,13 +26,9 @@ def submit(study: str) -> str:
 
 
 def lease(worker: str) -> str:
-    """Queryable: LeaseRequest → LeaseReply, held while there is no work."""
+    """Queryable: LeaseRequest → LeaseReply; a worker hands in its results and asks for more
+    work (held while there is none)."""
     return f"{ROOT}/broker/lease/{worker}"
-
-
-def complete(worker: str) -> str:
-    """Queryable: Completion → CompletionReply; a worker hands in a result before it sends it."""
-    return f"{ROOT}/broker/complete/{worker}"
 
 
 def confirm(study: str) -> str:

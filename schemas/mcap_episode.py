@@ -1,14 +1,20 @@
 """Episode logs as MCAP files with ROS 2 (CDR) messages, written and read in bulk.
 
 Every message on a channel has the same byte layout (fixed joint names, fixed array lengths), so
-the four MCAP Message records of one tick have a fixed size and layout too. Writing them one by
+the six MCAP Message records of one tick have a fixed size and layout too. Writing them one by
 one through the mcap library costs a few µs per message, more than the simulation of the episode
-can afford (10,004 messages per 5 s episode). Instead, one template tick is built once -- the CDR
+can afford (15,006 messages per 5 s episode). Instead, one template tick is built once -- the CDR
 messages by a ROS 2 serialiser (rosbags), the records around them by the mcap library -- and NumPy
 copies it for every tick and writes the times and numbers into the copies through a structured
 dtype: a chunk's whole record stream is one array. Reading does the reverse: a chunk's records
 are viewed through the same dtype, checked byte for byte against the template, and the numbers
 are sliced out as columns.
+
+For ROS 2 tools to show the arm, the file's first chunk holds the arm's URDF on
+/robot_description and its links' transforms on /tf (every TF_EVERY ticks), made from the logged
+joint angles the same way (one template /tf message, its stamps and rotations filled in by
+NumPy). They add nothing the columns lack, so the reader skips that chunk unread: logs written
+before it existed read as before, and the scores never depend on it.
 
 The records around the messages (Header, Metadata, Chunk, MessageIndex, DataEnd, the summary
 section and the Footer) are written with the mcap library's record classes, with the contents and
@@ -49,8 +55,19 @@ from mcap.writer import MCAP0_MAGIC
 from pydantic import ValidationError
 from rosbags.typesys import Stores, get_typestore
 
+from models.urdf import rotations, tree, urdf
 from schemas.episode import EpisodeMetadata
-from schemas.episode_log import CHANNELS, METADATA_NAME, Channel, EpisodeLog
+from schemas.episode_log import (
+    CHANNELS,
+    DESCRIPTION_TOPIC,
+    METADATA_NAME,
+    STRING,
+    TF_EVERY,
+    TF_MESSAGE,
+    TF_TOPIC,
+    Channel,
+    EpisodeLog,
+)
 from schemas.files import write_atomically
 from schemas.robot import JOINT_NAMES, N_JOINTS
 from schemas.wire import MAX_EPISODE_BYTES
@@ -78,12 +95,17 @@ _MESSAGE_HEADER = [
 ]
 _RECORD_PREFIX = 1 + 8  # opcode and record length, before every record's content
 _FOOTER_LENGTH = 8 + 8 + 4  # a Footer's content: summary start, summary offset start, CRC
-# What a reader takes in besides the messages, bounded far above what write_episode writes (1.6
-# to 1.8 kB of summary, 0.9 kB of metadata, 1.1 kB of Schema and Channel records in the first
-# chunk), so that no length or count a file states makes the reader allocate in proportion to it.
+# What a reader takes in besides the messages, bounded far above what write_episode writes (5.1
+# kB of summary, 0.9 kB of metadata, 4.5 kB of Schema and Channel records in the first chunk), so
+# that no length or count a file states makes the reader allocate in proportion to it.
 _MAX_SUMMARY_BYTES = 1024 * 1024  # the summary section and its summary offsets
 _MAX_METADATA_BYTES = 1024 * 1024  # the Metadata record
 _MAX_DEFINITION_BYTES = 1024 * 1024  # the records before the messages, in all chunks together
+# The channels made for ROS 2 tools follow CHANNELS' ids 1..6; they share one chunk of their own,
+# the file's first, which the reader skips.
+_TF_ID = len(CHANNELS) + 1
+_DESCRIPTION_ID = len(CHANNELS) + 2
+_DERIVED_IDS = frozenset({_TF_ID, _DESCRIPTION_ID})
 _SCHEMA_ENCODING = "ros2msg"
 _MESSAGE_ENCODING = "cdr"
 _PROFILE = "ros2"
@@ -130,7 +152,7 @@ class _Layout:
 
 @dataclass(frozen=True)
 class _TickLayout:
-    """The four Message records of one tick, one per channel in CHANNELS order."""
+    """The Message records of one tick, one per channel in CHANNELS order."""
 
     dtype: np.dtype  # one field per topic, each a Message record with its CDR data as a subfield
     template: np.ndarray  # (size,) uint8: the records of tick 0 at time 0
@@ -231,6 +253,56 @@ def _constant_bytes(dtype: np.dtype) -> np.ndarray:
     return np.where(variable, 0, 0xFF).astype(np.uint8)
 
 
+@cache
+def _tf_layout() -> tuple[np.ndarray, np.dtype]:
+    """One /tf Message record at time 0 (the tree's frames and translations in place, stamps and
+    rotations zero) and its dtype, whose data names each transform's stamp and rotation."""
+    store = _typestore()
+    types = store.types
+    sentinels = 7.25e9 + 1000.0 * np.arange(len(tree()))[:, None] + np.arange(4)
+    transforms = []
+    for i, transform in enumerate(tree()):
+        stamp = types["builtin_interfaces/msg/Time"](sec=0x5EC0_0000 + i, nanosec=0x0A0B_0C0D)
+        x, y, z = transform.translation
+        qx, qy, qz, qw = sentinels[i]
+        transforms.append(
+            types["geometry_msgs/msg/TransformStamped"](
+                header=types["std_msgs/msg/Header"](stamp=stamp, frame_id=transform.parent),
+                child_frame_id=transform.child,
+                transform=types["geometry_msgs/msg/Transform"](
+                    translation=types["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
+                    rotation=types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+                ),
+            )
+        )
+    encoded = bytearray(store.serialize_cdr(types[TF_MESSAGE](transforms=transforms), TF_MESSAGE))
+    names, formats, offsets = [], [], []
+    for i in range(len(tree())):
+        stamp = np.array([0x5EC0_0000 + i, 0x0A0B_0C0D], "<u4").tobytes()
+        rotation = sentinels[i].astype("<f8").tobytes()
+        for name, value, form in (
+            ("stamp", stamp, ("<u4", (2,))),
+            ("rotation", rotation, ("<f8", (4,))),
+        ):
+            offset = encoded.index(value)
+            encoded[offset : offset + len(value)] = bytes(len(value))  # found: now zero
+            names.append(f"{name}{i}")
+            formats.append(form)
+            offsets.append(offset)
+    data = np.dtype(
+        {"names": names, "formats": formats, "offsets": offsets, "itemsize": len(encoded)}
+    )
+    builder = RecordBuilder()
+    Message(channel_id=_TF_ID, log_time=0, data=bytes(encoded), publish_time=0, sequence=0).write(
+        builder
+    )
+    template = np.frombuffer(builder.end(), np.uint8)
+    dtype = np.dtype([*_MESSAGE_HEADER, ("data", data)])
+    if len(template) != dtype.itemsize:
+        raise AssertionError("the /tf dtype does not match the record the mcap library writes")
+    return template, dtype
+
+
 # --- writing ----------------------------------------------------------------------------------
 
 
@@ -257,19 +329,33 @@ def episode_bytes(log: EpisodeLog) -> bytes:
     out.write(MCAP0_MAGIC)
     Header(profile=_PROFILE, library=_LIBRARY).write(out)
     metadata_index = _write_metadata(out, log.metadata)
-    records = _records(log, log_times)
     compressor = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
+    records = _records(log, log_times)  # first: it checks the columns' shapes
     chunk_indexes = []
+    counts = {}
+    if log.ticks:
+        # First the description and the transforms, so that a tool reading the file from its
+        # start draws the arm before the data plays; the definitions of every channel open it.
+        prefix = _definition_records(schemas, channels)
+        content, indexes = _derived_messages(log, log_times, len(prefix))
+        chunk_indexes.append(_write_chunk(out, compressor, prefix + content, indexes))
+        counts = {channel.id: log.ticks for channel in channels[: len(CHANNELS)]}
+        counts |= {channel_id: len(times) for channel_id, times, _ in indexes}
     for part in _chunk_parts(log.ticks, layout.size):
-        prefix = _definition_records(schemas, channels) if part.start == 0 else b""
-        chunk_indexes.append(_write_chunk(out, compressor, prefix, records[part], log_times[part]))
+        content = records[part].view(np.uint8)
+        tick_offsets = layout.size * np.arange(part.stop - part.start, dtype=np.uint64)
+        indexes = [
+            (channel_id, log_times[part], tick_offsets + layout.record_offset(channel.topic))
+            for channel_id, channel in enumerate(CHANNELS, start=1)
+        ]
+        chunk_indexes.append(_write_chunk(out, compressor, content, indexes))
     DataEnd(data_section_crc=0).write(out)  # the Writer's default: no data section CRC
     statistics = Statistics(
         attachment_count=0,
         channel_count=len(channels),
-        channel_message_counts={channel.id: log.ticks for channel in channels} if log.ticks else {},
+        channel_message_counts=counts,
         chunk_count=len(chunk_indexes),
-        message_count=log.ticks * len(channels),
+        message_count=sum(counts.values()),
         message_end_time=int(log_times.max(initial=0)),
         message_start_time=int(log_times.min(initial=0)),
         metadata_count=1,
@@ -281,27 +367,46 @@ def episode_bytes(log: EpisodeLog) -> bytes:
 
 
 def _definitions() -> tuple[list[Schema], list[ChannelRecord]]:
-    """One Schema per message type and one Channel per entry of CHANNELS, numbered from 1."""
+    """One Schema per message type; one Channel per entry of CHANNELS, numbered from 1, then
+    /tf and /robot_description. Each channel states the QoS a ROS 2 publisher of it would offer
+    (the ros2 profile's offered_qos_profiles), so that `ros2 bag play` latches the description."""
+    topics = [(channel.topic, channel.message_type, _VOLATILE) for channel in CHANNELS]
+    topics += [(TF_TOPIC, TF_MESSAGE, _VOLATILE), (DESCRIPTION_TOPIC, STRING, _TRANSIENT_LOCAL)]
     schemas: dict[str, Schema] = {}
     channels = []
-    for channel_id, channel in enumerate(CHANNELS, start=1):
-        if channel.message_type not in schemas:
-            schemas[channel.message_type] = Schema(
+    for channel_id, (topic, message_type, durability) in enumerate(topics, start=1):
+        if message_type not in schemas:
+            schemas[message_type] = Schema(
                 id=len(schemas) + 1,
-                data=schema_text(channel.message_type).encode(),
+                data=schema_text(message_type).encode(),
                 encoding=_SCHEMA_ENCODING,
-                name=channel.message_type,
+                name=message_type,
             )
         channels.append(
             ChannelRecord(
                 id=channel_id,
-                topic=channel.topic,
+                topic=topic,
                 message_encoding=_MESSAGE_ENCODING,
-                metadata={},
-                schema_id=schemas[channel.message_type].id,
+                metadata={"offered_qos_profiles": _offered_qos(durability)},
+                schema_id=schemas[message_type].id,
             )
         )
     return list(schemas.values()), channels
+
+
+# rmw's durability policies, as rosbag2 (Humble) writes them in offered_qos_profiles.
+_TRANSIENT_LOCAL, _VOLATILE = 1, 2
+
+
+def _offered_qos(durability: int) -> str:
+    """One publisher's QoS profile in rosbag2's YAML: reliable, keep last 1 (history 1), and
+    no deadline, lifespan or liveliness lease (0 s: the default, unbounded)."""
+    never = "\n    sec: 0\n    nsec: 0"
+    return (
+        f"- history: 1\n  depth: 1\n  reliability: 1\n  durability: {durability}\n"
+        f"  deadline:{never}\n  lifespan:{never}\n  liveliness: 1\n"
+        f"  liveliness_lease_duration:{never}\n  avoid_ros_namespace_conventions: false"
+    )
 
 
 def _definition_records(schemas: list[Schema], channels: list[ChannelRecord]) -> bytes:
@@ -344,6 +449,41 @@ def _records(log: EpisodeLog, log_times: np.ndarray) -> np.ndarray:
     return ticks
 
 
+def _derived_messages(
+    log: EpisodeLog, log_times: np.ndarray, offset: int
+) -> tuple[bytes, list[tuple[int, np.ndarray, np.ndarray]]]:
+    """The /robot_description record (at the first tick) and the /tf records (every TF_EVERY
+    ticks and at the last), and each channel's (id, log times, offsets from `offset` on)."""
+    store = _typestore()
+    description = store.types[STRING](data=urdf())
+    builder = RecordBuilder()
+    Message(
+        channel_id=_DESCRIPTION_ID,
+        log_time=int(log_times[0]),
+        data=bytes(store.serialize_cdr(description, STRING)),
+        publish_time=int(log_times[0]),
+        sequence=0,
+    ).write(builder)
+    first = builder.end()
+    ticks = np.unique(np.append(np.arange(0, log.ticks, TF_EVERY), log.ticks - 1))
+    template, dtype = _tf_layout()
+    records = np.tile(template, len(ticks)).view(dtype)
+    times = log_times[ticks]
+    records["sequence"] = np.arange(len(ticks))
+    records["log_time"] = times
+    records["publish_time"] = times
+    stamps = np.column_stack(divmod(times, NANOSECONDS)).astype("<u4")
+    for i, quaternions in enumerate(np.moveaxis(rotations(log.q[ticks]), 1, 0)):
+        records["data"][f"stamp{i}"] = stamps
+        records["data"][f"rotation{i}"] = quaternions
+    tf_offsets = offset + len(first) + dtype.itemsize * np.arange(len(ticks), dtype=np.uint64)
+    indexes = [
+        (_TF_ID, times, tf_offsets),
+        (_DESCRIPTION_ID, log_times[:1], np.array([offset], np.uint64)),
+    ]
+    return first + records.tobytes(), indexes
+
+
 def _chunk_parts(ticks: int, tick_size: int) -> Iterator[slice]:
     """Split the ticks into chunks of at most CHUNK_SIZE bytes of messages (at least one tick)."""
     per_chunk = max(1, CHUNK_SIZE // tick_size)
@@ -354,14 +494,15 @@ def _chunk_parts(ticks: int, tick_size: int) -> Iterator[slice]:
 def _write_chunk(
     out: RecordBuilder,
     compressor: zstandard.ZstdCompressor,
-    prefix: bytes,
-    records: np.ndarray,
-    log_times: np.ndarray,
+    uncompressed: bytes | np.ndarray,
+    indexes: list[tuple[int, np.ndarray, np.ndarray]],
 ) -> ChunkIndex:
-    """Write one Chunk record and its MessageIndex records; return its ChunkIndex."""
-    layout = _tick_layout()
-    uncompressed = b"".join((prefix, records.view(np.uint8)))
-    start, end = int(log_times.min()), int(log_times.max())
+    """Write one Chunk record holding the records `uncompressed`, and its MessageIndex records
+    (per channel: its id, and its messages' log times and offsets in the chunk); return its
+    ChunkIndex."""
+    uncompressed = bytes(uncompressed)
+    start = min(int(times.min()) for _, times, _ in indexes)
+    end = max(int(times.max()) for _, times, _ in indexes)
     chunk = Chunk(
         compression="zstd",
         data=compressor.compress(uncompressed),
@@ -384,10 +525,8 @@ def _write_chunk(
         uncompressed_size=chunk.uncompressed_size,
     )
     indexes_offset = out.count
-    tick_offsets = len(prefix) + layout.size * np.arange(len(records), dtype=np.uint64)
-    for channel_id, channel in enumerate(CHANNELS, start=1):
+    for channel_id, log_times, offsets in indexes:
         index.message_index_offsets[channel_id] = out.count
-        offsets = tick_offsets + layout.record_offset(channel.topic)
         _write_message_index(out, channel_id, log_times, offsets)
     index.message_index_length = out.count - indexes_offset
     return index
@@ -605,6 +744,9 @@ def _read_messages(path: str, content: bytes, summary: Summary, bound: int) -> b
     columns are sliced out.)"""
     parts = []
     for index in sorted(summary.chunk_indexes, key=lambda index: index.chunk_start_offset):
+        channels = index.message_index_offsets
+        if channels and _DERIVED_IDS.issuperset(channels):
+            continue  # /tf and /robot_description: made from the columns for other tools
         records = _chunk_records(path, content, index.chunk_start_offset, bound)
         bound -= len(records)
         parts.append(_messages(records))

@@ -245,9 +245,9 @@ def _analytic_rules(name: str) -> list[dict[str, Any]]:
 
 def _worker_rules(name: str) -> list[dict[str, Any]]:
     """Lease and hand in results under its own name only. It may put a result in any study:
-    the broker hands a result on only if that worker holds that job's lease."""
+    a study counts a result only once the broker confirms that worker held that job's lease."""
     who = f"worker.{name}"
-    services = [keys.lease(name), keys.complete(name), keys.STATUS]
+    services = [keys.lease(name), keys.STATUS]
     return [
         _rule(f"{who} asks", ["query"], "ingress", services),
         _rule(f"{who} is answered", ["reply"], "egress", services),

@@ -20,10 +20,10 @@ from pydantic import (
 
 from schemas.episode import EpisodeSpec, Scores
 
-# 4: results carry the worker's scores, and the log only when the job asks to keep it (the worker
-# keeps the others, to be fetched); 3: results handed in to the broker and confirmed by it;
-# 2: Job.spec
-PROTOCOL_VERSION = 4
+# 5: leases in batches, results handed in with the next lease request; 4: results carry the
+# worker's scores, and the log only when the job asks to keep it (the worker keeps the others, to
+# be fetched); 3: results handed in to the broker and confirmed by it; 2: Job.spec
+PROTOCOL_VERSION = 5
 
 # Names become key-expression chunks, so they may not contain '/', '*', '$', '?' or '#'.
 NAME_PATTERN = r"^[A-Za-z0-9_.\-]{1,64}$"
@@ -33,6 +33,10 @@ Name = Annotated[str, Field(pattern=NAME_PATTERN)]
 # The broker holds a free worker's lease request at most this long before answering "no work now,
 # ask again"; a worker that hears nothing for much longer knows the broker is gone.
 LEASE_HOLD_SECONDS = 1.0
+
+# Leases one request may take, and results it may hand in: a batch of short jobs costs the broker
+# one query instead of two per job (bench/broker_capacity.py measures what that lifts).
+MAX_BATCH = 32
 
 MAX_MESSAGE_BYTES = 4 * 1024 * 1024  # a submission of thousands of jobs fits; a runaway does not
 MAX_EPISODE_BYTES = 256 * 1024 * 1024  # a 120 s episode is ~26 MB
@@ -45,7 +49,7 @@ class BadMessage(ValueError):
 class WireMessage(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    protocol: Literal[4] = PROTOCOL_VERSION
+    protocol: Literal[5] = PROTOCOL_VERSION
 
     @field_validator("protocol", mode="before")
     @classmethod
@@ -99,29 +103,6 @@ class SubmitReply(WireMessage):
     rejected: list[Rejection] = []
 
 
-class LeaseRequest(WireMessage):
-    """Worker → broker: I am free; give me a job (the broker may hold this for a while)."""
-
-    worker: Name
-
-
-class Lease(BaseModel):
-    """The right to run one job, until `expires_in` seconds from now."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    lease_id: Name  # random: only the worker it was handed to knows it
-    study: Name
-    job: Job
-    expires_in: float = Field(gt=0)
-
-
-class LeaseReply(WireMessage):
-    """Broker → worker: a lease, or none (no work now: ask again)."""
-
-    lease: Lease | None = None
-
-
 class JobStatus(StrEnum):
     ok = "ok"  # the episode ran to its end
     diverged = "diverged"  # it ran, and was cut short: still data, penalised by the objectives
@@ -147,8 +128,8 @@ class WireScores(Scores):
 class Result(WireMessage):
     """Worker → broker, then → analytic: how a job went, and the scores the worker computed from
     its log (schemas.objectives.score, the analytic's own code). The worker hands it in to the
-    broker first (a Completion query: the broker checks that this worker holds this lease and
-    keeps what it took), then sends it as the attachment of a sample whose payload is the MCAP
+    broker first (with its next LeaseRequest: the broker checks that this worker holds this lease
+    and keeps what it took), then sends it as the attachment of a sample whose payload is the MCAP
     episode log if the job said `keep_log`, else empty (the worker keeps the log). `digest` and
     `episode_bytes` always describe the log the worker made (both empty when the job failed)."""
 
@@ -170,11 +151,53 @@ class Result(WireMessage):
         return self
 
 
-class CompletionReply(WireMessage):
-    """Broker → worker: whether the broker took the Result as its job's (else: do not send it)."""
+class Lease(BaseModel):
+    """The right to run one job, until `expires_in` seconds from now."""
 
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    lease_id: Name  # random: only the worker it was handed to knows it
+    study: Name
+    job: Job
+    expires_in: float = Field(gt=0)
+
+
+class LeaseRequest(WireMessage):
+    """Worker → broker: here are the results of my last batch; give me up to `want` jobs (the
+    broker holds a request that hands nothing in while there is no work; `want` 0 only hands in).
+    """
+
+    worker: Name
+    want: int = Field(1, ge=0, le=MAX_BATCH)
+    results: list[Result] = Field([], max_length=MAX_BATCH)
+
+    @model_validator(mode="after")
+    def _own_results(self) -> "LeaseRequest":
+        for result in self.results:
+            if result.worker != self.worker:
+                raise ValueError(
+                    f"results: a result of worker {result.worker!r} in {self.worker!r}'s request"
+                )
+        return self
+
+
+class Verdict(BaseModel):
+    """Whether the broker took a handed-in Result as its job's (else: do not send it on)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    job_id: Name
+    lease_id: Name
     accepted: bool
-    reason: str = ""
+    reason: str = Field("", max_length=2000)
+
+
+class LeaseReply(WireMessage):
+    """Broker → worker: a verdict on each result handed in, in order, and leases (none: no work
+    now, ask again)."""
+
+    leases: list[Lease] = Field([], max_length=MAX_BATCH)
+    verdicts: list[Verdict] = Field([], max_length=MAX_BATCH)
 
 
 class Accepted(BaseModel):
@@ -208,7 +231,7 @@ class WorkerState(BaseModel):
 
     name: str
     busy: bool
-    job: str = Field("", description="study/job_id of its lease, if busy")
+    job: str = Field("", description="study/job_id of its first lease, if busy")
     jobs_done: int
 
 
@@ -243,7 +266,6 @@ MESSAGES: tuple[type[WireMessage], ...] = (
     LeaseRequest,
     LeaseReply,
     Result,
-    CompletionReply,
     ConfirmRequest,
     ConfirmReply,
     BrokerStatus,

@@ -1,5 +1,6 @@
 """Shared fixtures: real episodes simulated in MuJoCo, kept short so the suite stays fast."""
 
+import signal
 from collections.abc import Iterator
 
 import pytest
@@ -39,3 +40,23 @@ def session(broker: Broker) -> Iterator[zenoh.Session]:
     client = open_session("client", connect=broker.endpoints)
     yield client
     client.close()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def ctrl_c_reaches_the_processes_tests_start() -> None:
+    """Tests press Ctrl-C (SIGINT) on the processes they start, as a terminal does on its
+    foreground job. A suite a shell started in the background has SIGINT ignored, and its
+    children would inherit that (gainfarm, as Python, leaves an ignored SIGINT ignored): give
+    it back its default, which a child does not inherit but starts with."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+@pytest.fixture(autouse=True)
+def ctrl_c_handler_left_as_found() -> Iterator[None]:
+    """A test that takes Ctrl-C over in this process (a command line run in-process installs
+    cli.interrupts) gives it back: the next test starts with the handler this one found."""
+    before = signal.getsignal(signal.SIGINT)
+    yield
+    after = signal.getsignal(signal.SIGINT)
+    assert after is before, f"the test left SIGINT's handler changed: {after!r}, was {before!r}"

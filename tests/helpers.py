@@ -20,7 +20,6 @@ from schemas.episode_log import EpisodeLog
 from schemas.mcap_episode import episode_bytes
 from schemas.robot import TORQUE_LIMITS
 from schemas.wire import (
-    CompletionReply,
     Job,
     JobStatus,
     Lease,
@@ -30,6 +29,7 @@ from schemas.wire import (
     Submission,
     SubmitReply,
     Timings,
+    Verdict,
     WireScores,
     decode,
 )
@@ -110,16 +110,21 @@ HAND_MADE_SCORES = WireScores(
 
 
 def ask_for_work(session: zenoh.Session, worker: str) -> Lease | None:
+    """One lease, or None if the broker has no work for a while."""
     ok, payload = query(session, keys.lease(worker), LeaseRequest(worker=worker).to_bytes())
     assert ok, payload
-    return decode(LeaseReply, payload).lease
+    leases = decode(LeaseReply, payload).leases
+    assert len(leases) <= 1, leases
+    return leases[0] if leases else None
 
 
-def hand_in(session: zenoh.Session, result: Result) -> CompletionReply:
-    """Hand a result in to the broker, as a worker does before it sends it."""
-    ok, payload = query(session, keys.complete(result.worker), result.to_bytes())
+def hand_in(session: zenoh.Session, result: Result) -> Verdict:
+    """Hand a result in to the broker, asking for no more work, as a stopping worker does."""
+    request = LeaseRequest(worker=result.worker, want=0, results=[result])
+    ok, payload = query(session, keys.lease(result.worker), request.to_bytes())
     assert ok, payload
-    return decode(CompletionReply, payload)
+    (verdict,) = decode(LeaseReply, payload).verdicts
+    return verdict
 
 
 # --- an episode log made by hand ------------------------------------------------------------

@@ -1,3 +1,11 @@
-from worker.cli import main
+"""`worker` and `python -m worker`: Ctrl-C is taken over before worker.cli's imports begin."""
 
-main()
+from cli.interrupts import launch
+
+
+def main() -> None:
+    launch("worker.cli", "worker")
+
+
+if __name__ == "__main__":
+    main()

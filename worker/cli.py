@@ -10,12 +10,14 @@ import threading
 from pathlib import Path
 
 import click
+from click.core import ParameterSource
 from pydantic import ValidationError
 
 from cli import options
-from cli.app import CliError, parse_numbers, run_app, setup_logging
+from cli.app import CliError, parse_numbers, program_group, run_app, setup_logging
 from cli.scores import show_scores
 from models.dynamics import digest
+from schemas.controller import BadGains, read_gains
 from schemas.episode import EpisodeSpec
 from schemas.gains import DEFAULT_GAINS, PDGains
 from schemas.mcap_episode import write_episode
@@ -32,12 +34,12 @@ DEFAULT_KP = ",".join(f"{gain:g}" for gain in DEFAULT_GAINS.kp)
 DEFAULT_KD = ",".join(f"{gain:g}" for gain in DEFAULT_GAINS.kd)
 
 
-@click.group(help=__doc__, no_args_is_help=True)
+@program_group(__doc__)
 def app() -> None:
     pass
 
 
-@app.command()
+@app.command(short_help="Simulate one PD episode; write its log, print its scores.")
 @click.option(
     "--out",
     type=click.Path(path_type=Path),
@@ -49,6 +51,13 @@ def app() -> None:
 @options.duration()
 @click.option("--kp", default=DEFAULT_KP, show_default=True, help="7 gains A1..A7, N·m/rad")
 @click.option("--kd", default=DEFAULT_KD, show_default=True, help="7 gains A1..A7, N·m·s/rad")
+@click.option(
+    "--gains",
+    "gains_file",
+    type=click.Path(path_type=Path),
+    help="the gains from a file instead of --kp/--kd: a controller from `analytic export`, or "
+    'one {"kp": [7], "kd": [7]} object',
+)
 @options.model()
 @options.plant()
 @options.placement()
@@ -61,6 +70,7 @@ def episode(
     duration: float,
     kp: str,
     kd: str,
+    gains_file: Path | None,
     model: str,
     plant: str,
     trajectory_seed: int,
@@ -71,6 +81,7 @@ def episode(
     as_json: bool,
 ) -> None:
     """Simulate one PD episode on the iiwa 14, write its MCAP log and print its scores."""
+    gains = _file_gains(gains_file) if gains_file is not None else None
     (path,) = options.trajectories([trajectory], duration, trajectory_seed, center, size)
     learned = options.feedforward_model(feedforward)
     if learned is not None and gravity_compensation:
@@ -80,7 +91,7 @@ def episode(
         )
     try:
         spec = EpisodeSpec(
-            gains=PDGains(kp=_gains("--kp", kp), kd=_gains("--kd", kd)),
+            gains=gains or PDGains(kp=_gains("--kp", kp), kd=_gains("--kd", kd)),
             trajectory=path,
             model=options.model_spec(plant, model),
             gravity_compensation=gravity_compensation,
@@ -101,7 +112,7 @@ def episode(
     show_scores(score(log), out, as_json)
 
 
-@app.command()
+@app.command(short_help="Serve a farm: run its jobs while free.")
 @options.connect("the broker's Zenoh endpoint (repeat for several)")
 @click.option(
     "--name",
@@ -170,6 +181,32 @@ def start(
             log.info("worker %s serving %s", name, ", ".join(connect))
             done = cobot.serve(stop)
         log.info("worker %s stopped after %d jobs", name, done)
+
+
+def _file_gains(path: Path) -> PDGains:
+    """--gains: the one controller in the file; --kp and --kd may not be given beside it."""
+    context = click.get_current_context()
+    given = [
+        f"--{name}"
+        for name in ("kp", "kd")
+        if context.get_parameter_source(name) is ParameterSource.COMMANDLINE
+    ]
+    if given:
+        raise CliError(f"--gains and {' and '.join(given)} exclude each other: give one of them")
+    try:
+        raw = path.read_bytes()
+    except OSError as error:
+        raise CliError(f"--gains: cannot read {str(path)!r}: {error.strerror}") from None
+    try:
+        candidates = read_gains(raw)
+    except BadGains as error:
+        raise CliError(f"--gains: {str(path)!r}: {error}") from None
+    if len(candidates) != 1:
+        raise CliError(
+            f"--gains: {str(path)!r} holds {len(candidates)} candidates and an episode runs one; "
+            "`analytic export RUN --member ...` writes one (`analytic batch --gains` runs many)"
+        )
+    return candidates[0]
 
 
 def _gains(option: str, text: str) -> tuple[float, ...]:

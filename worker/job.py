@@ -79,12 +79,19 @@ def simulate(spec: EpisodeSpec, model: Callable[[str], DynamicsModel] | None = N
     return Outcome(status, reason, content, timings, scores)
 
 
+# What runs an episode: simulate, or a stand-in (bench/campaign.py --simulated).
+Simulate = Callable[[EpisodeSpec, Callable[[str], DynamicsModel] | None], Outcome]
+
+
 def execute(
-    lease: Lease, worker: str, model: Callable[[str], DynamicsModel] | None = None
+    lease: Lease,
+    worker: str,
+    model: Callable[[str], DynamicsModel] | None = None,
+    run: Simulate = simulate,
 ) -> tuple[Result, bytes]:
     """Run the lease's episode; return its Result, with its scores, and the MCAP bytes (empty if
     it failed)."""
-    outcome = simulate(lease.job.spec, model)
+    outcome = run(lease.job.spec, model)
     result = Result(
         study=lease.study,
         job_id=lease.job.job_id,

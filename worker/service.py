@@ -1,5 +1,9 @@
-"""The sim-cobot on the wire: connect, hold a liveliness token, ask for work when free, hand in
-each result to the broker and, once it takes it, send it to the study. One process is one cobot.
+"""The sim-cobot on the wire: connect, hold a liveliness token, ask for a batch of work when free,
+run it, hand its results in to the broker with the next request and send each one the broker took
+to its study. One process is one cobot.
+
+A batch is about BATCH_SECONDS of work (one job when jobs are long): short jobs then cost the broker
+one query per batch instead of two per job.
 
 The episode log goes along with the result only when the job asks for it (Job.keep_log);
 otherwise the worker keeps the log in memory (a LogStore, bounded: the least recently used go
@@ -11,6 +15,7 @@ import logging
 import threading
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import zenoh
 
@@ -21,29 +26,41 @@ from schemas.security import TlsIdentity
 from schemas.transport import open_session, token_held
 from schemas.wire import (
     LEASE_HOLD_SECONDS,
+    MAX_BATCH,
     BadMessage,
-    CompletionReply,
     JobStatus,
     Lease,
     LeaseReply,
     LeaseRequest,
     Result,
+    Verdict,
     decode,
 )
 from worker.feedforward import ModelCache
-from worker.job import execute
+from worker.job import Simulate, execute, simulate
 from worker.logstore import LogStore
 
 log = logging.getLogger("gainfarm.worker")
 
 ANSWER_MARGIN = 5.0  # s beyond the broker's longest hold before a lease request counts as lost
 RETRY_SECONDS = 1.0  # pause after a broker that did not answer or answered with an error
-ANSWER_SECONDS = 10.0  # how long the broker has to take a handed-in result
+ANSWER_SECONDS = 10.0  # how long a study has to answer a model fetch
+BATCH_SECONDS = 0.25  # work asked for at once: results wait for their batch at most this long
 LOG_MEMORY = 512 * 2**20  # bytes of kept episode logs: some 20 of 120 s, hundreds of short ones
 
 
 class NameTaken(RuntimeError):
     pass
+
+
+@dataclass(frozen=True)
+class Ran:
+    """A leased job this worker ran, waiting to be handed in."""
+
+    lease: Lease
+    result: Result
+    content: bytes  # the episode log
+    give_up: float  # monotonic time its lease expires: a result the broker never took is dropped
 
 
 def fetch_model(session: zenoh.Session, study: str, wanted: str) -> bytes | None:
@@ -79,13 +96,16 @@ class CobotWorker:
         identity: TlsIdentity | None = None,
         models: ModelCache | None = None,
         log_memory: int = LOG_MEMORY,
+        simulate: Simulate = simulate,
     ):
-        """`log_memory`: bytes of episode logs kept for the studies to fetch."""
+        """`log_memory`: bytes of episode logs kept for the studies to fetch. `simulate` runs an
+        episode (another only for simulated workers: bench/campaign.py --simulated)."""
         request = LeaseRequest(worker=name)  # validates the name: it becomes a key chunk
         self.name = request.worker
         self.models = models if models is not None else ModelCache()
         self.logs = LogStore(log_memory)
-        self._request = request.to_bytes()
+        self._simulate = simulate
+        self._job_seconds: float | None = None  # a recent job's wall time, smoothed
         self.jobs_done = 0
         self.refused = 0  # results the broker did not take (e.g. the lease had gone elsewhere)
         self.session = open_session("client", connect=connect, identity=identity)
@@ -113,45 +133,83 @@ class CobotWorker:
             self.session.close()
 
     def serve(self, stop: threading.Event, max_jobs: int | None = None) -> int:
-        """Serve until `stop` is set (a job in progress is finished and returned first)."""
-        while not stop.is_set() and (max_jobs is None or self.jobs_done < max_jobs):
-            reply = self._ask_for_work()
+        """Serve until `stop` is set (the batch in progress is finished and handed in first)."""
+        ran: list[Ran] = []
+        while True:
+            want = 0 if stop.is_set() else self._want(max_jobs, len(ran))
+            if want == 0 and not ran:
+                return self.jobs_done
+            reply = self._ask_for_work(want, ran)
             if reply is None:
+                now = time.monotonic()
+                for lost in (r for r in ran if r.give_up <= now or stop.is_set()):
+                    log.warning(
+                        "%s/%s: no broker took the result", lost.lease.study, lost.lease.job.job_id
+                    )
+                ran = [r for r in ran if r.give_up > now and not stop.is_set()]
                 stop.wait(RETRY_SECONDS)
-            elif reply.lease is not None:
-                self._run(reply.lease, stop)
-        return self.jobs_done
+                continue
+            self._send(ran, reply.verdicts)
+            ran = [self._run(lease) for lease in reply.leases]
 
-    def _run(self, lease: Lease, stop: threading.Event) -> None:
+    def _want(self, max_jobs: int | None, waiting: int) -> int:
+        """Leases to ask for: about BATCH_SECONDS of work at the pace of the last jobs."""
+        want = 1 if self._job_seconds is None else round(BATCH_SECONDS / self._job_seconds)
+        want = max(1, min(MAX_BATCH, want))
+        return want if max_jobs is None else max(0, min(want, max_jobs - self.jobs_done - waiting))
+
+    def _run(self, lease: Lease) -> Ran:
         give_up = time.monotonic() + lease.expires_in
-        result, content = execute(lease, self.name, lambda wanted: self._model(lease, wanted))
-        if not self._hand_in(result, give_up, stop):
-            return
-        sent = content if lease.job.keep_log else b""
-        if not lease.job.keep_log and result.status != JobStatus.failed:
-            # Kept before the result goes out: a study may fetch the log the moment it arrives.
-            if len(content) > self.logs.max_bytes:
+        started = time.perf_counter()
+        result, content = execute(
+            lease, self.name, lambda wanted: self._model(lease, wanted), self._simulate
+        )
+        took = time.perf_counter() - started
+        pace = self._job_seconds
+        self._job_seconds = took if pace is None else 0.8 * pace + 0.2 * took
+        return Ran(lease, result, content, give_up)
+
+    def _send(self, ran: list[Ran], verdicts: list[Verdict]) -> None:
+        """Send each result the broker took to its study, with its log if the job asked to keep
+        it; keep the others' logs here, to be fetched."""
+        verdict_of = {(v.job_id, v.lease_id): v for v in verdicts}
+        for item in ran:
+            result, content = item.result, item.content
+            verdict = verdict_of.get((result.job_id, result.lease_id))
+            if verdict is None or not verdict.accepted:
+                self.refused += 1
                 log.warning(
-                    "%s/%s: its %d-byte log is larger than the log memory; not kept",
+                    "%s/%s: the broker did not take the result: %s",
                     result.study,
                     result.job_id,
-                    len(content),
+                    "no verdict on it" if verdict is None else verdict.reason,
                 )
-            self.logs.keep(result.study, result.digest, content)
-        self.session.put(
-            keys.result(result.study, result.job_id),
-            sent,
-            attachment=result.to_bytes(),
-            congestion_control=zenoh.CongestionControl.BLOCK,
-        )
-        self.jobs_done += 1
-        log.info(
-            "%s/%s: %s in %.3f s",
-            result.study,
-            result.job_id,
-            result.status.value,
-            result.timings.simulate_s + result.timings.encode_s,
-        )
+                continue
+            keep_log = item.lease.job.keep_log
+            if not keep_log and result.status != JobStatus.failed:
+                # Kept before the result goes out: a study may fetch the log the moment it arrives.
+                if len(content) > self.logs.max_bytes:
+                    log.warning(
+                        "%s/%s: its %d-byte log is larger than the log memory; not kept",
+                        result.study,
+                        result.job_id,
+                        len(content),
+                    )
+                self.logs.keep(result.study, result.digest, content)
+            self.session.put(
+                keys.result(result.study, result.job_id),
+                content if keep_log else b"",
+                attachment=result.to_bytes(),
+                congestion_control=zenoh.CongestionControl.BLOCK,
+            )
+            self.jobs_done += 1
+            log.info(
+                "%s/%s: %s in %.3f s",
+                result.study,
+                result.job_id,
+                result.status.value,
+                result.timings.simulate_s + result.timings.encode_s,
+            )
 
     def _on_log_query(self, query: zenoh.Query) -> None:
         """Serve a kept log: gainfarm/study/{study}/log/{worker}/{digest} → its bytes, to that
@@ -178,37 +236,15 @@ class CobotWorker:
 
         return self.models.model(wanted, lambda _: fetch_model(self.session, lease.study, wanted))
 
-    def _hand_in(self, result: Result, give_up: float, stop: threading.Event) -> bool:
-        """Hand the result in to the broker: True once it takes it. A broker that does not
-        answer is asked again until the lease would have expired (then the job is another's)."""
-        while True:
-            answer = ask(self.session, keys.complete(self.name), result.to_bytes(), ANSWER_SECONDS)
-            if answer is not None:
-                break
-            if time.monotonic() >= give_up or stop.is_set():
-                log.warning("%s/%s: no broker took the result", result.study, result.job_id)
-                return False
-            stop.wait(RETRY_SECONDS)
-        try:
-            if answer.payload is None:
-                raise BadMessage(f"refused: {answer.error}")
-            verdict = decode(CompletionReply, answer.payload)
-        except BadMessage as error:
-            verdict = CompletionReply(accepted=False, reason=str(error))
-        if not verdict.accepted:
-            self.refused += 1
-            log.warning(
-                "%s/%s: the broker did not take the result: %s",
-                result.study,
-                result.job_id,
-                verdict.reason,
-            )
-        return verdict.accepted
-
-    def _ask_for_work(self) -> LeaseReply | None:
-        """The broker's answer, or None if there was no usable one."""
+    def _ask_for_work(self, want: int, ran: list[Ran]) -> LeaseReply | None:
+        """Hand in `ran`'s results and ask for `want` leases: the broker's answer, or None if
+        there was no usable one (the same results are handed in again: the broker takes a
+        repeated hand-in as it took the first)."""
         key = keys.lease(self.name)
-        answer = ask(self.session, key, self._request, LEASE_HOLD_SECONDS + ANSWER_MARGIN)
+        request = LeaseRequest.model_construct(  # validated: its name, once; its results, made here
+            worker=self.name, want=want, results=[r.result for r in ran]
+        )
+        answer = ask(self.session, key, request.to_bytes(), LEASE_HOLD_SECONDS + ANSWER_MARGIN)
         if answer is None:
             log.warning("no broker answered on %s; asking again", key)
             return None

@@ -15,13 +15,16 @@ from models.dynamics import DynamicsModel
 from schemas.mcap_episode import decode_episode, episode_bytes
 from schemas.objectives import score
 from schemas.wire import Lease, Result, WireScores
-from worker.job import execute
+from worker.job import Simulate, execute, simulate
 
 
 def lying_execute(
-    lease: Lease, name: str, model: Callable[[str], DynamicsModel] | None = None
+    lease: Lease,
+    name: str,
+    model: Callable[[str], DynamicsModel] | None = None,
+    run: Simulate = simulate,
 ) -> tuple[Result, bytes]:
-    result, content = execute(lease, name, model)
+    result, content = execute(lease, name, model, run)
     if not content:
         return result, content
     log = decode_episode(content)
@@ -35,9 +38,12 @@ def lying_execute(
 
 
 def boasting_execute(
-    lease: Lease, name: str, model: Callable[[str], DynamicsModel] | None = None
+    lease: Lease,
+    name: str,
+    model: Callable[[str], DynamicsModel] | None = None,
+    run: Simulate = simulate,
 ) -> tuple[Result, bytes]:
-    result, content = execute(lease, name, model)
+    result, content = execute(lease, name, model, run)
     if result.scores is None:
         return result, content
     better = {"f_acc": 0.9 * result.scores.f_acc, "f_t": 0.9 * result.scores.f_t}

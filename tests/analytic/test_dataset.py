@@ -2,6 +2,7 @@
 split by trajectory, with units; real runs on a real local farm, real MCAP logs."""
 
 import contextlib
+import dataclasses
 import json
 import os
 import re
@@ -33,11 +34,12 @@ from analytic.dataset import (
 from analytic.evaluator import Evaluator
 from analytic.farm import FarmClient
 from analytic.local import local_farm
-from analytic.records import RUN_JSON, read_identity
+from analytic.records import RUN_JSON, read_identity, read_run
 from analytic.run import TuningRun
 from analytic.tuning import new_study_name
+from cli import interrupts
 from schemas import TrajectorySpec
-from schemas.mcap_episode import read_episode
+from schemas.mcap_episode import read_episode, write_episode
 from schemas.robot import JOINT_NAMES
 
 SPIRAL = TrajectorySpec(duration=3.0)
@@ -59,6 +61,7 @@ RERUN = [
 ]
 ANALYTIC = [sys.executable, "-m", "analytic", "dataset"]
 SIGNALS = ("q", "qd", "tau", "u", "theta", "theta_d", "q_des", "qd_des")
+ARRAYS = ("t", *SIGNALS, "ee", "ee_des")
 
 
 @pytest.fixture(scope="module")
@@ -375,8 +378,11 @@ def analytic(
     """`analytic dataset ARGUMENTS` through the console script's own entry point, in this
     process (a process each would cost seconds of imports): its exit status and stderr."""
     monkeypatch.setattr(sys, "argv", ["analytic", "dataset", *arguments])
-    with pytest.raises(SystemExit) as exit:
-        main()
+    try:
+        with pytest.raises(SystemExit) as exit:
+            main()
+    finally:
+        interrupts.uninstall()  # the command took Ctrl-C over for its process: give it back
     return int(exit.value.code or 0), capsys.readouterr().err
 
 
@@ -448,3 +454,37 @@ def test_dataset_of_an_unreadable_run_names_it_in_one_line(run_dir: Path, tmp_pa
     assert run.returncode == 2
     assert run.stderr.startswith(f"analytic: error: {str(broken)!r}: unreadable run")
     assert run.stderr.count("\n") == 1 and not (tmp_path / "x").exists()
+
+
+def test_dataset_of_a_damaged_log_names_it_in_one_line(run_dir: Path, tmp_path: Path) -> None:
+    """A log that is not one (cut short) or that holds no tick (which no worker writes: that
+    one used to escape as a traceback from Parquet) is the run's problem, said in one line."""
+    source = run_dir / read_run(run_dir).front[0].logs[0]  # a log the dataset takes
+    log = read_episode(source)
+    empty = dataclasses.replace(
+        log,
+        metadata=log.metadata.model_copy(update={"ticks_run": 0}),
+        **{name: getattr(log, name)[:0] for name in ARRAYS},
+    )
+    damages = {
+        "cut short": lambda path: path.write_bytes(source.read_bytes()[:5_000]),
+        "no tick": lambda path: write_episode(empty, path),
+    }
+    for damage, message in zip(
+        damages, ("truncated MCAP file", "without a single tick"), strict=True
+    ):
+        broken = tmp_path / damage.replace(" ", "-")
+        shutil.copytree(run_dir, broken)
+        damaged = broken / source.relative_to(run_dir)
+        damaged.unlink()  # a hard link to the run's own log, maybe: never write through it
+        damages[damage](damaged)
+        run = subprocess.run(
+            [*ANALYTIC, str(broken), "--out", str(tmp_path / "x"), "--split", "1,0,0"],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert run.returncode == 2, run.stderr
+        assert run.stderr == f"analytic: error: {damaged}: {run.stderr.split(': ', 3)[-1]}"
+        assert message in run.stderr and run.stderr.count("\n") == 1
+        assert not (tmp_path / "x").exists()

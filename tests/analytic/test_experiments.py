@@ -5,6 +5,7 @@ import json
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -270,6 +271,41 @@ def test_an_experiment_writes_the_same_results_one_run_at_a_time_as_all_at_once(
     assert without_wall_times(one / "results.csv") == without_wall_times(
         all_at_once / "results.csv"
     )
+
+
+def test_two_processes_share_an_experiment_each_run_run_once(tmp_path: Path) -> None:
+    """Two experiments on one --out (as two processes, each run's lock being a flock of its
+    own open file), one run at a time each: each takes the runs the other is not running, waits
+    for the rest, and both end with the same results; every run was run by one of them. (Each
+    moves the fronts it has to the other durations itself: cross-evaluations are not kept.)"""
+    ran: dict[str, list[str]] = {"a": [], "b": []}
+
+    def slow(who: str) -> EvaluatorFactory:
+        def evaluator(study: str, directory: Path) -> InProcessEvaluator:
+            if directory.parent.name == "runs":
+                ran.setdefault(who, []).append(directory.name)
+                time.sleep(0.3)  # long enough for the other to find this run taken
+            return InProcessEvaluator(scorer=toy_scores)
+
+        return evaluator
+
+    def share(who: str) -> None:
+        experiments.speed(
+            Experiment(tmp_path, slow(who), parallel=1), BASE, [3.0, 3.5, 4.0], reps=2
+        )
+
+    other = threading.Thread(target=share, args=("b",))
+    other.start()
+    share("a")
+    other.join(120)
+    assert not other.is_alive()
+    runs = sorted(p.name for p in (tmp_path / "runs").iterdir())
+    assert sorted(ran["a"] + ran["b"]) == runs and len(runs) == 6  # each run once
+    assert ran["a"] and ran["b"]  # and both took some
+    results = (tmp_path / "results.csv").read_bytes()
+    experiments.speed(Experiment(tmp_path, slow("none")), BASE, [3.0, 3.5, 4.0], reps=2)
+    assert "none" not in ran
+    assert (tmp_path / "results.csv").read_bytes() == results
 
 
 class Interrupted(Exception):

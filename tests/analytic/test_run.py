@@ -17,7 +17,7 @@ from analytic.config import RunConfig
 from analytic.farm import FarmClient
 from analytic.inprocess import InProcessEvaluator
 from analytic.local import free_port, local_farm, spawn_worker, stop_workers
-from analytic.records import read_front, read_history
+from analytic.records import read_baseline, read_front, read_history
 from analytic.run import RunProgress, TuningRun
 from broker.service import Broker
 from schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
@@ -72,13 +72,19 @@ def test_a_tiny_run_records_everything(tmp_path: Path, farm_endpoint: str) -> No
         "pareto.png",
         "hypervolume.png",
         "report.md",
+        "baseline.json",
     ):
         assert (directory / name).is_file(), name
     assert RunConfig.model_validate_json((directory / "config.json").read_text()) == TINY
     history = read_history(directory / "history.csv")
     assert [row.generation for row in history] == [1, 2, 3]
     assert [row.evaluations for row in history] == [6, 12, 18]
-    assert len(list((directory / "episodes").glob("*.mcap"))) == 18
+    # The 18 candidates' episodes, and the default gains' one (the run's baseline).
+    assert len(list((directory / "episodes").glob("*.mcap"))) == 18 + 1
+    baseline = read_baseline(directory / "baseline.json")
+    default = score(read_episode(directory / "episodes" / "baseline-t0.mcap"))
+    assert baseline.gains == DEFAULT_GAINS and not baseline.diverged
+    assert baseline.objectives == (default.f_acc, default.f_t)
     assert run.state.stopped == "3 generations"
     assert "3 generations" in (directory / "report.md").read_text()
 
@@ -344,6 +350,8 @@ def test_the_front_is_the_same_when_the_analytic_process_is_killed_and_resumed(
             "0.5",
             "--generations",
             "3",
+            "--keep",  # as `calm` keeps them (RunConfig's default)
+            "all",
         ]
         command = [sys.executable, "-m", "analytic", "start", *config, *arguments, "--out", "run"]
         running = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.DEVNULL)

@@ -513,12 +513,14 @@ def test_a_full_or_read_only_disk_is_one_line_and_a_resume_goes_on(
         "0.5",
         "--generations",
         str(generations),
+        *("--keep", "all"),  # every episode's log: the disk fills in the second generation
     ]
     command = [sys.executable, "-m", "analytic", "start", *options, "--out", "disk/run"]
     directory = disk.mount / "run"
     if fault == "full":
-        # Room for the first generation's logs (4 × ~110 kB) and records, not the second's.
-        disk.remount("size=700k")
+        # Room for the first generation's logs (4 × ~175 kB, the robot's description included)
+        # and records, not the second's.
+        disk.remount("size=1000k")
     running = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.PIPE, text=True)
     if fault == "read-only":
         history = directory / "history.csv"

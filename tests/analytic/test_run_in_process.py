@@ -5,6 +5,7 @@ real front for NSGA-II to find. The same guarantees are tested on a real farm in
 """
 
 import itertools
+import math
 import random
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
@@ -14,9 +15,10 @@ import pytest
 from analytic.config import RunConfig
 from analytic.evaluator import Evaluation
 from analytic.inprocess import InProcessEvaluator
-from analytic.records import read_front, read_history, read_run
+from analytic.records import read_baseline, read_front, read_history, read_run
 from analytic.run import RunProgress, TuningRun, upgrade
 from schemas import EpisodeSpec, Scores, TrajectorySpec
+from schemas.gains import DEFAULT_GAINS
 from schemas.trajectory import TrajectoryKind
 from tests.analytic.toy import toy_scores
 
@@ -199,6 +201,38 @@ def test_a_run_stops_after_its_evaluations(tmp_path: Path) -> None:
     assert read_run(run.directory).stopped == "24 evaluations"
 
 
+def test_a_steady_state_run_stops_at_its_evaluations_exactly(tmp_path: Path) -> None:
+    """Not at the end of the "generation" (every pop evaluations) past it: no candidate is asked
+    beyond the budget, and the last row is a partial generation of its own."""
+    config = TINY.model_copy(update={"generations": None, "evaluations": 20, "asynchronous": True})
+    evaluator = InProcessEvaluator(scorer=toy_scores)
+    with TuningRun.create(tmp_path / "run", config) as run:
+        run.run(evaluator, report=False)
+    assert run.state.stopped == "20 evaluations"
+    assert len(run.state.evaluated) == 20 and evaluator.pending == 0
+    history = read_history(run.directory / "history.csv")
+    assert [(row.generation, row.evaluations) for row in history] == [
+        (1, 6),
+        (2, 12),
+        (3, 18),
+        (4, 20),
+    ]
+    assert len((run.directory / "evaluated.csv").read_text().splitlines()) == 1 + 20
+
+
+@pytest.mark.parametrize("asynchronous", [False, True])
+def test_progress_is_told_once_as_each_generation_ends(tmp_path: Path, asynchronous: bool) -> None:
+    told: list[RunProgress] = []
+    config = TINY.model_copy(update={"asynchronous": asynchronous})
+    run = tune(tmp_path / "run", config, on_progress=told.append)
+    ended = [step for step in told if step.ended]
+    assert [(s.generation, s.evaluations) for s in ended] == [(1, 6), (2, 12), (3, 18)]
+    for step, row in zip(ended, run.state.history, strict=True):
+        assert (step.hypervolume, step.best_f_acc) == (row.hypervolume, row.best_f_acc)
+    first = [step for step in told if step.evaluations <= 6 and not step.ended]
+    assert first and all(math.isnan(s.hypervolume) and math.isnan(s.best_f_acc) for s in first)
+
+
 def test_a_run_stops_when_the_hypervolume_stops_growing(tmp_path: Path) -> None:
     config = TINY.model_copy(update={"generations": None, "tolerance": 0.05, "window": 2})
     run = tune(tmp_path / "run", config)
@@ -278,3 +312,36 @@ def test_a_generic_run_weighs_each_trajectory_as_its_config_says(tmp_path: Path)
     assert len(expected) == len(set(evaluated))
     for point in evaluated:
         assert any(point == pytest.approx(other, rel=1e-12) for other in expected)
+
+
+class Refusing(InProcessEvaluator):
+    """An evaluator that must not be asked for anything."""
+
+    def submit(self, specs: Mapping[str, EpisodeSpec], avoid: object = None) -> None:
+        raise AssertionError(f"asked to run {sorted(specs)}")
+
+
+def test_a_reported_run_scores_the_default_gains_once_as_it_scores_its_candidates(
+    tmp_path: Path,
+) -> None:
+    both = (TrajectorySpec(duration=1.0), TrajectorySpec(kind="pyramid", duration=1.0))
+    weights = ((0.5, 40 / 41), (0.5, 1 / 41))
+    config = RunConfig(pop=4, trajectories=both, generations=1, objective_weights=weights)
+    with TuningRun.create(tmp_path / "run", config) as run:
+        run.run(InProcessEvaluator(scorer=pyramid_rough))
+        baseline = run.baseline(Refusing())  # kept in baseline.json: not asked again
+        run.write_figures()  # nor when the figures are drawn again
+    # The same weighted mean as a candidate's: the spiral's f_acc, 80/41 of its f_t.
+    alone = toy_scores(EpisodeSpec(gains=DEFAULT_GAINS, trajectory=both[0]))
+    assert baseline is not None and baseline.gains == DEFAULT_GAINS and not baseline.diverged
+    assert baseline.objectives == pytest.approx((alone.f_acc, 80 / 41 * alone.f_t), rel=1e-12)
+    assert [e["job_id"] for e in baseline.episodes] == ["baseline-t0", "baseline-t1"]
+    assert read_baseline(run.directory / "baseline.json") == baseline
+    assert "| default gains (not tuned) |" in (run.directory / "report.md").read_text()
+
+
+def test_an_unreported_run_evaluates_no_baseline(tmp_path: Path) -> None:
+    with TuningRun.create(tmp_path / "run", TINY) as run:
+        run.run(InProcessEvaluator(scorer=toy_scores), report=False)
+        assert run.baseline() is None
+    assert not (run.directory / "baseline.json").exists()

@@ -9,6 +9,7 @@ import time
 
 from analytic.local import free_port, spawn_worker, stop_workers
 from schemas.wire import PROTOCOL_VERSION
+from tests.helpers import wait_for
 
 
 def broker_command(*arguments: str) -> list[str]:
@@ -79,3 +80,48 @@ def test_a_bad_endpoint_is_one_line() -> None:
     assert run.returncode == 2
     assert run.stderr.startswith("broker: error: --listen: bad endpoint: Endpoints must be")
     assert len(run.stderr.splitlines()) == 1
+
+
+def test_status_watch_prints_a_line_a_look_until_ctrl_c() -> None:
+    """Off a terminal, --watch prints the farm's summary (or its JSON) at each look; Ctrl-C
+    ends it with exit status 130 and one line, as every command line."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    broker = subprocess.Popen(broker_command("start", "--listen", endpoint, "--log-level", "error"))
+    try:
+        wait_for(lambda: status(endpoint).returncode == 0, 30, "the broker")
+        for extra, parse in ((), str), (("--json",), json.loads):
+            watching = subprocess.Popen(
+                broker_command(
+                    "status", "--connect", endpoint, "--watch", "--interval", "0.2", *extra
+                ),
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            assert watching.stdout is not None
+            looks = [watching.stdout.readline() for _ in range(4)]
+            watching.send_signal(signal.SIGINT)
+            _, err = watching.communicate(timeout=30)
+            assert watching.returncode == 130, err
+            assert err == "broker: interrupted\n"
+            if extra:
+                uptimes = [parse(look)["uptime_s"] for look in looks]
+                assert uptimes == sorted(uptimes) and uptimes[-1] > uptimes[0]
+            else:
+                assert all(
+                    look.startswith("up ") and "0 workers (0 busy)" in look for look in looks
+                )
+    finally:
+        broker.send_signal(signal.SIGTERM)
+        broker.wait(timeout=30)
+
+
+def test_certs_says_in_whole_sentences_what_each_host_needs(tmp_path) -> None:
+    made = subprocess.run(
+        broker_command("certs", str(tmp_path / "certs")), capture_output=True, text=True, timeout=60
+    )
+    assert made.returncode == 0, made.stderr
+    assert made.stdout.endswith(
+        "every host needs ca.pem and its own NAME.pem and NAME.key, and the broker's host also "
+        "needs every participant's .pem\n"
+    )

@@ -33,7 +33,7 @@ from schemas.wire import JobStatus
 from tests.helpers import hand_in, perfect_log, result_for, short_spec, wait_for
 
 DENIED_SECONDS = 1.0  # a denied query is dropped, not refused: wait this long for no answer
-SERVICES = [keys.SUBMIT_ANY, keys.CONFIRM_ANY, keys.LEASE_ANY, keys.COMPLETE_ANY, keys.STATUS]
+SERVICES = [keys.SUBMIT_ANY, keys.CONFIRM_ANY, keys.LEASE_ANY, keys.STATUS]
 
 
 @pytest.fixture(scope="module")
@@ -117,8 +117,8 @@ def test_a_worker_leases_and_hands_in_only_under_its_own_name(
     router: Router, connect: Callable[..., zenoh.Session], credentials: Path
 ) -> None:
     worker = connect(credentials, "worker", "cobot-1")
-    allowed = [keys.lease("cobot-1"), keys.complete("cobot-1"), keys.STATUS]
-    squatting = [keys.lease("cobot-2"), keys.complete("cobot-2"), keys.LEASE_ANY]
+    allowed = [keys.lease("cobot-1"), keys.STATUS]
+    squatting = [keys.lease("cobot-2"), keys.LEASE_ANY]
     not_its_job = [keys.submit("alice.x"), keys.confirm("alice.x"), keys.lease("cobot-1.x")]
     assert _answered(worker, allowed + squatting + not_its_job) == set(allowed)
 
@@ -138,7 +138,7 @@ def test_an_analytic_participant_uses_only_studies_it_owns(
     allowed = [keys.submit("alice.x"), keys.confirm("alice.run-ab12"), keys.STATUS]
     bobs = [keys.submit("bob.x"), keys.confirm("bob.x"), keys.submit("alice")]
     wildcards = [keys.SUBMIT_ANY, keys.submit("**"), keys.CONFIRM_ANY]
-    not_its_job = [keys.lease("cobot-1"), keys.complete("cobot-1")]
+    not_its_job = [keys.lease("cobot-1")]
     assert _answered(alice, allowed + bobs + wildcards + not_its_job) == set(allowed)
 
     # Subscribing to bob's results, or to everyone's, is refused; so bob's results never reach

@@ -3,7 +3,9 @@ confirmations, bad messages."""
 
 import contextlib
 import hashlib
+import json
 import logging
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -128,7 +130,8 @@ def test_a_free_worker_waits_for_work_and_gets_it_as_soon_as_it_is_submitted(
     submit(session, "s", {"j1": short_spec()})
     replies = list(waiting)
     assert len(replies) == 1
-    assert decode(LeaseReply, replies[0].ok.payload.to_bytes()).lease.job.job_id == "j1"
+    (lease,) = decode(LeaseReply, replies[0].ok.payload.to_bytes()).leases
+    assert lease.job.job_id == "j1"
 
 
 def test_a_dead_workers_job_goes_straight_to_another_worker(
@@ -238,6 +241,8 @@ def test_only_the_lease_holder_can_hand_in_a_result(broker: Broker, session: zen
     mine, theirs = ask_for_work(session, "w1"), ask_for_work(session, "w2")
     assert (mine.job.job_id, theirs.job.job_id) == ("j1", "j2")
     assert mine.lease_id != theirs.lease_id
+    farm = status(session)
+    assert [(w.name, w.job) for w in farm.workers] == [("w1", "s/j1"), ("w2", "s/j2")]
 
     refusals = [
         (result_for("s", "j1", worker="w2", lease_id=mine.lease_id), "handed to another worker"),
@@ -251,17 +256,85 @@ def test_only_the_lease_holder_can_hand_in_a_result(broker: Broker, session: zen
         assert not verdict.accepted and reason in verdict.reason, (forged, verdict)
     # The holder's own result, on another worker's key: the key and the message disagree.
     own = result_for("s", "j1", worker="w1", lease_id=mine.lease_id)
-    ok, reason = query(session, keys.complete("w2"), own.to_bytes())
+    request = LeaseRequest(worker="w1", want=0, results=[own])
+    ok, reason = query(session, keys.lease("w2"), request.to_bytes())
     assert not ok and reason.decode() == "the message's worker 'w1' is not the key's 'w2'"
 
     assert broker.queue.jobs_done == 0 and broker.rejected == len(refusals) + 1
     farm = status(session)
+    # The jobs stay leased; the workers count as free, having asked (for no work) since.
     assert [(study.queued, study.leased, study.done) for study in farm.studies] == [(0, 2, 0)]
-    assert [(w.name, w.job) for w in farm.workers] == [("w1", "s/j1"), ("w2", "s/j2")]
     assert confirm(session, "s", ["j1", "j2"]) == []
     verdict = hand_in(session, own)
     assert verdict.accepted, verdict.reason
     assert [accepted.worker for accepted in confirm(session, "s", ["j1", "j2"])] == ["w1"]
+
+
+def lease_batch(
+    session: zenoh.Session, worker: str, want: int, results: list | None = None
+) -> tuple[LeaseReply, float]:
+    """A worker's request for `want` leases that hands `results` in: the reply, and how long
+    the broker took to answer it."""
+    request = LeaseRequest(worker=worker, want=want, results=results or [])
+    asked = time.monotonic()
+    ok, payload = query(session, keys.lease(worker), request.to_bytes())
+    assert ok, payload
+    return decode(LeaseReply, payload), time.monotonic() - asked
+
+
+def test_a_worker_takes_a_batch_and_hands_it_in_with_its_next_request() -> None:
+    """A batch is at most what was asked; its results ride on the next request, each with a
+    verdict in order; a request that hands results in is answered at once even with no work
+    left (its worker waits for the verdicts), one that hands nothing in is held."""
+    with own_broker(hold_seconds=4.0) as (broker, session):
+        _batch_and_hand_in(broker, session)
+
+
+def _batch_and_hand_in(broker: Broker, session: zenoh.Session) -> None:
+    _s = open_study(session, broker, "s")
+    _w = join(session, broker, "w")
+    submit(session, "s", {f"j{n}": short_spec() for n in range(5)})
+    first, _ = lease_batch(session, "w", want=3)
+    assert [lease.job.job_id for lease in first.leases] == ["j0", "j1", "j2"]
+    assert first.verdicts == [] and broker.queue.busy() == 1
+    done = [
+        result_for("s", lease.job.job_id, "w", lease_id=lease.lease_id) for lease in first.leases
+    ]
+    forged = result_for("s", "j3", "w", lease_id="made-up")  # j3 is queued, not this worker's
+    second, _ = lease_batch(session, "w", want=3, results=[*done, forged])
+    assert [(v.job_id, v.accepted) for v in second.verdicts] == [
+        ("j0", True),
+        ("j1", True),
+        ("j2", True),
+        ("j3", False),
+    ]
+    assert "is not one of job 'j3'" in second.verdicts[3].reason
+    assert [lease.job.job_id for lease in second.leases] == ["j3", "j4"]  # all that is left
+    last = [
+        result_for("s", lease.job.job_id, "w", lease_id=lease.lease_id) for lease in second.leases
+    ]
+    third, took = lease_batch(session, "w", want=3, results=last)
+    assert [v.accepted for v in third.verdicts] == [True, True] and third.leases == []
+    assert took < broker.hold_seconds / 2  # answered at once, not held for work
+    held, took = lease_batch(session, "w", want=3)
+    assert held == LeaseReply() and took >= broker.hold_seconds * 0.9
+    assert broker.queue.jobs_done == 5 and broker.rejected == 1
+    assert [a.job_id for a in confirm(session, "s", [f"j{n}" for n in range(5)])] == [
+        f"j{n}" for n in range(5)
+    ]
+
+
+def test_a_batch_is_at_most_a_fair_share_of_the_queue(
+    broker: Broker, session: zenoh.Session
+) -> None:
+    """A shallow queue is spread over the free workers, not taken by the first to ask."""
+    _s = open_study(session, broker, "s")
+    _tokens = [join(session, broker, worker) for worker in ("w1", "w2", "w3")]
+    submit(session, "s", {f"j{n}": short_spec() for n in range(6)})
+    greedy, _ = lease_batch(session, "w1", want=32)
+    assert len(greedy.leases) == 2  # 6 queued, 3 free workers
+    second, _ = lease_batch(session, "w2", want=32)
+    assert len(second.leases) == 2  # 4 queued, 3 workers
 
 
 def test_a_study_is_told_only_its_own_accepted_results(
@@ -287,7 +360,11 @@ def test_a_study_is_told_only_its_own_accepted_results(
 KEYED = [
     (keys.submit("other"), Submission(study="s", jobs=[]), "study 's' is not the key's 'other'"),
     (keys.lease("other"), LeaseRequest(worker="w"), "worker 'w' is not the key's 'other'"),
-    (keys.complete("other"), result_for("s", "j", worker="w"), "worker 'w' is not the key's"),
+    (
+        keys.lease("other"),
+        LeaseRequest(worker="w", want=0, results=[result_for("s", "j", worker="w")]),
+        "worker 'w' is not the key's",
+    ),
     (
         keys.confirm("other"),
         ConfirmRequest(study="s", job_ids=["j"]),
@@ -316,7 +393,6 @@ def test_a_message_must_name_whom_its_key_names(
 QUERYABLES = {
     "submit": keys.submit("s"),
     "lease": keys.lease("w"),
-    "complete": keys.complete("w"),
     "confirm": keys.confirm("s"),
 }
 BAD_PAYLOADS = {
@@ -363,21 +439,32 @@ def test_json_nested_past_any_depth_is_a_one_line_refusal(
     assert status(session).rejected == 1  # and it serves on
 
 
+def _handed_in(result: dict) -> bytes:
+    return json.dumps(
+        {"protocol": PROTOCOL_VERSION, "worker": "w", "want": 0, "results": [result]}
+    ).encode()
+
+
 @pytest.mark.parametrize(
     "payload",
-    [None, b"nonsense", b'{"protocol": %d, "study": "s"}' % PROTOCOL_VERSION],
-    ids=["none", "json", "schema"],
+    [
+        None,
+        b"nonsense",
+        _handed_in({"protocol": PROTOCOL_VERSION, "study": "s"}),
+        _handed_in({**json.loads(result_for("s", "j", worker="other").to_bytes())}),
+    ],
+    ids=["none", "json", "schema", "another-worker-s"],
 )
-def test_a_bad_completion_is_refused_with_a_reason_and_the_lease_stands(
+def test_a_bad_hand_in_is_refused_with_a_reason_and_the_lease_stands(
     broker: Broker, session: zenoh.Session, payload: bytes | None, caplog
 ) -> None:
     _s = open_study(session, broker, "s")
     submit(session, "s", {"j": short_spec()})
     lease = ask_for_work(session, "w")
     with caplog.at_level(logging.WARNING, logger="gainfarm.broker"):
-        ok, reason = query(session, keys.complete("w"), payload)
+        ok, reason = query(session, keys.lease("w"), payload)
     assert not ok and reason.decode() in caplog.text
-    assert reason.decode().startswith("Result: ")
+    assert reason.decode().startswith("LeaseRequest: ")
     # A result sent straight to the study's key is not the broker's business: it does not listen.
     session.put(keys.result("s", "j"), b"", attachment=result_for("s", "j").to_bytes())
     assert broker.queue.jobs_done == 0 and broker.rejected == 1
@@ -414,7 +501,7 @@ def test_ten_thousand_made_up_workers_leave_the_status_small_and_are_forgotten()
         answers = [reply for replies in held for reply in replies]
         assert len(answers) == MADE_UP  # every one answered, none dropped
         assert all(
-            reply.ok is not None and decode(LeaseReply, reply.ok.payload.to_bytes()).lease is None
+            reply.ok is not None and decode(LeaseReply, reply.ok.payload.to_bytes()).leases == []
             for reply in answers
         )
         farm = status(session)

@@ -42,8 +42,12 @@ BROKER_PORT = 7447
 # hundred ms of wall time, long enough to pull a cable while it runs.
 # Without validation by replication: these tests count the run's jobs exactly, and one of them
 # takes a worker off the network, which a replica avoiding the other would wait for.
-RUN = ("--pop", "4", "--generations", "2", "--duration", "10", "--seed", "0", "--no-replicate")
+RUN = (
+    *("--pop", "4", "--generations", "2", "--duration", "10", "--seed", "0", "--no-replicate"),
+    *("--keep", "all"),  # every episode's log, to count them
+)
 EVALUATIONS = 8  # pop × generations, one trajectory
+JOBS = EVALUATIONS + 1  # and the default gains' episode, once (baseline.json)
 LEASE_SECONDS = 2.0
 ZENOH_LEASE_SECONDS = 10.0  # Zenoh's default transport lease: a silent link is closed after it
 STOP_SECONDS = 15.0  # a worker finishes its episode before leaving on SIGTERM
@@ -256,7 +260,8 @@ def check_run(out: Path, local_front: bytes) -> None:
     """The run did every evaluation once and found exactly the local farm's front."""
     history = read_history(out / "history.csv")
     assert [(row.generation, row.evaluations) for row in history] == [(1, 4), (2, EVALUATIONS)]
-    assert len(list((out / "episodes").glob("*.mcap"))) == EVALUATIONS
+    assert len(list((out / "episodes").glob("g*.mcap"))) == EVALUATIONS
+    assert (out / "episodes" / "baseline-t0.mcap").is_file()  # the default gains, once
     assert (out / "front.csv").read_bytes() == local_front
 
 
@@ -278,11 +283,11 @@ def test_a_study_across_hosts_finds_the_front_a_local_farm_finds(
     asked = lan.run("console", "-m", "broker", "status", "--connect", lan.endpoint, "--json")
     assert asked.returncode == 0, asked.stderr
     farm = BrokerStatus.model_validate_json(asked.stdout)
-    assert farm.jobs_done == EVALUATIONS and farm.requeued == 0
+    assert farm.jobs_done == JOBS and farm.requeued == 0
     done = {worker.name: worker.jobs_done for worker in farm.workers}
     assert set(done) == set(WORKERS)
     assert all(count >= 1 for count in done.values()), done
-    assert sum(done.values()) == EVALUATIONS
+    assert sum(done.values()) == JOBS
 
 
 def test_a_worker_cut_off_for_longer_than_its_lease_loses_nothing_and_serves_again(
@@ -310,9 +315,9 @@ def test_a_worker_cut_off_for_longer_than_its_lease_loses_nothing_and_serves_aga
     )
     assert study.wait(120) == 0, lan.tail("analytic")
     check_run(out, local_front)
-    wait_for(lambda: watch.latest.jobs_done == EVALUATIONS, 5, "the broker to count the run")
+    wait_for(lambda: watch.latest.jobs_done == JOBS, 5, "the broker to count the run")
     assert watch.latest.requeued == 1
-    assert watch.workers()["worker-2"].jobs_done == EVALUATIONS - held.jobs_done
+    assert watch.workers()["worker-2"].jobs_done == JOBS - held.jobs_done
 
     # Out longer than Zenoh's lease too: the broker closes the silent link, and the victim's
     # session its own end (at its lease, or sooner: a put blocked 5 s closes the link).

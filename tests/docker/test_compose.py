@@ -4,14 +4,16 @@ Every command they run is parsed by the real click commands (nothing is run), so
 or subcommand breaks these tests rather than a deployment.
 """
 
+import importlib.util
 import itertools
 import json
 import re
 import shlex
 import tomllib
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from functools import cache
 from pathlib import Path, PurePosixPath
+from types import ModuleType
 
 import click
 import pytest
@@ -28,6 +30,7 @@ COMPOSE_FILE = DOCKER / "compose.yaml"
 SECURE_FILE = DOCKER / "compose.secure.yaml"
 DOCKERFILE = DOCKER / "Dockerfile"
 README = DOCKER / "README.md"
+E2E_SCRIPT = DOCKER / "e2e.py"
 PROGRAMS: dict[str, click.Group] = {
     "broker": broker.cli.app,
     "worker": worker.cli.app,
@@ -67,23 +70,25 @@ def secure_service(name: str) -> dict:
     return merged
 
 
-def interpolate(text: str) -> str:
-    """Compose's `${VAR:-default}` as it reads with no environment: every variable needs one."""
+def interpolate(text: str, env: Mapping[str, str] | None = None) -> str:
+    """Compose's `${VAR:-default}` with the variables of `env` set (none by default): every
+    variable needs a default."""
 
-    def default(match: re.Match[str]) -> str:
+    def value(match: re.Match[str]) -> str:
         assert match["default"] is not None, f"{match[0]} has no default in {COMPOSE_FILE.name}"
-        return match["default"]
+        return (env or {}).get(match["name"]) or match["default"]
 
-    text = re.sub(r"\$\{(?P<name>\w+)(?::?-(?P<default>[^}]*))?\}", default, text)
+    text = re.sub(r"\$\{(?P<name>\w+)(?::?-(?P<default>[^}]*))?\}", value, text)
     assert not re.search(r"(?<!\$)\$(?!\$)", text), f"uninterpolated $ in {text!r}"
     return text.replace("$$", "$")
 
 
-def argv(command: str | list[str]) -> list[str]:
-    """A compose `command`/`test` as the argument vector the container gets."""
+def argv(command: str | list[str], env: Mapping[str, str] | None = None) -> list[str]:
+    """A compose `command`/`test` as the argument vector the container gets: a string is split
+    as a shell would, after interpolation (so a variable may hold several arguments)."""
     if isinstance(command, str):
-        return shlex.split(interpolate(command))
-    return [interpolate(str(part)) for part in command]
+        return shlex.split(interpolate(command, env))
+    return [interpolate(str(part), env) for part in command]
 
 
 def healthcheck_argv(check: dict) -> list[str]:
@@ -105,6 +110,39 @@ def dockerfile_instructions() -> list[tuple[str, str]]:
 
 def instruction(name: str) -> list[str]:
     return [arguments for kind, arguments in dockerfile_instructions() if kind == name]
+
+
+def dockerfile_args() -> dict[str, str]:
+    """Each ARG and its default ("" without one)."""
+    found = {}
+    for arguments in instruction("ARG"):
+        name, _, default = arguments.partition("=")
+        found[name] = shlex.split(default)[0] if default.strip() not in ("", '""') else ""
+    return found
+
+
+def substitute(text: str, values: Mapping[str, str]) -> str:
+    """The Dockerfile's `${NAME}` and `$NAME` with these values."""
+    return re.sub(r"\$\{?(\w+)\}?", lambda match: values[match[1]], text)
+
+
+def pip_install() -> tuple[list[str], list[str]]:
+    """The one RUN that installs the project: its --mount options and the pip command."""
+    (run,) = [arguments for arguments in instruction("RUN") if "pip install" in arguments]
+    words = run.split()
+    mounts = [word.removeprefix("--mount=") for word in words if word.startswith("--mount=")]
+    command = [word for word in words if not word.startswith("--mount=")]
+    return mounts, command
+
+
+@cache
+def load_e2e() -> ModuleType:
+    """docker/e2e.py, which is not in a package: its choices, for the checks below."""
+    spec = importlib.util.spec_from_file_location("docker_e2e", E2E_SCRIPT)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def dockerfile_cmd() -> list[str]:
@@ -145,7 +183,9 @@ def parse_invocation(args: list[str]) -> tuple[str, dict]:
     program, *rest = args
     assert program in PROGRAMS, f"{program!r} is not a gainfarm command"
     group = PROGRAMS[program]
-    assert group.params == [], "the groups take no options, so the subcommand comes first"
+    # The groups' one option is --version, which exits: in any invocation that runs something,
+    # the subcommand comes first.
+    assert [param.name for param in group.params] == ["version"]
     with group.make_context(program, list(rest)) as context:
         name, command, remaining = group.resolve_command(context, list(rest))
         assert name is not None and command is not None
@@ -224,7 +264,14 @@ def test_the_cli_check_rejects_what_the_cli_would(args: list[str]) -> None:
 def test_the_cli_check_returns_the_parsed_options() -> None:
     name, params = parse_invocation(["broker", "status", "--connect", "tcp/h:1", "--json"])
     assert name == "status"
-    assert params == {"connect": ("tcp/h:1",), "tls": None, "who": "broker", "as_json": True}
+    assert params == {
+        "connect": ("tcp/h:1",),
+        "tls": None,
+        "who": "broker",
+        "as_json": True,
+        "watch": False,
+        "interval": 2.0,
+    }
 
 
 # --- compose.yaml ------------------------------------------------------------------------------
@@ -378,27 +425,32 @@ def test_the_image_has_a_writable_place_for_the_credentials_volume() -> None:
 
 
 def test_the_image_is_python_3_11() -> None:
-    bases = instruction("FROM")
+    bases = [substitute(base, dockerfile_args()) for base in instruction("FROM")]
     assert bases
     for base in bases:
         assert re.fullmatch(r"python:3\.11(-slim)?(-\w+)?", base.split()[0]), base
 
 
 def test_the_image_installs_the_project_from_the_context_with_the_learn_extra_only() -> None:
-    copies = [arguments.split() for arguments in instruction("COPY")]
-    (destination,) = [args[-1] for args in copies if args[:-1] == ["."]]
-    installs = [
-        arguments.split("pip install", 1)[1].split("&&")[0].split()
-        for arguments in instruction("RUN")
-        if "pip install" in arguments
-    ]
-    assert installs, "no pip install in the Dockerfile"
-    (targets,) = [
-        [arg.strip("'\"") for arg in args if not arg.startswith("-")] for args in installs
-    ]
+    mounts, command = pip_install()
+    # The whole build context, mounted for the install: no layer keeps the source.
+    (context,) = [mount for mount in mounts if "type=bind" in mount]
+    fields = dict(field.partition("=")[::2] for field in context.split(","))
+    assert "source" not in fields and "from" not in fields and "rw" in context.split(",")
+    assert instruction("COPY") == [], "the source is mounted, not copied"
+    at = command.index("install")
+    options = shlex.split(substitute(" ".join(command[at + 1 :]), dockerfile_args()))
+    targets = [arg for arg in options if not arg.startswith("-")]
     # The learn extra (Pinocchio, scikit-learn) lets a worker evaluate any feed-forward model a
-    # job names; the test and dev tools stay out.
-    assert targets in ([f"{destination}[learn]"], [".[learn]"]), targets
+    # job names; the test and dev tools stay out. Without build arguments pip has no options.
+    assert targets == [f"{fields['target']}[learn]"], targets
+    assert options == targets
+
+
+def test_the_image_has_the_system_libraries_the_learn_extra_links() -> None:
+    # Pinocchio's wheels link libgomp.so.1, which python:3.11-slim does not have.
+    (run,) = [arguments for arguments in instruction("RUN") if "apt-get install" in arguments]
+    assert "libgomp1" in run.split() and "rm -rf /var/lib/apt/lists/*" in run
 
 
 def test_the_build_context_holds_what_pip_install_needs_and_nothing_else() -> None:
@@ -500,3 +552,79 @@ def test_every_gainfarm_command_in_the_readme_is_valid() -> None:
     # The resume example continues the run the analytic service starts by default.
     _, params = parse_invocation(argv(service("analytic")["command"]))
     assert params["out"] in resumed
+
+
+# --- docker/e2e.py: the stand-in path differs from the public one only where it must -----------
+
+
+def test_the_e2e_build_sets_only_the_base_and_pip_with_no_index() -> None:
+    e2e = load_e2e()
+    defaults = dockerfile_args()
+    # Without build arguments: Docker Hub's image, and pip with its index.
+    assert defaults == {"BASE": "python:3.11-slim", "PIP_OPTIONS": ""}
+    stand_in = e2e.build_args("gainfarm-e2e-base:tag")
+    assert set(stand_in) == set(defaults)
+    assert [substitute(base, stand_in) for base in instruction("FROM")] == [stand_in["BASE"]]
+    mounts, command = pip_install()
+    (context,) = [mount for mount in mounts if "type=bind" in mount]
+    target = dict(field.partition("=")[::2] for field in context.split(","))["target"]
+    options = shlex.split(substitute(" ".join(command[command.index("install") + 1 :]), stand_in))
+    wheels = f"{target}/{e2e.CONTEXT_WHEELS}"
+    assert options == ["--no-index", "--find-links", wheels, f"{target}[learn]"]
+    # The wheels reach the build context, and never git.
+    patterns = [
+        line.strip()
+        for line in DOCKERFILE.with_name("Dockerfile.dockerignore").read_text().splitlines()
+        if line.strip() and not line.startswith("#")
+    ]
+    assert not ignored(f"{e2e.CONTEXT_WHEELS}/numpy-2.0-cp311-manylinux_2_28_x86_64.whl", patterns)
+    gitignore = (DOCKER / ".gitignore").read_text().split()
+    assert f"{Path(e2e.CONTEXT_WHEELS).name}/" in gitignore
+    assert service("broker")["image"] == e2e.IMAGE
+
+
+def test_the_e2e_compose_file_is_compose_yaml_but_for_its_name() -> None:
+    e2e = load_e2e()
+    assert "name" in compose(), "Compose v2 users keep the fixed project name"
+    for_v1 = yaml.safe_load(e2e.compose_for_v1(COMPOSE_FILE.read_text()))
+    assert for_v1 == {key: value for key, value in compose().items() if key != "name"}
+
+
+def test_the_e2e_runs_the_compose_commands_only_smaller() -> None:
+    e2e = load_e2e()
+    env = e2e.farm_env(17447) | {"RUN": "tune"}
+    text = COMPOSE_FILE.read_text() + SECURE_FILE.read_text()
+    assert set(env) <= set(re.findall(r"\$\{(\w+)", text)), "only variables the files read"
+    for spec in (service("analytic"), secure_service("analytic")):
+        _, public = parse_invocation(argv(spec["command"]))
+        _, small = parse_invocation(argv(spec["command"], env))
+        changed = {key for key in public if public[key] != small[key]}
+        assert changed == {"pop", "generations", "duration"}
+        assert (small["pop"], small["generations"]) == (e2e.POP, e2e.GENERATIONS)
+    (published,) = service("broker")["ports"]
+    assert interpolate(published, env) == f"17447:{FARM_PORT}"
+    assert interpolate(published) == f"{FARM_PORT}:{FARM_PORT}"
+
+
+def test_the_e2e_adds_secure_workers_and_asks_the_status_as_the_docs_do() -> None:
+    e2e = load_e2e()
+    _, ours = parse_invocation(argv(secure_service("certs")["command"]))
+    _, theirs = parse_invocation(e2e.CERTS_COMMAND)
+    assert {key for key in ours if ours[key] != theirs[key]} == {"workers"}
+    assert theirs["workers"][: len(ours["workers"])] == ours["workers"]
+    assert theirs["workers"] == e2e.SECURE_WORKERS
+    _, worker = parse_invocation(argv(secure_service("worker")["command"]))
+    _, added = parse_invocation(e2e.secure_worker_command("cobot-2"))
+    assert {key for key in worker if worker[key] != added[key]} == {"name"}
+    # docker/README.md starts an added worker with the same command.
+    assert any(
+        tokens[-len(e2e.secure_worker_command("cobot-2")) :] == e2e.secure_worker_command("cobot-2")
+        for tokens in readme_commands()
+    )
+    for status, spec in (
+        (e2e.PLAIN_STATUS, service("broker")),
+        (e2e.SECURE_STATUS, secure_service("broker")),
+    ):
+        _, check = parse_invocation(healthcheck_argv(spec["healthcheck"]))
+        _, asked = parse_invocation(status)
+        assert {key for key in check if check[key] != asked[key]} <= {"as_json"}

@@ -1,11 +1,14 @@
-"""Files that say one thing together are written together: a Ctrl-C waits for the block."""
+"""Files that say one thing together are written together: a Ctrl-C waits for the block. A
+directory built in place appears whole, with the mode of any other."""
 
 import os
 import signal
+import stat
+from pathlib import Path
 
 import pytest
 
-from schemas.files import interrupts_deferred
+from schemas.files import interrupts_deferred, staging_directory
 
 
 def test_a_ctrl_c_inside_the_block_arrives_once_the_block_is_done() -> None:
@@ -33,3 +36,19 @@ def test_the_callers_own_handler_receives_the_held_ctrl_c() -> None:
         assert received == [signal.SIGINT]
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027, 0o077])
+def test_a_staging_directory_is_made_with_the_umask_s_mode(tmp_path: Path, umask: int) -> None:
+    """What a dataset or a learned model is built in, then renamed to: readable by whoever the
+    umask lets read it (tempfile.mkdtemp's 0700 would keep it from the rest of the farm)."""
+    previous = os.umask(umask)
+    try:
+        made = [staging_directory(tmp_path / "dataset") for _ in range(3)]
+    finally:
+        os.umask(previous)
+    assert len(set(made)) == 3
+    for path in made:
+        assert path.parent == tmp_path and path.is_dir() and not any(path.iterdir())
+        assert path.name.startswith(".dataset.") and path.name.endswith(".part")
+        assert stat.S_IMODE(path.stat().st_mode) == 0o777 & ~umask

@@ -160,9 +160,14 @@ def with_metadata(log: EpisodeLog, **values: str) -> bytes:
 
 
 def chunk_offsets(content: bytes) -> list[int]:
-    """Where the chunks of an honest file start (the mcap reader is safe on these)."""
+    """Where the chunks of an honest file's ticks start (the mcap reader is safe on these): not
+    the first chunk, /tf's and /robot_description's, which the episode reader skips."""
     summary = make_reader(io.BytesIO(content)).get_summary()
-    return sorted(index.chunk_start_offset for index in summary.chunk_indexes)
+    return sorted(
+        index.chunk_start_offset
+        for index in summary.chunk_indexes
+        if 1 in index.message_index_offsets  # /joint_states
+    )
 
 
 def summary_start(content: bytes) -> int:
@@ -179,7 +184,8 @@ def with_summary_crc(content: bytearray) -> bytes:
 
 @pytest.fixture(scope="module")
 def honest(tracking_log: EpisodeLog) -> bytes:
-    """A real episode log (2 s, one chunk), which decodes: the baseline every attack alters."""
+    """A real episode log (3 s: its ticks in one chunk, after the chunk of /tf and
+    /robot_description), which decodes: the baseline every attack alters."""
     content = episode_bytes(tracking_log)
     assert decode_episode(content).ticks == tracking_log.ticks
     return content
@@ -351,13 +357,14 @@ def test_every_truncation_is_not_an_episode_log(honest: bytes) -> None:
 @settings(max_examples=300, deadline=None)
 @given(data=st.data())
 def test_altered_records_are_refused_or_harmless(honest: bytes, data: st.DataObject) -> None:
-    """Overwrite a few bytes where the records are read (the header, metadata and chunk header
-    at the start; the summary and footer at the end) with anything, including huge offsets and
-    lengths, then fix the summary CRC so that the altered summary is read too."""
+    """Overwrite a few bytes where the records are read (the header and metadata at the start,
+    the ticks' chunk header; the summary and footer at the end) with anything, including huge
+    offsets and lengths, then fix the summary CRC so that the altered summary is read too."""
     content = bytearray(honest)
     head, tail = range(0, 1_200), range(summary_start(honest) - 4_000, len(honest) - len(MAGIC))
+    chunk = range(chunk_offsets(honest)[0], chunk_offsets(honest)[0] + 200)
     for _ in range(data.draw(st.integers(1, 4))):
-        at = data.draw(st.sampled_from(head) | st.sampled_from(tail))
+        at = data.draw(st.sampled_from(head) | st.sampled_from(chunk) | st.sampled_from(tail))
         value = data.draw(
             st.binary(min_size=1, max_size=8)
             | st.integers(0, 2**64 - 1).map(lambda n: n.to_bytes(8, "little"))

@@ -1,17 +1,31 @@
-"""Episode logs on disk: exact round trips, readable by an independent ROS 2 decoder."""
+"""Episode logs on disk: exact round trips, readable by an independent ROS 2 decoder, with the
+arm's description and transforms for ROS 2 tools."""
 
 import os
 
+import mujoco
 import numpy as np
+import pinocchio as pin
 import pytest
+import yaml
 from mcap.reader import make_reader
 from mcap.writer import Writer
 from mcap_ros2.reader import read_ros2_messages
+from scipy.spatial.transform import Rotation
 
-from schemas.episode_log import CHANNELS
+from models import RIGID_MJCF
+from models.urdf import urdf
+from schemas.episode_log import CHANNELS, TF_EVERY
 from schemas.mcap_episode import NotAnEpisodeLog, read_episode, write_episode
+from schemas.robot import JOINT_NAMES
 
 ARRAYS = ("t", "q", "qd", "tau", "u", "theta", "theta_d", "q_des", "qd_des", "ee", "ee_des")
+LINKS = ["base", *(f"link{i}" for i in range(1, 8)), "flange"]
+
+
+def tf_ticks(ticks: int) -> np.ndarray:
+    """The ticks /tf has a message at: every TF_EVERY-th from the first, and the last."""
+    return np.unique(np.append(np.arange(0, ticks, TF_EVERY), ticks - 1))
 
 
 def test_round_trip_is_exact(tracking_log, tmp_path):
@@ -27,11 +41,13 @@ def test_round_trip_is_exact(tracking_log, tmp_path):
 def test_an_independent_ros2_decoder_reads_every_channel(tracking_log, tmp_path):
     path = tmp_path / "episode.mcap"
     write_episode(tracking_log, path)
-    decoded: dict[str, list] = {channel.topic: [] for channel in CHANNELS}
+    decoded: dict[str, list] = {}
     for message in read_ros2_messages(str(path)):
-        decoded[message.channel.topic].append(message)
+        decoded.setdefault(message.channel.topic, []).append(message)
     assert {topic: len(m) for topic, m in decoded.items()} == {
-        channel.topic: tracking_log.ticks for channel in CHANNELS
+        **{channel.topic: tracking_log.ticks for channel in CHANNELS},
+        "/tf": len(tf_ticks(tracking_log.ticks)),
+        "/robot_description": 1,
     }
     states = decoded["/joint_states"]
     assert states[0].schema.name == "sensor_msgs/msg/JointState"
@@ -65,13 +81,110 @@ def test_file_is_chunked_compressed_and_carries_its_metadata(tracking_log, tmp_p
     with open(path, "rb") as stream:
         reader = make_reader(stream)
         summary = reader.get_summary()
-        assert summary.statistics.message_count == len(CHANNELS) * tracking_log.ticks
+        tf = len(tf_ticks(tracking_log.ticks))
+        assert summary.statistics.message_count == len(CHANNELS) * tracking_log.ticks + tf + 1
         assert summary.chunk_indexes
         assert all(chunk.compression in ("zstd", "lz4") for chunk in summary.chunk_indexes)
         (record,) = [m for m in reader.iter_metadata() if m.name == "gainfarm.episode"]
     for key in ("spec", "diverged", "versions", "ticks_planned", "torque_limits"):
         assert key in record.metadata
     assert '"mujoco"' in record.metadata["versions"]
+
+
+def test_the_robot_description_is_the_arms_urdf_latched(tracking_log, tmp_path):
+    path = tmp_path / "episode.mcap"
+    write_episode(tracking_log, path)
+    (message,) = read_ros2_messages(str(path), topics=["/robot_description"])
+    assert message.schema.name == "std_msgs/msg/String" and message.log_time_ns == 0
+    assert message.ros_msg.data == urdf()
+    model = pin.buildModelFromXML(message.ros_msg.data)  # urdfdom, as ROS tools parse it
+    assert list(model.names)[1:] == list(JOINT_NAMES)  # the joint states' names
+    # Offered as robot_state_publisher offers it: reliable and transient local (latched), so
+    # that `ros2 bag play` hands it to a subscriber that comes late; every other channel volatile.
+    with open(path, "rb") as stream:
+        channels = make_reader(stream).get_summary().channels.values()
+    durability = {
+        channel.topic: yaml.safe_load(channel.metadata["offered_qos_profiles"])[0]["durability"]
+        for channel in channels
+    }
+    assert durability.pop("/robot_description") == 1
+    assert set(durability.values()) == {2} and len(durability) == len(CHANNELS) + 1
+
+
+def test_tf_puts_every_link_where_mujoco_puts_it(tracking_log, tmp_path):
+    """/tf, decoded by an independent decoder and composed from the world out, at each of its
+    ticks: MuJoCo's body poses for the logged joint angles, under the URDF's link names."""
+    path = tmp_path / "episode.mcap"
+    write_episode(tracking_log, path)
+    messages = list(read_ros2_messages(str(path), topics=["/tf"]))
+    ticks = tf_ticks(tracking_log.ticks)
+    assert len(messages) == len(ticks) and ticks[-1] == tracking_log.ticks - 1
+    assert messages[0].schema.name == "tf2_msgs/msg/TFMessage"
+    urdf_links = {frame.name for frame in pin.buildModelFromXML(urdf()).frames}
+    model = mujoco.MjModel.from_xml_string(RIGID_MJCF.read_text())
+    data = mujoco.MjData(model)
+    hinges = [model.joint(name).qposadr[0] for name in JOINT_NAMES]
+    for message, tick in zip(messages, ticks, strict=True):
+        transforms = message.ros_msg.transforms
+        assert [(t.header.frame_id, t.child_frame_id) for t in transforms] == list(
+            zip(["world", *LINKS[:-1]], LINKS, strict=True)
+        )
+        assert set(LINKS) <= urdf_links
+        assert message.log_time_ns == round(tracking_log.t[tick] * 1e9)
+        for transform in transforms:
+            stamp = transform.header.stamp
+            assert stamp.sec * 1_000_000_000 + stamp.nanosec == message.log_time_ns
+        world = {"world": (np.zeros(3), Rotation.identity())}
+        for transform in transforms:
+            v, r = transform.transform.translation, transform.transform.rotation
+            position, rotation = world[transform.header.frame_id]
+            world[transform.child_frame_id] = (
+                position + rotation.apply([v.x, v.y, v.z]),
+                rotation * Rotation.from_quat([r.x, r.y, r.z, r.w]),
+            )
+        data.qpos[hinges] = tracking_log.q[tick]
+        mujoco.mj_kinematics(model, data)
+        for link in LINKS:
+            where = data.site(link) if link == "flange" else data.body(link)
+            np.testing.assert_allclose(world[link][0], where.xpos, atol=1e-12, err_msg=link)
+            matrix = world[link][1].as_matrix()
+            np.testing.assert_allclose(matrix, where.xmat.reshape(3, 3), atol=1e-12)
+        # The logged angles are the encoders': the flange drawn is within a millimetre of where
+        # the simulation had it.
+        assert np.linalg.norm(world["flange"][0] - tracking_log.ee[tick]) < 1e-3
+
+
+def test_a_log_written_before_tf_and_by_the_mcap_writer_reads_the_same(tracking_log, tmp_path):
+    """The reader needs only the six channels of ticks (logs written before /tf still read),
+    and not this writer's layout: the mcap library's Writer, chunking as it likes, will do."""
+    ours = tmp_path / "episode.mcap"
+    write_episode(tracking_log, ours)
+    older = tmp_path / "older.mcap"
+    with open(ours, "rb") as source, open(older, "wb") as stream:
+        reader = make_reader(source)
+        summary = reader.get_summary()
+        writer = Writer(stream, chunk_size=300_000)
+        writer.start(profile="ros2", library="an older gainfarm")
+        for schema in summary.schemas.values():
+            writer.register_schema(schema.name, schema.encoding, schema.data)
+        topics = {channel.topic for channel in CHANNELS}
+        kept = sorted(c.id for c in summary.channels.values() if c.topic in topics)
+        for channel_id in kept:
+            channel = summary.channels[channel_id]
+            writer.register_channel(channel.topic, "cdr", channel.schema_id)
+        (metadata,) = reader.iter_metadata()
+        writer.add_metadata(metadata.name, metadata.metadata)
+        for _, channel, message in reader.iter_messages(topics=topics, log_time_order=False):
+            writer.add_message(
+                channel.id, message.log_time, message.data, message.publish_time, message.sequence
+            )
+        writer.finish()
+    with open(older, "rb") as stream:
+        assert {c.topic for c in make_reader(stream).get_summary().channels.values()} == topics
+    back = read_episode(older)
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(back, name), getattr(tracking_log, name), name)
+    assert back.metadata == tracking_log.metadata
 
 
 def test_a_diverged_episode_round_trips(diverged_log, tmp_path):

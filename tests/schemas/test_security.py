@@ -120,7 +120,6 @@ def test_the_policy_names_each_participant_and_only_its_own_keys(tmp_path: Path)
     assert ("declare_subscriber", "ingress", keys.study_results("alice.$*")) in alice
     assert ("liveliness_token", "ingress", keys.alive_study("alice.$*")) in alice
     assert ("query", "ingress", keys.lease("w1")) in worker
-    assert ("query", "ingress", keys.complete("w1")) in worker
     assert ("liveliness_token", "ingress", keys.alive_worker("w1")) in worker
     assert ("put", "ingress", keys.ALL_RESULTS) in worker
     assert ("declare_queryable", "ingress", keys.model("alice.$*", "*")) in alice

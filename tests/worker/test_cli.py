@@ -87,3 +87,47 @@ def test_unreachable_path_is_a_clear_error(tmp_path):
     assert result.returncode == 2, result.stderr
     assert "unreachable" in result.stderr and "Traceback" not in result.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+GAINS = {"kp": [2000, 2000, 1200, 1200, 400, 200, 100], "kd": [20, 20, 15, 15, 4, 2, 1]}
+
+
+@pytest.mark.parametrize(
+    ("content", "args", "says"),
+    [
+        (json.dumps(GAINS), ["--kp", SEVEN], "--gains and --kp exclude each other"),
+        (json.dumps(GAINS), ["--kp", SEVEN, "--kd", SEVEN], "--gains and --kp and --kd exclude"),
+        (json.dumps([GAINS, GAINS]), [], "holds 2 candidates and an episode runs one"),
+        ("kp1,kp2\n1,2\n", [], "a run's front.csv, not a controller: `analytic export RUN"),
+        (json.dumps({**GAINS, "kp": [1, 2, 3]}), [], "kp: 3 gains given, 7 needed (A1..A7)"),
+        (
+            json.dumps({**GAINS, "kd": [1, 1, 1, -1, 1, 1, 1]}),
+            [],
+            "kd of A4: -1 is negative (gains are at least 0)",
+        ),
+        (json.dumps({"format": "gainfarm-controller/9", **GAINS}), [], "format 'gainfarm-contr"),
+        ("{", [], "not JSON (Expecting property name enclosed in double quotes at line 1"),
+    ],
+)
+def test_a_bad_gains_file_is_one_line_naming_the_option_and_no_file(tmp_path, content, args, says):
+    gains = tmp_path / "gains.json"
+    gains.write_text(content)
+    out = tmp_path / "out"
+    out.mkdir()
+    result = run(WORKER, "episode", "--gains", str(gains), "--out", str(out / "ep.mcap"), *args)
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.count("\n") == 1 and result.stderr.startswith("worker: error: --gains")
+    assert says in result.stderr
+    assert list(out.iterdir()) == []
+
+
+def test_a_diverged_episode_says_why_its_mean_error_exceeds_its_largest(tmp_path):
+    out = tmp_path / "ep.mcap"
+    weak = ["--kp", "5,5,5,5,5,5,5", "--kd", SEVEN, "--trajectory", "fourier", "--duration", "1"]
+    result = run(WORKER, "episode", *weak, "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    said = " ".join(result.stdout.split())
+    assert "diverged │ yes" in said
+    assert "so f_acc and f_t are a penalty, not a measurement" in said
+    evaluated = run(ANALYTIC, "evaluate", str(out))
+    assert "so f_acc and f_t are a penalty, not a measurement" in " ".join(evaluated.stdout.split())

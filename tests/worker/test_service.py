@@ -2,6 +2,7 @@
 that talks nonsense."""
 
 import hashlib
+import json
 import logging
 import signal
 import subprocess
@@ -20,14 +21,15 @@ from schemas.mcap_episode import decode_episode
 from schemas.objectives import score
 from schemas.transport import open_session
 from schemas.wire import (
-    CompletionReply,
     Job,
     JobStatus,
     Lease,
     LeaseReply,
+    LeaseRequest,
     Result,
     Submission,
     SubmitReply,
+    Verdict,
     decode,
 )
 from tests.helpers import open_study, query, short_spec, wait_for
@@ -207,13 +209,15 @@ SILENCE = b""  # a scripted answer: hold the query and never answer it
 
 class FakeBroker:
     """A broker stand-in that is the router the worker connects to (so the worker trusts its
-    answers): it answers lease requests and hand-ins from scripts, and collects the results
-    sent to study "s"."""
+    answers): it answers lease requests from one script and hand-ins (requests that carry
+    results) from another, and collects the results sent to study "s"."""
 
     def __init__(
-        self, leases: list[bytes | None], verdicts: list[bytes | None], delay: float = 0.0
+        self, leases: list[bytes | None], verdicts: list[bytes | str | None], delay: float = 0.0
     ):
-        """`delay`: s before each answer (an impostor's answer, sent at once, comes first)."""
+        """A verdict script's str refuses the results with that reason; the scripts' bytes are
+        answered as they are, None with an error; past its end, every result is taken. `delay`:
+        s before each answer (an impostor's answer, sent at once, comes first)."""
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.delay = delay
         self.session = open_session("router", listen=[self.endpoint])
@@ -223,7 +227,6 @@ class FakeBroker:
         self.results: list[Result] = []
         self._entities = [
             self.session.declare_queryable(keys.LEASE_ANY, self._on_lease),
-            self.session.declare_queryable(keys.COMPLETE_ANY, self._on_complete),
             self.session.declare_subscriber(
                 keys.study_results("s"),
                 lambda sample: self.results.append(decode(Result, sample.attachment.to_bytes())),
@@ -237,15 +240,19 @@ class FakeBroker:
         if keys.last_chunk(str(query.key_expr)) != "w":  # e.g. a probe: not for the scripts
             query.reply_err(b"not you")
             return
-        self._answer(query, self.leases.pop(0) if self.leases else LeaseReply().to_bytes())
-
-    def _on_complete(self, query: zenoh.Query) -> None:
-        if keys.last_chunk(str(query.key_expr)) != "w":
-            query.reply_err(b"not you")
+        request = decode(LeaseRequest, query.payload.to_bytes())
+        if not request.results:
+            self._answer(query, self.leases.pop(0) if self.leases else LeaseReply().to_bytes())
             return
-        self.handed_in.append(decode(Result, query.payload.to_bytes()))
-        accepted = CompletionReply(accepted=True).to_bytes()
-        self._answer(query, self.verdicts.pop(0) if self.verdicts else accepted)
+        self.handed_in += request.results
+        script = self.verdicts.pop(0) if self.verdicts else ""
+        if isinstance(script, str):  # a verdict on each result: "" takes them
+            verdicts = [
+                Verdict(job_id=r.job_id, lease_id=r.lease_id, accepted=not script, reason=script)
+                for r in request.results
+            ]
+            script = LeaseReply(verdicts=verdicts).to_bytes()
+        self._answer(query, script)
 
     def _answer(self, query: zenoh.Query, payload: bytes | None) -> None:
         if self.delay and payload is not SILENCE:
@@ -264,7 +271,7 @@ class FakeBroker:
 
 def lease_of(job_id: str) -> LeaseReply:
     job = Job(job_id=job_id, spec=short_spec())
-    return LeaseReply(lease=Lease(lease_id=f"l-{job_id}", study="s", job=job, expires_in=60))
+    return LeaseReply(leases=[Lease(lease_id=f"l-{job_id}", study="s", job=job, expires_in=60)])
 
 
 def test_a_worker_shrugs_off_bad_lease_replies(caplog) -> None:
@@ -293,14 +300,12 @@ def test_a_worker_shrugs_off_bad_lease_replies(caplog) -> None:
 
 
 def test_a_result_the_broker_does_not_take_is_not_sent(caplog) -> None:
-    """The broker refuses one hand-in with a reason, refuses another with an error and garbles
-    a third: the worker sends none of those results, counts them, and serves on."""
-    verdicts = [
-        CompletionReply(accepted=False, reason="the lease went elsewhere").to_bytes(),
-        None,
-        b"garbled",
-    ]
-    jobs = ["refused", "error", "garbled", "taken"]
+    """The broker refuses one hand-in with a reason: the worker does not send that result and
+    counts it. It answers the next one with an error, then garbles it: the worker hands the same
+    result in again (the broker takes a repeated hand-in as the first) until it is taken, then
+    sends it, once."""
+    verdicts: list[bytes | str | None] = ["the lease went elsewhere", None, b"garbled"]
+    jobs = ["refused", "taken"]
     fake = FakeBroker([lease_of(job_id).to_bytes() for job_id in jobs], verdicts)
     with (
         caplog.at_level(logging.WARNING, logger="gainfarm.worker"),
@@ -310,12 +315,25 @@ def test_a_result_the_broker_does_not_take_is_not_sent(caplog) -> None:
     wait_for(lambda: fake.results, what="the result")
     time.sleep(0.2)  # any result wrongly sent would have arrived by now
     fake.close()
-    assert [result.job_id for result in fake.handed_in] == jobs
+    assert [result.job_id for result in fake.handed_in] == ["refused", *["taken"] * 3]
     assert [result.job_id for result in fake.results] == ["taken"]
-    assert worker.refused == 3
+    assert worker.refused == 1
     assert "the lease went elsewhere" in caplog.text
     assert "go away" in caplog.text
     assert "not JSON" in caplog.text
+
+
+def test_a_worker_runs_a_batch_and_hands_it_in_at_once() -> None:
+    """Leases in a batch are run one after another and handed in with one request, in order."""
+    jobs = ["a", "b", "c"]
+    batch = LeaseReply(leases=[lease_of(job_id).leases[0] for job_id in jobs])
+    fake = FakeBroker([batch.to_bytes()], [])
+    with CobotWorker([fake.endpoint], "w") as worker:
+        assert worker.serve(threading.Event(), max_jobs=3) == 3
+    wait_for(lambda: len(fake.results) == 3, what="the results")
+    fake.close()
+    assert [r.job_id for r in fake.handed_in] == jobs
+    assert sorted(r.job_id for r in fake.results) == jobs
 
 
 class Impostor:
@@ -325,13 +343,10 @@ class Impostor:
     def __init__(self, endpoints: list[str]):
         self.session = open_session("client", connect=endpoints)
         self.asked: list[str] = []
-        self._queryables = [
-            self.session.declare_queryable(key, self._lie)
-            for key in (keys.LEASE_ANY, keys.COMPLETE_ANY)
-        ]
-        # Until the router has its queryables, nobody's queries reach it: probe until they do.
+        self._queryable = self.session.declare_queryable(keys.LEASE_ANY, self._lie)
+        # Until the router has its queryable, nobody's queries reach it: probe until they do.
         probe = open_session("client", connect=endpoints)
-        probes = [keys.lease("probe"), keys.complete("probe")]
+        probes = [keys.lease("probe")]
 
         def heard() -> bool:
             for key in probes:
@@ -344,11 +359,13 @@ class Impostor:
 
     def _lie(self, query: zenoh.Query) -> None:
         self.asked.append(str(query.key_expr))
-        if str(query.key_expr).startswith(keys.LEASE_ANY[:-1]):
-            query.reply(query.key_expr, lease_of("forged").to_bytes())
-        else:
-            refusal = CompletionReply(accepted=False, reason="impostor says no")
-            query.reply(query.key_expr, refusal.to_bytes())
+        handed_in = [] if query.payload is None else json.loads(query.payload.to_bytes())
+        refusals = [
+            Verdict(job_id=r["job_id"], lease_id=r["lease_id"], accepted=False, reason="no")
+            for r in (handed_in.get("results", []) if isinstance(handed_in, dict) else [])
+        ]
+        reply = LeaseReply(leases=lease_of("forged").leases, verdicts=refusals)
+        query.reply(query.key_expr, reply.to_bytes())
 
     def close(self) -> None:
         self.session.close()
@@ -401,9 +418,9 @@ def test_a_worker_ignores_an_impostor_refusing_its_result(caplog) -> None:
     fake.close()
     assert [result.job_id for result in fake.results] == ["real"]
     assert worker.refused == 0
-    assert impostor.asked == [keys.lease("w"), keys.complete("w")]
+    assert impostor.asked == [keys.lease("w")] * 2  # the lease request, then the hand-in
     ignored = ignored_answers(caplog)
-    assert [message.split()[4] for message in ignored] == [keys.lease("w"), keys.complete("w")]
+    assert [message.split()[4] for message in ignored] == [keys.lease("w")] * 2
     assert all("which is not the broker" in message for message in ignored)
 
 

@@ -1,0 +1,138 @@
+"""Ctrl-C in every command line, at any moment: one line, exit status 130, never a traceback.
+
+Python runs a signal's handler in the main thread only, when that thread next runs bytecode. A
+main thread blocked on a lock (waiting for a worker thread's result, as an experiment's does)
+can miss a Ctrl-C for as long as it waits, and measured under load it missed it altogether: an
+interrupted experiment ran to the end and exited 0. A KeyboardInterrupt raised inside a
+finaliser is dropped, with a traceback on stderr. So a Ctrl-C is also remembered the moment it
+arrives: Python's C-level handler writes it to a wakeup pipe (`signal.set_wakeup_fd`), from any
+thread, and a thread reading that pipe sets `INTERRUPTED`. Long loops check it between steps
+(`check`), and `cli.app.run_app` exits 130 when it is set, whatever the command did with the
+KeyboardInterrupt.
+
+This module imports nothing but the standard library, so that the entry points (`launch`) can
+take Ctrl-C over before the heavy imports (MuJoCo, Zenoh, pymoo: about a second) begin.
+"""
+
+import contextlib
+import importlib
+import os
+import signal
+import sys
+import threading
+from types import FrameType
+from typing import Any, NoReturn
+
+INTERRUPTED_EXIT = 130  # 128 + SIGINT, as a shell reports a process Ctrl-C stopped
+INTERRUPTED = threading.Event()
+
+_installed = False
+_write_end: int | None = None  # the wakeup pipe's, for uninstall
+
+
+def _on_interrupt(signum: int, frame: FrameType | None) -> None:
+    INTERRUPTED.set()
+    raise KeyboardInterrupt
+
+
+def _watch(pipe: int) -> None:
+    """Set INTERRUPTED the moment a SIGINT reaches the process, whichever thread it reaches."""
+    while True:
+        try:
+            received = os.read(pipe, 64)
+        except OSError:
+            return
+        if not received:
+            return
+        if signal.SIGINT in received:
+            INTERRUPTED.set()
+
+
+def _quiet_unraisable(unraisable: Any) -> None:  # sys.UnraisableHookArgs
+    """A Ctrl-C that landed in a finaliser is remembered (INTERRUPTED), not printed as a
+    traceback; anything else goes to Python's own hook."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):
+        INTERRUPTED.set()
+        return
+    sys.__unraisablehook__(unraisable)
+
+
+def install() -> None:
+    """Take Ctrl-C over (once; from the main thread, which alone may set signal handlers). Not
+    if SIGINT is ignored: a shell starts background jobs so, and they are to stay deaf to it."""
+    global _installed, _write_end
+    if _installed or threading.current_thread() is not threading.main_thread():
+        return
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        return
+    read, write = os.pipe()
+    os.set_blocking(write, False)  # the C handler must never block on a full pipe
+    signal.set_wakeup_fd(write, warn_on_full_buffer=False)
+    threading.Thread(target=_watch, args=(read,), name="interrupts", daemon=True).start()
+    signal.signal(signal.SIGINT, _on_interrupt)
+    sys.unraisablehook = _quiet_unraisable
+    _installed, _write_end = True, write
+
+
+def uninstall() -> None:
+    """Give Ctrl-C back to Python, as `install` found it: for a command run inside a process that
+    goes on (the tests run the command lines in-process). The watching thread sees its pipe close
+    and ends."""
+    global _installed, _write_end
+    if not _installed or threading.current_thread() is not threading.main_thread():
+        return
+    if signal.getsignal(signal.SIGINT) is _on_interrupt:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.set_wakeup_fd(-1)
+    if _write_end is not None:
+        os.close(_write_end)
+    sys.unraisablehook = sys.__unraisablehook__
+    INTERRUPTED.clear()
+    _installed, _write_end = False, None
+
+
+def ours() -> bool:
+    """Whether Ctrl-C is still this module's to handle (a service's `start` takes it over to
+    stop cleanly, and exits 0)."""
+    return signal.getsignal(signal.SIGINT) is _on_interrupt
+
+
+def check() -> None:
+    """Raise KeyboardInterrupt if Ctrl-C was pressed: for the points between a loop's steps
+    (any thread), where stopping is safe."""
+    if INTERRUPTED.is_set():
+        raise KeyboardInterrupt
+
+
+def stop(program: str, message: str = "interrupted") -> NoReturn:
+    """Say `program: message` in one line on stderr, and exit 130 at once.
+
+    Not by SystemExit: a KeyboardInterrupt that went through Python code a C extension ran
+    (pybind11's and PyO3's exec: MuJoCo, Zenoh) marks the interpreter, which then ends itself
+    by SIGINT instead of with the status given (measured: -2 instead of 130, about one Ctrl-C
+    in four during the imports). What a clean exit would still do is done here: the command's
+    `with` blocks have closed its files, farm and run by the time this is called."""
+    print(f"{program}: {message}", file=sys.stderr, flush=True)
+    if "logging" in sys.modules:  # not imported for this alone: stop() may end the imports
+        sys.modules["logging"].shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(INTERRUPTED_EXIT)
+
+
+def launch(module: str, program: str) -> None:
+    """The entry point of a command line: Ctrl-C handled first, then `module` imported and its
+    `main()` run. A Ctrl-C during the imports stops here, in one line."""
+    install()
+    try:
+        main = importlib.import_module(module).main
+    except BaseException:
+        # A C extension's initialiser that a Ctrl-C interrupted fails with its own error
+        # (PyO3's: ImportError "initialization failed"): the Ctrl-C is the cause all the same.
+        if INTERRUPTED.is_set():
+            stop(program)
+        raise
+    if INTERRUPTED.is_set():  # pressed during the imports, and dropped by one of them
+        stop(program)
+    main()

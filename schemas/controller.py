@@ -1,0 +1,168 @@
+"""A tuned controller as a file, and the gains files the command lines read.
+
+`analytic export RUN` writes one front member as a `Controller`: its 14 gains with the joints
+they belong to and their units, its objectives, and the run it came from. `worker episode
+--gains FILE` and `analytic batch --gains FILE` read it (`read_gains`), as `analytic batch`
+has always read a JSON list of {"kp": [7], "kd": [7]} candidates. It lives in the contract
+because the worker reads it and never imports the analytic layer.
+
+Bad files are refused in the user's words, not pydantic's: which candidate, which gain of which
+joint, and what is wrong with it.
+"""
+
+import json
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from schemas.gains import PDGains, PerJointGains
+from schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
+from schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
+from schemas.wire import describe
+
+FORMAT = "gainfarm-controller/1"
+UNITS = {"kp": "N·m/rad", "kd": "N·m·s/rad", "f_acc": "m", "f_t": "(N·m)²"}
+LAW = (
+    "u = Kp (q_des − θ) + Kd (q̇_des − θ̇) per joint, every control period; θ, θ̇: the measured "
+    "joint angle and velocity (motor side on the realistic plant), q_des, q̇_des: the reference"
+)
+
+
+class Member(BaseModel):
+    """Which front member the gains are, and how it scored in its run."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    selected: str = Field(description="knee, accurate, smooth, or row N")
+    row: int = Field(
+        ge=1, description="its row in the run's front.csv (1 is the first after the header)"
+    )
+    rule: str = Field(description="how it was chosen")
+    f_acc: float = Field(description="mean end-effector error over the run's trajectories, m")
+    f_t: float = Field(description="mean squared torque change per tick, (N·m)²")
+    diverged: bool = Field(description="an episode was stopped early: the scores are a penalty")
+    sharing: int = Field(1, ge=1, description="front members with exactly these scores")
+
+
+class Source(BaseModel):
+    """The run the member came from: enough to find it again and to repeat its episodes."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    run_id: str
+    directory: str
+    config_sha256: str = Field(description="SHA-256 of the run's config.json")
+    front_sha256: str = Field(description="SHA-256 of the front.csv the member is a row of")
+    trajectories: tuple[TrajectorySpec, ...]
+    plant: str = Field(description="realistic, ideal, or custom (see model)")
+    model: ModelSpec
+    feedforward: str | None = Field(
+        None, description="SHA-256 of the learned model the gains were tuned on top of, if any"
+    )
+    objective_weights: tuple[tuple[float, float], ...] | None = None
+    population: int
+    algorithm: str
+    seed: int
+    stopped: str | None = Field(description="why the run stopped; null if it has not")
+
+
+class Controller(BaseModel):
+    """One tuned PD controller of the iiwa 14, as `analytic export` writes it."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    format: Literal["gainfarm-controller/1"] = FORMAT
+    law: str = LAW
+    control_period: float = Field(CONTROL_PERIOD, description="s")
+    joints: tuple[str, ...] = Field(JOINT_NAMES, min_length=N_JOINTS, max_length=N_JOINTS)
+    kp: PerJointGains
+    kd: PerJointGains
+    units: dict[str, str] = UNITS
+    member: Member
+    source: Source
+
+    @property
+    def gains(self) -> PDGains:
+        return PDGains(kp=self.kp, kd=self.kd)
+
+
+class BadGains(ValueError):
+    """A gains file that is not one: the message says where and what, in one line."""
+
+
+def read_gains(raw: bytes) -> list[PDGains]:
+    """The candidates in a gains file: a JSON list whose items are {"kp", "kd"} objects or
+    exported controllers, or one such object alone. BadGains, in plain words, otherwise."""
+    if raw.startswith(b"kp1,"):  # the header of front.csv (analytic.records)
+        raise BadGains(
+            "a run's front.csv, not a controller: `analytic export RUN --member N` writes its "
+            "row N as one"
+        )
+    try:
+        document = json.loads(raw)
+    except UnicodeDecodeError:
+        raise BadGains("not JSON text (binary data)") from None
+    except json.JSONDecodeError as error:
+        raise BadGains(
+            f"not JSON ({error.msg} at line {error.lineno} column {error.colno}); expected a "
+            'controller from `analytic export` or a list of {"kp": [7 numbers], "kd": [7 numbers]}'
+        ) from None
+    if isinstance(document, list):
+        if not document:
+            raise BadGains("the list of candidates is empty")
+        return [_candidate(item, f"candidate {n}: ") for n, item in enumerate(document, start=1)]
+    return [_candidate(document, "")]
+
+
+def _candidate(item: Any, where: str) -> PDGains:
+    if not isinstance(item, dict):
+        raise BadGains(f'{where}expected an object with "kp" and "kd", got {type(item).__name__}')
+    try:
+        if "format" in item:  # an exported controller: its own checks, then its gains
+            return Controller.model_validate(item).gains
+        return PDGains.model_validate(item)
+    except ValidationError as error:
+        raise BadGains(where + problem(error)) from None
+
+
+def problem(error: ValidationError) -> str:
+    """A gains validation error as a person says it: 'kp of A3: -1.0 is negative (gains are
+    at least 0)', 'kd: 3 gains given, 7 needed (A1..A7)'; other fields as `describe` says."""
+    errors = error.errors()
+    first = errors[0]
+    loc, kind, value = first["loc"], first["type"], first.get("input")
+    # A gain refused leaves its tuple short too: pydantic's echo, not another problem.
+    more = sum(
+        1
+        for other in errors[1:]
+        if not (
+            other["type"] == "too_short"
+            and any(len(e["loc"]) > 1 and e["loc"][:1] == other["loc"] for e in errors)
+        )
+    )
+    suffix = f" (and {more} more problem{'s' if more > 1 else ''})" if more else ""
+    if not loc or loc[0] not in ("kp", "kd"):
+        if kind == "literal_error" and loc == ("format",):
+            return f"format {value!r} is not {FORMAT!r} (a file of another gainfarm version?)"
+        if kind == "extra_forbidden" and len(loc) == 1:
+            return f"unknown field {loc[0]!r}{suffix}"
+        return describe(error)
+    name = str(loc[0])
+    if len(loc) == 1:
+        if kind == "missing":
+            return (
+                f"{name} missing: {N_JOINTS} gains needed "
+                f"({JOINT_NAMES[0]}..{JOINT_NAMES[-1]}){suffix}"
+            )
+        if kind in ("too_short", "too_long"):
+            return (
+                f"{name}: {len(value)} gains given, {N_JOINTS} needed "
+                f"({JOINT_NAMES[0]}..{JOINT_NAMES[-1]}){suffix}"
+            )
+        return f"{name}: expected a list of {N_JOINTS} numbers, got {value!r}{suffix}"
+    where = f"{name} of {JOINT_NAMES[loc[1]]}" if isinstance(loc[1], int) else name
+    if kind == "greater_than_equal":
+        return f"{where}: {value!r} is negative (gains are at least 0){suffix}"
+    if kind == "finite_number":
+        return f"{where}: {value!r} is not finite{suffix}"
+    return f"{where}: {value!r} is not a number{suffix}"

@@ -1,0 +1,77 @@
+"""The words of the progress lines; the lines themselves, on a terminal and off one, are tested
+through `analytic start` in tests/analytic/test_cli.py."""
+
+import math
+
+import pytest
+
+from analytic.progress import NONE_YET, fit, generation_line, live_line
+from analytic.run import RunProgress
+
+BEFORE_ANY = RunProgress(
+    generation=0, evaluations=3, hypervolume=math.nan, best_f_acc=math.nan, elapsed=1.5
+)
+LATE = RunProgress(
+    generation=41, evaluations=12_345, hypervolume=0.81234, best_f_acc=0.00592, elapsed=1074.2
+)
+ENDED = RunProgress(
+    generation=3, evaluations=90, hypervolume=0.6123, best_f_acc=0.0143, elapsed=7.4, ended=True
+)
+
+
+def test_no_figure_is_shown_before_a_generation_has_given_one() -> None:
+    line = live_line(BEFORE_ANY, 1, None, 78)
+    assert line == f"gen 1 · 3 evals · 2.0/s · HV {NONE_YET} · best {NONE_YET} · 1 worker"
+    assert "nan" not in line
+
+
+def test_the_line_says_the_generation_under_way_and_the_workers_now() -> None:
+    assert live_line(LATE, 2, None, 78) == (
+        "gen 42 · 12,345 evals · 11.5/s · HV 0.8123 · best 5.92 mm · 2 workers"
+    )
+    assert live_line(ENDED, 1, None, 78).startswith("gen 3 · 90 evals")
+
+
+@pytest.mark.parametrize(
+    ("workers", "waiting", "says"),
+    [
+        (0, None, "waiting for workers"),
+        (None, "the broker does not answer", "broker lost, waiting"),
+        (3, "the broker is gone", "broker lost, waiting"),
+    ],
+)
+def test_what_holds_the_run_up_is_said_first(
+    workers: int | None, waiting: str | None, says: str
+) -> None:
+    for step in (None, BEFORE_ANY, LATE):
+        line = live_line(step, workers, waiting, 78)
+        assert line.startswith(says), line
+        assert "worker" not in line.removeprefix(says)  # no stale count beside it
+
+
+def test_before_the_first_result_the_line_says_it_is_starting() -> None:
+    assert live_line(None, 1, None, 78) == "starting · 1 worker"
+
+
+@pytest.mark.parametrize("width", [78, 60, 40, 25, 10])
+@pytest.mark.parametrize("waiting", [None, "the broker is gone"])
+def test_every_line_fits_the_width_it_is_given(width: int, waiting: str | None) -> None:
+    for step in (None, BEFORE_ANY, LATE, ENDED):
+        for workers in (None, 0, 1, 256):
+            assert len(live_line(step, workers, waiting, width)) <= width
+
+
+def test_fit_drops_the_least_important_parts_first() -> None:
+    parts = [(3, "aaaa"), (1, "bbbb"), (2, "cccc")]
+    assert fit(parts, 80) == "aaaa · bbbb · cccc"
+    assert fit(parts, 12) == "aaaa · cccc"
+    assert fit(parts, 5) == "aaaa"
+    assert fit(parts, 3) == "aa…"
+
+
+def test_a_generation_s_plain_line() -> None:
+    assert generation_line(ENDED, 2) == (
+        "generation 3: 90 evaluations in 7.4 s (12.2/s), hypervolume 0.6123, "
+        "best error 14.30 mm, 2 workers"
+    )
+    assert generation_line(ENDED, None).endswith("workers: ?")

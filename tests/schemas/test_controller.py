@@ -1,0 +1,83 @@
+"""Gains files: what `--gains` reads, and its refusals in the user's words."""
+
+import json
+
+import pytest
+
+from schemas.controller import BadGains, Controller, Member, Source, read_gains
+from schemas.gains import DEFAULT_GAINS, PDGains
+from schemas.robot import ModelSpec
+from schemas.trajectory import TrajectorySpec
+
+GAINS = DEFAULT_GAINS.model_dump()
+SOFT = PDGains(kp=(100.0,) * 7, kd=(1.0,) * 7)
+
+
+def exported(gains: PDGains) -> dict:
+    """A controller as `analytic export` writes it."""
+    return json.loads(
+        Controller(
+            kp=gains.kp,
+            kd=gains.kd,
+            member=Member(selected="knee", row=3, rule="r", f_acc=0.01, f_t=0.1, diverged=False),
+            source=Source(
+                run_id="ab" * 16,
+                directory="runs/x",
+                config_sha256="0" * 64,
+                front_sha256="1" * 64,
+                trajectories=(TrajectorySpec(),),
+                plant="realistic",
+                model=ModelSpec(),
+                population=30,
+                algorithm="nsga2",
+                seed=0,
+                stopped="3 generations",
+            ),
+        ).model_dump_json()
+    )
+
+
+def test_a_controller_a_list_and_a_bare_object_are_all_gains() -> None:
+    assert read_gains(json.dumps(exported(SOFT)).encode()) == [SOFT]
+    # The list `analytic batch --gains` has always read, and controllers in a list.
+    assert read_gains(json.dumps([GAINS, exported(SOFT)]).encode()) == [DEFAULT_GAINS, SOFT]
+    assert read_gains(json.dumps(GAINS).encode()) == [DEFAULT_GAINS]
+
+
+@pytest.mark.parametrize(
+    ("document", "says"),
+    [
+        ([], "the list of candidates is empty"),
+        ([GAINS, 7], 'candidate 2: expected an object with "kp" and "kd", got int'),
+        ({**GAINS, "kp": [1, 2]}, "kp: 2 gains given, 7 needed (A1..A7)"),
+        (
+            {**GAINS, "kd": [1, 1, 1, 1, 1, 1, -2]},
+            "kd of A7: -2 is negative (gains are at least 0)",
+        ),
+        (
+            {**GAINS, "kp": [1, 1, -1, 1, 1, 1, -2]},
+            "kp of A3: -1 is negative (gains are at least 0) (and 1 more problem)",
+        ),
+        ({"kd": GAINS["kd"]}, "kp missing: 7 gains needed (A1..A7)"),
+        ({**GAINS, "kp": "fast"}, "kp: expected a list of 7 numbers, got 'fast'"),
+        ({**GAINS, "ki": [0] * 7}, "unknown field 'ki'"),
+        ({**exported(SOFT), "format": "gainfarm-controller/2"}, "format 'gainfarm-controller/2'"),
+        ({**exported(SOFT), "kp": [1] * 6}, "kp: 6 gains given, 7 needed"),
+    ],
+)
+def test_a_bad_gains_file_says_which_candidate_which_gain_and_what(
+    document: object, says: str
+) -> None:
+    with pytest.raises(BadGains) as refused:
+        read_gains(json.dumps(document).encode())
+    assert str(refused.value) == says or str(refused.value).startswith(says)
+    assert "Input should" not in str(refused.value)  # not pydantic's words
+
+
+def test_non_finite_gains_and_files_that_are_not_json_are_refused() -> None:
+    with pytest.raises(BadGains, match=r"kp of A1: inf is not finite"):
+        read_gains(b'{"kp": [1e999, 1, 1, 1, 1, 1, 1], "kd": [1, 1, 1, 1, 1, 1, 1]}')
+    with pytest.raises(BadGains, match=r"not JSON \(Expecting value at line 1 column 1\)"):
+        read_gains(b"kp: [1]")
+    with pytest.raises(BadGains, match=r"a run's front\.csv, not a controller"):
+        read_gains(b"kp1,kp2,kp3\n")
