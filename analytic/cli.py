@@ -21,6 +21,9 @@ from analytic import algorithm_study, dataset_value, experiments
 from analytic.batch import EVALUATIONS, batch_jobs, run_batch
 from analytic.checkpoint import CheckpointRefused
 from analytic.config import RunConfig
+from analytic.dashboard import DASHBOARD_PORT, Watch
+from analytic.dashboard import run_forever as run_dashboard
+from analytic.dashboard import serve as serve_dashboard
 from analytic.dataset import (
     DEFAULT_SPLIT,
     BadRerun,
@@ -63,6 +66,7 @@ from schemas.objectives import balancing_weights, score
 from schemas.robot import PLANTS
 from schemas.security import TlsIdentity
 from schemas.trajectory import TrajectorySpec
+from schemas.transport import open_session
 from schemas.wire import BadMessage, describe
 
 F = TypeVar("F", bound=Callable[..., object])
@@ -199,6 +203,61 @@ def replay(log: Path, out: Path, fps: int, width: int, height: int) -> None:
     except ReplayError as error:
         raise CliError(str(error)) from None
     click.echo(f"{out}: {frames} frames, {width}x{height} at {fps} fps")
+
+
+@app.command(short_help="Watch runs and their farm live, in a web page.")
+@click.argument("runs", nargs=-1, type=click.Path(path_type=Path))
+@click.option(
+    "--connect",
+    multiple=True,
+    help="the farm's broker, to show its workers, queue and throughput  [default: not shown]",
+)
+@options.tls("with --connect: the credentials of a secure farm")
+@options.participant("analytic")
+@click.option(
+    "--port",
+    type=click.IntRange(min=1, max=65535),
+    default=DASHBOARD_PORT,
+    show_default=True,
+    help="the page's port, on 127.0.0.1",
+)
+def dashboard(
+    runs: tuple[Path, ...],
+    connect: tuple[str, ...],
+    tls: Path | None,
+    participant: str | None,
+    port: int,
+) -> None:
+    """Watch tuning runs and their farm live, in a web page on this machine: each run's front
+    and hypervolume curve, the farm's workers, queue and throughput. RUNS are run directories,
+    or directories holding runs (an experiment's, runs/), whose new runs join the page as they
+    start  [default: runs]. Until Ctrl-C."""
+    for root in runs:
+        if not root.is_dir():
+            raise CliError(f"RUNS: {str(root)!r}: no such directory")
+    if tls is not None and not connect:
+        raise CliError("--tls needs --connect: the farm to watch")
+    identity = options.identity(tls, "analytic", participant)
+    session = None
+    if connect:
+        try:
+            session = open_session("client", connect=connect, identity=identity)
+        except (ValueError, ConnectionError) as error:
+            raise CliError(f"--connect: {error}") from None
+    try:
+        with Watch(runs or (Path("runs"),), session, ", ".join(connect)) as watch:
+            try:
+                server = serve_dashboard(watch, port)
+            except OSError as error:
+                raise CliError(f"--port: cannot serve on {port}: {error.strerror}") from None
+            try:
+                click.echo(f"dashboard at http://127.0.0.1:{port}/ (Ctrl-C stops it)")
+                run_dashboard()
+            finally:
+                server.stop()
+    finally:
+        if session is not None:
+            session.close()
 
 
 @app.command(short_help="Evaluate given gains on the farm; keep every episode.")

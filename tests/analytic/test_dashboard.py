@@ -1,0 +1,197 @@
+"""`analytic dashboard`: a real headless Chromium (Debian's, driven by Selenium through Debian's
+chromedriver) loads the page while a real run tunes on a real farm (a broker on loopback, a
+worker process), and sees the run's front, its hypervolume curve and the farm's line change
+without a reload; bad input is one line."""
+
+import contextlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from selenium import webdriver
+from selenium.common.exceptions import WebDriverException
+from selenium.webdriver.chrome.service import Service
+
+from analytic.dashboard import find_runs, run_view
+from analytic.local import free_port, spawn_worker, stop_workers
+from analytic.records import HISTORY_CSV, read_front, read_history
+from broker.service import Broker
+from tests.helpers import analytic
+
+CHROMIUM, CHROMEDRIVER = shutil.which("chromium"), shutil.which("chromedriver")
+NEEDS = "the dashboard's test needs Debian's chromium and chromium-driver (apt-get install them)"
+
+
+def page_state(browser: webdriver.Chrome, run: str) -> dict:
+    """What the page holds now, read from Bokeh's document in the browser."""
+    return browser.execute_script(
+        """
+        const doc = Bokeh.documents[0];
+        if (doc === undefined) return null;
+        const named = (name) => doc.get_model_by_name(name);
+        const run = arguments[0];
+        const history = named("history:" + run);
+        return {
+            farm: named("farm").text,
+            farm_points: named("farm-series").data.t.length,
+            jobs_per_s: Array.from(named("farm-series").data.jobs_per_s),
+            line: history ? named("run:" + run).text : null,
+            generations: history ? history.data.evaluations.length : 0,
+            front: history ? named("front:" + run).data.f_acc_mm.length : 0,
+            evaluated: history ? named("evaluated:" + run).data.f_acc_mm.length : 0,
+        };
+        """,
+        run,
+    )
+
+
+@pytest.fixture
+def browser() -> Iterator[webdriver.Chrome]:
+    assert CHROMIUM and CHROMEDRIVER, NEEDS
+    chrome = webdriver.ChromeOptions()
+    chrome.binary_location = CHROMIUM
+    for argument in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"):
+        chrome.add_argument(argument)
+    driver = webdriver.Chrome(options=chrome, service=Service(CHROMEDRIVER))
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+@contextlib.contextmanager
+def dashboard(*arguments: str, cwd: Path) -> Iterator[str]:
+    """`analytic dashboard ARGUMENTS --port P` in a process of its own; yields the page's
+    address once it serves; Ctrl-C ends it (which must then exit 130, having said so)."""
+    port = free_port()
+    process = subprocess.Popen(
+        [sys.executable, "-m", "analytic", "dashboard", *arguments, "--port", str(port)],
+        cwd=cwd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        first = process.stdout.readline() if process.stdout else ""
+        address = f"http://127.0.0.1:{port}/"
+        assert first == f"dashboard at {address} (Ctrl-C stops it)\n", process.stderr
+        yield address
+    finally:
+        process.send_signal(signal.SIGINT)
+        _, stderr = process.communicate(timeout=30)
+    assert process.returncode == 130, stderr
+    assert stderr.splitlines()[-1] == "analytic: interrupted", stderr
+
+
+# A run of some 100 episodes of 3 s: long enough for the page to be seen at several generations.
+TUNING = ("--pop", "8", "--generations", "12", "--duration", "3", "--seed", "1", "--no-replicate")
+
+
+def test_the_page_follows_a_run_and_its_farm_live(tmp_path: Path, browser) -> None:
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    run = runs / "live"
+    with Broker([f"tcp/127.0.0.1:{free_port()}"]) as broker:
+        endpoint = broker.endpoints[0]
+        workers = [spawn_worker(endpoint, "w1")]
+        try:
+            with dashboard(str(runs), "--connect", endpoint, cwd=tmp_path) as address:
+                browser.get(address)
+                seen = watch(browser, str(run), lambda state: "1 worker (" in state["farm"])
+                assert seen[-1]["line"] is None  # no run yet
+                tuning = subprocess.Popen(
+                    [
+                        sys.executable,
+                        "-m",
+                        "analytic",
+                        "start",
+                        "--connect",
+                        endpoint,
+                        *TUNING,
+                        "--out",
+                        str(run),
+                    ],
+                    cwd=tmp_path,
+                    stdout=subprocess.DEVNULL,
+                    stderr=subprocess.PIPE,
+                    text=True,
+                )
+                seen += watch(
+                    browser,
+                    str(run),
+                    lambda state: state["generations"] >= 2 or tuning.poll() is not None,
+                )
+                _, stderr = tuning.communicate(timeout=300)
+                assert tuning.returncode == 0, stderr
+                history = read_history(run / HISTORY_CSV)
+                seen += watch(browser, str(run), lambda s: s["generations"] == len(history))
+        finally:
+            stop_workers(workers)
+    # The page changed as the run went, without a reload: the curve grew a point at a time.
+    counts = [state["generations"] for state in seen]
+    assert counts == sorted(counts) and len({c for c in counts if c > 0}) >= 2, counts
+    last = seen[-1]
+    assert last["front"] == len(read_front(run / "front.csv"))  # all measured: no divergence
+    assert last["evaluated"] == history[-1].evaluations
+    assert (
+        f"generation {history[-1].generation}, {history[-1].evaluations} evaluations"
+        in (last["line"])
+    )
+    assert last["farm_points"] > seen[0]["farm_points"]  # the farm's series grew too
+    assert max(max(state["jobs_per_s"], default=0) for state in seen) > 0
+
+
+def watch(browser: webdriver.Chrome, run: str, until, timeout: float = 240) -> list[dict]:
+    """The page's state, looked at every 0.2 s until `until` holds of it: every state seen."""
+    seen: list[dict] = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        with contextlib.suppress(WebDriverException):  # the page's scripts still loading
+            state = page_state(browser, run)
+            if state is not None:
+                if not seen or state != seen[-1]:
+                    seen.append(state)
+                if until(state):
+                    return seen
+        time.sleep(0.2)
+    raise AssertionError(f"the page never got there: {json.dumps(seen[-3:])}")
+
+
+def test_a_run_reads_as_its_files_say(tmp_path: Path) -> None:
+    """The page's view of a run is its records': a run found under a directory of runs, a run
+    that has not written its config yet said to be starting, a broken file said in its line."""
+    (tmp_path / "a" / "episodes" / "deep").mkdir(parents=True)
+    (tmp_path / "a" / "config.json").write_text("{")
+    (tmp_path / "b").mkdir()
+    assert find_runs([tmp_path]) == [tmp_path / "a"]
+    assert run_view(tmp_path / "b").line == "starting: no config.json yet"
+    broken = run_view(tmp_path / "a")
+    assert broken.line.startswith("cannot read: ") and broken.history["evaluations"] == []
+
+
+def test_bad_options_are_one_line(tmp_path: Path) -> None:
+    for arguments, expected in (
+        (("nowhere",), "analytic: error: RUNS: 'nowhere': no such directory"),
+        (("--tls", "x"), "analytic: error: --tls needs --connect: the farm to watch"),
+        (("--port", "0"), "analytic: error: Invalid value for '--port'"),
+    ):
+        run = analytic("dashboard", *arguments, cwd=tmp_path)
+        assert run.returncode == 2, run.stderr
+        assert run.stderr.startswith(expected) and run.stderr.count("\n") == 1, run.stderr
+
+
+def test_a_port_in_use_is_one_line(tmp_path: Path) -> None:
+    with Broker([f"tcp/127.0.0.1:{free_port()}"]) as broker:
+        taken = int(broker.endpoints[0].rsplit(":", 1)[1])
+        run = analytic("dashboard", "--port", str(taken), cwd=tmp_path)
+    assert run.returncode == 2
+    assert run.stderr.startswith(f"analytic: error: --port: cannot serve on {taken}: ")
+    assert run.stderr.count("\n") == 1, run.stderr
+    assert os.listdir(tmp_path) == []
