@@ -20,11 +20,13 @@ so every campaign runs the same evaluations.
 """
 
 import contextlib
+import os
 import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -181,12 +183,35 @@ def cobots(
         cobot.close()
 
 
+def cpu_seconds(pid: int) -> float:
+    """User and system CPU time the process `pid` has used so far (Linux: /proc/PID/stat)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+@dataclass
+class Farm:
+    """A simulated farm as the campaign sees it: where its broker is and its processes."""
+
+    endpoint: str
+    broker: int  # process ids
+    loads: list[int]
+
+    def cpu(self) -> dict[str, float]:
+        """CPU seconds so far of the analytic (this process), the broker and the cobots."""
+        return {
+            "analytic": cpu_seconds(os.getpid()),
+            "broker": cpu_seconds(self.broker),
+            "cobots": sum(cpu_seconds(pid) for pid in self.loads),
+        }
+
+
 @contextlib.contextmanager
 def simulated_farm(workers: int, job_seconds: float, busy: Any):
-    """A broker and `workers` simulated cobots, all joined; yields the broker's endpoint."""
+    """A broker and `workers` simulated cobots, all joined; yields the Farm."""
     endpoint = loopback_endpoint()
     stop = SPAWN.Event()
-    with broker_process(endpoint, 100_000):
+    with broker_process(endpoint, 100_000) as broker:
         names = [f"sim-{index}" for index in range(workers)]
         loads = [
             SPAWN.Process(
@@ -210,7 +235,7 @@ def simulated_farm(workers: int, job_seconds: float, busy: Any):
                     time.sleep(0.2)
             finally:
                 session.close()
-            yield endpoint
+            yield Farm(endpoint, broker.pid, [load.pid for load in loads if load.pid])
         finally:
             stop.set()
             for load in loads:
@@ -246,7 +271,8 @@ def simulated_campaign(
     )
     busy = SPAWN.Value("d", 0.0)
     wall = 0.0
-    with simulated_farm(workers, job_seconds, busy) as endpoint:
+    with simulated_farm(workers, job_seconds, busy) as farm:
+        endpoint, cpu_before = farm.endpoint, farm.cpu()
         for name, run in experiment_runs(base, reps, chosen).items():
 
             def client(_name: str, directory: Path) -> FarmClient:
@@ -261,7 +287,23 @@ def simulated_campaign(
             wall += took
             print(f"  {workers} workers, {name}: {took:.1f} s", flush=True)
         time.sleep(0.5)  # the last episodes' time reaches `busy`
+        cpu = {part: seconds - cpu_before[part] for part, seconds in farm.cpu().items()}
+        jobs = _jobs_done(endpoint)
+    per_job = ", ".join(f"{part} {seconds / jobs * 1000:.2f} ms" for part, seconds in cpu.items())
+    print(
+        f"  {jobs} jobs; CPU per job: {per_job} (of {os.cpu_count()} cores: "
+        f"{sum(cpu.values()) / wall / (os.cpu_count() or 1):.0%} of the machine's time)",
+        flush=True,
+    )
     return wall, busy.value / (workers * wall)
+
+
+def _jobs_done(endpoint: str) -> int:
+    session = open_session("client", connect=[endpoint])
+    try:
+        return query_status(session, timeout=5.0).jobs_done
+    finally:
+        session.close()
 
 
 def simulated_campaigns(
