@@ -19,6 +19,7 @@ line), "history:PATH", "front:PATH" and "evaluated:PATH" (its sources).
 """
 
 import contextlib
+import html
 import math
 import threading
 import time
@@ -264,41 +265,18 @@ def page(watch: Watch) -> Callable:
     from bokeh.models import ColumnDataSource, Div
     from bokeh.plotting import figure
 
-    def build(document) -> None:  # bokeh.document.Document
-        farm_div = Div(name="farm", text="", styles={"font-size": "110%"})
-        farm_source = ColumnDataSource(
-            {"t": [], "jobs_per_s": [], "queued": [], "busy": []}, name="farm-series"
-        )
-        throughput = figure(
-            title="throughput (jobs/s over the last minute)",
-            x_axis_label="seconds since the dashboard started",
-            height=220,
-            width=480,
-        )
-        throughput.line("t", "jobs_per_s", source=farm_source, line_width=2)
-        queue = figure(
-            title="queued jobs and busy workers",
-            x_axis_label="seconds since the dashboard started",
-            height=220,
-            width=480,
-        )
-        queue.line("t", "queued", source=farm_source, line_width=2, legend_label="queued")
-        queue.line(
-            "t", "busy", source=farm_source, line_width=2, color="orange", legend_label="busy"
-        )
-        queue.legend.location = "top_left"
-        runs = column(Div(text=f"runs under {_escape(', '.join(map(str, watch.roots)))}"))
-        shown: dict[Path, tuple[object, Div, ColumnDataSource, ...]] = {}
-        farm_shown = [-1]
+    class RunPanel:
+        """A run's part of the page: its heading, its line, its front and its curve."""
 
-        def panel(directory: Path):
+        def __init__(self, directory: Path):
             key = str(directory)
-            line = Div(name=f"run:{key}", text="")
-            history = ColumnDataSource(
+            self.shown: object = None  # the run's version on the page
+            self.line = Div(name=f"run:{key}", text="")
+            self.history = ColumnDataSource(
                 {"evaluations": [], "hypervolume": []}, name=f"history:{key}"
             )
-            front = ColumnDataSource({"f_acc_mm": [], "f_t": []}, name=f"front:{key}")
-            evaluated = ColumnDataSource({"f_acc_mm": [], "f_t": []}, name=f"evaluated:{key}")
+            self.front = ColumnDataSource({"f_acc_mm": [], "f_t": []}, name=f"front:{key}")
+            self.evaluated = ColumnDataSource({"f_acc_mm": [], "f_t": []}, name=f"evaluated:{key}")
             pareto = figure(
                 title="front over every evaluated point",
                 x_axis_label="f_acc: mean end-effector error (mm)",
@@ -307,9 +285,9 @@ def page(watch: Watch) -> Callable:
                 height=360,
                 width=480,
             )
-            pareto.scatter("f_acc_mm", "f_t", source=evaluated, size=4, color="lightgrey")
-            pareto.step("f_acc_mm", "f_t", source=front, mode="after", color="crimson")
-            pareto.scatter("f_acc_mm", "f_t", source=front, size=6, color="crimson")
+            pareto.scatter("f_acc_mm", "f_t", source=self.evaluated, size=4, color="lightgrey")
+            pareto.step("f_acc_mm", "f_t", source=self.front, mode="after", color="crimson")
+            pareto.scatter("f_acc_mm", "f_t", source=self.front, size=6, color="crimson")
             curve = figure(
                 title="hypervolume",
                 x_axis_label="evaluations",
@@ -317,43 +295,65 @@ def page(watch: Watch) -> Callable:
                 height=360,
                 width=480,
             )
-            curve.line("evaluations", "hypervolume", source=history, line_width=2)
-            curve.scatter("evaluations", "hypervolume", source=history, size=5)
-            heading = Div(text=f"<h3>{_escape(key)}</h3>")
-            runs.children.append(column(heading, line, row(pareto, curve)))
-            return line, history, front, evaluated
+            curve.line("evaluations", "hypervolume", source=self.history, line_width=2)
+            curve.scatter("evaluations", "hypervolume", source=self.history, size=5)
+            heading = Div(text=f"<h3>{html.escape(key)}</h3>")
+            self.layout = column(heading, self.line, row(pareto, curve))
+
+        def show(self, version: object, view: RunView) -> None:
+            if version != self.shown:
+                self.line.text = html.escape(view.line)
+                self.history.data = view.history
+                self.front.data = view.front
+                self.evaluated.data = view.evaluated
+                self.shown = version
+
+    def build(document) -> None:  # bokeh.document.Document
+        farm_line = Div(name="farm", text="", styles={"font-size": "110%"})
+        farm_series = ColumnDataSource(
+            {"t": [], "jobs_per_s": [], "queued": [], "busy": []}, name="farm-series"
+        )
+        since = "seconds since the dashboard started"
+        throughput = figure(
+            title="throughput (jobs/s over the last minute)",
+            x_axis_label=since,
+            height=220,
+            width=480,
+        )
+        throughput.line("t", "jobs_per_s", source=farm_series, line_width=2)
+        queue = figure(
+            title="queued jobs and busy workers", x_axis_label=since, height=220, width=480
+        )
+        queue.line("t", "queued", source=farm_series, line_width=2, legend_label="queued")
+        queue.line(
+            "t", "busy", source=farm_series, line_width=2, color="orange", legend_label="busy"
+        )
+        queue.legend.location = "top_left"
+        roots = ", ".join(map(str, watch.roots))
+        runs = column(Div(text=f"runs under {html.escape(roots)}"))
+        panels: dict[Path, RunPanel] = {}
+        farm_shown = [-1]  # the farm's version on the page
 
         def update() -> None:
             version, text, series = watch.farm_now()
             if version != farm_shown[0]:
-                farm_div.text = _escape(text)
-                farm_source.data = series
+                farm_line.text = html.escape(text)
+                farm_series.data = series
                 farm_shown[0] = version
             for directory, run_version, view in watch.runs():
-                if directory not in shown:
-                    shown[directory] = (None, *panel(directory))
-                last, line, history, front, evaluated = shown[directory]
-                if last != run_version:
-                    line.text = _escape(view.line)
-                    history.data, front.data, evaluated.data = (
-                        view.history,
-                        view.front,
-                        view.evaluated,
-                    )
-                    shown[directory] = (run_version, line, history, front, evaluated)
+                if directory not in panels:
+                    panels[directory] = RunPanel(directory)
+                    runs.children.append(panels[directory].layout)
+                panels[directory].show(run_version, view)
 
         document.title = "gainfarm dashboard"
         document.add_root(
-            column(Div(text="<h2>gainfarm</h2>"), farm_div, row(throughput, queue), runs)
+            column(Div(text="<h2>gainfarm</h2>"), farm_line, row(throughput, queue), runs)
         )
         update()
         document.add_periodic_callback(update, int(REFRESH_SECONDS * 1000))
 
     return build
-
-
-def _escape(text: str) -> str:
-    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
 
 
 def serve(watch: Watch, port: int, address: str = "127.0.0.1") -> "Server":

@@ -20,12 +20,13 @@ The pure parts (pools, subsampling, scoring, statistics, the verdict) are functi
 data; `dataset_value` is the only one that runs anything.
 """
 
+import functools
 import hashlib
 import json
 import math
 import statistics
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -496,39 +497,72 @@ def batch_logs(
     return {f"{name}/{job}": path for job, path in logs.items()}
 
 
-def pools_of_rep(experiment: Experiment, base: RunConfig, rep: int) -> dict[str, dict[str, Path]]:
-    """Condition → its episodes (id → log) for repetition `rep`: tunes what it needs first."""
-    duration = base.trajectories[0].duration
-    trajectories = training_trajectories(duration)
+def tuning_plan(base: RunConfig, reps: int) -> dict[str, RunConfig]:
+    """Every tuning run of the experiment: per repetition, one specific run per training
+    trajectory and one generic run on all three, seeded by the repetition."""
+    trajectories = training_trajectories(base.trajectories[0].duration)
+    plan: dict[str, RunConfig] = {}
+    for rep in range(reps):
+        for trajectory in trajectories:
+            plan[f"specific-{trajectory.kind.value}-rep{rep}"] = base.model_copy(
+                update={"trajectories": (trajectory,), "seed": rep}
+            )
+        plan[f"generic-rep{rep}"] = base.model_copy(
+            update={"trajectories": trajectories, "seed": rep}
+        )
+    return plan
+
+
+def all_pools(
+    experiment: Experiment, base: RunConfig, reps: int
+) -> list[dict[str, dict[str, Path]]]:
+    """Each repetition's pools (condition → its episodes, id → log): every tuning run of every
+    repetition at once, then every batch of episodes they call for at once (as wide as the
+    farm; `Experiment.parallel` bounds it), each reused if done before."""
+    trajectories = training_trajectories(base.trajectories[0].duration)
     plant = base.model
+    records = experiment.tune_many(tuning_plan(base, reps))
+
+    def batch(name: str, gains: Sequence[PDGains], on: Sequence[TrajectorySpec]) -> Callable:
+        return functools.partial(batch_logs, experiment, name, gains, on, plant)
+
+    # The default gains' episodes are the same in every repetition (a simulation is
+    # deterministic): simulated once; each repetition draws its own subsample of them.
+    batches = {"default": batch("default", [DEFAULT_GAINS], trajectories)}
+    for rep in range(reps):
+        for trajectory in trajectories:  # each specific knee once more on the other two
+            name = f"specific-{trajectory.kind.value}-rep{rep}"
+            knee = select(records[name], "knee")[0].gains
+            others = [other for other in trajectories if other != trajectory]
+            batches[f"{name}-knee-rerun"] = batch(f"{name}-knee-rerun", [knee], others)
+        random = random_gains(rep, RANDOM_CONTROLLERS)
+        batches[f"random-rep{rep}"] = batch(f"random-rep{rep}", random, trajectories)
+    logs = experiment.concurrently(batches)
+    return [pools_of_rep(experiment.out, records, logs, rep, trajectories) for rep in range(reps)]
+
+
+def pools_of_rep(
+    out: Path,
+    records: Mapping[str, RunRecord],
+    logs: Mapping[str, dict[str, Path]],
+    rep: int,
+    trajectories: Sequence[TrajectorySpec],
+) -> dict[str, dict[str, Path]]:
+    """Condition → its episodes (id → log) for repetition `rep`, from the experiment's tuning
+    runs (`records`, by name) and batches of episodes (`logs`, by name)."""
     pools: dict[str, dict[str, Path]] = {condition: {} for condition in CONDITIONS}
     for trajectory in trajectories:
         name = f"specific-{trajectory.kind.value}-rep{rep}"
-        config = base.model_copy(update={"trajectories": (trajectory,), "seed": rep})
-        record = experiment.tune(name, config)
-        directory = experiment.out / "runs" / name
-        pools["specific-front"] |= front_logs(record, directory, "front")
-        own = front_logs(record, directory, "knee")
+        directory = out / "runs" / name
+        pools["specific-front"] |= front_logs(records[name], directory, "front")
+        own = front_logs(records[name], directory, "knee")
         pools["specific-knee"] |= own
-        # The knee once more on the two trajectories it was not tuned on.
-        others = [other for other in trajectories if other != trajectory]
-        knee = select(record, "knee")[0].gains
-        pools["specific-rerun"] |= own | batch_logs(
-            experiment, f"{name}-knee-rerun", [knee], others, plant
-        )
+        pools["specific-rerun"] |= own | logs[f"{name}-knee-rerun"]
     name = f"generic-rep{rep}"
-    record = experiment.tune(
-        name, base.model_copy(update={"trajectories": trajectories, "seed": rep})
-    )
-    directory = experiment.out / "runs" / name
-    pools["generic-front"] = front_logs(record, directory, "front")
-    pools["generic-knee"] = front_logs(record, directory, "knee")
-    # The default gains' episodes are the same in every repetition (a simulation is
-    # deterministic): simulated once; each repetition draws its own subsample of them.
-    pools["default"] = batch_logs(experiment, "default", [DEFAULT_GAINS], trajectories, plant)
-    pools["random"] = batch_logs(
-        experiment, f"random-rep{rep}", random_gains(rep, RANDOM_CONTROLLERS), trajectories, plant
-    )
+    pools["generic-front"] = front_logs(records[name], out / "runs" / name, "front")
+    pools["generic-knee"] = front_logs(records[name], out / "runs" / name, "knee")
+    pools["default"] = logs["default"]
+    pools["random"] = logs[f"random-rep{rep}"]
     return pools
 
 
@@ -575,8 +609,8 @@ def dataset_value(
         _result_row("all", "(none)", REFERENCE_MODEL, reference, 0, 0, 0.0, test_digest, len(test))
     ]
     nmse: dict[tuple[str, str], list[float]] = {}
-    for rep in range(reps):
-        pools = {c: pool_rows(logs) for c, logs in pools_of_rep(experiment, base, rep).items()}
+    for rep, episodes in enumerate(all_pools(experiment, base, reps)):
+        pools = {c: pool_rows(logs) for c, logs in episodes.items()}
         count = ticks if ticks is not None else min(len(pool) for pool in pools.values())
         for condition in CONDITIONS:
             train, validation = subsample(pools[condition], count, rep)

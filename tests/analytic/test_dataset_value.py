@@ -1,7 +1,9 @@
 """The dataset-value experiment: real MuJoCo episodes (in-process), real training, real tests."""
 
+import contextlib
 import csv
 import math
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -22,8 +24,23 @@ PNG = b"\x89PNG\r\n\x1a\n"
 pytestmark = pytest.mark.filterwarnings("ignore:Got `batch_size`:UserWarning")
 
 
-def in_process(study: str, directory: Path) -> InProcessEvaluator:
-    return InProcessEvaluator(directory)
+# Evaluators open now and the most open at once, for tuning runs and for batches of episodes.
+OPEN = {"runs": [0, 0], "batches": [0, 0]}
+LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def in_process(study: str, directory: Path) -> Iterator[InProcessEvaluator]:
+    kind = "batches" if directory.parent.name == dv.SIMULATED else "runs"
+    with LOCK:
+        OPEN[kind][0] += 1
+        OPEN[kind][1] = max(OPEN[kind])
+    try:
+        with InProcessEvaluator(directory) as evaluator:
+            yield evaluator
+    finally:
+        with LOCK:
+            OPEN[kind][0] -= 1
 
 
 def refuse(study: str, directory: Path) -> InProcessEvaluator:
@@ -71,6 +88,15 @@ def test_every_condition_model_and_rep_is_scored_at_equal_ticks(
         assert float(r["nmse_mean"]) == pytest.approx(np.mean(nmse[:6]))
 
 
+def test_every_run_of_every_repetition_ran_at_once(finished: tuple[Path, dv.Verdict]) -> None:
+    """As wide as the farm: the twelve tuning runs (three specific and one generic per
+    repetition) were all open together, and then the batches they call for: the default gains
+    once, each specific knee on the other two trajectories, each repetition's random
+    controllers (and before all of them, alone, the test pool)."""
+    assert OPEN["runs"][1] == 4 * REPS
+    assert OPEN["batches"][1] == 1 + 3 * REPS + REPS
+
+
 def test_comparisons_report_and_figure(finished: tuple[Path, dv.Verdict]) -> None:
     out, found = finished
     comparisons = rows(out / "comparisons.csv")
@@ -97,7 +123,7 @@ def test_a_second_invocation_reuses_the_runs_and_episodes(
     assert len(runs) == 4 * REPS  # three specific and one generic per repetition
     checkpoints = {p: p.stat().st_mtime_ns for p in out.glob("runs/*/checkpoint.pkl")}
     again = Experiment(out, refuse)  # any simulation at all fails the test
-    pools = dv.pools_of_rep(again, BASE, 1)
+    pools = dv.all_pools(again, BASE, REPS)[1]
     test, _ = dv.test_pool(again, 3.0, TESTS, BASE.model)
     assert {p: p.stat().st_mtime_ns for p in out.glob("runs/*/checkpoint.pkl")} == checkpoints
     assert all(path.is_file() for pool in pools.values() for path in pool.values())
@@ -108,7 +134,7 @@ def test_subsampling_is_seeded_and_splits_a_fifth_for_validation(
     finished: tuple[Path, dv.Verdict],
 ) -> None:
     out, _ = finished
-    pool = dv.pool_rows(dv.pools_of_rep(Experiment(out, refuse), BASE, 0)["default"])
+    pool = dv.pool_rows(dv.all_pools(Experiment(out, refuse), BASE, REPS)[0]["default"])
     train, validation = dv.subsample(pool, 1000, seed=3)
     again, _ = dv.subsample(pool, 1000, seed=3)
     other, _ = dv.subsample(pool, 1000, seed=4)
