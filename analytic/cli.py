@@ -21,7 +21,7 @@ from analytic import algorithm_study, dataset_value, experiments
 from analytic.batch import EVALUATIONS, batch_jobs, run_batch
 from analytic.checkpoint import CheckpointRefused
 from analytic.config import RunConfig
-from analytic.dashboard import DASHBOARD_PORT, Watch
+from analytic.dashboard import DASHBOARD_PORT, NoBokeh, Watch
 from analytic.dashboard import run_forever as run_dashboard
 from analytic.dashboard import serve as serve_dashboard
 from analytic.dataset import (
@@ -250,6 +250,8 @@ def dashboard(
                 server = serve_dashboard(watch, port)
             except OSError as error:
                 raise CliError(f"--port: cannot serve on {port}: {error.strerror}") from None
+            except NoBokeh as error:
+                raise CliError(str(error)) from None
             try:
                 click.echo(f"dashboard at http://127.0.0.1:{port}/ (Ctrl-C stops it)")
                 run_dashboard()

@@ -356,12 +356,20 @@ def page(watch: Watch) -> Callable:
     return build
 
 
+class NoBokeh(RuntimeError):
+    """The `dashboard` extra is not installed."""
+
+
 def serve(watch: Watch, port: int, address: str = "127.0.0.1") -> "Server":
     """Bokeh's server for the page on `address`:`port`, started in this thread's event loop (run
-    it with `run_forever`, stop it with its `stop`). OSError if the port cannot be had."""
-    from bokeh.application import Application
-    from bokeh.application.handlers.function import FunctionHandler
-    from bokeh.server.server import Server
+    it with `run_forever`, stop it with its `stop`). OSError if the port cannot be had, NoBokeh
+    without Bokeh."""
+    try:
+        from bokeh.application import Application
+        from bokeh.application.handlers.function import FunctionHandler
+        from bokeh.server.server import Server
+    except ImportError:
+        raise NoBokeh("the dashboard needs Bokeh: pip install 'gainfarm[dashboard]'") from None
 
     server = Server(
         {"/": Application(FunctionHandler(page(watch)))},

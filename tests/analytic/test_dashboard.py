@@ -187,6 +187,20 @@ def test_bad_options_are_one_line(tmp_path: Path) -> None:
         assert run.stderr.startswith(expected) and run.stderr.count("\n") == 1, run.stderr
 
 
+def test_without_bokeh_the_command_says_which_extra(tmp_path: Path) -> None:
+    without = (
+        "import sys; sys.modules['bokeh'] = None; sys.argv = ['analytic', 'dashboard', "
+        f"'--port', '{free_port()}']; from analytic.cli import main; main()"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", without], cwd=tmp_path, capture_output=True, text=True, timeout=120
+    )
+    assert run.returncode == 2
+    assert run.stderr == (
+        "analytic: error: the dashboard needs Bokeh: pip install 'gainfarm[dashboard]'\n"
+    )
+
+
 def test_a_port_in_use_is_one_line(tmp_path: Path) -> None:
     with Broker([f"tcp/127.0.0.1:{free_port()}"]) as broker:
         taken = int(broker.endpoints[0].rsplit(":", 1)[1])
