@@ -19,6 +19,7 @@ line), "history:PATH", "front:PATH" and "evaluated:PATH" (its sources).
 """
 
 import contextlib
+import dataclasses
 import html
 import math
 import threading
@@ -66,15 +67,13 @@ def run_view(directory: Path) -> RunView:
     try:
         record = read_run(directory)
     except FileNotFoundError:
-        return RunView("starting: no config.json yet", empty.history, empty.front, empty.evaluated)
+        return dataclasses.replace(empty, line="starting: no config.json yet")
     except (OSError, ValueError) as error:
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
-        return RunView(f"cannot read: {reason}", empty.history, empty.front, empty.evaluated)
+        return dataclasses.replace(empty, line=f"cannot read: {reason}")
     title = run_title(record.config).splitlines()[0]
     if not record.history:
-        return RunView(
-            f"{title}: generation 0 running", empty.history, empty.front, empty.evaluated
-        )
+        return dataclasses.replace(empty, line=f"{title}: generation 0 running")
     last = record.history[-1]
     measured = [point for point in record.evaluated if _measured(point)]
     state = "report written" if (directory / REPORT_MD).exists() else "running"
