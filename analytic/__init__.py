@@ -1,6 +1,6 @@
 """The analytic layer: tune a cobot's PD gains with NSGA-II on simulated episodes.
 
-    from analytic import RunConfig, tune
+    from gainfarm.analytic import RunConfig, tune
 
     run = tune(RunConfig(pop=8, generations=3), out="runs/first")
     for member in run.front():
@@ -17,13 +17,13 @@ from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
 _WHERE = {
-    "RunConfig": "analytic.config",
-    "TuningRun": "analytic.run",
-    "tune": "analytic.tuning",
-    "FarmClient": "analytic.farm",
-    "InProcessEvaluator": "analytic.inprocess",
-    "local_farm": "analytic.local",
-    "read_run": "analytic.records",
+    "RunConfig": "gainfarm.analytic.tuning.config",
+    "TuningRun": "gainfarm.analytic.tuning.run",
+    "tune": "gainfarm.analytic.tuning.tune",
+    "FarmClient": "gainfarm.analytic.evaluators.farm",
+    "InProcessEvaluator": "gainfarm.analytic.evaluators.inprocess",
+    "local_farm": "gainfarm.analytic.evaluators.local",
+    "read_run": "gainfarm.analytic.tuning.records",
 }
 __all__ = [
     "FarmClient",
@@ -36,16 +36,16 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
-    from analytic.config import RunConfig
-    from analytic.farm import FarmClient
-    from analytic.inprocess import InProcessEvaluator
-    from analytic.local import local_farm
-    from analytic.records import read_run
-    from analytic.run import TuningRun
-    from analytic.tuning import tune
+    from gainfarm.analytic.evaluators.farm import FarmClient
+    from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+    from gainfarm.analytic.evaluators.local import local_farm
+    from gainfarm.analytic.tuning.config import RunConfig
+    from gainfarm.analytic.tuning.records import read_run
+    from gainfarm.analytic.tuning.run import TuningRun
+    from gainfarm.analytic.tuning.tune import tune
 
 
 def __getattr__(name: str) -> Any:
     if name not in _WHERE:
-        raise AttributeError(f"module 'analytic' has no attribute {name!r}")
+        raise AttributeError(f"module 'gainfarm.analytic' has no attribute {name!r}")
     return getattr(import_module(_WHERE[name]), name)

@@ -1,10 +1,10 @@
 """`analytic` and `python -m analytic`: Ctrl-C is taken over before analytic.cli's imports begin."""
 
-from cli.interrupts import launch
+from gainfarm.cli.interrupts import launch
 
 
 def main() -> None:
-    launch("analytic.cli", "analytic")
+    launch("gainfarm.analytic.cli", "analytic")
 
 
 if __name__ == "__main__":

@@ -17,14 +17,7 @@ from pydantic import ValidationError
 from rich.console import Console
 from rich.table import Table
 
-from analytic import algorithm_study, dataset_value, experiments
-from analytic.batch import EVALUATIONS, batch_jobs, run_batch
-from analytic.checkpoint import CheckpointRefused
-from analytic.config import RunConfig
-from analytic.dashboard import DASHBOARD_PORT, NoBokeh, Watch
-from analytic.dashboard import run_forever as run_dashboard
-from analytic.dashboard import serve as serve_dashboard
-from analytic.dataset import (
+from gainfarm.analytic.data.dataset import (
     DEFAULT_SPLIT,
     BadRerun,
     BadSplit,
@@ -35,39 +28,48 @@ from analytic.dataset import (
     check_split,
     read_rerun,
 )
-from analytic.dataset import build as build_dataset
-from analytic.evaluator import Evaluation, Evaluator
-from analytic.evolution import ALGORITHMS, OBJECTIVE_SCALINGS
-from analytic.experiments import Experiment
-from analytic.export import FORMATS, BadMember, BadRun, describe_pick, picks
-from analytic.export import controller as exported_controller
-from analytic.export import render as render_controller
-from analytic.farm import DEFAULT_DEADLINE, FarmClient, FarmUnavailable
-from analytic.learning import LearnError
-from analytic.learning import learn as learn_model
-from analytic.local import local_farm
-from analytic.progress import Display, RunDisplay
-from analytic.records import CONFIG_JSON, FRONT_FIELDS, read_front
-from analytic.replay import DEFAULT_FPS, DEFAULT_HEIGHT, DEFAULT_WIDTH, ReplayError
-from analytic.replay import replay as replay_episode
-from analytic.run import RunBusy, RunProgress, TuningRun
-from analytic.tuning import new_study_name
-from broker.status import query_status
-from cli import interrupts, options
-from cli.app import CliError, parse_numbers, program_group, run_app
-from cli.scores import DIVERGED_TEXT, show_scores
-from models.dynamics import KINDS, TARGETS, digest
-from schemas.controller import BadGains, read_gains
-from schemas.episode import EpisodeSpec
-from schemas.files import write_atomically
-from schemas.gains import DEFAULT_GAINS, PDGains
-from schemas.mcap_episode import NotAnEpisodeLog, read_episode
-from schemas.objectives import balancing_weights, score
-from schemas.robot import PLANTS
-from schemas.security import TlsIdentity
-from schemas.trajectory import TrajectorySpec
-from schemas.transport import open_session
-from schemas.wire import BadMessage, describe
+from gainfarm.analytic.data.dataset import build as build_dataset
+from gainfarm.analytic.data.learning import LearnError
+from gainfarm.analytic.data.learning import learn as learn_model
+from gainfarm.analytic.evaluators.batch import EVALUATIONS, batch_jobs, run_batch
+from gainfarm.analytic.evaluators.evaluator import Evaluation, Evaluator
+from gainfarm.analytic.evaluators.farm import DEFAULT_DEADLINE, FarmClient, FarmUnavailable
+from gainfarm.analytic.evaluators.local import local_farm
+from gainfarm.analytic.experiments import algorithms as algorithm_study
+from gainfarm.analytic.experiments import base as experiments
+from gainfarm.analytic.experiments import dataset_value
+from gainfarm.analytic.experiments.base import Experiment
+from gainfarm.analytic.tuning.checkpoint import CheckpointRefused
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.evolution import ALGORITHMS, OBJECTIVE_SCALINGS
+from gainfarm.analytic.tuning.records import CONFIG_JSON, FRONT_FIELDS, read_front
+from gainfarm.analytic.tuning.run import RunBusy, RunProgress, TuningRun
+from gainfarm.analytic.tuning.tune import new_study_name
+from gainfarm.analytic.view.dashboard import DASHBOARD_PORT, NoBokeh, Watch
+from gainfarm.analytic.view.dashboard import run_forever as run_dashboard
+from gainfarm.analytic.view.dashboard import serve as serve_dashboard
+from gainfarm.analytic.view.export import FORMATS, BadMember, BadRun, describe_pick, picks
+from gainfarm.analytic.view.export import controller as exported_controller
+from gainfarm.analytic.view.export import render as render_controller
+from gainfarm.analytic.view.progress import Display, RunDisplay
+from gainfarm.analytic.view.replay import DEFAULT_FPS, DEFAULT_HEIGHT, DEFAULT_WIDTH, ReplayError
+from gainfarm.analytic.view.replay import replay as replay_episode
+from gainfarm.broker.status import query_status
+from gainfarm.cli import interrupts, options
+from gainfarm.cli.app import CliError, parse_numbers, program_group, run_app
+from gainfarm.cli.scores import DIVERGED_TEXT, show_scores
+from gainfarm.models.dynamics import KINDS, TARGETS, digest
+from gainfarm.schemas.controller import BadGains, read_gains
+from gainfarm.schemas.episode import EpisodeSpec
+from gainfarm.schemas.files import write_atomically
+from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
+from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
+from gainfarm.schemas.objectives import balancing_weights, score
+from gainfarm.schemas.robot import PLANTS
+from gainfarm.schemas.security import TlsIdentity
+from gainfarm.schemas.trajectory import TrajectorySpec
+from gainfarm.schemas.transport import open_session
+from gainfarm.schemas.wire import BadMessage, describe
 
 F = TypeVar("F", bound=Callable[..., object])
 # Without a terminal, an experiment's progress is a plain line this often at most: its runs go
@@ -546,7 +548,7 @@ def _balanced(config: RunConfig, feedforward: bytes | None) -> RunConfig:
     """`config` with the generic objective balanced by the default gains' scores on each of its
     trajectories (schemas.objectives.balancing_weights), simulated in this process: a few
     episodes, before any farm is asked for."""
-    from analytic.inprocess import InProcessEvaluator
+    from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 
     models = {config.feedforward: feedforward} if config.feedforward and feedforward else {}
     with InProcessEvaluator(models=models) as evaluator:
@@ -1079,8 +1081,8 @@ def _unwritable(error: OSError, then: str) -> CliError:
 def _followable(trajectories: Iterable[TrajectorySpec], option: str = "--duration") -> None:
     """Refuse, in one line, a trajectory the iiwa cannot follow (out of reach, or too fast for
     its limits) before any job is sent: every episode of it would fail."""
-    from worker.ik import UnreachablePath  # MuJoCo loads only when a command needs it
-    from worker.reference import InfeasibleReference, reference_for
+    from gainfarm.worker.ik import UnreachablePath  # MuJoCo loads only when a command needs it
+    from gainfarm.worker.reference import InfeasibleReference, reference_for
 
     for trajectory in trajectories:
         try:

@@ -39,10 +39,10 @@ from multiprocessing.connection import Connection
 import click
 from common import SPAWN, FakeAnalytic, NoopWorker, loopback_endpoint, percentile_ms
 
-from analytic.farm import SUBMIT_CHUNK
-from broker.service import Broker
-from schemas.transport import open_session
-from schemas.wire import MAX_BATCH
+from gainfarm.analytic.evaluators.farm import SUBMIT_CHUNK
+from gainfarm.broker.service import Broker
+from gainfarm.schemas.transport import open_session
+from gainfarm.schemas.wire import MAX_BATCH
 
 AHEAD = 2_000  # jobs the live submitter keeps queued beyond those completed
 

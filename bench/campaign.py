@@ -35,15 +35,15 @@ from common import SPAWN, loopback_endpoint
 from scale import broker_process
 from surrogate import read_surrogate_log, surrogate
 
-from analytic import experiments
-from analytic.config import RunConfig
-from analytic.experiments import Experiment
-from analytic.farm import FarmClient
-from broker.status import BrokerUnavailable, query_status
-from schemas import TrajectorySpec
-from schemas.robot import PLANTS
-from schemas.transport import open_session
-from worker.service import CobotWorker
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.experiments import base as experiments
+from gainfarm.analytic.experiments.base import Experiment
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.broker.status import BrokerUnavailable, query_status
+from gainfarm.schemas import TrajectorySpec
+from gainfarm.schemas.robot import PLANTS
+from gainfarm.schemas.transport import open_session
+from gainfarm.worker.service import CobotWorker
 
 WORKERS_PER_LOAD = 32  # simulated cobots per load process, each with its own session
 SIZES = (10, 20, 30, 50, 80)
@@ -125,7 +125,7 @@ def main(
             [
                 sys.executable,
                 "-m",
-                "analytic",
+                "gainfarm.analytic",
                 "experiment",
                 name,
                 "--reps",

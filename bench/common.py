@@ -22,14 +22,14 @@ from collections.abc import Callable, Iterable, Sequence
 import numpy as np
 import zenoh
 
-from analytic.farm import ANSWER_SECONDS, CONFIRM_BATCH, SUBMIT_CHUNK
-from analytic.local import free_port
-from broker.status import BrokerUnavailable, query_status
-from schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
-from schemas.ask import Answer, ask
-from schemas.gains import DEFAULT_GAINS
-from schemas.transport import open_session
-from schemas.wire import (
+from gainfarm.analytic.evaluators.farm import ANSWER_SECONDS, CONFIRM_BATCH, SUBMIT_CHUNK
+from gainfarm.analytic.evaluators.local import free_port
+from gainfarm.broker.status import BrokerUnavailable, query_status
+from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
+from gainfarm.schemas.ask import Answer, ask
+from gainfarm.schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas.transport import open_session
+from gainfarm.schemas.wire import (
     LEASE_HOLD_SECONDS,
     PROTOCOL_VERSION,
     Job,

@@ -22,14 +22,14 @@ import numpy as np
 from common import print_table
 from mujoco import rollout
 
-from schemas import EpisodeSpec, TrajectorySpec
-from schemas.gains import DEFAULT_GAINS
-from schemas.mcap_episode import read_episode, write_episode
-from schemas.objectives import score
-from schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
-from worker.episode import gravity_torques, run_episode
-from worker.plant import Plant
-from worker.reference import reference_for
+from gainfarm.schemas import EpisodeSpec, TrajectorySpec
+from gainfarm.schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas.mcap_episode import read_episode, write_episode
+from gainfarm.schemas.objectives import score
+from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
+from gainfarm.worker.episode import gravity_torques, run_episode
+from gainfarm.worker.plant import Plant
+from gainfarm.worker.reference import reference_for
 
 
 def c_loop(spec: EpisodeSpec) -> Callable[[], None]:

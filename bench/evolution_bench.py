@@ -18,11 +18,11 @@ from pathlib import Path
 import click
 from common import print_table
 
-from analytic.config import RunConfig
-from analytic.farm import FarmClient
-from analytic.local import local_farm
-from analytic.run import TuningRun
-from schemas import TrajectorySpec
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.local import local_farm
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.run import TuningRun
+from gainfarm.schemas import TrajectorySpec
 
 TRAJECTORIES = tuple(
     TrajectorySpec(kind=kind, duration=5.0) for kind in ("spiral", "random", "pyramid")

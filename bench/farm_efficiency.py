@@ -26,11 +26,11 @@ from pathlib import Path
 import click
 from common import SPAWN, episode_specs
 
-from analytic.evaluator import EvaluationStatus, accept_log
-from analytic.farm import FarmClient
-from analytic.local import local_farm
-from schemas import EpisodeSpec
-from worker.job import simulate
+from gainfarm.analytic.evaluators.evaluator import EvaluationStatus, accept_log
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.local import local_farm
+from gainfarm.schemas import EpisodeSpec
+from gainfarm.worker.job import simulate
 
 WORKERS = 2  # farm workers and pool processes
 

@@ -31,20 +31,20 @@ import numpy as np
 from matplotlib.figure import Figure
 from scipy import stats
 
-from analytic.batch import batch_jobs, run_batch
-from analytic.config import RunConfig
-from analytic.dataset import build as build_dataset
-from analytic.evolution import hypervolume, non_dominated_indices
-from analytic.farm import FarmClient
-from analytic.learning import learn
-from analytic.local import local_farm
-from analytic.records import read_run
-from analytic.run import TuningRun
-from analytic.tuning import new_study_name
-from models.dynamics import digest
-from schemas.objectives import NO_EPISODE, objectives
-from schemas.robot import PLANTS
-from schemas.trajectory import TrajectorySpec
+from gainfarm.analytic.data.dataset import build as build_dataset
+from gainfarm.analytic.data.learning import learn
+from gainfarm.analytic.evaluators.batch import batch_jobs, run_batch
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.local import local_farm
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.evolution import hypervolume, non_dominated_indices
+from gainfarm.analytic.tuning.records import read_run
+from gainfarm.analytic.tuning.run import TuningRun
+from gainfarm.analytic.tuning.tune import new_study_name
+from gainfarm.models.dynamics import digest
+from gainfarm.schemas.objectives import NO_EPISODE, objectives
+from gainfarm.schemas.robot import PLANTS
+from gainfarm.schemas.trajectory import TrajectorySpec
 
 DURATION = 3.0  # s: the paper's shortest episodes, feasible for every Cartesian kind
 TRAINING = tuple(

@@ -17,10 +17,10 @@ from pathlib import Path
 import click
 from common import print_table
 
-from analytic.config import RunConfig
-from analytic.farm import FarmClient
-from analytic.local import local_farm
-from analytic.run import TuningRun
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.local import local_farm
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.run import TuningRun
 
 
 def tune(endpoint: str, config: RunConfig, directory: Path) -> tuple[TuningRun, float]:

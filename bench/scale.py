@@ -45,12 +45,12 @@ from pathlib import Path
 import click
 from common import SPAWN, NoopWorker, episode_specs, loopback_endpoint, percentile_ms
 
-from analytic.farm import FarmClient
-from broker.status import BrokerUnavailable, query_status
-from schemas.episode import EpisodeSpec
-from schemas.transport import open_session
-from schemas.wire import WireScores
-from worker.job import simulate
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.broker.status import BrokerUnavailable, query_status
+from gainfarm.schemas.episode import EpisodeSpec
+from gainfarm.schemas.transport import open_session
+from gainfarm.schemas.wire import WireScores
+from gainfarm.worker.job import simulate
 
 WORKERS_PER_LOAD = 256  # simulated workers per load process
 SESSIONS_PER_LOAD = 8  # sessions a load process's workers share
@@ -177,7 +177,7 @@ def broker_process(endpoint: str, queued: int):
         [
             sys.executable,
             "-m",
-            "broker",
+            "gainfarm.broker",
             "start",
             "--listen",
             endpoint,

@@ -57,16 +57,16 @@ from soak_summary import (
     samples_csv,
 )
 
-from analytic import replication
-from analytic.evaluator import Evaluation, Wanted
-from analytic.farm import FarmClient
-from analytic.local import STOP_SECONDS, spawn_worker
-from broker.status import BrokerUnavailable
-from schemas import EpisodeSpec, TrajectorySpec, keys
-from schemas.files import write_atomically
-from schemas.gains import DEFAULT_GAINS
-from schemas.transport import open_session, token_held
-from schemas.wire import BadMessage, BrokerStatus
+from gainfarm.analytic.evaluators import replication
+from gainfarm.analytic.evaluators.evaluator import Evaluation, Wanted
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.local import STOP_SECONDS, spawn_worker
+from gainfarm.broker.status import BrokerUnavailable
+from gainfarm.schemas import EpisodeSpec, TrajectorySpec, keys
+from gainfarm.schemas.files import write_atomically
+from gainfarm.schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas.transport import open_session, token_held
+from gainfarm.schemas.wire import BadMessage, BrokerStatus
 
 STUDY = "soak"
 DURATIONS = (0.2, 0.3, 0.4, 0.5)  # s of simulated motion per job (fourier: feasible at any)
@@ -169,7 +169,7 @@ class Sampler:
 
 def start_broker(endpoint: str, lease_seconds: float, log: Path | None) -> subprocess.Popen:
     stderr = log.open("ab") if log is not None else None
-    command = [sys.executable, "-m", "broker", "start", "--listen", endpoint]
+    command = [sys.executable, "-m", "gainfarm.broker", "start", "--listen", endpoint]
     command += ["--lease-seconds", str(lease_seconds)]
     command += ["--log-level", "info" if log is not None else "warning"]
     broker = subprocess.Popen(command, stdin=subprocess.DEVNULL, stderr=stderr)

@@ -29,8 +29,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from analytic.evaluator import Evaluation, EvaluationStatus
-from schemas.wire import BrokerStatus
+from gainfarm.analytic.evaluators.evaluator import Evaluation, EvaluationStatus
+from gainfarm.schemas.wire import BrokerStatus
 
 SAMPLE_COLUMNS = ("seconds", "role", "name", "pid", "rss_mib", "anon_mib", "shmem_mib")
 

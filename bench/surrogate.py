@@ -14,12 +14,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from models.dynamics import DynamicsModel
-from schemas.episode import EpisodeSpec, Scores
-from schemas.files import write_atomically
-from schemas.mcap_episode import NotAnEpisodeLog
-from schemas.wire import JobStatus, Timings
-from worker.job import Outcome, Simulate
+from gainfarm.models.dynamics import DynamicsModel
+from gainfarm.schemas.episode import EpisodeSpec, Scores
+from gainfarm.schemas.files import write_atomically
+from gainfarm.schemas.mcap_episode import NotAnEpisodeLog
+from gainfarm.schemas.wire import JobStatus, Timings
+from gainfarm.worker.job import Outcome, Simulate
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository, for tests/
 from tests.analytic.toy import toy_scores

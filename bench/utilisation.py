@@ -24,8 +24,8 @@ from multiprocessing.connection import Connection
 import click
 from common import SPAWN, FakeAnalytic, NoopWorker, loopback_endpoint, percentile_ms
 
-from broker.service import Broker
-from schemas.transport import open_session
+from gainfarm.broker.service import Broker
+from gainfarm.schemas.transport import open_session
 
 SIM_SESSIONS = 8  # sessions the simulated workers share
 

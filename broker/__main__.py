@@ -1,10 +1,10 @@
 """`broker` and `python -m broker`: Ctrl-C is taken over before broker.cli's imports begin."""
 
-from cli.interrupts import launch
+from gainfarm.cli.interrupts import launch
 
 
 def main() -> None:
-    launch("broker.cli", "broker")
+    launch("gainfarm.broker.cli", "broker")
 
 
 if __name__ == "__main__":

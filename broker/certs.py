@@ -26,8 +26,8 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from schemas.files import write_atomically
-from schemas.security import (
+from gainfarm.schemas.files import write_atomically
+from gainfarm.schemas.security import (
     BROKER,
     CA_CERTIFICATE,
     PARTICIPANT_ROLES,

@@ -17,27 +17,27 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
-from broker.certs import (
+from gainfarm.broker.certs import (
     DEFAULT_ANALYTICS,
     DEFAULT_HOSTS,
     DEFAULT_WORKERS,
     write_dev_credentials,
 )
-from broker.certs import revoke as revoke_identity
-from broker.queue import DEFAULT_MAX_QUEUED, DEFAULT_MAX_QUEUED_PER_STUDY
-from broker.service import DEFAULT_LISTEN, Broker
-from broker.status import BrokerUnavailable, query_status
-from cli import interrupts, options
-from cli.app import CliError, program_group, run_app, setup_logging
-from schemas.security import (
+from gainfarm.broker.certs import revoke as revoke_identity
+from gainfarm.broker.queue import DEFAULT_MAX_QUEUED, DEFAULT_MAX_QUEUED_PER_STUDY
+from gainfarm.broker.service import DEFAULT_LISTEN, Broker
+from gainfarm.broker.status import BrokerUnavailable, query_status
+from gainfarm.cli import interrupts, options
+from gainfarm.cli.app import CliError, program_group, run_app, setup_logging
+from gainfarm.schemas.security import (
     PARTICIPANT_RULE,
     ROLES,
     Role,
     is_participant_name,
     participants,
 )
-from schemas.transport import open_session
-from schemas.wire import BadMessage, BrokerStatus
+from gainfarm.schemas.transport import open_session
+from gainfarm.schemas.wire import BadMessage, BrokerStatus
 
 log = logging.getLogger("gainfarm.broker")
 

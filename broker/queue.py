@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from itertools import islice
 from typing import Generic, TypeVar
 
-from schemas.wire import (
+from gainfarm.schemas.wire import (
     Accepted,
     Job,
     Lease,

@@ -17,17 +17,17 @@ from collections.abc import Callable, Sequence
 
 import zenoh
 
-from broker.queue import (
+from gainfarm.broker.queue import (
     DEFAULT_MAX_QUEUED,
     DEFAULT_MAX_QUEUED_PER_STUDY,
     Assignment,
     LeaseQueue,
     UnknownStudy,
 )
-from schemas import keys
-from schemas.security import TlsIdentity
-from schemas.transport import open_session
-from schemas.wire import (
+from gainfarm.schemas import keys
+from gainfarm.schemas.security import TlsIdentity
+from gainfarm.schemas.transport import open_session
+from gainfarm.schemas.wire import (
     LEASE_HOLD_SECONDS,
     BadMessage,
     BrokerStatus,

@@ -2,9 +2,9 @@
 
 import zenoh
 
-from schemas import keys
-from schemas.ask import ask
-from schemas.wire import BadMessage, BrokerStatus, decode
+from gainfarm.schemas import keys
+from gainfarm.schemas.ask import ask
+from gainfarm.schemas.wire import BadMessage, BrokerStatus, decode
 
 
 class BrokerUnavailable(ConnectionError):

@@ -1,6 +1,6 @@
 """Robot models: the rigid iiwa 14 MJCF and the elastic-joint variant generated from it."""
 
-from models.iiwa14 import (
+from gainfarm.models.iiwa14 import (
     CAD_INERTIALS,
     FLANGE,
     MAX_STEP_RATIO,

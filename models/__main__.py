@@ -10,7 +10,7 @@ import sys
 import mujoco
 import numpy as np
 
-from models.iiwa14 import (
+from gainfarm.models.iiwa14 import (
     CAD_INERTIALS,
     READY_POSTURE,
     UPRIGHT_POSTURE,
@@ -19,7 +19,7 @@ from models.iiwa14 import (
     elastic_modes,
     min_substeps,
 )
-from schemas.robot import STIFFNESS_PRESETS, ModelSpec
+from gainfarm.schemas.robot import STIFFNESS_PRESETS, ModelSpec
 
 INERTIALS = ("open", "cad")
 

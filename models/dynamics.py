@@ -37,9 +37,9 @@ import mujoco
 import numpy as np
 from pydantic import ValidationError
 
-from models.iiwa14 import build_spec, compile_model
-from schemas.files import write_atomically
-from schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
+from gainfarm.models.iiwa14 import build_spec, compile_model
+from gainfarm.schemas.files import write_atomically
+from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
 
 if TYPE_CHECKING:
     import pinocchio  # for annotations only; imported at run time by _pinocchio()

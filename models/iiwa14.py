@@ -21,12 +21,12 @@ from importlib.resources import files
 import mujoco
 import numpy as np
 
-from schemas.robot import JOINT_NAMES, ModelSpec
-from schemas.trajectory import CONTROL_PERIOD
+from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
+from gainfarm.schemas.trajectory import CONTROL_PERIOD
 
 log = logging.getLogger("gainfarm.models")
 
-RIGID_MJCF = files("models").joinpath("iiwa14.xml")
+RIGID_MJCF = files("gainfarm.models").joinpath("iiwa14.xml")
 FLANGE = "flange"  # the site at the flange's centre: the end effector every trajectory moves
 
 # The "cad" inertial set, as changes to the "open" one in models/iiwa14.xml. Per link: mass in kg

@@ -23,8 +23,8 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from models.iiwa14 import FLANGE, RIGID_MJCF
-from schemas.robot import JOINT_NAMES, SPEED_LIMITS
+from gainfarm.models.iiwa14 import FLANGE, RIGID_MJCF
+from gainfarm.schemas.robot import JOINT_NAMES, SPEED_LIMITS
 
 WORLD = "world"  # the frame the episode's points are in: MuJoCo's world, the robot's base frame
 ROBOT_NAME = "iiwa14"

@@ -1,10 +1,10 @@
 """The wire contract: every message, file layout and key every other package agrees on."""
 
-from schemas.episode import EpisodeMetadata, EpisodeSpec, Scores
-from schemas.episode_log import CHANNELS, EpisodeLog
-from schemas.gains import PDGains
-from schemas.robot import JOINT_NAMES, N_JOINTS, TORQUE_LIMITS, ModelSpec
-from schemas.trajectory import CONTROL_PERIOD, TrajectoryKind, TrajectorySpec
+from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec, Scores
+from gainfarm.schemas.episode_log import CHANNELS, EpisodeLog
+from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, TORQUE_LIMITS, ModelSpec
+from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectoryKind, TrajectorySpec
 
 __all__ = [
     "CHANNELS",

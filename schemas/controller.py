@@ -15,10 +15,10 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from schemas.gains import PDGains, PerJointGains
-from schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
-from schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
-from schemas.wire import describe
+from gainfarm.schemas.gains import PDGains, PerJointGains
+from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
+from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
+from gainfarm.schemas.wire import describe
 
 FORMAT = "gainfarm-controller/1"
 UNITS = {"kp": "N·m/rad", "kd": "N·m·s/rad", "f_acc": "m", "f_t": "(N·m)²"}

@@ -4,9 +4,9 @@ from typing import Self
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from schemas.gains import PDGains
-from schemas.robot import ModelSpec
-from schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
+from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 
 
 class EpisodeSpec(BaseModel):

@@ -4,7 +4,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from schemas.robot import N_JOINTS
+from gainfarm.schemas.robot import N_JOINTS
 
 Gain = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 PerJointGains = Annotated[tuple[Gain, ...], Field(min_length=N_JOINTS, max_length=N_JOINTS)]

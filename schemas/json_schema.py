@@ -1,7 +1,7 @@
 """JSON Schema files for every wire message, generated from the pydantic models.
 
-    python -m schemas.json_schema          # rewrite schemas/json/ from the models
-    python -m schemas.json_schema --check  # exit 1 if the files are stale (the tests do this)
+    python -m gainfarm.schemas.json_schema          # rewrite schemas/json/ from the models
+    python -m gainfarm.schemas.json_schema --check  # exit 1 if stale (the tests do this)
 
 The models are the source of truth; the files are for whoever talks to the farm from another
 language, and for review: a change to the wire shows up as a diff here.
@@ -11,8 +11,8 @@ import json
 import sys
 from pathlib import Path
 
-from schemas.files import write_atomically
-from schemas.wire import MESSAGES
+from gainfarm.schemas.files import write_atomically
+from gainfarm.schemas.wire import MESSAGES
 
 DIRECTORY = Path(__file__).parent / "json"
 
@@ -49,7 +49,10 @@ if __name__ == "__main__":
     if sys.argv[1:] == ["--check"]:
         outdated = stale()
         if outdated:
-            print(f"stale JSON schemas: {', '.join(outdated)}; run python -m schemas.json_schema")
+            print(
+                f"stale JSON schemas: {', '.join(outdated)}; "
+                "run python -m gainfarm.schemas.json_schema"
+            )
             sys.exit(1)
     else:
         write()

@@ -55,9 +55,9 @@ from mcap.writer import MCAP0_MAGIC
 from pydantic import ValidationError
 from rosbags.typesys import Stores, get_typestore
 
-from models.urdf import rotations, tree, urdf
-from schemas.episode import EpisodeMetadata
-from schemas.episode_log import (
+from gainfarm.models.urdf import rotations, tree, urdf
+from gainfarm.schemas.episode import EpisodeMetadata
+from gainfarm.schemas.episode_log import (
     CHANNELS,
     DESCRIPTION_TOPIC,
     METADATA_NAME,
@@ -68,9 +68,9 @@ from schemas.episode_log import (
     Channel,
     EpisodeLog,
 )
-from schemas.files import write_atomically
-from schemas.robot import JOINT_NAMES, N_JOINTS
-from schemas.wire import MAX_EPISODE_BYTES
+from gainfarm.schemas.files import write_atomically
+from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS
+from gainfarm.schemas.wire import MAX_EPISODE_BYTES
 
 NANOSECONDS = 1_000_000_000
 CHUNK_SIZE = 4 * 1024 * 1024  # uncompressed bytes of messages per chunk, at most (~12 s of ticks)

@@ -20,8 +20,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from schemas.episode import Scores
-from schemas.episode_log import EpisodeLog
+from gainfarm.schemas.episode import Scores
+from gainfarm.schemas.episode_log import EpisodeLog
 
 DIVERGED_TICK_ERROR = 1.0  # m: more than any real tracking error (the arm's reach is 0.82 m)
 SATURATION_TOLERANCE = 1e-9  # N·m: a torque this close to its limit is saturated

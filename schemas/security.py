@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, cast, get_args
 
-from schemas import keys
+from gainfarm.schemas import keys
 
 Role = Literal["broker", "analytic", "worker"]
 ROLES: tuple[Role, ...] = get_args(Role)

@@ -18,7 +18,7 @@ from typing import Literal
 
 import zenoh
 
-from schemas.security import TlsIdentity, access_control, participants
+from gainfarm.schemas.security import TlsIdentity, access_control, participants
 
 # A connection is accepted in two steps, and Zenoh bounds each (the defaults, 100 pending for up
 # to 10 s each, let 300 idle sockets lock everyone out for 10 s, tests/broker/test_flood.py):

@@ -18,7 +18,7 @@ from pydantic import (
     model_validator,
 )
 
-from schemas.episode import EpisodeSpec, Scores
+from gainfarm.schemas.episode import EpisodeSpec, Scores
 
 # 5: leases in batches, results handed in with the next lease request; 4: results carry the
 # worker's scores, and the log only when the job asks to keep it (the worker keeps the others, to

@@ -6,13 +6,13 @@ from collections.abc import Iterator
 import pytest
 import zenoh
 
-from analytic.local import free_port
-from broker.service import Broker
-from schemas import EpisodeSpec, TrajectorySpec
-from schemas.episode_log import EpisodeLog
-from schemas.transport import open_session
+from gainfarm.analytic.evaluators.local import free_port
+from gainfarm.broker.service import Broker
+from gainfarm.schemas import EpisodeSpec, TrajectorySpec
+from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.transport import open_session
+from gainfarm.worker.episode import run_episode
 from tests.helpers import TRACKING_GAINS, WEAK_GAINS
-from worker.episode import run_episode
 
 
 @pytest.fixture(scope="session")

@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from broker.queue import LeaseQueue
-from broker.service import Broker
-from schemas import EpisodeMetadata, EpisodeSpec, PDGains, TrajectorySpec, keys
-from schemas.ask import ask
-from schemas.episode_log import EpisodeLog
-from schemas.mcap_episode import episode_bytes
-from schemas.robot import TORQUE_LIMITS
-from schemas.wire import (
+from gainfarm.broker.queue import LeaseQueue
+from gainfarm.broker.service import Broker
+from gainfarm.schemas import EpisodeMetadata, EpisodeSpec, PDGains, TrajectorySpec, keys
+from gainfarm.schemas.ask import ask
+from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.mcap_episode import episode_bytes
+from gainfarm.schemas.robot import TORQUE_LIMITS
+from gainfarm.schemas.wire import (
     Job,
     JobStatus,
     Lease,
@@ -180,7 +180,7 @@ def perfect_log(spec: EpisodeSpec) -> bytes:
 def analytic(*arguments: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     """`python -m analytic ARGUMENTS` in `cwd`, its output captured (wide, for rich's lines)."""
     return subprocess.run(
-        [sys.executable, "-m", "analytic", *arguments],
+        [sys.executable, "-m", "gainfarm.analytic", *arguments],
         cwd=cwd,
         capture_output=True,
         text=True,

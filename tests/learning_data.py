@@ -13,11 +13,11 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from schemas import EpisodeSpec, PDGains, TrajectorySpec
-from schemas.episode_log import EpisodeLog
-from schemas.robot import JOINT_NAMES, ModelSpec
-from schemas.trajectory import CONTROL_PERIOD
-from worker.episode import run_episode
+from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec
+from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
+from gainfarm.schemas.trajectory import CONTROL_PERIOD
+from gainfarm.worker.episode import run_episode
 
 # Gains that track the fourier excitations within some 0.05 rad and keep the realistic plant calm
 # (peak link acceleration some 25 rad/s²), as a tuned controller does. tests.helpers'

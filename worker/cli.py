@@ -13,22 +13,22 @@ import click
 from click.core import ParameterSource
 from pydantic import ValidationError
 
-from cli import options
-from cli.app import CliError, parse_numbers, program_group, run_app, setup_logging
-from cli.scores import show_scores
-from models.dynamics import digest
-from schemas.controller import BadGains, read_gains
-from schemas.episode import EpisodeSpec
-from schemas.gains import DEFAULT_GAINS, PDGains
-from schemas.mcap_episode import write_episode
-from schemas.objectives import score
-from schemas.robot import N_JOINTS
-from schemas.wire import NAME_PATTERN, NAME_RULE, describe
-from worker.episode import run_episode
-from worker.feedforward import ModelCache
-from worker.ik import UnreachablePath
-from worker.reference import InfeasibleReference
-from worker.service import CobotWorker, NameTaken
+from gainfarm.cli import options
+from gainfarm.cli.app import CliError, parse_numbers, program_group, run_app, setup_logging
+from gainfarm.cli.scores import show_scores
+from gainfarm.models.dynamics import digest
+from gainfarm.schemas.controller import BadGains, read_gains
+from gainfarm.schemas.episode import EpisodeSpec
+from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
+from gainfarm.schemas.mcap_episode import write_episode
+from gainfarm.schemas.objectives import score
+from gainfarm.schemas.robot import N_JOINTS
+from gainfarm.schemas.wire import NAME_PATTERN, NAME_RULE, describe
+from gainfarm.worker.episode import run_episode
+from gainfarm.worker.feedforward import ModelCache
+from gainfarm.worker.ik import UnreachablePath
+from gainfarm.worker.reference import InfeasibleReference
+from gainfarm.worker.service import CobotWorker, NameTaken
 
 DEFAULT_KP = ",".join(f"{gain:g}" for gain in DEFAULT_GAINS.kp)
 DEFAULT_KD = ",".join(f"{gain:g}" for gain in DEFAULT_GAINS.kd)

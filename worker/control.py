@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from schemas.gains import PDGains
+from gainfarm.schemas.gains import PDGains
 
 
 @dataclass(frozen=True)

@@ -17,16 +17,16 @@ from importlib.metadata import version
 import mujoco
 import numpy as np
 
-from models import compile_model
-from models.dynamics import DynamicsModel
-from schemas.episode import EpisodeMetadata, EpisodeSpec
-from schemas.episode_log import EpisodeLog
-from schemas.robot import JOINT_NAMES, ModelSpec
-from schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
-from worker.control import PDController
-from worker.plant import Plant
-from worker.reference import Reference, reference_for
-from worker.sensors import LINK, MOTOR, TORQUE, Encoders, friction_torque, noise
+from gainfarm.models import compile_model
+from gainfarm.models.dynamics import DynamicsModel
+from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec
+from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
+from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
+from gainfarm.worker.control import PDController
+from gainfarm.worker.plant import Plant
+from gainfarm.worker.reference import Reference, reference_for
+from gainfarm.worker.sensors import LINK, MOTOR, TORQUE, Encoders, friction_torque, noise
 
 CHECK_EVERY = 250  # ticks between divergence checks (0.5 s): cheap, and early enough
 MAX_JOINT_ERROR = 1.0  # rad: a tracking error this large is a lost arm, not a tuning trade-off

@@ -11,7 +11,7 @@ speeds and accelerations) need.
 import mujoco
 import numpy as np
 
-from schemas.robot import POSITION_LIMITS
+from gainfarm.schemas.robot import POSITION_LIMITS
 
 # A ready posture with the flange pointing down over the workspace centre (0.55, 0, 0.40).
 READY_POSTURE = np.array([0.0, 0.5, 0.0, -1.6, 0.0, 1.0, 0.0])

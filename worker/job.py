@@ -12,15 +12,15 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from models.dynamics import DynamicsModel
-from schemas.episode import EpisodeSpec, Scores
-from schemas.mcap_episode import episode_bytes
-from schemas.objectives import score
-from schemas.wire import JobStatus, Lease, Result, Timings, WireScores
-from worker.episode import run_episode
-from worker.feedforward import ModelUnavailable
-from worker.ik import UnreachablePath
-from worker.reference import InfeasibleReference
+from gainfarm.models.dynamics import DynamicsModel
+from gainfarm.schemas.episode import EpisodeSpec, Scores
+from gainfarm.schemas.mcap_episode import episode_bytes
+from gainfarm.schemas.objectives import score
+from gainfarm.schemas.wire import JobStatus, Lease, Result, Timings, WireScores
+from gainfarm.worker.episode import run_episode
+from gainfarm.worker.feedforward import ModelUnavailable
+from gainfarm.worker.ik import UnreachablePath
+from gainfarm.worker.reference import InfeasibleReference
 
 REASON_LIMIT = 2000  # characters: Result.reason's bound
 

@@ -9,8 +9,8 @@ its gain matrices and the log can be computed in bulk after the episode.
 import mujoco
 import numpy as np
 
-from models import FLANGE, compile_model
-from schemas.robot import JOINT_NAMES, ModelSpec
+from gainfarm.models import FLANGE, compile_model
+from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
 
 
 class Plant:

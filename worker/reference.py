@@ -27,8 +27,8 @@ import mujoco
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from models import FLANGE, compile_model
-from schemas.robot import (
+from gainfarm.models import FLANGE, compile_model
+from gainfarm.schemas.robot import (
     ACCELERATION_LIMITS,
     JOINT_NAMES,
     N_JOINTS,
@@ -36,8 +36,8 @@ from schemas.robot import (
     SPEED_LIMITS,
     ModelSpec,
 )
-from schemas.trajectory import MIN_DURATION, TrajectoryKind, TrajectorySpec
-from worker.ik import (
+from gainfarm.schemas.trajectory import MIN_DURATION, TrajectoryKind, TrajectorySpec
+from gainfarm.worker.ik import (
     ORIENTATION_TOLERANCE,
     REACH_TOLERANCE,
     READY_POSTURE,
@@ -45,7 +45,7 @@ from worker.ik import (
     ready_posture,
     solve_path,
 )
-from worker.trajectories import (
+from gainfarm.worker.trajectories import (
     fourier_coefficients,
     fourier_series,
     minimum_jerk_derivatives,

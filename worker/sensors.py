@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from schemas.robot import N_JOINTS, Friction, Sensors
-from schemas.trajectory import CONTROL_PERIOD
+from gainfarm.schemas.robot import N_JOINTS, Friction, Sensors
+from gainfarm.schemas.trajectory import CONTROL_PERIOD
 
 LINK, MOTOR, TORQUE = range(3)  # the noise streams: link encoders, motor encoders, torque sensors
 

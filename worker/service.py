@@ -19,12 +19,12 @@ from dataclasses import dataclass
 
 import zenoh
 
-from models.dynamics import MAX_FILE_BYTES, DynamicsModel, digest
-from schemas import keys
-from schemas.ask import ask
-from schemas.security import TlsIdentity
-from schemas.transport import open_session, token_held
-from schemas.wire import (
+from gainfarm.models.dynamics import MAX_FILE_BYTES, DynamicsModel, digest
+from gainfarm.schemas import keys
+from gainfarm.schemas.ask import ask
+from gainfarm.schemas.security import TlsIdentity
+from gainfarm.schemas.transport import open_session, token_held
+from gainfarm.schemas.wire import (
     LEASE_HOLD_SECONDS,
     MAX_BATCH,
     BadMessage,
@@ -36,9 +36,9 @@ from schemas.wire import (
     Verdict,
     decode,
 )
-from worker.feedforward import ModelCache
-from worker.job import Simulate, execute, simulate
-from worker.logstore import LogStore
+from gainfarm.worker.feedforward import ModelCache
+from gainfarm.worker.job import Simulate, execute, simulate
+from gainfarm.worker.logstore import LogStore
 
 log = logging.getLogger("gainfarm.worker")
 

@@ -12,7 +12,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.interpolate import BSpline, CubicSpline
 
-from schemas.trajectory import CONTROL_PERIOD_NS, TrajectoryKind, TrajectorySpec
+from gainfarm.schemas.trajectory import CONTROL_PERIOD_NS, TrajectoryKind, TrajectorySpec
 
 CARTESIAN_KINDS = (TrajectoryKind.spiral, TrajectoryKind.random, TrajectoryKind.pyramid)
 # The flange frame pointing straight down (columns: its x, y, z axes in the base frame): the

@@ -10,12 +10,12 @@ import sys
 import threading
 from collections.abc import Callable
 
-import worker.service
-from models.dynamics import DynamicsModel
-from schemas.mcap_episode import decode_episode, episode_bytes
-from schemas.objectives import score
-from schemas.wire import Lease, Result, WireScores
-from worker.job import Simulate, execute, simulate
+from gainfarm.models.dynamics import DynamicsModel
+from gainfarm.schemas.mcap_episode import decode_episode, episode_bytes
+from gainfarm.schemas.objectives import score
+from gainfarm.schemas.wire import Lease, Result, WireScores
+from gainfarm.worker import service
+from gainfarm.worker.job import Simulate, execute, simulate
 
 
 def lying_execute(
@@ -52,10 +52,10 @@ def boasting_execute(
 
 def main() -> None:
     endpoint, name = sys.argv[1:3]
-    worker.service.execute = boasting_execute if "--scores" in sys.argv[3:] else lying_execute
+    service.execute = boasting_execute if "--scores" in sys.argv[3:] else lying_execute
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    with worker.service.CobotWorker([endpoint], name) as cobot:
+    with service.CobotWorker([endpoint], name) as cobot:
         cobot.serve(stop)
 
 

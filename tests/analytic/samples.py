@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from analytic.records import FrontMember, HistoryRow
+from gainfarm.analytic.tuning.records import FrontMember, HistoryRow
 
 KP = (2000.0, 2000.0, 1200.0, 1200.0, 400.0, 200.0, 100.0)
 KD = (20.0, 20.0, 15.0, 15.0, 4.0, 2.0, 1.0)

@@ -9,17 +9,17 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from analytic import algorithm_study as study
-from analytic import statistics as analytic_stats
-from analytic.config import RunConfig
-from analytic.experiments import Experiment, Normalisation, non_dominated
-from analytic.inprocess import InProcessEvaluator
-from analytic.records import HistoryRow, read_run
-from analytic.statistics import holm
-from analytic.termination import Termination
-from schemas import EpisodeSpec, Scores, TrajectorySpec
-from schemas.gains import DEFAULT_GAINS
-from schemas.objectives import NO_EPISODE
+from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+from gainfarm.analytic.experiments import algorithms as study
+from gainfarm.analytic.experiments import statistics as analytic_stats
+from gainfarm.analytic.experiments.base import Experiment, Normalisation, non_dominated
+from gainfarm.analytic.experiments.statistics import holm
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.records import HistoryRow, read_run
+from gainfarm.analytic.tuning.termination import Termination
+from gainfarm.schemas import EpisodeSpec, Scores, TrajectorySpec
+from gainfarm.schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas.objectives import NO_EPISODE
 from tests.analytic.toy import toy_scores
 
 BUDGET = 24

@@ -10,18 +10,18 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from analytic.checkpoint import ALLOWED, decode, encode
-from analytic.classical import classical_gains, joint_inertias, rule
-from analytic.config import RunConfig
-from analytic.evolution import ALGORITHMS, Evolution, normalise
-from analytic.inprocess import InProcessEvaluator
-from analytic.records import RunIdentity, read_run
-from analytic.run import RunProgress, TuningRun
-from analytic.search_space import SearchSpace
-from schemas import EpisodeSpec, TrajectorySpec
-from schemas.objectives import objectives
-from schemas.robot import ModelSpec
-from schemas.wire import describe
+from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+from gainfarm.analytic.experiments.classical import classical_gains, joint_inertias, rule
+from gainfarm.analytic.tuning.checkpoint import ALLOWED, decode, encode
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.evolution import ALGORITHMS, Evolution, normalise
+from gainfarm.analytic.tuning.records import RunIdentity, read_run
+from gainfarm.analytic.tuning.run import RunProgress, TuningRun
+from gainfarm.analytic.tuning.search_space import SearchSpace
+from gainfarm.schemas import EpisodeSpec, TrajectorySpec
+from gainfarm.schemas.objectives import objectives
+from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.wire import describe
 from tests.analytic.test_run_in_process import Interrupt, Shuffled, tune
 from tests.analytic.toy import toy_scores
 from tests.helpers import analytic

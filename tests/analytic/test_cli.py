@@ -14,13 +14,13 @@ from pathlib import Path
 
 import pytest
 
-from analytic.local import free_port, spawn_worker, stop_workers
-from analytic.records import FRONT_FIELDS, read_front_json
-from broker.service import Broker
-from schemas.mcap_episode import write_episode
+from gainfarm.analytic.evaluators.local import free_port, spawn_worker, stop_workers
+from gainfarm.analytic.tuning.records import FRONT_FIELDS, read_front_json
+from gainfarm.broker.service import Broker
+from gainfarm.schemas.mcap_episode import write_episode
 from tests.helpers import analytic, crafted_log
 
-ANALYTIC = [sys.executable, "-c", "from analytic.cli import main; main()"]
+ANALYTIC = [sys.executable, "-c", "from gainfarm.analytic.cli import main; main()"]
 
 
 def test_evaluate_scores_a_crafted_log_from_the_file(tmp_path):
@@ -230,7 +230,9 @@ def test_start_says_it_waits_for_workers_while_the_broker_has_none(
 
 def test_start_says_when_it_lost_the_broker_and_waits(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    broker = subprocess.Popen([sys.executable, "-m", "broker", "start", "--listen", endpoint])
+    broker = subprocess.Popen(
+        [sys.executable, "-m", "gainfarm.broker", "start", "--listen", endpoint]
+    )
     worker = spawn_worker(endpoint, "w")
     command = [*ANALYTIC, "start", *SHORT_RUN, "--generations", "50000", "--connect", endpoint]
     running = subprocess.Popen(

@@ -5,11 +5,11 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from analytic.config import RunConfig
-from analytic.reports import run_setup
-from analytic.run import TuningRun
-from schemas.trajectory import TrajectorySpec
-from schemas.wire import describe
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.run import TuningRun
+from gainfarm.analytic.view.reports import run_setup
+from gainfarm.schemas.trajectory import TrajectorySpec
+from gainfarm.schemas.wire import describe
 
 
 def test_generations_and_evaluations_exclude_each_other() -> None:

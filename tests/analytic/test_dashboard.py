@@ -19,10 +19,10 @@ from selenium import webdriver
 from selenium.common.exceptions import WebDriverException
 from selenium.webdriver.chrome.service import Service
 
-from analytic.dashboard import find_runs, run_view
-from analytic.local import free_port, spawn_worker, stop_workers
-from analytic.records import HISTORY_CSV, read_front, read_history
-from broker.service import Broker
+from gainfarm.analytic.evaluators.local import free_port, spawn_worker, stop_workers
+from gainfarm.analytic.tuning.records import HISTORY_CSV, read_front, read_history
+from gainfarm.analytic.view.dashboard import find_runs, run_view
+from gainfarm.broker.service import Broker
 from tests.helpers import analytic
 
 CHROMIUM, CHROMEDRIVER = shutil.which("chromium"), shutil.which("chromedriver")
@@ -72,7 +72,7 @@ def dashboard(*arguments: str, cwd: Path) -> Iterator[str]:
     address once it serves; Ctrl-C ends it (which must then exit 130, having said so)."""
     port = free_port()
     process = subprocess.Popen(
-        [sys.executable, "-m", "analytic", "dashboard", *arguments, "--port", str(port)],
+        [sys.executable, "-m", "gainfarm.analytic", "dashboard", *arguments, "--port", str(port)],
         cwd=cwd,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -110,7 +110,7 @@ def test_the_page_follows_a_run_and_its_farm_live(tmp_path: Path, browser) -> No
                     [
                         sys.executable,
                         "-m",
-                        "analytic",
+                        "gainfarm.analytic",
                         "start",
                         "--connect",
                         endpoint,
@@ -190,7 +190,7 @@ def test_bad_options_are_one_line(tmp_path: Path) -> None:
 def test_without_bokeh_the_command_says_which_extra(tmp_path: Path) -> None:
     without = (
         "import sys; sys.modules['bokeh'] = None; sys.argv = ['analytic', 'dashboard', "
-        f"'--port', '{free_port()}']; from analytic.cli import main; main()"
+        f"'--port', '{free_port()}']; from gainfarm.analytic.cli import main; main()"
     )
     run = subprocess.run(
         [sys.executable, "-c", without], cwd=tmp_path, capture_output=True, text=True, timeout=120

@@ -16,9 +16,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from analytic.cli import main
-from analytic.config import RunConfig
-from analytic.dataset import (
+from gainfarm.analytic.cli import main
+from gainfarm.analytic.data.dataset import (
     RERUN_DIR,
     SPLITS,
     BadRerun,
@@ -31,16 +30,17 @@ from analytic.dataset import (
     split_counts,
     trajectory_id,
 )
-from analytic.evaluator import Evaluator
-from analytic.farm import FarmClient
-from analytic.local import local_farm
-from analytic.records import RUN_JSON, read_identity, read_run
-from analytic.run import TuningRun
-from analytic.tuning import new_study_name
-from cli import interrupts
-from schemas import TrajectorySpec
-from schemas.mcap_episode import read_episode, write_episode
-from schemas.robot import JOINT_NAMES
+from gainfarm.analytic.evaluators.evaluator import Evaluator
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.local import local_farm
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.records import RUN_JSON, read_identity, read_run
+from gainfarm.analytic.tuning.run import TuningRun
+from gainfarm.analytic.tuning.tune import new_study_name
+from gainfarm.cli import interrupts
+from gainfarm.schemas import TrajectorySpec
+from gainfarm.schemas.mcap_episode import read_episode, write_episode
+from gainfarm.schemas.robot import JOINT_NAMES
 
 SPIRAL = TrajectorySpec(duration=3.0)
 CONFIG = RunConfig(
@@ -59,7 +59,7 @@ RERUN = [
     TrajectorySpec(kind="pyramid", duration=3.0, seed=1, center=(0.5, 0.1, 0.4)),
     TrajectorySpec(kind="fourier", duration=3.0, seed=2),
 ]
-ANALYTIC = [sys.executable, "-m", "analytic", "dataset"]
+ANALYTIC = [sys.executable, "-m", "gainfarm.analytic", "dataset"]
 SIGNALS = ("q", "qd", "tau", "u", "theta", "theta_d", "q_des", "qd_des")
 ARRAYS = ("t", *SIGNALS, "ee", "ee_des")
 

@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analytic import dataset_value as dv
-from analytic.config import RunConfig
-from analytic.experiments import Experiment
-from analytic.inprocess import InProcessEvaluator
-from schemas import TrajectorySpec
+from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+from gainfarm.analytic.experiments import dataset_value as dv
+from gainfarm.analytic.experiments.base import Experiment
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.schemas import TrajectorySpec
 from tests.helpers import analytic
 
 BASE = RunConfig(pop=4, trajectories=(TrajectorySpec(duration=3.0),), generations=1, keep="front")

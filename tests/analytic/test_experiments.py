@@ -12,24 +12,24 @@ from pathlib import Path
 
 import pytest
 
-from analytic import experiments
-from analytic.config import RunConfig
-from analytic.experiments import (
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+from gainfarm.analytic.evaluators.local import local_farm
+from gainfarm.analytic.experiments import base as experiments
+from gainfarm.analytic.experiments.base import (
     ALL_KINDS,
     EvaluatorFactory,
     Experiment,
     Normalisation,
     non_dominated,
 )
-from analytic.farm import FarmClient
-from analytic.inprocess import InProcessEvaluator
-from analytic.local import local_farm
-from analytic.records import read_front
-from schemas import EpisodeSpec, Scores, TrajectorySpec
-from schemas.gains import DEFAULT_GAINS
-from schemas.mcap_episode import read_episode
-from schemas.objectives import NO_EPISODE, balancing_weights, score
-from schemas.trajectory import TrajectoryKind
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.records import read_front
+from gainfarm.schemas import EpisodeSpec, Scores, TrajectorySpec
+from gainfarm.schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas.mcap_episode import read_episode
+from gainfarm.schemas.objectives import NO_EPISODE, balancing_weights, score
+from gainfarm.schemas.trajectory import TrajectoryKind
 from tests.analytic.toy import toy_scores
 from tests.helpers import analytic
 
@@ -347,7 +347,7 @@ def test_ctrl_c_stops_an_experiment_of_runs_at_once_and_the_same_command_goes_on
         *("--parallel-runs", "3", "--out", "study"),
     ]
     running = subprocess.Popen(
-        [sys.executable, "-m", "analytic", *command],
+        [sys.executable, "-m", "gainfarm.analytic", *command],
         cwd=tmp_path,
         stderr=subprocess.PIPE,
         text=True,

@@ -11,7 +11,8 @@ import mujoco
 import pytest
 import yaml
 
-from analytic.export import (
+from gainfarm.analytic.tuning.records import FrontMember, front_csv, read_front
+from gainfarm.analytic.view.export import (
     BadMember,
     BadRun,
     controller,
@@ -21,14 +22,13 @@ from analytic.export import (
     point_groups,
     render,
 )
-from analytic.records import FrontMember, front_csv, read_front
-from models.iiwa14 import RIGID_MJCF
-from schemas.controller import FORMAT, UNITS, Controller, read_gains
-from schemas.robot import JOINT_NAMES
+from gainfarm.models.iiwa14 import RIGID_MJCF
+from gainfarm.schemas.controller import FORMAT, UNITS, Controller, read_gains
+from gainfarm.schemas.robot import JOINT_NAMES
 from tests.analytic.samples import KD, KP
 from tests.helpers import WEAK_GAINS, analytic
 
-WORKER = [sys.executable, "-c", "from worker.cli import main; main()"]
+WORKER = [sys.executable, "-c", "from gainfarm.worker.cli import main; main()"]
 SHORT = ["--trajectory", "fourier", "--duration", "0.5"]
 
 

@@ -11,14 +11,14 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from analytic.batch import run_batch
-from analytic.farm import FarmClient, FarmUnavailable
-from analytic.local import local_farm, spawn_worker, stop_workers
-from broker.service import Broker
-from schemas import keys
-from schemas.gains import PDGains
-from schemas.mcap_episode import read_episode
-from schemas.objectives import score
+from gainfarm.analytic.evaluators.batch import run_batch
+from gainfarm.analytic.evaluators.farm import FarmClient, FarmUnavailable
+from gainfarm.analytic.evaluators.local import local_farm, spawn_worker, stop_workers
+from gainfarm.broker.service import Broker
+from gainfarm.schemas import keys
+from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.mcap_episode import read_episode
+from gainfarm.schemas.objectives import score
 from tests.helpers import (
     SOFT_GAINS,
     TRACKING_GAINS,
@@ -106,7 +106,7 @@ def test_two_analytic_processes_share_the_farm(broker: Broker, tmp_path: Path) -
         command = [
             sys.executable,
             "-m",
-            "analytic",
+            "gainfarm.analytic",
             "batch",
             "--connect",
             endpoint,
@@ -261,7 +261,7 @@ def test_a_study_can_be_open_in_one_process_only(broker: Broker, tmp_path: Path)
 
 
 def test_no_broker_is_a_clear_error(tmp_path: Path) -> None:
-    from analytic.local import free_port
+    from gainfarm.analytic.evaluators.local import free_port
 
     with Broker([f"tcp/127.0.0.1:{free_port()}"]) as other:
         endpoint = other.endpoints[0]
@@ -274,7 +274,7 @@ def test_batch_command_in_local_mode(tmp_path: Path) -> None:
         [
             sys.executable,
             "-m",
-            "analytic",
+            "gainfarm.analytic",
             "batch",
             "--local",
             "--workers",
@@ -318,7 +318,7 @@ def test_batch_command_refuses_bad_input_in_one_line(
     arguments: list[str], message: str, tmp_path: Path
 ) -> None:
     run = subprocess.run(
-        [sys.executable, "-m", "analytic", "batch", *arguments],
+        [sys.executable, "-m", "gainfarm.analytic", "batch", *arguments],
         cwd=tmp_path,
         capture_output=True,
         text=True,

@@ -6,12 +6,22 @@ import subprocess
 import sys
 from pathlib import Path
 
-from models.dynamics import digest, rigid_prior, to_bytes
-from schemas.mcap_episode import read_episode
-from schemas.robot import IDEAL_PLANT
+from gainfarm.models.dynamics import digest, rigid_prior, to_bytes
+from gainfarm.schemas.mcap_episode import read_episode
+from gainfarm.schemas.robot import IDEAL_PLANT
 
 RIGID_IDEAL = IDEAL_PLANT.model_copy(update={"joints": "rigid"})
-START = [sys.executable, "-m", "analytic", "start", "--local", "--pop", "4", "--generations", "1"]
+START = [
+    sys.executable,
+    "-m",
+    "gainfarm.analytic",
+    "start",
+    "--local",
+    "--pop",
+    "4",
+    "--generations",
+    "1",
+]
 SHORT = ["--trajectory", "fourier", "--duration", "1", "--plant", "ideal", "--model", "rigid"]
 
 

@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analytic.export import picks
-from analytic.figures import pareto_figure, plot_hypervolume, plot_pareto
-from analytic.records import Baseline, FrontMember
-from schemas.gains import DEFAULT_GAINS
+from gainfarm.analytic.tuning.records import Baseline, FrontMember
+from gainfarm.analytic.view.export import picks
+from gainfarm.analytic.view.figures import pareto_figure, plot_hypervolume, plot_pareto
+from gainfarm.schemas.gains import DEFAULT_GAINS
 from tests.analytic.samples import KD, KP, SAMPLE_FRONT, SAMPLE_HISTORY, leftovers
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -129,7 +129,7 @@ def test_the_speed_heatmaps_numbers_contrast_with_their_cells(tmp_path: Path) ->
     the PNG's pixels (Pillow, not matplotlib)."""
     from PIL import Image
 
-    from analytic.figures import plot_speed
+    from gainfarm.analytic.view.figures import plot_speed
 
     durations = [3.0, 4.0]
     high = {(t, u): 0.9 if (t, u) == (3.0, 3.0) else 0.1 for t in durations for u in durations}
@@ -148,7 +148,7 @@ def test_the_speed_heatmaps_numbers_contrast_with_their_cells(tmp_path: Path) ->
 def test_the_text_colour_is_the_one_of_higher_contrast_over_the_whole_colour_map() -> None:
     from matplotlib import colormaps
 
-    from analytic.figures import text_colour
+    from gainfarm.analytic.view.figures import text_colour
 
     def luminance(rgb: tuple[float, ...]) -> float:
         linear = [c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4 for c in rgb[:3]]

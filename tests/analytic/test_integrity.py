@@ -6,15 +6,15 @@ from pathlib import Path
 
 import zenoh
 
-from analytic.farm import FarmClient
-from analytic.local import free_port, spawn_worker, stop_workers
-from broker.service import Broker
-from schemas import keys
-from schemas.episode import Scores
-from schemas.mcap_episode import decode_episode
-from schemas.objectives import score
-from schemas.transport import open_session
-from schemas.wire import Rejection, SubmitReply
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.local import free_port, spawn_worker, stop_workers
+from gainfarm.broker.service import Broker
+from gainfarm.schemas import keys
+from gainfarm.schemas.episode import Scores
+from gainfarm.schemas.mcap_episode import decode_episode
+from gainfarm.schemas.objectives import score
+from gainfarm.schemas.transport import open_session
+from gainfarm.schemas.wire import Rejection, SubmitReply
 from tests.helpers import ask_for_work, hand_in, perfect_log, result_for, short_spec, wait_for
 
 

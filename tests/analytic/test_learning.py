@@ -11,10 +11,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from analytic import learning
-from analytic.learning import LearnError, fit, learn, read_split, score
-from models.dynamics import digest, from_bytes, load, to_bytes
-from schemas.robot import IDEAL_PLANT, JOINT_NAMES, REALISTIC_PLANT
+from gainfarm.analytic.data import learning
+from gainfarm.analytic.data.learning import LearnError, fit, learn, read_split, score
+from gainfarm.models.dynamics import digest, from_bytes, load, to_bytes
+from gainfarm.schemas.robot import IDEAL_PLANT, JOINT_NAMES, REALISTIC_PLANT
 from tests.learning_data import SPLITS, write_dataset
 
 REQUIRED = {"nmse", "rmse", "nmse_mean", "nmse_mean_all", "rows", "target", "kind"}
@@ -166,7 +166,7 @@ def test_a_failure_while_writing_leaves_nothing(realistic, tmp_path, monkeypatch
 def test_the_learn_command_writes_a_model_the_feedforward_takes_and_refuses_in_one_line(
     realistic, tmp_path
 ):
-    learn_command = [sys.executable, "-m", "analytic", "learn"]
+    learn_command = [sys.executable, "-m", "gainfarm.analytic", "learn"]
     ran = subprocess.run(
         [*learn_command, str(realistic), "--out", str(tmp_path / "m"), "--model", "linear"],
         capture_output=True,
@@ -177,7 +177,7 @@ def test_the_learn_command_writes_a_model_the_feedforward_takes_and_refuses_in_o
     assert "linear inverse model, test nMSE" in ran.stdout
     scores = json.loads((tmp_path / "m" / "scores.json").read_text())
     assert scores["nmse_mean"] < 0.5 and set(scores["nmse"]) == set(JOINT_NAMES)
-    worker = [sys.executable, "-m", "worker", "episode", "--trajectory", "fourier"]
+    worker = [sys.executable, "-m", "gainfarm.worker", "episode", "--trajectory", "fourier"]
     ran = subprocess.run(
         [*worker, "--duration", "1", "--feedforward", str(tmp_path / "m")],
         capture_output=True,

@@ -5,8 +5,8 @@ import math
 
 import pytest
 
-from analytic.progress import NONE_YET, fit, generation_line, live_line
-from analytic.run import RunProgress
+from gainfarm.analytic.tuning.run import RunProgress
+from gainfarm.analytic.view.progress import NONE_YET, fit, generation_line, live_line
 
 BEFORE_ANY = RunProgress(
     generation=0, evaluations=3, hypervolume=math.nan, best_f_acc=math.nan, elapsed=1.5

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analytic.records import (
+from gainfarm.analytic.tuning.records import (
     FRONT_FIELDS,
     HISTORY_FIELDS,
     FrontMember,

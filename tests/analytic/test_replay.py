@@ -9,9 +9,9 @@ import av
 import numpy as np
 import pytest
 
-from analytic import replay
-from schemas.episode_log import EpisodeLog
-from schemas.mcap_episode import write_episode
+from gainfarm.analytic.view import replay
+from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.mcap_episode import write_episode
 from tests.helpers import analytic
 
 FPS, WIDTH, HEIGHT = 5, 480, 360

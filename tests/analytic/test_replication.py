@@ -9,13 +9,13 @@ from pathlib import Path
 
 import pytest
 
-from analytic.evaluator import Wanted
-from analytic.farm import FarmClient
-from analytic.local import spawn_worker, stop_workers
-from analytic.replication import Ledger, validate
-from broker.service import Broker
-from schemas.mcap_episode import read_episode
-from schemas.objectives import score
+from gainfarm.analytic.evaluators.evaluator import Wanted
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.local import spawn_worker, stop_workers
+from gainfarm.analytic.evaluators.replication import Ledger, validate
+from gainfarm.broker.service import Broker
+from gainfarm.schemas.mcap_episode import read_episode
+from gainfarm.schemas.objectives import score
 from tests.helpers import short_spec, wait_for
 
 SPECS = {f"c{i}": short_spec(duration=0.4 + 0.1 * i) for i in range(3)}

@@ -5,10 +5,10 @@ from pathlib import Path
 
 import pytest
 
-from analytic.config import RunConfig
-from analytic.export import picks
-from analytic.records import Baseline, FrontMember
-from analytic.reports import (
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.records import Baseline, FrontMember
+from gainfarm.analytic.view.export import picks
+from gainfarm.analytic.view.reports import (
     baseline_text,
     experiment_setup,
     front_table_row,
@@ -16,9 +16,9 @@ from analytic.reports import (
     run_title,
     write_report,
 )
-from schemas.gains import DEFAULT_GAINS
-from schemas.robot import PLANTS
-from schemas.trajectory import TrajectorySpec
+from gainfarm.schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas.robot import PLANTS
+from gainfarm.schemas.trajectory import TrajectorySpec
 from tests.analytic.samples import (
     KD,
     KP,
@@ -122,7 +122,7 @@ def test_a_failed_report_write_leaves_the_old_file_whole(
 
 
 def test_a_report_names_the_plant_it_was_simulated_on():
-    from schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
+    from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
 
     assert plant_text(REALISTIC_PLANT) == "realistic plant, flexible joints"
     assert plant_text(IDEAL_PLANT.model_copy(update={"joints": "rigid"})) == (

@@ -13,21 +13,21 @@ from typing import ClassVar
 
 import pytest
 
-from analytic.config import RunConfig
-from analytic.farm import FarmClient
-from analytic.inprocess import InProcessEvaluator
-from analytic.local import free_port, local_farm, spawn_worker, stop_workers
-from analytic.records import read_baseline, read_front, read_history
-from analytic.run import RunProgress, TuningRun
-from broker.service import Broker
-from schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
-from schemas.gains import DEFAULT_GAINS
-from schemas.mcap_episode import read_episode
-from schemas.objectives import balancing_weights, score
-from schemas.transport import open_session
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+from gainfarm.analytic.evaluators.local import free_port, local_farm, spawn_worker, stop_workers
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.records import read_baseline, read_front, read_history
+from gainfarm.analytic.tuning.run import RunProgress, TuningRun
+from gainfarm.broker.service import Broker
+from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
+from gainfarm.schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas.mcap_episode import read_episode
+from gainfarm.schemas.objectives import balancing_weights, score
+from gainfarm.schemas.transport import open_session
+from gainfarm.worker.episode import run_episode
+from gainfarm.worker.job import execute
 from tests.helpers import analytic, ask_for_work, hand_in, wait_for
-from worker.episode import run_episode
-from worker.job import execute
 
 TINY = RunConfig(
     pop=6, seed=7, trajectories=(TrajectorySpec(kind="fourier", duration=0.5),), generations=3
@@ -283,7 +283,7 @@ def test_ctrl_c_stops_cleanly_and_resume_goes_on(tmp_path: Path) -> None:
     command = [
         sys.executable,
         "-m",
-        "analytic",
+        "gainfarm.analytic",
         "start",
         "--pop",
         "4",
@@ -353,7 +353,16 @@ def test_the_front_is_the_same_when_the_analytic_process_is_killed_and_resumed(
             "--keep",  # as `calm` keeps them (RunConfig's default)
             "all",
         ]
-        command = [sys.executable, "-m", "analytic", "start", *config, *arguments, "--out", "run"]
+        command = [
+            sys.executable,
+            "-m",
+            "gainfarm.analytic",
+            "start",
+            *config,
+            *arguments,
+            "--out",
+            "run",
+        ]
         running = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.DEVNULL)
         history = tmp_path / "run" / "history.csv"
         # Killed mid-generation two, with its jobs queued and running on the farm.

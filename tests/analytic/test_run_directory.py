@@ -5,7 +5,9 @@ Most tests run the toy problem in this process (milliseconds); the command-line 
 `analytic` processes, as a user (or an attacker) would.
 """
 
+import contextlib
 import hashlib
+import importlib
 import os
 import pickle
 import re
@@ -15,21 +17,22 @@ import socket
 import subprocess
 import sys
 import time
+import types
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 from numpy.testing._private.utils import runstring
 
-from analytic.checkpoint import ALLOWED, CheckpointRefused
-from analytic.config import RunConfig
-from analytic.inprocess import InProcessEvaluator
-from analytic.records import read_history, read_identity, read_run
-from analytic.run import RunBusy, RunProgress, TuningRun, upgrade
-from analytic.tuning import new_study_name
-from schemas import TrajectorySpec
-from schemas.files import Lock
-from schemas.wire import NAME_PATTERN
+from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+from gainfarm.analytic.tuning.checkpoint import ALLOWED, CheckpointRefused, _Unpickler
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.records import read_history, read_identity, read_run
+from gainfarm.analytic.tuning.run import RunBusy, RunProgress, TuningRun, upgrade
+from gainfarm.analytic.tuning.tune import new_study_name
+from gainfarm.schemas import TrajectorySpec
+from gainfarm.schemas.files import Lock
+from gainfarm.schemas.wire import NAME_PATTERN
 from tests.analytic.toy import toy_scores
 from tests.helpers import analytic
 
@@ -92,7 +95,7 @@ def test_study_names_of_one_run_directory_differ_even_in_processes_of_one_pid(
     # Two containers' `analytic` processes are both PID 1: the name owes nothing to the PID.
     code = (
         "import os; os.getpid = lambda: 1\n"
-        "from pathlib import Path; from analytic.tuning import new_study_name\n"
+        "from pathlib import Path; from gainfarm.analytic.tuning.tune import new_study_name\n"
         "print(new_study_name(Path('runs/run-1')))"
     )
     made = [
@@ -269,11 +272,42 @@ def test_the_allowlist_names_no_whole_module() -> None:
 
 
 def legacy_checkpoint(state: object) -> bytes:
-    """A checkpoint as gainfarm wrote it before run ids: the state alone, its row types still
-    in analytic.figures (as the earliest runs had them)."""
-    content = pickle.dumps(state)
-    assert b"analytic.records" in content
-    return content.replace(b"analytic.records", b"analytic.figures")  # as long: still a pickle
+    """A checkpoint as gainfarm wrote it before run ids: the state alone, every class named where
+    it lived then (before the one import name `gainfarm`: analytic.run, schemas.gains, ...), its
+    row types still in analytic.figures (as the earliest runs had them)."""
+    with _named_as_before_the_move():
+        content = pickle.dumps(state)
+    assert b"gainfarm" not in content and b"analytic.figures" in content
+    return content
+
+
+@contextlib.contextmanager
+def _named_as_before_the_move() -> Iterator[None]:
+    """Each class and function a checkpoint holds is pickled under its old module path (as
+    _Unpickler.MOVED lists them), through stand-in modules of those names."""
+    olds: dict[str, str] = {}
+    for (old, name), new in _Unpickler.MOVED.items():
+        if name not in ("HistoryRow", "FrontMember") or old == "analytic.figures":
+            olds[f"{new}:{name}"] = old
+    renamed, added = [], []
+    try:
+        for where, old in olds.items():
+            new, name = where.split(":")
+            thing = getattr(importlib.import_module(new), name)
+            renamed.append((thing, thing.__module__))
+            thing.__module__ = old
+            for depth in range(1, old.count(".") + 2):
+                module = ".".join(old.split(".")[:depth])
+                if module not in sys.modules:
+                    sys.modules[module] = types.ModuleType(module)
+                    added.append(module)
+            setattr(sys.modules[old], name, thing)
+        yield
+    finally:
+        for thing, module in renamed:
+            thing.__module__ = module
+        for module in added:
+            del sys.modules[module]
 
 
 def test_a_run_from_before_run_ids_gets_one_and_resumes_exactly(tmp_path: Path) -> None:
@@ -340,7 +374,7 @@ def test_a_run_is_opened_by_one_writer_at_a_time(tmp_path: Path) -> None:
 def hold(directory: Path) -> subprocess.Popen[str]:
     """Another process holding the run open (so its lock), until it is killed."""
     code = (
-        "import sys, time; from analytic.run import TuningRun\n"
+        "import sys, time; from gainfarm.analytic.tuning.run import TuningRun\n"
         f"run = TuningRun.open({str(directory)!r}); print('open', flush=True); time.sleep(600)"
     )
     holder = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
@@ -377,7 +411,7 @@ def test_resume_while_start_runs_is_refused_in_one_line_naming_the_process(
         "--out",
         "run",
     ]
-    command = [sys.executable, "-m", "analytic", "start", *config]
+    command = [sys.executable, "-m", "gainfarm.analytic", "start", *config]
     running = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.PIPE, text=True)
     history = tmp_path / "run" / "history.csv"
     try:
@@ -515,7 +549,7 @@ def test_a_full_or_read_only_disk_is_one_line_and_a_resume_goes_on(
         str(generations),
         *("--keep", "all"),  # every episode's log: the disk fills in the second generation
     ]
-    command = [sys.executable, "-m", "analytic", "start", *options, "--out", "disk/run"]
+    command = [sys.executable, "-m", "gainfarm.analytic", "start", *options, "--out", "disk/run"]
     directory = disk.mount / "run"
     if fault == "full":
         # Room for the first generation's logs (4 × ~175 kB, the robot's description included)

@@ -12,14 +12,14 @@ from pathlib import Path
 
 import pytest
 
-from analytic.config import RunConfig
-from analytic.evaluator import Evaluation
-from analytic.inprocess import InProcessEvaluator
-from analytic.records import read_baseline, read_front, read_history, read_run
-from analytic.run import RunProgress, TuningRun, upgrade
-from schemas import EpisodeSpec, Scores, TrajectorySpec
-from schemas.gains import DEFAULT_GAINS
-from schemas.trajectory import TrajectoryKind
+from gainfarm.analytic.evaluators.evaluator import Evaluation
+from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.records import read_baseline, read_front, read_history, read_run
+from gainfarm.analytic.tuning.run import RunProgress, TuningRun, upgrade
+from gainfarm.schemas import EpisodeSpec, Scores, TrajectorySpec
+from gainfarm.schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas.trajectory import TrajectoryKind
 from tests.analytic.toy import toy_scores
 
 TINY = RunConfig(
@@ -184,7 +184,9 @@ class Growing(InProcessEvaluator):
 def test_a_steady_state_run_keeps_more_candidates_in_flight_when_the_farm_grows(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr("analytic.run.CAPACITY_SECONDS", 0.0)  # look up the farm every time
+    monkeypatch.setattr(
+        "gainfarm.analytic.tuning.run.CAPACITY_SECONDS", 0.0
+    )  # look up the farm every time
     farm = Growing()
     config = TINY.model_copy(update={"asynchronous": True, "generations": 5})
     TuningRun.create(tmp_path / "run", config).run(farm, report=False)

@@ -5,15 +5,15 @@ import hashlib
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 
-from analytic.config import RunConfig
-from analytic.evaluator import Evaluation, EvaluationStatus, Fetched, Wanted
-from analytic.evolution import hypervolume
-from analytic.experiments import non_dominated
-from analytic.records import read_evaluated
-from analytic.replication import Ledger, validate
-from analytic.run import TuningRun
-from schemas.episode import EpisodeSpec
-from schemas.gains import DEFAULT_GAINS
+from gainfarm.analytic.evaluators.evaluator import Evaluation, EvaluationStatus, Fetched, Wanted
+from gainfarm.analytic.evaluators.replication import Ledger, validate
+from gainfarm.analytic.experiments.base import non_dominated
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.evolution import hypervolume
+from gainfarm.analytic.tuning.records import read_evaluated
+from gainfarm.analytic.tuning.run import TuningRun
+from gainfarm.schemas.episode import EpisodeSpec
+from gainfarm.schemas.gains import DEFAULT_GAINS
 from tests.analytic.toy import toy_scores
 
 CONFIG = RunConfig(pop=8, generations=4, seed=3)

@@ -8,10 +8,16 @@ import math
 import pytest
 from scipy import stats as scipy_stats
 
-from analytic import statistics as st
-from analytic.experiments import ALL_KINDS, Normalisation, dominated_count, generic_set, is_penalty
-from schemas.objectives import NO_EPISODE
-from schemas.trajectory import TrajectoryKind
+from gainfarm.analytic.experiments import statistics as st
+from gainfarm.analytic.experiments.base import (
+    ALL_KINDS,
+    Normalisation,
+    dominated_count,
+    generic_set,
+    is_penalty,
+)
+from gainfarm.schemas.objectives import NO_EPISODE
+from gainfarm.schemas.trajectory import TrajectoryKind
 
 HIGH = [10.0, 11.0, 12.0, 13.0, 14.0, 15.0, 16.0, 17.0]
 LOW = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.5]

@@ -1,6 +1,6 @@
 """When a run stops, as a pure function of its hypervolumes and evaluations."""
 
-from analytic.termination import Termination
+from gainfarm.analytic.tuning.termination import Termination
 
 
 def test_a_fixed_number_of_generations_or_evaluations() -> None:

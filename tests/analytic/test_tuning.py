@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from analytic import InProcessEvaluator, RunConfig, read_run, tune
-from schemas import TrajectorySpec
+from gainfarm.analytic import InProcessEvaluator, RunConfig, read_run, tune
+from gainfarm.schemas import TrajectorySpec
 from tests.analytic.toy import toy_scores
 
 README = Path(__file__).parents[2] / "README.md"

@@ -4,8 +4,8 @@ torque steps), so NSGA-II has a real front to find, in microseconds per candidat
 
 import numpy as np
 
-from schemas import EpisodeSpec, Scores
-from schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas import EpisodeSpec, Scores
+from gainfarm.schemas.gains import DEFAULT_GAINS
 
 
 def toy_scores(spec: EpisodeSpec) -> Scores:

@@ -9,11 +9,11 @@ from pathlib import Path
 from cryptography import x509
 from cryptography.x509.oid import NameOID
 
-from analytic.local import free_port
-from broker.certs import write_dev_credentials
-from schemas import keys
-from schemas.security import TlsIdentity, participants
-from schemas.transport import open_session
+from gainfarm.analytic.evaluators.local import free_port
+from gainfarm.broker.certs import write_dev_credentials
+from gainfarm.schemas import keys
+from gainfarm.schemas.security import TlsIdentity, participants
+from gainfarm.schemas.transport import open_session
 from tests.helpers import wait_for
 
 
@@ -154,7 +154,16 @@ def test_a_worker_on_a_secure_farm_is_named_after_its_identity(tmp_path: Path) -
         shutil.copy(tmp_path / name, host / name)
     endpoint = f"tls/127.0.0.1:{free_port()}"
     router = open_session("router", listen=[endpoint], identity=TlsIdentity(tmp_path, "broker"))
-    command = [sys.executable, "-m", "worker", "start", "--connect", endpoint, "--tls", str(host)]
+    command = [
+        sys.executable,
+        "-m",
+        "gainfarm.worker",
+        "start",
+        "--connect",
+        endpoint,
+        "--tls",
+        str(host),
+    ]
     worker = subprocess.Popen(command)
     try:
         token = keys.alive_worker("cobot-2")

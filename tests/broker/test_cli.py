@@ -7,13 +7,13 @@ import subprocess
 import sys
 import time
 
-from analytic.local import free_port, spawn_worker, stop_workers
-from schemas.wire import PROTOCOL_VERSION
+from gainfarm.analytic.evaluators.local import free_port, spawn_worker, stop_workers
+from gainfarm.schemas.wire import PROTOCOL_VERSION
 from tests.helpers import wait_for
 
 
 def broker_command(*arguments: str) -> list[str]:
-    return [sys.executable, "-m", "broker", *arguments]
+    return [sys.executable, "-m", "gainfarm.broker", *arguments]
 
 
 def status(endpoint: str, *extra: str) -> subprocess.CompletedProcess[str]:

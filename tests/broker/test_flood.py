@@ -18,11 +18,11 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from analytic.local import free_port
-from broker.certs import write_dev_credentials
-from schemas import keys
-from schemas.security import TlsIdentity
-from schemas.transport import open_session
+from gainfarm.analytic.evaluators.local import free_port
+from gainfarm.broker.certs import write_dev_credentials
+from gainfarm.schemas import keys
+from gainfarm.schemas.security import TlsIdentity
+from gainfarm.schemas.transport import open_session
 
 FLOOD = 300  # idle connections, as in the attack
 JOIN_SECONDS = 3.0  # an honest client is in and answered within this, flood or no flood

@@ -10,13 +10,13 @@ import zenoh
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from analytic.farm import FarmClient
-from analytic.local import free_port
-from broker.service import Broker
-from schemas import keys
-from schemas.ask import ask
-from schemas.transport import open_session
-from schemas.wire import (
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.local import free_port
+from gainfarm.broker.service import Broker
+from gainfarm.schemas import keys
+from gainfarm.schemas.ask import ask
+from gainfarm.schemas.transport import open_session
+from gainfarm.schemas.wire import (
     MAX_MESSAGE_BYTES,
     BrokerStatus,
     ConfirmReply,

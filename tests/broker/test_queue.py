@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from broker.queue import (
+from gainfarm.broker.queue import (
     DEFAULT_MAX_QUEUED,
     DEFAULT_MAX_QUEUED_PER_STUDY,
     LOST_WORKER_GRACE,
@@ -17,9 +17,9 @@ from broker.queue import (
     LeaseQueue,
     UnknownStudy,
 )
-from schemas.episode import EpisodeSpec
-from schemas.gains import PDGains
-from schemas.wire import Accepted, Job, Lease, StudyState, WorkerState
+from gainfarm.schemas.episode import EpisodeSpec
+from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.wire import Accepted, Job, Lease, StudyState, WorkerState
 from tests.helpers import open_studies
 
 EPISODE = EpisodeSpec(gains=PDGains(kp=(100.0,) * 7, kd=(10.0,) * 7))

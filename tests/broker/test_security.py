@@ -20,16 +20,16 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from analytic.farm import FarmClient
-from analytic.local import free_port
-from broker.certs import revoke, write_dev_credentials
-from broker.service import Broker
-from models.dynamics import digest, rigid_prior, to_bytes
-from schemas import keys
-from schemas.robot import IDEAL_PLANT
-from schemas.security import Role, TlsIdentity
-from schemas.transport import open_session
-from schemas.wire import JobStatus
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.local import free_port
+from gainfarm.broker.certs import revoke, write_dev_credentials
+from gainfarm.broker.service import Broker
+from gainfarm.models.dynamics import digest, rigid_prior, to_bytes
+from gainfarm.schemas import keys
+from gainfarm.schemas.robot import IDEAL_PLANT
+from gainfarm.schemas.security import Role, TlsIdentity
+from gainfarm.schemas.transport import open_session
+from gainfarm.schemas.wire import JobStatus
 from tests.helpers import hand_in, perfect_log, result_for, short_spec, wait_for
 
 DENIED_SECONDS = 1.0  # a denied query is dropped, not refused: wait this long for no answer
@@ -248,7 +248,16 @@ def test_a_secure_farm_runs_jobs_end_to_end(credentials: Path, tmp_path: Path) -
     endpoint, tls = f"tls/127.0.0.1:{free_port()}", str(credentials)
     identity = TlsIdentity(credentials, "broker")
     with Broker([endpoint], lease_seconds=30.0, identity=identity) as broker:
-        command = [sys.executable, "-m", "worker", "start", "--connect", endpoint, "--tls", tls]
+        command = [
+            sys.executable,
+            "-m",
+            "gainfarm.worker",
+            "start",
+            "--connect",
+            endpoint,
+            "--tls",
+            tls,
+        ]
         # cobot-2 by name (the directory holds two worker identities): the identity's name is
         # the worker's name.
         worker = subprocess.Popen(
@@ -266,7 +275,15 @@ def test_a_secure_farm_runs_jobs_end_to_end(credentials: Path, tmp_path: Path) -
                 farm.submit({"a": short_spec(), "b": short_spec(duration=0.3), "c": with_model})
                 evaluations = list(farm.results(timeout=60))
             wait_for(lambda: broker.queue.jobs_done == 3, what="the broker to count the jobs")
-            status = [sys.executable, "-m", "broker", "status", "--json", "--connect", endpoint]
+            status = [
+                sys.executable,
+                "-m",
+                "gainfarm.broker",
+                "status",
+                "--json",
+                "--connect",
+                endpoint,
+            ]
             for who in ("broker", "worker.cobot-1", "analytic.bob"):  # anyone may read it
                 done = subprocess.run(
                     [*status, "--tls", tls, "--as", who], capture_output=True, text=True, timeout=60
@@ -312,7 +329,7 @@ def test_a_worker_identity_cannot_forge_results_for_jobs_it_was_not_leased(
                         keys.result("alice.forged", job_id), content, attachment=forged.to_bytes()
                     )
                 wait_for(lambda: farm._inbox.qsize() >= 2, what="the forgeries to reach alice")
-                command = [sys.executable, "-m", "worker", "start", "--connect", endpoint]
+                command = [sys.executable, "-m", "gainfarm.worker", "start", "--connect", endpoint]
                 worker = subprocess.Popen(
                     [*command, "--tls", tls, "--name", "cobot-2", "--log-level", "warning"]
                 )

@@ -11,12 +11,12 @@ from collections.abc import Iterator
 import pytest
 import zenoh
 
-from analytic.local import free_port
-from broker.queue import MAX_LISTED
-from broker.service import Broker
-from schemas import keys
-from schemas.transport import open_session
-from schemas.wire import (
+from gainfarm.analytic.evaluators.local import free_port
+from gainfarm.broker.queue import MAX_LISTED
+from gainfarm.broker.service import Broker
+from gainfarm.schemas import keys
+from gainfarm.schemas.transport import open_session
+from gainfarm.schemas.wire import (
     MAX_MESSAGE_BYTES,
     PROTOCOL_VERSION,
     Accepted,
@@ -514,7 +514,7 @@ def test_ten_thousand_made_up_workers_leave_the_status_small_and_are_forgotten()
 def test_a_farms_capacity_counts_every_worker_not_only_those_listed(
     broker: Broker, session: zenoh.Session, tmp_path
 ) -> None:
-    from analytic.farm import FarmClient
+    from gainfarm.analytic.evaluators.farm import FarmClient
 
     many = MAX_LISTED + 5
     _tokens = [
@@ -531,7 +531,14 @@ def test_status_without_a_broker_is_a_clear_error(tmp_path) -> None:
     import sys
 
     run = subprocess.run(
-        [sys.executable, "-m", "broker", "status", "--connect", f"tcp/127.0.0.1:{free_port()}"],
+        [
+            sys.executable,
+            "-m",
+            "gainfarm.broker",
+            "status",
+            "--connect",
+            f"tcp/127.0.0.1:{free_port()}",
+        ],
         capture_output=True,
         text=True,
         timeout=60,

@@ -7,9 +7,9 @@ from importlib.metadata import version
 
 import pytest
 
-from analytic.cli import app as analytic_app
-from broker.cli import app as broker_app
-from worker.cli import app as worker_app
+from gainfarm.analytic.cli import app as analytic_app
+from gainfarm.broker.cli import app as broker_app
+from gainfarm.worker.cli import app as worker_app
 
 PROGRAMS = {"analytic": analytic_app, "broker": broker_app, "worker": worker_app}
 

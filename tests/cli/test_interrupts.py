@@ -76,7 +76,7 @@ def test_a_command_started_deaf_to_ctrl_c_stays_so(tmp_path: Path) -> None:
     """As a shell starts a background job (`analytic start ... &` in a script): an ignored
     SIGINT is left ignored, as Python itself leaves it, and the run goes on to its end."""
     running = subprocess.Popen(
-        [sys.executable, "-m", "analytic", *START],
+        [sys.executable, "-m", "gainfarm.analytic", *START],
         cwd=tmp_path,
         stderr=subprocess.PIPE,
         text=True,

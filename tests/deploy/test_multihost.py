@@ -20,10 +20,10 @@ from pathlib import Path
 
 import pytest
 
-from analytic.records import read_history
-from schemas.mcap_episode import read_episode
-from schemas.objectives import score
-from schemas.wire import BrokerStatus, WorkerState
+from gainfarm.analytic.tuning.records import read_history
+from gainfarm.schemas.mcap_episode import read_episode
+from gainfarm.schemas.objectives import score
+from gainfarm.schemas.wire import BrokerStatus, WorkerState
 from tests.helpers import wait_for
 
 SUBNET = "10.213.47"
@@ -56,8 +56,8 @@ STOP_SECONDS = 15.0  # a worker finishes its episode before leaving on SIGTERM
 # look would take a second to start, far too slow to catch a worker in the middle of an episode.
 WATCH = """
 import sys, time
-from broker.status import BrokerUnavailable, query_status
-from schemas.transport import open_session
+from gainfarm.broker.status import BrokerUnavailable, query_status
+from gainfarm.schemas.transport import open_session
 while True:
     try:
         session = open_session("client", connect=[sys.argv[1]])
@@ -159,20 +159,29 @@ class Lan:
         return self.spawn(
             "broker",
             "broker",
-            *("-m", "broker", "start", "--listen", self.endpoint),
+            *("-m", "gainfarm.broker", "start", "--listen", self.endpoint),
             *("--lease-seconds", str(lease_seconds)),
         )
 
     def start_worker(self, host: str) -> subprocess.Popen:
         return self.spawn(
-            host, host, "-m", "worker", "start", "--connect", self.endpoint, "--name", host
+            host, host, "-m", "gainfarm.worker", "start", "--connect", self.endpoint, "--name", host
         )
 
     def start_study(self, out: Path) -> subprocess.Popen:
         return self.spawn(
             "analytic",
             "analytic",
-            *("-m", "analytic", "start", "--connect", self.endpoint, *RUN, "--out", str(out)),
+            *(
+                "-m",
+                "gainfarm.analytic",
+                "start",
+                "--connect",
+                self.endpoint,
+                *RUN,
+                "--out",
+                str(out),
+            ),
         )
 
     def watch(self) -> "Watch":
@@ -245,7 +254,17 @@ def lan(tmp_path: Path) -> Iterator[Lan]:
 def local_front(tmp_path_factory: pytest.TempPathFactory) -> bytes:
     """front.csv of the same run on a farm of one process on this machine, over loopback."""
     out = tmp_path_factory.mktemp("local") / "run"
-    command = ["-m", "analytic", "start", "--local", "--workers", "1", *RUN, "--out", str(out)]
+    command = [
+        "-m",
+        "gainfarm.analytic",
+        "start",
+        "--local",
+        "--workers",
+        "1",
+        *RUN,
+        "--out",
+        str(out),
+    ]
     done = subprocess.run(
         [sys.executable, *command],
         capture_output=True,
@@ -280,7 +299,9 @@ def test_a_study_across_hosts_finds_the_front_a_local_farm_finds(
     assert "stopped: 2 generations" in (tmp_path / "analytic.log").read_text()
     check_run(out, local_front)
     # What the broker says, asked by the operator's real command from another host.
-    asked = lan.run("console", "-m", "broker", "status", "--connect", lan.endpoint, "--json")
+    asked = lan.run(
+        "console", "-m", "gainfarm.broker", "status", "--connect", lan.endpoint, "--json"
+    )
     assert asked.returncode == 0, asked.stderr
     farm = BrokerStatus.model_validate_json(asked.stdout)
     assert farm.jobs_done == JOBS and farm.requeued == 0
@@ -343,7 +364,7 @@ def test_a_worker_cut_off_for_longer_than_its_lease_loses_nothing_and_serves_aga
         "analytic",
         *(
             "-m",
-            "analytic",
+            "gainfarm.analytic",
             "batch",
             "--connect",
             lan.endpoint,
@@ -366,10 +387,10 @@ def test_a_worker_cut_off_for_longer_than_its_lease_loses_nothing_and_serves_aga
 FETCH = """
 import json, sys
 from pathlib import Path
-from analytic.evaluator import Wanted
-from analytic.farm import FarmClient
-from schemas import EpisodeSpec, TrajectorySpec
-from schemas.gains import DEFAULT_GAINS
+from gainfarm.analytic.evaluators.evaluator import Wanted
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.schemas import EpisodeSpec, TrajectorySpec
+from gainfarm.schemas.gains import DEFAULT_GAINS
 endpoint, out = sys.argv[1:3]
 specs = {
     f"j{i}": EpisodeSpec(
@@ -403,7 +424,7 @@ def test_the_fronts_logs_are_fetched_from_the_workers_even_after_the_host_that_m
     study = lan.spawn(
         "analytic",
         "analytic",
-        *("-m", "analytic", "start", "--connect", lan.endpoint, *keep_front),
+        *("-m", "gainfarm.analytic", "start", "--connect", lan.endpoint, *keep_front),
         *("--keep", "front", "--out", str(out)),
     )
     assert study.wait(180) == 0, lan.tail("analytic")

@@ -19,10 +19,10 @@ import click
 import pytest
 import yaml
 
-import analytic.cli
-import broker.cli
-import worker.cli
-from analytic.local import STOP_SECONDS
+from gainfarm.analytic import cli as analytic_cli
+from gainfarm.analytic.evaluators.local import STOP_SECONDS
+from gainfarm.broker import cli as broker_cli
+from gainfarm.worker import cli as worker_cli
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCKER = ROOT / "docker"
@@ -32,9 +32,9 @@ DOCKERFILE = DOCKER / "Dockerfile"
 README = DOCKER / "README.md"
 E2E_SCRIPT = DOCKER / "e2e.py"
 PROGRAMS: dict[str, click.Group] = {
-    "broker": broker.cli.app,
-    "worker": worker.cli.app,
-    "analytic": analytic.cli.app,
+    "broker": broker_cli.app,
+    "worker": worker_cli.app,
+    "analytic": analytic_cli.app,
 }
 FARM_PORT = 7447
 

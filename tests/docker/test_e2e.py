@@ -22,12 +22,12 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from analytic import RunConfig, tune
-from analytic.inprocess import InProcessEvaluator
-from analytic.records import read_run
-from schemas import TrajectorySpec
-from schemas.mcap_episode import read_episode
-from schemas.objectives import score
+from gainfarm.analytic import RunConfig, tune
+from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+from gainfarm.analytic.tuning.records import read_run
+from gainfarm.schemas import TrajectorySpec
+from gainfarm.schemas.mcap_episode import read_episode
+from gainfarm.schemas.objectives import score
 
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "docker" / "e2e.py"

@@ -14,8 +14,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from models import compile_model
-from models.dynamics import (
+from gainfarm.models import compile_model
+from gainfarm.models.dynamics import (
     LINEAR_PARAMETERS,
     BadDynamicsModel,
     DynamicsModel,
@@ -31,8 +31,8 @@ from models.dynamics import (
     save,
     to_bytes,
 )
-from schemas.robot import IDEAL_PLANT, POSITION_LIMITS, REALISTIC_PLANT, ModelSpec
-from schemas.trajectory import CONTROL_PERIOD
+from gainfarm.schemas.robot import IDEAL_PLANT, POSITION_LIMITS, REALISTIC_PLANT, ModelSpec
+from gainfarm.schemas.trajectory import CONTROL_PERIOD
 from tests.learning_data import episode
 
 RIGID_IDEAL = IDEAL_PLANT.model_copy(update={"joints": "rigid"})

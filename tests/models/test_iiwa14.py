@@ -5,7 +5,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from models import (
+from gainfarm.models import (
     CAD_INERTIALS,
     READY_POSTURE,
     RIGID_MJCF,
@@ -16,8 +16,8 @@ from models import (
     min_substeps,
     step_ratios,
 )
-from schemas import TORQUE_LIMITS, ModelSpec
-from schemas.robot import IDEAL_PLANT, STIFFNESS_PRESETS, Friction
+from gainfarm.schemas import TORQUE_LIMITS, ModelSpec
+from gainfarm.schemas.robot import IDEAL_PLANT, STIFFNESS_PRESETS, Friction
 
 HOME = np.array([0.0, 0.785398, 0.0, -1.5708, 0.0, 0.0, 0.0])
 LINKS = [f"link{i}" for i in range(1, 8)]
@@ -200,8 +200,8 @@ def test_an_unstable_simulation_leaves_no_log_file_and_prints_nothing(tmp_path):
     # MuJoCo's default for its warnings: a line on stdout and MUJOCO_LOG.TXT in the cwd.
     script = (
         "import mujoco\n"
-        "from models import compile_model\n"
-        "from schemas.robot import ModelSpec\n"
+        "from gainfarm.models import compile_model\n"
+        "from gainfarm.schemas.robot import ModelSpec\n"
         "model = compile_model(ModelSpec())\n"
         "data = mujoco.MjData(model)\n"
         "data.qpos[:] = 1e20\n"

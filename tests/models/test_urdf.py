@@ -7,9 +7,9 @@ import pinocchio as pin
 import pytest
 from scipy.spatial.transform import Rotation
 
-from models import RIGID_MJCF
-from models.urdf import WORLD, rotations, tree, urdf
-from schemas.robot import JOINT_NAMES, POSITION_LIMITS, SPEED_LIMITS, TORQUE_LIMITS
+from gainfarm.models import RIGID_MJCF
+from gainfarm.models.urdf import WORLD, rotations, tree, urdf
+from gainfarm.schemas.robot import JOINT_NAMES, POSITION_LIMITS, SPEED_LIMITS, TORQUE_LIMITS
 
 FRAMES = ["base", *(f"link{i}" for i in range(1, 8)), "flange"]
 HOME = (0.0, 0.785398, 0.0, -1.5708, 0.0, 0.0, 0.0)

@@ -4,10 +4,10 @@ import json
 
 import pytest
 
-from schemas.controller import BadGains, Controller, Member, Source, read_gains
-from schemas.gains import DEFAULT_GAINS, PDGains
-from schemas.robot import ModelSpec
-from schemas.trajectory import TrajectorySpec
+from gainfarm.schemas.controller import BadGains, Controller, Member, Source, read_gains
+from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
+from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.trajectory import TrajectorySpec
 
 GAINS = DEFAULT_GAINS.model_dump()
 SOFT = PDGains(kp=(100.0,) * 7, kd=(1.0,) * 7)

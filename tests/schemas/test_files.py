@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from schemas.files import interrupts_deferred, staging_directory
+from gainfarm.schemas.files import interrupts_deferred, staging_directory
 
 
 def test_a_ctrl_c_inside_the_block_arrives_once_the_block_is_done() -> None:

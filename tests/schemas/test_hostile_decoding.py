@@ -27,10 +27,10 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap.records import Chunk
 
-from schemas import mcap_episode
-from schemas.episode_log import EpisodeLog
-from schemas.mcap_episode import NotAnEpisodeLog, decode_episode, episode_bytes
-from schemas.wire import (
+from gainfarm.schemas import mcap_episode
+from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, decode_episode, episode_bytes
+from gainfarm.schemas.wire import (
     MAX_MESSAGE_BYTES,
     MESSAGES,
     PROTOCOL_VERSION,

@@ -13,11 +13,11 @@ from mcap.writer import Writer
 from mcap_ros2.reader import read_ros2_messages
 from scipy.spatial.transform import Rotation
 
-from models import RIGID_MJCF
-from models.urdf import urdf
-from schemas.episode_log import CHANNELS, TF_EVERY
-from schemas.mcap_episode import NotAnEpisodeLog, read_episode, write_episode
-from schemas.robot import JOINT_NAMES
+from gainfarm.models import RIGID_MJCF
+from gainfarm.models.urdf import urdf
+from gainfarm.schemas.episode_log import CHANNELS, TF_EVERY
+from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode, write_episode
+from gainfarm.schemas.robot import JOINT_NAMES
 
 ARRAYS = ("t", "q", "qd", "tau", "u", "theta", "theta_d", "q_des", "qd_des", "ee", "ee_des")
 LINKS = ["base", *(f"link{i}" for i in range(1, 8)), "flange"]

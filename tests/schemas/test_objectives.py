@@ -1,15 +1,15 @@
 import numpy as np
 import pytest
 
-from schemas.episode import Scores
-from schemas.objectives import (
+from gainfarm.schemas.episode import Scores
+from gainfarm.schemas.objectives import (
     DIVERGED_TICK_ERROR,
     NO_EPISODE,
     balancing_weights,
     objectives,
     score,
 )
-from schemas.robot import TORQUE_LIMITS
+from gainfarm.schemas.robot import TORQUE_LIMITS
 from tests.helpers import crafted_log
 
 

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from schemas import keys
-from schemas.security import (
+from gainfarm.schemas import keys
+from gainfarm.schemas.security import (
     TlsIdentity,
     UnknownIdentity,
     access_control,
@@ -14,7 +14,7 @@ from schemas.security import (
     owned_study,
     participants,
 )
-from schemas.transport import (
+from gainfarm.schemas.transport import (
     ACCEPT_TIMEOUT_MS,
     TLS_HANDSHAKE_TIMEOUT_MS,
     accept_pending,

@@ -3,8 +3,8 @@ import math
 import pytest
 from pydantic import ValidationError
 
-from schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
-from schemas.wire import describe
+from gainfarm.schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
+from gainfarm.schemas.wire import describe
 
 SEVEN = (1.0,) * 7
 
@@ -53,7 +53,7 @@ def test_model_spec_records_explicit_elastic_parameters():
 
 
 def test_the_named_plants_differ_only_where_they_say():
-    from schemas.robot import IDEAL_PLANT, REALISTIC_PLANT, STIFFNESS_PRESETS
+    from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT, STIFFNESS_PRESETS
 
     assert IDEAL_PLANT.ideal and not REALISTIC_PLANT.ideal
     assert IDEAL_PLANT.stiffness == STIFFNESS_PRESETS["soft"]

@@ -4,8 +4,8 @@ import json
 
 import pytest
 
-from schemas import json_schema
-from schemas.wire import (
+from gainfarm.schemas import json_schema
+from gainfarm.schemas.wire import (
     MAX_MESSAGE_BYTES,
     PROTOCOL_VERSION,
     BadMessage,
@@ -22,7 +22,7 @@ V = PROTOCOL_VERSION
 
 
 def test_json_schema_files_are_generated_from_the_current_models() -> None:
-    assert json_schema.stale() == [], "run: python -m schemas.json_schema"
+    assert json_schema.stale() == [], "run: python -m gainfarm.schemas.json_schema"
 
 
 def test_every_message_carries_the_protocol_version() -> None:

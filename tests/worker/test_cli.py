@@ -6,8 +6,8 @@ import sys
 
 import pytest
 
-WORKER = [sys.executable, "-c", "from worker.cli import main; main()"]
-ANALYTIC = [sys.executable, "-c", "from analytic.cli import main; main()"]
+WORKER = [sys.executable, "-c", "from gainfarm.worker.cli import main; main()"]
+ANALYTIC = [sys.executable, "-c", "from gainfarm.analytic.cli import main; main()"]
 
 
 def run(command: list[str], *args: str) -> subprocess.CompletedProcess:

@@ -1,7 +1,7 @@
 import numpy as np
 
-from schemas import PDGains
-from worker.control import PDController
+from gainfarm.schemas import PDGains
+from gainfarm.worker.control import PDController
 
 LIMITS = np.array([320, 320, 176, 176, 110, 40, 40.0])
 

@@ -2,15 +2,15 @@ import mujoco
 import numpy as np
 import pytest
 
-from models import compile_model
-from schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
-from schemas.objectives import score
-from schemas.robot import IDEAL_PLANT
+from gainfarm.models import compile_model
+from gainfarm.schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
+from gainfarm.schemas.objectives import score
+from gainfarm.schemas.robot import IDEAL_PLANT
+from gainfarm.worker.control import PDController
+from gainfarm.worker.episode import gravity_for, gravity_torques, run_episode
+from gainfarm.worker.plant import Plant
+from gainfarm.worker.reference import reference_for
 from tests.helpers import SOFT_GAINS, TRACKING_GAINS
-from worker.control import PDController
-from worker.episode import gravity_for, gravity_torques, run_episode
-from worker.plant import Plant
-from worker.reference import reference_for
 
 SHORT = TrajectorySpec(duration=3.0)
 IDEAL_RIGID = IDEAL_PLANT.model_copy(update={"joints": "rigid"})

@@ -8,17 +8,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analytic.farm import FarmClient
-from analytic.local import local_farm
-from models.dynamics import digest, rigid_prior, to_bytes
-from schemas import EpisodeSpec, TrajectorySpec
-from schemas.mcap_episode import read_episode
-from schemas.objectives import score
-from schemas.robot import IDEAL_PLANT
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.local import local_farm
+from gainfarm.models.dynamics import digest, rigid_prior, to_bytes
+from gainfarm.schemas import EpisodeSpec, TrajectorySpec
+from gainfarm.schemas.mcap_episode import read_episode
+from gainfarm.schemas.objectives import score
+from gainfarm.schemas.robot import IDEAL_PLANT
+from gainfarm.worker.episode import MissingModel, run_episode
+from gainfarm.worker.feedforward import ModelCache, ModelUnavailable
+from gainfarm.worker.job import simulate
 from tests.helpers import SOFT_GAINS
-from worker.episode import MissingModel, run_episode
-from worker.feedforward import ModelCache, ModelUnavailable
-from worker.job import simulate
 
 RIGID_IDEAL = IDEAL_PLANT.model_copy(update={"joints": "rigid"})
 TRAJECTORY = TrajectorySpec(kind="fourier", duration=2.0, seed=4)
@@ -137,7 +137,7 @@ def test_worker_episode_takes_a_model_file_and_refuses_a_bad_one_in_one_line(
     (model_dir / "model.npz").write_bytes(rigid_model_bytes())
     (tmp_path / "forward.npz").write_bytes(to_bytes(rigid_prior(RIGID_IDEAL, target="forward")))
     (tmp_path / "junk.npz").write_bytes(b"not a model")
-    worker = [sys.executable, "-m", "worker", "episode", "--trajectory", "fourier"]
+    worker = [sys.executable, "-m", "gainfarm.worker", "episode", "--trajectory", "fourier"]
     common = [*worker, "--duration", "1", "--plant", "ideal", "--model", "rigid"]
     ran = subprocess.run(
         [*common, "--feedforward", str(model_dir), "--out", str(tmp_path / "e.mcap"), "--json"],
@@ -167,7 +167,7 @@ def test_worker_episode_takes_a_model_file_and_refuses_a_bad_one_in_one_line(
 
 
 def test_in_process_evaluation_uses_the_given_model(tmp_path: Path) -> None:
-    from analytic.inprocess import InProcessEvaluator
+    from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 
     raw = rigid_model_bytes()
     spec = EpisodeSpec(

@@ -5,15 +5,15 @@ import hashlib
 
 import pytest
 
-from models.dynamics import digest, rigid_prior, to_bytes
-from schemas import EpisodeSpec, TrajectorySpec
-from schemas.episode import Scores
-from schemas.mcap_episode import decode_episode
-from schemas.objectives import score
-from schemas.robot import IDEAL_PLANT
-from schemas.wire import Job, JobStatus, Lease, Result, WireScores
+from gainfarm.models.dynamics import digest, rigid_prior, to_bytes
+from gainfarm.schemas import EpisodeSpec, TrajectorySpec
+from gainfarm.schemas.episode import Scores
+from gainfarm.schemas.mcap_episode import decode_episode
+from gainfarm.schemas.objectives import score
+from gainfarm.schemas.robot import IDEAL_PLANT
+from gainfarm.schemas.wire import Job, JobStatus, Lease, Result, WireScores
+from gainfarm.worker.job import execute, simulate
 from tests.helpers import SOFT_GAINS, WEAK_GAINS, short_spec
-from worker.job import execute, simulate
 
 RIGID_IDEAL = IDEAL_PLANT.model_copy(update={"joints": "rigid"})
 FEEDFORWARD = to_bytes(rigid_prior(RIGID_IDEAL))
@@ -74,7 +74,7 @@ def test_scores_the_wire_cannot_carry_fail_the_job_instead_of_the_worker(
     def not_finite(log: object) -> Scores:
         return score(log).model_copy(update={"f_t": float("nan")})
 
-    monkeypatch.setattr("worker.job.score", not_finite)
+    monkeypatch.setattr("gainfarm.worker.job.score", not_finite)
     result, content = execute(lease(short_spec()), "w")
     assert result.status == JobStatus.failed and result.scores is None and content == b""
     assert "f_t" in result.reason and "\n" not in result.reason

@@ -5,7 +5,7 @@ import threading
 
 import pytest
 
-from worker.logstore import LogStore
+from gainfarm.worker.logstore import LogStore
 
 
 def test_logs_are_kept_within_the_bound_and_the_least_recently_used_go_first() -> None:

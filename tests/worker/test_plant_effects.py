@@ -8,15 +8,15 @@ import mujoco
 import numpy as np
 import pytest
 
-from models import compile_model
-from schemas import EpisodeSpec, PDGains, TrajectorySpec
-from schemas.objectives import score
-from schemas.robot import IDEAL_PLANT, REALISTIC_PLANT, Friction, ModelSpec, Sensors
-from schemas.trajectory import CONTROL_PERIOD
+from gainfarm.models import compile_model
+from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec
+from gainfarm.schemas.objectives import score
+from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT, Friction, ModelSpec, Sensors
+from gainfarm.schemas.trajectory import CONTROL_PERIOD
+from gainfarm.worker.episode import gravity_torques, run_episode, simulate
+from gainfarm.worker.reference import Reference
+from gainfarm.worker.sensors import Encoders
 from tests.helpers import TRACKING_GAINS
-from worker.episode import gravity_torques, run_episode, simulate
-from worker.reference import Reference
-from worker.sensors import Encoders
 
 DATA = Path(__file__).parent / "data"
 SHORT = TrajectorySpec(kind="fourier", duration=1.0)

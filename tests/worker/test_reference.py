@@ -5,19 +5,24 @@ import mujoco
 import numpy as np
 import pytest
 
-from models import FLANGE, compile_model
-from schemas import CONTROL_PERIOD, ModelSpec, TrajectoryKind, TrajectorySpec
-from schemas.robot import ACCELERATION_LIMITS, POSITION_LIMITS, SPEED_LIMITS
-from worker import reference as reference_module
-from worker.ik import ORIENTATION_TOLERANCE, REACH_TOLERANCE, READY_POSTURE, UnreachablePath
-from worker.reference import (
+from gainfarm.models import FLANGE, compile_model
+from gainfarm.schemas import CONTROL_PERIOD, ModelSpec, TrajectoryKind, TrajectorySpec
+from gainfarm.schemas.robot import ACCELERATION_LIMITS, POSITION_LIMITS, SPEED_LIMITS
+from gainfarm.worker import reference as reference_module
+from gainfarm.worker.ik import (
+    ORIENTATION_TOLERANCE,
+    REACH_TOLERANCE,
+    READY_POSTURE,
+    UnreachablePath,
+)
+from gainfarm.worker.reference import (
     FOURIER_FLOOR,
     InfeasibleReference,
     path_progress,
     reference_for,
     shortest_duration,
 )
-from worker.trajectories import path_points, rest_points, tool_yaw, twist_angle
+from gainfarm.worker.trajectories import path_points, rest_points, tool_yaw, twist_angle
 
 POSITION = np.array(POSITION_LIMITS)
 SPEED = np.array(SPEED_LIMITS)

@@ -14,13 +14,13 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from analytic.local import free_port, spawn_worker
-from broker.service import Broker
-from schemas import EpisodeSpec, keys
-from schemas.mcap_episode import decode_episode
-from schemas.objectives import score
-from schemas.transport import open_session
-from schemas.wire import (
+from gainfarm.analytic.evaluators.local import free_port, spawn_worker
+from gainfarm.broker.service import Broker
+from gainfarm.schemas import EpisodeSpec, keys
+from gainfarm.schemas.mcap_episode import decode_episode
+from gainfarm.schemas.objectives import score
+from gainfarm.schemas.transport import open_session
+from gainfarm.schemas.wire import (
     Job,
     JobStatus,
     Lease,
@@ -32,8 +32,8 @@ from schemas.wire import (
     Verdict,
     decode,
 )
+from gainfarm.worker.service import CobotWorker
 from tests.helpers import open_study, query, short_spec, wait_for
-from worker.service import CobotWorker
 
 
 class Inbox:
@@ -75,7 +75,16 @@ def get_log(
 
 def spawn(endpoint: str, name: str, *options: str) -> subprocess.Popen:
     """`worker start` as a farm runs it, with `options`."""
-    command = [sys.executable, "-m", "worker", "start", "--connect", endpoint, "--name", name]
+    command = [
+        sys.executable,
+        "-m",
+        "gainfarm.worker",
+        "start",
+        "--connect",
+        endpoint,
+        "--name",
+        name,
+    ]
     return subprocess.Popen(
         [*command, "--log-level", "warning", *options], stdin=subprocess.DEVNULL
     )
@@ -170,7 +179,7 @@ def test_a_worker_started_before_its_broker_waits_for_it() -> None:
 
 def run_worker(*arguments: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "worker", "start", *arguments],
+        [sys.executable, "-m", "gainfarm.worker", "start", *arguments],
         capture_output=True,
         text=True,
         timeout=60,

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from schemas import TrajectoryKind, TrajectorySpec
-from worker.trajectories import (
+from gainfarm.schemas import TrajectoryKind, TrajectorySpec
+from gainfarm.worker.trajectories import (
     CARTESIAN_KINDS,
     RANDOM_MIN_TURN_RADIUS,
     TOOL_DOWN,

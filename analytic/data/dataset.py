@@ -1,0 +1,775 @@
+"""The dataset for learning the cobot's dynamics: the tuned controllers' episodes, gathered.
+
+From one or more tuning runs, take the selected controllers (the whole Pareto front, or its knee)
+and their episodes on each trajectory (optionally each of them once more on further trajectories,
+through the farm: the paper's last step), and write a dataset directory:
+
+    episodes/<episode_id>.mcap  the MCAP logs, as the workers wrote them (hard-linked if possible)
+    ticks.parquet               one row per 2 ms tick of every episode
+    episodes.parquet            one row per episode: gains, objectives, trajectory, model, split
+    trajectories.parquet        one row per distinct trajectory: its identity and its split
+    README.md                   the dataset card
+
+Episode ids derive from the run's random run_id (run.json), never from its directory's name, so
+two runs in directories of one name cannot overwrite each other; an id that would still repeat
+(the same run given twice, or a copy of a run) is refused. The split into train, validation and
+test is by trajectory, so no trajectory is seen in training and again in testing.
+
+The directory appears whole or not at all: it is built beside its destination and renamed.
+"""
+
+import contextlib
+import hashlib
+import json
+import math
+import os
+import shutil
+from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import AbstractContextManager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from pydantic import TypeAdapter, ValidationError
+
+from gainfarm.analytic.evaluators.batch import batch_jobs, run_batch
+from gainfarm.analytic.evaluators.evaluator import EvaluationStatus, Evaluator
+from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.local import local_farm
+from gainfarm.analytic.tuning.evolution import normalise
+from gainfarm.analytic.tuning.records import (
+    RUN_JSON,
+    FrontMember,
+    RunRecord,
+    read_identity,
+    read_run,
+)
+from gainfarm.analytic.tuning.run import RunBusy, TuningRun, upgrade
+from gainfarm.analytic.tuning.tune import new_study_name
+from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.files import staging_directory, write_atomically
+from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
+from gainfarm.schemas.objectives import score
+from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
+from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
+from gainfarm.schemas.wire import describe
+
+Selection = Literal["front", "knee"]
+Split = tuple[float, float, float]
+
+DATASET_VERSION = "2"  # 2: run-id episode ids, trajectories.parquet, qdd, split, units
+SPLITS = ("train", "validation", "test")
+DEFAULT_SPLIT: Split = (0.6, 0.2, 0.2)
+RUN_ID_DIGITS = 8  # of the run's 32: unique enough, and a collision is refused, not merged
+TRAJECTORY_ID_DIGITS = 12
+TUNING, RERUN = "tuning", "rerun"  # the `source` column: where an episode comes from
+RERUN_DIR = "rerun"  # the rerun's batch directory, inside the staging directory
+
+# Per-tick signals: name → (unit, what it is). Joint signals get _A1.._A7, Cartesian _x.._z.
+JOINT_SIGNALS = {
+    "q": ("rad", "link-side joint position, as the encoders measured it"),
+    "qd": ("rad/s", "link-side joint velocity, as measured"),
+    "qdd": (
+        "rad/s^2",
+        "link-side acceleration (qd[k+1] - qd[k]) / control period, within the episode: what "
+        "row k's command produced; NaN on an episode's last tick",
+    ),
+    "tau": ("N*m", "joint torque sensors' reading (the spring torque if the joints are elastic)"),
+    "u": ("N*m", "motor torque command as applied (delayed, saturated) from tick k to k + 1"),
+    "theta": ("rad", "motor-side angle, as measured (the link angle if the joints are rigid)"),
+    "theta_d": ("rad/s", "motor-side velocity, as measured"),
+    "q_des": ("rad", "reference joint position"),
+    "qd_des": ("rad/s", "reference joint velocity"),
+}
+LOGGED_JOINT_SIGNALS = tuple(signal for signal in JOINT_SIGNALS if signal != "qdd")
+CARTESIAN_SIGNALS = {
+    "ee": ("m", "flange position, base frame"),
+    "ee_des": ("m", "desired flange position, base frame"),
+}
+AXES = ("x", "y", "z")
+
+# Every other column of the three tables: name → (unit, what it is). "" is no unit (ids, counts).
+COLUMNS = {
+    "episode_id": ("", "<first 8 hex digits of the run_id>-<job id> (-rerun- for reruns)"),
+    "trajectory": ("", "the trajectory's kind"),
+    "trajectory_id": ("", "short SHA-256 of the trajectory's canonical JSON spec"),
+    "split": ("", "train, validation or test: by trajectory"),
+    "t": ("s", "time since the episode started"),
+    "run": ("", "the tuning run's directory name, or 'rerun'"),
+    "run_id": ("", "the run_id (run.json) of the run the controller was tuned in"),
+    "source": ("", "tuning: an episode of the tuning run; rerun: run again for the dataset"),
+    "f_acc": ("m", "mean end-effector position error of this episode"),
+    "f_t": ("(N*m)^2", "mean squared torque change per tick of this episode"),
+    "diverged": ("", "the episode was stopped early"),
+    "ticks": ("", "ticks in the episode"),
+    "duration": ("s", "the trajectory's duration"),
+    "trajectory_spec": ("", "the TrajectorySpec, JSON"),
+    "model": ("", "the plant: ModelSpec, JSON"),
+    "gravity_compensation": ("", "g(q_des) feed-forward was on"),
+    "feedforward": ("", "SHA-256 of the learned inverse-dynamics feed-forward, if any"),
+    "candidate_f_acc": ("m", "the controller's f_acc over its run's trajectory set"),
+    "candidate_f_t": ("(N*m)^2", "the controller's f_t over its run's trajectory set"),
+    "kind": ("", "the trajectory's kind"),
+    "seed": ("", "seed of the random kind's waypoints and the fourier kind's series"),
+    "center_x": ("m", "the Cartesian path's centre, base frame"),
+    "center_y": ("m", "the Cartesian path's centre, base frame"),
+    "center_z": ("m", "the Cartesian path's centre, base frame"),
+    "size": ("m", "the Cartesian path's half-width"),
+    "twist": ("rad", "amplitude of the flange's turn about the tool axis"),
+    "turns": ("", "spiral only: turns"),
+    "waypoints": ("", "random only: control points"),
+    "harmonics": ("", "fourier only: harmonics per joint"),
+    "spec": ("", "the TrajectorySpec, canonical JSON (sorted keys): what trajectory_id hashes"),
+    "episodes": ("", "episodes of this trajectory in the dataset"),
+}
+for _joint in JOINT_NAMES:
+    COLUMNS[f"kp_{_joint}"] = ("N*m/rad", "proportional gain")
+    COLUMNS[f"kd_{_joint}"] = ("N*m*s/rad", "derivative gain")
+
+
+class NoEpisodes(ValueError):
+    pass
+
+
+class UnreadableRun(ValueError):
+    pass
+
+
+class DuplicateEpisodes(ValueError):
+    """Two sources would give the same episode id: refused, never merged."""
+
+
+class BadSplit(ValueError):
+    """The split's fractions, or too few trajectories for its non-empty parts."""
+
+
+class BadRerun(ValueError):
+    """A rerun trajectory list that is not one, or a trajectory the robot cannot follow."""
+
+
+class RerunFailed(ValueError):
+    """A rerun episode did not run: the dataset would be missing it."""
+
+
+# Given the directory a rerun's batch writes into, a context giving the evaluator to run it on.
+RerunFarm = Callable[[Path], AbstractContextManager[Evaluator]]
+
+
+@dataclass(frozen=True)
+class ChosenRun:
+    """One run and the controllers selected from it."""
+
+    directory: Path
+    name: str
+    run_id: str
+    model: ModelSpec
+    members: list[FrontMember]
+    feedforward: str | None = None  # the learned model its episodes add to the PD, if any
+
+
+@dataclass(frozen=True)
+class Source:
+    """One episode going into the dataset."""
+
+    episode_id: str
+    run: str  # the run directory's name, or RERUN
+    run_id: str  # the run the controller comes from
+    path: Path
+    member: FrontMember
+    source: str = TUNING
+
+
+@dataclass(frozen=True)
+class Episode:
+    """One episode read: its ticks (all but the split, assigned once every trajectory is known)
+    and its row of episodes.parquet."""
+
+    source: Source
+    trajectory: TrajectorySpec
+    ticks: pa.Table
+    row: dict[str, object]
+
+
+def select(run: RunRecord, selection: Selection) -> list[FrontMember]:
+    """The front, or its knee: the member nearest the ideal point in the hypervolume's space."""
+    front = run.front
+    if selection == "front" or not front:
+        return front
+    normalised = normalise([member.objectives for member in front], run.config.reference_point)
+    return [front[int(np.argmin(np.hypot(normalised[:, 0], normalised[:, 1])))]]
+
+
+def run_id_of(run_dir: Path) -> str:
+    """The run's id from run.json. A run from between front.json and run ids has none yet:
+    opening it gives it one (what its next resume would do); one that another process is
+    running got it when that process opened it."""
+    path = Path(run_dir) / RUN_JSON
+    if not path.exists():
+        with contextlib.suppress(RunBusy):
+            TuningRun.open(run_dir).close()
+    return read_identity(path).run_id
+
+
+def choose(run_dirs: Sequence[Path], selection: Selection) -> list[ChosenRun]:
+    """Each run with its selected controllers; a run given twice (or a copy of one: the same
+    run_id) is refused, since its episodes would get the same ids."""
+    chosen: list[ChosenRun] = []
+    seen: dict[str, Path] = {}
+    for run_dir in run_dirs:
+        try:
+            upgrade(run_dir)
+            run = read_run(run_dir)
+            run_id = run_id_of(run_dir)
+        except (OSError, ValueError, RunBusy) as error:
+            raise UnreadableRun(f"{str(run_dir)!r}: unreadable run ({error})") from None
+        if run_id in seen:
+            raise DuplicateEpisodes(
+                f"{str(seen[run_id])!r} and {str(run_dir)!r} are the same run (run_id {run_id}): "
+                "a run given twice, or a copy of one; give each run once"
+            )
+        seen[run_id] = Path(run_dir)
+        name = Path(run_dir).resolve().name
+        members = select(run, selection)
+        chosen.append(
+            ChosenRun(
+                Path(run_dir), name, run_id, run.config.model, members, run.config.feedforward
+            )
+        )
+    return chosen
+
+
+def sources(chosen: Sequence[ChosenRun]) -> list[Source]:
+    """Every kept log of the selected members, as each run's front.json lists them."""
+    found = []
+    for run in chosen:
+        for member in run.members:
+            for log in member.logs:
+                path = run.directory / log
+                if path.is_file():
+                    episode_id = f"{run.run_id[:RUN_ID_DIGITS]}-{path.stem}"
+                    found.append(Source(episode_id, run.name, run.run_id, path, member))
+    return found
+
+
+def refuse_duplicates(episode_ids: Sequence[str]) -> None:
+    """Two episodes under one id would overwrite each other's log: refuse instead."""
+    repeated = sorted(name for name, count in Counter(episode_ids).items() if count > 1)
+    if repeated:
+        raise DuplicateEpisodes(
+            f"episode id {repeated[0]!r} would be given to {Counter(episode_ids)[repeated[0]]} "
+            f"episodes ({len(repeated)} ids repeat): two runs share a run_id prefix; give each "
+            "run once"
+        )
+
+
+def canonical_json(trajectory: TrajectorySpec) -> str:
+    """The spec's JSON with sorted keys and no spaces: equal specs, equal text."""
+    return json.dumps(trajectory.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+
+
+def trajectory_id(trajectory: TrajectorySpec) -> str:
+    return hashlib.sha256(canonical_json(trajectory).encode()).hexdigest()[:TRAJECTORY_ID_DIGITS]
+
+
+def check_split(fractions: Sequence[float]) -> Split:
+    """Three non-negative fractions summing to 1 (train, validation, test)."""
+    values = tuple(float(value) for value in fractions)
+    if (
+        len(values) != 3
+        or not all(math.isfinite(value) and value >= 0 for value in values)
+        or not math.isclose(sum(values), 1.0, abs_tol=1e-9)
+    ):
+        shown = ",".join(f"{value:g}" for value in values)
+        raise BadSplit(
+            f"expected three non-negative fractions (train,validation,test) summing to 1, "
+            f"got {shown}"
+        )
+    return values  # type: ignore[return-value]  # three, checked above
+
+
+def split_counts(fractions: Split, trajectories: int) -> list[int]:
+    """How many trajectories each part gets: the largest-remainder rounding of its share, then
+    every part with a positive fraction at least one, taken from the largest part."""
+    fractions = check_split(fractions)
+    positive = [index for index, value in enumerate(fractions) if value > 0]
+    if len(positive) > trajectories:
+        names = "/".join(SPLITS[index] for index in positive)
+        example = "1,0,0" if trajectories <= 1 else "0.5,0,0.5"
+        raise BadSplit(
+            f"{len(positive)} non-empty parts ({names}) but the dataset has only {trajectories} "
+            f"trajector{'y' if trajectories == 1 else 'ies'}: give the empty parts 0 "
+            f"(e.g. {example}), or add trajectories with --rerun"
+        )
+    total = sum(fractions)
+    exact = [value / total * trajectories for value in fractions]
+    counts = [math.floor(value) for value in exact]
+    leftover = trajectories - sum(counts)
+    by_remainder = sorted(positive, key=lambda index: (counts[index] - exact[index], index))
+    for index in by_remainder[:leftover]:
+        counts[index] += 1
+    for index in positive:
+        if counts[index] == 0:  # some other part has two or more: there are enough trajectories
+            donor = max(range(3), key=lambda other: (counts[other], -other))
+            counts[donor] -= 1
+            counts[index] += 1
+    return counts
+
+
+def assign_splits(ids: Sequence[str], fractions: Split, seed: int = 0) -> dict[str, str]:
+    """trajectory_id → split. Deterministic: the ids in the order of their hash with `seed`,
+    cut by `split_counts`; so the split does not depend on the order the runs were given in."""
+    unique = sorted(set(ids))
+    counts = split_counts(fractions, len(unique))
+    order = sorted(unique, key=lambda tid: hashlib.sha256(f"{seed}:{tid}".encode()).hexdigest())
+    names = [name for name, count in zip(SPLITS, counts, strict=True) for _ in range(count)]
+    return dict(zip(order, names, strict=True))
+
+
+def read_rerun(path: Path) -> list[TrajectorySpec]:
+    """The rerun file: a JSON list of TrajectorySpec objects; BadRerun saying what is wrong."""
+    try:
+        content = Path(path).read_bytes()
+    except OSError as error:
+        raise BadRerun(f"cannot read {str(path)!r}: {error.strerror}") from None
+    try:
+        trajectories = TypeAdapter(list[TrajectorySpec]).validate_json(content)
+    except ValidationError as error:
+        raise BadRerun(f"{str(path)!r}: {describe(error)}") from None
+    check_rerun(trajectories, followable=False)
+    return trajectories
+
+
+def check_rerun(trajectories: Sequence[TrajectorySpec], followable: bool = True) -> None:
+    """A non-empty list without repeats (a repeat would be the same episode twice), and, with
+    `followable`, only trajectories the iiwa can follow (every episode of another would fail)."""
+    if not trajectories:
+        raise BadRerun("the list of trajectories is empty")
+    first: dict[str, int] = {}
+    for number, trajectory in enumerate(trajectories, start=1):
+        earlier = first.setdefault(canonical_json(trajectory), number)
+        if earlier != number:
+            raise BadRerun(f"trajectory {number} repeats trajectory {earlier}")
+    if not followable:
+        return
+    from gainfarm.worker.ik import UnreachablePath  # MuJoCo loads only when a rerun needs it
+    from gainfarm.worker.reference import InfeasibleReference, reference_for
+
+    for number, trajectory in enumerate(trajectories, start=1):
+        try:
+            reference_for(trajectory)
+        except (InfeasibleReference, UnreachablePath) as error:
+            what = f"{trajectory.kind.value}, {trajectory.duration:g} s"
+            raise BadRerun(f"trajectory {number} ({what}): {error}") from None
+
+
+def tick_columns(episode_id: str, log: EpisodeLog) -> dict[str, np.ndarray]:
+    """The ticks of one episode as flat, named columns (t, q_A1 ... ee_des_z), the split aside.
+
+    qdd is differenced within the episode, forward: row k's u acts from tick k to k + 1, so
+    (qd[k+1] - qd[k]) / period is the acceleration it produced. The last tick has no next one:
+    NaN, never a difference across two episodes.
+    """
+    ticks = log.ticks
+    columns: dict[str, np.ndarray] = {
+        "episode_id": np.full(ticks, episode_id, dtype=object),
+        "trajectory": np.full(ticks, log.metadata.spec.trajectory.kind.value, dtype=object),
+        "trajectory_id": np.full(ticks, trajectory_id(log.metadata.spec.trajectory), dtype=object),
+        "t": log.t,
+    }
+    qdd = np.full_like(log.qd, np.nan, dtype=np.float64)
+    qdd[:-1] = np.diff(log.qd, axis=0) / log.metadata.control_period
+    signals = {signal: getattr(log, signal) for signal in LOGGED_JOINT_SIGNALS} | {"qdd": qdd}
+    for signal in JOINT_SIGNALS:
+        for index, joint in enumerate(JOINT_NAMES):
+            columns[f"{signal}_{joint}"] = signals[signal][:, index]
+    for signal in CARTESIAN_SIGNALS:
+        values = getattr(log, signal)
+        for index, axis in enumerate(AXES):
+            columns[f"{signal}_{axis}"] = values[:, index]
+    return columns
+
+
+def episode_row(source: Source, log: EpisodeLog) -> dict[str, object]:
+    spec = log.metadata.spec
+    scores = score(log)
+    row: dict[str, object] = {
+        "episode_id": source.episode_id,
+        "run": source.run,
+        "run_id": source.run_id,
+        "source": source.source,
+        "trajectory_id": trajectory_id(spec.trajectory),
+    }
+    row |= {f"kp_{joint}": gain for joint, gain in zip(JOINT_NAMES, spec.gains.kp, strict=True)}
+    row |= {f"kd_{joint}": gain for joint, gain in zip(JOINT_NAMES, spec.gains.kd, strict=True)}
+    row |= {
+        "f_acc": scores.f_acc,
+        "f_t": scores.f_t,
+        "diverged": scores.diverged,
+        "ticks": log.ticks,
+        "trajectory": spec.trajectory.kind.value,
+        "duration": spec.trajectory.duration,
+        "trajectory_spec": spec.trajectory.model_dump_json(),
+        "model": spec.model.model_dump_json(),
+        "gravity_compensation": spec.gravity_compensation,
+        "feedforward": spec.feedforward or "",
+        "candidate_f_acc": source.member.f_acc,
+        "candidate_f_t": source.member.f_t,
+    }
+    return row
+
+
+def trajectory_row(trajectory: TrajectorySpec) -> dict[str, object]:
+    return {
+        "trajectory_id": trajectory_id(trajectory),
+        "kind": trajectory.kind.value,
+        "seed": trajectory.seed,
+        "center_x": trajectory.center[0],
+        "center_y": trajectory.center[1],
+        "center_z": trajectory.center[2],
+        "size": trajectory.size,
+        "duration": trajectory.duration,
+        "twist": trajectory.twist,
+        "turns": trajectory.turns,
+        "waypoints": trajectory.waypoints,
+        "harmonics": trajectory.harmonics,
+        "spec": canonical_json(trajectory),
+    }
+
+
+def read_source(source: Source) -> Episode:
+    """One episode's log, read and tabled; a damaged log is the run's problem, in one line."""
+    try:
+        log = read_episode(source.path)
+    except NotAnEpisodeLog as error:
+        raise UnreadableRun(str(error)) from None
+    if log.ticks == 0:  # an episode keeps at least its first tick: the arm starts on its path
+        raise UnreadableRun(f"{source.path}: an episode log without a single tick: damaged")
+    if log.metadata.control_period != CONTROL_PERIOD:  # qdd and the schema assume one period
+        raise UnreadableRun(
+            f"{source.path}: control period {log.metadata.control_period} s, "
+            f"not the dataset's {CONTROL_PERIOD} s"
+        )
+    trajectory = log.metadata.spec.trajectory
+    ticks = pa.table(tick_columns(source.episode_id, log))
+    return Episode(source, trajectory, ticks, episode_row(source, log))
+
+
+def column_unit(name: str) -> tuple[str, str]:
+    """A column's (unit, description); KeyError for a column nobody documented."""
+    if name in COLUMNS:
+        return COLUMNS[name]
+    signal, _, part = name.rpartition("_")
+    if part in JOINT_NAMES and signal in JOINT_SIGNALS:
+        return JOINT_SIGNALS[signal]
+    if part in AXES and signal in CARTESIAN_SIGNALS:
+        return CARTESIAN_SIGNALS[signal]
+    raise KeyError(f"column {name!r} has no unit")
+
+
+def with_units(table: pa.Table, metadata: dict[str, str]) -> pa.Table:
+    """`table` with every field's unit and description in its metadata, and `metadata` (the
+    control period, the dataset's version, ...) in the schema's: Parquet keeps both."""
+    fields = []
+    for field in table.schema:
+        unit, description = column_unit(field.name)
+        fields.append(field.with_metadata({"unit": unit, "description": description}))
+    schema = pa.schema(fields, metadata=metadata)
+    return pa.Table.from_arrays(table.columns, schema=schema)
+
+
+def link_or_copy(source: Path, target: Path) -> bool:
+    """Hard-link `source` at `target` (no second copy of gigabytes of logs; the runs write
+    their logs atomically, by rename, so the shared inode is never changed in place); copy it
+    if the file system will not (another device, no permission). True if linked."""
+    try:
+        os.link(source, target)
+    except OSError:
+        shutil.copyfile(source, target)
+        return False
+    return True
+
+
+@contextlib.contextmanager
+def local_rerun_farm(run_dir: Path, workers: int = 1) -> Iterator[Evaluator]:
+    """A local farm for the rerun, for the block: what `build` uses if given none."""
+    with (
+        local_farm(workers) as endpoint,
+        FarmClient([endpoint], new_study_name(run_dir), run_dir) as farm,
+    ):
+        yield farm
+
+
+def rerun(
+    chosen: Sequence[ChosenRun],
+    trajectories: Sequence[TrajectorySpec],
+    staging: Path,
+    farm: RerunFarm,
+) -> list[Episode]:
+    """Run every selected controller on every rerun trajectory (on its own run's plant) through
+    the farm, in a batch directory inside the staging directory; move each log into episodes/.
+    RerunFailed if any episode could not run: the dataset would be silently short of it."""
+    jobs, owners = {}, {}
+    for run in chosen:
+        prefix = run.run_id[:RUN_ID_DIGITS]
+        gains = [member.gains for member in run.members]
+        # batch_jobs orders its jobs candidate by candidate, trajectory by trajectory.
+        members = [member for member in run.members for _ in trajectories]
+        specs = batch_jobs(gains, trajectories, run.model)
+        for (job_id, spec), member in zip(specs.items(), members, strict=True):
+            jobs[f"{prefix}-{job_id}"] = spec
+            owners[f"{prefix}-{job_id}"] = (run, member, f"{prefix}-{RERUN}-{job_id}")
+    if not jobs:
+        return []
+    batch_dir = staging / RERUN_DIR
+    batch_dir.mkdir()
+    with farm(batch_dir) as evaluator:
+        evaluations = {e.job_id: e for e in run_batch(evaluator, jobs, batch_dir)}
+    episodes = []
+    for job_id in jobs:
+        evaluation = evaluations.get(job_id)
+        if (
+            evaluation is None
+            or evaluation.log is None
+            or evaluation.status
+            not in (
+                EvaluationStatus.ok,
+                EvaluationStatus.diverged,
+            )
+        ):
+            status = evaluation.status.value if evaluation else "lost"
+            reason = f": {evaluation.reason}" if evaluation and evaluation.reason else ""
+            raise RerunFailed(f"rerun episode {job_id} {status}{reason}; nothing was written")
+        run, member, episode_id = owners[job_id]
+        path = staging / "episodes" / f"{episode_id}.mcap"
+        os.replace(evaluation.log, path)
+        episodes.append(read_source(Source(episode_id, RERUN, run.run_id, path, member, RERUN)))
+    shutil.rmtree(batch_dir)  # its evaluations.json says nothing episodes.parquet does not
+    return episodes
+
+
+def build(
+    run_dirs: Sequence[Path],
+    out: Path,
+    selection: Selection = "front",
+    *,
+    split: Sequence[float] = DEFAULT_SPLIT,
+    split_seed: int = 0,
+    rerun_trajectories: Sequence[TrajectorySpec] = (),
+    farm: RerunFarm = local_rerun_farm,
+) -> dict[str, int]:
+    """Write the dataset to `out` (which must not exist); return its counts.
+
+    Everything that can be refused is, before anything is written or run: the runs, repeated
+    ids, the rerun's trajectories, the split. The rerun (if any) runs on `farm` last.
+    """
+    out = Path(out)
+    if out.exists():
+        raise FileExistsError(f"{out} already exists")
+    fractions = check_split(split)
+    chosen = choose(run_dirs, selection)
+    found = sources(chosen)
+    if rerun_trajectories:
+        check_rerun(rerun_trajectories)
+        learned = [run.name for run in chosen if run.feedforward is not None]
+        if learned:  # run without its model, its controller would make other data: refuse
+            raise BadRerun(
+                f"run {learned[0]!r} tunes its PD on top of a learned feed-forward; rerunning "
+                "such controllers is not supported yet"
+            )
+    reruns = len(rerun_trajectories) * sum(len(run.members) for run in chosen)
+    if not found and not reruns:
+        raise NoEpisodes(
+            "none of the selected controllers has an episode log in its run's episodes/"
+        )
+    rerun_ids = [
+        f"{run.run_id[:RUN_ID_DIGITS]}-{RERUN}-{job_id}"
+        for run in chosen
+        for job_id in batch_jobs([m.gains for m in run.members], rerun_trajectories, run.model)
+    ]
+    refuse_duplicates([source.episode_id for source in found] + rerun_ids)
+    episodes = [read_source(source) for source in found]
+    # The split is checked against every trajectory, the rerun's too, before the farm runs.
+    known = [episode.trajectory for episode in episodes] + list(rerun_trajectories) * bool(reruns)
+    assign_splits([trajectory_id(trajectory) for trajectory in known], fractions, split_seed)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = staging_directory(out)
+    try:
+        (staging / "episodes").mkdir()
+        linked = sum(
+            link_or_copy(e.source.path, staging / "episodes" / f"{e.source.episode_id}.mcap")
+            for e in episodes
+        )
+        copied = len(episodes) - linked
+        if rerun_trajectories:
+            episodes += rerun(chosen, rerun_trajectories, staging, farm)
+        trajectories = {trajectory_id(e.trajectory): e.trajectory for e in episodes}
+        splits = assign_splits(list(trajectories), fractions, split_seed)
+        metadata = {
+            "dataset_version": DATASET_VERSION,
+            "control_period": repr(CONTROL_PERIOD),
+            "control_period_unit": "s",
+            "split": ",".join(repr(value) for value in fractions),
+            "split_seed": str(split_seed),
+        }
+        ticks = pa.concat_tables(
+            episode.ticks.add_column(
+                episode.ticks.schema.get_field_index("t"),
+                "split",
+                pa.array([splits[trajectory_id(episode.trajectory)]] * episode.ticks.num_rows),
+            )
+            for episode in episodes
+        )
+        pq.write_table(
+            with_units(ticks, metadata | {"table": "ticks"}),
+            staging / "ticks.parquet",
+            compression="zstd",
+        )
+        rows = [
+            episode.row | {"split": splits[episode.row["trajectory_id"]]} for episode in episodes
+        ]
+        pq.write_table(
+            with_units(pa.Table.from_pylist(rows), metadata | {"table": "episodes"}),
+            staging / "episodes.parquet",
+        )
+        per_trajectory = Counter(str(row["trajectory_id"]) for row in rows)
+        trajectory_rows = [
+            trajectory_row(trajectory) | {"split": splits[tid], "episodes": per_trajectory[tid]}
+            for tid, trajectory in sorted(trajectories.items())
+        ]
+        pq.write_table(
+            with_units(pa.Table.from_pylist(trajectory_rows), metadata | {"table": "trajectories"}),
+            staging / "trajectories.parquet",
+        )
+        counts = {
+            "episodes": len(rows),
+            "ticks": ticks.num_rows,
+            "controllers": len({e.source.member.gains for e in episodes}),
+            "runs": len({e.source.run_id for e in episodes}),
+            "trajectories": len(trajectories),
+            "rerun": sum(e.source.source == RERUN for e in episodes),
+            "rerun_trajectories": len(rerun_trajectories),
+            "linked": linked,
+            "copied": copied,
+        } | {name: sum(s == name for s in splits.values()) for name in SPLITS}
+        text = card(counts, chosen, selection, fractions, split_seed)
+        write_atomically(staging / "README.md", text.encode())
+        staging.rename(out)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return counts
+
+
+def card(
+    counts: dict[str, int],
+    chosen: Sequence[ChosenRun],
+    selection: Selection,
+    split: Split = DEFAULT_SPLIT,
+    split_seed: int = 0,
+) -> str:
+    """The dataset's README.md: what it holds, every column and its unit, how it was made."""
+    joint_columns = "\n".join(
+        f"  - `{signal}_A1..A7` ({unit}): {description}"
+        for signal, (unit, description) in JOINT_SIGNALS.items()
+    )
+    chosen_text = (
+        "every Pareto-front controller"
+        if selection == "front"
+        else "the knee (the front member nearest the ideal point)"
+    )
+    runs = "\n".join(f"- `{run.name}`: run_id `{run.run_id}`" for run in chosen)
+    fractions = ",".join(f"{value:g}" for value in split)
+    if counts["linked"] + counts["copied"] == 0:
+        logs = "the rerun's own, none a tuning run's"
+    elif counts["copied"] == 0:
+        logs = "hard links to the runs' own logs (the same inode, no second copy)"
+    elif counts["linked"] == 0:
+        logs = "copies of the runs' logs (the file system refused hard links)"
+    else:
+        logs = (
+            f"{counts['linked']} hard links to the runs' own logs and {counts['copied']} copies "
+            "(where the file system refused a link)"
+        )
+    rerun = (
+        f" The {counts['rerun']} rerun episodes' logs were written for this dataset."
+        if counts["rerun"]
+        else ""
+    )
+    rerun_line = (
+        f", and each of them run once more on the {counts['rerun_trajectories']} trajectories of "
+        "the rerun (`source` rerun)"
+        if counts["rerun"]
+        else ""
+    )
+    caution = " Do not edit a log in place: a hard-linked one changes in its run too." * bool(
+        counts["linked"]
+    )
+    command = f"analytic dataset ... --select {selection} --split {fractions}"
+    command += f" --split-seed {split_seed}" + (" --rerun FILE" if counts["rerun"] else "")
+    return f"""# gainfarm dynamics dataset
+
+Torque, position and velocity episodes of a simulated KUKA LBR iiwa 14 (MuJoCo, elastic joints
+unless the `model` column says otherwise) under PD controllers tuned by NSGA-II for tracking
+accuracy and torque smoothness: {chosen_text} of each run below, on each trajectory it was
+tuned on{rerun_line}.
+
+{counts["episodes"]} episodes, {counts["ticks"]:,} ticks at 500 Hz (control period
+{CONTROL_PERIOD} s), {counts["controllers"]} controllers from {counts["runs"]} runs, on
+{counts["trajectories"]} trajectories. Dataset version {DATASET_VERSION}.
+
+{runs}
+
+## Split
+
+By trajectory, never by tick: every tick of every episode of one `trajectory_id` is in the same
+part, so a model is tested on motions it never saw. Fractions {fractions} (train, validation,
+test) of the trajectories, ordered by the SHA-256 of `<split seed>:<trajectory_id>` (split seed
+{split_seed}), each part with a positive fraction given at least one: {counts["train"]} train,
+{counts["validation"]} validation, {counts["test"]} test trajectories.
+
+## Files
+
+- `ticks.parquet`: one row per 2 ms control tick. `episode_id`, `trajectory` (its kind),
+  `trajectory_id`, `split`, `t` (s since the episode started), and per joint:
+{joint_columns}
+
+  and `ee_x..z`, `ee_des_x..z` (flange position and its desired value, m, base frame).
+  Row `k` of an episode is tick `k` of its MCAP log: the state sensed at tick `k` and the
+  command `u` then applied until tick `k + 1`. `qdd` is computed within each episode,
+  `(qd[k+1] - qd[k]) / {CONTROL_PERIOD}`: the acceleration produced while row `k`'s `u` was
+  applied, so it pairs with `u` exactly; it is NaN on each episode's last tick (never a
+  difference across two episodes). Motor side (`theta`, `theta_d`) and torque sensors (`tau`)
+  are as the sensors report them, noise included on the realistic plant; `u` is the command as
+  the motors received it (after the plant's delay and saturation). The `model` column of
+  `episodes.parquet` says which plant: friction, delay, sensors, feedback side.
+- `episodes.parquet`: one row per episode. `episode_id` (`<first 8 hex digits of the
+  run_id>-<job id>`, with `-rerun-` for reruns), `run` (the run directory's name, or `rerun`),
+  `run_id` (the controller's run, from its run.json), `source` (`tuning` or `rerun`),
+  `trajectory_id`, `kp_A1..A7` (N·m/rad), `kd_A1..A7` (N·m·s/rad), `f_acc` (mean end-effector
+  error, m), `f_t` (mean squared torque change per tick, (N·m)²), `diverged`, `ticks`,
+  `trajectory`, `duration` (s), `trajectory_spec` and `model` (JSON), `gravity_compensation`,
+  `feedforward` (the learned model's SHA-256, or empty),
+  `candidate_f_acc`, `candidate_f_t` (the controller's objectives over its run's trajectory set),
+  `split`.
+- `trajectories.parquet`: one row per distinct trajectory. `trajectory_id` (the first
+  {TRAJECTORY_ID_DIGITS} hex digits of the SHA-256 of `spec`), `kind`, `seed`, `center_x..z` (m),
+  `size` (m), `duration` (s), `twist` (rad), `turns`, `waypoints`, `harmonics`, `spec` (the
+  TrajectorySpec as canonical JSON: sorted keys, no spaces), `split`, `episodes`.
+- `episodes/<episode_id>.mcap`: the original logs (ROS 2 CDR: `/joint_states`,
+  `/joint_commands`, `/motor_states`, `/joint_reference`, `/ee/actual`, `/ee/desired`, and in
+  recent logs, for ROS 2 tools such as Foxglove, `/tf` and `/robot_description`: the arm's links
+  at 50 Hz and its URDF; the channel contract is in gainfarm's schemas/README.md), each with its
+  full spec in the `gainfarm.episode` metadata record. They are {logs}.{rerun}{caution}
+
+Every Parquet column carries its unit (`unit`: rad, rad/s, rad/s^2, N*m, m, s, or empty for ids
+and counts) and a `description` in its field metadata; each table's schema metadata holds the
+`control_period` (s), the `dataset_version`, the `split` and the `split_seed`.
+
+Made with:
+
+    {command}
+"""

@@ -1,0 +1,627 @@
+"""The analytic side's door to the farm: submit candidates, get scored evaluations back. An
+`Evaluator` (analytic.evaluator) whose jobs run on any number of cobots.
+
+    with FarmClient(["tcp/127.0.0.1:7447"], study="spiral-pop30", run_dir=Path("runs/a")) as farm:
+        farm.submit({"g0-spiral": spec, ...})
+        for evaluation in farm.results():
+            ...  # in completion order, each scored from its MCAP log, kept in run_dir/episodes/
+
+The client holds the study's liveliness token (the broker drops the study's queued jobs when it
+goes), keeps a deadline per job and resubmits a job whose result has not come by then, and counts
+each job once however many results arrive for it.
+
+Every result brings the scores its worker computed from its log. With `keep_logs` (the default)
+the log comes along too: it must be the digest's bytes and score as claimed, and is kept. Without
+it the worker keeps the log, the evaluation is the worker's scores, and `fetch` brings the logs
+wanted later (checked by their digest and scored again here; a log gone is simulated again).
+
+A result counts only once the broker confirms it: the broker takes a result from the worker that
+holds the job's lease alone, and tells the study which one it took (lease, worker, the log's
+SHA-256 and the scores). Anyone else's result for the job, however well made, is ignored, and so
+is any answer that does not come from the broker. A broker that does not answer costs no job an
+attempt: the client waits for it, and says so (`waiting`).
+"""
+
+import hashlib
+import logging
+import queue
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import zenoh
+
+from gainfarm.analytic.evaluators.evaluator import (
+    Evaluation,
+    EvaluationStatus,
+    Fetched,
+    ReadLog,
+    Wanted,
+    accept_log,
+)
+from gainfarm.broker.status import BrokerUnavailable, query_status
+from gainfarm.schemas import keys
+from gainfarm.schemas.ask import ask
+from gainfarm.schemas.episode import EpisodeSpec, Scores
+from gainfarm.schemas.mcap_episode import NotAnEpisodeLog
+from gainfarm.schemas.security import TlsIdentity
+from gainfarm.schemas.transport import open_session, token_held
+from gainfarm.schemas.wire import (
+    MAX_EPISODE_BYTES,
+    Accepted,
+    BadMessage,
+    BrokerStatus,
+    ConfirmReply,
+    ConfirmRequest,
+    Job,
+    JobStatus,
+    Result,
+    Submission,
+    SubmitReply,
+    decode,
+)
+
+log = logging.getLogger("gainfarm.analytic")
+
+DEFAULT_DEADLINE = 600.0  # s from (re)submission: a backstop; leases and liveliness act sooner
+DEFAULT_ATTEMPTS = 3
+SUBMIT_CHUNK = 100  # jobs per Submission: the broker parses each in one go, holding the GIL
+ANSWER_SECONDS = 10.0  # how long the broker has to answer a submission or a status query
+RECHECK_SECONDS = 1.0  # how often overdue jobs are looked for, and unconfirmed results asked about
+CONFIRM_BATCH = 1000  # results confirmed in one question to the broker
+
+
+BROKER_BACK = b"\0broker-back"  # inbox markers, never a real attachment (those are JSON)
+BROKER_GONE = b"\0broker-gone"
+
+
+class FarmUnavailable(ConnectionError):
+    """No broker answered, or the study is already open elsewhere."""
+
+
+@dataclass
+class _Pending:
+    spec: EpisodeSpec
+    deadline: float
+    attempts: int = 1
+    avoid: tuple[str, ...] = ()  # workers that may not run it
+    keep_log: bool = True  # its log comes with its result; else its worker keeps it
+
+
+@dataclass(frozen=True)
+class _Arrival:
+    """A result as it arrived, waiting for the broker to confirm it."""
+
+    result: Result
+    content: bytes
+
+
+class FarmClient:
+    def __init__(
+        self,
+        connect: Sequence[str],
+        study: str,
+        run_dir: Path,
+        *,
+        deadline: float = DEFAULT_DEADLINE,
+        attempts: int = DEFAULT_ATTEMPTS,
+        identity: TlsIdentity | None = None,
+        models: Mapping[str, bytes] | None = None,
+        keep_logs: bool = True,
+        read_log: ReadLog = accept_log,
+    ):
+        """`models`: the feed-forward models (file bytes by SHA-256) the study's jobs may name;
+        the client serves them to the workers that ask. `keep_logs`: every job's log comes with
+        its result, is checked, scored here again and kept; else the workers keep the logs, each
+        result brings the scores its worker computed, and `fetch` brings the logs wanted.
+        `read_log` checks, keeps and scores a log (another only for simulated workers, whose
+        "logs" are not episodes: bench/campaign.py --simulated)."""
+        Submission(study=study, jobs=[])  # validates the name before it becomes a key
+        self.study = study
+        self.models = dict(models or {})
+        self.log_dir = Path(run_dir) / "episodes"
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.deadline = deadline
+        self.attempts = attempts
+        self.keep_logs = keep_logs
+        self.read_log = read_log
+        self.duplicates = 0
+        self.ignored = 0
+        self.unconfirmed = 0  # results the broker did not take: forged, or from a stale lease
+        self.waiting: str | None = None  # why the client is waiting for the broker, if it is
+        # Told each time `waiting` changes (a progress line says so); the reason, or None.
+        self.on_wait: Callable[[str | None], None] = lambda why: None
+        self._pending: dict[str, _Pending] = {}
+        self._ready: deque[Evaluation] = deque()
+        self._next_chase = 0.0  # when to look for overdue jobs next
+        self._arrived: dict[str, list[_Arrival]] = {}  # by job id, until the broker confirms
+        self._distrusted: set[str] = set()
+        self._inbox: queue.SimpleQueue[tuple[bytes | None, bytes]] = queue.SimpleQueue()
+        self.session = open_session("client", connect=connect, identity=identity)
+        try:
+            self._open_study(connect)
+        except BaseException:
+            self.session.close()
+            raise
+
+    def __enter__(self) -> "FarmClient":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if not self.session.is_closed():
+            self.session.close()  # undeclares the token: the broker drops what is still queued
+
+    @property
+    def pending(self) -> int:
+        """Jobs submitted whose evaluation has not been handed out yet."""
+        return len(self._pending) + len(self._ready)
+
+    def status(self) -> BrokerStatus:
+        return query_status(self.session)
+
+    @property
+    def capacity(self) -> int:
+        """The workers connected to the farm now: how many jobs can run at once."""
+        return self.status().worker_count
+
+    def submit(
+        self,
+        specs: Mapping[str, EpisodeSpec],
+        avoid: Mapping[str, Sequence[str]] | None = None,
+        *,
+        keep_log: bool | None = None,
+    ) -> None:
+        """Queue one job per (job id, spec). A job id may not be pending already. `avoid` names,
+        per job id, workers that may not run it (a replica must run elsewhere). `keep_log`:
+        whether the logs come with the results (default: `keep_logs`)."""
+        keep = self.keep_logs if keep_log is None else keep_log
+        clash = sorted(set(specs) & set(self._pending))
+        if clash:
+            raise ValueError(f"job ids already pending: {', '.join(clash[:5])}")
+        unserved = {spec.feedforward for spec in specs.values()} - {None, *self.models}
+        if unserved:
+            raise ValueError(f"jobs name feed-forward models not served: {sorted(unserved)}")
+        avoid = avoid or {}
+        expiry = time.monotonic() + self.deadline
+        for job_id, spec in specs.items():
+            self._pending[job_id] = _Pending(
+                spec, expiry, avoid=tuple(avoid.get(job_id, ())), keep_log=keep
+            )
+        self._send([self._job(job_id) for job_id in specs])
+
+    def distrust(self, worker: str) -> None:
+        """Give `worker` none of this study's jobs from now on, resubmissions included."""
+        self._distrusted.add(worker)
+
+    def cancel(self, job_ids: Iterable[str]) -> None:
+        """Stop waiting for these jobs; a result that still comes for one is counted as a
+        duplicate and dropped. (The broker may still run them: the study's token decides.)"""
+        dropped = set(job_ids)
+        for job_id in dropped:
+            self._pending.pop(job_id, None)
+            self._arrived.pop(job_id, None)
+        self._ready = deque(e for e in self._ready if e.job_id not in dropped)
+
+    def results(self, timeout: float | None = None) -> Iterator[Evaluation]:
+        """Yield evaluations as they complete, until none is pending (or `timeout` s pass)."""
+        give_up = None if timeout is None else time.monotonic() + timeout
+        while self._pending or self._ready:
+            while self._ready:
+                yield self._ready.popleft()
+            if not self._pending:
+                break
+            now = time.monotonic()
+            if give_up is not None and now >= give_up:
+                return
+            wake = self._next_chase if give_up is None else min(self._next_chase, give_up)
+            try:
+                messages = [self._inbox.get(timeout=max(wake - now, 0.0)), *self._drain()]
+            except queue.Empty:
+                messages = []
+            for attachment, content in messages:
+                if attachment is BROKER_BACK:
+                    self._rejoin()
+                elif attachment is BROKER_GONE:
+                    self._broker_gone()
+                else:
+                    self._arrive(attachment, content)
+            self._confirm()
+            # Only after what arrived is taken in (a job whose result is here is not overdue);
+            # and O(pending), so at most once a RECHECK_SECONDS however fast results come.
+            if time.monotonic() >= self._next_chase:
+                self._chase_overdue()
+                self._next_chase = time.monotonic() + RECHECK_SECONDS
+
+    def _drain(self) -> list[tuple[bytes | None, bytes]]:
+        """Whatever else is in the inbox now: its results are confirmed in one question."""
+        messages = []
+        while len(messages) < CONFIRM_BATCH:
+            try:
+                messages.append(self._inbox.get_nowait())
+            except queue.Empty:
+                break
+        return messages
+
+    def fetch(self, wanted: Mapping[str, Wanted]) -> dict[str, Fetched]:
+        """The logs of these jobs, from the workers that keep them (each holder asked in turn;
+        only bytes that hash to the wanted digest are taken, whoever answers), written to
+        run_dir/episodes/<job id>.mcap and scored here. A log no holder has any more (its worker
+        is gone, or let it go) is simulated again, episodes being deterministic: as the job
+        `<job id>-k<n>`, on any worker, its log sent with its result."""
+        fetched: dict[str, Fetched] = {}
+        again: dict[str, Wanted] = {}
+        for job_id, want in wanted.items():
+            content, holder = self._fetch_log(want)
+            if content is not None:
+                path = self.log_dir / f"{job_id}.mcap"
+                try:
+                    scores = self.read_log(content, want.spec, path, f"log of {job_id}")
+                except NotAnEpisodeLog as error:  # the right bytes of the wrong episode
+                    log.warning("fetched log of %s: %s", job_id, error)
+                else:
+                    fetched[job_id] = Fetched(path, scores, want.digest, source=holder)
+                    continue
+            again[job_id] = want
+        if again:
+            fetched.update(self._simulate_again(again))
+        return fetched
+
+    def _fetch_log(self, want: Wanted) -> tuple[bytes | None, str]:
+        """The log's bytes and the holder that had them, or None."""
+        for holder in want.holders:
+            try:
+                key = keys.log(self.study, holder, want.digest)
+                replies = self.session.get(key, timeout=ANSWER_SECONDS)
+            except zenoh.ZError as error:  # e.g. an empty or bad holder name
+                log.warning("cannot ask %r for a log: %s", holder, error)
+                continue
+            for reply in replies:
+                if reply.ok is None:
+                    continue  # it has it no more: ask the next holder
+                if len(reply.ok.payload) > MAX_EPISODE_BYTES:
+                    continue
+                content = reply.ok.payload.to_bytes()
+                if hashlib.sha256(content).hexdigest() == want.digest:
+                    return content, holder
+                log.warning("ignored a log on %s: its bytes are not the ones the broker took", key)
+        return None, ""
+
+    def _simulate_again(self, again: Mapping[str, Wanted]) -> dict[str, Fetched]:
+        reruns = {}
+        for job_id in again:
+            number = 1
+            while f"{job_id}-k{number}" in self._pending:
+                number += 1
+            reruns[f"{job_id}-k{number}"] = job_id
+        log.warning("simulating %d episodes again: their logs are gone", len(reruns))
+        self.submit({rerun: again[job_id].spec for rerun, job_id in reruns.items()}, keep_log=True)
+        found: dict[str, Evaluation] = {}
+        others: list[Evaluation] = []
+        for evaluation in self.results():
+            if evaluation.job_id in reruns:
+                found[evaluation.job_id] = evaluation
+                if len(found) == len(reruns):
+                    break
+            else:
+                others.append(evaluation)  # handed out later, as if it had come after
+        self._ready.extendleft(reversed(others))
+        fetched = {}
+        for rerun, job_id in reruns.items():
+            evaluation = found.get(rerun)
+            if evaluation is None or evaluation.log is None:
+                why = evaluation.reason if evaluation else "not simulated again"
+                fetched[job_id] = Fetched(None, None, None, why)
+                continue
+            path = evaluation.log.replace(self.log_dir / f"{job_id}.mcap")
+            if evaluation.digest != again[job_id].digest:
+                log.warning("%s simulated again is not the log its worker had made", job_id)
+            fetched[job_id] = Fetched(
+                path, evaluation.scores, evaluation.digest, source=evaluation.worker
+            )
+        return fetched
+
+    # --- inside ----------------------------------------------------------------------------
+
+    def _open_study(self, connect: Sequence[str]) -> None:
+        token_key = keys.alive_study(self.study)
+        if token_held(self.session, token_key):
+            raise FarmUnavailable(f"study {self.study!r} is already open in another process")
+        self._subscriber = self.session.declare_subscriber(
+            keys.study_results(self.study), self._on_result
+        )
+        if self.models:
+            self._model_server = self.session.declare_queryable(
+                keys.model(self.study, "*"), self._on_model_query
+            )
+        self._token = self.session.liveliness().declare_token(token_key)
+        self._broker_watch = self.session.liveliness().declare_subscriber(
+            keys.ALIVE_BROKER, self._on_broker_token
+        )
+        self._await_study(", ".join(connect))
+
+    def _await_study(self, where: str) -> None:
+        """The broker learns of the study from the token; wait until it has, so that a
+        submission cannot overtake it."""
+        give_up = time.monotonic() + ANSWER_SECONDS
+        while time.monotonic() < give_up:
+            try:
+                status = query_status(self.session, timeout=1.0)
+            except BrokerUnavailable:
+                time.sleep(0.1)
+                continue
+            if any(study.name == self.study for study in status.studies):
+                return
+            time.sleep(0.02)
+        raise FarmUnavailable(f"no gainfarm broker answered at {where}")
+
+    def _on_broker_token(self, sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:  # a broker (re)started, with an empty queue
+            self._inbox.put((BROKER_BACK, b""))
+        else:
+            self._inbox.put((BROKER_GONE, b""))
+
+    def _broker_gone(self) -> None:
+        self._wait_for_broker("the broker is gone")
+
+    def _wait_for_broker(self, why: str) -> None:
+        """No answer from the broker is no verdict on any job: wait, saying so, and spend no
+        attempts until it answers again."""
+        if self.waiting is None:  # said once, with the first reason, until it answers again
+            log.warning("%s; waiting for it (%d jobs pending)", why, len(self._pending))
+            self.waiting = why
+            self.on_wait(why)
+        later = time.monotonic() + self.deadline
+        for pending in self._pending.values():
+            pending.deadline = max(pending.deadline, later)
+
+    def _broker_answers(self) -> bool:
+        """Whether the broker answers now; clears `waiting` when it does again."""
+        answered = ask(self.session, keys.STATUS, timeout=ANSWER_SECONDS) is not None
+        if answered and self.waiting is not None:
+            log.warning("the broker answers again")
+            self.waiting = None
+            self.on_wait(None)
+        return answered
+
+    def _rejoin(self) -> None:
+        """A new broker knows none of our jobs: once it knows the study, submit them all again.
+        Its restart lost them, the worker did not fail them: no attempt is counted."""
+        log.warning("a broker (re)started; resubmitting %d pending jobs", len(self._pending))
+        if self.waiting is not None:
+            self.waiting = None
+            self.on_wait(None)
+        try:
+            self._await_study("the restarted broker")
+        except FarmUnavailable as error:
+            self._wait_for_broker(str(error))
+            return
+        now = time.monotonic()
+        for pending in self._pending.values():
+            pending.deadline = now + self.deadline
+        self._send([self._job(job_id) for job_id in self._pending])
+
+    def _job(self, job_id: str) -> Job:
+        pending = self._pending[job_id]
+        avoid = sorted({*pending.avoid, *self._distrusted})
+        return Job(job_id=job_id, spec=pending.spec, avoid=avoid, keep_log=pending.keep_log)
+
+    def _on_model_query(self, query: zenoh.Query) -> None:
+        wanted = keys.last_chunk(str(query.key_expr))
+        if wanted in self.models:
+            query.reply(query.key_expr, self.models[wanted])
+        else:
+            query.reply_err(f"study {self.study} has no model {wanted[:64]}")
+
+    def _on_result(self, sample: zenoh.Sample) -> None:
+        attachment = sample.attachment.to_bytes() if sample.attachment is not None else None
+        self._inbox.put((attachment, sample.payload.to_bytes()))
+
+    def _send(self, jobs: list[Job]) -> set[str]:
+        """Submit `jobs`; return the ids the broker did not newly queue: those it still had
+        queued or running, those it deferred (its queue is full) and those it did not hear."""
+        not_queued: set[str] = set()
+        for start in range(0, len(jobs), SUBMIT_CHUNK):
+            chunk = jobs[start : start + SUBMIT_CHUNK]
+            reply = self._ask(Submission(study=self.study, jobs=chunk))
+            if reply is None:  # the deadline will resubmit them, once the broker answers
+                self._wait_for_broker("the broker did not answer a submission")
+                not_queued.update(job.job_id for job in chunk)
+                continue
+            not_queued.update(reply.already_pending)
+            not_queued.update(reply.deferred)
+            if reply.deferred:  # a full queue is no verdict: submit them again soon
+                log.warning("the broker deferred %d jobs: its queue is full", len(reply.deferred))
+                soon = time.monotonic() + RECHECK_SECONDS
+                for job_id in reply.deferred:
+                    if job_id in self._pending:
+                        self._pending[job_id].deadline = soon
+            for rejection in reply.rejected:
+                pending = self._pending.pop(rejection.job_id, None)
+                if pending is not None:
+                    self._ready.append(self._failed(rejection.job_id, pending, rejection.reason))
+        return not_queued
+
+    def _ask(self, submission: Submission) -> SubmitReply | None:
+        answer = ask(
+            self.session, keys.submit(self.study), submission.to_bytes(), timeout=ANSWER_SECONDS
+        )
+        if answer is None:
+            return None
+        if answer.payload is None:
+            raise BadMessage(f"the broker refused a submission: {answer.error}")
+        return decode(SubmitReply, answer.payload)
+
+    def _chase_overdue(self) -> None:
+        """Resubmit every job past its deadline; give up on those out of attempts. Only while
+        the broker answers: without it, no job's time runs out."""
+        now = time.monotonic()
+        overdue = [job_id for job_id, pending in self._pending.items() if pending.deadline <= now]
+        if not overdue:
+            return
+        if not self._broker_answers():
+            self._wait_for_broker("no answer from the broker")
+            return
+        now = time.monotonic()
+        again = []
+        for job_id in overdue:
+            pending = self._pending[job_id]
+            if pending.attempts >= self.attempts:
+                del self._pending[job_id]
+                reason = f"no result after {pending.attempts} attempts"
+                self._ready.append(self._failed(job_id, pending, reason, EvaluationStatus.lost))
+                continue
+            pending.attempts += 1
+            pending.deadline = now + self.deadline
+            again.append(self._job(job_id))
+        if again:
+            log.warning("resubmitting %d overdue jobs", len(again))
+            for job_id in self._send(again):  # merely slow, not lost: not another attempt
+                if job_id in self._pending:
+                    self._pending[job_id].attempts -= 1
+
+    def _arrive(self, attachment: bytes | None, content: bytes) -> None:
+        """Check a result as it arrives; keep it for the broker to confirm."""
+        try:
+            result = decode(Result, attachment)
+        except BadMessage as error:
+            self.ignored += 1
+            log.warning("ignored a result: %s", error)
+            return
+        if result.study != self.study:
+            self.ignored += 1
+            log.warning("ignored a result of study %r on this study's key", result.study)
+            return
+        if result.job_id not in self._pending:  # already evaluated (or never submitted here)
+            self.duplicates += 1
+            return
+        self._arrived.setdefault(result.job_id, []).append(_Arrival(result, content))
+
+    def _confirm(self) -> None:
+        """Ask the broker which of the arrived results it took; each job's confirmed one is
+        its evaluation, and every other is ignored. Unanswered: they wait for the next ask."""
+        if not self._arrived:
+            return
+        job_ids = list(self._arrived)[:CONFIRM_BATCH]
+        request = ConfirmRequest(study=self.study, job_ids=job_ids)
+        answer = ask(self.session, keys.confirm(self.study), request.to_bytes(), ANSWER_SECONDS)
+        if answer is None:
+            self._wait_for_broker("the broker did not confirm results")
+            return
+        try:
+            if answer.payload is None:
+                raise BadMessage(f"the broker refused to confirm results: {answer.error}")
+            reply = decode(ConfirmReply, answer.payload)
+        except BadMessage as error:
+            log.warning("%s", error)
+            return
+        taken = {accepted.job_id: accepted for accepted in reply.accepted}
+        for job_id in job_ids:
+            arrivals = self._arrived.pop(job_id)
+            accepted = taken.get(job_id)
+            confirmed = [a for a in arrivals if accepted and _matches(a.result, accepted)]
+            for arrival in arrivals:
+                if not confirmed or arrival is not confirmed[0]:
+                    self.unconfirmed += 1
+                    log.warning(
+                        "ignored a result for %s from %r: not the one the broker took",
+                        job_id,
+                        arrival.result.worker,
+                    )
+            if confirmed and job_id in self._pending:
+                evaluation = self._receive(confirmed[0].result, confirmed[0].content)
+                if evaluation is not None:
+                    self._ready.append(evaluation)
+
+    def _receive(self, result: Result, content: bytes) -> Evaluation | None:
+        """The evaluation a confirmed result makes (None if its log is unusable: it runs
+        again)."""
+        pending = self._pending[result.job_id]
+        common = dict(
+            job_id=result.job_id,
+            spec=pending.spec,
+            worker=result.worker,
+            attempts=pending.attempts,
+            timings=result.timings,
+            reason=result.reason,
+        )
+        if result.status == JobStatus.failed:
+            del self._pending[result.job_id]
+            return Evaluation(
+                **common,
+                status=EvaluationStatus.failed,
+                scores=None,
+                log=None,
+            )
+        assert result.scores is not None  # the wire's rule for a job that ran
+        claimed = Scores.model_validate(result.scores.model_dump())
+        ran = dict(common, status=EvaluationStatus(result.status.value), digest=result.digest)
+        if not pending.keep_log:  # its worker keeps the log: `fetch` brings it if wanted
+            del self._pending[result.job_id]
+            return Evaluation(**ran, scores=claimed, log=None)
+        path = self.log_dir / f"{result.job_id}.mcap"
+        try:
+            if len(content) > MAX_EPISODE_BYTES or len(content) != result.episode_bytes:
+                raise NotAnEpisodeLog(f"{len(content)} bytes, not the {result.episode_bytes} sent")
+            if hashlib.sha256(content).hexdigest() != result.digest:
+                raise NotAnEpisodeLog("its bytes are not the ones the worker handed in")
+            source = f"episode of {result.job_id} from {result.worker}"
+            scores = self.read_log(content, pending.spec, path, source)
+        except NotAnEpisodeLog as error:
+            return self._run_again(result, pending, f"unusable episode log: {error}")
+        if scores != claimed:  # an honest log, false scores: the worker is not to be trusted
+            path.unlink(missing_ok=True)
+            self.distrust(result.worker)
+            reason = f"its scores are not its log's ({result.worker} is distrusted)"
+            return self._run_again(result, pending, reason)
+        del self._pending[result.job_id]
+        return Evaluation(**ran, scores=scores, log=path)
+
+    def _run_again(self, result: Result, pending: _Pending, reason: str) -> Evaluation | None:
+        """A log damaged on its way is a lost result, not the job's outcome: the episode is
+        deterministic, so run it again (an attempt) rather than score nothing."""
+        log.warning("job %s from %s: %s", result.job_id, result.worker, reason)
+        if pending.attempts >= self.attempts:
+            del self._pending[result.job_id]
+            return self._failed(result.job_id, pending, f"{reason} (attempt {pending.attempts})")
+        pending.attempts += 1
+        # The broker may not have closed the damaged lease yet and answer "already pending":
+        # look again soon rather than after a whole deadline.
+        still_pending = self._send([self._job(result.job_id)])
+        wait = RECHECK_SECONDS if result.job_id in still_pending else self.deadline
+        pending.deadline = time.monotonic() + wait
+        return None
+
+    def _failed(
+        self,
+        job_id: str,
+        pending: _Pending,
+        reason: str,
+        status: EvaluationStatus = EvaluationStatus.failed,
+    ) -> Evaluation:
+        return Evaluation(
+            job_id=job_id,
+            spec=pending.spec,
+            status=status,
+            scores=None,
+            log=None,
+            reason=reason,
+            worker="",
+            attempts=pending.attempts,
+            timings=None,
+        )
+
+
+def _matches(result: Result, accepted: Accepted) -> bool:
+    """Whether `result` is the one the broker took: its lease, its worker, its very log and the
+    scores its worker handed in with it."""
+    return (result.lease_id, result.worker, result.digest, result.scores) == (
+        accepted.lease_id,
+        accepted.worker,
+        accepted.digest,
+        accepted.scores,
+    )

@@ -1,0 +1,423 @@
+"""The evolution step: a multi-objective optimiser (pymoo's, or Optuna's TPE) through ask and
+tell, and the hypervolume of its front.
+
+Pure: no farm, no files. The caller evaluates each asked generation however it likes (the farm,
+in any order) and tells the objectives back in the order asked, so the outcome depends on the seed
+and the objectives only, never on which result arrived first.
+
+The optimiser is NSGA-II by default; ALGORITHMS lists the others, all generational (a whole
+population asked, then told): pymoo's NSGA-III, SMS-EMOA, MOEA/D and AGE-MOEA-II; "tpe", Optuna's
+multi-objective TPE through Optuna's ask and tell (OptunaTPE); and "random", uniform random
+sampling of the search space, a population a generation, the baseline any optimiser must beat.
+Whatever the optimiser, the front is this module's archive of every non-dominated point told, in
+raw units. The optimiser itself may be told the objectives as the hypervolume sees them
+(objective_scaling "log": `normalise`, f_t on a log scale) instead of raw (f_t spans six decades,
+and crowding on raw f_t neglects the smooth end).
+"""
+
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Literal, get_args
+
+import numpy as np
+from pymoo.algorithms.moo.moead import ParallelMOEAD
+from pymoo.algorithms.moo.nsga2 import NSGA2
+from pymoo.algorithms.moo.nsga3 import NSGA3, comp_by_cv_then_random
+from pymoo.algorithms.moo.sms import SMSEMOA, cv_and_dom_tournament
+from pymoo.core.population import Population
+from pymoo.core.problem import Problem
+from pymoo.indicators.hv import HV
+from pymoo.operators.selection.tournament import TournamentSelection
+from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
+from pymoo.util.ref_dirs import get_reference_directions
+
+from gainfarm.analytic.tuning.search_space import SearchSpace
+from gainfarm.schemas.gains import PDGains
+
+# The hypervolume is taken in a normalised objective space, the same for every run so that runs
+# compare: f_acc linearly, 0 → 0 and REFERENCE_POINT[0] → 1; f_t logarithmically, F_T_FLOOR → 0
+# and REFERENCE_POINT[1] → 1 (torque smoothness spans decades: a step from 100 to 10 (N·m)² is
+# worth as much as one from 1 to 0.1). The reference point is (1, 1) there: a controller worse
+# than 20 cm mean error or 10^4 (N·m)² mean squared torque step adds nothing. (The paper
+# normalises by the worst values among the controllers tested; a fixed point keeps the figure
+# comparable across runs and monotone within one.)
+REFERENCE_POINT = (0.2, 1e4)  # f_acc in m, f_t in (N·m)²
+F_T_FLOOR = 1e-2  # (N·m)²: smoother than this counts as perfectly smooth
+
+Algorithm = Literal["nsga2", "nsga3", "smsemoa", "moead", "agemoea2", "tpe", "random"]
+ALGORITHMS: tuple[str, ...] = get_args(Algorithm)
+ObjectiveScaling = Literal["raw", "log"]
+OBJECTIVE_SCALINGS: tuple[str, ...] = get_args(ObjectiveScaling)
+STEADY_STATE_ONLY = "nsga2"  # the one algorithm with a steady-state (ask_one/tell_one) variant
+
+
+@dataclass(frozen=True)
+class Candidate:
+    gains: PDGains
+    objectives: tuple[float, float]  # f_acc, f_t: means over the trajectory set
+
+
+class GainProblem(Problem):
+    """The decision space for pymoo; evaluation happens outside, through ask and tell."""
+
+    def __init__(self, space: SearchSpace):
+        super().__init__(n_var=len(space.lower), n_obj=2, xl=space.lower, xu=space.upper)
+
+
+class UniformRandom:
+    """The "random" algorithm: `pop_size` points drawn uniformly from the decision space every
+    generation, whatever came before (ask and tell as pymoo's algorithms have them)."""
+
+    def __init__(self, pop_size: int, space: SearchSpace, seed: int):
+        self.pop_size = pop_size
+        self.lower, self.upper = space.lower, space.upper
+        self.random_state = np.random.default_rng(seed)
+        self.pop = None  # no population: nothing for Evolution.correct to correct
+
+    def ask(self) -> Population:
+        shape = (self.pop_size, len(self.lower))
+        return Population.new(X=self.random_state.uniform(self.lower, self.upper, shape))
+
+    def tell(self, infills: Population) -> None:
+        pass
+
+
+class OptunaTPE:
+    """The "tpe" algorithm: Optuna's multi-objective TPE (optuna.samplers.TPESampler) through
+    Optuna's ask and tell, `pop_size` trials asked a generation, each decision variable a float
+    between its bounds (already log10 of a gain: the search space is log-scaled). The first
+    generation is uniform random (TPE's startup trials); every later one is sampled from Parzen
+    estimators of the trials told: multivariate (the gains act together: a joint's damping is Kd
+    against Kp), with the constant liar, so that a generation's trials, asked before any of them
+    is told, spread out rather than pile onto one mode.
+
+    Deterministic and picklable without any of Optuna's objects: each generation is asked of a
+    fresh sampler seeded by (seed, generation), so that the sampler carries no random state from
+    one generation to the next (its other state, the search space, is derived from the trials).
+    What is pickled is plain data: the seed, the generations asked, every trial told (its point and
+    the objectives it was told, None for a trial Optuna failed) and the trials asked and not yet
+    told; unpickling replays them into a new in-memory study (optuna.trial.create_trial,
+    study.add_trials), which then asks exactly what the uninterrupted one would have.
+    """
+
+    def __init__(self, pop_size: int, space: SearchSpace, seed: int):
+        self.pop_size = pop_size
+        self.seed = seed
+        self.lower, self.upper = space.lower, space.upper
+        self.names = tuple(f"log10_kp{j + 1}" for j in range(len(space.kp_low))) + tuple(
+            f"log10_kd{j + 1}" for j in range(len(space.kd_low))
+        )
+        self.generations = 0  # generations asked
+        self._told: list[tuple[list[float], list[float] | None]] = []  # in trial number order
+        self._asked: list[list[float]] = []  # the points of the trials asked, not yet told
+        self.pop = None  # no population: nothing for Evolution.correct to correct
+        self._study = self._new_study()
+
+    def __getstate__(self) -> dict:
+        return {key: value for key, value in self.__dict__.items() if key != "_study"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._study = self._new_study()
+
+    def _new_study(self) -> Any:
+        """The study, with every trial told and asked so far replayed into it, in order."""
+        optuna = _optuna()
+        state = optuna.trial.TrialState
+        distributions = {
+            name: optuna.distributions.FloatDistribution(float(low), float(high))
+            for name, low, high in zip(self.names, self.lower, self.upper, strict=True)
+        }
+        trials = [
+            (x, state.COMPLETE if values is not None else state.FAIL, values)
+            for x, values in self._told
+        ] + [(x, state.RUNNING, None) for x in self._asked]
+        study = optuna.create_study(directions=["minimize", "minimize"])
+        study.add_trials(
+            [
+                optuna.trial.create_trial(
+                    state=trial_state,
+                    params=dict(zip(self.names, x, strict=True)),
+                    distributions=distributions,
+                    values=values,
+                )
+                for x, trial_state, values in trials
+            ]
+        )
+        return study
+
+    def _sampler(self, optuna: Any) -> Any:
+        """This generation's sampler: seeded by (seed, generation), nothing carried over."""
+        seed = int(np.random.SeedSequence([self.seed, self.generations]).generate_state(1)[0])
+        with warnings.catch_warnings():  # Optuna 4 calls both options experimental; 5 does not
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            return optuna.samplers.TPESampler(
+                seed=seed, n_startup_trials=self.pop_size, multivariate=True, constant_liar=True
+            )
+
+    def ask(self) -> Population:
+        if self._asked:
+            raise RuntimeError("ask() follows the tell() of the trials asked last")
+        optuna = _optuna()
+        self._study.sampler = self._sampler(optuna)
+        for _ in range(self.pop_size):
+            trial = self._study.ask()
+            self._asked.append(
+                [
+                    trial.suggest_float(name, float(low), float(high))
+                    for name, low, high in zip(self.names, self.lower, self.upper, strict=True)
+                ]
+            )
+        self.generations += 1
+        return Population.new(X=np.array(self._asked, dtype=float))
+
+    def tell(self, infills: Population) -> None:
+        """The objectives (F) of the trials asked last, in the order asked."""
+        if len(infills) != len(self._asked) or not np.array_equal(
+            infills.get("X"), np.array(self._asked, dtype=float).reshape(-1, len(self.names))
+        ):
+            raise ValueError("tell() takes the trials asked last, in the order asked")
+        complete = _optuna().trial.TrialState.COMPLETE
+        first = len(self._told)  # trials are numbered in the order asked, and told in that order
+        for number, (x, f) in enumerate(zip(self._asked, infills.get("F"), strict=True), first):
+            values = [float(value) for value in f]
+            told = self._study.tell(number, values)  # a NaN fails the trial
+            self._told.append((x, values if told.state == complete else None))
+        self._asked = []
+
+
+def _optuna() -> Any:
+    """Optuna, quiet (it logs every trial at INFO); a ValueError if it is not installed."""
+    try:
+        import optuna
+    except ImportError:
+        raise ValueError(
+            "algorithm tpe needs optuna: pip install optuna (gainfarm's moea extra)"
+        ) from None
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    return optuna
+
+
+def _by_cv_then_random(pop: Population, P: np.ndarray, **kwargs: Any) -> np.ndarray:
+    """NSGA-III's tournament: pymoo's own function is wrapped by a decorator that pickle cannot
+    name (a checkpoint holds the algorithm), so the algorithm holds this, which calls it."""
+    return comp_by_cv_then_random(pop, P, **kwargs)
+
+
+def _by_cv_and_domination(pop: Population, P: np.ndarray, **kwargs: Any) -> np.ndarray:
+    """SMS-EMOA's tournament, for the same reason."""
+    return cv_and_dom_tournament(pop, P, **kwargs)
+
+
+def reference_directions(pop_size: int) -> np.ndarray:
+    """NSGA-III's and MOEA/D's reference directions: pop_size evenly spread on the 2-objective
+    simplex (Das and Dennis, pop_size - 1 partitions), so that the population is the config's."""
+    return get_reference_directions("das-dennis", 2, n_partitions=pop_size - 1)
+
+
+def optimiser(
+    algorithm: str, pop_size: int, seed: int, space: SearchSpace, steady_state: bool = False
+) -> Any:
+    """`algorithm` (one of ALGORITHMS) set up on the gain problem, to ask and tell."""
+    if algorithm not in ALGORITHMS:
+        raise ValueError(f"unknown algorithm {algorithm!r}: one of {', '.join(ALGORITHMS)}")
+    if steady_state and algorithm != STEADY_STATE_ONLY:
+        raise ValueError(steady_state_refusal(algorithm))
+    if algorithm == "random":
+        return UniformRandom(pop_size, space, seed)
+    if algorithm == "tpe":
+        return OptunaTPE(pop_size, space, seed)
+    if algorithm == "nsga2":
+        method = NSGA2(
+            pop_size=pop_size, n_offsprings=1 if steady_state else None, eliminate_duplicates=True
+        )
+    elif algorithm == "nsga3":
+        method = NSGA3(
+            ref_dirs=reference_directions(pop_size),
+            pop_size=pop_size,
+            selection=TournamentSelection(func_comp=_by_cv_then_random),
+        )
+    elif algorithm == "smsemoa":  # generational: pop offspring, then the least contributors go
+        method = SMSEMOA(
+            pop_size=pop_size, selection=TournamentSelection(func_comp=_by_cv_and_domination)
+        )
+    elif algorithm == "moead":  # the parallel variant: a whole generation asked at once
+        method = ParallelMOEAD(ref_dirs=reference_directions(pop_size))
+    else:
+        try:
+            from pymoo.algorithms.moo.age2 import AGEMOEA2
+        except Exception:  # pymoo raises a bare Exception when numba is missing
+            raise ValueError("algorithm agemoea2 needs numba: pip install numba") from None
+        method = AGEMOEA2(pop_size=pop_size)
+    method.setup(GainProblem(space), seed=seed, verbose=False)
+    return method
+
+
+def steady_state_refusal(algorithm: str) -> str:
+    """Why a steady-state run of `algorithm` is refused, in one line naming the way out."""
+    return (
+        f"steady state (asynchronous, --async) is {STEADY_STATE_ONLY}'s only, not {algorithm}'s: "
+        f"choose algorithm {STEADY_STATE_ONLY}, or drop --async to run {algorithm} generationally"
+    )
+
+
+class Evolution:
+    """An optimiser over the gains (NSGA-II by default). Picklable: a checkpoint is this object,
+    random state included."""
+
+    def __init__(
+        self,
+        pop_size: int,
+        seed: int,
+        space: SearchSpace | None = None,
+        steady_state: bool = False,
+        algorithm: str = "nsga2",
+        objective_scaling: str = "raw",
+        reference: tuple[float, float] = REFERENCE_POINT,
+    ):
+        """Generational algorithms ask a whole generation at a time. NSGA-II's steady-state
+        variant (mu + 1) asks one offspring at a time (ask_one) and takes each result as it
+        comes (tell_one), so that no worker waits for a generation's slowest episode.
+        `objective_scaling` "log" tells the optimiser `normalise(objectives, reference)`
+        instead of the raw objectives; the archive, the front and everything recorded stay raw.
+        """
+        if objective_scaling not in OBJECTIVE_SCALINGS:
+            raise ValueError(
+                f"unknown objective scaling {objective_scaling!r}: one of "
+                f"{', '.join(OBJECTIVE_SCALINGS)}"
+            )
+        self.space = space or SearchSpace()
+        self.pop_size = pop_size
+        self.algorithm_name = algorithm
+        self.objective_scaling = objective_scaling
+        self.reference = tuple(reference)
+        self.algorithm = optimiser(algorithm, pop_size, seed, self.space, steady_state)
+        self._asked = None
+        self.generation = 0
+        self.evaluations = 0
+        # Every non-dominated point seen. NSGA-II's own population can drop a front member when
+        # crowding trims a large first front; the archive never does, so its hypervolume never
+        # falls and the front reported is the best found.
+        self._archive_x = np.empty((0, len(self.space.lower)))
+        self._archive_f = np.empty((0, 2))
+        # Every point told, dominated or not: a corrected point (validation by replication,
+        # analytic.replication) can uncover one that a false one had dominated.
+        self._seen_x = np.empty((0, len(self.space.lower)))
+        self._seen_f = np.empty((0, 2))
+
+    def __setstate__(self, state: dict) -> None:
+        """Checkpoints from before `_seen_*` know only the archive: it stands in for them.
+        Checkpoints from before the choice of algorithm are NSGA-II's, told raw objectives."""
+        defaults = {
+            "algorithm_name": "nsga2",
+            "objective_scaling": "raw",
+            "reference": REFERENCE_POINT,
+        }
+        self.__dict__.update({**defaults, **state})
+        if "_seen_x" not in state:
+            self._seen_x, self._seen_f = self._archive_x.copy(), self._archive_f.copy()
+
+    def ask(self) -> list[PDGains]:
+        """The next generation's candidates (the first is the random initial population)."""
+        if self._asked is None:
+            self._asked = self.algorithm.ask()
+        return [self.space.gains(x) for x in self._asked.get("X")]
+
+    def tell(self, objectives: Sequence[tuple[float, float]]) -> None:
+        """The objectives of the candidates last asked, in the order asked."""
+        if self._asked is None or len(objectives) != len(self._asked):
+            raise ValueError("tell() takes one pair of objectives per candidate asked")
+        self._tell(self._asked, objectives)
+        self._asked = None
+        self.generation += 1
+
+    def ask_one(self) -> tuple[Population, PDGains]:
+        """Steady state, after the first generation: one new candidate, and the handle to tell
+        its objectives with."""
+        if self._asked is not None or self.generation == 0:
+            raise RuntimeError("ask_one() follows a first generation asked and told whole")
+        offspring = self.algorithm.ask()
+        while len(offspring) == 0:  # every offspring was a duplicate: draw again
+            offspring = self.algorithm.ask()
+        return offspring[:1], self.space.gains(offspring.get("X")[0])
+
+    def tell_one(self, handle: Population, objectives: tuple[float, float]) -> None:
+        self._tell(handle, [objectives])
+        self.generation = self.evaluations // self.pop_size
+
+    def _tell(self, individuals: Population, objectives: Sequence[tuple[float, float]]) -> None:
+        f = np.asarray(objectives, dtype=float).reshape(-1, 2)
+        individuals.set("F", self.seen_by_optimiser(f))
+        self.algorithm.tell(infills=individuals)
+        self._seen_x = np.vstack([self._seen_x, individuals.get("X")])
+        self._seen_f = np.vstack([self._seen_f, f])
+        x = np.vstack([self._archive_x, individuals.get("X")])
+        f = np.vstack([self._archive_f, f])
+        first = non_dominated_indices(f)
+        self._archive_x, self._archive_f = x[first], f[first]
+        self.evaluations += len(individuals)
+
+    def correct(self, gains: PDGains, objectives: tuple[float, float]) -> list[int]:
+        """A candidate's objectives were false (a replica outvoted its log): take the true ones,
+        in the archive, among the points seen and in the optimiser's population. Returns where
+        the candidate was told, as indices into the points told in order (empty for a
+        checkpoint from before every point was kept, whose points seen are its archive)."""
+        rows = []
+        for row, x in enumerate(self._seen_x):
+            if self.space.gains(x) == gains:
+                self._seen_f[row] = objectives
+                rows.append(row)
+        first = non_dominated_indices(self._seen_f)
+        self._archive_x, self._archive_f = self._seen_x[first], self._seen_f[first]
+        population = self.algorithm.pop
+        if population is not None:
+            for individual in population:
+                if self.space.gains(individual.X) == gains:
+                    individual.set("F", self.seen_by_optimiser(objectives)[0])
+        return rows if len(self._seen_f) == self.evaluations else []
+
+    def seen_by_optimiser(
+        self, objectives: Sequence[tuple[float, float]] | np.ndarray
+    ) -> np.ndarray:
+        """Raw objectives as the optimiser is told them (objective_scaling), one row each."""
+        f = np.asarray(objectives, dtype=float).reshape(-1, 2)
+        if self.objective_scaling == "log":
+            return normalise(f, self.reference)
+        return f
+
+    def front(self) -> list[Candidate]:
+        """The non-dominated candidates among all evaluated so far, by f_acc."""
+        members = [
+            Candidate(self.space.gains(x), (float(f[0]), float(f[1])))
+            for x, f in zip(self._archive_x, self._archive_f, strict=True)
+        ]
+        return sorted(members, key=lambda member: member.objectives)
+
+
+def non_dominated_indices(f: np.ndarray) -> np.ndarray:
+    """Indices of the rows of `f` no other row dominates, in their original order."""
+    if len(f) == 0:
+        return np.empty(0, dtype=int)
+    first = NonDominatedSorting().do(np.asarray(f, dtype=float), only_non_dominated_front=True)
+    return np.sort(first)
+
+
+def normalise(
+    points: Sequence[tuple[float, float]], reference: tuple[float, float] = REFERENCE_POINT
+) -> np.ndarray:
+    """Objectives in the space the hypervolume is measured in (see REFERENCE_POINT)."""
+    f = np.asarray(points, dtype=float).reshape(-1, 2)
+    f_acc = f[:, 0] / reference[0]
+    f_t = np.log(np.maximum(f[:, 1], F_T_FLOOR) / F_T_FLOOR) / np.log(reference[1] / F_T_FLOOR)
+    return np.column_stack([f_acc, f_t])
+
+
+def hypervolume(
+    points: Sequence[tuple[float, float]], reference: tuple[float, float] = REFERENCE_POINT
+) -> float:
+    """Hypervolume of `points`, normalised, against the reference point: in [0, 1]."""
+    if not points:
+        return 0.0
+    normalised = normalise(points, reference)
+    return float(HV(ref_point=np.ones(2))(normalised))

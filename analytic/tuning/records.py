@@ -1,0 +1,425 @@
+"""A run directory's records: the row types and the files that hold them, written and read.
+
+The layout of every file a run writes lives here and only here, so the writer of a run and every
+reader of it (the experiments, the dataset, a user's script) agree. Floats are written repr-exact
+(shortest round-tripping form), so reading a file back gives the very same numbers and two
+identical runs give byte-identical files. Each file appears whole or not at all (through
+`schemas.files.write_atomically`).
+
+    config.json     the RunConfig (analytic.config)
+    run.json        the run's identity (RunIdentity): a random id, which its checkpoint carries
+    run.lock        held by the one process writing the run (schemas.files.Lock); says which
+    history.csv     one HistoryRow per generation
+    front.csv       the front: one FrontMember per line, most accurate first; `diverged` says
+                    which members' objectives are a divergence penalty, not a measurement
+    front.json      the front again, each member with the episode logs it left (the index the
+                    dataset reads; as evaluations.json is for a batch)
+    evaluated.csv   every candidate's objectives, in the order told: the cloud behind the front
+    baseline.json   the default gains' point on the run's trajectories, evaluated once when
+                    the run reports: what the tuned controllers are measured against
+    checkpoint.pkl  the evolution's own state, for `analytic resume` only (analytic.checkpoint)
+"""
+
+import csv
+import io
+import json
+import math
+import operator
+import re
+import secrets
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.robot import N_JOINTS
+
+# The names a run directory uses; the report links to the figures by these relative names.
+PARETO_PNG = "pareto.png"
+HYPERVOLUME_PNG = "hypervolume.png"
+FRONT_CSV = "front.csv"
+HISTORY_CSV = "history.csv"
+REPORT_MD = "report.md"
+FRONT_JSON = "front.json"
+EVALUATED_CSV = "evaluated.csv"
+BASELINE_JSON = "baseline.json"
+CONFIG_JSON = "config.json"
+RUN_JSON = "run.json"
+FEEDFORWARD = "feedforward.npz"  # the learned model a run's episodes add to their PD, if any
+LOCK = "run.lock"
+EPISODES = "episodes"
+
+HISTORY_FIELDS = (
+    "generation",
+    "evaluations",
+    "hypervolume",
+    "best_f_acc",
+    "best_f_t",
+    "wall_seconds",
+)
+FRONT_FIELDS = (
+    *(f"kp{joint}" for joint in range(1, N_JOINTS + 1)),
+    *(f"kd{joint}" for joint in range(1, N_JOINTS + 1)),
+    "f_acc",
+    "f_t",
+    "diverged",
+)
+# front.csv before the `diverged` column: read as members none of whose episodes diverged.
+LEGACY_FRONT_FIELDS = FRONT_FIELDS[:-1]
+
+
+@dataclass(frozen=True)
+class HistoryRow:
+    """One generation of a run, one line of history.csv.
+
+    `evaluations` and `wall_seconds` are cumulative since the start of the run; `best_f_acc` (m)
+    and `best_f_t` ((N·m)²) are the best value of each objective found so far.
+    """
+
+    generation: int
+    evaluations: int
+    hypervolume: float
+    best_f_acc: float
+    best_f_t: float
+    wall_seconds: float
+
+    def __post_init__(self) -> None:
+        # Normalise numpy scalars to Python numbers: repr(np.float64(1.0)) is "np.float64(1.0)",
+        # which would corrupt the CSV, and equality with rows read back should just work.
+        # operator.index refuses a float generation rather than silently truncating it.
+        object.__setattr__(self, "generation", operator.index(self.generation))
+        object.__setattr__(self, "evaluations", operator.index(self.evaluations))
+        for name in ("hypervolume", "best_f_acc", "best_f_t", "wall_seconds"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+
+
+@dataclass(frozen=True)
+class FrontMember:
+    """One non-dominated controller, one line of front.csv: its 14 gains and its two scores.
+
+    f_acc is in metres, f_t in (N·m)². `diverged`: an episode of the member was stopped early,
+    so its objectives carry the divergence penalty (schemas.objectives) and measure no
+    tracking; a study leaves such points out of its normalisation (analytic.experiments).
+    Gains may be given as any sequence (a numpy row, say); they are stored as tuples of Python
+    floats so members compare and hash by value. `logs` are the member's kept episode logs,
+    relative to the run directory, one per trajectory whose episode ran (front.json holds them,
+    front.csv does not; they take no part in comparisons).
+    """
+
+    kp: tuple[float, ...]
+    kd: tuple[float, ...]
+    f_acc: float
+    f_t: float
+    logs: tuple[str, ...] = field(default=(), compare=False)
+    diverged: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("kp", "kd"):
+            gains = tuple(float(gain) for gain in getattr(self, name))
+            if len(gains) != N_JOINTS:
+                raise ValueError(f"{name} needs {N_JOINTS} gains, got {len(gains)}")
+            object.__setattr__(self, name, gains)
+        object.__setattr__(self, "f_acc", float(self.f_acc))
+        object.__setattr__(self, "f_t", float(self.f_t))
+        if not isinstance(self.diverged, bool):
+            raise ValueError(f"diverged must be true or false, got {self.diverged!r}")
+        object.__setattr__(self, "logs", tuple(str(path) for path in self.logs))
+
+    @property
+    def gains(self) -> PDGains:
+        return PDGains(kp=self.kp, kd=self.kd)
+
+    @property
+    def objectives(self) -> tuple[float, float]:
+        return (self.f_acc, self.f_t)
+
+
+def _exact(value: float) -> str:
+    """The shortest text that reads back as exactly `value` (float's repr), numpy-proof."""
+    return repr(float(value))
+
+
+def _nan_last(value: float) -> tuple[bool, float]:
+    """A sort key that puts NaN after every number instead of scrambling the order."""
+    return (math.isnan(value), value)
+
+
+def _front_order(member: FrontMember) -> tuple:
+    """f_acc, then f_t, then the gains: a total order, so equal fronts give equal files."""
+    return (_nan_last(member.f_acc), _nan_last(member.f_t), member.kp, member.kd)
+
+
+def sorted_front(front: Iterable[FrontMember]) -> list[FrontMember]:
+    """The front in the order every output shows it: most accurate first."""
+    return sorted(front, key=_front_order)
+
+
+def _csv_bytes(header: Sequence[str], rows: Iterable[Sequence[str]]) -> bytes:
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(header)
+    writer.writerows(rows)
+    return buffer.getvalue().encode("utf-8")
+
+
+def history_csv(history: Sequence[HistoryRow]) -> bytes:
+    """history.csv's content, rows in the order given (the order the generations ran)."""
+    return _csv_bytes(
+        HISTORY_FIELDS,
+        (
+            (
+                str(row.generation),
+                str(row.evaluations),
+                _exact(row.hypervolume),
+                _exact(row.best_f_acc),
+                _exact(row.best_f_t),
+                _exact(row.wall_seconds),
+            )
+            for row in history
+        ),
+    )
+
+
+def front_csv(front: Sequence[FrontMember]) -> bytes:
+    """front.csv's content, sorted by f_acc then f_t so equal fronts give byte-identical files."""
+    return _csv_bytes(
+        FRONT_FIELDS,
+        (
+            (
+                *map(_exact, member.kp),
+                *map(_exact, member.kd),
+                _exact(member.f_acc),
+                _exact(member.f_t),
+                str(member.diverged).lower(),
+            )
+            for member in sorted_front(front)
+        ),
+    )
+
+
+def _read_rows(
+    path: Path, fields: Sequence[str], legacy: Sequence[str] | None = None
+) -> list[dict[str, str]]:
+    """The rows of a CSV, refusing one whose header is not exactly `fields` (another format),
+    or `legacy`, the header an older version wrote."""
+    with Path(path).open(newline="", encoding="utf-8") as stream:
+        reader = csv.DictReader(stream)
+        if tuple(reader.fieldnames or ()) not in (tuple(fields), tuple(legacy or fields)):
+            raise ValueError(
+                f"{path}: expected columns {','.join(fields)}, got {reader.fieldnames}"
+            )
+        return list(reader)
+
+
+def _flag(text: str, path: Path) -> bool:
+    if text not in ("true", "false"):
+        raise ValueError(f"{path}: diverged must be true or false, got {text!r}")
+    return text == "true"
+
+
+def read_history(path: Path) -> list[HistoryRow]:
+    """history.csv as written by `history_csv`, in file order."""
+    return [
+        HistoryRow(
+            generation=int(row["generation"]),
+            evaluations=int(row["evaluations"]),
+            hypervolume=float(row["hypervolume"]),
+            best_f_acc=float(row["best_f_acc"]),
+            best_f_t=float(row["best_f_t"]),
+            wall_seconds=float(row["wall_seconds"]),
+        )
+        for row in _read_rows(path, HISTORY_FIELDS)
+    ]
+
+
+def read_front(path: Path) -> list[FrontMember]:
+    """front.csv as written by `front_csv`, in file order (already sorted by f_acc)."""
+    return [
+        FrontMember(
+            kp=tuple(float(row[f"kp{joint}"]) for joint in range(1, N_JOINTS + 1)),
+            kd=tuple(float(row[f"kd{joint}"]) for joint in range(1, N_JOINTS + 1)),
+            f_acc=float(row["f_acc"]),
+            f_t=float(row["f_t"]),
+            diverged=_flag(row.get("diverged", "false"), path),
+        )
+        for row in _read_rows(path, FRONT_FIELDS, LEGACY_FRONT_FIELDS)
+    ]
+
+
+def evaluated_csv(points: Sequence[tuple[float, float]]) -> bytes:
+    """evaluated.csv's content: each candidate's (f_acc, f_t), in the order told."""
+    return _csv_bytes(("f_acc", "f_t"), ((_exact(a), _exact(t)) for a, t in points))
+
+
+def read_evaluated(path: Path) -> list[tuple[float, float]]:
+    return [(float(row["f_acc"]), float(row["f_t"])) for row in _read_rows(path, ("f_acc", "f_t"))]
+
+
+def front_json(front: Sequence[FrontMember]) -> bytes:
+    """front.json's content: the front in front.csv's order, each member with its logs."""
+    members = [
+        {
+            "kp": list(member.kp),
+            "kd": list(member.kd),
+            "f_acc": member.f_acc,
+            "f_t": member.f_t,
+            "diverged": member.diverged,
+            "logs": list(member.logs),
+        }
+        for member in sorted_front(front)
+    ]
+    return json.dumps({"members": members}, indent=1).encode()
+
+
+def read_front_json(path: Path) -> list[FrontMember]:
+    """front.json as written by `front_json`; ValueError if it is not one."""
+    try:
+        members = json.loads(Path(path).read_bytes())["members"]
+        return [FrontMember(**member) for member in members]
+    except (KeyError, TypeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{path}: not a front.json ({error})") from None
+
+
+@dataclass(frozen=True)
+class Baseline:
+    """The default gains' objectives on a run's trajectories, as the run's candidates are
+    scored (the same weights), one line of baseline.json. `diverged`: an episode was stopped
+    early or could not run, so the point is a penalty. `episodes`: each trajectory's job id,
+    status and scores, for the record (no part in comparisons)."""
+
+    gains: PDGains
+    f_acc: float
+    f_t: float
+    diverged: bool
+    episodes: tuple[dict, ...] = field(default=(), compare=False)
+
+    @property
+    def objectives(self) -> tuple[float, float]:
+        return (self.f_acc, self.f_t)
+
+
+def baseline_json(baseline: Baseline) -> bytes:
+    """baseline.json's content."""
+    return json.dumps(
+        {
+            "gains": baseline.gains.model_dump(),
+            "f_acc": baseline.f_acc,
+            "f_t": baseline.f_t,
+            "diverged": baseline.diverged,
+            "episodes": list(baseline.episodes),
+        },
+        indent=1,
+    ).encode()
+
+
+def read_baseline(path: Path) -> Baseline:
+    """baseline.json as written by `baseline_json`; ValueError naming it if it is not one."""
+    try:
+        fields = json.loads(Path(path).read_bytes())
+        return Baseline(
+            gains=PDGains.model_validate(fields["gains"]),
+            f_acc=float(fields["f_acc"]),
+            f_t=float(fields["f_t"]),
+            diverged=bool(fields["diverged"]),
+            episodes=tuple(fields.get("episodes", ())),
+        )
+    except (KeyError, TypeError, ValueError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path}: not a baseline.json ({error})") from None
+
+
+RUN_ID = re.compile(r"[0-9a-f]{32}")
+
+
+@dataclass(frozen=True)
+class RunIdentity:
+    """Which run a directory holds, as run.json says: a random id, given when the run was created
+    (a run from before run ids gets one when it is first opened), which its checkpoint must
+    carry. Not part of the RunConfig: two runs of one configuration are still two runs."""
+
+    run_id: str
+    # A run from before run ids: the SHA-256 of the id-less checkpoint it had when it got its id,
+    # the one id-less checkpoint it accepts (analytic.checkpoint).
+    legacy_checkpoint: str | None = None
+
+    @classmethod
+    def new(cls, legacy_checkpoint: str | None = None) -> "RunIdentity":
+        return cls(secrets.token_hex(16), legacy_checkpoint)
+
+
+def run_json(identity: RunIdentity) -> bytes:
+    """run.json's content."""
+    fields = {"run_id": identity.run_id}
+    if identity.legacy_checkpoint is not None:
+        fields["legacy_checkpoint"] = identity.legacy_checkpoint
+    return json.dumps(fields, indent=1).encode()
+
+
+def read_identity(path: Path) -> RunIdentity:
+    """run.json as written by `run_json`; ValueError naming it if it is not one."""
+    try:
+        fields = json.loads(Path(path).read_bytes())
+        identity = RunIdentity(fields["run_id"], fields.get("legacy_checkpoint"))
+    except (KeyError, TypeError, AttributeError, UnicodeDecodeError, json.JSONDecodeError):
+        identity = None
+    if identity is None or not (
+        isinstance(identity.run_id, str)
+        and RUN_ID.fullmatch(identity.run_id)
+        and isinstance(identity.legacy_checkpoint, str | None)
+    ):
+        raise ValueError(f"{path}: not a run.json (a run id of 32 hex digits)")
+    return identity
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """What a run directory says about its run, read from its plain files alone (no pickle):
+    enough to report on it, compare it and build a dataset from it."""
+
+    directory: Path
+    config: RunConfig
+    history: list[HistoryRow] = field(default_factory=list)
+    front: list[FrontMember] = field(default_factory=list)
+    evaluated: list[tuple[float, float]] = field(default_factory=list)
+
+    @property
+    def evaluations(self) -> int:
+        return self.history[-1].evaluations if self.history else 0
+
+    @property
+    def wall_seconds(self) -> float:
+        return self.history[-1].wall_seconds if self.history else 0.0
+
+    @property
+    def stopped(self) -> str | None:
+        """Why the run stopped, or None if it has not: the termination's verdict on the
+        history, which is how the run itself decided."""
+        if not self.history:
+            return None
+        hypervolumes = [row.hypervolume for row in self.history]
+        return self.config.termination.reason(hypervolumes, self.evaluations)
+
+
+def read_run(directory: Path) -> RunRecord:
+    """The run in `directory` as its files left it after its last generation (FileNotFoundError
+    without a config.json; ValueError for a file of another format)."""
+    directory = Path(directory)
+    config = RunConfig.model_validate_json((directory / CONFIG_JSON).read_bytes())
+    if not (directory / HISTORY_CSV).exists():  # stopped before its first generation ended
+        return RunRecord(directory, config)
+    return RunRecord(
+        directory,
+        config,
+        read_history(directory / HISTORY_CSV),
+        read_front_json(directory / FRONT_JSON),
+        read_evaluated(directory / EVALUATED_CSV),
+    )
+
+
+def results_csv(rows: Sequence[dict[str, object]]) -> bytes:
+    """An experiment's results.csv: one row per run or per pair, columns in the rows' order."""
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]))
+    writer.writeheader()
+    writer.writerows(rows)
+    return buffer.getvalue().encode()

@@ -1,0 +1,750 @@
+"""A tuning run: NSGA-II generations evaluated by an evaluator, recorded in a run directory.
+
+Optuna's Study, in its shape: the evolution step (analytic.evolution) is the sampler, an evaluator
+(analytic.evaluator: the farm, or this process) runs the episodes, and the run directory is the
+storage. After every generation the run writes, each file atomically (analytic.records):
+
+    config.json      everything needed to repeat the run (written once)
+    run.json         the run's id (written once), which its checkpoint carries
+    run.lock         held by the one process writing the run
+    checkpoint.pkl   the evolution with its random state, for resuming only (analytic.checkpoint)
+    history.csv      one row per generation: evaluations, hypervolume, best f_acc and f_t, wall s
+    front.csv        the non-dominated gains and their objectives
+    front.json       the same front with each member's episode logs
+    evaluated.csv    every candidate's objectives, in the order told
+    episodes/        the MCAP logs (all, or only the front's with keep="front")
+
+and at the end baseline.json (the default gains on the run's trajectories, evaluated once),
+pareto.png, hypervolume.png and report.md. A stopped run continues from its last
+checkpoint; the interrupted generation runs again, with the same candidates and the same
+(deterministic) episodes, so the front is the one an uninterrupted run finds.
+
+One process writes a run at a time: `create` and `open` take the run's lock (RunBusy if another
+process holds it) and keep it until `close()` (or the end of a `with`, or the process). Holding
+it, they first delete what writes killed halfway left behind (schemas.files.remove_leftovers).
+A write that fails (disk full, read-only) raises OSError naming the file; each file is whole or
+absent, the checkpoint is written last, so a later resume continues from the last good one.
+"""
+
+import dataclasses
+import hashlib
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pymoo.core.population import Population
+
+from gainfarm.analytic.evaluators.evaluator import Evaluation, EvaluationStatus, Evaluator, Wanted
+from gainfarm.analytic.evaluators.replication import Ledger, Ran, validate
+from gainfarm.analytic.tuning.checkpoint import CheckpointRefused, decode, encode
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.evolution import Candidate, Evolution, hypervolume
+from gainfarm.analytic.tuning.records import (
+    BASELINE_JSON,
+    CONFIG_JSON,
+    EPISODES,
+    EVALUATED_CSV,
+    FEEDFORWARD,
+    FRONT_CSV,
+    FRONT_JSON,
+    HISTORY_CSV,
+    HYPERVOLUME_PNG,
+    LOCK,
+    PARETO_PNG,
+    REPORT_MD,
+    RUN_JSON,
+    Baseline,
+    FrontMember,
+    HistoryRow,
+    RunIdentity,
+    baseline_json,
+    evaluated_csv,
+    front_csv,
+    front_json,
+    history_csv,
+    read_baseline,
+    read_identity,
+    run_json,
+    sorted_front,
+)
+from gainfarm.analytic.view.export import picks
+from gainfarm.analytic.view.figures import plot_hypervolume, plot_pareto
+from gainfarm.analytic.view.reports import run_setup, run_title, write_report
+from gainfarm.models.dynamics import digest
+from gainfarm.schemas.episode import EpisodeSpec
+from gainfarm.schemas.files import (
+    Lock,
+    Locked,
+    interrupts_deferred,
+    remove_leftovers,
+    write_atomically,
+)
+from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
+from gainfarm.schemas.objectives import objectives
+from gainfarm.schemas.trajectory import TrajectorySpec
+
+log = logging.getLogger("gainfarm.analytic")
+
+CHECKPOINT = "checkpoint.pkl"
+# A steady-state run asks the farm how many workers it has this often: a broker status query
+# per evaluation would cost more than the evaluation.
+CAPACITY_SECONDS = 2.0
+
+
+class RunBusy(Exception):
+    """Another process is writing the run (a start or resume of it is running)."""
+
+    def __init__(self, directory: Path, holder: str):
+        self.directory = Path(directory)
+        self.holder = holder
+        by = holder or "another process"
+        super().__init__(
+            f"{str(self.directory)!r} is in use: {by} is running it (one start or resume of a "
+            "run at a time)"
+        )
+
+
+@dataclass
+class RunState:
+    """What a checkpoint holds: enough to continue exactly where the run stood."""
+
+    evolution: Evolution
+    history: list[HistoryRow] = field(default_factory=list)
+    evaluated: list[tuple[float, float]] = field(default_factory=list)
+    episodes: dict[PDGains, list[str]] = field(default_factory=dict)  # job ids of kept logs
+    wall_seconds: float = 0.0
+    stopped: str | None = None
+    serial: int = 0  # steady-state candidates asked so far: their job ids' numbers
+    busy_seconds: float = 0.0  # workers' time on this run's episodes (simulate + encode)
+    # Each candidate's episodes as they ran (who, the log's SHA-256, the scores), and the job ids
+    # of those replication has validated (analytic.replication).
+    provenance: dict[PDGains, tuple[Ran, ...]] = field(default_factory=dict)
+    validated: set[str] = field(default_factory=set)
+
+    def __setstate__(self, state: dict) -> None:
+        """Checkpoints from before validation by replication have nothing to validate."""
+        self.__dict__.update({"provenance": {}, "validated": set(), **state})
+
+
+@dataclass(frozen=True)
+class RunProgress:
+    """Where a run stands, after each evaluation and once more as each generation ends (with
+    `ended`, its records and checkpoint written): for a progress line. `generation` counts the
+    generations ended; `hypervolume` and `best_f_acc` are the last ended one's (NaN before)."""
+
+    generation: int
+    evaluations: int
+    hypervolume: float
+    best_f_acc: float
+    elapsed: float
+    ended: bool = False
+
+
+class TuningRun:
+    def __init__(
+        self,
+        directory: Path,
+        config: RunConfig,
+        state: RunState,
+        identity: RunIdentity,
+        lock: Lock,
+    ):
+        self.directory = Path(directory)
+        self.config = config
+        self.state = state
+        self.identity = identity
+        self._lock = lock
+        self.replication = Ledger()  # what validation cost and found, in this process
+
+    @classmethod
+    def create(
+        cls, directory: Path, config: RunConfig, feedforward: bytes | None = None
+    ) -> "TuningRun":
+        """A new run in `directory` (FileExistsError if it already holds one), holding its lock.
+        `feedforward` is the model file the config names by its SHA-256, if it names one."""
+        # model_copy(update=...) skips validation: check the whole config once more.
+        config = RunConfig.model_validate(config.model_dump())
+        given = digest(feedforward) if feedforward is not None else None
+        if given != config.feedforward:
+            raise ValueError(f"the feed-forward model given ({given}) is not the config's")
+        evolution = _evolution(config)  # before any file: an algorithm that cannot run, no run
+        directory = Path(directory)
+        _refuse_existing(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        lock = _lock(directory)
+        try:
+            _refuse_existing(directory)  # again, holding the lock: two starts on one --out
+            remove_leftovers(directory)
+            identity = RunIdentity.new()
+            # run.json first: config.json is what says a run is here.
+            write_atomically(directory / RUN_JSON, run_json(identity))
+            if feedforward is not None:
+                write_atomically(directory / FEEDFORWARD, feedforward)
+            write_atomically(directory / CONFIG_JSON, config.model_dump_json(indent=2).encode())
+        except BaseException:
+            lock.release()
+            raise
+        return cls(directory, config, RunState(evolution), identity, lock)
+
+    @classmethod
+    def open(cls, directory: Path) -> "TuningRun":
+        """The run in `directory`, as its last checkpoint left it, holding its lock.
+        CheckpointRefused if the checkpoint is not this run's own."""
+        directory = Path(directory)
+        config = RunConfig.model_validate_json((directory / CONFIG_JSON).read_bytes())
+        lock = _lock(directory)
+        try:
+            remove_leftovers(directory)
+            identity = _identity(directory)
+            checkpoint = directory / CHECKPOINT
+            if checkpoint.exists():
+                state = decode(checkpoint.read_bytes(), checkpoint, identity)
+                if not (isinstance(state, RunState) and isinstance(state.evolution, Evolution)):
+                    raise CheckpointRefused(f"{checkpoint}: not a gainfarm checkpoint (no run)")
+            else:  # stopped before its first generation ended
+                state = RunState(_evolution(config))
+        except BaseException:
+            lock.release()
+            raise
+        return cls(directory, config, state, identity, lock)
+
+    def close(self) -> None:
+        """Release the run's lock: another process may open it now, and this object only
+        reads (its state and front stay as they were)."""
+        self._lock.release()
+
+    def __enter__(self) -> "TuningRun":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _check_open(self) -> None:
+        if not self._lock.held:
+            raise RuntimeError(f"{self.directory}: this run was closed; open it again to write")
+
+    def models(self) -> dict[str, bytes]:
+        """The feed-forward model the run's episodes use, by SHA-256, to serve to the workers
+        (ValueError if the run directory's copy is missing or not the one the config names)."""
+        wanted = self.config.feedforward
+        if wanted is None:
+            return {}
+        try:
+            raw = (self.directory / FEEDFORWARD).read_bytes()
+        except OSError as error:
+            raise ValueError(
+                f"{FEEDFORWARD}: cannot read the run's model ({error.strerror})"
+            ) from None
+        if digest(raw) != wanted:
+            raise ValueError(f"{FEEDFORWARD} is not the model config.json names")
+        return {wanted: raw}
+
+    @property
+    def finished(self) -> bool:
+        return self.state.stopped is not None
+
+    def front(self) -> list[FrontMember]:
+        """The best front found so far, most accurate first, each member with its kept logs."""
+        return sorted_front(_rows(self.state))
+
+    def run(
+        self,
+        evaluator: Evaluator,
+        on_progress: Callable[[RunProgress], None] = lambda _: None,
+        *,
+        report: bool = True,
+    ) -> str:
+        """Evolve until the termination says stop; return why it stopped. With `report`, evaluate
+        the default gains once (baseline.json), draw the figures and write report.md at the end
+        (the records are written either way)."""
+        self._check_open()
+        started = time.monotonic() - self.state.wall_seconds
+        while self.state.stopped is None:
+            if self.config.asynchronous and self.state.evolution.generation > 0:
+                self._steady_state(evaluator, started, on_progress)
+            else:
+                self._generation(evaluator, started, on_progress)
+        if self.config.replicate:
+            self._validate_front(evaluator)
+        if report:
+            self.baseline(evaluator)
+            self.write_figures()
+        return self.state.stopped
+
+    def baseline(self, evaluator: Evaluator | None = None) -> Baseline | None:
+        """The default gains' point on the run's trajectories, scored as the candidates are: from
+        baseline.json, or (given an evaluator) evaluated now, one job per trajectory, and kept
+        there. Episodes are deterministic, so once is enough. None if there is none yet."""
+        path = self.directory / BASELINE_JSON
+        if path.exists():
+            try:
+                kept = read_baseline(path)
+            except ValueError:
+                kept = None
+            if kept is not None and kept.gains == DEFAULT_GAINS:
+                return kept
+        if evaluator is None:
+            return None
+        jobs = {f"baseline-t{number}": number for number in range(len(self.config.trajectories))}
+        specs = {
+            job_id: self._spec(DEFAULT_GAINS, self.config.trajectories[number])
+            for job_id, number in jobs.items()
+        }
+        evaluator.submit(specs)
+        found = {evaluation.job_id: evaluation for evaluation in evaluator.results()}
+        scores = [found[job_id].scores if job_id in found else None for job_id in jobs]
+        f_acc, f_t = objectives(scores, self.config.objective_weights)
+        baseline = Baseline(
+            gains=DEFAULT_GAINS,
+            f_acc=f_acc,
+            f_t=f_t,
+            diverged=any(s is None or s.diverged for s in scores),
+            episodes=tuple(
+                {
+                    "job_id": job_id,
+                    "status": found[job_id].status.value if job_id in found else "lost",
+                    "reason": found[job_id].reason if job_id in found else "no result",
+                    "scores": s.model_dump() if s is not None else None,
+                }
+                for job_id, s in zip(jobs, scores, strict=True)
+            ),
+        )
+        write_atomically(path, baseline_json(baseline))
+        return baseline
+
+    # --- generational: a whole generation out, then told in the order asked -------------------
+
+    def _generation(
+        self, evaluator: Evaluator, started: float, on_progress: Callable[[RunProgress], None]
+    ) -> None:
+        evolution = self.state.evolution
+        candidates = evolution.ask()
+        jobs = {
+            gains: self._job_ids(f"g{evolution.generation:04d}-c{index:03d}")
+            for index, gains in enumerate(candidates)
+        }
+        specs = self._specs(jobs)
+        results: dict[str, Evaluation] = {}
+        evaluator.submit(specs)
+        try:
+            for evaluation in evaluator.results():
+                results[evaluation.job_id] = evaluation
+                self._account(evaluation)
+                on_progress(self._progress(len(results) // len(self.config.trajectories), started))
+        finally:  # stopped mid-generation (Ctrl-C): leave nothing queued in the evaluator
+            evaluator.cancel([job_id for job_id in specs if job_id not in results])
+        found = [self._candidate_done(gains, jobs[gains], results) for gains in candidates]
+        evolution.tell(found)
+        self._generation_done(started, evaluator)
+        on_progress(self._progress(0, started, ended=True))
+
+    # --- steady state: each candidate told as it returns, a new one asked at once -------------
+
+    def _steady_state(
+        self, evaluator: Evaluator, started: float, on_progress: Callable[[RunProgress], None]
+    ) -> None:
+        """Keep two candidates per worker in flight so that none waits, as many workers as the
+        farm has now (looked up again every CAPACITY_SECONDS: workers come and go, and a farm
+        that grows mid-run is used); a "generation" here is every `pop` evaluations, for the
+        history, the termination and the checkpoint. A budget of evaluations is kept exactly:
+        no candidate is asked beyond it, and the last, partial "generation" ends with it. When
+        the run stops, the candidates still in flight are dropped (a resumed run asks anew)."""
+        evolution = self.state.evolution
+        in_flight: dict[str, tuple[Population, PDGains, list[str]]] = {}
+        results: dict[str, Evaluation] = {}
+
+        def launch() -> None:
+            handle, gains = evolution.ask_one()
+            self.state.serial += 1
+            name = f"s{self.state.serial:06d}"
+            in_flight[name] = (handle, gains, self._job_ids(name))
+            evaluator.submit(self._specs({gains: in_flight[name][2]}))
+
+        wanted, looked = 0, -math.inf
+        budget = self.config.evaluations or math.inf
+
+        def top_up() -> None:
+            nonlocal wanted, looked
+            if time.monotonic() - looked >= CAPACITY_SECONDS:
+                wanted, looked = max(2, 2 * evaluator.capacity), time.monotonic()
+            while len(in_flight) < wanted and evolution.evaluations + len(in_flight) < budget:
+                launch()
+
+        try:
+            top_up()
+            for evaluation in evaluator.results():
+                name = evaluation.job_id.rsplit("-t", 1)[0]
+                results[evaluation.job_id] = evaluation
+                self._account(evaluation)
+                handle, gains, ids = in_flight[name]
+                if not all(job_id in results for job_id in ids):
+                    continue
+                del in_flight[name]
+                evolution.tell_one(handle, self._candidate_done(gains, ids, results))
+                on_progress(self._progress(0, started))
+                if evolution.evaluations % self.config.pop == 0 or evolution.evaluations >= budget:
+                    self._generation_done(started, evaluator)
+                    on_progress(self._progress(0, started, ended=True))
+                    if self.state.stopped is not None:
+                        return
+                top_up()
+        finally:
+            evaluator.cancel(
+                [
+                    job_id
+                    for _, _, ids in in_flight.values()
+                    for job_id in ids
+                    if job_id not in results
+                ]
+            )
+
+    # --- validation by replication -----------------------------------------------------------
+
+    def _validate_front(self, evaluator: Evaluator) -> None:
+        """Before the run reports its front, another worker replicates every front member's
+        episodes (analytic.replication). A member outvoted takes its true objectives; that can
+        uncover a candidate it had falsely dominated, so this goes on until every member of the
+        front is validated. Records and checkpoint are written again if anything was checked."""
+        if evaluator.capacity < 2:  # a farm of one has nobody to ask
+            return
+        state = self.state
+        checked = corrected = False
+        while True:
+            todo = {
+                member.gains: state.provenance.get(member.gains, ())
+                for member in state.evolution.front()
+            }
+            originals = [
+                self._evaluation(gains, ran)
+                for gains, episodes in todo.items()
+                for ran in episodes
+                if ran.job_id not in state.validated
+            ]
+            if not originals:
+                break
+            checked = True
+            standing = validate(evaluator, originals, self.replication).standing
+            state.validated.update(evaluation.job_id for evaluation in originals)
+            for gains, episodes in todo.items():
+                now = tuple(
+                    Ran.of(standing[r.job_id]) if r.job_id in standing else r for r in episodes
+                )
+                if now != episodes:
+                    corrected = True
+                    self._correct(gains, now)
+                    self._drop_stale_logs(gains, now)
+        if self._fetch_front(evaluator):
+            checked = corrected = True
+        if checked:
+            if corrected and state.history:  # the last row says what the run reports
+                state.history[-1] = self._row_of(state.evolution.front(), state.history[-1])
+            with interrupts_deferred():  # the records and the checkpoint agree
+                self.write_records()
+                self._checkpoint()
+
+    def _evaluation(self, gains: PDGains, ran: Ran) -> Evaluation:
+        """An original as validation takes it: the episode's spec, who ran it, its log."""
+        trajectory = self.config.trajectories[int(ran.job_id.rsplit("-t", 1)[1])]
+        spec = self._spec(gains, trajectory)
+        log = self.directory / EPISODES / f"{ran.job_id}.mcap"
+        return Evaluation(
+            job_id=ran.job_id,
+            spec=spec,
+            status=EvaluationStatus.ok,
+            scores=ran.scores,
+            log=log if log.exists() else None,
+            reason="",
+            worker=ran.worker,
+            attempts=1,
+            timings=None,
+            digest=ran.digest,
+        )
+
+    # --- the front's logs, where workers keep them --------------------------------------------
+
+    def _fetch_front(self, evaluator: Evaluator) -> bool:
+        """Fetch the logs of front members that have none here (an evaluator whose workers keep
+        the logs: analytic.farm), each scored here again. A member whose log does not score as
+        its worker claimed takes the log's scores, and that worker is distrusted; the front can
+        move, so this goes on until every member has its logs. True if a member was corrected.
+        """
+        state = self.state
+        corrected = False
+        tried: set[str] = set()
+        while True:
+            wanted = {
+                ran.job_id: (member.gains, ran)
+                for member in state.evolution.front()
+                for ran in state.provenance.get(member.gains, ())
+                if ran.job_id not in state.episodes.get(member.gains, ())
+                and ran.digest is not None
+                and ran.scores is not None
+                and ran.job_id not in tried
+            }
+            if not wanted:
+                return corrected
+            tried.update(wanted)
+            fetched = evaluator.fetch(
+                {
+                    job_id: Wanted(self._episode_spec(gains, job_id), ran.digest, (ran.worker,))
+                    for job_id, (gains, ran) in wanted.items()
+                    if ran.digest is not None
+                }
+            )
+            changed: dict[PDGains, list[Ran]] = {}
+            for job_id, got in fetched.items():
+                gains, ran = wanted[job_id]
+                if got.log is None:
+                    log.warning("no log of %s could be had: %s", job_id, got.reason)
+                    continue
+                state.episodes.setdefault(gains, []).append(job_id)
+                if got.scores != ran.scores:
+                    log.error(
+                        "worker %r claimed scores for %s that its log does not have: the log's "
+                        "stand, and its results are no longer trusted",
+                        ran.worker,
+                        job_id,
+                    )
+                    evaluator.distrust(ran.worker)
+                    true = Ran(job_id, ran.worker, got.digest, got.scores)
+                    changed.setdefault(gains, list(state.provenance[gains]))
+                    changed[gains] = [true if r.job_id == job_id else r for r in changed[gains]]
+            for gains, now in changed.items():
+                corrected = True
+                self._correct(gains, tuple(now))
+
+    def _correct(self, gains: PDGains, standing: tuple[Ran, ...]) -> None:
+        """A candidate's episodes as they truly ran, and the objectives they give, everywhere
+        the run keeps them: evaluated.csv holds the points in the order told, so the true one
+        replaces the false one there too, and the cloud and the front agree."""
+        self.state.provenance[gains] = standing
+        true = objectives([ran.scores for ran in standing], self.config.objective_weights)
+        for row in self.state.evolution.correct(gains, true):
+            self.state.evaluated[row] = true
+
+    def _drop_stale_logs(self, gains: PDGains, standing: tuple[Ran, ...]) -> None:
+        """Validation outvoted some of a member's episodes: a log kept here that is not the
+        standing one's (a log fetched from the outvoted worker) goes, to be fetched anew."""
+        kept = self.state.episodes.get(gains, [])
+        for ran in standing:
+            path = self.directory / EPISODES / f"{ran.job_id}.mcap"
+            if ran.job_id in kept and (
+                not path.exists() or hashlib.sha256(path.read_bytes()).hexdigest() != ran.digest
+            ):
+                path.unlink(missing_ok=True)
+                kept.remove(ran.job_id)
+
+    def _episode_spec(self, gains: PDGains, job_id: str) -> EpisodeSpec:
+        return self._spec(gains, self.config.trajectories[int(job_id.rsplit("-t", 1)[1])])
+
+    def _row_of(self, front: list[Candidate], row: HistoryRow) -> HistoryRow:
+        """`row` with the hypervolume and bests of `front` (after a correction)."""
+        points = [member.objectives for member in front]
+        return dataclasses.replace(
+            row,
+            hypervolume=hypervolume(points, self.config.reference_point),
+            best_f_acc=min(f_acc for f_acc, _ in points),
+            best_f_t=min(f_t for _, f_t in points),
+        )
+
+    # --- bookkeeping -------------------------------------------------------------------------
+
+    def _account(self, evaluation: Evaluation) -> None:
+        if evaluation.timings is not None:
+            timings = evaluation.timings
+            self.state.busy_seconds += timings.simulate_s + timings.encode_s
+
+    def _job_ids(self, candidate: str) -> list[str]:
+        return [f"{candidate}-t{number}" for number in range(len(self.config.trajectories))]
+
+    def _spec(self, gains: PDGains, trajectory: TrajectorySpec) -> EpisodeSpec:
+        config = self.config
+        return EpisodeSpec(
+            gains=gains, trajectory=trajectory, model=config.model, feedforward=config.feedforward
+        )
+
+    def _specs(self, jobs: dict[PDGains, list[str]]) -> dict[str, EpisodeSpec]:
+        return {
+            job_id: self._spec(gains, trajectory)
+            for gains, ids in jobs.items()
+            for job_id, trajectory in zip(ids, self.config.trajectories, strict=True)
+        }
+
+    def _progress(
+        self, evaluations_in_flight: int, started: float, ended: bool = False
+    ) -> RunProgress:
+        best = self.state.history[-1] if self.state.history else None
+        return RunProgress(
+            generation=best.generation if ended and best else self.state.evolution.generation,
+            evaluations=self.state.evolution.evaluations + evaluations_in_flight,
+            hypervolume=best.hypervolume if best else math.nan,
+            best_f_acc=best.best_f_acc if best else math.nan,
+            elapsed=time.monotonic() - started,
+            ended=ended,
+        )
+
+    def _candidate_done(
+        self, gains: PDGains, job_ids: list[str], results: dict[str, Evaluation]
+    ) -> tuple[float, float]:
+        """A candidate's objectives, with its episodes and point recorded."""
+        found = objectives(
+            [results[job_id].scores for job_id in job_ids], self.config.objective_weights
+        )
+        self.state.evaluated.append(found)
+        self.state.episodes[gains] = [i for i in job_ids if results[i].log is not None]
+        self.state.provenance[gains] = tuple(Ran.of(results[job_id]) for job_id in job_ids)
+        return found
+
+    def _generation_done(self, started: float, evaluator: Evaluator) -> None:
+        """History row, front, its logs (pruned, or fetched), termination verdict and checkpoint."""
+        state = self.state
+        front = state.evolution.front()
+        state.wall_seconds = time.monotonic() - started
+        generation = state.evolution.generation
+        if self.config.asynchronous and state.evolution.evaluations % self.config.pop:
+            generation += 1  # the last, partial one, which a budget of evaluations ended
+        state.history.append(
+            HistoryRow(
+                generation=generation,
+                evaluations=state.evolution.evaluations,
+                hypervolume=hypervolume(
+                    [member.objectives for member in front], self.config.reference_point
+                ),
+                best_f_acc=min(member.objectives[0] for member in front),
+                best_f_t=min(member.objectives[1] for member in front),
+                wall_seconds=state.wall_seconds,
+            )
+        )
+        if self.config.keep == "front":
+            keep = {member.gains for member in front}
+            for gains in [gains for gains in state.episodes if gains not in keep]:
+                for job_id in state.episodes.pop(gains):
+                    (self.directory / EPISODES / f"{job_id}.mcap").unlink(missing_ok=True)
+        if self._fetch_front(evaluator):
+            front = state.evolution.front()  # a member's scores were false: the front moved
+            state.history[-1] = self._row_of(front, state.history[-1])
+        # A Ctrl-C between history.csv and the checkpoint would leave them a generation apart.
+        with interrupts_deferred():
+            self.write_records()
+            hypervolumes = [row.hypervolume for row in state.history]
+            state.stopped = self.config.termination.reason(
+                hypervolumes, state.evolution.evaluations
+            )
+            self._checkpoint()
+
+    def _checkpoint(self) -> None:
+        write_atomically(self.directory / CHECKPOINT, encode(self.state, self.identity))
+
+    # --- the record --------------------------------------------------------------------------
+
+    def write_records(self) -> None:
+        """The plain files of where the run stands (analytic.records), history.csv last: a
+        reader that finds a generation in history.csv finds its front and points too. (A crash
+        between history.csv and the checkpoint leaves the plain files a generation ahead: a
+        resume runs that generation again, to the same, deterministic, result.)"""
+        self._check_open()
+        rows = _rows(self.state)
+        write_atomically(self.directory / EVALUATED_CSV, evaluated_csv(self.state.evaluated))
+        write_atomically(self.directory / FRONT_JSON, front_json(rows))
+        write_atomically(self.directory / FRONT_CSV, front_csv(rows))
+        write_atomically(self.directory / HISTORY_CSV, history_csv(self.state.history))
+
+    def write_figures(self) -> None:
+        """pareto.png, hypervolume.png and report.md, from where the run stands: the knee, the
+        most accurate and the smoothest member marked, beside the default gains (if evaluated)."""
+        self._check_open()
+        front, title = self.front(), run_title(self.config)
+        chosen, baseline = picks(front), self.baseline()
+        plot_pareto(
+            self.directory / PARETO_PNG,
+            front,
+            self.state.evaluated,
+            title=title,
+            picks=chosen,
+            baseline=baseline,
+        )
+        plot_hypervolume(self.directory / HYPERVOLUME_PNG, self.state.history, title=title)
+        write_report(
+            self.directory / REPORT_MD,
+            title=f"gainfarm run {self.directory.name}",
+            config_lines=run_setup(self.config),
+            history=self.state.history,
+            front=front,
+            converged=self.state.stopped or "stopped before it ended",
+            picks=chosen,
+            baseline=baseline,
+            run_dir=str(self.directory),
+        )
+
+
+def _evolution(config: RunConfig) -> Evolution:
+    return Evolution(
+        config.pop,
+        config.seed,
+        steady_state=config.asynchronous,
+        algorithm=config.algorithm,
+        objective_scaling=config.objective_scaling,
+        reference=config.reference_point,
+    )
+
+
+def _rows(state: RunState) -> list[FrontMember]:
+    """The front as the record keeps it: gains, objectives, whether an episode diverged, and the
+    logs kept of each member."""
+    return [
+        FrontMember(
+            member.gains.kp,
+            member.gains.kd,
+            *member.objectives,
+            logs=tuple(f"{EPISODES}/{job}.mcap" for job in state.episodes.get(member.gains, [])),
+            diverged=any(
+                ran.scores is not None and ran.scores.diverged
+                for ran in state.provenance.get(member.gains, ())
+            ),
+        )
+        for member in state.evolution.front()
+    ]
+
+
+def _refuse_existing(directory: Path) -> None:
+    if (directory / CONFIG_JSON).exists():
+        raise FileExistsError(f"{directory} already holds a run; resume it or choose another")
+
+
+def _lock(directory: Path) -> Lock:
+    try:
+        return Lock(directory / LOCK)
+    except Locked as locked:
+        raise RunBusy(directory, locked.holder) from None
+
+
+def _identity(directory: Path) -> RunIdentity:
+    """The run's identity from run.json. A run from before run ids gets one now, which pins the
+    id-less checkpoint it has (analytic.checkpoint): one atomic write, so a kill cannot leave
+    the run half-upgraded."""
+    if (directory / RUN_JSON).exists():
+        return read_identity(directory / RUN_JSON)
+    checkpoint = directory / CHECKPOINT
+    legacy = hashlib.sha256(checkpoint.read_bytes()).hexdigest() if checkpoint.exists() else None
+    identity = RunIdentity.new(legacy)
+    write_atomically(directory / RUN_JSON, run_json(identity))
+    return identity
+
+
+def upgrade(directory: Path) -> None:
+    """Give a run written before front.json and evaluated.csv existed those files, from its
+    checkpoint, so that it reads like any other (analytic.records.read_run); opening it gives it
+    a run id too. A run that needs nothing is not opened (nor locked, nor written: a reader of
+    an archive of runs may have no write access). One that another process is running is left
+    to it: that process writes the records."""
+    directory = Path(directory)
+    if (directory / CHECKPOINT).exists() and not (directory / FRONT_JSON).exists():
+        try:
+            run = TuningRun.open(directory)
+        except RunBusy:
+            return
+        with run:
+            run.write_records()

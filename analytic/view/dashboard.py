@@ -1,0 +1,405 @@
+"""`analytic dashboard`: a local web page that shows tuning runs and their farm as they go.
+
+Bokeh's server (the `dashboard` extra) draws the page: it is a well-kept plotting library whose
+server pushes new data to the open page over a websocket, and serves its own JavaScript, so the
+page works on a machine with no internet access. Each open page gets its own document; all of
+them share one `Watch`, which reads the runs' plain files (analytic.records) when they change
+and asks the broker for its status (BrokerStatus) once a second, in a thread of its own.
+
+The page, top to bottom: the farm (workers, busy, queued, jobs per second, and the last ten
+minutes of throughput and queue), then a panel per run: what it tunes and where it stands, its
+front over every evaluated point (as pareto.png draws them: f_acc in mm, f_t on a log axis), and
+its hypervolume against evaluations. Runs that appear under a watched directory while the page is
+open are added to it.
+
+Every model a test or a script may want to read is named (`Bokeh.documents[0]
+.get_model_by_name(NAME)` in the page): "farm" (the farm's line), "farm-series" (its sources'
+columns t, jobs_per_s, queued, busy), and for each run, by its path as given: "run:PATH" (its
+line), "history:PATH", "front:PATH" and "evaluated:PATH" (its sources).
+"""
+
+import contextlib
+import dataclasses
+import html
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import zenoh
+
+from gainfarm.analytic.tuning.records import (
+    CONFIG_JSON,
+    EPISODES,
+    FRONT_JSON,
+    HISTORY_CSV,
+    REPORT_MD,
+    read_run,
+)
+from gainfarm.analytic.view.reports import run_title
+from gainfarm.broker.status import BrokerUnavailable, query_status
+from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR
+from gainfarm.schemas.wire import BadMessage, BrokerStatus
+
+if TYPE_CHECKING:
+    from bokeh.server.server import Server
+
+REFRESH_SECONDS = 1.0  # how often a page and the farm's status are brought up to date
+FARM_HISTORY_SECONDS = 600.0  # the throughput and queue the page plots
+DASHBOARD_PORT = 5006  # Bokeh's own default
+SEARCH_DEPTH = 3  # a watched directory's runs: itself, its runs, an experiment's, ...
+
+
+# --- what the page shows, read from files and the broker -----------------------------------
+
+
+@dataclass(frozen=True)
+class RunView:
+    """A run as the page draws it: its line of text and its points, ready to plot."""
+
+    line: str
+    history: dict[str, list[float]]  # evaluations, hypervolume
+    front: dict[str, list[float]]  # f_acc_mm, f_t (step order: by f_acc)
+    evaluated: dict[str, list[float]]  # f_acc_mm, f_t
+
+
+def run_view(directory: Path) -> RunView:
+    """Where the run in `directory` stands, from its plain files; a run whose files cannot be
+    read says why in its line (and shows no points) rather than stopping the page."""
+    empty = RunView("", {"evaluations": [], "hypervolume": []}, _points([]), _points([]))
+    try:
+        record = read_run(directory)
+    except FileNotFoundError:
+        return dataclasses.replace(empty, line="starting: no config.json yet")
+    except (OSError, ValueError) as error:
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        return dataclasses.replace(empty, line=f"cannot read: {reason}")
+    title = run_title(record.config).splitlines()[0]
+    if not record.history:
+        return dataclasses.replace(empty, line=f"{title}: generation 0 running")
+    last = record.history[-1]
+    measured = [point for point in record.evaluated if _measured(point)]
+    state = "report written" if (directory / REPORT_MD).exists() else "running"
+    line = (
+        f"{title}: generation {last.generation}, {last.evaluations} evaluations, "
+        f"hypervolume {last.hypervolume:.4g}, best error {last.best_f_acc * 1000:.2f} mm, "
+        f"front {len(record.front)}; {state}"
+    )
+    if penalties := len(record.evaluated) - len(measured):
+        line += f" ({penalties} diverged or failed, not drawn)"
+    return RunView(
+        line,
+        {
+            "evaluations": [float(row.evaluations) for row in record.history],
+            "hypervolume": [row.hypervolume for row in record.history],
+        },
+        _points(sorted((m.f_acc, m.f_t) for m in record.front if _measured((m.f_acc, m.f_t)))),
+        _points(measured),
+    )
+
+
+def _measured(point: tuple[float, float]) -> bool:
+    """A point the page can draw: finite, and not a divergence's penalty."""
+    f_acc, f_t = point
+    return math.isfinite(f_acc) and math.isfinite(f_t) and f_acc < DIVERGED_TICK_ERROR
+
+
+def _points(points: Sequence[tuple[float, float]]) -> dict[str, list[float]]:
+    # A log axis cannot show f_t <= 0: such points sit at a floor far below any real value.
+    return {
+        "f_acc_mm": [f_acc * 1000.0 for f_acc, _ in points],
+        "f_t": [max(f_t, 1e-12) for _, f_t in points],
+    }
+
+
+def find_runs(roots: Sequence[Path]) -> list[Path]:
+    """The run directories (those holding a config.json) at or under `roots`, a few levels
+    down, in a stable order; an episodes/ directory is never searched (it holds only logs)."""
+    found: list[Path] = []
+
+    def search(directory: Path, depth: int) -> None:
+        if (directory / CONFIG_JSON).is_file():
+            found.append(directory)
+            return
+        if depth == 0:
+            return
+        with contextlib.suppress(OSError):
+            for child in sorted(directory.iterdir()):
+                if child.is_dir() and child.name != EPISODES and not child.name.startswith("."):
+                    search(child, depth - 1)
+
+    for root in roots:
+        search(root, SEARCH_DEPTH)
+    return list(dict.fromkeys(found))
+
+
+@dataclass
+class FarmSeries:
+    """The farm's last ten minutes, a point per look: seconds since the dashboard started, its
+    throughput, its queue and its busy workers."""
+
+    t: deque[float] = field(default_factory=deque)
+    jobs_per_s: deque[float] = field(default_factory=deque)
+    queued: deque[float] = field(default_factory=deque)
+    busy: deque[float] = field(default_factory=deque)
+
+    def add(self, t: float, farm: BrokerStatus) -> None:
+        for column, value in (
+            (self.t, t),
+            (self.jobs_per_s, farm.jobs_per_s),
+            (self.queued, farm.queued),
+            (self.busy, farm.busy),
+        ):
+            column.append(float(value))
+        while self.t and self.t[0] < t - FARM_HISTORY_SECONDS:
+            for column in (self.t, self.jobs_per_s, self.queued, self.busy):
+                column.popleft()
+
+    def columns(self) -> dict[str, list[float]]:
+        return {
+            "t": list(self.t),
+            "jobs_per_s": list(self.jobs_per_s),
+            "queued": list(self.queued),
+            "busy": list(self.busy),
+        }
+
+
+def farm_line(farm: BrokerStatus) -> str:
+    workers = "1 worker" if farm.worker_count == 1 else f"{farm.worker_count} workers"
+    return (
+        f"{workers} ({farm.busy} busy), {farm.queued} queued, "
+        f"{farm.jobs_per_s:.1f} jobs/s over the last minute, {farm.jobs_done} jobs done, "
+        f"{farm.study_count} studies"
+    )
+
+
+class Watch:
+    """What every page shows, shared: the runs under `roots`, re-read when their files change,
+    and the farm the `session` reaches (None: not watched), asked by a thread of its own."""
+
+    def __init__(
+        self,
+        roots: Sequence[Path],
+        session: zenoh.Session | None,
+        where: str = "",
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        self.roots = list(roots)
+        self.session = session
+        self.where = where
+        self.clock = clock
+        self.started = clock()
+        self.farm = FarmSeries()
+        self.farm_text = "farm: not watched (--connect ENDPOINT shows it)"
+        self.farm_version = 0
+        self._views: dict[Path, tuple[object, RunView]] = {}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def __enter__(self) -> "Watch":
+        if self.session is not None:
+            self.farm_text = f"farm at {self.where}: asking the broker"
+            self._thread = threading.Thread(target=self._ask, name="farm", daemon=True)
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+
+    def _ask(self) -> None:
+        assert self.session is not None
+        while not self._stop.is_set():
+            try:
+                farm = query_status(self.session, timeout=2 * REFRESH_SECONDS)
+                text = f"farm at {self.where}: {farm_line(farm)}"
+            except (BrokerUnavailable, BadMessage) as error:
+                farm, text = None, f"farm at {self.where}: {error}"
+            except Exception as error:  # a closed session, a library's error: said, not fatal
+                farm, text = None, f"farm at {self.where}: cannot ask: {error}"
+            with self._lock:
+                if farm is not None:
+                    self.farm.add(self.clock() - self.started, farm)
+                self.farm_text = text
+                self.farm_version += 1
+            self._stop.wait(REFRESH_SECONDS)
+
+    def farm_now(self) -> tuple[int, str, dict[str, list[float]]]:
+        """The farm's line and series, and a version that changes when they do."""
+        with self._lock:
+            return self.farm_version, self.farm_text, self.farm.columns()
+
+    def runs(self) -> list[tuple[Path, object, RunView]]:
+        """Every run found now: its path, a version that changes when its files do, its view."""
+        views = []
+        for directory in find_runs(self.roots):
+            version = _version(directory)
+            with self._lock:
+                cached = self._views.get(directory)
+            if cached is None or cached[0] != version:
+                cached = (version, run_view(directory))
+                with self._lock:
+                    self._views[directory] = cached
+            views.append((directory, *cached))
+        return views
+
+
+def _version(directory: Path) -> object:
+    """What changes when a run writes its records (history.csv is written last, front.json
+    before it) or its report."""
+    stamps = []
+    for name in (CONFIG_JSON, FRONT_JSON, HISTORY_CSV, REPORT_MD):
+        try:
+            stamps.append((directory / name).stat().st_mtime_ns)
+        except OSError:
+            stamps.append(None)
+    return tuple(stamps)
+
+
+# --- the page -------------------------------------------------------------------------------
+
+
+def page(watch: Watch) -> Callable:
+    """The function Bokeh calls to build each new page's document."""
+    from bokeh.layouts import column, row
+    from bokeh.models import ColumnDataSource, Div
+    from bokeh.plotting import figure
+
+    class RunPanel:
+        """A run's part of the page: its heading, its line, its front and its curve."""
+
+        def __init__(self, directory: Path):
+            key = str(directory)
+            self.shown: object = None  # the run's version on the page
+            self.line = Div(name=f"run:{key}", text="")
+            self.history = ColumnDataSource(
+                {"evaluations": [], "hypervolume": []}, name=f"history:{key}"
+            )
+            self.front = ColumnDataSource({"f_acc_mm": [], "f_t": []}, name=f"front:{key}")
+            self.evaluated = ColumnDataSource({"f_acc_mm": [], "f_t": []}, name=f"evaluated:{key}")
+            pareto = figure(
+                title="front over every evaluated point",
+                x_axis_label="f_acc: mean end-effector error (mm)",
+                y_axis_label="f_t: mean squared torque change per tick ((N·m)²)",
+                y_axis_type="log",
+                height=360,
+                width=480,
+            )
+            pareto.scatter("f_acc_mm", "f_t", source=self.evaluated, size=4, color="lightgrey")
+            pareto.step("f_acc_mm", "f_t", source=self.front, mode="after", color="crimson")
+            pareto.scatter("f_acc_mm", "f_t", source=self.front, size=6, color="crimson")
+            curve = figure(
+                title="hypervolume",
+                x_axis_label="evaluations",
+                y_axis_label="hypervolume",
+                height=360,
+                width=480,
+            )
+            curve.line("evaluations", "hypervolume", source=self.history, line_width=2)
+            curve.scatter("evaluations", "hypervolume", source=self.history, size=5)
+            heading = Div(text=f"<h3>{html.escape(key)}</h3>")
+            self.layout = column(heading, self.line, row(pareto, curve))
+
+        def show(self, version: object, view: RunView) -> None:
+            if version != self.shown:
+                self.line.text = html.escape(view.line)
+                self.history.data = view.history
+                self.front.data = view.front
+                self.evaluated.data = view.evaluated
+                self.shown = version
+
+    def build(document) -> None:  # bokeh.document.Document
+        farm_line = Div(name="farm", text="", styles={"font-size": "110%"})
+        farm_series = ColumnDataSource(
+            {"t": [], "jobs_per_s": [], "queued": [], "busy": []}, name="farm-series"
+        )
+        since = "seconds since the dashboard started"
+        throughput = figure(
+            title="throughput (jobs/s over the last minute)",
+            x_axis_label=since,
+            height=220,
+            width=480,
+        )
+        throughput.line("t", "jobs_per_s", source=farm_series, line_width=2)
+        queue = figure(
+            title="queued jobs and busy workers", x_axis_label=since, height=220, width=480
+        )
+        queue.line("t", "queued", source=farm_series, line_width=2, legend_label="queued")
+        queue.line(
+            "t", "busy", source=farm_series, line_width=2, color="orange", legend_label="busy"
+        )
+        queue.legend.location = "top_left"
+        roots = ", ".join(map(str, watch.roots))
+        runs = column(Div(text=f"runs under {html.escape(roots)}"))
+        panels: dict[Path, RunPanel] = {}
+        farm_shown = [-1]  # the farm's version on the page
+
+        def update() -> None:
+            version, text, series = watch.farm_now()
+            if version != farm_shown[0]:
+                farm_line.text = html.escape(text)
+                farm_series.data = series
+                farm_shown[0] = version
+            for directory, run_version, view in watch.runs():
+                if directory not in panels:
+                    panels[directory] = RunPanel(directory)
+                    runs.children.append(panels[directory].layout)
+                panels[directory].show(run_version, view)
+
+        document.title = "gainfarm dashboard"
+        document.add_root(
+            column(Div(text="<h2>gainfarm</h2>"), farm_line, row(throughput, queue), runs)
+        )
+        update()
+        document.add_periodic_callback(update, int(REFRESH_SECONDS * 1000))
+
+    return build
+
+
+class NoBokeh(RuntimeError):
+    """The `dashboard` extra is not installed."""
+
+
+def serve(watch: Watch, port: int, address: str = "127.0.0.1") -> "Server":
+    """Bokeh's server for the page on `address`:`port`, started in this thread's event loop (run
+    it with `run_forever`, stop it with its `stop`). OSError if the port cannot be had, NoBokeh
+    without Bokeh."""
+    try:
+        from bokeh.application import Application
+        from bokeh.application.handlers.function import FunctionHandler
+        from bokeh.server.server import Server
+    except ImportError:
+        raise NoBokeh("the dashboard needs Bokeh: pip install 'gainfarm[dashboard]'") from None
+
+    server = Server(
+        {"/": Application(FunctionHandler(page(watch)))},
+        port=port,
+        address=address,
+        allow_websocket_origin=[f"{address}:{port}", f"localhost:{port}"],
+        num_procs=1,
+    )
+    server.start()
+    return server
+
+
+def run_forever() -> None:
+    """Serve until Ctrl-C: Tornado's loop, woken every so often so that a Ctrl-C is seen."""
+    from tornado.ioloop import IOLoop, PeriodicCallback
+
+    from gainfarm.cli import interrupts
+
+    loop = IOLoop.current()
+
+    def check() -> None:
+        if interrupts.INTERRUPTED.is_set():
+            loop.stop()
+
+    PeriodicCallback(check, 200).start()
+    loop.start()
+    interrupts.check()

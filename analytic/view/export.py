@@ -1,0 +1,308 @@
+"""The controller to use from a run, and the files that carry it out of the run.
+
+A run's front offers many controllers; `picks` names three: the knee (the best compromise), the
+most accurate and the smoothest. `controller` makes any member a `schemas.controller.Controller`
+(gains, joints, units, objectives, provenance) and `render` writes it as JSON (what `analytic
+batch --gains` and `worker episode --gains` read), as the same document in YAML, or as a
+ros2_control parameter file.
+
+The knee is pymoo's achievement scalarisation function (ASF) with equal weights on the front
+normalised between its own ideal and nadir points: the member whose worse normalised objective
+is the least bad, the point where neither objective is given up for the other. Both objectives
+enter on a log scale: a front spans decades in each (a chattering member's f_t is 10²-10⁴ times
+a smooth one's; the softest members' error 20 times the stiffest's), and what a user trades is
+factors, not differences. On linear scales the extremes decide: one chattering member puts
+every other at f_t ≈ 0 and pulls the knee towards it.
+
+pymoo's other rules do not fit: HighTradeoffPoints returns a set (often empty, undefined on
+fronts of one or two members), pseudo-weights divide by zero on a one-member front, and its
+CompromiseProgramming returns nothing (pymoo 0.6). The ASF is defined for any front; ties go to
+the lowest row of front.csv (the more accurate member). Members whose episodes diverged carry a
+penalty, not a measurement: no pick is one of them unless every member is.
+"""
+
+import hashlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+from pydantic import ValidationError
+from pymoo.decomposition.asf import ASF
+
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.records import (
+    CONFIG_JSON,
+    FRONT_CSV,
+    HISTORY_CSV,
+    RUN_JSON,
+    FrontMember,
+    read_front,
+    read_history,
+    read_identity,
+    sorted_front,
+)
+from gainfarm.schemas.controller import Controller, Member, Source
+from gainfarm.schemas.robot import PLANTS, ModelSpec
+
+MEMBERS = ("knee", "accurate", "smooth")
+FORMATS = ("json", "yaml", "ros2_control")
+RULES = {
+    "knee": "the knee: least worse normalised objective (pymoo ASF, equal weights; both "
+    "objectives on a log scale, normalised between the front's ideal and nadir)",
+    "accurate": "the most accurate member (smallest f_acc)",
+    "smooth": "the smoothest member (smallest f_t)",
+    "row": "the member at this row of front.csv",
+}
+# The ros2_control controller's name, and the controller manager's rate: the episodes' 500 Hz.
+ROS2_CONTROLLER = "pd_effort_controller"
+
+
+class BadRun(ValueError):
+    """A directory that holds no run, or no front yet."""
+
+
+class BadMember(ValueError):
+    """A --member that names no member of the front."""
+
+
+@dataclass(frozen=True)
+class Pick:
+    """A member of a front, chosen: `name` (knee, accurate, smooth, or row), its 1-based `row`
+    in front.csv, and how many members share its scores exactly (`sharing`, itself included)."""
+
+    name: str
+    row: int
+    member: FrontMember
+    sharing: int
+
+
+def plant_name(model: ModelSpec) -> str:
+    """realistic or ideal if the model is that plant (whatever its joints), else custom."""
+    for name, plant in PLANTS.items():
+        if model == plant.model_copy(update={"joints": model.joints}):
+            return name
+    return "custom"
+
+
+def _measured(front: Sequence[FrontMember]) -> list[int]:
+    """The rows a pick may be: members with finite scores that did not diverge (all of them if
+    none is such: a pick is still defined, and says it diverged)."""
+    good = [
+        i
+        for i, m in enumerate(front)
+        if not m.diverged and np.isfinite(m.f_acc) and np.isfinite(m.f_t)
+    ]
+    return good or list(range(len(front)))
+
+
+def knee_index(front: Sequence[FrontMember]) -> int:
+    """The knee's index in `front` (sorted, as front.csv is): see the module's docstring."""
+    rows = _measured(front)
+    objectives = np.array([front[i].objectives for i in rows], dtype=float)
+    points = np.log10(np.maximum(objectives, np.finfo(float).tiny))  # an exact 0 stays finite
+    ideal, nadir = points.min(axis=0), points.max(axis=0)
+    span = np.where(nadir > ideal, nadir - ideal, 1.0)  # one member, or all alike: all 0
+    normalised = (points - ideal) / span
+    values = ASF().do(normalised, weights=np.array([0.5, 0.5]))
+    return rows[int(np.argmin(values))]  # argmin: the first of equals, the lowest row
+
+
+def _sharing(front: Sequence[FrontMember], index: int) -> int:
+    return sum(1 for m in front if m.objectives == front[index].objectives)
+
+
+def _pick(front: Sequence[FrontMember], name: str, index: int) -> Pick:
+    return Pick(name, index + 1, front[index], _sharing(front, index))
+
+
+def picks(front: Sequence[FrontMember]) -> list[Pick]:
+    """The knee, the most accurate and the smoothest member of `front` (none if it is empty)."""
+    front = sorted_front(front)
+    if not front:
+        return []
+    rows = _measured(front)
+    return [
+        _pick(front, "knee", knee_index(front)),
+        _pick(front, "accurate", rows[0]),  # sorted by f_acc, then f_t
+        _pick(front, "smooth", min(rows, key=lambda i: (front[i].f_t, i))),
+    ]
+
+
+def pick(front: Sequence[FrontMember], which: str) -> Pick:
+    """The member `which` names: knee, accurate, smooth, or a row of front.csv (1-based)."""
+    front = sorted_front(front)
+    if which in MEMBERS:
+        return next(p for p in picks(front) if p.name == which)
+    try:
+        row = int(which)
+    except ValueError:
+        raise BadMember(
+            f"expected knee, accurate, smooth or a row of front.csv (1-{len(front)}), got {which!r}"
+        ) from None
+    if not 1 <= row <= len(front):
+        raise BadMember(
+            f"row {row} is out of range: front.csv has {len(front)} members (1-{len(front)})"
+        )
+    return _pick(front, "row", row - 1)
+
+
+def controller(directory: Path, which: str = "knee") -> Controller:
+    """Front member `which` of the run in `directory` as a Controller. BadRun if the directory
+    holds no run or no front yet, BadMember if `which` names no member."""
+    directory = Path(directory)
+    try:
+        config_bytes = (directory / CONFIG_JSON).read_bytes()
+    except OSError:
+        raise BadRun(f"{str(directory)!r} holds no run (no {CONFIG_JSON})") from None
+    try:
+        config = RunConfig.model_validate_json(config_bytes)
+        front_bytes = (directory / FRONT_CSV).read_bytes()
+        front = read_front(directory / FRONT_CSV)
+        history = read_history(directory / HISTORY_CSV)
+        identity = read_identity(directory / RUN_JSON) if (directory / RUN_JSON).exists() else None
+    except FileNotFoundError:
+        raise BadRun(f"{str(directory)!r} has no front yet: no generation has finished") from None
+    except (OSError, ValueError, ValidationError) as error:
+        raise BadRun(f"{str(directory)!r}: unreadable run ({_one_line(error)})") from None
+    if not front:
+        raise BadRun(f"{str(directory)!r} has no front yet: no generation has finished")
+    chosen = pick(front, which)
+    member = chosen.member
+    evaluations = history[-1].evaluations if history else 0
+    return Controller(
+        kp=member.kp,
+        kd=member.kd,
+        member=Member(
+            selected=chosen.name if chosen.name != "row" else f"row {chosen.row}",
+            row=chosen.row,
+            rule=RULES[chosen.name],
+            f_acc=member.f_acc,
+            f_t=member.f_t,
+            diverged=member.diverged,
+            sharing=chosen.sharing,
+        ),
+        source=Source(
+            run_id=identity.run_id if identity is not None else "",
+            directory=str(directory),
+            config_sha256=hashlib.sha256(config_bytes).hexdigest(),
+            front_sha256=hashlib.sha256(front_bytes).hexdigest(),
+            trajectories=config.trajectories,
+            plant=plant_name(config.model),
+            model=config.model,
+            feedforward=config.feedforward,
+            objective_weights=config.objective_weights,
+            population=config.pop,
+            algorithm=config.algorithm,
+            seed=config.seed,
+            stopped=config.termination.reason([row.hypervolume for row in history], evaluations),
+        ),
+    )
+
+
+def render(controller: Controller, fmt: str) -> bytes:
+    """The controller as `fmt`: json, yaml (the same document) or ros2_control."""
+    if fmt == "json":
+        return (controller.model_dump_json(indent=2) + "\n").encode()
+    if fmt == "yaml":
+        document = controller.model_dump(mode="json")
+        return yaml.safe_dump(document, sort_keys=False, allow_unicode=True).encode()
+    if fmt == "ros2_control":
+        return ros2_control(controller).encode()
+    raise ValueError(f"unknown format {fmt!r}: one of {', '.join(FORMATS)}")
+
+
+def ros2_control(controller: Controller) -> str:
+    """A ros2_control parameter file running the gains as a PD on the effort interface.
+
+    ros2_controllers has no plain "PD on effort" controller: effort_controllers'
+    JointGroupEffortController forwards torques and has no gains. The closest standard is
+    joint_trajectory_controller with `command_interfaces: [effort]`: it then runs a PID per
+    joint, u = p·e + i·∫e + d·(q̇_ref − q̇) + ff_velocity_scale·q̇_ref, which with i = 0 and
+    ff_velocity_scale = 0 is the episodes' PD law. Every gain is written as a float: ROS 2
+    parameters are typed, and an integer would be refused for these doubles.
+    """
+    member, source = controller.member, controller.source
+    trajectories = ", ".join(f"{t.kind.value} {t.duration:g} s" for t in source.trajectories)
+    parameters = {
+        "controller_manager": {
+            "ros__parameters": {
+                "update_rate": round(1 / controller.control_period),
+                "joint_state_broadcaster": {
+                    "type": "joint_state_broadcaster/JointStateBroadcaster"
+                },
+                ROS2_CONTROLLER: {"type": "joint_trajectory_controller/JointTrajectoryController"},
+            }
+        },
+        ROS2_CONTROLLER: {
+            "ros__parameters": {
+                "joints": list(controller.joints),
+                "command_interfaces": ["effort"],
+                "state_interfaces": ["position", "velocity"],
+                "gains": {
+                    joint: {"p": float(p), "d": float(d), "i": 0.0, "ff_velocity_scale": 0.0}
+                    for joint, p, d in zip(
+                        controller.joints, controller.kp, controller.kd, strict=True
+                    )
+                },
+            }
+        },
+    }
+    diverged = " (diverged: the scores are a penalty)" if member.diverged else ""
+    header = [
+        "# ros2_control parameters: the iiwa 14's joint PD gains tuned by gainfarm, run on the",
+        "# effort interface by joint_trajectory_controller (its PID with i = 0 is a PD).",
+        f"# Run {source.run_id or '(no run id)'} ({source.directory}), front.csv row "
+        f"{member.row}: {member.selected}.",
+        f"# Tuned on {trajectories}, {source.plant} plant: f_acc {member.f_acc * 1000:.3f} mm, "
+        f"f_t {member.f_t:.4g} (N·m)²{diverged}.",
+        "# p in N·m/rad, d in N·m·s/rad; the episodes ran the law at "
+        f"{round(1 / controller.control_period)} Hz, as update_rate does here.",
+    ]
+    if source.feedforward:
+        header.append(
+            f"# These gains were tuned on top of a learned feed-forward ({source.feedforward[:12]}"
+            "), which this file does not carry."
+        )
+    body = yaml.safe_dump(parameters, sort_keys=False, default_flow_style=None, width=100)
+    return "\n".join(header) + "\n" + body
+
+
+def _one_line(error: Exception) -> str:
+    return " ".join(str(error).split())
+
+
+def point_groups(
+    front: Sequence[FrontMember], key: Callable[[FrontMember], object] | None = None
+) -> list[tuple[int, int]]:
+    """(first row, how many) for each run of adjacent members of a sorted front whose `key`
+    agrees (default: their exact scores), in order. Members with equal scores are adjacent in
+    front.csv (sorted by f_acc, then f_t), and so are those whose rounded scores agree."""
+    key = key or (lambda member: member.objectives)
+    groups: list[tuple[int, int]] = []
+    for index, member in enumerate(front):
+        if groups and key(front[groups[-1][0]]) == key(member):
+            groups[-1] = (groups[-1][0], groups[-1][1] + 1)
+        else:
+            groups.append((index, 1))
+    return [(first + 1, count) for first, count in groups]
+
+
+PICK_TEXT = {
+    "knee": "the knee",
+    "accurate": "the most accurate member",
+    "smooth": "the smoothest member",
+    "row": "the member",
+}
+
+
+def describe_pick(chosen: Pick) -> str:
+    """A pick in one line: 'the knee (front.csv row 12): 12.345 mm, f_t 0.0301 (N·m)²'."""
+    member = chosen.member
+    shared = f", one of {chosen.sharing} members with these scores" if chosen.sharing > 1 else ""
+    diverged = " (diverged: a penalty, not a measurement)" if member.diverged else ""
+    return (
+        f"{PICK_TEXT[chosen.name]} (front.csv row {chosen.row}): {member.f_acc * 1000:.3f} mm, "
+        f"f_t {member.f_t:.4g} (N·m)²{shared}{diverged}"
+    )

@@ -1,0 +1,581 @@
+"""Reports in plain words: a run's report.md, and an experiment's with its verdict.
+
+Like the figures, edge code on plain data: the caller computes, these functions only say it.
+"""
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.records import (
+    FRONT_CSV,
+    HISTORY_CSV,
+    HYPERVOLUME_PNG,
+    PARETO_PNG,
+    Baseline,
+    FrontMember,
+    HistoryRow,
+    sorted_front,
+)
+from gainfarm.analytic.view.export import Pick, plant_name, point_groups
+from gainfarm.schemas.controller import UNITS
+from gainfarm.schemas.files import write_atomically
+from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR
+from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
+
+ALGORITHM_NAMES = {
+    "nsga2": "NSGA-II",
+    "nsga3": "NSGA-III",
+    "smsemoa": "SMS-EMOA",
+    "moead": "MOEA/D",
+    "agemoea2": "AGE-MOEA-II",
+    "tpe": "Optuna TPE",
+    "random": "uniform random search",
+}
+
+
+def _search(config: RunConfig) -> str:
+    """How the run searched: 'generational NSGA-II', 'steady-state NSGA-II', ..."""
+    how = "steady-state" if config.asynchronous else "generational"
+    name = ALGORITHM_NAMES.get(config.algorithm, config.algorithm)
+    scaled = ", told log f_t" if config.objective_scaling == "log" else ""
+    return f"{how} {name}{scaled}"
+
+
+def trajectories_text(config: RunConfig) -> str:
+    """The run's trajectories and their duration: 'spiral 5 s', 'spiral, random, pyramid 3 s'."""
+    kinds = [trajectory.kind.value for trajectory in config.trajectories]
+    durations = {trajectory.duration for trajectory in config.trajectories}
+    if len(durations) == 1:
+        return f"{', '.join(kinds)} {durations.pop():g} s"
+    return ", ".join(f"{t.kind.value} {t.duration:g} s" for t in config.trajectories)
+
+
+def run_title(config: RunConfig) -> str:
+    """A run's figures' title: what it was tuned on (trajectories and their duration, plant,
+    population), then how."""
+    return (
+        f"{config.mode} controller on {trajectories_text(config)}, {plant_text(config.model)}, "
+        f"population {config.pop}\n{_search(config)}, seed {config.seed}"
+    )
+
+
+def run_setup(config: RunConfig) -> list[str]:
+    """A run's configuration as its report lists it."""
+    trajectories = ", ".join(
+        f"{trajectory.kind.value} {trajectory.duration:g} s" for trajectory in config.trajectories
+    )
+    controller = config.mode + " controller"
+    if config.feedforward is not None:
+        controller = f"{config.mode} PD + learned feed-forward {config.feedforward[:12]}"
+    weights = config.objective_weights
+    averaged = (
+        ""
+        if weights is None
+        else "; objectives averaged with weights f_acc "
+        + " / ".join(f"{w:.2f}" for w, _ in weights)
+        + ", f_t "
+        + " / ".join(f"{w:.2f}" for _, w in weights)
+    )
+    return [
+        f"{controller} on {trajectories}{averaged}",
+        f"{_search(config)}, population {config.pop}, seed {config.seed}",
+        f"{plant_text(config.model)}; reference point "
+        f"f_acc {config.reference_point[0]} m, f_t {config.reference_point[1]}",
+    ]
+
+
+def _duration(seconds: float) -> str:
+    """Wall time the way a person says it: 42.0 s, 3 min 07 s, 2 h 05 min."""
+    if not math.isfinite(seconds):
+        return str(seconds)
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    minutes, second = divmod(round(seconds), 60)
+    if minutes < 60:
+        return f"{minutes} min {second:02d} s"
+    hours, minute = divmod(minutes, 60)
+    return f"{hours} h {minute:02d} min"
+
+
+def gains_text(member: FrontMember) -> str:
+    """A member's 14 gains on one short line: 'kp 2000 2000 1200 … / kd 20 20 15 …'."""
+    kp = " ".join(f"{gain:.4g}" for gain in member.kp)
+    kd = " ".join(f"{gain:.4g}" for gain in member.kd)
+    return f"kp {kp} / kd {kd}"
+
+
+UNITS_LINE = (
+    f"Units: kp in {UNITS['kp']} and kd in {UNITS['kd']}, one per joint "
+    f"{JOINT_NAMES[0]}..{JOINT_NAMES[-1]}; f_acc is the mean end-effector error (front.csv: m; "
+    "here: mm), f_t the mean squared torque change per 2 ms tick in (N·m)²."
+)
+DIVERGED_NOTE = (
+    "*diverged*: an episode of the member was stopped early; every tick it did not run is "
+    f"charged {DIVERGED_TICK_ERROR:g} m of error and the largest possible torque change, so its "
+    "f_acc and f_t are a penalty, not a measurement (its mean error can exceed the largest error "
+    "measured)."
+)
+
+
+def shown(member: FrontMember) -> tuple[str, str, bool]:
+    """A member's scores as the report shows them: members alike here share a line."""
+    return (f"{member.f_acc * 1000:.3f}", f"{member.f_t:.4g}", member.diverged)
+
+
+def _error(member: FrontMember | Baseline) -> str:
+    """f_acc in mm, marked when it is a divergence penalty."""
+    return f"{member.f_acc * 1000:.3f}" + (" *diverged*" if member.diverged else "")
+
+
+def front_table_row(rank: int, member: FrontMember, count: int = 1) -> str:
+    """One line of the report's front table (public so a test or a caller can find it): the
+    member at front.csv row `rank`, and how many members from there on share its scores."""
+    rows = f"{count} (rows {rank}-{rank + count - 1})" if count > 1 else "1"
+    return f"| {rank} | {_error(member)} | {member.f_t:.4g} | {rows} | {gains_text(member)} |"
+
+
+PICK_NAMES = {"knee": "**knee** (use this)", "accurate": "most accurate", "smooth": "smoothest"}
+
+
+def _dominates(a: tuple[float, float], b: tuple[float, float]) -> bool:
+    return a[0] <= b[0] and a[1] <= b[1] and a != b
+
+
+def baseline_text(front: Sequence[FrontMember], baseline: Baseline, knee: FrontMember) -> str:
+    """How the front fares against the default gains, in one sentence."""
+    if baseline.diverged:
+        return "The default gains diverged on these trajectories: their scores are a penalty."
+    better = sum(
+        1 for m in front if not m.diverged and _dominates(m.objectives, baseline.objectives)
+    )
+    text = (
+        f"{better} of the front's {len(front)} members dominate the default gains (as accurate "
+        "and as smooth, and better in one)"
+    )
+    if _dominates(baseline.objectives, knee.objectives):
+        text += "; the default gains dominate the knee: the run has not beaten them there yet"
+    return text + "."
+
+
+def controllers_section(
+    picks: Sequence[Pick],
+    baseline: Baseline | None,
+    run_dir: str = "RUN",
+    front: Sequence[FrontMember] = (),
+) -> list[str]:
+    """The report's answer to "which controller?": the knee, the most accurate and the
+    smoothest member with their gains, beside the default gains and how the front fares
+    against them; how the knee is chosen, and how to take it out of the run."""
+    lines = ["## The controller to use", ""]
+    if not picks:
+        return [*lines, "No front yet.", ""]
+    lines += [
+        f"| | front.csv row | f_acc (mm) | f_t ((N·m)²) | kp ({UNITS['kp']}) "
+        f"{JOINT_NAMES[0]}..{JOINT_NAMES[-1]} | kd ({UNITS['kd']}) |",
+        "|---|---:|---:|---:|---|---|",
+    ]
+    for chosen in picks:
+        member = chosen.member
+        shared = f" ({chosen.sharing} members share it)" if chosen.sharing > 1 else ""
+        lines.append(
+            f"| {PICK_NAMES[chosen.name]} | {chosen.row}{shared} | {_error(member)} | "
+            f"{member.f_t:.4g} | {' '.join(f'{g:.4g}' for g in member.kp)} | "
+            f"{' '.join(f'{g:.4g}' for g in member.kd)} |"
+        )
+    if baseline is not None:
+        lines.append(
+            f"| default gains (not tuned) | – | {_error(baseline)} | {baseline.f_t:.4g} | "
+            f"{' '.join(f'{g:.4g}' for g in baseline.gains.kp)} | "
+            f"{' '.join(f'{g:.4g}' for g in baseline.gains.kd)} |"
+        )
+    if baseline is not None and front:
+        lines += ["", baseline_text(front, baseline, picks[0].member)]
+    lines += [
+        "",
+        "The knee is the member whose worse objective is the least bad once both are taken on a "
+        "log scale (a front spans decades in each) and normalised between the front's ideal and "
+        "nadir points: the minimum of pymoo's achievement scalarisation function with equal "
+        "weights, ties to the lowest row; diverged members are never picked unless all are. It "
+        "gives up neither accuracy nor smoothness for the other.",
+        "",
+        f"Take it out of the run: `analytic export {run_dir}` writes its gains as JSON (which "
+        "`analytic batch --gains` and `worker episode --gains` read); `--format ros2_control` "
+        "as a ros2_control controller configuration; `--member accurate|smooth|N` another "
+        "member (N: its front.csv row).",
+        "",
+        UNITS_LINE,
+        "",
+    ]
+    return lines
+
+
+def report_markdown(
+    *,
+    title: str,
+    config_lines: Sequence[str],
+    history: Sequence[HistoryRow],
+    front: Sequence[FrontMember],
+    converged: str,
+    picks: Sequence[Pick] = (),
+    baseline: Baseline | None = None,
+    run_dir: str = "RUN",
+) -> str:
+    """The text of report.md (see `write_report`)."""
+    lines = [f"# {title}", ""]
+    if picks:
+        lines += controllers_section(picks, baseline, run_dir, front)
+    lines += ["## Configuration", ""]
+    lines += [f"- {line}" for line in config_lines] or ["- (none given)"]
+    lines += ["", "## Summary", ""]
+    if history:
+        last = history[-1]
+        lines += [
+            f"- generations: {len(history)}",
+            f"- evaluations: {last.evaluations}",
+            f"- final hypervolume: {last.hypervolume:.6g}",
+            f"- best f_acc: {last.best_f_acc * 1000:.3f} mm; best f_t: {last.best_f_t:.4g} (N·m)²",
+            f"- wall time: {_duration(last.wall_seconds)}",
+        ]
+    else:
+        lines.append("- no generation finished yet")
+    if converged:
+        lines.append(f"- {converged}")
+
+    members = sorted_front(front)
+    groups = point_groups(members, shown)
+    points = (
+        f", {len(groups)} distinct at the precision shown" if len(groups) != len(members) else ""
+    )
+    lines += ["", f"## Pareto front ({len(members)} members{points}, most accurate first)", ""]
+    if members:
+        lines += [
+            "Members whose scores agree to the precision shown share one line (the first one's "
+            "gains are shown; front.csv lists each, at full precision).",
+            "",
+            "| # (front.csv row) | f_acc (mm) | f_t ((N·m)²) | members | gains: kp "
+            f"({UNITS['kp']}) / kd ({UNITS['kd']}), {JOINT_NAMES[0]}..{JOINT_NAMES[-1]} |",
+            "|---:|---:|---:|---:|---|",
+            *(front_table_row(row, members[row - 1], count) for row, count in groups),
+        ]
+        if any(member.diverged for member in members):
+            lines += ["", DIVERGED_NOTE]
+        lines += ["", UNITS_LINE]
+    else:
+        lines.append("No members yet.")
+
+    lines += [
+        "",
+        "## Figures",
+        "",
+        f"![Pareto front]({PARETO_PNG})",
+        "",
+        f"![Hypervolume against evaluations]({HYPERVOLUME_PNG})",
+        "",
+        f"The numbers at full precision: [{FRONT_CSV}]({FRONT_CSV}) (the front, gains and scores) "
+        f"and [{HISTORY_CSV}]({HISTORY_CSV}) (one row per generation).",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def write_report(
+    path: Path,
+    *,
+    title: str,
+    config_lines: Sequence[str],
+    history: Sequence[HistoryRow],
+    front: Sequence[FrontMember],
+    converged: str,
+    picks: Sequence[Pick] = (),
+    baseline: Baseline | None = None,
+    run_dir: str = "RUN",
+) -> None:
+    """A short report.md at `path`: the controller to use (`picks`, beside the default gains'
+    `baseline`; `run_dir` for the export command it shows), configuration, summary, the front
+    as a table (members with identical scores on one line), the figures.
+
+    `converged` is the caller's one-line verdict on why the run stopped (or that it has not),
+    e.g. "converged after 240 evaluations (hypervolume gain < 0.1% over 3 generations)". The
+    figures and CSVs are linked by their standard names relative to the report, so write them
+    into the same directory. The table is rounded for reading; front.csv holds the exact values.
+    """
+    text = report_markdown(
+        title=title,
+        config_lines=config_lines,
+        history=history,
+        front=front,
+        converged=converged,
+        picks=picks,
+        baseline=baseline,
+        run_dir=run_dir,
+    )
+    write_atomically(Path(path), text.encode("utf-8"))
+
+
+def plant_text(model: ModelSpec) -> str:
+    """Which plant a run simulated: a named one, or a custom one, and its joints."""
+    name = plant_name(model)
+    if name == "custom":
+        return f"custom plant (see config.json), {model.joints} joints"
+    return f"{name} plant, {model.joints} joints"
+
+
+def experiment_setup(
+    base: RunConfig,
+    reps: int,
+    normalisations: dict[str, tuple[tuple[float, float], ...]],
+    *,
+    populations: Sequence[int] = (),
+    durations: Sequence[float] = (),
+) -> list[str]:
+    """How an experiment was run, as its report lists it; `normalisations`: per problem (the
+    trajectory fronts are judged on), the ideal and nadir points the hypervolume spans.
+    `populations` and `durations`: what the runs used when they vary (the popsize and speed
+    experiments), else the base configuration's population and trajectory duration hold."""
+    population = (
+        "populations " + ", ".join(str(size) for size in populations)
+        if populations
+        else f"population {base.pop}"
+    )
+    seconds = durations or sorted({t.duration for t in base.trajectories})
+    duration = (
+        ("trajectory durations " if len(seconds) > 1 else "trajectory duration ")
+        + ", ".join(f"{d:g}" for d in seconds)
+        + " s"
+    )
+    spaces = "; ".join(
+        f"{problem}: f_acc {ideal[0]:.4g}-{nadir[0]:.4g} m, "
+        f"f_t {ideal[1]:.4g}-{nadir[1]:.4g} (N·m)²"
+        for problem, (ideal, nadir) in normalisations.items()
+    )
+    return [
+        f"{reps} repetitions (seeds 0..{reps - 1}); runs of {population}, {duration}, "
+        f"{base.termination_text}, {plant_text(base.model)}",
+        "hypervolume normalised between the ideal and the nadir of the pooled non-dominated "
+        f"front of each problem (penalty points left out; f_t on a log scale): {spaces} "
+        "(`normalisation.json`)",
+        "comparisons: Mann-Whitney U (Wilcoxon signed-rank when paired), Vargha-Delaney A12 = "
+        "P(a > b) + 0.5 P(a = b), bootstrap 95 % CI of the difference of medians "
+        "(`stats.csv`); alpha 0.05",
+        "runs in `runs/`, raw numbers in `results.csv`",
+    ]
+
+
+def popsize_table(medians: dict[int, tuple[float, float]]) -> list[str]:
+    """Population size → (median hypervolume, median evaluations), as a Markdown table."""
+    table = ["| population | median hypervolume | median evaluations |", "|---:|---:|---:|"]
+    return table + [
+        f"| {s} | {hv:.4f} | {evaluations:.0f} |" for s, (hv, evaluations) in medians.items()
+    ]
+
+
+def controllers_table(medians: dict[tuple[str, str], float]) -> list[str]:
+    """(test trajectory, kind of controller) → median hypervolume on that trajectory."""
+    kinds = list(dict.fromkeys(kind for kind, _ in medians))
+    controllers = list(dict.fromkeys(controller for _, controller in medians))
+    table = [
+        "| judged on | " + " | ".join(f"{c} median hypervolume" for c in controllers) + " |",
+        "|---|" + "---:|" * len(controllers),
+    ]
+    return table + [
+        f"| {kind} | " + " | ".join(f"{medians[(kind, c)]:.4f}" for c in controllers) + " |"
+        for kind in kinds
+    ]
+
+
+def speed_table(durations: Sequence[float], error: dict[tuple[float, float], float]) -> list[str]:
+    """The most accurate controller's error, tuned-on duration against evaluated-on duration."""
+    table = [
+        "| tuned on | " + " | ".join(f"on {d:g} s" for d in durations) + " |",
+        "|---|" + "---:|" * len(durations),
+    ]
+    return table + [
+        f"| {t:g} s | " + " | ".join(f"{error[(t, u)] * 1000:.2f} mm" for u in durations) + " |"
+        for t in durations
+    ]
+
+
+@dataclass(frozen=True)
+class ConditionSummary:
+    """A condition of the algorithms study over its repetitions, as its table shows it."""
+
+    algorithm: str
+    scaling: str
+    runs: int
+    median_hypervolume: float
+    hypervolume_quartiles: tuple[float, float]
+    median_best_f_acc: float  # m
+    median_evaluations_to_target: float  # inf when fewer than half of the runs reach it
+    reached_target: int  # runs that reach it
+
+
+def condition_text(algorithm: str, scaling: str) -> str:
+    """An optimiser and what it is told, as a reader says it: 'NSGA-II, log f_t'."""
+    told = "log f_t" if scaling == "log" else scaling
+    return f"{ALGORITHM_NAMES.get(algorithm, algorithm)}, {told}"
+
+
+def algorithms_table(
+    summaries: Sequence[ConditionSummary], baselines: dict[str, tuple[float, float]]
+) -> list[str]:
+    """One row per condition, then one per no-GA baseline (`baselines`: its name → its
+    hypervolume and best f_acc in m, one deterministic set each, so no spread)."""
+    table = [
+        "| condition | runs | median hypervolume | interquartile range | median best error (mm) "
+        "| median evaluations to 99 % |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for s in summaries:
+        low, high = s.hypervolume_quartiles
+        reached = (
+            "not reached"
+            if math.isinf(s.median_evaluations_to_target)
+            else f"{s.median_evaluations_to_target:.0f}"
+        )
+        table.append(
+            f"| {condition_text(s.algorithm, s.scaling)} | {s.runs} | "
+            f"{s.median_hypervolume:.4f} | {low:.4f}-{high:.4f} | "
+            f"{s.median_best_f_acc * 1000:.3f} | {reached} ({s.reached_target} of {s.runs} "
+            "runs reach it) |"
+        )
+    table += [
+        f"| {name}, no GA | – | {hypervolume:.4f} | – | {best_f_acc * 1000:.3f} | – |"
+        for name, (hypervolume, best_f_acc) in baselines.items()
+    ]
+    return table
+
+
+def write_experiment_report(
+    path: Path,
+    *,
+    title: str,
+    setup: Sequence[str],
+    table: Sequence[str],
+    verdict: str,
+    figures: Sequence[str],
+) -> None:
+    """An experiment's report.md: how it was run, its table, its verdict and its figures."""
+    lines = [
+        f"# {title}",
+        "",
+        *[f"- {line}" for line in setup],
+        "",
+        *table,
+        "",
+        verdict,
+        "",
+        *[f"![{name}]({name})" for name in figures],
+        "",
+    ]
+    write_atomically(Path(path), "\n".join(lines).encode())
+
+
+def dataset_value_table(
+    means: dict[tuple[str, str], tuple[float, float]], reference: float | None = None
+) -> list[str]:
+    """(model, condition) → (mean, sd) of the test nMSE: conditions as rows, models as
+    columns, "mean ± sd"; the rigid prior's single score as a last row, if given."""
+    models = list(dict.fromkeys(model for model, _ in means))
+    conditions = list(dict.fromkeys(condition for _, condition in means))
+
+    def cell(mean: float, sd: float) -> str:
+        return f"{mean:.4f}" if not math.isfinite(sd) else f"{mean:.4f} ± {sd:.4f}"
+
+    table = [
+        "| condition | " + " | ".join(f"{model} nMSE" for model in models) + " |",
+        "|---|" + "---:|" * len(models),
+    ]
+    table += [
+        f"| {condition} | "
+        + " | ".join(cell(*means[(model, condition)]) for model in models)
+        + " |"
+        for condition in conditions
+    ]
+    if reference is not None:
+        table.append(
+            "| (rigid prior, untrained) | " + " | ".join(f"{reference:.4f}" for _ in models) + " |"
+        )
+    return table
+
+
+class PairedComparison(Protocol):
+    """What a comparisons table shows of one paired comparison (analytic.dataset_value's)."""
+
+    model: str
+    condition: str
+    against: str
+    mean_difference: float
+    t: float
+    p: float
+    p_holm: float
+    d_z: float
+    n: int
+
+
+def comparisons_table(comparisons: Sequence[PairedComparison]) -> list[str]:
+    """Paired comparisons as a Markdown table; a difference below zero means lower nMSE. An
+    untested value (too few repetitions) shows as a dash."""
+
+    def number(value: float, fmt: str) -> str:
+        return "–" if math.isnan(value) else format(value, fmt)
+
+    table = [
+        "| model | condition | against | mean difference | t | p | p (Holm) | d_z | n |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for c in comparisons:
+        table.append(
+            f"| {c.model} | {c.condition} | {c.against} | {number(c.mean_difference, '+.4f')} | "
+            f"{number(c.t, '.2f')} | {number(c.p, '.3g')} | {number(c.p_holm, '.3g')} | "
+            f"{number(c.d_z, '+.2f')} | {c.n} |"
+        )
+    return table
+
+
+def write_dataset_value_report(
+    path: Path,
+    *,
+    setup: Sequence[str],
+    means: dict[tuple[str, str], tuple[float, float]],
+    reference: float | None,
+    comparisons: Sequence[PairedComparison],
+    verdict: str,
+    limitations: Sequence[str],
+    figure: str,
+) -> None:
+    """The dataset-value experiment's report.md: setup, nMSE table, comparisons, verdict,
+    limitations, figure."""
+    lines = [
+        "# The value of tuned controllers' data for learning the dynamics",
+        "",
+        *[f"- {line}" for line in setup],
+        "",
+        "## Test nMSE (mean ± sd over repetitions)",
+        "",
+        *dataset_value_table(means, reference),
+        "",
+        "## Verdict",
+        "",
+        verdict,
+        "",
+        "## Paired comparisons",
+        "",
+        "Difference = the condition's nMSE minus the other's, paired by repetition (below zero: "
+        "its data taught more); paired t-test, Cohen's d_z = mean difference / sd of the "
+        "differences; Holm's adjustment across the ten comparisons of each model (the last row, "
+        "best selection against runner-up, is one test of its own).",
+        "",
+        *comparisons_table(comparisons),
+        "",
+        "## Limitations",
+        "",
+        *[f"- {line}" for line in limitations],
+        "",
+        f"![{figure}]({figure})",
+        "",
+    ]
+    write_atomically(Path(path), "\n".join(lines).encode())
