@@ -41,7 +41,7 @@ from common import SPAWN, FakeAnalytic, NoopWorker, loopback_endpoint, percentil
 
 from gainfarm.analytic.evaluators.farm import SUBMIT_CHUNK
 from gainfarm.broker.service import Broker
-from gainfarm.schemas.transport import open_session
+from gainfarm.edges.transport import open_session
 from gainfarm.schemas.wire import MAX_BATCH
 
 AHEAD = 2_000  # jobs the live submitter keeps queued beyond those completed

@@ -20,6 +20,7 @@ so every campaign runs the same evaluations.
 """
 
 import contextlib
+import functools
 import os
 import subprocess
 import sys
@@ -36,18 +37,16 @@ from scale import broker_process
 from surrogate import read_surrogate_log, surrogate
 
 from gainfarm.analytic.evaluators.farm import FarmClient
-from gainfarm.analytic.experiments import base as experiments
+from gainfarm.analytic.experiments import load as load_experiment
 from gainfarm.analytic.experiments.base import Experiment
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.broker.status import BrokerUnavailable, query_status
+from gainfarm.edges.transport import open_session
 from gainfarm.schemas import TrajectorySpec
 from gainfarm.schemas.robot import PLANTS
-from gainfarm.schemas.transport import open_session
 from gainfarm.worker.service import CobotWorker
 
 WORKERS_PER_LOAD = 32  # simulated cobots per load process, each with its own session
-SIZES = (10, 20, 30, 50, 80)
-DURATIONS = (3.0, 4.0, 5.0, 6.0)
 
 EXPERIMENTS = {
     "popsize": ["--sizes", "10,20,30,50,80"],
@@ -190,7 +189,7 @@ def cpu_seconds(pid: int) -> float:
 
 
 @dataclass
-class Farm:
+class SimulatedFarm:
     """A simulated farm as the campaign sees it: where its broker is and its processes."""
 
     endpoint: str
@@ -208,7 +207,7 @@ class Farm:
 
 @contextlib.contextmanager
 def simulated_farm(workers: int, job_seconds: float, busy: Any):
-    """A broker and `workers` simulated cobots, all joined; yields the Farm."""
+    """A broker and `workers` simulated cobots, all joined; yields the SimulatedFarm."""
     endpoint = loopback_endpoint()
     stop = SPAWN.Event()
     with broker_process(endpoint, 100_000) as broker:
@@ -235,7 +234,7 @@ def simulated_farm(workers: int, job_seconds: float, busy: Any):
                     time.sleep(0.2)
             finally:
                 session.close()
-            yield Farm(endpoint, broker.pid, [load.pid for load in loads if load.pid])
+            yield SimulatedFarm(endpoint, broker.pid, [load.pid for load in loads if load.pid])
         finally:
             stop.set()
             for load in loads:
@@ -247,15 +246,16 @@ def simulated_farm(workers: int, job_seconds: float, busy: Any):
 def experiment_runs(
     base: RunConfig, reps: int, chosen: list[str]
 ) -> dict[str, Callable[[Experiment], None]]:
-    """The campaign's `chosen` experiments, as the CLI runs them."""
-    runs = {
-        "popsize": lambda experiment: experiments.popsize(experiment, base, SIZES, reps),
-        "generic-vs-specific": lambda experiment: experiments.generic_vs_specific(
-            experiment, base, reps
-        ),
-        "speed": lambda experiment: experiments.speed(experiment, base, DURATIONS, reps),
+    """The campaign's `chosen` experiments, as the CLI runs them: each found by its name, with
+    its own options at their defaults (the population sizes 10-80, the spirals of 3-6 s)."""
+    return {
+        name: functools.partial(_run, load_experiment(name).run, base=base, reps=reps)
+        for name in chosen
     }
-    return {name: runs[name] for name in chosen}
+
+
+def _run(run: Callable[..., object], experiment: Experiment, base: RunConfig, reps: int) -> None:
+    run(experiment, base, reps)
 
 
 def simulated_campaign(

@@ -6,7 +6,7 @@ The stand-ins speak the farm's wire protocol (schemas.wire.PROTOCOL_VERSION) as 
 can (Submissions prebuilt as bytes, replies read with json rather than pydantic): the load they
 put on a broker should cost as little of the machine as it can, so that the broker's figures are
 the broker's.
-They ask the broker as the farm's own clients do (schemas.ask), so the broker serves the same
+They ask the broker as the farm's own clients do (gainfarm.edges.ask), so the broker serves the same
 queries as it does for a FarmClient and a CobotWorker.
 """
 
@@ -25,10 +25,10 @@ import zenoh
 from gainfarm.analytic.evaluators.farm import ANSWER_SECONDS, CONFIRM_BATCH, SUBMIT_CHUNK
 from gainfarm.analytic.evaluators.local import free_port
 from gainfarm.broker.status import BrokerUnavailable, query_status
+from gainfarm.edges.ask import Answer, ask
+from gainfarm.edges.transport import open_session
 from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
-from gainfarm.schemas.ask import Answer, ask
 from gainfarm.schemas.gains import DEFAULT_GAINS
-from gainfarm.schemas.transport import open_session
 from gainfarm.schemas.wire import (
     LEASE_HOLD_SECONDS,
     PROTOCOL_VERSION,

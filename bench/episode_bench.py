@@ -22,14 +22,24 @@ import numpy as np
 from common import print_table
 from mujoco import rollout
 
+from gainfarm.edges.files import write_atomically
+from gainfarm.models.urdf import description
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
+from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import DEFAULT_GAINS
-from gainfarm.schemas.mcap_episode import read_episode, write_episode
+from gainfarm.schemas.mcap_episode import episode_bytes, read_episode
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
 from gainfarm.worker.episode import gravity_torques, run_episode
 from gainfarm.worker.plant import Plant
 from gainfarm.worker.reference import reference_for
+
+
+def write_log(log: EpisodeLog, path: Path) -> int:
+    """Write `log` to `path` as `worker episode --out` does; return its size."""
+    content = episode_bytes(log, description())
+    write_atomically(path, content)
+    return len(content)
 
 
 def c_loop(spec: EpisodeSpec) -> Callable[[], None]:
@@ -67,12 +77,12 @@ def main(repeats: int, duration: float) -> None:
     reference_for(trajectory)  # the IK runs once per trajectory; it is not per-episode cost
     with tempfile.TemporaryDirectory() as scratch:
         path = Path(scratch) / "episode.mcap"
-        size = write_episode(run_episode(realistic), path)
+        size = write_log(run_episode(realistic), path)
         cases: dict[str, Callable[[], object]] = {
             "C mj_step loop (rollout)": c_loop(realistic),
             "ideal episode": lambda: run_episode(ideal),
             "realistic episode": lambda: run_episode(realistic),
-            "realistic episode + MCAP log": lambda: write_episode(run_episode(realistic), path),
+            "realistic episode + MCAP log": lambda: write_log(run_episode(realistic), path),
             "score from MCAP": lambda: score(read_episode(path)),
         }
         times: dict[str, list[float]] = {name: [] for name in cases}

@@ -26,7 +26,7 @@ from pathlib import Path
 import click
 from common import SPAWN, episode_specs
 
-from gainfarm.analytic.evaluators.evaluator import EvaluationStatus, accept_log
+from gainfarm.analytic.evaluators.evaluator import EpisodeStatus, accept_log
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.local import local_farm
 from gainfarm.schemas import EpisodeSpec
@@ -54,7 +54,7 @@ def farm_round(farm: FarmClient, specs: list[EpisodeSpec], tag: str) -> float:
     farm.submit(jobs)
     evaluations = list(farm.results(timeout=600))
     elapsed = time.perf_counter() - start
-    bad = [e.job_id for e in evaluations if e.status != EvaluationStatus.ok]
+    bad = [e.job_id for e in evaluations if e.status != EpisodeStatus.ok]
     if len(evaluations) != len(jobs) or bad:
         raise RuntimeError(f"farm round {tag}: {len(evaluations)} results, not ok: {bad[:5]}")
     return len(specs) / elapsed

@@ -7,7 +7,7 @@ Per repetition r (seed r everywhere), on one local farm, through the library the
 1. tune the PD gains alone (generic: spiral, random and pyramid, 3 s);
 2. gather that run's front into a dataset, with its controllers rerun on six fourier excitations
    (`analytic dataset --rerun`), split by trajectory;
-3. learn an inverse-dynamics model from it (`analytic learn --model LEARNER`);
+3. learn an inverse-dynamics model from it (`analytic learn --kind LEARNER`);
 4. tune the PD gains again, same seed, on top of that model (`analytic start --feedforward`);
 5. run both fronts on held-out trajectories (random paths and fourier excitations of seeds no
    step above used) and score each controller by its mean f_acc and f_t over them.

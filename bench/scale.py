@@ -47,8 +47,8 @@ from common import SPAWN, NoopWorker, episode_specs, loopback_endpoint, percenti
 
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.broker.status import BrokerUnavailable, query_status
+from gainfarm.edges.transport import open_session
 from gainfarm.schemas.episode import EpisodeSpec
-from gainfarm.schemas.transport import open_session
 from gainfarm.schemas.wire import WireScores
 from gainfarm.worker.job import simulate
 
@@ -61,20 +61,22 @@ STARTUP_SECONDS = 20.0  # for the broker and the workers to come up
 
 
 @dataclass
-class Episode:
+class PremadeEpisode:
     spec: EpisodeSpec
     path: Path
     size: int
     scores: WireScores
 
 
-def premade_episode(duration: float, out: Path) -> Episode:
+def premade_episode(duration: float, out: Path) -> PremadeEpisode:
     spec = episode_specs(1, duration)[0]
     outcome = simulate(spec)
     assert outcome.scores is not None, outcome.reason
     path = out / "premade.mcap"
     path.write_bytes(outcome.content)
-    return Episode(spec, path, len(outcome.content), WireScores(**outcome.scores.model_dump()))
+    return PremadeEpisode(
+        spec, path, len(outcome.content), WireScores(**outcome.scores.model_dump())
+    )
 
 
 # --- the load ----------------------------------------------------------------------------------
@@ -129,7 +131,7 @@ class Load:
     """Load processes serving `workers` simulated workers on study `study`."""
 
     def __init__(
-        self, endpoint: str, study: str, workers: int, episode: Episode, job_seconds: float
+        self, endpoint: str, study: str, workers: int, episode: PremadeEpisode, job_seconds: float
     ):
         self.stop = SPAWN.Event()
         self.processes = []
@@ -246,7 +248,12 @@ class Scale:
 
 
 def scale(
-    workers: int, job_seconds: float, window: float, episode: Episode, out: Path, send_logs: bool
+    workers: int,
+    job_seconds: float,
+    window: float,
+    episode: PremadeEpisode,
+    out: Path,
+    send_logs: bool,
 ) -> Scale:
     endpoint = loopback_endpoint()
     port = int(endpoint.rsplit(":", 1)[1])
@@ -315,7 +322,7 @@ class Ingest:
 
 
 def ingest(
-    results: int, episode: Episode, out: Path, send_logs: bool, fast_workers: int = 8
+    results: int, episode: PremadeEpisode, out: Path, send_logs: bool, fast_workers: int = 8
 ) -> Ingest:
     """M results handed in while the client does not read, then yielded as fast as it can."""
     endpoint = loopback_endpoint()

@@ -48,8 +48,8 @@ from pathlib import Path
 import click
 from common import loopback_endpoint, scaled_gains
 from soak_summary import (
-    Ledger,
     Sample,
+    SoakLedger,
     WorkerTally,
     broker_line,
     job_lines,
@@ -58,14 +58,14 @@ from soak_summary import (
 )
 
 from gainfarm.analytic.evaluators import replication
-from gainfarm.analytic.evaluators.evaluator import Evaluation, Wanted
+from gainfarm.analytic.evaluators.evaluator import EpisodeResult, Wanted
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.local import STOP_SECONDS, spawn_worker
 from gainfarm.broker.status import BrokerUnavailable
+from gainfarm.edges.files import write_atomically
+from gainfarm.edges.transport import open_session, token_held
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec, keys
-from gainfarm.schemas.files import write_atomically
 from gainfarm.schemas.gains import DEFAULT_GAINS
-from gainfarm.schemas.transport import open_session, token_held
 from gainfarm.schemas.wire import BadMessage, BrokerStatus
 
 STUDY = "soak"
@@ -472,7 +472,7 @@ def main(
     started = time.monotonic()
     endpoint = loopback_endpoint()
     sampler = Sampler(sample_seconds, out, started)
-    ledger = Ledger()
+    ledger = SoakLedger()
     replicas = replication.Ledger()
     job_rng, churn_rng = random.Random(seed), random.Random(seed + 1)
     pool = WorkerPool(endpoint, sampler, churn_rng, workers_min, workers_max, started)
@@ -500,7 +500,7 @@ def main(
                 keep_logs=fetch_every == 0,
             ) as farm,
         ):
-            to_fetch: deque[tuple[float, Evaluation]] = deque()  # (when, evaluation)
+            to_fetch: deque[tuple[float, EpisodeResult]] = deque()  # (when, evaluation)
 
             def fetch_due(everything: bool = False) -> None:
                 while to_fetch and (everything or to_fetch[0][0] <= time.monotonic()):
@@ -520,7 +520,7 @@ def main(
                     if got.log is not None:
                         got.log.unlink(missing_ok=True)
 
-            def take(evaluation: Evaluation) -> None:
+            def take(evaluation: EpisodeResult) -> None:
                 ledger.record(evaluation)
                 if (
                     replicate_every

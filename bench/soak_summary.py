@@ -29,7 +29,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from gainfarm.analytic.evaluators.evaluator import Evaluation, EvaluationStatus
+from gainfarm.analytic.evaluators.evaluator import EpisodeResult, EpisodeStatus
 from gainfarm.schemas.wire import BrokerStatus
 
 SAMPLE_COLUMNS = ("seconds", "role", "name", "pid", "rss_mib", "anon_mib", "shmem_mib")
@@ -138,7 +138,7 @@ def memory_lines(samples: list[Sample], resident: str, warm_up: float) -> list[s
 
 
 @dataclass
-class Ledger:
+class SoakLedger:
     """What came back for each job. Job ids are serial numbers, and times seen are kept in a
     bytearray, one byte per job: a set of ids would grow the soak's process by megabytes an hour
     and blur the client's own memory slope."""
@@ -161,7 +161,7 @@ class Ledger:
         self.seen.extend(bytes(count))
         return ids
 
-    def record(self, evaluation: Evaluation) -> None:
+    def record(self, evaluation: EpisodeResult) -> None:
         index = int(evaluation.job_id.removeprefix("j"))
         if self.seen[index]:
             self.evaluated_twice += 1
@@ -169,38 +169,38 @@ class Ledger:
         self.statuses[evaluation.status] += 1
         if evaluation.attempts > 1:
             self.retried.append(f"{evaluation.job_id} (from {evaluation.worker or '-'})")
-        if evaluation.status == EvaluationStatus.lost:
+        if evaluation.status == EpisodeStatus.lost:
             self.lost_reasons.append(f"{evaluation.job_id}: {evaluation.reason}")
 
     @property
     def completed(self) -> int:
-        return sum(n for status, n in self.statuses.items() if status != EvaluationStatus.lost)
+        return sum(n for status, n in self.statuses.items() if status != EpisodeStatus.lost)
 
     def unanswered(self) -> int:
         return self.seen.count(0)
 
     @property
     def lost(self) -> int:
-        return self.statuses[EvaluationStatus.lost] + self.unanswered() + self.fetches["failed"]
+        return self.statuses[EpisodeStatus.lost] + self.unanswered() + self.fetches["failed"]
 
     @property
     def duplicated(self) -> int:
         return self.duplicate_results + self.evaluated_twice
 
 
-def job_lines(ledger: Ledger, warnings: Counter[str], seconds: float) -> list[str]:
+def job_lines(ledger: SoakLedger, warnings: Counter[str], seconds: float) -> list[str]:
     """The job counts; `warnings` counts the client's warnings by message, and `seconds` is the
     time the jobs completed in."""
     completed = ", ".join(
         f"{status} {n:,}"
         for status, n in sorted(ledger.statuses.items())
-        if status != EvaluationStatus.lost
+        if status != EpisodeStatus.lost
     )
     retried = f" ({', '.join(ledger.retried[:10])})" if ledger.retried else ""
     return [
         f"jobs submitted: {ledger.submitted:,}",
         f"jobs completed: {ledger.completed:,} ({completed})",
-        f"jobs lost: {ledger.lost} ({ledger.statuses[EvaluationStatus.lost]} reported lost, "
+        f"jobs lost: {ledger.lost} ({ledger.statuses[EpisodeStatus.lost]} reported lost, "
         f"{ledger.unanswered()} never answered, {ledger.fetches['failed']} logs not fetched)",
         f"logs fetched: {ledger.fetches['from its worker']:,} from the worker that ran the job, "
         f"{ledger.fetches['simulated again']:,} simulated again (that worker was gone), "

@@ -14,9 +14,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from gainfarm.edges.files import write_atomically
 from gainfarm.models.dynamics import DynamicsModel
 from gainfarm.schemas.episode import EpisodeSpec, Scores
-from gainfarm.schemas.files import write_atomically
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog
 from gainfarm.schemas.wire import JobStatus, Timings
 from gainfarm.worker.job import Outcome, Simulate

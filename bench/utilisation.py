@@ -25,7 +25,7 @@ import click
 from common import SPAWN, FakeAnalytic, NoopWorker, loopback_endpoint, percentile_ms
 
 from gainfarm.broker.service import Broker
-from gainfarm.schemas.transport import open_session
+from gainfarm.edges.transport import open_session
 
 SIM_SESSIONS = 8  # sessions the simulated workers share
 

@@ -26,7 +26,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from gainfarm.schemas.files import write_atomically
+from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.security import (
     BROKER,
     CA_CERTIFICATE,

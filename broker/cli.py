@@ -1,43 +1,28 @@
 """`broker`: the farm's Zenoh router and job scheduler (`start`), a look at it (`status`), and
 development credentials for a secure farm (`certs`)."""
 
+# Light at the top (click and the shared options): Zenoh, rich and the certificates' cryptography
+# load inside the command that runs, so that `broker --help` costs little more than click.
+
 import logging
 import signal
 import threading
 import time
 from contextlib import nullcontext
-from importlib.metadata import version as package_version
 from pathlib import Path
-from typing import cast
+from typing import TYPE_CHECKING, Any, cast
 
 import click
-import zenoh
-from rich.console import Console, Group
-from rich.live import Live
-from rich.table import Table
-from rich.text import Text
 
-from gainfarm.broker.certs import (
-    DEFAULT_ANALYTICS,
-    DEFAULT_HOSTS,
-    DEFAULT_WORKERS,
-    write_dev_credentials,
-)
-from gainfarm.broker.certs import revoke as revoke_identity
-from gainfarm.broker.queue import DEFAULT_MAX_QUEUED, DEFAULT_MAX_QUEUED_PER_STUDY
-from gainfarm.broker.service import DEFAULT_LISTEN, Broker
-from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.cli import interrupts, options
 from gainfarm.cli.app import CliError, program_group, run_app, setup_logging
-from gainfarm.schemas.security import (
-    PARTICIPANT_RULE,
-    ROLES,
-    Role,
-    is_participant_name,
-    participants,
-)
-from gainfarm.schemas.transport import open_session
-from gainfarm.schemas.wire import BadMessage, BrokerStatus
+
+if TYPE_CHECKING:
+    import zenoh
+    from rich.console import Group
+
+    from gainfarm.schemas.security import Role
+    from gainfarm.schemas.wire import BrokerStatus
 
 log = logging.getLogger("gainfarm.broker")
 
@@ -47,11 +32,18 @@ def app() -> None:
     pass
 
 
+def _default(module: str, name: str) -> Any:
+    """A default the broker's own modules define, loaded when it is needed."""
+    from importlib import import_module
+
+    return getattr(import_module(f"gainfarm.broker.{module}"), name)
+
+
 @app.command()
 @click.option(
     "--listen",
     multiple=True,
-    default=[DEFAULT_LISTEN],
+    default=options.Later(lambda: [_default("service", "DEFAULT_LISTEN")]),
     show_default=True,
     help="Zenoh endpoint to listen on (repeat for several)",
 )
@@ -70,14 +62,14 @@ def app() -> None:
 @click.option(
     "--max-queued",
     type=click.IntRange(min=1),
-    default=DEFAULT_MAX_QUEUED,
+    default=options.Later(lambda: _default("queue", "DEFAULT_MAX_QUEUED")),
     show_default=True,
     help="jobs queued in all studies together; more are deferred (submitted again later)",
 )
 @click.option(
     "--max-queued-per-study",
     type=click.IntRange(min=1),
-    default=DEFAULT_MAX_QUEUED_PER_STUDY,
+    default=options.Later(lambda: _default("queue", "DEFAULT_MAX_QUEUED_PER_STUDY")),
     show_default=True,
     help="jobs queued in one study; more are deferred",
 )
@@ -97,6 +89,9 @@ def start(
     log_level: str,
 ) -> None:
     """Route the farm and schedule its jobs until SIGTERM or Ctrl-C."""
+    from gainfarm.broker.service import Broker
+    from gainfarm.schemas.security import participants
+
     setup_logging("broker", log_level)
     identity = options.identity(tls, "broker")
     if identity is not None:
@@ -162,10 +157,15 @@ def status(
     interval: float,
 ) -> None:
     """Show the farm: workers, queue depth per study, throughput."""
+    from rich.console import Console
+
+    from gainfarm.edges.transport import open_session
+    from gainfarm.schemas.security import ROLES
+
     role, _, name = who.partition(".")
     if role not in ROLES:
         raise CliError(f"--as: {who!r} is not broker, analytic[.NAME] or worker[.NAME]")
-    identity = options.identity(tls, cast(Role, role), name or None, name_option="--as")
+    identity = options.identity(tls, cast("Role", role), name or None, name_option="--as")
     try:
         session = open_session("client", connect=connect, identity=identity)
     except (ValueError, ConnectionError) as error:
@@ -183,16 +183,23 @@ def status(
         session.close()
 
 
-def _look(session: zenoh.Session) -> BrokerStatus:
+def _look(session: "zenoh.Session") -> "BrokerStatus":
+    from gainfarm.broker.status import BrokerUnavailable, query_status
+    from gainfarm.schemas.wire import BadMessage
+
     try:
         return query_status(session, timeout=5.0)
     except (BrokerUnavailable, BadMessage) as error:
         raise CliError(f"--connect: {error}") from None
 
 
-def _watch(session: zenoh.Session, farm: BrokerStatus, as_json: bool, interval: float) -> None:
+def _watch(session: "zenoh.Session", farm: "BrokerStatus", as_json: bool, interval: float) -> None:
     """`broker status --watch`: until Ctrl-C. A broker that stops answering is said so, and
     asked again at the next look."""
+    from rich.console import Console
+    from rich.live import Live
+    from rich.text import Text
+
     console = Console()
     redrawn = console.is_terminal and not as_json
     screen = Live(status_view(farm), console=console, auto_refresh=False) if redrawn else None
@@ -216,7 +223,7 @@ def _watch(session: zenoh.Session, farm: BrokerStatus, as_json: bool, interval: 
                 )
 
 
-def summary(farm: BrokerStatus) -> str:
+def summary(farm: "BrokerStatus") -> str:
     """The farm in one line."""
     return (
         f"up {farm.uptime_s:.0f} s · {farm.worker_count} workers ({farm.busy} busy) · "
@@ -227,8 +234,12 @@ def summary(farm: BrokerStatus) -> str:
     )
 
 
-def status_view(farm: BrokerStatus) -> Group:
+def status_view(farm: "BrokerStatus") -> "Group":
     """The farm as a person reads it: the summary line, its studies and its workers."""
+    from rich.console import Group
+    from rich.table import Table
+    from rich.text import Text
+
     studies = Table(
         "study",
         "queued",
@@ -264,22 +275,30 @@ def _listed(what: str, listed: list, total: int) -> str:
     "analytics",
     multiple=True,
     metavar="NAME",
-    help="issue an analytic participant's identity (its studies are named NAME.*); repeat for "
-    f"several  [default with a new CA: {', '.join(DEFAULT_ANALYTICS)}]",
+    cls=options.LaterHelp,
+    later_help=lambda: (
+        "issue an analytic participant's identity (its studies are named NAME.*); "
+        "repeat for several  [default with a new CA: "
+        f"{', '.join(_default('certs', 'DEFAULT_ANALYTICS'))}]"
+    ),
 )
 @click.option(
     "--worker",
     "workers",
     multiple=True,
     metavar="NAME",
-    help="issue a worker's identity (it serves as `worker start --name NAME`); repeat for "
-    f"several  [default with a new CA: {', '.join(DEFAULT_WORKERS)}]",
+    cls=options.LaterHelp,
+    later_help=lambda: (
+        "issue a worker's identity (it serves as `worker start --name NAME`); "
+        "repeat for several  [default with a new CA: "
+        f"{', '.join(_default('certs', 'DEFAULT_WORKERS'))}]"
+    ),
 )
 @click.option(
     "--host",
     "hosts",
     multiple=True,
-    default=DEFAULT_HOSTS,
+    default=options.Later(lambda: _default("certs", "DEFAULT_HOSTS")),
     show_default=True,
     help="a name or address clients dial the broker by (repeat for several)",
 )
@@ -314,6 +333,9 @@ def certs(
     """Make development credentials for a secure farm: a CA, the broker's certificate and key,
     and one per participant, whose common name is ROLE.NAME (analytic.alice, worker.cobot-3).
     Run again on the same DIR, it adds the participants named, signed by the same CA."""
+    from gainfarm.broker.certs import write_dev_credentials
+    from gainfarm.schemas.security import PARTICIPANT_RULE, is_participant_name
+
     if revoke:
         if analytics or workers:
             raise CliError("--revoke: revoke and issue in separate runs")
@@ -343,6 +365,8 @@ def certs(
 
 
 def _revoke(directory: Path, revoke: tuple[str, ...]) -> None:
+    from gainfarm.broker.certs import revoke as revoke_identity
+
     for who in revoke:
         try:
             identity = revoke_identity(directory, who)
@@ -359,6 +383,8 @@ def _revoke(directory: Path, revoke: tuple[str, ...]) -> None:
 @app.command()
 def version() -> None:
     """Print the gainfarm version."""
+    from importlib.metadata import version as package_version
+
     click.echo(package_version("gainfarm"))
 
 

@@ -24,9 +24,9 @@ from gainfarm.broker.queue import (
     LeaseQueue,
     UnknownStudy,
 )
+from gainfarm.edges.transport import open_session
 from gainfarm.schemas import keys
 from gainfarm.schemas.security import TlsIdentity
-from gainfarm.schemas.transport import open_session
 from gainfarm.schemas.wire import (
     LEASE_HOLD_SECONDS,
     BadMessage,

@@ -2,8 +2,8 @@
 
 import zenoh
 
+from gainfarm.edges.ask import ask
 from gainfarm.schemas import keys
-from gainfarm.schemas.ask import ask
 from gainfarm.schemas.wire import BadMessage, BrokerStatus, decode
 
 

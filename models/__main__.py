@@ -1,8 +1,8 @@
 """Print a variant's MJCF, or the numbers models/README.md quotes.
 
-python -m models [flexible|rigid] [cad|open]   the MJCF, e.g. for MuJoCo's viewer
-python -m models modes                          elastic modes and substeps of each preset
-python -m models inertia                        mass-matrix diagonals of the inertial sets
+python -m gainfarm.models [flexible|rigid] [cad|open]   the MJCF, e.g. for MuJoCo's viewer
+python -m gainfarm.models modes                          elastic modes and substeps of each preset
+python -m gainfarm.models inertia                        mass-matrix diagonals of the inertial sets
 """
 
 import sys
@@ -85,5 +85,7 @@ if __name__ == "__main__":
         joints = args[0] if args else "flexible"
         inertials = args[1] if len(args) > 1 else "cad"
         if joints not in ("flexible", "rigid") or inertials not in INERTIALS or len(args) > 2:
-            sys.exit("usage: python -m models [flexible|rigid] [cad|open] | modes | inertia")
+            sys.exit(
+                "usage: python -m gainfarm.models [flexible|rigid] [cad|open] | modes | inertia"
+            )
         print(build_spec(ModelSpec(joints=joints, inertials=inertials)).to_xml())

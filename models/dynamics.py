@@ -38,7 +38,6 @@ import numpy as np
 from pydantic import ValidationError
 
 from gainfarm.models.iiwa14 import build_spec, compile_model
-from gainfarm.schemas.files import write_atomically
 from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
 
 if TYPE_CHECKING:
@@ -384,11 +383,6 @@ def feedforward_from_bytes(raw: bytes) -> DynamicsModel:
 def digest(raw: bytes) -> str:
     """SHA-256 of a model file, hex: how jobs name the model (EpisodeSpec.feedforward)."""
     return sha256(raw).hexdigest()
-
-
-def save(model: DynamicsModel, path: Path) -> None:
-    """Write the model file at `path`, whole or not at all."""
-    write_atomically(Path(path), to_bytes(model))
 
 
 def load(path: Path) -> DynamicsModel:

@@ -24,6 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from gainfarm.models.iiwa14 import FLANGE, RIGID_MJCF
+from gainfarm.schemas.episode_log import Frame, RobotDescription
 from gainfarm.schemas.robot import JOINT_NAMES, SPEED_LIMITS
 
 WORLD = "world"  # the frame the episode's points are in: MuJoCo's world, the robot's base frame
@@ -111,6 +112,13 @@ def rotations(q: np.ndarray) -> np.ndarray:
         out[:, i, 2] = w * az + x * ay - y * ax + z * c
         out[:, i, 3] = w * c - x * ax - y * ay - z * az
     return out
+
+
+@cache
+def description() -> RobotDescription:
+    """The arm as every episode log draws it for ROS tools: what the log's writer is given."""
+    frames = tuple(Frame(t.parent, t.child, t.translation) for t in tree())
+    return RobotDescription(urdf(), frames, rotations)
 
 
 @cache

@@ -1,12 +1,18 @@
 """One episode: what to run (EpisodeSpec), what it was (EpisodeMetadata), how it scored (Scores)."""
 
-from typing import Self
+from typing import Annotated, Any, Self
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.robot import ModelSpec
-from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
+from gainfarm.schemas.trajectory import CONTROL_PERIOD, KIND_PATTERN, TrajectorySpec
+
+# The paper's two objectives, computed from the log by schemas/objectives.py. An episode may name
+# others, of the gainfarm.objectives plug-in group (a name of the same form as a trajectory
+# kind's): its worker computes them, or refuses the job if it lacks the plug-in.
+DEFAULT_OBJECTIVES = ("f_acc", "f_t")
+ObjectiveName = Annotated[str, Field(pattern=KIND_PATTERN)]
 
 
 class EpisodeSpec(BaseModel):
@@ -26,6 +32,15 @@ class EpisodeSpec(BaseModel):
         description="SHA-256 of a learned inverse-dynamics model (models/dynamics.py) whose "
         "torque for the reference (q_des, qd_des, qdd_des) is added to the PD command; the "
         "worker fetches it from the study once and caches it",
+    )
+    objectives: tuple[ObjectiveName, ObjectiveName] = Field(
+        DEFAULT_OBJECTIVES,
+        # Left out of the JSON when they are the paper's: the log's metadata and the wire then
+        # carry the very bytes they did before objectives could be chosen.
+        exclude_if=lambda names: tuple(names) == DEFAULT_OBJECTIVES,
+        description="the two objectives its scores carry (Scores.objectives), minimised: the "
+        "built-in f_acc and f_t, or a plug-in's (gainfarm.objectives entry points), installed "
+        "on the workers",
     )
 
     @model_validator(mode="after")
@@ -54,7 +69,8 @@ class EpisodeMetadata(BaseModel):
 
 
 class Scores(BaseModel):
-    """The analytic layer's verdict on one episode, computed from its log alone."""
+    """The analytic layer's verdict on one episode, computed from its log alone: the paper's two
+    objectives and diagnostics, and the objectives its spec names, if those are others."""
 
     model_config = ConfigDict(frozen=True)
 
@@ -64,3 +80,19 @@ class Scores(BaseModel):
     saturated_fraction: float = Field(description="share of ticks with a joint at its torque limit")
     diverged: bool
     ticks: int = Field(description="ticks actually simulated")
+    values: tuple[float, float] | None = Field(
+        None,
+        exclude_if=lambda values: values is None,  # the JSON of the paper's scores as it was
+        description="the values of the two objectives the spec names (EpisodeSpec.objectives), "
+        "in order, when they are not f_acc and f_t; None when they are",
+    )
+
+    @property
+    def objectives(self) -> tuple[float, float]:
+        """The episode's two objectives, as its spec names them: what a candidate is told."""
+        return self.values if self.values is not None else (self.f_acc, self.f_t)
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Checkpoints from before objectives could be chosen pickled scores without `values`."""
+        state["__dict__"].setdefault("values", None)
+        super().__setstate__(state)

@@ -5,6 +5,7 @@ contract: dataset consumers and tools such as ros2 bag, Foxglove and PlotJuggler
 schemas/README.md documents it for humans; this module is its single source of truth.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,9 +37,10 @@ CHANNELS = (
 METADATA_NAME = "gainfarm.episode"
 
 # Channels made from the log for ROS 2 tools (Foxglove's 3D panel, rviz, ros2 bag play), not
-# columns of it: the readers ignore them. /robot_description holds the arm's URDF (models/urdf.py)
-# once, at the first tick, latched (transient local, as robot_state_publisher offers it); /tf
-# the arm's links, each from its parent, every TF_EVERY ticks and at the last.
+# columns of it: the readers ignore them. /robot_description holds the arm's URDF once, at the
+# first tick, latched (transient local, as robot_state_publisher offers it); /tf the arm's links,
+# each from its parent, every TF_EVERY ticks and at the last. Both come from a RobotDescription
+# the writer is given (the iiwa's is models/urdf.py's `description()`).
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 STRING = "std_msgs/msg/String"
 TF_TOPIC = "/tf"
@@ -46,6 +48,27 @@ DESCRIPTION_TOPIC = "/robot_description"
 # 50 Hz: smooth to the eye (a screen shows 60 frames a second, `analytic replay` 30), a tenth of
 # the full rate's bytes, and nothing is lost to a plot: /joint_states has every tick.
 TF_EVERY = 10
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One parent→child transform of the arm's tree, as /tf names it: its translation is fixed,
+    its rotation turns with the joint angles."""
+
+    parent: str
+    child: str
+    translation: tuple[float, float, float]  # m, in the parent's frame
+
+
+@dataclass(frozen=True)
+class RobotDescription:
+    """What ROS tools need to draw the arm, given to the log's writer: the contract lays out the
+    channels, the robot's model fills them in."""
+
+    urdf: str  # /robot_description's text
+    frames: tuple[Frame, ...]  # /tf's transforms, in the order of `rotations`' second axis
+    # Joint angles (n, 7) -> (n, len(frames), 4): each frame's rotation at each row, x y z w.
+    rotations: Callable[[np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,6 @@ import json
 import sys
 from pathlib import Path
 
-from gainfarm.schemas.files import write_atomically
 from gainfarm.schemas.wire import MESSAGES
 
 DIRECTORY = Path(__file__).parent / "json"
@@ -41,8 +40,10 @@ def write() -> None:
     DIRECTORY.mkdir(exist_ok=True)
     for path in DIRECTORY.glob("*.schema.json"):
         path.unlink()
+    # Plain writes: a developer's tool over files in the source tree, which --check reads back;
+    # the contract runs no I/O edge of its own (gainfarm.edges.files is above it).
     for name, content in rendered().items():
-        write_atomically(DIRECTORY / name, content.encode())
+        (DIRECTORY / name).write_text(content)
 
 
 if __name__ == "__main__":

@@ -13,8 +13,10 @@ are sliced out as columns.
 For ROS 2 tools to show the arm, the file's first chunk holds the arm's URDF on
 /robot_description and its links' transforms on /tf (every TF_EVERY ticks), made from the logged
 joint angles the same way (one template /tf message, its stamps and rotations filled in by
-NumPy). They add nothing the columns lack, so the reader skips that chunk unread: logs written
-before it existed read as before, and the scores never depend on it.
+NumPy). The writer is given both as a RobotDescription (the iiwa's: models/urdf.py), so the
+contract needs no robot model. They add nothing the columns lack, so the reader skips that chunk
+unread: logs written before it existed read as before, the scores never depend on it, and
+reading needs no description.
 
 The records around the messages (Header, Metadata, Chunk, MessageIndex, DataEnd, the summary
 section and the Footer) are written with the mcap library's record classes, with the contents and
@@ -55,7 +57,6 @@ from mcap.writer import MCAP0_MAGIC
 from pydantic import ValidationError
 from rosbags.typesys import Stores, get_typestore
 
-from gainfarm.models.urdf import rotations, tree, urdf
 from gainfarm.schemas.episode import EpisodeMetadata
 from gainfarm.schemas.episode_log import (
     CHANNELS,
@@ -67,8 +68,9 @@ from gainfarm.schemas.episode_log import (
     TF_TOPIC,
     Channel,
     EpisodeLog,
+    Frame,
+    RobotDescription,
 )
-from gainfarm.schemas.files import write_atomically
 from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS
 from gainfarm.schemas.wire import MAX_EPISODE_BYTES
 
@@ -95,7 +97,7 @@ _MESSAGE_HEADER = [
 ]
 _RECORD_PREFIX = 1 + 8  # opcode and record length, before every record's content
 _FOOTER_LENGTH = 8 + 8 + 4  # a Footer's content: summary start, summary offset start, CRC
-# What a reader takes in besides the messages, bounded far above what write_episode writes (5.1
+# What a reader takes in besides the messages, bounded far above what episode_bytes writes (5.1
 # kB of summary, 0.9 kB of metadata, 4.5 kB of Schema and Channel records in the first chunk), so
 # that no length or count a file states makes the reader allocate in proportion to it.
 _MAX_SUMMARY_BYTES = 1024 * 1024  # the summary section and its summary offsets
@@ -237,7 +239,7 @@ def _tick_layout() -> _TickLayout:
 
 
 def _constant_bytes(dtype: np.dtype) -> np.ndarray:
-    """Mark the bytes of a tick that write_episode copies from the template unchanged: all but
+    """Mark the bytes of a tick that episode_bytes copies from the template unchanged: all but
     the sequence numbers, times, stamps and numbers (so opcodes, record lengths, channel ids, CDR
     headers, frame ids, joint names, array lengths and padding)."""
     variable = np.zeros(dtype.itemsize, bool)
@@ -254,14 +256,14 @@ def _constant_bytes(dtype: np.dtype) -> np.ndarray:
 
 
 @cache
-def _tf_layout() -> tuple[np.ndarray, np.dtype]:
-    """One /tf Message record at time 0 (the tree's frames and translations in place, stamps and
+def _tf_layout(frames: tuple[Frame, ...]) -> tuple[np.ndarray, np.dtype]:
+    """One /tf Message record at time 0 (the frames' names and translations in place, stamps and
     rotations zero) and its dtype, whose data names each transform's stamp and rotation."""
     store = _typestore()
     types = store.types
-    sentinels = 7.25e9 + 1000.0 * np.arange(len(tree()))[:, None] + np.arange(4)
+    sentinels = 7.25e9 + 1000.0 * np.arange(len(frames))[:, None] + np.arange(4)
     transforms = []
-    for i, transform in enumerate(tree()):
+    for i, transform in enumerate(frames):
         stamp = types["builtin_interfaces/msg/Time"](sec=0x5EC0_0000 + i, nanosec=0x0A0B_0C0D)
         x, y, z = transform.translation
         qx, qy, qz, qw = sentinels[i]
@@ -277,7 +279,7 @@ def _tf_layout() -> tuple[np.ndarray, np.dtype]:
         )
     encoded = bytearray(store.serialize_cdr(types[TF_MESSAGE](transforms=transforms), TF_MESSAGE))
     names, formats, offsets = [], [], []
-    for i in range(len(tree())):
+    for i in range(len(frames)):
         stamp = np.array([0x5EC0_0000 + i, 0x0A0B_0C0D], "<u4").tobytes()
         rotation = sentinels[i].astype("<f8").tobytes()
         for name, value, form in (
@@ -306,15 +308,10 @@ def _tf_layout() -> tuple[np.ndarray, np.dtype]:
 # --- writing ----------------------------------------------------------------------------------
 
 
-def write_episode(log: EpisodeLog, path: Path) -> int:
-    """Write `log` to `path` atomically (a temporary file, then a rename); return its size."""
-    content = episode_bytes(log)
-    write_atomically(Path(path), content)
-    return len(content)
-
-
-def episode_bytes(log: EpisodeLog) -> bytes:
-    """The whole file, in the order and with the records mcap.writer.Writer would emit for it.
+def episode_bytes(log: EpisodeLog, robot: RobotDescription) -> bytes:
+    """The whole file, in the order and with the records mcap.writer.Writer would emit for it;
+    `robot` draws the arm on /robot_description and /tf. (To a file: the caller writes these
+    bytes, whole or not at all: gainfarm.edges.files.write_atomically.)
 
     One RecordBuilder holds the whole file from the magic on, so its count is the file offset
     that indexes point at. Two deliberate differences from what the old Writer-based code wrote:
@@ -337,7 +334,7 @@ def episode_bytes(log: EpisodeLog) -> bytes:
         # First the description and the transforms, so that a tool reading the file from its
         # start draws the arm before the data plays; the definitions of every channel open it.
         prefix = _definition_records(schemas, channels)
-        content, indexes = _derived_messages(log, log_times, len(prefix))
+        content, indexes = _derived_messages(log, log_times, len(prefix), robot)
         chunk_indexes.append(_write_chunk(out, compressor, prefix + content, indexes))
         counts = {channel.id: log.ticks for channel in channels[: len(CHANNELS)]}
         counts |= {channel_id: len(times) for channel_id, times, _ in indexes}
@@ -450,12 +447,12 @@ def _records(log: EpisodeLog, log_times: np.ndarray) -> np.ndarray:
 
 
 def _derived_messages(
-    log: EpisodeLog, log_times: np.ndarray, offset: int
+    log: EpisodeLog, log_times: np.ndarray, offset: int, robot: RobotDescription
 ) -> tuple[bytes, list[tuple[int, np.ndarray, np.ndarray]]]:
     """The /robot_description record (at the first tick) and the /tf records (every TF_EVERY
     ticks and at the last), and each channel's (id, log times, offsets from `offset` on)."""
     store = _typestore()
-    description = store.types[STRING](data=urdf())
+    description = store.types[STRING](data=robot.urdf)
     builder = RecordBuilder()
     Message(
         channel_id=_DESCRIPTION_ID,
@@ -466,14 +463,20 @@ def _derived_messages(
     ).write(builder)
     first = builder.end()
     ticks = np.unique(np.append(np.arange(0, log.ticks, TF_EVERY), log.ticks - 1))
-    template, dtype = _tf_layout()
+    template, dtype = _tf_layout(tuple(robot.frames))
+    rotations = np.asarray(robot.rotations(log.q[ticks]))
+    if rotations.shape != (len(ticks), len(robot.frames), 4):
+        raise ValueError(
+            f"the robot description's rotations are {rotations.shape}, not "
+            f"{(len(ticks), len(robot.frames), 4)}: one x y z w per /tf tick and frame"
+        )
     records = np.tile(template, len(ticks)).view(dtype)
     times = log_times[ticks]
     records["sequence"] = np.arange(len(ticks))
     records["log_time"] = times
     records["publish_time"] = times
     stamps = np.column_stack(divmod(times, NANOSECONDS)).astype("<u4")
-    for i, quaternions in enumerate(np.moveaxis(rotations(log.q[ticks]), 1, 0)):
+    for i, quaternions in enumerate(np.moveaxis(rotations, 1, 0)):
         records["data"][f"stamp{i}"] = stamps
         records["data"][f"rotation{i}"] = quaternions
     tf_offsets = offset + len(first) + dtype.itemsize * np.arange(len(ticks), dtype=np.uint64)
@@ -592,7 +595,7 @@ def _write_summary(
 
 
 def read_episode(path: Path) -> EpisodeLog:
-    """Read an episode log written by write_episode; NotAnEpisodeLog if it is not one."""
+    """Read an episode log file (episode_bytes' bytes); NotAnEpisodeLog if it is not one."""
     return decode_episode(Path(path).read_bytes(), str(path))
 
 
@@ -710,7 +713,7 @@ def _read_metadata(path: str, content: bytes, summary: Summary) -> EpisodeMetada
 
 
 def _check_channels(path: str, summary: Summary) -> None:
-    """The channels must be CHANNELS, with the ids write_episode gives them."""
+    """The channels must be CHANNELS, with the ids episode_bytes gives them."""
     for channel_id, channel in enumerate(CHANNELS, start=1):
         record = summary.channels.get(channel_id)
         schema = summary.schemas.get(record.schema_id) if record else None
@@ -788,7 +791,7 @@ def _decompress(where: str, chunk: Chunk, bound: int) -> bytes:
         with zstandard.ZstdDecompressor().stream_reader(chunk.data) as reader:
             data = reader.read(size + 1)
     elif chunk.compression == "lz4":
-        import lz4.frame  # optional, as in the mcap library: write_episode uses zstd
+        import lz4.frame  # optional, as in the mcap library: episode_bytes uses zstd
 
         data = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=size + 1)
     elif chunk.compression == "":

@@ -14,54 +14,95 @@ is taken equal to the first applied torque: the robot was already holding it, so
 not count as a change. A diverged episode is scored as if every tick it did not run had the
 worst error and the worst torque change, so it is never preferred to one that finished, and the
 later it diverged the less it is penalised.
+
+An episode may name other objectives (EpisodeSpec.objectives): a plug-in's, of the
+gainfarm.objectives group, is a function of the decoded log like `f_acc` and `f_t` here. The
+contract loads no plug-in: `score` is given the functions of the ones its log names.
 """
 
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from gainfarm.schemas.episode import Scores
+from gainfarm.schemas.episode import DEFAULT_OBJECTIVES, Scores
 from gainfarm.schemas.episode_log import EpisodeLog
+
+# An objective: the decoded log in, a finite number out, lower is better.
+Objective = Callable[[EpisodeLog], float]
 
 DIVERGED_TICK_ERROR = 1.0  # m: more than any real tracking error (the arm's reach is 0.82 m)
 SATURATION_TOLERANCE = 1e-9  # N·m: a torque this close to its limit is saturated
 
 # The objectives of a candidate with no episode to score (its path out of reach, or lost): worse
-# than any diverged episode, so NSGA-II ranks it last and moves on.
+# than any diverged episode, so NSGA-II ranks it last and moves on. A plug-in objective in either
+# place must stay below its value there (docs/plugins.md).
 NO_EPISODE = (10.0, 1e12)
 
 
-def score(log: EpisodeLog) -> Scores:
+def f_acc(log: EpisodeLog) -> float:
+    """Mean Cartesian error over the ticks planned, m; a tick not run counts as
+    DIVERGED_TICK_ERROR."""
     meta = log.metadata
-    planned = meta.ticks_planned
-    missing = planned - log.ticks
-    limits = np.asarray(meta.torque_limits)
-
     errors = np.linalg.norm(log.ee - log.ee_des, axis=1)
-    worst_change = float(np.sum((2.0 * limits) ** 2))  # from one limit to the other on every joint
-    changes = float(np.sum(np.diff(log.u, axis=0) ** 2))
-    saturated = np.any(np.abs(log.u) >= limits - SATURATION_TOLERANCE, axis=1)
+    missing = meta.ticks_planned - log.ticks
+    return (float(errors.sum()) + missing * DIVERGED_TICK_ERROR) / meta.ticks_planned
 
+
+def f_t(log: EpisodeLog) -> float:
+    """Mean squared torque change per tick planned, (N·m)²; a tick not run counts as a swing from
+    one torque limit to the other on every joint."""
+    meta = log.metadata
+    limits = np.asarray(meta.torque_limits)
+    worst_change = float(np.sum((2.0 * limits) ** 2))
+    changes = float(np.sum(np.diff(log.u, axis=0) ** 2))
+    missing = meta.ticks_planned - log.ticks
+    return (changes + missing * worst_change) / meta.ticks_planned
+
+
+def score(log: EpisodeLog, plugins: Mapping[str, Objective] | None = None) -> Scores:
+    """The episode's scores. If its spec names objectives other than f_acc and f_t, `plugins`
+    gives the function of each (gainfarm.plugins.load); ValueError naming one it lacks."""
+    meta = log.metadata
+    limits = np.asarray(meta.torque_limits)
+    errors = np.linalg.norm(log.ee - log.ee_des, axis=1)
+    saturated = np.any(np.abs(log.u) >= limits - SATURATION_TOLERANCE, axis=1)
+    built_in = {"f_acc": f_acc(log), "f_t": f_t(log)}
+    names = meta.spec.objectives
+    values = None
+    if names != DEFAULT_OBJECTIVES:
+        first, second = (
+            built_in[name] if name in built_in else _plugin_value(name, log, plugins or {})
+            for name in names
+        )
+        values = (first, second)
     return Scores(
-        f_acc=(float(errors.sum()) + missing * DIVERGED_TICK_ERROR) / planned,
-        f_t=(changes + missing * worst_change) / planned,
+        f_acc=built_in["f_acc"],
+        f_t=built_in["f_t"],
         max_error=float(errors.max()) if log.ticks else DIVERGED_TICK_ERROR,
         saturated_fraction=float(saturated.mean()) if log.ticks else 0.0,
         diverged=meta.diverged,
         ticks=log.ticks,
+        values=values,
     )
+
+
+def _plugin_value(name: str, log: EpisodeLog, plugins: Mapping[str, Objective]) -> float:
+    if name not in plugins:
+        raise ValueError(f"objective {name!r}: a plug-in, and its function was not given")
+    return float(plugins[name](log))
 
 
 def objectives(
     scores: Sequence[Scores | None], weights: Sequence[tuple[float, float]] | None = None
 ) -> tuple[float, float]:
-    """A candidate's objectives over its trajectories: the means of f_acc and f_t (the generic
-    controller's; one trajectory gives the specific controller's), weighted by `weights`, one
-    (f_acc weight, f_t weight) per trajectory (see `balancing_weights`), if given."""
+    """A candidate's objectives over its trajectories: the means of each episode's two
+    (Scores.objectives: f_acc and f_t, unless the run named others; the generic controller's;
+    one trajectory gives the specific controller's), weighted by `weights`, one (first weight,
+    second weight) per trajectory (see `balancing_weights`), if given."""
     if not scores or any(score is None for score in scores):
         return NO_EPISODE
-    acc = np.array([score.f_acc for score in scores])
-    t = np.array([score.f_t for score in scores])
+    acc = np.array([score.objectives[0] for score in scores])
+    t = np.array([score.objectives[1] for score in scores])
     if weights is None:
         return float(np.mean(acc)), float(np.mean(t))
     w = np.asarray(weights, dtype=float).reshape(-1, 2)

@@ -13,8 +13,17 @@ MAX_TWIST = 1.5  # rad: A7 turns ±175°, and it also absorbs A1's swing about t
 
 Coordinate = Annotated[float, Field(allow_inf_nan=False)]
 
+# A kind is a name of the gainfarm.trajectories plug-in group: the built-in ones below, or a
+# plug-in's (a Cartesian path, worker/trajectories.py's Path). The contract checks the name's
+# form only; a worker without the plug-in refuses the job, naming it. The pattern is
+# gainfarm.plugins.NAME_PATTERN's (the contract imports nothing of the project; a test keeps
+# the two equal): a name becomes part of job ids and file names.
+KIND_PATTERN = r"^[a-z][a-z0-9_-]{0,31}$"
+
 
 class TrajectoryKind(StrEnum):
+    """The built-in kinds."""
+
     spiral = "spiral"  # a conical helix, widening from the centre
     random = "random"  # a smooth B-spline shaped by seeded random control points
     pyramid = "pyramid"  # straight edges of a square pyramid, resting at every corner
@@ -24,8 +33,9 @@ class TrajectoryKind(StrEnum):
 class TrajectorySpec(BaseModel):
     """A motion of the arm in the robot's base frame, lasting `duration` seconds, rest to rest.
 
-    The Cartesian kinds (spiral, random, pyramid) move the flange along a path around `center`
-    with the tool axis pointing down and a `twist` about it; the pyramid rests at every corner.
+    The Cartesian kinds (spiral, random, pyramid, and a plug-in's) move the flange along a path
+    around `center` with the tool axis pointing down and a `twist` about it; the pyramid rests at
+    every corner.
     The fourier kind moves every joint by a seeded finite Fourier series around the ready
     posture, one period per episode (Swevers et al. 1997; at 13.33 s its base frequency is the
     0.075 Hz of Gaz et al. 2019). worker/reference.py keeps every kind within the robot's joint
@@ -37,7 +47,12 @@ class TrajectorySpec(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    kind: TrajectoryKind = TrajectoryKind.spiral
+    kind: str = Field(
+        TrajectoryKind.spiral.value,
+        pattern=KIND_PATTERN,
+        description="a built-in kind (spiral, random, pyramid, fourier) or a plug-in's, installed "
+        "on the workers (gainfarm.trajectories entry points)",
+    )
     duration: float = Field(5.0, ge=MIN_DURATION, le=MAX_DURATION, allow_inf_nan=False)
     seed: int = Field(
         0, ge=0, description="draws the random kind's control points and the fourier kind's series"

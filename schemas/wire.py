@@ -20,10 +20,14 @@ from pydantic import (
 
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 
-# 5: leases in batches, results handed in with the next lease request; 4: results carry the
-# worker's scores, and the log only when the job asks to keep it (the worker keeps the others, to
-# be fetched); 3: results handed in to the broker and confirmed by it; 2: Job.spec
-PROTOCOL_VERSION = 5
+# 6: plug-ins: a trajectory kind is any name of its form, a job may name its objectives
+# (EpisodeSpec.objectives) and its scores then carry their values (Scores.values), and a worker
+# that lacks a plug-in the job names refuses it (JobStatus.refused); a job of the built-in kinds
+# and objectives has the same JSON as in 5. 5: leases in batches, results handed in with the next
+# lease request; 4: results carry the worker's scores, and the log only when the job asks to keep
+# it (the worker keeps the others, to be fetched); 3: results handed in to the broker and
+# confirmed by it; 2: Job.spec
+PROTOCOL_VERSION = 6
 
 # Names become key-expression chunks, so they may not contain '/', '*', '$', '?' or '#'.
 NAME_PATTERN = r"^[A-Za-z0-9_.\-]{1,64}$"
@@ -49,7 +53,7 @@ class BadMessage(ValueError):
 class WireMessage(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    protocol: Literal[5] = PROTOCOL_VERSION
+    protocol: Literal[6] = PROTOCOL_VERSION
 
     @field_validator("protocol", mode="before")
     @classmethod
@@ -107,6 +111,9 @@ class JobStatus(StrEnum):
     ok = "ok"  # the episode ran to its end
     diverged = "diverged"  # it ran, and was cut short: still data, penalised by the objectives
     failed = "failed"  # it could not run (e.g. the path is out of reach); `reason` says why
+    # The worker lacks a plug-in the job names (a trajectory kind, an objective): `reason` names
+    # it. Not the job's outcome but the farm's: the analytic side stops and says so.
+    refused = "refused"
 
 
 class Timings(BaseModel):
@@ -131,7 +138,8 @@ class Result(WireMessage):
     broker first (with its next LeaseRequest: the broker checks that this worker holds this lease
     and keeps what it took), then sends it as the attachment of a sample whose payload is the MCAP
     episode log if the job said `keep_log`, else empty (the worker keeps the log). `digest` and
-    `episode_bytes` always describe the log the worker made (both empty when the job failed)."""
+    `episode_bytes` always describe the log the worker made (both empty when the job failed or
+    was refused)."""
 
     study: Name
     job_id: Name
@@ -146,7 +154,8 @@ class Result(WireMessage):
 
     @model_validator(mode="after")
     def _scored_unless_failed(self) -> "Result":
-        if (self.status == JobStatus.failed) != (self.scores is None):
+        ran = self.status not in (JobStatus.failed, JobStatus.refused)
+        if ran != (self.scores is not None):
             raise ValueError("scores: required for an episode that ran, and only for one")
         return self
 

@@ -8,9 +8,9 @@ import zenoh
 
 from gainfarm.analytic.evaluators.local import free_port
 from gainfarm.broker.service import Broker
+from gainfarm.edges.transport import open_session
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.episode_log import EpisodeLog
-from gainfarm.schemas.transport import open_session
 from gainfarm.worker.episode import run_episode
 from tests.helpers import TRACKING_GAINS, WEAK_GAINS
 

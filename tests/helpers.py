@@ -14,8 +14,9 @@ import zenoh
 
 from gainfarm.broker.queue import LeaseQueue
 from gainfarm.broker.service import Broker
+from gainfarm.edges.ask import ask
+from gainfarm.models.urdf import description
 from gainfarm.schemas import EpisodeMetadata, EpisodeSpec, PDGains, TrajectorySpec, keys
-from gainfarm.schemas.ask import ask
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.mcap_episode import episode_bytes
 from gainfarm.schemas.robot import TORQUE_LIMITS
@@ -162,11 +163,23 @@ def crafted_log(planned: int = 3, diverged: bool = False) -> EpisodeLog:
     )
 
 
+def log_bytes(log: EpisodeLog) -> bytes:
+    """`log` as the worker encodes it: MCAP, with the iiwa drawn for ROS tools."""
+    return episode_bytes(log, description())
+
+
+def write_log(log: EpisodeLog, path: Path) -> int:
+    """Write `log` to `path` as `worker episode --out` does; return its size."""
+    content = log_bytes(log)
+    Path(path).write_bytes(content)
+    return len(content)
+
+
 def perfect_log(spec: EpisodeSpec) -> bytes:
     """A well-made episode log of `spec` claiming no error and no torque change at all."""
     log = crafted_log()
     flat = np.zeros_like(log.u)
-    return episode_bytes(
+    return log_bytes(
         dataclasses.replace(
             log,
             tau=flat,

@@ -1,5 +1,8 @@
 """`worker`: a simulated cobot. Serve a farm (`start`), or run one episode by hand (`episode`)."""
 
+# Light at the top (click and the shared options): MuJoCo, Zenoh and pydantic load inside the
+# command that runs, so that `worker --help` and a refused option cost little more than click.
+
 import logging
 import math
 import os
@@ -8,30 +11,22 @@ import signal
 import socket
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 from click.core import ParameterSource
-from pydantic import ValidationError
 
 from gainfarm.cli import options
 from gainfarm.cli.app import CliError, parse_numbers, program_group, run_app, setup_logging
-from gainfarm.cli.scores import show_scores
-from gainfarm.models.dynamics import digest
-from gainfarm.schemas.controller import BadGains, read_gains
-from gainfarm.schemas.episode import EpisodeSpec
-from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
-from gainfarm.schemas.mcap_episode import write_episode
-from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import N_JOINTS
-from gainfarm.schemas.wire import NAME_PATTERN, NAME_RULE, describe
-from gainfarm.worker.episode import run_episode
-from gainfarm.worker.feedforward import ModelCache
-from gainfarm.worker.ik import UnreachablePath
-from gainfarm.worker.reference import InfeasibleReference
-from gainfarm.worker.service import CobotWorker, NameTaken
 
-DEFAULT_KP = ",".join(f"{gain:g}" for gain in DEFAULT_GAINS.kp)
-DEFAULT_KD = ",".join(f"{gain:g}" for gain in DEFAULT_GAINS.kd)
+if TYPE_CHECKING:
+    from gainfarm.schemas.gains import PDGains
+
+
+def _default_gains(which: str) -> str:
+    from gainfarm.schemas.gains import DEFAULT_GAINS
+
+    return ",".join(f"{gain:g}" for gain in getattr(DEFAULT_GAINS, which))
 
 
 @program_group(__doc__)
@@ -49,8 +44,18 @@ def app() -> None:
 )
 @options.trajectory()
 @options.duration()
-@click.option("--kp", default=DEFAULT_KP, show_default=True, help="7 gains A1..A7, N·m/rad")
-@click.option("--kd", default=DEFAULT_KD, show_default=True, help="7 gains A1..A7, N·m·s/rad")
+@click.option(
+    "--kp",
+    default=options.Later(lambda: _default_gains("kp")),
+    show_default=True,
+    help="7 gains A1..A7, N·m/rad",
+)
+@click.option(
+    "--kd",
+    default=options.Later(lambda: _default_gains("kd")),
+    show_default=True,
+    help="7 gains A1..A7, N·m·s/rad",
+)
 @click.option(
     "--gains",
     "gains_file",
@@ -58,7 +63,7 @@ def app() -> None:
     help="the gains from a file instead of --kp/--kd: a controller from `analytic export`, or "
     'one {"kp": [7], "kd": [7]} object',
 )
-@options.model()
+@options.joints()
 @options.plant()
 @options.placement()
 @click.option("--gravity-compensation", is_flag=True, help="add g(q_des) feed-forward to the PD")
@@ -71,7 +76,7 @@ def episode(
     kp: str,
     kd: str,
     gains_file: Path | None,
-    model: str,
+    joints: str,
     plant: str,
     trajectory_seed: int,
     center: str,
@@ -81,6 +86,21 @@ def episode(
     as_json: bool,
 ) -> None:
     """Simulate one PD episode on the iiwa 14, write its MCAP log and print its scores."""
+    from pydantic import ValidationError
+
+    from gainfarm.cli.scores import show_scores
+    from gainfarm.edges.files import write_atomically
+    from gainfarm.models.dynamics import digest
+    from gainfarm.models.urdf import description
+    from gainfarm.schemas.episode import EpisodeSpec
+    from gainfarm.schemas.gains import PDGains
+    from gainfarm.schemas.mcap_episode import episode_bytes
+    from gainfarm.schemas.objectives import score
+    from gainfarm.schemas.wire import describe
+    from gainfarm.worker.episode import run_episode
+    from gainfarm.worker.ik import UnreachablePath
+    from gainfarm.worker.reference import InfeasibleReference
+
     gains = _file_gains(gains_file) if gains_file is not None else None
     (path,) = options.trajectories([trajectory], duration, trajectory_seed, center, size)
     learned = options.feedforward_model(feedforward)
@@ -93,7 +113,7 @@ def episode(
         spec = EpisodeSpec(
             gains=gains or PDGains(kp=_gains("--kp", kp), kd=_gains("--kd", kd)),
             trajectory=path,
-            model=options.model_spec(plant, model),
+            model=options.model_spec(plant, joints),
             gravity_compensation=gravity_compensation,
             feedforward=digest(learned[0]) if learned is not None else None,
         )
@@ -106,7 +126,7 @@ def episode(
     except (UnreachablePath, InfeasibleReference) as error:
         raise CliError(str(error)) from None
     try:
-        write_episode(log, out)
+        write_atomically(out, episode_bytes(log, description()))
     except OSError as error:
         raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
     show_scores(score(log), out, as_json)
@@ -152,6 +172,10 @@ def start(
 
     SIGTERM or Ctrl-C: the job in progress is finished and returned, then the worker exits.
     """
+    from gainfarm.schemas.wire import NAME_PATTERN, NAME_RULE
+    from gainfarm.worker.feedforward import ModelCache
+    from gainfarm.worker.service import CobotWorker, NameTaken
+
     setup_logging("worker", log_level)
     # On a secure farm the router lets a worker lease only under its certificate's name.
     identity = options.identity(tls, "worker", name, name_option="--name")
@@ -183,8 +207,10 @@ def start(
         log.info("worker %s stopped after %d jobs", name, done)
 
 
-def _file_gains(path: Path) -> PDGains:
+def _file_gains(path: Path) -> "PDGains":
     """--gains: the one controller in the file; --kp and --kd may not be given beside it."""
+    from gainfarm.schemas.controller import BadGains, read_gains
+
     context = click.get_current_context()
     given = [
         f"--{name}"
@@ -210,6 +236,8 @@ def _file_gains(path: Path) -> PDGains:
 
 
 def _gains(option: str, text: str) -> tuple[float, ...]:
+    from gainfarm.schemas.robot import N_JOINTS
+
     values = parse_numbers(option, text, N_JOINTS)
     if not all(math.isfinite(v) and v >= 0 for v in values):
         raise CliError(f"{option}: gains must be finite and non-negative, got {text!r}")

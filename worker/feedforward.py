@@ -12,8 +12,8 @@ from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
 
+from gainfarm.edges.files import write_atomically
 from gainfarm.models.dynamics import BadDynamicsModel, DynamicsModel, digest, feedforward_from_bytes
-from gainfarm.schemas.files import write_atomically
 
 MEMORY = 8  # models kept decoded: a study uses one, a worker serving a few studies a few
 

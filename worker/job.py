@@ -4,7 +4,9 @@ The scores are the analytic side's own (schemas.objectives.score), computed on t
 simulated; they equal the scores of the log decoded from its MCAP bytes exactly (test_job.py).
 
 A job that cannot run is a result too (status failed, with the reason), never an exception that
-would take the worker down: the farm goes on serving, and the analytic side learns why.
+would take the worker down: the farm goes on serving, and the analytic side learns why. A job
+that names a plug-in this worker lacks (a trajectory kind, an objective: gainfarm.plugins) is
+refused, the reason naming the plug-in, before anything is simulated.
 """
 
 import hashlib
@@ -12,10 +14,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from gainfarm import plugins
 from gainfarm.models.dynamics import DynamicsModel
+from gainfarm.models.urdf import description
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.mcap_episode import episode_bytes
-from gainfarm.schemas.objectives import score
+from gainfarm.schemas.objectives import Objective, score
 from gainfarm.schemas.wire import JobStatus, Lease, Result, Timings, WireScores
 from gainfarm.worker.episode import run_episode
 from gainfarm.worker.feedforward import ModelUnavailable
@@ -50,6 +54,11 @@ def simulate(spec: EpisodeSpec, model: Callable[[str], DynamicsModel] | None = N
     reason = ""
     scores = None
     try:
+        objectives = plugins_of(spec)
+    except plugins.PluginError as error:
+        took = time.perf_counter() - started
+        return Outcome(JobStatus.refused, str(error), b"", Timings(simulate_s=took, encode_s=0.0))
+    try:
         feedforward = None
         if spec.feedforward is not None:
             if model is None:
@@ -68,15 +77,22 @@ def simulate(spec: EpisodeSpec, model: Callable[[str], DynamicsModel] | None = N
     simulated = time.perf_counter()
     if status != JobStatus.failed:
         try:  # scores the wire cannot carry (not finite) would be a bug: the job fails, not all
-            content = episode_bytes(log)
-            scores = score(log)
+            content = episode_bytes(log, description())
+            scores = score(log, objectives)
             WireScores(**scores.model_dump())
-        except Exception as error:
+        except Exception as error:  # a plug-in objective's too: a stranger's code
             status, content, scores = JobStatus.failed, b"", None
             reason = " ".join(f"its log: {type(error).__name__}: {error}".split())
     encoded = time.perf_counter()
     timings = Timings(simulate_s=simulated - started, encode_s=encoded - simulated)
     return Outcome(status, reason, content, timings, scores)
+
+
+def plugins_of(spec: EpisodeSpec) -> dict[str, Objective]:
+    """The plug-in objectives the spec names, by name, once its trajectory kind is known to be
+    here too. PluginError, naming the first plug-in this process lacks or cannot load."""
+    plugins.load(plugins.TRAJECTORIES, spec.trajectory.kind)
+    return plugins.load_plugins(plugins.OBJECTIVES, spec.objectives)
 
 
 # What runs an episode: simulate, or a stand-in (bench/campaign.py --simulated).

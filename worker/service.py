@@ -19,16 +19,15 @@ from dataclasses import dataclass
 
 import zenoh
 
+from gainfarm.edges.ask import ask
+from gainfarm.edges.transport import open_session, token_held
 from gainfarm.models.dynamics import MAX_FILE_BYTES, DynamicsModel, digest
 from gainfarm.schemas import keys
-from gainfarm.schemas.ask import ask
 from gainfarm.schemas.security import TlsIdentity
-from gainfarm.schemas.transport import open_session, token_held
 from gainfarm.schemas.wire import (
     LEASE_HOLD_SECONDS,
     MAX_BATCH,
     BadMessage,
-    JobStatus,
     Lease,
     LeaseReply,
     LeaseRequest,
@@ -54,7 +53,7 @@ class NameTaken(RuntimeError):
 
 
 @dataclass(frozen=True)
-class Ran:
+class HandIn:
     """A leased job this worker ran, waiting to be handed in."""
 
     lease: Lease
@@ -134,7 +133,7 @@ class CobotWorker:
 
     def serve(self, stop: threading.Event, max_jobs: int | None = None) -> int:
         """Serve until `stop` is set (the batch in progress is finished and handed in first)."""
-        ran: list[Ran] = []
+        ran: list[HandIn] = []
         while True:
             want = 0 if stop.is_set() else self._want(max_jobs, len(ran))
             if want == 0 and not ran:
@@ -158,7 +157,7 @@ class CobotWorker:
         want = max(1, min(MAX_BATCH, want))
         return want if max_jobs is None else max(0, min(want, max_jobs - self.jobs_done - waiting))
 
-    def _run(self, lease: Lease) -> Ran:
+    def _run(self, lease: Lease) -> HandIn:
         give_up = time.monotonic() + lease.expires_in
         started = time.perf_counter()
         result, content = execute(
@@ -167,9 +166,9 @@ class CobotWorker:
         took = time.perf_counter() - started
         pace = self._job_seconds
         self._job_seconds = took if pace is None else 0.8 * pace + 0.2 * took
-        return Ran(lease, result, content, give_up)
+        return HandIn(lease, result, content, give_up)
 
-    def _send(self, ran: list[Ran], verdicts: list[Verdict]) -> None:
+    def _send(self, ran: list[HandIn], verdicts: list[Verdict]) -> None:
         """Send each result the broker took to its study, with its log if the job asked to keep
         it; keep the others' logs here, to be fetched."""
         verdict_of = {(v.job_id, v.lease_id): v for v in verdicts}
@@ -186,7 +185,7 @@ class CobotWorker:
                 )
                 continue
             keep_log = item.lease.job.keep_log
-            if not keep_log and result.status != JobStatus.failed:
+            if not keep_log and result.scores is not None:  # it ran: not failed, nor refused
                 # Kept before the result goes out: a study may fetch the log the moment it arrives.
                 if len(content) > self.logs.max_bytes:
                     log.warning(
@@ -236,7 +235,7 @@ class CobotWorker:
 
         return self.models.model(wanted, lambda _: fetch_model(self.session, lease.study, wanted))
 
-    def _ask_for_work(self, want: int, ran: list[Ran]) -> LeaseReply | None:
+    def _ask_for_work(self, want: int, ran: list[HandIn]) -> LeaseReply | None:
         """Hand in `ran`'s results and ask for `want` leases: the broker's answer, or None if
         there was no usable one (the same results are handed in again: the broker takes a
         repeated hand-in as it took the first)."""

@@ -5,15 +5,23 @@ orientation R(s) as functions of the path's progress s in [0, 1] (its arc-length
 the points where the arm comes to rest (`rest_points`). worker/reference.py turns them into
 joint paths by inverse kinematics and times each rest-to-rest piece with the minimum-jerk law
 within the robot's limits. The fourier kind is a joint-space motion given directly in time.
+
+A trajectory kind of the gainfarm.trajectories plug-in group is a Cartesian path (`Path`), as
+the spiral and the random kind are: the worker finds it by its name (gainfarm.plugins.load), and
+a worker without it refuses the job (worker/job.py).
 """
 
+from collections.abc import Callable
 from functools import lru_cache
+from typing import Protocol
 
 import numpy as np
 from scipy.interpolate import BSpline, CubicSpline
 
+from gainfarm import plugins
 from gainfarm.schemas.trajectory import CONTROL_PERIOD_NS, TrajectoryKind, TrajectorySpec
 
+# The built-in Cartesian kinds; a plug-in's kind is Cartesian too.
 CARTESIAN_KINDS = (TrajectoryKind.spiral, TrajectoryKind.random, TrajectoryKind.pyramid)
 # The flange frame pointing straight down (columns: its x, y, z axes in the base frame): the
 # ready posture's frame (worker/ik.py) once its 2.4° tilt is removed, so A7 starts near zero.
@@ -48,21 +56,47 @@ def minimum_jerk_derivatives(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
 # --- Cartesian paths ------------------------------------------------------------------------
 
 
+class Path(Protocol):
+    """A Cartesian trajectory kind, as a plug-in gives it (the spiral and the random kind are
+    two): the flange's offsets from the spec's centre, (len(u), 3) in m, at the curve's
+    parameter `u` (an array of values in [0, 1]). The curve is smooth (twice continuously
+    differentiable: the arm's accelerations follow its curvature) and the arm rests at both of
+    its ends; any parametrisation will do, the worker takes it by arc length and times it with
+    the minimum-jerk law. The tool points down with the spec's twist about it. It may read the
+    spec's size, seed, turns and waypoints; a path the arm cannot reach, or follow within its
+    limits in the spec's duration, is refused (worker/reference.py) as the built-in kinds' are.
+    """
+
+    def __call__(self, spec: TrajectorySpec, u: np.ndarray) -> np.ndarray: ...
+
+
 def path_points(spec: TrajectorySpec, s: np.ndarray) -> np.ndarray:
-    """Flange positions (m, 3) in the base frame at the path's progress `s` (arc fraction)."""
+    """Flange positions (m, 3) in the base frame at the path's progress `s` (arc fraction).
+    PluginError if the spec's kind is a plug-in this process does not have."""
     s = np.clip(np.asarray(s, dtype=float), 0.0, 1.0)
-    if spec.kind == TrajectoryKind.spiral:
-        offsets = _by_arc_length(_spiral(spec))(s)
-    elif spec.kind == TrajectoryKind.random:
-        offsets = _by_arc_length(_random(spec))(s)
-    elif spec.kind == TrajectoryKind.pyramid:
-        vertices = _pyramid_vertices(spec)
-        arc = _cumulative_length(vertices)
-        target = s * arc[-1]
-        offsets = np.column_stack([np.interp(target, arc, vertices[:, i]) for i in range(3)])
-    else:
+    if spec.kind == TrajectoryKind.pyramid:
+        offsets = pyramid(spec, s)
+    elif spec.kind == TrajectoryKind.fourier:
         raise ValueError(f"the {spec.kind} kind is defined in joint space, not as a path")
+    else:  # the spiral, the random kind or a plug-in's: a curve, taken by arc length
+        offsets = _by_arc_length(_curve(spec))(s)
     return np.asarray(spec.center) + offsets
+
+
+def _curve(spec: TrajectorySpec) -> Callable[[np.ndarray], np.ndarray]:
+    """The kind's Path for this spec, u → offsets, checked: a plug-in's is a stranger's code."""
+    path: Path = plugins.load(plugins.TRAJECTORIES, spec.kind)
+
+    def curve(u: np.ndarray) -> np.ndarray:
+        points = np.asarray(path(spec, u), dtype=float)
+        if points.shape != (len(u), 3) or not np.all(np.isfinite(points)):
+            raise ValueError(
+                f"trajectory kind {spec.kind!r}: its path gave {points.shape} values, not "
+                f"({len(u)}, 3) finite ones"
+            )
+        return points
+
+    return curve
 
 
 def rest_points(spec: TrajectorySpec) -> np.ndarray:
@@ -109,17 +143,17 @@ def tool_rotations(spec: TrajectorySpec, s: np.ndarray) -> np.ndarray:
     return heading @ TOOL_DOWN @ turn
 
 
-def _spiral(spec: TrajectorySpec):
-    """A conical helix: the radius grows from 0 to `size` while it rises by `size`."""
+def spiral(spec: TrajectorySpec, u: np.ndarray) -> np.ndarray:
+    """The spiral kind's Path, a conical helix: the radius grows from 0 to `size` while it
+    rises by `size`, in `turns` turns."""
+    angle = 2.0 * np.pi * spec.turns * u
+    radius = spec.size * u
+    return np.column_stack([radius * np.cos(angle), radius * np.sin(angle), spec.size * (u - 0.5)])
 
-    def curve(u: np.ndarray) -> np.ndarray:
-        angle = 2.0 * np.pi * spec.turns * u
-        radius = spec.size * u
-        return np.column_stack(
-            [radius * np.cos(angle), radius * np.sin(angle), spec.size * (u - 0.5)]
-        )
 
-    return curve
+def random_path(spec: TrajectorySpec, u: np.ndarray) -> np.ndarray:
+    """The random kind's Path: `_random`'s B-spline."""
+    return _random(spec)(u)
 
 
 def _random(spec: TrajectorySpec) -> BSpline:
@@ -186,6 +220,15 @@ def _by_arc_length(curve):
     length = _cumulative_length(curve(u))
     inverse = CubicSpline(length / length[-1], u)
     return lambda s: curve(np.clip(inverse(s), 0.0, 1.0))
+
+
+def pyramid(spec: TrajectorySpec, s: np.ndarray) -> np.ndarray:
+    """The pyramid's offsets at its progress `s` (arc fraction): straight edges, the arm at rest
+    at every corner (rest_points), so not a smooth Path."""
+    vertices = _pyramid_vertices(spec)
+    arc = _cumulative_length(vertices)
+    target = s * arc[-1]
+    return np.column_stack([np.interp(target, arc, vertices[:, i]) for i in range(3)])
 
 
 def _pyramid_vertices(spec: TrajectorySpec) -> np.ndarray:

@@ -37,10 +37,10 @@ import pyarrow.parquet as pq
 from pydantic import TypeAdapter, ValidationError
 
 from gainfarm.analytic.evaluators.batch import batch_jobs, run_batch
-from gainfarm.analytic.evaluators.evaluator import EvaluationStatus, Evaluator
+from gainfarm.analytic.evaluators.evaluator import EpisodeStatus, Evaluator
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.local import local_farm
-from gainfarm.analytic.tuning.evolution import normalise
+from gainfarm.analytic.tuning.picks import knee
 from gainfarm.analytic.tuning.records import (
     RUN_JSON,
     FrontMember,
@@ -50,8 +50,9 @@ from gainfarm.analytic.tuning.records import (
 )
 from gainfarm.analytic.tuning.run import RunBusy, TuningRun, upgrade
 from gainfarm.analytic.tuning.tune import new_study_name
+from gainfarm.edges.files import staging_directory, write_atomically
+from gainfarm.plugins import OBJECTIVES, load_plugins
 from gainfarm.schemas.episode_log import EpisodeLog
-from gainfarm.schemas.files import staging_directory, write_atomically
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
@@ -172,7 +173,7 @@ class ChosenRun:
 
 
 @dataclass(frozen=True)
-class Source:
+class EpisodeSource:
     """One episode going into the dataset."""
 
     episode_id: str
@@ -188,19 +189,18 @@ class Episode:
     """One episode read: its ticks (all but the split, assigned once every trajectory is known)
     and its row of episodes.parquet."""
 
-    source: Source
+    source: EpisodeSource
     trajectory: TrajectorySpec
     ticks: pa.Table
     row: dict[str, object]
 
 
 def select(run: RunRecord, selection: Selection) -> list[FrontMember]:
-    """The front, or its knee: the member nearest the ideal point in the hypervolume's space."""
+    """The front, or its knee: the member `analytic export` takes (analytic.tuning.picks)."""
     front = run.front
     if selection == "front" or not front:
         return front
-    normalised = normalise([member.objectives for member in front], run.config.reference_point)
-    return [front[int(np.argmin(np.hypot(normalised[:, 0], normalised[:, 1])))]]
+    return [knee(front)]
 
 
 def run_id_of(run_dir: Path) -> str:
@@ -242,7 +242,7 @@ def choose(run_dirs: Sequence[Path], selection: Selection) -> list[ChosenRun]:
     return chosen
 
 
-def sources(chosen: Sequence[ChosenRun]) -> list[Source]:
+def sources(chosen: Sequence[ChosenRun]) -> list[EpisodeSource]:
     """Every kept log of the selected members, as each run's front.json lists them."""
     found = []
     for run in chosen:
@@ -251,7 +251,7 @@ def sources(chosen: Sequence[ChosenRun]) -> list[Source]:
                 path = run.directory / log
                 if path.is_file():
                     episode_id = f"{run.run_id[:RUN_ID_DIGITS]}-{path.stem}"
-                    found.append(Source(episode_id, run.name, run.run_id, path, member))
+                    found.append(EpisodeSource(episode_id, run.name, run.run_id, path, member))
     return found
 
 
@@ -362,7 +362,7 @@ def check_rerun(trajectories: Sequence[TrajectorySpec], followable: bool = True)
         try:
             reference_for(trajectory)
         except (InfeasibleReference, UnreachablePath) as error:
-            what = f"{trajectory.kind.value}, {trajectory.duration:g} s"
+            what = f"{trajectory.kind}, {trajectory.duration:g} s"
             raise BadRerun(f"trajectory {number} ({what}): {error}") from None
 
 
@@ -376,7 +376,7 @@ def tick_columns(episode_id: str, log: EpisodeLog) -> dict[str, np.ndarray]:
     ticks = log.ticks
     columns: dict[str, np.ndarray] = {
         "episode_id": np.full(ticks, episode_id, dtype=object),
-        "trajectory": np.full(ticks, log.metadata.spec.trajectory.kind.value, dtype=object),
+        "trajectory": np.full(ticks, log.metadata.spec.trajectory.kind, dtype=object),
         "trajectory_id": np.full(ticks, trajectory_id(log.metadata.spec.trajectory), dtype=object),
         "t": log.t,
     }
@@ -393,9 +393,9 @@ def tick_columns(episode_id: str, log: EpisodeLog) -> dict[str, np.ndarray]:
     return columns
 
 
-def episode_row(source: Source, log: EpisodeLog) -> dict[str, object]:
+def episode_row(source: EpisodeSource, log: EpisodeLog) -> dict[str, object]:
     spec = log.metadata.spec
-    scores = score(log)
+    scores = score(log, load_plugins(OBJECTIVES, spec.objectives))  # a run's plug-in's too
     row: dict[str, object] = {
         "episode_id": source.episode_id,
         "run": source.run,
@@ -410,7 +410,7 @@ def episode_row(source: Source, log: EpisodeLog) -> dict[str, object]:
         "f_t": scores.f_t,
         "diverged": scores.diverged,
         "ticks": log.ticks,
-        "trajectory": spec.trajectory.kind.value,
+        "trajectory": spec.trajectory.kind,
         "duration": spec.trajectory.duration,
         "trajectory_spec": spec.trajectory.model_dump_json(),
         "model": spec.model.model_dump_json(),
@@ -425,7 +425,7 @@ def episode_row(source: Source, log: EpisodeLog) -> dict[str, object]:
 def trajectory_row(trajectory: TrajectorySpec) -> dict[str, object]:
     return {
         "trajectory_id": trajectory_id(trajectory),
-        "kind": trajectory.kind.value,
+        "kind": trajectory.kind,
         "seed": trajectory.seed,
         "center_x": trajectory.center[0],
         "center_y": trajectory.center[1],
@@ -440,7 +440,7 @@ def trajectory_row(trajectory: TrajectorySpec) -> dict[str, object]:
     }
 
 
-def read_source(source: Source) -> Episode:
+def read_source(source: EpisodeSource) -> Episode:
     """One episode's log, read and tabled; a damaged log is the run's problem, in one line."""
     try:
         log = read_episode(source.path)
@@ -536,8 +536,8 @@ def rerun(
             or evaluation.log is None
             or evaluation.status
             not in (
-                EvaluationStatus.ok,
-                EvaluationStatus.diverged,
+                EpisodeStatus.ok,
+                EpisodeStatus.diverged,
             )
         ):
             status = evaluation.status.value if evaluation else "lost"
@@ -546,7 +546,9 @@ def rerun(
         run, member, episode_id = owners[job_id]
         path = staging / "episodes" / f"{episode_id}.mcap"
         os.replace(evaluation.log, path)
-        episodes.append(read_source(Source(episode_id, RERUN, run.run_id, path, member, RERUN)))
+        episodes.append(
+            read_source(EpisodeSource(episode_id, RERUN, run.run_id, path, member, RERUN))
+        )
     shutil.rmtree(batch_dir)  # its evaluations.json says nothing episodes.parquet does not
     return episodes
 
@@ -679,7 +681,8 @@ def card(
     chosen_text = (
         "every Pareto-front controller"
         if selection == "front"
-        else "the knee (the front member nearest the ideal point)"
+        else "the knee (the front member `analytic export` takes: the least worse objective, both "
+        "on a log scale between the front's ideal and nadir)"
     )
     runs = "\n".join(f"- `{run.name}`: run_id `{run.run_id}`" for run in chosen)
     fractions = ",".join(f"{value:g}" for value in split)

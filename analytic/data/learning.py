@@ -29,6 +29,7 @@ from matplotlib.figure import Figure
 
 from gainfarm.analytic.view.figures import DPI, save_png
 from gainfarm.analytic.view.reports import plant_text
+from gainfarm.edges.files import staging_directory, write_atomically
 from gainfarm.models.dynamics import (
     KINDS,
     MODEL_FILE,
@@ -44,7 +45,6 @@ from gainfarm.models.dynamics import (
     rigid_spec,
     to_bytes,
 )
-from gainfarm.schemas.files import staging_directory, write_atomically
 from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
 
 TICKS = "ticks.parquet"
@@ -168,7 +168,7 @@ def fit(dataset_dir: Path, target: Target, kind: Kind, seed: int = 0) -> Dynamic
     if kind == "linear" and target == "forward":
         raise LearnError(
             "a linear model is inverse only (its identified inertia need not invert): "
-            "use --target inverse, or --model mlp or residual for forward dynamics"
+            "use --target inverse, or --kind mlp or residual for forward dynamics"
         )
     plant = plants(dataset_dir)[0]
     prior = rigid_prior(plant, target)

@@ -10,9 +10,9 @@ import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from gainfarm.analytic.evaluators.evaluator import Evaluation, Evaluator, Wanted
+from gainfarm.analytic.evaluators.evaluator import EpisodeResult, Evaluator, Wanted
+from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.episode import EpisodeSpec
-from gainfarm.schemas.files import write_atomically
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.robot import ModelSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
@@ -29,7 +29,7 @@ def batch_jobs(
     """Job id → spec, one per pair; ids say which candidate on which trajectory. `feedforward`:
     the SHA-256 of the learned model every episode adds to its PD, if any."""
     return {
-        f"c{index:03d}-{number}-{trajectory.kind.value}": EpisodeSpec(
+        f"c{index:03d}-{number}-{trajectory.kind}": EpisodeSpec(
             gains=gains, trajectory=trajectory, model=model, feedforward=feedforward
         )
         for index, gains in enumerate(candidates)
@@ -41,8 +41,8 @@ def run_batch(
     evaluator: Evaluator,
     jobs: dict[str, EpisodeSpec],
     run_dir: Path,
-    on_evaluation: Callable[[Evaluation], None] = lambda _: None,
-) -> list[Evaluation]:
+    on_evaluation: Callable[[EpisodeResult], None] = lambda _: None,
+) -> list[EpisodeResult]:
     """Submit every job, collect every evaluation (in job order), write
     run_dir/evaluations.json. Every log is kept in run_dir/episodes/ and scored here: as it
     comes, or fetched from the worker that keeps it (a farm client that leaves logs with the
@@ -70,7 +70,7 @@ def run_batch(
     return ordered
 
 
-def evaluation_record(evaluation: Evaluation, run_dir: Path) -> dict[str, object]:
+def evaluation_record(evaluation: EpisodeResult, run_dir: Path) -> dict[str, object]:
     return {
         "job_id": evaluation.job_id,
         "status": evaluation.status.value,

@@ -1,7 +1,7 @@
 """The seam between a tuning run and whatever simulates its episodes.
 
-A run hands an evaluator episode specs under job ids and takes back one `Evaluation` per job, in
-whatever order they complete; it never learns whether they ran on a farm of a hundred cobots
+A run hands an evaluator episode specs under job ids and takes back one `EpisodeResult` per job,
+in whatever order they complete; it never learns whether they ran on a farm of a hundred cobots
 (`analytic.farm.FarmClient`) or one after another in this process
 (`analytic.inprocess.InProcessEvaluator`). pymoo's runner and Optuna's injectable storage play
 the same part: the loop is written once, and tested in milliseconds with a stand-in.
@@ -13,14 +13,15 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Protocol
 
+from gainfarm.edges.files import write_atomically
+from gainfarm.plugins import OBJECTIVES, load_plugins
 from gainfarm.schemas.episode import EpisodeSpec, Scores
-from gainfarm.schemas.files import write_atomically
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, decode_episode
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.wire import Timings
 
 
-class EvaluationStatus(StrEnum):
+class EpisodeStatus(StrEnum):
     ok = "ok"  # the episode ran to its end
     diverged = "diverged"  # it was stopped early; its log and penalised scores still count
     failed = "failed"  # it could not run (an unreachable path, a damaged log every attempt)
@@ -28,13 +29,14 @@ class EvaluationStatus(StrEnum):
 
 
 @dataclass(frozen=True)
-class Evaluation:
-    """One job's outcome. `scores` is set when the episode ran (ok or diverged), and `log` when
-    its MCAP log was kept."""
+class EpisodeResult:
+    """One job's outcome: one episode, not a candidate's evaluation (which takes an episode per
+    trajectory, and is what "evaluations" count). `scores` is set when the episode ran (ok or
+    diverged), and `log` when its MCAP log was kept."""
 
     job_id: str
     spec: EpisodeSpec
-    status: EvaluationStatus
+    status: EpisodeStatus
     scores: Scores | None
     log: Path | None
     reason: str
@@ -57,7 +59,7 @@ def accept_log(content: bytes, spec: EpisodeSpec, path: Path | None, source: str
         raise NotAnEpisodeLog("the log is of another episode than the one submitted")
     if path is not None:
         write_atomically(path, content)
-    return score(episode)
+    return score(episode, load_plugins(OBJECTIVES, spec.objectives))  # a plug-in's too
 
 
 @dataclass(frozen=True)
@@ -104,7 +106,7 @@ class Evaluator(Protocol):
         """Give `worker` none of this evaluator's jobs from now on (it returned a false log)."""
         ...
 
-    def results(self, timeout: float | None = None) -> Iterator[Evaluation]:
+    def results(self, timeout: float | None = None) -> Iterator[EpisodeResult]:
         """Evaluations of the submitted jobs as they complete, until none is pending (or, with
         `timeout`, until that many seconds pass)."""
         ...

@@ -34,20 +34,21 @@ from pathlib import Path
 import zenoh
 
 from gainfarm.analytic.evaluators.evaluator import (
-    Evaluation,
-    EvaluationStatus,
+    EpisodeResult,
+    EpisodeStatus,
     Fetched,
     ReadLog,
     Wanted,
     accept_log,
 )
 from gainfarm.broker.status import BrokerUnavailable, query_status
+from gainfarm.edges.ask import ask
+from gainfarm.edges.transport import open_session, token_held
+from gainfarm.plugins import PluginError
 from gainfarm.schemas import keys
-from gainfarm.schemas.ask import ask
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog
 from gainfarm.schemas.security import TlsIdentity
-from gainfarm.schemas.transport import open_session, token_held
 from gainfarm.schemas.wire import (
     MAX_EPISODE_BYTES,
     Accepted,
@@ -134,7 +135,7 @@ class FarmClient:
         # Told each time `waiting` changes (a progress line says so); the reason, or None.
         self.on_wait: Callable[[str | None], None] = lambda why: None
         self._pending: dict[str, _Pending] = {}
-        self._ready: deque[Evaluation] = deque()
+        self._ready: deque[EpisodeResult] = deque()
         self._next_chase = 0.0  # when to look for overdue jobs next
         self._arrived: dict[str, list[_Arrival]] = {}  # by job id, until the broker confirms
         self._distrusted: set[str] = set()
@@ -207,7 +208,7 @@ class FarmClient:
             self._arrived.pop(job_id, None)
         self._ready = deque(e for e in self._ready if e.job_id not in dropped)
 
-    def results(self, timeout: float | None = None) -> Iterator[Evaluation]:
+    def results(self, timeout: float | None = None) -> Iterator[EpisodeResult]:
         """Yield evaluations as they complete, until none is pending (or `timeout` s pass)."""
         give_up = None if timeout is None else time.monotonic() + timeout
         while self._pending or self._ready:
@@ -300,8 +301,8 @@ class FarmClient:
             reruns[f"{job_id}-k{number}"] = job_id
         log.warning("simulating %d episodes again: their logs are gone", len(reruns))
         self.submit({rerun: again[job_id].spec for rerun, job_id in reruns.items()}, keep_log=True)
-        found: dict[str, Evaluation] = {}
-        others: list[Evaluation] = []
+        found: dict[str, EpisodeResult] = {}
+        others: list[EpisodeResult] = []
         for evaluation in self.results():
             if evaluation.job_id in reruns:
                 found[evaluation.job_id] = evaluation
@@ -473,7 +474,7 @@ class FarmClient:
             if pending.attempts >= self.attempts:
                 del self._pending[job_id]
                 reason = f"no result after {pending.attempts} attempts"
-                self._ready.append(self._failed(job_id, pending, reason, EvaluationStatus.lost))
+                self._ready.append(self._failed(job_id, pending, reason, EpisodeStatus.lost))
                 continue
             pending.attempts += 1
             pending.deadline = now + self.deadline
@@ -537,7 +538,7 @@ class FarmClient:
                 if evaluation is not None:
                     self._ready.append(evaluation)
 
-    def _receive(self, result: Result, content: bytes) -> Evaluation | None:
+    def _receive(self, result: Result, content: bytes) -> EpisodeResult | None:
         """The evaluation a confirmed result makes (None if its log is unusable: it runs
         again)."""
         pending = self._pending[result.job_id]
@@ -549,20 +550,23 @@ class FarmClient:
             timings=result.timings,
             reason=result.reason,
         )
+        if result.status == JobStatus.refused:  # the farm lacks a plug-in: say so, and stop
+            reason = f"worker {result.worker} refused job {result.job_id}: {result.reason}"
+            raise PluginError(reason)
         if result.status == JobStatus.failed:
             del self._pending[result.job_id]
-            return Evaluation(
+            return EpisodeResult(
                 **common,
-                status=EvaluationStatus.failed,
+                status=EpisodeStatus.failed,
                 scores=None,
                 log=None,
             )
         assert result.scores is not None  # the wire's rule for a job that ran
         claimed = Scores.model_validate(result.scores.model_dump())
-        ran = dict(common, status=EvaluationStatus(result.status.value), digest=result.digest)
+        ran = dict(common, status=EpisodeStatus(result.status.value), digest=result.digest)
         if not pending.keep_log:  # its worker keeps the log: `fetch` brings it if wanted
             del self._pending[result.job_id]
-            return Evaluation(**ran, scores=claimed, log=None)
+            return EpisodeResult(**ran, scores=claimed, log=None)
         path = self.log_dir / f"{result.job_id}.mcap"
         try:
             if len(content) > MAX_EPISODE_BYTES or len(content) != result.episode_bytes:
@@ -579,9 +583,9 @@ class FarmClient:
             reason = f"its scores are not its log's ({result.worker} is distrusted)"
             return self._run_again(result, pending, reason)
         del self._pending[result.job_id]
-        return Evaluation(**ran, scores=scores, log=path)
+        return EpisodeResult(**ran, scores=scores, log=path)
 
-    def _run_again(self, result: Result, pending: _Pending, reason: str) -> Evaluation | None:
+    def _run_again(self, result: Result, pending: _Pending, reason: str) -> EpisodeResult | None:
         """A log damaged on its way is a lost result, not the job's outcome: the episode is
         deterministic, so run it again (an attempt) rather than score nothing."""
         log.warning("job %s from %s: %s", result.job_id, result.worker, reason)
@@ -601,9 +605,9 @@ class FarmClient:
         job_id: str,
         pending: _Pending,
         reason: str,
-        status: EvaluationStatus = EvaluationStatus.failed,
-    ) -> Evaluation:
-        return Evaluation(
+        status: EpisodeStatus = EpisodeStatus.failed,
+    ) -> EpisodeResult:
+        return EpisodeResult(
             job_id=job_id,
             spec=pending.spec,
             status=status,

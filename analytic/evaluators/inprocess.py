@@ -13,12 +13,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gainfarm.analytic.evaluators.evaluator import (
-    Evaluation,
-    EvaluationStatus,
+    EpisodeResult,
+    EpisodeStatus,
     Fetched,
     Wanted,
     accept_log,
 )
+from gainfarm.plugins import PluginError
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog
 from gainfarm.schemas.wire import JobStatus
@@ -41,9 +42,9 @@ class InProcessEvaluator:
         `scorer` instead of simulating it, if given. `models`: the feed-forward model files the
         jobs may name, by SHA-256."""
         self.models = dict(models or {})
+        # Made with the first log, not now: `tune(config, out, evaluator=InProcessEvaluator(out))`
+        # claims `out` as new or empty after this evaluator is made.
         self.log_dir = Path(run_dir) / "episodes" if run_dir is not None else None
-        if self.log_dir is not None:
-            self.log_dir.mkdir(parents=True, exist_ok=True)
         self.scorer = scorer
         self._pending: dict[str, EpisodeSpec] = {}
 
@@ -77,7 +78,7 @@ class InProcessEvaluator:
         for job_id in job_ids:
             self._pending.pop(job_id, None)
 
-    def results(self, timeout: float | None = None) -> Iterator[Evaluation]:
+    def results(self, timeout: float | None = None) -> Iterator[EpisodeResult]:
         """Run the pending jobs in the order submitted (jobs submitted meanwhile included).
         `timeout` has no meaning here: every job runs when it is asked for."""
         while self._pending:
@@ -117,12 +118,12 @@ class InProcessEvaluator:
             raise ModelUnavailable(f"feed-forward model {wanted[:12]} was not given")
         return feedforward_from_bytes(self.models[wanted])
 
-    def _evaluate(self, job_id: str, spec: EpisodeSpec) -> Evaluation:
+    def _evaluate(self, job_id: str, spec: EpisodeSpec) -> EpisodeResult:
         common = dict(job_id=job_id, spec=spec, worker=WORKER, attempts=1)
         if self.scorer is not None:
             scores = self.scorer(spec)
-            status = EvaluationStatus.diverged if scores.diverged else EvaluationStatus.ok
-            return Evaluation(
+            status = EpisodeStatus.diverged if scores.diverged else EpisodeStatus.ok
+            return EpisodeResult(
                 **common, status=status, scores=scores, log=None, reason="", timings=None
             )
         from gainfarm.worker.job import (
@@ -130,30 +131,34 @@ class InProcessEvaluator:
         )
 
         outcome = simulate(spec, self._model)
+        if outcome.status == JobStatus.refused:  # this process lacks a plug-in the job names
+            raise PluginError(f"job {job_id} refused: {outcome.reason}")
         if outcome.status == JobStatus.failed:
-            return Evaluation(
+            return EpisodeResult(
                 **common,
-                status=EvaluationStatus.failed,
+                status=EpisodeStatus.failed,
                 scores=None,
                 log=None,
                 reason=outcome.reason,
                 timings=outcome.timings,
             )
         log = self.log_dir / f"{job_id}.mcap" if self.log_dir is not None else None
+        if log is not None:
+            log.parent.mkdir(parents=True, exist_ok=True)
         try:
             scores = accept_log(outcome.content, spec, log, f"episode of {job_id}")
         except NotAnEpisodeLog as error:  # a bug here, not a transport fault: say so, go on
-            return Evaluation(
+            return EpisodeResult(
                 **common,
-                status=EvaluationStatus.failed,
+                status=EpisodeStatus.failed,
                 scores=None,
                 log=None,
                 reason=f"unusable episode log: {error}",
                 timings=outcome.timings,
             )
-        return Evaluation(
+        return EpisodeResult(
             **common,
-            status=EvaluationStatus(outcome.status.value),
+            status=EpisodeStatus(outcome.status.value),
             scores=scores,
             log=log,
             reason=outcome.reason,

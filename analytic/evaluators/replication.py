@@ -6,8 +6,8 @@ log it did not honestly simulate, or one altered by a single torque sample, disa
 honest replica. Volunteer-computing farms validate the same way. A disagreement is settled by a
 third worker, avoiding both: the log two of three agree on stands, the worker that dissented is
 named, and the evaluator stops giving it this run's jobs. Only candidates about to enter the front
-are replicated, so the cost is a few per cent of the evaluations (bench/soak.py and the README
-measure it); a farm of one worker has nobody to replicate on, and does not.
+are replicated, so the cost is a few per cent of the evaluations (bench/soak.py and
+docs/performance.md measure it); a farm of one worker has nobody to replicate on, and does not.
 """
 
 import dataclasses
@@ -16,7 +16,7 @@ import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
-from gainfarm.analytic.evaluators.evaluator import Evaluation, Evaluator
+from gainfarm.analytic.evaluators.evaluator import EpisodeResult, Evaluator
 from gainfarm.schemas.episode import Scores
 
 log = logging.getLogger("gainfarm.analytic")
@@ -39,7 +39,7 @@ class Ran:
     scores: Scores | None
 
     @classmethod
-    def of(cls, evaluation: Evaluation) -> "Ran":
+    def of(cls, evaluation: EpisodeResult) -> "Ran":
         return cls(evaluation.job_id, evaluation.worker, evaluation.digest, evaluation.scores)
 
 
@@ -61,13 +61,13 @@ class Validation:
     or, where it lost a vote, the majority's), and evaluations of other jobs that arrived while
     waiting for the replicas (to be handled by the caller as usual)."""
 
-    standing: dict[str, Evaluation]
-    others: list[Evaluation]
+    standing: dict[str, EpisodeResult]
+    others: list[EpisodeResult]
 
 
 def validate(
     evaluator: Evaluator,
-    originals: Iterable[Evaluation],
+    originals: Iterable[EpisodeResult],
     ledger: Ledger,
     patience: float = PATIENCE_SECONDS,
 ) -> Validation:
@@ -76,8 +76,8 @@ def validate(
     for `patience` s (the other workers left, say): those left out stay undecided."""
     started = time.monotonic()
     standing = {original.job_id: original for original in originals if original.digest}
-    others: list[Evaluation] = []
-    votes: dict[str, list[Evaluation]] = {job_id: [e] for job_id, e in standing.items()}
+    others: list[EpisodeResult] = []
+    votes: dict[str, list[EpisodeResult]] = {job_id: [e] for job_id, e in standing.items()}
     round_ = 1
     undecided = set(standing)
     while undecided:
@@ -109,8 +109,8 @@ def validate(
 
 
 def _until_done(
-    evaluator: Evaluator, replicas: set[str], others: list[Evaluation], patience: float
-) -> Iterator[Evaluation]:
+    evaluator: Evaluator, replicas: set[str], others: list[EpisodeResult], patience: float
+) -> Iterator[EpisodeResult]:
     """The replicas' evaluations as they come (others' go to `others`), until all are in or
     none has come for `patience` s."""
     waiting = set(replicas)
@@ -129,11 +129,11 @@ def _until_done(
         log.warning("%d replicas found no worker in %.0f s: left undecided", len(waiting), patience)
 
 
-def _ran(evaluation: Evaluation) -> bool:
+def _ran(evaluation: EpisodeResult) -> bool:
     return evaluation.digest is not None
 
 
-def _count(votes: list[Evaluation]) -> str | None:
+def _count(votes: list[EpisodeResult]) -> str | None:
     """The digest a majority of the votes that ran agree on (two of two, two of three)."""
     digests = [vote.digest for vote in votes if _ran(vote)]
     for digest in digests:
@@ -144,9 +144,9 @@ def _count(votes: list[Evaluation]) -> str | None:
 
 def _settle(
     job_id: str,
-    votes: list[Evaluation],
+    votes: list[EpisodeResult],
     majority: str | None,
-    standing: dict[str, Evaluation],
+    standing: dict[str, EpisodeResult],
     ledger: Ledger,
     evaluator: Evaluator,
 ) -> None:

@@ -10,7 +10,7 @@ evaluations); and the classical rule's controllers (analytic.classical) with the
 evaluated once on the same spiral: a no-GA baseline, one deterministic set, so reported, not
 tested.
 
-Every number is taken in one study normalisation (analytic.experiments.Normalisation), from
+Every number is taken in one normalisation of the experiment (base.Normalisation), from
 every run's front, penalty points left out (the baselines are measured in it, not part of it):
 
 - hypervolume: of the run's front (front.json, RunRecord.front), the non-dominated set of every
@@ -22,7 +22,7 @@ every run's front, penalty points left out (the baselines are measured in it, no
   order) reaches 99 % of the reference condition's median final hypervolume.
 - the convergence rule's stop: where the convergence rule of the base configuration (tolerance
   and window: analytic.termination, by default Termination()'s) would have stopped the run, on
-  its own per-generation hypervolumes (history.csv), and the study hypervolume of its first
+  its own per-generation hypervolumes (history.csv), and the experiment's hypervolume of its first
   evaluations up to there.
 
 Each condition is compared with the first (the reference: the first algorithm told the first
@@ -34,37 +34,40 @@ normalisation.json, algorithms.png and report.md.
 
 import math
 import statistics
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from gainfarm.analytic.experiments import statistics as stats
 from gainfarm.analytic.experiments.base import (
     Experiment,
+    ExperimentSpec,
     Normalisation,
+    Option,
     Point,
+    attainment_panel,
+    experiment_setup,
     front_points,
     is_penalty,
+    markdown_table,
     non_dominated,
+    write_experiment_report,
 )
 from gainfarm.analytic.experiments.classical import classical_baseline
+from gainfarm.analytic.tuning import defaults
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import ALGORITHMS, OBJECTIVE_SCALINGS, optimiser
 from gainfarm.analytic.tuning.records import HistoryRow, RunRecord
 from gainfarm.analytic.tuning.search_space import SearchSpace
 from gainfarm.analytic.tuning.termination import Termination
-from gainfarm.analytic.view.figures import plot_algorithms
-from gainfarm.analytic.view.reports import (
-    ConditionSummary,
-    algorithms_table,
-    condition_text,
-    experiment_setup,
-    write_experiment_report,
-)
+from gainfarm.analytic.view.figures import new_figure, save_png
+from gainfarm.analytic.view.reports import ALGORITHM_NAMES
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 
-STUDY = "algorithms"
+NAME = "algorithms"
 DEFAULT_BUDGET = 600  # evaluations per run: 20 generations of the default population of 30
 TARGET = 0.99  # of the reference condition's median final hypervolume
 TARGET_TEXT = "99 %"
@@ -87,7 +90,7 @@ class Condition:
 
 @dataclass(frozen=True)
 class RunMeasure:
-    """One run's numbers in the study normalisation (see the module's docstring)."""
+    """One run's numbers in the experiment's normalisation (see the module's docstring)."""
 
     evaluations: int
     hypervolume: float
@@ -95,6 +98,20 @@ class RunMeasure:
     curve: list[float]  # hypervolume of the first k evaluations, at each checkpoint
     stopped_by_rule_at: int | None  # None: the rule would not have stopped it within the budget
     hv_at_rule_stop: float | None
+
+
+@dataclass(frozen=True)
+class ConditionSummary:
+    """A condition of the experiment over its repetitions, as its table shows it."""
+
+    algorithm: str
+    scaling: str
+    runs: int
+    median_hypervolume: float
+    hypervolume_quartiles: tuple[float, float]
+    median_best_f_acc: float  # m
+    median_evaluations_to_target: float  # inf when fewer than half of the runs reach it
+    reached_target: int  # runs that reach it
 
 
 # --- checks, before any run ------------------------------------------------------------------
@@ -113,7 +130,7 @@ def check_names(names: Sequence[str], allowed: Sequence[str], what: str) -> None
 
 def check_runnable(algorithms: Sequence[str], pop: int) -> None:
     """Set every algorithm up once: one this installation cannot run (agemoea2 without numba,
-    tpe without optuna) stops the study before the others' runs, not hours into it."""
+    tpe without optuna) stops the experiment before the others' runs, not hours into it."""
     for algorithm in algorithms:
         optimiser(algorithm, pop, 0, SearchSpace())
 
@@ -209,7 +226,7 @@ def summary(
     )
 
 
-# --- the study ---------------------------------------------------------------------------------
+# --- the experiment ----------------------------------------------------------------------------
 
 
 def baseline_points(
@@ -224,18 +241,18 @@ def baseline_points(
     return classical.gains, points[:-1], points[-1]
 
 
-def algorithms(
+def run(
     experiment: Experiment,
     base: RunConfig,
+    reps: int = 5,
     algorithms: Sequence[str] = ALGORITHMS,
     scalings: Sequence[str] | None = None,
-    reps: int = 5,
 ) -> None:
     """Tune with each algorithm told each scaling (default: the base's), `reps` runs each on
     `base.evaluations`; evaluate the classical rule; compare, draw and report."""
     budget = base.evaluations
     if budget is None:
-        raise ValueError("the algorithms study compares on one budget: give base.evaluations")
+        raise ValueError("the algorithms experiment compares on one budget: give base.evaluations")
     scalings = tuple(scalings or (base.objective_scaling,))
     check_names(algorithms, ALGORITHMS, "algorithm")
     check_names(scalings, OBJECTIVE_SCALINGS, "objective scaling")
@@ -261,7 +278,7 @@ def algorithms(
     records = {key: tuned[name] for key, name in names.items()}
     classical_gains, classical, default = baseline_points(experiment, base)
     penalised = experiment.penalised
-    # The tuned runs alone set the study's space: a stiff classical controller, a little more
+    # The tuned runs alone set the experiment's space: a stiff classical controller, a little more
     # accurate than any run at a hundred times the torque steps, would stretch it so far that
     # the differences between the optimisers vanish in it. The baselines are measured in it.
     normalisation = experiment.normalisation([front_points(record) for record in records.values()])
@@ -318,15 +335,11 @@ def algorithms(
     rule_comparison = f"{reference.algorithm}: at the budget vs at the convergence rule's stop"
     experiment.write_stats(
         [
-            stats.StatsRow(STUDY, f"{c.name} vs {reference.name}", metric, results[c])
+            stats.StatsRow(NAME, f"{c.name} vs {reference.name}", metric, results[c])
             for metric, results in (("hypervolume", hypervolume), ("best_f_acc_mm", accuracy))
             for c in others
         ]
-        + (
-            [stats.StatsRow(STUDY, rule_comparison, "hypervolume", rule_check)]
-            if rule_check
-            else []
-        )
+        + ([stats.StatsRow(NAME, rule_comparison, "hypervolume", rule_check)] if rule_check else [])
     )
     summaries = [summary(c, of(c), [to_target[(c, r)] for r in range(reps)]) for c in conditions]
     classical_name = f"classical rule ({len(classical_gains)} controllers)"
@@ -334,7 +347,7 @@ def algorithms(
         classical_name: _scores(classical, normalisation, penalised),
         "default gains": _scores([default], normalisation, penalised),
     }
-    plot_algorithms(
+    figure(
         experiment.out / FIGURE,
         {
             c.name: [measured(front_points(records[(c, r)]), penalised) for r in range(reps)]
@@ -365,7 +378,7 @@ def algorithms(
     trajectory = base.trajectories[0]
     setup += [
         f"{len(conditions)} conditions: algorithms {', '.join(algorithms)} told "
-        f"{' or '.join(scalings)} objectives, each run on the {trajectory.kind.value} of "
+        f"{' or '.join(scalings)} objectives, each run on the {trajectory.kind} of "
         f"{trajectory.duration:g} s, stopped at the first generation at or past {budget} "
         "evaluations",
         "hypervolume: of each run's front (the non-dominated set of every point it evaluated); "
@@ -384,7 +397,7 @@ def algorithms(
         experiment.out / "report.md",
         title="Optimisers compared on one budget",
         setup=setup,
-        table=algorithms_table(summaries, baselines),
+        table=table(summaries, baselines),
         verdict=verdict,
         figures=[FIGURE],
     )
@@ -502,7 +515,7 @@ def _verdict(
     else:
         still = stats.better(rule_check) == "a"
         conclusion = (
-            "the rule stops while the study measure still climbs significantly"
+            "the rule stops while the experiment's measure still climbs significantly"
             if still
             else "no significant climb after the rule's stop"
             if stats.decidable(rule_check)
@@ -512,9 +525,162 @@ def _verdict(
             "",
             rule_text + f"would have stopped {len(stops)} of {len(first_algorithm)} "
             f"{reference.algorithm} runs within the budget, after a median of "
-            f"{statistics.median(stops):.0f} evaluations, at a median study hypervolume of "
+            f"{statistics.median(stops):.0f} evaluations, at a median hypervolume of "
             f"{rule_check.median_b:.4f} against {rule_check.median_a:.4f} at the full budget: "
             + stats.decide(rule_check, "the full budget", "the rule's stop")
             + f". So {conclusion}.",
         ]
     return "\n".join(lines)
+
+
+def condition_text(algorithm: str, scaling: str) -> str:
+    """An optimiser and what it is told, as a reader says it: 'NSGA-II, log f_t'."""
+    told = "log f_t" if scaling == "log" else scaling
+    return f"{ALGORITHM_NAMES.get(algorithm, algorithm)}, {told}"
+
+
+def table(
+    summaries: Sequence[ConditionSummary], baselines: dict[str, tuple[float, float]]
+) -> list[str]:
+    """One row per condition, then one per no-GA baseline (`baselines`: its name → its
+    hypervolume and best f_acc in m, one deterministic set each, so no spread)."""
+    rows = []
+    for s in summaries:
+        low, high = s.hypervolume_quartiles
+        reached = (
+            "not reached"
+            if math.isinf(s.median_evaluations_to_target)
+            else f"{s.median_evaluations_to_target:.0f}"
+        )
+        rows.append(
+            [
+                condition_text(s.algorithm, s.scaling),
+                s.runs,
+                f"{s.median_hypervolume:.4f}",
+                f"{low:.4f}-{high:.4f}",
+                f"{s.median_best_f_acc * 1000:.3f}",
+                f"{reached} ({s.reached_target} of {s.runs} runs reach it)",
+            ]
+        )
+    rows += [
+        [f"{name}, no GA", "–", f"{hypervolume:.4f}", "–", f"{best_f_acc * 1000:.3f}", "–"]
+        for name, (hypervolume, best_f_acc) in baselines.items()
+    ]
+    return markdown_table(
+        [
+            "condition",
+            "runs",
+            "median hypervolume",
+            "interquartile range",
+            "median best error (mm)",
+            "median evaluations to 99 %",
+        ],
+        rows,
+    )
+
+
+def figure(
+    path: Path,
+    fronts: dict[str, list[list[Point]]],
+    curves: dict[str, tuple[Sequence[int], Sequence[float]]],
+    baselines: dict[str, Sequence[Point]] | None = None,
+    levels: dict[str, float] | None = None,
+) -> None:
+    """The optimiser comparison. Left: each condition's median attainment surface (`fronts`:
+    one front per repetition), with the no-GA baselines' points on top (`baselines`: the
+    classical rule's controllers, the default gains). Right: each condition's median
+    hypervolume against evaluations spent (`curves`: evaluations, hypervolumes), with
+    `levels` (the classical rule's hypervolume, the target a run must reach) as lines."""
+    canvas = new_figure((13, 5))
+    left, right = canvas.subplots(1, 2)
+    attainment_panel(left, fronts, "median attainment per condition")
+    drawn = False
+    for (label, points), marker in zip((baselines or {}).items(), "xs^dv", strict=False):
+        kept = [p for p in points if math.isfinite(p[0]) and math.isfinite(p[1]) and p[0] < 1.0]
+        if kept:
+            drawn = True
+            left.scatter(
+                [p[0] * 1000 for p in kept],
+                [max(p[1], 1e-12) for p in kept],
+                marker=marker,
+                color="black",
+                s=24,
+                label=label,
+                zorder=3,
+            )
+    if drawn:
+        left.set_yscale("log")
+        left.legend(fontsize=7)
+    for label, (evaluations, hypervolumes) in curves.items():
+        right.plot(list(evaluations), list(hypervolumes), marker=".", label=label)
+    for (label, level), style in zip((levels or {}).items(), ("--", ":", "-."), strict=False):
+        right.axhline(level, color="0.4", linestyle=style, linewidth=1, label=label)
+    right.set(
+        xlabel="evaluations",
+        ylabel="median hypervolume (experiment normalised)",
+        title="hypervolume against evaluations",
+    )
+    right.grid(True, alpha=0.3)
+    if curves or levels:
+        right.legend(fontsize=7)
+    save_png(canvas, path)
+
+
+def _names(allowed: Sequence[str], what: str) -> Callable[[str], list[str]]:
+    """A parser of comma-separated names, each one of `allowed`, none twice."""
+
+    def parse(text: str) -> list[str]:
+        names = [part.strip() for part in text.split(",")]
+        check_names(names, allowed, what)
+        return names
+
+    return parse
+
+
+def prepare(base: RunConfig, options: Mapping[str, Any]) -> RunConfig:
+    """The base configuration on the budget every run gets; ValueError, naming the option, for
+    a budget of generations or an algorithm this installation cannot run."""
+    if base.generations is not None:
+        raise ValueError(
+            "--generations: the algorithms experiment compares on a budget of evaluations "
+            f"(--evaluations, default {DEFAULT_BUDGET}), not of generations"
+        )
+    try:
+        check_runnable(options.get("algorithms", ALGORITHMS), base.pop)
+    except ValueError as error:
+        raise ValueError(f"--algorithms: {error}") from None
+    if base.evaluations is None:
+        return base.model_copy(update={"evaluations": DEFAULT_BUDGET})
+    return base
+
+
+EXPERIMENT = ExperimentSpec(
+    name=NAME,
+    summary="the optimisers compared on one budget of evaluations, with a classical baseline",
+    run=run,
+    help="Compare the optimisers the paper left open: each of --algorithms told each "
+    "--objective-scaling, --reps runs each on the spiral of --duration, every run on the same "
+    f"budget of --evaluations (default {DEFAULT_BUDGET}), against the first algorithm listed, "
+    "with the classical per-joint PD rule as a baseline without a genetic algorithm; and a "
+    "check of the convergence rule the other experiments stop by.",
+    options=(
+        Option(
+            "--algorithms",
+            "algorithms",
+            "the optimisers compared, comma-separated; the first is the reference every other "
+            f"is tested against. Each run gets --evaluations (default {DEFAULT_BUDGET})",
+            ",".join(ALGORITHMS),
+            _names(ALGORITHMS, "algorithm"),
+            "NAME,...",
+        ),
+        Option(
+            "--objective-scaling",
+            "scalings",
+            "what each optimiser is told, comma-separated: " + ", ".join(OBJECTIVE_SCALINGS),
+            defaults.OBJECTIVE_SCALING,
+            _names(OBJECTIVE_SCALINGS, "objective scaling"),
+            "NAME,...",
+        ),
+    ),
+    prepare=prepare,
+)

@@ -1,38 +1,40 @@
-"""The paper's experiments, as reruns: population size, generic against specific controllers,
-trajectory speed.
+"""What every experiment shares: the runner, the normalised space its verdicts are taken in, the
+report's frame, and the declaration by which the registry finds an experiment.
 
 An experiment is a set of tuning runs (one directory each under OUT/runs/, resumable: a finished
 run is kept, an unfinished one resumed), with cross-evaluations of their fronts where the
-experiment needs them, all at once (up to `Experiment.parallel`, each run with its own study on
-the farm, so an experiment is as wide as the farm); then results.csv, stats.csv
-(analytic.statistics: tests, effect sizes and confidence intervals behind every verdict),
-normalisation.json, a figure and report.md.
+experiment needs them, all at once (up to `Experiment.parallel`, each run with its own farm
+study, so an experiment is as wide as the farm); then results.csv, stats.csv
+(analytic.experiments.statistics: tests, effect sizes and confidence intervals behind every
+verdict), normalisation.json, a figure and report.md.
 
-Hypervolumes within a study are taken in one normalised space per problem (one trajectory the
-fronts are judged on): between the ideal and the nadir point of the pooled non-dominated front of
-every front the study judged on that problem, f_acc linearly and f_t on a log scale (as
-analytic.evolution.normalise does), against the reference point 1.1 × (nadir − ideal) beyond the
-ideal, as a fraction of that box. Penalty points (NO_EPISODE, a diverged episode, any point with
-a mean error of DIVERGED_TICK_ERROR or more) never set the ideal or the nadir, so the values
-spread over the range where the controllers really differ. normalisation.json records the ideal
-and the nadir of each problem.
+Hypervolumes within an experiment are taken in one normalised space per problem (one trajectory
+the fronts are judged on): between the ideal and the nadir point of the pooled non-dominated
+front of every front the experiment judged on that problem, f_acc linearly and f_t on a log scale
+(as analytic.tuning.evolution.normalise does), against the reference point 1.1 × (nadir − ideal)
+beyond the ideal, as a fraction of that box. Penalty points (NO_EPISODE, a diverged episode, any
+point with a mean error of DIVERGED_TICK_ERROR or more) never set the ideal or the nadir, so the
+values spread over the range where the controllers really differ. normalisation.json records the
+ideal and the nadir of each problem.
 
-This module computes; analytic.figures draws and analytic.reports words what it hands them. The
-runs are read back from their plain files (analytic.records), never from their checkpoints.
+Each experiment is one module of this package (popsize, generic_vs_specific, speed, algorithms,
+dataset_value) owning its computation, its table and its figure, declared by an `ExperimentSpec`
+named EXPERIMENT and found through the entry-point group `gainfarm.experiments`
+(analytic.experiments: the registry). The runs are read back from their plain files
+(analytic.tuning.records), never from their checkpoints.
 """
 
 import functools
 import itertools
 import json
 import math
-import statistics
 import threading
 from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor, wait
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 from pymoo.indicators.hv import HV
@@ -50,18 +52,11 @@ from gainfarm.analytic.tuning.records import (
     results_csv,
 )
 from gainfarm.analytic.tuning.run import RunBusy, TuningRun, upgrade
-from gainfarm.analytic.view.figures import plot_generic_vs_specific, plot_popsize, plot_speed
-from gainfarm.analytic.view.reports import (
-    controllers_table,
-    experiment_setup,
-    popsize_table,
-    speed_table,
-    write_experiment_report,
-)
+from gainfarm.analytic.view.reports import plant_text
+from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.episode import EpisodeSpec
-from gainfarm.schemas.files import write_atomically
-from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
-from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR, NO_EPISODE, balancing_weights
+from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR, NO_EPISODE
 from gainfarm.schemas.trajectory import TrajectoryKind, TrajectorySpec
 
 K = TypeVar("K", bound=Hashable)
@@ -79,6 +74,88 @@ Point = tuple[float, float]
 # An evaluator for one run or cross-evaluation: given the farm study name it may use and the
 # directory its logs go to, a context manager (FarmClient, InProcessEvaluator).
 EvaluatorFactory = Callable[[str, Path], AbstractContextManager[Evaluator]]
+
+
+# --- the declaration the registry finds --------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Option:
+    """An option of one experiment's own on the command line (`analytic experiment NAME`).
+
+    `parse` turns the text given (or `default`) into the keyword `parameter` of the
+    experiment's run; a ValueError says, in one line, what is wrong with it (the command puts
+    the option's name in front)."""
+
+    flag: str  # "--sizes"
+    parameter: str  # "sizes"
+    help: str
+    default: str | None = None  # as typed; None: the run's own default, unless given
+    parse: Callable[[str], object] = str
+    metavar: str = "TEXT"
+
+
+def _same(base: RunConfig, _options: Mapping[str, Any]) -> RunConfig:
+    return base
+
+
+def _base_trajectories(base: RunConfig, _options: Mapping[str, Any]) -> Sequence[TrajectorySpec]:
+    return base.trajectories
+
+
+@dataclass(frozen=True)
+class ExperimentSpec:
+    """One experiment as the registry and the command line know it.
+
+    `run(experiment, base, reps, **options)` does it all: the runs, results.csv, stats.csv,
+    normalisation.json, its figure and report.md. Before anything runs, `prepare(base,
+    options)` checks the options against the base configuration and returns the one the runs
+    start from (ValueError, naming the option, if they do not fit), and `trajectories(base,
+    options)` are every trajectory its episodes follow, which the command checks the arm can
+    follow (blaming `trajectory_option`)."""
+
+    name: str  # as `analytic experiment NAME` names it
+    summary: str  # one line
+    run: Callable[..., object]
+    help: str = ""  # what `analytic experiment NAME --help` says; the summary if empty
+    options: tuple[Option, ...] = ()
+    duration: float | None = 5.0  # --duration's default, s; None: it takes no --duration
+    prepare: Callable[[RunConfig, Mapping[str, Any]], RunConfig] = _same
+    trajectories: Callable[[RunConfig, Mapping[str, Any]], Sequence[TrajectorySpec]] = (
+        _base_trajectories
+    )
+    trajectory_option: str = "--duration"
+
+
+def numbers(kind: Callable[[float], T]) -> Callable[[str], list[T]]:
+    """A parser of comma-separated numbers, each made `kind` (int, float)."""
+
+    def parse(text: str) -> list[T]:
+        try:
+            values = [float(part) for part in text.split(",")]
+        except ValueError:
+            raise ValueError(f"expected comma-separated numbers, got {text!r}") from None
+        return [kind(value) for value in values]
+
+    return parse
+
+
+def at_least(minimum: int) -> Callable[[str], int]:
+    """A parser of one integer no smaller than `minimum`."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise ValueError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise ValueError(f"{value} is not at least {minimum}")
+        return value
+
+    return parse
+
+
+# --- the runner ----------------------------------------------------------------------------------
 
 
 def is_penalty(point: Point, penalised: frozenset[Point] | set[Point] = frozenset()) -> bool:
@@ -148,7 +225,7 @@ class Normalisation:
 
 @dataclass
 class Experiment:
-    """Runs and cross-evaluations of one study, written under `out`."""
+    """Runs and cross-evaluations of one experiment, written under `out`."""
 
     out: Path
     evaluator: EvaluatorFactory
@@ -289,7 +366,7 @@ class Experiment:
         return points
 
     def normalisation(self, point_sets: Sequence[Sequence[Point]]) -> Normalisation:
-        """The normalised space of one problem, from every front the study judged on it."""
+        """The normalised space of one problem, from every front the experiment judged on it."""
         return Normalisation.of(point_sets, self.penalised)
 
     def write_results(self, rows: list[dict[str, object]]) -> None:
@@ -301,6 +378,35 @@ class Experiment:
     def write_normalisation(self, normalisations: dict[str, Normalisation]) -> None:
         text = json.dumps({k: n.as_dict() for k, n in normalisations.items()}, indent=2) + "\n"
         write_atomically(self.out / NORMALISATION_JSON, text.encode())
+
+    def write_report(
+        self,
+        title: str,
+        base: RunConfig,
+        reps: int,
+        table: Sequence[str],
+        verdict: str,
+        figures: Sequence[str],
+        normalisations: Mapping[str, Normalisation],
+        populations: Sequence[int] = (),
+        durations: Sequence[float] = (),
+    ) -> None:
+        """The experiment's report.md; `populations` and `durations`: what its runs used, when
+        they are not the base configuration's one population and duration."""
+        write_experiment_report(
+            self.out / "report.md",
+            title=title,
+            setup=experiment_setup(
+                base,
+                reps,
+                {k: (n.ideal, n.nadir) for k, n in normalisations.items()},
+                populations=populations,
+                durations=durations,
+            ),
+            table=table,
+            verdict=verdict,
+            figures=figures,
+        )
 
 
 def _read(directory: Path) -> RunRecord:
@@ -328,33 +434,17 @@ def dominated_count(points: Sequence[Point], by: Sequence[Point]) -> int:
     )
 
 
-def default_points(
-    experiment: Experiment, base: RunConfig, kinds: Sequence[TrajectoryKind]
-) -> dict[TrajectoryKind, Point]:
-    """The default gains' (f_acc, f_t) on each kind's trajectory (at the base's duration and
-    plant), which the generic objective is balanced by; ValueError if one diverges, since a
-    penalty is no scale to balance by."""
-    duration = base.trajectories[0].duration
-    evaluated = experiment.concurrently(
-        {
-            kind: functools.partial(
-                experiment.evaluate_gains,
-                f"default-gains-on-{kind.value}",
-                [DEFAULT_GAINS],
-                TrajectorySpec(kind=kind, duration=duration),
-                base,
-            )
-            for kind in kinds
-        }
-    )
-    points = {}
-    for kind, [point] in evaluated.items():
-        if is_penalty(point, experiment.penalised):
-            raise ValueError(
-                f"the default gains diverge on the {kind.value}: nothing to balance by"
-            )
-        points[kind] = point
-    return points
+# --- verdicts shared by the experiments ----------------------------------------------------------
+
+
+def step_comparisons(values: Mapping[T, Sequence[float]]) -> dict[tuple[T, T], stats.Comparison]:
+    """Each setting against the next smaller one, in ascending order: (smaller, larger) → the
+    larger's values compared with the smaller's."""
+    ordered = sorted(values)
+    return {
+        (small, large): stats.compare(values[large], values[small])
+        for small, large in itertools.pairwise(ordered)
+    }
 
 
 def level_from(gains: Sequence[float], ordered: Sequence[float]) -> float | None:
@@ -365,459 +455,187 @@ def level_from(gains: Sequence[float], ordered: Sequence[float]) -> float | None
     return None if gains and top == ordered[-1] else top
 
 
-def generic_set(test: TrajectoryKind, duration: float) -> tuple[TrajectorySpec, ...]:
-    """What the generic controller judged on `test` is tuned on: every other kind, never
-    `test` itself."""
-    return tuple(TrajectorySpec(kind=kind, duration=duration) for kind in ALL_KINDS if kind != test)
+@dataclass(frozen=True)
+class LevelsOff:
+    """Whether and where a measure levels off over ascending settings: `text` says it; `level`
+    is the setting from which no consecutive step gains significantly (None when the data
+    cannot say, or it still gains at the last setting: `rising`)."""
+
+    text: str
+    level: float | None
+    rising: bool
 
 
-# --- the three experiments -------------------------------------------------------------------
-
-
-def popsize(experiment: Experiment, base: RunConfig, sizes: Sequence[int], reps: int) -> None:
-    """Evaluations to converge and final hypervolume, for each population size."""
-    plan = {
-        (size, rep): (f"pop{size}-rep{rep}", base.model_copy(update={"pop": size, "seed": rep}))
-        for size in sizes
-        for rep in range(reps)
-    }
-    tuned = experiment.tune_many(dict(plan.values()))
-    runs = {key: tuned[name] for key, (name, _) in plan.items()}
-    fronts = {key: front_points(run) for key, run in runs.items()}
-    normalisation = experiment.normalisation(list(fronts.values()))
-    experiment.write_normalisation({"all runs": normalisation})
-    rows = [
-        {
-            "pop": size,
-            "rep": rep,
-            "seed": rep,
-            "evaluations": run.evaluations,
-            "hypervolume": normalisation.hypervolume(fronts[(size, rep)]),
-            "wall_seconds": run.wall_seconds,
-            "stopped": run.stopped,
-        }
-        for (size, rep), run in runs.items()
-    ]
-    experiment.write_results(rows)
-    by_size = {size: [row for row in rows if row["pop"] == size] for size in sizes}
-    hypervolumes = {s: [float(r["hypervolume"]) for r in by_size[s]] for s in sizes}
-    evaluations = {s: [int(r["evaluations"]) for r in by_size[s]] for s in sizes}
-    plot_popsize(
-        experiment.out / "popsize.png",
-        hypervolumes,
-        evaluations,
-        {s: [fronts[(s, rep)] for rep in range(reps)] for s in sizes},
-    )
-    medians = {
-        s: (statistics.median(hypervolumes[s]), statistics.median(evaluations[s])) for s in sizes
-    }
-    # Each size against the next smaller one: does the larger population gain?
-    ordered = sorted(sizes)
-    steps = list(itertools.pairwise(ordered))
-    compared = {
-        (small, large): stats.compare(hypervolumes[large], hypervolumes[small])
-        for small, large in steps
-    }
-    stats_rows = [
-        stats.StatsRow("popsize", f"pop {large} vs pop {small}", "hypervolume", result)
-        for (small, large), result in compared.items()
-    ] + [
-        stats.StatsRow(
-            "popsize",
-            f"pop {large} vs pop {small}",
-            "evaluations",
-            stats.compare(evaluations[large], evaluations[small]),
-        )
-        for small, large in steps
-    ]
-    experiment.write_stats(stats_rows)
-    lines = [
-        f"- pop {large} against pop {small}: "
-        + stats.decide(result, f"pop {large}", f"pop {small}")
-        for (small, large), result in compared.items()
-    ]
+def levels_off(
+    steps: Mapping[tuple[Any, Any], stats.Comparison],
+    reps: int,
+    measure: str,
+    setting: str,
+    shown: Callable[[float], str] = "{:g}".format,
+    higher_is_better: bool = True,
+) -> LevelsOff:
+    """The verdict on `steps` (step_comparisons of `measure` over the values of `setting`,
+    e.g. "the hypervolume" over "population size"; `shown` writes one value)."""
     if not steps:
-        finding = "One population size only: nothing to compare."
-    elif not all(stats.decidable(result) for result in compared.values()):
-        finding = (
-            f"With {reps} repetitions per size the tests cannot reach p < {stats.ALPHA:g}: "
-            "cannot decide where the hypervolume levels off; more repetitions are needed."
+        return LevelsOff(f"One {setting} only: nothing to compare.", None, False)
+    if not all(stats.decidable(result) for result in steps.values()):
+        return LevelsOff(
+            f"With {reps} repetitions per {setting} the tests cannot reach p < "
+            f"{stats.ALPHA:g}: cannot decide whether or where {measure} levels off; more "
+            "repetitions are needed.",
+            None,
+            False,
+        )
+    ordered = sorted({value for step in steps for value in step})
+    gains = [
+        large
+        for (_, large), result in steps.items()
+        if stats.better(result, higher_is_better) == "a"
+    ]
+    level = level_from(gains, ordered)
+    said = measure[:1].upper() + measure[1:]
+    if level is None:
+        text = (
+            f"{said} still gains significantly at the last {setting} tried "
+            f"({shown(ordered[-1])}): it does not level off within these {setting}s."
+        )
+    elif gains:
+        text = (
+            f"{said} levels off from {setting} {shown(level)} (no significant gain between "
+            f"consecutive {setting}s from there on)."
         )
     else:
-        gains = [large for (small, large), r in compared.items() if stats.better(r) == "a"]
-        levels_off = level_from(gains, ordered)
-        if levels_off is None:
-            finding = (
-                f"The hypervolume still rises significantly at the largest population tried "
-                f"({ordered[-1]}): it does not level off within these sizes. The paper found a "
-                "population near 30 the best trade-off: weigh the gains above against the "
-                "evaluations each size costs."
-            )
-        else:
-            finding = (
-                f"The hypervolume levels off from population {levels_off} (no significant gain "
-                f"between consecutive sizes from there on). The paper found a population near "
-                "30 the best trade-off: "
-                + ("this holds here." if 20 <= levels_off <= 50 else "here it lies elsewhere.")
-            )
-    verdict = "\n".join(
-        [finding, "", "Each size against the next smaller (two-sided, alpha 0.05):", *lines]
-    )
-    table = popsize_table(medians)
-    _report(
-        experiment,
-        "Population size",
-        base,
-        reps,
-        table,
-        verdict,
-        ["popsize.png"],
-        {"all runs": normalisation},
-        populations=sizes,
-    )
+        text = (
+            f"{said} shows no significant gain between consecutive {setting}s: it levels off "
+            f"from the first, {shown(level)}."
+        )
+    return LevelsOff(text, level, level is None)
 
 
-def generic_vs_specific(
-    experiment: Experiment,
+# --- the report and the figures shared by the experiments --------------------------------------
+
+
+def experiment_setup(
     base: RunConfig,
     reps: int,
-    kinds: Sequence[TrajectoryKind] = ALL_KINDS,
-) -> None:
-    """Held out: for each test trajectory in turn, a generic controller tuned on the other
-    kinds (never the test one) against a specific one tuned on the test trajectory, both judged
-    on it. The generic controller's objectives are the means over its trajectories, balanced
-    (schemas.objectives.balancing_weights) so that each trajectory counts alike at the default
-    gains: unweighted, a pyramid's f_t, 10-40 times a spiral's, would make up nearly all of it."""
-    duration = base.trajectories[0].duration
-    defaults = default_points(experiment, base, ALL_KINDS)  # every kind some generic set holds
-
-    def judged_on(test: TrajectorySpec, name: str, config: RunConfig) -> list[Point]:
-        """A run's front as judged on `test`: its own, or simulated again on it."""
-        run = experiment.tune(name, config)
-        if config.trajectories == (test,):
-            return front_points(run)
-        return experiment.evaluate(f"{name}-on-{test.kind.value}", run.front, test, base)
-
-    tasks = {}
-    for kind in kinds:
-        test = TrajectorySpec(kind=kind, duration=duration)
-        trained_on = generic_set(kind, duration)
-        weights = balancing_weights([defaults[t.kind] for t in trained_on])
-        for rep in range(reps):
-            specific = base.model_copy(update={"trajectories": (test,), "seed": rep})
-            generic = base.model_copy(
-                update={"trajectories": trained_on, "objective_weights": weights, "seed": rep}
-            )
-            for controller, name, config in (
-                ("specific", f"specific-{kind.value}-rep{rep}", specific),
-                ("generic", f"generic-no-{kind.value}-rep{rep}", generic),
-            ):
-                tasks[(kind.value, controller, rep)] = functools.partial(
-                    judged_on, test, name, config
-                )
-    judged = experiment.concurrently(tasks)
-    fronts: dict[str, dict[str, list[list[Point]]]] = {
-        kind.value: {
-            controller: [judged[(kind.value, controller, rep)] for rep in range(reps)]
-            for controller in ("generic", "specific")
-        }
-        for kind in kinds
-    }
-    normalisations = {
-        kind: experiment.normalisation([p for sets in per_kind.values() for p in sets])
-        for kind, per_kind in fronts.items()
-    }
-    experiment.write_normalisation({f"on {k}": n for k, n in normalisations.items()})
-    rows = []
-    for kind, per_kind in fronts.items():
-        for controller, other in (("generic", "specific"), ("specific", "generic")):
-            for rep, points in enumerate(per_kind[controller]):
-                rows.append(
-                    {
-                        "test_trajectory": kind,
-                        "controller": controller,
-                        "rep": rep,
-                        "seed": rep,
-                        "hypervolume": normalisations[kind].hypervolume(points),
-                        "best_f_acc": min(p[0] for p in points),
-                        "points": len(points),
-                        "dominated_by_other": dominated_count(points, per_kind[other][rep]),
-                    }
-                )
-    experiment.write_results(rows)
-
-    def values(kind: str, controller: str, column: str) -> list[float]:
-        return [
-            float(r[column])  # type: ignore[arg-type]
-            for r in rows
-            if r["test_trajectory"] == kind and r["controller"] == controller
-        ]
-
-    def dominated_shares(kind: str, controller: str) -> list[float]:
-        """Per repetition, the share of `controller`'s points the other's front dominates."""
-        return [
-            d / n if n else 0.0
-            for d, n in zip(
-                values(kind, controller, "dominated_by_other"),
-                values(kind, controller, "points"),
-                strict=True,
-            )
-        ]
-
-    stats_rows: list[stats.StatsRow] = []
-    lines = []
-    holds = dominates = 0
-    for kind in fronts:
-        result = stats.compare(
-            values(kind, "specific", "hypervolume"), values(kind, "generic", "hypervolume")
-        )
-        accuracy = stats.compare(
-            values(kind, "specific", "best_f_acc"), values(kind, "generic", "best_f_acc")
-        )
-        # The same repetition's two fronts, point against point: the share of the generic
-        # points the specific front dominates, against the share of the specific ones the
-        # generic front dominates (Wilcoxon signed-rank, paired by repetition).
-        dominance = stats.compare(
-            dominated_shares(kind, "generic"), dominated_shares(kind, "specific"), paired=True
-        )
-        stats_rows += [
-            stats.StatsRow("generic-vs-specific", f"specific vs generic, on {kind}", metric, r)
-            for metric, r in (
-                ("hypervolume", result),
-                ("best_f_acc", accuracy),
-                ("dominated_share", dominance),
-            )
-        ]
-        holds += stats.better(result) == "a"
-        dominates += stats.better(dominance) == "a"
-        generic_dominated = int(sum(values(kind, "generic", "dominated_by_other")))
-        specific_dominated = int(sum(values(kind, "specific", "dominated_by_other")))
-        lines.append(
-            f"- on the {kind} (held out of the generic set): "
-            + stats.decide(result, "the specific controller", "the generic one")
-            + f". Specific points dominate {generic_dominated} of "
-            f"{int(sum(values(kind, 'generic', 'points')))} generic points; generic points "
-            f"dominate {specific_dominated} of {int(sum(values(kind, 'specific', 'points')))} "
-            "specific points (each repetition against the same repetition). By dominance, "
-            "paired by repetition: "
-            + stats.decide(dominance, "the specific controller", "the generic one")
-            + "."
-        )
-    verdict = "\n".join(
-        [
-            f"The paper found specific controllers better than generic ones: by hypervolume this "
-            f"holds significantly on {holds} of {len(fronts)} held-out trajectories, by the "
-            f"share of each other's points the fronts dominate on {dominates} of {len(fronts)}.",
-            "",
-            *lines,
-            "",
-            "The generic objective is the mean over the generic set of each trajectory's f_acc "
-            "and f_t, weighted by the inverse of the default gains' values there, so that each "
-            "trajectory counts alike at the default gains. The default gains scored "
-            + "; ".join(
-                f"{kind.value} {1e3 * f_acc:.1f} mm, f_t {f_t:.3g} (N·m)²"
-                for kind, (f_acc, f_t) in defaults.items()
-            )
-            + ".",
-        ]
-    )
-    experiment.write_stats(stats_rows)
-    medians = {
-        (kind, controller): statistics.median(values(kind, controller, "hypervolume"))
-        for kind in fronts
-        for controller in ("specific", "generic")
-    }
-    plot_generic_vs_specific(
-        experiment.out / "generic-vs-specific.png",
-        {
-            kind: {c: values(kind, c, "hypervolume") for c in ("specific", "generic")}
-            for kind in fronts
-        },
-        fronts,
-    )
-    _report(
-        experiment,
-        "Generic against specific controllers (held out)",
-        base,
-        reps,
-        controllers_table(medians),
-        verdict,
-        ["generic-vs-specific.png"],
-        {f"on {k}": n for k, n in normalisations.items()},
-    )
-
-
-def speed(experiment: Experiment, base: RunConfig, durations: Sequence[float], reps: int) -> None:
-    """Tune on spirals of each duration; evaluate every tuned front on every duration."""
-    spirals = {d: TrajectorySpec(kind=TrajectoryKind.spiral, duration=d) for d in durations}
-    matrix: dict[tuple[float, float], list[list[Point]]] = {}
-    errors: dict[tuple[float, float], list[float]] = {}
-
-    def tuned_and_moved(tuned: float, rep: int) -> tuple[RunRecord, dict[float, list[Point]]]:
-        """The run on the spiral of `tuned` s, and its front on every spiral."""
-        name = f"spiral{tuned:g}s-rep{rep}"
-        run = experiment.tune(
-            name, base.model_copy(update={"trajectories": (spirals[tuned],), "seed": rep})
-        )
-        return run, {
-            used: front_points(run)
-            if used == tuned
-            else experiment.evaluate(f"{name}-on{used:g}s", run.front, spirals[used], base)
-            for used in durations
-        }
-
-    done = experiment.concurrently(
-        {
-            (rep, tuned): functools.partial(tuned_and_moved, tuned, rep)
-            for rep in range(reps)
-            for tuned in durations
-        }
-    )
-    for (_, tuned), (run, on) in done.items():
-        members = run.front
-        for used in durations:
-            points = on[used]
-            matrix.setdefault((tuned, used), []).append(points)
-            # The most accurate controller (on its own trajectory) and its error on `used`.
-            most_accurate = min(range(len(members)), key=lambda i: members[i].f_acc)
-            errors.setdefault((tuned, used), []).append(points[most_accurate][0])
-    # One normalised space per trajectory evaluated on: fronts on one spiral compare.
-    normalisations = {
-        u: experiment.normalisation([p for t in durations for p in matrix[(t, u)]])
-        for u in durations
-    }
-    experiment.write_normalisation({f"on {u:g} s": n for u, n in normalisations.items()})
-    hypervolumes = {
-        (t, u): [normalisations[u].hypervolume(p) for p in matrix[(t, u)]]
-        for t in durations
-        for u in durations
-    }
-    hv = {key: statistics.median(value) for key, value in hypervolumes.items()}
-    error = {key: statistics.median(value) for key, value in errors.items()}
-    rows = [
-        {
-            "tuned_on_s": t,
-            "evaluated_on_s": u,
-            "median_hypervolume": hv[(t, u)],
-            "median_error_of_most_accurate_m": error[(t, u)],
-        }
-        for t in durations
-        for u in durations
-    ]
-    experiment.write_results(rows)
-    plot_speed(experiment.out / "speed.png", durations, hv, error, matrix)
-    ordered = sorted(durations)
-    own = {d: error[(d, d)] for d in durations}
-    # Accuracy on its own spiral, each duration against the next shorter one (lower is better).
-    steps = list(itertools.pairwise(ordered))
-    falls = {
-        (fast, slow): stats.compare(errors[(slow, slow)], errors[(fast, fast)])
-        for fast, slow in steps
-    }
-    stats_rows = [
-        stats.StatsRow("speed", f"{slow:g} s vs {fast:g} s, own spiral", "error_m", result)
-        for (fast, slow), result in falls.items()
-    ]
-    transfers = {
-        (t, u): (
-            stats.compare(errors[(t, u)], errors[(u, u)]),
-            stats.compare(hypervolumes[(t, u)], hypervolumes[(u, u)]),
-        )
-        for u in durations
-        for t in durations
-        if t != u
-    }
-    for (t, u), (err, hyper) in transfers.items():
-        comparison = f"tuned on {t:g} s vs tuned on {u:g} s, on {u:g} s"
-        stats_rows += [
-            stats.StatsRow("speed", comparison, "error_m", err),
-            stats.StatsRow("speed", comparison, "hypervolume", hyper),
-        ]
-    experiment.write_stats(stats_rows)
-    on_own = ", ".join(f"{own[d] * 1000:.2f} mm at {d:g} s" for d in ordered)
-    lines = [
-        f"- {slow:g} s against {fast:g} s, own spiral: "
-        + stats.decide(result, f"{slow:g} s", f"{fast:g} s", higher_is_better=False)
-        for (fast, slow), result in falls.items()
-    ]
-    if not steps:
-        finding = "One duration only: nothing to compare."
-    elif not all(stats.decidable(r) for r in falls.values()):
-        finding = (
-            f"With {reps} repetitions per duration the tests cannot reach p < {stats.ALPHA:g}: "
-            "cannot decide whether or where accuracy levels off; more repetitions are needed."
-        )
-    else:
-        gains = [slow for (fast, slow), r in falls.items() if stats.better(r, False) == "a"]
-        if gains and level_from(gains, ordered) is None:
-            finding = (
-                f"Accuracy still improves significantly at the slowest spiral tried "
-                f"({max(gains):g} s): it does not level off within these durations."
-            )
-        elif gains:
-            finding = (
-                f"Accuracy improves significantly on slower spirals and levels off from "
-                f"{max(gains):g} s (no significant gain between consecutive durations from there "
-                "on)."
-            )
-        else:
-            finding = "Accuracy shows no significant change between consecutive durations."
-    verdict_lines = [
-        f"The most accurate controller's error on its own spiral: {on_own}. {finding} (The "
-        "paper: it falls, and levels off near 5 s.)",
-        "",
-        *lines,
-    ]
-    if transfers:
-        worse = sum(stats.better(err, False) == "b" for err, _ in transfers.values())
-        undecidable = sum(not stats.decidable(err) for err, _ in transfers.values())
-        cost = statistics.median(error[(t, u)] / own[u] - 1 for t, u in transfers)
-        verdict_lines += [
-            "",
-            f"Run at another speed, the most accurate controller changes its error by a median of "
-            f"{cost:+.0%} against the one tuned for that speed; it is significantly worse in "
-            f"{worse} of {len(transfers)} cases"
-            + (f" ({undecidable} cannot be decided with {reps} repetitions)" if undecidable else "")
-            + " (the paper: moving a controller to another speed costs little).",
-        ]
-    _report(
-        experiment,
-        "Trajectory speed",
-        base,
-        reps,
-        speed_table(durations, error),
-        "\n".join(verdict_lines),
-        ["speed.png"],
-        {f"on {u:g} s": n for u, n in normalisations.items()},
-        durations=durations,
-    )
-
-
-def _report(
-    experiment: Experiment,
-    title: str,
-    base: RunConfig,
-    reps: int,
-    table: list[str],
-    verdict: str,
-    figures: list[str],
-    normalisations: dict[str, Normalisation],
+    normalisations: Mapping[str, tuple[tuple[float, float], ...]],
+    *,
     populations: Sequence[int] = (),
     durations: Sequence[float] = (),
-) -> None:
-    """The experiment's report.md; `populations` and `durations`: what its runs used, when they
-    are not the base configuration's one population and duration."""
-    write_experiment_report(
-        experiment.out / "report.md",
-        title=title,
-        setup=experiment_setup(
-            base,
-            reps,
-            {k: (n.ideal, n.nadir) for k, n in normalisations.items()},
-            populations=populations,
-            durations=durations,
-        ),
-        table=table,
-        verdict=verdict,
-        figures=figures,
+) -> list[str]:
+    """How an experiment was run, as its report lists it; `normalisations`: per problem (the
+    trajectory fronts are judged on), the ideal and nadir points the hypervolume spans.
+    `populations` and `durations`: what the runs used when they vary (the popsize and speed
+    experiments), else the base configuration's population and trajectory duration hold."""
+    population = (
+        "populations " + ", ".join(str(size) for size in populations)
+        if populations
+        else f"population {base.pop}"
     )
+    seconds = durations or sorted({t.duration for t in base.trajectories})
+    duration = (
+        ("trajectory durations " if len(seconds) > 1 else "trajectory duration ")
+        + ", ".join(f"{d:g}" for d in seconds)
+        + " s"
+    )
+    spaces = "; ".join(
+        f"{problem}: f_acc {ideal[0]:.4g}-{nadir[0]:.4g} m, "
+        f"f_t {ideal[1]:.4g}-{nadir[1]:.4g} (N·m)²"
+        for problem, (ideal, nadir) in normalisations.items()
+    )
+    return [
+        f"{reps} repetitions (seeds 0..{reps - 1}); runs of {population}, {duration}, "
+        f"{base.termination_text}, {plant_text(base.model)}",
+        "hypervolume normalised between the ideal and the nadir of the pooled non-dominated "
+        f"front of each problem (penalty points left out; f_t on a log scale): {spaces} "
+        "(`normalisation.json`)",
+        "comparisons: Mann-Whitney U (Wilcoxon signed-rank when paired), Vargha-Delaney A12 = "
+        "P(a > b) + 0.5 P(a = b), bootstrap 95 % CI of the difference of medians "
+        "(`stats.csv`); alpha 0.05",
+        "runs in `runs/`, raw numbers in `results.csv`",
+    ]
+
+
+def markdown_table(
+    header: Sequence[str], rows: Iterable[Sequence[object]], text_columns: int = 1
+) -> list[str]:
+    """A Markdown table, a line each: the first `text_columns` columns left-aligned, the rest
+    (numbers) right-aligned."""
+    return [
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * text_columns + "---:|" * (len(header) - text_columns),
+        *("| " + " | ".join(map(str, row)) + " |" for row in rows),
+    ]
+
+
+def write_experiment_report(
+    path: Path,
+    *,
+    title: str,
+    setup: Sequence[str],
+    table: Sequence[str],
+    verdict: str,
+    figures: Sequence[str],
+) -> None:
+    """An experiment's report.md: how it was run, its table, its verdict and its figures."""
+    lines = [
+        f"# {title}",
+        "",
+        *[f"- {line}" for line in setup],
+        "",
+        *table,
+        "",
+        verdict,
+        "",
+        *[f"![{name}]({name})" for name in figures],
+        "",
+    ]
+    write_atomically(Path(path), "\n".join(lines).encode())
+
+
+def median_attainment(point_sets: Sequence[Sequence[Point]]) -> list[Point] | None:
+    """The median (50 %) empirical attainment surface of `point_sets` (one set per repetition),
+    sorted by f_acc; penalty points (f_acc ≥ 1 m, non-finite) left out. None if moocore (the
+    EAF's library) is not installed."""
+    try:
+        import moocore
+    except ImportError:
+        return None
+    points, sets = [], []
+    for index, per_rep in enumerate(point_sets, start=1):
+        for f_acc, f_t in per_rep:
+            if math.isfinite(f_acc) and math.isfinite(f_t) and f_acc < 1.0:
+                points.append((f_acc, f_t))
+                sets.append(index)
+    if not points:
+        return []
+    surface = moocore.eaf(points, sets, percentiles=[50])
+    return sorted((float(row[0]), float(row[1])) for row in surface)
+
+
+def attainment_panel(
+    axes: Any, conditions: Mapping[str, Sequence[Sequence[Point]]], title: str
+) -> None:
+    """Median attainment surfaces, one step line per condition (rep 0's front without moocore),
+    f_acc in mm against f_t on a log axis."""
+    drawn = False
+    for label, point_sets in conditions.items():
+        surface = median_attainment(point_sets)
+        what = "median attainment"
+        if surface is None:
+            surface = sorted(p for p in point_sets[0] if p[0] < 1.0) if point_sets else []
+            what = "rep 0 front"
+        if not surface:
+            continue
+        drawn = True
+        axes.step(
+            [p[0] * 1000 for p in surface],
+            [max(p[1], 1e-12) for p in surface],
+            where="post",
+            marker=".",
+            label=f"{label} ({what})",
+        )
+    axes.set(xlabel="f_acc (mm)", ylabel="f_t ((N·m)²)", title=title)
+    if drawn:
+        axes.set_yscale("log")
+        axes.legend(fontsize=7)

@@ -17,7 +17,7 @@ and an effect size per tuned condition against the default gains and against ran
     OUT/report.md              setup, table, comparisons, verdict, limitations
 
 The pure parts (pools, subsampling, scoring, statistics, the verdict) are functions of plain
-data; `dataset_value` is the only one that runs anything.
+data; `run` is the only one that runs anything.
 """
 
 import functools
@@ -37,16 +37,23 @@ from scipy import stats
 from gainfarm.analytic.data.dataset import select, tick_columns
 from gainfarm.analytic.data.learning import MEAN_JOINTS, Rows, identify, train_network
 from gainfarm.analytic.evaluators.batch import EVALUATIONS, batch_jobs, run_batch
-from gainfarm.analytic.experiments.base import ALL_KINDS, Experiment
+from gainfarm.analytic.experiments.base import (
+    ALL_KINDS,
+    Experiment,
+    ExperimentSpec,
+    Option,
+    at_least,
+    markdown_table,
+)
 from gainfarm.analytic.experiments.statistics import holm
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import RunRecord, results_csv
 from gainfarm.analytic.tuning.search_space import SearchSpace
-from gainfarm.analytic.view.figures import plot_dataset_value
-from gainfarm.analytic.view.reports import plant_text, write_dataset_value_report
+from gainfarm.analytic.view.figures import new_figure, save_png
+from gainfarm.analytic.view.reports import plant_text
+from gainfarm.edges.files import write_atomically
 from gainfarm.models.dynamics import DynamicsModel, rigid_prior
 from gainfarm.schemas.episode import EpisodeSpec, Scores
-from gainfarm.schemas.files import write_atomically
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import score as score_episode
@@ -238,9 +245,10 @@ def score(model: DynamicsModel, test: Rows) -> dict[str, float]:
 
 
 @dataclass(frozen=True)
-class Comparison:
-    """`condition` against `against` for `model`, paired by repetition. mean_difference is
-    condition's nMSE minus against's: negative means the condition's data taught more."""
+class PairedTTest:
+    """`condition` against `against` for `model`, paired by repetition (a t-test: see `paired`).
+    mean_difference is condition's nMSE minus against's: negative means the condition's data
+    taught more."""
 
     model: str
     condition: str
@@ -279,7 +287,7 @@ class Comparison:
 
 def paired(
     model: str, condition: str, against: str, values: Sequence[float], others: Sequence[float]
-) -> Comparison:
+) -> PairedTTest:
     """A paired t-test (scipy's ttest_rel) and Cohen's d_z (mean difference over the standard
     deviation of the differences). Fewer than MIN_REPS pairs: no test (NaN p, "cannot decide").
     Identical differences, where the t statistic is undefined, are decided by hand: all zero is
@@ -288,25 +296,25 @@ def paired(
     n = len(differences)
     mean = float(differences.mean()) if n else math.nan
     if n < MIN_REPS:
-        return Comparison(
+        return PairedTTest(
             model, condition, against, mean, math.nan, math.nan, math.nan, math.nan, n
         )
     spread = float(differences.std(ddof=1))
     if spread <= 1e-12 * max(1.0, abs(mean)):
         if abs(mean) <= 1e-15:
-            return Comparison(model, condition, against, 0.0, 0.0, 1.0, 1.0, 0.0, n)
+            return PairedTTest(model, condition, against, 0.0, 0.0, 1.0, 1.0, 0.0, n)
         infinite = math.copysign(math.inf, mean)
-        return Comparison(model, condition, against, mean, infinite, 0.0, 0.0, infinite, n)
+        return PairedTTest(model, condition, against, mean, infinite, 0.0, 0.0, infinite, n)
     result = stats.ttest_rel(values, others)
     p = float(result.pvalue)
-    return Comparison(
+    return PairedTTest(
         model, condition, against, mean, float(result.statistic), p, p, mean / spread, n
     )
 
 
 def compare(
     nmse: Mapping[tuple[str, str], Sequence[float]], models: Sequence[str] = MODELS
-) -> list[Comparison]:
+) -> list[PairedTTest]:
     """Each tuned condition against each reference, per model, Holm-adjusted within the model.
 
     `nmse` maps (model, condition) to the nmse_mean of repetitions 0..n-1, in that order."""
@@ -319,7 +327,7 @@ def compare(
         ]
         adjusted = holm([comparison.p for comparison in family])
         found += [
-            Comparison(**(c.row() | {"p_holm": p})) for c, p in zip(family, adjusted, strict=True)
+            PairedTTest(**(c.row() | {"p_holm": p})) for c, p in zip(family, adjusted, strict=True)
         ]
     return found
 
@@ -339,20 +347,20 @@ def best_model(
 
 
 @dataclass(frozen=True)
-class Verdict:
+class Conclusion:
     model: str
     against_default: dict[str, str]  # tuned condition → "better" / "worse" / "cannot decide"
     best_selection: str
     runner_up: str
-    selection_test: Comparison  # best against runner-up (one test: no adjustment)
+    selection_test: PairedTTest  # best against runner-up (one test: no adjustment)
     text: str
 
 
 def verdict(
     nmse: Mapping[tuple[str, str], Sequence[float]],
-    comparisons: Sequence[Comparison],
+    comparisons: Sequence[PairedTTest],
     models: Sequence[str] = MODELS,
-) -> Verdict:
+) -> Conclusion:
     """The answer in plain words, for the best model: does each tuned selection's data teach
     significantly more than the default gains' (Holm-adjusted, alpha 0.05)? And which selection
     teaches the most, and is it significantly ahead of the runner-up?"""
@@ -423,7 +431,7 @@ def verdict(
         f"The most useful selection is {best} (mean nMSE {mean_nmse(nmse, model, best):.4f}), "
         f"ahead of {second} ({mean_nmse(nmse, model, second):.4f}) {ahead}."
     )
-    return Verdict(model, findings, best, second, head, " ".join(lines))
+    return Conclusion(model, findings, best, second, head, " ".join(lines))
 
 
 def _listed(names: Sequence[str]) -> str:
@@ -444,14 +452,14 @@ def simulate(experiment: Experiment, name: str, jobs: Mapping[str, EpisodeSpec])
         return done
     directory.mkdir(parents=True, exist_ok=True)
     with experiment.evaluator(f"{experiment.out.name}-d-{name}", directory) as evaluator:
-        evaluations = {e.job_id: e for e in run_batch(evaluator, dict(jobs), directory)}
-    missing = [job for job in jobs if job not in evaluations or evaluations[job].log is None]
+        results = {e.job_id: e for e in run_batch(evaluator, dict(jobs), directory)}
+    missing = [job for job in jobs if job not in results or results[job].log is None]
     if missing:
-        evaluation = evaluations.get(missing[0])
-        why = f"{evaluation.status.value}: {evaluation.reason}" if evaluation else "lost"
+        result = results.get(missing[0])
+        why = f"{result.status.value}: {result.reason}" if result else "lost"
         raise ValueError(f"{name}: episode {missing[0]} did not run ({why})")
     experiment.on_progress(f"{name}: {len(jobs)} episodes simulated")
-    return {job: evaluations[job].log for job in jobs}  # type: ignore[misc]  # checked above
+    return {job: results[job].log for job in jobs}  # type: ignore[misc]  # checked above
 
 
 def _finished_batch(directory: Path, jobs: Mapping[str, EpisodeSpec]) -> dict[str, Path] | None:
@@ -504,7 +512,7 @@ def tuning_plan(base: RunConfig, reps: int) -> dict[str, RunConfig]:
     plan: dict[str, RunConfig] = {}
     for rep in range(reps):
         for trajectory in trajectories:
-            plan[f"specific-{trajectory.kind.value}-rep{rep}"] = base.model_copy(
+            plan[f"specific-{trajectory.kind}-rep{rep}"] = base.model_copy(
                 update={"trajectories": (trajectory,), "seed": rep}
             )
         plan[f"generic-rep{rep}"] = base.model_copy(
@@ -531,7 +539,7 @@ def all_pools(
     batches = {"default": batch("default", [DEFAULT_GAINS], trajectories)}
     for rep in range(reps):
         for trajectory in trajectories:  # each specific knee once more on the other two
-            name = f"specific-{trajectory.kind.value}-rep{rep}"
+            name = f"specific-{trajectory.kind}-rep{rep}"
             knee = select(records[name], "knee")[0].gains
             others = [other for other in trajectories if other != trajectory]
             batches[f"{name}-knee-rerun"] = batch(f"{name}-knee-rerun", [knee], others)
@@ -552,7 +560,7 @@ def pools_of_rep(
     runs (`records`, by name) and batches of episodes (`logs`, by name)."""
     pools: dict[str, dict[str, Path]] = {condition: {} for condition in CONDITIONS}
     for trajectory in trajectories:
-        name = f"specific-{trajectory.kind.value}-rep{rep}"
+        name = f"specific-{trajectory.kind}-rep{rep}"
         directory = out / "runs" / name
         pools["specific-front"] |= front_logs(records[name], directory, "front")
         own = front_logs(records[name], directory, "knee")
@@ -592,13 +600,13 @@ def smallest_pool(duration: float) -> int:
     return len(training_trajectories(duration)) * (TrajectorySpec(duration=duration).ticks - 1)
 
 
-def dataset_value(
+def run(
     experiment: Experiment,
     base: RunConfig,
     reps: int,
     test_count: int = DEFAULT_TEST_TRAJECTORIES,
     ticks: int | None = None,
-) -> Verdict:
+) -> Conclusion:
     """Run the experiment (module docstring) and write its files; return the verdict."""
     duration = base.trajectories[0].duration
     plant = base.model
@@ -643,7 +651,7 @@ def dataset_value(
     written = [c.row() for c in comparisons] + [found.selection_test.row()]
     write_atomically(experiment.out / "results.csv", results_csv(rows))
     write_atomically(experiment.out / "comparisons.csv", results_csv(written))
-    plot_dataset_value(
+    figure(
         experiment.out / FIGURE,
         {model: {c: nmse[(model, c)] for c in CONDITIONS} for model in MODELS},
         reference["nmse_mean"],
@@ -699,7 +707,7 @@ def dataset_value(
         f"{reps} repetitions: a paired t-test assumes roughly normal differences; with few "
         "repetitions only large effects can reach significance.",
     ]
-    write_dataset_value_report(
+    write_report(
         experiment.out / "report.md",
         setup=setup,
         means=means,
@@ -710,6 +718,139 @@ def dataset_value(
         figure=FIGURE,
     )
     return found
+
+
+def table(
+    means: dict[tuple[str, str], tuple[float, float]], reference: float | None = None
+) -> list[str]:
+    """(model, condition) → (mean, sd) of the test nMSE: conditions as rows, models as
+    columns, "mean ± sd"; the rigid prior's single score as a last row, if given."""
+    models = list(dict.fromkeys(model for model, _ in means))
+    conditions = list(dict.fromkeys(condition for _, condition in means))
+
+    def cell(mean: float, sd: float) -> str:
+        return f"{mean:.4f}" if not math.isfinite(sd) else f"{mean:.4f} ± {sd:.4f}"
+
+    rows = [
+        [condition, *(cell(*means[(model, condition)]) for model in models)]
+        for condition in conditions
+    ]
+    if reference is not None:
+        rows.append(["(rigid prior, untrained)", *(f"{reference:.4f}" for _ in models)])
+    return markdown_table(["condition", *(f"{model} nMSE" for model in models)], rows)
+
+
+def comparisons_table(comparisons: Sequence[PairedTTest]) -> list[str]:
+    """Paired comparisons as a Markdown table; a difference below zero means lower nMSE. An
+    untested value (too few repetitions) shows as a dash."""
+
+    def number(value: float, fmt: str) -> str:
+        return "–" if math.isnan(value) else format(value, fmt)
+
+    return markdown_table(
+        ["model", "condition", "against", "mean difference", "t", "p", "p (Holm)", "d_z", "n"],
+        (
+            [
+                c.model,
+                c.condition,
+                c.against,
+                number(c.mean_difference, "+.4f"),
+                number(c.t, ".2f"),
+                number(c.p, ".3g"),
+                number(c.p_holm, ".3g"),
+                number(c.d_z, "+.2f"),
+                c.n,
+            ]
+            for c in comparisons
+        ),
+        text_columns=3,
+    )
+
+
+def write_report(
+    path: Path,
+    *,
+    setup: Sequence[str],
+    means: dict[tuple[str, str], tuple[float, float]],
+    reference: float | None,
+    comparisons: Sequence[PairedTTest],
+    verdict: str,
+    limitations: Sequence[str],
+    figure: str,
+) -> None:
+    """The dataset-value experiment's report.md: setup, nMSE table, comparisons, verdict,
+    limitations, figure."""
+    lines = [
+        "# The value of tuned controllers' data for learning the dynamics",
+        "",
+        *[f"- {line}" for line in setup],
+        "",
+        "## Test nMSE (mean ± sd over repetitions)",
+        "",
+        *table(means, reference),
+        "",
+        "## Verdict",
+        "",
+        verdict,
+        "",
+        "## Paired comparisons",
+        "",
+        "Difference = the condition's nMSE minus the other's, paired by repetition (below zero: "
+        "its data taught more); paired t-test, Cohen's d_z = mean difference / sd of the "
+        "differences; Holm's adjustment across the ten comparisons of each model (the last row, "
+        "best selection against runner-up, is one test of its own).",
+        "",
+        *comparisons_table(comparisons),
+        "",
+        "## Limitations",
+        "",
+        *[f"- {line}" for line in limitations],
+        "",
+        f"![{figure}]({figure})",
+        "",
+    ]
+    write_atomically(Path(path), "\n".join(lines).encode())
+
+
+def figure(
+    path: Path, nmse: dict[str, dict[str, list[float]]], reference: float | None = None
+) -> None:
+    """The dataset-value experiment: test nMSE per condition, one panel per model; a point per
+    repetition (jittered sideways so equal values stay visible) and a bar at the mean. A dashed
+    line at `reference` (the untrained rigid prior's nMSE), if given. Log scale when the values
+    span more than a decade, as random gains' data can be far worse than the rest."""
+    models = list(nmse)
+    canvas = new_figure((4.0 * max(1, len(models)), 4.5))
+    panels = canvas.subplots(1, max(1, len(models)), sharey=True, squeeze=False)[0]
+    values = [v for per_model in nmse.values() for vs in per_model.values() for v in vs]
+    finite = [v for v in values if math.isfinite(v) and v > 0]
+    logarithmic = bool(finite) and max(finite) > 10 * min(finite)
+    for axes, model in zip(panels, models, strict=False):
+        conditions = list(nmse[model])
+        for index, condition in enumerate(conditions):
+            points = [v for v in nmse[model][condition] if math.isfinite(v)]
+            if not points:
+                continue
+            offsets = [
+                0.15 * (k / (len(points) - 1) - 0.5) if len(points) > 1 else 0.0
+                for k in range(len(points))
+            ]
+            axes.scatter(
+                [index + o for o in offsets], points, s=14, color="tab:blue", alpha=0.6, zorder=2
+            )
+            mean = sum(points) / len(points)
+            axes.hlines(mean, index - 0.3, index + 0.3, color="black", linewidth=2, zorder=3)
+        if reference is not None and math.isfinite(reference):
+            axes.axhline(reference, color="grey", linestyle="--", linewidth=1, label="rigid prior")
+            axes.legend(loc="upper left", fontsize=8)
+        axes.set_xticks(range(len(conditions)))
+        axes.set_xticklabels(conditions, rotation=45, ha="right", fontsize=8)
+        axes.set_title(model)
+        axes.grid(True, axis="y", alpha=0.3)
+        if logarithmic:
+            axes.set_yscale("log")
+    panels[0].set_ylabel("test nMSE (mean A1-A6)")
+    save_png(canvas, path)
 
 
 def _result_row(
@@ -735,3 +876,52 @@ def _result_row(
         "test_rows": test_rows,
         "test_digest": test_digest,
     }
+
+
+def prepare(base: RunConfig, options: Mapping[str, Any]) -> RunConfig:
+    """The base configuration as it is; ValueError naming --ticks if more rows are asked for
+    than the smallest pool can hold."""
+    ticks = options.get("ticks")
+    duration = base.trajectories[0].duration
+    if ticks is not None and ticks > smallest_pool(duration):
+        raise ValueError(
+            f"--ticks: {ticks} is more than the smallest pool holds at {duration:g} s "
+            f"({smallest_pool(duration)} rows: three episodes)"
+        )
+    return base
+
+
+def every_trajectory(base: RunConfig, options: Mapping[str, Any]) -> list[TrajectorySpec]:
+    """Every trajectory the experiment's episodes follow: the training kinds and the test."""
+    duration = base.trajectories[0].duration
+    count = options.get("test_count", DEFAULT_TEST_TRAJECTORIES)
+    return [*training_trajectories(duration), *test_trajectories(duration, count)]
+
+
+EXPERIMENT = ExperimentSpec(
+    name="dataset-value",
+    summary="whether tuned controllers' data teach the arm's dynamics better, at equal ticks",
+    run=run,
+    options=(
+        Option(
+            "--test-trajectories",
+            "test_count",
+            "held-out test trajectories (fourier and random-kind, seeds 1000..)",
+            str(DEFAULT_TEST_TRAJECTORIES),
+            at_least(1),
+            "N",
+        ),
+        Option(
+            "--ticks",
+            "ticks",
+            # Fewer than 10 rows cannot hold a validation part and a training part worth the name.
+            "training rows per condition and repetition  [default: the smallest pool's]",
+            None,
+            at_least(10),
+            "N",
+        ),
+    ),
+    duration=DEFAULT_DURATION,
+    prepare=prepare,
+    trajectories=every_trajectory,
+)

@@ -30,7 +30,7 @@ ALPHA = 0.05
 CONFIDENCE = 0.95
 RESAMPLES = 9999
 STATS_COLUMNS = (
-    "study",
+    "experiment",
     "comparison",
     "metric",
     "median_a",
@@ -195,9 +195,9 @@ def decide(
 
 @dataclass(frozen=True)
 class StatsRow:
-    """One line of stats.csv: which study, which comparison ("a vs b"), which metric."""
+    """One line of stats.csv: which experiment, which comparison ("a vs b"), which metric."""
 
-    study: str
+    experiment: str
     comparison: str
     metric: str
     result: Comparison
@@ -212,7 +212,7 @@ def stats_csv(rows: Sequence[StatsRow]) -> bytes:
         r = row.result
         writer.writerow(
             [
-                row.study,
+                row.experiment,
                 row.comparison,
                 row.metric,
                 r.median_a,

@@ -13,6 +13,12 @@ nobody can abuse:
   Each is a plain data class or a pure numeric function; none reaches the file system, a process
   or `exec`. A stranger's checkpoint naming anything else (os.system, builtins.eval,
   numpy.testing, ...) is refused before it is resolved, so no code of theirs runs.
+- A plug-in optimiser (gainfarm.plugins' gainfarm.algorithms group) is pickled with the run, so
+  its classes are in the checkpoint too. Its factory declares them, `checkpoint_globals`: exact
+  (module, name) pairs under the same rule as ALLOWED. They are allowed only in the checkpoint
+  of a run whose config.json names that algorithm, and resuming that run runs the plug-in's own
+  code anyway: the allowlist grows by what the user already chose to run, never by a prefix, and
+  a stranger's checkpoint still cannot name os.system, nor another plug-in's classes.
 - It is two pickles: a header first (plain data only: no class at all may be resolved in it),
   then the state. The header holds the run id (records.RunIdentity): a checkpoint copied from
   another run is refused on its header, before its state is read at all.
@@ -28,6 +34,7 @@ import pickle
 from pathlib import Path
 from typing import Any, ClassVar
 
+from gainfarm import plugins
 from gainfarm.analytic.tuning.records import RUN_ID, RunIdentity
 
 FORMAT = "gainfarm checkpoint"
@@ -134,9 +141,11 @@ def encode(state: object, identity: RunIdentity) -> bytes:
     return pickle.dumps(header) + pickle.dumps(state)
 
 
-def decode(content: bytes, path: Path, identity: RunIdentity) -> Any:
+def decode(content: bytes, path: Path, identity: RunIdentity, algorithm: str | None = None) -> Any:
     """The state in checkpoint.pkl's `content`, if the checkpoint is of the run `identity`
-    names; CheckpointRefused, naming `path`, if not, or if it is no checkpoint at all."""
+    names; CheckpointRefused, naming `path`, if not, or if it is no checkpoint at all. `algorithm`
+    is the run's (config.json's): a plug-in's declared globals are allowed too."""
+    allowed = ALLOWED | plugin_globals(algorithm, path)
     stream = io.BytesIO(content)
     try:
         header = _Header(stream).load()
@@ -146,7 +155,7 @@ def decode(content: bytes, path: Path, identity: RunIdentity) -> Any:
                 f"{path}: a checkpoint without a run id, not the one this run "
                 f"({identity.run_id}) had when it was given its id: refusing to resume from it"
             ) from None
-        return _load(io.BytesIO(content), path)
+        return _load(io.BytesIO(content), path, allowed)
     except CheckpointRefused:
         raise
     except Exception as error:  # a broken or foreign file: pickle may raise almost anything
@@ -168,12 +177,31 @@ def decode(content: bytes, path: Path, identity: RunIdentity) -> Any:
             f"{path}: the checkpoint of another run (run id {header['run_id']}), "
             f"not of this one ({identity.run_id}): refusing to resume from it"
         )
-    return _load(stream, path)
+    return _load(stream, path, allowed)
 
 
-def _load(stream: io.BytesIO, path: Path) -> Any:
+def plugin_globals(algorithm: str | None, path: Path) -> frozenset[tuple[str, str]]:
+    """The globals the plug-in optimiser `algorithm` declares its pickle names (none for a
+    built-in one). CheckpointRefused, naming `path`, if it cannot be loaded or declares
+    anything but (module, name) pairs of strings."""
+    if algorithm is None or algorithm in plugins.builtin_names(plugins.ALGORITHMS):
+        return frozenset()
     try:
-        return _Unpickler(stream, path).load()
+        declared = getattr(plugins.load(plugins.ALGORITHMS, algorithm), "checkpoint_globals", ())
+    except plugins.PluginError as error:
+        raise CheckpointRefused(f"{path}: {error}") from None
+    pairs = frozenset(tuple(pair) for pair in declared)
+    if not all(len(pair) == 2 and all(isinstance(part, str) for part in pair) for pair in pairs):
+        raise CheckpointRefused(
+            f"{path}: algorithm {algorithm!r} declares checkpoint_globals that are not "
+            "(module, name) pairs"
+        )
+    return pairs
+
+
+def _load(stream: io.BytesIO, path: Path, allowed: frozenset[tuple[str, str]]) -> Any:
+    try:
+        return _Unpickler(stream, path, allowed).load()
     except CheckpointRefused:
         raise
     except Exception as error:
@@ -200,11 +228,11 @@ class _Header(pickle.Unpickler):
 
 
 class _Unpickler(pickle.Unpickler):
-    """Resolves the globals in ALLOWED and nothing else. Checkpoints written before a class
-    moved name it where it was: before the run's row types moved to the records
-    (analytic.figures), and before the project went under one import name, `gainfarm`, with
-    analytic/ by role (analytic.run, schemas.gains, ...). MOVED maps those old places to today's,
-    and only for the classes ALLOWED holds."""
+    """Resolves the globals in ALLOWED (and those of the run's plug-in optimiser) and nothing
+    else. Checkpoints written before a class moved name it where it was: before the run's row
+    types moved to the records (analytic.figures), and before the project went under one import
+    name, `gainfarm`, with analytic/ by role (analytic.run, schemas.gains, ...). MOVED maps those
+    old places to today's, and only for the classes ALLOWED holds."""
 
     MOVED: ClassVar[dict[tuple[str, str], str]] = {
         ("analytic.figures", "HistoryRow"): "gainfarm.analytic.tuning.records",
@@ -221,13 +249,14 @@ class _Unpickler(pickle.Unpickler):
         },
     }
 
-    def __init__(self, stream: io.BytesIO, path: Path):
+    def __init__(self, stream: io.BytesIO, path: Path, allowed: frozenset[tuple[str, str]]):
         super().__init__(stream)
         self.path = path
+        self.allowed = allowed
 
     def find_class(self, module: str, name: str) -> Any:
         module = self.MOVED.get((module, name), module)
-        if (module, name) not in ALLOWED:
+        if (module, name) not in self.allowed:
             named = " ".join(f"{module}.{name}".split())[:200]  # the stranger's text: one line
             raise CheckpointRefused(
                 f"{self.path}: holds {named}, which no gainfarm checkpoint holds: "

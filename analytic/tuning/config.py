@@ -1,14 +1,14 @@
 """A tuning run's configuration: everything that decides its outcome, validated as a whole."""
 
-from typing import Annotated, Literal, Self
+from typing import Annotated, Self
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from gainfarm import plugins
+from gainfarm.analytic.tuning import defaults
 from gainfarm.analytic.tuning.evolution import (
     REFERENCE_POINT,
     STEADY_STATE_ONLY,
-    Algorithm,
-    ObjectiveScaling,
     steady_state_refusal,
 )
 from gainfarm.analytic.tuning.termination import (
@@ -16,6 +16,7 @@ from gainfarm.analytic.tuning.termination import (
     CONVERGENCE_WINDOW,
     Termination,
 )
+from gainfarm.schemas.episode import DEFAULT_OBJECTIVES
 from gainfarm.schemas.robot import ModelSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 
@@ -27,23 +28,34 @@ class RunConfig(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    pop: int = Field(30, ge=4, le=1000, description="population size")
-    seed: int = Field(0, ge=0)
+    pop: int = Field(
+        defaults.POP, ge=defaults.POP_MIN, le=defaults.POP_MAX, description="population size"
+    )
+    seed: int = Field(defaults.SEED, ge=0)
     trajectories: tuple[TrajectorySpec, ...] = Field((TrajectorySpec(),), min_length=1)
     model: ModelSpec = ModelSpec()
-    generations: int | None = Field(None, ge=1)
-    evaluations: int | None = Field(None, ge=1)
+    generations: int | None = Field(None, ge=defaults.GENERATIONS_MIN)
+    evaluations: int | None = Field(None, ge=defaults.EVALUATIONS_MIN)
     tolerance: float = Field(CONVERGENCE_TOLERANCE, gt=0)
     window: int = Field(CONVERGENCE_WINDOW, ge=1)
     reference_point: tuple[float, float] = REFERENCE_POINT
     asynchronous: bool = Field(False, description="steady-state NSGA-II, not generational")
-    algorithm: Algorithm = Field(
-        "nsga2",
-        description="the optimiser (analytic.evolution.ALGORITHMS): pymoo's NSGA-II, NSGA-III, "
-        "SMS-EMOA, MOEA/D or AGE-MOEA-II, Optuna's TPE, or uniform random sampling",
+    algorithm: str = Field(
+        defaults.ALGORITHM,
+        pattern=plugins.NAME_PATTERN,
+        description="the optimiser, a name of the gainfarm.algorithms plug-in group: pymoo's "
+        "NSGA-II, NSGA-III, SMS-EMOA, MOEA/D or AGE-MOEA-II, Optuna's TPE, uniform random "
+        "sampling, or a plug-in's, registered or installed here (TuningRun.create refuses one "
+        "it cannot load)",
     )
-    objective_scaling: ObjectiveScaling = Field(
-        "raw",
+    objectives: tuple[str, str] = Field(
+        DEFAULT_OBJECTIVES,
+        description="the two objectives minimised, names of the gainfarm.objectives plug-in "
+        "group: the paper's f_acc and f_t, or a plug-in's in place of either, installed here and "
+        "on the workers; the records' f_acc and f_t columns hold the first and the second",
+    )
+    objective_scaling: defaults.ObjectiveScaling = Field(
+        defaults.OBJECTIVE_SCALING,
         description="what the optimiser is told: the raw objectives, or (log) the normalised "
         "ones the hypervolume is taken on, f_t on a log scale; the records stay raw either way",
     )
@@ -54,7 +66,11 @@ class RunConfig(BaseModel):
         "`trajectories` (schemas.objectives.balancing_weights: each trajectory counts alike at "
         "the default gains); None: the plain means",
     )
-    keep: Literal["all", "front"] = "all"
+    keep: defaults.Keep = Field(
+        defaults.KEEP,
+        description="which episode logs the run directory keeps: the front's (the workers keep "
+        "every log and the front's are fetched), or all (each comes with its result)",
+    )
     feedforward: str | None = Field(
         None,
         pattern=r"^[0-9a-f]{64}$",
@@ -62,10 +78,31 @@ class RunConfig(BaseModel):
         "(the gains are tuned on top); the run directory keeps the file as feedforward.npz",
     )
     replicate: bool = Field(
-        True,
+        defaults.REPLICATE,
         description="on a farm of 2+ workers, another worker reruns each front entrant's "
         "episodes and the logs must agree bit for bit (analytic/replication.py)",
     )
+
+    @field_validator("algorithm")
+    @classmethod
+    def _an_algorithm_here(cls, name: str) -> str:
+        return plugins.check_name(plugins.ALGORITHMS, name)
+
+    @field_validator("objectives")
+    @classmethod
+    def _objectives_here(cls, names: tuple[str, str]) -> tuple[str, str]:
+        if names[0] == names[1]:
+            raise ValueError(f"objectives: {names[0]!r} twice; name two different ones")
+        for name in names:
+            plugins.check_name(plugins.OBJECTIVES, name)
+        return names
+
+    @field_validator("trajectories")
+    @classmethod
+    def _kinds_here(cls, trajectories: tuple[TrajectorySpec, ...]) -> tuple[TrajectorySpec, ...]:
+        for trajectory in trajectories:
+            plugins.check_name(plugins.TRAJECTORIES, trajectory.kind)
+        return trajectories
 
     @model_validator(mode="after")
     def _one_termination(self) -> Self:

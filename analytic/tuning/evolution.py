@@ -5,10 +5,13 @@ Pure: no farm, no files. The caller evaluates each asked generation however it l
 in any order) and tells the objectives back in the order asked, so the outcome depends on the seed
 and the objectives only, never on which result arrived first.
 
-The optimiser is NSGA-II by default; ALGORITHMS lists the others, all generational (a whole
-population asked, then told): pymoo's NSGA-III, SMS-EMOA, MOEA/D and AGE-MOEA-II; "tpe", Optuna's
-multi-objective TPE through Optuna's ask and tell (OptunaTPE); and "random", uniform random
-sampling of the search space, a population a generation, the baseline any optimiser must beat.
+The optimiser is NSGA-II by default; ALGORITHMS lists the other built-in ones, all generational (a
+whole population asked, then told): pymoo's NSGA-III, SMS-EMOA, MOEA/D and AGE-MOEA-II; "tpe",
+Optuna's multi-objective TPE through Optuna's ask and tell (OptunaTPE); and "random", uniform
+random sampling of the search space, a population a generation, the baseline any optimiser must
+beat. Each is a factory in the gainfarm.algorithms group of gainfarm.plugins, where a plug-in
+adds its own (`optimiser`: what a factory takes and what it returns).
+
 Whatever the optimiser, the front is this module's archive of every non-dominated point told, in
 raw units. The optimiser itself may be told the objectives as the hypervolume sees them
 (objective_scaling "log": `normalise`, f_t on a log scale) instead of raw (f_t spans six decades,
@@ -18,7 +21,7 @@ and crowding on raw f_t neglects the smooth end).
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal, get_args
+from typing import Any, Protocol
 
 import numpy as np
 from pymoo.algorithms.moo.moead import ParallelMOEAD
@@ -32,6 +35,8 @@ from pymoo.operators.selection.tournament import TournamentSelection
 from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
 from pymoo.util.ref_dirs import get_reference_directions
 
+from gainfarm import plugins
+from gainfarm.analytic.tuning.defaults import OBJECTIVE_SCALINGS
 from gainfarm.analytic.tuning.search_space import SearchSpace
 from gainfarm.schemas.gains import PDGains
 
@@ -45,10 +50,8 @@ from gainfarm.schemas.gains import PDGains
 REFERENCE_POINT = (0.2, 1e4)  # f_acc in m, f_t in (N·m)²
 F_T_FLOOR = 1e-2  # (N·m)²: smoother than this counts as perfectly smooth
 
-Algorithm = Literal["nsga2", "nsga3", "smsemoa", "moead", "agemoea2", "tpe", "random"]
-ALGORITHMS: tuple[str, ...] = get_args(Algorithm)
-ObjectiveScaling = Literal["raw", "log"]
-OBJECTIVE_SCALINGS: tuple[str, ...] = get_args(ObjectiveScaling)
+# The built-in optimisers, the default first; plugins.names(plugins.ALGORITHMS) adds the plug-ins.
+ALGORITHMS: tuple[str, ...] = plugins.builtin_names(plugins.ALGORITHMS)
 STEADY_STATE_ONLY = "nsga2"  # the one algorithm with a steady-state (ask_one/tell_one) variant
 
 
@@ -69,7 +72,7 @@ class UniformRandom:
     """The "random" algorithm: `pop_size` points drawn uniformly from the decision space every
     generation, whatever came before (ask and tell as pymoo's algorithms have them)."""
 
-    def __init__(self, pop_size: int, space: SearchSpace, seed: int):
+    def __init__(self, pop_size: int, seed: int, space: SearchSpace):
         self.pop_size = pop_size
         self.lower, self.upper = space.lower, space.upper
         self.random_state = np.random.default_rng(seed)
@@ -101,7 +104,7 @@ class OptunaTPE:
     study.add_trials), which then asks exactly what the uninterrupted one would have.
     """
 
-    def __init__(self, pop_size: int, space: SearchSpace, seed: int):
+    def __init__(self, pop_size: int, seed: int, space: SearchSpace):
         self.pop_size = pop_size
         self.seed = seed
         self.lower, self.upper = space.lower, space.upper
@@ -216,42 +219,89 @@ def reference_directions(pop_size: int) -> np.ndarray:
     return get_reference_directions("das-dennis", 2, n_partitions=pop_size - 1)
 
 
+class Optimiser(Protocol):
+    """What the evolution step asks and tells, as pymoo's algorithms have it (any pymoo
+    algorithm set up on GainProblem(space) is one). The decision variables are the search
+    space's (log10 of each gain, SearchSpace.lower to .upper); the two objectives are minimised.
+    It may also hold `pop`, the population it keeps (a pymoo Population, or None): objectives
+    that replication finds false are corrected there too (Evolution.correct)."""
+
+    def ask(self) -> Population:
+        """The next candidates (X set), a generation of them."""
+        ...
+
+    def tell(self, infills: Population) -> None:
+        """The candidates last asked, in the order asked, with their objectives (F) set."""
+        ...
+
+
 def optimiser(
     algorithm: str, pop_size: int, seed: int, space: SearchSpace, steady_state: bool = False
-) -> Any:
-    """`algorithm` (one of ALGORITHMS) set up on the gain problem, to ask and tell."""
-    if algorithm not in ALGORITHMS:
-        raise ValueError(f"unknown algorithm {algorithm!r}: one of {', '.join(ALGORITHMS)}")
+) -> Optimiser:
+    """`algorithm` (a name of the gainfarm.algorithms group) set up on the gain problem.
+
+    A plug-in of that group is a factory called as factory(pop_size=, seed=, space=) that
+    returns an Optimiser; it is deterministic given the seed. A checkpoint holds what it returns,
+    so it is picklable, and the factory declares the globals its pickle names
+    (`checkpoint_globals`: analytic.tuning.checkpoint). Steady state is NSGA-II's only.
+    PluginError (a ValueError) if this installation has no such algorithm.
+    """
     if steady_state and algorithm != STEADY_STATE_ONLY:
         raise ValueError(steady_state_refusal(algorithm))
-    if algorithm == "random":
-        return UniformRandom(pop_size, space, seed)
-    if algorithm == "tpe":
-        return OptunaTPE(pop_size, space, seed)
-    if algorithm == "nsga2":
-        method = NSGA2(
-            pop_size=pop_size, n_offsprings=1 if steady_state else None, eliminate_duplicates=True
+    if steady_state:
+        return nsga2(pop_size=pop_size, seed=seed, space=space, steady_state=True)
+    made = plugins.load(plugins.ALGORITHMS, algorithm)(pop_size=pop_size, seed=seed, space=space)
+    if not (callable(getattr(made, "ask", None)) and callable(getattr(made, "tell", None))):
+        raise plugins.PluginError(
+            f"{plugins.ALGORITHMS}: {algorithm!r} made a {type(made).__name__}, which has no "
+            "ask() and tell()"
         )
-    elif algorithm == "nsga3":
-        method = NSGA3(
-            ref_dirs=reference_directions(pop_size),
-            pop_size=pop_size,
-            selection=TournamentSelection(func_comp=_by_cv_then_random),
-        )
-    elif algorithm == "smsemoa":  # generational: pop offspring, then the least contributors go
-        method = SMSEMOA(
-            pop_size=pop_size, selection=TournamentSelection(func_comp=_by_cv_and_domination)
-        )
-    elif algorithm == "moead":  # the parallel variant: a whole generation asked at once
-        method = ParallelMOEAD(ref_dirs=reference_directions(pop_size))
-    else:
-        try:
-            from pymoo.algorithms.moo.age2 import AGEMOEA2
-        except Exception:  # pymoo raises a bare Exception when numba is missing
-            raise ValueError("algorithm agemoea2 needs numba: pip install numba") from None
-        method = AGEMOEA2(pop_size=pop_size)
+    return made
+
+
+def _set_up(method: Any, seed: int, space: SearchSpace) -> Any:
     method.setup(GainProblem(space), seed=seed, verbose=False)
     return method
+
+
+def nsga2(pop_size: int, seed: int, space: SearchSpace, steady_state: bool = False) -> NSGA2:
+    """pymoo's NSGA-II; steady state (mu + 1) asks one offspring at a time."""
+    method = NSGA2(
+        pop_size=pop_size, n_offsprings=1 if steady_state else None, eliminate_duplicates=True
+    )
+    return _set_up(method, seed, space)
+
+
+def nsga3(pop_size: int, seed: int, space: SearchSpace) -> NSGA3:
+    """pymoo's NSGA-III on reference_directions(pop_size)."""
+    method = NSGA3(
+        ref_dirs=reference_directions(pop_size),
+        pop_size=pop_size,
+        selection=TournamentSelection(func_comp=_by_cv_then_random),
+    )
+    return _set_up(method, seed, space)
+
+
+def smsemoa(pop_size: int, seed: int, space: SearchSpace) -> SMSEMOA:
+    """pymoo's SMS-EMOA, generational: pop offspring, then the least contributors go."""
+    method = SMSEMOA(
+        pop_size=pop_size, selection=TournamentSelection(func_comp=_by_cv_and_domination)
+    )
+    return _set_up(method, seed, space)
+
+
+def moead(pop_size: int, seed: int, space: SearchSpace) -> ParallelMOEAD:
+    """pymoo's MOEA/D, the parallel variant: a whole generation asked at once."""
+    return _set_up(ParallelMOEAD(ref_dirs=reference_directions(pop_size)), seed, space)
+
+
+def agemoea2(pop_size: int, seed: int, space: SearchSpace) -> Any:
+    """pymoo's AGE-MOEA-II (it compiles with numba: a ValueError without it)."""
+    try:
+        from pymoo.algorithms.moo.age2 import AGEMOEA2
+    except Exception:  # pymoo raises a bare Exception when numba is missing
+        raise ValueError("algorithm agemoea2 needs numba: pip install numba") from None
+    return _set_up(AGEMOEA2(pop_size=pop_size), seed, space)
 
 
 def steady_state_refusal(algorithm: str) -> str:
@@ -370,7 +420,7 @@ class Evolution:
                 rows.append(row)
         first = non_dominated_indices(self._seen_f)
         self._archive_x, self._archive_f = self._seen_x[first], self._seen_f[first]
-        population = self.algorithm.pop
+        population = getattr(self.algorithm, "pop", None)  # a plug-in may hold none
         if population is not None:
             for individual in population:
                 if self.space.gains(individual.X) == gains:

@@ -4,11 +4,11 @@ The layout of every file a run writes lives here and only here, so the writer of
 reader of it (the experiments, the dataset, a user's script) agree. Floats are written repr-exact
 (shortest round-tripping form), so reading a file back gives the very same numbers and two
 identical runs give byte-identical files. Each file appears whole or not at all (through
-`schemas.files.write_atomically`).
+`edges.files.write_atomically`).
 
     config.json     the RunConfig (analytic.config)
     run.json        the run's identity (RunIdentity): a random id, which its checkpoint carries
-    run.lock        held by the one process writing the run (schemas.files.Lock); says which
+    run.lock        held by the one process writing the run (edges.files.Lock); says which
     history.csv     one HistoryRow per generation
     front.csv       the front: one FrontMember per line, most accurate first; `diverged` says
                     which members' objectives are a divergence penalty, not a measurement
@@ -100,7 +100,7 @@ class FrontMember:
 
     f_acc is in metres, f_t in (N·m)². `diverged`: an episode of the member was stopped early,
     so its objectives carry the divergence penalty (schemas.objectives) and measure no
-    tracking; a study leaves such points out of its normalisation (analytic.experiments).
+    tracking; an experiment leaves such points out of its normalisation (analytic.experiments).
     Gains may be given as any sequence (a numpy row, say); they are stored as tuples of Python
     floats so members compare and hash by value. `logs` are the member's kept episode logs,
     relative to the run directory, one per trajectory whose episode ran (front.json holds them,

@@ -21,7 +21,7 @@ checkpoint; the interrupted generation runs again, with the same candidates and 
 
 One process writes a run at a time: `create` and `open` take the run's lock (RunBusy if another
 process holds it) and keep it until `close()` (or the end of a `with`, or the process). Holding
-it, they first delete what writes killed halfway left behind (schemas.files.remove_leftovers).
+it, they first delete what writes killed halfway left behind (edges.files.remove_leftovers).
 A write that fails (disk full, read-only) raises OSError naming the file; each file is whole or
 absent, the checkpoint is written last, so a later resume continues from the last good one.
 """
@@ -37,11 +37,12 @@ from pathlib import Path
 
 from pymoo.core.population import Population
 
-from gainfarm.analytic.evaluators.evaluator import Evaluation, EvaluationStatus, Evaluator, Wanted
+from gainfarm.analytic.evaluators.evaluator import EpisodeResult, EpisodeStatus, Evaluator, Wanted
 from gainfarm.analytic.evaluators.replication import Ledger, Ran, validate
 from gainfarm.analytic.tuning.checkpoint import CheckpointRefused, decode, encode
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import Candidate, Evolution, hypervolume
+from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import (
     BASELINE_JSON,
     CONFIG_JSON,
@@ -70,18 +71,17 @@ from gainfarm.analytic.tuning.records import (
     run_json,
     sorted_front,
 )
-from gainfarm.analytic.view.export import picks
 from gainfarm.analytic.view.figures import plot_hypervolume, plot_pareto
 from gainfarm.analytic.view.reports import run_setup, run_title, write_report
-from gainfarm.models.dynamics import digest
-from gainfarm.schemas.episode import EpisodeSpec
-from gainfarm.schemas.files import (
+from gainfarm.edges.files import (
     Lock,
     Locked,
     interrupts_deferred,
     remove_leftovers,
     write_atomically,
 )
+from gainfarm.models.dynamics import digest
+from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.objectives import objectives
 from gainfarm.schemas.trajectory import TrajectorySpec
@@ -201,7 +201,7 @@ class TuningRun:
             identity = _identity(directory)
             checkpoint = directory / CHECKPOINT
             if checkpoint.exists():
-                state = decode(checkpoint.read_bytes(), checkpoint, identity)
+                state = decode(checkpoint.read_bytes(), checkpoint, identity, config.algorithm)
                 if not (isinstance(state, RunState) and isinstance(state.evolution, Evolution)):
                     raise CheckpointRefused(f"{checkpoint}: not a gainfarm checkpoint (no run)")
             else:  # stopped before its first generation ended
@@ -327,7 +327,7 @@ class TuningRun:
             for index, gains in enumerate(candidates)
         }
         specs = self._specs(jobs)
-        results: dict[str, Evaluation] = {}
+        results: dict[str, EpisodeResult] = {}
         evaluator.submit(specs)
         try:
             for evaluation in evaluator.results():
@@ -354,7 +354,7 @@ class TuningRun:
         the run stops, the candidates still in flight are dropped (a resumed run asks anew)."""
         evolution = self.state.evolution
         in_flight: dict[str, tuple[Population, PDGains, list[str]]] = {}
-        results: dict[str, Evaluation] = {}
+        results: dict[str, EpisodeResult] = {}
 
         def launch() -> None:
             handle, gains = evolution.ask_one()
@@ -445,15 +445,15 @@ class TuningRun:
                 self.write_records()
                 self._checkpoint()
 
-    def _evaluation(self, gains: PDGains, ran: Ran) -> Evaluation:
+    def _evaluation(self, gains: PDGains, ran: Ran) -> EpisodeResult:
         """An original as validation takes it: the episode's spec, who ran it, its log."""
         trajectory = self.config.trajectories[int(ran.job_id.rsplit("-t", 1)[1])]
         spec = self._spec(gains, trajectory)
         log = self.directory / EPISODES / f"{ran.job_id}.mcap"
-        return Evaluation(
+        return EpisodeResult(
             job_id=ran.job_id,
             spec=spec,
-            status=EvaluationStatus.ok,
+            status=EpisodeStatus.ok,
             scores=ran.scores,
             log=log if log.exists() else None,
             reason="",
@@ -552,7 +552,7 @@ class TuningRun:
 
     # --- bookkeeping -------------------------------------------------------------------------
 
-    def _account(self, evaluation: Evaluation) -> None:
+    def _account(self, evaluation: EpisodeResult) -> None:
         if evaluation.timings is not None:
             timings = evaluation.timings
             self.state.busy_seconds += timings.simulate_s + timings.encode_s
@@ -563,7 +563,11 @@ class TuningRun:
     def _spec(self, gains: PDGains, trajectory: TrajectorySpec) -> EpisodeSpec:
         config = self.config
         return EpisodeSpec(
-            gains=gains, trajectory=trajectory, model=config.model, feedforward=config.feedforward
+            gains=gains,
+            trajectory=trajectory,
+            model=config.model,
+            feedforward=config.feedforward,
+            objectives=config.objectives,
         )
 
     def _specs(self, jobs: dict[PDGains, list[str]]) -> dict[str, EpisodeSpec]:
@@ -587,7 +591,7 @@ class TuningRun:
         )
 
     def _candidate_done(
-        self, gains: PDGains, job_ids: list[str], results: dict[str, Evaluation]
+        self, gains: PDGains, job_ids: list[str], results: dict[str, EpisodeResult]
     ) -> tuple[float, float]:
         """A candidate's objectives, with its episodes and point recorded."""
         found = objectives(

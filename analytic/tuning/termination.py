@@ -5,12 +5,12 @@ the last `window` generations. The hypervolume of an elitist front never falls, 
 plain comparison with the value `window` generations ago.
 
 The run's hypervolume is taken in a fixed, wide box (analytic.evolution.REFERENCE_POINT), where a
-gain that matters looks small. So the rule is set against the hypervolume a study compares runs
-by (normalised between the pooled fronts' ideal and nadir: analytic.experiments.Normalisation),
+gain that matters looks small. So the rule is set against the hypervolume an experiment compares
+runs by (normalised between the pooled fronts' ideal and nadir: analytic.experiments.Normalisation),
 measured on 10 NSGA-II runs (population 30, 5 s spiral, realistic plant, seeds 0-9) carried to
 1,500 evaluations (`analytic experiment algorithms --algorithms nsga2 --reps 10 --evaluations
 1500`). The former rule, 0.5 % over 5 generations, stopped them after a median of 435
-evaluations, with 0.043 of study hypervolume still to come by 1,500 (11 times the spread between
+evaluations, with 0.043 of that hypervolume still to come by 1,500 (11 times the spread between
 the seeds' final values, interquartile range 0.0038; the best error still fell from 6.2 to
 5.4 mm). 0.25 % over 10 generations stops them after a median of 1,140 evaluations, with 0.0044
 to come (about that spread; best error 5.5 mm). The hypervolume never stops climbing outright (an

@@ -1,23 +1,54 @@
-"""`tune`: a tuning run in one call, composed as pymoo's `minimize` composes its parts."""
+"""`tune`: a tuning run in one call, composed as pymoo's `minimize` composes its parts. The one
+composition root: `analytic start` is `tune` with a progress display, so what a run checks and
+decides before it starts (the trajectories' feasibility, a generic run's balance, the run
+directory's claim) is the same from Python and from the command line."""
 
 import contextlib
 import re
 import secrets
+import shutil
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import AbstractContextManager
 from pathlib import Path
 
 from gainfarm.analytic.evaluators.evaluator import Evaluator
-from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.farm import FarmClient, FarmUnavailable
 from gainfarm.analytic.evaluators.local import farm_endpoints
+from gainfarm.analytic.tuning import defaults
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import CONFIG_JSON
 from gainfarm.analytic.tuning.run import RunProgress, TuningRun
 from gainfarm.schemas.security import TlsIdentity
+from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import NAME_PATTERN
 
 OWNER = re.compile(r"[A-Za-z0-9_-]{1,32}")  # a participant name of the secure profile
 STUDY_RANDOM_HEX = 8
+
+# Given the evaluator a run goes on, what to enter for the run: it yields the progress callback
+# (`analytic start` shows the farm's workers and waits beside the run's progress).
+Watch = Callable[[Evaluator], AbstractContextManager[Callable[[RunProgress], None]]]
+
+
+class CannotStart(ValueError):
+    """A new run that cannot start, said in one line; `part` is what is wrong: "out" (the run
+    directory), "duration" or "placement" (a trajectory the arm cannot follow: too fast for its
+    limits, or out of its reach), "balance" (a generic run with nothing to balance by), or
+    "algorithm" (one this installation cannot run)."""
+
+    def __init__(self, message: str, part: str):
+        super().__init__(message)
+        self.part = part
+
+
+class TuningInterrupted(KeyboardInterrupt):
+    """Ctrl-C during `tune`: `run` is the run, to go on with later (`tune` again, or `analytic
+    resume`); None if the run was new and nothing of it had run, so nothing of it is left."""
+
+    def __init__(self, run: TuningRun | None):
+        super().__init__()
+        self.run = run
 
 
 def tune(
@@ -28,50 +59,246 @@ def tune(
     connect: Sequence[str] = (),
     workers: int = 1,
     identity: TlsIdentity | None = None,
+    feedforward: bytes | None = None,
+    balance: bool = defaults.BALANCE,
     on_progress: Callable[[RunProgress], None] = lambda _: None,
+    watch: Watch | None = None,
 ) -> TuningRun:
     """Tune the PD gains as `config` says (the defaults: `analytic start`'s) and return the
     finished run; its front is `run.front()`, its files are in `run.directory`.
 
     The episodes run on `evaluator` if one is given (an InProcessEvaluator, say); else on the
     farm whose broker is at `connect`; else on a local farm of `workers` processes started for
-    this call. `out` (default runs/TIME) is the run directory; one that already holds a run of
-    the same configuration is resumed (or returned as it is, if finished). The run returned is
-    closed (analytic.run: another process may open it); `TuningRun.open` it to write it again.
-    RunBusy if another process is running it.
+    this call. `out` (default runs/TIME) is the run directory: new or empty, or one that already
+    holds a run of the same configuration, which is resumed (or returned as it is, if finished).
+    `feedforward`: the model file `config.feedforward` names. With `balance`, a new generic run
+    (several trajectories, no `objective_weights`) weighs each trajectory's objectives so that
+    all count alike at the default gains (`balanced`). `watch`: see `Watch`; else `on_progress`
+    is called after every evaluation.
+
+    A new run is checked before anything is written (CannotStart: a trajectory the arm cannot
+    follow, nothing to balance by, `out` taken); if the farm cannot be had (FarmUnavailable) or
+    anything else stops it before any job is sent, nothing of it is left. A Ctrl-C once the run
+    is made leaves as TuningInterrupted, which says whether there is a run to go on with. The run
+    returned is closed (analytic.tuning.run: another process may open it); `TuningRun.open` it
+    to write it again. RunBusy if another process is running it.
     """
     config = config or RunConfig()
-    directory = Path(out) if out is not None else Path("runs") / time.strftime("%Y%m%d-%H%M%S")
+    directory = Path(out) if out is not None else new_directory()
+    forget = None
     if (directory / CONFIG_JSON).exists():
         run = TuningRun.open(directory)
-        if run.config != config:
+        if run.config not in (config, _balance_of(config, run.config, balance)):
             run.close()
             raise ValueError(f"{directory} holds a run of another configuration")
     else:
-        run = TuningRun.create(directory, config)
-    with run:
-        if not run.finished:
-            with _evaluator(run.directory, evaluator, connect, workers, identity) as chosen:
-                run.run(chosen, on_progress)
+        check_followable(config.trajectories)
+        if balance and len(config.trajectories) > 1 and config.objective_weights is None:
+            config = balanced(config, feedforward)
+        forget = claim(directory)
+        run = _create(directory, config, feedforward, forget)
+    tune_run(
+        run,
+        evaluator=evaluator,
+        connect=connect,
+        workers=workers,
+        identity=identity,
+        on_progress=on_progress,
+        watch=watch,
+        forget=forget,
+    )
     return run
+
+
+def tune_run(
+    run: TuningRun,
+    *,
+    evaluator: Evaluator | None = None,
+    connect: Sequence[str] = (),
+    workers: int = 1,
+    identity: TlsIdentity | None = None,
+    on_progress: Callable[[RunProgress], None] = lambda _: None,
+    watch: Watch | None = None,
+    forget: Callable[[], None] | None = None,
+) -> str:
+    """Run `run` (open, so holding its lock) to its end on `evaluator`, or on the farm `tune`
+    says, and close it; return why it stopped. `forget`, for a run just made: what removes it
+    if nothing of it runs (the farm cannot be had, Ctrl-C or any failure before a job is sent).
+    A Ctrl-C leaves as TuningInterrupted."""
+    begun = False
+    try:
+        with run:
+            if run.finished:
+                return run.state.stopped or ""
+            with _evaluator(run, evaluator, connect, workers, identity) as chosen:
+                begun = True
+                shown = watch(chosen) if watch else contextlib.nullcontext(on_progress)
+                with shown as step:
+                    return run.run(chosen, step)
+    except BaseException as error:
+        if not begun and forget is not None:  # nothing of a new run ran: nothing of it is left
+            forget()
+            if isinstance(error, KeyboardInterrupt):
+                raise TuningInterrupted(None) from None
+            raise
+        if isinstance(error, KeyboardInterrupt):
+            raise TuningInterrupted(run) from None
+        raise
+
+
+def _create(
+    directory: Path, config: RunConfig, feedforward: bytes | None, forget: Callable[[], None]
+) -> TuningRun:
+    try:
+        return TuningRun.create(directory, config, feedforward)
+    except FileExistsError as error:
+        raise CannotStart(str(error), "out") from None
+    except OSError as error:
+        forget()
+        where = str(error.filename or directory)
+        raise CannotStart(f"cannot write {where!r}: {error.strerror}", "out") from None
+    except ValueError as error:  # an algorithm this installation cannot run (agemoea2: numba)
+        raise CannotStart(str(error), "algorithm") from None
+    except KeyboardInterrupt:
+        forget()
+        raise TuningInterrupted(None) from None
+
+
+def _balance_of(config: RunConfig, found: RunConfig, balance: bool) -> RunConfig | None:
+    """`config` with the weights a balanced run in its directory found, if `tune` would have
+    balanced it: what it is resumed as."""
+    if not balance or config.objective_weights is not None or len(config.trajectories) < 2:
+        return None
+    return config.model_copy(update={"objective_weights": found.objective_weights})
 
 
 @contextlib.contextmanager
 def _evaluator(
-    directory: Path,
+    run: TuningRun,
     evaluator: Evaluator | None,
     connect: Sequence[str],
     workers: int,
     identity: TlsIdentity | None,
 ) -> Iterator[Evaluator]:
+    """`evaluator`, or else the farm's client (FarmUnavailable if the farm cannot be had; what
+    goes wrong later in the block is not relabelled)."""
     if evaluator is not None:
         yield evaluator
         return
-    with (
-        farm_endpoints(connect, workers) as endpoints,
-        FarmClient(endpoints, new_study_name(directory), directory, identity=identity) as farm,
-    ):
+    try:
+        models = run.models()
+    except ValueError as error:  # its feed-forward model file is missing or another
+        raise CannotStart(f"{str(run.directory)!r}: {error}", "out") from None
+    with contextlib.ExitStack() as stack:
+        try:
+            endpoints = stack.enter_context(farm_endpoints(connect, workers))
+            farm = stack.enter_context(
+                FarmClient(
+                    endpoints,
+                    new_study_name(run.directory, identity.name if identity else None),
+                    run.directory,
+                    identity=identity,
+                    models=models,
+                    # keep="front": the workers keep the logs, and the front's are fetched.
+                    keep_logs=run.config.keep == "all",
+                )
+            )
+        except (ValueError, ConnectionError) as error:
+            if isinstance(error, FarmUnavailable):
+                raise
+            raise FarmUnavailable(str(error)) from error
         yield farm
+
+
+def new_directory() -> Path:
+    """A new run's directory, when none is given: runs/TIME."""
+    return Path("runs") / time.strftime("%Y%m%d-%H%M%S")
+
+
+def check_followable(trajectories: Iterable[TrajectorySpec]) -> None:
+    """CannotStart, in one line, for a trajectory the iiwa cannot follow (out of reach, or too
+    fast for its limits), before any job is sent: every episode of it would fail."""
+    # MuJoCo loads only when a run is checked.
+    from gainfarm.worker.ik import UnreachablePath
+    from gainfarm.worker.reference import InfeasibleReference, reference_for
+
+    for trajectory in trajectories:
+        try:
+            reference_for(trajectory)
+        except InfeasibleReference as error:
+            raise CannotStart(str(error), "duration") from None
+        except UnreachablePath as error:
+            raise CannotStart(str(error), "placement") from None
+
+
+def balanced(config: RunConfig, feedforward: bytes | None = None) -> RunConfig:
+    """`config` with the generic objective balanced by the default gains' scores on each of its
+    trajectories (schemas.objectives.balancing_weights), simulated in this process: a few
+    episodes, before any farm is asked for. CannotStart if the default gains do not finish one."""
+    from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+    from gainfarm.schemas.episode import EpisodeSpec
+    from gainfarm.schemas.gains import DEFAULT_GAINS
+    from gainfarm.schemas.objectives import balancing_weights
+
+    models = {config.feedforward: feedforward} if config.feedforward and feedforward else {}
+    with InProcessEvaluator(models=models) as evaluator:
+        evaluator.submit(
+            {
+                f"t{index}": EpisodeSpec(
+                    gains=DEFAULT_GAINS,
+                    trajectory=trajectory,
+                    model=config.model,
+                    feedforward=config.feedforward,
+                    objectives=config.objectives,
+                )
+                for index, trajectory in enumerate(config.trajectories)
+            }
+        )
+        found = {evaluation.job_id: evaluation.scores for evaluation in evaluator.results()}
+    reference = []
+    for index, trajectory in enumerate(config.trajectories):
+        scores = found[f"t{index}"]
+        if scores is None or scores.diverged:
+            raise CannotStart(
+                f"the default gains do not finish the {trajectory.kind} trajectory, so "
+                "there is nothing to balance by",
+                "balance",
+            )
+        reference.append(scores.objectives)  # the run's two, a plug-in's included
+    return RunConfig.model_validate(
+        config.model_dump() | {"objective_weights": balancing_weights(reference)}
+    )
+
+
+def claim(directory: Path) -> Callable[[], None]:
+    """Check that `directory` is new or empty (CannotStart saying why not); return what removes
+    everything then put there, for a start that fails before anything runs: the directory, with
+    the parents it needed, or only what is in it if it was there."""
+    if directory.exists() and not directory.is_dir():
+        raise CannotStart(f"{str(directory)!r} is a file, not a directory", "out")
+    try:
+        if directory.is_dir() and any(directory.iterdir()):
+            raise CannotStart(
+                f"{str(directory)!r} is not empty: choose a new or an empty directory", "out"
+            )
+    except OSError as error:
+        raise CannotStart(f"cannot read {str(directory)!r}: {error.strerror}", "out") from None
+    new = None  # the outermost directory this command will make
+    ancestor = directory
+    while not ancestor.exists():
+        new, ancestor = ancestor, ancestor.parent
+
+    def forget() -> None:
+        if new is not None:
+            shutil.rmtree(new, ignore_errors=True)
+            return
+        for child in directory.iterdir():
+            if child.is_dir() and not child.is_symlink():
+                shutil.rmtree(child, ignore_errors=True)
+            else:
+                child.unlink(missing_ok=True)
+
+    return forget
 
 
 def new_study_name(directory: Path, owner: str | None = None) -> str:

@@ -6,32 +6,19 @@ most accurate and the smoothest. `controller` makes any member a `schemas.contro
 batch --gains` and `worker episode --gains` read), as the same document in YAML, or as a
 ros2_control parameter file.
 
-The knee is pymoo's achievement scalarisation function (ASF) with equal weights on the front
-normalised between its own ideal and nadir points: the member whose worse normalised objective
-is the least bad, the point where neither objective is given up for the other. Both objectives
-enter on a log scale: a front spans decades in each (a chattering member's f_t is 10²-10⁴ times
-a smooth one's; the softest members' error 20 times the stiffest's), and what a user trades is
-factors, not differences. On linear scales the extremes decide: one chattering member puts
-every other at f_t ≈ 0 and pulls the knee towards it.
-
-pymoo's other rules do not fit: HighTradeoffPoints returns a set (often empty, undefined on
-fronts of one or two members), pseudo-weights divide by zero on a one-member front, and its
-CompromiseProgramming returns nothing (pymoo 0.6). The ASF is defined for any front; ties go to
-the lowest row of front.csv (the more accurate member). Members whose episodes diverged carry a
-penalty, not a measurement: no pick is one of them unless every member is.
+The knee and the other picks are gainfarm.analytic.tuning.picks' (one rule for every reader
+of a run).
 """
 
 import hashlib
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import yaml
 from pydantic import ValidationError
-from pymoo.decomposition.asf import ASF
 
 from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.picks import Pick, pick_at, picks
 from gainfarm.analytic.tuning.records import (
     CONFIG_JSON,
     FRONT_CSV,
@@ -67,67 +54,12 @@ class BadMember(ValueError):
     """A --member that names no member of the front."""
 
 
-@dataclass(frozen=True)
-class Pick:
-    """A member of a front, chosen: `name` (knee, accurate, smooth, or row), its 1-based `row`
-    in front.csv, and how many members share its scores exactly (`sharing`, itself included)."""
-
-    name: str
-    row: int
-    member: FrontMember
-    sharing: int
-
-
 def plant_name(model: ModelSpec) -> str:
     """realistic or ideal if the model is that plant (whatever its joints), else custom."""
     for name, plant in PLANTS.items():
         if model == plant.model_copy(update={"joints": model.joints}):
             return name
     return "custom"
-
-
-def _measured(front: Sequence[FrontMember]) -> list[int]:
-    """The rows a pick may be: members with finite scores that did not diverge (all of them if
-    none is such: a pick is still defined, and says it diverged)."""
-    good = [
-        i
-        for i, m in enumerate(front)
-        if not m.diverged and np.isfinite(m.f_acc) and np.isfinite(m.f_t)
-    ]
-    return good or list(range(len(front)))
-
-
-def knee_index(front: Sequence[FrontMember]) -> int:
-    """The knee's index in `front` (sorted, as front.csv is): see the module's docstring."""
-    rows = _measured(front)
-    objectives = np.array([front[i].objectives for i in rows], dtype=float)
-    points = np.log10(np.maximum(objectives, np.finfo(float).tiny))  # an exact 0 stays finite
-    ideal, nadir = points.min(axis=0), points.max(axis=0)
-    span = np.where(nadir > ideal, nadir - ideal, 1.0)  # one member, or all alike: all 0
-    normalised = (points - ideal) / span
-    values = ASF().do(normalised, weights=np.array([0.5, 0.5]))
-    return rows[int(np.argmin(values))]  # argmin: the first of equals, the lowest row
-
-
-def _sharing(front: Sequence[FrontMember], index: int) -> int:
-    return sum(1 for m in front if m.objectives == front[index].objectives)
-
-
-def _pick(front: Sequence[FrontMember], name: str, index: int) -> Pick:
-    return Pick(name, index + 1, front[index], _sharing(front, index))
-
-
-def picks(front: Sequence[FrontMember]) -> list[Pick]:
-    """The knee, the most accurate and the smoothest member of `front` (none if it is empty)."""
-    front = sorted_front(front)
-    if not front:
-        return []
-    rows = _measured(front)
-    return [
-        _pick(front, "knee", knee_index(front)),
-        _pick(front, "accurate", rows[0]),  # sorted by f_acc, then f_t
-        _pick(front, "smooth", min(rows, key=lambda i: (front[i].f_t, i))),
-    ]
 
 
 def pick(front: Sequence[FrontMember], which: str) -> Pick:
@@ -145,7 +77,7 @@ def pick(front: Sequence[FrontMember], which: str) -> Pick:
         raise BadMember(
             f"row {row} is out of range: front.csv has {len(front)} members (1-{len(front)})"
         )
-    return _pick(front, "row", row - 1)
+    return pick_at(front, "row", row - 1)
 
 
 def controller(directory: Path, which: str = "knee") -> Controller:
@@ -224,7 +156,7 @@ def ros2_control(controller: Controller) -> str:
     parameters are typed, and an integer would be refused for these doubles.
     """
     member, source = controller.member, controller.source
-    trajectories = ", ".join(f"{t.kind.value} {t.duration:g} s" for t in source.trajectories)
+    trajectories = ", ".join(f"{t.kind} {t.duration:g} s" for t in source.trajectories)
     parameters = {
         "controller_manager": {
             "ros__parameters": {

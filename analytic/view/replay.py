@@ -23,9 +23,9 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from gainfarm.edges.files import write_atomically
 from gainfarm.models import RIGID_MJCF
 from gainfarm.schemas.episode_log import EpisodeLog
-from gainfarm.schemas.files import write_atomically
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
 from gainfarm.schemas.robot import JOINT_NAMES
 

@@ -1,13 +1,12 @@
-"""Reports in plain words: a run's report.md, and an experiment's with its verdict.
+"""Reports in plain words: a run's report.md (each experiment words its own:
+analytic.experiments).
 
 Like the figures, edge code on plain data: the caller computes, these functions only say it.
 """
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
 
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import (
@@ -21,8 +20,8 @@ from gainfarm.analytic.tuning.records import (
     sorted_front,
 )
 from gainfarm.analytic.view.export import Pick, plant_name, point_groups
+from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.controller import UNITS
-from gainfarm.schemas.files import write_atomically
 from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR
 from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
 
@@ -47,11 +46,11 @@ def _search(config: RunConfig) -> str:
 
 def trajectories_text(config: RunConfig) -> str:
     """The run's trajectories and their duration: 'spiral 5 s', 'spiral, random, pyramid 3 s'."""
-    kinds = [trajectory.kind.value for trajectory in config.trajectories]
+    kinds = [trajectory.kind for trajectory in config.trajectories]
     durations = {trajectory.duration for trajectory in config.trajectories}
     if len(durations) == 1:
         return f"{', '.join(kinds)} {durations.pop():g} s"
-    return ", ".join(f"{t.kind.value} {t.duration:g} s" for t in config.trajectories)
+    return ", ".join(f"{t.kind} {t.duration:g} s" for t in config.trajectories)
 
 
 def run_title(config: RunConfig) -> str:
@@ -66,7 +65,7 @@ def run_title(config: RunConfig) -> str:
 def run_setup(config: RunConfig) -> list[str]:
     """A run's configuration as its report lists it."""
     trajectories = ", ".join(
-        f"{trajectory.kind.value} {trajectory.duration:g} s" for trajectory in config.trajectories
+        f"{trajectory.kind} {trajectory.duration:g} s" for trajectory in config.trajectories
     )
     controller = config.mode + " controller"
     if config.feedforward is not None:
@@ -322,260 +321,3 @@ def plant_text(model: ModelSpec) -> str:
     if name == "custom":
         return f"custom plant (see config.json), {model.joints} joints"
     return f"{name} plant, {model.joints} joints"
-
-
-def experiment_setup(
-    base: RunConfig,
-    reps: int,
-    normalisations: dict[str, tuple[tuple[float, float], ...]],
-    *,
-    populations: Sequence[int] = (),
-    durations: Sequence[float] = (),
-) -> list[str]:
-    """How an experiment was run, as its report lists it; `normalisations`: per problem (the
-    trajectory fronts are judged on), the ideal and nadir points the hypervolume spans.
-    `populations` and `durations`: what the runs used when they vary (the popsize and speed
-    experiments), else the base configuration's population and trajectory duration hold."""
-    population = (
-        "populations " + ", ".join(str(size) for size in populations)
-        if populations
-        else f"population {base.pop}"
-    )
-    seconds = durations or sorted({t.duration for t in base.trajectories})
-    duration = (
-        ("trajectory durations " if len(seconds) > 1 else "trajectory duration ")
-        + ", ".join(f"{d:g}" for d in seconds)
-        + " s"
-    )
-    spaces = "; ".join(
-        f"{problem}: f_acc {ideal[0]:.4g}-{nadir[0]:.4g} m, "
-        f"f_t {ideal[1]:.4g}-{nadir[1]:.4g} (N·m)²"
-        for problem, (ideal, nadir) in normalisations.items()
-    )
-    return [
-        f"{reps} repetitions (seeds 0..{reps - 1}); runs of {population}, {duration}, "
-        f"{base.termination_text}, {plant_text(base.model)}",
-        "hypervolume normalised between the ideal and the nadir of the pooled non-dominated "
-        f"front of each problem (penalty points left out; f_t on a log scale): {spaces} "
-        "(`normalisation.json`)",
-        "comparisons: Mann-Whitney U (Wilcoxon signed-rank when paired), Vargha-Delaney A12 = "
-        "P(a > b) + 0.5 P(a = b), bootstrap 95 % CI of the difference of medians "
-        "(`stats.csv`); alpha 0.05",
-        "runs in `runs/`, raw numbers in `results.csv`",
-    ]
-
-
-def popsize_table(medians: dict[int, tuple[float, float]]) -> list[str]:
-    """Population size → (median hypervolume, median evaluations), as a Markdown table."""
-    table = ["| population | median hypervolume | median evaluations |", "|---:|---:|---:|"]
-    return table + [
-        f"| {s} | {hv:.4f} | {evaluations:.0f} |" for s, (hv, evaluations) in medians.items()
-    ]
-
-
-def controllers_table(medians: dict[tuple[str, str], float]) -> list[str]:
-    """(test trajectory, kind of controller) → median hypervolume on that trajectory."""
-    kinds = list(dict.fromkeys(kind for kind, _ in medians))
-    controllers = list(dict.fromkeys(controller for _, controller in medians))
-    table = [
-        "| judged on | " + " | ".join(f"{c} median hypervolume" for c in controllers) + " |",
-        "|---|" + "---:|" * len(controllers),
-    ]
-    return table + [
-        f"| {kind} | " + " | ".join(f"{medians[(kind, c)]:.4f}" for c in controllers) + " |"
-        for kind in kinds
-    ]
-
-
-def speed_table(durations: Sequence[float], error: dict[tuple[float, float], float]) -> list[str]:
-    """The most accurate controller's error, tuned-on duration against evaluated-on duration."""
-    table = [
-        "| tuned on | " + " | ".join(f"on {d:g} s" for d in durations) + " |",
-        "|---|" + "---:|" * len(durations),
-    ]
-    return table + [
-        f"| {t:g} s | " + " | ".join(f"{error[(t, u)] * 1000:.2f} mm" for u in durations) + " |"
-        for t in durations
-    ]
-
-
-@dataclass(frozen=True)
-class ConditionSummary:
-    """A condition of the algorithms study over its repetitions, as its table shows it."""
-
-    algorithm: str
-    scaling: str
-    runs: int
-    median_hypervolume: float
-    hypervolume_quartiles: tuple[float, float]
-    median_best_f_acc: float  # m
-    median_evaluations_to_target: float  # inf when fewer than half of the runs reach it
-    reached_target: int  # runs that reach it
-
-
-def condition_text(algorithm: str, scaling: str) -> str:
-    """An optimiser and what it is told, as a reader says it: 'NSGA-II, log f_t'."""
-    told = "log f_t" if scaling == "log" else scaling
-    return f"{ALGORITHM_NAMES.get(algorithm, algorithm)}, {told}"
-
-
-def algorithms_table(
-    summaries: Sequence[ConditionSummary], baselines: dict[str, tuple[float, float]]
-) -> list[str]:
-    """One row per condition, then one per no-GA baseline (`baselines`: its name → its
-    hypervolume and best f_acc in m, one deterministic set each, so no spread)."""
-    table = [
-        "| condition | runs | median hypervolume | interquartile range | median best error (mm) "
-        "| median evaluations to 99 % |",
-        "|---|---:|---:|---:|---:|---:|",
-    ]
-    for s in summaries:
-        low, high = s.hypervolume_quartiles
-        reached = (
-            "not reached"
-            if math.isinf(s.median_evaluations_to_target)
-            else f"{s.median_evaluations_to_target:.0f}"
-        )
-        table.append(
-            f"| {condition_text(s.algorithm, s.scaling)} | {s.runs} | "
-            f"{s.median_hypervolume:.4f} | {low:.4f}-{high:.4f} | "
-            f"{s.median_best_f_acc * 1000:.3f} | {reached} ({s.reached_target} of {s.runs} "
-            "runs reach it) |"
-        )
-    table += [
-        f"| {name}, no GA | – | {hypervolume:.4f} | – | {best_f_acc * 1000:.3f} | – |"
-        for name, (hypervolume, best_f_acc) in baselines.items()
-    ]
-    return table
-
-
-def write_experiment_report(
-    path: Path,
-    *,
-    title: str,
-    setup: Sequence[str],
-    table: Sequence[str],
-    verdict: str,
-    figures: Sequence[str],
-) -> None:
-    """An experiment's report.md: how it was run, its table, its verdict and its figures."""
-    lines = [
-        f"# {title}",
-        "",
-        *[f"- {line}" for line in setup],
-        "",
-        *table,
-        "",
-        verdict,
-        "",
-        *[f"![{name}]({name})" for name in figures],
-        "",
-    ]
-    write_atomically(Path(path), "\n".join(lines).encode())
-
-
-def dataset_value_table(
-    means: dict[tuple[str, str], tuple[float, float]], reference: float | None = None
-) -> list[str]:
-    """(model, condition) → (mean, sd) of the test nMSE: conditions as rows, models as
-    columns, "mean ± sd"; the rigid prior's single score as a last row, if given."""
-    models = list(dict.fromkeys(model for model, _ in means))
-    conditions = list(dict.fromkeys(condition for _, condition in means))
-
-    def cell(mean: float, sd: float) -> str:
-        return f"{mean:.4f}" if not math.isfinite(sd) else f"{mean:.4f} ± {sd:.4f}"
-
-    table = [
-        "| condition | " + " | ".join(f"{model} nMSE" for model in models) + " |",
-        "|---|" + "---:|" * len(models),
-    ]
-    table += [
-        f"| {condition} | "
-        + " | ".join(cell(*means[(model, condition)]) for model in models)
-        + " |"
-        for condition in conditions
-    ]
-    if reference is not None:
-        table.append(
-            "| (rigid prior, untrained) | " + " | ".join(f"{reference:.4f}" for _ in models) + " |"
-        )
-    return table
-
-
-class PairedComparison(Protocol):
-    """What a comparisons table shows of one paired comparison (analytic.dataset_value's)."""
-
-    model: str
-    condition: str
-    against: str
-    mean_difference: float
-    t: float
-    p: float
-    p_holm: float
-    d_z: float
-    n: int
-
-
-def comparisons_table(comparisons: Sequence[PairedComparison]) -> list[str]:
-    """Paired comparisons as a Markdown table; a difference below zero means lower nMSE. An
-    untested value (too few repetitions) shows as a dash."""
-
-    def number(value: float, fmt: str) -> str:
-        return "–" if math.isnan(value) else format(value, fmt)
-
-    table = [
-        "| model | condition | against | mean difference | t | p | p (Holm) | d_z | n |",
-        "|---|---|---|---:|---:|---:|---:|---:|---:|",
-    ]
-    for c in comparisons:
-        table.append(
-            f"| {c.model} | {c.condition} | {c.against} | {number(c.mean_difference, '+.4f')} | "
-            f"{number(c.t, '.2f')} | {number(c.p, '.3g')} | {number(c.p_holm, '.3g')} | "
-            f"{number(c.d_z, '+.2f')} | {c.n} |"
-        )
-    return table
-
-
-def write_dataset_value_report(
-    path: Path,
-    *,
-    setup: Sequence[str],
-    means: dict[tuple[str, str], tuple[float, float]],
-    reference: float | None,
-    comparisons: Sequence[PairedComparison],
-    verdict: str,
-    limitations: Sequence[str],
-    figure: str,
-) -> None:
-    """The dataset-value experiment's report.md: setup, nMSE table, comparisons, verdict,
-    limitations, figure."""
-    lines = [
-        "# The value of tuned controllers' data for learning the dynamics",
-        "",
-        *[f"- {line}" for line in setup],
-        "",
-        "## Test nMSE (mean ± sd over repetitions)",
-        "",
-        *dataset_value_table(means, reference),
-        "",
-        "## Verdict",
-        "",
-        verdict,
-        "",
-        "## Paired comparisons",
-        "",
-        "Difference = the condition's nMSE minus the other's, paired by repetition (below zero: "
-        "its data taught more); paired t-test, Cohen's d_z = mean difference / sd of the "
-        "differences; Holm's adjustment across the ten comparisons of each model (the last row, "
-        "best selection against runner-up, is one test of its own).",
-        "",
-        *comparisons_table(comparisons),
-        "",
-        "## Limitations",
-        "",
-        *[f"- {line}" for line in limitations],
-        "",
-        f"![{figure}]({figure})",
-        "",
-    ]
-    write_atomically(Path(path), "\n".join(lines).encode())

@@ -1,8 +1,9 @@
 """Bad input gets one clear error line and a non-zero exit: the shared rules of every CLI."""
 
+import importlib
 import logging
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping, MutableMapping
 
 import click
 
@@ -33,17 +34,80 @@ def parse_numbers(option: str, text: str, count: int | None = None) -> tuple[flo
     return values
 
 
-def program_group(help: str | None) -> Callable[[Callable[..., None]], click.Group]:
+class LazyCommands(MutableMapping[str, click.Command]):
+    """A group's commands by name, each imported only when it is looked up (to run it, or show
+    its own help): `lazy` maps a name to ("module:attribute", summary). The summary is the one
+    the group's --help lists, so that listing imports nothing; it is the command's short help."""
+
+    def __init__(self, lazy: Mapping[str, tuple[str, str]]):
+        self.lazy = dict(lazy)
+        self.loaded: dict[str, click.Command] = {}
+
+    def summary(self, name: str) -> str:
+        if name in self.lazy:
+            return self.lazy[name][1]
+        return self.loaded[name].get_short_help_str(limit=1000)
+
+    def __getitem__(self, name: str) -> click.Command:
+        if name not in self.loaded:
+            module, _, attribute = self.lazy[name][0].partition(":")
+            command = getattr(importlib.import_module(module), attribute)
+            if not isinstance(command, click.Command):
+                raise TypeError(f"{self.lazy[name][0]} is not a click command")
+            command.short_help = command.short_help or self.lazy[name][1]
+            self.loaded[name] = command
+        return self.loaded[name]
+
+    def __setitem__(self, name: str, command: click.Command) -> None:
+        self.loaded[name] = command
+        self.lazy.pop(name, None)
+
+    def __delitem__(self, name: str) -> None:
+        if self.lazy.pop(name, None) is None:
+            del self.loaded[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(sorted(self.lazy.keys() | self.loaded.keys()))
+
+    def __len__(self) -> int:
+        return len(self.lazy.keys() | self.loaded.keys())
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.lazy or name in self.loaded
+
+
+class LazyGroup(click.Group):
+    """A group whose --help lists its commands, and whose command line is parsed, with only the
+    command run imported (`LazyCommands`)."""
+
+    commands: LazyCommands  # type: ignore[assignment]
+
+    def __init__(self, *args: object, lazy: Mapping[str, tuple[str, str]], **kwargs: object):
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+        self.commands = LazyCommands(lazy)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = [(name, self.commands.summary(name)) for name in self.list_commands(ctx)]
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+
+def program_group(
+    help: str | None, commands: Mapping[str, tuple[str, str]] | None = None
+) -> Callable[[Callable[..., None]], click.Group]:
     """The group of a command line's commands: its help with no arguments, -h and --help,
-    and --version (the installed gainfarm's)."""
+    and --version (the installed gainfarm's). `commands`, if given: the commands the group loads
+    only when one runs (LazyGroup: name -> ("module:attribute", summary))."""
 
     def decorate(function: Callable[..., None]) -> click.Group:
         function = click.version_option(package_name="gainfarm", message="%(prog)s %(version)s")(
             function
         )
-        return click.group(help=help, no_args_is_help=True, context_settings=CONTEXT_SETTINGS)(
-            function
-        )
+        lazy = {"cls": LazyGroup, "lazy": commands} if commands is not None else {}
+        return click.group(
+            help=help, no_args_is_help=True, context_settings=CONTEXT_SETTINGS, **lazy
+        )(function)
 
     return decorate
 

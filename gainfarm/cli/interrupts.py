@@ -142,4 +142,13 @@ def launch(module: str, program: str) -> None:
         raise
     if INTERRUPTED.is_set():  # pressed during the imports, and dropped by one of them
         stop(program)
-    main()
+    try:
+        main()
+    except KeyboardInterrupt:  # pressed as the command ended (its exit under way, say)
+        stop(program)
+    finally:
+        # The command is done: a Ctrl-C now comes too late to stop anything, and must not turn
+        # its exit into a death by SIGINT (status -2, measured once `worker --version` took
+        # 0.15 s instead of 1.6). A service's own handler, set in place of ours, stays.
+        if ours():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)

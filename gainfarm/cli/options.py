@@ -1,35 +1,75 @@
 """The options several commands share, each written once: same name, type, default and help.
 
-A decorator per option (or group of options that always go together); the choices come from the
-contract (schemas/), so a new trajectory kind or model variant reaches every command by itself.
+A decorator per option (or group of options that always go together). The choices and defaults
+come from where they are defined (the contract, schemas/), but only when they are needed: a
+`Later` default or a `LazyChoice` loads its module when the option is processed or shown in
+--help, never when a command's module is imported. So a command line is parsed, and a bad
+value of another option refused, at the cost of `import click`.
 """
 
+import functools
 import typing
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
-from pydantic import ValidationError
 
 from gainfarm.cli.app import CliError, parse_numbers
-from gainfarm.models.dynamics import (
-    MODEL_FILE,
-    BadDynamicsModel,
-    DynamicsModel,
-    feedforward_from_bytes,
-)
-from gainfarm.schemas.robot import PLANTS, ModelSpec
-from gainfarm.schemas.security import Role, TlsIdentity, UnknownIdentity, load_identity
-from gainfarm.schemas.trajectory import TrajectoryKind, TrajectorySpec
-from gainfarm.schemas.wire import describe
+
+if TYPE_CHECKING:
+    from gainfarm.models.dynamics import DynamicsModel
+    from gainfarm.schemas.robot import ModelSpec
+    from gainfarm.schemas.security import Role, TlsIdentity
+    from gainfarm.schemas.trajectory import TrajectorySpec
 
 F = TypeVar("F", bound=Callable[..., object])
 
-TRAJECTORY_KINDS = [kind.value for kind in TrajectoryKind]
-MODEL_JOINTS = list(typing.get_args(ModelSpec.model_fields["joints"].annotation))
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
 LOG_LEVELS = ("debug", "info", "warning", "error")
+
+
+class Later:
+    """An option's default found when it is needed (the option processed without a value, or
+    --help showing it), not when the command is defined: `default=Later(lambda: ...)`."""
+
+    def __init__(self, value: Callable[[], Any]):
+        self._value = value
+
+    def __call__(self) -> Any:  # click calls a callable default for its value
+        return self._value()
+
+    def __str__(self) -> str:  # and shows a callable that is not a function by str()
+        value = self._value()
+        return ", ".join(map(str, value)) if isinstance(value, list | tuple) else str(value)
+
+
+class LazyChoice(click.Choice):
+    """A choice among names found when they are needed: a value to check, or --help to show
+    (the trajectory kinds and optimisers plug-ins add: their metadata read, none imported)."""
+
+    def __init__(self, names: Callable[[], Sequence[str]]):
+        # Not Choice.__init__: it would read the names now. Not cached here either: what is
+        # installed can change within a process (gainfarm.plugins caches until sys.path does).
+        self._names = names
+        self.case_sensitive = True
+
+    @property
+    def choices(self) -> Sequence[str]:  # type: ignore[override]
+        return tuple(self._names())
+
+
+class LaterHelp(click.Option):
+    """An option whose help names values from a module too heavy to load for parsing: made when
+    --help shows it. `click.option(..., cls=LaterHelp, later_help=lambda: ...)`."""
+
+    def __init__(self, *args: Any, later_help: Callable[[], str], **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        self._later_help = later_help
+
+    def get_help_record(self, ctx: click.Context) -> tuple[str, str] | None:
+        self.help = self._later_help()
+        return super().get_help_record(ctx)
 
 
 def stack(*options: Callable[[F], F]) -> Callable[[F], F]:
@@ -43,22 +83,33 @@ def stack(*options: Callable[[F], F]) -> Callable[[F], F]:
     return decorate
 
 
+# --- the trajectory -----------------------------------------------------------------------------
+
+
+def trajectory_kinds() -> tuple[str, ...]:
+    """The built-in kinds and the installed plug-ins' (their metadata read, none imported)."""
+    from gainfarm import plugins
+
+    return plugins.names(plugins.TRAJECTORIES)
+
+
+@functools.cache
+def _trajectory() -> "TrajectorySpec":
+    """The default trajectory: where every trajectory option's default comes from."""
+    from gainfarm.schemas.trajectory import TrajectorySpec
+
+    return TrajectorySpec()
+
+
 def trajectory(multiple: bool = False, help: str = "end-effector path") -> Callable[[F], F]:
     """--trajectory: one kind (parameter `trajectory`), or several (parameter `kinds`)."""
-    if multiple:
-        return click.option(
-            "--trajectory",
-            "kinds",
-            multiple=True,
-            type=click.Choice(TRAJECTORY_KINDS),
-            default=[TrajectoryKind.spiral.value],
-            show_default=True,
-            help=help,
-        )
+    kind = Later(lambda: str(_trajectory().kind))
     return click.option(
         "--trajectory",
-        type=click.Choice(TRAJECTORY_KINDS),
-        default=TrajectoryKind.spiral.value,
+        "kinds" if multiple else "trajectory",
+        multiple=multiple,
+        type=LazyChoice(trajectory_kinds),
+        default=Later(lambda: [kind()]) if multiple else kind,
         show_default=True,
         help=help,
     )
@@ -66,38 +117,13 @@ def trajectory(multiple: bool = False, help: str = "end-effector path") -> Calla
 
 def duration(help: str = "seconds") -> Callable[[F], F]:
     """--duration of the trajectory; its range is checked where the TrajectorySpec is made."""
-    return click.option("--duration", type=float, default=5.0, show_default=True, help=help)
-
-
-def model(help: str | None = "elastic or rigid joints") -> Callable[[F], F]:
-    """--model: the joints of the simulated robot, as ModelSpec names them."""
     return click.option(
-        "--model",
-        type=click.Choice(MODEL_JOINTS),
-        default=ModelSpec().joints,
+        "--duration",
+        type=float,
+        default=Later(lambda: _trajectory().duration),
         show_default=True,
         help=help,
     )
-
-
-def plant() -> Callable[[F], F]:
-    """--plant: the realistic plant (the default) or the first wave's idealised one."""
-    return click.option(
-        "--plant",
-        type=click.Choice(list(PLANTS)),
-        default="realistic",
-        show_default=True,
-        help="realistic: friction, a 1-tick delay, encoders and torque sensors with noise, "
-        "motor-side feedback, KUKA's CAD masses; ideal: the paper's idealised plant",
-    )
-
-
-def model_spec(plant: str, joints: str) -> ModelSpec:
-    """The ModelSpec of `--plant` with `--model`'s joints."""
-    return PLANTS[plant].model_copy(update={"joints": joints})
-
-
-_TRAJECTORY = TrajectorySpec()
 
 
 def placement() -> Callable[[F], F]:
@@ -107,33 +133,44 @@ def placement() -> Callable[[F], F]:
         click.option(
             "--trajectory-seed",
             type=click.IntRange(min=0),
-            default=_TRAJECTORY.seed,
+            default=Later(lambda: _trajectory().seed),
             show_default=True,
             help="seed of the random kind's waypoints and the fourier kind's coefficients",
         ),
         click.option(
             "--center",
-            default=",".join(f"{v:g}" for v in _TRAJECTORY.center),
+            default=Later(lambda: ",".join(f"{v:g}" for v in _trajectory().center)),
             show_default=True,
             help="x,y,z of the path's centre in the base frame, m (not fourier)",
         ),
         click.option(
             "--size",
             type=float,
-            default=_TRAJECTORY.size,
+            default=Later(lambda: _trajectory().size),
             show_default=True,
             help="the path's half-width, m (not fourier)",
         ),
     )
 
 
-_FIELD_OPTIONS = {"seed": "--trajectory-seed", "center": "--center", "size": "--size"}
+_FIELD_OPTIONS = {
+    "kind": "--trajectory",
+    "duration": "--duration",
+    "seed": "--trajectory-seed",
+    "center": "--center",
+    "size": "--size",
+}
 
 
 def trajectories(
     kinds: typing.Iterable[str], duration: float, seed: int, center: str, size: float
-) -> tuple[TrajectorySpec, ...]:
+) -> tuple["TrajectorySpec", ...]:
     """The trajectories the options describe; a bad value is one line naming its option."""
+    from pydantic import ValidationError
+
+    from gainfarm.schemas.trajectory import TrajectorySpec
+    from gainfarm.schemas.wire import describe
+
     point = parse_numbers("--center", center, 3)
     try:
         return tuple(
@@ -144,6 +181,96 @@ def trajectories(
         field = str(error.errors()[0]["loc"][0]) if error.errors()[0]["loc"] else ""
         option = _FIELD_OPTIONS.get(field, f"--{field}" if field else "--trajectory")
         raise CliError(f"{option}: {describe(error).split(': ', 1)[-1]}") from None
+
+
+# --- the simulated robot ------------------------------------------------------------------------
+
+
+def _joint_kinds() -> tuple[str, ...]:
+    from gainfarm.schemas.robot import ModelSpec
+
+    return typing.get_args(ModelSpec.model_fields["joints"].annotation)
+
+
+def _plants() -> tuple[str, ...]:
+    from gainfarm.schemas.robot import PLANTS
+
+    return tuple(PLANTS)
+
+
+def _default_plant() -> str:
+    """The plant a run's configuration has by default (RunConfig().model), by name."""
+    from gainfarm.schemas.robot import PLANTS, ModelSpec
+
+    return next(name for name, spec in PLANTS.items() if spec == ModelSpec())
+
+
+def joints(
+    help: str | None = "the arm's joints: flexible (a spring between motor and link) or rigid",
+) -> Callable[[F], F]:
+    """--joints: the joints of the simulated arm, as ModelSpec names them (not --model: that word
+    is the learned model's, `analytic learn --kind`)."""
+    return click.option(
+        "--joints",
+        type=LazyChoice(_joint_kinds),
+        default=Later(_joint_default),
+        show_default=True,
+        help=help,
+    )
+
+
+def _joint_default() -> str:
+    from gainfarm.schemas.robot import ModelSpec
+
+    return ModelSpec().joints
+
+
+def plant() -> Callable[[F], F]:
+    """--plant: the realistic plant (the default) or the first wave's idealised one."""
+    return click.option(
+        "--plant",
+        type=LazyChoice(_plants),
+        default=Later(_default_plant),
+        show_default=True,
+        help="realistic: friction, a 1-tick delay, encoders and torque sensors with noise, "
+        "motor-side feedback, KUKA's CAD masses; ideal: the paper's idealised plant",
+    )
+
+
+def model_spec(plant: str, joints: str) -> "ModelSpec":
+    """The ModelSpec of `--plant` with `--joints`."""
+    from gainfarm.schemas.robot import PLANTS
+
+    return PLANTS[plant].model_copy(update={"joints": joints})
+
+
+def feedforward(
+    help: str = "add a learned inverse-dynamics model's torque for the reference "
+    "to the PD (a directory from `analytic learn`, or its model.npz)",
+) -> Callable[[F], F]:
+    return click.option("--feedforward", type=click.Path(path_type=Path), help=help)
+
+
+def feedforward_model(path: Path | None) -> tuple[bytes, "DynamicsModel"] | None:
+    """--feedforward's model file as bytes (jobs name it by their SHA-256) and decoded; it must
+    be an inverse-dynamics model of the seven joints."""
+    if path is None:
+        return None
+    from gainfarm.models.dynamics import MODEL_FILE, BadDynamicsModel, feedforward_from_bytes
+
+    file = path / MODEL_FILE if path.is_dir() else path
+    try:
+        raw = file.read_bytes()
+    except OSError as error:
+        raise CliError(f"--feedforward: cannot read {str(file)!r}: {error.strerror}") from None
+    try:
+        model = feedforward_from_bytes(raw)
+    except BadDynamicsModel as error:
+        raise CliError(f"--feedforward: {str(file)!r}: {error}") from None
+    return raw, model
+
+
+# --- the farm -------------------------------------------------------------------------------------
 
 
 def connect(help: str) -> Callable[[F], F]:
@@ -158,7 +285,7 @@ def tls(help: str) -> Callable[[F], F]:
     return click.option("--tls", type=click.Path(path_type=Path), help=help)
 
 
-def participant(role: Role) -> Callable[[F], F]:
+def participant(role: "Role") -> Callable[[F], F]:
     """--as NAME (parameter `participant`): which of a --tls directory's `role` identities to
     use; pass it to `identity`."""
     return click.option(
@@ -171,12 +298,16 @@ def participant(role: Role) -> Callable[[F], F]:
 
 
 def identity(
-    directory: Path | None, role: Role, name: str | None = None, name_option: str = "--as"
-) -> TlsIdentity | None:
+    directory: Path | None, role: "Role", name: str | None = None, name_option: str = "--as"
+) -> "TlsIdentity | None":
     """The identity in a --tls directory (None without one): participant `name`'s, or without a
     name the directory's only identity of `role`. One line otherwise, naming `name_option` when
     the name is what is wrong (not there, or needed to choose among several) and --tls when a
     file is missing."""
+    if directory is None:  # not a secure farm: nothing to load
+        return None
+    from gainfarm.schemas.security import UnknownIdentity, load_identity
+
     try:
         return load_identity(directory, role, name)
     except UnknownIdentity as error:
@@ -189,27 +320,3 @@ def log_level() -> Callable[[F], F]:
     return click.option(
         "--log-level", type=click.Choice(LOG_LEVELS), default="info", show_default=True
     )
-
-
-def feedforward(
-    help: str = "add a learned inverse-dynamics model's torque for the reference "
-    "to the PD (a directory from `analytic learn`, or its model.npz)",
-) -> Callable[[F], F]:
-    return click.option("--feedforward", type=click.Path(path_type=Path), help=help)
-
-
-def feedforward_model(path: Path | None) -> tuple[bytes, DynamicsModel] | None:
-    """--feedforward's model file as bytes (jobs name it by their SHA-256) and decoded; it must
-    be an inverse-dynamics model of the seven joints."""
-    if path is None:
-        return None
-    file = path / MODEL_FILE if path.is_dir() else path
-    try:
-        raw = file.read_bytes()
-    except OSError as error:
-        raise CliError(f"--feedforward: cannot read {str(file)!r}: {error.strerror}") from None
-    try:
-        model = feedforward_from_bytes(raw)
-    except BadDynamicsModel as error:
-        raise CliError(f"--feedforward: {str(file)!r}: {error}") from None
-    return raw, model

@@ -11,6 +11,7 @@ import threading
 from collections.abc import Callable
 
 from gainfarm.models.dynamics import DynamicsModel
+from gainfarm.models.urdf import description
 from gainfarm.schemas.mcap_episode import decode_episode, episode_bytes
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.wire import Lease, Result, WireScores
@@ -30,7 +31,7 @@ def lying_execute(
     log = decode_episode(content)
     u = log.u.copy()
     u[len(u) // 2, 3] += 0.01  # N·m: one sample of one joint's command
-    altered = episode_bytes(dataclasses.replace(log, u=u))
+    altered = episode_bytes(dataclasses.replace(log, u=u), description())
     digest = hashlib.sha256(altered).hexdigest()
     scores = WireScores(**score(decode_episode(altered)).model_dump())
     update = {"episode_bytes": len(altered), "digest": digest, "scores": scores}

@@ -52,6 +52,7 @@ def toy_objectives(config: RunConfig, gains) -> tuple[float, float]:
 
 
 @pytest.mark.parametrize("algorithm", EVERY)
+@pytest.mark.slow
 def test_every_algorithm_tunes_and_keeps_the_same_front_guarantee(
     algorithm: str, tmp_path: Path
 ) -> None:
@@ -178,6 +179,7 @@ def test_steady_state_is_nsga2_only() -> None:
         (["--async", "--algorithm", "smsemoa"], "--async"),
     ],
 )
+@pytest.mark.slow
 def test_start_refuses_a_bad_algorithm_in_one_line(
     arguments: list[str], message: str, tmp_path: Path
 ) -> None:
@@ -188,6 +190,7 @@ def test_start_refuses_a_bad_algorithm_in_one_line(
     assert not (tmp_path / "runs").exists()
 
 
+@pytest.mark.slow
 def test_start_runs_another_algorithm_and_records_it(tmp_path: Path) -> None:
     run = analytic(
         "start",

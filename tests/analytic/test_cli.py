@@ -14,18 +14,46 @@ from pathlib import Path
 
 import pytest
 
+from gainfarm.analytic.cli import main
 from gainfarm.analytic.evaluators.local import free_port, spawn_worker, stop_workers
 from gainfarm.analytic.tuning.records import FRONT_FIELDS, read_front_json
 from gainfarm.broker.service import Broker
-from gainfarm.schemas.mcap_episode import write_episode
-from tests.helpers import analytic, crafted_log
+from gainfarm.cli import interrupts
+from tests.helpers import analytic, crafted_log, write_log
 
 ANALYTIC = [sys.executable, "-c", "from gainfarm.analytic.cli import main; main()"]
 
 
+class Refused:
+    """What a command line that stops before any farm said: its exit status and stderr."""
+
+    def __init__(self, returncode: int, stderr: str):
+        self.returncode, self.stderr = returncode, stderr
+
+
+@pytest.fixture
+def here(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]):
+    """`analytic ARGUMENTS` in `cwd`, through the console script's own entry point, in this
+    process: for a command refused before any farm, which a process of its own would only
+    make slower."""
+
+    def run(*arguments: str, cwd: Path) -> Refused:
+        monkeypatch.chdir(cwd)
+        monkeypatch.setattr(sys, "argv", ["analytic", *arguments])
+        capsys.readouterr()
+        try:
+            with pytest.raises(SystemExit) as exit:
+                main()
+        finally:
+            interrupts.uninstall()  # the command took Ctrl-C over for its process: give it back
+        return Refused(int(exit.value.code or 0), capsys.readouterr().err)
+
+    return run
+
+
 def test_evaluate_scores_a_crafted_log_from_the_file(tmp_path):
     path = tmp_path / "crafted.mcap"
-    write_episode(crafted_log(), path)
+    write_log(crafted_log(), path)
     result = subprocess.run(
         [*ANALYTIC, "evaluate", str(path), "--json"], capture_output=True, text=True, timeout=60
     )
@@ -35,37 +63,13 @@ def test_evaluate_scores_a_crafted_log_from_the_file(tmp_path):
     assert abs(scores["f_t"] - 1609.0 / 3) < 1e-9
 
 
-def test_evaluate_rejects_what_is_not_an_episode_log(tmp_path):
+def test_evaluate_rejects_what_is_not_an_episode_log(tmp_path, here):
     junk = tmp_path / "junk.mcap"
     junk.write_text("not an mcap file")
     for target in (junk, tmp_path / "missing.mcap"):
-        result = subprocess.run(
-            [*ANALYTIC, "evaluate", str(target)], capture_output=True, text=True, timeout=60
-        )
+        result = here("evaluate", str(target), cwd=tmp_path)
         assert result.returncode == 2
         assert result.stderr.startswith("analytic: error:") and result.stderr.count("\n") == 1
-
-
-@pytest.mark.parametrize(
-    ("arguments", "message"),
-    [
-        (
-            ["--algorithms", "nsga2,cmaes"],
-            "--algorithms: unknown algorithm 'cmaes': one of nsga2, ",
-        ),
-        (["--algorithms", "nsga2,random,nsga2"], "--algorithms: algorithm 'nsga2' given twice"),
-        (["--objective-scaling", "raw,sqrt"], "--objective-scaling: unknown objective scaling"),
-        (["--generations", "3"], "--generations: the algorithms study compares on a budget"),
-    ],
-)
-def test_the_algorithms_study_refuses_bad_options_in_one_line_before_anything_is_written(
-    tmp_path: Path, arguments: list[str], message: str
-) -> None:
-    run = analytic("experiment", "algorithms", *arguments, "--local", "--out", "out", cwd=tmp_path)
-    assert run.returncode == 2, run.stderr
-    assert run.stderr.startswith(f"analytic: error: {message}"), run.stderr
-    assert len(run.stderr.splitlines()) == 1
-    assert not (tmp_path / "out").exists()
 
 
 SEVEN = [1.0] * 7
@@ -84,10 +88,10 @@ SEVEN = [1.0] * 7
     ],
 )
 def test_a_bad_gains_file_is_one_line_naming_the_option_before_any_farm(
-    tmp_path: Path, content: str, says: str
+    tmp_path: Path, content: str, says: str, here
 ) -> None:
     (tmp_path / "gains").write_text(content)
-    ran = analytic("batch", "--local", "--gains", "gains", "--run-dir", "b", cwd=tmp_path)
+    ran = here("batch", "--local", "--gains", "gains", "--run-dir", "b", cwd=tmp_path)
     assert ran.returncode == 2, ran.stderr
     assert ran.stderr.startswith("analytic: error: --gains: 'gains'"), ran.stderr
     assert says in ran.stderr and len(ran.stderr.splitlines()) == 1
@@ -134,6 +138,7 @@ def on_a_terminal(command: list[str], cwd: Path, columns: int) -> tuple[int, lis
     return status, [line for line in re.split(r"[\r\n]", text) if line.strip()]
 
 
+@pytest.mark.slow
 def test_start_on_a_terminal_keeps_a_live_line_within_80_columns(tmp_path: Path) -> None:
     status, lines = on_a_terminal(
         [*ANALYTIC, "start", *SHORT_RUN, "--duration", "4", "--generations", "4", "--out", "run"],
@@ -152,6 +157,7 @@ def test_start_on_a_terminal_keeps_a_live_line_within_80_columns(tmp_path: Path)
     assert not any(line.startswith("generation ") for line in lines)  # plain lines: off one
 
 
+@pytest.mark.slow
 def test_start_off_a_terminal_says_one_line_per_generation_and_keeps_the_front_s_logs(
     tmp_path: Path,
 ) -> None:
@@ -201,6 +207,7 @@ class Lines:
         raise AssertionError(f"no line with {text!r} in {timeout} s: {self.lines}")
 
 
+@pytest.mark.slow
 def test_start_says_it_waits_for_workers_while_the_broker_has_none(
     tmp_path: Path, broker: Broker
 ) -> None:
@@ -228,6 +235,7 @@ def test_start_says_it_waits_for_workers_while_the_broker_has_none(
     assert [line.split(":")[0] for line in said.lines[2:4]] == ["generation 1", "generation 2"]
 
 
+@pytest.mark.slow
 def test_start_says_when_it_lost_the_broker_and_waits(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     broker = subprocess.Popen(
@@ -265,6 +273,7 @@ DEAD = f"tcp/127.0.0.1:{free_port()}"  # nobody listens there
 )
 @pytest.mark.parametrize("command", ["start", "batch"])
 @pytest.mark.parametrize("there", [False, True])
+@pytest.mark.slow
 def test_a_farm_that_cannot_be_had_leaves_nothing_behind(
     tmp_path: Path, endpoint: str, says: str, command: str, there: bool
 ) -> None:
@@ -284,18 +293,18 @@ def test_a_farm_that_cannot_be_had_leaves_nothing_behind(
 
 @pytest.mark.parametrize(("command", "option"), [("start", "--out"), ("batch", "--run-dir")])
 def test_a_directory_that_holds_other_files_is_refused(
-    tmp_path: Path, command: str, option: str
+    tmp_path: Path, command: str, option: str, here
 ) -> None:
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "notes.txt").write_text("mine")
-    run = analytic(command, "--local", option, "mine", cwd=tmp_path)
+    run = here(command, "--local", option, "mine", cwd=tmp_path)
     assert run.returncode == 2, run.stderr
     assert one_line(run.stderr) == (
         f"analytic: error: {option}: 'mine' is not empty: choose a new or an empty directory"
     )
     assert [path.name for path in mine.iterdir()] == ["notes.txt"]
-    run = analytic(command, "--local", option, "mine/notes.txt", cwd=tmp_path)
+    run = here(command, "--local", option, "mine/notes.txt", cwd=tmp_path)
     assert one_line(run.stderr).endswith(f"{option}: 'mine/notes.txt' is a file, not a directory")
 
 
@@ -304,6 +313,7 @@ def one_line(stderr: str) -> str:
     return stderr.rstrip("\n")
 
 
+@pytest.mark.slow
 def test_batch_off_a_terminal_says_its_progress_in_plain_lines(tmp_path: Path) -> None:
     """Every tenth of the jobs (every job, of three), on stderr; none with --json, whose lines
     are the output."""

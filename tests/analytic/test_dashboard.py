@@ -94,6 +94,7 @@ def dashboard(*arguments: str, cwd: Path) -> Iterator[str]:
 TUNING = ("--pop", "8", "--generations", "12", "--duration", "3", "--seed", "1", "--no-replicate")
 
 
+@pytest.mark.slow
 def test_the_page_follows_a_run_and_its_farm_live(tmp_path: Path, browser) -> None:
     runs = tmp_path / "runs"
     runs.mkdir()
@@ -176,6 +177,7 @@ def test_a_run_reads_as_its_files_say(tmp_path: Path) -> None:
     assert broken.line.startswith("cannot read: ") and broken.history["evaluations"] == []
 
 
+@pytest.mark.slow
 def test_bad_options_are_one_line(tmp_path: Path) -> None:
     for arguments, expected in (
         (("nowhere",), "analytic: error: RUNS: 'nowhere': no such directory"),
@@ -201,6 +203,7 @@ def test_without_bokeh_the_command_says_which_extra(tmp_path: Path) -> None:
     )
 
 
+@pytest.mark.slow
 def test_a_port_in_use_is_one_line(tmp_path: Path) -> None:
     with Broker([f"tcp/127.0.0.1:{free_port()}"]) as broker:
         taken = int(broker.endpoints[0].rsplit(":", 1)[1])

@@ -27,6 +27,7 @@ from gainfarm.analytic.data.dataset import (
     RerunFarm,
     assign_splits,
     build,
+    select,
     split_counts,
     trajectory_id,
 )
@@ -37,10 +38,12 @@ from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import RUN_JSON, read_identity, read_run
 from gainfarm.analytic.tuning.run import TuningRun
 from gainfarm.analytic.tuning.tune import new_study_name
+from gainfarm.analytic.view.export import controller
 from gainfarm.cli import interrupts
 from gainfarm.schemas import TrajectorySpec
-from gainfarm.schemas.mcap_episode import read_episode, write_episode
+from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.robot import JOINT_NAMES
+from tests.helpers import write_log
 
 SPIRAL = TrajectorySpec(duration=3.0)
 CONFIG = RunConfig(
@@ -142,6 +145,7 @@ def assert_ticks_are_the_logs(dataset: Path) -> int:
     return len(logs)
 
 
+@pytest.mark.slow
 def test_the_tick_table_is_the_episodes_tick_by_tick(run_dir: Path, tmp_path: Path) -> None:
     counts = build([run_dir], tmp_path / "dataset")
     assert assert_ticks_are_the_logs(tmp_path / "dataset") == counts["episodes"] >= 3
@@ -161,6 +165,7 @@ def test_the_tick_table_is_the_episodes_tick_by_tick(run_dir: Path, tmp_path: Pa
     assert "qdd_A1..A7" in card and "NaN on each episode's last tick" in card
 
 
+@pytest.mark.slow
 def test_two_runs_in_directories_of_one_name_keep_every_episode(
     run_dir: Path, twin_dir: Path, tmp_path: Path
 ) -> None:
@@ -200,6 +205,7 @@ def test_a_run_without_a_run_id_is_given_one(run_dir: Path, tmp_path: Path) -> N
     assert set(episodes["run_id"]) == {run_id}
 
 
+@pytest.mark.slow
 def test_the_split_is_by_trajectory(run_dir: Path, twin_dir: Path, tmp_path: Path) -> None:
     build([twin_dir, run_dir], tmp_path / "dataset", split=(0.4, 0.3, 0.3), split_seed=7)
     ticks, episodes, trajectories = tables(tmp_path / "dataset")
@@ -275,6 +281,7 @@ def test_the_logs_are_hard_links_to_the_runs(run_dir: Path, tmp_path: Path) -> N
     assert "hard links to the runs' own logs" in (tmp_path / "dataset" / "README.md").read_text()
 
 
+@pytest.mark.slow
 def test_the_rerun_runs_every_selected_controller_on_each_trajectory(
     run_dir: Path, endpoint: str, tmp_path: Path
 ) -> None:
@@ -296,6 +303,7 @@ def test_the_rerun_runs_every_selected_controller_on_each_trajectory(
     assert sorted(path.name for path in tmp_path.iterdir()) == ["dataset"]  # no staging left
 
 
+@pytest.mark.slow
 def test_the_rerun_through_the_cli(run_dir: Path, endpoint: str, tmp_path: Path) -> None:
     rerun = tmp_path / "rerun.json"
     rerun.write_text(json.dumps([t.model_dump(mode="json") for t in RERUN[:1]]))
@@ -328,6 +336,13 @@ def test_bad_rerun_trajectories_are_refused_before_anything_runs(
 def test_the_knee_is_one_controller_on_every_trajectory(run_dir: Path, tmp_path: Path) -> None:
     counts = build([run_dir], tmp_path / "knee", selection="knee")
     assert counts["controllers"] == 1 and counts["episodes"] == 3
+
+
+def test_the_knee_is_the_member_analytic_export_takes(run_dir: Path) -> None:
+    """One knee rule: `--select knee` takes the controller `analytic export` writes."""
+    [knee] = select(read_run(run_dir), "knee")
+    exported = controller(run_dir)
+    assert (knee.kp, knee.kd) == (exported.kp, exported.kd) and exported.member.selected == "knee"
 
 
 def test_a_dataset_is_never_overwritten_or_left_half_made(run_dir: Path, tmp_path: Path) -> None:
@@ -427,6 +442,7 @@ def test_bad_split_and_rerun_options_are_one_line_and_write_nothing(
     assert sorted(os.listdir(tmp_path)) == sorted(name for name in files if files[name])
 
 
+@pytest.mark.slow
 def test_dataset_command_errors_are_one_line(tmp_path: Path) -> None:
     run = subprocess.run(
         [*ANALYTIC, "nowhere", "--out", "x"],
@@ -439,6 +455,7 @@ def test_dataset_command_errors_are_one_line(tmp_path: Path) -> None:
     assert run.stderr == "analytic: error: 'nowhere' holds no run (no config.json)\n"
 
 
+@pytest.mark.slow
 def test_dataset_of_an_unreadable_run_names_it_in_one_line(run_dir: Path, tmp_path: Path) -> None:
     broken = tmp_path / "broken"
     broken.mkdir()
@@ -456,6 +473,7 @@ def test_dataset_of_an_unreadable_run_names_it_in_one_line(run_dir: Path, tmp_pa
     assert run.stderr.count("\n") == 1 and not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow
 def test_dataset_of_a_damaged_log_names_it_in_one_line(run_dir: Path, tmp_path: Path) -> None:
     """A log that is not one (cut short) or that holds no tick (which no worker writes: that
     one used to escape as a traceback from Parquet) is the run's problem, said in one line."""
@@ -468,7 +486,7 @@ def test_dataset_of_a_damaged_log_names_it_in_one_line(run_dir: Path, tmp_path: 
     )
     damages = {
         "cut short": lambda path: path.write_bytes(source.read_bytes()[:5_000]),
-        "no tick": lambda path: write_episode(empty, path),
+        "no tick": lambda path: write_log(empty, path),
     }
     for damage, message in zip(
         damages, ("truncated MCAP file", "without a single tick"), strict=True

@@ -11,12 +11,12 @@ import mujoco
 import pytest
 import yaml
 
+from gainfarm.analytic.tuning.picks import knee_index
 from gainfarm.analytic.tuning.records import FrontMember, front_csv, read_front
 from gainfarm.analytic.view.export import (
     BadMember,
     BadRun,
     controller,
-    knee_index,
     pick,
     picks,
     point_groups,
@@ -139,7 +139,7 @@ def test_the_json_is_a_controller_with_gains_joints_units_scores_and_provenance(
     source = exported.source
     assert source.run_id == "ab" * 16 and source.plant == "realistic" and source.population == 8
     assert source.stopped == "3 generations"
-    assert [t.kind.value for t in source.trajectories] == ["spiral"]
+    assert [t.kind for t in source.trajectories] == ["spiral"]
     assert read_gains(text) == [knee.gains]  # what --gains reads
 
 
@@ -203,6 +203,7 @@ def worker(*arguments: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_the_exported_knee_runs_again_to_the_scores_its_run_recorded(run_dir: Path) -> None:
     here = run_dir.parent
     exported = analytic("export", "run", "--out", "knee.json", cwd=here)
@@ -229,6 +230,7 @@ def test_the_exported_knee_runs_again_to_the_scores_its_run_recorded(run_dir: Pa
     assert (scores["f_acc"], scores["f_t"]) == member.objectives
 
 
+@pytest.mark.slow
 def test_batch_runs_a_whole_front_csv_again(run_dir: Path) -> None:
     here = run_dir.parent
     front = read_front(run_dir / "front.csv")
@@ -250,6 +252,7 @@ def test_batch_runs_a_whole_front_csv_again(run_dir: Path) -> None:
     assert [(e["f_acc"], e["f_t"]) for e in evaluations] == [m.objectives for m in front]
 
 
+@pytest.mark.slow
 def test_every_format_is_written_whole_to_a_file_or_to_standard_output(run_dir: Path) -> None:
     here = run_dir.parent
     for fmt in ("json", "yaml", "ros2_control"):
@@ -262,6 +265,7 @@ def test_every_format_is_written_whole_to_a_file_or_to_standard_output(run_dir: 
         assert yaml.safe_load(to_stdout.stdout)  # JSON is YAML too: all three parse
 
 
+@pytest.mark.slow
 def test_a_diverged_episode_says_why_its_mean_error_exceeds_its_largest(tmp_path: Path) -> None:
     weak = tmp_path / "weak.json"
     weak.write_text(json.dumps([WEAK_GAINS.model_dump()]))

@@ -30,6 +30,7 @@ from tests.helpers import (
 )
 
 
+@pytest.mark.slow
 def test_several_workers_share_a_batch_and_every_episode_is_kept_and_scored(
     tmp_path: Path,
 ) -> None:
@@ -49,6 +50,7 @@ def test_several_workers_share_a_batch_and_every_episode_is_kept_and_scored(
     assert not list((tmp_path / "episodes").glob(".*"))  # no temporary files left behind
 
 
+@pytest.mark.slow
 def test_a_batch_keeps_every_log_even_when_the_workers_keep_them(tmp_path: Path) -> None:
     # The results bring their workers' scores alone; run_batch fetches every log, checks it by
     # its digest and scores it again here, as a batch promises.
@@ -67,6 +69,7 @@ def test_a_batch_keeps_every_log_even_when_the_workers_keep_them(tmp_path: Path)
         assert score(read_episode(evaluation.log)) == evaluation.scores
 
 
+@pytest.mark.slow
 def test_a_worker_killed_mid_job_loses_no_evaluation_and_none_is_counted_twice(
     broker: Broker, tmp_path: Path
 ) -> None:
@@ -95,6 +98,7 @@ def _busy(broker: Broker, name: str) -> bool:
     return any(worker.name == name and worker.busy for worker in broker.status().workers)
 
 
+@pytest.mark.slow
 def test_two_analytic_processes_share_the_farm(broker: Broker, tmp_path: Path) -> None:
     endpoint = broker.endpoints[0]
     candidates = tmp_path / "candidates.json"
@@ -140,6 +144,7 @@ def test_two_analytic_processes_share_the_farm(broker: Broker, tmp_path: Path) -
     assert broker.queue.jobs_done == 4
 
 
+@pytest.mark.slow
 def test_a_job_the_broker_lost_is_resubmitted_at_its_deadline(
     broker: Broker, tmp_path: Path
 ) -> None:
@@ -159,6 +164,7 @@ def test_a_job_the_broker_lost_is_resubmitted_at_its_deadline(
     assert evaluation.status == "ok" and evaluation.attempts == 2
 
 
+@pytest.mark.slow
 def test_a_job_still_queued_at_its_deadline_is_not_another_attempt(
     broker: Broker, tmp_path: Path
 ) -> None:
@@ -186,6 +192,7 @@ def test_a_job_without_a_result_after_every_attempt_is_reported_lost(
     assert evaluation.scores is None and evaluation.log is None
 
 
+@pytest.mark.slow
 def test_bad_results_on_the_studys_key_are_ignored_or_reported(
     broker: Broker, session: zenoh.Session, tmp_path: Path
 ) -> None:
@@ -237,6 +244,7 @@ def test_an_unusable_log_on_the_last_attempt_fails_the_job_with_the_reason(
     assert not (tmp_path / "episodes" / "j.mcap").exists()
 
 
+@pytest.mark.slow
 def test_a_diverged_episode_is_an_evaluation_with_penalised_scores(
     broker: Broker, tmp_path: Path
 ) -> None:
@@ -269,6 +277,7 @@ def test_no_broker_is_a_clear_error(tmp_path: Path) -> None:
         FarmClient([endpoint], "s", tmp_path)
 
 
+@pytest.mark.slow
 def test_batch_command_in_local_mode(tmp_path: Path) -> None:
     run = subprocess.run(
         [
@@ -314,6 +323,7 @@ def test_batch_command_in_local_mode(tmp_path: Path) -> None:
         ),
     ],
 )
+@pytest.mark.slow
 def test_batch_command_refuses_bad_input_in_one_line(
     arguments: list[str], message: str, tmp_path: Path
 ) -> None:

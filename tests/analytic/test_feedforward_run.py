@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from gainfarm.models.dynamics import digest, rigid_prior, to_bytes
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.robot import IDEAL_PLANT
@@ -22,9 +24,10 @@ START = [
     "--generations",
     "1",
 ]
-SHORT = ["--trajectory", "fourier", "--duration", "1", "--plant", "ideal", "--model", "rigid"]
+SHORT = ["--trajectory", "fourier", "--duration", "1", "--plant", "ideal", "--joints", "rigid"]
 
 
+@pytest.mark.slow
 def test_a_run_tunes_on_top_of_the_model_and_keeps_it(tmp_path: Path) -> None:
     model = tmp_path / "model.npz"
     raw = to_bytes(rigid_prior(RIGID_IDEAL))
@@ -45,6 +48,7 @@ def test_a_run_tunes_on_top_of_the_model_and_keeps_it(tmp_path: Path) -> None:
     assert f"learned feed-forward {digest(raw)[:12]}" in (run / "report.md").read_text()
 
 
+@pytest.mark.slow
 def test_a_bad_model_is_refused_in_one_line_before_anything_is_written(tmp_path: Path) -> None:
     junk = tmp_path / "junk.npz"
     junk.write_bytes(b"\x93NUMPY not really")

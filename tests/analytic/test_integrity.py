@@ -4,16 +4,17 @@ analytic's client against an attacker on the same farm (real Zenoh on loopback, 
 import hashlib
 from pathlib import Path
 
+import pytest
 import zenoh
 
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.local import free_port, spawn_worker, stop_workers
 from gainfarm.broker.service import Broker
+from gainfarm.edges.transport import open_session
 from gainfarm.schemas import keys
 from gainfarm.schemas.episode import Scores
 from gainfarm.schemas.mcap_episode import decode_episode
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.transport import open_session
 from gainfarm.schemas.wire import Rejection, SubmitReply
 from tests.helpers import ask_for_work, hand_in, perfect_log, result_for, short_spec, wait_for
 
@@ -24,6 +25,7 @@ def forge(session: zenoh.Session, study: str, job_id: str, content: bytes, **fie
     session.put(keys.result(study, job_id), content, attachment=result.to_bytes())
 
 
+@pytest.mark.slow
 def test_a_well_made_result_from_anyone_but_the_lease_holder_is_not_counted(
     broker: Broker, session: zenoh.Session, tmp_path: Path
 ) -> None:
@@ -72,6 +74,7 @@ def test_a_worker_cannot_hand_in_a_job_leased_to_another(
     farm.cancel(["j"])
 
 
+@pytest.mark.slow
 def test_answers_from_anyone_but_the_broker_are_ignored(
     broker: Broker, session: zenoh.Session, tmp_path: Path
 ) -> None:
@@ -96,6 +99,7 @@ def test_answers_from_anyone_but_the_broker_are_ignored(
     assert evaluation.status == "ok" and evaluation.worker == "w"
 
 
+@pytest.mark.slow
 def test_a_result_message_built_to_crash_its_decoder_leaves_the_client_serving(
     broker: Broker, session: zenoh.Session, tmp_path: Path
 ) -> None:
@@ -112,6 +116,7 @@ def test_a_result_message_built_to_crash_its_decoder_leaves_the_client_serving(
     assert evaluation.status == "ok"
 
 
+@pytest.mark.slow
 def test_a_broker_that_moved_away_leaves_the_run_waiting_not_failing(tmp_path: Path) -> None:
     """The broker is killed and a new one starts on another port (attempt 12): the client can
     no longer reach it, so no job's attempts are spent; it waits, and says why."""
@@ -129,6 +134,7 @@ def test_a_broker_that_moved_away_leaves_the_run_waiting_not_failing(tmp_path: P
         assert told == [farm.waiting]  # said once, for the progress line
 
 
+@pytest.mark.slow
 def test_a_broker_that_comes_back_gets_the_pending_jobs_again(tmp_path: Path) -> None:
     port = free_port()
     first = Broker([f"tcp/127.0.0.1:{port}"])

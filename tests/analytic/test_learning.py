@@ -44,6 +44,7 @@ def test_a_split_is_its_rows_without_the_last_ticks(realistic):
     ("kind", "target"),
     [("linear", "inverse"), ("mlp", "inverse"), ("residual", "inverse"), ("residual", "forward")],
 )
+@pytest.mark.slow
 def test_learned_models_beat_the_mean_predictor_on_held_out_trajectories(
     realistic, tmp_path, kind, target
 ):
@@ -86,12 +87,14 @@ def test_learning_adds_what_the_rigid_prior_leaves_out(realistic, tmp_path):
     assert linear["nmse_mean"] < 0.3 * prior["nmse_mean"]
 
 
+@pytest.mark.slow
 def test_a_network_is_the_same_for_the_same_seed(realistic):
     first = to_bytes(fit(realistic, "inverse", "mlp", seed=1))
     assert to_bytes(fit(realistic, "inverse", "mlp", seed=1)) == first
     assert to_bytes(fit(realistic, "inverse", "mlp", seed=2)) != first
 
 
+@pytest.mark.slow
 def test_the_rigid_prior_scores_near_zero_on_a_rigid_plant(tmp_path):
     # One physics step a tick: the dataset's q̈ is the acceleration MuJoCo integrated.
     plant = IDEAL_PLANT.model_copy(update={"joints": "rigid", "substeps": 1})
@@ -163,12 +166,13 @@ def test_a_failure_while_writing_leaves_nothing(realistic, tmp_path, monkeypatch
     _refused(realistic, tmp_path / "m", "cannot write .*No space left on device", kind="rigid")
 
 
+@pytest.mark.slow
 def test_the_learn_command_writes_a_model_the_feedforward_takes_and_refuses_in_one_line(
     realistic, tmp_path
 ):
     learn_command = [sys.executable, "-m", "gainfarm.analytic", "learn"]
     ran = subprocess.run(
-        [*learn_command, str(realistic), "--out", str(tmp_path / "m"), "--model", "linear"],
+        [*learn_command, str(realistic), "--out", str(tmp_path / "m"), "--kind", "linear"],
         capture_output=True,
         text=True,
         timeout=300,
@@ -189,7 +193,7 @@ def test_the_learn_command_writes_a_model_the_feedforward_takes_and_refuses_in_o
     no_test = write_dataset(tmp_path / "d", REALISTIC_PLANT, SPLITS[:2], 1.0)
     for arguments, expected in [
         ([str(no_test), "--out", str(tmp_path / "n")], "no test split"),
-        ([str(realistic), "--out", str(tmp_path / "n"), "--model", "nope"], "--model"),
+        ([str(realistic), "--out", str(tmp_path / "n"), "--kind", "nope"], "--kind"),
         ([str(realistic), "--out", str(tmp_path / "n"), "--target", "x"], "--target"),
     ]:
         ran = subprocess.run(

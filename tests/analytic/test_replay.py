@@ -11,8 +11,7 @@ import pytest
 
 from gainfarm.analytic.view import replay
 from gainfarm.schemas.episode_log import EpisodeLog
-from gainfarm.schemas.mcap_episode import write_episode
-from tests.helpers import analytic
+from tests.helpers import analytic, write_log
 
 FPS, WIDTH, HEIGHT = 5, 480, 360
 
@@ -31,10 +30,11 @@ def colours(frame: np.ndarray) -> dict[str, int]:
 @pytest.fixture(scope="module")
 def episode(tracking_log: EpisodeLog, tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("replay") / "episode.mcap"
-    write_episode(tracking_log, path)
+    write_log(tracking_log, path)
     return path
 
 
+@pytest.mark.slow
 def test_replay_shows_the_arm_following_its_reference(episode: Path, tracking_log, tmp_path):
     out = tmp_path / "episode.mp4"
     size = ("--width", str(WIDTH), "--height", str(HEIGHT))
@@ -82,6 +82,7 @@ def test_frames_show_the_last_tick_at_or_before_their_time() -> None:
         assert np.all(t[ticks] <= times + 1e-9) and np.all(times < t[ticks] + 0.002 - 1e-9)
 
 
+@pytest.mark.slow
 def test_bad_input_is_one_line_and_writes_nothing(episode: Path, tmp_path: Path) -> None:
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(np.random.default_rng(0).bytes(4096))

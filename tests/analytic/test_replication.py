@@ -49,6 +49,7 @@ def workers(broker: Broker, request: pytest.FixtureRequest):
 
 
 @pytest.mark.parametrize("workers", [["h1", "h2"]], indirect=True)
+@pytest.mark.slow
 def test_an_honest_farm_agrees_with_itself(broker: Broker, workers, tmp_path: Path) -> None:
     with FarmClient(broker.endpoints, "s", tmp_path) as farm:
         farm.submit(SPECS)
@@ -64,6 +65,7 @@ def test_an_honest_farm_agrees_with_itself(broker: Broker, workers, tmp_path: Pa
 
 
 @pytest.mark.parametrize("workers", [["liar", "h1", "h2"]], indirect=True)
+@pytest.mark.slow
 def test_a_worker_that_alters_one_torque_sample_is_outvoted_and_named(
     broker: Broker, workers, tmp_path: Path
 ) -> None:
@@ -88,6 +90,7 @@ def test_a_worker_that_alters_one_torque_sample_is_outvoted_and_named(
 
 
 @pytest.mark.parametrize("workers", [["boaster", "h1"]], indirect=True)
+@pytest.mark.slow
 def test_scores_better_than_the_log_has_are_caught_where_the_log_is_read(
     broker: Broker, workers, tmp_path: Path
 ) -> None:
@@ -113,6 +116,7 @@ def test_scores_better_than_the_log_has_are_caught_where_the_log_is_read(
 
 
 @pytest.mark.parametrize("workers", [["h1", "h2"]], indirect=True)
+@pytest.mark.slow
 def test_a_log_is_fetched_from_its_worker_or_else_simulated_again(
     broker: Broker, workers, tmp_path: Path
 ) -> None:

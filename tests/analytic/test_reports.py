@@ -10,7 +10,6 @@ from gainfarm.analytic.tuning.records import Baseline, FrontMember
 from gainfarm.analytic.view.export import picks
 from gainfarm.analytic.view.reports import (
     baseline_text,
-    experiment_setup,
     front_table_row,
     plant_text,
     run_title,
@@ -201,16 +200,3 @@ def test_a_runs_title_says_what_it_was_tuned_on() -> None:
     assert "on spiral 3 s, random 4 s, ideal plant, flexible joints, population 30" in run_title(
         mixed
     )
-
-
-def test_an_experiment_states_the_populations_and_durations_its_runs_used() -> None:
-    base = RunConfig(trajectories=(TrajectorySpec(duration=4.0),))
-    normalisation = {"all": ((0.0, 0.0), (1.0, 1.0))}
-    assert (
-        "runs of population 30, trajectory duration 4 s,"
-        in experiment_setup(base, 3, normalisation)[0]
-    )
-    sizes = experiment_setup(base, 3, normalisation, populations=[10, 20])[0]
-    assert "runs of populations 10, 20, trajectory duration 4 s," in sizes
-    speeds = experiment_setup(base, 3, normalisation, durations=[3.0, 4.0, 5.0])[0]
-    assert "runs of population 30, trajectory durations 3, 4, 5 s," in speeds

@@ -20,17 +20,21 @@ from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import read_baseline, read_front, read_history
 from gainfarm.analytic.tuning.run import RunProgress, TuningRun
 from gainfarm.broker.service import Broker
+from gainfarm.edges.transport import open_session
 from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import balancing_weights, score
-from gainfarm.schemas.transport import open_session
 from gainfarm.worker.episode import run_episode
 from gainfarm.worker.job import execute
 from tests.helpers import analytic, ask_for_work, hand_in, wait_for
 
 TINY = RunConfig(
-    pop=6, seed=7, trajectories=(TrajectorySpec(kind="fourier", duration=0.5),), generations=3
+    pop=6,
+    seed=7,
+    trajectories=(TrajectorySpec(kind="fourier", duration=0.5),),
+    generations=3,
+    keep="all",  # every episode's log: what the fault tests compare
 )
 
 
@@ -61,6 +65,7 @@ def tune(directory: Path, endpoint: str, config: RunConfig = TINY, **hooks) -> T
     return run
 
 
+@pytest.mark.slow
 def test_a_tiny_run_records_everything(tmp_path: Path, farm_endpoint: str) -> None:
     run = tune(tmp_path / "run", farm_endpoint)
     directory = run.directory
@@ -117,6 +122,7 @@ def test_a_front_member_simulated_again_reproduces_its_objectives(
     assert (scores.f_acc, scores.f_t) == (member.f_acc, member.f_t)
 
 
+@pytest.mark.slow
 def test_the_front_is_the_same_in_this_process_as_on_the_farm(
     tmp_path: Path, calm: TuningRun
 ) -> None:
@@ -128,6 +134,7 @@ def test_the_front_is_the_same_in_this_process_as_on_the_farm(
     )
 
 
+@pytest.mark.slow
 def test_the_front_is_the_same_on_one_worker_as_on_two(tmp_path: Path, farm_endpoint: str) -> None:
     two = tune(tmp_path / "two", farm_endpoint)
     with local_farm(workers=1) as endpoint:
@@ -147,6 +154,7 @@ class Interrupt(Exception):
     pass
 
 
+@pytest.mark.slow
 def test_a_stopped_and_resumed_run_ends_where_an_uninterrupted_one_does(
     tmp_path: Path, farm_endpoint: str
 ) -> None:
@@ -167,6 +175,7 @@ def test_a_stopped_and_resumed_run_ends_where_an_uninterrupted_one_does(
     assert (stopped / "front.csv").read_bytes() == (whole.directory / "front.csv").read_bytes()
 
 
+@pytest.mark.slow
 def test_start_and_resume_commands(tmp_path: Path) -> None:
     run = analytic(
         "start",
@@ -191,6 +200,7 @@ def test_start_and_resume_commands(tmp_path: Path) -> None:
     assert again.stderr == "analytic: error: 'run' has finished: 2 generations\n"
 
 
+@pytest.mark.slow
 def test_a_generic_start_is_balanced_by_the_default_gains_unless_told_not_to(
     tmp_path: Path,
 ) -> None:
@@ -228,6 +238,7 @@ def test_a_generic_start_is_balanced_by_the_default_gains_unless_told_not_to(
         (["--connect", "tcp/127.0.0.1:PORT"], "cannot open a Zenoh client session"),
     ],
 )
+@pytest.mark.slow
 def test_start_refuses_bad_input_in_one_line(
     arguments: list[str], message: str, tmp_path: Path
 ) -> None:
@@ -238,6 +249,7 @@ def test_start_refuses_bad_input_in_one_line(
     assert len(run.stderr.splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_resume_of_a_directory_without_a_run_is_one_line(tmp_path: Path) -> None:
     run = analytic("resume", "nothing-here", cwd=tmp_path)
     assert run.returncode == 2
@@ -257,6 +269,7 @@ def test_a_steady_state_run_records_a_row_every_pop_evaluations(
     assert "steady-state" in (run.directory / "report.md").read_text()
 
 
+@pytest.mark.slow
 def test_the_front_is_the_same_when_a_worker_dies_on_the_way(
     tmp_path: Path, calm: TuningRun
 ) -> None:
@@ -276,6 +289,7 @@ def test_the_front_is_the_same_when_a_worker_dies_on_the_way(
     assert_same_outcome(rough, calm)
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_cleanly_and_resume_goes_on(tmp_path: Path) -> None:
     import signal
     import time
@@ -313,6 +327,7 @@ def test_ctrl_c_stops_cleanly_and_resume_goes_on(tmp_path: Path) -> None:
     assert run.config.generations == 500
 
 
+@pytest.mark.slow
 def test_the_front_is_the_same_when_the_broker_restarts_mid_run(
     tmp_path: Path, calm: TuningRun
 ) -> None:
@@ -334,6 +349,7 @@ def test_the_front_is_the_same_when_the_broker_restarts_mid_run(
     assert_same_outcome(rough, calm)
 
 
+@pytest.mark.slow
 def test_the_front_is_the_same_when_the_analytic_process_is_killed_and_resumed(
     tmp_path: Path, calm: TuningRun
 ) -> None:
@@ -415,6 +431,7 @@ class Saboteur(threading.Thread):
             session.close()
 
 
+@pytest.mark.slow
 def test_the_front_is_the_same_when_a_worker_returns_damaged_logs(
     tmp_path: Path, calm: TuningRun, caplog: pytest.LogCaptureFixture
 ) -> None:

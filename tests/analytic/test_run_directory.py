@@ -30,8 +30,8 @@ from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import read_history, read_identity, read_run
 from gainfarm.analytic.tuning.run import RunBusy, RunProgress, TuningRun, upgrade
 from gainfarm.analytic.tuning.tune import new_study_name
+from gainfarm.edges.files import Lock
 from gainfarm.schemas import TrajectorySpec
-from gainfarm.schemas.files import Lock
 from gainfarm.schemas.wire import NAME_PATTERN
 from tests.analytic.toy import toy_scores
 from tests.helpers import analytic
@@ -86,6 +86,7 @@ def one_error_line(stderr: str) -> str:
 # --- study names ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_study_names_of_one_run_directory_differ_even_in_processes_of_one_pid(
     tmp_path: Path,
 ) -> None:
@@ -168,6 +169,7 @@ def test_a_malicious_checkpoint_runs_no_code(tmp_path: Path, kind: str, with_hea
     assert not marker.exists()
 
 
+@pytest.mark.slow
 def test_resume_of_a_malicious_checkpoint_is_one_line_and_runs_no_code(tmp_path: Path) -> None:
     run = toy_run(tmp_path / "run", stop=2)
     marker = tmp_path / "pwned"
@@ -181,6 +183,7 @@ def test_resume_of_a_malicious_checkpoint_is_one_line_and_runs_no_code(tmp_path:
         assert not marker.exists()
 
 
+@pytest.mark.slow
 def test_garbage_for_a_checkpoint_is_one_line(tmp_path: Path) -> None:
     run = toy_run(tmp_path / "run", stop=2)
     for content in (b"", b"not a pickle\n\x00", header(run.identity.run_id)):
@@ -193,6 +196,7 @@ def test_garbage_for_a_checkpoint_is_one_line(tmp_path: Path) -> None:
     assert "run/checkpoint.pkl: not a gainfarm checkpoint" in one_error_line(done.stderr)
 
 
+@pytest.mark.slow
 def test_a_checkpoint_of_another_run_is_refused_in_one_line(tmp_path: Path) -> None:
     # The same configuration: nothing but the run id tells the two apart.
     other = toy_run(tmp_path / "other")
@@ -396,6 +400,7 @@ def test_the_lock_dies_with_its_process_however_it_ends(tmp_path: Path) -> None:
         assert not reopened.finished
 
 
+@pytest.mark.slow
 def test_resume_while_start_runs_is_refused_in_one_line_naming_the_process(
     tmp_path: Path,
 ) -> None:
@@ -441,6 +446,7 @@ def test_resume_while_start_runs_is_refused_in_one_line_naming_the_process(
 # --- leftovers -------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_leftovers_of_killed_writes_are_removed_at_resume_only_by_the_lock_holder(
     tmp_path: Path,
 ) -> None:
@@ -534,6 +540,7 @@ def disk(tmp_path: Path) -> Iterator[Disk]:
 
 
 @pytest.mark.parametrize("fault", ["full", "read-only"])
+@pytest.mark.slow
 def test_a_full_or_read_only_disk_is_one_line_and_a_resume_goes_on(
     tmp_path: Path, disk: Disk, fault: str
 ) -> None:

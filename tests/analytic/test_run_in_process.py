@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from gainfarm.analytic.evaluators.evaluator import Evaluation
+from gainfarm.analytic.evaluators.evaluator import EpisodeResult
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import read_baseline, read_front, read_history, read_run
@@ -43,7 +43,7 @@ class Shuffled(InProcessEvaluator):
             self._queued.pop(job_id, None)
         super().cancel(job_ids)
 
-    def results(self) -> Iterator[Evaluation]:
+    def results(self) -> Iterator[EpisodeResult]:
         while self._queued:
             job_ids = list(self._queued)
             self.order.shuffle(job_ids)
@@ -175,7 +175,7 @@ class Growing(InProcessEvaluator):
         super().submit(specs)
         self.in_flight.append(self.pending)
 
-    def results(self, timeout: float | None = None) -> Iterator[Evaluation]:
+    def results(self, timeout: float | None = None) -> Iterator[EpisodeResult]:
         for evaluation in super().results(timeout):
             self.done += 1
             yield evaluation

@@ -5,7 +5,7 @@ import hashlib
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 
-from gainfarm.analytic.evaluators.evaluator import Evaluation, EvaluationStatus, Fetched, Wanted
+from gainfarm.analytic.evaluators.evaluator import EpisodeResult, EpisodeStatus, Fetched, Wanted
 from gainfarm.analytic.evaluators.replication import Ledger, validate
 from gainfarm.analytic.experiments.base import non_dominated
 from gainfarm.analytic.tuning.config import RunConfig
@@ -59,7 +59,7 @@ class ToyFarm:
         for job_id in job_ids:
             self._pending.pop(job_id, None)
 
-    def results(self, timeout: float | None = None) -> Iterator[Evaluation]:
+    def results(self, timeout: float | None = None) -> Iterator[EpisodeResult]:
         """Every job some worker may run; a job every worker avoids waits (for ever: the
         timeout passes at once)."""
         while runnable := [job_id for job_id in self._pending if self._allowed(job_id)]:
@@ -88,7 +88,7 @@ class ToyFarm:
         avoid = self._pending[job_id][1] if job_id in self._pending else ()
         return [w for w in self.workers if w not in avoid and w not in self.distrusted]
 
-    def _run(self, job_id: str, spec: EpisodeSpec, avoid: tuple[str, ...]) -> Evaluation:
+    def _run(self, job_id: str, spec: EpisodeSpec, avoid: tuple[str, ...]) -> EpisodeResult:
         allowed = [w for w in self.workers if w not in avoid and w not in self.distrusted]
         worker = allowed[self._turn % len(allowed)]
         self._turn += 1
@@ -100,10 +100,10 @@ class ToyFarm:
             log += b" (altered)"
         if worker in self.boasters:
             scores = scores.model_copy(update={"f_acc": scores.f_acc * 0.5})
-        return Evaluation(
+        return EpisodeResult(
             job_id=job_id,
             spec=spec,
-            status=EvaluationStatus.ok,
+            status=EpisodeStatus.ok,
             scores=scores,
             log=None,
             reason="",

@@ -6,14 +6,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from cryptography import x509
 from cryptography.x509.oid import NameOID
 
 from gainfarm.analytic.evaluators.local import free_port
 from gainfarm.broker.certs import write_dev_credentials
+from gainfarm.edges.transport import open_session
 from gainfarm.schemas import keys
 from gainfarm.schemas.security import TlsIdentity, participants
-from gainfarm.schemas.transport import open_session
 from tests.helpers import wait_for
 
 
@@ -81,6 +82,7 @@ def test_running_again_adds_participants_signed_by_the_same_ca(tmp_path: Path) -
     ]
 
 
+@pytest.mark.slow
 def test_existing_credentials_are_never_overwritten(tmp_path: Path) -> None:
     write_dev_credentials(tmp_path, workers=("cobot-1",))
     before = _contents(tmp_path)
@@ -105,6 +107,7 @@ def test_existing_credentials_are_never_overwritten(tmp_path: Path) -> None:
     assert not (tmp_path / "ca.pem").exists()
 
 
+@pytest.mark.slow
 def test_a_revoked_identity_is_removed_and_its_name_never_issued_again(tmp_path: Path) -> None:
     write_dev_credentials(tmp_path, analytics=("alice",), workers=("cobot-1", "cobot-2"))
     done = _run("broker", "certs", str(tmp_path), "--revoke", "cobot-2")
@@ -136,6 +139,7 @@ def test_a_missing_credential_is_named_in_one_line(tmp_path: Path) -> None:
     assert done.stderr.count("\n") == 1 and "worker.cobot-1.key" in done.stderr
 
 
+@pytest.mark.slow
 def test_a_worker_on_a_secure_farm_is_named_after_its_identity(tmp_path: Path) -> None:
     write_dev_credentials(tmp_path, workers=("cobot-1", "cobot-2"))
     start = ["worker", "start", "--connect", "tls/127.0.0.1:1", "--tls", str(tmp_path)]

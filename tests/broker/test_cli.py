@@ -7,6 +7,8 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from gainfarm.analytic.evaluators.local import free_port, spawn_worker, stop_workers
 from gainfarm.schemas.wire import PROTOCOL_VERSION
 from tests.helpers import wait_for
@@ -26,6 +28,7 @@ def status(endpoint: str, *extra: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_a_started_broker_serves_workers_reports_them_and_stops_on_sigterm() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     broker = subprocess.Popen(
@@ -82,6 +85,7 @@ def test_a_bad_endpoint_is_one_line() -> None:
     assert len(run.stderr.splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_status_watch_prints_a_line_a_look_until_ctrl_c() -> None:
     """Off a terminal, --watch prints the farm's summary (or its JSON) at each look; Ctrl-C
     ends it with exit status 130 and one line, as every command line."""

@@ -1,13 +1,12 @@
 """A flood of idle connections must not keep honest clients off the broker's port.
 
-Each test opens a router on a free loopback port as the broker does (schemas/transport.py), opens
-FLOOD raw TCP connections to it that never say a word, and, while they are all still open, times
-an honest client from its first attempt to its first answered query. With Zenoh's defaults the
+Each test opens a router on a free loopback port as the broker does (gainfarm/edges/transport.py),
+opens FLOOD raw TCP connections to it that never say a word, and, while they are all still open,
+times an honest client from its first attempt to its first answered query. With Zenoh's defaults the
 plain router turns every newcomer away for 10 s (100 idle connections fill its pending handshakes
 and it closes the rest at once), and the TLS router, once the idle handshakes time out after 10 s,
-pauses 100 ms for each of them and admits nobody for 30 s.
-
-`pytest -s` prints the figures."""
+pauses 100 ms for each of them and admits nobody for 30 s. `pytest -s` prints the figures.
+"""
 
 import socket
 import time
@@ -20,9 +19,9 @@ import zenoh
 
 from gainfarm.analytic.evaluators.local import free_port
 from gainfarm.broker.certs import write_dev_credentials
+from gainfarm.edges.transport import open_session
 from gainfarm.schemas import keys
 from gainfarm.schemas.security import TlsIdentity
-from gainfarm.schemas.transport import open_session
 
 FLOOD = 300  # idle connections, as in the attack
 JOIN_SECONDS = 3.0  # an honest client is in and answered within this, flood or no flood
@@ -95,6 +94,7 @@ def test_a_client_joins_a_plain_router_while_idle_connections_crowd_it() -> None
     assert seconds < JOIN_SECONDS
 
 
+@pytest.mark.slow
 def test_a_client_joins_a_tls_router_while_idle_connections_outlast_the_handshake(
     credentials: Path,
 ) -> None:

@@ -13,9 +13,9 @@ from hypothesis import strategies as st
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.local import free_port
 from gainfarm.broker.service import Broker
+from gainfarm.edges.ask import ask
+from gainfarm.edges.transport import open_session
 from gainfarm.schemas import keys
-from gainfarm.schemas.ask import ask
-from gainfarm.schemas.transport import open_session
 from gainfarm.schemas.wire import (
     MAX_MESSAGE_BYTES,
     BrokerStatus,
@@ -239,6 +239,7 @@ def forged_results() -> st.SearchStrategy[tuple[str, bytes | None, bytes]]:
 
 @FUZZ
 @given(sample=forged_results())
+@pytest.mark.slow
 def test_results_of_any_shape_do_not_disturb_a_study(
     farm, sample: tuple[str, bytes | None, bytes]
 ) -> None:

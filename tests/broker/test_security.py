@@ -24,11 +24,11 @@ from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.local import free_port
 from gainfarm.broker.certs import revoke, write_dev_credentials
 from gainfarm.broker.service import Broker
+from gainfarm.edges.transport import open_session
 from gainfarm.models.dynamics import digest, rigid_prior, to_bytes
 from gainfarm.schemas import keys
 from gainfarm.schemas.robot import IDEAL_PLANT
 from gainfarm.schemas.security import Role, TlsIdentity
-from gainfarm.schemas.transport import open_session
 from gainfarm.schemas.wire import JobStatus
 from tests.helpers import hand_in, perfect_log, result_for, short_spec, wait_for
 
@@ -243,6 +243,7 @@ def test_only_a_studys_owner_serves_its_models_and_any_worker_may_fetch_them(
     assert _answered(connect(credentials, "analytic", "bob"), [own]) == set()
 
 
+@pytest.mark.slow
 def test_a_secure_farm_runs_jobs_end_to_end(credentials: Path, tmp_path: Path) -> None:
     """A real broker and a worker process, each with its own identity, and alice's client."""
     endpoint, tls = f"tls/127.0.0.1:{free_port()}", str(credentials)
@@ -297,6 +298,7 @@ def test_a_secure_farm_runs_jobs_end_to_end(credentials: Path, tmp_path: Path) -
     assert all(e.status == JobStatus.ok and e.worker == "cobot-2" for e in evaluations)
 
 
+@pytest.mark.slow
 def test_a_worker_identity_cannot_forge_results_for_jobs_it_was_not_leased(
     credentials: Path, tmp_path: Path
 ) -> None:

@@ -14,8 +14,8 @@ import zenoh
 from gainfarm.analytic.evaluators.local import free_port
 from gainfarm.broker.queue import MAX_LISTED
 from gainfarm.broker.service import Broker
+from gainfarm.edges.transport import open_session
 from gainfarm.schemas import keys
-from gainfarm.schemas.transport import open_session
 from gainfarm.schemas.wire import (
     MAX_MESSAGE_BYTES,
     PROTOCOL_VERSION,
@@ -134,6 +134,7 @@ def test_a_free_worker_waits_for_work_and_gets_it_as_soon_as_it_is_submitted(
     assert lease.job.job_id == "j1"
 
 
+@pytest.mark.slow
 def test_a_dead_workers_job_goes_straight_to_another_worker(
     broker: Broker, session: zenoh.Session
 ) -> None:
@@ -282,6 +283,7 @@ def lease_batch(
     return decode(LeaseReply, payload), time.monotonic() - asked
 
 
+@pytest.mark.slow
 def test_a_worker_takes_a_batch_and_hands_it_in_with_its_next_request() -> None:
     """A batch is at most what was asked; its results ride on the next request, each with a
     verdict in order; a request that hands results in is answered at once even with no work
@@ -478,6 +480,7 @@ def test_a_bad_hand_in_is_refused_with_a_reason_and_the_lease_stands(
 MADE_UP = 10_000
 
 
+@pytest.mark.slow
 def test_ten_thousand_made_up_workers_leave_the_status_small_and_are_forgotten() -> None:
     """Lease requests from 10,000 names that never joined are held and answered "no work"; the
     status lists a bounded number of them meanwhile, and none once they are answered."""

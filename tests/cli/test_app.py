@@ -1,14 +1,17 @@
-"""What every command line shares (cli/app.py): -h, --version, and every command in the help."""
+"""What every command line shares (gainfarm/cli/app.py): -h, --version, every command in the
+help, and a group that imports only the command run."""
 
 import os
 import subprocess
 import sys
 from importlib.metadata import version
 
+import click
 import pytest
 
 from gainfarm.analytic.cli import app as analytic_app
 from gainfarm.broker.cli import app as broker_app
+from gainfarm.cli.app import LazyCommands
 from gainfarm.worker.cli import app as worker_app
 
 PROGRAMS = {"analytic": analytic_app, "broker": broker_app, "worker": worker_app}
@@ -44,8 +47,29 @@ def test_the_help_lists_every_command_uncut(program: str) -> None:
 
 
 @pytest.mark.parametrize("program", PROGRAMS)
+@pytest.mark.slow
 def test_every_command_takes_minus_h(program: str) -> None:
     for command in PROGRAMS[program].commands:
         shown = run(program, command, "-h")
         assert shown.returncode == 0, shown.stderr
         assert shown.stdout.startswith(f"Usage: {program} {command} ")
+
+
+def test_the_lazy_group_lists_each_command_by_the_summary_it_runs_with() -> None:
+    """`analytic --help` lists the summaries of analytic/cli.py's table without importing a
+    command; each name there is its module's command, whose short help that summary is."""
+    commands = analytic_app.commands
+    assert isinstance(commands, LazyCommands)
+    for name in sorted(commands):
+        summary = commands.summary(name)
+        command = commands[name]  # imports its module now
+        assert isinstance(command, click.Command) and command.name == name
+        assert command.get_short_help_str(limit=1000) == summary
+    context = click.Context(analytic_app)
+    assert "nonsense" not in commands and analytic_app.get_command(context, "nonsense") is None
+
+
+def test_an_unknown_command_is_one_line() -> None:
+    shown = run("analytic", "nonsense")
+    assert shown.returncode == 2
+    assert shown.stderr == "analytic: error: No such command 'nonsense'.\n"

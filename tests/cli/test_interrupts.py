@@ -13,12 +13,13 @@ IMPORT_TIME = "import time:"  # -X importtime's lines on stderr
 
 
 def started(command: list[str], **options: object) -> subprocess.Popen[str]:
-    """`python -X importtime -m command`, once its interpreter is up (the `site` module
-    imported): the moments count from there. Before that, Python itself cannot take Ctrl-C
-    gracefully (a KeyboardInterrupt while it imports `site` is a fatal error in CPython), and
-    on a loaded machine its start alone can take longer than the earliest moment."""
+    """`python -X importtime -m gainfarm.PROGRAM ARGUMENTS`, once its interpreter is up (the
+    `site` module imported): the moments count from there. Before that, Python itself cannot
+    take Ctrl-C gracefully (a KeyboardInterrupt while it imports `site` is a fatal error in
+    CPython), and on a loaded machine its start alone can take longer than the earliest
+    moment."""
     running = subprocess.Popen(
-        [sys.executable, "-X", "importtime", "-m", *command],
+        [sys.executable, "-X", "importtime", "-m", f"gainfarm.{command[0]}", *command[1:]],
         stderr=subprocess.PIPE,
         text=True,
         **options,  # type: ignore[call-overload]
@@ -42,8 +43,9 @@ START = [
 
 
 @pytest.mark.parametrize("delay", [0.1, 0.2, 0.35, 0.5, 0.75, 1.0, 1.25, 1.5, 2.5])
+@pytest.mark.slow
 def test_ctrl_c_early_in_a_start_is_one_line_and_status_130(tmp_path: Path, delay: float) -> None:
-    """During the imports (about a second: MuJoCo, Zenoh, pymoo), the local farm's start and
+    """During the imports (the command's own, MuJoCo, Zenoh, pymoo), the local farm's start and
     the first generation."""
     running = started(["analytic", *START], cwd=tmp_path, stdout=subprocess.PIPE)
     time.sleep(delay)
@@ -72,6 +74,7 @@ def test_ctrl_c_while_a_program_starts_is_one_line_and_status_130(program: str) 
     assert running.returncode == 130 and said(err) == [f"{program}: interrupted"], err
 
 
+@pytest.mark.slow
 def test_a_command_started_deaf_to_ctrl_c_stays_so(tmp_path: Path) -> None:
     """As a shell starts a background job (`analytic start ... &` in a script): an ignored
     SIGINT is left ignored, as Python itself leaves it, and the run goes on to its end."""

@@ -57,7 +57,7 @@ STOP_SECONDS = 15.0  # a worker finishes its episode before leaving on SIGTERM
 WATCH = """
 import sys, time
 from gainfarm.broker.status import BrokerUnavailable, query_status
-from gainfarm.schemas.transport import open_session
+from gainfarm.edges.transport import open_session
 while True:
     try:
         session = open_session("client", connect=[sys.argv[1]])
@@ -284,6 +284,7 @@ def check_run(out: Path, local_front: bytes) -> None:
     assert (out / "front.csv").read_bytes() == local_front
 
 
+@pytest.mark.slow
 def test_a_study_across_hosts_finds_the_front_a_local_farm_finds(
     lan: Lan, local_front: bytes, tmp_path: Path
 ) -> None:
@@ -311,6 +312,7 @@ def test_a_study_across_hosts_finds_the_front_a_local_farm_finds(
     assert sum(done.values()) == JOBS
 
 
+@pytest.mark.slow
 def test_a_worker_cut_off_for_longer_than_its_lease_loses_nothing_and_serves_again(
     lan: Lan, local_front: bytes, tmp_path: Path
 ) -> None:
@@ -409,6 +411,7 @@ with FarmClient([endpoint], "fetch", Path(out), keep_logs=False) as farm:
 """
 
 
+@pytest.mark.slow
 def test_the_fronts_logs_are_fetched_from_the_workers_even_after_the_host_that_made_one_is_gone(
     lan: Lan, local_front: bytes, tmp_path: Path
 ) -> None:

@@ -457,12 +457,15 @@ def test_the_build_context_holds_what_pip_install_needs_and_nothing_else() -> No
     ignore = DOCKERFILE.with_name("Dockerfile.dockerignore").read_text().splitlines()
     patterns = [line.strip() for line in ignore if line.strip() and not line.startswith("#")]
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    packages = [
-        name.rstrip("*") for name in project["tool"]["setuptools"]["packages"]["find"]["include"]
-    ]
+    # Each package's folder: the package-dir mapping's, or its path under gainfarm/.
+    mapped = project["tool"]["setuptools"]["package-dir"]
+    folders = set()
+    for package in project["tool"]["setuptools"]["packages"]:
+        parent = max((name for name in mapped if package.startswith(name)), key=len)
+        folders.add(mapped[parent] + package[len(parent) :].replace(".", "/"))
     needed = ["pyproject.toml", project["project"]["readme"]]
-    for package in packages:
-        needed += [str(path.relative_to(ROOT)) for path in (ROOT / package).rglob("*")]
+    for folder in sorted(folders):
+        needed += [str(path.relative_to(ROOT)) for path in (ROOT / folder).glob("*")]
     needed = [path for path in needed if "__pycache__" not in path]
     assert "models/iiwa14.xml" in needed
     assert [path for path in needed if ignored(path, patterns)] == []

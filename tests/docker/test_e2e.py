@@ -44,7 +44,8 @@ def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A run of the size the script runs (real episodes, in this process): what it accepts."""
     out = tmp_path_factory.mktemp("e2e") / "tune"
     spiral = (TrajectorySpec(duration=3.0),)
-    config = RunConfig(pop=e2e.POP, generations=e2e.GENERATIONS, trajectories=spiral)
+    # Every episode's log, as an in-process evaluator writes them all (the check knows both).
+    config = RunConfig(pop=e2e.POP, generations=e2e.GENERATIONS, trajectories=spiral, keep="all")
     assert f"--duration {spiral[0].duration:g}" in e2e.RUN_ARGS
     tune(config, out, evaluator=InProcessEvaluator(out))
     return out
@@ -170,6 +171,6 @@ def test_the_compose_farm_runs_its_tuning_profiles_for_real(tmp_path: Path) -> N
             assert summary.statistics.message_count > 0 and summary.channels
     assert len(run_ids) == len(runs), "every run has an id of its own"
     # One seed and configuration: one front, byte for byte, on the plain farm, two runs at once
-    # sharing it, and the secure farm (README.md: Guarantees).
+    # sharing it, and the secure farm (docs/tuning.md: Guarantees).
     fronts = {(kept / run / "front.csv").read_bytes() for run in runs}
     assert len(fronts) == 1

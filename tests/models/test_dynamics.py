@@ -28,7 +28,6 @@ from gainfarm.models.dynamics import (
     pinocchio_model,
     rigid_prior,
     rigid_spec,
-    save,
     to_bytes,
 )
 from gainfarm.schemas.robot import IDEAL_PLANT, POSITION_LIMITS, REALISTIC_PLANT, ModelSpec
@@ -195,8 +194,7 @@ def test_a_model_file_round_trips_exactly(name, tmp_path):
     assert to_bytes(again) == raw
     assert digest(raw) == digest(to_bytes(model)) == digest(bytes(raw))
     assert len(digest(raw)) == 64
-    save(model, tmp_path / "model.npz")
-    assert (tmp_path / "model.npz").read_bytes() == raw
+    (tmp_path / "model.npz").write_bytes(raw)
     np.testing.assert_array_equal(
         load(tmp_path / "model.npz").predict(*inputs), again.predict(*inputs)
     )

@@ -27,6 +27,7 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap.records import Chunk
 
+from gainfarm.models.urdf import description
 from gainfarm.schemas import mcap_episode
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, decode_episode, episode_bytes
@@ -133,7 +134,7 @@ def lz4_bomb(size: int) -> bytes:
 
 
 def written(log: EpisodeLog, compress: Callable[[bytes], bytes], **claims: object) -> bytes:
-    """What write_episode writes for `log`, with each chunk's records compressed by `compress`
+    """What episode_bytes makes of `log`, with each chunk's records compressed by `compress`
     and the chunk's stated fields replaced by `claims` (compression, uncompressed_size): a valid
     MCAP file, its offsets, indexes and summary CRC as the writer makes them."""
 
@@ -148,15 +149,15 @@ def written(log: EpisodeLog, compress: Callable[[bytes], bytes], **claims: objec
         fake = SimpleNamespace(ZstdCompressor=lambda level: Compressor())
         patch.setattr(mcap_episode, "zstandard", fake)
         patch.setattr(mcap_episode, "Chunk", chunk)
-        return episode_bytes(log)
+        return episode_bytes(log, description())
 
 
 def with_metadata(log: EpisodeLog, **values: str) -> bytes:
-    """What write_episode writes for `log`, with these metadata values (JSON text) instead."""
+    """What episode_bytes makes of `log`, with these metadata values (JSON text) instead."""
     original = mcap_episode._metadata_record
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(mcap_episode, "_metadata_record", lambda m: {**original(m), **values})
-        return episode_bytes(log)
+        return episode_bytes(log, description())
 
 
 def chunk_offsets(content: bytes) -> list[int]:
@@ -186,7 +187,7 @@ def with_summary_crc(content: bytearray) -> bytes:
 def honest(tracking_log: EpisodeLog) -> bytes:
     """A real episode log (3 s: its ticks in one chunk, after the chunk of /tf and
     /robot_description), which decodes: the baseline every attack alters."""
-    content = episode_bytes(tracking_log)
+    content = episode_bytes(tracking_log, description())
     assert decode_episode(content).ticks == tracking_log.ticks
     return content
 
@@ -307,6 +308,7 @@ JSON = st.recursive(
     version=st.sampled_from([V, V - 1, None]),
     cut=st.integers(min_value=0),
 )
+@pytest.mark.slow
 def test_any_json_decodes_to_a_message_or_a_bad_message(
     kind: type, fields: dict, version: int | None, cut: int
 ) -> None:
@@ -323,6 +325,7 @@ def test_any_json_decodes_to_a_message_or_a_bad_message(
         st.lists(JSON, max_size=5),
     )
 )
+@pytest.mark.slow
 def test_any_submission_is_judged_or_refused(raw: bytes) -> None:
     try:
         study, jobs, rejected = decode_submission(raw)
@@ -356,6 +359,7 @@ def test_every_truncation_is_not_an_episode_log(honest: bytes) -> None:
 
 @settings(max_examples=300, deadline=None)
 @given(data=st.data())
+@pytest.mark.slow
 def test_altered_records_are_refused_or_harmless(honest: bytes, data: st.DataObject) -> None:
     """Overwrite a few bytes where the records are read (the header and metadata at the start,
     the ticks' chunk header; the summary and footer at the end) with anything, including huge
@@ -484,7 +488,7 @@ def test_a_chunk_indexed_a_thousand_times_is_decompressed_within_the_bound(
                 out, schemas, channels, statistics, chunks * 1_000, metadata
             ),
         )
-        content = episode_bytes(tracking_log)
+        content = episode_bytes(tracking_log, description())
     with frugal(allocated=16 * MIB):
         reason = refused(NotAnEpisodeLog, lambda: decode_episode(content))
     assert "bytes uncompressed, more than the" in reason

@@ -1,7 +1,8 @@
 """Episode logs on disk: exact round trips, readable by an independent ROS 2 decoder, with the
-arm's description and transforms for ROS 2 tools."""
+arm's description and transforms for ROS 2 tools, which the writer is given."""
 
-import os
+import io
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -14,13 +15,25 @@ from mcap_ros2.reader import read_ros2_messages
 from scipy.spatial.transform import Rotation
 
 from gainfarm.models import RIGID_MJCF
-from gainfarm.models.urdf import urdf
-from gainfarm.schemas.episode_log import CHANNELS, TF_EVERY
-from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode, write_episode
+from gainfarm.models.urdf import description, urdf
+from gainfarm.schemas.episode_log import CHANNELS, TF_EVERY, EpisodeLog, Frame, RobotDescription
+from gainfarm.schemas.mcap_episode import (
+    NotAnEpisodeLog,
+    decode_episode,
+    episode_bytes,
+    read_episode,
+)
 from gainfarm.schemas.robot import JOINT_NAMES
 
 ARRAYS = ("t", "q", "qd", "tau", "u", "theta", "theta_d", "q_des", "qd_des", "ee", "ee_des")
 LINKS = ["base", *(f"link{i}" for i in range(1, 8)), "flange"]
+
+
+def write_episode(log: EpisodeLog, path: Path) -> int:
+    """Write `log` as the worker does, the iiwa drawn; return its size."""
+    content = episode_bytes(log, description())
+    path.write_bytes(content)
+    return len(content)
 
 
 def tf_ticks(ticks: int) -> np.ndarray:
@@ -214,8 +227,46 @@ def test_files_that_are_not_episode_logs_are_rejected_with_a_reason(tracking_log
         assert "\n" not in str(caught.value)
 
 
-def test_a_failed_write_leaves_nothing_behind(tracking_log, tmp_path):
+def test_a_malformed_log_is_refused_before_any_byte_is_made(tracking_log):
     broken = type(tracking_log)(**{**tracking_log.__dict__, "q": tracking_log.q[:, :3]})
     with pytest.raises(ValueError):
-        write_episode(broken, tmp_path / "broken.mcap")
-    assert os.listdir(tmp_path) == []
+        episode_bytes(broken, description())
+
+
+def test_the_contract_draws_whatever_robot_it_is_given(tracking_log):
+    """The writer takes the description and the transforms as inputs: a stand-in two-link
+    robot's text and frames land on /robot_description and /tf, its rotations at each /tf
+    tick, and the columns read back the same, whatever robot drew them."""
+    turns = []
+
+    def rotations(q: np.ndarray) -> np.ndarray:
+        turns.append(q.copy())
+        half = q[:, :2] / 2  # each frame turns about z by its joint's angle
+        return np.stack(
+            [np.zeros_like(half), np.zeros_like(half), np.sin(half), np.cos(half)], axis=-1
+        )
+
+    frames = (Frame("world", "base", (0.0, 0.0, 0.5)), Frame("base", "tip", (1.0, 0.0, 0.0)))
+    robot = RobotDescription('<robot name="stand-in"/>', frames, rotations)
+    content = episode_bytes(tracking_log, robot)
+    ticks = tf_ticks(tracking_log.ticks)
+    (seen,) = turns
+    np.testing.assert_array_equal(seen, tracking_log.q[ticks])
+    messages = list(read_ros2_messages(io.BytesIO(content), topics=["/robot_description", "/tf"]))
+    assert messages[0].ros_msg.data == '<robot name="stand-in"/>'
+    tf = [m.ros_msg.transforms for m in messages[1:]]
+    assert len(tf) == len(ticks)
+    assert [(t.header.frame_id, t.child_frame_id) for t in tf[-1]] == [
+        ("world", "base"),
+        ("base", "tip"),
+    ]
+    assert tf[0][1].transform.translation.x == 1.0
+    z = [[t.transform.rotation.z for t in message] for message in tf]
+    np.testing.assert_array_equal(z, np.sin(tracking_log.q[ticks, :2] / 2))
+    back = decode_episode(content)
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(back, name), getattr(tracking_log, name), name)
+    # Rotations that do not match the frames are refused, not written.
+    wrong = RobotDescription(robot.urdf, frames[:1], rotations)
+    with pytest.raises(ValueError, match="one x y z w per /tf tick and frame"):
+        episode_bytes(tracking_log, wrong)

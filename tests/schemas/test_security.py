@@ -1,5 +1,5 @@
-"""The secure profile's pieces that need no network: endpoint checks, identities, the policy's
-shape and the router's flood settings."""
+"""The secure profile as data: identities, the credentials directory, the access policy's shape.
+(How a session is opened with them: tests/edges/test_transport.py.)"""
 
 from pathlib import Path
 
@@ -14,12 +14,6 @@ from gainfarm.schemas.security import (
     owned_study,
     participants,
 )
-from gainfarm.schemas.transport import (
-    ACCEPT_TIMEOUT_MS,
-    TLS_HANDSHAKE_TIMEOUT_MS,
-    accept_pending,
-    session_config,
-)
 
 
 def _touch(directory: Path, *common_names: str) -> None:
@@ -28,17 +22,6 @@ def _touch(directory: Path, *common_names: str) -> None:
     for common_name in common_names:
         (directory / f"{common_name}.pem").write_text("")
         (directory / f"{common_name}.key").write_text("")
-
-
-def test_secure_and_plain_endpoints_are_not_mixed(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="needs TLS credentials"):
-        session_config("client", connect=["tls/127.0.0.1:7447"])
-    with pytest.raises(ValueError, match="tls/ endpoints only"):
-        session_config(
-            "client",
-            connect=["tcp/127.0.0.1:7447"],
-            identity=TlsIdentity(tmp_path, "worker", "cobot-1"),
-        )
 
 
 def test_an_identity_is_a_role_and_a_name(tmp_path: Path) -> None:
@@ -149,22 +132,3 @@ def test_the_policy_names_each_participant_and_only_its_own_keys(tmp_path: Path)
         ("query", "ingress", keys.STATUS),
         ("reply", "egress", keys.STATUS),
     }
-
-
-def test_a_router_holds_idle_connections_briefly_and_many_at_once(tmp_path: Path) -> None:
-    config = session_config("router", listen=["tcp/127.0.0.1:7447"])
-    assert config.get_json("transport/unicast/accept_timeout") == str(ACCEPT_TIMEOUT_MS)
-    assert int(config.get_json("transport/unicast/accept_pending")) == accept_pending() >= 100
-    _touch(tmp_path, "broker")
-    secure = session_config(
-        "router",
-        listen=["tls/127.0.0.1:7447", "tls/[::1]:7447#tls_handshake_timeout_ms=5"],
-        identity=TlsIdentity(tmp_path, "broker"),
-    )
-    assert secure.get_json("listen/endpoints") == (
-        f'["tls/127.0.0.1:7447#tls_handshake_timeout_ms={TLS_HANDSHAKE_TIMEOUT_MS}",'
-        '"tls/[::1]:7447#tls_handshake_timeout_ms=5"]'
-    )
-    # A client's endpoints are where it dials: left as given.
-    client = session_config("client", connect=["tcp/127.0.0.1:7447"])
-    assert client.get_json("transport/unicast/accept_pending") == "100"

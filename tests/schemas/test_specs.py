@@ -29,9 +29,16 @@ def test_trajectory_rejects_absurd_durations(duration):
         TrajectorySpec(duration=duration)
 
 
-def test_trajectory_rejects_unknown_kind():
+@pytest.mark.parametrize("kind", ["", "Circle", "9lives", "a/b", "x" * 33, "spiral*"])
+def test_trajectory_rejects_a_kind_that_is_no_plugin_name(kind):
     with pytest.raises(ValidationError):
-        TrajectorySpec(kind="circle")
+        TrajectorySpec(kind=kind)
+
+
+def test_a_kind_of_the_right_form_is_the_workers_to_know():
+    # A plug-in's kind (gainfarm.trajectories): the contract checks the name, a worker without
+    # the plug-in refuses the job (tests/test_plugins.py).
+    assert TrajectorySpec(kind="circle").kind == "circle"
 
 
 def test_ticks_cover_both_ends_of_the_duration():

@@ -14,6 +14,7 @@ def run(command: list[str], *args: str) -> subprocess.CompletedProcess:
     return subprocess.run([*command, *args], capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.slow
 def test_episode_writes_a_log_that_analytic_scores_identically(tmp_path):
     out = tmp_path / "ep.mcap"
     simulated = run(
@@ -38,7 +39,7 @@ def test_human_readable_scores(tmp_path):
         "0.5",
         "--out",
         str(out),
-        "--model",
+        "--joints",
         "rigid",
     )
     assert result.returncode == 0, result.stderr
@@ -60,12 +61,13 @@ SEVEN = "1,1,1,1,1,1,1"
         (["--trajectory", "circle"], "circle"),
         (["--duration", "0"], "duration"),
         (["--duration", "1e9"], "duration"),
-        (["--model", "soft"], "soft"),
+        (["--joints", "soft"], "soft"),
         (["--plant", "perfect"], "perfect"),
         (["--trajectory", "pyramid", "--duration", "0.5"], "shortest feasible duration"),
         (["--trajectory", "spiral", "--kp", SEVEN, "--trajectory-seed", "x"], "trajectory-seed"),
     ],
 )
+@pytest.mark.slow
 def test_bad_input_is_one_clear_line_and_no_file(tmp_path, args, says):
     out = tmp_path / "ep.mcap"
     result = run(WORKER, "episode", "--out", str(out), *args)
@@ -76,6 +78,7 @@ def test_bad_input_is_one_clear_line_and_no_file(tmp_path, args, says):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_unwritable_destination_is_a_clear_error(tmp_path):
     result = run(WORKER, "episode", "--out", str(tmp_path / "missing" / "ep.mcap"))
     assert result.returncode == 2 and "does not exist" in result.stderr
@@ -109,6 +112,7 @@ GAINS = {"kp": [2000, 2000, 1200, 1200, 400, 200, 100], "kd": [20, 20, 15, 15, 4
         ("{", [], "not JSON (Expecting property name enclosed in double quotes at line 1"),
     ],
 )
+@pytest.mark.slow
 def test_a_bad_gains_file_is_one_line_naming_the_option_and_no_file(tmp_path, content, args, says):
     gains = tmp_path / "gains.json"
     gains.write_text(content)
@@ -121,6 +125,7 @@ def test_a_bad_gains_file_is_one_line_naming_the_option_and_no_file(tmp_path, co
     assert list(out.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_a_diverged_episode_says_why_its_mean_error_exceeds_its_largest(tmp_path):
     out = tmp_path / "ep.mcap"
     weak = ["--kp", "5,5,5,5,5,5,5", "--kd", SEVEN, "--trajectory", "fourier", "--duration", "1"]

@@ -91,6 +91,7 @@ def test_the_cache_fetches_once_keeps_the_file_and_refuses_what_does_not_hash(
         ModelCache(tmp_path / "other").model(digest(forward), lambda _: forward)
 
 
+@pytest.mark.slow
 def test_the_model_reaches_a_worker_that_never_had_the_file(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -129,6 +130,7 @@ def test_the_model_reaches_a_worker_that_never_had_the_file(
     assert evaluations["a"].digest == simulate(spec, lambda _: rigid_prior(RIGID_IDEAL)).digest
 
 
+@pytest.mark.slow
 def test_worker_episode_takes_a_model_file_and_refuses_a_bad_one_in_one_line(
     tmp_path: Path,
 ) -> None:
@@ -138,7 +140,7 @@ def test_worker_episode_takes_a_model_file_and_refuses_a_bad_one_in_one_line(
     (tmp_path / "forward.npz").write_bytes(to_bytes(rigid_prior(RIGID_IDEAL, target="forward")))
     (tmp_path / "junk.npz").write_bytes(b"not a model")
     worker = [sys.executable, "-m", "gainfarm.worker", "episode", "--trajectory", "fourier"]
-    common = [*worker, "--duration", "1", "--plant", "ideal", "--model", "rigid"]
+    common = [*worker, "--duration", "1", "--plant", "ideal", "--joints", "rigid"]
     ran = subprocess.run(
         [*common, "--feedforward", str(model_dir), "--out", str(tmp_path / "e.mcap"), "--json"],
         capture_output=True,

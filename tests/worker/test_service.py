@@ -16,10 +16,10 @@ import zenoh
 
 from gainfarm.analytic.evaluators.local import free_port, spawn_worker
 from gainfarm.broker.service import Broker
+from gainfarm.edges.transport import open_session
 from gainfarm.schemas import EpisodeSpec, keys
 from gainfarm.schemas.mcap_episode import decode_episode
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.transport import open_session
 from gainfarm.schemas.wire import (
     Job,
     JobStatus,
@@ -90,6 +90,7 @@ def spawn(endpoint: str, name: str, *options: str) -> subprocess.Popen:
     )
 
 
+@pytest.mark.slow
 def test_a_worker_process_serves_jobs_and_a_failing_job_does_not_stop_it(
     broker: Broker, session: zenoh.Session
 ) -> None:
@@ -131,6 +132,7 @@ def _zenoh_shared_memory() -> list[str]:
     return [line for line in maps if line.endswith(".zenoh")]
 
 
+@pytest.mark.slow
 def test_workers_that_come_and_go_leave_no_memory_behind_in_the_broker(
     broker: Broker, session: zenoh.Session
 ) -> None:
@@ -148,6 +150,7 @@ def test_workers_that_come_and_go_leave_no_memory_behind_in_the_broker(
     assert _zenoh_shared_memory() == before
 
 
+@pytest.mark.slow
 def test_sigterm_mid_job_finishes_and_returns_the_job_then_exits(
     broker: Broker, session: zenoh.Session
 ) -> None:
@@ -164,6 +167,7 @@ def test_sigterm_mid_job_finishes_and_returns_the_job_then_exits(
     wait_for(lambda: not broker.status().workers, what="the worker's token to go")
 
 
+@pytest.mark.slow
 def test_a_worker_started_before_its_broker_waits_for_it() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     worker = spawn_worker(endpoint, "early", log_level="info")
@@ -186,6 +190,7 @@ def run_worker(*arguments: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_a_second_worker_with_a_taken_name_is_refused(broker: Broker) -> None:
     first = spawn_worker(broker.endpoints[0], "twin")
     try:
@@ -200,6 +205,7 @@ def test_a_second_worker_with_a_taken_name_is_refused(broker: Broker) -> None:
     )
 
 
+@pytest.mark.slow
 def test_bad_names_and_endpoints_are_one_line_errors() -> None:
     for arguments, message in [
         (["--name", "a/b"], "--name: 'a/b' is not 1 to 64 letters, digits"),
@@ -283,6 +289,7 @@ def lease_of(job_id: str) -> LeaseReply:
     return LeaseReply(leases=[Lease(lease_id=f"l-{job_id}", study="s", job=job, expires_in=60)])
 
 
+@pytest.mark.slow
 def test_a_worker_shrugs_off_bad_lease_replies(caplog) -> None:
     """A broker stand-in answers the first lease requests with garbage, an error, an unknown
     protocol version and silence, then with a real lease: the worker logs each, keeps asking,
@@ -308,6 +315,7 @@ def test_a_worker_shrugs_off_bad_lease_replies(caplog) -> None:
     assert "refused a lease request: Timeout" not in caplog.text  # Zenoh's timeout is not a refusal
 
 
+@pytest.mark.slow
 def test_a_result_the_broker_does_not_take_is_not_sent(caplog) -> None:
     """The broker refuses one hand-in with a reason: the worker does not send that result and
     counts it. It answers the next one with an error, then garbles it: the worker hands the same
@@ -411,6 +419,7 @@ def test_a_worker_ignores_an_impostor_offering_leases(
     assert all("which is not the broker" in message for message in ignored)
 
 
+@pytest.mark.slow
 def test_a_worker_ignores_an_impostor_refusing_its_result(caplog) -> None:
     """The broker (the worker's router) answers after a while; an impostor answers each lease
     request with a made-up lease and each hand-in with a refusal at once: the worker runs the

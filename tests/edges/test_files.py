@@ -1,5 +1,5 @@
-"""Files that say one thing together are written together: a Ctrl-C waits for the block. A
-directory built in place appears whole, with the mode of any other."""
+"""Files that say one thing together are written together: a Ctrl-C waits for the block. A file
+or a directory built in place appears whole, with the mode of any other, or not at all."""
 
 import os
 import signal
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from gainfarm.schemas.files import interrupts_deferred, staging_directory
+from gainfarm.edges.files import interrupts_deferred, staging_directory, write_atomically
 
 
 def test_a_ctrl_c_inside_the_block_arrives_once_the_block_is_done() -> None:
@@ -52,3 +52,18 @@ def test_a_staging_directory_is_made_with_the_umask_s_mode(tmp_path: Path, umask
         assert path.parent == tmp_path and path.is_dir() and not any(path.iterdir())
         assert path.name.startswith(".dataset.") and path.name.endswith(".part")
         assert stat.S_IMODE(path.stat().st_mode) == 0o777 & ~umask
+
+
+def test_a_file_is_replaced_whole_and_a_failed_write_leaves_nothing(tmp_path: Path) -> None:
+    target = tmp_path / "episode.mcap"
+    target.write_bytes(b"old")
+    write_atomically(target, b"new")
+    assert target.read_bytes() == b"new" and os.listdir(tmp_path) == ["episode.mcap"]
+    assert stat.S_IMODE(target.stat().st_mode) == 0o644
+    with pytest.raises(TypeError):
+        write_atomically(target, "not bytes")  # type: ignore[arg-type]  # fails mid-write
+    assert target.read_bytes() == b"new" and os.listdir(tmp_path) == ["episode.mcap"]
+    # The error names the file asked for, not the temporary one beside it.
+    with pytest.raises(FileNotFoundError) as missing:
+        write_atomically(tmp_path / "gone" / "episode.mcap", b"x")
+    assert missing.value.filename == str(tmp_path / "gone" / "episode.mcap")

@@ -15,7 +15,7 @@ from gainfarm.analytic.experiments import dataset_value as dv
 from gainfarm.analytic.experiments.base import Experiment
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.schemas import TrajectorySpec
-from tests.helpers import analytic
+from tests.analytic.experiments.common import refusal
 
 BASE = RunConfig(pop=4, trajectories=(TrajectorySpec(duration=3.0),), generations=1, keep="front")
 REPS, TESTS, TICKS = 3, 2, 300
@@ -53,14 +53,15 @@ def rows(path: Path) -> list[dict[str, str]]:
 
 
 @pytest.fixture(scope="module")
-def finished(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, dv.Verdict]]:
+def finished(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, dv.Conclusion]]:
     out = tmp_path_factory.mktemp("dataset-value")
-    found = dv.dataset_value(Experiment(out, in_process), BASE, REPS, TESTS, TICKS)
+    found = dv.run(Experiment(out, in_process), BASE, REPS, TESTS, TICKS)
     yield out, found
 
 
+@pytest.mark.slow
 def test_every_condition_model_and_rep_is_scored_at_equal_ticks(
-    finished: tuple[Path, dv.Verdict],
+    finished: tuple[Path, dv.Conclusion],
 ) -> None:
     out, _ = finished
     results = rows(out / "results.csv")
@@ -88,7 +89,8 @@ def test_every_condition_model_and_rep_is_scored_at_equal_ticks(
         assert float(r["nmse_mean"]) == pytest.approx(np.mean(nmse[:6]))
 
 
-def test_every_run_of_every_repetition_ran_at_once(finished: tuple[Path, dv.Verdict]) -> None:
+@pytest.mark.slow
+def test_every_run_of_every_repetition_ran_at_once(finished: tuple[Path, dv.Conclusion]) -> None:
     """As wide as the farm: the twelve tuning runs (three specific and one generic per
     repetition) were all open together, and then the batches they call for: the default gains
     once, each specific knee on the other two trajectories, each repetition's random
@@ -97,7 +99,8 @@ def test_every_run_of_every_repetition_ran_at_once(finished: tuple[Path, dv.Verd
     assert OPEN["batches"][1] == 1 + 3 * REPS + REPS
 
 
-def test_comparisons_report_and_figure(finished: tuple[Path, dv.Verdict]) -> None:
+@pytest.mark.slow
+def test_comparisons_report_and_figure(finished: tuple[Path, dv.Conclusion]) -> None:
     out, found = finished
     comparisons = rows(out / "comparisons.csv")
     # Ten per model (five tuned selections × default and random), then best against runner-up.
@@ -115,8 +118,9 @@ def test_comparisons_report_and_figure(finished: tuple[Path, dv.Verdict]) -> Non
     assert f"![{dv.FIGURE}]({dv.FIGURE})" in report
 
 
+@pytest.mark.slow
 def test_a_second_invocation_reuses_the_runs_and_episodes(
-    finished: tuple[Path, dv.Verdict],
+    finished: tuple[Path, dv.Conclusion],
 ) -> None:
     out, _ = finished
     runs = sorted(path.name for path in (out / "runs").iterdir())
@@ -130,8 +134,9 @@ def test_a_second_invocation_reuses_the_runs_and_episodes(
     assert dv.rows_digest(test) == rows(out / "results.csv")[0]["test_digest"]
 
 
+@pytest.mark.slow
 def test_subsampling_is_seeded_and_splits_a_fifth_for_validation(
-    finished: tuple[Path, dv.Verdict],
+    finished: tuple[Path, dv.Conclusion],
 ) -> None:
     out, _ = finished
     pool = dv.pool_rows(dv.all_pools(Experiment(out, refuse), BASE, REPS)[0]["default"])
@@ -222,13 +227,8 @@ def test_chattering_test_controllers_are_passed_over() -> None:
         (["--duration", "2"], "--duration: "),
     ],
 )
+@pytest.mark.slow
 def test_bad_input_is_one_line_naming_the_option_and_writes_nothing(
     tmp_path: Path, arguments: list[str], option: str
 ) -> None:
-    run = analytic(
-        "experiment", "dataset-value", *arguments, "--local", "--out", "out", cwd=tmp_path
-    )
-    assert run.returncode == 2, run.stderr
-    assert run.stderr.startswith(f"analytic: error: {option}"), run.stderr
-    assert len(run.stderr.splitlines()) == 1
-    assert not (tmp_path / "out").exists()
+    assert refusal(tmp_path, "dataset-value", *arguments).startswith(option)

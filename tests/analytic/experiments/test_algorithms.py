@@ -1,5 +1,5 @@
 """The optimiser comparison at toy size: in this process, on the toy objective
-(tests.analytic.toy), so that a whole study takes seconds."""
+(tests.analytic.toy), so that a whole experiment takes seconds; and its command's refusals."""
 
 import csv
 import json
@@ -10,7 +10,7 @@ import pytest
 from scipy import stats
 
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
-from gainfarm.analytic.experiments import algorithms as study
+from gainfarm.analytic.experiments import algorithms
 from gainfarm.analytic.experiments import statistics as analytic_stats
 from gainfarm.analytic.experiments.base import Experiment, Normalisation, non_dominated
 from gainfarm.analytic.experiments.statistics import holm
@@ -20,6 +20,7 @@ from gainfarm.analytic.tuning.termination import Termination
 from gainfarm.schemas import EpisodeSpec, Scores, TrajectorySpec
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.objectives import NO_EPISODE
+from tests.analytic.experiments.common import refusal
 from tests.analytic.toy import toy_scores
 
 BUDGET = 24
@@ -58,7 +59,7 @@ def rows(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(stream))
 
 
-def in_process(study_name: str, directory: Path) -> InProcessEvaluator:
+def in_process(study: str, directory: Path) -> InProcessEvaluator:
     return InProcessEvaluator(scorer=toy_scores)
 
 
@@ -74,9 +75,9 @@ def soft_arms_diverge(spec: EpisodeSpec) -> Scores:
 
 @pytest.fixture(scope="module")
 def out(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One study, run once for the tests that read it."""
+    """One experiment, run once for the tests that read it."""
     directory = tmp_path_factory.mktemp("algorithms")
-    study.algorithms(Experiment(directory, in_process), BASE, ALGORITHMS, SCALINGS, REPS)
+    algorithms.run(Experiment(directory, in_process), BASE, REPS, ALGORITHMS, SCALINGS)
     return directory
 
 
@@ -87,6 +88,7 @@ def by_condition(results: list[dict[str, str]], column: str) -> dict[str, list[f
     return found
 
 
+@pytest.mark.slow
 def test_a_row_per_run_each_on_the_same_budget(out: Path) -> None:
     results = rows(out / "results.csv")
     assert list(results[0]) == RESULT_COLUMNS
@@ -106,8 +108,10 @@ def test_a_row_per_run_each_on_the_same_budget(out: Path) -> None:
         assert reached == "" or 0 < int(reached) <= BUDGET
 
 
-def test_the_hypervolume_is_that_of_every_evaluated_point_in_the_study_space(out: Path) -> None:
-    space = json.loads((out / "normalisation.json").read_text())[study.SPACE]
+def test_the_hypervolume_is_that_of_every_evaluated_point_in_the_experiments_space(
+    out: Path,
+) -> None:
+    space = json.loads((out / "normalisation.json").read_text())[algorithms.SPACE]
     normalisation = Normalisation(tuple(space["ideal"]), tuple(space["nadir"]))
     for r in rows(out / "results.csv"):
         run = read_run(out / "runs" / f"{r['algorithm']}-{r['scaling']}-rep{r['rep']}")
@@ -119,7 +123,7 @@ def test_the_hypervolume_is_that_of_every_evaluated_point_in_the_study_space(out
 
 def test_stats_compare_each_condition_with_the_first_as_scipy_does(out: Path) -> None:
     found = rows(out / "stats.csv")
-    assert {r["study"] for r in found} == {"algorithms"}
+    assert {r["experiment"] for r in found} == {"algorithms"}
     others = ["nsga2-log", "random-raw", "random-log"]
     assert [(r["comparison"], r["metric"]) for r in found[:6]] == [
         (f"{c} vs nsga2-raw", metric) for metric in ("hypervolume", "best_f_acc_mm") for c in others
@@ -184,14 +188,14 @@ def test_the_report_tables_every_condition_and_the_classical_baseline(out: Path)
 
 def test_the_normalisation_leaves_penalty_points_out(tmp_path: Path) -> None:
     experiment = Experiment(tmp_path, lambda name, _: InProcessEvaluator(scorer=soft_arms_diverge))
-    study.algorithms(experiment, BASE.model_copy(update={"evaluations": 8}), ["nsga2"], reps=1)
+    algorithms.run(experiment, BASE.model_copy(update={"evaluations": 8}), 1, ["nsga2"])
     # Soft controllers let the arm fall: penalties, and non-dominated ones (the smoothest
     # torque of all), which would set the nadir's f_acc and the ideal's f_t.
     assert PENALTY in experiment.penalised
     # A run's own front holds one too, flagged diverged in its front.csv.
     [front] = [read_run(path).front for path in (tmp_path / "runs").iterdir()]
     assert PENALTY in [m.objectives for m in front if m.diverged]
-    space = json.loads((tmp_path / "normalisation.json").read_text())[study.SPACE]
+    space = json.loads((tmp_path / "normalisation.json").read_text())[algorithms.SPACE]
     assert space["nadir"][0] < PENALTY[0] and space["ideal"][1] > PENALTY[1]
     assert all(0 <= float(r["hypervolume"]) <= 1 for r in rows(tmp_path / "results.csv"))
 
@@ -200,19 +204,19 @@ def test_the_normalisation_leaves_penalty_points_out(tmp_path: Path) -> None:
 
 
 def test_checkpoints_are_every_generation_and_the_budget() -> None:
-    assert study.checkpoints(30, 600) == list(range(30, 601, 30))
-    assert study.checkpoints(4, 10) == [4, 8, 10]
+    assert algorithms.checkpoints(30, 600) == list(range(30, 601, 30))
+    assert algorithms.checkpoints(4, 10) == [4, 8, 10]
 
 
 def test_the_hypervolume_curve_grows_with_the_points_and_ignores_penalties() -> None:
     normalisation = Normalisation(ideal=(0.1, 1.0), nadir=(0.3, 10.0))
     diverged = (0.2, 2.0)  # inside the box: it would add to the hypervolume if it counted
     points = [(0.3, 10.0), NO_EPISODE, (0.1, 10.0), diverged, (0.3, 1.0)]
-    curve = study.hypervolume_curve(points, [1, 3, 4, 5], normalisation, {diverged})
+    curve = algorithms.hypervolume_curve(points, [1, 3, 4, 5], normalisation, {diverged})
     assert curve[0] < curve[1] == curve[2] < curve[3] <= 1
     assert curve[3] == normalisation.hypervolume([(0.1, 10.0), (0.3, 1.0)])
-    assert study.evaluations_to(curve, [1, 3, 4, 5], curve[1]) == 3
-    assert study.evaluations_to(curve, [1, 3, 4, 5], 2.0) is None
+    assert algorithms.evaluations_to(curve, [1, 3, 4, 5], curve[1]) == 3
+    assert algorithms.evaluations_to(curve, [1, 3, 4, 5], 2.0) is None
 
 
 def test_the_rule_stops_where_the_run_would_have() -> None:
@@ -220,8 +224,8 @@ def test_the_rule_stops_where_the_run_would_have() -> None:
         HistoryRow(g, 10 * g, hv, 0.01, 1.0, 0.0)
         for g, hv in enumerate([0.5, 0.6, 0.7, 0.701, 0.702, 0.703, 0.8], start=1)
     ]
-    assert study.rule_stop(history, Termination(tolerance=0.005, window=2)) == 50
-    assert study.rule_stop(history, Termination(tolerance=0.005, window=5)) is None
+    assert algorithms.rule_stop(history, Termination(tolerance=0.005, window=2)) == 50
+    assert algorithms.rule_stop(history, Termination(tolerance=0.005, window=5)) is None
 
 
 @pytest.mark.parametrize(
@@ -233,13 +237,13 @@ def test_the_rule_stops_where_the_run_would_have() -> None:
 )
 def test_an_unknown_or_repeated_algorithm_is_refused(names: list[str], message: str) -> None:
     with pytest.raises(ValueError, match=message):
-        study.check_names(names, ("nsga2", "random"), "algorithm")
+        algorithms.check_names(names, ("nsga2", "random"), "algorithm")
 
 
-def test_the_study_needs_a_budget(tmp_path: Path) -> None:
+def test_the_experiment_needs_a_budget(tmp_path: Path) -> None:
     unbudgeted = BASE.model_copy(update={"evaluations": None})
     with pytest.raises(ValueError, match="budget"):
-        study.algorithms(Experiment(tmp_path, in_process), unbudgeted, ["nsga2"], reps=1)
+        algorithms.run(Experiment(tmp_path, in_process), unbudgeted, 1, ["nsga2"])
     assert not (tmp_path / "runs").exists()
 
 
@@ -247,20 +251,42 @@ def test_holm_adjusts_the_family_and_the_smallest_p_it_can_reach() -> None:
     five_against_five = [[0.1 * i + j for j in range(5)] for i in range(1, 8)]
     reference = [0.0] * 5
     family = {
-        study.Condition(f"a{i}", "raw"): analytic_stats.compare(values, reference)
+        algorithms.Condition(f"a{i}", "raw"): analytic_stats.compare(values, reference)
         for i, values in enumerate(five_against_five)
     }
     for size, decidable in ((3, True), (7, False)):
         chosen = dict(list(family.items())[:size])
-        adjusted = study.holm_adjusted(chosen)
+        adjusted = algorithms.holm_adjusted(chosen)
         assert [r.p_value for r in adjusted.values()] == holm([r.p_value for r in chosen.values()])
         # Mann-Whitney 5 against 5 reaches 2/252 alone: 3 of them can still decide, 7 cannot.
         assert all(analytic_stats.decidable(r) == decidable for r in adjusted.values())
 
 
 def test_the_rule_check_needs_a_run_the_rule_stopped() -> None:
-    never = study.RunMeasure(24, 0.5, 0.01, [0.4, 0.5], None, None)
-    stopped = study.RunMeasure(24, 0.5, 0.01, [0.4, 0.5], 12, 0.4)
-    assert study.check_rule([never]) is None
-    check = study.check_rule([never, stopped])
+    never = algorithms.RunMeasure(24, 0.5, 0.01, [0.4, 0.5], None, None)
+    stopped = algorithms.RunMeasure(24, 0.5, 0.01, [0.4, 0.5], 12, 0.4)
+    assert algorithms.check_rule([never]) is None
+    check = algorithms.check_rule([never, stopped])
     assert check is not None and check.paired and (check.n_a, check.median_b) == (1, 0.4)
+
+
+# --- the command line ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (
+            ["--algorithms", "nsga2,cmaes"],
+            "--algorithms: unknown algorithm 'cmaes': one of nsga2, ",
+        ),
+        (["--algorithms", "nsga2,random,nsga2"], "--algorithms: algorithm 'nsga2' given twice"),
+        (["--objective-scaling", "raw,sqrt"], "--objective-scaling: unknown objective scaling"),
+        (["--generations", "3"], "--generations: the algorithms experiment compares on a budget"),
+    ],
+)
+@pytest.mark.slow
+def test_the_algorithms_experiment_refuses_bad_options_in_one_line_before_anything_is_written(
+    tmp_path: Path, arguments: list[str], message: str
+) -> None:
+    assert refusal(tmp_path, "algorithms", *arguments).startswith(message)

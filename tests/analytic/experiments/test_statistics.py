@@ -9,15 +9,6 @@ import pytest
 from scipy import stats as scipy_stats
 
 from gainfarm.analytic.experiments import statistics as st
-from gainfarm.analytic.experiments.base import (
-    ALL_KINDS,
-    Normalisation,
-    dominated_count,
-    generic_set,
-    is_penalty,
-)
-from gainfarm.schemas.objectives import NO_EPISODE
-from gainfarm.schemas.trajectory import TrajectoryKind
 
 HIGH = [10.0, 11.0, 12.0, 13.0, 14.0, 15.0, 16.0, 17.0]
 LOW = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.5]
@@ -67,12 +58,12 @@ def test_three_against_three_can_never_decide_and_says_why() -> None:
 
 def test_stats_csv_has_exactly_the_agreed_columns_and_scipys_numbers() -> None:
     rows = [
-        st.StatsRow("study", "high vs low", "hypervolume", st.compare(HIGH, LOW)),
-        st.StatsRow("study", "same", "error_m", st.compare([1.0, 2.0], [1.0, 2.0])),
+        st.StatsRow("popsize", "high vs low", "hypervolume", st.compare(HIGH, LOW)),
+        st.StatsRow("popsize", "same", "error_m", st.compare([1.0, 2.0], [1.0, 2.0])),
     ]
     written = parse(st.stats_csv(rows))
     assert list(written[0]) == [
-        "study",
+        "experiment",
         "comparison",
         "metric",
         "median_a",
@@ -96,35 +87,6 @@ def test_a_single_value_a_side_gives_no_interval() -> None:
     result = st.compare([1.0], [2.0, 3.0])
     assert math.isnan(result.ci_low) and math.isnan(result.ci_high)
     assert st.decide(result).startswith("cannot decide")
-
-
-def test_the_normalisation_spans_the_pooled_front_and_ignores_penalty_points() -> None:
-    runs = [[(0.01, 100.0), (0.05, 1.0)], [(0.02, 10.0), (0.08, 50.0)]]  # the last dominated
-    normalisation = Normalisation.of(runs)
-    assert normalisation.ideal == (0.01, 1.0) and normalisation.nadir == (0.05, 100.0)
-    diverged = (0.5, 1e6)
-    with_penalties = Normalisation.of([*runs, [NO_EPISODE, diverged], [(1.0, 0.5)]], {diverged})
-    assert with_penalties == normalisation
-    assert is_penalty(NO_EPISODE) and is_penalty(diverged, {diverged})
-    assert not is_penalty((0.5, 1e6))
-    # The whole range is used: the pooled front scores high, its worst corner little.
-    assert normalisation.hypervolume([(0.05, 100.0)]) == pytest.approx(0.01 / 1.21)
-    assert normalisation.hypervolume([p for points in runs for p in points]) > 0.4
-    assert normalisation.hypervolume([NO_EPISODE]) == 0.0
-    assert normalisation.normalise([(0.03, 10.0)])[0].tolist() == pytest.approx([0.5, 0.5])
-
-
-def test_dominance_counts() -> None:
-    specific = [(0.01, 1.0), (0.02, 0.5)]
-    generic = [(0.02, 2.0), (0.005, 10.0), (0.02, 0.5)]
-    assert dominated_count(generic, specific) == 1  # (0.02, 0.5) ties, is not dominated
-    assert dominated_count(specific, generic) == 0
-
-
-@pytest.mark.parametrize("test", ALL_KINDS)
-def test_the_generic_set_never_holds_the_test_trajectory(test: TrajectoryKind) -> None:
-    kinds = [spec.kind for spec in generic_set(test, 5.0)]
-    assert test not in kinds and len(kinds) == 2
 
 
 def test_holm_steps_down_and_keeps_the_order() -> None:

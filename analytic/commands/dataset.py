@@ -1,0 +1,148 @@
+"""`analytic dataset`: tuned controllers' episodes gathered into a dataset."""
+
+import contextlib
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import click
+
+from gainfarm.analytic.commands.shared import (
+    check_farm,
+    farm,
+    farm_options,
+    farm_problem,
+    study_name,
+)
+from gainfarm.cli.app import CliError, parse_numbers
+from gainfarm.cli.options import Later
+
+if TYPE_CHECKING:
+    from gainfarm.analytic.evaluators.evaluator import Evaluator
+
+
+def _split() -> str:
+    from gainfarm.analytic.data.dataset import DEFAULT_SPLIT
+
+    return ",".join(f"{value:g}" for value in DEFAULT_SPLIT)
+
+
+@click.command()
+@click.argument("run_dirs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="dataset directory")
+@click.option(
+    "--select",
+    "selection",
+    type=click.Choice(["front", "knee"]),
+    default="front",
+    show_default=True,
+    help="every Pareto-front controller, or each run's knee",
+)
+@click.option(
+    "--split",
+    "split_text",
+    metavar="TRAIN,VALIDATION,TEST",
+    default=Later(_split),
+    show_default=True,
+    help="fractions of the trajectories in each part: the split is by trajectory, never by tick",
+)
+@click.option(
+    "--split-seed",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="seed of the order the trajectories are dealt into the split in",
+)
+@click.option(
+    "--rerun",
+    "rerun_file",
+    type=click.Path(path_type=Path),
+    help="JSON list of trajectories (TrajectorySpec objects): run every selected controller once "
+    "more on each, through the farm (a local one unless --connect), and add those episodes",
+)
+@farm_options
+def dataset(
+    run_dirs: tuple[Path, ...],
+    out: Path,
+    selection: str,
+    split_text: str,
+    split_seed: int,
+    rerun_file: Path | None,
+    connect: tuple[str, ...],
+    tls: Path | None,
+    participant: str | None,
+    local: bool,
+    workers: int,
+) -> None:
+    """Gather tuned controllers' episodes into a dataset: MCAP logs, Parquet tables, a card."""
+    from gainfarm.analytic.data.dataset import (
+        BadRerun,
+        BadSplit,
+        DuplicateEpisodes,
+        NoEpisodes,
+        RerunFailed,
+        UnreadableRun,
+        check_split,
+        read_rerun,
+    )
+    from gainfarm.analytic.data.dataset import build as build_dataset
+    from gainfarm.analytic.evaluators.farm import FarmClient
+    from gainfarm.analytic.tuning.records import CONFIG_JSON
+    from gainfarm.schemas.wire import BadMessage
+
+    identity = check_farm(connect, local, tls, participant)
+    if rerun_file is None and (connect or local):  # saying so beats ignoring the option
+        raise CliError("--connect and --local need --rerun: only a rerun runs episodes")
+    for run_dir in run_dirs:
+        if not (run_dir / CONFIG_JSON).is_file():
+            raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG_JSON})")
+    if out.exists():
+        raise CliError(f"--out: {str(out)!r} already exists")
+    try:
+        split = check_split(parse_numbers("--split", split_text, 3))
+        trajectories = read_rerun(rerun_file) if rerun_file is not None else []
+    except BadSplit as error:
+        raise CliError(f"--split: {error}") from None
+    except BadRerun as error:
+        raise CliError(f"--rerun: {error}") from None
+
+    @contextlib.contextmanager
+    def rerun_farm(directory: Path) -> Iterator["Evaluator"]:
+        """The rerun's farm, as `analytic batch` has it (started only once all is checked)."""
+        with farm(connect, workers) as endpoints:
+            try:
+                client = FarmClient(
+                    endpoints, study_name(directory, identity), directory, identity=identity
+                )
+            except (ValueError, ConnectionError) as error:
+                raise CliError(farm_problem(connect, error)) from None
+            with client:
+                yield client
+
+    try:
+        counts = build_dataset(
+            list(run_dirs),
+            out,
+            selection,
+            split=split,
+            split_seed=split_seed,
+            rerun_trajectories=trajectories,
+            farm=rerun_farm,
+        )
+    except BadSplit as error:  # too few trajectories for the parts asked for
+        raise CliError(f"--split: {error}") from None
+    except BadRerun as error:  # a trajectory the robot cannot follow
+        raise CliError(f"--rerun: {error}") from None
+    except (NoEpisodes, UnreadableRun, DuplicateEpisodes, RerunFailed, BadMessage) as error:
+        raise CliError(str(error)) from None
+    except ConnectionError as error:  # the farm's, not the disk's
+        raise CliError(farm_problem(connect, error)) from None
+    except OSError as error:
+        raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
+    rerun = f", {counts['rerun']} of them rerun" if counts["rerun"] else ""
+    click.echo(
+        f"{out}: {counts['episodes']} episodes{rerun}, {counts['ticks']:,} ticks, "
+        f"{counts['controllers']} controllers from {counts['runs']} runs, "
+        f"{counts['trajectories']} trajectories ({counts['train']} train, "
+        f"{counts['validation']} validation, {counts['test']} test)"
+    )

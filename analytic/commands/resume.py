@@ -1,0 +1,58 @@
+"""`analytic resume`: a stopped run, on from its last checkpoint."""
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import click
+
+from gainfarm.analytic.commands.shared import check_farm, farm_options, run_with_progress
+from gainfarm.cli.app import CliError
+
+if TYPE_CHECKING:
+    from gainfarm.analytic.tuning.run import TuningRun
+    from gainfarm.analytic.tuning.tune import Watch
+
+
+@click.command()
+@click.argument("run_dir", type=click.Path(path_type=Path))
+@farm_options
+def resume(
+    run_dir: Path,
+    connect: tuple[str, ...],
+    tls: Path | None,
+    participant: str | None,
+    local: bool,
+    workers: int,
+) -> None:
+    """Continue a stopped run from its last checkpoint."""
+    from gainfarm.analytic.tuning.checkpoint import CheckpointRefused
+    from gainfarm.analytic.tuning.records import CONFIG_JSON
+    from gainfarm.analytic.tuning.run import RunBusy, TuningRun
+    from gainfarm.analytic.tuning.tune import CannotStart, tune_run
+
+    identity = check_farm(connect, local, tls, participant)
+    if not (run_dir / CONFIG_JSON).is_file():
+        raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG_JSON})")
+    try:
+        run = TuningRun.open(run_dir)
+    except (RunBusy, CheckpointRefused) as error:
+        raise CliError(str(error)) from None
+    except OSError as error:  # its lock or run.json cannot be written, or a file read
+        where = f"{str(error.filename)!r}: " if error.filename else ""
+        raise CliError(
+            f"{str(run_dir)!r}: cannot open the run: {where}{error.strerror or error}"
+        ) from None
+    except ValueError as error:
+        raise CliError(f"{str(run_dir)!r}: unreadable run ({error})") from None
+    if run.finished:
+        run.close()
+        raise CliError(f"{str(run_dir)!r} has finished: {run.state.stopped}")
+
+    def go(watch: "Watch") -> "TuningRun":
+        tune_run(run, connect=connect, workers=workers, identity=identity, watch=watch)
+        return run
+
+    try:
+        run_with_progress(go, run_dir, connect)
+    except CannotStart as error:  # its feed-forward model file is missing, or another
+        raise CliError(str(error)) from None

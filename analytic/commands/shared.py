@@ -1,0 +1,240 @@
+"""What several `analytic` commands share: the options of a run and of the farm, and the one-line
+errors that name them. Light: click and the run's defaults at the top, the rest where used."""
+
+import contextlib
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, TypeVar
+
+import click
+
+from gainfarm.analytic.tuning import defaults
+from gainfarm.cli import options
+from gainfarm.cli.app import CliError
+
+if TYPE_CHECKING:
+    from pydantic import ValidationError
+
+    from gainfarm.analytic.evaluators.evaluator import Evaluator
+    from gainfarm.analytic.tuning.run import RunProgress, TuningRun
+    from gainfarm.analytic.tuning.tune import Watch
+    from gainfarm.schemas.security import TlsIdentity
+    from gainfarm.schemas.trajectory import TrajectorySpec
+
+F = TypeVar("F", bound=Callable[..., object])
+
+
+def pop_option() -> Callable[[F], F]:
+    return click.option(
+        "--pop",
+        type=click.IntRange(min=defaults.POP_MIN, max=defaults.POP_MAX),
+        default=defaults.POP,
+        show_default=True,
+        help="population size",
+    )
+
+
+def termination_options(per_run: bool = False) -> Callable[[F], F]:
+    """--generations and --evaluations (which exclude each other: RunConfig says so)."""
+    when = "per run, instead of converging: " if per_run else ""
+    return options.stack(
+        click.option(
+            "--generations",
+            type=click.IntRange(min=defaults.GENERATIONS_MIN),
+            help=f"{when}stop after N generations",
+        ),
+        click.option(
+            "--evaluations",
+            type=click.IntRange(min=defaults.EVALUATIONS_MIN),
+            help=f"{when}stop after N evaluations",
+        ),
+    )
+
+
+# Where the farm is, the same for every command that uses one.
+farm_options = options.stack(
+    click.option("--connect", multiple=True, help="a running broker's Zenoh endpoint"),
+    options.tls("a secure farm: directory with ca.pem and an analytic participant's pair"),
+    click.option(
+        "--as",
+        "participant",
+        help="with --tls: the analytic participant to be, if DIR holds several",
+    ),
+    click.option(
+        "--local", is_flag=True, help="run the farm here: a broker in this process, workers"
+    ),
+    click.option(
+        "--workers",
+        type=click.IntRange(min=1, max=64),
+        default=1,
+        show_default=True,
+        help="with a local farm: how many worker processes",
+    ),
+)
+
+
+def check_farm(
+    connect: tuple[str, ...], local: bool, tls: Path | None, participant: str | None
+) -> "TlsIdentity | None":
+    """The analytic identity to connect with, if the farm is secure."""
+    if connect and local:
+        raise CliError("--connect and --local exclude each other")
+    if tls is not None and not connect:
+        raise CliError("--tls needs --connect: a local farm runs on loopback, unsecured")
+    if participant is not None and tls is None:
+        raise CliError("--as needs --tls: a participant is a secure farm's identity")
+    return options.identity(tls, "analytic", participant)
+
+
+def study_name(directory: Path, identity: "TlsIdentity | None") -> str:
+    """A new study name for work on `directory`; on a secure farm its owner's, as the access
+    policy requires (docs/security.md)."""
+    from gainfarm.analytic.tuning.tune import new_study_name
+
+    return new_study_name(directory, owner=identity.name if identity is not None else None)
+
+
+@contextlib.contextmanager
+def farm(connect: tuple[str, ...], workers: int) -> Iterator[list[str]]:
+    """The endpoints to use: the given broker's, or else a local farm's (a local farm that
+    cannot start is one line; what goes wrong later in the block is not relabelled)."""
+    if connect:
+        yield list(connect)
+        return
+    from gainfarm.analytic.evaluators.farm import FarmUnavailable
+    from gainfarm.analytic.evaluators.local import local_farm
+
+    with contextlib.ExitStack() as stack:
+        try:
+            endpoint = stack.enter_context(local_farm(workers))
+        except (ValueError, ConnectionError, FarmUnavailable) as error:
+            raise CliError(f"local farm: {error}") from None
+        yield [endpoint]
+
+
+def farm_problem(connect: tuple[str, ...], error: Exception) -> str:
+    """Why the farm cannot be had, in one line naming the option that chose it."""
+    return f"{'--connect' if connect else 'local farm'}: {error}"
+
+
+def followable(trajectories: Iterable["TrajectorySpec"], option: str = "--duration") -> None:
+    """Refuse, in one line, a trajectory the iiwa cannot follow (out of reach, or too fast for
+    its limits) before any job is sent: every episode of it would fail."""
+    from gainfarm.analytic.tuning.tune import CannotStart, check_followable
+
+    try:
+        check_followable(trajectories)
+    except CannotStart as error:
+        raise CliError(f"{start_option(error.part, option)}: {error}") from None
+
+
+def start_option(part: str, duration: str = "--duration") -> str:
+    """The option that says the part of a run `tune.CannotStart` names."""
+    return {"duration": duration, "placement": "--center/--size"}.get(part, f"--{part}")
+
+
+def config_problem(error: "ValidationError") -> str:
+    """A RunConfig's complaint in one line, naming the option when it is one field's."""
+    from gainfarm.schemas.wire import describe
+
+    text = describe(error)
+    field, _, rest = text.partition(": ")
+    if rest and field in ("algorithm", "objective_scaling", "pop", "seed", "keep"):
+        return f"--{field.replace('_', '-')}: {rest}"
+    return text.replace("generations and evaluations", "--generations and --evaluations")
+
+
+def unwritable(error: OSError, then: str) -> CliError:
+    """A file of a run that could not be written (disk full, read-only, no permission), in one
+    line: the files are each whole or absent and the checkpoint is the last good one, so once
+    the cause is gone the run goes on as `then` says."""
+    where = f" {str(error.filename)!r}" if error.filename else ""
+    return CliError(f"cannot write{where}: {error.strerror or error}; once it can, {then}")
+
+
+def algorithm_names() -> tuple[str, ...]:
+    """The optimisers a run may name: the built-in ones and the installed plug-ins' (their
+    metadata read, none imported, so pymoo does not load to parse a command line)."""
+    from gainfarm import plugins
+
+    return plugins.names(plugins.ALGORITHMS)
+
+
+def run_with_progress(
+    go: Callable[["Watch"], "TuningRun"], directory: Path, connect: tuple[str, ...]
+) -> None:
+    """Tune as `go` does (`tune`, or `tune_run` of an opened run), given what shows its progress
+    (a live line, or a plain line a generation) and stops it at a Ctrl-C; then say why it
+    stopped, what replication found and which controller to use. `directory` is the run's."""
+    from rich.console import Console
+
+    from gainfarm import plugins
+    from gainfarm.analytic.evaluators.farm import FarmUnavailable
+    from gainfarm.analytic.tuning.tune import TuningInterrupted
+    from gainfarm.analytic.view.export import describe_pick, picks
+    from gainfarm.analytic.view.progress import Display, RunDisplay
+    from gainfarm.cli import interrupts
+
+    console = Console(stderr=True)
+
+    @contextlib.contextmanager
+    def watch(farm: "Evaluator") -> Iterator[Callable[["RunProgress"], None]]:
+        with (
+            Display(console) as display,
+            RunDisplay(
+                display, lambda: _workers(farm), lambda: getattr(farm, "waiting", None)
+            ) as shown,
+        ):
+
+            def step(progress: "RunProgress") -> None:
+                interrupts.check()  # between evaluations: a Ctrl-C Python held back
+                shown.step(progress)
+
+            yield step
+
+    try:
+        run = go(watch)
+    except FarmUnavailable as error:
+        raise CliError(farm_problem(connect, error)) from None
+    except plugins.PluginError as error:  # a worker (or this process) lacks a plug-in
+        raise CliError(f"{error}, on every worker; then: analytic resume {directory}") from None
+    except TuningInterrupted as stopped:
+        if stopped.run is None:  # nothing ran: nothing to resume
+            interrupts.stop("analytic")
+        interrupts.stop(
+            "analytic",
+            f"stopped after {len(stopped.run.state.history)} generations; "
+            f"continue with: analytic resume {stopped.run.directory}",
+        )
+    except OSError as error:
+        if isinstance(error, ConnectionError):  # the farm's: said where it happens
+            raise
+        raise unwritable(error, f"go on with: analytic resume {directory}") from None
+    # Plain lines, whole however long: rich would wrap them at 80 columns off a terminal.
+    click.echo(f"stopped: {run.state.stopped}", err=True)
+    ledger = run.replication
+    if ledger.replicated:
+        click.echo(
+            f"front validated by replication: {ledger.replicated} episodes run again "
+            f"({ledger.extra_evaluations} extra evaluations, {ledger.seconds:.1f} s), "
+            f"{ledger.disagreements} disagreements, {ledger.undecided} undecided"
+            + (
+                f"; distrusted: {', '.join(sorted(ledger.dissenters))}" if ledger.dissenters else ""
+            ),
+            err=True,
+        )
+    click.echo(f"front, history, figures and report in {run.directory}/", err=True)
+    chosen = picks(run.front())
+    if chosen:  # last, what to do next; each line within 80 columns for a short run directory
+        click.echo(f"controller to use: {describe_pick(chosen[0])}", err=True)
+        click.echo(f"its gains: analytic export {run.directory}", err=True)
+
+
+def _workers(farm: "Evaluator") -> int | None:
+    """How many workers the farm has now; None if the broker does not answer within 2 s."""
+    from gainfarm.broker.status import query_status
+
+    try:
+        return query_status(farm.session, timeout=2.0).worker_count  # type: ignore[attr-defined]
+    except Exception:  # no answer, a garbled one, or the session closed as the run ended
+        return None

@@ -1,0 +1,181 @@
+"""`analytic start`: a tuning run, as `tune` makes it, with its progress on the terminal."""
+
+from pathlib import Path
+
+import click
+
+from gainfarm.analytic.commands.shared import (
+    algorithm_names,
+    check_farm,
+    config_problem,
+    farm_options,
+    pop_option,
+    run_with_progress,
+    start_option,
+    termination_options,
+)
+from gainfarm.analytic.tuning import defaults
+from gainfarm.cli import options
+from gainfarm.cli.app import CliError
+
+
+@click.command()
+@pop_option()
+@options.trajectory(
+    multiple=True,
+    help="one: a specific controller; several (repeat): a generic one, objectives averaged "
+    "(see --balance)",
+)
+@options.duration()
+@options.placement()
+@click.option(
+    "--seed",
+    type=click.IntRange(min=0),
+    default=defaults.SEED,
+    show_default=True,
+    help="NSGA-II's seed",
+)
+@termination_options()
+@options.joints()
+@options.plant()
+@options.feedforward(
+    help="add a learned inverse-dynamics model's torque for the reference to every episode's "
+    "PD and tune the gains on top (a directory from `analytic learn`, or its model.npz)"
+)
+@farm_options
+@click.option("--out", type=click.Path(path_type=Path), help="run directory  [default: runs/TIME]")
+@click.option(
+    "--keep",
+    type=click.Choice(defaults.KEEPS),
+    default=defaults.KEEP,
+    show_default=True,
+    help="which episode logs to keep: the front's (the workers keep the logs and the front's "
+    "are fetched from them), or all (each comes with its result and is kept: about 1.5 MB "
+    "per 5 s episode, every evaluation's)",
+)
+@click.option(
+    "--async",
+    "asynchronous",
+    is_flag=True,
+    help="steady-state NSGA-II: a new candidate as soon as any result returns",
+)
+@click.option(
+    "--algorithm",
+    type=options.LazyChoice(algorithm_names),
+    default=defaults.ALGORITHM,
+    show_default=True,
+    help="the optimiser: pymoo's NSGA-II, NSGA-III, SMS-EMOA, MOEA/D, AGE-MOEA-II, Optuna's "
+    "TPE, or uniform random sampling (--async: nsga2 only)",
+)
+@click.option(
+    "--objective-scaling",
+    type=click.Choice(defaults.OBJECTIVE_SCALINGS),
+    default=defaults.OBJECTIVE_SCALING,
+    show_default=True,
+    help="what the optimiser is told: raw objectives, or log: as the hypervolume sees them "
+    "(f_t on a log scale); the records stay raw",
+)
+@click.option(
+    "--replicate/--no-replicate",
+    default=defaults.REPLICATE,
+    show_default=True,
+    help="on a farm of 2+ workers, validate the front: another worker reruns each member's "
+    "episodes and the logs must agree bit for bit",
+)
+@click.option(
+    "--balance/--no-balance",
+    default=defaults.BALANCE,
+    show_default=True,
+    help="generic: weigh each trajectory's objectives so that all count alike at the default "
+    "gains (simulated here first, one episode per trajectory), rather than the plain means, "
+    "which the roughest trajectory would dominate",
+)
+def start(
+    pop: int,
+    kinds: tuple[str, ...],
+    duration: float,
+    trajectory_seed: int,
+    center: str,
+    size: float,
+    seed: int,
+    generations: int | None,
+    evaluations: int | None,
+    joints: str,
+    plant: str,
+    feedforward: Path | None,
+    connect: tuple[str, ...],
+    tls: Path | None,
+    participant: str | None,
+    local: bool,
+    workers: int,
+    out: Path | None,
+    keep: str,
+    asynchronous: bool,
+    algorithm: str,
+    objective_scaling: str,
+    replicate: bool,
+    balance: bool,
+) -> None:
+    """Tune the 14 PD gains with NSGA-II (or --algorithm) on the farm: maximise accuracy,
+    minimise torque steps.
+
+    Stops after --generations, after --evaluations, or (by default) when the hypervolume has
+    stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
+    """
+    from pydantic import ValidationError
+
+    from gainfarm.analytic.tuning import tune as tuning
+    from gainfarm.analytic.tuning.config import RunConfig
+    from gainfarm.analytic.tuning.records import CONFIG_JSON
+    from gainfarm.analytic.tuning.run import RunBusy
+
+    identity = check_farm(connect, local, tls, participant)
+    trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
+    learned = options.feedforward_model(feedforward)
+    model_file = learned[0] if learned is not None else None
+    try:
+        config = RunConfig(
+            pop=pop,
+            seed=seed,
+            trajectories=trajectories,
+            model=options.model_spec(plant, joints),
+            generations=generations,
+            evaluations=evaluations,
+            keep=keep,
+            asynchronous=asynchronous,
+            algorithm=algorithm,
+            objective_scaling=objective_scaling,
+            replicate=replicate,
+            feedforward=_digest(model_file) if model_file is not None else None,
+        )
+    except ValidationError as error:
+        raise CliError(config_problem(error)) from None
+    out = out or tuning.new_directory()
+    if (out / CONFIG_JSON).exists():  # `tune` would resume it: a start does not
+        raise CliError(f"--out: {str(out)!r} already holds a run; resume it or choose another")
+    try:
+        run_with_progress(
+            lambda watch: tuning.tune(
+                config,
+                out,
+                connect=connect,
+                workers=workers,
+                identity=identity,
+                feedforward=model_file,
+                balance=balance,
+                watch=watch,
+            ),
+            out,
+            connect,
+        )
+    except tuning.CannotStart as error:
+        also = "; give --no-balance" if error.part == "balance" else ""
+        raise CliError(f"{start_option(error.part)}: {error}{also}") from None
+    except RunBusy as error:
+        raise CliError(f"--out: {error}") from None
+
+
+def _digest(model_file: bytes) -> str:
+    from gainfarm.models.dynamics import digest
+
+    return digest(model_file)
