@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 _WHERE = {
     "RunConfig": "gainfarm.analytic.tuning.config",
     "TuningRun": "gainfarm.analytic.tuning.run",
-    "tune": "gainfarm.analytic.tuning.tune",
+    "tune": "gainfarm.analytic.compose",
     "FarmClient": "gainfarm.analytic.evaluators.farm",
     "InProcessEvaluator": "gainfarm.analytic.evaluators.inprocess",
     "local_farm": "gainfarm.analytic.evaluators.local",
@@ -36,13 +36,13 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
+    from gainfarm.analytic.compose import tune
     from gainfarm.analytic.evaluators.farm import FarmClient
     from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
     from gainfarm.analytic.evaluators.local import local_farm
     from gainfarm.analytic.tuning.config import RunConfig
     from gainfarm.analytic.tuning.records import read_run
     from gainfarm.analytic.tuning.run import TuningRun
-    from gainfarm.analytic.tuning.tune import tune
 
 
 def __getattr__(name: str) -> Any:

@@ -31,6 +31,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from scipy import stats
 
+from gainfarm.analytic.compose import new_study_name
 from gainfarm.analytic.data.dataset import build as build_dataset
 from gainfarm.analytic.data.learning import learn
 from gainfarm.analytic.evaluators.batch import batch_jobs, run_batch
@@ -40,7 +41,6 @@ from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import hypervolume, non_dominated_indices
 from gainfarm.analytic.tuning.records import read_run
 from gainfarm.analytic.tuning.run import TuningRun
-from gainfarm.analytic.tuning.tune import new_study_name
 from gainfarm.models.dynamics import digest
 from gainfarm.schemas.objectives import NO_EPISODE, objectives
 from gainfarm.schemas.robot import PLANTS

@@ -29,7 +29,7 @@ def tune(endpoint: str, config: RunConfig, directory: Path) -> tuple[TuningRun, 
         TuningRun.create(directory, config) as run,
         FarmClient([endpoint], directory.name, directory) as farm,
     ):
-        run.run(farm, report=False)
+        run.run(farm)
     return run, time.perf_counter() - started
 
 

@@ -7,7 +7,8 @@
     cli                what the command lines share (gainfarm/cli/): all of the above
     worker, broker     the layers below, never analytic nor each other
     analytic           everything; inside it, floors one way down:
-                       commands -> experiments -> data -> view -> tuning -> evaluators
+                       commands -> experiments -> data -> compose -> view -> tuning
+                       -> evaluators (compose: the module analytic/compose.py, `tune`)
 
 `gainfarm/__init__.py` names only `gainfarm.analytic`, and loads it lazily. Read from the source
 with ast, so an import inside a function counts too, and so does `import_module("...")`.
@@ -46,15 +47,11 @@ MAY_IMPORT = {
 }
 FACE = "gainfarm/__init__.py"  # the public face: `import gainfarm`, `from gainfarm import tune`
 CONTRACT_MAY_NOT = {"click", "rich", "zenoh"}
-# analytic/'s floors, top to bottom; its own modules (cli.py, __init__.py, __main__.py) are the
-# face and the entry, above them all.
-FLOORS = ("commands", "experiments", "data", "view", "tuning", "evaluators")
+# analytic/'s floors, top to bottom: subpackages, and compose.py (the composition root, `tune`);
+# its other own modules (cli.py, __init__.py, __main__.py) are the face and the entry, above all.
+FLOORS = ("commands", "experiments", "data", "compose", "view", "tuning", "evaluators")
 # Known upward arrows, each to be deleted the moment it is cut (a stale entry fails too).
-UPWARD = {
-    # The loop draws its figures and report, and picks the recommended member, itself; being
-    # moved into tune(), the composition root (issue 27, /work/shared/LAYOUT.md).
-    ("analytic/tuning/run.py", "view"),
-}
+UPWARD: set[tuple[str, str]] = set()
 
 
 def _sources(where: str) -> list[Path]:

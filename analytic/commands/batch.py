@@ -78,9 +78,9 @@ def batch(
     as_json: bool,
 ) -> None:
     """Evaluate candidate gains on trajectories through the farm; keep and score every episode."""
+    from gainfarm.analytic.compose import CannotStart, claim
     from gainfarm.analytic.evaluators.batch import EVALUATIONS, batch_jobs, run_batch
     from gainfarm.analytic.evaluators.farm import FarmClient
-    from gainfarm.analytic.tuning.tune import CannotStart, claim
     from gainfarm.analytic.view.progress import Display
     from gainfarm.cli import interrupts
     from gainfarm.models.dynamics import digest

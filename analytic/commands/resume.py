@@ -9,8 +9,8 @@ from gainfarm.analytic.commands.shared import check_farm, farm_options, run_with
 from gainfarm.cli.app import CliError
 
 if TYPE_CHECKING:
+    from gainfarm.analytic.compose import Watch
     from gainfarm.analytic.tuning.run import TuningRun
-    from gainfarm.analytic.tuning.tune import Watch
 
 
 @click.command()
@@ -25,10 +25,10 @@ def resume(
     workers: int,
 ) -> None:
     """Continue a stopped run from its last checkpoint."""
+    from gainfarm.analytic.compose import CannotStart, tune_run
     from gainfarm.analytic.tuning.checkpoint import CheckpointRefused
     from gainfarm.analytic.tuning.records import CONFIG_JSON
     from gainfarm.analytic.tuning.run import RunBusy, TuningRun
-    from gainfarm.analytic.tuning.tune import CannotStart, tune_run
 
     identity = check_farm(connect, local, tls, participant)
     if not (run_dir / CONFIG_JSON).is_file():

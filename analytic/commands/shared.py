@@ -15,9 +15,9 @@ from gainfarm.cli.app import CliError
 if TYPE_CHECKING:
     from pydantic import ValidationError
 
+    from gainfarm.analytic.compose import Watch
     from gainfarm.analytic.evaluators.evaluator import Evaluator
     from gainfarm.analytic.tuning.run import RunProgress, TuningRun
-    from gainfarm.analytic.tuning.tune import Watch
     from gainfarm.schemas.security import TlsIdentity
     from gainfarm.schemas.trajectory import TrajectorySpec
 
@@ -89,7 +89,7 @@ def check_farm(
 def study_name(directory: Path, identity: "TlsIdentity | None") -> str:
     """A new study name for work on `directory`; on a secure farm its owner's, as the access
     policy requires (docs/security.md)."""
-    from gainfarm.analytic.tuning.tune import new_study_name
+    from gainfarm.analytic.compose import new_study_name
 
     return new_study_name(directory, owner=identity.name if identity is not None else None)
 
@@ -120,7 +120,7 @@ def farm_problem(connect: tuple[str, ...], error: Exception) -> str:
 def followable(trajectories: Iterable["TrajectorySpec"], option: str = "--duration") -> None:
     """Refuse, in one line, a trajectory the iiwa cannot follow (out of reach, or too fast for
     its limits) before any job is sent: every episode of it would fail."""
-    from gainfarm.analytic.tuning.tune import CannotStart, check_followable
+    from gainfarm.analytic.compose import CannotStart, check_followable
 
     try:
         check_followable(trajectories)
@@ -169,8 +169,8 @@ def run_with_progress(
     from rich.console import Console
 
     from gainfarm import plugins
+    from gainfarm.analytic.compose import TuningInterrupted
     from gainfarm.analytic.evaluators.farm import FarmUnavailable
-    from gainfarm.analytic.tuning.tune import TuningInterrupted
     from gainfarm.analytic.view.export import describe_pick, picks
     from gainfarm.analytic.view.progress import Display, RunDisplay
     from gainfarm.cli import interrupts

@@ -124,7 +124,7 @@ def start(
     """
     from pydantic import ValidationError
 
-    from gainfarm.analytic.tuning import tune as tuning
+    from gainfarm.analytic import compose
     from gainfarm.analytic.tuning.config import RunConfig
     from gainfarm.analytic.tuning.records import CONFIG_JSON
     from gainfarm.analytic.tuning.run import RunBusy
@@ -150,12 +150,12 @@ def start(
         )
     except ValidationError as error:
         raise CliError(config_problem(error)) from None
-    out = out or tuning.new_directory()
+    out = out or compose.new_directory()
     if (out / CONFIG_JSON).exists():  # `tune` would resume it: a start does not
         raise CliError(f"--out: {str(out)!r} already holds a run; resume it or choose another")
     try:
         run_with_progress(
-            lambda watch: tuning.tune(
+            lambda watch: compose.tune(
                 config,
                 out,
                 connect=connect,
@@ -168,7 +168,7 @@ def start(
             out,
             connect,
         )
-    except tuning.CannotStart as error:
+    except compose.CannotStart as error:
         also = "; give --no-balance" if error.part == "balance" else ""
         raise CliError(f"{start_option(error.part)}: {error}{also}") from None
     except RunBusy as error:

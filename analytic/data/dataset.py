@@ -36,6 +36,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from pydantic import TypeAdapter, ValidationError
 
+from gainfarm.analytic.compose import new_study_name
 from gainfarm.analytic.evaluators.batch import batch_jobs, run_batch
 from gainfarm.analytic.evaluators.evaluator import EpisodeStatus, Evaluator
 from gainfarm.analytic.evaluators.farm import FarmClient
@@ -49,7 +50,6 @@ from gainfarm.analytic.tuning.records import (
     read_run,
 )
 from gainfarm.analytic.tuning.run import RunBusy, TuningRun, upgrade
-from gainfarm.analytic.tuning.tune import new_study_name
 from gainfarm.edges.files import staging_directory, write_atomically
 from gainfarm.plugins import OBJECTIVES, load_plugins
 from gainfarm.schemas.episode_log import EpisodeLog

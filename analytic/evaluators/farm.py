@@ -199,6 +199,12 @@ class FarmClient:
         """Give `worker` none of this study's jobs from now on, resubmissions included."""
         self._distrusted.add(worker)
 
+    @property
+    def distrusted(self) -> frozenset[str]:
+        """The workers given none of this study's jobs: named by `distrust`, or caught here
+        claiming scores their logs do not have."""
+        return frozenset(self._distrusted)
+
     def cancel(self, job_ids: Iterable[str]) -> None:
         """Stop waiting for these jobs; a result that still comes for one is counted as a
         duplicate and dropped. (The broker may still run them: the study's token decides.)"""

@@ -53,6 +53,7 @@ from gainfarm.analytic.tuning.records import (
 )
 from gainfarm.analytic.tuning.run import RunBusy, TuningRun, upgrade
 from gainfarm.analytic.view.reports import plant_text
+from gainfarm.analytic.view.run_report import write_run_report
 from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import PDGains
@@ -322,6 +323,8 @@ class Experiment:
                         f"{name}: generation {step.generation}, {step.evaluations} evaluations"
                     ),
                 )
+                run.baseline(evaluator)
+                write_run_report(run)
             record = _read(directory)
         self._penalise(m.objectives for m in record.front if m.diverged)
         return record

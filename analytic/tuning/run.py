@@ -14,8 +14,9 @@ storage. After every generation the run writes, each file atomically (analytic.r
     evaluated.csv    every candidate's objectives, in the order told
     episodes/        the MCAP logs (all, or only the front's with keep="front")
 
-and at the end baseline.json (the default gains on the run's trajectories, evaluated once),
-pareto.png, hypervolume.png and report.md. A stopped run continues from its last
+and, once asked (`baseline`), baseline.json: the default gains on the run's trajectories,
+evaluated once. The figures and report.md are the view's (analytic.view.run_report), drawn by
+what composes the run (`tune`, an experiment's runner). A stopped run continues from its last
 checkpoint; the interrupted generation runs again, with the same candidates and the same
 (deterministic) episodes, so the front is the one an uninterrupted run finds.
 
@@ -42,7 +43,6 @@ from gainfarm.analytic.evaluators.replication import Ledger, Ran, validate
 from gainfarm.analytic.tuning.checkpoint import CheckpointRefused, decode, encode
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import Candidate, Evolution, hypervolume
-from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import (
     BASELINE_JSON,
     CONFIG_JSON,
@@ -52,10 +52,7 @@ from gainfarm.analytic.tuning.records import (
     FRONT_CSV,
     FRONT_JSON,
     HISTORY_CSV,
-    HYPERVOLUME_PNG,
     LOCK,
-    PARETO_PNG,
-    REPORT_MD,
     RUN_JSON,
     Baseline,
     FrontMember,
@@ -71,8 +68,6 @@ from gainfarm.analytic.tuning.records import (
     run_json,
     sorted_front,
 )
-from gainfarm.analytic.view.figures import plot_hypervolume, plot_pareto
-from gainfarm.analytic.view.reports import run_setup, run_title, write_report
 from gainfarm.edges.files import (
     Lock,
     Locked,
@@ -222,7 +217,8 @@ class TuningRun:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _check_open(self) -> None:
+    def check_open(self) -> None:
+        """RuntimeError unless this object holds the run's lock, which writing needs."""
         if not self._lock.held:
             raise RuntimeError(f"{self.directory}: this run was closed; open it again to write")
 
@@ -254,13 +250,11 @@ class TuningRun:
         self,
         evaluator: Evaluator,
         on_progress: Callable[[RunProgress], None] = lambda _: None,
-        *,
-        report: bool = True,
     ) -> str:
-        """Evolve until the termination says stop; return why it stopped. With `report`, evaluate
-        the default gains once (baseline.json), draw the figures and write report.md at the end
-        (the records are written either way)."""
-        self._check_open()
+        """Evolve until the termination says stop, validate the front if the config says so, and
+        return why it stopped. The records are written as it goes; the figures and report.md
+        are drawn by what composes the run (analytic.view.run_report)."""
+        self.check_open()
         started = time.monotonic() - self.state.wall_seconds
         while self.state.stopped is None:
             if self.config.asynchronous and self.state.evolution.generation > 0:
@@ -269,9 +263,6 @@ class TuningRun:
                 self._generation(evaluator, started, on_progress)
         if self.config.replicate:
             self._validate_front(evaluator)
-        if report:
-            self.baseline(evaluator)
-            self.write_figures()
         return self.state.stopped
 
     def baseline(self, evaluator: Evaluator | None = None) -> Baseline | None:
@@ -649,39 +640,12 @@ class TuningRun:
         reader that finds a generation in history.csv finds its front and points too. (A crash
         between history.csv and the checkpoint leaves the plain files a generation ahead: a
         resume runs that generation again, to the same, deterministic, result.)"""
-        self._check_open()
+        self.check_open()
         rows = _rows(self.state)
         write_atomically(self.directory / EVALUATED_CSV, evaluated_csv(self.state.evaluated))
         write_atomically(self.directory / FRONT_JSON, front_json(rows))
         write_atomically(self.directory / FRONT_CSV, front_csv(rows))
         write_atomically(self.directory / HISTORY_CSV, history_csv(self.state.history))
-
-    def write_figures(self) -> None:
-        """pareto.png, hypervolume.png and report.md, from where the run stands: the knee, the
-        most accurate and the smoothest member marked, beside the default gains (if evaluated)."""
-        self._check_open()
-        front, title = self.front(), run_title(self.config)
-        chosen, baseline = picks(front), self.baseline()
-        plot_pareto(
-            self.directory / PARETO_PNG,
-            front,
-            self.state.evaluated,
-            title=title,
-            picks=chosen,
-            baseline=baseline,
-        )
-        plot_hypervolume(self.directory / HYPERVOLUME_PNG, self.state.history, title=title)
-        write_report(
-            self.directory / REPORT_MD,
-            title=f"gainfarm run {self.directory.name}",
-            config_lines=run_setup(self.config),
-            history=self.state.history,
-            front=front,
-            converged=self.state.stopped or "stopped before it ended",
-            picks=chosen,
-            baseline=baseline,
-            run_dir=str(self.directory),
-        )
 
 
 def _evolution(config: RunConfig) -> Evolution:

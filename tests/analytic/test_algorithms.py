@@ -73,7 +73,7 @@ def test_every_algorithm_tunes_and_keeps_the_same_front_guarantee(
 
     # results in any order: the same front
     with TuningRun.create(tmp_path / "shuffled", config) as shuffled:
-        shuffled.run(Shuffled(3), report=False)
+        shuffled.run(Shuffled(3))
     assert (tmp_path / "shuffled" / "front.csv").read_bytes() == front
 
     # stopped halfway through generation 2, resumed from its checkpoint: the same front
@@ -86,7 +86,7 @@ def test_every_algorithm_tunes_and_keeps_the_same_front_guarantee(
     with TuningRun.open(tmp_path / "stopped") as resumed:
         assert resumed.state.evolution.algorithm_name == algorithm
         assert not resumed.finished
-        resumed.run(InProcessEvaluator(scorer=toy_scores), report=False)
+        resumed.run(InProcessEvaluator(scorer=toy_scores))
     assert (tmp_path / "stopped" / "front.csv").read_bytes() == front
     assert (tmp_path / "stopped" / "evaluated.csv").read_bytes() == evaluated
 

@@ -265,11 +265,9 @@ def test_start_says_when_it_lost_the_broker_and_waits(tmp_path: Path) -> None:
 
 # --- a start or batch that fails before anything runs leaves nothing ----------------------------
 
-DEAD = f"tcp/127.0.0.1:{free_port()}"  # nobody listens there
-
 
 @pytest.mark.parametrize(
-    ("endpoint", "says"), [(DEAD, "cannot open"), ("nonsense", "bad endpoint")]
+    ("endpoint", "says"), [("dead", "cannot open"), ("nonsense", "bad endpoint")]
 )
 @pytest.mark.parametrize("command", ["start", "batch"])
 @pytest.mark.parametrize("there", [False, True])
@@ -278,6 +276,8 @@ def test_a_farm_that_cannot_be_had_leaves_nothing_behind(
     tmp_path: Path, endpoint: str, says: str, command: str, there: bool
 ) -> None:
     """No config.json, no episodes/: the same command works once the farm is there."""
+    if endpoint == "dead":  # a port nobody listens on, found when the test runs
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
     out = tmp_path / "runs" / "first"
     if there:
         out.mkdir(parents=True)

@@ -17,6 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from gainfarm.analytic.cli import main
+from gainfarm.analytic.compose import new_study_name
 from gainfarm.analytic.data.dataset import (
     RERUN_DIR,
     SPLITS,
@@ -37,7 +38,6 @@ from gainfarm.analytic.evaluators.local import local_farm
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import RUN_JSON, read_identity, read_run
 from gainfarm.analytic.tuning.run import TuningRun
-from gainfarm.analytic.tuning.tune import new_study_name
 from gainfarm.analytic.view.export import controller
 from gainfarm.cli import interrupts
 from gainfarm.schemas import TrajectorySpec

@@ -19,6 +19,7 @@ from gainfarm.analytic.evaluators.local import free_port, local_farm, spawn_work
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import read_baseline, read_front, read_history
 from gainfarm.analytic.tuning.run import RunProgress, TuningRun
+from gainfarm.analytic.view.run_report import write_run_report
 from gainfarm.broker.service import Broker
 from gainfarm.edges.transport import open_session
 from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
@@ -62,6 +63,8 @@ def tune(directory: Path, endpoint: str, config: RunConfig = TINY, **hooks) -> T
     run = TuningRun.create(directory, config)
     with FarmClient([endpoint], f"test-{directory.name}", directory) as farm:
         run.run(farm, **hooks)
+        run.baseline(farm)  # as tune() does: the default gains beside the front, and the report
+        write_run_report(run)
     return run
 
 
@@ -127,7 +130,9 @@ def test_the_front_is_the_same_in_this_process_as_on_the_farm(
     tmp_path: Path, calm: TuningRun
 ) -> None:
     run = TuningRun.create(tmp_path / "here", TINY)
-    run.run(InProcessEvaluator(run.directory))
+    evaluator = InProcessEvaluator(run.directory)
+    run.run(evaluator)
+    run.baseline(evaluator)  # as the farm's run, so the same episodes are kept
     assert_same_outcome(run, calm)
     assert sorted(p.name for p in (run.directory / "episodes").glob("*.mcap")) == sorted(
         p.name for p in (calm.directory / "episodes").glob("*.mcap")

@@ -24,12 +24,12 @@ from pathlib import Path
 import pytest
 from numpy.testing._private.utils import runstring
 
+from gainfarm.analytic.compose import new_study_name
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.tuning.checkpoint import ALLOWED, CheckpointRefused, _Unpickler
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import read_history, read_identity, read_run
 from gainfarm.analytic.tuning.run import RunBusy, RunProgress, TuningRun, upgrade
-from gainfarm.analytic.tuning.tune import new_study_name
 from gainfarm.edges.files import Lock
 from gainfarm.schemas import TrajectorySpec
 from gainfarm.schemas.wire import NAME_PATTERN
@@ -59,18 +59,16 @@ def toy_run(directory: Path, config: RunConfig = TINY, stop: int | None = None) 
     """A toy run, finished, or stopped halfway through generation `stop`; closed either way."""
     with TuningRun.create(directory, config) as run:
         if stop is None:
-            run.run(InProcessEvaluator(scorer=toy_scores), report=False)
+            run.run(InProcessEvaluator(scorer=toy_scores))
         else:
             with pytest.raises(Interrupt):
-                run.run(
-                    InProcessEvaluator(scorer=toy_scores), stop_in(stop, config.pop), report=False
-                )
+                run.run(InProcessEvaluator(scorer=toy_scores), stop_in(stop, config.pop))
     return run
 
 
 def resume(directory: Path) -> TuningRun:
     with TuningRun.open(directory) as run:
-        run.run(InProcessEvaluator(scorer=toy_scores), report=False)
+        run.run(InProcessEvaluator(scorer=toy_scores))
     return run
 
 
@@ -96,7 +94,7 @@ def test_study_names_of_one_run_directory_differ_even_in_processes_of_one_pid(
     # Two containers' `analytic` processes are both PID 1: the name owes nothing to the PID.
     code = (
         "import os; os.getpid = lambda: 1\n"
-        "from pathlib import Path; from gainfarm.analytic.tuning.tune import new_study_name\n"
+        "from pathlib import Path; from gainfarm.analytic.compose import new_study_name\n"
         "print(new_study_name(Path('runs/run-1')))"
     )
     made = [
@@ -263,7 +261,7 @@ def test_a_steady_state_run_and_one_of_real_episodes_resume_through_the_allowlis
         pop=4, seed=1, trajectories=(TrajectorySpec(kind="fourier", duration=0.2),), generations=2
     )
     with TuningRun.create(tmp_path / "real", real) as run:
-        run.run(InProcessEvaluator(tmp_path / "real"), report=False)  # timings, kept logs
+        run.run(InProcessEvaluator(tmp_path / "real"))  # timings, kept logs
     with TuningRun.open(tmp_path / "real") as reopened:
         assert reopened.state.busy_seconds == run.state.busy_seconds > 0
         assert reopened.front() == run.front() and reopened.front()[0].logs
@@ -486,7 +484,7 @@ def test_a_write_that_fails_stops_the_run_and_a_resume_goes_on_exactly(tmp_path:
             (directory / "front.csv" / "in-the-way").touch()
 
     with TuningRun.create(directory, TINY) as run, pytest.raises(OSError) as failed:
-        run.run(InProcessEvaluator(scorer=toy_scores), block_front_csv, report=False)
+        run.run(InProcessEvaluator(scorer=toy_scores), block_front_csv)
     assert failed.value.filename == str(directory / "front.csv")
     assert not list(directory.rglob("*.part"))
     assert len(read_history(directory / "history.csv")) == 1
@@ -584,7 +582,7 @@ def test_a_full_or_read_only_disk_is_one_line_and_a_resume_goes_on(
     assert 1 <= len(stopped.history) < generations and stopped.stopped is None
     calm = tmp_path / "calm"
     with TuningRun.create(calm, stopped.config) as run:
-        run.run(InProcessEvaluator(calm), report=False)  # the farm's front, as test_run shows
+        run.run(InProcessEvaluator(calm))  # the farm's front, as test_run shows
     disk.remount("rw,size=64m")
     resumed = analytic("resume", "disk/run", cwd=tmp_path)
     assert resumed.returncode == 0, resumed.stderr

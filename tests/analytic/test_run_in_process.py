@@ -17,6 +17,7 @@ from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import read_baseline, read_front, read_history, read_run
 from gainfarm.analytic.tuning.run import RunProgress, TuningRun, upgrade
+from gainfarm.analytic.view.run_report import write_run_report
 from gainfarm.schemas import EpisodeSpec, Scores, TrajectorySpec
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.trajectory import TrajectoryKind
@@ -62,7 +63,11 @@ def tune(
     """A run of the toy problem; the figures and report (0.3 s of drawing) only if asked. The run
     returned is closed (its lock released), as one interrupted is."""
     with TuningRun.create(directory, config) as run:
-        run.run(InProcessEvaluator(scorer=toy_scores), report=report, **hooks)
+        evaluator = InProcessEvaluator(scorer=toy_scores)
+        run.run(evaluator, **hooks)
+        if report:
+            run.baseline(evaluator)
+            write_run_report(run)
     return run
 
 
@@ -101,7 +106,7 @@ def test_the_front_is_the_same_whatever_order_the_results_come_in(tmp_path: Path
     fronts = []
     for seed in range(3):
         run = TuningRun.create(tmp_path / f"run{seed}", TINY)
-        run.run(Shuffled(seed), report=False)
+        run.run(Shuffled(seed))
         fronts.append((run.directory / "front.csv").read_bytes())
     in_order = tune(tmp_path / "in-order")
     assert fronts == [(in_order.directory / "front.csv").read_bytes()] * 3
@@ -128,7 +133,7 @@ def test_a_stopped_and_resumed_run_ends_where_an_uninterrupted_one_does(tmp_path
     assert len(read_history(stopped / "history.csv")) == 2
     resumed = TuningRun.open(stopped)
     assert not resumed.finished
-    resumed.run(InProcessEvaluator(scorer=toy_scores), report=False)
+    resumed.run(InProcessEvaluator(scorer=toy_scores))
     assert (stopped / "front.csv").read_bytes() == (whole.directory / "front.csv").read_bytes()
     assert (stopped / "evaluated.csv").read_bytes() == (
         whole.directory / "evaluated.csv"
@@ -143,7 +148,7 @@ def test_a_run_stopped_before_its_first_generation_starts_again(tmp_path: Path) 
         tune(tmp_path / "run", on_progress=stop_at_once)
     assert read_run(tmp_path / "run").stopped is None
     resumed = TuningRun.open(tmp_path / "run")
-    resumed.run(InProcessEvaluator(scorer=toy_scores), report=False)
+    resumed.run(InProcessEvaluator(scorer=toy_scores))
     assert resumed.state.stopped == "3 generations"
 
 
@@ -189,7 +194,7 @@ def test_a_steady_state_run_keeps_more_candidates_in_flight_when_the_farm_grows(
     )  # look up the farm every time
     farm = Growing()
     config = TINY.model_copy(update={"asynchronous": True, "generations": 5})
-    TuningRun.create(tmp_path / "run", config).run(farm, report=False)
+    TuningRun.create(tmp_path / "run", config).run(farm)
     first_generation, steady = farm.in_flight[0], farm.in_flight[1:]
     assert first_generation == config.pop  # generational, as every steady-state run starts
     assert max(steady[:8]) == 2  # two per worker on a farm of one
@@ -209,7 +214,7 @@ def test_a_steady_state_run_stops_at_its_evaluations_exactly(tmp_path: Path) -> 
     config = TINY.model_copy(update={"generations": None, "evaluations": 20, "asynchronous": True})
     evaluator = InProcessEvaluator(scorer=toy_scores)
     with TuningRun.create(tmp_path / "run", config) as run:
-        run.run(evaluator, report=False)
+        run.run(evaluator)
     assert run.state.stopped == "20 evaluations"
     assert len(run.state.evaluated) == 20 and evaluator.pending == 0
     history = read_history(run.directory / "history.csv")
@@ -250,7 +255,7 @@ def test_a_run_stops_when_the_hypervolume_stops_growing(tmp_path: Path) -> None:
 def test_keep_front_keeps_only_the_front_members_logs(tmp_path: Path) -> None:
     config = TINY.model_copy(update={"keep": "front"})
     run = TuningRun.create(tmp_path / "run", config)
-    run.run(InProcessEvaluator(tmp_path / "run"), report=False)  # real episodes, logs kept
+    run.run(InProcessEvaluator(tmp_path / "run"))  # real episodes, logs kept
     kept = sorted(path.name for path in (run.directory / "episodes").glob("*.mcap"))
     listed = sorted(Path(episode).name for m in run.front() for episode in m.logs)
     assert kept == listed and 1 <= len(kept) < 18
@@ -260,7 +265,7 @@ def test_a_run_that_stops_leaves_nothing_in_flight_for_the_next(tmp_path: Path) 
     evaluator = InProcessEvaluator(scorer=toy_scores)
     steady = TINY.model_copy(update={"asynchronous": True})
     first = TuningRun.create(tmp_path / "first", steady)
-    first.run(evaluator, report=False)
+    first.run(evaluator)
     assert evaluator.pending == 0  # the candidates in flight when it stopped were dropped
 
     def stop_in_generation_two(progress: RunProgress) -> None:
@@ -269,10 +274,10 @@ def test_a_run_that_stops_leaves_nothing_in_flight_for_the_next(tmp_path: Path) 
 
     second = TuningRun.create(tmp_path / "second", TINY)
     with pytest.raises(Interrupt), second:
-        second.run(evaluator, stop_in_generation_two, report=False)
+        second.run(evaluator, stop_in_generation_two)
     assert evaluator.pending == 0
     resumed = TuningRun.open(tmp_path / "second")
-    resumed.run(evaluator, report=False)  # the same evaluator: nothing stale comes back
+    resumed.run(evaluator)  # the same evaluator: nothing stale comes back
     assert (tmp_path / "second" / "front.csv").read_bytes() == (
         tune(tmp_path / "whole").directory / "front.csv"
     ).read_bytes()
@@ -302,7 +307,7 @@ def test_a_generic_run_weighs_each_trajectory_as_its_config_says(tmp_path: Path)
     config = RunConfig(pop=4, trajectories=both, generations=2, objective_weights=weights)
     run = TuningRun.create(tmp_path / "run", config)
     with run:
-        run.run(InProcessEvaluator(scorer=pyramid_rough), report=False)
+        run.run(InProcessEvaluator(scorer=pyramid_rough))
     evaluated = read_run(run.directory).evaluated
     assert len(evaluated) == 8
     # Each point is the weighted mean: the spiral's f_acc, and 80/41 of the spiral's f_t
@@ -331,8 +336,12 @@ def test_a_reported_run_scores_the_default_gains_once_as_it_scores_its_candidate
     config = RunConfig(pop=4, trajectories=both, generations=1, objective_weights=weights)
     with TuningRun.create(tmp_path / "run", config) as run:
         run.run(InProcessEvaluator(scorer=pyramid_rough))
+        assert run.baseline() is None  # not asked for yet
+        evaluated = run.baseline(InProcessEvaluator(scorer=pyramid_rough))
         baseline = run.baseline(Refusing())  # kept in baseline.json: not asked again
-        run.write_figures()  # nor when the figures are drawn again
+        write_run_report(run)  # nor when the figures are drawn
+    assert baseline == evaluated
+    assert "default gains" in (run.directory / "report.md").read_text()
     # The same weighted mean as a candidate's: the spiral's f_acc, 80/41 of its f_t.
     alone = toy_scores(EpisodeSpec(gains=DEFAULT_GAINS, trajectory=both[0]))
     assert baseline is not None and baseline.gains == DEFAULT_GAINS and not baseline.diverged
@@ -344,6 +353,6 @@ def test_a_reported_run_scores_the_default_gains_once_as_it_scores_its_candidate
 
 def test_an_unreported_run_evaluates_no_baseline(tmp_path: Path) -> None:
     with TuningRun.create(tmp_path / "run", TINY) as run:
-        run.run(InProcessEvaluator(scorer=toy_scores), report=False)
+        run.run(InProcessEvaluator(scorer=toy_scores))
         assert run.baseline() is None
     assert not (run.directory / "baseline.json").exists()

@@ -116,7 +116,7 @@ class ToyFarm:
 
 def run(tmp_path: Path, name: str, farm: ToyFarm, config: RunConfig = CONFIG) -> TuningRun:
     tuning = TuningRun.create(tmp_path / name, config)
-    tuning.run(farm, report=False)
+    tuning.run(farm)
     return tuning
 
 

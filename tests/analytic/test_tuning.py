@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 
 from gainfarm.analytic import InProcessEvaluator, RunConfig, read_run, tune
+from gainfarm.analytic.compose import CannotStart, balanced
 from gainfarm.analytic.evaluators.farm import FarmUnavailable
 from gainfarm.analytic.evaluators.local import free_port
-from gainfarm.analytic.tuning.tune import CannotStart, balanced
 from gainfarm.cli import options
 from gainfarm.schemas import TrajectorySpec
 from tests.analytic.toy import toy_scores

@@ -18,12 +18,12 @@ from pydantic import ValidationError
 
 from gainfarm import plugins
 from gainfarm.analytic.cli import main as analytic_main
+from gainfarm.analytic.compose import tune
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.tuning.checkpoint import CheckpointRefused, decode, encode
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import Evolution
 from gainfarm.analytic.tuning.records import RunIdentity
-from gainfarm.analytic.tuning.tune import tune
 from gainfarm.cli import interrupts
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS

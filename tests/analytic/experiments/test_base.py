@@ -208,7 +208,7 @@ def test_ctrl_c_stops_an_experiment_of_runs_at_once_and_the_same_command_goes_on
 ) -> None:
     command = [
         *("experiment", "popsize", "--sizes", "4,6", "--reps", "2", "--pop", "4"),
-        *("--generations", "3", "--duration", "3", "--local", "--workers", "2"),
+        *("--generations", "2", "--duration", "3", "--local", "--workers", "2"),
         *("--parallel-runs", "3", "--out", "out"),
     ]
     running = subprocess.Popen(
@@ -234,8 +234,8 @@ def test_ctrl_c_stops_an_experiment_of_runs_at_once_and_the_same_command_goes_on
     done = analytic(*command, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     results = rows(tmp_path / "out" / "results.csv")
-    assert [r["evaluations"] for r in results] == ["12", "12", "18", "18"]
-    assert all(r["stopped"] == "3 generations" for r in results)
+    assert [r["evaluations"] for r in results] == ["8", "8", "12", "12"]
+    assert all(r["stopped"] == "2 generations" for r in results)
 
 
 HIGH = [1.0, 1.1, 1.2, 1.3, 1.4]

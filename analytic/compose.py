@@ -1,7 +1,9 @@
-"""`tune`: a tuning run in one call, composed as pymoo's `minimize` composes its parts. The one
-composition root: `analytic start` is `tune` with a progress display, so what a run checks and
-decides before it starts (the trajectories' feasibility, a generic run's balance, the run
-directory's claim) is the same from Python and from the command line."""
+"""`tune`: a tuning run in one call, composed as pymoo's `minimize` composes its parts: the loop
+(analytic.tuning), an evaluator (analytic.evaluators) and the run's report (analytic.view). The one
+composition root, on its own floor above those three: `analytic start` is `tune` with a progress
+display, so what a run checks and decides before it starts (the trajectories' feasibility, a
+generic run's balance, the run directory's claim) is the same from Python and from the command
+line."""
 
 import contextlib
 import re
@@ -17,8 +19,9 @@ from gainfarm.analytic.evaluators.farm import FarmClient, FarmUnavailable
 from gainfarm.analytic.evaluators.local import farm_endpoints
 from gainfarm.analytic.tuning import defaults
 from gainfarm.analytic.tuning.config import RunConfig
-from gainfarm.analytic.tuning.records import CONFIG_JSON
+from gainfarm.analytic.tuning.records import CONFIG_JSON, REPORT_MD
 from gainfarm.analytic.tuning.run import RunProgress, TuningRun
+from gainfarm.analytic.view.run_report import write_run_report
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import NAME_PATTERN
@@ -122,19 +125,25 @@ def tune_run(
     forget: Callable[[], None] | None = None,
 ) -> str:
     """Run `run` (open, so holding its lock) to its end on `evaluator`, or on the farm `tune`
-    says, and close it; return why it stopped. `forget`, for a run just made: what removes it
+    says, evaluate the default gains beside it (baseline.json), draw its figures and report.md,
+    and close it; return why it stopped. `forget`, for a run just made: what removes it
     if nothing of it runs (the farm cannot be had, Ctrl-C or any failure before a job is sent).
     A Ctrl-C leaves as TuningInterrupted."""
     begun = False
     try:
         with run:
             if run.finished:
+                if not (run.directory / REPORT_MD).exists():  # killed before it was drawn
+                    write_run_report(run)
                 return run.state.stopped or ""
             with _evaluator(run, evaluator, connect, workers, identity) as chosen:
                 begun = True
                 shown = watch(chosen) if watch else contextlib.nullcontext(on_progress)
                 with shown as step:
-                    return run.run(chosen, step)
+                    stopped = run.run(chosen, step)
+                    run.baseline(chosen)
+            write_run_report(run)
+            return stopped
     except BaseException as error:
         if not begun and forget is not None:  # nothing of a new run ran: nothing of it is left
             forget()
