@@ -210,6 +210,7 @@ def _evaluator(
                     models=models,
                     # keep="front": the workers keep the logs, and the front's are fetched.
                     keep_logs=run.config.keep == "all",
+                    trusted=not connect,  # a local farm of this process's own workers
                 )
             )
         except (ValueError, ConnectionError) as error:

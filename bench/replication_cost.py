@@ -58,15 +58,13 @@ def main(pop: int, generations: int, workers: int, seed: int) -> None:
                 [
                     name,
                     str(evaluations),
-                    f"{ledger.extra_evaluations} ({ledger.extra_evaluations / evaluations:.1%})",
+                    f"{ledger.refereed} ({ledger.refereed / evaluations:.1%})",
                     str(ledger.disagreements),
                     f"{wall:.1f}",
                 ]
             )
     print(f"pop {pop}, {generations} generations, 5 s spiral, {workers} workers, seed {seed}")
-    print_table(
-        ["run", "evaluations", "extra (replicas)", "disagreements", "wall s"], "lrrrr", rows
-    )
+    print_table(["run", "evaluations", "refereed here", "disagreements", "wall s"], "lrrrr", rows)
     print(f"wall time, validated / unvalidated: {walls['validated'] / walls['unvalidated']:.2f}")
     print(f"same front: {fronts[0] == fronts[1]}")
     if fronts[0] != fronts[1]:

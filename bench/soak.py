@@ -60,6 +60,7 @@ from soak_summary import (
 from gainfarm.analytic.evaluators import replication
 from gainfarm.analytic.evaluators.evaluator import EpisodeResult, Wanted
 from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.evaluators.local import STOP_SECONDS, spawn_worker
 from gainfarm.broker.status import BrokerUnavailable
 from gainfarm.edges.files import write_atomically
@@ -413,7 +414,7 @@ def echo(started: float, text: str) -> None:
     type=click.IntRange(min=0),
     default=10,
     show_default=True,
-    help="validate every Nth episode by replication on another worker (0: none)",
+    help="validate every Nth episode: the referee runs it again in this process (0: none)",
 )
 @click.option(
     "--fetch-every",
@@ -474,6 +475,7 @@ def main(
     sampler = Sampler(sample_seconds, out, started)
     ledger = SoakLedger()
     replicas = replication.Ledger()
+    referee = InProcessEvaluator()
     job_rng, churn_rng = random.Random(seed), random.Random(seed + 1)
     pool = WorkerPool(endpoint, sampler, churn_rng, workers_min, workers_max, started)
     broker = start_broker(endpoint, lease_seconds, broker_log)
@@ -526,11 +528,9 @@ def main(
                     replicate_every
                     and evaluation.digest is not None
                     and ledger.completed % replicate_every == 0
-                    and len(pool.live) >= 2  # a replica must run on another worker
                 ):
-                    # Another worker runs it again; what arrives meanwhile is taken after.
-                    for other in replication.validate(farm, [evaluation], replicas).others:
-                        take(other)
+                    # The referee runs it again in this process; its log must be the worker's.
+                    replication.validate(farm, [evaluation], replicas, referee=referee)
                 if evaluation.log is not None:
                     evaluation.log.unlink(missing_ok=True)  # hours of logs would fill the disk
                 if (
@@ -607,9 +607,8 @@ def main(
         + f", warm-up {warm_up:.0f} s",
         *job_lines(ledger, warnings.counts, finished - started),
         pool.tally.line(),
-        f"replication: {replicas.replicated} episodes replicated "
-        f"({replicas.extra_evaluations} extra evaluations), "
-        f"{replicas.disagreements} disagreements, {replicas.undecided} undecided, "
+        f"validation: {replicas.refereed} episodes run again here, "
+        f"{replicas.disagreements} disagreements, {replicas.unsettled} unsettled, "
         f"dissenters: {', '.join(sorted(replicas.dissenters)) or 'none'}",
     ]
     if final_status is not None:

@@ -213,11 +213,11 @@ def run_with_progress(
     # Plain lines, whole however long: rich would wrap them at 80 columns off a terminal.
     click.echo(f"stopped: {run.state.stopped}", err=True)
     ledger = run.replication
-    if ledger.replicated:
+    if ledger.refereed:
         click.echo(
-            f"front validated by replication: {ledger.replicated} episodes run again "
-            f"({ledger.extra_evaluations} extra evaluations, {ledger.seconds:.1f} s), "
-            f"{ledger.disagreements} disagreements, {ledger.undecided} undecided"
+            f"front validated: {ledger.refereed} episodes rerun here in {ledger.seconds:.1f} s, "
+            f"{ledger.disagreements} disagreed"
+            + (f", {ledger.unsettled} could not be rerun (failed)" if ledger.unsettled else "")
             + (
                 f"; distrusted: {', '.join(sorted(ledger.dissenters))}" if ledger.dissenters else ""
             ),

@@ -79,8 +79,8 @@ from gainfarm.cli.app import CliError
     "--replicate/--no-replicate",
     default=defaults.REPLICATE,
     show_default=True,
-    help="on a farm of 2+ workers, validate the front: another worker reruns each member's "
-    "episodes and the logs must agree bit for bit",
+    help="on a farm, validate the front: this process reruns each member's episodes and each "
+    "worker's log must agree bit for bit",
 )
 @click.option(
     "--balance/--no-balance",

@@ -88,7 +88,9 @@ class Fetched:
 class Evaluator(Protocol):
     """Runs episodes for a tuning run. Every job submitted yields exactly one evaluation (unless
     cancelled). A kept log is at RUN/episodes/<job id>.mcap, RUN being the run directory the
-    evaluator was made for: the run prunes and indexes logs by that convention."""
+    evaluator was made for: the run prunes and indexes logs by that convention. One that has an
+    attribute `trusted`, true, runs episodes in this process or on its own workers: a run does
+    not referee its front (analytic.evaluators.replication); any other is refereed."""
 
     @property
     def capacity(self) -> int:

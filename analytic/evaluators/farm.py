@@ -112,15 +112,18 @@ class FarmClient:
         models: Mapping[str, bytes] | None = None,
         keep_logs: bool = True,
         read_log: ReadLog = accept_log,
+        trusted: bool = False,
     ):
         """`models`: the feed-forward models (file bytes by SHA-256) the study's jobs may name;
         the client serves them to the workers that ask. `keep_logs`: every job's log comes with
         its result, is checked, scored here again and kept; else the workers keep the logs, each
         result brings the scores its worker computed, and `fetch` brings the logs wanted.
         `read_log` checks, keeps and scores a log (another only for simulated workers, whose
-        "logs" are not episodes: bench/campaign.py --simulated)."""
+        "logs" are not episodes: bench/campaign.py --simulated). `trusted`: the farm's workers are
+        this process's own (a local farm started for it), so a run has nothing to referee."""
         Submission(study=study, jobs=[])  # validates the name before it becomes a key
         self.study = study
+        self.trusted = trusted
         self.models = dict(models or {})
         self.log_dir = Path(run_dir) / "episodes"
         self.log_dir.mkdir(parents=True, exist_ok=True)

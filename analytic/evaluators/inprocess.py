@@ -31,6 +31,8 @@ WORKER = "in-process"  # the worker name evaluations carry
 
 
 class InProcessEvaluator:
+    trusted = True  # its episodes run in this process: nothing to referee
+
     def __init__(
         self,
         run_dir: Path | None = None,

@@ -79,8 +79,9 @@ class RunConfig(BaseModel):
     )
     replicate: bool = Field(
         defaults.REPLICATE,
-        description="on a farm of 2+ workers, another worker reruns each front entrant's "
-        "episodes and the logs must agree bit for bit (analytic/replication.py)",
+        description="on a farm not its own, the analytic process reruns each front member's "
+        "episodes itself (the referee): each worker's log must be its own bit for bit, and the "
+        "scores the log's (analytic/evaluators/replication.py)",
     )
 
     @field_validator("algorithm")

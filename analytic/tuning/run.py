@@ -39,6 +39,7 @@ from pathlib import Path
 from pymoo.core.population import Population
 
 from gainfarm.analytic.evaluators.evaluator import EpisodeResult, EpisodeStatus, Evaluator, Wanted
+from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.evaluators.replication import Ledger, Ran, validate
 from gainfarm.analytic.tuning.checkpoint import CheckpointRefused, decode, encode
 from gainfarm.analytic.tuning.config import RunConfig
@@ -250,10 +251,14 @@ class TuningRun:
         self,
         evaluator: Evaluator,
         on_progress: Callable[[RunProgress], None] = lambda _: None,
+        *,
+        referee: Evaluator | None = None,
     ) -> str:
         """Evolve until the termination says stop, validate the front if the config says so, and
-        return why it stopped. The records are written as it goes; the figures and report.md
-        are drawn by what composes the run (analytic.view.run_report)."""
+        return why it stopped. `referee` settles what the farm's workers disagree on
+        (analytic.evaluators.replication): by default this process, running the episode itself.
+        The records are written as it goes; the figures and report.md are drawn by what
+        composes the run (analytic.view.run_report)."""
         self.check_open()
         started = time.monotonic() - self.state.wall_seconds
         while self.state.stopped is None:
@@ -262,7 +267,7 @@ class TuningRun:
             else:
                 self._generation(evaluator, started, on_progress)
         if self.config.replicate:
-            self._validate_front(evaluator)
+            self._validate_front(evaluator, referee)
         return self.state.stopped
 
     def baseline(self, evaluator: Evaluator | None = None) -> Baseline | None:
@@ -394,14 +399,17 @@ class TuningRun:
 
     # --- validation by replication -----------------------------------------------------------
 
-    def _validate_front(self, evaluator: Evaluator) -> None:
-        """Before the run reports its front, another worker replicates every front member's
-        episodes (analytic.replication). A member outvoted takes its true objectives; that can
-        uncover a candidate it had falsely dominated, so this goes on until every member of the
-        front is validated. Records and checkpoint are written again if anything was checked."""
-        if evaluator.capacity < 2:  # a farm of one has nobody to ask
+    def _validate_front(self, evaluator: Evaluator, referee: Evaluator | None) -> None:
+        """Before the run reports its front, the referee (this process, unless told) runs every
+        front member's episodes again (analytic.evaluators.replication). A member whose worker
+        it contradicts takes the referee's objectives; one it cannot run fails (the penalty),
+        never reported as validated. Either can uncover a candidate it had falsely dominated,
+        so this goes on until every member of the front is validated. Records and checkpoint
+        are written again if anything was checked."""
+        if getattr(evaluator, "trusted", False):  # this process or its own workers ran them
             return
         state = self.state
+        referee = referee or InProcessEvaluator(self.directory, models=self.models())
         checked = corrected = False
         while True:
             todo = {
@@ -417,16 +425,23 @@ class TuningRun:
             if not originals:
                 break
             checked = True
-            standing = validate(evaluator, originals, self.replication).standing
+            validation = validate(evaluator, originals, self.replication, referee=referee)
+            standing = validation.standing
             state.validated.update(evaluation.job_id for evaluation in originals)
             for gains, episodes in todo.items():
                 now = tuple(
-                    Ran.of(standing[r.job_id]) if r.job_id in standing else r for r in episodes
+                    Ran(r.job_id, r.worker, None, None)  # unsettled: failed
+                    if r.job_id in validation.unsettled
+                    else Ran.of(standing[r.job_id])
+                    if r.job_id in standing
+                    else r
+                    for r in episodes
                 )
                 if now != episodes:
                     corrected = True
                     self._correct(gains, now)
                     self._drop_stale_logs(gains, now)
+                self._keep_refereed(gains, [standing.get(r.job_id) for r in now])
         if self._fetch_front(evaluator):
             checked = corrected = True
         if checked:
@@ -515,6 +530,18 @@ class TuningRun:
         true = objectives([ran.scores for ran in standing], self.config.objective_weights)
         for row in self.state.evolution.correct(gains, true):
             self.state.evaluated[row] = true
+
+    def _keep_refereed(self, gains: PDGains, standing: list[EpisodeResult | None]) -> None:
+        """A member's logs validation left here (the referee's, where the worker's is not
+        here) are kept, as fetched ones are: nothing to fetch."""
+        kept = self.state.episodes.setdefault(gains, [])
+        for evaluation in standing:
+            if (
+                evaluation is not None
+                and evaluation.log is not None
+                and evaluation.job_id not in kept
+            ):
+                kept.append(evaluation.job_id)
 
     def _drop_stale_logs(self, gains: PDGains, standing: tuple[Ran, ...]) -> None:
         """Validation outvoted some of a member's episodes: a log kept here that is not the

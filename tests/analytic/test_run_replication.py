@@ -1,9 +1,12 @@
-"""Validation by replication inside a tuning run, in milliseconds: a stand-in farm of named
-workers (the evaluator seam), one of which lies about the scores of the jobs it runs."""
+"""Validation by a referee inside a tuning run, in milliseconds: a stand-in farm of named
+workers (the evaluator seam), one of which lies about the jobs it runs, and an honest stand-in
+for the referee (the analytic's own process on a real farm)."""
 
 import hashlib
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
+
+import pytest
 
 from gainfarm.analytic.evaluators.evaluator import EpisodeResult, EpisodeStatus, Fetched, Wanted
 from gainfarm.analytic.evaluators.replication import Ledger, validate
@@ -116,7 +119,7 @@ class ToyFarm:
 
 def run(tmp_path: Path, name: str, farm: ToyFarm, config: RunConfig = CONFIG) -> TuningRun:
     tuning = TuningRun.create(tmp_path / name, config)
-    tuning.run(farm)
+    tuning.run(farm, referee=ToyFarm(["referee"]))
     return tuning
 
 
@@ -135,8 +138,15 @@ def false_members(tuning: TuningRun) -> list[tuple[float, float]]:
     return false
 
 
-def test_a_liar_is_outvoted_named_and_kept_out_of_the_front(tmp_path: Path) -> None:
-    lied_to = ToyFarm(["h1", "liar", "h2", "h3"], liars=["liar"])
+@pytest.mark.parametrize(
+    "workers",
+    [["h1", "liar", "h2", "h3"], ["h1", "liar"], ["liar"]],
+    ids=["one-of-four", "one-of-two", "alone"],
+)
+def test_a_liar_is_caught_named_and_kept_out_of_the_front(
+    tmp_path: Path, workers: list[str]
+) -> None:
+    lied_to = ToyFarm(workers, liars=["liar"])
     checked = run(tmp_path, "checked", lied_to)
     assert front(checked) and false_members(checked) == []
     # The points told, as evaluated.csv keeps them, carry the corrections too: the front is
@@ -149,18 +159,27 @@ def test_a_liar_is_outvoted_named_and_kept_out_of_the_front(tmp_path: Path) -> N
     assert last.hypervolume == hypervolume(front(checked), checked.config.reference_point)
     assert last.best_f_acc == min(f_acc for f_acc, _ in front(checked))
     assert checked.replication.dissenters == {"liar"} == lied_to.distrusted
-    assert checked.replication.disagreements >= 1 and checked.replication.undecided == 0
-    # Replication costs the front entrants' episodes again, not every evaluation.
+    assert checked.replication.disagreements >= 1 and checked.replication.unsettled == 0
+    # Validation costs the front entrants' episodes again, not every evaluation.
     evaluations = checked.state.evolution.evaluations
-    assert 0 < checked.replication.extra_evaluations < evaluations
+    assert 0 < checked.replication.refereed < evaluations
     # Without validation, the liar's flattering scores reach the front.
     unchecked = run(
         tmp_path,
         "unchecked",
-        ToyFarm(["h1", "liar", "h2", "h3"], liars=["liar"]),
+        ToyFarm(workers, liars=["liar"]),
         CONFIG.model_copy(update={"replicate": False}),
     )
     assert false_members(unchecked) != []
+
+
+def test_colluding_liars_cannot_outvote_the_referee(tmp_path: Path) -> None:
+    """Two liars make the same false log, so they agree with each other: a vote of workers
+    would take it; the referee does not."""
+    farm = ToyFarm(["liar1", "h1", "liar2"], liars=["liar1", "liar2"])
+    checked = run(tmp_path, "checked", farm)
+    assert front(checked) and false_members(checked) == []
+    assert checked.replication.dissenters == {"liar1", "liar2"} == farm.distrusted
 
 
 def test_an_honest_farm_validates_without_changing_the_front(tmp_path: Path) -> None:
@@ -170,26 +189,19 @@ def test_an_honest_farm_validates_without_changing_the_front(tmp_path: Path) -> 
     checked = run(tmp_path, "checked", ToyFarm(["h1", "h2"]))
     assert front(checked) == front(plain)
     assert checked.replication.disagreements == 0 and not checked.replication.dissenters
-    assert checked.replication.replicated == checked.replication.extra_evaluations > 0
+    assert checked.replication.refereed > 0 and checked.replication.unsettled == 0
 
 
-def test_a_farm_of_one_worker_does_not_replicate(tmp_path: Path) -> None:
-    alone = run(tmp_path, "alone", ToyFarm(["h1"]))
-    assert alone.replication.extra_evaluations == 0
-
-
-def test_replicas_no_worker_takes_are_left_undecided_not_waited_for(tmp_path: Path) -> None:
-    """The other workers left: the replicas wait for none (a farm that says it has two workers
-    while only one can take them)."""
+def test_an_episode_the_referee_cannot_run_is_unsettled_never_validated(tmp_path: Path) -> None:
     farm = ToyFarm(["h1", "h2"])
-    farm.distrust("h2")  # as good as gone: it takes no job
-    ledger = Ledger()
     farm.submit({"j": EpisodeSpec(gains=DEFAULT_GAINS)})
     [original] = list(farm.results())
-    validation = validate(farm, [original], ledger, patience=0.1)
-    assert validation.standing == {"j": original}
-    assert ledger.undecided == 1 and ledger.disagreements == 0 and not ledger.dissenters
-    assert farm._pending == {}  # the replica left no job behind
+    nobody = ToyFarm([])  # a referee that runs nothing (as one lacking the job's plug-in)
+    ledger = Ledger()
+    validation = validate(farm, [original], ledger, referee=nobody)
+    assert validation.standing == {} and validation.unsettled == {"j"}
+    assert ledger.unsettled == 1 and ledger.refereed == 0 and not ledger.dissenters
+    assert nobody._pending == {}  # the referee is left with nothing queued
 
 
 def test_a_worker_claiming_better_scores_than_its_honest_logs_is_caught_where_they_are_read(
