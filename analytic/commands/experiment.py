@@ -239,6 +239,7 @@ def _run(
                     directory,
                     identity=identity,
                     keep_logs=False,
+                    trusted=not connect,  # a local farm of this process's own workers
                 ),
                 progress,
                 parallel=parallel_runs,
