@@ -255,8 +255,8 @@ class TuningRun:
         referee: Evaluator | None = None,
     ) -> str:
         """Evolve until the termination says stop, validate the front if the config says so, and
-        return why it stopped. `referee` settles what the farm's workers disagree on
-        (analytic.evaluators.replication): by default this process, running the episode itself.
+        return why it stopped. `referee` runs the front's episodes again to check the workers'
+        (analytic.evaluators.replication): by default this process.
         The records are written as it goes; the figures and report.md are drawn by what
         composes the run (analytic.view.run_report)."""
         self.check_open()
