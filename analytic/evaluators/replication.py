@@ -10,15 +10,24 @@ two names), and waited out on a farm with nobody left to vote. The referee is an
 analytic trusts: its own process (analytic.evaluators.inprocess). Whoever disagrees with it is
 named, and the evaluator stops giving it this run's jobs; the member takes the referee's log and
 scores. An episode the referee cannot run (a plug-in missing here) is left unsettled, and the
-caller must not report it. Only the front is refereed, so the cost is the front's episodes once
-more, in the analytic's process (bench/replication_cost.py and docs/performance.md measure it).
+caller must not report it.
+
+Two samples are refereed: the front, before the run reports it, and during the run a share of
+every worker's episodes chosen at random (`spot_checked`: a keyed hash of the job id, so the
+choice is reproducible on resume and unpredictable to a worker, which never learns the key). The
+front catches a worker whose lies flatter; spot checks one whose lies never reach the front (a
+saboteur, claiming worse than it ran): at rate r a worker lying on a share p of its episodes is
+caught within n of them with probability 1 - (1 - r p)^n. The cost is those episodes once more,
+in the analytic's process (bench/replication_cost.py and docs/performance.md measure it).
 """
 
 import dataclasses
+import hashlib
 import logging
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 from gainfarm.analytic.evaluators.evaluator import EpisodeResult, Evaluator
 from gainfarm.plugins import PluginError
@@ -44,32 +53,66 @@ class Ran:
         return cls(evaluation.job_id, evaluation.worker, evaluation.digest, evaluation.scores)
 
 
+class Check(StrEnum):
+    """How an episode was checked: which sample of validation it was in."""
+
+    refereed = "refereed"  # a front member's, before the run reported it
+    spot_checked = "spot-checked"  # drawn at random as it returned
+
+
+class Verdict(StrEnum):
+    """What the referee's run of an episode said of its worker's."""
+
+    agreed = "agreed"  # the same log, bit for bit, and the same scores
+    contradicted = "contradicted"  # another log or other scores: the referee's stand
+    unsettled = "unsettled"  # the referee could not run it: it fails
+
+
 @dataclass
 class Ledger:
     """What validation cost and found over a run."""
 
-    refereed: int = 0  # episodes the referee ran again
+    refereed: int = 0  # front episodes the referee ran again
+    spot_checked: int = 0  # episodes drawn at random as they returned, run again
     disagreements: int = 0  # a worker's log or scores were not the referee's
     unsettled: int = 0  # episodes the referee could not run: failed, never reported
-    dissenters: set[str] = field(default_factory=set)  # workers the referee contradicted
+    # The workers the referee contradicted, each with the evidence: the first job it lied about.
+    dissenters: dict[str, str] = field(default_factory=dict)
     seconds: float = 0.0
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update({"spot_checked": 0, **state})
 
 
 @dataclass
 class Validation:
     """The outcome of validating some evaluations: each job's standing evaluation (the original,
-    or the referee's where they disagree) and the jobs left unsettled (not in `standing`: never
-    to be reported as validated)."""
+    or the referee's where they disagree), the jobs left unsettled (not in `standing`: never
+    to be reported as validated) and the referee's verdict on each job."""
 
     standing: dict[str, EpisodeResult]
     unsettled: set[str] = field(default_factory=set)
+    verdicts: dict[str, Verdict] = field(default_factory=dict)
+
+
+def spot_checked(key: bytes, job_id: str, rate: float) -> bool:
+    """Whether the episode `job_id` is drawn for a spot check, at `rate`: a keyed hash, so a
+    worker that does not know `key` cannot tell which of its episodes will be checked."""
+    draw = int.from_bytes(hashlib.sha256(key + job_id.encode()).digest()[:8], "big")
+    return draw < rate * 2**64
 
 
 def validate(
-    evaluator: Evaluator, originals: Iterable[EpisodeResult], ledger: Ledger, *, referee: Evaluator
+    evaluator: Evaluator,
+    originals: Iterable[EpisodeResult],
+    ledger: Ledger,
+    *,
+    referee: Evaluator,
+    check: Check = Check.refereed,
 ) -> Validation:
     """Run each original (an evaluation that ran: ok or diverged) again on `referee`; a worker
-    whose log or scores differ from the referee's is distrusted on `evaluator`."""
+    whose log or scores differ from the referee's is distrusted on `evaluator`. `check` says
+    which count of the ledger the episodes go to."""
     started = time.monotonic()
     standing = {original.job_id: original for original in originals if original.digest}
     jobs = {f"{job_id}{REFEREE}": original.spec for job_id, original in standing.items()}
@@ -82,20 +125,24 @@ def validate(
         log.error("the referee cannot run every front member's episode: %s", error)
     finally:  # stopped (Ctrl-C) or failed: leave nothing queued in the referee
         referee.cancel(jobs)
-    unsettled = set()
+    validation = Validation(standing)
     for job_id in list(standing):
         verdict = verdicts.get(job_id)
         if verdict is None or not _ran(verdict):
             why = verdict.reason if verdict is not None else "no result"
             log.error("episode %s could not be refereed (%s): it fails", job_id, why)
-            unsettled.add(job_id)
+            validation.unsettled.add(job_id)
+            validation.verdicts[job_id] = Verdict.unsettled
             del standing[job_id]
             continue
-        ledger.refereed += 1
-        _settle(job_id, verdict, standing, ledger, evaluator)
-    ledger.unsettled += len(unsettled)
+        if check == Check.spot_checked:
+            ledger.spot_checked += 1
+        else:
+            ledger.refereed += 1
+        validation.verdicts[job_id] = _settle(job_id, verdict, standing, ledger, evaluator)
+    ledger.unsettled += len(validation.unsettled)
     ledger.seconds += time.monotonic() - started
-    return Validation(standing, unsettled)
+    return validation
 
 
 def _ran(evaluation: EpisodeResult) -> bool:
@@ -108,7 +155,7 @@ def _settle(
     standing: dict[str, EpisodeResult],
     ledger: Ledger,
     evaluator: Evaluator,
-) -> None:
+) -> Verdict:
     original = standing[job_id]
     if original.digest == verdict.digest and original.scores == verdict.scores:
         if verdict.log is not None and original.log is None:  # the same bytes: no fetch needed
@@ -116,11 +163,13 @@ def _settle(
             standing[job_id] = dataclasses.replace(original, log=here)
         elif verdict.log is not None:
             verdict.log.unlink(missing_ok=True)
-        return
+        return Verdict.agreed
     ledger.disagreements += 1
     what = "a log" if original.digest != verdict.digest else "scores its log does not have"
     if original.worker not in ledger.dissenters:
-        ledger.dissenters.add(original.worker)
+        ledger.dissenters[original.worker] = (
+            f"returned {what} for {job_id} that the referee's run contradicts"
+        )
         evaluator.distrust(original.worker)
         log.error(
             "worker %r returned %s for %s, which the referee's own run of it contradicts: its "
@@ -133,3 +182,4 @@ def _settle(
     if kept is not None:  # the referee's log where the original's is, or would be, kept
         kept = kept.replace(original.log or kept.with_name(f"{job_id}.mcap"))
     standing[job_id] = dataclasses.replace(verdict, job_id=job_id, log=kept)
+    return Verdict.contradicted

@@ -48,6 +48,7 @@ ALLOWED: frozenset[tuple[str, str]] = frozenset(
         # the run's own types
         ("gainfarm.analytic.tuning.run", "RunState"),
         ("gainfarm.analytic.evaluators.replication", "Ran"),
+        ("gainfarm.analytic.evaluators.replication", "Ledger"),
         ("gainfarm.schemas.episode", "Scores"),
         ("gainfarm.analytic.tuning.records", "HistoryRow"),
         ("gainfarm.analytic.tuning.records", "FrontMember"),

@@ -83,6 +83,14 @@ class RunConfig(BaseModel):
         "episodes itself (the referee): each worker's log must be its own bit for bit, and the "
         "scores the log's (analytic/evaluators/replication.py)",
     )
+    spot_checks: float = Field(
+        defaults.SPOT_CHECKS,
+        ge=0,
+        le=1,
+        description="with `replicate`, the share of every worker's episodes, drawn at random as "
+        "they return, that the referee runs again too: a worker lying about episodes that never "
+        "reach the front is caught as well",
+    )
 
     @field_validator("algorithm")
     @classmethod

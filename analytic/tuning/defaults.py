@@ -17,6 +17,11 @@ ObjectiveScaling = Literal["raw", "log"]
 OBJECTIVE_SCALINGS: tuple[ObjectiveScaling, ...] = ("raw", "log")
 OBJECTIVE_SCALING: ObjectiveScaling = "raw"
 REPLICATE = True
+# The share of every worker's episodes the referee runs again as they return (spot checks): at
+# 0.05 a worker lying on all its episodes is caught within 60 of them with probability 0.95, one
+# lying on a tenth within 600 (1 - (1 - 0.05 p)^n); the cost is 5 % more episodes, in the
+# analytic's process (bench/replication_cost.py).
+SPOT_CHECKS = 0.05
 BALANCE = True  # a generic run weighs its trajectories alike at the default gains
 
 Keep = Literal["all", "front"]

@@ -31,6 +31,7 @@ import dataclasses
 import hashlib
 import logging
 import math
+import secrets
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -40,7 +41,14 @@ from pymoo.core.population import Population
 
 from gainfarm.analytic.evaluators.evaluator import EpisodeResult, EpisodeStatus, Evaluator, Wanted
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
-from gainfarm.analytic.evaluators.replication import Ledger, Ran, validate
+from gainfarm.analytic.evaluators.replication import (
+    Check,
+    Ledger,
+    Ran,
+    Validation,
+    spot_checked,
+    validate,
+)
 from gainfarm.analytic.tuning.checkpoint import CheckpointRefused, decode, encode
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import Candidate, Evolution, hypervolume
@@ -116,13 +124,30 @@ class RunState:
     serial: int = 0  # steady-state candidates asked so far: their job ids' numbers
     busy_seconds: float = 0.0  # workers' time on this run's episodes (simulate + encode)
     # Each candidate's episodes as they ran (who, the log's SHA-256, the scores), and the job ids
-    # of those replication has validated (analytic.replication).
+    # of those the referee has run again (analytic.evaluators.replication).
     provenance: dict[PDGains, tuple[Ran, ...]] = field(default_factory=dict)
     validated: set[str] = field(default_factory=set)
+    # How each validated episode was checked: job id -> (Check, Verdict, the worker that ran it).
+    checks: dict[str, tuple[str, str, str]] = field(default_factory=dict)
+    ledger: Ledger = field(default_factory=Ledger)  # what validation cost and found
+    # The key of the spot checks' draw: never leaves this process, so no worker can tell which
+    # of its episodes will be checked; kept, so a resumed run draws as it would have.
+    spot_key: bytes = field(default_factory=lambda: secrets.token_bytes(16))
+    rewinds: int = 0  # times the evolution started again without a caught worker's results
+    unchecked: str = ""  # why the front's episodes are not refereed (trusted, or switched off)
 
     def __setstate__(self, state: dict) -> None:
-        """Checkpoints from before validation by replication have nothing to validate."""
-        self.__dict__.update({"provenance": {}, "validated": set(), **state})
+        """Checkpoints from before validation by a referee have nothing validated yet."""
+        defaults = {
+            "provenance": {},
+            "validated": set(),
+            "checks": {},
+            "ledger": Ledger(),
+            "spot_key": secrets.token_bytes(16),
+            "rewinds": 0,
+            "unchecked": "",
+        }
+        self.__dict__.update({**defaults, **state})
 
 
 @dataclass(frozen=True)
@@ -153,7 +178,7 @@ class TuningRun:
         self.state = state
         self.identity = identity
         self._lock = lock
-        self.replication = Ledger()  # what validation cost and found, in this process
+        self._said_alone: set[str] = set()  # caught workers with nobody to run their episodes
 
     @classmethod
     def create(
@@ -243,6 +268,11 @@ class TuningRun:
     def finished(self) -> bool:
         return self.state.stopped is not None
 
+    @property
+    def replication(self) -> Ledger:
+        """What validation cost and found over the run (every process that ran it)."""
+        return self.state.ledger
+
     def front(self) -> list[FrontMember]:
         """The best front found so far, most accurate first, each member with its kept logs."""
         return sorted_front(_rows(self.state))
@@ -255,20 +285,38 @@ class TuningRun:
         referee: Evaluator | None = None,
     ) -> str:
         """Evolve until the termination says stop, validate the front if the config says so, and
-        return why it stopped. `referee` runs the front's episodes again to check the workers'
-        (analytic.evaluators.replication): by default this process.
+        return why it stopped. `referee` runs episodes again to check the workers' (a share of
+        them as they return, and the front's before it is reported; by default this process:
+        analytic.evaluators.replication). A worker it catches lying is distrusted, and a
+        generational run starts its evolution again from the seed without that worker's results
+        (`rewinds`): episodes are deterministic, so every other result is taken as it was, and
+        the run retraces the one an honest farm would have run.
         The records are written as it goes; the figures and report.md are drawn by what
         composes the run (analytic.view.run_report)."""
         self.check_open()
         started = time.monotonic() - self.state.wall_seconds
-        while self.state.stopped is None:
-            if self.config.asynchronous and self.state.evolution.generation > 0:
-                self._steady_state(evaluator, started, on_progress)
-            else:
-                self._generation(evaluator, started, on_progress)
-        if self.config.replicate:
-            self._validate_front(evaluator, referee)
-        return self.state.stopped
+        referee = self._referee(evaluator, referee)
+        while True:
+            while self.state.stopped is None:
+                if self.config.asynchronous and self.state.evolution.generation > 0:
+                    self._steady_state(evaluator, started, on_progress, referee)
+                else:
+                    self._generation(evaluator, started, on_progress, referee)
+            if referee is None or not self._validate_front(evaluator, referee):
+                return self.state.stopped
+
+    def _referee(self, evaluator: Evaluator, referee: Evaluator | None) -> Evaluator | None:
+        """Who checks the workers: None when nobody need (the config says not to, or the
+        evaluator runs episodes in this process or on its own workers), saying why in the
+        records."""
+        if not self.config.replicate:
+            self.state.unchecked = "validation off (replicate: false)"
+            return None
+        if getattr(evaluator, "trusted", False):
+            self.state.unchecked = "trusted: run in this process or by its own workers"
+            return None
+        self.state.unchecked = ""
+        return referee or InProcessEvaluator(self.directory, models=self.models())
 
     def baseline(self, evaluator: Evaluator | None = None) -> Baseline | None:
         """The default gains' point on the run's trajectories, scored as the candidates are: from
@@ -314,40 +362,176 @@ class TuningRun:
     # --- generational: a whole generation out, then told in the order asked -------------------
 
     def _generation(
-        self, evaluator: Evaluator, started: float, on_progress: Callable[[RunProgress], None]
+        self,
+        evaluator: Evaluator,
+        started: float,
+        on_progress: Callable[[RunProgress], None],
+        referee: Evaluator | None,
     ) -> None:
         evolution = self.state.evolution
+        if self._nobody_left(evaluator):
+            return
         candidates = evolution.ask()
         jobs = {
-            gains: self._job_ids(f"g{evolution.generation:04d}-c{index:03d}")
+            gains: self._job_ids(f"{self._prefix()}g{evolution.generation:04d}-c{index:03d}")
             for index, gains in enumerate(candidates)
         }
-        specs = self._specs(jobs)
+        known = {gains for gains in candidates if self._known(gains, evaluator)}
+        specs = self._specs({gains: ids for gains, ids in jobs.items() if gains not in known})
         results: dict[str, EpisodeResult] = {}
-        evaluator.submit(specs)
+        if specs:
+            evaluator.submit(specs)
         try:
-            for evaluation in evaluator.results():
+            for evaluation in evaluator.results() if specs else ():
                 results[evaluation.job_id] = evaluation
                 self._account(evaluation)
                 on_progress(self._progress(len(results) // len(self.config.trajectories), started))
         finally:  # stopped mid-generation (Ctrl-C): leave nothing queued in the evaluator
             evaluator.cancel([job_id for job_id in specs if job_id not in results])
-        found = [self._candidate_done(gains, jobs[gains], results) for gains in candidates]
-        evolution.tell(found)
+        # Checked before they are told: a lie caught now has steered nothing yet.
+        self._spot_check(evaluator, referee, results)
+        for gains in candidates:
+            if gains not in known:
+                self._record(gains, jobs[gains], results)
+        if self._should_rewind(evaluator):
+            self._rewind(evaluator)
+            return
+        evolution.tell([self._candidate_done(gains) for gains in candidates])
         self._generation_done(started, evaluator)
         on_progress(self._progress(0, started, ended=True))
+        if self._should_rewind(evaluator):  # a front member's fetched log gave its worker away
+            self._rewind(evaluator)
+
+    # --- starting again without a caught worker's results -------------------------------------
+
+    def _prefix(self) -> str:
+        """Job ids after a rewind are new ones: a log of the run before is never overwritten."""
+        return f"r{self.state.rewinds}-" if self.state.rewinds else ""
+
+    def _distrusted(self, evaluator: Evaluator) -> set[str]:
+        return {*self.state.ledger.dissenters, *getattr(evaluator, "distrusted", ())}
+
+    def _known(self, gains: PDGains, evaluator: Evaluator) -> bool:
+        """Whether a candidate of a rewound run was evaluated before by workers still trusted:
+        its episodes are deterministic, so they are not run again. (Before any rewind, a run
+        evaluates whatever it is asked, as it always did.)"""
+        if not self.state.rewinds or gains not in self.state.provenance:
+            return False
+        distrusted = self._distrusted(evaluator)
+        return not any(ran.worker in distrusted for ran in self.state.provenance[gains])
+
+    def _caught(self, evaluator: Evaluator) -> set[str]:
+        """Distrusted workers whose results the run still holds."""
+        ran = {ran.worker for episodes in self.state.provenance.values() for ran in episodes}
+        return ran & self._distrusted(evaluator)
+
+    def _nobody_left(self, evaluator: Evaluator) -> bool:
+        """Stop the run when every worker of the farm is distrusted: nobody is left to run its
+        episodes (they would wait out every deadline)."""
+        distrusted = self._distrusted(evaluator)
+        if not distrusted or evaluator.capacity > len(distrusted):
+            return False
+        self.state.stopped = f"no trusted worker left ({', '.join(sorted(distrusted))} lied)"
+        log.error("every worker of the farm is distrusted: the run stops")
+        return True
+
+    def _should_rewind(self, evaluator: Evaluator) -> bool:
+        """Whether to start again without the caught workers' results: in a generational run
+        (a steady state's order is the farm's: it would not retrace), with workers left to run
+        their episodes again (else the referee's corrections of the front are all there is)."""
+        caught = self._caught(evaluator)
+        if not caught or self.config.asynchronous:
+            return False
+        if evaluator.capacity > len(self._distrusted(evaluator)):
+            return True
+        if caught - self._said_alone:  # once per worker, not every generation
+            self._said_alone |= caught
+            log.error(
+                "%s lied about episodes and no other worker is left to run them again: only "
+                "the front is corrected, by the referee",
+                ", ".join(sorted(caught)),
+            )
+        return False
+
+    def _rewind(self, evaluator: Evaluator) -> None:
+        """Start the evolution again from its seed without the caught workers' results: what
+        they ran is forgotten (and runs again, on the workers still trusted, when it is asked
+        again); everything else is taken as it was. A generational run is deterministic given
+        what it is told, so this retraces the run an honest farm would have made."""
+        state = self.state
+        caught = self._caught(evaluator)
+        for gains, episodes in list(state.provenance.items()):
+            if any(ran.worker in caught for ran in episodes):
+                del state.provenance[gains]
+                for job_id in state.episodes.pop(gains, []):
+                    (self.directory / EPISODES / f"{job_id}.mcap").unlink(missing_ok=True)
+        state.evolution = _evolution(self.config)
+        state.history.clear()
+        state.evaluated.clear()
+        state.stopped = None
+        state.rewinds += 1
+        log.warning(
+            "%s lied about episodes: the evolution starts again from its seed without their "
+            "results (rewind %d); the rest are taken as they ran",
+            ", ".join(sorted(caught)),
+            state.rewinds,
+        )
+        with interrupts_deferred():
+            self._checkpoint()
+
+    def _spot_check(
+        self, evaluator: Evaluator, referee: Evaluator | None, results: dict[str, EpisodeResult]
+    ) -> None:
+        """The referee runs again the share of `results` the spot checks draw; each takes the
+        referee's standing evaluation (its own where it contradicts the worker's, a failure
+        where it could not run it)."""
+        if referee is None or not self.config.spot_checks:
+            return
+        drawn = [
+            evaluation
+            for job_id, evaluation in results.items()
+            if evaluation.digest
+            and spot_checked(self.state.spot_key, job_id, self.config.spot_checks)
+        ]
+        if not drawn:
+            return
+        validation = validate(
+            evaluator, drawn, self.state.ledger, referee=referee, check=Check.spot_checked
+        )
+        self._note_checks(Check.spot_checked, validation, {e.job_id: e.worker for e in drawn})
+        for evaluation in drawn:
+            job_id = evaluation.job_id
+            if job_id in validation.standing:
+                results[job_id] = validation.standing[job_id]
+            else:  # unsettled: it fails, as a front member the referee cannot run does
+                reason = "the referee could not run it again"
+                results[job_id] = dataclasses.replace(
+                    evaluation, status=EpisodeStatus.failed, scores=None, digest=None, reason=reason
+                )
+
+    def _note_checks(self, check: Check, validation: Validation, workers: dict[str, str]) -> None:
+        self.state.validated.update(validation.verdicts)
+        for job_id, verdict in validation.verdicts.items():
+            self.state.checks[job_id] = (check.value, verdict.value, workers[job_id])
 
     # --- steady state: each candidate told as it returns, a new one asked at once -------------
 
     def _steady_state(
-        self, evaluator: Evaluator, started: float, on_progress: Callable[[RunProgress], None]
+        self,
+        evaluator: Evaluator,
+        started: float,
+        on_progress: Callable[[RunProgress], None],
+        referee: Evaluator | None,
     ) -> None:
         """Keep two candidates per worker in flight so that none waits, as many workers as the
         farm has now (looked up again every CAPACITY_SECONDS: workers come and go, and a farm
         that grows mid-run is used); a "generation" here is every `pop` evaluations, for the
         history, the termination and the checkpoint. A budget of evaluations is kept exactly:
         no candidate is asked beyond it, and the last, partial "generation" ends with it. When
-        the run stops, the candidates still in flight are dropped (a resumed run asks anew)."""
+        the run stops, the candidates still in flight are dropped (a resumed run asks anew).
+        A candidate's spot checks are run before it is told; a steady state is not replayed
+        (its order is the farm's), so a worker caught here is distrusted and its results that
+        reach the front are refereed, but its earlier ones stand."""
         evolution = self.state.evolution
         in_flight: dict[str, tuple[Population, PDGains, list[str]]] = {}
         results: dict[str, EpisodeResult] = {}
@@ -379,7 +563,11 @@ class TuningRun:
                 if not all(job_id in results for job_id in ids):
                     continue
                 del in_flight[name]
-                evolution.tell_one(handle, self._candidate_done(gains, ids, results))
+                own = {job_id: results[job_id] for job_id in ids}
+                self._spot_check(evaluator, referee, own)
+                results.update(own)
+                self._record(gains, ids, results)
+                evolution.tell_one(handle, self._candidate_done(gains))
                 on_progress(self._progress(0, started))
                 if evolution.evaluations % self.config.pop == 0 or evolution.evaluations >= budget:
                     self._generation_done(started, evaluator)
@@ -399,17 +587,15 @@ class TuningRun:
 
     # --- validation by replication -----------------------------------------------------------
 
-    def _validate_front(self, evaluator: Evaluator, referee: Evaluator | None) -> None:
-        """Before the run reports its front, the referee (this process, unless told) runs every
-        front member's episodes again (analytic.evaluators.replication). A member whose worker
-        it contradicts takes the referee's objectives; one it cannot run fails (the penalty),
-        never reported as validated. Either can uncover a candidate it had falsely dominated,
-        so this goes on until every member of the front is validated. Records and checkpoint
-        are written again if anything was checked."""
-        if getattr(evaluator, "trusted", False):  # this process or its own workers ran them
-            return
+    def _validate_front(self, evaluator: Evaluator, referee: Evaluator) -> bool:
+        """Before the run reports its front, the referee runs every front member's episodes
+        again (analytic.evaluators.replication). A worker it contradicts is caught: a
+        generational run starts again without its results (True: the run goes on). Otherwise
+        a member whose worker it contradicts takes the referee's objectives; one it cannot run
+        fails (the penalty), never reported as validated. Either can uncover a candidate it had
+        falsely dominated, so this goes on until every member of the front is validated.
+        Records and checkpoint are written again if anything was checked."""
         state = self.state
-        referee = referee or InProcessEvaluator(self.directory, models=self.models())
         checked = corrected = False
         while True:
             todo = {
@@ -425,9 +611,12 @@ class TuningRun:
             if not originals:
                 break
             checked = True
-            validation = validate(evaluator, originals, self.replication, referee=referee)
+            validation = validate(evaluator, originals, state.ledger, referee=referee)
+            self._note_checks(Check.refereed, validation, {e.job_id: e.worker for e in originals})
+            if self._should_rewind(evaluator):
+                self._rewind(evaluator)
+                return True
             standing = validation.standing
-            state.validated.update(evaluation.job_id for evaluation in originals)
             for gains, episodes in todo.items():
                 now = tuple(
                     Ran(r.job_id, r.worker, None, None)  # unsettled: failed
@@ -444,12 +633,16 @@ class TuningRun:
                 self._keep_refereed(gains, [standing.get(r.job_id) for r in now])
         if self._fetch_front(evaluator):
             checked = corrected = True
+            if self._should_rewind(evaluator):
+                self._rewind(evaluator)
+                return True
         if checked:
             if corrected and state.history:  # the last row says what the run reports
                 state.history[-1] = self._row_of(state.evolution.front(), state.history[-1])
             with interrupts_deferred():  # the records and the checkpoint agree
                 self.write_records()
                 self._checkpoint()
+        return False
 
     def _evaluation(self, gains: PDGains, ran: Ran) -> EpisodeResult:
         """An original as validation takes it: the episode's spec, who ran it, its log."""
@@ -608,16 +801,19 @@ class TuningRun:
             ended=ended,
         )
 
-    def _candidate_done(
+    def _record(
         self, gains: PDGains, job_ids: list[str], results: dict[str, EpisodeResult]
-    ) -> tuple[float, float]:
-        """A candidate's objectives, with its episodes and point recorded."""
-        found = objectives(
-            [results[job_id].scores for job_id in job_ids], self.config.objective_weights
-        )
-        self.state.evaluated.append(found)
+    ) -> None:
+        """A candidate's episodes as they ran, and the logs of them kept here."""
         self.state.episodes[gains] = [i for i in job_ids if results[i].log is not None]
         self.state.provenance[gains] = tuple(Ran.of(results[job_id]) for job_id in job_ids)
+
+    def _candidate_done(self, gains: PDGains) -> tuple[float, float]:
+        """A recorded candidate's objectives, with its point recorded as told."""
+        found = objectives(
+            [ran.scores for ran in self.state.provenance[gains]], self.config.objective_weights
+        )
+        self.state.evaluated.append(found)
         return found
 
     def _generation_done(self, started: float, evaluator: Evaluator) -> None:

@@ -25,8 +25,9 @@ CONFIG = RunConfig(pop=8, generations=4, seed=3)
 class ToyFarm:
     """Workers take jobs in turn, skipping any a job avoids or the farm distrusts; a liar
     returns a log a little better than the truth; a boaster returns the true log and claims
-    better scores than it has. The workers keep the logs: with `log_dir`, `fetch` writes each
-    wanted one there and scores it truly (the toy log is the spec); without, there are none."""
+    better scores than it has; a saboteur claims worse ones. The workers keep the logs: with
+    `log_dir`, `fetch` writes each wanted one there and scores it truly (the toy log is the
+    spec); without, there are none."""
 
     def __init__(
         self,
@@ -34,10 +35,12 @@ class ToyFarm:
         liars: Iterable[str] = (),
         boasters: Iterable[str] = (),
         log_dir: Path | None = None,
+        saboteurs: Iterable[str] = (),
     ):
         self.workers = list(workers)
         self.liars = set(liars)
         self.boasters = set(boasters)
+        self.saboteurs = set(saboteurs)
         self.log_dir = log_dir
         self.fetched: list[str] = []
         self.distrusted: set[str] = set()
@@ -103,6 +106,8 @@ class ToyFarm:
             log += b" (altered)"
         if worker in self.boasters:
             scores = scores.model_copy(update={"f_acc": scores.f_acc * 0.5})
+        if worker in self.saboteurs:
+            scores = scores.model_copy(update={"f_acc": scores.f_acc * 5, "f_t": scores.f_t * 5})
         return EpisodeResult(
             job_id=job_id,
             spec=spec,
@@ -158,7 +163,7 @@ def test_a_liar_is_caught_named_and_kept_out_of_the_front(
     last = checked.state.history[-1]
     assert last.hypervolume == hypervolume(front(checked), checked.config.reference_point)
     assert last.best_f_acc == min(f_acc for f_acc, _ in front(checked))
-    assert checked.replication.dissenters == {"liar"} == lied_to.distrusted
+    assert set(checked.replication.dissenters) == {"liar"} == lied_to.distrusted
     assert checked.replication.disagreements >= 1 and checked.replication.unsettled == 0
     # Validation costs the front entrants' episodes again, not every evaluation.
     evaluations = checked.state.evolution.evaluations
@@ -179,7 +184,10 @@ def test_colluding_liars_cannot_outvote_the_referee(tmp_path: Path) -> None:
     farm = ToyFarm(["liar1", "h1", "liar2"], liars=["liar1", "liar2"])
     checked = run(tmp_path, "checked", farm)
     assert front(checked) and false_members(checked) == []
-    assert checked.replication.dissenters == {"liar1", "liar2"} == farm.distrusted
+    assert set(checked.replication.dissenters) == {"liar1", "liar2"} == farm.distrusted
+    # Started again without their results, the run retraced the honest farm's.
+    assert checked.state.rewinds >= 1
+    assert front(checked) == front(run(tmp_path, "honest", ToyFarm(["h1"])))
 
 
 def test_an_honest_farm_validates_without_changing_the_front(tmp_path: Path) -> None:
@@ -242,3 +250,58 @@ def test_a_front_member_keeps_the_standing_log_when_its_first_was_a_liars(tmp_pa
             content = (tuning.directory / log).read_bytes()
             assert hashlib.sha256(content).hexdigest() == ran[job_id].digest
             assert not content.endswith(b"(altered)")
+
+
+@pytest.mark.parametrize("workers", [["h1", "liar", "h2", "h3"], ["h1", "liar"]])
+def test_a_run_that_caught_a_liar_retraces_the_honest_farms_run(
+    tmp_path: Path, workers: list[str]
+) -> None:
+    honest = run(tmp_path, "honest", ToyFarm(["h1", "h2"]))
+    farm = ToyFarm(workers, liars=["liar"])
+    checked = run(tmp_path, "checked", farm)
+    assert checked.state.rewinds >= 1 and "liar" in checked.replication.dissenters
+    assert front(checked) == front(honest)
+    assert checked.state.evaluated == honest.state.evaluated  # every point told, in order
+    assert [row.hypervolume for row in checked.state.history] == [
+        row.hypervolume for row in honest.state.history
+    ]
+    # What ran before the rewind was taken as it was, not run again: at most the evaluations
+    # the lies had steered (a candidate of a generation told a lie) ran in vain.
+    assert len(farm.ran) <= checked.state.evolution.evaluations * (1 + checked.state.rewinds)
+    assert all(ran.worker != "liar" for runs in checked.state.provenance.values() for ran in runs)
+
+
+def test_a_saboteur_whose_lies_never_reach_the_front_is_caught_by_spot_checks(
+    tmp_path: Path,
+) -> None:
+    # Claims five times worse than it ran: its candidates lose, so no front check sees them.
+    config = CONFIG.model_copy(update={"spot_checks": 0.5})
+    honest = run(tmp_path, "honest", ToyFarm(["h1", "h2"]), config)
+    farm = ToyFarm(["h1", "saboteur"], saboteurs=["saboteur"])
+    checked = run(tmp_path, "checked", farm, config)
+    # ~16 of its episodes, each drawn at 0.5: missed with probability 2^-16.
+    assert set(checked.replication.dissenters) == {"saboteur"} == farm.distrusted
+    assert "scores its log does not have" in checked.replication.dissenters["saboteur"]
+    assert checked.replication.spot_checked > 0
+    assert front(checked) == front(honest)
+    # Without spot checks the front validation alone never sees it, and the run is steered.
+    unchecked = run(
+        tmp_path,
+        "unchecked",
+        ToyFarm(["h1", "saboteur"], saboteurs=["saboteur"]),
+        CONFIG.model_copy(update={"spot_checks": 0.0}),
+    )
+    assert not unchecked.replication.dissenters and front(unchecked) != front(honest)
+
+
+def test_spot_checks_draw_the_chosen_share_unpredictably_and_reproducibly() -> None:
+    from gainfarm.analytic.evaluators.replication import spot_checked
+
+    job_ids = [f"g{g:04d}-c{c:03d}-t0" for g in range(100) for c in range(100)]
+    drawn = [job for job in job_ids if spot_checked(b"key", job, 0.05)]
+    assert 0.04 < len(drawn) / len(job_ids) < 0.06
+    assert drawn == [job for job in job_ids if spot_checked(b"key", job, 0.05)]
+    other = [job for job in job_ids if spot_checked(b"another key", job, 0.05)]
+    assert len(set(drawn) & set(other)) < len(drawn) / 5  # another key, another draw
+    assert not any(spot_checked(b"key", job, 0.0) for job in job_ids)
+    assert all(spot_checked(b"key", job, 1.0) for job in job_ids)
