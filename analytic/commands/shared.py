@@ -213,13 +213,16 @@ def run_with_progress(
     # Plain lines, whole however long: rich would wrap them at 80 columns off a terminal.
     click.echo(f"stopped: {run.state.stopped}", err=True)
     ledger = run.replication
-    if ledger.refereed:
+    if ledger.refereed or ledger.spot_checked:
         click.echo(
-            f"front validated: {ledger.refereed} episodes rerun here in {ledger.seconds:.1f} s, "
-            f"{ledger.disagreements} disagreed"
+            f"front validated: {ledger.refereed} episodes and {ledger.spot_checked} spot checks "
+            f"rerun here in {ledger.seconds:.1f} s, {ledger.disagreements} disagreed"
             + (f", {ledger.unsettled} could not be rerun (failed)" if ledger.unsettled else "")
+            + (f"; distrusted: {', '.join(sorted(ledger.dissenters))}" if ledger.dissenters else "")
             + (
-                f"; distrusted: {', '.join(sorted(ledger.dissenters))}" if ledger.dissenters else ""
+                f"; the evolution started again without their results ({run.state.rewinds}x)"
+                if run.state.rewinds
+                else ""
             ),
             err=True,
         )

@@ -83,6 +83,16 @@ from gainfarm.cli.app import CliError
     "worker's log must agree bit for bit",
 )
 @click.option(
+    "--spot-checks",
+    type=click.FloatRange(0, 1),
+    default=defaults.SPOT_CHECKS,
+    show_default=True,
+    metavar="RATE",
+    help="on a farm, with --replicate: the share of every worker's episodes, drawn at random "
+    "as they return, that this process also reruns (a worker lying about episodes that never "
+    "reach the front is caught too)",
+)
+@click.option(
     "--balance/--no-balance",
     default=defaults.BALANCE,
     show_default=True,
@@ -114,6 +124,7 @@ def start(
     algorithm: str,
     objective_scaling: str,
     replicate: bool,
+    spot_checks: float,
     balance: bool,
 ) -> None:
     """Tune the 14 PD gains with NSGA-II (or --algorithm) on the farm: maximise accuracy,
@@ -146,6 +157,7 @@ def start(
             algorithm=algorithm,
             objective_scaling=objective_scaling,
             replicate=replicate,
+            spot_checks=spot_checks,
             feedforward=_digest(model_file) if model_file is not None else None,
         )
     except ValidationError as error:

@@ -13,7 +13,10 @@ identical runs give byte-identical files. Each file appears whole or not at all 
     front.csv       the front: one FrontMember per line, most accurate first; `diverged` says
                     which members' objectives are a divergence penalty, not a measurement
     front.json      the front again, each member with the episode logs it left (the index the
-                    dataset reads; as evaluations.json is for a batch)
+                    dataset reads; as evaluations.json is for a batch) and its episodes'
+                    provenance, and what validation found over the run
+    provenance.csv  one line per episode of each front member: which worker ran it and how the
+                    referee checked it (front.csv's side file: its `member` is the row there)
     evaluated.csv   every candidate's objectives, in the order told: the cloud behind the front
     baseline.json   the default gains' point on the run's trajectories, evaluated once when
                     the run reports: what the tuned controllers are measured against
@@ -21,6 +24,7 @@ identical runs give byte-identical files. Each file appears whole or not at all 
 """
 
 import csv
+import dataclasses
 import io
 import json
 import math
@@ -42,6 +46,7 @@ FRONT_CSV = "front.csv"
 HISTORY_CSV = "history.csv"
 REPORT_MD = "report.md"
 FRONT_JSON = "front.json"
+PROVENANCE_CSV = "provenance.csv"
 EVALUATED_CSV = "evaluated.csv"
 BASELINE_JSON = "baseline.json"
 CONFIG_JSON = "config.json"
@@ -95,6 +100,43 @@ class HistoryRow:
 
 
 @dataclass(frozen=True)
+class EpisodeCheck:
+    """One episode of a front member: the worker that ran it, and how it was checked.
+
+    `check`: "refereed" (the referee, this process, ran it again before the run reported its
+    front), "spot-checked" (drawn at random as it returned, and run again), or "not checked".
+    `verdict`: the referee's, "agreed" (the same log bit for bit, the same scores),
+    "contradicted" (the referee's run stands, and the worker is distrusted) or "unsettled" (the
+    referee could not run it: the episode counts as failed); for one not checked, why not.
+    """
+
+    job_id: str
+    worker: str
+    check: str
+    verdict: str
+
+
+PROVENANCE_FIELDS = ("member", "job_id", "worker", "check", "verdict")
+
+
+@dataclass(frozen=True)
+class ValidationRecord:
+    """What validation found over a run, as front.json and report.md say it: episodes the
+    referee ran again (the front's, and the spot checks'), how many disagreed or could not be
+    rerun, the workers distrusted with the evidence against each, and how often the evolution
+    started again without a caught worker's results. `unchecked`: why nothing was checked."""
+
+    refereed: int = 0
+    spot_checked: int = 0
+    spot_check_rate: float = 0.0
+    disagreements: int = 0
+    unsettled: int = 0
+    distrusted: dict[str, str] = field(default_factory=dict)
+    rewinds: int = 0
+    unchecked: str = ""
+
+
+@dataclass(frozen=True)
 class FrontMember:
     """One non-dominated controller, one line of front.csv: its 14 gains and its two scores.
 
@@ -113,6 +155,7 @@ class FrontMember:
     f_t: float
     logs: tuple[str, ...] = field(default=(), compare=False)
     diverged: bool = False
+    episodes: tuple[EpisodeCheck, ...] = field(default=(), compare=False)  # their provenance
 
     def __post_init__(self) -> None:
         for name in ("kp", "kd"):
@@ -256,8 +299,9 @@ def read_evaluated(path: Path) -> list[tuple[float, float]]:
     return [(float(row["f_acc"]), float(row["f_t"])) for row in _read_rows(path, ("f_acc", "f_t"))]
 
 
-def front_json(front: Sequence[FrontMember]) -> bytes:
-    """front.json's content: the front in front.csv's order, each member with its logs."""
+def front_json(front: Sequence[FrontMember], validation: ValidationRecord | None = None) -> bytes:
+    """front.json's content: the front in front.csv's order, each member with its logs and its
+    episodes' provenance, and what validation found (if given)."""
     members = [
         {
             "kp": list(member.kp),
@@ -266,19 +310,50 @@ def front_json(front: Sequence[FrontMember]) -> bytes:
             "f_t": member.f_t,
             "diverged": member.diverged,
             "logs": list(member.logs),
+            "episodes": [dataclasses.asdict(episode) for episode in member.episodes],
         }
         for member in sorted_front(front)
     ]
-    return json.dumps({"members": members}, indent=1).encode()
+    content: dict[str, object] = {"members": members}
+    if validation is not None:
+        content["validation"] = dataclasses.asdict(validation)
+    return json.dumps(content, indent=1).encode()
 
 
 def read_front_json(path: Path) -> list[FrontMember]:
     """front.json as written by `front_json`; ValueError if it is not one."""
     try:
         members = json.loads(Path(path).read_bytes())["members"]
-        return [FrontMember(**member) for member in members]
-    except (KeyError, TypeError, json.JSONDecodeError) as error:
+        return [
+            FrontMember(
+                **{key: value for key, value in member.items() if key != "episodes"},
+                episodes=tuple(EpisodeCheck(**episode) for episode in member.get("episodes", ())),
+            )
+            for member in members
+        ]
+    except (KeyError, TypeError, AttributeError, json.JSONDecodeError) as error:
         raise ValueError(f"{path}: not a front.json ({error})") from None
+
+
+def read_validation(path: Path) -> ValidationRecord | None:
+    """What validation found, as front.json says it (None if it says nothing: an older run)."""
+    try:
+        found = json.loads(Path(path).read_bytes()).get("validation")
+        return None if found is None else ValidationRecord(**found)
+    except (TypeError, AttributeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{path}: not a front.json ({error})") from None
+
+
+def provenance_csv(front: Sequence[FrontMember]) -> bytes:
+    """provenance.csv's content: each front member's episodes, by the member's front.csv row."""
+    return _csv_bytes(
+        PROVENANCE_FIELDS,
+        (
+            (str(row), episode.job_id, episode.worker, episode.check, episode.verdict)
+            for row, member in enumerate(sorted_front(front), start=1)
+            for episode in member.episodes
+        ),
+    )
 
 
 @dataclass(frozen=True)

@@ -62,16 +62,20 @@ from gainfarm.analytic.tuning.records import (
     FRONT_JSON,
     HISTORY_CSV,
     LOCK,
+    PROVENANCE_CSV,
     RUN_JSON,
     Baseline,
+    EpisodeCheck,
     FrontMember,
     HistoryRow,
     RunIdentity,
+    ValidationRecord,
     baseline_json,
     evaluated_csv,
     front_csv,
     front_json,
     history_csv,
+    provenance_csv,
     read_baseline,
     read_identity,
     run_json,
@@ -272,6 +276,20 @@ class TuningRun:
     def replication(self) -> Ledger:
         """What validation cost and found over the run (every process that ran it)."""
         return self.state.ledger
+
+    def validation(self) -> ValidationRecord:
+        """What validation found over the run, as its records say it."""
+        ledger, state = self.state.ledger, self.state
+        return ValidationRecord(
+            refereed=ledger.refereed,
+            spot_checked=ledger.spot_checked,
+            spot_check_rate=self.config.spot_checks if self.config.replicate else 0.0,
+            disagreements=ledger.disagreements,
+            unsettled=ledger.unsettled,
+            distrusted=dict(ledger.dissenters),
+            rewinds=state.rewinds,
+            unchecked=state.unchecked,
+        )
 
     def front(self) -> list[FrontMember]:
         """The best front found so far, most accurate first, each member with its kept logs."""
@@ -866,7 +884,8 @@ class TuningRun:
         self.check_open()
         rows = _rows(self.state)
         write_atomically(self.directory / EVALUATED_CSV, evaluated_csv(self.state.evaluated))
-        write_atomically(self.directory / FRONT_JSON, front_json(rows))
+        write_atomically(self.directory / FRONT_JSON, front_json(rows, self.validation()))
+        write_atomically(self.directory / PROVENANCE_CSV, provenance_csv(rows))
         write_atomically(self.directory / FRONT_CSV, front_csv(rows))
         write_atomically(self.directory / HISTORY_CSV, history_csv(self.state.history))
 
@@ -895,9 +914,22 @@ def _rows(state: RunState) -> list[FrontMember]:
                 ran.scores is not None and ran.scores.diverged
                 for ran in state.provenance.get(member.gains, ())
             ),
+            episodes=tuple(_checked(state, ran) for ran in state.provenance.get(member.gains, ())),
         )
         for member in state.evolution.front()
     ]
+
+
+def _checked(state: RunState, ran: Ran) -> EpisodeCheck:
+    """Who ran an episode, and how it was checked (or why it was not)."""
+    if ran.job_id in state.checks:
+        check, verdict, worker = state.checks[ran.job_id]
+        return EpisodeCheck(ran.job_id, worker, check, verdict)
+    if ran.digest is None:
+        why = "it did not run"
+    else:
+        why = state.unchecked or "not yet: the run has not validated its front"
+    return EpisodeCheck(ran.job_id, ran.worker, "not checked", why)
 
 
 def _refuse_existing(directory: Path) -> None:

@@ -5,6 +5,7 @@ Like the figures, edge code on plain data: the caller computes, these functions 
 """
 
 import math
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -14,9 +15,11 @@ from gainfarm.analytic.tuning.records import (
     HISTORY_CSV,
     HYPERVOLUME_PNG,
     PARETO_PNG,
+    PROVENANCE_CSV,
     Baseline,
     FrontMember,
     HistoryRow,
+    ValidationRecord,
     sorted_front,
 )
 from gainfarm.analytic.view.export import Pick, plant_name, point_groups
@@ -222,6 +225,7 @@ def report_markdown(
     picks: Sequence[Pick] = (),
     baseline: Baseline | None = None,
     run_dir: str = "RUN",
+    validation: ValidationRecord | None = None,
 ) -> str:
     """The text of report.md (see `write_report`)."""
     lines = [f"# {title}", ""]
@@ -265,6 +269,8 @@ def report_markdown(
         lines += ["", UNITS_LINE]
     else:
         lines.append("No members yet.")
+    if validation is not None:
+        lines += ["", *validation_section(validation, members)]
 
     lines += [
         "",
@@ -292,6 +298,7 @@ def write_report(
     picks: Sequence[Pick] = (),
     baseline: Baseline | None = None,
     run_dir: str = "RUN",
+    validation: ValidationRecord | None = None,
 ) -> None:
     """A short report.md at `path`: the controller to use (`picks`, beside the default gains'
     `baseline`; `run_dir` for the export command it shows), configuration, summary, the front
@@ -311,8 +318,46 @@ def write_report(
         picks=picks,
         baseline=baseline,
         run_dir=run_dir,
+        validation=validation,
     )
     write_atomically(Path(path), text.encode("utf-8"))
+
+
+def validation_section(validation: ValidationRecord, members: Sequence[FrontMember]) -> list[str]:
+    """How far the front can be trusted: what the referee checked and found, the workers it
+    caught with the evidence, and each member's workers and checks (provenance.csv: each
+    episode)."""
+    lines = ["## Validation", ""]
+    if validation.unchecked:
+        lines += [f"Not checked: {validation.unchecked}.", ""]
+    else:
+        rate = f" (rate {validation.spot_check_rate:g})" if validation.spot_check_rate else ""
+        lines += [
+            f"- episodes the referee (this process) ran again: {validation.refereed} of the "
+            f"front's, {validation.spot_checked} spot checks{rate}",
+            f"- disagreements: {validation.disagreements}; could not be rerun (failed): "
+            f"{validation.unsettled}",
+        ]
+        for worker, evidence in sorted(validation.distrusted.items()):
+            lines.append(f"- distrusted: {worker}, which {evidence}")
+        if validation.rewinds:
+            lines.append(
+                f"- the evolution started again {validation.rewinds} time(s) without the "
+                "distrusted workers' results, which ran again elsewhere"
+            )
+        lines.append("")
+    if members and any(member.episodes for member in members):
+        lines += ["| # (front.csv row) | workers | episodes: how checked |", "|---:|---|---|"]
+        for row, member in enumerate(members, start=1):
+            workers = ", ".join(sorted({e.worker for e in member.episodes})) or "-"
+            checks = Counter(
+                f"{e.check}, {e.verdict}" if e.check != "not checked" else e.check
+                for e in member.episodes
+            )
+            how = "; ".join(f"{count} {check}" for check, count in sorted(checks.items()))
+            lines.append(f"| {row} | {workers} | {how} |")
+        lines += ["", f"Each episode: [{PROVENANCE_CSV}]({PROVENANCE_CSV}).", ""]
+    return lines
 
 
 def plant_text(model: ModelSpec) -> str:

@@ -38,4 +38,5 @@ def write_run_report(run: TuningRun) -> None:
         picks=chosen,
         baseline=baseline,
         run_dir=str(run.directory),
+        validation=run.validation(),
     )

@@ -78,7 +78,7 @@ def test_a_worker_that_alters_one_torque_sample_is_caught_and_named_on_a_farm_of
         assert {e.worker for e in originals} == {"liar"}
         ledger = Ledger()
         validation = validate(farm, originals, ledger, referee=InProcessEvaluator(tmp_path))
-        assert ledger.dissenters == {"liar"} and ledger.disagreements == len(SPECS)
+        assert set(ledger.dissenters) == {"liar"} and ledger.disagreements == len(SPECS)
         assert ledger.refereed == len(SPECS) and ledger.unsettled == 0
         for job_id, original in ((e.job_id, e) for e in originals):
             standing = validation.standing[job_id]

@@ -305,3 +305,43 @@ def test_spot_checks_draw_the_chosen_share_unpredictably_and_reproducibly() -> N
     assert len(set(drawn) & set(other)) < len(drawn) / 5  # another key, another draw
     assert not any(spot_checked(b"key", job, 0.0) for job in job_ids)
     assert all(spot_checked(b"key", job, 1.0) for job in job_ids)
+
+
+def test_the_records_say_who_ran_each_front_episode_and_how_it_was_checked(
+    tmp_path: Path,
+) -> None:
+    import csv
+    import json
+
+    from gainfarm.analytic.tuning.records import read_front_json, read_validation
+    from gainfarm.analytic.view.run_report import write_run_report
+
+    farm = ToyFarm(["h1", "liar", "h2"], liars=["liar"])
+    checked = run(tmp_path, "checked", farm)
+    write_run_report(checked)
+    directory = checked.directory
+    validation = read_validation(directory / "front.json")
+    assert validation is not None and validation == checked.validation()
+    assert list(validation.distrusted) == ["liar"] and "referee" in validation.distrusted["liar"]
+    assert validation.refereed > 0 and validation.rewinds >= 1 and not validation.unchecked
+    members = read_front_json(directory / "front.json")
+    assert [m.objectives for m in members] == front(checked)
+    for member in members:
+        [episode] = member.episodes  # one trajectory
+        assert episode.worker in {"h1", "h2"} and episode.check in {"refereed", "spot-checked"}
+        assert episode.verdict == "agreed"
+    with (directory / "provenance.csv").open() as file:
+        rows = list(csv.DictReader(file))
+    assert [row["member"] for row in rows] == [str(i) for i in range(1, len(members) + 1)]
+    assert {row["job_id"] for row in rows} == {m.episodes[0].job_id for m in members}
+    report = (directory / "report.md").read_text()
+    assert "## Validation" in report and "- distrusted: liar, which returned a log" in report
+    assert "started again 1 time(s)" in report or "started again 2 time(s)" in report
+    # A run in this process is trusted: nothing checked, and the records say why.
+    from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+
+    alone = TuningRun.create(tmp_path / "alone", RunConfig(pop=8, generations=1, seed=3))
+    alone.run(InProcessEvaluator(alone.directory))
+    content = json.loads((alone.directory / "front.json").read_bytes())
+    assert content["validation"]["unchecked"].startswith("trusted")
+    assert {e["check"] for m in content["members"] for e in m["episodes"]} == {"not checked"}
