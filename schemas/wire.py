@@ -57,9 +57,10 @@ class WireMessage(BaseModel):
 
     @field_validator("protocol", mode="before")
     @classmethod
-    def _a_number(cls, version: object) -> object:
-        if isinstance(version, bool):  # JSON true equals 1 to Python: not a version (hypothesis)
-            raise ValueError(f"protocol version {version!r} is not a number")
+    def _an_integer(cls, version: object) -> object:
+        # Literal[6] would take 6.0 (and JSON true is 1 to Python): a version is an integer.
+        if type(version) is not int:
+            raise ValueError(_not_an_integer(version))
         return version
 
     def to_bytes(self) -> bytes:
@@ -343,7 +344,9 @@ def _decoded(kind: type[M], raw: bytes) -> M:
     if not isinstance(fields, dict):
         raise BadMessage(f"{kind.__name__}: not a JSON object")
     version = fields.get("protocol")
-    if version != PROTOCOL_VERSION or isinstance(version, bool):
+    if version is not None and type(version) is not int:
+        raise BadMessage(f"{kind.__name__}: {_not_an_integer(version)}")
+    if version != PROTOCOL_VERSION:
         raise BadMessage(
             f"{kind.__name__}: protocol version {version!r:.40} is not {PROTOCOL_VERSION}, "
             "the one this gainfarm speaks"
@@ -352,6 +355,10 @@ def _decoded(kind: type[M], raw: bytes) -> M:
         return kind.model_validate(fields)
     except ValidationError as error:
         raise BadMessage(f"{kind.__name__}: {_one_line(describe(error))}") from None
+
+
+def _not_an_integer(version: object) -> str:
+    return f"protocol version {version!r:.40} is not an integer ({PROTOCOL_VERSION} is ours)"
 
 
 def _one_line(reason: str, limit: int = 300) -> str:

@@ -7,12 +7,19 @@ import pytest
 from gainfarm.schemas import json_schema
 from gainfarm.schemas.wire import (
     MAX_MESSAGE_BYTES,
+    MESSAGES,
     PROTOCOL_VERSION,
     BadMessage,
+    BrokerStatus,
+    ConfirmReply,
+    ConfirmRequest,
     Job,
+    Lease,
+    LeaseReply,
     LeaseRequest,
     Result,
     Submission,
+    SubmitReply,
     decode,
     decode_submission,
 )
@@ -45,7 +52,7 @@ def test_a_message_round_trips() -> None:
         (b'{"worker": "w"}', f"protocol version None is not {V}"),
         (b'{"protocol": 1, "worker": "w"}', f"protocol version 1 is not {V}"),
         (b'{"protocol": 2, "worker": "w"}', f"protocol version 2 is not {V}"),
-        (b'{"protocol": true, "worker": "w"}', f"protocol version True is not {V}"),
+        (b'{"protocol": true, "worker": "w"}', "protocol version True is not an integer"),
         (b'{"protocol": %d}' % V, "worker: Field required"),
         (b'{"protocol": %d, "worker": "a/b"}' % V, "worker: String should match pattern"),
         (
@@ -59,6 +66,80 @@ def test_a_bad_message_is_refused_with_its_reason(raw: bytes | None, reason: str
     with pytest.raises(BadMessage, match=reason) as refused:
         decode(LeaseRequest, raw)
     assert "\n" not in str(refused.value)
+
+
+NOT_INTEGERS = [b"6.0", b"6e0", b"6.000001", b'"6"', b"true", b"[6]", b'{"v": 6}']
+
+
+@pytest.mark.parametrize("kind", MESSAGES, ids=lambda kind: kind.__name__)
+@pytest.mark.parametrize("version", NOT_INTEGERS, ids=lambda raw: raw.decode())
+def test_the_protocol_version_is_an_integer_in_every_message(kind: type, version: bytes) -> None:
+    # Before the schema is checked (the slow path) and after the fast one: both refuse it alike.
+    for raw in (
+        b'{"protocol": %s}' % version,
+        honest_bytes(kind).replace(b'"protocol":6', b'"protocol":' + version),
+    ):
+        assert version in raw
+        with pytest.raises(BadMessage, match=r"protocol version .* is not an integer") as refused:
+            decode(kind, raw)
+        assert str(refused.value).startswith(f"{kind.__name__}: protocol version ")
+        assert "\n" not in str(refused.value)
+
+
+@pytest.mark.parametrize("version", NOT_INTEGERS, ids=lambda raw: raw.decode())
+def test_a_submission_with_a_version_not_an_integer_is_refused_whole(version: bytes) -> None:
+    raw = honest_bytes(Submission).replace(b'"protocol":6', b'"protocol":' + version)
+    with pytest.raises(BadMessage, match=r"^Submission: protocol version .* is not an integer"):
+        decode_submission(raw)
+    nested = Result.model_validate_json(honest_bytes(Result)).model_dump(mode="json")
+    request = {
+        "protocol": V,
+        "worker": "w",
+        "results": [{**nested, "protocol": json.loads(version)}],
+    }
+    with pytest.raises(BadMessage, match=r"results\.0\.protocol: .*is not an integer"):
+        decode(LeaseRequest, json.dumps(request).encode())
+
+
+def honest_bytes(kind: type) -> bytes:
+    """A valid message of `kind`, its version at the front as every sender writes it."""
+    job = Job(job_id="j1", spec=short_spec())
+    examples = {
+        Submission: Submission(study="s", jobs=[job]),
+        SubmitReply: SubmitReply(study="s", queued=["j1"]),
+        LeaseRequest: LeaseRequest(worker="w"),
+        LeaseReply: LeaseReply(leases=[Lease(lease_id="l", study="s", job=job, expires_in=1.0)]),
+        Result: Result(
+            study="s",
+            job_id="j1",
+            lease_id="l",
+            worker="w",
+            status="ok",
+            episode_bytes=0,
+            digest="0" * 64,
+            timings={"simulate_s": 0.1, "encode_s": 0.0},
+            scores=SCORES,
+        ),
+        ConfirmRequest: ConfirmRequest(study="s", job_ids=["j1"]),
+        ConfirmReply: ConfirmReply(study="s"),
+        BrokerStatus: BrokerStatus(
+            uptime_s=1.0,
+            workers=[],
+            studies=[],
+            jobs_done=0,
+            jobs_per_s=0.0,
+            requeued=0,
+            rejected=0,
+        ),
+    }
+    raw = examples[kind].to_bytes()
+    assert raw.startswith(b'{"protocol":6,') and decode(kind, raw) == examples[kind]
+    return raw
+
+
+def test_honest_examples_cover_every_message() -> None:
+    for kind in MESSAGES:
+        honest_bytes(kind)
 
 
 def test_a_submission_is_judged_job_by_job() -> None:
