@@ -6,6 +6,7 @@ reject a bad message with a reason and go on serving. The key expressions are in
 """
 
 import json
+import math
 from enum import StrEnum
 from typing import Annotated, Literal, TypeVar
 
@@ -19,6 +20,7 @@ from pydantic import (
 )
 
 from gainfarm.schemas.episode import EpisodeSpec, Scores
+from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 
 # 6: plug-ins: a trajectory kind is any name of its form, a job may name its objectives
 # (EpisodeSpec.objectives) and its scores then carry their values (Scores.values), and a worker
@@ -127,10 +129,44 @@ class Timings(BaseModel):
 DIGEST_PATTERN = r"^[0-9a-f]{64}$"
 
 
+# Scores no honest episode can exceed (tests/schemas/test_wire.py scores the extremes). The flange
+# is never farther from the shoulder (A2, on A1's axis) than its links' offsets add up to, 0.946 m,
+# so it is never 1.9 m from its reference, and a tick not run counts DIVERGED_TICK_ERROR, 1 m.
+MAX_TRACKING_ERROR = 2.0  # m: f_acc and max_error
+# The applied torque is clipped to its limits, so no tick changes it by more than a swing from
+# limit to limit on every joint, 1.13e6 (N·m)², which is what a tick not run counts.
+MAX_TORQUE_CHANGE = 1.2e6  # (N·m)²: f_t
+MAX_TICKS = round(MAX_DURATION / CONTROL_PERIOD) + 1  # the longest trajectory's
+
+
 class WireScores(Scores):
-    """An episode's scores as a worker reports them: finite numbers, nothing else."""
+    """An episode's scores as a worker reports them: finite numbers within what an episode can
+    score, nothing else. Its JSON is Scores' (the fields, in their order, re-bounded)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    f_acc: float = Field(
+        ge=0, le=MAX_TRACKING_ERROR, description=Scores.model_fields["f_acc"].description
+    )
+    f_t: float = Field(
+        ge=0, le=MAX_TORQUE_CHANGE, description=Scores.model_fields["f_t"].description
+    )
+    max_error: float = Field(
+        ge=0, le=MAX_TRACKING_ERROR, description=Scores.model_fields["max_error"].description
+    )
+    saturated_fraction: float = Field(
+        ge=0, le=1, description=Scores.model_fields["saturated_fraction"].description
+    )
+    ticks: int = Field(ge=0, le=MAX_TICKS, description=Scores.model_fields["ticks"].description)
+
+    @field_validator("f_acc", "f_t", "max_error", "saturated_fraction")
+    @classmethod
+    def _no_negative_zero(cls, value: float) -> float:
+        # -0.0 passes ge=0 and would compare equal to 0, but no episode scores it (its sums start
+        # at +0.0): refused, so a score's JSON is the one its episode gives.
+        if math.copysign(1.0, value) < 0:
+            raise ValueError("-0.0 is not a score (no episode makes a negative zero)")
+        return value
 
 
 class Result(WireMessage):

@@ -1,12 +1,25 @@
 """The wire contract: every message decodes only when it is whole, current and valid."""
 
 import json
+import re
+from dataclasses import fields, replace
 
+import mujoco
+import numpy as np
 import pytest
 
+from gainfarm.models.iiwa14 import FLANGE, compile_model
 from gainfarm.schemas import json_schema
+from gainfarm.schemas.episode import EpisodeSpec, Scores
+from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR, score
+from gainfarm.schemas.robot import IDEAL_PLANT, ModelSpec
+from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import (
     MAX_MESSAGE_BYTES,
+    MAX_TORQUE_CHANGE,
+    MAX_TRACKING_ERROR,
     MESSAGES,
     PROTOCOL_VERSION,
     BadMessage,
@@ -20,9 +33,11 @@ from gainfarm.schemas.wire import (
     Result,
     Submission,
     SubmitReply,
+    WireScores,
     decode,
     decode_submission,
 )
+from gainfarm.worker.episode import run_episode
 from tests.helpers import short_spec
 
 V = PROTOCOL_VERSION
@@ -209,3 +224,105 @@ def test_a_result_names_must_be_key_safe() -> None:
         Result(**{**fields, "digest": "not a sha-256"})
     with pytest.raises(ValueError, match="job_id"):
         Result(**{**fields, "job_id": "j/*"})
+
+
+def result_with_scores(**scores: object) -> bytes:
+    fields = json.loads(honest_bytes(Result))
+    return json.dumps({**fields, "scores": {**SCORES, **scores}}).encode()
+
+
+@pytest.mark.parametrize(
+    ("scores", "reason"),
+    [
+        ({"f_acc": -1e-9}, "scores.f_acc: Input should be greater than or equal to 0"),
+        ({"f_acc": -0.0}, "scores.f_acc: Value error, -0.0 is not a score"),
+        ({"f_acc": 2.5}, "scores.f_acc: Input should be less than or equal to 2"),
+        ({"f_t": -0.5}, "scores.f_t: Input should be greater than or equal to 0"),
+        ({"f_t": 1e300}, "scores.f_t: Input should be less than or equal to 1200000"),
+        ({"max_error": -0.0}, "scores.max_error: Value error, -0.0 is not a score"),
+        ({"max_error": 1e9}, "scores.max_error: Input should be less than or equal to 2"),
+        ({"saturated_fraction": -3}, "scores.saturated_fraction: Input should be greater than"),
+        ({"saturated_fraction": 1.01}, "scores.saturated_fraction: Input should be less than"),
+        ({"ticks": -5}, "scores.ticks: Input should be greater than or equal to 0"),
+        ({"ticks": 60_002}, "scores.ticks: Input should be less than or equal to 60001"),
+        ({"values": [0.1, 1e999]}, "scores.values.1: Input should be a finite number"),
+        ({"values": ["NaN", 0.1]}, "scores.values.0: Input should be a finite number"),
+    ],
+)
+def test_scores_beyond_any_episodes_are_refused(scores: dict, reason: str) -> None:
+    with pytest.raises(BadMessage, match=f"^Result: {re.escape(reason)}") as refused:
+        decode(Result, result_with_scores(**scores))
+    assert "\n" not in str(refused.value)
+    request = json.loads(LeaseRequest(worker="w").to_bytes())
+    request["results"] = [json.loads(result_with_scores(**scores))]
+    with pytest.raises(BadMessage, match=re.escape(f"results.0.{reason}")):
+        decode(LeaseRequest, json.dumps(request).encode())
+
+
+def test_honest_scores_keep_their_json_on_the_wire() -> None:
+    for values in (None, (-3.5, 0.0)):  # a plug-in's objective may be negative
+        scores = Scores(**SCORES, values=values)
+        assert WireScores(**scores.model_dump()).model_dump_json() == scores.model_dump_json()
+    edge = {"f_acc": 0.0, "f_t": 0.0, "max_error": 0.0, "saturated_fraction": 1.0, "ticks": 0}
+    assert decode(Result, result_with_scores(**edge)).scores == WireScores(**{**SCORES, **edge})
+
+
+def test_the_flange_never_strays_as_far_from_its_reference_as_the_bound() -> None:
+    """Every position of the flange is within the links' offsets, added up, of the shoulder (A2,
+    which stays put as A1 turns): no two of them, the arm's and its reference's, are farther
+    apart than twice that."""
+    model = compile_model(ModelSpec())
+    data = mujoco.MjData(model)
+    site, shoulder = model.site(FLANGE), model.body("link2").id
+    reach, body = float(np.linalg.norm(site.pos)), int(site.bodyid[0])
+    while body != shoulder:
+        reach, body = reach + float(np.linalg.norm(model.body_pos[body])), model.body_parentid[body]
+    assert 2 * reach < MAX_TRACKING_ERROR
+    rng = np.random.default_rng(0)
+    origin = None
+    for _ in range(2000):  # anywhere, joint ranges or not: a diverging arm leaves them
+        data.qpos[:] = rng.uniform(-np.pi, np.pi, model.nq)
+        mujoco.mj_kinematics(model, data)
+        origin = data.xpos[shoulder].copy() if origin is None else origin
+        np.testing.assert_allclose(data.xpos[shoulder], origin, atol=1e-12)
+        assert np.linalg.norm(data.site_xpos[site.id] - origin) <= reach + 1e-9
+    assert np.isclose(reach, 0.946)  # the comment at MAX_TRACKING_ERROR says so
+
+
+def test_no_episode_scores_beyond_the_wires_bounds(diverged_log: EpisodeLog) -> None:
+    """The extremes: an arm that falls (diverged), one with no torque at all, gains that
+    saturate every joint, and what no episode can reach: every tick a swing from limit to limit
+    at the far side of the workspace, and an episode cut short before its first tick."""
+    short = TrajectorySpec(duration=3.0)
+    zero = PDGains(kp=(0,) * 7, kd=(0,) * 7)
+    aggressive = PDGains(kp=(1e6,) * 7, kd=(1e4,) * 7)
+    logs = [
+        diverged_log,
+        run_episode(EpisodeSpec(gains=zero, trajectory=short)),
+        run_episode(EpisodeSpec(gains=aggressive, trajectory=short, model=IDEAL_PLANT)),
+    ]
+    assert logs[0].metadata.diverged and logs[1].metadata.diverged
+    assert score(logs[2]).saturated_fraction > 0.5, score(logs[2])
+    limits = np.asarray(diverged_log.metadata.torque_limits)
+    swing = np.where(np.arange(diverged_log.ticks)[:, None] % 2, limits, -limits)
+    far = np.array([0.946, 0.0, 0.36])  # the flange, and its reference across the shoulder
+    worst = replace(
+        diverged_log,
+        u=swing,
+        ee=np.tile(far, (diverged_log.ticks, 1)),
+        ee_des=np.tile(far * [-1, 1, 1], (diverged_log.ticks, 1)),
+    )
+    cut = replace(diverged_log, **{name: column[:0] for name, column in columns(diverged_log)})
+    logs += [worst, cut]
+    for log in logs:
+        scores = score(log)
+        assert WireScores(**scores.model_dump()) == WireScores.model_validate(scores.model_dump())
+    assert score(cut).f_acc == DIVERGED_TICK_ERROR and score(cut).ticks == 0
+    swing_every_tick = sum((2 * limit) ** 2 for limit in limits)
+    assert 0.999 * swing_every_tick < score(worst).f_t <= swing_every_tick < MAX_TORQUE_CHANGE
+    assert score(cut).f_t == swing_every_tick
+    assert score(worst).max_error == pytest.approx(2 * 0.946)
+
+
+def columns(log: EpisodeLog) -> list[tuple[str, np.ndarray]]:
+    return [(f.name, getattr(log, f.name)) for f in fields(log) if f.name != "metadata"]
