@@ -7,6 +7,7 @@ reject a bad message with a reason and go on serving. The key expressions are in
 
 import json
 import math
+import re
 from enum import StrEnum
 from typing import Annotated, Literal, TypeVar
 
@@ -44,7 +45,14 @@ LEASE_HOLD_SECONDS = 1.0
 # one query instead of two per job (bench/broker_capacity.py measures what that lifts).
 MAX_BATCH = 32
 
-MAX_MESSAGE_BYTES = 4 * 1024 * 1024  # a submission of thousands of jobs fits; a runaway does not
+MAX_MESSAGE_BYTES = 4 * 1024 * 1024  # every message of the bounds below fits; a runaway does not
+# Jobs in one Submission: the largest Job's JSON is 6.5 kB (64 names to avoid, every number at
+# its longest; tests/schemas/test_wire.py builds it), so any submission of this many fits in
+# MAX_MESSAGE_BYTES (the analytic side sends them by the hundred).
+MAX_SUBMISSION_JOBS = 500
+# Jobs one ConfirmRequest asks about: the reply's largest Accepted is 0.6 kB, so the answer to
+# any request fits too.
+MAX_CONFIRM_JOBS = 5000
 MAX_EPISODE_BYTES = 256 * 1024 * 1024  # a 120 s episode is ~26 MB
 
 
@@ -90,7 +98,7 @@ class Submission(WireMessage):
     """Analytic → broker: queue these jobs for `study` (whose analytic process must be alive)."""
 
     study: Name
-    jobs: list[Job] = Field(max_length=10_000)
+    jobs: list[Job] = Field(max_length=MAX_SUBMISSION_JOBS)
 
 
 class Rejection(BaseModel):
@@ -262,7 +270,7 @@ class ConfirmRequest(WireMessage):
     """Analytic → broker: which results did you accept for these jobs of my study?"""
 
     study: Name
-    job_ids: list[Name] = Field(max_length=10_000)
+    job_ids: list[Name] = Field(max_length=MAX_CONFIRM_JOBS)
 
 
 class ConfirmReply(WireMessage):
@@ -405,7 +413,7 @@ def _one_line(reason: str, limit: int = 300) -> str:
 
 class _SubmissionEnvelope(WireMessage):
     study: Name
-    jobs: list[object] = Field(max_length=10_000)
+    jobs: list[object] = Field(max_length=MAX_SUBMISSION_JOBS)
 
 
 _SubmissionEnvelope.__name__ = "Submission"  # its reasons speak of the message it stands for
@@ -431,7 +439,9 @@ def decode_submission(raw: bytes | None) -> tuple[str, list[Job], list[Rejection
             jobs.append(Job.model_validate(fields))
         except Exception as error:  # a ValidationError, or a validator's own: one bad job
             job_id = fields.get("job_id") if isinstance(fields, dict) else None
-            name = job_id if isinstance(job_id, str) else f"jobs[{index}]"
+            # Named by its id if that is a name: else the reply might quote megabytes of it.
+            named = isinstance(job_id, str) and re.fullmatch(NAME_PATTERN, job_id)
+            name = job_id if named else f"jobs[{index}]"
             if isinstance(error, ValidationError):
                 reason = describe(error)
             else:

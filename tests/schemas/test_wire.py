@@ -17,11 +17,14 @@ from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR, score
 from gainfarm.schemas.robot import IDEAL_PLANT, ModelSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import (
+    MAX_CONFIRM_JOBS,
     MAX_MESSAGE_BYTES,
+    MAX_SUBMISSION_JOBS,
     MAX_TORQUE_CHANGE,
     MAX_TRACKING_ERROR,
     MESSAGES,
     PROTOCOL_VERSION,
+    Accepted,
     BadMessage,
     BrokerStatus,
     ConfirmReply,
@@ -30,6 +33,7 @@ from gainfarm.schemas.wire import (
     Lease,
     LeaseReply,
     LeaseRequest,
+    Rejection,
     Result,
     Submission,
     SubmitReply,
@@ -38,7 +42,7 @@ from gainfarm.schemas.wire import (
     decode_submission,
 )
 from gainfarm.worker.episode import run_episode
-from tests.helpers import short_spec
+from tests.helpers import maximal_job, short_spec
 
 V = PROTOCOL_VERSION
 
@@ -326,3 +330,88 @@ def test_no_episode_scores_beyond_the_wires_bounds(diverged_log: EpisodeLog) -> 
 
 def columns(log: EpisodeLog) -> list[tuple[str, np.ndarray]]:
     return [(f.name, getattr(log, f.name)) for f in fields(log) if f.name != "metadata"]
+
+
+# --- sizes: every message of the bounds fits in MAX_MESSAGE_BYTES -------------------------------
+
+
+def test_no_field_of_a_submission_is_unbounded() -> None:
+    """Every list has a longest, every string a pattern or a length, every integer a maximum:
+    with floats at most 24 characters, a Job has a largest JSON (tests.helpers.maximal_job)."""
+    schema = Submission.model_json_schema()
+    unbounded = []
+
+    def walk(node: object, where: str) -> None:
+        if isinstance(node, dict):
+            kind = node.get("type")
+            if kind == "array" and "maxItems" not in node and "prefixItems" not in node:
+                unbounded.append(where)
+            if kind == "string" and not {"pattern", "maxLength", "enum", "const"} & set(node):
+                unbounded.append(where)
+            if kind == "integer" and not {"maximum", "exclusiveMaximum", "const"} & set(node):
+                unbounded.append(where)
+            for key, value in node.items():
+                walk(value, f"{where}.{key}")
+        elif isinstance(node, list):
+            for index, value in enumerate(node):
+                walk(value, f"{where}[{index}]")
+
+    walk(schema, "Submission")
+    assert unbounded == []
+
+
+def test_the_largest_submission_fits_in_a_message() -> None:
+    job = maximal_job()
+    assert 6000 < len(job.model_dump_json()) < 7000  # the 6.5 kB MAX_SUBMISSION_JOBS is sized by
+    jobs = [maximal_job(n) for n in range(MAX_SUBMISSION_JOBS)]
+    largest = Submission(study="s" * 64, jobs=jobs).to_bytes()
+    assert len(largest) <= MAX_MESSAGE_BYTES
+    assert decode_submission(largest) == ("s" * 64, jobs, [])
+    one_more = largest[:-2] + b"," + job.model_dump_json().encode() + b"]}"
+    assert len(one_more) == len(largest) + len(job.model_dump_json()) + 1
+    reason = f"Submission: jobs: List should have at most {MAX_SUBMISSION_JOBS} items"
+    with pytest.raises(BadMessage, match=f"^{re.escape(reason)}"):
+        decode_submission(one_more)
+    with pytest.raises(BadMessage, match=f"^{re.escape(reason)}"):
+        decode(Submission, one_more)
+
+
+def test_the_reply_to_the_largest_submission_fits_whatever_its_jobs_say() -> None:
+    """Each rejection quotes the job's id only if it is a name, and a reason of 300 characters
+    at most, each escaped to six bytes at worst."""
+    huge = "/" * 8000  # as long as 500 of them can be in a message
+    raw = json.dumps(
+        {"protocol": V, "study": "s", "jobs": [{"job_id": huge}] * MAX_SUBMISSION_JOBS}
+    ).encode()
+    _, jobs, rejected = decode_submission(raw)
+    assert (
+        len(raw) <= MAX_MESSAGE_BYTES
+        and not jobs
+        and [r.job_id for r in rejected[:2]] == ["jobs[0]", "jobs[1]"]
+    )
+    assert "job_id: String should match pattern" in rejected[0].reason
+    worst = SubmitReply(
+        study="s" * 64,
+        rejected=[
+            Rejection(job_id=f"jobs[{n}]", reason="\x01" * 300) for n in range(MAX_SUBMISSION_JOBS)
+        ],
+    )
+    assert len(worst.to_bytes()) <= MAX_MESSAGE_BYTES
+    named = json.dumps({"protocol": V, "study": "s", "jobs": [{"job_id": "j-1"}]}).encode()
+    assert [r.job_id for r in decode_submission(named)[2]] == ["j-1"]
+
+
+def test_the_largest_confirmation_and_its_reply_fit_in_a_message() -> None:
+    names = [f"{n:064d}" for n in range(MAX_CONFIRM_JOBS)]
+    request = ConfirmRequest(study="s" * 64, job_ids=names).to_bytes()
+    assert len(request) <= MAX_MESSAGE_BYTES
+    with pytest.raises(BadMessage, match=f"job_ids: List should have at most {MAX_CONFIRM_JOBS}"):
+        decode(ConfirmRequest, request.replace(b'"]}', b'","' + b"j" * 64 + b'"]}'))
+    tiny = 2.2250738585072014e-308
+    worst = {"f_acc": tiny, "f_t": tiny, "max_error": tiny, "saturated_fraction": tiny}
+    scores = WireScores(**{**SCORES, **worst, "values": (-tiny, -tiny), "ticks": 60_001})
+    accepted = [
+        Accepted(job_id=name, lease_id="l" * 64, worker="w" * 64, digest="f" * 64, scores=scores)
+        for name in names
+    ]
+    assert len(ConfirmReply(study="s" * 64, accepted=accepted).to_bytes()) <= MAX_MESSAGE_BYTES
