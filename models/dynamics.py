@@ -24,6 +24,7 @@ worker that never runs one needs no Pinocchio.
 
 import io
 import json
+import math
 import tempfile
 import zipfile
 from collections.abc import Callable
@@ -35,6 +36,7 @@ from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import mujoco
 import numpy as np
+from numpy.lib import format as npy_format
 from pydantic import ValidationError
 
 from gainfarm.models.iiwa14 import build_spec, compile_model
@@ -321,12 +323,22 @@ def to_bytes(model: DynamicsModel) -> bytes:
 def from_bytes(raw: bytes) -> DynamicsModel:
     """The model in `raw`. Raises BadDynamicsModel, one line, for anything that is not a whole,
     well-formed model; never unpickles (hostile bytes are refused, never run)."""
+    try:
+        return _from_bytes(raw)
+    except BadDynamicsModel:
+        raise
+    except Exception as error:  # not expected past the checks below; a last line of defence
+        reason = f"{type(error).__name__}: {_one_line(error)}"
+        raise BadDynamicsModel(f"not a dynamics model file (undecodable: {reason})") from None
+
+
+def _from_bytes(raw: bytes) -> DynamicsModel:
     if len(raw) > MAX_FILE_BYTES:
         raise BadDynamicsModel(f"{len(raw):,} bytes is too large for a dynamics model")
     try:
         with zipfile.ZipFile(io.BytesIO(raw)) as archive:
             entries = archive.infolist()
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError):
+    except Exception:  # BadZipFile, OSError, EOFError, NotImplementedError (its zip version)...
         raise BadDynamicsModel("not a dynamics model file (not an .npz archive)") from None
     if sum(entry.file_size for entry in entries) > MAX_FILE_BYTES:
         raise BadDynamicsModel("the archive unpacks to more than a dynamics model can hold")
@@ -416,6 +428,7 @@ def _arrays(model: DynamicsModel) -> dict[str, np.ndarray]:
 
 def _load_arrays(raw: bytes) -> dict[str, np.ndarray]:
     arrays = {}
+    _check_declared_sizes(raw)
     try:
         with np.load(io.BytesIO(raw), allow_pickle=False) as npz:
             for name in npz.files:
@@ -432,6 +445,47 @@ def _load_arrays(raw: bytes) -> dict[str, np.ndarray]:
     except (OSError, EOFError, zipfile.BadZipFile, KeyError, TypeError) as error:
         raise BadDynamicsModel(f"an array in the file is unreadable: {_one_line(error)}") from None
     return arrays
+
+
+def _check_declared_sizes(raw: bytes) -> None:
+    """Refuse an array whose .npy header claims more bytes than its member holds: numpy allocates
+    what the header claims before it reads (a 200-byte file can ask for terabytes)."""
+    with zipfile.ZipFile(io.BytesIO(raw)) as archive:
+        for entry in archive.infolist():
+            if not entry.filename.endswith(".npy"):
+                continue  # np.load hands it back as bytes, of its (bounded) size
+            try:
+                shape, dtype = _declared(archive, entry)
+            except BadDynamicsModel:
+                raise
+            except Exception as error:  # bad magic, header, compression, CRC: whatever it is
+                reason = f"{type(error).__name__}: {_one_line(error)}"
+                raise BadDynamicsModel(f"{entry.filename!r:.80}: unreadable ({reason})") from None
+            if dtype.hasobject:
+                raise BadDynamicsModel(
+                    "the file holds a pickled object array: refused, as loading it could run code"
+                )
+            if any(size < 0 for size in shape):
+                raise BadDynamicsModel(f"{entry.filename!r:.80}: a negative shape {shape!s:.60}")
+            claimed = math.prod(shape) * dtype.itemsize
+            if claimed > entry.file_size:
+                raise BadDynamicsModel(
+                    f"{entry.filename!r:.80}: its header claims {claimed:,} bytes of data, "
+                    f"more than the member's {entry.file_size:,}"
+                )
+
+
+def _declared(archive: zipfile.ZipFile, entry: zipfile.ZipInfo) -> tuple[tuple[int, ...], np.dtype]:
+    """The shape and dtype a .npy member's header declares, read without its data."""
+    with archive.open(entry) as member:
+        version = npy_format.read_magic(member)
+        if version == (1, 0):
+            shape, _, dtype = npy_format.read_array_header_1_0(member)
+        elif version == (2, 0):
+            shape, _, dtype = npy_format.read_array_header_2_0(member)
+        else:
+            raise BadDynamicsModel(f"{entry.filename!r:.80}: .npy format {version} is not read")
+    return shape, dtype
 
 
 def _header(array: np.ndarray | None) -> dict[str, Any]:

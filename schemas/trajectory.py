@@ -55,7 +55,10 @@ class TrajectorySpec(BaseModel):
     )
     duration: float = Field(5.0, ge=MIN_DURATION, le=MAX_DURATION, allow_inf_nan=False)
     seed: int = Field(
-        0, ge=0, description="draws the random kind's control points and the fourier kind's series"
+        0,
+        ge=0,
+        lt=2**63,  # as a job's other numbers, of a bounded length: a submission's size is bounded
+        description="draws the random kind's control points and the fourier kind's series",
     )
     center: tuple[Coordinate, Coordinate, Coordinate] = Field(
         (0.55, 0.0, 0.35), description="m, the Cartesian path's centre; fourier ignores it"

@@ -6,6 +6,8 @@ reject a bad message with a reason and go on serving. The key expressions are in
 """
 
 import json
+import math
+import re
 from enum import StrEnum
 from typing import Annotated, Literal, TypeVar
 
@@ -19,6 +21,7 @@ from pydantic import (
 )
 
 from gainfarm.schemas.episode import EpisodeSpec, Scores
+from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 
 # 6: plug-ins: a trajectory kind is any name of its form, a job may name its objectives
 # (EpisodeSpec.objectives) and its scores then carry their values (Scores.values), and a worker
@@ -42,7 +45,14 @@ LEASE_HOLD_SECONDS = 1.0
 # one query instead of two per job (bench/broker_capacity.py measures what that lifts).
 MAX_BATCH = 32
 
-MAX_MESSAGE_BYTES = 4 * 1024 * 1024  # a submission of thousands of jobs fits; a runaway does not
+MAX_MESSAGE_BYTES = 4 * 1024 * 1024  # every message of the bounds below fits; a runaway does not
+# Jobs in one Submission: the largest Job's JSON is 6.5 kB (64 names to avoid, every number at
+# its longest; tests/schemas/test_wire.py builds it), so any submission of this many fits in
+# MAX_MESSAGE_BYTES (the analytic side sends them by the hundred).
+MAX_SUBMISSION_JOBS = 500
+# Jobs one ConfirmRequest asks about: the reply's largest Accepted is 0.6 kB, so the answer to
+# any request fits too.
+MAX_CONFIRM_JOBS = 5000
 MAX_EPISODE_BYTES = 256 * 1024 * 1024  # a 120 s episode is ~26 MB
 
 
@@ -57,9 +67,10 @@ class WireMessage(BaseModel):
 
     @field_validator("protocol", mode="before")
     @classmethod
-    def _a_number(cls, version: object) -> object:
-        if isinstance(version, bool):  # JSON true equals 1 to Python: not a version (hypothesis)
-            raise ValueError(f"protocol version {version!r} is not a number")
+    def _an_integer(cls, version: object) -> object:
+        # Literal[6] would take 6.0 (and JSON true is 1 to Python): a version is an integer.
+        if type(version) is not int:
+            raise ValueError(_not_an_integer(version))
         return version
 
     def to_bytes(self) -> bytes:
@@ -87,7 +98,7 @@ class Submission(WireMessage):
     """Analytic → broker: queue these jobs for `study` (whose analytic process must be alive)."""
 
     study: Name
-    jobs: list[Job] = Field(max_length=10_000)
+    jobs: list[Job] = Field(max_length=MAX_SUBMISSION_JOBS)
 
 
 class Rejection(BaseModel):
@@ -126,10 +137,44 @@ class Timings(BaseModel):
 DIGEST_PATTERN = r"^[0-9a-f]{64}$"
 
 
+# Scores no honest episode can exceed (tests/schemas/test_wire.py scores the extremes). The flange
+# is never farther from the shoulder (A2, on A1's axis) than its links' offsets add up to, 0.946 m,
+# so it is never 1.9 m from its reference, and a tick not run counts DIVERGED_TICK_ERROR, 1 m.
+MAX_TRACKING_ERROR = 2.0  # m: f_acc and max_error
+# The applied torque is clipped to its limits, so no tick changes it by more than a swing from
+# limit to limit on every joint, 1.13e6 (N·m)², which is what a tick not run counts.
+MAX_TORQUE_CHANGE = 1.2e6  # (N·m)²: f_t
+MAX_TICKS = round(MAX_DURATION / CONTROL_PERIOD) + 1  # the longest trajectory's
+
+
 class WireScores(Scores):
-    """An episode's scores as a worker reports them: finite numbers, nothing else."""
+    """An episode's scores as a worker reports them: finite numbers within what an episode can
+    score, nothing else. Its JSON is Scores' (the fields, in their order, re-bounded)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    f_acc: float = Field(
+        ge=0, le=MAX_TRACKING_ERROR, description=Scores.model_fields["f_acc"].description
+    )
+    f_t: float = Field(
+        ge=0, le=MAX_TORQUE_CHANGE, description=Scores.model_fields["f_t"].description
+    )
+    max_error: float = Field(
+        ge=0, le=MAX_TRACKING_ERROR, description=Scores.model_fields["max_error"].description
+    )
+    saturated_fraction: float = Field(
+        ge=0, le=1, description=Scores.model_fields["saturated_fraction"].description
+    )
+    ticks: int = Field(ge=0, le=MAX_TICKS, description=Scores.model_fields["ticks"].description)
+
+    @field_validator("f_acc", "f_t", "max_error", "saturated_fraction")
+    @classmethod
+    def _no_negative_zero(cls, value: float) -> float:
+        # -0.0 passes ge=0 and would compare equal to 0, but no episode scores it (its sums start
+        # at +0.0): refused, so a score's JSON is the one its episode gives.
+        if math.copysign(1.0, value) < 0:
+            raise ValueError("-0.0 is not a score (no episode makes a negative zero)")
+        return value
 
 
 class Result(WireMessage):
@@ -225,7 +270,7 @@ class ConfirmRequest(WireMessage):
     """Analytic → broker: which results did you accept for these jobs of my study?"""
 
     study: Name
-    job_ids: list[Name] = Field(max_length=10_000)
+    job_ids: list[Name] = Field(max_length=MAX_CONFIRM_JOBS)
 
 
 class ConfirmReply(WireMessage):
@@ -343,7 +388,9 @@ def _decoded(kind: type[M], raw: bytes) -> M:
     if not isinstance(fields, dict):
         raise BadMessage(f"{kind.__name__}: not a JSON object")
     version = fields.get("protocol")
-    if version != PROTOCOL_VERSION or isinstance(version, bool):
+    if version is not None and type(version) is not int:
+        raise BadMessage(f"{kind.__name__}: {_not_an_integer(version)}")
+    if version != PROTOCOL_VERSION:
         raise BadMessage(
             f"{kind.__name__}: protocol version {version!r:.40} is not {PROTOCOL_VERSION}, "
             "the one this gainfarm speaks"
@@ -354,6 +401,10 @@ def _decoded(kind: type[M], raw: bytes) -> M:
         raise BadMessage(f"{kind.__name__}: {_one_line(describe(error))}") from None
 
 
+def _not_an_integer(version: object) -> str:
+    return f"protocol version {version!r:.40} is not an integer ({PROTOCOL_VERSION} is ours)"
+
+
 def _one_line(reason: str, limit: int = 300) -> str:
     """A reason fit for one log line: it may quote the sender's field names and messages."""
     reason = " ".join(reason.splitlines())
@@ -362,7 +413,7 @@ def _one_line(reason: str, limit: int = 300) -> str:
 
 class _SubmissionEnvelope(WireMessage):
     study: Name
-    jobs: list[object] = Field(max_length=10_000)
+    jobs: list[object] = Field(max_length=MAX_SUBMISSION_JOBS)
 
 
 _SubmissionEnvelope.__name__ = "Submission"  # its reasons speak of the message it stands for
@@ -388,7 +439,9 @@ def decode_submission(raw: bytes | None) -> tuple[str, list[Job], list[Rejection
             jobs.append(Job.model_validate(fields))
         except Exception as error:  # a ValidationError, or a validator's own: one bad job
             job_id = fields.get("job_id") if isinstance(fields, dict) else None
-            name = job_id if isinstance(job_id, str) else f"jobs[{index}]"
+            # Named by its id if that is a name: else the reply might quote megabytes of it.
+            named = isinstance(job_id, str) and re.fullmatch(NAME_PATTERN, job_id)
+            name = job_id if named else f"jobs[{index}]"
             if isinstance(error, ValidationError):
                 reason = describe(error)
             else:

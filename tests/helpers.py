@@ -19,7 +19,7 @@ from gainfarm.models.urdf import description
 from gainfarm.schemas import EpisodeMetadata, EpisodeSpec, PDGains, TrajectorySpec, keys
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.mcap_episode import episode_bytes
-from gainfarm.schemas.robot import TORQUE_LIMITS
+from gainfarm.schemas.robot import TORQUE_LIMITS, Friction, ModelSpec, Sensors
 from gainfarm.schemas.wire import (
     Job,
     JobStatus,
@@ -38,6 +38,47 @@ from gainfarm.schemas.wire import (
 TRACKING_GAINS = PDGains(kp=(2000, 2000, 1200, 1200, 400, 200, 100), kd=(60, 60, 40, 40, 10, 5, 2))
 SOFT_GAINS = PDGains(kp=(200, 200, 120, 120, 40, 20, 10), kd=(20, 20, 12, 12, 4, 2, 1))
 WEAK_GAINS = PDGains(kp=(5,) * 7, kd=(1,) * 7)  # too soft to hold the arm up
+
+
+def maximal_job(number: int = 0) -> Job:
+    """The largest Job's JSON there is: every name and list at its longest, every choice its
+    longest spelling, every number as long as its bounds let it be (a float's repr is 24
+    characters at most, 23 if it may not be negative; tests/schemas/test_wire.py checks that no
+    field is left unbounded)."""
+    tiny, seven = 2.2250738585072014e-308, (2.2250738585072014e-308,) * 7
+    spec = EpisodeSpec(
+        gains=PDGains(kp=seven, kd=seven),
+        trajectory=TrajectorySpec(
+            kind="k" * 32,
+            duration=0.10000000000000002,  # the longest of 0.1 to 120
+            seed=2**63 - 1,
+            center=(-tiny,) * 3,
+            size=tiny,
+            turns=tiny,
+            waypoints=50,
+            twist=tiny,
+            harmonics=10,
+        ),
+        model=ModelSpec(
+            inertials="open",
+            stiffness=seven,
+            spring_damping=seven,
+            rotor_inertia=seven,
+            friction=Friction(viscous=seven, coulomb=seven, smoothing=tiny),
+            delay=50,
+            sensors=Sensors(
+                resolution=tiny,
+                noise=tiny,
+                velocity_window=50,
+                torque_noise=tiny,
+                seed=2**63 - 1,
+            ),
+            substeps=50,
+        ),
+        feedforward="f" * 64,
+        objectives=("o" * 32, "p" * 32),
+    )
+    return Job(job_id=f"{number:064d}", spec=spec, avoid=[f"w{n:063d}" for n in range(64)])
 
 
 # --- the farm: real Zenoh sessions on loopback ----------------------------------------------

@@ -4,10 +4,12 @@ A job names its model by SHA-256 (EpisodeSpec.feedforward), not by path: no shar
 assumed. The first job that needs a model asks the farm for it (the study that submitted the job
 serves it); bytes that do not hash to the job's digest are refused, whoever sent them, so a model
 cannot be swapped on the way. Fetched models are written to the cache directory (whole or not at
-all) and so survive the worker's restarts. No Zenoh here: the caller gives the fetch.
+all) and so survive the worker's restarts, at most DISK_BYTES of them: the least recently used go
+first (a file's mtime is its last use). No Zenoh here: the caller gives the fetch.
 """
 
 import os
+import re
 from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
@@ -16,6 +18,11 @@ from gainfarm.edges.files import write_atomically
 from gainfarm.models.dynamics import BadDynamicsModel, DynamicsModel, digest, feedforward_from_bytes
 
 MEMORY = 8  # models kept decoded: a study uses one, a worker serving a few studies a few
+# Bytes of model files kept on disk: a network is well under 1 MB, the largest file a worker
+# accepts 64 MiB (models.dynamics.MAX_FILE_BYTES); any study may have a worker fetch models, so
+# what they leave on its disk is bounded.
+DISK_BYTES = 512 * 2**20
+_FILE = re.compile(r"[0-9a-f]{64}\.npz")  # the cache's own files: nothing else is removed
 
 
 class ModelUnavailable(ValueError):
@@ -29,8 +36,9 @@ def default_cache() -> Path:
 
 
 class ModelCache:
-    def __init__(self, directory: Path | None = None):
+    def __init__(self, directory: Path | None = None, max_bytes: int = DISK_BYTES):
         self.directory = Path(directory) if directory is not None else default_cache()
+        self.max_bytes = max_bytes
         self.fetched = 0  # models that came over the farm, not from the disk
         self._decoded: OrderedDict[str, DynamicsModel] = OrderedDict()
 
@@ -62,18 +70,41 @@ class ModelCache:
         return model
 
     def _read(self, wanted: str) -> bytes | None:
+        path = self.directory / f"{wanted}.npz"
         try:
-            raw = (self.directory / f"{wanted}.npz").read_bytes()
+            raw = path.read_bytes()
+            os.utime(path)  # used now: the last to go
         except OSError:
             return None
         return raw if digest(raw) == wanted else None  # a corrupted copy is fetched again
 
     def _write(self, wanted: str, raw: bytes) -> None:
+        if len(raw) > self.max_bytes:
+            return  # larger than the whole cache: fetched again after a restart
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
             write_atomically(self.directory / f"{wanted}.npz", raw)
+            self._trim(keep=f"{wanted}.npz")
         except OSError:
             pass  # an unwritable cache costs a fetch per restart, not the job
+
+    def _trim(self, keep: str) -> None:
+        """Remove the least recently used model files until at most max_bytes are left."""
+        files = []
+        for path in self.directory.iterdir():
+            if _FILE.fullmatch(path.name):
+                try:
+                    stat = path.stat()
+                except OSError:
+                    continue  # removed meanwhile (another worker sharing the directory)
+                files.append((stat.st_mtime_ns, path.name, stat.st_size))
+        total = sum(size for _, _, size in files)
+        for _, name, size in sorted(files):  # the oldest use first
+            if total <= self.max_bytes:
+                break
+            if name != keep:
+                (self.directory / name).unlink(missing_ok=True)
+                total -= size
 
     @staticmethod
     def _decode(raw: bytes, name: str) -> DynamicsModel:

@@ -17,7 +17,9 @@ from gainfarm.broker.service import Broker
 from gainfarm.edges.transport import open_session
 from gainfarm.schemas import keys
 from gainfarm.schemas.wire import (
+    MAX_CONFIRM_JOBS,
     MAX_MESSAGE_BYTES,
+    MAX_SUBMISSION_JOBS,
     PROTOCOL_VERSION,
     Accepted,
     BrokerStatus,
@@ -26,11 +28,13 @@ from gainfarm.schemas.wire import (
     LeaseReply,
     LeaseRequest,
     Submission,
+    SubmitReply,
     decode,
 )
 from tests.helpers import (
     ask_for_work,
     hand_in,
+    maximal_job,
     open_studies,
     open_study,
     query,
@@ -227,6 +231,24 @@ def test_jobs_past_a_studys_submission_rate_are_deferred() -> None:
         _s = open_study(session, broker, "s")
         reply = submit(session, "s", {f"j{n}": short_spec() for n in range(4)})
         assert reply.queued == ["j0", "j1"] and reply.deferred == ["j2", "j3"]
+
+
+def test_the_largest_submission_and_confirmation_are_answered_over_the_wire() -> None:
+    """MAX_SUBMISSION_JOBS of the largest Job there is: every one queued, the reply decodes;
+    then a question about MAX_CONFIRM_JOBS of the longest names."""
+    with own_broker(max_queued_per_study=MAX_SUBMISSION_JOBS) as (broker, session):
+        _s = open_study(session, broker, "s")
+        jobs = [maximal_job(n) for n in range(MAX_SUBMISSION_JOBS)]
+        raw = Submission(study="s", jobs=jobs).to_bytes()
+        assert 3_000_000 < len(raw) <= MAX_MESSAGE_BYTES
+        ok, payload = query(session, keys.submit("s"), raw)
+        assert ok, payload
+        reply = decode(SubmitReply, payload)
+        assert reply.queued + reply.deferred == [job.job_id for job in jobs]
+        assert not reply.rejected and len(reply.queued) > 0
+        names = [f"{n:064d}" for n in range(MAX_CONFIRM_JOBS)]
+        assert confirm(session, "s", names) == []  # nothing handed in: asked and answered
+        assert status(session).rejected == 0
 
 
 # --- hand-ins and confirmations ---------------------------------------------------------------

@@ -7,12 +7,16 @@ import io
 import itertools
 import json
 import time
+import tracemalloc
 import zipfile
 from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from numpy.lib import format as npy_format
 
 from gainfarm.models import compile_model
 from gainfarm.models.dynamics import (
@@ -348,3 +352,113 @@ def test_load_names_a_missing_or_bad_file_in_one_line(tmp_path):
     (tmp_path / "bad.npz").write_bytes(b"PK\x03\x04 nonsense")
     with pytest.raises(BadDynamicsModel, match=r"bad\.npz"):
         load(tmp_path / "bad.npz")
+
+
+# --- bytes that lie about their sizes, and any bytes at all ------------------------------------
+
+
+def _npy(header: dict, data: bytes = b"", version: tuple[int, int] = (1, 0)) -> bytes:
+    """A .npy member whose header says what it likes."""
+    buffer = io.BytesIO()
+    write = (
+        npy_format.write_array_header_1_0
+        if version == (1, 0)
+        else npy_format.write_array_header_2_0
+    )
+    write(buffer, {"descr": "<f8", "fortran_order": False, "shape": (1,)} | header)
+    return buffer.getvalue() + data
+
+
+def _archive(members: dict[str, bytes], compression: int = zipfile.ZIP_STORED) -> bytes:
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", compression) as archive:
+        for name, content in members.items():
+            archive.writestr(name, content)
+    return buffer.getvalue()
+
+
+LIARS = {
+    "a terabyte of parameters": (
+        _archive({"parameters.npy": _npy({"shape": (10**12,)})}),
+        "'parameters.npy': its header claims 8,000,000,000,000 bytes of data, more than the "
+        "member's 128",
+    ),
+    "2**62 squared": (
+        _archive({"header.npy": _npy({"shape": (2**62, 2**62), "descr": "|u1"}, b"x" * 64)}),
+        "'header.npy': its header claims 21,267,647,932,558,653,966,460,912,964,485,513,216 bytes",
+    ),
+    "a string of 2 GB": (
+        _archive({"header.npy": _npy({"descr": "<U500000000"})}, zipfile.ZIP_DEFLATED),
+        "'header.npy': its header claims 2,000,000,000 bytes of data",
+    ),
+    "a negative shape": (
+        _archive({"parameters.npy": _npy({"shape": (-1, 3)})}),
+        "'parameters.npy': a negative shape (-1, 3)",
+    ),
+    "an object array": (
+        _archive({"parameters.npy": _npy({"descr": "|O"}, b"\x80")}),
+        "pickled object array: refused",
+    ),
+    "a format 2 header": (
+        _archive({"parameters.npy": _npy({"shape": (10**9,)}, version=(2, 0))}),
+        "its header claims 8,000,000,000 bytes",
+    ),
+    "a format 9 header": (
+        _archive({"parameters.npy": b"\x93NUMPY\x09\x00" + b"\x00" * 64}),
+        "'parameters.npy': .npy format (9, 0) is not read",
+    ),
+    "no header at all": (
+        _archive({"parameters.npy": b"\x93NUMPY\x01\x00\xff\xff{'descr'"}),
+        "'parameters.npy': unreadable (",
+    ),
+    "a name across lines": (
+        _archive({"a\nb.npy": _npy({"shape": (10**6,)})}),
+        "'a\\nb.npy': its header claims 8,000,000 bytes",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", LIARS)
+def test_a_file_lying_about_its_sizes_is_refused_before_anything_is_allocated(case: str) -> None:
+    raw, reason = LIARS[case]
+    assert len(raw) < 400  # the red team's was 192 bytes
+    tracemalloc.start()
+    try:
+        with pytest.raises(BadDynamicsModel) as caught:
+            from_bytes(raw)
+        allocated = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert reason in str(caught.value) and "\n" not in str(caught.value)
+    assert allocated < 2**20
+
+
+def _loads_or_refuses(raw: bytes) -> None:
+    try:
+        from_bytes(raw)
+    except BadDynamicsModel as error:
+        assert str(error) and "\n" not in str(error)
+
+
+@given(raw=st.binary(max_size=4096))
+@settings(max_examples=300, deadline=None)
+def test_any_bytes_are_a_model_or_refused_in_one_line(raw: bytes) -> None:
+    _loads_or_refuses(raw)
+    _loads_or_refuses(b"PK\x03\x04" + raw)  # past the first test of a zip
+
+
+@given(data=st.data())
+@settings(max_examples=300, deadline=None)
+def test_a_real_file_truncated_or_altered_is_a_model_or_refused_in_one_line(data) -> None:
+    honest = data.draw(st.sampled_from([MLP_BYTES, LINEAR_BYTES]))
+    _loads_or_refuses(honest[: data.draw(st.integers(0, len(honest) - 1))])
+    altered = bytearray(honest)
+    for _ in range(data.draw(st.integers(1, 8))):
+        altered[data.draw(st.integers(0, len(honest) - 1))] = data.draw(st.integers(0, 255))
+    _loads_or_refuses(bytes(altered))
+
+
+def test_every_truncation_of_a_real_file_is_refused_in_one_line() -> None:
+    for end in range(len(LINEAR_BYTES)):
+        with pytest.raises(BadDynamicsModel):
+            from_bytes(LINEAR_BYTES[:end])

@@ -1,22 +1,48 @@
 """The wire contract: every message decodes only when it is whole, current and valid."""
 
 import json
+import re
+from dataclasses import fields, replace
 
+import mujoco
+import numpy as np
 import pytest
 
+from gainfarm.models.iiwa14 import FLANGE, compile_model
 from gainfarm.schemas import json_schema
+from gainfarm.schemas.episode import EpisodeSpec, Scores
+from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR, score
+from gainfarm.schemas.robot import IDEAL_PLANT, ModelSpec
+from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import (
+    MAX_CONFIRM_JOBS,
     MAX_MESSAGE_BYTES,
+    MAX_SUBMISSION_JOBS,
+    MAX_TORQUE_CHANGE,
+    MAX_TRACKING_ERROR,
+    MESSAGES,
     PROTOCOL_VERSION,
+    Accepted,
     BadMessage,
+    BrokerStatus,
+    ConfirmReply,
+    ConfirmRequest,
     Job,
+    Lease,
+    LeaseReply,
     LeaseRequest,
+    Rejection,
     Result,
     Submission,
+    SubmitReply,
+    WireScores,
     decode,
     decode_submission,
 )
-from tests.helpers import short_spec
+from gainfarm.worker.episode import run_episode
+from tests.helpers import maximal_job, short_spec
 
 V = PROTOCOL_VERSION
 
@@ -45,7 +71,7 @@ def test_a_message_round_trips() -> None:
         (b'{"worker": "w"}', f"protocol version None is not {V}"),
         (b'{"protocol": 1, "worker": "w"}', f"protocol version 1 is not {V}"),
         (b'{"protocol": 2, "worker": "w"}', f"protocol version 2 is not {V}"),
-        (b'{"protocol": true, "worker": "w"}', f"protocol version True is not {V}"),
+        (b'{"protocol": true, "worker": "w"}', "protocol version True is not an integer"),
         (b'{"protocol": %d}' % V, "worker: Field required"),
         (b'{"protocol": %d, "worker": "a/b"}' % V, "worker: String should match pattern"),
         (
@@ -59,6 +85,80 @@ def test_a_bad_message_is_refused_with_its_reason(raw: bytes | None, reason: str
     with pytest.raises(BadMessage, match=reason) as refused:
         decode(LeaseRequest, raw)
     assert "\n" not in str(refused.value)
+
+
+NOT_INTEGERS = [b"6.0", b"6e0", b"6.000001", b'"6"', b"true", b"[6]", b'{"v": 6}']
+
+
+@pytest.mark.parametrize("kind", MESSAGES, ids=lambda kind: kind.__name__)
+@pytest.mark.parametrize("version", NOT_INTEGERS, ids=lambda raw: raw.decode())
+def test_the_protocol_version_is_an_integer_in_every_message(kind: type, version: bytes) -> None:
+    # Before the schema is checked (the slow path) and after the fast one: both refuse it alike.
+    for raw in (
+        b'{"protocol": %s}' % version,
+        honest_bytes(kind).replace(b'"protocol":6', b'"protocol":' + version),
+    ):
+        assert version in raw
+        with pytest.raises(BadMessage, match=r"protocol version .* is not an integer") as refused:
+            decode(kind, raw)
+        assert str(refused.value).startswith(f"{kind.__name__}: protocol version ")
+        assert "\n" not in str(refused.value)
+
+
+@pytest.mark.parametrize("version", NOT_INTEGERS, ids=lambda raw: raw.decode())
+def test_a_submission_with_a_version_not_an_integer_is_refused_whole(version: bytes) -> None:
+    raw = honest_bytes(Submission).replace(b'"protocol":6', b'"protocol":' + version)
+    with pytest.raises(BadMessage, match=r"^Submission: protocol version .* is not an integer"):
+        decode_submission(raw)
+    nested = Result.model_validate_json(honest_bytes(Result)).model_dump(mode="json")
+    request = {
+        "protocol": V,
+        "worker": "w",
+        "results": [{**nested, "protocol": json.loads(version)}],
+    }
+    with pytest.raises(BadMessage, match=r"results\.0\.protocol: .*is not an integer"):
+        decode(LeaseRequest, json.dumps(request).encode())
+
+
+def honest_bytes(kind: type) -> bytes:
+    """A valid message of `kind`, its version at the front as every sender writes it."""
+    job = Job(job_id="j1", spec=short_spec())
+    examples = {
+        Submission: Submission(study="s", jobs=[job]),
+        SubmitReply: SubmitReply(study="s", queued=["j1"]),
+        LeaseRequest: LeaseRequest(worker="w"),
+        LeaseReply: LeaseReply(leases=[Lease(lease_id="l", study="s", job=job, expires_in=1.0)]),
+        Result: Result(
+            study="s",
+            job_id="j1",
+            lease_id="l",
+            worker="w",
+            status="ok",
+            episode_bytes=0,
+            digest="0" * 64,
+            timings={"simulate_s": 0.1, "encode_s": 0.0},
+            scores=SCORES,
+        ),
+        ConfirmRequest: ConfirmRequest(study="s", job_ids=["j1"]),
+        ConfirmReply: ConfirmReply(study="s"),
+        BrokerStatus: BrokerStatus(
+            uptime_s=1.0,
+            workers=[],
+            studies=[],
+            jobs_done=0,
+            jobs_per_s=0.0,
+            requeued=0,
+            rejected=0,
+        ),
+    }
+    raw = examples[kind].to_bytes()
+    assert raw.startswith(b'{"protocol":6,') and decode(kind, raw) == examples[kind]
+    return raw
+
+
+def test_honest_examples_cover_every_message() -> None:
+    for kind in MESSAGES:
+        honest_bytes(kind)
 
 
 def test_a_submission_is_judged_job_by_job() -> None:
@@ -128,3 +228,190 @@ def test_a_result_names_must_be_key_safe() -> None:
         Result(**{**fields, "digest": "not a sha-256"})
     with pytest.raises(ValueError, match="job_id"):
         Result(**{**fields, "job_id": "j/*"})
+
+
+def result_with_scores(**scores: object) -> bytes:
+    fields = json.loads(honest_bytes(Result))
+    return json.dumps({**fields, "scores": {**SCORES, **scores}}).encode()
+
+
+@pytest.mark.parametrize(
+    ("scores", "reason"),
+    [
+        ({"f_acc": -1e-9}, "scores.f_acc: Input should be greater than or equal to 0"),
+        ({"f_acc": -0.0}, "scores.f_acc: Value error, -0.0 is not a score"),
+        ({"f_acc": 2.5}, "scores.f_acc: Input should be less than or equal to 2"),
+        ({"f_t": -0.5}, "scores.f_t: Input should be greater than or equal to 0"),
+        ({"f_t": 1e300}, "scores.f_t: Input should be less than or equal to 1200000"),
+        ({"max_error": -0.0}, "scores.max_error: Value error, -0.0 is not a score"),
+        ({"max_error": 1e9}, "scores.max_error: Input should be less than or equal to 2"),
+        ({"saturated_fraction": -3}, "scores.saturated_fraction: Input should be greater than"),
+        ({"saturated_fraction": 1.01}, "scores.saturated_fraction: Input should be less than"),
+        ({"ticks": -5}, "scores.ticks: Input should be greater than or equal to 0"),
+        ({"ticks": 60_002}, "scores.ticks: Input should be less than or equal to 60001"),
+        ({"values": [0.1, 1e999]}, "scores.values.1: Input should be a finite number"),
+        ({"values": ["NaN", 0.1]}, "scores.values.0: Input should be a finite number"),
+    ],
+)
+def test_scores_beyond_any_episodes_are_refused(scores: dict, reason: str) -> None:
+    with pytest.raises(BadMessage, match=f"^Result: {re.escape(reason)}") as refused:
+        decode(Result, result_with_scores(**scores))
+    assert "\n" not in str(refused.value)
+    request = json.loads(LeaseRequest(worker="w").to_bytes())
+    request["results"] = [json.loads(result_with_scores(**scores))]
+    with pytest.raises(BadMessage, match=re.escape(f"results.0.{reason}")):
+        decode(LeaseRequest, json.dumps(request).encode())
+
+
+def test_honest_scores_keep_their_json_on_the_wire() -> None:
+    for values in (None, (-3.5, 0.0)):  # a plug-in's objective may be negative
+        scores = Scores(**SCORES, values=values)
+        assert WireScores(**scores.model_dump()).model_dump_json() == scores.model_dump_json()
+    edge = {"f_acc": 0.0, "f_t": 0.0, "max_error": 0.0, "saturated_fraction": 1.0, "ticks": 0}
+    assert decode(Result, result_with_scores(**edge)).scores == WireScores(**{**SCORES, **edge})
+
+
+def test_the_flange_never_strays_as_far_from_its_reference_as_the_bound() -> None:
+    """Every position of the flange is within the links' offsets, added up, of the shoulder (A2,
+    which stays put as A1 turns): no two of them, the arm's and its reference's, are farther
+    apart than twice that."""
+    model = compile_model(ModelSpec())
+    data = mujoco.MjData(model)
+    site, shoulder = model.site(FLANGE), model.body("link2").id
+    reach, body = float(np.linalg.norm(site.pos)), int(site.bodyid[0])
+    while body != shoulder:
+        reach, body = reach + float(np.linalg.norm(model.body_pos[body])), model.body_parentid[body]
+    assert 2 * reach < MAX_TRACKING_ERROR
+    rng = np.random.default_rng(0)
+    origin = None
+    for _ in range(2000):  # anywhere, joint ranges or not: a diverging arm leaves them
+        data.qpos[:] = rng.uniform(-np.pi, np.pi, model.nq)
+        mujoco.mj_kinematics(model, data)
+        origin = data.xpos[shoulder].copy() if origin is None else origin
+        np.testing.assert_allclose(data.xpos[shoulder], origin, atol=1e-12)
+        assert np.linalg.norm(data.site_xpos[site.id] - origin) <= reach + 1e-9
+    assert np.isclose(reach, 0.946)  # the comment at MAX_TRACKING_ERROR says so
+
+
+def test_no_episode_scores_beyond_the_wires_bounds(diverged_log: EpisodeLog) -> None:
+    """The extremes: an arm that falls (diverged), one with no torque at all, gains that
+    saturate every joint, and what no episode can reach: every tick a swing from limit to limit
+    at the far side of the workspace, and an episode cut short before its first tick."""
+    short = TrajectorySpec(duration=3.0)
+    zero = PDGains(kp=(0,) * 7, kd=(0,) * 7)
+    aggressive = PDGains(kp=(1e6,) * 7, kd=(1e4,) * 7)
+    logs = [
+        diverged_log,
+        run_episode(EpisodeSpec(gains=zero, trajectory=short)),
+        run_episode(EpisodeSpec(gains=aggressive, trajectory=short, model=IDEAL_PLANT)),
+    ]
+    assert logs[0].metadata.diverged and logs[1].metadata.diverged
+    assert score(logs[2]).saturated_fraction > 0.5, score(logs[2])
+    limits = np.asarray(diverged_log.metadata.torque_limits)
+    swing = np.where(np.arange(diverged_log.ticks)[:, None] % 2, limits, -limits)
+    far = np.array([0.946, 0.0, 0.36])  # the flange, and its reference across the shoulder
+    worst = replace(
+        diverged_log,
+        u=swing,
+        ee=np.tile(far, (diverged_log.ticks, 1)),
+        ee_des=np.tile(far * [-1, 1, 1], (diverged_log.ticks, 1)),
+    )
+    cut = replace(diverged_log, **{name: column[:0] for name, column in columns(diverged_log)})
+    logs += [worst, cut]
+    for log in logs:
+        scores = score(log)
+        assert WireScores(**scores.model_dump()) == WireScores.model_validate(scores.model_dump())
+    assert score(cut).f_acc == DIVERGED_TICK_ERROR and score(cut).ticks == 0
+    swing_every_tick = sum((2 * limit) ** 2 for limit in limits)
+    assert 0.999 * swing_every_tick < score(worst).f_t <= swing_every_tick < MAX_TORQUE_CHANGE
+    assert score(cut).f_t == swing_every_tick
+    assert score(worst).max_error == pytest.approx(2 * 0.946)
+
+
+def columns(log: EpisodeLog) -> list[tuple[str, np.ndarray]]:
+    return [(f.name, getattr(log, f.name)) for f in fields(log) if f.name != "metadata"]
+
+
+# --- sizes: every message of the bounds fits in MAX_MESSAGE_BYTES -------------------------------
+
+
+def test_no_field_of_a_submission_is_unbounded() -> None:
+    """Every list has a longest, every string a pattern or a length, every integer a maximum:
+    with floats at most 24 characters, a Job has a largest JSON (tests.helpers.maximal_job)."""
+    schema = Submission.model_json_schema()
+    unbounded = []
+
+    def walk(node: object, where: str) -> None:
+        if isinstance(node, dict):
+            kind = node.get("type")
+            if kind == "array" and "maxItems" not in node and "prefixItems" not in node:
+                unbounded.append(where)
+            if kind == "string" and not {"pattern", "maxLength", "enum", "const"} & set(node):
+                unbounded.append(where)
+            if kind == "integer" and not {"maximum", "exclusiveMaximum", "const"} & set(node):
+                unbounded.append(where)
+            for key, value in node.items():
+                walk(value, f"{where}.{key}")
+        elif isinstance(node, list):
+            for index, value in enumerate(node):
+                walk(value, f"{where}[{index}]")
+
+    walk(schema, "Submission")
+    assert unbounded == []
+
+
+def test_the_largest_submission_fits_in_a_message() -> None:
+    job = maximal_job()
+    assert 6000 < len(job.model_dump_json()) < 7000  # the 6.5 kB MAX_SUBMISSION_JOBS is sized by
+    jobs = [maximal_job(n) for n in range(MAX_SUBMISSION_JOBS)]
+    largest = Submission(study="s" * 64, jobs=jobs).to_bytes()
+    assert len(largest) <= MAX_MESSAGE_BYTES
+    assert decode_submission(largest) == ("s" * 64, jobs, [])
+    one_more = largest[:-2] + b"," + job.model_dump_json().encode() + b"]}"
+    assert len(one_more) == len(largest) + len(job.model_dump_json()) + 1
+    reason = f"Submission: jobs: List should have at most {MAX_SUBMISSION_JOBS} items"
+    with pytest.raises(BadMessage, match=f"^{re.escape(reason)}"):
+        decode_submission(one_more)
+    with pytest.raises(BadMessage, match=f"^{re.escape(reason)}"):
+        decode(Submission, one_more)
+
+
+def test_the_reply_to_the_largest_submission_fits_whatever_its_jobs_say() -> None:
+    """Each rejection quotes the job's id only if it is a name, and a reason of 300 characters
+    at most, each escaped to six bytes at worst."""
+    huge = "/" * 8000  # as long as 500 of them can be in a message
+    raw = json.dumps(
+        {"protocol": V, "study": "s", "jobs": [{"job_id": huge}] * MAX_SUBMISSION_JOBS}
+    ).encode()
+    _, jobs, rejected = decode_submission(raw)
+    assert (
+        len(raw) <= MAX_MESSAGE_BYTES
+        and not jobs
+        and [r.job_id for r in rejected[:2]] == ["jobs[0]", "jobs[1]"]
+    )
+    assert "job_id: String should match pattern" in rejected[0].reason
+    worst = SubmitReply(
+        study="s" * 64,
+        rejected=[
+            Rejection(job_id=f"jobs[{n}]", reason="\x01" * 300) for n in range(MAX_SUBMISSION_JOBS)
+        ],
+    )
+    assert len(worst.to_bytes()) <= MAX_MESSAGE_BYTES
+    named = json.dumps({"protocol": V, "study": "s", "jobs": [{"job_id": "j-1"}]}).encode()
+    assert [r.job_id for r in decode_submission(named)[2]] == ["j-1"]
+
+
+def test_the_largest_confirmation_and_its_reply_fit_in_a_message() -> None:
+    names = [f"{n:064d}" for n in range(MAX_CONFIRM_JOBS)]
+    request = ConfirmRequest(study="s" * 64, job_ids=names).to_bytes()
+    assert len(request) <= MAX_MESSAGE_BYTES
+    with pytest.raises(BadMessage, match=f"job_ids: List should have at most {MAX_CONFIRM_JOBS}"):
+        decode(ConfirmRequest, request.replace(b'"]}', b'","' + b"j" * 64 + b'"]}'))
+    tiny = 2.2250738585072014e-308
+    worst = {"f_acc": tiny, "f_t": tiny, "max_error": tiny, "saturated_fraction": tiny}
+    scores = WireScores(**{**SCORES, **worst, "values": (-tiny, -tiny), "ticks": 60_001})
+    accepted = [
+        Accepted(job_id=name, lease_id="l" * 64, worker="w" * 64, digest="f" * 64, scores=scores)
+        for name in names
+    ]
+    assert len(ConfirmReply(study="s" * 64, accepted=accepted).to_bytes()) <= MAX_MESSAGE_BYTES

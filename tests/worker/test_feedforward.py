@@ -1,12 +1,17 @@
 """A learned inverse-dynamics model as the controller's feed-forward: what it buys, and how it
 reaches a worker (by content hash, over the farm, once)."""
 
+import io
+import os
 import subprocess
 import sys
+import zipfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.lib import format as npy_format
 
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.local import local_farm
@@ -89,6 +94,43 @@ def test_the_cache_fetches_once_keeps_the_file_and_refuses_what_does_not_hash(
     forward = to_bytes(rigid_prior(RIGID_IDEAL, target="forward"))
     with pytest.raises(ModelUnavailable, match="inverse"):
         ModelCache(tmp_path / "other").model(digest(forward), lambda _: forward)
+
+
+def test_the_cache_keeps_the_most_recently_used_models_within_its_bound(tmp_path: Path) -> None:
+    files = [to_bytes(replace(rigid_prior(RIGID_IDEAL), about={"n": n})) for n in range(3)]
+    names = [digest(raw) for raw in files]
+    served = dict(zip(names, files, strict=True))
+    cache = ModelCache(tmp_path, max_bytes=int(2.5 * len(files[0])))
+    (tmp_path / "notes.txt").write_bytes(b"x" * len(files[0]))  # not the cache's: left alone
+    for name in names[:2]:
+        cache.model(name, served.get)
+    for age, name in enumerate(names[:2]):  # the first fetched is the least recently used...
+        os.utime(tmp_path / f"{name}.npz", ns=(10**18 + age, 10**18 + age))
+    ModelCache(tmp_path).model(names[0], lambda _: None)  # ...until a restarted worker uses it
+    cache.model(names[2], served.get)
+    on_disk = sorted(path.name for path in tmp_path.iterdir())
+    assert on_disk == sorted(["notes.txt", f"{names[0]}.npz", f"{names[2]}.npz"])
+    small = ModelCache(tmp_path / "small", max_bytes=len(files[0]) - 1)
+    assert small.model(names[1], served.get) is not None  # used, though too large to keep
+    assert not (tmp_path / "small").exists() and small.fetched == 1
+
+
+def test_a_served_model_lying_about_its_size_fails_the_job_not_the_worker(tmp_path: Path) -> None:
+    header = io.BytesIO()
+    npy_format.write_array_header_1_0(
+        header, {"descr": "<f8", "fortran_order": False, "shape": (10**12,)}
+    )
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as archive:
+        archive.writestr("parameters.npy", header.getvalue())
+    liar = buffer.getvalue()
+    with pytest.raises(ModelUnavailable) as refused:
+        ModelCache(tmp_path).model(digest(liar), lambda _: liar)
+    assert str(refused.value) == (
+        f"feed-forward model {digest(liar)[:12]}: 'parameters.npy': its header claims "
+        "8,000,000,000,000 bytes of data, more than the member's 128"
+    )
+    assert list(tmp_path.iterdir()) == []  # refused bytes are not kept
 
 
 @pytest.mark.slow
