@@ -60,8 +60,8 @@ class Check(StrEnum):
     spot_checked = "spot-checked"  # drawn at random as it returned
 
 
-class Verdict(StrEnum):
-    """What the referee's run of an episode said of its worker's."""
+class Ruling(StrEnum):
+    """What the referee's run of an episode says of its worker's."""
 
     agreed = "agreed"  # the same log, bit for bit, and the same scores
     contradicted = "contradicted"  # another log or other scores: the referee's stand
@@ -88,11 +88,11 @@ class Ledger:
 class Validation:
     """The outcome of validating some evaluations: each job's standing evaluation (the original,
     or the referee's where they disagree), the jobs left unsettled (not in `standing`: never
-    to be reported as validated) and the referee's verdict on each job."""
+    to be reported as validated) and the referee's ruling on each job."""
 
     standing: dict[str, EpisodeResult]
     unsettled: set[str] = field(default_factory=set)
-    verdicts: dict[str, Verdict] = field(default_factory=dict)
+    rulings: dict[str, Ruling] = field(default_factory=dict)
 
 
 def spot_checked(key: bytes, job_id: str, rate: float) -> bool:
@@ -132,14 +132,14 @@ def validate(
             why = verdict.reason if verdict is not None else "no result"
             log.error("episode %s could not be refereed (%s): it fails", job_id, why)
             validation.unsettled.add(job_id)
-            validation.verdicts[job_id] = Verdict.unsettled
+            validation.rulings[job_id] = Ruling.unsettled
             del standing[job_id]
             continue
         if check == Check.spot_checked:
             ledger.spot_checked += 1
         else:
             ledger.refereed += 1
-        validation.verdicts[job_id] = _settle(job_id, verdict, standing, ledger, evaluator)
+        validation.rulings[job_id] = _settle(job_id, verdict, standing, ledger, evaluator)
     ledger.unsettled += len(validation.unsettled)
     ledger.seconds += time.monotonic() - started
     return validation
@@ -155,7 +155,7 @@ def _settle(
     standing: dict[str, EpisodeResult],
     ledger: Ledger,
     evaluator: Evaluator,
-) -> Verdict:
+) -> Ruling:
     original = standing[job_id]
     if original.digest == verdict.digest and original.scores == verdict.scores:
         if verdict.log is not None and original.log is None:  # the same bytes: no fetch needed
@@ -163,7 +163,7 @@ def _settle(
             standing[job_id] = dataclasses.replace(original, log=here)
         elif verdict.log is not None:
             verdict.log.unlink(missing_ok=True)
-        return Verdict.agreed
+        return Ruling.agreed
     ledger.disagreements += 1
     what = "a log" if original.digest != verdict.digest else "scores its log does not have"
     if original.worker not in ledger.dissenters:
@@ -182,4 +182,4 @@ def _settle(
     if kept is not None:  # the referee's log where the original's is, or would be, kept
         kept = kept.replace(original.log or kept.with_name(f"{job_id}.mcap"))
     standing[job_id] = dataclasses.replace(verdict, job_id=job_id, log=kept)
-    return Verdict.contradicted
+    return Ruling.contradicted

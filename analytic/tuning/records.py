@@ -105,7 +105,7 @@ class EpisodeCheck:
 
     `check`: "refereed" (the referee, this process, ran it again before the run reported its
     front), "spot-checked" (drawn at random as it returned, and run again), or "not checked".
-    `verdict`: the referee's, "agreed" (the same log bit for bit, the same scores),
+    `ruling`: the referee's, "agreed" (the same log bit for bit, the same scores),
     "contradicted" (the referee's run stands, and the worker is distrusted) or "unsettled" (the
     referee could not run it: the episode counts as failed); for one not checked, why not.
     """
@@ -113,10 +113,10 @@ class EpisodeCheck:
     job_id: str
     worker: str
     check: str
-    verdict: str
+    ruling: str
 
 
-PROVENANCE_FIELDS = ("member", "job_id", "worker", "check", "verdict")
+PROVENANCE_FIELDS = ("member", "job_id", "worker", "check", "ruling")
 
 
 @dataclass(frozen=True)
@@ -349,7 +349,7 @@ def provenance_csv(front: Sequence[FrontMember]) -> bytes:
     return _csv_bytes(
         PROVENANCE_FIELDS,
         (
-            (str(row), episode.job_id, episode.worker, episode.check, episode.verdict)
+            (str(row), episode.job_id, episode.worker, episode.check, episode.ruling)
             for row, member in enumerate(sorted_front(front), start=1)
             for episode in member.episodes
         ),

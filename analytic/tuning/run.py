@@ -131,7 +131,7 @@ class RunState:
     # of those the referee has run again (analytic.evaluators.replication).
     provenance: dict[PDGains, tuple[Ran, ...]] = field(default_factory=dict)
     validated: set[str] = field(default_factory=set)
-    # How each validated episode was checked: job id -> (Check, Verdict, the worker that ran it).
+    # How each validated episode was checked: job id -> (Check, Ruling, the worker that ran it).
     checks: dict[str, tuple[str, str, str]] = field(default_factory=dict)
     ledger: Ledger = field(default_factory=Ledger)  # what validation cost and found
     # The key of the spot checks' draw: never leaves this process, so no worker can tell which
@@ -528,9 +528,9 @@ class TuningRun:
                 )
 
     def _note_checks(self, check: Check, validation: Validation, workers: dict[str, str]) -> None:
-        self.state.validated.update(validation.verdicts)
-        for job_id, verdict in validation.verdicts.items():
-            self.state.checks[job_id] = (check.value, verdict.value, workers[job_id])
+        self.state.validated.update(validation.rulings)
+        for job_id, ruling in validation.rulings.items():
+            self.state.checks[job_id] = (check.value, ruling.value, workers[job_id])
 
     # --- steady state: each candidate told as it returns, a new one asked at once -------------
 
@@ -923,8 +923,8 @@ def _rows(state: RunState) -> list[FrontMember]:
 def _checked(state: RunState, ran: Ran) -> EpisodeCheck:
     """Who ran an episode, and how it was checked (or why it was not)."""
     if ran.job_id in state.checks:
-        check, verdict, worker = state.checks[ran.job_id]
-        return EpisodeCheck(ran.job_id, worker, check, verdict)
+        check, ruling, worker = state.checks[ran.job_id]
+        return EpisodeCheck(ran.job_id, worker, check, ruling)
     if ran.digest is None:
         why = "it did not run"
     else:

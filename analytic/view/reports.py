@@ -351,7 +351,7 @@ def validation_section(validation: ValidationRecord, members: Sequence[FrontMemb
         for row, member in enumerate(members, start=1):
             workers = ", ".join(sorted({e.worker for e in member.episodes})) or "-"
             checks = Counter(
-                f"{e.check}, {e.verdict}" if e.check != "not checked" else e.check
+                f"{e.check}, {e.ruling}" if e.check != "not checked" else e.check
                 for e in member.episodes
             )
             how = "; ".join(f"{count} {check}" for check, count in sorted(checks.items()))

@@ -71,9 +71,9 @@ def assert_calm_front(tuning: TuningRun, calm: TuningRun, rogues: set[str]) -> N
         for episode in member.episodes:
             assert episode.check in {"refereed", "spot-checked"}
             if episode.worker in rogues:  # caught on it: the referee's run stands
-                assert episode.verdict == "contradicted"
+                assert episode.ruling == "contradicted"
             else:
-                assert episode.worker.startswith("h") and episode.verdict == "agreed"
+                assert episode.worker.startswith("h") and episode.ruling == "agreed"
     validation = read_validation(tuning.directory / "front.json")
     assert validation is not None and set(validation.distrusted) == rogues
 

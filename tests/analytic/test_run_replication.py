@@ -329,7 +329,7 @@ def test_the_records_say_who_ran_each_front_episode_and_how_it_was_checked(
     for member in members:
         [episode] = member.episodes  # one trajectory
         assert episode.worker in {"h1", "h2"} and episode.check in {"refereed", "spot-checked"}
-        assert episode.verdict == "agreed"
+        assert episode.ruling == "agreed"
     with (directory / "provenance.csv").open() as file:
         rows = list(csv.DictReader(file))
     assert [row["member"] for row in rows] == [str(i) for i in range(1, len(members) + 1)]
