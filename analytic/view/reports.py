@@ -356,8 +356,8 @@ def validation_section(validation: ValidationRecord, members: Sequence[FrontMemb
             )
             how = "; ".join(f"{count} {check}" for check, count in sorted(checks.items()))
             lines.append(f"| {row} | {workers} | {how} |")
-        lines += ["", f"Each episode: [{PROVENANCE_CSV}]({PROVENANCE_CSV}).", ""]
-    return lines
+        lines += ["", f"Each episode: [{PROVENANCE_CSV}]({PROVENANCE_CSV})."]
+    return lines[:-1] if lines[-1] == "" else lines
 
 
 def plant_text(model: ModelSpec) -> str:
