@@ -403,11 +403,14 @@ class TuningRun:
             for evaluation in evaluator.results() if specs else ():
                 results[evaluation.job_id] = evaluation
                 self._account(evaluation)
+                # As it arrives, while the farm runs the rest; and before anything is told, so
+                # a lie caught now has steered nothing yet.
+                self._spot_check(evaluator, referee, results, evaluation.job_id)
+                if self._nobody_left(evaluator):  # the generation cannot be finished
+                    return
                 on_progress(self._progress(len(results) // len(self.config.trajectories), started))
         finally:  # stopped mid-generation (Ctrl-C): leave nothing queued in the evaluator
             evaluator.cancel([job_id for job_id in specs if job_id not in results])
-        # Checked before they are told: a lie caught now has steered nothing yet.
-        self._spot_check(evaluator, referee, results)
         for gains in candidates:
             if gains not in known:
                 self._record(gains, jobs[gains], results)
@@ -451,6 +454,8 @@ class TuningRun:
             return False
         self.state.stopped = f"no trusted worker left ({', '.join(sorted(distrusted))} lied)"
         log.error("every worker of the farm is distrusted: the run stops")
+        with interrupts_deferred():
+            self._checkpoint()
         return True
 
     def _should_rewind(self, evaluator: Evaluator) -> bool:
@@ -498,17 +503,21 @@ class TuningRun:
             self._checkpoint()
 
     def _spot_check(
-        self, evaluator: Evaluator, referee: Evaluator | None, results: dict[str, EpisodeResult]
+        self,
+        evaluator: Evaluator,
+        referee: Evaluator | None,
+        results: dict[str, EpisodeResult],
+        *job_ids: str,
     ) -> None:
-        """The referee runs again the share of `results` the spot checks draw; each takes the
-        referee's standing evaluation (its own where it contradicts the worker's, a failure
-        where it could not run it)."""
+        """The referee runs again those of `job_ids` the spot checks draw; each takes the
+        referee's standing evaluation in `results` (its own where it contradicts the worker's,
+        a failure where it could not run it)."""
         if referee is None or not self.config.spot_checks:
             return
         drawn = [
-            evaluation
-            for job_id, evaluation in results.items()
-            if evaluation.digest
+            results[job_id]
+            for job_id in job_ids
+            if results[job_id].digest
             and spot_checked(self.state.spot_key, job_id, self.config.spot_checks)
         ]
         if not drawn:
@@ -581,9 +590,7 @@ class TuningRun:
                 if not all(job_id in results for job_id in ids):
                     continue
                 del in_flight[name]
-                own = {job_id: results[job_id] for job_id in ids}
-                self._spot_check(evaluator, referee, own)
-                results.update(own)
+                self._spot_check(evaluator, referee, results, *ids)
                 self._record(gains, ids, results)
                 evolution.tell_one(handle, self._candidate_done(gains))
                 on_progress(self._progress(0, started))

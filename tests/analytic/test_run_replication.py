@@ -144,9 +144,7 @@ def false_members(tuning: TuningRun) -> list[tuple[float, float]]:
 
 
 @pytest.mark.parametrize(
-    "workers",
-    [["h1", "liar", "h2", "h3"], ["h1", "liar"], ["liar"]],
-    ids=["one-of-four", "one-of-two", "alone"],
+    "workers", [["h1", "liar", "h2", "h3"], ["h1", "liar"]], ids=["one-of-four", "one-of-two"]
 )
 def test_a_liar_is_caught_named_and_kept_out_of_the_front(
     tmp_path: Path, workers: list[str]
@@ -345,3 +343,23 @@ def test_the_records_say_who_ran_each_front_episode_and_how_it_was_checked(
     content = json.loads((alone.directory / "front.json").read_bytes())
     assert content["validation"]["unchecked"].startswith("trusted")
     assert {e["check"] for m in content["members"] for e in m["episodes"]} == {"not checked"}
+
+
+def test_a_liar_alone_is_corrected_or_stops_the_run_with_no_false_row(tmp_path: Path) -> None:
+    # Caught on its front only: nobody is left to run its episodes again, so the referee's
+    # runs of the front are all the correction there is.
+    front_only = CONFIG.model_copy(update={"spot_checks": 0.0})
+    checked = run(tmp_path, "front", ToyFarm(["liar"], liars=["liar"]), front_only)
+    assert checked.state.stopped == "4 generations" and checked.state.rewinds == 0
+    assert front(checked) and false_members(checked) == []
+    assert set(checked.replication.dissenters) == {"liar"}
+    # Caught on its first episode: the run stops there and says why.
+    every = CONFIG.model_copy(update={"spot_checks": 1.0})
+    stopped = run(tmp_path, "every", ToyFarm(["liar"], liars=["liar"]), every)
+    assert stopped.state.stopped == "no trusted worker left (liar lied)"
+    assert stopped.front() == [] and stopped.replication.spot_checked == 1
+    from gainfarm.analytic.view.run_report import write_run_report
+
+    write_run_report(stopped)  # a report that says so, with nothing to report
+    report = (stopped.directory / "report.md").read_text()
+    assert "no trusted worker left (liar lied)" in report and "- distrusted: liar" in report
