@@ -591,6 +591,8 @@ class TuningRun:
                     continue
                 del in_flight[name]
                 self._spot_check(evaluator, referee, results, *ids)
+                if self._nobody_left(evaluator):
+                    return
                 self._record(gains, ids, results)
                 evolution.tell_one(handle, self._candidate_done(gains))
                 on_progress(self._progress(0, started))

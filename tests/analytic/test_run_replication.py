@@ -363,3 +363,22 @@ def test_a_liar_alone_is_corrected_or_stops_the_run_with_no_false_row(tmp_path: 
     write_run_report(stopped)  # a report that says so, with nothing to report
     report = (stopped.directory / "report.md").read_text()
     assert "no trusted worker left (liar lied)" in report and "- distrusted: liar" in report
+
+
+def test_a_steady_state_run_distrusts_a_liar_and_reports_no_false_row(tmp_path: Path) -> None:
+    # Its order is the farm's, so it is not replayed: the liar gets no more jobs, and the
+    # front is refereed before it is reported.
+    config = RunConfig(pop=8, evaluations=32, seed=3, asynchronous=True, spot_checks=0.5)
+    farm = ToyFarm(["h1", "liar"], liars=["liar"])
+    checked = run(tmp_path, "async", farm, config)
+    assert checked.state.rewinds == 0 and set(checked.replication.dissenters) == {"liar"}
+    assert front(checked) and false_members(checked) == []
+    # Spot-checked as it returned: from then on the liar ran nothing (its ~16 episodes, each
+    # drawn at 0.5: never drawn with probability 2^-16).
+    checks = checked.state.checks
+    caught = min(
+        number
+        for number, job in enumerate(farm.ran)
+        if checks.get(job, ("", ""))[:2] == ("spot-checked", "contradicted")
+    )
+    assert all(worker == "h1" for worker in list(farm.ran.values())[caught + 1 :])
