@@ -263,8 +263,9 @@ def test_only_the_lease_holder_can_hand_in_a_result(broker: Broker, session: zen
 
     assert broker.queue.jobs_done == 0 and broker.rejected == len(refusals) + 1
     farm = status(session)
-    # The jobs stay leased; the workers count as free, having asked (for no work) since.
-    assert [(study.queued, study.leased, study.done) for study in farm.studies] == [(0, 2, 0)]
+    # Each request handed in nothing of its worker's own: their leases were given back, and the
+    # jobs are queued again (a worker asks only once done with its batch).
+    assert [(study.queued, study.leased, study.done) for study in farm.studies] == [(2, 0, 0)]
     assert confirm(session, "s", ["j1", "j2"]) == []
     verdict = hand_in(session, own)
     assert verdict.accepted, verdict.reason
