@@ -234,8 +234,8 @@ def test_jobs_past_a_studys_submission_rate_are_deferred() -> None:
 
 def test_only_the_lease_holder_can_hand_in_a_result(broker: Broker, session: zenoh.Session) -> None:
     """A result under another worker's lease, under a made-up lease id, under the worker's own
-    lease of another job, or on another worker's key is refused with a reason; the job stays
-    leased to its worker, who can still hand in its own result."""
+    lease of another job, or on another worker's key is refused with a reason; the job's
+    worker can still hand in its own result."""
     _s = open_study(session, broker, "s")
     _tokens = [join(session, broker, worker) for worker in ("w1", "w2")]
     submit(session, "s", {"j1": short_spec(), "j2": short_spec()})
