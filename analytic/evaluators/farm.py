@@ -26,7 +26,9 @@ died in between). So a job whose result has not come SILENT_AFTER seconds after 
 is asked about too, and again after a quarter of its age each time: when the broker took a result
 for it, its record (worker, digest, scores as handed in) is the evaluation, its log left with its
 worker (`fetch` brings it, or simulates it again); a job that wanted its log, or whose record has
-no scores (failed, or refused: the record does not say which, nor why), runs again elsewhere.
+no scores (failed, or refused: the record does not say which, nor why), runs again elsewhere. A
+worker whose result never came gets none of the study's jobs from then on, while another worker
+is there to run them (`unheard_from`).
 """
 
 import hashlib
@@ -80,10 +82,15 @@ ANSWER_SECONDS = 10.0  # how long the broker has to answer a submission or a sta
 RECHECK_SECONDS = 1.0  # how often overdue jobs are looked for, and unconfirmed results asked about
 CONFIRM_BATCH = 1000  # results confirmed in one question to the broker
 # A job with no result this long after its submission is asked about (see the module's doc), then
-# again after SILENT_FRACTION of its age: a result withheld costs at most about that fraction of
-# the wait more, and a deep queue's jobs are not all asked about every second.
+# again after SILENT_FRACTION of its age (at least RECHECK_SECONDS later): a result withheld costs
+# about that fraction of the wait more, and a deep queue's jobs are not all asked about at once:
+# at most SILENT_BATCH of them, those asked about longest ago first, once a RECHECK_SECONDS.
 SILENT_AFTER = 2.0  # s
 SILENT_FRACTION = 0.25
+SILENT_BATCH = 200
+# A result the broker took may be on its way here when the study asks (a log of megabytes takes a
+# while): it gets this long to come before the broker's record stands in for it.
+SILENT_GRACE = 1.0  # s
 
 
 BROKER_BACK = b"\0broker-back"  # inbox markers, never a real attachment (those are JSON)
@@ -157,6 +164,9 @@ class FarmClient:
         self._next_chase = 0.0  # when to look for overdue jobs next
         self._arrived: dict[str, list[_Arrival]] = {}  # by job id, until the broker confirms
         self._distrusted: set[str] = set()
+        self._unheard_from: set[str] = set()
+        # Results the broker took that have not come (yet), and when to stop waiting for them.
+        self._records: dict[str, tuple[Accepted, float]] = {}
         self._inbox: queue.SimpleQueue[tuple[bytes | None, bytes]] = queue.SimpleQueue()
         self.session = open_session("client", connect=connect, identity=identity)
         try:
@@ -227,6 +237,12 @@ class FarmClient:
         """The workers given none of this study's jobs: named by `distrust`, or caught here
         claiming scores their logs do not have."""
         return frozenset(self._distrusted)
+
+    @property
+    def unheard_from(self) -> frozenset[str]:
+        """The workers given none of this study's jobs because a result they handed in to the
+        broker never came here."""
+        return frozenset(self._unheard_from)
 
     def cancel(self, job_ids: Iterable[str]) -> None:
         """Stop waiting for these jobs; a result that still comes for one is counted as a
@@ -438,7 +454,7 @@ class FarmClient:
 
     def _job(self, job_id: str) -> Job:
         pending = self._pending[job_id]
-        avoid = sorted({*pending.avoid, *self._distrusted})
+        avoid = sorted({*pending.avoid, *self._distrusted, *self._unheard_from})
         return Job(job_id=job_id, spec=pending.spec, avoid=avoid, keep_log=pending.keep_log)
 
     def _on_model_query(self, query: zenoh.Query) -> None:
@@ -517,22 +533,32 @@ class FarmClient:
 
     def _ask_unheard(self) -> None:
         """Ask the broker about jobs whose results have not come in a while (those asked about
-        longest ago first, CONFIRM_BATCH at most): each it took a result for is evaluated from
-        its record, not waited for until its deadline."""
+        longest ago first, SILENT_BATCH at most). A result it took for one is held for
+        SILENT_GRACE, in case it is on its way here (a confirmed arrival is the job's
+        evaluation), and then is the job's evaluation (`_from_record`)."""
+        now = time.monotonic()
+        for job_id, (accepted, use_at) in list(self._records.items()):
+            if job_id not in self._pending:
+                del self._records[job_id]
+            elif use_at <= now and job_id not in self._arrived:
+                del self._records[job_id]
+                evaluation = self._from_record(accepted)
+                if evaluation is not None:
+                    self._ready.append(evaluation)
         if self.waiting is not None:  # the broker is not answering: _chase_overdue asks
             return
-        now = time.monotonic()
         due = [
             (pending.ask_at, job_id)
             for job_id, pending in self._pending.items()
-            if pending.ask_at <= now and job_id not in self._arrived
+            if pending.ask_at <= now and job_id not in self._arrived and job_id not in self._records
         ]
         if not due:
             return
-        job_ids = [job_id for _, job_id in sorted(due)[:CONFIRM_BATCH]]
+        job_ids = [job_id for _, job_id in sorted(due)[:SILENT_BATCH]]
         for job_id in job_ids:
             pending = self._pending[job_id]
-            pending.ask_at = now + max(SILENT_AFTER, SILENT_FRACTION * (now - pending.submitted))
+            age = now - pending.submitted
+            pending.ask_at = now + max(RECHECK_SECONDS, SILENT_FRACTION * age)
         request = ConfirmRequest(study=self.study, job_ids=job_ids)
         answer = ask(self.session, keys.confirm(self.study), request.to_bytes(), ANSWER_SECONDS)
         if answer is None:
@@ -547,10 +573,8 @@ class FarmClient:
             return
         asked = set(job_ids)
         for accepted in reply.accepted:
-            if accepted.job_id in asked and accepted.job_id in self._pending:
-                evaluation = self._from_record(accepted)
-                if evaluation is not None:
-                    self._ready.append(evaluation)
+            if accepted.job_id in asked:
+                self._records[accepted.job_id] = (accepted, now + SILENT_GRACE)
 
     def _from_record(self, accepted: Accepted) -> EpisodeResult | None:
         """The evaluation of a job whose result the broker took but its worker never sent: the
@@ -559,6 +583,7 @@ class FarmClient:
         self.unheard += 1
         pending = self._pending[accepted.job_id]
         if accepted.scores is None or pending.keep_log:
+            self._leave_out(accepted.worker)
             pending.avoid = tuple(sorted({*pending.avoid, accepted.worker}))
             what = "its log" if accepted.scores is not None else "why it did not run"
             reason = f"its result never came, and the broker's record lacks {what}"
@@ -568,6 +593,7 @@ class FarmClient:
             accepted.job_id,
             accepted.worker,
         )
+        self._leave_out(accepted.worker)
         del self._pending[accepted.job_id]
         scores = Scores.model_validate(accepted.scores.model_dump())
         return EpisodeResult(
@@ -582,6 +608,19 @@ class FarmClient:
             timings=None,
             digest=accepted.digest,
         )
+
+    def _leave_out(self, worker: str) -> None:
+        """Give `worker`, whose result never came, none of this study's jobs from now on: unless
+        it is the last worker left to run them (its result may only have been late)."""
+        if worker in self._unheard_from:
+            return
+        try:
+            connected = self.status().worker_count
+        except (BrokerUnavailable, BadMessage):
+            return
+        if connected > len(self._distrusted | self._unheard_from | {worker}):
+            self._unheard_from.add(worker)
+            log.warning("%s gets no more of this study's jobs: its results do not come", worker)
 
     def _arrive(self, attachment: bytes | None, content: bytes) -> None:
         """Check a result as it arrives; keep it for the broker to confirm."""
@@ -621,7 +660,8 @@ class FarmClient:
         taken = {accepted.job_id: accepted for accepted in reply.accepted}
         for job_id in job_ids:
             arrivals = self._arrived.pop(job_id)
-            accepted = taken.get(job_id)
+            held = self._records.pop(job_id, None)  # the broker told it already, and forgot it
+            accepted = taken.get(job_id) or (held[0] if held else None)
             confirmed = [a for a in arrivals if accepted and _matches(a.result, accepted)]
             for arrival in arrivals:
                 if not confirmed or arrival is not confirmed[0]:
