@@ -128,7 +128,7 @@ class _Worker:
     leases: dict[str, _Lease] = field(default_factory=dict)  # its current batch, by lease id
     jobs_done: int = 0
     alive: bool = False  # its liveliness token stands
-    paused_until: float = 0.0  # no new lease before: it asked again without handing its in
+    paused_until: float = 0.0  # no new lease before: it asked again without handing its leases in
     abandons: int = 0  # times it did, since it last handed a result in
 
 
@@ -422,7 +422,8 @@ class LeaseQueue(Generic[W]):
 
     def expire(self) -> list[Assignment[W]]:
         """Take back every lease past its expiry. Also hands parked workers what has become
-        leasable since (e.g. a study below its uncollected cap again after it collected)."""
+        leasable since (e.g. a study below its uncollected cap again after it collected, a job a
+        worker gave back, or a copy of an overdue job), and those whose pause is over."""
         now = self._clock()
         for study in list(self._studies.values()):
             expired = [lease for lease in study.leased.values() if lease.expires <= now]
