@@ -660,9 +660,11 @@ class FarmClient:
         taken = {accepted.job_id: accepted for accepted in reply.accepted}
         for job_id in job_ids:
             arrivals = self._arrived.pop(job_id)
-            held = self._records.pop(job_id, None)  # the broker told it already, and forgot it
+            held = self._records.get(job_id)  # the broker told it already, and forgot it
             accepted = taken.get(job_id) or (held[0] if held else None)
             confirmed = [a for a in arrivals if accepted and _matches(a.result, accepted)]
+            if confirmed:
+                self._records.pop(job_id, None)
             for arrival in arrivals:
                 if not confirmed or arrival is not confirmed[0]:
                     self.unconfirmed += 1

@@ -16,10 +16,10 @@ from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.local import free_port, spawn_worker, stop_workers
 from gainfarm.broker.service import Broker
 from gainfarm.schemas import keys
-from gainfarm.schemas.episode import Scores
+from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.mcap_episode import decode_episode
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.wire import WireScores
+from gainfarm.schemas.wire import Result, WireScores
 from tests.helpers import (
     HAND_MADE_SCORES,
     ask_for_work,
@@ -48,6 +48,23 @@ def run_silently(session: zenoh.Session, job_id: str, worker: str = "quiet") -> 
         "s", job_id, worker=worker, lease_id=lease.lease_id, episode_bytes=100, digest=DIGEST
     )
     assert hand_in(session, silent).accepted
+
+
+def honest_result(
+    spec: EpisodeSpec, job_id: str, worker: str, lease_id: str
+) -> tuple[Result, bytes]:
+    """A well-made log of `spec`, and the Result that tells it truly."""
+    content = perfect_log(spec)
+    result = result_for(
+        "s",
+        job_id,
+        worker=worker,
+        lease_id=lease_id,
+        episode_bytes=len(content),
+        digest=hashlib.sha256(content).hexdigest(),
+        scores=WireScores(**score(decode_episode(content)).model_dump()),
+    )
+    return result, content
 
 
 # --- the silent holder, played by hand ---------------------------------------------------------
@@ -100,22 +117,33 @@ def test_a_job_that_wanted_its_log_runs_again_elsewhere_when_its_result_never_co
         assert ask_for_work(session, "quiet") is None
         lease = ask_for_work(session, "other")
         assert lease is not None and lease.job.avoid == ["quiet"]
-        content = perfect_log(spec)
-        scores = WireScores(**score(decode_episode(content)).model_dump())
-        result = result_for(
-            "s",
-            "j",
-            worker="other",
-            lease_id=lease.lease_id,
-            episode_bytes=len(content),
-            digest=hashlib.sha256(content).hexdigest(),
-            scores=scores,
-        )
+        result, content = honest_result(spec, "j", "other", lease.lease_id)
         assert hand_in(session, result).accepted
         session.put(keys.result("s", "j"), content, attachment=result.to_bytes())
         [evaluation] = list(farm.results(timeout=10))
     assert (evaluation.worker, evaluation.attempts) == ("other", 2)
     assert evaluation.log == tmp_path / "episodes" / "j.mcap" and evaluation.log.is_file()
+
+
+def test_a_result_on_its_way_when_the_broker_is_asked_is_still_the_job_s(
+    broker: Broker, session: zenoh.Session, tmp_path: Path
+) -> None:
+    _tokens = join(session, broker, "slow", "other")
+    spec = short_spec()
+    with FarmClient(broker.endpoints, "s", tmp_path) as farm:
+        farm.submit({"j": spec})
+        lease = ask_for_work(session, "slow")
+        assert lease is not None
+        result, content = honest_result(spec, "j", "slow", lease.lease_id)
+        assert hand_in(session, result).accepted
+        # The client asks about the job (the broker then forgets its record) before it comes.
+        while broker.queue.collect("s", None, 0)[0]:  # reading, not collecting: forgets nothing
+            assert list(farm.results(timeout=0.2)) == []
+        session.put(keys.result("s", "j"), content, attachment=result.to_bytes())
+        [evaluation] = list(farm.results(timeout=10))
+        assert (evaluation.worker, evaluation.attempts) == ("slow", 1)
+        assert evaluation.log is not None and evaluation.log.is_file()
+        assert farm.unheard == 0 and farm.unheard_from == frozenset()
 
 
 # --- rogue worker processes on a real farm -----------------------------------------------------
