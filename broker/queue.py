@@ -1,15 +1,15 @@
 """The broker's scheduler, as plain Python: jobs in, leases out, no Zenoh and no threads.
 
 Studies queue jobs; free workers ask for a batch of work and are handed leases, or wait ("park")
-until a job arrives. One lease per job at a time; a lease expires; a lost worker's leases go back
-to the front of their queues. A worker gets at most its fair share of what is queued at once, so
-a shallow queue is spread over the free workers rather than taken by the first to ask. A result
-completes its job only when handed in by the worker the lease named, with the lease's id (random,
-known to that worker alone); the first such result is the job's accepted one, and every later one
-is a duplicate (but the same hand-in again is taken as it was: a worker retries one whose answer
-it lost). Among the studies with queued jobs, the next lease goes to the one with the fewest jobs
-running, ties to the one served least recently: several studies share the workers evenly. A job
-may name workers to avoid (a replica must run elsewhere).
+until a job arrives. One lease per job at a time (but for a copy of an overdue one, below); a lease
+expires; a lost worker's leases go back to the front of their queues. A worker gets at most its fair
+share of what is queued at once, so a shallow queue is spread over the free workers rather than
+taken by the first to ask. A result completes its job only when handed in by the worker a lease of
+it named, with the lease's id (random, known to that worker alone); the first such result is the
+job's accepted one, and every later one is a duplicate (but the same hand-in again is taken as it
+was: a worker retries one whose answer it lost). Among the studies with queued jobs, the next lease
+goes to the one with the fewest jobs running, ties to the one served least recently: several studies
+share the workers evenly. A job may name workers to avoid (a replica must run elsewhere).
 
 A worker holds at most the batch it was last given. It asks only once done with its batch, handing
 in its results with the request; a lease it does not hand in then is one it is not running (its
