@@ -1,15 +1,24 @@
 """The broker's scheduler, as plain Python: jobs in, leases out, no Zenoh and no threads.
 
 Studies queue jobs; free workers ask for a batch of work and are handed leases, or wait ("park")
-until a job arrives. One lease per job at a time; a lease expires; a lost worker's leases go back
-to the front of their queues. A worker gets at most its fair share of what is queued at once, so
-a shallow queue is spread over the free workers rather than taken by the first to ask. A result
-completes its job only when handed in by the worker the lease named, with the lease's id (random,
-known to that worker alone); the first such result is the job's accepted one, and every later one
-is a duplicate (but the same hand-in again is taken as it was: a worker retries one whose answer
-it lost). Among the studies with queued jobs, the next lease goes to the one with the fewest jobs
-running, ties to the one served least recently: several studies share the workers evenly. A job
-may name workers to avoid (a replica must run elsewhere).
+until a job arrives. One lease per job at a time (but for a copy of an overdue one, below); a lease
+expires; a lost worker's leases go back to the front of their queues. A worker gets at most its fair
+share of what is queued at once, so a shallow queue is spread over the free workers rather than
+taken by the first to ask. A result completes its job only when handed in by the worker a lease of
+it named, with the lease's id (random, known to that worker alone); the first such result is the
+job's accepted one, and every later one is a duplicate (but the same hand-in again is taken as it
+was: a worker retries one whose answer it lost). Among the studies with queued jobs, the next lease
+goes to the one with the fewest jobs running, ties to the one served least recently: several studies
+share the workers evenly. A job may name workers to avoid (a replica must run elsewhere).
+
+A worker holds at most the batch it was last given. It asks only once done with its batch, handing
+in its results with the request; a lease it does not hand in then is one it is not running (its
+answer was lost, or it hoards): the job goes back to the front of its queue at once, and the
+worker gets no new lease for a pause that doubles with each time it does so again (until it hands
+a result in). A lease held much longer than its study's leases usually take (a holder that never
+asks again, or a straggler) is overdue: a worker with nothing queued to run gets a copy of its job
+under a lease of its own, and the first result handed in under any of the job's leases is its
+result (the classic backup task).
 
 Accepted results wait, in the order they were taken, for their study to confirm them by job id
 or to collect them by serial: a study pages through them with a cursor, and what it has collected
@@ -29,6 +38,7 @@ worker return the Assignments for the caller to deliver.
 import heapq
 import math
 import secrets
+import statistics
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable, Iterable
@@ -57,6 +67,17 @@ MAX_LISTED = 200  # workers and studies a status lists by name: it must stay a s
 DEFAULT_MAX_QUEUED = 100_000  # jobs, all studies together (~3 kB each: ~300 MB at most)
 DEFAULT_MAX_QUEUED_PER_STUDY = 20_000
 RATE_BURST_SECONDS = 10.0  # a rate limit lets this many seconds' worth of jobs through at once
+# A worker asking again without handing in its leases gets none for this long, twice as long each
+# time it does so again, at most MAX_ABANDON_PAUSE: an honest one does so only when an answer with
+# leases was lost (one short pause), a hoarder over and over (it is soon left out).
+ABANDON_PAUSE = 2.0  # s
+MAX_ABANDON_PAUSE = 300.0  # s
+# A lease is overdue once held SPECULATE_FACTOR times the median of its study's last
+# TURNAROUND_WINDOW turnarounds (lease to accepted hand-in; the median: a few slow or late holders
+# cannot move it), and at least SPECULATE_MIN: then an idle worker may run a copy of its job.
+SPECULATE_FACTOR = 3.0
+SPECULATE_MIN = 1.0  # s
+TURNAROUND_WINDOW = 64
 # Accepted records one collect returns (~200 B each): a reply stays far below the message limit.
 DEFAULT_COLLECT_LIMIT = 1000
 
@@ -69,7 +90,7 @@ class UnknownStudy(KeyError):
 class _Queued:
     study: str
     job: Job
-    leases: dict[str, str] = field(default_factory=dict)  # every lease id it had → its worker
+    leases: "dict[str, _Lease]" = field(default_factory=dict)  # every lease it had, by id
 
 
 @dataclass
@@ -78,6 +99,7 @@ class _Lease:
     worker: str
     item: _Queued
     expires: float
+    granted: float
 
 
 @dataclass
@@ -85,7 +107,8 @@ class _Study:
     name: str
     queue: deque[_Queued] = field(default_factory=deque)
     queued_ids: set[str] = field(default_factory=set)
-    leased: dict[str, _Lease] = field(default_factory=dict)  # by job id
+    # Each running job's newest lease, by job id, in the order granted (oldest first).
+    leased: dict[str, _Lease] = field(default_factory=dict)
     # Results taken and not yet confirmed or collected, by serial: the order they were taken in,
     # which is the order a collecting study pages through them.
     accepted: OrderedDict[int, Accepted] = field(default_factory=OrderedDict)
@@ -95,6 +118,8 @@ class _Study:
     last_served: int = 0
     allowance: float = 0.0  # jobs it may still submit now, under a rate limit
     allowance_at: float = 0.0
+    # Seconds from lease to accepted hand-in of its latest results: what "overdue" is measured by.
+    turnarounds: deque[float] = field(default_factory=lambda: deque(maxlen=TURNAROUND_WINDOW))
 
 
 @dataclass
@@ -103,6 +128,8 @@ class _Worker:
     leases: dict[str, _Lease] = field(default_factory=dict)  # its current batch, by lease id
     jobs_done: int = 0
     alive: bool = False  # its liveliness token stands
+    paused_until: float = 0.0  # no new lease before: it asked again without handing its leases in
+    abandons: int = 0  # times it did, since it last handed a result in
 
 
 @dataclass
@@ -164,6 +191,8 @@ class LeaseQueue(Generic[W]):
         self._completions: deque[float] = deque()
         self.jobs_done = 0
         self.requeued = 0
+        self.abandoned = 0  # leases their workers asked past without handing them in
+        self.copies = 0  # leases of a job already leased to another worker, overdue
 
     # --- studies ---------------------------------------------------------------------------
 
@@ -179,8 +208,8 @@ class LeaseQueue(Generic[W]):
         study = self._studies.pop(name, None)
         if study is None:
             return 0
-        for lease in study.leased.values():
-            self._release(lease)
+        for item in [lease.item for lease in study.leased.values()] + list(study.queue):
+            self._release_all(item)
         self._queued_total -= len(study.queue)
         return len(study.queue)
 
@@ -256,17 +285,17 @@ class LeaseQueue(Generic[W]):
             return f"job {job_id!r} is done already"
         else:  # never submitted, or done and confirmed or collected
             return f"no job {job_id!r} waits for a result in study {study_name!r}"
-        holder = item.leases.get(lease_id)
-        if holder is None:
+        handed = item.leases.get(lease_id)
+        if handed is None:
             return f"lease {lease_id!r} is not one of job {job_id!r}'s"
-        if holder != worker_name:
+        if handed.worker != worker_name:
             return f"lease {lease_id!r} was handed to another worker"
+        now = self._clock()
+        # Every holder of the job is freed: one running a copy hands its result in with its next
+        # request, to be refused as a duplicate, and has abandoned nothing.
+        self._release_all(item)
         if lease is not None:
             del study.leased[job_id]
-            # If the job was leased again, its new worker is busy with it (or, if that is this
-            # same worker, will be refused its second result): it is freed when it next asks.
-            if lease.worker == worker_name:
-                self._release(lease)
         else:
             study.queue.remove(item)
             study.queued_ids.discard(job_id)
@@ -278,11 +307,12 @@ class LeaseQueue(Generic[W]):
             ),
         )
         study.done += 1
+        study.turnarounds.append(now - handed.granted)
         sender = self._workers.get(worker_name)
         if sender is not None:
             sender.jobs_done += 1
+            sender.abandons = 0
         self.jobs_done += 1
-        now = self._clock()
         self._completions.append(now)
         while self._completions[0] < now - THROUGHPUT_WINDOW:
             self._completions.popleft()
@@ -335,16 +365,27 @@ class LeaseQueue(Generic[W]):
         self, worker_name: str, waiter: W, want: int = 1, wait: bool = True
     ) -> tuple[list[Lease], W | None]:
         """A worker is free and asks for up to `want` jobs: leases now (at most its fair share
-        of what is queued), or none and the waiter is parked (unless it wants none, or not to
-        `wait`: e.g. it handed results in, whose verdicts it needs now).
+        of what is queued; a copy of an overdue job if nothing queued is for it), or none and
+        the waiter is parked (unless it wants none, or not to `wait`: e.g. it handed results
+        in, whose verdicts it needs now).
 
         The second value is a waiter this one replaces (the same worker asked again), to be
-        answered with "no work". A worker asks only when done with its batch; but its results
-        may still be on their way (they travel on another key, and Zenoh does not order the
-        two), so its leases stand until their results or their expiry.
+        answered with "no work". A worker asks only when done with its batch, its results
+        handed in (`complete`) just before: the leases it still holds it is not running. Their
+        jobs go back to the front of their queues (a late result under them still counts), and
+        the worker is paused (`ABANDON_PAUSE`, doubled each time again); the expiry's
+        `_wake_parked` hands the jobs on.
         """
         worker = self._workers.setdefault(worker_name, _Worker(worker_name))
-        worker.leases.clear()
+        if worker.leases:
+            abandoned = list(worker.leases.values())
+            worker.leases.clear()
+            for lease in reversed(abandoned):  # each to the front: the first ends up first
+                self._requeue(lease)
+            self.abandoned += len(abandoned)
+            pause = min(ABANDON_PAUSE * 2**worker.abandons, MAX_ABANDON_PAUSE)
+            worker.abandons += 1
+            worker.paused_until = self._clock() + pause
         replaced = self._parked.pop(worker_name, None)
         leases = self._grant(worker, min(want, self._fair_share()) if want > 1 else want)
         if not leases and want > 0 and wait:
@@ -381,7 +422,8 @@ class LeaseQueue(Generic[W]):
 
     def expire(self) -> list[Assignment[W]]:
         """Take back every lease past its expiry. Also hands parked workers what has become
-        leasable since (e.g. a study below its uncollected cap again after it collected)."""
+        leasable since (e.g. a study below its uncollected cap again after it collected, a job a
+        worker gave back, or a copy of an overdue job), and those whose pause is over."""
         now = self._clock()
         for study in list(self._studies.values()):
             expired = [lease for lease in study.leased.values() if lease.expires <= now]
@@ -447,15 +489,52 @@ class LeaseQueue(Generic[W]):
         ready = sum(1 for w in self._workers.values() if w.alive or w.name in self._parked)
         return max(1, math.ceil(self._queued_total / max(1, ready)))
 
-    def _grant(self, worker: _Worker, count: int) -> list[Lease]:
-        """Up to `count` leases, each to the study whose turn it is."""
+    def _grant(
+        self, worker: _Worker, count: int, overdue: "list[_Lease] | None" = None
+    ) -> list[Lease]:
+        """Up to `count` leases, each to the study whose turn it is; if nothing queued is for
+        this worker, copies of overdue jobs (`overdue`: as `_overdue` finds them, if known)."""
+        if count <= 0 or self._clock() < worker.paused_until:
+            return []
         leases: list[Lease] = []
         while len(leases) < count:
             lease = self._next_lease(worker)
             if lease is None:
                 break
             leases.append(lease)
+        if not leases:
+            for late in self._overdue() if overdue is None else overdue:
+                item = late.item
+                study = self._studies.get(item.study)
+                if (
+                    study is None
+                    or study.leased.get(item.job.job_id) is not late  # copied already
+                    or worker.name in item.job.avoid
+                    or any(held.worker == worker.name for held in item.leases.values())
+                ):
+                    continue
+                del study.leased[item.job.job_id]  # the copy's lease is the newest
+                leases.append(self._lease(study, item, worker))
+                self.copies += 1
+                if len(leases) == count:
+                    break
         return leases
+
+    def _overdue(self) -> "list[_Lease]":
+        """Every running job's newest lease held past its study's overdue time, oldest first."""
+        now = self._clock()
+        cap = self.max_uncollected_per_study
+        late: list[_Lease] = []
+        for study in self._studies.values():
+            if not study.turnarounds or (cap is not None and len(study.accepted) >= cap):
+                continue  # nothing known yet of how long its leases take
+            limit = max(SPECULATE_MIN, SPECULATE_FACTOR * statistics.median(study.turnarounds))
+            for lease in study.leased.values():
+                if now - lease.granted < limit:
+                    break  # in the order granted: the rest are newer
+                late.append(lease)
+        late.sort(key=lambda lease: lease.granted)
+        return late
 
     def _next_lease(self, worker: _Worker) -> Lease | None:
         cap = self.max_uncollected_per_study
@@ -474,12 +553,17 @@ class LeaseQueue(Generic[W]):
         study.queue.remove(item)  # the first, unless the first avoids this worker
         study.queued_ids.discard(item.job.job_id)
         self._queued_total -= 1
+        return self._lease(study, item, worker)
+
+    def _lease(self, study: _Study, item: _Queued, worker: _Worker) -> Lease:
+        """Lease `item` (no longer queued, nor leased in `study.leased`) to `worker`."""
         self._serial += 1
         study.last_served = self._serial
         # Random: a result counts only under its lease's id, which only this worker learns.
         lease_id = secrets.token_urlsafe(16)
-        item.leases[lease_id] = worker.name
-        lease = _Lease(lease_id, worker.name, item, self._clock() + self.lease_seconds)
+        now = self._clock()
+        lease = _Lease(lease_id, worker.name, item, now + self.lease_seconds, granted=now)
+        item.leases[lease_id] = lease
         study.leased[item.job.job_id] = lease
         worker.leases[lease_id] = lease
         # The job was validated when it was submitted; skip validating it again on the hot path.
@@ -494,15 +578,18 @@ class LeaseQueue(Generic[W]):
         # The share is taken once, of the queue as it stands: each parked worker then gets the
         # same, where a share taken anew after each batch would shrink for the later ones.
         share: int | None = None  # only counted if a batch needs it: it takes a pass
+        overdue: list[_Lease] | None = None  # likewise; found once for every parked worker
         for worker_name, parked in list(self._parked.items()):
             if not self._queued_total:
-                break
+                overdue = self._overdue() if overdue is None else overdue
+                if not overdue:
+                    break
             count = parked.want
             if count > 1:
                 share = self._fair_share() if share is None else share
                 count = min(count, share)
             worker = self._workers.setdefault(worker_name, _Worker(worker_name))
-            leases = self._grant(worker, count)
+            leases = self._grant(worker, count, overdue)
             if leases:
                 del self._parked[worker_name]
                 assignments.append(Assignment(parked.waiter, leases))
@@ -530,6 +617,11 @@ class LeaseQueue(Generic[W]):
         if worker is not None and worker.leases.get(lease.lease_id) is lease:
             del worker.leases[lease.lease_id]
             self._forget_if_idle(worker)
+
+    def _release_all(self, item: _Queued) -> None:
+        """Free every worker still holding one of the job's leases."""
+        for lease in item.leases.values():
+            self._release(lease)
 
     def _forget_if_idle(self, worker: _Worker) -> None:
         """A worker with no token, lease or parked request is forgotten: made-up names asking

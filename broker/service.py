@@ -200,9 +200,18 @@ class Broker:
                     )
                 )
             wait = not request.results
+            abandoned = self.queue.abandoned
             leases, replaced = self.queue.request(request.worker, query, request.want, wait)
+            abandoned = self.queue.abandoned - abandoned
             if not leases and wait and request.want > 0:
                 self._held.append((time.monotonic() + self.hold_seconds, request.worker, query))
+        if abandoned:  # a hoarder, or an answer with leases lost on its way
+            log.warning(
+                "worker %s asked again without handing in %d leases: their jobs are queued "
+                "again, and it gets none for a while",
+                request.worker,
+                abandoned,
+            )
         if replaced is not None:
             _answer(replaced, LeaseReply())
         if leases or not wait or request.want == 0:

@@ -20,6 +20,15 @@ holds the job's lease alone, and tells the study which one it took (lease, worke
 SHA-256 and the scores). Anyone else's result for the job, however well made, is ignored, and so
 is any answer that does not come from the broker. A broker that does not answer costs no job an
 attempt: the client waits for it, and says so (`waiting`).
+
+A worker may hand a result in to the broker and never send it here (a silent holder, or one that
+died in between). So a job whose result has not come SILENT_AFTER seconds after it was submitted
+is asked about too, and again after a quarter of its age each time: when the broker took a result
+for it, its record (worker, digest, scores as handed in) is the evaluation, its log left with its
+worker (`fetch` brings it, or simulates it again); a job that wanted its log, or whose record has
+no scores (failed, or refused: the record does not say which, nor why), runs again elsewhere. A
+worker whose result never came gets none of the study's jobs from then on, while another worker
+is there to run them (`unheard_from`).
 """
 
 import hashlib
@@ -72,6 +81,16 @@ SUBMIT_CHUNK = 100  # jobs per Submission: the broker parses each in one go, hol
 ANSWER_SECONDS = 10.0  # how long the broker has to answer a submission or a status query
 RECHECK_SECONDS = 1.0  # how often overdue jobs are looked for, and unconfirmed results asked about
 CONFIRM_BATCH = 1000  # results confirmed in one question to the broker
+# A job with no result this long after its submission is asked about (see the module's doc), then
+# again after SILENT_FRACTION of its age (at least RECHECK_SECONDS later): a result withheld costs
+# about that fraction of the wait more, and a deep queue's jobs are not all asked about at once:
+# at most SILENT_BATCH of them, those asked about longest ago first, once a RECHECK_SECONDS.
+SILENT_AFTER = 2.0  # s
+SILENT_FRACTION = 0.25
+SILENT_BATCH = 200
+# A result the broker took may be on its way here when the study asks (a log of megabytes takes a
+# while): it gets this long to come before the broker's record stands in for it.
+SILENT_GRACE = 1.0  # s
 
 
 BROKER_BACK = b"\0broker-back"  # inbox markers, never a real attachment (those are JSON)
@@ -89,6 +108,8 @@ class _Pending:
     attempts: int = 1
     avoid: tuple[str, ...] = ()  # workers that may not run it
     keep_log: bool = True  # its log comes with its result; else its worker keeps it
+    submitted: float = 0.0  # monotonic time of its first submission
+    ask_at: float = 0.0  # when to ask the broker about it if no result has come (SILENT_AFTER)
 
 
 @dataclass(frozen=True)
@@ -134,6 +155,7 @@ class FarmClient:
         self.duplicates = 0
         self.ignored = 0
         self.unconfirmed = 0  # results the broker did not take: forged, or from a stale lease
+        self.unheard = 0  # results the broker took that never came: taken from its record
         self.waiting: str | None = None  # why the client is waiting for the broker, if it is
         # Told each time `waiting` changes (a progress line says so); the reason, or None.
         self.on_wait: Callable[[str | None], None] = lambda why: None
@@ -142,6 +164,9 @@ class FarmClient:
         self._next_chase = 0.0  # when to look for overdue jobs next
         self._arrived: dict[str, list[_Arrival]] = {}  # by job id, until the broker confirms
         self._distrusted: set[str] = set()
+        self._unheard_from: set[str] = set()
+        # Results the broker took that have not come (yet), and when to stop waiting for them.
+        self._records: dict[str, tuple[Accepted, float]] = {}
         self._inbox: queue.SimpleQueue[tuple[bytes | None, bytes]] = queue.SimpleQueue()
         self.session = open_session("client", connect=connect, identity=identity)
         try:
@@ -191,10 +216,15 @@ class FarmClient:
         if unserved:
             raise ValueError(f"jobs name feed-forward models not served: {sorted(unserved)}")
         avoid = avoid or {}
-        expiry = time.monotonic() + self.deadline
+        now = time.monotonic()
         for job_id, spec in specs.items():
             self._pending[job_id] = _Pending(
-                spec, expiry, avoid=tuple(avoid.get(job_id, ())), keep_log=keep
+                spec,
+                now + self.deadline,
+                avoid=tuple(avoid.get(job_id, ())),
+                keep_log=keep,
+                submitted=now,
+                ask_at=now + SILENT_AFTER,
             )
         self._send([self._job(job_id) for job_id in specs])
 
@@ -207,6 +237,12 @@ class FarmClient:
         """The workers given none of this study's jobs: named by `distrust`, or caught here
         claiming scores their logs do not have."""
         return frozenset(self._distrusted)
+
+    @property
+    def unheard_from(self) -> frozenset[str]:
+        """The workers given none of this study's jobs because a result they handed in to the
+        broker never came here."""
+        return frozenset(self._unheard_from)
 
     def cancel(self, job_ids: Iterable[str]) -> None:
         """Stop waiting for these jobs; a result that still comes for one is counted as a
@@ -245,6 +281,7 @@ class FarmClient:
             # and O(pending), so at most once a RECHECK_SECONDS however fast results come.
             if time.monotonic() >= self._next_chase:
                 self._chase_overdue()
+                self._ask_unheard()
                 self._next_chase = time.monotonic() + RECHECK_SECONDS
 
     def _drain(self) -> list[tuple[bytes | None, bytes]]:
@@ -417,7 +454,7 @@ class FarmClient:
 
     def _job(self, job_id: str) -> Job:
         pending = self._pending[job_id]
-        avoid = sorted({*pending.avoid, *self._distrusted})
+        avoid = sorted({*pending.avoid, *self._distrusted, *self._unheard_from})
         return Job(job_id=job_id, spec=pending.spec, avoid=avoid, keep_log=pending.keep_log)
 
     def _on_model_query(self, query: zenoh.Query) -> None:
@@ -494,6 +531,97 @@ class FarmClient:
                 if job_id in self._pending:
                     self._pending[job_id].attempts -= 1
 
+    def _ask_unheard(self) -> None:
+        """Ask the broker about jobs whose results have not come in a while (those asked about
+        longest ago first, SILENT_BATCH at most). A result it took for one is held for
+        SILENT_GRACE, in case it is on its way here (a confirmed arrival is the job's
+        evaluation), and then is the job's evaluation (`_from_record`)."""
+        now = time.monotonic()
+        for job_id, (accepted, use_at) in list(self._records.items()):
+            if job_id not in self._pending:
+                del self._records[job_id]
+            elif use_at <= now and job_id not in self._arrived:
+                del self._records[job_id]
+                evaluation = self._from_record(accepted)
+                if evaluation is not None:
+                    self._ready.append(evaluation)
+        if self.waiting is not None:  # the broker is not answering: _chase_overdue asks
+            return
+        due = [
+            (pending.ask_at, job_id)
+            for job_id, pending in self._pending.items()
+            if pending.ask_at <= now and job_id not in self._arrived and job_id not in self._records
+        ]
+        if not due:
+            return
+        job_ids = [job_id for _, job_id in sorted(due)[:SILENT_BATCH]]
+        for job_id in job_ids:
+            pending = self._pending[job_id]
+            age = now - pending.submitted
+            pending.ask_at = now + max(RECHECK_SECONDS, SILENT_FRACTION * age)
+        request = ConfirmRequest(study=self.study, job_ids=job_ids)
+        answer = ask(self.session, keys.confirm(self.study), request.to_bytes(), ANSWER_SECONDS)
+        if answer is None:
+            self._wait_for_broker("the broker did not answer about unheard results")
+            return
+        try:
+            if answer.payload is None:
+                raise BadMessage(f"the broker refused to confirm results: {answer.error}")
+            reply = decode(ConfirmReply, answer.payload)
+        except BadMessage as error:
+            log.warning("%s", error)
+            return
+        asked = set(job_ids)
+        for accepted in reply.accepted:
+            if accepted.job_id in asked:
+                self._records[accepted.job_id] = (accepted, now + SILENT_GRACE)
+
+    def _from_record(self, accepted: Accepted) -> EpisodeResult | None:
+        """The evaluation of a job whose result the broker took but its worker never sent: the
+        scores as handed in, the log left with the worker. A job that wanted its log, or whose
+        record has no scores, runs again elsewhere (None)."""
+        self.unheard += 1
+        pending = self._pending[accepted.job_id]
+        if accepted.scores is None or pending.keep_log:
+            self._leave_out(accepted.worker)
+            pending.avoid = tuple(sorted({*pending.avoid, accepted.worker}))
+            what = "its log" if accepted.scores is not None else "why it did not run"
+            reason = f"its result never came, and the broker's record lacks {what}"
+            return self._run_again(accepted.job_id, accepted.worker, pending, reason)
+        log.warning(
+            "job %s: %s handed its result in but never sent it; taken from the broker's record",
+            accepted.job_id,
+            accepted.worker,
+        )
+        self._leave_out(accepted.worker)
+        del self._pending[accepted.job_id]
+        scores = Scores.model_validate(accepted.scores.model_dump())
+        return EpisodeResult(
+            job_id=accepted.job_id,
+            spec=pending.spec,
+            status=EpisodeStatus.diverged if scores.diverged else EpisodeStatus.ok,
+            scores=scores,
+            log=None,
+            reason="",
+            worker=accepted.worker,
+            attempts=pending.attempts,
+            timings=None,
+            digest=accepted.digest,
+        )
+
+    def _leave_out(self, worker: str) -> None:
+        """Give `worker`, whose result never came, none of this study's jobs from now on: unless
+        it is the last worker left to run them (its result may only have been late)."""
+        if worker in self._unheard_from:
+            return
+        try:
+            connected = self.status().worker_count
+        except (BrokerUnavailable, BadMessage):
+            return
+        if connected > len(self._distrusted | self._unheard_from | {worker}):
+            self._unheard_from.add(worker)
+            log.warning("%s gets no more of this study's jobs: its results do not come", worker)
+
     def _arrive(self, attachment: bytes | None, content: bytes) -> None:
         """Check a result as it arrives; keep it for the broker to confirm."""
         try:
@@ -532,8 +660,11 @@ class FarmClient:
         taken = {accepted.job_id: accepted for accepted in reply.accepted}
         for job_id in job_ids:
             arrivals = self._arrived.pop(job_id)
-            accepted = taken.get(job_id)
+            held = self._records.get(job_id)  # the broker told it already, and forgot it
+            accepted = taken.get(job_id) or (held[0] if held else None)
             confirmed = [a for a in arrivals if accepted and _matches(a.result, accepted)]
+            if confirmed:
+                self._records.pop(job_id, None)
             for arrival in arrivals:
                 if not confirmed or arrival is not confirmed[0]:
                     self.unconfirmed += 1
@@ -585,27 +716,30 @@ class FarmClient:
             source = f"episode of {result.job_id} from {result.worker}"
             scores = self.read_log(content, pending.spec, path, source)
         except NotAnEpisodeLog as error:
-            return self._run_again(result, pending, f"unusable episode log: {error}")
+            reason = f"unusable episode log: {error}"
+            return self._run_again(result.job_id, result.worker, pending, reason)
         if scores != claimed:  # an honest log, false scores: the worker is not to be trusted
             path.unlink(missing_ok=True)
             self.distrust(result.worker)
             reason = f"its scores are not its log's ({result.worker} is distrusted)"
-            return self._run_again(result, pending, reason)
+            return self._run_again(result.job_id, result.worker, pending, reason)
         del self._pending[result.job_id]
         return EpisodeResult(**ran, scores=scores, log=path)
 
-    def _run_again(self, result: Result, pending: _Pending, reason: str) -> EpisodeResult | None:
+    def _run_again(
+        self, job_id: str, worker: str, pending: _Pending, reason: str
+    ) -> EpisodeResult | None:
         """A log damaged on its way is a lost result, not the job's outcome: the episode is
         deterministic, so run it again (an attempt) rather than score nothing."""
-        log.warning("job %s from %s: %s", result.job_id, result.worker, reason)
+        log.warning("job %s from %s: %s", job_id, worker, reason)
         if pending.attempts >= self.attempts:
-            del self._pending[result.job_id]
-            return self._failed(result.job_id, pending, f"{reason} (attempt {pending.attempts})")
+            del self._pending[job_id]
+            return self._failed(job_id, pending, f"{reason} (attempt {pending.attempts})")
         pending.attempts += 1
         # The broker may not have closed the damaged lease yet and answer "already pending":
         # look again soon rather than after a whole deadline.
-        still_pending = self._send([self._job(result.job_id)])
-        wait = RECHECK_SECONDS if result.job_id in still_pending else self.deadline
+        still_pending = self._send([self._job(job_id)])
+        wait = RECHECK_SECONDS if job_id in still_pending else self.deadline
         pending.deadline = time.monotonic() + wait
         return None
 

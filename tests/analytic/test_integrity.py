@@ -68,7 +68,7 @@ def test_a_worker_cannot_hand_in_a_job_leased_to_another(
         verdict = hand_in(session, stolen.model_copy(update={"episode_bytes": len(content)}))
         assert not verdict.accepted and "another worker" in verdict.reason
         assert not hand_in(
-            session, result_for("s", "j", worker="honest", lease_id="made-up")
+            session, result_for("s", "j", worker="thief", lease_id="made-up")
         ).accepted
         assert [s.leased for s in broker.status().studies] == [1]
     farm.cancel(["j"])

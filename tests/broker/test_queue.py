@@ -1,17 +1,21 @@
 """The broker's scheduling core, LeaseQueue: pure Python on a fake clock, no Zenoh, no threads."""
 
 import hashlib
+import math
 from collections import Counter
 from dataclasses import dataclass
 
 import pytest
 
 from gainfarm.broker.queue import (
+    ABANDON_PAUSE,
     DEFAULT_MAX_QUEUED,
     DEFAULT_MAX_QUEUED_PER_STUDY,
     LOST_WORKER_GRACE,
+    MAX_ABANDON_PAUSE,
     MAX_LISTED,
     RATE_BURST_SECONDS,
+    SPECULATE_FACTOR,
     THROUGHPUT_WINDOW,
     Assignment,
     LeaseQueue,
@@ -19,7 +23,7 @@ from gainfarm.broker.queue import (
 )
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.wire import Accepted, Job, Lease, StudyState, WorkerState
+from gainfarm.schemas.wire import MAX_BATCH, Accepted, Job, Lease, StudyState, WorkerState
 from tests.helpers import open_studies
 
 EPISODE = EpisodeSpec(gains=PDGains(kp=(100.0,) * 7, kd=(10.0,) * 7))
@@ -435,25 +439,56 @@ def test_losing_an_unknown_worker_changes_nothing() -> None:
     assert queue.requeued == 0
 
 
-def test_a_worker_asking_again_before_its_result_arrives_keeps_its_lease() -> None:
-    """The result travels on another key than the next request and may arrive after it: the
-    lease must stand (not be requeued and run twice) until the result or the expiry."""
+def test_a_worker_asking_again_without_handing_in_gives_its_leases_back_and_waits() -> None:
+    """Results are handed in with the next request: a lease not handed in then is not being
+    run (a hoarder's, or one whose answer was lost). Its job goes back to the front at once, and
+    the worker gets nothing new for a pause, longer each time it does so again."""
     queue, clock = make_queue("s")
-    queue.submit("s", jobs("j1", "j2"))
+    queue.submit("s", jobs("j1", "j2", "j3"))
     first = take(queue, "w1")
     assert first.job.job_id == "j1"
 
-    second = take(queue, "w1")  # asks again; its result for j1 is still in flight
+    waiter = park(queue, "w1")  # asks again; j1 not handed in
 
-    assert queue.requeued == 0
-    assert second.job.job_id == "j2"
-    assert state(queue, "s") == StudyState(name="s", queued=0, leased=2, done=0)
-    assert worker(queue, "w1") == WorkerState(name="w1", busy=True, job="s/j2", jobs_done=0)
-    assert hand_in(queue, first, "w1") is None  # the result, late
-    assert worker(queue, "w1") == WorkerState(name="w1", busy=True, job="s/j2", jobs_done=1)
-    clock.advance(LEASE_SECONDS)
-    queue.expire()  # had the result been lost, the expiry would have taken j1 back
-    assert queue.requeued == 1 and state(queue, "s").queued == 1
+    assert (queue.requeued, queue.abandoned) == (1, 1)
+    assert state(queue, "s") == StudyState(name="s", queued=3, leased=0, done=0)
+    assert worker(queue, "w1") == WorkerState(name="w1", busy=False, job="", jobs_done=0)
+    assert take(queue, "w2").job.job_id == "j1"  # back at the front, for another worker
+    clock.advance(ABANDON_PAUSE - 0.1)
+    assert queue.expire() == []  # still paused
+    clock.advance(0.1)
+    (woken,) = queue.expire()
+    assert woken.waiter is waiter and woken.leases[0].job.job_id == "j2"
+
+    waiter = park(queue, "w1")  # again: twice the pause
+    clock.advance(2 * ABANDON_PAUSE - 0.1)
+    assert queue.expire() == []
+    clock.advance(0.1)
+    (woken,) = queue.expire()
+    assert woken.waiter is waiter and woken.leases[0].job.job_id == "j2"
+    assert hand_in(queue, woken.leases[0], "w1") is None  # a result handed in: the pause resets
+    assert hand_in(queue, first, "w1") is None  # and a late one under the given-back lease counts
+    assert take(queue, "w1").job.job_id == "j3"
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=1, done=2)
+    assert not worker(queue, "w2").busy  # j1 is done: w2's copy of it will be a duplicate
+    assert_counts_add_up(queue)
+
+
+def test_a_hoarder_holds_one_batch_and_is_soon_left_out() -> None:
+    """A worker that asks again and again, never handing anything in, holds at most the batch it
+    was last given, and its pauses double up to MAX_ABANDON_PAUSE."""
+    queue, clock = make_queue("s", lease_seconds=1e9)
+    queue.submit("s", jobs(*(f"j{n}" for n in range(100))))
+    queue.worker_joined("hoarder")
+    grants = 0
+    for _ in range(2_000):  # about an hour of asking, once a second
+        leases, _ = queue.request("hoarder", Waiter("hoarder"), want=MAX_BATCH)
+        grants += bool(leases)
+        assert state(queue, "s").leased <= MAX_BATCH
+        clock.advance(1.0)
+    assert MAX_ABANDON_PAUSE < 2_000
+    assert grants <= math.log2(MAX_ABANDON_PAUSE / ABANDON_PAUSE) + 2_000 / MAX_ABANDON_PAUSE + 2
+    assert state(queue, "s").queued + state(queue, "s").leased == 100
 
 
 # --- results -----------------------------------------------------------------------------------
@@ -521,14 +556,14 @@ def test_a_late_result_for_an_expired_and_re_leased_job_completes_it_once() -> N
     second = take(queue, "w2")  # j1 again
 
     assert hand_in(queue, first, "w1") is None  # w1's late result, under its own lease's id
-    # w1 gets the credit; w2 is still busy with the job until it asks for work again.
+    # w1 gets the credit; w2 is freed of the job (its result will be a duplicate).
     assert worker(queue, "w1") == WorkerState(name="w1", busy=False, job="", jobs_done=1)
-    assert worker(queue, "w2").busy and worker(queue, "w2").jobs_done == 0
+    assert worker(queue, "w2") == WorkerState(name="w2", busy=False, job="", jobs_done=0)
     assert refused(hand_in(queue, second, "w2"), "j1")  # w2's result, a duplicate
     assert queue.jobs_done == 1
     assert state(queue, "s") == StudyState(name="s", queued=0, leased=0, done=1)
-    park(queue, "w2")  # asking again frees it, and the done job is not requeued
-    assert not worker(queue, "w2").busy and state(queue, "s").queued == 0
+    park(queue, "w2")  # it abandoned nothing: parked, and the done job is not requeued
+    assert (queue.abandoned, state(queue, "s").queued) == (0, 0)
     assert queue.requeued == 1
 
 
@@ -1138,21 +1173,18 @@ def test_a_made_up_name_is_forgotten_once_its_lease_ends() -> None:
     assert queue.close_study("t") == 0
     assert queue.worker_count() == 0
 
-    # It asks again while its result is on the way, is parked, and is withdrawn: it is
-    # forgotten, yet the lease it held stands and its result still counts.
+    # It asks again without handing its lease in, is parked (paused), and is withdrawn: it is
+    # forgotten; the job it held is queued again, and its late result still counts.
     held, _ = ask(queue, "ghost", Waiter("ghost"))
     assert held is not None and held.job.job_id == "j2"
-    after, _ = ask(queue, "ghost", Waiter("ghost"))
-    assert after is not None and after.job.job_id == "j3"
     waiter = Waiter("ghost")
-    assert ask(queue, "ghost", waiter) == (None, None)  # nothing left: parked
+    assert ask(queue, "ghost", waiter) == (None, None)  # paused: parked
     assert queue.worker_count() == 1
     assert queue.withdraw("ghost", waiter) is True
     assert queue.worker_count() == 0
-    assert state(queue, "s") == StudyState(name="s", queued=0, leased=2, done=1)
+    assert state(queue, "s") == StudyState(name="s", queued=2, leased=0, done=1)
     assert hand_in(queue, held, "ghost") is None
-    assert hand_in(queue, after, "ghost") is None
-    assert state(queue, "s") == StudyState(name="s", queued=0, leased=0, done=3)
+    assert state(queue, "s") == StudyState(name="s", queued=1, leased=0, done=2)
     assert queue.worker_count() == 0
     assert_counts_add_up(queue)
 
@@ -1372,10 +1404,11 @@ def test_a_batch_grant_respects_want() -> None:
     assert worker(queue, "w1") == WorkerState(name="w1", busy=False, job="", jobs_done=3)
     assert queue.busy() == 0
 
-    assert [lease.job.job_id for lease in take_batch(queue, "w1", want=1)] == ["j4"]
+    (fourth,) = take_batch(queue, "w1", want=1)
+    assert fourth.job.job_id == "j4" and hand_in(queue, fourth, "w1") is None
     rest = take_batch(queue, "w1", want=100)  # more than there is: what there is
     assert [lease.job.job_id for lease in rest] == ["j5", "j6", "j7", "j8", "j9", "j10"]
-    assert state(queue, "s") == StudyState(name="s", queued=0, leased=7, done=3)
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=6, done=4)
     assert_counts_add_up(queue)
 
 
@@ -1394,7 +1427,7 @@ def test_the_fair_share_spreads_a_shallow_queue_over_free_workers() -> None:
 
     # A deep queue: the share does not bind, `want` does.
     queue.submit("s", jobs(*(f"k{n}" for n in range(100))))
-    assert len(take_batch(queue, "w1", want=4)) == 4
+    assert len(take_batch(queue, "w4", want=4)) == 4
     assert_counts_add_up(queue)
 
 
@@ -1613,6 +1646,7 @@ def test_a_study_at_its_uncollected_cap_gets_no_leases_until_it_collects() -> No
     waiter = park(queue, "w1")  # s is held back: its jobs wait
     submitted = queue.submit("t", jobs("t1"))  # another study is not
     assert [(a.waiter, a.leases[0].job.job_id) for a in submitted.assignments] == [(waiter, "t1")]
+    assert hand_in(queue, submitted.assignments[0].leases[0], "w1") is None
     waiter = park(queue, "w1")
     assert queue.expire() == []
     assert queue.confirm("s", []) == []
@@ -1631,3 +1665,93 @@ def test_a_study_at_its_uncollected_cap_gets_no_leases_until_it_collects() -> No
     assert take(queue, "w3").job.job_id == "j5"
     assert state(queue, "s") == StudyState(name="s", queued=0, leased=2, done=3)
     assert_counts_add_up(queue)
+
+
+# --- overdue leases: backup copies -------------------------------------------------------------
+
+
+def held_and_idle(queue: Queue, clock: FakeClock) -> tuple[Lease, Waiter]:
+    """w1 runs j1 in 1 s (the study's turnaround); w2 holds j2 and says nothing; w1 waits."""
+    queue.submit("s", jobs("j1", "j2"))
+    done, held = take(queue, "w1"), take(queue, "w2")
+    clock.advance(1.0)
+    assert hand_in(queue, done, "w1") is None
+    return held, park(queue, "w1")
+
+
+def test_an_overdue_job_is_copied_to_an_idle_worker_and_the_first_result_counts() -> None:
+    queue, clock = make_queue("s")
+    held, waiter = held_and_idle(queue, clock)
+    clock.advance(SPECULATE_FACTOR * 1.0 - 1.0 - 0.1)  # held just under 3 turnarounds
+    assert queue.expire() == []
+    clock.advance(0.1)
+
+    (copy,) = queue.expire()
+
+    assert copy.waiter is waiter and copy.leases[0].job.job_id == "j2"
+    assert copy.leases[0].lease_id != held.lease_id
+    assert (queue.copies, queue.requeued) == (1, 0)
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=1, done=1)
+    assert queue.expire() == []  # one copy: the job is not overdue again until the copy is
+    assert park(queue, "w3") and queue.expire() == []
+    assert hand_in(queue, copy.leases[0], "w1") is None
+    assert refused(hand_in(queue, held, "w2"), "done already")
+    assert queue.jobs_done == 2 and queue.busy() == 0
+    assert state(queue, "s") == StudyState(name="s", queued=0, leased=0, done=2)
+    park(queue, "w2")  # its job was done by the copy: it gave back nothing
+    assert queue.abandoned == 0
+    assert_counts_add_up(queue)
+
+
+def test_an_overdue_holder_that_hands_in_first_wins_and_frees_the_copy_s_worker() -> None:
+    queue, clock = make_queue("s")
+    held, _ = held_and_idle(queue, clock)
+    clock.advance(SPECULATE_FACTOR)
+    (copy,) = queue.expire()
+    assert hand_in(queue, held, "w2") is None  # the straggler after all
+    assert not worker(queue, "w1").busy
+    assert refused(hand_in(queue, copy.leases[0], "w1"), "done already")
+    assert queue.jobs_done == 2
+
+
+def test_an_overdue_job_is_not_copied_to_a_past_holder_nor_to_a_worker_it_avoids() -> None:
+    queue, clock = make_queue("s", lease_seconds=1e6)
+    queue.submit("s", jobs("j1") + jobs("j2", avoid=("w3",)))
+    done, _ = take(queue, "w1"), take(queue, "w2")
+    clock.advance(1.0)
+    assert hand_in(queue, done, "w1") is None
+    park(queue, "w2")  # gives j2 back
+    assert take(queue, "w4").job.job_id == "j2"
+    clock.advance(10 * SPECULATE_FACTOR)  # j2 overdue, w2's pause over
+    park(queue, "w3")
+    assert queue.expire() == []  # w2 held j2 once, and j2 avoids w3
+    copy = take(queue, "w5")  # an idle worker asking gets the copy at once
+    assert copy.job.job_id == "j2" and queue.copies == 1
+
+
+def test_nothing_is_copied_before_the_study_s_first_result() -> None:
+    queue, clock = make_queue("s", lease_seconds=1e6)
+    queue.submit("s", jobs("j1"))
+    take(queue, "w1")
+    park(queue, "w2")
+    clock.advance(1000.0)
+    assert queue.expire() == [] and queue.copies == 0
+
+
+def test_one_late_holder_does_not_lengthen_the_overdue_time() -> None:
+    """Overdue is measured by the median turnaround: a holder that hands in late cannot make
+    the next holder's job wait longer."""
+    queue, clock = make_queue("s", lease_seconds=1e6)
+    queue.submit("s", jobs(*(f"j{n}" for n in range(5))))
+    quick = [take(queue, f"w{n}") for n in range(3)]
+    late = take(queue, "late")
+    clock.advance(1.0)
+    for n, lease in enumerate(quick):
+        assert hand_in(queue, lease, f"w{n}") is None
+    clock.advance(100.0)
+    assert hand_in(queue, late, "late") is None  # a 101 s turnaround among three of 1 s
+    held = take(queue, "holder")
+    park(queue, "w0")
+    clock.advance(SPECULATE_FACTOR * 1.0)
+    (copy,) = queue.expire()
+    assert copy.leases[0].job.job_id == held.job.job_id
