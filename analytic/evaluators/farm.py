@@ -26,7 +26,7 @@ sample's small attachment (the Result) on Zenoh's thread and copies the payload 
 for a result this study waits for, with a log of the length it claims, and only while the results
 it holds unconfirmed stay within MAX_HELD_BYTES; everything else is dropped uncopied and counted
 (`ignored`, `duplicates`, `unconfirmed`, `dropped`). A result the broker took that was dropped,
-or lost on the way, is run again at once (docs/security.md, "junk flood").
+or lost on the way, is run again at once (docs/security.md, "Junk on a study's keys").
 """
 
 import hashlib
@@ -608,7 +608,13 @@ class FarmClient:
             with self._lock:
                 self.duplicates += 1
             return
-        if arrival.taken is None:
+        taken = arrival.taken
+        if taken is None:  # the broker may have said so while it waited in the inbox
+            with self._lock:
+                told = self._taken.get(job_id)
+                if told is not None and _matches(arrival.result, told[0]):
+                    taken = self._taken.pop(job_id)[0]
+        if taken is None:
             self._arrived.setdefault(job_id, []).append(arrival)
             return
         self._release([arrival])
@@ -702,9 +708,11 @@ class FarmClient:
             return EpisodeResult(**ran, scores=claimed, log=None)
         path = self.log_dir / f"{result.job_id}.mcap"
         try:
-            if content is None:  # not copied: too long, or not the length its result says
-                sent = result.episode_bytes
-                raise NotAnEpisodeLog(f"{arrival.length} bytes, not the {sent} sent")
+            if content is None:  # not copied: not the length its result says, or too long
+                sent, limit = result.episode_bytes, self.max_held_bytes
+                if arrival.length != sent:
+                    raise NotAnEpisodeLog(f"{arrival.length} bytes, not the {sent} sent")
+                raise NotAnEpisodeLog(f"{sent} bytes, more than this client holds ({limit})")
             if hashlib.sha256(content).hexdigest() != result.digest:
                 raise NotAnEpisodeLog("its bytes are not the ones the worker handed in")
             source = f"episode of {result.job_id} from {result.worker}"

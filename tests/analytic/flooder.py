@@ -4,7 +4,8 @@ to have pending (`g0000-c000-t0`...), its payload as long as that Result claims 
 took it: only the job's lease holder's result is confirmed); the others have no attachment, a
 garbage one, or a well-formed Result of another study.
 
-    python -m tests.analytic.flooder ENDPOINT STUDY [--mib 64] [--tls DIR --name WORKER]
+    python -m tests.analytic.flooder ENDPOINT STUDY [--mib 64] [--junk-only]
+        [--tls DIR --name WORKER]
 
 With `--tls`, it connects with worker WORKER's certificate (one that holds no lease of the
 study). It prints `flooding` once its first sample is out, and at SIGTERM the number it put.
@@ -26,8 +27,8 @@ from gainfarm.schemas.security import TlsIdentity
 from tests.helpers import result_for
 
 
-def samples(study: str, payload: bytes) -> Iterator[tuple[str, bytes | None]]:
-    """(job id, attachment) of each sample, in turn, forever."""
+def samples(study: str, payload: bytes, forge: bool) -> Iterator[tuple[str, bytes | None]]:
+    """(job id, attachment) of each sample, in turn, forever; without `forge`, junk only."""
     digest = hashlib.sha256(payload).hexdigest()
     for number in itertools.count():
         guess = number // 2
@@ -42,7 +43,9 @@ def samples(study: str, payload: bytes) -> Iterator[tuple[str, bytes | None]]:
             (guessed, forged.to_bytes()),
             (guessed, forged.model_copy(update={"study": "elsewhere"}).to_bytes()),
         )
-        yield kinds[number % len(kinds)]
+        kind = kinds[number % len(kinds)]
+        if forge or kind[1] != forged.to_bytes():
+            yield kind
 
 
 def main() -> None:
@@ -52,6 +55,7 @@ def main() -> None:
     parser.add_argument("--mib", type=int, default=64)
     parser.add_argument("--tls", type=Path)
     parser.add_argument("--name", default="cobot-1")
+    parser.add_argument("--junk-only", action="store_true", help="no forged results")
     options = parser.parse_args()
     identity = TlsIdentity(options.tls, "worker", options.name) if options.tls else None
     stop = threading.Event()
@@ -60,7 +64,7 @@ def main() -> None:
     session = open_session("client", connect=[options.endpoint], identity=identity)
     put = 0
     try:
-        for job_id, attachment in samples(options.study, payload):
+        for job_id, attachment in samples(options.study, payload, forge=not options.junk_only):
             if stop.is_set():
                 break
             session.put(
