@@ -49,8 +49,8 @@ def calm(tmp_path_factory: pytest.TempPathFactory) -> TuningRun:
 
 @contextmanager
 def broker_process(endpoint: str, identity: TlsIdentity | None = None) -> Iterator[None]:
-    """`broker start` in a process of its own, as on a farm (its router must not share a GIL
-    with the run's client), answering before the run starts; stopped at the end."""
+    """`broker start` in a process of its own, as on a farm (not the run's: see docs/security.md
+    on a local farm under a flood), answering before the run starts; stopped at the end."""
     tls = ["--tls", str(identity.directory)] if identity else []
     process = subprocess.Popen(
         [
