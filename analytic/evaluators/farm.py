@@ -29,11 +29,19 @@ worker (`fetch` brings it, or simulates it again); a job that wanted its log, or
 no scores (failed, or refused: the record does not say which, nor why), runs again elsewhere. A
 worker whose result never came gets none of the study's jobs from then on, while another worker
 is there to run them (`unheard_from`).
+
+Anyone on the farm may put samples on the study's keys, of any size. The client reads each
+sample's small attachment (the Result) on Zenoh's thread and copies the payload out of Zenoh only
+for a result this study waits for, with a log of the length it claims, and only while the results
+it holds unconfirmed stay within MAX_HELD_BYTES; everything else is dropped uncopied and counted
+(`ignored`, `duplicates`, `unconfirmed`, `dropped`). A result the broker took that was dropped,
+or lost on the way, is run again at once (docs/security.md, "Junk on a study's keys").
 """
 
 import hashlib
 import logging
 import queue
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -60,6 +68,7 @@ from gainfarm.schemas.mcap_episode import NotAnEpisodeLog
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.wire import (
     MAX_EPISODE_BYTES,
+    MAX_MESSAGE_BYTES,
     Accepted,
     BadMessage,
     BrokerStatus,
@@ -88,13 +97,22 @@ CONFIRM_BATCH = 1000  # results confirmed in one question to the broker
 SILENT_AFTER = 2.0  # s
 SILENT_FRACTION = 0.25
 SILENT_BATCH = 200
-# A result the broker took may be on its way here when the study asks (a log of megabytes takes a
-# while): it gets this long to come before the broker's record stands in for it.
-SILENT_GRACE = 1.0  # s
+# The bytes of results held before the broker says which it took (in the inbox and arrived): one
+# largest log fits; a flood of well-formed results for pending jobs fills it, and what comes then
+# is dropped uncopied until the broker has been asked (each inbox drain confirms at once).
+MAX_HELD_BYTES = MAX_EPISODE_BYTES
+# The largest message the client's session takes in: a result with the largest log (or a fetched
+# log). Zenoh reassembles a sample before any callback sees it, and drops a larger one on the way.
+MAX_RECEIVED_BYTES = MAX_EPISODE_BYTES + MAX_MESSAGE_BYTES
+# How long the result the broker took for a job may take to reach us after the broker said so
+# (a worker hands its result in, then puts it; a log of megabytes takes a while); then the
+# broker's record stands in for it, or the job runs again.
+TAKEN_PATIENCE = 1.0  # s
+DROPS_LOGGED_EVERY = 10.0  # s: samples dropped are logged at most this often, with their count
 
 
-BROKER_BACK = b"\0broker-back"  # inbox markers, never a real attachment (those are JSON)
-BROKER_GONE = b"\0broker-gone"
+BROKER_BACK = "broker-back"  # inbox markers
+BROKER_GONE = "broker-gone"
 
 
 class FarmUnavailable(ConnectionError):
@@ -110,6 +128,7 @@ class _Pending:
     keep_log: bool = True  # its log comes with its result; else its worker keeps it
     submitted: float = 0.0  # monotonic time of its first submission
     ask_at: float = 0.0  # when to ask the broker about it if no result has come (SILENT_AFTER)
+    dropped_here: bool = False  # a result of it was dropped here, max_held_bytes being full
 
 
 @dataclass(frozen=True)
@@ -117,7 +136,10 @@ class _Arrival:
     """A result as it arrived, waiting for the broker to confirm it."""
 
     result: Result
-    content: bytes
+    content: bytes | None  # its log, copied only if the job wants it and it is as long as said
+    length: int  # of the payload as it came
+    held: int  # bytes counted against MAX_HELD_BYTES until it is let go
+    taken: Accepted | None = None  # the result the broker said it took, if this is that one
 
 
 class FarmClient:
@@ -134,6 +156,7 @@ class FarmClient:
         keep_logs: bool = True,
         read_log: ReadLog = accept_log,
         trusted: bool = False,
+        max_held_bytes: int = MAX_HELD_BYTES,
     ):
         """`models`: the feed-forward models (file bytes by SHA-256) the study's jobs may name;
         the client serves them to the workers that ask. `keep_logs`: every job's log comes with
@@ -141,7 +164,8 @@ class FarmClient:
         result brings the scores its worker computed, and `fetch` brings the logs wanted.
         `read_log` checks, keeps and scores a log (another only for simulated workers, whose
         "logs" are not episodes: bench/campaign.py --simulated). `trusted`: the farm's workers are
-        this process's own (a local farm started for it), so a run has nothing to referee."""
+        this process's own (a local farm started for it), so a run has nothing to referee.
+        `max_held_bytes`: the bytes of results held before the broker confirms them."""
         Submission(study=study, jobs=[])  # validates the name before it becomes a key
         self.study = study
         self.trusted = trusted
@@ -152,10 +176,14 @@ class FarmClient:
         self.attempts = attempts
         self.keep_logs = keep_logs
         self.read_log = read_log
+        self.max_held_bytes = max_held_bytes
         self.duplicates = 0
         self.ignored = 0
         self.unconfirmed = 0  # results the broker did not take: forged, or from a stale lease
         self.unheard = 0  # results the broker took that never came: taken from its record
+        self.dropped = 0  # results for pending jobs not held: max_held_bytes was full
+        self.held_bytes = 0  # bytes of results held now, before the broker confirms them
+        self.peak_held_bytes = 0
         self.waiting: str | None = None  # why the client is waiting for the broker, if it is
         # Told each time `waiting` changes (a progress line says so); the reason, or None.
         self.on_wait: Callable[[str | None], None] = lambda why: None
@@ -163,12 +191,17 @@ class FarmClient:
         self._ready: deque[EpisodeResult] = deque()
         self._next_chase = 0.0  # when to look for overdue jobs next
         self._arrived: dict[str, list[_Arrival]] = {}  # by job id, until the broker confirms
+        # What the broker said it took, for jobs whose result has not come (yet), and when.
+        self._taken: dict[str, tuple[Accepted, float]] = {}
+        self._dropped_for: set[str] = set()  # jobs a result was dropped for: ask the broker
+        self._lock = threading.Lock()  # the above and the counters, shared with Zenoh's thread
+        self._drops_logged = 0.0
         self._distrusted: set[str] = set()
         self._unheard_from: set[str] = set()
-        # Results the broker took that have not come (yet), and when to stop waiting for them.
-        self._records: dict[str, tuple[Accepted, float]] = {}
-        self._inbox: queue.SimpleQueue[tuple[bytes | None, bytes]] = queue.SimpleQueue()
-        self.session = open_session("client", connect=connect, identity=identity)
+        self._inbox: queue.SimpleQueue[_Arrival | str] = queue.SimpleQueue()
+        self.session = open_session(
+            "client", connect=connect, identity=identity, max_message_bytes=MAX_RECEIVED_BYTES
+        )
         try:
             self._open_study(connect)
         except BaseException:
@@ -250,7 +283,9 @@ class FarmClient:
         dropped = set(job_ids)
         for job_id in dropped:
             self._pending.pop(job_id, None)
-            self._arrived.pop(job_id, None)
+            self._release(self._arrived.pop(job_id, []))
+            with self._lock:
+                self._taken.pop(job_id, None)
         self._ready = deque(e for e in self._ready if e.job_id not in dropped)
 
     def results(self, timeout: float | None = None) -> Iterator[EpisodeResult]:
@@ -269,22 +304,27 @@ class FarmClient:
                 messages = [self._inbox.get(timeout=max(wake - now, 0.0)), *self._drain()]
             except queue.Empty:
                 messages = []
-            for attachment, content in messages:
-                if attachment is BROKER_BACK:
+            for message in messages:
+                if message == BROKER_BACK:
                     self._rejoin()
-                elif attachment is BROKER_GONE:
+                elif message == BROKER_GONE:
                     self._broker_gone()
-                else:
-                    self._arrive(attachment, content)
+                elif isinstance(message, _Arrival):
+                    self._arrive(message)
+            with self._lock:
+                dropped, self._dropped_for = self._dropped_for, set()
+            for job_id in dropped & self._pending.keys():
+                self._arrived.setdefault(job_id, [])  # the broker tells which result it took
             self._confirm()
             # Only after what arrived is taken in (a job whose result is here is not overdue);
             # and O(pending), so at most once a RECHECK_SECONDS however fast results come.
             if time.monotonic() >= self._next_chase:
                 self._chase_overdue()
                 self._ask_unheard()
+                self._chase_taken()
                 self._next_chase = time.monotonic() + RECHECK_SECONDS
 
-    def _drain(self) -> list[tuple[bytes | None, bytes]]:
+    def _drain(self) -> list[_Arrival | str]:
         """Whatever else is in the inbox now: its results are confirmed in one question."""
         messages = []
         while len(messages) < CONFIRM_BATCH:
@@ -408,9 +448,9 @@ class FarmClient:
 
     def _on_broker_token(self, sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.PUT:  # a broker (re)started, with an empty queue
-            self._inbox.put((BROKER_BACK, b""))
+            self._inbox.put(BROKER_BACK)
         else:
-            self._inbox.put((BROKER_GONE, b""))
+            self._inbox.put(BROKER_GONE)
 
     def _broker_gone(self) -> None:
         self._wait_for_broker("the broker is gone")
@@ -465,8 +505,71 @@ class FarmClient:
             query.reply_err(f"study {self.study} has no model {wanted[:64]}")
 
     def _on_result(self, sample: zenoh.Sample) -> None:
-        attachment = sample.attachment.to_bytes() if sample.attachment is not None else None
-        self._inbox.put((attachment, sample.payload.to_bytes()))
+        """Runs on Zenoh's thread for every sample on the study's keys, whoever put it: reads
+        the attachment (a Result, at most MAX_MESSAGE_BYTES) and copies the payload only for a
+        result of a pending job that wants its log, as long as it says, within max_held_bytes.
+        Never raises: whatever the sample, it is held or dropped."""
+        attachment = sample.attachment
+        try:
+            if attachment is None:
+                raise BadMessage("no attachment")
+            if len(attachment) > MAX_MESSAGE_BYTES:
+                raise BadMessage(f"a {len(attachment)}-byte attachment")
+            raw = attachment.to_bytes()
+            result = decode(Result, raw)
+        except BadMessage as error:
+            return self._drop("ignored", f"not a result ({error})")
+        if result.study != self.study:
+            return self._drop("ignored", f"a result of study {result.study[:64]!r}")
+        pending = self._pending.get(result.job_id)
+        if pending is None:  # already evaluated (or never submitted here)
+            return self._drop("duplicates")
+        length = len(sample.payload)
+        wanted = pending.keep_log and length == result.episode_bytes <= MAX_EPISODE_BYTES
+        if len(raw) + length > self.max_held_bytes:  # never to be held: unusable, as if too long
+            wanted = False
+        held = len(raw) + (length if wanted else 0)
+        with self._lock:
+            taken = self._taken.get(result.job_id)
+            if taken is not None and not _matches(result, taken[0]):
+                self.unconfirmed += 1  # the broker took another: this one needs no copy
+                return
+            if taken is None and self.held_bytes + held > self.max_held_bytes:
+                self.dropped += 1
+                self._dropped_for.add(result.job_id)
+                pending.dropped_here = True
+                return self._log_drop(f"a result for {result.job_id}: {self.held_bytes} bytes held")
+            if taken is not None:  # the one the broker took: held whatever the budget, once
+                del self._taken[result.job_id]
+            self.held_bytes += held
+            self.peak_held_bytes = max(self.peak_held_bytes, self.held_bytes)
+        content = sample.payload.to_bytes() if wanted else None
+        self._inbox.put(_Arrival(result, content, length, held, taken and taken[0]))
+
+    def _drop(self, counter: str, why: str = "") -> None:
+        with self._lock:
+            setattr(self, counter, getattr(self, counter) + 1)
+            if why:
+                self._log_drop(why)
+
+    def _log_drop(self, why: str) -> None:
+        """Say why a sample was dropped, at most once a DROPS_LOGGED_EVERY (under the lock)."""
+        now = time.monotonic()
+        if now >= self._drops_logged + DROPS_LOGGED_EVERY:
+            self._drops_logged = now
+            log.warning(
+                "dropped %s, uncopied (so far: %d ignored, %d not waited for, %d not held)",
+                why,
+                self.ignored,
+                self.duplicates,
+                self.dropped,
+            )
+
+    def _release(self, arrivals: Iterable[_Arrival]) -> None:
+        freed = sum(arrival.held for arrival in arrivals)
+        if freed:
+            with self._lock:
+                self.held_bytes -= freed
 
     def _send(self, jobs: list[Job]) -> set[str]:
         """Submit `jobs`; return the ids the broker did not newly queue: those it still had
@@ -533,24 +636,17 @@ class FarmClient:
 
     def _ask_unheard(self) -> None:
         """Ask the broker about jobs whose results have not come in a while (those asked about
-        longest ago first, SILENT_BATCH at most). A result it took for one is held for
-        SILENT_GRACE, in case it is on its way here (a confirmed arrival is the job's
-        evaluation), and then is the job's evaluation (`_from_record`)."""
-        now = time.monotonic()
-        for job_id, (accepted, use_at) in list(self._records.items()):
-            if job_id not in self._pending:
-                del self._records[job_id]
-            elif use_at <= now and job_id not in self._arrived:
-                del self._records[job_id]
-                evaluation = self._from_record(accepted)
-                if evaluation is not None:
-                    self._ready.append(evaluation)
+        longest ago first, SILENT_BATCH at most). A result it took for one is waited for
+        TAKEN_PATIENCE more, in case it is on its way here (`_chase_taken`)."""
         if self.waiting is not None:  # the broker is not answering: _chase_overdue asks
             return
+        now = time.monotonic()
+        with self._lock:
+            told = set(self._taken)
         due = [
             (pending.ask_at, job_id)
             for job_id, pending in self._pending.items()
-            if pending.ask_at <= now and job_id not in self._arrived and job_id not in self._records
+            if pending.ask_at <= now and job_id not in self._arrived and job_id not in told
         ]
         if not due:
             return
@@ -572,28 +668,40 @@ class FarmClient:
             log.warning("%s", error)
             return
         asked = set(job_ids)
-        for accepted in reply.accepted:
-            if accepted.job_id in asked:
-                self._records[accepted.job_id] = (accepted, now + SILENT_GRACE)
+        with self._lock:  # the broker forgets what it has told: remember it until it comes
+            for accepted in reply.accepted:
+                if accepted.job_id in asked:
+                    self._taken[accepted.job_id] = (accepted, now)
 
     def _from_record(self, accepted: Accepted) -> EpisodeResult | None:
-        """The evaluation of a job whose result the broker took but its worker never sent: the
+        """The evaluation of a job whose result the broker took but which never came here: the
         scores as handed in, the log left with the worker. A job that wanted its log, or whose
-        record has no scores, runs again elsewhere (None)."""
-        self.unheard += 1
+        record has no scores, runs again elsewhere (None). Unless this client dropped the result
+        itself (its budget was full: `max_held_bytes`), its worker is left out (`_leave_out`)."""
         pending = self._pending[accepted.job_id]
-        if accepted.scores is None or pending.keep_log:
+        blamed = not pending.dropped_here
+        if blamed:
+            self.unheard += 1
             self._leave_out(accepted.worker)
+        if accepted.scores is None or pending.keep_log:
+            if not blamed:  # dropped here: run again, no attempt spent
+                log.warning(
+                    "job %s: its result was dropped here; running it again", accepted.job_id
+                )
+                pending.dropped_here = False
+                pending.deadline = time.monotonic() + self.deadline
+                self._send([self._job(accepted.job_id)])
+                return None
             pending.avoid = tuple(sorted({*pending.avoid, accepted.worker}))
             what = "its log" if accepted.scores is not None else "why it did not run"
             reason = f"its result never came, and the broker's record lacks {what}"
             return self._run_again(accepted.job_id, accepted.worker, pending, reason)
-        log.warning(
-            "job %s: %s handed its result in but never sent it; taken from the broker's record",
-            accepted.job_id,
-            accepted.worker,
-        )
-        self._leave_out(accepted.worker)
+        if blamed:
+            log.warning(
+                "job %s: %s handed its result in but never sent it; taken from the broker's record",
+                accepted.job_id,
+                accepted.worker,
+            )
         del self._pending[accepted.job_id]
         scores = Scores.model_validate(accepted.scores.model_dump())
         return EpisodeResult(
@@ -622,22 +730,42 @@ class FarmClient:
             self._unheard_from.add(worker)
             log.warning("%s gets no more of this study's jobs: its results do not come", worker)
 
-    def _arrive(self, attachment: bytes | None, content: bytes) -> None:
-        """Check a result as it arrives; keep it for the broker to confirm."""
-        try:
-            result = decode(Result, attachment)
-        except BadMessage as error:
-            self.ignored += 1
-            log.warning("ignored a result: %s", error)
+    def _arrive(self, arrival: _Arrival) -> None:
+        """Keep a result as it arrives for the broker to confirm; or take it, if it is the one
+        the broker already said it took."""
+        job_id = arrival.result.job_id
+        if job_id not in self._pending:  # evaluated or cancelled since it came
+            self._release([arrival])
+            with self._lock:
+                self.duplicates += 1
             return
-        if result.study != self.study:
-            self.ignored += 1
-            log.warning("ignored a result of study %r on this study's key", result.study)
+        taken = arrival.taken
+        if taken is None:  # the broker may have said so while it waited in the inbox
+            with self._lock:
+                told = self._taken.get(job_id)
+                if told is not None and _matches(arrival.result, told[0]):
+                    taken = self._taken.pop(job_id)[0]
+        if taken is None:
+            self._arrived.setdefault(job_id, []).append(arrival)
             return
-        if result.job_id not in self._pending:  # already evaluated (or never submitted here)
-            self.duplicates += 1
-            return
-        self._arrived.setdefault(result.job_id, []).append(_Arrival(result, content))
+        self._release([arrival])
+        evaluation = self._receive(arrival)
+        if evaluation is not None:
+            self._ready.append(evaluation)
+
+    def _chase_taken(self) -> None:
+        """A result the broker took that has not come within TAKEN_PATIENCE of its saying so
+        (withheld by a silent holder, lost on the way, or dropped here with max_held_bytes
+        full): the broker's record stands in for it (`_from_record`)."""
+        now = time.monotonic()
+        with self._lock:
+            lost = [j for j, (_, since) in self._taken.items() if now - since >= TAKEN_PATIENCE]
+            records = [self._taken.pop(job_id)[0] for job_id in lost]
+        for accepted in records:
+            if accepted.job_id in self._pending:
+                evaluation = self._from_record(accepted)
+                if evaluation is not None:
+                    self._ready.append(evaluation)
 
     def _confirm(self) -> None:
         """Ask the broker which of the arrived results it took; each job's confirmed one is
@@ -658,29 +786,30 @@ class FarmClient:
             log.warning("%s", error)
             return
         taken = {accepted.job_id: accepted for accepted in reply.accepted}
+        now = time.monotonic()
         for job_id in job_ids:
             arrivals = self._arrived.pop(job_id)
-            held = self._records.get(job_id)  # the broker told it already, and forgot it
-            accepted = taken.get(job_id) or (held[0] if held else None)
+            self._release(arrivals)
+            accepted = taken.get(job_id)
             confirmed = [a for a in arrivals if accepted and _matches(a.result, accepted)]
-            if confirmed:
-                self._records.pop(job_id, None)
-            for arrival in arrivals:
-                if not confirmed or arrival is not confirmed[0]:
-                    self.unconfirmed += 1
-                    log.warning(
-                        "ignored a result for %s from %r: not the one the broker took",
-                        job_id,
-                        arrival.result.worker,
-                    )
+            others = len(arrivals) - min(len(confirmed), 1)
+            if others:
+                with self._lock:
+                    self.unconfirmed += others
+                    self._log_drop(f"{others} results for {job_id}: not the one the broker took")
+            if accepted is not None and not confirmed and job_id in self._pending:
+                # The broker forgets what it has told: remember it until that result comes.
+                with self._lock:
+                    self._taken[job_id] = (accepted, now)
             if confirmed and job_id in self._pending:
-                evaluation = self._receive(confirmed[0].result, confirmed[0].content)
+                evaluation = self._receive(confirmed[0])
                 if evaluation is not None:
                     self._ready.append(evaluation)
 
-    def _receive(self, result: Result, content: bytes) -> EpisodeResult | None:
+    def _receive(self, arrival: _Arrival) -> EpisodeResult | None:
         """The evaluation a confirmed result makes (None if its log is unusable: it runs
         again)."""
+        result, content = arrival.result, arrival.content
         pending = self._pending[result.job_id]
         common = dict(
             job_id=result.job_id,
@@ -709,8 +838,11 @@ class FarmClient:
             return EpisodeResult(**ran, scores=claimed, log=None)
         path = self.log_dir / f"{result.job_id}.mcap"
         try:
-            if len(content) > MAX_EPISODE_BYTES or len(content) != result.episode_bytes:
-                raise NotAnEpisodeLog(f"{len(content)} bytes, not the {result.episode_bytes} sent")
+            if content is None:  # not copied: not the length its result says, or too long
+                sent, limit = result.episode_bytes, self.max_held_bytes
+                if arrival.length != sent:
+                    raise NotAnEpisodeLog(f"{arrival.length} bytes, not the {sent} sent")
+                raise NotAnEpisodeLog(f"{sent} bytes, more than this client holds ({limit})")
             if hashlib.sha256(content).hexdigest() != result.digest:
                 raise NotAnEpisodeLog("its bytes are not the ones the worker handed in")
             source = f"episode of {result.job_id} from {result.worker}"

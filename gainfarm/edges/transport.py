@@ -46,9 +46,11 @@ def session_config(
     listen: Sequence[str] = (),
     connect: Sequence[str] = (),
     identity: TlsIdentity | None = None,
+    max_message_bytes: int | None = None,
 ) -> zenoh.Config:
     """ValueError, in one line, for an endpoint Zenoh cannot parse or one that does not match
-    whether the session is secure."""
+    whether the session is secure. `max_message_bytes`: a message received larger than this is
+    dropped while Zenoh reassembles it, before anything else sees it (Zenoh's default: 1 GiB)."""
     _check_protocols([*listen, *connect], secure=identity is not None)
     router = mode == "router"
     # Zenoh takes the TLS handshake timeout per endpoint only (after `#`), not in transport/link.
@@ -75,6 +77,8 @@ def session_config(
         if router:
             allowed = participants(identity.directory)
             config.insert_json5("access_control", json.dumps(access_control(allowed)))
+    if max_message_bytes is not None:
+        config.insert_json5("transport/link/rx/max_message_size", json.dumps(max_message_bytes))
     if router:
         # Bound what connections that never finish a handshake cost (see the constants).
         config.insert_json5("transport/unicast/accept_timeout", json.dumps(ACCEPT_TIMEOUT_MS))
@@ -111,9 +115,10 @@ def open_session(
     listen: Sequence[str] = (),
     connect: Sequence[str] = (),
     identity: TlsIdentity | None = None,
+    max_message_bytes: int | None = None,
 ) -> zenoh.Session:
     """Open a session; ConnectionError with the endpoints in its message if that fails."""
-    config = session_config(mode, listen, connect, identity)
+    config = session_config(mode, listen, connect, identity, max_message_bytes)
     try:
         return zenoh.open(config)
     except zenoh.ZError as error:
