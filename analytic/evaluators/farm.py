@@ -35,7 +35,11 @@ sample's small attachment (the Result) on Zenoh's thread and copies the payload 
 for a result this study waits for, with a log of the length it claims, and only while the results
 it holds unconfirmed stay within MAX_HELD_BYTES; everything else is dropped uncopied and counted
 (`ignored`, `duplicates`, `unconfirmed`, `dropped`). A result the broker took that was dropped,
-or lost on the way, is run again at once (docs/security.md, "Junk on a study's keys").
+or lost on the way, is run again at once (docs/security.md, "Junk on a study's keys"). Without
+`keep_logs` no result brings a log, and the client asks for none (a log simulated again is fetched
+too): results then come on a session of their own that takes no message larger than a Result
+(MAX_RESULT_BYTES), so Zenoh drops a big sample on the way instead of reassembling it. Everything
+else (queries, logs fetched, models served, tokens) goes on the main session.
 """
 
 import hashlib
@@ -104,6 +108,11 @@ MAX_HELD_BYTES = MAX_EPISODE_BYTES
 # The largest message the client's session takes in: a result with the largest log (or a fetched
 # log). Zenoh reassembles a sample before any callback sees it, and drops a larger one on the way.
 MAX_RECEIVED_BYTES = MAX_EPISODE_BYTES + MAX_MESSAGE_BYTES
+# Without logs a result is its attachment (a Result, at most MAX_MESSAGE_BYTES) and an empty
+# payload: Zenoh counts the whole message (key, headers, attachment, payload), hence the margin.
+# Results then come on a session of their own that takes no more: Zenoh drops a larger sample
+# after its first MAX_RESULT_BYTES instead of reassembling it (docs/security.md).
+MAX_RESULT_BYTES = MAX_MESSAGE_BYTES + 64 * 1024
 # How long the result the broker took for a job may take to reach us after the broker said so
 # (a worker hands its result in, then puts it; a log of megabytes takes a while); then the
 # broker's record stands in for it, or the job runs again.
@@ -202,10 +211,16 @@ class FarmClient:
         self.session = open_session(
             "client", connect=connect, identity=identity, max_message_bytes=MAX_RECEIVED_BYTES
         )
+        # Where results come: without logs, a session that drops any larger sample unread.
+        self._results_session = self.session
         try:
+            if not keep_logs:
+                self._results_session = open_session(
+                    "client", connect=connect, identity=identity, max_message_bytes=MAX_RESULT_BYTES
+                )
             self._open_study(connect)
         except BaseException:
-            self.session.close()
+            self.close()
             raise
 
     def __enter__(self) -> "FarmClient":
@@ -215,8 +230,9 @@ class FarmClient:
         self.close()
 
     def close(self) -> None:
-        if not self.session.is_closed():
-            self.session.close()  # undeclares the token: the broker drops what is still queued
+        for session in (self.session, self._results_session):
+            if not session.is_closed():
+                session.close()  # undeclares the token: the broker drops what is still queued
 
     @property
     def pending(self) -> int:
@@ -240,8 +256,11 @@ class FarmClient:
     ) -> None:
         """Queue one job per (job id, spec). A job id may not be pending already. `avoid` names,
         per job id, workers that may not run it (a replica must run elsewhere). `keep_log`:
-        whether the logs come with the results (default: `keep_logs`)."""
+        whether the logs come with the results (default: `keep_logs`; never without it: the
+        client's results session takes no logs)."""
         keep = self.keep_logs if keep_log is None else keep_log
+        if keep and not self.keep_logs:
+            raise ValueError("keep_log: this client takes no logs with results (keep_logs=False)")
         clash = sorted(set(specs) & set(self._pending))
         if clash:
             raise ValueError(f"job ids already pending: {', '.join(clash[:5])}")
@@ -339,7 +358,8 @@ class FarmClient:
         only bytes that hash to the wanted digest are taken, whoever answers), written to
         run_dir/episodes/<job id>.mcap and scored here. A log no holder has any more (its worker
         is gone, or let it go) is simulated again, episodes being deterministic: as the job
-        `<job id>-k<n>`, on any worker, its log sent with its result."""
+        `<job id>-k<n>`, on any worker, its log sent with its result with `keep_logs`, else
+        fetched from that worker (a log that cannot be had is a Fetched without one, and why)."""
         fetched: dict[str, Fetched] = {}
         again: dict[str, Wanted] = {}
         for job_id, want in wanted.items():
@@ -379,6 +399,8 @@ class FarmClient:
         return None, ""
 
     def _simulate_again(self, again: Mapping[str, Wanted]) -> dict[str, Fetched]:
+        """Run these jobs again, as `<job id>-k<n>`, their logs taken as this client takes them:
+        with their results (`keep_logs`), or else fetched from the worker that ran them."""
         reruns = {}
         for job_id in again:
             number = 1
@@ -386,7 +408,7 @@ class FarmClient:
                 number += 1
             reruns[f"{job_id}-k{number}"] = job_id
         log.warning("simulating %d episodes again: their logs are gone", len(reruns))
-        self.submit({rerun: again[job_id].spec for rerun, job_id in reruns.items()}, keep_log=True)
+        self.submit({rerun: again[job_id].spec for rerun, job_id in reruns.items()})
         found: dict[str, EpisodeResult] = {}
         others: list[EpisodeResult] = []
         for evaluation in self.results():
@@ -400,27 +422,60 @@ class FarmClient:
         fetched = {}
         for rerun, job_id in reruns.items():
             evaluation = found.get(rerun)
-            if evaluation is None or evaluation.log is None:
+            if evaluation is None or evaluation.digest is None:
                 why = evaluation.reason if evaluation else "not simulated again"
-                fetched[job_id] = Fetched(None, None, None, why)
+                fetched[job_id] = Fetched(None, None, None, why or "not simulated again")
                 continue
-            path = evaluation.log.replace(self.log_dir / f"{job_id}.mcap")
             if evaluation.digest != again[job_id].digest:
                 log.warning("%s simulated again is not the log its worker had made", job_id)
-            fetched[job_id] = Fetched(
-                path, evaluation.scores, evaluation.digest, source=evaluation.worker
-            )
+            path = self.log_dir / f"{job_id}.mcap"
+            if evaluation.log is not None:  # it came with its result, checked and scored
+                evaluation.log.replace(path)
+                scores = evaluation.scores
+            else:
+                scores = self._fetch_rerun(job_id, evaluation, again[job_id].spec, path)
+                if scores is None:
+                    why = f"simulated again on {evaluation.worker}, but its log was not had"
+                    fetched[job_id] = Fetched(None, None, None, why)
+                    continue
+            fetched[job_id] = Fetched(path, scores, evaluation.digest, source=evaluation.worker)
         return fetched
+
+    def _fetch_rerun(
+        self, job_id: str, evaluation: EpisodeResult, spec: EpisodeSpec, path: Path
+    ) -> Scores | None:
+        """The log of a job run again, from the worker that ran it (by its digest), kept at
+        `path` and scored here; None if it cannot be had. A worker whose log does not score as
+        it claimed is distrusted."""
+        assert evaluation.digest is not None
+        want = Wanted(spec, evaluation.digest, (evaluation.worker,))
+        content, _ = self._fetch_log(want)
+        if content is None:
+            log.warning("%s simulated again: %s no longer has its log", job_id, evaluation.worker)
+            return None
+        try:
+            scores = self.read_log(content, spec, path, f"log of {job_id} simulated again")
+        except NotAnEpisodeLog as error:
+            log.warning("%s simulated again: %s", job_id, error)
+            return None
+        if scores != evaluation.scores:
+            self.distrust(evaluation.worker)
+            log.warning(
+                "%s simulated again: %s claimed scores its log has not", job_id, evaluation.worker
+            )
+        return scores
 
     # --- inside ----------------------------------------------------------------------------
 
     def _open_study(self, connect: Sequence[str]) -> None:
         token_key = keys.alive_study(self.study)
-        if token_held(self.session, token_key):
-            raise FarmUnavailable(f"study {self.study!r} is already open in another process")
-        self._subscriber = self.session.declare_subscriber(
+        self._subscriber = self._results_session.declare_subscriber(
             keys.study_results(self.study), self._on_result
         )
+        # Asked on the results session, after its subscriber: once answered, the router knows
+        # the subscriber (one link, in order), before the token below lets any job be submitted.
+        if token_held(self._results_session, token_key):
+            raise FarmUnavailable(f"study {self.study!r} is already open in another process")
         if self.models:
             self._model_server = self.session.declare_queryable(
                 keys.model(self.study, "*"), self._on_model_query

@@ -6,6 +6,7 @@ import dataclasses
 import hashlib
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -18,6 +19,7 @@ from gainfarm.analytic.evaluators.replication import Ledger, validate
 from gainfarm.broker.service import Broker
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import score
+from gainfarm.worker.service import CobotWorker
 from tests.helpers import short_spec, wait_for
 
 SPECS = {f"c{i}": short_spec(duration=0.4 + 0.1 * i) for i in range(3)}
@@ -145,3 +147,30 @@ def test_a_log_is_fetched_from_its_worker_or_else_simulated_again(
         assert got.source == evaluations[job_id].worker or job_id == "c0"
     assert fetched["c0"].source in {"h1", "h2"}  # whichever ran it again
     assert not list((tmp_path / "episodes").glob("*-k*"))  # the rerun's log took the job's name
+
+
+@pytest.mark.slow
+def test_a_log_run_again_is_fetched_from_the_worker_that_ran_it_or_the_fetch_fails(
+    broker: Broker, tmp_path: Path
+) -> None:
+    """A client that takes no logs with results asks for none, reruns included: the rerun's log
+    is fetched from the worker that ran it, and a worker that keeps no logs fails the fetch
+    cleanly, with a reason."""
+    with (
+        CobotWorker(broker.endpoints, "forgetful", log_memory=0) as worker,
+        FarmClient(broker.endpoints, "s", tmp_path, keep_logs=False) as farm,
+    ):
+        serving = threading.Thread(target=worker.serve, args=(threading.Event(), 2))
+        serving.start()
+        with pytest.raises(ValueError, match="keep_log: this client takes no logs"):
+            farm.submit({"j": short_spec()}, keep_log=True)
+        farm.submit({"j": short_spec()})
+        [evaluation] = list(farm.results(60))
+        assert evaluation.log is None and evaluation.worker == "forgetful"
+        wanted = Wanted(evaluation.spec, evaluation.digest, ("forgetful",))
+        fetched = farm.fetch({"j": wanted})["j"]
+        serving.join(60)
+    assert not serving.is_alive() and worker.jobs_done == 2  # the job, then its rerun
+    assert fetched.log is None and fetched.scores is None
+    assert fetched.reason == "simulated again on forgetful, but its log was not had"
+    assert not list((tmp_path / "episodes").glob("*.mcap"))
