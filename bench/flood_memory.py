@@ -2,6 +2,7 @@
 calm run of the same configuration, in one run of this script (issue 28, item 5).
 
     python bench/flood_memory.py [--pop 8] [--generations 2] [--workers 2] [--mib 64] [--tls]
+        [--keep front|all]
 
 A broker process and `--workers` worker processes serve two runs of the default run's
 configuration (`analytic start`: a 5 s spiral) with the same seed, each in a fresh analytic
@@ -9,9 +10,11 @@ process: calm; with tests/analytic/flooder.py putting `--mib` MiB samples of jun
 result keys from before the run starts to its end (no Result, a garbage one, another study's);
 and with every other sample a well-formed forgery for a job id the run is likely to have pending,
 which the client holds until the broker says it did not take it. With `--tls`, the secure
-profile: the flooder holds a worker certificate and no lease. Printed for each: the analytic's
-peak RSS (VmHWM), wall time, samples put, what the client dropped, its peak of held bytes, and
-the ratio of the peaks; every run must reach the same front.
+profile: the flooder holds a worker certificate and no lease. With `--keep all` the logs come
+with the results, as in a `--keep all` run (the default, `front`, leaves them with the workers,
+and the client's results session takes no message larger than a Result). Printed for each: the
+analytic's peak RSS (VmHWM), wall time, samples put, what the client dropped, its peak of held
+bytes, and the ratio of the peaks; every run must reach the same front.
 """
 
 import multiprocessing
@@ -45,7 +48,9 @@ def analytic(
     started = time.perf_counter()
     with (
         TuningRun.create(directory, config) as run,
-        FarmClient([endpoint], study, directory, identity=identity) as farm,
+        FarmClient(
+            [endpoint], study, directory, identity=identity, keep_logs=config.keep == "all"
+        ) as farm,
     ):
         farm.on_wait = waits.append
         run.run(farm)
@@ -94,8 +99,11 @@ def measure(
 @click.option("--mib", type=click.IntRange(min=1), default=64, show_default=True)
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
 @click.option("--tls", is_flag=True, help="the secure profile; the flooder is a worker")
-def main(pop: int, generations: int, workers: int, mib: int, seed: int, tls: bool) -> None:
-    config = RunConfig(pop=pop, generations=generations, seed=seed)
+@click.option("--keep", type=click.Choice(["front", "all"]), default="front", show_default=True)
+def main(
+    pop: int, generations: int, workers: int, mib: int, seed: int, tls: bool, keep: str
+) -> None:
+    config = RunConfig(pop=pop, generations=generations, seed=seed, keep=keep)
     endpoint = loopback_endpoint()
     with tempfile.TemporaryDirectory() as scratch:
         credentials = None
@@ -145,7 +153,9 @@ def main(pop: int, generations: int, workers: int, mib: int, seed: int, tls: boo
             broker.terminate()
             broker.wait(30)
     profile = "secure" if tls else "plain"
-    print(f"{profile} profile; pop {pop}, {generations} generations, {workers} workers")
+    print(
+        f"{profile} profile, --keep {keep}; pop {pop}, {generations} generations, {workers} workers"
+    )
     print_table(
         [
             "run",
