@@ -35,7 +35,8 @@ sample's small attachment (the Result) on Zenoh's thread and copies the payload 
 for a result this study waits for, with a log of the length it claims, and only while the results
 it holds unconfirmed stay within MAX_HELD_BYTES; everything else is dropped uncopied and counted
 (`ignored`, `duplicates`, `unconfirmed`, `dropped`). A result the broker took that was dropped,
-or lost on the way, is run again at once (docs/security.md, "Junk on a study's keys"). Without
+or lost on the way, is one the study never received: its record stands in for it, as for a
+silent holder's, and its worker is not blamed (docs/security.md, "Junk on a study's keys"). Without
 `keep_logs` no result brings a log, and the client asks for none (a log simulated again is fetched
 too): results then come on a session of their own that takes no message larger than a Result
 (MAX_RESULT_BYTES), so Zenoh drops a big sample on the way instead of reassembling it. Everything
