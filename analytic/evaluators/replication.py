@@ -117,19 +117,19 @@ def validate(
     standing = {original.job_id: original for original in originals if original.digest}
     jobs = {f"{job_id}{REFEREE}": original.spec for job_id, original in standing.items()}
     referee.submit(jobs)
-    verdicts = {}
+    reruns = {}
     try:
-        for verdict in referee.results():
-            verdicts[verdict.job_id.removesuffix(REFEREE)] = verdict
+        for rerun in referee.results():
+            reruns[rerun.job_id.removesuffix(REFEREE)] = rerun
     except PluginError as error:  # this process lacks a plug-in the episode needs
         log.error("the referee cannot run every front member's episode: %s", error)
     finally:  # stopped (Ctrl-C) or failed: leave nothing queued in the referee
         referee.cancel(jobs)
     validation = Validation(standing)
     for job_id in list(standing):
-        verdict = verdicts.get(job_id)
-        if verdict is None or not _ran(verdict):
-            why = verdict.reason if verdict is not None else "no result"
+        rerun = reruns.get(job_id)
+        if rerun is None or not _ran(rerun):
+            why = rerun.reason if rerun is not None else "no result"
             log.error("episode %s could not be refereed (%s): it fails", job_id, why)
             validation.unsettled.add(job_id)
             validation.rulings[job_id] = Ruling.unsettled
@@ -139,7 +139,7 @@ def validate(
             ledger.spot_checked += 1
         else:
             ledger.refereed += 1
-        validation.rulings[job_id] = _settle(job_id, verdict, standing, ledger, evaluator)
+        validation.rulings[job_id] = _settle(job_id, rerun, standing, ledger, evaluator)
     ledger.unsettled += len(validation.unsettled)
     ledger.seconds += time.monotonic() - started
     return validation
@@ -151,21 +151,21 @@ def _ran(evaluation: EpisodeResult) -> bool:
 
 def _settle(
     job_id: str,
-    verdict: EpisodeResult,
+    rerun: EpisodeResult,
     standing: dict[str, EpisodeResult],
     ledger: Ledger,
     evaluator: Evaluator,
 ) -> Ruling:
     original = standing[job_id]
-    if original.digest == verdict.digest and original.scores == verdict.scores:
-        if verdict.log is not None and original.log is None:  # the same bytes: no fetch needed
-            here = verdict.log.replace(verdict.log.with_name(f"{job_id}.mcap"))
+    if original.digest == rerun.digest and original.scores == rerun.scores:
+        if rerun.log is not None and original.log is None:  # the same bytes: no fetch needed
+            here = rerun.log.replace(rerun.log.with_name(f"{job_id}.mcap"))
             standing[job_id] = dataclasses.replace(original, log=here)
-        elif verdict.log is not None:
-            verdict.log.unlink(missing_ok=True)
+        elif rerun.log is not None:
+            rerun.log.unlink(missing_ok=True)
         return Ruling.agreed
     ledger.disagreements += 1
-    what = "a log" if original.digest != verdict.digest else "scores its log does not have"
+    what = "a log" if original.digest != rerun.digest else "scores its log does not have"
     if original.worker not in ledger.dissenters:
         ledger.dissenters[original.worker] = (
             f"returned {what} for {job_id} that the referee's run contradicts"
@@ -178,8 +178,8 @@ def _settle(
             what,
             job_id,
         )
-    kept = verdict.log
+    kept = rerun.log
     if kept is not None:  # the referee's log where the original's is, or would be, kept
         kept = kept.replace(original.log or kept.with_name(f"{job_id}.mcap"))
-    standing[job_id] = dataclasses.replace(verdict, job_id=job_id, log=kept)
+    standing[job_id] = dataclasses.replace(rerun, job_id=job_id, log=kept)
     return Ruling.contradicted
