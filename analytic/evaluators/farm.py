@@ -248,6 +248,21 @@ class FarmClient:
         """The workers connected to the farm now: how many jobs can run at once."""
         return self.status().worker_count
 
+    @property
+    def trusted_capacity(self) -> int:
+        """The workers connected now that may still run this study's jobs: neither distrusted
+        nor left out (by name where the status lists them all, else by count). A broker that
+        does not answer is no verdict: taken as one (the run goes on, and waits for it)."""
+        try:
+            status = self.status()
+        except (BrokerUnavailable, BadMessage):
+            return 1
+        barred = self._distrusted | self._unheard_from
+        names = {worker.name for worker in status.workers}
+        if len(names) == status.worker_count:
+            return len(names - barred)
+        return max(status.worker_count - len(barred), 0)
+
     def submit(
         self,
         specs: Mapping[str, EpisodeSpec],

@@ -446,11 +446,21 @@ class TuningRun:
         ran = {ran.worker for episodes in self.state.provenance.values() for ran in episodes}
         return ran & self._distrusted(evaluator)
 
+    @staticmethod
+    def _trusted_left(evaluator: Evaluator, distrusted: set[str]) -> bool:
+        """Whether a worker not distrusted is there to run episodes: by name where the
+        evaluator knows them (FarmClient.trusted_capacity: a caught worker may have gone),
+        else by count."""
+        trusted = getattr(evaluator, "trusted_capacity", None)
+        if trusted is not None:
+            return trusted > 0
+        return evaluator.capacity > len(distrusted)
+
     def _nobody_left(self, evaluator: Evaluator) -> bool:
         """Stop the run when every worker of the farm is distrusted: nobody is left to run its
         episodes (they would wait out every deadline)."""
         distrusted = self._distrusted(evaluator)
-        if not distrusted or evaluator.capacity > len(distrusted):
+        if not distrusted or self._trusted_left(evaluator, distrusted):
             return False
         self.state.stopped = f"no trusted worker left ({', '.join(sorted(distrusted))} lied)"
         log.error("every worker of the farm is distrusted: the run stops")
@@ -465,7 +475,7 @@ class TuningRun:
         caught = self._caught(evaluator)
         if not caught or self.config.asynchronous:
             return False
-        if evaluator.capacity > len(self._distrusted(evaluator)):
+        if self._trusted_left(evaluator, self._distrusted(evaluator)):
             return True
         if caught - self._said_alone:  # once per worker, not every generation
             self._said_alone |= caught

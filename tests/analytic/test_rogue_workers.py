@@ -107,3 +107,21 @@ def test_a_saboteur_is_caught_by_spot_checks_and_the_front_is_the_calm_one(
     assert tuning.replication.spot_checked > 0
     assert "scores its log does not have" in tuning.replication.dissenters["saboteur"]
     assert_calm_front(tuning, calm, {"saboteur"})
+
+
+@pytest.mark.slow
+def test_the_workers_left_to_trust_are_counted_by_name_even_when_a_caught_one_has_gone(
+    broker: Broker, tmp_path: Path
+) -> None:
+    workers = {name: spawn(broker.endpoints[0], name) for name in ("h1", "h2")}
+    try:
+        wait_for(lambda: broker.status().worker_count == 2, 30, "the workers")
+        with FarmClient(broker.endpoints, "count", tmp_path, keep_logs=False) as farm:
+            assert farm.trusted_capacity == 2
+            farm.distrust("h1")
+            farm.distrust("gone")  # caught, then left the farm: no longer counted at all
+            assert farm.trusted_capacity == 1 and farm.capacity == 2
+            stop_workers([workers.pop("h2")])
+            wait_for(lambda: farm.trusted_capacity == 0, 30, "h2 to leave")
+    finally:
+        stop_workers(list(workers.values()))
