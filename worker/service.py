@@ -177,11 +177,16 @@ class CobotWorker:
             verdict = verdict_of.get((result.job_id, result.lease_id))
             if verdict is None or not verdict.accepted:
                 self.refused += 1
-                log.warning(
+                reason = "no verdict on it" if verdict is None else verdict.reason
+                # A study that ended while its job ran (its analytic process stopped, or was
+                # stopped with Ctrl-C) is no fault of anyone's: said quietly.
+                ended = reason.startswith("unknown study")
+                log.log(
+                    logging.INFO if ended else logging.WARNING,
                     "%s/%s: the broker did not take the result: %s",
                     result.study,
                     result.job_id,
-                    "no verdict on it" if verdict is None else verdict.reason,
+                    reason,
                 )
                 continue
             keep_log = item.lease.job.keep_log

@@ -226,7 +226,10 @@ def _run(
         display.every(text, EXPERIMENT_LOG_SECONDS)
 
     try:
-        with farm(connect, workers) as endpoints, Display(console) as display:
+        with (
+            farm(connect, workers) as endpoints,
+            Display(console, hushed=interrupts.INTERRUPTED.is_set) as display,
+        ):
             display.show(spec.name)
             experiment = Experiment(
                 out,

@@ -180,7 +180,7 @@ def run_with_progress(
     @contextlib.contextmanager
     def watch(farm: "Evaluator") -> Iterator[Callable[["RunProgress"], None]]:
         with (
-            Display(console) as display,
+            Display(console, hushed=interrupts.INTERRUPTED.is_set) as display,
             RunDisplay(
                 display, lambda: _workers(farm), lambda: getattr(farm, "waiting", None)
             ) as shown,

@@ -31,10 +31,18 @@ SPINNER_COLUMNS = 2  # the spinner and the space after it
 class Display:
     """A live line on a terminal, plain lines elsewhere; a context manager."""
 
-    def __init__(self, console: Console | None = None, enabled: bool = True):
-        """`enabled` False: say nothing (stderr is someone else's, or the output is JSON)."""
+    def __init__(
+        self,
+        console: Console | None = None,
+        enabled: bool = True,
+        hushed: Callable[[], bool] = lambda: False,
+    ):
+        """`enabled` False: say nothing (stderr is someone else's, or the output is JSON).
+        `hushed`: whether to say nothing more (a Ctrl-C came: the command's last line is its
+        own, however long the main thread takes to stop)."""
         self.console = console or Console(stderr=True)
         self.enabled = enabled
+        self.hushed = hushed
         self.live = enabled and self.console.is_terminal
         self._progress: Progress | None = None
         self._task: TaskID | None = None
@@ -69,7 +77,7 @@ class Display:
 
     def log(self, text: str) -> None:
         """A plain line (not on a terminal, where the live line says it)."""
-        if self.enabled and not self.live:
+        if self.enabled and not self.live and not self.hushed():
             click.echo(text, err=True)
 
     def every(self, text: str, seconds: float) -> None:

@@ -332,14 +332,13 @@ def test_a_worker_cut_off_for_longer_than_its_lease_loses_nothing_and_serves_aga
     held = {worker.name: worker for worker in watch.fresh().workers}["worker-1"]
     assert held.busy, f"worker-1 handed its result in before the cut: {held}"
 
-    # Its lease runs out, the job goes back to the queue, and the other worker does it.
-    wait_for(
-        lambda: watch.latest.requeued >= 1, LEASE_SECONDS + 5, "the broker to take the job back"
-    )
+    # The other worker does its job: a copy, once the job is overdue (three of the study's
+    # median turnarounds: broker/queue.py), or the job itself, taken back when the lease runs
+    # out, whichever comes first (a copy needs a turnaround measured first).
     assert study.wait(120) == 0, lan.tail("analytic")
     check_run(out, local_front)
     wait_for(lambda: watch.latest.jobs_done == JOBS, 5, "the broker to count the run")
-    assert watch.latest.requeued == 1
+    assert watch.latest.requeued <= 1
     assert watch.workers()["worker-2"].jobs_done == JOBS - held.jobs_done
 
     # Out longer than Zenoh's lease too: the broker closes the silent link, and the victim's
