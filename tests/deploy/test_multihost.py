@@ -334,11 +334,12 @@ def test_a_worker_cut_off_for_longer_than_its_lease_loses_nothing_and_serves_aga
 
     # The other worker does its job: a copy, once the job is overdue (three of the study's
     # median turnarounds: broker/queue.py), or the job itself, taken back when the lease runs
-    # out, whichever comes first (a copy needs a turnaround measured first).
+    # out, whichever comes first. How many leases were taken back on the way is timing (a 2 s
+    # lease on a loaded machine): what holds is that every job was done once, all of the
+    # victim's by the other worker.
     assert study.wait(120) == 0, lan.tail("analytic")
     check_run(out, local_front)
     wait_for(lambda: watch.latest.jobs_done == JOBS, 5, "the broker to count the run")
-    assert watch.latest.requeued <= 1
     assert watch.workers()["worker-2"].jobs_done == JOBS - held.jobs_done
 
     # Out longer than Zenoh's lease too: the broker closes the silent link, and the victim's
