@@ -45,6 +45,7 @@ from gainfarm.analytic.evaluators.replication import (
     Check,
     Ledger,
     Ran,
+    Ruling,
     Validation,
     spot_checked,
     validate,
@@ -405,8 +406,8 @@ class TuningRun:
                 self._account(evaluation)
                 # As it arrives, while the farm runs the rest; and before anything is told, so
                 # a lie caught now has steered nothing yet.
-                self._spot_check(evaluator, referee, results, evaluation.job_id)
-                if self._nobody_left(evaluator):  # the generation cannot be finished
+                caught = self._spot_check(evaluator, referee, results, evaluation.job_id)
+                if caught and self._nobody_left(evaluator):  # the generation cannot finish
                     return
                 on_progress(self._progress(len(results) // len(self.config.trajectories), started))
         finally:  # stopped mid-generation (Ctrl-C): leave nothing queued in the evaluator
@@ -518,12 +519,12 @@ class TuningRun:
         referee: Evaluator | None,
         results: dict[str, EpisodeResult],
         *job_ids: str,
-    ) -> None:
+    ) -> bool:
         """The referee runs again those of `job_ids` the spot checks draw; each takes the
         referee's standing evaluation in `results` (its own where it contradicts the worker's,
-        a failure where it could not run it)."""
+        a failure where it could not run it). True if it caught a worker lying."""
         if referee is None or not self.config.spot_checks:
-            return
+            return False
         drawn = [
             results[job_id]
             for job_id in job_ids
@@ -531,7 +532,7 @@ class TuningRun:
             and spot_checked(self.state.spot_key, job_id, self.config.spot_checks)
         ]
         if not drawn:
-            return
+            return False
         validation = validate(
             evaluator, drawn, self.state.ledger, referee=referee, check=Check.spot_checked
         )
@@ -545,6 +546,7 @@ class TuningRun:
                 results[job_id] = dataclasses.replace(
                     evaluation, status=EpisodeStatus.failed, scores=None, digest=None, reason=reason
                 )
+        return Ruling.contradicted in validation.rulings.values()
 
     def _note_checks(self, check: Check, validation: Validation, workers: dict[str, str]) -> None:
         self.state.validated.update(validation.rulings)
@@ -600,8 +602,8 @@ class TuningRun:
                 if not all(job_id in results for job_id in ids):
                     continue
                 del in_flight[name]
-                self._spot_check(evaluator, referee, results, *ids)
-                if self._nobody_left(evaluator):
+                caught = self._spot_check(evaluator, referee, results, *ids)
+                if caught and self._nobody_left(evaluator):
                     return
                 self._record(gains, ids, results)
                 evolution.tell_one(handle, self._candidate_done(gains))

@@ -20,75 +20,74 @@ from collections.abc import Callable
 
 from gainfarm.models.dynamics import DynamicsModel
 from gainfarm.models.urdf import description
+from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.mcap_episode import decode_episode, episode_bytes
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.wire import Lease, Result, WireScores
 from gainfarm.worker import service
 from gainfarm.worker.job import Simulate, execute, simulate
 
+Execute = Callable[..., tuple[Result, bytes]]
 
-def lying_execute(
-    lease: Lease,
-    name: str,
-    model: Callable[[str], DynamicsModel] | None = None,
-    run: Simulate = simulate,
-) -> tuple[Result, bytes]:
-    result, content = execute(lease, name, model, run)
-    if not content:
-        return result, content
-    log = decode_episode(content)
+
+def altering(change: Callable[[EpisodeLog], EpisodeLog]) -> Execute:
+    """A worker's `execute` that returns the log `change` makes of its honest one, with that
+    log's own scores: a valid, self-consistent lie."""
+
+    def lying(
+        lease: Lease,
+        name: str,
+        model: Callable[[str], DynamicsModel] | None = None,
+        run: Simulate = simulate,
+    ) -> tuple[Result, bytes]:
+        result, content = execute(lease, name, model, run)
+        if not content:
+            return result, content
+        altered = episode_bytes(change(decode_episode(content)), description())
+        scores = WireScores(**score(decode_episode(altered)).model_dump())
+        digest = hashlib.sha256(altered).hexdigest()
+        update = {"episode_bytes": len(altered), "digest": digest, "scores": scores}
+        return result.model_copy(update=update), altered
+
+    return lying
+
+
+def claiming(factor: float) -> Execute:
+    """A worker's `execute` that returns its honest log and claims f_acc and f_t `factor` times
+    what the log has."""
+
+    def lying(
+        lease: Lease,
+        name: str,
+        model: Callable[[str], DynamicsModel] | None = None,
+        run: Simulate = simulate,
+    ) -> tuple[Result, bytes]:
+        result, content = execute(lease, name, model, run)
+        if result.scores is None:
+            return result, content
+        claimed = {"f_acc": factor * result.scores.f_acc, "f_t": factor * result.scores.f_t}
+        scores = result.scores.model_copy(update=claimed)
+        return result.model_copy(update={"scores": scores}), content
+
+    return lying
+
+
+def _one_sample_off(log: EpisodeLog) -> EpisodeLog:
     u = log.u.copy()
     u[len(u) // 2, 3] += 0.01  # N·m: one sample of one joint's command
-    altered = episode_bytes(dataclasses.replace(log, u=u), description())
-    digest = hashlib.sha256(altered).hexdigest()
-    scores = WireScores(**score(decode_episode(altered)).model_dump())
-    update = {"episode_bytes": len(altered), "digest": digest, "scores": scores}
-    return result.model_copy(update=update), altered
+    return dataclasses.replace(log, u=u)
 
 
-def forging_execute(
-    lease: Lease,
-    name: str,
-    model: Callable[[str], DynamicsModel] | None = None,
-    run: Simulate = simulate,
-) -> tuple[Result, bytes]:
-    result, content = execute(lease, name, model, run)
-    if not content:
-        return result, content
-    log = decode_episode(content)
+def _flattering(log: EpisodeLog) -> EpisodeLog:
     u = log.u[:1] + 0.3 * (log.u - log.u[:1])  # each torque step 0.3 of what it was
     ee = log.ee_des + 0.3 * (log.ee - log.ee_des)  # and the error
-    forged = episode_bytes(dataclasses.replace(log, u=u, ee=ee), description())
-    scores = WireScores(**score(decode_episode(forged)).model_dump())
-    digest = hashlib.sha256(forged).hexdigest()
-    update = {"episode_bytes": len(forged), "digest": digest, "scores": scores}
-    return result.model_copy(update=update), forged
+    return dataclasses.replace(log, u=u, ee=ee)
 
 
-def sabotaging_execute(
-    lease: Lease,
-    name: str,
-    model: Callable[[str], DynamicsModel] | None = None,
-    run: Simulate = simulate,
-) -> tuple[Result, bytes]:
-    result, content = execute(lease, name, model, run)
-    if result.scores is None:
-        return result, content
-    worse = {"f_acc": 5 * result.scores.f_acc, "f_t": 5 * result.scores.f_t}
-    return result.model_copy(update={"scores": result.scores.model_copy(update=worse)}), content
-
-
-def boasting_execute(
-    lease: Lease,
-    name: str,
-    model: Callable[[str], DynamicsModel] | None = None,
-    run: Simulate = simulate,
-) -> tuple[Result, bytes]:
-    result, content = execute(lease, name, model, run)
-    if result.scores is None:
-        return result, content
-    better = {"f_acc": 0.9 * result.scores.f_acc, "f_t": 0.9 * result.scores.f_t}
-    return result.model_copy(update={"scores": result.scores.model_copy(update=better)}), content
+lying_execute = altering(_one_sample_off)
+forging_execute = altering(_flattering)
+boasting_execute = claiming(0.9)
+sabotaging_execute = claiming(5.0)
 
 
 def main() -> None:
