@@ -8,11 +8,14 @@ import contextlib
 import socket
 import subprocess
 import sys
+import time
 from collections.abc import Iterator, Sequence
 
 from gainfarm.broker.service import Broker
 
 STOP_SECONDS = 15.0  # a worker finishes its episode before leaving; longer than that is a hang
+# A worker imports MuJoCo and Zenoh before it joins: a few seconds on a loaded machine.
+READY_SECONDS = 120.0
 
 
 def free_port() -> int:
@@ -55,6 +58,18 @@ def stop_workers(workers: list[subprocess.Popen]) -> None:
             worker.wait()
 
 
+def _await_workers(broker: Broker, processes: list[subprocess.Popen]) -> None:
+    """Return once every worker has joined the broker. A run started sooner hands its first
+    batch to whichever worker came first, all of it if it came alone, and the others idle."""
+    deadline = time.monotonic() + READY_SECONDS
+    while broker.status().worker_count < len(processes):
+        if any(process.poll() is not None for process in processes):
+            raise ConnectionError("a worker exited before joining")
+        if time.monotonic() > deadline:
+            raise ConnectionError(f"its workers did not join in {READY_SECONDS:.0f} s")
+        time.sleep(0.05)
+
+
 @contextlib.contextmanager
 def farm_endpoints(connect: Sequence[str] = (), workers: int = 1) -> Iterator[list[str]]:
     """Where the farm is: the broker at `connect`, or else a local farm of `workers` processes
@@ -70,9 +85,10 @@ def farm_endpoints(connect: Sequence[str] = (), workers: int = 1) -> Iterator[li
 def local_farm(workers: int = 1, lease_seconds: float = 60.0) -> Iterator[str]:
     """Run a broker and `workers` worker processes; yield the endpoint to connect to."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    with Broker([endpoint], lease_seconds=lease_seconds):
+    with Broker([endpoint], lease_seconds=lease_seconds) as broker:
         processes = [spawn_worker(endpoint, f"local-{index}") for index in range(workers)]
         try:
+            _await_workers(broker, processes)
             yield endpoint
         finally:
             stop_workers(processes)

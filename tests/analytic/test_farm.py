@@ -51,6 +51,13 @@ def test_several_workers_share_a_batch_and_every_episode_is_kept_and_scored(
 
 
 @pytest.mark.slow
+def test_a_local_farm_starts_its_block_with_every_worker_joined(tmp_path: Path) -> None:
+    # Else the first worker up takes the whole first batch and the others idle through it.
+    with local_farm(workers=2) as endpoint, FarmClient([endpoint], "s", tmp_path) as farm:
+        assert sorted(worker.name for worker in farm.status().workers) == ["local-0", "local-1"]
+
+
+@pytest.mark.slow
 def test_a_batch_keeps_every_log_even_when_the_workers_keep_them(tmp_path: Path) -> None:
     # The results bring their workers' scores alone; run_batch fetches every log, checks it by
     # its digest and scores it again here, as a batch promises.
