@@ -156,6 +156,12 @@ def episode(
     help="memory for the episode logs this worker keeps to be fetched (jobs that do not send "
     "their log), MiB",
 )
+@click.option(
+    "--threads",
+    type=click.IntRange(min=1, max=1024),
+    help="threads stepping a batch's episodes, each on a core  [default: every core this "
+    "process may use]",
+)
 @options.log_level()
 def start(
     connect: tuple[str, ...],
@@ -163,6 +169,7 @@ def start(
     tls: Path | None,
     model_cache: Path | None,
     log_memory: int,
+    threads: int | None,
     log_level: str,
 ) -> None:
     """Serve a farm: ask the broker for jobs while free, run them, return their results.
@@ -192,7 +199,9 @@ def start(
     waiting = False
     while not stop.is_set():
         try:
-            cobot = CobotWorker(connect, name, identity, models, log_memory * 2**20)
+            cobot = CobotWorker(
+                connect, name, identity, models, log_memory * 2**20, threads=threads or cores()
+            )
         except (NameTaken, ValueError) as error:
             raise CliError(str(error)) from None
         except ConnectionError as error:
@@ -202,9 +211,14 @@ def start(
             stop.wait(1.0)
             continue
         with cobot:
-            log.info("worker %s serving %s", name, ", ".join(connect))
+            log.info("worker %s serving %s on %d threads", name, ", ".join(connect), cobot.threads)
             done = cobot.serve(stop)
         log.info("worker %s stopped after %d jobs", name, done)
+
+
+def cores() -> int:
+    """The cores this process may run on (its CPU affinity, as a container's --cpuset sets)."""
+    return len(os.sched_getaffinity(0))
 
 
 def _file_gains(path: Path) -> "PDGains":

@@ -9,7 +9,7 @@ not use, divergence checks) is done in bulk, once per episode or once per block 
 """
 
 import platform
-from collections.abc import Iterator
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache, lru_cache
 from importlib.metadata import version
@@ -22,15 +22,12 @@ from gainfarm.models.dynamics import DynamicsModel
 from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
-from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
+from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.control import PDController
 from gainfarm.worker.plant import Plant
 from gainfarm.worker.reference import Reference, reference_for
 from gainfarm.worker.sensors import LINK, MOTOR, TORQUE, Encoders, friction_torque, noise
-
-CHECK_EVERY = 250  # ticks between divergence checks (0.5 s): cheap, and early enough
-MAX_JOINT_ERROR = 1.0  # rad: a tracking error this large is a lost arm, not a tuning trade-off
-_STATE = mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL  # what a tick senses
+from gainfarm.worker.stepping import Stepped, step_all
 
 
 class MissingModel(ValueError):
@@ -62,49 +59,73 @@ def compensation(
 def simulate(spec: EpisodeSpec, reference: Reference, added: np.ndarray | None) -> EpisodeLog:
     """Track `reference` with the spec's controller on its plant, `added` (see `compensation`)
     added to the PD law's torque."""
+    return simulate_all([(spec, reference, added)])[0]
+
+
+Prepared = tuple[EpisodeSpec, Reference, np.ndarray | None]  # what `simulate` takes
+
+
+def simulate_all(episodes: Sequence[Prepared], threads: int = 1) -> list[EpisodeLog]:
+    """`simulate` each of `episodes`, all stepped together on `threads` threads (see
+    worker.stepping); each log is the same, byte for byte, as if its episode ran alone."""
+    stepped = [_setup(*episode) for episode in episodes]
+    step_all(stepped, threads)
+    return [_log(spec, run) for (spec, _, _), run in zip(episodes, stepped, strict=True)]
+
+
+def _setup(spec: EpisodeSpec, reference: Reference, added: np.ndarray | None) -> Stepped:
+    """The episode's plant at rest where the reference starts, its controller as matrices."""
     plant = Plant(spec.model)
     controller = PDController.from_gains(spec.gains, plant.torque_limits)
     feedforward = controller.reference_term(
         reference.q, reference.qd, 0.0 if added is None else added
     )
     plant.reset(reference.q[0])
-
-    ticks = len(reference.t)
-    flange = np.empty((ticks, 3))
-    command = np.empty((ticks, len(JOINT_NAMES)))
     if _exact(spec.model):
-        state = np.empty((ticks, plant.model.nq + plant.model.nv))
-        ticks_run, divergence = _simulate_exact(
-            plant, controller, feedforward, reference, state, command, flange
-        )
+        kp_state, kd_state = controller.state_gains(plant.feedback_map)
+        gains = np.hstack([kp_state, kd_state])  # Kp q + Kd q̇ = gains @ (qpos, qvel)
+        return Stepped(plant, reference, gains, feedforward)
+    sensing = _Sensing.of(plant, controller)
+    friction = spec.model.friction
+    return Stepped(
+        plant,
+        reference,
+        sensing.pd_law,
+        sensing.rows(plant, feedforward),
+        measure=sensing.measure,
+        rest=sensing.at_rest(plant),
+        window=sensing.window,
+        quantised=sensing.quantised,
+        slip=sensing.slip,
+        opposing=None if friction is None else -np.asarray(friction.coulomb),
+    )
+
+
+def _log(spec: EpisodeSpec, run: Stepped) -> EpisodeLog:
+    """The episode's log from what its loop recorded."""
+    plant, reference, ticks_run = run.plant, run.reference, run.ticks_run
+    state = run.state[:ticks_run]
+    if run.exact:
         # MuJoCo clamped each command to the motor's ctrlrange (the torque limit) when applying
         # it; clamping is exact, so doing the same here in bulk logs exactly the torques applied.
-        applied = np.clip(command[:ticks_run], -plant.torque_limits, plant.torque_limits)
-        readings = _exact_readings(plant, state[:ticks_run], applied)
+        applied = np.clip(run.command[:ticks_run], -plant.torque_limits, plant.torque_limits)
+        readings = _exact_readings(plant, state, applied)
     else:
-        sensing = _Sensing.of(plant, controller)
-        rows = sensing.rows(plant, feedforward)
-        measured = np.empty((sensing.window + ticks, sensing.width))
-        measured[: sensing.window] = sensing.at_rest(plant)  # no rows if the sensors are exact
-        ticks_run, divergence = _simulate(
-            plant, sensing, reference, rows, measured, command, flange
-        )
         delay = np.maximum(np.arange(ticks_run) - spec.model.delay, 0)
-        applied = np.clip(command[delay], -plant.torque_limits, plant.torque_limits)
-        state = rows[:ticks_run, : plant.model.nq + plant.model.nv]
+        applied = np.clip(run.command[delay], -plant.torque_limits, plant.torque_limits)
         if spec.model.sensors.exact:
             readings = _exact_readings(plant, state, applied)
         else:
-            counts = measured[: sensing.window + ticks_run, : len(JOINT_NAMES)]
-            readings = _sensed_readings(plant, sensing.encoders, state, counts, applied)
-
+            counts = run.measured[: run.window + ticks_run, : len(JOINT_NAMES)]
+            encoders = Encoders(spec.model.sensors)
+            readings = _sensed_readings(plant, encoders, state, counts, applied)
     metadata = EpisodeMetadata(
         spec=spec,
-        ticks_planned=ticks,
+        ticks_planned=run.ticks,
         ticks_run=ticks_run,
         torque_limits=tuple(plant.torque_limits.tolist()),
-        diverged=bool(divergence),
-        divergence=divergence,
+        diverged=bool(run.divergence),
+        divergence=run.divergence,
         versions=software_versions(),
     )
     return EpisodeLog(
@@ -112,7 +133,7 @@ def simulate(spec: EpisodeSpec, reference: Reference, added: np.ndarray | None) 
         **readings,
         q_des=reference.q[:ticks_run].copy(),
         qd_des=reference.qd[:ticks_run].copy(),
-        ee=flange[:ticks_run],
+        ee=run.flange[:ticks_run].copy(),
         ee_des=reference.ee[:ticks_run].copy(),
         metadata=metadata,
     )
@@ -143,130 +164,6 @@ def gravity_torques(q: np.ndarray, inertials: str) -> np.ndarray:
         mujoco.mj_forward(model, data)  # qvel = 0, so the bias force is gravity alone
         torques[k] = data.qfrc_bias
     return torques
-
-
-def _simulate_exact(
-    plant: Plant,
-    controller: PDController,
-    feedforward: np.ndarray,
-    reference: Reference,
-    state_log: np.ndarray,
-    torque_log: np.ndarray,
-    flange_log: np.ndarray,
-) -> tuple[int, str]:
-    """The tick loop with exact sensors and no delay; return (ticks kept, divergence or "").
-
-    Each tick: sense the state, set the PD command, take the first physics step, then log the
-    flange position (mj_step computes kinematics before it integrates, so site_xpos is still this
-    tick's), then take the remaining substeps. The command is logged unclamped; MuJoCo clamps it
-    to the motor's ctrlrange when applying it, and the log does the same in bulk.
-    """
-    model, data = plant.model, plant.data
-    ctrl, flange = data.ctrl, data.site_xpos[plant.flange]
-    kp_state, kd_state = controller.state_gains(plant.feedback_map)
-    state_gain = np.hstack([kp_state, kd_state])  # Kp q + Kd q̇ = state_gain @ (qpos, qvel)
-    feedback = np.empty(len(controller.kp))
-    sense, signature = mujoco.mj_getState, _STATE
-    step = mujoco.mj_step
-    remaining_substeps = plant.substeps - 1
-    dot, subtract, copy = np.dot, np.subtract, np.copyto
-    ticks = len(feedforward)
-    for start, stop in _blocks(ticks):
-        block = zip(
-            state_log[start:stop],
-            torque_log[start:stop],
-            flange_log[start:stop],
-            feedforward[start:stop],
-            strict=True,
-        )
-        for state, torque, flange_position, reference_term in block:
-            sense(model, data, state, signature)
-            dot(state_gain, state, out=feedback)
-            subtract(reference_term, feedback, out=ctrl)
-            copy(torque, ctrl)
-            step(model, data)
-            copy(flange_position, flange)
-            if remaining_substeps:
-                step(model, data, remaining_substeps)
-        if stopped := _stopped(plant, state_log, reference, start, stop):
-            return stopped
-    return ticks, ""
-
-
-def _simulate(
-    plant: Plant,
-    sensing: "_Sensing",
-    reference: Reference,
-    row_log: np.ndarray,
-    measured_log: np.ndarray,
-    command_log: np.ndarray,
-    flange_log: np.ndarray,
-) -> tuple[int, str]:
-    """The tick loop with sensors, delay and friction; return (ticks kept, divergence or "").
-
-    Each row of `row_log` is (qpos, qvel, encoder noise, feed-forward): all but the state were
-    known before the episode, so one matrix-vector product turns a sensed row into a measurement
-    (what the PD sees, the motors' friction argument θ̇ / smoothing, the feed-forward). Rows of
-    `measured_log` follow `window` rows measured at rest, so the last window + 1 of them are one
-    contiguous vector and the PD command is one more product. Each tick: sense, measure, compute
-    the command; apply the command computed `delay` ticks ago (the first one until then: the
-    robot was already holding it); set the motors' Coulomb friction for this tick from their
-    velocities; step as in `_simulate_exact`.
-    """
-    model, data = plant.model, plant.data
-    n, nx, window = len(JOINT_NAMES), plant.model.nq + plant.model.nv, sensing.window
-    ctrl, flange = data.ctrl, data.site_xpos[plant.flange]
-    measure, pd_law = sensing.measure, sensing.pd_law
-    flat = measured_log.reshape(-1)
-    windows = np.lib.stride_tricks.as_strided(
-        flat,
-        shape=(len(command_log), sensing.width * (window + 1)),
-        strides=(sensing.width * flat.itemsize, flat.itemsize),
-    )
-    delayed = [command_log[max(k - plant.spec.delay, 0)] for k in range(len(command_log))]
-    friction = plant.spec.friction
-    motor_force = data.qfrc_applied[plant.motor_dof_slice]  # a view: writes land in MuJoCo
-    opposing = -np.asarray(friction.coulomb) if friction is not None else None
-    sense, signature = mujoco.mj_getState, _STATE
-    step = mujoco.mj_step
-    remaining_substeps = plant.substeps - 1
-    quantised = sensing.quantised
-    dot, multiply, copy, rint, tanh = np.dot, np.multiply, np.copyto, np.rint, np.tanh
-    states = row_log[:, :nx]
-    measurements = measured_log[window:]
-    angles = measurements[:, :n]  # counts of the fed-back angles (or the angles, if exact)
-    slips = measurements[:, sensing.slip]
-    ticks = len(command_log)
-    for start, stop in _blocks(ticks):
-        block = zip(
-            states[start:stop],
-            row_log[start:stop],
-            measurements[start:stop],
-            angles[start:stop],
-            slips[start:stop],
-            windows[start:stop],
-            command_log[start:stop],
-            delayed[start:stop],
-            flange_log[start:stop],
-            strict=True,
-        )
-        for state, row, measurement, angle, slip, recent, command, applied, position in block:
-            sense(model, data, state, signature)
-            dot(measure, row, out=measurement)
-            if quantised:
-                rint(angle, out=angle)
-            dot(pd_law, recent, out=command)
-            copy(ctrl, applied)
-            if opposing is not None:
-                tanh(slip, out=slip)
-                multiply(slip, opposing, out=motor_force)
-            step(model, data)
-            copy(position, flange)
-            if remaining_substeps:
-                step(model, data, remaining_substeps)
-        if stopped := _stopped(plant, states, reference, start, stop):
-            return stopped
-    return ticks, ""
 
 
 @dataclass(frozen=True)
@@ -402,43 +299,6 @@ def _joint_torque(
     if plant.elastic:
         return plant.joint_torque(qpos, qvel)
     return applied - friction_torque(plant.spec.friction, qvel @ plant.motor_map.T)
-
-
-def _blocks(ticks: int) -> Iterator[tuple[int, int]]:
-    """(start, stop) of the blocks of ticks a loop runs between two divergence checks."""
-    for start in range(0, ticks, CHECK_EVERY):
-        yield start, min(start + CHECK_EVERY, ticks)
-
-
-def _stopped(
-    plant: Plant, states: np.ndarray, reference: Reference, start: int, stop: int
-) -> tuple[int, str] | None:
-    """(ticks kept, why) if the episode diverged in ticks [start, stop), else None."""
-    bad_tick, reason = _first_divergence(plant, states[start:stop], reference.q[start:stop])
-    if bad_tick is None:
-        return None
-    tick = start + bad_tick
-    return tick, f"{reason} at t = {tick * CONTROL_PERIOD:.3f} s"
-
-
-def _first_divergence(plant: Plant, state: np.ndarray, q_des: np.ndarray) -> tuple[int | None, str]:
-    """First tick of a block where the state is non-finite, out of range or lost, and why."""
-    finite = np.isfinite(state).all(axis=1)
-    with np.errstate(invalid="ignore"):
-        q = state[:, : plant.model.nq] @ plant.link_map.T
-        out_of_range = (q < plant.joint_range[:, 0]) | (q > plant.joint_range[:, 1])
-        lost = np.abs(q - q_des) > MAX_JOINT_ERROR
-    checks = (
-        (~finite, "the simulation became non-finite"),
-        (out_of_range.any(axis=1), "a joint left its range"),
-        (lost.any(axis=1), f"a joint error exceeded {MAX_JOINT_ERROR} rad"),
-    )
-    first: tuple[int | None, str] = (None, "")
-    for flags, reason in checks:
-        hits = np.flatnonzero(flags)
-        if hits.size and (first[0] is None or hits[0] < first[0]):
-            first = (int(hits[0]), reason)
-    return first
 
 
 @cache

@@ -11,20 +11,21 @@ refused, the reason naming the plug-in, before anything is simulated.
 
 import hashlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from gainfarm import plugins
 from gainfarm.models.dynamics import DynamicsModel
 from gainfarm.models.urdf import description
 from gainfarm.schemas.episode import EpisodeSpec, Scores
+from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.mcap_episode import episode_bytes
 from gainfarm.schemas.objectives import Objective, score
 from gainfarm.schemas.wire import JobStatus, Lease, Result, Timings, WireScores
-from gainfarm.worker.episode import run_episode
+from gainfarm.worker.episode import Prepared, compensation, simulate_all
 from gainfarm.worker.feedforward import ModelUnavailable
 from gainfarm.worker.ik import UnreachablePath
-from gainfarm.worker.reference import InfeasibleReference
+from gainfarm.worker.reference import InfeasibleReference, reference_for
 
 REASON_LIMIT = 2000  # characters: Result.reason's bound
 
@@ -49,46 +50,92 @@ def simulate(spec: EpisodeSpec, model: Callable[[str], DynamicsModel] | None = N
     """Run the episode, encode its log and score it; never raises for a spec that cannot run.
     `model` gives the feed-forward model of a digest, if the spec names one (ModelUnavailable if
     it cannot)."""
+    return simulate_batch([spec], model)[0]
+
+
+ModelOf = Callable[[str], DynamicsModel]  # a feed-forward model by its digest
+
+
+def simulate_batch(
+    specs: Sequence[EpisodeSpec],
+    model: ModelOf | Sequence[ModelOf | None] | None = None,
+    threads: int = 1,
+) -> list[Outcome]:
+    """`simulate` every spec, their episodes stepped together on `threads` threads; each
+    outcome is the one its spec has alone, log byte for byte (worker.stepping). `model`: as
+    `simulate`'s, or one per spec. An episode's timings are its share of the batch's set-up and
+    stepping, then its own encoding and scoring."""
+    models = model if isinstance(model, Sequence) else [model] * len(specs)
     started = time.perf_counter()
-    content = b""
-    reason = ""
-    scores = None
+    prepared: dict[int, Prepared] = {}
+    outcomes: dict[int, Outcome] = {}
+    for index, spec in enumerate(specs):
+        began = time.perf_counter()
+        try:
+            objectives_of(spec)
+        except plugins.PluginError as error:
+            took = Timings(simulate_s=time.perf_counter() - began, encode_s=0.0)
+            outcomes[index] = Outcome(JobStatus.refused, str(error), b"", took)
+            continue
+        try:
+            reference = reference_for(spec.trajectory)
+            learned = _model(spec, models[index])
+            prepared[index] = (spec, reference, compensation(spec, reference, learned))
+        except Exception as error:
+            outcomes[index] = _failed(error, time.perf_counter() - began)
+    logs = _episodes(list(prepared.values()), threads)
+    share = (time.perf_counter() - started) / len(specs)
+    for index, log in zip(prepared, logs, strict=True):
+        outcomes[index] = log if isinstance(log, Outcome) else _outcome(log, share)
+    return [outcomes[index] for index in range(len(specs))]
+
+
+def _model(spec: EpisodeSpec, model: Callable[[str], DynamicsModel] | None) -> DynamicsModel | None:
+    if spec.feedforward is None:
+        return None
+    if model is None:
+        raise ModelUnavailable(
+            f"feed-forward model {spec.feedforward[:12]}: this worker cannot fetch models"
+        )
+    return model(spec.feedforward)
+
+
+def _episodes(prepared: list[Prepared], threads: int) -> list["EpisodeLog | Outcome"]:
+    """The episodes' logs, stepped together; if that fails (a bug, or a spec no check caught),
+    each alone, so that only the episode at fault fails."""
     try:
-        objectives = plugins_of(spec)
-    except plugins.PluginError as error:
-        took = time.perf_counter() - started
-        return Outcome(JobStatus.refused, str(error), b"", Timings(simulate_s=took, encode_s=0.0))
-    try:
-        feedforward = None
-        if spec.feedforward is not None:
-            if model is None:
-                raise ModelUnavailable(
-                    f"feed-forward model {spec.feedforward[:12]}: this worker cannot fetch models"
-                )
-            feedforward = model(spec.feedforward)
-        log = run_episode(spec, feedforward)
-    except (UnreachablePath, InfeasibleReference, ModelUnavailable) as error:
-        status, reason = JobStatus.failed, str(error)
-    except Exception as error:  # a bug or a bad spec must not kill a cobot serving a farm
-        status, reason = JobStatus.failed, f"{type(error).__name__}: {error}"
-    else:
-        status = JobStatus.diverged if log.metadata.diverged else JobStatus.ok
-        reason = log.metadata.divergence
-    simulated = time.perf_counter()
-    if status != JobStatus.failed:
-        try:  # scores the wire cannot carry (not finite) would be a bug: the job fails, not all
-            content = episode_bytes(log, description())
-            scores = score(log, objectives)
-            WireScores(**scores.model_dump())
-        except Exception as error:  # a plug-in objective's too: a stranger's code
-            status, content, scores = JobStatus.failed, b"", None
-            reason = " ".join(f"its log: {type(error).__name__}: {error}".split())
-    encoded = time.perf_counter()
-    timings = Timings(simulate_s=simulated - started, encode_s=encoded - simulated)
+        return list(simulate_all(prepared, threads))
+    except Exception as error:
+        if len(prepared) == 1:
+            return [_failed(error, 0.0)]
+        return [_episodes([episode], 1)[0] for episode in prepared]
+
+
+def _failed(error: Exception, took: float) -> Outcome:
+    if isinstance(error, UnreachablePath | InfeasibleReference | ModelUnavailable):
+        reason = str(error)
+    else:  # a bug or a bad spec must not kill a cobot serving a farm
+        reason = f"{type(error).__name__}: {error}"
+    return Outcome(JobStatus.failed, reason, b"", Timings(simulate_s=took, encode_s=0.0))
+
+
+def _outcome(log: EpisodeLog, simulate_s: float) -> Outcome:
+    """Encode and score an episode that ran; a log the wire cannot carry fails its job."""
+    status = JobStatus.diverged if log.metadata.diverged else JobStatus.ok
+    reason = log.metadata.divergence
+    began = time.perf_counter()
+    try:  # scores the wire cannot carry (not finite) would be a bug: the job fails, not all
+        content = episode_bytes(log, description())
+        scores: Scores | None = score(log, objectives_of(log.metadata.spec))
+        WireScores(**scores.model_dump())
+    except Exception as error:  # a plug-in objective's too: a stranger's code
+        status, content, scores = JobStatus.failed, b"", None
+        reason = " ".join(f"its log: {type(error).__name__}: {error}".split())
+    timings = Timings(simulate_s=simulate_s, encode_s=time.perf_counter() - began)
     return Outcome(status, reason, content, timings, scores)
 
 
-def plugins_of(spec: EpisodeSpec) -> dict[str, Objective]:
+def objectives_of(spec: EpisodeSpec) -> dict[str, Objective]:
     """The plug-in objectives the spec names, by name, once its trajectory kind is known to be
     here too. PluginError, naming the first plug-in this process lacks or cannot load."""
     plugins.load(plugins.TRAJECTORIES, spec.trajectory.kind)
@@ -107,7 +154,10 @@ def execute(
 ) -> tuple[Result, bytes]:
     """Run the lease's episode; return its Result, with its scores, and the MCAP bytes (empty if
     it failed)."""
-    outcome = run(lease.job.spec, model)
+    return _result(lease, worker, run(lease.job.spec, model))
+
+
+def _result(lease: Lease, worker: str, outcome: Outcome) -> tuple[Result, bytes]:
     result = Result(
         study=lease.study,
         job_id=lease.job.job_id,
@@ -121,3 +171,17 @@ def execute(
         scores=None if outcome.scores is None else WireScores(**outcome.scores.model_dump()),
     )
     return result, outcome.content
+
+
+def execute_batch(
+    leases: Sequence[Lease],
+    worker: str,
+    model_of: Callable[[Lease], ModelOf] | None = None,
+    threads: int = 1,
+) -> list[tuple[Result, bytes]]:
+    """`execute` every lease, their episodes stepped together on `threads` threads.
+    `model_of(lease)` gives the lease's feed-forward models (fetched from its study)."""
+    models = [None if model_of is None else model_of(lease) for lease in leases]
+    specs = [lease.job.spec for lease in leases]
+    outcomes = simulate_batch(specs, models, threads)
+    return [_result(lease, worker, out) for lease, out in zip(leases, outcomes, strict=True)]

@@ -3,7 +3,8 @@ run it, hand its results in to the broker with the next request and send each on
 to its study. One process is one cobot.
 
 A batch is about BATCH_SECONDS of work (one job when jobs are long): short jobs then cost the broker
-one query per batch instead of two per job.
+one query per batch instead of two per job, and its episodes step together (worker.stepping) on
+the worker's threads, the physics of each thread's share on a core of its own.
 
 The episode log goes along with the result only when the job asks for it (Job.keep_log);
 otherwise the worker keeps the log in memory (a LogStore, bounded: the least recently used go
@@ -14,7 +15,7 @@ import contextlib
 import logging
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import zenoh
@@ -36,7 +37,7 @@ from gainfarm.schemas.wire import (
     decode,
 )
 from gainfarm.worker.feedforward import ModelCache
-from gainfarm.worker.job import Simulate, execute, simulate
+from gainfarm.worker.job import Simulate, execute, execute_batch
 from gainfarm.worker.logstore import LogStore
 
 log = logging.getLogger("gainfarm.worker")
@@ -44,7 +45,9 @@ log = logging.getLogger("gainfarm.worker")
 ANSWER_MARGIN = 5.0  # s beyond the broker's longest hold before a lease request counts as lost
 RETRY_SECONDS = 1.0  # pause after a broker that did not answer or answered with an error
 ANSWER_SECONDS = 10.0  # how long a study has to answer a model fetch
-BATCH_SECONDS = 0.25  # work asked for at once: results wait for their batch at most this long
+# Work asked for at once: results wait for their batch about this long. Long enough for batches
+# of some 8 episodes per thread (where stepping them together has paid most of what it pays).
+BATCH_SECONDS = 1.0
 LOG_MEMORY = 512 * 2**20  # bytes of kept episode logs: some 20 of 120 s, hundreds of short ones
 
 
@@ -95,16 +98,19 @@ class CobotWorker:
         identity: TlsIdentity | None = None,
         models: ModelCache | None = None,
         log_memory: int = LOG_MEMORY,
-        simulate: Simulate = simulate,
+        simulate: Simulate | None = None,
+        threads: int = 1,
     ):
         """`log_memory`: bytes of episode logs kept for the studies to fetch. `simulate` runs an
-        episode (another only for simulated workers: bench/campaign.py --simulated)."""
+        episode in place of MuJoCo, one at a time (only for simulated workers:
+        bench/campaign.py --simulated). `threads`: threads stepping a batch's episodes."""
         request = LeaseRequest(worker=name)  # validates the name: it becomes a key chunk
         self.name = request.worker
         self.models = models if models is not None else ModelCache()
         self.logs = LogStore(log_memory)
         self._simulate = simulate
-        self._job_seconds: float | None = None  # a recent job's wall time, smoothed
+        self.threads = threads
+        self._job_seconds: float | None = None  # a recent job's share of its batch's wall time
         self.jobs_done = 0
         self.refused = 0  # results the broker did not take (e.g. the lease had gone elsewhere)
         self.session = open_session("client", connect=connect, identity=identity)
@@ -149,24 +155,33 @@ class CobotWorker:
                 stop.wait(RETRY_SECONDS)
                 continue
             self._send(ran, reply.verdicts)
-            ran = [self._run(lease) for lease in reply.leases]
+            ran = self._run(reply.leases)
 
     def _want(self, max_jobs: int | None, waiting: int) -> int:
-        """Leases to ask for: about BATCH_SECONDS of work at the pace of the last jobs."""
-        want = 1 if self._job_seconds is None else round(BATCH_SECONDS / self._job_seconds)
+        """Leases to ask for: about BATCH_SECONDS of work at the pace of the last jobs (at
+        first, one per thread)."""
+        pace = self._job_seconds
+        want = self.threads if pace is None else round(BATCH_SECONDS / pace)
         want = max(1, min(MAX_BATCH, want))
         return want if max_jobs is None else max(0, min(want, max_jobs - self.jobs_done - waiting))
 
-    def _run(self, lease: Lease) -> HandIn:
-        give_up = time.monotonic() + lease.expires_in
-        started = time.perf_counter()
-        result, content = execute(
-            lease, self.name, lambda wanted: self._model(lease, wanted), self._simulate
-        )
-        took = time.perf_counter() - started
+    def _run(self, leases: list[Lease]) -> list[HandIn]:
+        if not leases:
+            return []
+        started, started_at = time.perf_counter(), time.monotonic()
+        if self._simulate is not None:
+            ran = [
+                execute(lease, self.name, self._model_of(lease), self._simulate) for lease in leases
+            ]
+        else:
+            ran = execute_batch(leases, self.name, self._model_of, self.threads)
+        took = (time.perf_counter() - started) / len(leases)
         pace = self._job_seconds
         self._job_seconds = took if pace is None else 0.8 * pace + 0.2 * took
-        return HandIn(lease, result, content, give_up)
+        return [
+            HandIn(lease, result, content, started_at + lease.expires_in)
+            for lease, (result, content) in zip(leases, ran, strict=True)
+        ]
 
     def _send(self, ran: list[HandIn], verdicts: list[Verdict]) -> None:
         """Send each result the broker took to its study, with its log if the job asked to keep
@@ -235,10 +250,15 @@ class CobotWorker:
             with contextlib.suppress(Exception):  # e.g. the query had already been answered
                 query.reply_err("this worker could not answer the query")
 
-    def _model(self, lease: Lease, wanted: str) -> DynamicsModel:
-        """The job's feed-forward model, fetched from its study the first time."""
+    def _model_of(self, lease: Lease) -> Callable[[str], DynamicsModel]:
+        """The job's feed-forward model by its digest, fetched from its study the first time."""
 
-        return self.models.model(wanted, lambda _: fetch_model(self.session, lease.study, wanted))
+        def model(wanted: str) -> DynamicsModel:
+            return self.models.model(
+                wanted, lambda _: fetch_model(self.session, lease.study, wanted)
+            )
+
+        return model
 
     def _ask_for_work(self, want: int, ran: list[HandIn]) -> LeaseReply | None:
         """Hand in `ran`'s results and ask for `want` leases: the broker's answer, or None if

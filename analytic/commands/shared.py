@@ -68,7 +68,8 @@ farm_options = options.stack(
         type=click.IntRange(min=1, max=64),
         default=1,
         show_default=True,
-        help="with a local farm: how many worker processes",
+        help="with a local farm: how many worker processes (they share the cores: each steps "
+        "its episodes on cores / N threads)",
     ),
 )
 

@@ -1,10 +1,17 @@
 """The farm on one machine with no set-up: the broker inside this process, N worker processes.
 
-Used by `analytic ... --local [--workers N]` and by the tests. Everything listens on loopback, on
-a port the kernel picked as free, so nothing collides with a real farm on 7447.
+Used by `analytic ... --local [--workers N]` and by the tests. The workers share the machine's
+cores: each steps its batches on cores / N threads (at least one). One process, the default,
+plans each trajectory and compiles each plant once, and its threads step the physics of its
+batches on every core (worker.stepping); more processes pay those again, and gain only where the
+GIL-bound part of a tick, small beside its physics, would hold the threads back.
+
+Everything listens on loopback, on a port the kernel picked as free, so nothing collides with a
+real farm on 7447.
 """
 
 import contextlib
+import os
 import socket
 import subprocess
 import sys
@@ -86,7 +93,11 @@ def local_farm(workers: int = 1, lease_seconds: float = 60.0) -> Iterator[str]:
     """Run a broker and `workers` worker processes; yield the endpoint to connect to."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     with Broker([endpoint], lease_seconds=lease_seconds) as broker:
-        processes = [spawn_worker(endpoint, f"local-{index}") for index in range(workers)]
+        threads = str(max(1, len(os.sched_getaffinity(0)) // workers))
+        processes = [
+            spawn_worker(endpoint, f"local-{index}", "warning", "--threads", threads)
+            for index in range(workers)
+        ]
         try:
             _await_workers(broker, processes)
             yield endpoint
