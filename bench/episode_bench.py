@@ -1,68 +1,121 @@
-"""Cost of one episode on the realistic and the ideal plant, against a C physics loop, and of
-scoring it from its log.
+"""Cost of an episode, of its log and of the worker's whole job, against the episode's own
+physics, alone and in batches.
 
-    python bench/episode_bench.py [--repeats 15] [--duration 5]
+    python bench/episode_bench.py [--quick] [--repeats 5] [--duration 5] [--batches 1,8,32,128]
 
-All timings are medians over interleaved repeats in one run, so that the ratios compare like
-with like on a shared, noisy machine. The C loop is MuJoCo's own `rollout` (mj_step in C, no
-Python per step) on the realistic plant's model, stepped as many times from the same state with
-the motors holding the arm against gravity (so that, like a tracking episode, it neither falls
-into the joint limits nor does anything else): the cost of the physics alone.
+The anchor is the physics the episode ran: its per-step `ctrl` and `qfrc_applied` (the motors'
+commands, their friction), recorded as the episode stepped, replayed through MuJoCo's own
+`rollout` from the episode's first state (mj_step in C, one thread, no Python per step). The
+replay must retrace the episode (its link angles at the last tick within 0.01 rad of the log's):
+then it is the cost of the same physics and nothing else. Each case is a ratio to it ("x
+physics"), per episode, in process CPU time: an episode alone (`run_episode`), with its MCAP
+bytes, the worker's whole job (episode + MCAP + scores: `job.simulate`); then episodes and jobs
+stepped together (`simulate_all`, `simulate_batch`) in batches of each size, on one thread, each
+episode a candidate of its own (the default gains times 0.8-1.2); then the largest batch on
+every core, in wall time per episode. Medians over interleaved repeats in one run, so that the
+ratios compare like with like on a shared, noisy machine.
 """
 
+import os
+import random
 import statistics
-import tempfile
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import click
 import mujoco
 import numpy as np
-from common import print_table
+from common import print_table, scaled_gains
 from mujoco import rollout
 
-from gainfarm.edges.files import write_atomically
 from gainfarm.models.urdf import description
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import DEFAULT_GAINS
-from gainfarm.schemas.mcap_episode import episode_bytes, read_episode
-from gainfarm.schemas.objectives import score
+from gainfarm.schemas.mcap_episode import episode_bytes
 from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
-from gainfarm.worker.episode import gravity_torques, run_episode
+from gainfarm.worker.episode import Prepared, compensation, run_episode, simulate_all
+from gainfarm.worker.job import simulate, simulate_batch
 from gainfarm.worker.plant import Plant
 from gainfarm.worker.reference import reference_for
 
-
-def write_log(log: EpisodeLog, path: Path) -> int:
-    """Write `log` to `path` as `worker episode --out` does; return its size."""
-    content = episode_bytes(log, description())
-    write_atomically(path, content)
-    return len(content)
+REPLAY_TOLERANCE = 0.01  # rad: the replayed arm must end where the episode's did
+_DRIVE = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_QFRC_APPLIED
 
 
-def c_loop(spec: EpisodeSpec) -> Callable[[], None]:
-    """The episode's model stepped in C as many times from its first state, the motors holding
-    the arm against gravity: the cost of the physics alone."""
-    reference = reference_for(spec.trajectory)
+def recorded_physics(spec: EpisodeSpec) -> tuple[EpisodeLog, np.ndarray]:
+    """The episode's log, and what it drove its physics with: (ctrl, qfrc_applied) per step."""
+    drives: list[np.ndarray] = []
+    step = mujoco.mj_step
+
+    def recording(model: mujoco.MjModel, data: mujoco.MjData, nstep: int = 1) -> None:
+        for _ in range(nstep):
+            drives.append(np.concatenate([data.ctrl, data.qfrc_applied]))
+            step(model, data)
+
+    mujoco.mj_step = recording  # the tick loop looks mj_step up as it starts
+    try:
+        log = run_episode(spec)
+    finally:
+        mujoco.mj_step = step
+    return log, np.array(drives)
+
+
+def physics(spec: EpisodeSpec) -> Callable[[], None]:
+    """The episode's physics replayed in C; checked to retrace the episode first."""
+    log, drives = recorded_physics(spec)
     plant = Plant(spec.model)
-    plant.reset(reference.q[0])
+    plant.reset(reference_for(spec.trajectory).q[0])
     signature = mujoco.mjtState.mjSTATE_FULLPHYSICS
     initial = np.empty(mujoco.mj_stateSize(plant.model, signature))
     mujoco.mj_getState(plant.model, plant.data, initial, signature)
-    steps = spec.trajectory.ticks * plant.substeps
-    hold = gravity_torques(reference.q[:1], spec.model.inertials)
-    control = np.tile(hold, (steps, 1))
 
-    def run() -> None:
-        rollout.rollout(plant.model, plant.data, initial, control)
+    def replay() -> np.ndarray:
+        states, _ = rollout.rollout(plant.model, plant.data, initial, drives, control_spec=_DRIVE)
+        return states[0]
 
-    return run
+    states = replay()
+    last_tick = (log.metadata.ticks_run - 1) * plant.substeps - 1  # state at the last tick
+    qpos = states[last_tick, 1 : 1 + plant.model.nq]  # after the time
+    miss = np.abs(plant.link_map @ qpos - log.q[-1]).max()
+    if not miss < REPLAY_TOLERANCE:
+        raise SystemExit(f"the replay does not retrace the episode: {miss:.3g} rad off")
+    return replay
+
+
+def candidates(spec: EpisodeSpec, count: int, seed: int = 0) -> list[EpisodeSpec]:
+    """`count` episodes of `spec`'s path and plant, each a candidate of its own."""
+    rng = random.Random(seed)
+
+    def factors() -> list[float]:
+        return [rng.uniform(0.8, 1.2) for _ in DEFAULT_GAINS.kp]
+
+    return [
+        spec.model_copy(update={"gains": scaled_gains(factors(), factors())}) for _ in range(count)
+    ]
+
+
+def prepared(specs: list[EpisodeSpec]) -> list[Prepared]:
+    out = []
+    for spec in specs:
+        reference = reference_for(spec.trajectory)
+        out.append((spec, reference, compensation(spec, reference)))
+    return out
+
+
+def _batches(text: str) -> list[int]:
+    try:
+        sizes = [int(part) for part in text.split(",")]
+    except ValueError:
+        raise click.BadParameter("comma-separated batch sizes, e.g. 1,8,32") from None
+    if not sizes or min(sizes) < 1:
+        raise click.BadParameter("batch sizes are at least 1")
+    return sizes
 
 
 @click.command(help=__doc__.split("\n\n")[0])
-@click.option("--repeats", type=click.IntRange(min=1), default=15, show_default=True)
+@click.option("--quick", is_flag=True, help="a CI-sized run: 1 s episodes, batches 1,8, 2 repeats")
+@click.option("--repeats", type=click.IntRange(min=1), default=5, show_default=True)
 @click.option(
     "--duration",
     type=click.FloatRange(min=0, min_open=True),
@@ -70,46 +123,62 @@ def c_loop(spec: EpisodeSpec) -> Callable[[], None]:
     show_default=True,
     help="s per episode",
 )
-def main(repeats: int, duration: float) -> None:
-    trajectory = TrajectorySpec(duration=duration)
+@click.option("--batches", default="1,8,32,128", show_default=True, help="batch sizes")
+def main(quick: bool, repeats: int, duration: float, batches: str) -> None:
+    sizes = _batches(batches)
+    if quick:
+        repeats, duration, sizes = 2, 1.0, [1, 8]
+    kind = "fourier" if duration < 3 else "spiral"  # a Cartesian path needs some 3 s
+    trajectory = TrajectorySpec(kind=kind, duration=duration)
     realistic = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=trajectory, model=REALISTIC_PLANT)
     ideal = realistic.model_copy(update={"model": IDEAL_PLANT})
-    reference_for(trajectory)  # the IK runs once per trajectory; it is not per-episode cost
-    with tempfile.TemporaryDirectory() as scratch:
-        path = Path(scratch) / "episode.mcap"
-        size = write_log(run_episode(realistic), path)
-        cases: dict[str, Callable[[], object]] = {
-            "C mj_step loop (rollout)": c_loop(realistic),
-            "ideal episode": lambda: run_episode(ideal),
-            "realistic episode": lambda: run_episode(realistic),
-            "realistic episode + MCAP log": lambda: write_log(run_episode(realistic), path),
-            "score from MCAP": lambda: score(read_episode(path)),
-        }
-        times: dict[str, list[float]] = {name: [] for name in cases}
-        for _ in range(repeats):
-            for name, case in cases.items():
-                start = time.perf_counter()
-                case()
-                times[name].append(time.perf_counter() - start)
+    reference_for(trajectory)  # the IK runs once per trajectory: not per-episode cost
+    cores = len(os.sched_getaffinity(0))
+    largest = max(sizes)
+    batch_specs = {size: candidates(realistic, size) for size in sizes}
+    batch_episodes = {size: prepared(specs) for size, specs in batch_specs.items()}
+
+    cases: dict[str, tuple[Callable[[], object], int]] = {  # what, episodes it runs
+        "physics (replayed in C)": (physics(realistic), 1),
+        "ideal episode": (lambda: run_episode(ideal), 1),
+        "realistic episode": (lambda: run_episode(realistic), 1),
+        "realistic episode + MCAP": (
+            lambda: episode_bytes(run_episode(realistic), description()),
+            1,
+        ),
+        "whole job (episode + MCAP + scores)": (lambda: simulate(realistic), 1),
+    }
+    for size in sizes:
+        episodes, specs = batch_episodes[size], batch_specs[size]
+        cases[f"episodes, batch of {size}"] = (lambda e=episodes: simulate_all(e), size)
+        cases[f"jobs, batch of {size}"] = (lambda s=specs: simulate_batch(s), size)
+    threaded = f"jobs, batch of {largest} on {cores} threads (wall)"
+    cases[threaded] = (lambda: simulate_batch(batch_specs[largest], threads=cores), largest)
+
+    times: dict[str, list[float]] = {name: [] for name in cases}
+    for _ in range(repeats):
+        for name, (case, count) in cases.items():
+            clock = time.perf_counter if name == threaded else time.process_time
+            start = clock()
+            case()
+            times[name].append((clock() - start) / count)
 
     median = {name: statistics.median(values) for name, values in times.items()}
-    bare, ideal_time = median["C mj_step loop (rollout)"], median["ideal episode"]
-    logged = median["realistic episode + MCAP log"]
+    anchor = median["physics (replayed in C)"]
+    plant = realistic.model
     print(
-        f"{duration:g} s episode, {trajectory.ticks} ticks, {realistic.model.joints} joints, "
-        f"{realistic.model.substeps} physics steps per tick, median of {repeats}\n"
+        f"{duration:g} s {kind} episode, {trajectory.ticks} ticks, {plant.joints} joints, "
+        f"{plant.substeps} physics steps per tick; CPU time per episode (the threaded case: "
+        f"wall), median of {repeats}\n"
     )
-
-    def row(name: str, seconds: float) -> tuple[str, str, str, str]:
-        if name == "score from MCAP":
-            return name, f"{seconds * 1000:.1f}", f"{seconds / logged:.2f} of logged episode", ""
-        return name, f"{seconds * 1000:.1f}", f"{seconds / bare:.2f}", f"{seconds / ideal_time:.2f}"
-
     print_table(
-        ("case", "ms", "x C loop", "x ideal"), "lrrr", (row(*item) for item in median.items())
+        ("case", "ms per episode", "x physics"),
+        "lrr",
+        ((name, f"{t * 1000:.2f}", f"{t / anchor:.2f}") for name, t in median.items()),
     )
-    print(f"\nreal-time factor (realistic episode + log): {duration / logged:.0f}x")
-    print(f"bytes per episode: {size:,}")
+    whole = median[f"jobs, batch of {largest}"]
+    print(f"\nreal-time factor, one thread (jobs, batch of {largest}): {duration / whole:.0f}x")
+    print(f"bytes per episode: {len(episode_bytes(run_episode(realistic), description())):,}")
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ after the episode, so each costs the 2 ms tick as little as possible.
 """
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -24,8 +25,15 @@ LINK, MOTOR, TORQUE = range(3)  # the noise streams: link encoders, motor encode
 
 def noise(sensors: Sensors, stream: int, ticks: int, scale: float) -> np.ndarray:
     """(ticks, 7) Gaussian noise of standard deviation `scale` from the sensors' seed."""
-    generator = np.random.default_rng([sensors.seed, stream])
-    return generator.standard_normal((ticks, N_JOINTS)) * scale
+    return _standard_noise(sensors.seed, stream, ticks) * scale
+
+
+@lru_cache(maxsize=12)  # three streams of four plants' sensors
+def _standard_noise(seed: int, stream: int, ticks: int) -> np.ndarray:
+    """Every episode with the same sensors meets the same noise: drawn once per worker."""
+    drawn = np.random.default_rng([seed, stream]).standard_normal((ticks, N_JOINTS))
+    drawn.flags.writeable = False
+    return drawn
 
 
 @dataclass(frozen=True)

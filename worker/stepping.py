@@ -16,6 +16,7 @@ friction (the ideal plant, kept bit for bit: PD on the state, `ctrl = reference 
 and the one with encoders, a delay and motor friction (`command = P · recent measurements`).
 """
 
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -34,6 +35,9 @@ _STATE = mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL  # what a t
 _CTRL = mujoco.mjtState.mjSTATE_CTRL
 _DRIVE = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_QFRC_APPLIED
 N = len(JOINT_NAMES)
+# Worlds stepped together at most: beyond some 32, their MjData no longer stay in the caches
+# between ticks and each tick costs more than it saves (bench/episode_bench.py, 128: 2x).
+MAX_STACK = 32
 
 
 @dataclass
@@ -92,24 +96,31 @@ class Stepped:
 
 def step_all(episodes: Sequence[Stepped], threads: int = 1) -> None:
     """Run every episode's tick loop; each gets its log arrays, ticks run and divergence."""
-    parts: list[list[Stepped]] = []
     kinds: dict[tuple, list[Stepped]] = {}
     for episode in episodes:
         kinds.setdefault(episode.kind(), []).append(episode)
+    parts: list[list[Stepped]] = []
     for stack in kinds.values():
-        share = -(-len(stack) // max(1, threads))
-        parts.extend(stack[start : start + share] for start in range(0, len(stack), share))
+        size = min(MAX_STACK, -(-len(stack) // max(1, threads)))
+        parts.extend(stack[start : start + size] for start in range(0, len(stack), size))
     if threads <= 1 or len(parts) == 1:
         for part in parts:
             _loop(part)
         return
     with ThreadPoolExecutor(min(threads, len(parts))) as pool:
-        for done in [pool.submit(_loop, part) for part in parts]:
-            done.result()
+        for _ in pool.map(_loop, parts):  # raises the first part's error, if any
+            pass
 
 
 def _loop(stack: list[Stepped]) -> None:
-    (_exact_loop if stack[0].exact else _sensed_loop)(stack)
+    if len(stack) == 1:  # alone: a loop over one episode's rows costs less per tick
+        (_exact_alone if stack[0].exact else _sensed_alone)(stack[0])
+    else:
+        (_exact_loop if stack[0].exact else _sensed_loop)(stack)
+
+
+# --- many episodes -----------------------------------------------------------------------------
+# Logs are (ticks, episodes, ...): a tick's rows of every episode are one block, copied at once.
 
 
 @dataclass
@@ -127,40 +138,48 @@ class _World:
     remaining: int  # physics steps after the first in a tick
 
 
-def _worlds(stack: list[Stepped], sensed: np.ndarray, drive: np.ndarray, flange: np.ndarray):
+def _worlds(
+    stack: list[Stepped], sensed: np.ndarray, drive: np.ndarray, flange: np.ndarray
+) -> list[_World]:
     worlds = []
     for index, episode in enumerate(stack):
         plant = episode.plant
-        worlds.append(
-            _World(
-                index,
-                episode,
-                plant.model,
-                plant.data,
-                sensed[index],
-                drive[index],
-                flange[index],
-                plant.data.site_xpos[plant.flange],
-                plant.substeps - 1,
-            )
+        world = _World(
+            index,
+            episode,
+            plant.model,
+            plant.data,
+            sensed[index],
+            drive[index],
+            flange[index],
+            plant.data.site_xpos[plant.flange],
+            plant.substeps - 1,
         )
+        mujoco.mj_getState(world.model, world.data, world.sensed, _STATE)
+        worlds.append(world)
     return worlds
 
 
 def _tick_worlds(worlds: list[_World], signature: int) -> Callable[[], None]:
     """The per-world part of a tick: apply the drive, step (logging the flange where this
-    tick's kinematics left it, before the remaining substeps move it), sense the next state."""
-    sense, apply, step, copy = mujoco.mj_getState, mujoco.mj_setState, mujoco.mj_step, np.copyto
-    rows = [(w.model, w.data, w.sensed, w.drive, w.flange, w.site, w.remaining) for w in worlds]
+    tick's kinematics left it, before the remaining substeps move it), sense the next state.
+    Each step is one `map` over the worlds (a loop in C: a Python loop over five calls costs
+    them a sixth more); the worlds are independent, so the order of steps across them is free."""
+    models, datas = [w.model for w in worlds], [w.data for w in worlds]
+    drives, flanges = [w.drive for w in worlds], [w.flange for w in worlds]
+    sites, sensed = [w.site for w in worlds], [w.sensed for w in worlds]
+    signatures, states = [signature] * len(worlds), [_STATE] * len(worlds)
+    substeps = [w for w in worlds if w.remaining]
+    rest_models, rest_datas = [w.model for w in substeps], [w.data for w in substeps]
+    remaining = [w.remaining for w in substeps]
+    apply, step, sense, copy = mujoco.mj_setState, mujoco.mj_step, mujoco.mj_getState, np.copyto
 
     def run() -> None:
-        for model, data, sensed, drive, flange, site, remaining in rows:
-            apply(model, data, drive, signature)
-            step(model, data)
-            copy(flange, site)
-            if remaining:
-                step(model, data, remaining)
-            sense(model, data, sensed, _STATE)
+        deque(map(apply, models, datas, drives, signatures), 0)
+        deque(map(step, models, datas), 0)
+        deque(map(copy, flanges, sites), 0)
+        deque(map(step, rest_models, rest_datas, remaining), 0)
+        deque(map(sense, models, datas, sensed, states), 0)
 
     return run
 
@@ -173,31 +192,29 @@ def _exact_loop(stack: list[Stepped]) -> None:
     count, ticks = len(stack), max(episode.ticks for episode in stack)
     nx = stack[0].plant.model.nq + stack[0].plant.model.nv
     gains = np.stack([episode.gains for episode in stack])  # (B, 7, nx)
-    term = np.zeros((count, ticks, N))
+    term = np.zeros((ticks, count, N))
     for index, episode in enumerate(stack):
-        term[index, : episode.ticks] = episode.term
-    states, commands, flanges = (np.empty((count, ticks, width)) for width in (nx, N, 3))
+        term[: episode.ticks, index] = episode.term
+    states, commands, flanges = (np.empty((ticks, count, width)) for width in (nx, N, 3))
     sensed, flange = np.empty((count, nx)), np.empty((count, 3))
     command = np.empty((count, N))  # this tick's: the drive of every world
     feedback = np.empty((count, N, 1))
     worlds = _worlds(stack, sensed, command, flange)
-    for world in worlds:
-        mujoco.mj_getState(world.model, world.data, world.sensed, _STATE)
-    matmul, subtract = np.matmul, np.subtract
-    column = sensed[:, :, None]
+    matmul, subtract, copy = np.matmul, np.subtract, np.copyto
+    column, fed_back = sensed[:, :, None], feedback[:, :, 0]
     with np.errstate(all="ignore"):  # a diverging world computes on until its block ends
         for start, stop, live in _segments(worlds, states):
             tick = _tick_worlds(live, _CTRL)
             for k in range(start, stop):
                 matmul(gains, column, out=feedback)
-                subtract(term[:, k], feedback[:, :, 0], out=command)
-                states[:, k] = sensed
-                commands[:, k] = command
+                subtract(term[k], fed_back, out=command)
+                copy(states[k], sensed)
+                copy(commands[k], command)
                 tick()
-                flanges[:, k] = flange
+                copy(flanges[k], flange)
     for index, episode in enumerate(stack):
-        episode.state, episode.command = states[index], commands[index]
-        episode.flange = flanges[index]
+        episode.state, episode.command = states[:, index], commands[:, index]
+        episode.flange = flanges[:, index]
 
 
 def _sensed_loop(stack: list[Stepped]) -> None:
@@ -215,59 +232,171 @@ def _sensed_loop(stack: list[Stepped]) -> None:
     nx = first.plant.model.nq + first.plant.model.nv
     nu, nv = first.plant.model.nu, first.plant.model.nv
     assert first.measure is not None
-    width, window = len(first.measure), first.window
+    width, window, delay = len(first.measure), first.window, first.plant.spec.delay
     measure = np.stack([episode.measure for episode in stack])  # (B, width, nx + 14)
     law = np.stack([episode.gains for episode in stack])  # (B, 7, width · (window + 1))
-    rows = np.zeros((count, ticks, nx + 2 * N))
-    measured = np.zeros((count, window + ticks, width))
+    rows = np.zeros((ticks, count, nx + 2 * N))
+    measured = np.zeros((count, window + ticks, width))  # by episode: windows are contiguous
     for index, episode in enumerate(stack):
-        rows[index, : episode.ticks] = episode.term
+        rows[: episode.ticks, index] = episode.term
         measured[index, :window] = episode.rest
     item = measured.itemsize
     recent = np.lib.stride_tricks.as_strided(
         measured,
-        shape=(count, ticks, width * (window + 1), 1),
-        strides=(measured.strides[0], width * item, item, item),
+        shape=(ticks, count, width * (window + 1), 1),
+        strides=(width * item, measured.strides[0], item, item),
     )
-    commands, flanges = np.empty((count, ticks, N)), np.empty((count, ticks, 3))
-    delays = np.array([episode.plant.spec.delay for episode in stack])
-    everyone = np.arange(count)
+    commands, flanges = np.empty((ticks, count, N)), np.empty((ticks, count, 3))
     friction = first.opposing is not None
     opposing = np.stack([episode.opposing for episode in stack]) if friction else None
     sensed, flange = np.empty((count, nx)), np.empty((count, 3))
     drive = np.zeros((count, nu + (nv if friction else 0)))
     applied = drive[:, :nu]
     motor_force = drive[:, nu:][:, first.plant.motor_dof_slice] if friction else None
-    measurement, command = np.empty((count, width, 1)), np.empty((count, N, 1))
     worlds = _worlds(stack, sensed, drive, flange)
-    for world in worlds:
-        mujoco.mj_getState(world.model, world.data, world.sensed, _STATE)
-    matmul, multiply, rint, tanh = np.matmul, np.multiply, np.rint, np.tanh
-    angles, slip = slice(0, N), first.slip
-    states = rows[:, :, :nx]
+    # Views by tick: rows' state columns, rows and measurements as columns, the angles, θ̇ / s.
+    states, row_columns = rows[:, :, :nx], rows[:, :, :, None]
+    ahead = measured[:, window:].swapaxes(0, 1)  # (ticks, B, width), no copy
+    measurements, angles, rates = ahead[:, :, :, None], ahead[:, :, :N], ahead[:, :, first.slip]
+    command_columns = commands[:, :, :, None]
+    matmul, multiply, rint, tanh, copy = np.matmul, np.multiply, np.rint, np.tanh, np.copyto
+    quantised = first.quantised
     with np.errstate(all="ignore"):  # a diverging world computes on until its block ends
         for start, stop, live in _segments(worlds, states):
             tick = _tick_worlds(live, _DRIVE if friction else _CTRL)
             for k in range(start, stop):
-                states[:, k] = sensed
-                matmul(measure, rows[:, k, :, None], out=measurement)
-                now = measured[:, window + k]
-                now[:] = measurement[:, :, 0]
-                if first.quantised:
-                    rint(now[:, angles], out=now[:, angles])
-                matmul(law, recent[:, k], out=command)
-                commands[:, k] = command[:, :, 0]
-                applied[:] = commands[everyone, np.maximum(k - delays, 0)]
+                copy(states[k], sensed)
+                matmul(measure, row_columns[k], out=measurements[k])
+                if quantised:
+                    rint(angles[k], out=angles[k])
+                matmul(law, recent[k], out=command_columns[k])
+                copy(applied, commands[k - delay if k > delay else 0])
                 if friction:
-                    rate = now[:, slip]
+                    rate = rates[k]
                     tanh(rate, out=rate)
                     multiply(rate, opposing, out=motor_force)
                 tick()
-                flanges[:, k] = flange
+                copy(flanges[k], flange)
     for index, episode in enumerate(stack):
-        episode.state = states[index]
-        episode.command, episode.flange = commands[index], flanges[index]
+        episode.state = states[:, index]
+        episode.command, episode.flange = commands[:, index], flanges[:, index]
         episode.measured = measured[index]
+
+
+# --- one episode -------------------------------------------------------------------------------
+# The same arithmetic on one episode's rows (np.dot is matmul's product for one episode, bit for
+# bit), with the fewest calls a tick can make.
+
+
+def _exact_alone(episode: Stepped) -> None:
+    plant, ticks = episode.plant, episode.ticks
+    model, data = plant.model, plant.data
+    nx = model.nq + model.nv
+    states, commands, flanges = (np.empty((ticks, width)) for width in (nx, N, 3))
+    ctrl, site = data.ctrl, data.site_xpos[plant.flange]
+    feedback = np.empty(N)
+    sense, step = mujoco.mj_getState, mujoco.mj_step
+    dot, subtract, copy = np.dot, np.subtract, np.copyto
+    gains, remaining = episode.gains, plant.substeps - 1
+    for start, stop in _blocks(episode):
+        block = zip(
+            states[start:stop],
+            commands[start:stop],
+            flanges[start:stop],
+            episode.term[start:stop],
+            strict=True,
+        )
+        for state, command, flange, term in block:
+            sense(model, data, state, _STATE)
+            dot(gains, state, out=feedback)
+            subtract(term, feedback, out=ctrl)
+            copy(command, ctrl)
+            step(model, data)
+            copy(flange, site)
+            if remaining:
+                step(model, data, remaining)
+        if _ended(episode, states, start, stop):
+            break
+    episode.state, episode.command, episode.flange = states, commands, flanges
+
+
+def _sensed_alone(episode: Stepped) -> None:
+    plant, ticks, window = episode.plant, episode.ticks, episode.window
+    model, data = plant.model, plant.data
+    nx = model.nq + model.nv
+    assert episode.measure is not None
+    width = len(episode.measure)
+    rows = episode.term
+    measured = np.empty((window + ticks, width))
+    measured[:window] = episode.rest
+    flat = measured.reshape(-1)
+    recent = np.lib.stride_tricks.as_strided(
+        flat,
+        shape=(ticks, width * (window + 1)),
+        strides=(width * flat.itemsize, flat.itemsize),
+    )
+    commands, flanges = np.empty((ticks, N)), np.empty((ticks, 3))
+    delayed = [commands[max(k - plant.spec.delay, 0)] for k in range(ticks)]
+    ctrl, site = data.ctrl, data.site_xpos[plant.flange]
+    motor_force = data.qfrc_applied[plant.motor_dof_slice]  # a view: writes land in MuJoCo
+    opposing = episode.opposing
+    sense, step = mujoco.mj_getState, mujoco.mj_step
+    dot, multiply, copy, rint, tanh = np.dot, np.multiply, np.copyto, np.rint, np.tanh
+    measure, law, quantised = episode.measure, episode.gains, episode.quantised
+    remaining = plant.substeps - 1
+    states = rows[:, :nx]
+    measurements = measured[window:]
+    angles, rates = measurements[:, :N], measurements[:, episode.slip]
+    for start, stop in _blocks(episode):
+        block = zip(
+            states[start:stop],
+            rows[start:stop],
+            measurements[start:stop],
+            angles[start:stop],
+            rates[start:stop],
+            recent[start:stop],
+            commands[start:stop],
+            delayed[start:stop],
+            flanges[start:stop],
+            strict=True,
+        )
+        for state, row, measurement, angle, rate, window_now, command, applied, flange in block:
+            sense(model, data, state, _STATE)
+            dot(measure, row, out=measurement)
+            if quantised:
+                rint(angle, out=angle)
+            dot(law, window_now, out=command)
+            copy(ctrl, applied)
+            if opposing is not None:
+                tanh(rate, out=rate)
+                multiply(rate, opposing, out=motor_force)
+            step(model, data)
+            copy(flange, site)
+            if remaining:
+                step(model, data, remaining)
+        if _ended(episode, states, start, stop):
+            break
+    episode.state, episode.command, episode.flange = states, commands, flanges
+    episode.measured = measured
+
+
+def _blocks(episode: Stepped) -> Iterator[tuple[int, int]]:
+    """(start, stop) of the blocks of ticks between two divergence checks."""
+    for start in range(0, episode.ticks, CHECK_EVERY):
+        yield start, min(start + CHECK_EVERY, episode.ticks)
+
+
+def _ended(episode: Stepped, states: np.ndarray, start: int, stop: int) -> bool:
+    """Whether the episode diverged in ticks [start, stop), or they were its last; if so, its
+    ticks run and why it stopped are set."""
+    stopped = _stopped(episode, states, start, stop)
+    if stopped is not None:
+        episode.ticks_run, episode.divergence = stopped
+        return True
+    if stop >= episode.ticks:
+        episode.ticks_run = episode.ticks
+        return True
+    return False
 
 
 def _segments(worlds: list[_World], states: np.ndarray) -> Iterator[tuple[int, int, list[_World]]]:
@@ -283,12 +412,7 @@ def _segments(worlds: list[_World], states: np.ndarray) -> Iterator[tuple[int, i
         for world in live:
             episode = world.episode
             block = start - start % CHECK_EVERY
-            stopped = _stopped(episode, states[world.index], block, stop)
-            if stopped is not None:
-                episode.ticks_run, episode.divergence = stopped
-            elif stop >= episode.ticks:
-                episode.ticks_run = episode.ticks
-            else:
+            if not _ended(episode, states[:, world.index], block, stop):
                 still.append(world)
         live = still
         start = stop
