@@ -32,6 +32,7 @@ from gainfarm.schemas.wire import (
     Verdict,
     decode,
 )
+from gainfarm.worker.job import simulate
 from gainfarm.worker.service import CobotWorker
 from tests.helpers import open_study, query, short_spec, wait_for
 
@@ -212,6 +213,8 @@ def test_bad_names_and_endpoints_are_one_line_errors() -> None:
         (["--connect", "nonsense"], "bad endpoint"),
         (["--log-memory", "8"], "--log-memory"),
         (["--log-memory", "lots"], "--log-memory"),
+        (["--threads", "0"], "--threads"),
+        (["--threads", "all"], "--threads"),
     ]:
         run = run_worker(*arguments)
         assert run.returncode == 2
@@ -341,16 +344,19 @@ def test_a_result_the_broker_does_not_take_is_not_sent(caplog) -> None:
 
 
 def test_a_worker_runs_a_batch_and_hands_it_in_at_once() -> None:
-    """Leases in a batch are run one after another and handed in with one request, in order."""
+    """Leases in a batch are stepped together, on the worker's threads, and handed in with one
+    request, in order; each episode's log is the one it makes alone."""
     jobs = ["a", "b", "c"]
     batch = LeaseReply(leases=[lease_of(job_id).leases[0] for job_id in jobs])
     fake = FakeBroker([batch.to_bytes()], [])
-    with CobotWorker([fake.endpoint], "w") as worker:
+    with CobotWorker([fake.endpoint], "w", threads=2) as worker:
         assert worker.serve(threading.Event(), max_jobs=3) == 3
     wait_for(lambda: len(fake.results) == 3, what="the results")
     fake.close()
     assert [r.job_id for r in fake.handed_in] == jobs
     assert sorted(r.job_id for r in fake.results) == jobs
+    alone = simulate(short_spec()).digest
+    assert {r.digest for r in fake.handed_in} == {alone}
 
 
 class Impostor:
