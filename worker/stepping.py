@@ -2,14 +2,16 @@
 arrays over the batch, each world's physics stepped by MuJoCo in compiled code.
 
 An episode's numbers do not depend on the batch it runs in: its arithmetic is the same,
-operation for operation, alone or beside others (matrix products are NumPy's stacked `matmul`,
-one product per episode; the rest is elementwise), and each world steps on its own MjData. So
-an episode's log is byte-identical in any batch (tests/worker/test_stepping.py).
+operation for operation, alone or beside others (a matrix product is BLAS's matrix-vector
+product for one episode, whether NumPy's `dot` alone or its stacked `matmul` for many; the rest
+is elementwise), and each world steps on its own MjData. So an episode's log is byte-identical
+in any batch (tests/worker/test_stepping.py).
 
-Episodes stack when their arrays have the same shapes and their loops the same steps (a `Kind`);
-a batch of mixed kinds runs one stack per kind. A stack splits into `threads` parts, each stepped
-by its own thread: MuJoCo releases the GIL while it steps, so the physics of the parts runs on
-as many cores while one thread at a time does the (small) array work of its part.
+Episodes stack when their arrays have the same shapes and their loops the same steps (the same
+`kind()`), at most MAX_STACK of them; a batch of mixed kinds runs one stack per kind. Stacks are
+shared among `threads` threads: MuJoCo releases the GIL while it steps, so the physics of
+several stacks runs on as many cores while one thread at a time does the (small) array work of
+its stack. An episode alone runs a loop over its own rows, cheaper than a stack of one.
 
 Two loops, as before batching: the first wave's lean one for exact sensors without delay or
 friction (the ideal plant, kept bit for bit: PD on the state, `ctrl = reference term − G·state`),
@@ -87,6 +89,7 @@ class Stepped:
             nx,
             self.measure.shape,
             self.window,
+            self.plant.spec.delay,
             self.quantised,
             self.slip.indices(self.measure.shape[0]),  # slices are unhashable before 3.12
             self.opposing is not None,

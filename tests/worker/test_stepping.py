@@ -24,6 +24,7 @@ PLANTS = {
         update={"sensors": IDEAL_PLANT.sensors}
     ),
     "no friction": REALISTIC_PLANT.model_copy(update={"friction": None}),
+    "no delay": REALISTIC_PLANT.model_copy(update={"delay": 0}),
     "rigid, no delay, one substep": REALISTIC_PLANT.model_copy(
         update={"delay": 0, "joints": "rigid", "substeps": 1}
     ),
