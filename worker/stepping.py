@@ -40,6 +40,7 @@ N = len(JOINT_NAMES)
 # Worlds stepped together at most: beyond some 32, their MjData no longer stay in the caches
 # between ticks and each tick costs more than it saves (bench/episode_bench.py, 128: 2x).
 MAX_STACK = 32
+STACK_BYTES = 256 * 2**20  # a stack's logs at most: 32 episodes of up to 30 s, 7 of 120 s
 
 
 @dataclass
@@ -104,7 +105,7 @@ def step_all(episodes: Sequence[Stepped], threads: int = 1) -> None:
         kinds.setdefault(episode.kind(), []).append(episode)
     parts: list[list[Stepped]] = []
     for stack in kinds.values():
-        size = min(MAX_STACK, -(-len(stack) // max(1, threads)))
+        size = min(MAX_STACK, _fitting(stack), -(-len(stack) // max(1, threads)))
         parts.extend(stack[start : start + size] for start in range(0, len(stack), size))
     if threads <= 1 or len(parts) == 1:
         for part in parts:
@@ -113,6 +114,15 @@ def step_all(episodes: Sequence[Stepped], threads: int = 1) -> None:
     with ThreadPoolExecutor(min(threads, len(parts))) as pool:
         for _ in pool.map(_loop, parts):  # raises the first part's error, if any
             pass
+
+
+def _fitting(stack: list[Stepped]) -> int:
+    """How many of `stack`'s episodes fit STACK_BYTES of logs (rows, measurements, commands,
+    flange positions: as many floats a tick as an episode's row and measurement, and ten)."""
+    episode = max(stack, key=lambda episode: episode.ticks)
+    width = 0 if episode.measure is None else episode.measure.shape[0]
+    floats = episode.ticks * (episode.plant.model.nq + episode.plant.model.nv + 2 * N + width + 10)
+    return max(1, STACK_BYTES // (8 * floats))
 
 
 def _loop(stack: list[Stepped]) -> None:
