@@ -253,7 +253,8 @@ def main(
             cases.append(run_case("baseline run", str(baseline_python), options, out / "then"))
     finally:
         shutil.rmtree(out, ignore_errors=True)
-    print(f"analytic start {' '.join(options)}; Pool({CORES}); Optuna n_jobs={CORES}")
+    farm = "" if workers is not None else " (the CLI's default --workers)"
+    print(f"analytic start {' '.join(options)}{farm}; Pool({CORES}); Optuna n_jobs={CORES}")
     print_table(
         ("case", "evaluations", "wall s", "CPU ms/evaluation", "evaluations/s"),
         "lrrrr",

@@ -553,15 +553,20 @@ def main(
             f"{taken.per_s:.0f} results/s over {taken.results} results, "
             f"{taken.cpu_us_per_result:.0f} µs CPU each"
         )
-        real = [async_run(workers, job_seconds, rounds, out) for workers in real_sizes]
-        real.append(experiment(max(real_sizes), job_seconds, reps, generations, out))
-        for figure in real:
+        real: list[RealRun] = []
+
+        def measured(figure: RealRun) -> None:
+            real.append(figure)
             say(
                 f"{REAL}, {figure.kind}, N={figure.workers}: the workers in episodes "
                 f"{100 * figure.utilisation:.1f} % of the time, "
                 f"{figure.evaluations_per_s:.1f} evaluations/s, analytic CPU "
                 f"{figure.analytic_cpu_ms:.2f} ms per evaluation"
             )
+
+        for workers in real_sizes:
+            measured(async_run(workers, job_seconds, rounds, out))
+        measured(experiment(max(real_sizes), job_seconds, reps, generations, out))
         busy = [f.workers for f in real[:-1] if f.utilisation >= 0.9]
         tried = ", ".join(map(str, real_sizes))
         say(

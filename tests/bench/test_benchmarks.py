@@ -45,13 +45,13 @@ def figures(pattern: str, output: str) -> list[float]:
 
 @pytest.mark.slow
 def test_episode_bench_prints_its_ratios_to_the_physics() -> None:
-    done = bench("episode_bench.py", "--quick", timeout=120)
+    done = bench("episode_bench.py", "--quick", timeout=300)
     figures(rf"{NUMBER}\s*x physics", done.stdout + done.stderr)
 
 
 @pytest.mark.slow
 def test_main_job_prints_the_runs_throughput_against_the_pools() -> None:
-    done = bench("main_job.py", "--quick", timeout=150)
+    done = bench("main_job.py", "--quick", timeout=300)
     figures(rf"run/pool throughput: {NUMBER}x", done.stdout)
     figures(rf"optuna/pool throughput: {NUMBER}x", done.stdout)
     table = r"^\| (run|pool|optuna) \| (\d+) \| (\S+) \| (\S+) \| (\S+) \|$"
@@ -65,7 +65,7 @@ def test_main_job_prints_the_runs_throughput_against_the_pools() -> None:
 
 @pytest.mark.slow
 def test_scale_prints_the_plumbing_and_a_real_run() -> None:
-    done = bench("scale.py", "--quick", "--json", "--workers", "16", "--ingest", "200", timeout=150)
+    done = bench("scale.py", "--quick", "--json", "--workers", "16", "--ingest", "200", timeout=300)
     report = json.loads(done.stdout)
     assert "NoopWorker" in report["plumbing"]["what"]
     for run in report["plumbing"]["runs"]:
