@@ -27,6 +27,7 @@ compare the ratios of one run, not figures of different runs.
 """
 
 import csv
+import importlib.util
 import os
 import resource
 import shutil
@@ -91,18 +92,21 @@ def measured(name: str, evaluations: Callable[[], int], run: Callable[[], None])
 def analytic_command(python: str) -> list[str]:
     """How `python` starts the analytic CLI: `gainfarm.analytic` now, `analytic` before the
     one import name (the previous main's layout)."""
-    found = subprocess.run(
-        [python, "-c", "import importlib.util as u; print(bool(u.find_spec('gainfarm')))"],
-        capture_output=True,
-        text=True,
-        check=True,
-    )
+    try:
+        found = subprocess.run(
+            [python, "-c", "import importlib.util as u; print(bool(u.find_spec('gainfarm')))"],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+    except (OSError, subprocess.CalledProcessError):
+        raise click.ClickException(f"--baseline-python: {python} does not run Python") from None
     return [python, "-m", "gainfarm.analytic" if found.stdout.strip() == "True" else "analytic"]
 
 
-def run_case(name: str, python: str, options: Sequence[str], out: Path) -> Case:
-    """`analytic start` with `options`, run by `python` into `out`, measured whole."""
-    command = [*analytic_command(python), "start", "--local", *options, "--out", str(out)]
+def run_case(name: str, analytic: list[str], options: Sequence[str], out: Path) -> Case:
+    """`analytic start` with `options` into `out`, measured whole."""
+    command = [*analytic, "start", "--local", *options, "--out", str(out)]
     transcript = out.parent / f"{out.name}.log"
 
     def run() -> None:
@@ -231,16 +235,19 @@ def main(
     quick: bool,
     seed: int,
 ) -> None:
+    if importlib.util.find_spec("optuna") is None:
+        raise click.ClickException("Optuna is needed: pip install -e '.[bench]'")
     budget = evaluations or (60 if quick else 600)
     pop = pop or (10 if quick else 30)
     options = ["--pop", str(pop), "--evaluations", str(budget), "--seed", str(seed)]
     if workers is not None:
         options += ["--workers", str(workers)]
+    then = analytic_command(str(baseline_python)) if baseline_python is not None else None
     out = Path(tempfile.mkdtemp(prefix="gainfarm-main-job-"))
     try:
         say = lambda text: print(text, file=sys.stderr, flush=True)  # noqa: E731
         say(f"analytic start {' '.join(options)} on {CORES} cores ...")
-        run = run_case("run", sys.executable, options, out / "run")
+        run = run_case("run", analytic_command(sys.executable), options, out / "run")
         config, told = candidates(out / "run")
         config_json = config.model_dump_json()
         say(f"pool of {CORES} on the run's {len(told)} candidates ...")
@@ -248,9 +255,9 @@ def main(
         say(f"optuna, {budget} trials on {CORES} threads ...")
         study = tree_case("optuna", optuna_tree, config_json, budget, pop, seed, CORES)
         cases = [run, pool, study]
-        if baseline_python is not None:
+        if then is not None:
             say(f"the same run with {baseline_python} ...")
-            cases.append(run_case("baseline run", str(baseline_python), options, out / "then"))
+            cases.append(run_case("baseline run", then, options, out / "then"))
     finally:
         shutil.rmtree(out, ignore_errors=True)
     farm = "" if workers is not None else " (the CLI's default --workers)"
