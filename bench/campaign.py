@@ -32,8 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import click
-from common import SPAWN, loopback_endpoint
-from scale import broker_process
+from common import SPAWN, broker_process, loopback_endpoint
 from surrogate import read_surrogate_log, surrogate
 
 from gainfarm.analytic.evaluators.farm import FarmClient
@@ -258,16 +257,33 @@ def _run(run: Callable[..., object], experiment: Experiment, base: RunConfig, re
     run(experiment, base, reps)
 
 
+@dataclass
+class CampaignFigures:
+    """What a simulated campaign measured."""
+
+    wall: float  # s, the experiments one after the other
+    utilisation: float  # the workers' time in episodes over workers x wall
+    jobs: int  # episodes the broker saw done
+    cpu: dict[str, float]  # CPU seconds of the analytic (this process), the broker, the cobots
+
+
 def simulated_campaign(
-    out: Path, workers: int, job_seconds: float, reps: int, plant: str, chosen: list[str]
-) -> tuple[float, float]:
-    """The campaign on `workers` simulated cobots: its wall time, and the workers' time in
-    episodes over workers x wall time."""
+    out: Path,
+    workers: int,
+    job_seconds: float,
+    reps: int,
+    plant: str,
+    chosen: list[str],
+    generations: int | None = None,
+) -> CampaignFigures:
+    """The campaign on `workers` simulated cobots, measured; each run to convergence, or to
+    `generations` if given (a smoke run of bench/scale.py)."""
     base = RunConfig(
         pop=30,
         trajectories=(TrajectorySpec(duration=5.0),),
         model=PLANTS[plant],
         keep="front",
+        generations=generations,
     )
     busy = SPAWN.Value("d", 0.0)
     wall = 0.0
@@ -277,8 +293,15 @@ def simulated_campaign(
 
             def client(_name: str, directory: Path) -> FarmClient:
                 study = f"sim-{workers}-{directory.parent.name}-{directory.name}"[-64:]
+                # Trusted, as a local farm is: these cobots are this script's own, and a referee
+                # would run real physics against their surrogate logs.
                 return FarmClient(
-                    [endpoint], study, directory, keep_logs=False, read_log=read_surrogate_log
+                    [endpoint],
+                    study,
+                    directory,
+                    keep_logs=False,
+                    read_log=read_surrogate_log,
+                    trusted=True,
                 )
 
             started = time.perf_counter()
@@ -295,7 +318,7 @@ def simulated_campaign(
         f"{sum(cpu.values()) / wall / (os.cpu_count() or 1):.0%} of the machine's time)",
         flush=True,
     )
-    return wall, busy.value / (workers * wall)
+    return CampaignFigures(wall, busy.value / (workers * wall), jobs, cpu)
 
 
 def _jobs_done(endpoint: str) -> int:
@@ -312,11 +335,11 @@ def simulated_campaigns(
     walls = {}
     for workers in counts:
         directory = out / f"simulated-{workers}"
-        wall, utilisation = simulated_campaign(directory, workers, job_seconds, reps, plant, chosen)
-        walls[workers] = wall
+        figures = simulated_campaign(directory, workers, job_seconds, reps, plant, chosen)
+        walls[workers] = figures.wall
         print(
-            f"campaign on {workers} simulated workers: {wall:.1f} s, the workers in episodes "
-            f"{utilisation:.1%} of the time",
+            f"campaign on {workers} simulated workers: {figures.wall:.1f} s, the workers in "
+            f"episodes {figures.utilisation:.1%} of the time",
             flush=True,
         )
     fewest = min(counts)

@@ -15,6 +15,9 @@ import hashlib
 import json
 import multiprocessing
 import queue
+import socket
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -43,6 +46,7 @@ from gainfarm.schemas.wire import (
 )
 
 SPAWN = multiprocessing.get_context("spawn")  # never fork a process that runs Zenoh threads
+BROKER_STARTUP_SECONDS = 20.0  # for a broker process to listen
 
 
 def loopback_endpoint() -> str:
@@ -299,3 +303,47 @@ class NoopWorker:
 
     def close(self) -> None:
         self._token.undeclare()
+
+
+# --- the broker --------------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def broker_process(endpoint: str, queued: int):
+    """The real broker, alone in its process."""
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "gainfarm.broker",
+            "start",
+            "--listen",
+            endpoint,
+            "--max-queued",
+            str(max(queued, 100_000)),
+            "--max-queued-per-study",
+            str(max(queued, 20_000)),
+            "--log-level",
+            "warning",
+        ],
+        stdin=subprocess.DEVNULL,
+    )
+    try:
+        port = int(endpoint.rsplit(":", 1)[1])
+        give_up = time.monotonic() + BROKER_STARTUP_SECONDS
+        while True:  # until it listens
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+                break
+            except OSError:
+                if time.monotonic() > give_up or process.poll() is not None:
+                    raise RuntimeError(f"the broker did not listen on {endpoint}") from None
+                time.sleep(0.1)
+        yield process
+    finally:
+        process.terminate()
+        try:
+            process.wait(10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()

@@ -1,15 +1,18 @@
-"""How the farm's throughput grows with its workers: simulated workers over the real broker and
-the real analytic client.
+"""How the farm's throughput grows with its workers: the plumbing (stand-in workers, a client
+that keeps 2N jobs in flight), then real tuning code on simulated cobots.
 
     python bench/scale.py [--quick] [--json] [--workers 16,64,256,1024] [--job-seconds 1]
+                          [--real-workers 64,256] [--rounds 10] [--reps 1]
 
+Plumbing (printed as such): the figures of the broker and the client alone. They are not what a
+tuning run fills: the workers are NoopWorker threads (no worker code, no scoring, no log store)
+and the client keeps 2 N jobs in flight, where a generational run keeps at most its population.
 The broker runs as its own process (`python -m broker start`), so its CPU and its bytes are its
 own. The simulated workers are threads over shared sessions in load processes (at most
 WORKERS_PER_LOAD each), with their own names and liveliness tokens: each leases a job, holds it
 for --job-seconds and hands in a real pre-made result, the Result and MCAP log of one episode
 simulated at start-up (every job names that episode's spec, so the log is each job's own). The
-real FarmClient runs in this process, keeps 2 N jobs in flight and takes in every evaluation as
-a tuning run does.
+real FarmClient runs in this process, keeps 2 N jobs in flight and takes in every evaluation.
 
 For each N, after a warm-up of two jobs' time, over a window:
 
@@ -24,15 +27,30 @@ analytic_ingest_per_s: M jobs are run by fast workers (no hold) while the client
 once the broker has taken all M, the client yields them, as fast as it can, and the figure is M
 over the time it takes. analytic_cpu_us_per_result is this process's CPU time over M.
 
+Real runs (printed as such): a real TuningRun in this process, through a real FarmClient and the
+real broker, on N CobotWorkers (the real worker code: leases in batches, hand-ins, logs kept and
+served) whose physics is a sleep of --job-seconds per 5 s episode (bench/surrogate.py, the farm
+of bench/campaign.py --simulated). Two figures, each the workers' time in episodes over N x the
+time measured, the evaluations per second, and this process's CPU per evaluation (the run, its
+client, its records and checkpoints: the analytic process):
+
+- an --async run (population 30) for each N of --real-workers, in its steady state: from the
+  end of its first generation and two jobs per worker, over --rounds jobs per worker;
+- the population-size experiment (5 sizes x --reps runs, all at once, each to convergence; two
+  generations with --quick) on the largest N, measured whole.
+
+The farm is trusted, as a local farm is (these cobots are this script's own): no referee reruns
+episodes. At --job-seconds J, N workers ask N / J evaluations a second of one analytic process.
+
 Everything listens on loopback, on a port the kernel picked as free; nothing touches a farm on 7447.
 """
 
 import contextlib
 import json
+import os
 import re
 import resource
 import shutil
-import socket
 import subprocess
 import sys
 import tempfile
@@ -43,15 +61,37 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 
 import click
-from common import SPAWN, NoopWorker, episode_specs, loopback_endpoint, percentile_ms
+from campaign import cpu_seconds, simulated_campaign, simulated_farm
+from common import (
+    SPAWN,
+    NoopWorker,
+    broker_process,
+    episode_specs,
+    loopback_endpoint,
+    percentile_ms,
+)
+from surrogate import EPISODE_SECONDS, read_surrogate_log
 
 from gainfarm.analytic.evaluators.farm import FarmClient
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.run import RunProgress, TuningRun
 from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.edges.transport import open_session
+from gainfarm.schemas import TrajectorySpec
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.wire import WireScores
 from gainfarm.worker.job import simulate
 
+PLUMBING = "plumbing"
+PLUMBING_WHAT = (
+    "NoopWorker threads over shared sessions (no worker code, no scoring, no log store), a "
+    "FarmClient keeping 2N jobs in flight, no tuning loop"
+)
+REAL = "real run"
+REAL_WHAT = (
+    "a real TuningRun (--async, population 30; and the population-size experiment, its runs at "
+    "once) on CobotWorkers, the real worker code, whose physics is a sleep (bench/surrogate.py)"
+)
 WORKERS_PER_LOAD = 256  # simulated workers per load process
 SESSIONS_PER_LOAD = 8  # sessions a load process's workers share
 STARTUP_SECONDS = 20.0  # for the broker and the workers to come up
@@ -167,50 +207,6 @@ class Load:
             merged["leases"] += report["leases"]
             merged["completed"] += report["completed"]
         return merged
-
-
-# --- the broker --------------------------------------------------------------------------------
-
-
-@contextlib.contextmanager
-def broker_process(endpoint: str, queued: int):
-    """The real broker, alone in its process."""
-    process = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "gainfarm.broker",
-            "start",
-            "--listen",
-            endpoint,
-            "--max-queued",
-            str(max(queued, 100_000)),
-            "--max-queued-per-study",
-            str(max(queued, 20_000)),
-            "--log-level",
-            "warning",
-        ],
-        stdin=subprocess.DEVNULL,
-    )
-    try:
-        port = int(endpoint.rsplit(":", 1)[1])
-        give_up = time.monotonic() + STARTUP_SECONDS
-        while True:  # until it listens
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
-                break
-            except OSError:
-                if time.monotonic() > give_up or process.poll() is not None:
-                    raise RuntimeError(f"the broker did not listen on {endpoint}") from None
-                time.sleep(0.1)
-        yield process
-    finally:
-        process.terminate()
-        try:
-            process.wait(10)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
 
 
 def port_bytes(port: int) -> int:
@@ -358,6 +354,93 @@ def ingest(
     return Ingest(results, results / elapsed, 1e6 * spent / results)
 
 
+# --- through a real tuning run -----------------------------------------------------------------
+
+
+@dataclass
+class RealRun:
+    """What real tuning code kept busy: one --async run, or an experiment's runs at once."""
+
+    kind: str
+    workers: int
+    utilisation: float  # the workers' time in episodes over workers x the time measured
+    evaluations_per_s: float
+    analytic_cpu_ms: float  # this process's CPU (the run, its client) per evaluation
+
+
+def async_run(workers: int, job_seconds: float, rounds: int, out: Path) -> RealRun:
+    """One `--async` TuningRun (population 30) on `workers` simulated cobots, measured in its
+    steady state: from the evaluation after its first generation and two jobs per worker, over
+    `rounds` x `workers` evaluations, its budget two jobs per worker beyond, so that the window
+    never sees the run wind down."""
+    pop = 30
+    begin = pop + 2 * workers
+    end = begin + rounds * workers
+    config = RunConfig(
+        pop=pop,
+        trajectories=(TrajectorySpec(duration=EPISODE_SECONDS),),
+        asynchronous=True,
+        evaluations=end + 2 * workers,
+        keep="front",
+    )
+    busy = SPAWN.Value("d", 0.0)
+    marks: dict[str, tuple[float, float, float, int]] = {}  # time, busy s, CPU s, evaluations
+
+    def mark(progress: RunProgress) -> None:
+        for name, at in (("begin", begin), ("end", end)):
+            if name not in marks and progress.evaluations >= at:
+                now = (time.monotonic(), busy.value, cpu_seconds(os.getpid()))
+                marks[name] = (*now, progress.evaluations)
+
+    with (
+        simulated_farm(workers, job_seconds, busy) as farm,
+        FarmClient(
+            [farm.endpoint],
+            f"async-{workers}",
+            out / f"async-{workers}",
+            keep_logs=False,
+            read_log=read_surrogate_log,
+            trusted=True,  # this script's own cobots, as a local farm's; see campaign.py
+        ) as client,
+        TuningRun.create(out / f"async-{workers}" / "run", config) as run,
+    ):
+        run.run(client, mark)
+    (t0, busy0, cpu0, evals0), (t1, busy1, cpu1, evals1) = marks["begin"], marks["end"]
+    return RealRun(
+        kind="async run",
+        workers=workers,
+        utilisation=(busy1 - busy0) / (workers * (t1 - t0)),
+        evaluations_per_s=(evals1 - evals0) / (t1 - t0),
+        analytic_cpu_ms=1000 * (cpu1 - cpu0) / (evals1 - evals0),
+    )
+
+
+def experiment(
+    workers: int, job_seconds: float, reps: int, generations: int | None, out: Path
+) -> RealRun:
+    """The population-size experiment (its 5 sizes x `reps` runs at once, each to convergence
+    or to `generations`) on `workers` simulated cobots: bench/campaign.py --simulated's,
+    measured whole."""
+    with contextlib.redirect_stdout(sys.stderr):  # its progress lines; stdout is the figures'
+        figures = simulated_campaign(
+            out / f"experiment-{workers}",
+            workers,
+            job_seconds,
+            reps,
+            "realistic",
+            ["popsize"],
+            generations,
+        )
+    runs = f"{5 * reps} runs, " + (f"{generations} generations" if generations else "converged")
+    return RealRun(
+        kind=f"experiment popsize ({runs})",
+        workers=workers,
+        utilisation=figures.utilisation,
+        evaluations_per_s=figures.jobs / figures.wall,
+        analytic_cpu_ms=1000 * figures.cpu["analytic"] / figures.jobs,
+    )
+
+
 # --- the command -------------------------------------------------------------------------------
 
 
@@ -372,57 +455,80 @@ def counts(text: str) -> list[int]:
 
 
 @click.command(help=__doc__.split("\n\n")[0])
-@click.option("--quick", is_flag=True, help="a smoke run: N = 16 and 64, short windows")
+@click.option("--quick", is_flag=True, help="a smoke run: small N, short windows")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object, nothing else")
 @click.option(
     "--workers",
     "worker_counts",
-    help="simulated workers N, comma-separated  [default: 16,64,256,1024; --quick: 16,64]",
+    help="plumbing: simulated workers N, comma-separated  "
+    "[default: 16,64,256,1024; --quick: 16,64]",
+)
+@click.option(
+    "--real-workers",
+    "real_counts",
+    help="real runs: simulated cobots N, comma-separated; the experiment runs on the largest  "
+    "[default: 64,256; --quick: 16]",
+)
+@click.option(
+    "--rounds",
+    type=click.IntRange(min=1),
+    help="the --async run's steady-state window, in jobs per cobot  [default: 10; --quick: 3]",
+)
+@click.option(
+    "--reps",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="the experiment's repetitions of its 5 population sizes",
 )
 @click.option(
     "--job-seconds",
     type=click.FloatRange(min=0, min_open=True),
     default=1.0,
     show_default=True,
-    help="how long a simulated worker holds each job",
+    help="how long a simulated worker holds each job (a 5 s episode)",
 )
 @click.option(
     "--duration",
     type=click.FloatRange(min=0.5),
     default=5.0,
     show_default=True,
-    help="the pre-made episode's duration, s (its log is what every result carries)",
+    help="plumbing: the pre-made episode's duration, s (its log is what every result carries)",
 )
 @click.option(
-    "--window", type=click.FloatRange(min=0, min_open=True), help="s  [default: 20; --quick: 5]"
+    "--window",
+    type=click.FloatRange(min=0, min_open=True),
+    help="plumbing: s  [default: 20; --quick: 5]",
 )
 @click.option(
     "--send-logs",
     is_flag=True,
-    help="every result brings its log (as `--keep all` runs do); by default the workers keep them",
+    help="plumbing: every result brings its log (as `--keep all` runs do); by default the "
+    "workers keep them",
 )
 @click.option(
     "--ingest",
     "ingest_results",
     type=click.IntRange(min=1),
-    help="results M for analytic_ingest_per_s  [default: 3000; --quick: 500]",
+    help="plumbing: results M for analytic_ingest_per_s  [default: 3000; --quick: 500]",
 )
 def main(
     quick: bool,
     as_json: bool,
     worker_counts: str | None,
+    real_counts: str | None,
+    rounds: int | None,
+    reps: int,
     job_seconds: float,
     duration: float,
     window: float | None,
     ingest_results: int | None,
     send_logs: bool,
 ) -> None:
-    try:
-        sizes = (
-            counts(worker_counts) if worker_counts else ([16, 64] if quick else [16, 64, 256, 1024])
-        )
-    except click.BadParameter as error:
-        raise click.UsageError(f"--workers: {error.message}") from None
+    sizes = _counts("--workers", worker_counts, [16, 64] if quick else [16, 64, 256, 1024])
+    real_sizes = _counts("--real-workers", real_counts, [16] if quick else [64, 256])
+    rounds = rounds or (3 if quick else 10)
+    generations = 2 if quick else None  # a smoke run's experiment: 2 generations, not converged
     window = window or (5.0 if quick else 20.0)
     ingest_results = ingest_results or (500 if quick else 3000)
     say = (lambda *_: None) if as_json else (lambda text: print(text, file=sys.stderr, flush=True))
@@ -434,7 +540,7 @@ def main(
         for workers in sizes:
             run = scale(workers, job_seconds, window, episode, out, send_logs)
             say(
-                f"N={workers}: utilisation {100 * run.utilisation:.1f} %, "
+                f"{PLUMBING}, N={workers}: utilisation {100 * run.utilisation:.1f} %, "
                 f"{run.results_per_s:.0f} results/s, {run.leases_per_s:.0f} leases/s, "
                 f"{run.broker_bytes_per_job / 1e3:.1f} kB/job through the broker, "
                 f"lease p99 {run.lease_p99_ms:.1f} ms"
@@ -443,26 +549,58 @@ def main(
             shutil.rmtree(out / f"n{workers}", ignore_errors=True)
         taken = ingest(ingest_results, episode, out, send_logs)
         say(
-            f"analytic ingest: {taken.per_s:.0f} results/s over {taken.results} results, "
+            f"{PLUMBING}, analytic ingest (results pre-delivered, no tuning loop): "
+            f"{taken.per_s:.0f} results/s over {taken.results} results, "
             f"{taken.cpu_us_per_result:.0f} µs CPU each"
+        )
+        real: list[RealRun] = []
+
+        def measured(figure: RealRun) -> None:
+            real.append(figure)
+            say(
+                f"{REAL}, {figure.kind}, N={figure.workers}: the workers in episodes "
+                f"{100 * figure.utilisation:.1f} % of the time, "
+                f"{figure.evaluations_per_s:.1f} evaluations/s, analytic CPU "
+                f"{figure.analytic_cpu_ms:.2f} ms per evaluation"
+            )
+
+        for workers in real_sizes:
+            measured(async_run(workers, job_seconds, rounds, out))
+        measured(experiment(max(real_sizes), job_seconds, reps, generations, out))
+        busy = [f.workers for f in real[:-1] if f.utilisation >= 0.9]
+        tried = ", ".join(map(str, real_sizes))
+        say(
+            f"{REAL}: the most workers one --async run kept >= 90 % busy at {job_seconds:g} s "
+            f"jobs: {max(busy) if busy else 'none'} (of {tried} tried)"
         )
     finally:
         shutil.rmtree(out, ignore_errors=True)
     print(
         json.dumps(
             {
-                "runs": runs,
-                "analytic_ingest_per_s": taken.per_s,
-                "analytic_cpu_us_per_result": taken.cpu_us_per_result,
-                "ingest_results": taken.results,
+                "plumbing": {
+                    "what": PLUMBING_WHAT,
+                    "runs": runs,
+                    "analytic_ingest_per_s": taken.per_s,
+                    "analytic_cpu_us_per_result": taken.cpu_us_per_result,
+                    "ingest_results": taken.results,
+                    "window_s": window,
+                    "episode_log_bytes": episode.size,
+                    "logs": "sent with each result" if send_logs else "kept by the workers",
+                },
+                "real": {"what": REAL_WHAT, "runs": [asdict(figure) for figure in real]},
                 "job_seconds": job_seconds,
-                "window_s": window,
-                "episode_log_bytes": episode.size,
-                "logs": "sent with each result" if send_logs else "kept by the workers",
             },
             indent=None if as_json else 2,
         )
     )
+
+
+def _counts(option: str, text: str | None, default: list[int]) -> list[int]:
+    try:
+        return counts(text) if text else default
+    except click.BadParameter as error:
+        raise click.UsageError(f"{option}: {error.message}") from None
 
 
 if __name__ == "__main__":

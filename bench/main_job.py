@@ -1,0 +1,290 @@
+"""What a user's main job costs: `analytic start --pop 30` on its local farm, to a fixed budget,
+against the same episodes run by a plain multiprocessing.Pool over every core, and against
+Optuna's own parallel loop with the same evaluation. All measured in one run of this script.
+
+    python bench/main_job.py [--evaluations 600] [--pop 30] [--workers N]
+                             [--baseline-python PATH] [--quick]
+
+Three cases, each a process tree started from here and measured whole (wall time from its start
+to its end, start-up included; CPU time of every process in it, from getrusage(RUSAGE_CHILDREN)
+once each has been waited for):
+
+- run: `python -m gainfarm.analytic start --local --pop P --evaluations E` as a subprocess, with
+  the CLI's default `--workers` unless --workers is given: the broker, the workers, the tuning
+  loop, the records, the front's validation and the report, as a user gets them.
+- pool: multiprocessing.Pool(cores) running the run's own candidates (read back from its
+  checkpoint, in the order told) with gainfarm.worker.job.simulate, the worker's whole job
+  (episode, MCAP log, scores), each candidate's objectives as the run computes them.
+- optuna: `study.optimize(objective, n_trials=E, n_jobs=cores)` with NSGAIISampler(pop P) over
+  the run's search space (log10 of each gain, analytic.tuning.search_space), the objective being
+  the pool's evaluation. Optuna's n_jobs are threads in one process.
+
+Printed: each case's wall time, CPU per evaluation and evaluations/s; the run's throughput over
+the pool's (target >= 1.3x). With --baseline-python PATH, the same run again with that
+interpreter (whose `analytic` is an older checkout, e.g. the previous main), back to back, and
+the wall-time ratio now/then (target <= 0.5x). The machine's other load moves every figure:
+compare the ratios of one run, not figures of different runs.
+"""
+
+import csv
+import importlib.util
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import click
+from common import SPAWN, print_table
+
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.run import TuningRun
+from gainfarm.analytic.tuning.search_space import SearchSpace
+from gainfarm.schemas.episode import EpisodeSpec
+from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.objectives import objectives
+from gainfarm.worker.job import simulate
+
+CORES = os.cpu_count() or 1
+RUN_TARGET = 1.3  # the run's throughput over the pool's, at least
+BASELINE_TARGET = 0.5  # the run's wall time over the previous main's, at most
+
+
+@dataclass
+class Case:
+    name: str
+    evaluations: int
+    wall_s: float
+    cpu_s: float
+
+    @property
+    def per_s(self) -> float:
+        return self.evaluations / self.wall_s
+
+    @property
+    def cpu_ms(self) -> float:
+        return 1000 * self.cpu_s / self.evaluations
+
+
+def children_cpu() -> float:
+    """User + system CPU seconds of every child (and theirs) waited for so far."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def measured(name: str, evaluations: Callable[[], int], run: Callable[[], None]) -> Case:
+    """Run `run` (which starts and waits for a process tree) and measure it."""
+    cpu, started = children_cpu(), time.perf_counter()
+    run()
+    wall = time.perf_counter() - started
+    return Case(name, evaluations(), wall, children_cpu() - cpu)
+
+
+# --- the run -----------------------------------------------------------------------------------
+
+
+def analytic_command(python: str) -> list[str]:
+    """How `python` starts the analytic CLI: `gainfarm.analytic` now, `analytic` before the
+    one import name (the previous main's layout)."""
+    try:
+        found = subprocess.run(
+            [python, "-c", "import importlib.util as u; print(bool(u.find_spec('gainfarm')))"],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+    except (OSError, subprocess.CalledProcessError):
+        raise click.ClickException(f"--baseline-python: {python} does not run Python") from None
+    return [python, "-m", "gainfarm.analytic" if found.stdout.strip() == "True" else "analytic"]
+
+
+def run_case(name: str, analytic: list[str], options: Sequence[str], out: Path) -> Case:
+    """`analytic start` with `options` into `out`, measured whole."""
+    command = [*analytic, "start", "--local", *options, "--out", str(out)]
+    transcript = out.parent / f"{out.name}.log"
+
+    def run() -> None:
+        with transcript.open("wb") as sink:
+            done = subprocess.run(
+                command, stdin=subprocess.DEVNULL, stdout=sink, stderr=subprocess.STDOUT
+            )
+        if done.returncode != 0:
+            tail = transcript.read_text(errors="replace").strip().splitlines()[-15:]
+            raise click.ClickException(
+                f"{' '.join(command)} exited with {done.returncode}:\n" + "\n".join(tail)
+            )
+
+    return measured(name, lambda: evaluations_done(out), run)
+
+
+def evaluations_done(out: Path) -> int:
+    """The evaluations the run in `out` recorded (history.csv's last row: every version has it)."""
+    with (out / "history.csv").open() as stream:
+        return int(list(csv.DictReader(stream))[-1]["evaluations"])
+
+
+def candidates(out: Path) -> tuple[RunConfig, list[PDGains]]:
+    """The run's config and every candidate it evaluated, in the order told."""
+    with TuningRun.open(out) as run:
+        return run.config, list(run.state.provenance)
+
+
+# --- the same evaluation, without the farm -----------------------------------------------------
+
+
+def evaluate(config: RunConfig, gains: PDGains) -> tuple[float, float]:
+    """A candidate's objectives as a run computes them: each of its episodes run by the worker's
+    whole job (episode, log, scores), the objectives over its trajectories."""
+    scores = []
+    for trajectory in config.trajectories:
+        spec = EpisodeSpec(
+            gains=gains,
+            trajectory=trajectory,
+            model=config.model,
+            feedforward=config.feedforward,
+            objectives=config.objectives,
+        )
+        scores.append(simulate(spec).scores)
+    return objectives(scores, config.objective_weights)
+
+
+def _evaluate_json(config_json: str, gains: PDGains) -> tuple[float, float]:
+    return evaluate(RunConfig.model_validate_json(config_json), gains)
+
+
+def pool_tree(config_json: str, gains: list[PDGains], cores: int, done: Any) -> None:
+    """A process: `gains` evaluated by a Pool of `cores` processes (joined, so their CPU is this
+    process's children's)."""
+    pool = SPAWN.Pool(cores)
+    points = pool.starmap(_evaluate_json, [(config_json, g) for g in gains], chunksize=1)
+    pool.close()
+    pool.join()
+    done.value = len(points)
+
+
+def optuna_tree(config_json: str, budget: int, pop: int, seed: int, cores: int, done: Any) -> None:
+    """A process: Optuna's NSGA-II over the run's search space, `budget` trials on `cores`
+    threads, each trial the pool's evaluation."""
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    config = RunConfig.model_validate_json(config_json)
+    space = SearchSpace()
+    bounds = list(zip(space.lower, space.upper, strict=True))
+
+    def objective(trial: "optuna.Trial") -> tuple[float, float]:
+        x = [trial.suggest_float(f"x{i}", low, high) for i, (low, high) in enumerate(bounds)]
+        return evaluate(config, space.gains(x))
+
+    study = optuna.create_study(
+        directions=["minimize", "minimize"],
+        sampler=optuna.samplers.NSGAIISampler(population_size=pop, seed=seed),
+    )
+    study.optimize(objective, n_trials=budget, n_jobs=cores)
+    done.value = len(study.trials)
+
+
+def tree_case(name: str, target: Callable[..., None], *args: object) -> Case:
+    """`target(*args, done)` in a spawned process, measured whole; `done` is how many
+    evaluations it made."""
+    done = SPAWN.Value("i", 0)
+
+    def run() -> None:
+        process = SPAWN.Process(target=target, args=(*args, done))
+        process.start()
+        process.join()
+        if process.exitcode != 0:
+            raise click.ClickException(f"the {name} case exited with {process.exitcode}")
+
+    return measured(name, lambda: done.value, run)
+
+
+# --- the command -------------------------------------------------------------------------------
+
+
+@click.command(help=__doc__.split("\n\n")[0])
+@click.option(
+    "--evaluations",
+    type=click.IntRange(min=1),
+    help="the budget of every case  [default: 600; --quick: 60]",
+)
+@click.option("--pop", type=click.IntRange(min=4), help="population  [default: 30; --quick: 10]")
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1),
+    help="the run's local worker processes  [default: the CLI's]",
+)
+@click.option(
+    "--baseline-python",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="also time the same run with this interpreter (its `analytic` an older checkout)",
+)
+@click.option("--quick", is_flag=True, help="a CI-sized run: 60 evaluations, population 10")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+def main(
+    evaluations: int | None,
+    pop: int | None,
+    workers: int | None,
+    baseline_python: Path | None,
+    quick: bool,
+    seed: int,
+) -> None:
+    if importlib.util.find_spec("optuna") is None:
+        raise click.ClickException("Optuna is needed: pip install -e '.[bench]'")
+    budget = evaluations or (60 if quick else 600)
+    pop = pop or (10 if quick else 30)
+    options = ["--pop", str(pop), "--evaluations", str(budget), "--seed", str(seed)]
+    if workers is not None:
+        options += ["--workers", str(workers)]
+    then = analytic_command(str(baseline_python)) if baseline_python is not None else None
+    out = Path(tempfile.mkdtemp(prefix="gainfarm-main-job-"))
+    try:
+        say = lambda text: print(text, file=sys.stderr, flush=True)  # noqa: E731
+        say(f"analytic start {' '.join(options)} on {CORES} cores ...")
+        run = run_case("run", analytic_command(sys.executable), options, out / "run")
+        config, told = candidates(out / "run")
+        config_json = config.model_dump_json()
+        say(f"pool of {CORES} on the run's {len(told)} candidates ...")
+        pool = tree_case("pool", pool_tree, config_json, told, CORES)
+        say(f"optuna, {budget} trials on {CORES} threads ...")
+        study = tree_case("optuna", optuna_tree, config_json, budget, pop, seed, CORES)
+        cases = [run, pool, study]
+        if then is not None:
+            say(f"the same run with {baseline_python} ...")
+            cases.append(run_case("baseline run", then, options, out / "then"))
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+    farm = "" if workers is not None else " (the CLI's default --workers)"
+    print(f"analytic start {' '.join(options)}{farm}; Pool({CORES}); Optuna n_jobs={CORES}")
+    print_table(
+        ("case", "evaluations", "wall s", "CPU ms/evaluation", "evaluations/s"),
+        "lrrrr",
+        (
+            (c.name, str(c.evaluations), f"{c.wall_s:.1f}", f"{c.cpu_ms:.1f}", f"{c.per_s:.2f}")
+            for c in cases
+        ),
+    )
+    print(
+        f"run/pool throughput: {run.per_s / pool.per_s:.2f}x (target >= {RUN_TARGET}x); "
+        f"CPU per evaluation: {run.cpu_ms / pool.cpu_ms:.2f}x the pool's"
+    )
+    print(
+        f"optuna/pool throughput: {study.per_s / pool.per_s:.2f}x; "
+        f"CPU per evaluation: {study.cpu_ms / pool.cpu_ms:.2f}x the pool's"
+    )
+    if baseline_python is not None:
+        then = cases[-1]
+        print(
+            f"run/baseline wall time: {run.wall_s / then.wall_s:.2f}x "
+            f"(target <= {BASELINE_TARGET}x; {baseline_python})"
+        )
+
+
+if __name__ == "__main__":
+    main()

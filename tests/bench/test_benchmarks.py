@@ -1,0 +1,80 @@
+"""The benchmarks run: each in its CI-sized form, as a real subprocess, exits 0 and prints its
+figures. Their values are the benchmarks' to judge (docs/performance.md), not a test's: only
+that each figure is there and is a positive, finite number."""
+
+import json
+import math
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[2] / "bench"
+NUMBER = r"([0-9]+(?:\.[0-9]+)?)"
+
+
+def bench(script: str, *options: str, timeout: float) -> subprocess.CompletedProcess[str]:
+    """`python bench/SCRIPT OPTIONS`, run from bench/ as its docstring says; its exit status 0."""
+    done = subprocess.run(
+        [sys.executable, script, *options],
+        cwd=BENCH,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    assert done.returncode == 0, f"{script} exited with {done.returncode}:\n{done.stderr[-3000:]}"
+    return done
+
+
+def positive(text: str) -> float:
+    value = float(text)
+    assert math.isfinite(value) and value > 0, text
+    return value
+
+
+def figures(pattern: str, output: str) -> list[float]:
+    """Every number `pattern` (one group) finds in `output`, each positive and finite; at least
+    one."""
+    found = re.findall(pattern, output)
+    assert found, f"no line matching {pattern!r} in:\n{output}"
+    return [positive(text) for text in found]
+
+
+@pytest.mark.slow
+def test_episode_bench_prints_its_ratios_to_the_physics() -> None:
+    done = bench("episode_bench.py", "--quick", timeout=300)
+    figures(rf"{NUMBER}\s*x physics", done.stdout + done.stderr)
+
+
+@pytest.mark.slow
+def test_main_job_prints_the_runs_throughput_against_the_pools() -> None:
+    done = bench("main_job.py", "--quick", timeout=300)
+    figures(rf"run/pool throughput: {NUMBER}x", done.stdout)
+    figures(rf"optuna/pool throughput: {NUMBER}x", done.stdout)
+    table = r"^\| (run|pool|optuna) \| (\d+) \| (\S+) \| (\S+) \| (\S+) \|$"
+    rows = re.findall(table, done.stdout, re.MULTILINE)
+    assert [row[0] for row in rows] == ["run", "pool", "optuna"], done.stdout
+    for _, evaluations, *measured in rows:
+        assert int(evaluations) > 0
+        for text in measured:
+            positive(text)
+
+
+@pytest.mark.slow
+def test_scale_prints_the_plumbing_and_a_real_run() -> None:
+    done = bench("scale.py", "--quick", "--json", "--workers", "16", "--ingest", "200", timeout=300)
+    report = json.loads(done.stdout)
+    assert "NoopWorker" in report["plumbing"]["what"]
+    for run in report["plumbing"]["runs"]:
+        positive(run["utilisation"])
+        positive(run["results_per_s"])
+    positive(report["plumbing"]["analytic_ingest_per_s"])
+    kinds = [run["kind"] for run in report["real"]["runs"]]
+    assert kinds[0] == "async run" and kinds[-1].startswith("experiment"), kinds
+    for run in report["real"]["runs"]:
+        positive(run["utilisation"])
+        positive(run["evaluations_per_s"])
+        positive(run["analytic_cpu_ms"])
