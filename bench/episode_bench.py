@@ -176,8 +176,17 @@ def main(quick: bool, repeats: int, duration: float, batches: str) -> None:
         "lrr",
         ((name, f"{t * 1000:.2f}", f"{t / anchor:.2f}") for name, t in median.items()),
     )
-    whole = median[f"jobs, batch of {largest}"]
-    print(f"\nreal-time factor, one thread (jobs, batch of {largest}): {duration / whole:.0f}x")
+    batch = max((size for size in sizes if size <= 32), default=largest)  # the targets' size
+    print()
+    for name, target in (
+        ("realistic episode", 1.6),
+        (f"episodes, batch of {batch}", 1.15 if batch == 32 else None),
+        (f"jobs, batch of {batch}", 1.3 if batch == 32 else None),
+    ):
+        aim = "" if target is None else f" (target <= {target})"
+        print(f"{name}: {median[name] / anchor:.2f}x physics{aim}")
+    whole = median[f"jobs, batch of {batch}"]
+    print(f"real-time factor, one thread (jobs, batch of {batch}): {duration / whole:.0f}x")
     print(f"bytes per episode: {len(episode_bytes(run_episode(realistic), description())):,}")
 
 
