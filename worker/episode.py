@@ -9,10 +9,11 @@ not use, divergence checks) is done in bulk, once per episode or once per block 
 """
 
 import platform
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cache, lru_cache
 from importlib.metadata import version
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -65,12 +66,25 @@ def simulate(spec: EpisodeSpec, reference: Reference, added: np.ndarray | None) 
 Prepared = tuple[EpisodeSpec, Reference, np.ndarray | None]  # what `simulate` takes
 
 
-def simulate_all(episodes: Sequence[Prepared], threads: int = 1) -> list[EpisodeLog]:
+def simulate_all(
+    episodes: Sequence[Prepared],
+    threads: int = 1,
+    then: Callable[[EpisodeLog], Any] | None = None,
+) -> list:
     """`simulate` each of `episodes`, all stepped together on `threads` threads (see
-    worker.stepping); each log is the same, byte for byte, as if its episode ran alone."""
+    worker.stepping); each log is the same, byte for byte, as if its episode ran alone. With
+    `then`, each log's `then(log)` instead, computed on the thread that stepped it."""
     stepped = [_setup(*episode) for episode in episodes]
-    step_all(stepped, threads)
-    return [_log(spec, run) for (spec, _, _), run in zip(episodes, stepped, strict=True)]
+    index = {id(run): position for position, run in enumerate(stepped)}
+    done: list = [None] * len(stepped)
+
+    def finish(run: Stepped) -> None:
+        position = index[id(run)]
+        log = _log(episodes[position][0], run)
+        done[position] = log if then is None else then(log)
+
+    step_all(stepped, threads, finish)
+    return done
 
 
 def _setup(spec: EpisodeSpec, reference: Reference, added: np.ndarray | None) -> Stepped:

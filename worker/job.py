@@ -12,7 +12,7 @@ refused, the reason naming the plug-in, before anything is simulated.
 import hashlib
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from gainfarm import plugins
 from gainfarm.models.dynamics import DynamicsModel
@@ -83,10 +83,14 @@ def simulate_batch(
             prepared[index] = (spec, reference, compensation(spec, reference, learned))
         except Exception as error:
             outcomes[index] = _failed(error, time.perf_counter() - began)
-    logs = _episodes(list(prepared.values()), threads)
-    share = (time.perf_counter() - started) / len(specs)
-    for index, log in zip(prepared, logs, strict=True):
-        outcomes[index] = log if isinstance(log, Outcome) else _outcome(log, share)
+    ran = _episodes(list(prepared.values()), threads)
+    # Encoding overlapped the stepping: an episode's share of the batch is the whole less its
+    # own encoding, which its timings give apart.
+    encoding = sum(outcome.timings.encode_s for outcome in ran)
+    share = max(0.0, time.perf_counter() - started - encoding) / len(specs)
+    for index, outcome in zip(prepared, ran, strict=True):
+        timings = outcome.timings.model_copy(update={"simulate_s": share})
+        outcomes[index] = replace(outcome, timings=timings)
     return [outcomes[index] for index in range(len(specs))]
 
 
@@ -100,11 +104,12 @@ def _model(spec: EpisodeSpec, model: Callable[[str], DynamicsModel] | None) -> D
     return model(spec.feedforward)
 
 
-def _episodes(prepared: list[Prepared], threads: int) -> list["EpisodeLog | Outcome"]:
-    """The episodes' logs, stepped together; if that fails (a bug, or a spec no check caught),
-    each alone, so that only the episode at fault fails."""
+def _episodes(prepared: list[Prepared], threads: int) -> list[Outcome]:
+    """The episodes' outcomes, stepped together, each encoded and scored on the thread that
+    stepped it; if that fails (a bug, or a spec no check caught), each alone, so that only the
+    episode at fault fails."""
     try:
-        return list(simulate_all(prepared, threads))
+        return simulate_all(prepared, threads, _outcome)
     except Exception as error:
         if len(prepared) == 1:
             return [_failed(error, 0.0)]
@@ -119,7 +124,7 @@ def _failed(error: Exception, took: float) -> Outcome:
     return Outcome(JobStatus.failed, reason, b"", Timings(simulate_s=took, encode_s=0.0))
 
 
-def _outcome(log: EpisodeLog, simulate_s: float) -> Outcome:
+def _outcome(log: EpisodeLog, simulate_s: float = 0.0) -> Outcome:
     """Encode and score an episode that ran; a log the wire cannot carry fails its job."""
     status = JobStatus.diverged if log.metadata.diverged else JobStatus.ok
     reason = log.metadata.divergence

@@ -98,8 +98,14 @@ class Stepped:
         )
 
 
-def step_all(episodes: Sequence[Stepped], threads: int = 1) -> None:
-    """Run every episode's tick loop; each gets its log arrays, ticks run and divergence."""
+def step_all(
+    episodes: Sequence[Stepped],
+    threads: int = 1,
+    finish: Callable[[Stepped], None] | None = None,
+) -> None:
+    """Run every episode's tick loop; each gets its log arrays, ticks run and divergence.
+    `finish(episode)` is called on each as its stack ends, on the thread that stepped it: what
+    follows an episode (its log's encoding) overlaps the stepping of other stacks."""
     kinds: dict[tuple, list[Stepped]] = {}
     for episode in episodes:
         kinds.setdefault(episode.kind(), []).append(episode)
@@ -107,12 +113,18 @@ def step_all(episodes: Sequence[Stepped], threads: int = 1) -> None:
     for stack in kinds.values():
         size = min(MAX_STACK, _fitting(stack), -(-len(stack) // max(1, threads)))
         parts.extend(stack[start : start + size] for start in range(0, len(stack), size))
+
+    def run(part: list[Stepped]) -> None:
+        _loop(part)
+        for episode in part if finish is not None else ():
+            finish(episode)
+
     if threads <= 1 or len(parts) == 1:
         for part in parts:
-            _loop(part)
+            run(part)
         return
     with ThreadPoolExecutor(min(threads, len(parts))) as pool:
-        for _ in pool.map(_loop, parts):  # raises the first part's error, if any
+        for _ in pool.map(run, parts):  # raises the first part's error, if any
             pass
 
 
