@@ -727,7 +727,9 @@ class TuningRun:
             tried.update(wanted)
             fetched = evaluator.fetch(
                 {
-                    job_id: Wanted(self._episode_spec(gains, job_id), ran.digest, (ran.worker,))
+                    job_id: Wanted(
+                        self._episode_spec(gains, job_id), ran.digest, (ran.worker,), ran.scores
+                    )
                     for job_id, (gains, ran) in wanted.items()
                     if ran.digest is not None
                 }
