@@ -892,18 +892,26 @@ class TuningRun:
             for gains in [gains for gains in state.episodes if gains not in keep]:
                 for job_id in state.episodes.pop(gains):
                     (self.directory / EPISODES / f"{job_id}.mcap").unlink(missing_ok=True)
-        if self._fetch_front(evaluator):
+        due = time.monotonic() >= self._records_due
+        # Fetching checks a farm's claims as the front takes them in; its own workers' claims
+        # stand (`trusted`), so their logs are fetched only for the records that list them.
+        fetch = not getattr(evaluator, "trusted", False) or due or self._stops() is not None
+        if fetch and self._fetch_front(evaluator):
             front = state.evolution.front()  # a member's scores were false: the front moved
             state.history[-1] = self._row_of(front, state.history[-1])
-        hypervolumes = [row.hypervolume for row in state.history]
-        state.stopped = self.config.termination.reason(hypervolumes, state.evolution.evaluations)
-        if state.stopped is None and time.monotonic() < self._records_due:
+        state.stopped = self._stops()
+        if state.stopped is None and not due:
             return
         # A Ctrl-C between history.csv and the checkpoint would leave them a generation apart.
         with interrupts_deferred():
             self.write_records()
             self._checkpoint()
         self._records_due = time.monotonic() + RECORD_SECONDS
+
+    def _stops(self) -> str | None:
+        """Why the run stops now (the termination's verdict on its history), or None."""
+        hypervolumes = [row.hypervolume for row in self.state.history]
+        return self.config.termination.reason(hypervolumes, self.state.evolution.evaluations)
 
     def _checkpoint(self) -> None:
         write_atomically(self.directory / CHECKPOINT, encode(self.state, self.identity))
