@@ -4,12 +4,13 @@
                                   [--seed 0] [--async/--no-async] [--profile]
 
 The default run's configuration (`analytic start`: a 5 s spiral, NSGA-II, keep the front) is
-tuned to a fixed budget of evaluations on a local farm (the broker in this process, `--workers`
-real worker processes running real episodes), through a FarmClient as `analytic start` makes it
-(trusted: its own workers). The figure is this process's CPU seconds (every thread of it, the
-in-process broker's and Zenoh's included: resource.getrusage(RUSAGE_SELF)) over the run, per
-evaluation, split into the main thread (client, optimiser, records, checkpoint) and the other
-threads (the in-process broker, Zenoh's). A generation is run first, unmeasured, so the workers
+tuned to a fixed budget of evaluations on a local farm (`local_farm`: a broker process and
+`--workers` real worker processes running real episodes), through a FarmClient as `analytic
+start` makes it (trusted: its own workers). The figure is this process's CPU seconds (every thread
+of it: resource.getrusage(RUSAGE_SELF), so a broker that runs in this process, as the local
+farm's did before, counts too) over the run, per evaluation, split into the main thread (client,
+optimiser, records, checkpoint) and the other threads (Zenoh's, and the client's callbacks on
+them). A generation is run first, unmeasured, so the workers
 have built the spiral's reference. With --async, a steady-state run is measured too.
 
 With --profile each run is measured again under cProfile, and the main thread's time is split
@@ -89,6 +90,9 @@ def tune(endpoint: str, config: RunConfig, directory: Path, profile: bool) -> Co
     evaluations = run.state.evolution.evaluations
     if evaluations != config.evaluations:
         raise RuntimeError(f"{evaluations} evaluations, not {config.evaluations}")
+    failed = sum(ran.digest is None for runs in run.state.provenance.values() for ran in runs)
+    if failed:  # an episode that cannot run costs nothing to score: not the run measured
+        raise RuntimeError(f"{failed} episodes did not run")
     return Cost(evaluations, wall, cpu, main, _parts(profiler) if profiler else {})
 
 
@@ -119,14 +123,16 @@ def _parts(profiler: cProfile.Profile) -> dict[str, float]:
     "--async/--no-async", "steady", default=True, show_default=True, help="a steady state too"
 )
 @click.option("--profile", is_flag=True, help="split the main thread's time (cProfile)")
-@click.option("--quick", is_flag=True, help="a CI-sized run: 60 evaluations, pop 10, 1 s spiral")
+@click.option(
+    "--quick", is_flag=True, help="a CI-sized run: 60 evaluations, pop 10, a 0.5 s fourier path"
+)
 def main(
     pop: int, evaluations: int, workers: int, seed: int, steady: bool, profile: bool, quick: bool
 ) -> None:
     trajectory = {}
     if quick:
         pop, evaluations = 10, 60
-        trajectory = {"trajectories": ({"duration": 1.0},)}
+        trajectory = {"trajectories": ({"kind": "fourier", "duration": 0.5},)}
     config = RunConfig.model_validate(
         {"pop": pop, "evaluations": evaluations, "seed": seed, **trajectory}
     )
@@ -157,7 +163,8 @@ def main(
                 shares.append([kind, *(f"{share:.0%}" for share in profiled.parts.values())])
     print(
         f"pop {config.pop}, {config.evaluations} evaluations, "
-        f"{config.trajectories[0].duration:g} s spiral, seed {seed}, {workers} worker processes"
+        f"a {config.trajectories[0].duration:g} s {config.trajectories[0].kind}, seed {seed}, "
+        f"{workers} worker processes"
     )
     print_table(
         [
