@@ -61,7 +61,7 @@ farm_options = options.stack(
         help="with --tls: the analytic participant to be, if DIR holds several",
     ),
     click.option(
-        "--local", is_flag=True, help="run the farm here: a broker in this process, workers"
+        "--local", is_flag=True, help="run the farm here: a broker process and worker processes"
     ),
     click.option(
         "--workers",

@@ -65,11 +65,14 @@ def accept_log(content: bytes, spec: EpisodeSpec, path: Path | None, source: str
 @dataclass(frozen=True)
 class Wanted:
     """A log to fetch: the episode's spec, its SHA-256 (the one the broker took, or the one
-    validation found standing) and the workers that may keep it, asked in turn."""
+    validation found standing) and the workers that may keep it, asked in turn. `scores`: those
+    its worker claimed; an evaluator whose workers are its own (`trusted`) takes them as the
+    log's instead of decoding and scoring it again (most of what a fetch costs)."""
 
     spec: EpisodeSpec
     digest: str
     holders: tuple[str, ...]
+    scores: Scores | None = None
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""The farm on one machine with no set-up: the broker inside this process, N worker processes.
+"""The farm on one machine with no set-up: a broker process and N worker processes.
 
 Used by `analytic ... --local [--workers N]` and by the tests. The workers share the machine's
 cores: each steps its batches on cores / N threads (at least one). One process, the default,
@@ -6,8 +6,10 @@ plans each trajectory and compiles each plant once, and its threads step the phy
 batches on every core (worker.stepping); more processes pay those again, and gain only where the
 GIL-bound part of a tick, small beside its physics, would hold the threads back.
 
-Everything listens on loopback, on a port the kernel picked as free, so nothing collides with a
-real farm on 7447.
+The broker runs in a process of its own, not in this one: routing and scheduling every job took
+about a third of the analytic process's CPU per evaluation (bench/analytic_cost.py), on the core
+the run's own loop needs. Everything listens on loopback, on a port the kernel picked as free,
+so nothing collides with a real farm on 7447.
 """
 
 import contextlib
@@ -18,7 +20,9 @@ import sys
 import time
 from collections.abc import Iterator, Sequence
 
-from gainfarm.broker.service import Broker
+from gainfarm.broker.status import query_status
+from gainfarm.edges.transport import open_session
+from gainfarm.schemas.wire import BadMessage
 
 STOP_SECONDS = 15.0  # a worker finishes its episode before leaving; longer than that is a hang
 # A worker imports MuJoCo and Zenoh before it joins: a few seconds on a loaded machine.
@@ -65,16 +69,53 @@ def stop_workers(workers: list[subprocess.Popen]) -> None:
             worker.wait()
 
 
-def _await_workers(broker: Broker, processes: list[subprocess.Popen]) -> None:
-    """Return once every worker has joined the broker. A run started sooner hands its first
-    batch to whichever worker came first, all of it if it came alone, and the others idle."""
+def spawn_broker(
+    endpoint: str, lease_seconds: float, log_level: str = "warning"
+) -> subprocess.Popen:
+    """`broker start` in a process of its own, listening on `endpoint`."""
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "gainfarm.broker",
+            "start",
+            "--listen",
+            endpoint,
+            "--lease-seconds",
+            str(lease_seconds),
+            "--log-level",
+            log_level,
+        ],
+        stdin=subprocess.DEVNULL,
+    )
+
+
+def _await_workers(
+    endpoint: str, broker: subprocess.Popen, workers: list[subprocess.Popen]
+) -> None:
+    """Return once the broker answers with every worker joined. A run started sooner hands its
+    first batch to whichever worker came first, all of it if it came alone, and the others
+    idle."""
     deadline = time.monotonic() + READY_SECONDS
-    while broker.status().worker_count < len(processes):
-        if any(process.poll() is not None for process in processes):
-            raise ConnectionError("a worker exited before joining")
-        if time.monotonic() > deadline:
-            raise ConnectionError(f"its workers did not join in {READY_SECONDS:.0f} s")
-        time.sleep(0.05)
+    session = None
+    try:
+        while True:
+            if broker.poll() is not None:
+                raise ConnectionError(f"its broker exited (status {broker.returncode})")
+            if any(process.poll() is not None for process in workers):
+                raise ConnectionError("a worker exited before joining")
+            if time.monotonic() > deadline:
+                raise ConnectionError(f"its workers did not join in {READY_SECONDS:.0f} s")
+            try:  # the broker may not listen yet: nothing to connect to, or no answer
+                session = session or open_session("client", connect=[endpoint])
+                if query_status(session, timeout=1.0).worker_count >= len(workers):
+                    return
+            except (ConnectionError, BadMessage):
+                pass
+            time.sleep(0.05)
+    finally:
+        if session is not None:
+            session.close()
 
 
 @contextlib.contextmanager
@@ -90,16 +131,20 @@ def farm_endpoints(connect: Sequence[str] = (), workers: int = 1) -> Iterator[li
 
 @contextlib.contextmanager
 def local_farm(workers: int = 1, lease_seconds: float = 60.0) -> Iterator[str]:
-    """Run a broker and `workers` worker processes; yield the endpoint to connect to."""
+    """Run a broker process and `workers` worker processes; yield the endpoint to connect to.
+    The broker stops last, once every worker has handed in its job."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    with Broker([endpoint], lease_seconds=lease_seconds) as broker:
+    broker = spawn_broker(endpoint, lease_seconds)
+    try:
         threads = str(max(1, len(os.sched_getaffinity(0)) // workers))
         processes = [
             spawn_worker(endpoint, f"local-{index}", "warning", "--threads", threads)
             for index in range(workers)
         ]
         try:
-            _await_workers(broker, processes)
+            _await_workers(endpoint, broker, processes)
             yield endpoint
         finally:
             stop_workers(processes)
+    finally:
+        stop_workers([broker])

@@ -111,6 +111,7 @@ ALLOWED: frozenset[tuple[str, str]] = frozenset(
         ("pymoo.operators.survival.rank_and_crowding.classes", "RankAndCrowding"),
         ("pymoo.operators.survival.rank_and_crowding.metrics", "FunctionalDiversity"),
         ("pymoo.operators.survival.rank_and_crowding.metrics", "calc_crowding_distance"),
+        ("pymoo.core.termination", "NoTermination"),  # what an algorithm set up here holds
         ("pymoo.termination.cv", "ConstraintViolationTermination"),
         ("pymoo.termination.default", "DefaultMultiObjectiveTermination"),
         ("pymoo.termination.ftol", "MultiObjectiveSpaceTermination"),

@@ -30,6 +30,7 @@ from pymoo.algorithms.moo.nsga3 import NSGA3, comp_by_cv_then_random
 from pymoo.algorithms.moo.sms import SMSEMOA, cv_and_dom_tournament
 from pymoo.core.population import Population
 from pymoo.core.problem import Problem
+from pymoo.core.termination import NoTermination
 from pymoo.indicators.hv import HV
 from pymoo.operators.selection.tournament import TournamentSelection
 from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
@@ -260,6 +261,9 @@ def optimiser(
 
 
 def _set_up(method: Any, seed: int, space: SearchSpace) -> Any:
+    # The run terminates itself (analytic.termination): pymoo's default criteria, updated on
+    # every tell, were a quarter of a steady-state run's CPU, and decide nothing that is asked.
+    method.termination = NoTermination()
     method.setup(GainProblem(space), seed=seed, verbose=False)
     return method
 
@@ -355,6 +359,10 @@ class Evolution:
         # analytic.replication) can uncover one that a false one had dominated.
         self._seen_x = np.empty((0, len(self.space.lower)))
         self._seen_f = np.empty((0, 2))
+        self._front: list[Candidate] | None = None  # front(), until the archive changes
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_front": None}  # derived; and a checkpoint holds no Candidate
 
     def __setstate__(self, state: dict) -> None:
         """Checkpoints from before `_seen_*` know only the archive: it stands in for them.
@@ -364,7 +372,7 @@ class Evolution:
             "objective_scaling": "raw",
             "reference": REFERENCE_POINT,
         }
-        self.__dict__.update({**defaults, **state})
+        self.__dict__.update({**defaults, **state, "_front": None})
         if "_seen_x" not in state:
             self._seen_x, self._seen_f = self._archive_x.copy(), self._archive_f.copy()
 
@@ -406,6 +414,7 @@ class Evolution:
         f = np.vstack([self._archive_f, f])
         first = non_dominated_indices(f)
         self._archive_x, self._archive_f = x[first], f[first]
+        self._front = None
         self.evaluations += len(individuals)
 
     def correct(self, gains: PDGains, objectives: tuple[float, float]) -> list[int]:
@@ -420,6 +429,7 @@ class Evolution:
                 rows.append(row)
         first = non_dominated_indices(self._seen_f)
         self._archive_x, self._archive_f = self._seen_x[first], self._seen_f[first]
+        self._front = None
         population = getattr(self.algorithm, "pop", None)  # a plug-in may hold none
         if population is not None:
             for individual in population:
@@ -438,11 +448,13 @@ class Evolution:
 
     def front(self) -> list[Candidate]:
         """The non-dominated candidates among all evaluated so far, by f_acc."""
-        members = [
-            Candidate(self.space.gains(x), (float(f[0]), float(f[1])))
-            for x, f in zip(self._archive_x, self._archive_f, strict=True)
-        ]
-        return sorted(members, key=lambda member: member.objectives)
+        if self._front is None:  # asked several times a generation; made once per change
+            members = [
+                Candidate(self.space.gains(x), (float(f[0]), float(f[1])))
+                for x, f in zip(self._archive_x, self._archive_f, strict=True)
+            ]
+            self._front = sorted(members, key=lambda member: member.objectives)
+        return list(self._front)
 
 
 def non_dominated_indices(f: np.ndarray) -> np.ndarray:

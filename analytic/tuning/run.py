@@ -2,7 +2,8 @@
 
 Optuna's Study, in its shape: the evolution step (analytic.evolution) is the sampler, an evaluator
 (analytic.evaluator: the farm, or this process) runs the episodes, and the run directory is the
-storage. After every generation the run writes, each file atomically (analytic.records):
+storage. As a generation ends the run writes, each file atomically (analytic.records), unless it
+wrote them less than RECORD_SECONDS ago (and always as it stops):
 
     config.json      everything needed to repeat the run (written once)
     run.json         the run's id (written once), which its checkpoint carries
@@ -17,7 +18,7 @@ storage. After every generation the run writes, each file atomically (analytic.r
 and, once asked (`baseline`), baseline.json: the default gains on the run's trajectories,
 evaluated once. The figures and report.md are the view's (analytic.view.run_report), drawn by
 what composes the run (`tune`, an experiment's runner). A stopped run continues from its last
-checkpoint; the interrupted generation runs again, with the same candidates and the same
+checkpoint; the generations since run again, with the same candidates and the same
 (deterministic) episodes, so the front is the one an uninterrupted run finds.
 
 One process writes a run at a time: `create` and `open` take the run's lock (RunBusy if another
@@ -101,6 +102,12 @@ CHECKPOINT = "checkpoint.pkl"
 # A steady-state run asks the farm how many workers it has this often: a broker status query
 # per evaluation would cost more than the evaluation.
 CAPACITY_SECONDS = 2.0
+# The records and the checkpoint are written as a generation ends, unless they were written less
+# than this long ago: writing them costs some 20-40 ms of CPU (most of it pickling the optimiser
+# and every episode's provenance), a millisecond per evaluation for fast generations of 30
+# (bench/analytic_cost.py). A run interrupted runs again at most this long's generations when it
+# resumes, to the same (deterministic) front; one that stops is written whatever the time.
+RECORD_SECONDS = 10.0
 
 
 class RunBusy(Exception):
@@ -158,7 +165,8 @@ class RunState:
 @dataclass(frozen=True)
 class RunProgress:
     """Where a run stands, after each evaluation and once more as each generation ends (with
-    `ended`, its records and checkpoint written): for a progress line. `generation` counts the
+    `ended`; its records and checkpoint are written at most every RECORD_SECONDS, and as the run
+    stops): for a progress line. `generation` counts the
     generations ended; `hypervolume` and `best_f_acc` are the last ended one's (NaN before)."""
 
     generation: int
@@ -184,6 +192,7 @@ class TuningRun:
         self.identity = identity
         self._lock = lock
         self._said_alone: set[str] = set()  # caught workers with nobody to run their episodes
+        self._records_due = -math.inf  # when a generation's end next writes the records
 
     @classmethod
     def create(
@@ -466,6 +475,7 @@ class TuningRun:
         self.state.stopped = f"no trusted worker left ({', '.join(sorted(distrusted))} lied)"
         log.error("every worker of the farm is distrusted: the run stops")
         with interrupts_deferred():
+            self.write_records()
             self._checkpoint()
         return True
 
@@ -727,7 +737,9 @@ class TuningRun:
             tried.update(wanted)
             fetched = evaluator.fetch(
                 {
-                    job_id: Wanted(self._episode_spec(gains, job_id), ran.digest, (ran.worker,))
+                    job_id: Wanted(
+                        self._episode_spec(gains, job_id), ran.digest, (ran.worker,), ran.scores
+                    )
                     for job_id, (gains, ran) in wanted.items()
                     if ran.digest is not None
                 }
@@ -880,17 +892,26 @@ class TuningRun:
             for gains in [gains for gains in state.episodes if gains not in keep]:
                 for job_id in state.episodes.pop(gains):
                     (self.directory / EPISODES / f"{job_id}.mcap").unlink(missing_ok=True)
-        if self._fetch_front(evaluator):
+        due = time.monotonic() >= self._records_due
+        # Fetching checks a farm's claims as the front takes them in; its own workers' claims
+        # stand (`trusted`), so their logs are fetched only for the records that list them.
+        fetch = not getattr(evaluator, "trusted", False) or due or self._stops() is not None
+        if fetch and self._fetch_front(evaluator):
             front = state.evolution.front()  # a member's scores were false: the front moved
             state.history[-1] = self._row_of(front, state.history[-1])
+        state.stopped = self._stops()
+        if state.stopped is None and not due:
+            return
         # A Ctrl-C between history.csv and the checkpoint would leave them a generation apart.
         with interrupts_deferred():
             self.write_records()
-            hypervolumes = [row.hypervolume for row in state.history]
-            state.stopped = self.config.termination.reason(
-                hypervolumes, state.evolution.evaluations
-            )
             self._checkpoint()
+        self._records_due = time.monotonic() + RECORD_SECONDS
+
+    def _stops(self) -> str | None:
+        """Why the run stops now (the termination's verdict on its history), or None."""
+        hypervolumes = [row.hypervolume for row in self.state.history]
+        return self.config.termination.reason(hypervolumes, self.state.evolution.evaluations)
 
     def _checkpoint(self) -> None:
         write_atomically(self.directory / CHECKPOINT, encode(self.state, self.identity))

@@ -12,6 +12,7 @@ import pytest
 import zenoh
 
 from gainfarm.analytic.evaluators.batch import run_batch
+from gainfarm.analytic.evaluators.evaluator import Wanted
 from gainfarm.analytic.evaluators.farm import FarmClient, FarmUnavailable
 from gainfarm.analytic.evaluators.local import local_farm, spawn_worker, stop_workers
 from gainfarm.broker.service import Broker
@@ -74,6 +75,29 @@ def test_a_batch_keeps_every_log_even_when_the_workers_keep_them(tmp_path: Path)
         assert record["episode"] == f"episodes/{evaluation.job_id}.mcap"
         assert hashlib.sha256(evaluation.log.read_bytes()).hexdigest() == evaluation.digest
         assert score(read_episode(evaluation.log)) == evaluation.scores
+
+
+@pytest.mark.slow
+def test_a_farm_of_its_own_workers_keeps_a_fetched_log_with_the_scores_claimed(
+    tmp_path: Path,
+) -> None:
+    # A trusted client writes the digest's bytes and takes the claimed scores (decoding and
+    # scoring its own workers' logs again checks nothing); any other scores the log here. The
+    # claim handed over is deliberately false, to tell the two apart.
+    spec = short_spec(duration=0.5)
+    with local_farm(workers=1) as endpoint:
+        for trusted in (True, False):
+            directory = tmp_path / str(trusted)
+            with FarmClient([endpoint], "s", directory, keep_logs=False, trusted=trusted) as farm:
+                farm.submit({"j": spec})
+                (evaluation,) = farm.results(timeout=60)
+                assert evaluation.scores is not None and evaluation.digest is not None
+                claimed = evaluation.scores.model_copy(update={"f_acc": 1.0})
+                want = Wanted(spec, evaluation.digest, (evaluation.worker,), claimed)
+                got = farm.fetch({"j": want})["j"]
+            assert got.log == directory / "episodes" / "j.mcap"
+            assert hashlib.sha256(got.log.read_bytes()).hexdigest() == evaluation.digest
+            assert got.scores == (claimed if trusted else evaluation.scores)
 
 
 @pytest.mark.slow

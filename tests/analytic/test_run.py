@@ -172,9 +172,11 @@ def test_a_stopped_and_resumed_run_ends_where_an_uninterrupted_one_does(
     stopped = tmp_path / "stopped"
     with pytest.raises(Interrupt):
         tune(stopped, farm_endpoint, on_progress=stop_in_generation_two)
-    assert len(read_history(stopped / "history.csv")) == 2
+    # The first generation is written; the second too if it ended RECORD_SECONDS after it.
+    written = len(read_history(stopped / "history.csv"))
+    assert written in (1, 2)
     resumed = TuningRun.open(stopped)
-    assert not resumed.finished
+    assert not resumed.finished and len(resumed.state.history) == written
     with FarmClient([farm_endpoint], "test-resumed", stopped) as farm:
         resumed.run(farm, on_progress=lambda _: None)
     assert (stopped / "front.csv").read_bytes() == (whole.directory / "front.csv").read_bytes()

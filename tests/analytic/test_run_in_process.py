@@ -120,7 +120,13 @@ def test_the_same_seed_gives_the_same_front_and_another_seed_another(tmp_path: P
     assert (other.directory / "front.csv").read_bytes() != front
 
 
-def test_a_stopped_and_resumed_run_ends_where_an_uninterrupted_one_does(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("record_seconds", "written"), [(0.0, 2), (3600.0, 1)])
+def test_a_stopped_and_resumed_run_ends_where_an_uninterrupted_one_does(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, record_seconds: float, written: int
+) -> None:
+    # Records written as each generation ends, or (fast generations) only the first one's: a
+    # resume runs again whatever generations were not written, to the same front.
+    monkeypatch.setattr("gainfarm.analytic.tuning.run.RECORD_SECONDS", record_seconds)
     whole = tune(tmp_path / "whole")
 
     def stop_in_generation_two(progress: RunProgress) -> None:
@@ -130,9 +136,9 @@ def test_a_stopped_and_resumed_run_ends_where_an_uninterrupted_one_does(tmp_path
     stopped = tmp_path / "stopped"
     with pytest.raises(Interrupt):
         tune(stopped, on_progress=stop_in_generation_two)
-    assert len(read_history(stopped / "history.csv")) == 2
+    assert len(read_history(stopped / "history.csv")) == written
     resumed = TuningRun.open(stopped)
-    assert not resumed.finished
+    assert not resumed.finished and len(resumed.state.history) == written
     resumed.run(InProcessEvaluator(scorer=toy_scores))
     assert (stopped / "front.csv").read_bytes() == (whole.directory / "front.csv").read_bytes()
     assert (stopped / "evaluated.csv").read_bytes() == (
