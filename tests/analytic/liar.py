@@ -16,7 +16,7 @@ import hashlib
 import signal
 import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 from gainfarm.models.dynamics import DynamicsModel
 from gainfarm.models.urdf import description
@@ -25,22 +25,32 @@ from gainfarm.schemas.mcap_episode import decode_episode, episode_bytes
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.wire import Lease, Result, WireScores
 from gainfarm.worker import service
-from gainfarm.worker.job import Simulate, execute, simulate
+from gainfarm.worker.job import execute_batch
 
-Execute = Callable[..., tuple[Result, bytes]]
+Executed = list[tuple[Result, bytes]]
+ExecuteBatch = Callable[..., Executed]
+Lie = Callable[[Result, bytes], tuple[Result, bytes]]
 
 
-def altering(change: Callable[[EpisodeLog], EpisodeLog]) -> Execute:
-    """A worker's `execute` that returns the log `change` makes of its honest one, with that
-    log's own scores: a valid, self-consistent lie."""
+def lying(lie: Lie) -> ExecuteBatch:
+    """A worker's `execute_batch` that runs its batch honestly, then tells `lie` of each job."""
 
-    def lying(
-        lease: Lease,
+    def execute(
+        leases: Sequence[Lease],
         name: str,
-        model: Callable[[str], DynamicsModel] | None = None,
-        run: Simulate = simulate,
-    ) -> tuple[Result, bytes]:
-        result, content = execute(lease, name, model, run)
+        model_of: Callable[[Lease], Callable[[str], DynamicsModel]] | None = None,
+        threads: int = 1,
+    ) -> Executed:
+        return [lie(*ran) for ran in execute_batch(leases, name, model_of, threads)]
+
+    return execute
+
+
+def altering(change: Callable[[EpisodeLog], EpisodeLog]) -> ExecuteBatch:
+    """Returns the log `change` makes of each honest one, with that log's own scores: a valid,
+    self-consistent lie."""
+
+    def lie(result: Result, content: bytes) -> tuple[Result, bytes]:
         if not content:
             return result, content
         altered = episode_bytes(change(decode_episode(content)), description())
@@ -49,27 +59,20 @@ def altering(change: Callable[[EpisodeLog], EpisodeLog]) -> Execute:
         update = {"episode_bytes": len(altered), "digest": digest, "scores": scores}
         return result.model_copy(update=update), altered
 
-    return lying
+    return lying(lie)
 
 
-def claiming(factor: float) -> Execute:
-    """A worker's `execute` that returns its honest log and claims f_acc and f_t `factor` times
-    what the log has."""
+def claiming(factor: float) -> ExecuteBatch:
+    """Returns each honest log and claims f_acc and f_t `factor` times what the log has."""
 
-    def lying(
-        lease: Lease,
-        name: str,
-        model: Callable[[str], DynamicsModel] | None = None,
-        run: Simulate = simulate,
-    ) -> tuple[Result, bytes]:
-        result, content = execute(lease, name, model, run)
+    def lie(result: Result, content: bytes) -> tuple[Result, bytes]:
         if result.scores is None:
             return result, content
         claimed = {"f_acc": factor * result.scores.f_acc, "f_t": factor * result.scores.f_t}
         scores = result.scores.model_copy(update=claimed)
         return result.model_copy(update={"scores": scores}), content
 
-    return lying
+    return lying(lie)
 
 
 def _one_sample_off(log: EpisodeLog) -> EpisodeLog:
@@ -97,7 +100,7 @@ def main() -> None:
         "--forge": forging_execute,
         "--sabotage": sabotaging_execute,
     }
-    service.execute = next((how[flag] for flag in sys.argv[3:] if flag in how), lying_execute)
+    service.execute_batch = next((how[flag] for flag in sys.argv[3:] if flag in how), lying_execute)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     with service.CobotWorker([endpoint], name) as cobot:
