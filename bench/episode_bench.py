@@ -1,5 +1,5 @@
 """Cost of an episode, of its log and of the worker's whole job, against the episode's own
-physics, alone and in batches.
+physics, alone and in batches; and of scoring a log from its bytes.
 
     python bench/episode_bench.py [--quick] [--repeats 5] [--duration 5] [--batches 1,8,32,128]
 
@@ -32,7 +32,8 @@ from gainfarm.models.urdf import description
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import DEFAULT_GAINS
-from gainfarm.schemas.mcap_episode import episode_bytes
+from gainfarm.schemas.mcap_episode import decode_episode, episode_bytes
+from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
 from gainfarm.worker.episode import Prepared, compensation, run_episode, simulate_all
 from gainfarm.worker.job import simulate, simulate_batch
@@ -137,6 +138,7 @@ def main(quick: bool, repeats: int, duration: float, batches: str) -> None:
     largest = max(sizes)
     batch_specs = {size: candidates(realistic, size) for size in sizes}
     batch_episodes = {size: prepared(specs) for size, specs in batch_specs.items()}
+    logged = episode_bytes(run_episode(realistic), description())
 
     cases: dict[str, tuple[Callable[[], object], int]] = {  # what, episodes it runs
         "physics (replayed in C)": (physics(realistic), 1),
@@ -147,6 +149,10 @@ def main(quick: bool, repeats: int, duration: float, batches: str) -> None:
             1,
         ),
         "whole job (episode + MCAP + scores)": (lambda: simulate(realistic), 1),
+        "scores from the MCAP bytes (the analytic's check)": (
+            lambda: score(decode_episode(logged)),
+            1,
+        ),
     }
     for size in sizes:
         episodes, specs = batch_episodes[size], batch_specs[size]
@@ -187,7 +193,7 @@ def main(quick: bool, repeats: int, duration: float, batches: str) -> None:
         print(f"{name}: {median[name] / anchor:.2f}x physics{aim}")
     whole = median[f"jobs, batch of {batch}"]
     print(f"real-time factor, one thread (jobs, batch of {batch}): {duration / whole:.0f}x")
-    print(f"bytes per episode: {len(episode_bytes(run_episode(realistic), description())):,}")
+    print(f"bytes per episode: {len(logged):,}")
 
 
 if __name__ == "__main__":
