@@ -60,7 +60,7 @@ def tune(
     *,
     evaluator: Evaluator | None = None,
     connect: Sequence[str] = (),
-    workers: int = 1,
+    workers: int | None = None,
     identity: TlsIdentity | None = None,
     feedforward: bytes | None = None,
     balance: bool = defaults.BALANCE,
@@ -71,9 +71,10 @@ def tune(
     finished run; its front is `run.front()`, its files are in `run.directory`.
 
     The episodes run on `evaluator` if one is given (an InProcessEvaluator, say); else on the
-    farm whose broker is at `connect`; else on a local farm of `workers` processes started for
-    this call. `out` (default runs/TIME) is the run directory: new or empty, or one that already
-    holds a run of the same configuration, which is resumed (or returned as it is, if finished).
+    farm whose broker is at `connect`; else on a local farm of `workers` processes (None: one per
+    core) started for this call. `out` (default runs/TIME) is the run directory: new or empty, or
+    one that already holds a run of the same configuration, which is resumed (or returned as it
+    is, if finished).
     `feedforward`: the model file `config.feedforward` names. With `balance`, a new generic run
     (several trajectories, no `objective_weights`) weighs each trajectory's objectives so that
     all count alike at the default gains (`balanced`). `watch`: see `Watch`; else `on_progress`
@@ -118,7 +119,7 @@ def tune_run(
     *,
     evaluator: Evaluator | None = None,
     connect: Sequence[str] = (),
-    workers: int = 1,
+    workers: int | None = None,
     identity: TlsIdentity | None = None,
     on_progress: Callable[[RunProgress], None] = lambda _: None,
     watch: Watch | None = None,
@@ -186,7 +187,7 @@ def _evaluator(
     run: TuningRun,
     evaluator: Evaluator | None,
     connect: Sequence[str],
-    workers: int,
+    workers: int | None,
     identity: TlsIdentity | None,
 ) -> Iterator[Evaluator]:
     """`evaluator`, or else the farm's client (FarmUnavailable if the farm cannot be had; what

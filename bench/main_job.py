@@ -111,8 +111,12 @@ def run_case(name: str, analytic: list[str], options: Sequence[str], out: Path) 
 
     def run() -> None:
         with transcript.open("wb") as sink:
-            done = subprocess.run(
-                command, stdin=subprocess.DEVNULL, stdout=sink, stderr=subprocess.STDOUT
+            done = subprocess.run(  # not from a checkout: `-m analytic` must be the install's
+                command,
+                stdin=subprocess.DEVNULL,
+                stdout=sink,
+                stderr=subprocess.STDOUT,
+                cwd=out.parent,
             )
         if done.returncode != 0:
             tail = transcript.read_text(errors="replace").strip().splitlines()[-15:]

@@ -63,7 +63,7 @@ def batch(
     tls: Path | None,
     participant: str | None,
     local: bool,
-    workers: int,
+    workers: int | None,
     gains_file: Path | None,
     kinds: tuple[str, ...],
     duration: float,

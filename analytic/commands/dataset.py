@@ -72,7 +72,7 @@ def dataset(
     tls: Path | None,
     participant: str | None,
     local: bool,
-    workers: int,
+    workers: int | None,
 ) -> None:
     """Gather tuned controllers' episodes into a dataset: MCAP logs, Parquet tables, a card."""
     from gainfarm.analytic.data.dataset import (

@@ -167,7 +167,7 @@ def _run(
     tls: Path | None,
     participant: str | None,
     local: bool,
-    workers: int,
+    workers: int | None,
     parallel_runs: int | None,
     out: Path,
     duration: float | None = None,

@@ -22,7 +22,7 @@ def resume(
     tls: Path | None,
     participant: str | None,
     local: bool,
-    workers: int,
+    workers: int | None,
 ) -> None:
     """Continue a stopped run from its last checkpoint."""
     from gainfarm.analytic.compose import CannotStart, tune_run

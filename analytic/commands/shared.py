@@ -66,10 +66,8 @@ farm_options = options.stack(
     click.option(
         "--workers",
         type=click.IntRange(min=1, max=64),
-        default=1,
-        show_default=True,
         help="with a local farm: how many worker processes (they share the cores: each steps "
-        "its episodes on cores / N threads)",
+        "its episodes on cores / N threads)  [default: one per core]",
     ),
 )
 
@@ -96,7 +94,7 @@ def study_name(directory: Path, identity: "TlsIdentity | None") -> str:
 
 
 @contextlib.contextmanager
-def farm(connect: tuple[str, ...], workers: int) -> Iterator[list[str]]:
+def farm(connect: tuple[str, ...], workers: int | None) -> Iterator[list[str]]:
     """The endpoints to use: the given broker's, or else a local farm's (a local farm that
     cannot start is one line; what goes wrong later in the block is not relabelled)."""
     if connect:

@@ -117,7 +117,7 @@ def start(
     tls: Path | None,
     participant: str | None,
     local: bool,
-    workers: int,
+    workers: int | None,
     out: Path | None,
     keep: str,
     asynchronous: bool,

@@ -494,7 +494,7 @@ def link_or_copy(source: Path, target: Path) -> bool:
 
 
 @contextlib.contextmanager
-def local_rerun_farm(run_dir: Path, workers: int = 1) -> Iterator[Evaluator]:
+def local_rerun_farm(run_dir: Path, workers: int | None = None) -> Iterator[Evaluator]:
     """A local farm for the rerun, for the block: what `build` uses if given none."""
     with (
         local_farm(workers) as endpoint,

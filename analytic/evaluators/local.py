@@ -1,10 +1,12 @@
 """The farm on one machine with no set-up: a broker process and N worker processes.
 
-Used by `analytic ... --local [--workers N]` and by the tests. The workers share the machine's
-cores: each steps its batches on cores / N threads (at least one). One process, the default,
-plans each trajectory and compiles each plant once, and its threads step the physics of its
-batches on every core (worker.stepping); more processes pay those again, and gain only where the
-GIL-bound part of a tick, small beside its physics, would hold the threads back.
+Used by `analytic ... --local [--workers N]` and by the tests. By default one worker process per
+core, each stepping its batches on one thread; N processes share the cores, cores / N threads
+each (at least one). Processes, not threads: every world's step releases the GIL and takes it
+back, so two threads of one process hand it to each other twice a tick per world, and a batch on
+two threads ran 1.3x faster than on one where two processes run 2x (bench/episode_bench.py,
+bench/main_job.py). A process costs its start (imports, each trajectory's plan, each plant's
+model): a second or two, once.
 
 The broker runs in a process of its own, not in this one: routing and scheduling every job took
 about a third of the analytic process's CPU per evaluation (bench/analytic_cost.py), on the core
@@ -90,12 +92,11 @@ def spawn_broker(
     )
 
 
-def _await_workers(
-    endpoint: str, broker: subprocess.Popen, workers: list[subprocess.Popen]
-) -> None:
-    """Return once the broker answers with every worker joined. A run started sooner hands its
-    first batch to whichever worker came first, all of it if it came alone, and the others
-    idle."""
+def _await(endpoint: str, broker: subprocess.Popen, workers: list[subprocess.Popen]) -> None:
+    """Return once the broker answers, with every one of `workers` joined. Workers started
+    before it answers would ask it for work before it serves, and say so; a run started before
+    they join hands its first batch to whichever came first, all of it if it came alone, and the
+    others idle."""
     deadline = time.monotonic() + READY_SECONDS
     session = None
     try:
@@ -119,7 +120,7 @@ def _await_workers(
 
 
 @contextlib.contextmanager
-def farm_endpoints(connect: Sequence[str] = (), workers: int = 1) -> Iterator[list[str]]:
+def farm_endpoints(connect: Sequence[str] = (), workers: int | None = None) -> Iterator[list[str]]:
     """Where the farm is: the broker at `connect`, or else a local farm of `workers` processes
     started for the block."""
     if connect:
@@ -130,19 +131,22 @@ def farm_endpoints(connect: Sequence[str] = (), workers: int = 1) -> Iterator[li
 
 
 @contextlib.contextmanager
-def local_farm(workers: int = 1, lease_seconds: float = 60.0) -> Iterator[str]:
-    """Run a broker process and `workers` worker processes; yield the endpoint to connect to.
-    The broker stops last, once every worker has handed in its job."""
+def local_farm(workers: int | None = None, lease_seconds: float = 60.0) -> Iterator[str]:
+    """Run a broker process and `workers` worker processes (None: one per core); yield the
+    endpoint to connect to. The broker stops last, once every worker has handed in its job."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
+    cores = len(os.sched_getaffinity(0))
+    workers = workers or cores
     broker = spawn_broker(endpoint, lease_seconds)
     try:
-        threads = str(max(1, len(os.sched_getaffinity(0)) // workers))
+        _await(endpoint, broker, [])
+        threads = str(max(1, cores // workers))
         processes = [
             spawn_worker(endpoint, f"local-{index}", "warning", "--threads", threads)
             for index in range(workers)
         ]
         try:
-            _await_workers(endpoint, broker, processes)
+            _await(endpoint, broker, processes)
             yield endpoint
         finally:
             stop_workers(processes)

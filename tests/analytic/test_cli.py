@@ -23,6 +23,9 @@ from tests.helpers import analytic, crafted_log, write_log
 
 ANALYTIC = [sys.executable, "-c", "from gainfarm.analytic.cli import main; main()"]
 
+CORES = len(os.sched_getaffinity(0))
+CORES_WORKERS = f"{CORES} worker{'s' if CORES > 1 else ''}"  # a local farm's, by default
+
 
 class Refused:
     """What a command line that stops before any farm said: its exit status and stderr."""
@@ -149,7 +152,8 @@ def test_start_on_a_terminal_keeps_a_live_line_within_80_columns(tmp_path: Path)
     assert max(len(line) for line in lines) <= 80, max(lines, key=len)
     live = [line for line in lines if " evals · " in line]
     assert live, lines
-    assert any(re.search(r"gen [1-4] · \d+ evals · [\d.]+/s · HV .* · 1 worker$", x) for x in live)
+    farm = CORES_WORKERS  # a local farm: one worker per core
+    assert any(re.search(rf"gen [1-4] · \d+ evals · [\d.]+/s · HV .* · {farm}$", x) for x in live)
     assert not any("nan" in line or "0 workers" in line for line in live), live
     assert lines[-4:-2] == ["stopped: 4 generations", "front, history, figures and report in run/"]
     assert lines[-2].startswith("controller to use: the knee (front.csv row ")
@@ -169,7 +173,7 @@ def test_start_off_a_terminal_says_one_line_per_generation_and_keeps_the_front_s
     for number, line in enumerate(generations, 1):
         assert re.fullmatch(
             rf"generation {number}: {4 * number} evaluations in [\d.]+ s \([\d.]+/s\), "
-            r"hypervolume 0\.\d{4}, best error [\d.]+ mm, 1 worker",
+            rf"hypervolume 0\.\d{{4}}, best error [\d.]+ mm, {CORES_WORKERS}",
             line,
         ), line
     assert lines[-4:-2] == ["stopped: 3 generations", "front, history, figures and report in run/"]
