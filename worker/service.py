@@ -3,8 +3,8 @@ run it, hand its results in to the broker with the next request and send each on
 to its study. One process is one cobot.
 
 A batch is about BATCH_SECONDS of work (one job when jobs are long): short jobs then cost the broker
-one query per batch instead of two per job, and its episodes step together (worker.stepping) on
-the worker's threads, the physics of each thread's share on a core of its own.
+one query per batch instead of two per job, and its episodes step together (worker.stepping), on
+the worker's `threads`.
 
 The episode log goes along with the result only when the job asks for it (Job.keep_log);
 otherwise the worker keeps the log in memory (a LogStore, bounded: the least recently used go
