@@ -65,6 +65,8 @@ def simulate_batch(
     outcome is the one its spec has alone, log byte for byte (worker.stepping). `model`: as
     `simulate`'s, or one per spec. An episode's timings are its share of the batch's set-up and
     stepping, then its own encoding and scoring."""
+    if not specs:
+        return []
     models = model if isinstance(model, Sequence) else [model] * len(specs)
     started = time.perf_counter()
     prepared: dict[int, Prepared] = {}
