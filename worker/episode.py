@@ -1,11 +1,11 @@
 """One episode: the system, control and sensor/actuator layers stepping together at 500 Hz.
 
-The tick loop is the hot path (thousands of episodes, thousands of ticks each). There are two:
-the first wave's lean loop for exact sensors without delay or friction (the ideal plant, kept
-bit for bit), and the realistic one, with encoders, a delay and motor friction. Each only senses,
-does a few small matrix-vector products and steps the physics; everything else (reference,
-feed-forward, noise, torque clamping in the log, the sensors' readings that the controller does
-not use, divergence checks) is done in bulk, once per episode or once per block of ticks.
+Here an episode is set up (its plant at rest, its controller as matrices, its noise and
+feed-forward drawn into per-tick rows) and its log made from what the tick loop recorded (the
+torques clamped, the sensors' readings the controller did not use, in bulk); the tick loop
+itself, for one episode or many stepped together, is worker.stepping. There are two: the first
+wave's lean loop for exact sensors without delay or friction (the ideal plant, kept bit for
+bit), and the realistic one, with encoders, a delay and motor friction.
 """
 
 import platform
