@@ -17,7 +17,6 @@ import multiprocessing
 import queue
 import socket
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -26,7 +25,7 @@ import numpy as np
 import zenoh
 
 from gainfarm.analytic.evaluators.farm import ANSWER_SECONDS, CONFIRM_BATCH, SUBMIT_CHUNK
-from gainfarm.analytic.evaluators.local import free_port
+from gainfarm.analytic.evaluators.local import free_port, spawn_broker
 from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.edges.ask import Answer, ask
 from gainfarm.edges.transport import open_session
@@ -311,22 +310,12 @@ class NoopWorker:
 @contextlib.contextmanager
 def broker_process(endpoint: str, queued: int):
     """The real broker, alone in its process."""
-    process = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "gainfarm.broker",
-            "start",
-            "--listen",
-            endpoint,
-            "--max-queued",
-            str(max(queued, 100_000)),
-            "--max-queued-per-study",
-            str(max(queued, 20_000)),
-            "--log-level",
-            "warning",
-        ],
-        stdin=subprocess.DEVNULL,
+    process = spawn_broker(
+        endpoint,
+        "--max-queued",
+        str(max(queued, 100_000)),
+        "--max-queued-per-study",
+        str(max(queued, 20_000)),
     )
     try:
         port = int(endpoint.rsplit(":", 1)[1])

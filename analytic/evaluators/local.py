@@ -71,10 +71,9 @@ def stop_workers(workers: list[subprocess.Popen]) -> None:
             worker.wait()
 
 
-def spawn_broker(
-    endpoint: str, lease_seconds: float, log_level: str = "warning"
-) -> subprocess.Popen:
-    """`broker start` in a process of its own, listening on `endpoint`."""
+def spawn_broker(endpoint: str, *options: str, log_level: str = "warning") -> subprocess.Popen:
+    """`broker start` in a process of its own, listening on `endpoint`; `options`: more of its
+    command-line options."""
     return subprocess.Popen(
         [
             sys.executable,
@@ -83,10 +82,9 @@ def spawn_broker(
             "start",
             "--listen",
             endpoint,
-            "--lease-seconds",
-            str(lease_seconds),
             "--log-level",
             log_level,
+            *options,
         ],
         stdin=subprocess.DEVNULL,
     )
@@ -137,7 +135,7 @@ def local_farm(workers: int | None = None, lease_seconds: float = 60.0) -> Itera
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     cores = len(os.sched_getaffinity(0))
     workers = workers or cores
-    broker = spawn_broker(endpoint, lease_seconds)
+    broker = spawn_broker(endpoint, "--lease-seconds", str(lease_seconds))
     try:
         _await(endpoint, broker, [])
         threads = str(max(1, cores // workers))

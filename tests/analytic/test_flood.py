@@ -18,7 +18,7 @@ import zenoh
 
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
-from gainfarm.analytic.evaluators.local import free_port, spawn_worker, stop_workers
+from gainfarm.analytic.evaluators.local import free_port, spawn_broker, spawn_worker, stop_workers
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.run import TuningRun
 from gainfarm.broker.certs import write_dev_credentials
@@ -53,20 +53,7 @@ def broker_process(endpoint: str, identity: TlsIdentity | None = None) -> Iterat
     """`broker start` in a process of its own, as on a farm (not the run's: see docs/security.md
     on a local farm under a flood), answering before the run starts; stopped at the end."""
     tls = ["--tls", str(identity.directory)] if identity else []
-    process = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "gainfarm.broker",
-            "start",
-            "--listen",
-            endpoint,
-            *tls,
-            "--log-level",
-            "warning",
-        ],
-        stdin=subprocess.DEVNULL,
-    )
+    process = spawn_broker(endpoint, *tls)
     try:
         wait_for(lambda: _answers(endpoint, identity), timeout=30, what="the broker")
         yield
