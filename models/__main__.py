@@ -1,6 +1,6 @@
 """Print a variant's MJCF, or the numbers models/README.md quotes.
 
-python -m gainfarm.models [flexible|rigid] [cad|open]   the MJCF, e.g. for MuJoCo's viewer
+python -m gainfarm.models [flexible|rigid] [menagerie|cad|open]   the MJCF, e.g. for a viewer
 python -m gainfarm.models modes                          elastic modes and substeps of each preset
 python -m gainfarm.models inertia                        mass-matrix diagonals of the inertial sets
 """
@@ -21,7 +21,7 @@ from gainfarm.models.iiwa14 import (
 )
 from gainfarm.schemas.robot import STIFFNESS_PRESETS, ModelSpec
 
-INERTIALS = ("open", "cad")
+INERTIALS = ("menagerie", "open", "cad")
 
 
 def print_modes() -> None:
@@ -34,7 +34,7 @@ def print_modes() -> None:
             damping = np.asarray(spec.spring_damping)
             zeta = damping / (2 * np.sqrt(np.asarray(stiffness) * effective_inertias(spec)))
             print(
-                f"{preset:6s} {inertials:4s} substeps >= {min_substeps(spec)}; modes, Hz: "
+                f"{preset:6s} {inertials:9s} substeps >= {min_substeps(spec)}; modes, Hz: "
                 f"ready {ready}; upright {upright}; "
                 f"spring damping ratio A1..A7 {_join(zeta, '{:.2f}')}"
             )
@@ -83,9 +83,10 @@ if __name__ == "__main__":
         print_inertia()
     else:
         joints = args[0] if args else "flexible"
-        inertials = args[1] if len(args) > 1 else "cad"
+        inertials = args[1] if len(args) > 1 else ModelSpec().inertials
         if joints not in ("flexible", "rigid") or inertials not in INERTIALS or len(args) > 2:
             sys.exit(
-                "usage: python -m gainfarm.models [flexible|rigid] [cad|open] | modes | inertia"
+                "usage: python -m gainfarm.models [flexible|rigid] [menagerie|cad|open] | modes "
+                "| inertia"
             )
         print(build_spec(ModelSpec(joints=joints, inertials=inertials)).to_xml())

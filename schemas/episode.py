@@ -24,7 +24,9 @@ class EpisodeSpec(BaseModel):
     trajectory: TrajectorySpec = TrajectorySpec()
     model: ModelSpec = ModelSpec()
     gravity_compensation: bool = Field(
-        False, description="add g(q_des) feed-forward; the paper tunes a plain PD, so off"
+        False,
+        description="add g(q_des) feed-forward, on a plant whose interface does not compensate "
+        "gravity itself (interface torque); the paper tunes a plain PD, so off",
     )
     feedforward: str | None = Field(
         None,
@@ -49,6 +51,11 @@ class EpisodeSpec(BaseModel):
             raise ValueError(
                 "feedforward and gravity_compensation exclude each other: "
                 "an inverse-dynamics model already holds the arm against gravity"
+            )
+        if self.gravity_compensation and self.model.interface == "fri":
+            raise ValueError(
+                "gravity_compensation on a plant with interface fri: the robot already adds "
+                "its own gravity compensation (interface torque is the plain one)"
             )
         return self
 

@@ -5,7 +5,7 @@ sources and the reasons behind each assumption.
 """
 
 import math
-from typing import Annotated, Literal, Self
+from typing import Annotated, Any, Literal, Self
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -90,16 +90,21 @@ class Sensors(BaseModel):
 class ModelSpec(BaseModel):
     """Which simulated robot runs an episode. Values are explicit so that logs record them.
 
-    The default is the most realistic plant the published numbers support; `IDEAL_PLANT` is the
-    first wave's idealised one (exact sensors, no friction, no delay, link-side feedback).
+    The default is the most realistic plant the published numbers support, behind the robot's
+    own torque interface (KUKA's FRI torque mode adds gravity compensation from the robot's model
+    of the arm); `IDEAL_PLANT` is the first wave's idealised one (exact sensors, no friction, no
+    delay, link-side feedback, the command is the motor torque: the paper's plain PD).
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     robot: Literal["iiwa14"] = "iiwa14"
     joints: Literal["flexible", "rigid"] = "flexible"
-    inertials: Literal["open", "cad"] = Field(
-        "cad", description="open descriptions' links (30.6 kg), or KUKA's CAD masses"
+    inertials: Literal["menagerie", "open", "cad"] = Field(
+        "menagerie",
+        description="the links' masses and inertias (models/README.md): MuJoCo Menagerie's "
+        "(30.6 kg; the data sheet's 29.9 kg), the open descriptions' older axes, or KUKA's CAD "
+        "masses (22.7 kg). The robot's own gravity model (interface fri) is this set",
     )
     stiffness: PerJointPositive = DEFAULT_STIFFNESS
     spring_damping: PerJointNonNegative = DEFAULT_SPRING_DAMPING
@@ -111,6 +116,29 @@ class ModelSpec(BaseModel):
         "motor", description="the side whose measured angle the PD feeds back"
     )
     substeps: int = Field(2, ge=1, le=50, description="physics steps per 2 ms control tick")
+    payload: float = Field(
+        0.0,
+        ge=0,
+        le=14,
+        allow_inf_nan=False,
+        description="kg held at the flange (the data sheet's rated payload is 14 kg); the "
+        "robot's gravity model does not know it",
+    )
+    interface: Literal["fri", "torque"] = Field(
+        "fri",
+        description="fri: KUKA's FRI torque mode, the robot adds gravity compensation from its "
+        "own model of the arm (`inertials`) at the measured joint angles, and the command is "
+        "the torque on top; torque: the command is the motor torque (the paper's plain PD)",
+    )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _written_before_the_interface(cls, data: Any) -> Any:
+        # A spec written before `interface` existed (a log's metadata, a run's config) names
+        # every other field, as a dump does: its episodes commanded the motor torque.
+        if isinstance(data, dict) and "interface" not in data and data.keys() >= _EARLIER_FIELDS:
+            return {**data, "interface": "torque"}
+        return data
 
     @model_validator(mode="after")
     def _rotors_have_inertia(self) -> Self:
@@ -131,6 +159,9 @@ class ModelSpec(BaseModel):
         )
 
 
+# What every dump of a ModelSpec held before the torque interface was a choice.
+_EARLIER_FIELDS = frozenset(ModelSpec.model_fields) - {"interface", "payload"}
+
 IDEAL_PLANT = ModelSpec(
     inertials="open",
     stiffness=STIFFNESS_PRESETS["soft"],
@@ -138,6 +169,9 @@ IDEAL_PLANT = ModelSpec(
     delay=0,
     sensors=Sensors(exact=True),
     feedback="link",
+    interface="torque",
 )
 REALISTIC_PLANT = ModelSpec()
-PLANTS = {"realistic": REALISTIC_PLANT, "ideal": IDEAL_PLANT}
+# The realistic plant without the robot's gravity compensation: the paper's plain PD on it.
+PLAIN_PLANT = ModelSpec(interface="torque")
+PLANTS = {"realistic": REALISTIC_PLANT, "plain": PLAIN_PLANT, "ideal": IDEAL_PLANT}

@@ -30,7 +30,7 @@ from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 # lease request; 4: results carry the worker's scores, and the log only when the job asks to keep
 # it (the worker keeps the others, to be fetched); 3: results handed in to the broker and
 # confirmed by it; 2: Job.spec
-PROTOCOL_VERSION = 6
+PROTOCOL_VERSION = 7
 
 # Names become key-expression chunks, so they may not contain '/', '*', '$', '?' or '#'.
 NAME_PATTERN = r"^[A-Za-z0-9_.\-]{1,64}$"
@@ -63,7 +63,7 @@ class BadMessage(ValueError):
 class WireMessage(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    protocol: Literal[6] = PROTOCOL_VERSION
+    protocol: Literal[7] = PROTOCOL_VERSION
 
     @field_validator("protocol", mode="before")
     @classmethod

@@ -11,6 +11,7 @@ from gainfarm.broker.service import Broker
 from gainfarm.edges.transport import open_session
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.robot import PLAIN_PLANT
 from gainfarm.worker.episode import run_episode
 from tests.helpers import TRACKING_GAINS, WEAK_GAINS
 
@@ -23,8 +24,10 @@ def tracking_log() -> EpisodeLog:
 
 @pytest.fixture(scope="session")
 def diverged_log() -> EpisodeLog:
-    """Gains far too soft to hold the arm up: it falls and the episode is stopped early."""
-    return run_episode(EpisodeSpec(gains=WEAK_GAINS, trajectory=TrajectorySpec(duration=3.0)))
+    """Gains far too soft to hold the arm up without the robot's gravity compensation (a plain
+    torque interface): it falls and the episode is stopped early."""
+    spec = EpisodeSpec(gains=WEAK_GAINS, trajectory=TrajectorySpec(duration=3.0), model=PLAIN_PLANT)
+    return run_episode(spec)
 
 
 @pytest.fixture

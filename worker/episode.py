@@ -18,14 +18,13 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from gainfarm.models import compile_model
 from gainfarm.models.dynamics import DynamicsModel
 from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.control import PDController
-from gainfarm.worker.plant import Plant
+from gainfarm.worker.plant import Plant, RobotGravity
 from gainfarm.worker.reference import Reference, reference_for
 from gainfarm.worker.sensors import LINK, MOTOR, TORQUE, Encoders, friction_torque, noise
 from gainfarm.worker.stepping import Stepped, step_all
@@ -101,6 +100,7 @@ def _setup(spec: EpisodeSpec, reference: Reference, added: np.ndarray | None) ->
         return Stepped(plant, reference, gains, feedforward)
     sensing = _Sensing.of(plant, controller)
     friction = spec.model.friction
+    fri = spec.model.interface == "fri"
     return Stepped(
         plant,
         reference,
@@ -112,6 +112,8 @@ def _setup(spec: EpisodeSpec, reference: Reference, added: np.ndarray | None) ->
         quantised=sensing.quantised,
         slip=sensing.slip,
         opposing=None if friction is None else -np.asarray(friction.coulomb),
+        gravity=RobotGravity(spec.model) if fri else None,
+        unit=1.0 if spec.model.sensors.exact else sensing.encoders.count,
     )
 
 
@@ -123,16 +125,21 @@ def _log(spec: EpisodeSpec, run: Stepped) -> EpisodeLog:
         # MuJoCo clamped each command to the motor's ctrlrange (the torque limit) when applying
         # it; clamping is exact, so doing the same here in bulk logs exactly the torques applied.
         applied = np.clip(run.command[:ticks_run], -plant.torque_limits, plant.torque_limits)
-        readings = _exact_readings(plant, state, applied)
+        readings = _exact_readings(plant, state, applied, applied)
     else:
         delay = np.maximum(np.arange(ticks_run) - spec.model.delay, 0)
         applied = np.clip(run.command[delay], -plant.torque_limits, plant.torque_limits)
+        motor = applied  # what the motors exert: the command, and the robot's gravity model's
+        if run.gravity is not None:
+            motor = np.clip(
+                applied + run.compensation[:ticks_run], -plant.torque_limits, plant.torque_limits
+            )
         if spec.model.sensors.exact:
-            readings = _exact_readings(plant, state, applied)
+            readings = _exact_readings(plant, state, applied, motor)
         else:
             counts = run.measured[: run.window + ticks_run, : len(JOINT_NAMES)]
             encoders = Encoders(spec.model.sensors)
-            readings = _sensed_readings(plant, encoders, state, counts, applied)
+            readings = _sensed_readings(plant, encoders, state, counts, applied, motor)
     metadata = EpisodeMetadata(
         spec=spec,
         ticks_planned=run.ticks,
@@ -154,9 +161,14 @@ def _log(spec: EpisodeSpec, run: Stepped) -> EpisodeLog:
 
 
 def _exact(model: ModelSpec) -> bool:
-    """Whether the first wave's lean loop runs the episode: exact sensors, no delay, no friction
-    (the ideal plant, whichever side it feeds back from)."""
-    return model.sensors.exact and model.delay == 0 and model.friction is None
+    """Whether the first wave's lean loop runs the episode: exact sensors, no delay, no friction,
+    the command the motor torque (the ideal plant, whichever side it feeds back from)."""
+    return (
+        model.sensors.exact
+        and model.delay == 0
+        and model.friction is None
+        and model.interface == "torque"
+    )
 
 
 @lru_cache(maxsize=64)
@@ -170,14 +182,7 @@ def gravity_for(trajectory: TrajectorySpec, inertials: str) -> np.ndarray:
 def gravity_torques(q: np.ndarray, inertials: str) -> np.ndarray:
     """(n, 7) N·m holding link angles `q` against gravity. The controller's gravity model is the
     plant's own inertial set (as KUKA's controller knows its robot)."""
-    model = compile_model(ModelSpec(joints="rigid", inertials=inertials, friction=None, substeps=1))
-    data = mujoco.MjData(model)
-    torques = np.empty_like(q)
-    for k, qk in enumerate(q):
-        data.qpos[:] = qk
-        mujoco.mj_forward(model, data)  # qvel = 0, so the bias force is gravity alone
-        torques[k] = data.qfrc_bias
-    return torques
+    return RobotGravity(ModelSpec(inertials=inertials)).at(q)
 
 
 @dataclass(frozen=True)
@@ -251,13 +256,16 @@ class _Sensing:
         return rest
 
 
-def _exact_readings(plant: Plant, state: np.ndarray, applied: np.ndarray) -> dict[str, np.ndarray]:
-    """The log's sensor columns when the sensors are exact: the simulator's state as is."""
+def _exact_readings(
+    plant: Plant, state: np.ndarray, applied: np.ndarray, motor: np.ndarray
+) -> dict[str, np.ndarray]:
+    """The log's sensor columns when the sensors are exact: the simulator's state as is.
+    `applied` is the command as the robot took it, `motor` the torque its motors exerted."""
     qpos, qvel = np.split(state, [plant.model.nq], axis=1)
     return {
         "q": qpos @ plant.link_map.T,
         "qd": qvel @ plant.link_map.T,
-        "tau": _joint_torque(plant, qpos, qvel, applied),
+        "tau": _joint_torque(plant, qpos, qvel, motor),
         "u": applied,
         "theta": qpos @ plant.motor_map.T,
         "theta_d": qvel @ plant.motor_map.T,
@@ -270,6 +278,7 @@ def _sensed_readings(
     state: np.ndarray,
     counts: np.ndarray,
     applied: np.ndarray,
+    motor: np.ndarray,
 ) -> dict[str, np.ndarray]:
     """The log's sensor columns as the robot's sensors report them.
 
@@ -293,7 +302,7 @@ def _sensed_readings(
             measured = encoders.counts(angles, encoders.noise(stream, ticks))
             side_counts = encoders.padded(measured, encoders.counts(angles[0]))
         readings[side] = encoders.read(side_counts)
-    torque = _joint_torque(plant, qpos, qvel, applied)
+    torque = _joint_torque(plant, qpos, qvel, motor)
     torque_noise = noise(spec.sensors, TORQUE, ticks, spec.sensors.torque_noise)
     return {
         "q": readings["link"][0],
@@ -306,13 +315,13 @@ def _sensed_readings(
 
 
 def _joint_torque(
-    plant: Plant, qpos: np.ndarray, qvel: np.ndarray, applied: np.ndarray
+    plant: Plant, qpos: np.ndarray, qvel: np.ndarray, motor: np.ndarray
 ) -> np.ndarray:
     """What the joint torque sensors measure: the spring torque of an elastic joint; for a rigid
-    one, the applied torque less the motor's friction."""
+    one, the motor's torque less its friction."""
     if plant.elastic:
         return plant.joint_torque(qpos, qvel)
-    return applied - friction_torque(plant.spec.friction, qvel @ plant.motor_map.T)
+    return motor - friction_torque(plant.spec.friction, qvel @ plant.motor_map.T)
 
 
 @cache

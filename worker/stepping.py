@@ -28,7 +28,7 @@ import numpy as np
 
 from gainfarm.schemas.robot import JOINT_NAMES
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
-from gainfarm.worker.plant import Plant
+from gainfarm.worker.plant import Plant, RobotGravity
 from gainfarm.worker.reference import Reference
 
 CHECK_EVERY = 250  # ticks between divergence checks (0.5 s): cheap, and early enough
@@ -63,6 +63,9 @@ class Stepped:
     quantised: bool = False
     slip: slice = field(default_factory=lambda: slice(0))
     opposing: np.ndarray | None = None  # −Coulomb level per motor, if the joints have friction
+    # The robot's gravity model, if it adds one (FRI) at the measured angles: rad per unit of them.
+    gravity: RobotGravity | None = None
+    unit: float = 1.0
     # Filled by the loop:
     ticks_run: int = 0
     divergence: str = ""
@@ -70,6 +73,7 @@ class Stepped:
     command: np.ndarray = field(default_factory=lambda: np.empty(0))  # (ticks, 7), unclamped
     flange: np.ndarray = field(default_factory=lambda: np.empty(0))  # (ticks, 3)
     measured: np.ndarray = field(default_factory=lambda: np.empty(0))  # (window + ticks, width)
+    compensation: np.ndarray = field(default_factory=lambda: np.empty(0))  # (ticks, 7) gravity's
 
     @property
     def ticks(self) -> int:
@@ -95,6 +99,7 @@ class Stepped:
             self.slip.indices(self.measure.shape[0]),  # slices are unhashable before 3.12
             self.opposing is not None,
             self.plant.motor_dof_slice.indices(self.plant.model.nv),
+            self.gravity is not None,
         )
 
 
@@ -209,6 +214,28 @@ def _tick_worlds(worlds: list[_World], signature: int) -> Callable[[], None]:
     return run
 
 
+def _gravity_worlds(
+    worlds: list[_World], angles: np.ndarray, added: np.ndarray
+) -> Callable[[], None]:
+    """The robot's gravity model at each world's measured angles (`angles`, rad, by world), into
+    its row of `added`: as `_tick_worlds`, one `map` over the worlds a call."""
+    models = [w.episode.gravity.model for w in worlds]  # type: ignore[union-attr]
+    datas = [w.episode.gravity.data for w in worlds]  # type: ignore[union-attr]
+    qposes = [data.qpos for data in datas]
+    rows, into = [angles[w.index] for w in worlds], [added[w.index] for w in worlds]
+    flags = [0] * len(worlds)
+    kinematics, centres, rne = mujoco.mj_kinematics, mujoco.mj_comPos, mujoco.mj_rne
+    copy = np.copyto
+
+    def run() -> None:
+        deque(map(copy, qposes, rows), 0)
+        deque(map(kinematics, models, datas), 0)
+        deque(map(centres, models, datas), 0)
+        deque(map(rne, models, datas, flags, into), 0)
+
+    return run
+
+
 def _exact_loop(stack: list[Stepped]) -> None:
     """Exact sensors, no delay, no friction: ctrl = reference term − G · (qpos, qvel).
 
@@ -279,23 +306,38 @@ def _sensed_loop(stack: list[Stepped]) -> None:
     applied = drive[:, :nu]
     motor_force = drive[:, nu:][:, first.plant.motor_dof_slice] if friction else None
     worlds = _worlds(stack, sensed, drive, flange)
+    fri = first.gravity is not None
+    if fri:  # the robot adds its gravity model at the measured angles to the command, clamped
+        units = np.array([[episode.unit] for episode in stack])
+        limits = np.stack([episode.plant.torque_limits for episode in stack])
+        at, added = np.empty((count, N)), np.empty((count, N))
+        compensations = np.empty((ticks, count, N))
     # Views by tick: rows' state columns, rows and measurements as columns, the angles, θ̇ / s.
     states, row_columns = rows[:, :, :nx], rows[:, :, :, None]
     ahead = measured[:, window:].swapaxes(0, 1)  # (ticks, B, width), no copy
     measurements, angles, rates = ahead[:, :, :, None], ahead[:, :, :N], ahead[:, :, first.slip]
     command_columns = commands[:, :, :, None]
     matmul, multiply, rint, tanh, copy = np.matmul, np.multiply, np.rint, np.tanh, np.copyto
+    clip, add = np.clip, np.add
     quantised = first.quantised
     with np.errstate(all="ignore"):  # a diverging world computes on until its block ends
         for start, stop, live in _segments(worlds, states):
             tick = _tick_worlds(live, _DRIVE if friction else _CTRL)
+            gravity = _gravity_worlds(live, at, added) if fri else None
             for k in range(start, stop):
                 copy(states[k], sensed)
                 matmul(measure, row_columns[k], out=measurements[k])
                 if quantised:
                     rint(angles[k], out=angles[k])
                 matmul(law, recent[k], out=command_columns[k])
-                copy(applied, commands[k - delay if k > delay else 0])
+                if gravity is not None:
+                    multiply(angles[k], units, out=at)
+                    gravity()
+                    copy(compensations[k], added)
+                    clip(commands[k - delay if k > delay else 0], -limits, limits, out=applied)
+                    add(applied, added, out=applied)
+                else:
+                    copy(applied, commands[k - delay if k > delay else 0])
                 if friction:
                     rate = rates[k]
                     tanh(rate, out=rate)
@@ -306,6 +348,8 @@ def _sensed_loop(stack: list[Stepped]) -> None:
         episode.state = states[:, index]
         episode.command, episode.flange = commands[:, index], flanges[:, index]
         episode.measured = measured[index]
+        if fri:
+            episode.compensation = compensations[:, index]
 
 
 # --- one episode -------------------------------------------------------------------------------
@@ -372,6 +416,9 @@ def _sensed_alone(episode: Stepped) -> None:
     states = rows[:, :nx]
     measurements = measured[window:]
     angles, rates = measurements[:, :N], measurements[:, episode.slip]
+    gravity, unit, limits = episode.gravity, episode.unit, plant.torque_limits
+    compensations = np.empty((ticks, N)) if gravity is not None else commands  # unused if not
+    clip, add = np.clip, np.add
     for start, stop in _blocks(episode):
         block = zip(
             states[start:stop],
@@ -383,15 +430,33 @@ def _sensed_alone(episode: Stepped) -> None:
             commands[start:stop],
             delayed[start:stop],
             flanges[start:stop],
+            compensations[start:stop],
             strict=True,
         )
-        for state, row, measurement, angle, rate, window_now, command, applied, flange in block:
+        for (
+            state,
+            row,
+            measurement,
+            angle,
+            rate,
+            window_now,
+            command,
+            applied,
+            flange,
+            added,
+        ) in block:
             sense(model, data, state, _STATE)
             dot(measure, row, out=measurement)
             if quantised:
                 rint(angle, out=angle)
             dot(law, window_now, out=command)
-            copy(ctrl, applied)
+            if gravity is not None:
+                multiply(angle, unit, out=gravity.angles)
+                gravity.torque(added)
+                clip(applied, -limits, limits, out=ctrl)
+                add(ctrl, added, out=ctrl)
+            else:
+                copy(ctrl, applied)
             if opposing is not None:
                 tanh(rate, out=rate)
                 multiply(rate, opposing, out=motor_force)
@@ -403,6 +468,8 @@ def _sensed_alone(episode: Stepped) -> None:
             break
     episode.state, episode.command, episode.flange = states, commands, flanges
     episode.measured = measured
+    if gravity is not None:
+        episode.compensation = compensations
 
 
 def _blocks(episode: Stepped) -> Iterator[tuple[int, int]]:

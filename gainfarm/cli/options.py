@@ -232,8 +232,10 @@ def plant() -> Callable[[F], F]:
         type=LazyChoice(_plants),
         default=Later(_default_plant),
         show_default=True,
-        help="realistic: friction, a 1-tick delay, encoders and torque sensors with noise, "
-        "motor-side feedback, KUKA's CAD masses; ideal: the paper's idealised plant",
+        help="realistic: behind KUKA's FRI torque interface (the robot adds gravity "
+        "compensation from its own model), with friction, a 1-tick delay, encoders and torque "
+        "sensors with noise, motor-side feedback; plain: the same without the robot's gravity "
+        "compensation (the paper's plain PD); ideal: the paper's idealised plant",
     )
 
 

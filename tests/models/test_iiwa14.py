@@ -30,6 +30,9 @@ PRESET_SUBSTEPS = {
     ("medium", "cad"): 2,
     ("stiff", "open"): 5,
     ("stiff", "cad"): 7,
+    ("soft", "menagerie"): 2,
+    ("medium", "menagerie"): 2,
+    ("stiff", "menagerie"): 5,
 }
 
 
@@ -145,7 +148,7 @@ def test_elastic_modes_of_the_first_waves_plant():
     assert modes[4] == pytest.approx(60, abs=1)
     assert modes[-1] == pytest.approx(229, abs=1)
     # The CAD set's lighter wrist puts A7's mode near 446 Hz.
-    assert elastic_modes(ModelSpec())[-1] == pytest.approx(446, abs=1)
+    assert elastic_modes(ModelSpec(inertials="cad"))[-1] == pytest.approx(446, abs=1)
 
 
 @pytest.mark.parametrize(("preset", "inertials"), sorted(PRESET_SUBSTEPS))
@@ -180,14 +183,14 @@ def _hold(spec: ModelSpec, posture: np.ndarray, seconds: float = 2.0) -> tuple[f
 
 
 def test_too_few_substeps_for_the_springs_are_refused_in_one_clear_line():
-    stiff = ModelSpec(stiffness=STIFFNESS_PRESETS["stiff"], substeps=1)
+    stiff = ModelSpec(inertials="cad", stiffness=STIFFNESS_PRESETS["stiff"], substeps=1)
     with pytest.raises(ValueError, match=r"^substeps=1 is too few .*A7.* needs substeps >= 7$"):
         compile_model(stiff)
     # What the guard prevents: the same plant, compiled around it, diverges at once.
     error, _ = _hold(stiff, np.array(READY_POSTURE), seconds=0.2)
     assert not np.isfinite(error)
     # Undamped springs need a short step: ω·dt ≤ 1 for the CAD wrist's 446 Hz.
-    undamped = ModelSpec(spring_damping=(0.0,) * 7)
+    undamped = ModelSpec(inertials="cad", spring_damping=(0.0,) * 7)
     with pytest.raises(ValueError, match=r"needs substeps >= 6$"):
         compile_model(undamped)
     assert step_ratios(undamped.model_copy(update={"substeps": 6})).max() <= 0.25

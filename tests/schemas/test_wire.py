@@ -14,7 +14,7 @@ from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR, score
-from gainfarm.schemas.robot import IDEAL_PLANT, ModelSpec
+from gainfarm.schemas.robot import IDEAL_PLANT, PLAIN_PLANT, ModelSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import (
     MAX_CONFIRM_JOBS,
@@ -87,7 +87,9 @@ def test_a_bad_message_is_refused_with_its_reason(raw: bytes | None, reason: str
     assert "\n" not in str(refused.value)
 
 
-NOT_INTEGERS = [b"6.0", b"6e0", b"6.000001", b'"6"', b"true", b"[6]", b'{"v": 6}']
+OURS = b'"protocol":%d' % V
+NOT_INTEGERS = [b"%d.0" % V, b"%de0" % V, b"%d.000001" % V, b'"%d"' % V, b"true", b"[%d]" % V]
+NOT_INTEGERS.append(b'{"v": %d}' % V)
 
 
 @pytest.mark.parametrize("kind", MESSAGES, ids=lambda kind: kind.__name__)
@@ -96,7 +98,7 @@ def test_the_protocol_version_is_an_integer_in_every_message(kind: type, version
     # Before the schema is checked (the slow path) and after the fast one: both refuse it alike.
     for raw in (
         b'{"protocol": %s}' % version,
-        honest_bytes(kind).replace(b'"protocol":6', b'"protocol":' + version),
+        honest_bytes(kind).replace(OURS, b'"protocol":' + version),
     ):
         assert version in raw
         with pytest.raises(BadMessage, match=r"protocol version .* is not an integer") as refused:
@@ -107,7 +109,7 @@ def test_the_protocol_version_is_an_integer_in_every_message(kind: type, version
 
 @pytest.mark.parametrize("version", NOT_INTEGERS, ids=lambda raw: raw.decode())
 def test_a_submission_with_a_version_not_an_integer_is_refused_whole(version: bytes) -> None:
-    raw = honest_bytes(Submission).replace(b'"protocol":6', b'"protocol":' + version)
+    raw = honest_bytes(Submission).replace(OURS, b'"protocol":' + version)
     with pytest.raises(BadMessage, match=r"^Submission: protocol version .* is not an integer"):
         decode_submission(raw)
     nested = Result.model_validate_json(honest_bytes(Result)).model_dump(mode="json")
@@ -152,7 +154,7 @@ def honest_bytes(kind: type) -> bytes:
         ),
     }
     raw = examples[kind].to_bytes()
-    assert raw.startswith(b'{"protocol":6,') and decode(kind, raw) == examples[kind]
+    assert raw.startswith(b"{" + OURS + b",") and decode(kind, raw) == examples[kind]
     return raw
 
 
@@ -302,7 +304,7 @@ def test_no_episode_scores_beyond_the_wires_bounds(diverged_log: EpisodeLog) -> 
     aggressive = PDGains(kp=(1e6,) * 7, kd=(1e4,) * 7)
     logs = [
         diverged_log,
-        run_episode(EpisodeSpec(gains=zero, trajectory=short)),
+        run_episode(EpisodeSpec(gains=zero, trajectory=short, model=PLAIN_PLANT)),
         run_episode(EpisodeSpec(gains=aggressive, trajectory=short, model=IDEAL_PLANT)),
     ]
     assert logs[0].metadata.diverged and logs[1].metadata.diverged

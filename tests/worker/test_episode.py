@@ -4,8 +4,9 @@ import pytest
 
 from gainfarm.models import compile_model
 from gainfarm.schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
+from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import IDEAL_PLANT
+from gainfarm.schemas.robot import IDEAL_PLANT, PLAIN_PLANT
 from gainfarm.worker.control import PDController
 from gainfarm.worker.episode import gravity_for, gravity_torques, run_episode
 from gainfarm.worker.plant import Plant
@@ -16,16 +17,44 @@ SHORT = TrajectorySpec(duration=3.0)
 IDEAL_RIGID = IDEAL_PLANT.model_copy(update={"joints": "rigid"})
 
 
+LIMP = PDGains(kp=(0,) * 7, kd=(0,) * 7)
+
+
 def test_without_torque_the_arm_falls_under_gravity():
-    log = run_episode(EpisodeSpec(gains=PDGains(kp=(0,) * 7, kd=(0,) * 7), trajectory=SHORT))
+    log = run_episode(EpisodeSpec(gains=LIMP, trajectory=SHORT, model=PLAIN_PLANT))
     assert np.all(log.u == 0)
     assert log.ee[min(100, log.ticks - 1), 2] < log.ee[0, 2] - 0.05  # dropped 5 cm in 0.2 s
     assert log.metadata.diverged  # and it keeps falling until it leaves the joint range
 
 
-def test_high_gains_track_far_better_than_low_gains(tracking_log):
+def test_behind_fri_the_robots_own_gravity_model_holds_the_arm_up():
+    # No gains at all: the robot's gravity compensation alone keeps the arm where it started
+    # (the reference moves on without it: the error grows, but nothing falls).
+    still = TrajectorySpec(kind="fourier", duration=1.0)
+    log = run_episode(EpisodeSpec(gains=LIMP, trajectory=still))
+    assert log.metadata.spec.model.interface == "fri" and not log.metadata.diverged
+    assert np.all(log.u == 0)
+    assert np.abs(log.ee - log.ee[0]).max() < 1e-3  # not a millimetre of sag in 1 s
+    assert np.abs(log.ee_des - log.ee_des[0]).max() > 0.01  # while the reference moved
+    # A payload the robot's model does not know: the arm sags under it, as a real one would.
+    loaded = run_episode(EpisodeSpec(gains=LIMP, trajectory=still, model=ModelSpec(payload=2.0)))
+    assert loaded.ee[-1, 2] < log.ee[-1, 2] - 0.05
+
+
+def test_the_robot_adds_its_own_models_gravity_not_the_plants():
+    # No gains: a rigid arm's joint torque sensors read what the motors exert, the robot's
+    # gravity model at the measured angles, which holds the arm whose masses it knows.
+    still = TrajectorySpec(kind="fourier", duration=0.5)
+    rigid = ModelSpec(joints="rigid", substeps=1, delay=0, friction=None)
+    log = run_episode(EpisodeSpec(gains=LIMP, trajectory=still, model=rigid))
+    np.testing.assert_allclose(log.tau[-1], gravity_torques(log.q[-1:], "menagerie")[0], atol=0.5)
+    assert abs(log.tau[-1, 1]) > 30  # A2 holds tens of N·m
+    assert np.abs(log.ee - log.ee[0]).max() < 1e-6  # and holds it: rigid, no delay, exact
+
+
+def test_high_gains_track_far_better_than_low_gains():
     soft = score(run_episode(EpisodeSpec(gains=SOFT_GAINS, trajectory=SHORT)))
-    stiff = score(tracking_log)
+    stiff = score(run_episode(EpisodeSpec(gains=DEFAULT_GAINS, trajectory=SHORT)))
     assert not soft.diverged and not stiff.diverged
     assert stiff.f_acc < 0.5 * soft.f_acc
 
@@ -65,11 +94,27 @@ def test_episode_starts_at_rest_on_the_reference(tracking_log):
 
 
 def test_gravity_compensation_improves_tracking():
-    plain = score(run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT)))
-    compensated = score(
-        run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT, gravity_compensation=True))
+    # On a plain torque interface, as a feed-forward; behind FRI, as the robot does it.
+    plain = score(
+        run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT, model=PLAIN_PLANT))
     )
-    assert compensated.f_acc < 0.5 * plain.f_acc
+    compensated = score(
+        run_episode(
+            EpisodeSpec(
+                gains=TRACKING_GAINS,
+                trajectory=SHORT,
+                model=PLAIN_PLANT,
+                gravity_compensation=True,
+            )
+        )
+    )
+    fri = score(run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT)))
+    assert compensated.f_acc < 0.5 * plain.f_acc and fri.f_acc < 0.5 * plain.f_acc
+
+
+def test_gravity_compensation_twice_is_refused():
+    with pytest.raises(ValueError, match="interface fri: the robot already adds"):
+        EpisodeSpec(gains=TRACKING_GAINS, gravity_compensation=True)
 
 
 def test_flexible_joints_deflect_under_load_and_rigid_ones_cannot():
@@ -128,7 +173,7 @@ def test_gravity_feedforward_holds_the_reference_posture():
     gravity = gravity_for(spec, "cad")
     # A2 carries most of the arm: tens of N·m, as at the home posture.
     assert 20 < abs(gravity[0, 1]) < 80
-    model = compile_model(ModelSpec(joints="rigid"))
+    model = compile_model(ModelSpec(joints="rigid", inertials="cad"))
     data = mujoco.MjData(model)
     data.qpos[:] = reference.q[1000]
     mujoco.mj_forward(model, data)

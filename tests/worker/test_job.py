@@ -10,7 +10,7 @@ from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.episode import Scores
 from gainfarm.schemas.mcap_episode import decode_episode
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import IDEAL_PLANT
+from gainfarm.schemas.robot import IDEAL_PLANT, PLAIN_PLANT
 from gainfarm.schemas.wire import Job, JobStatus, Lease, Result, WireScores
 from gainfarm.worker.job import execute, simulate
 from tests.helpers import SOFT_GAINS, WEAK_GAINS, short_spec
@@ -20,7 +20,10 @@ FEEDFORWARD = to_bytes(rigid_prior(RIGID_IDEAL))
 
 EPISODES = {
     "tracked": (short_spec(), None),
-    "diverged": (EpisodeSpec(gains=WEAK_GAINS, trajectory=TrajectorySpec(duration=3.0)), None),
+    "diverged": (
+        EpisodeSpec(gains=WEAK_GAINS, trajectory=TrajectorySpec(duration=3.0), model=PLAIN_PLANT),
+        None,
+    ),
     "feed-forward": (
         EpisodeSpec(
             gains=SOFT_GAINS,

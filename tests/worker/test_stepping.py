@@ -10,38 +10,43 @@ from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import episode_bytes
-from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
+from gainfarm.schemas.robot import IDEAL_PLANT, PLAIN_PLANT, REALISTIC_PLANT
 from gainfarm.worker.episode import compensation, simulate_all
 from gainfarm.worker.job import simulate, simulate_batch
 from gainfarm.worker.reference import reference_for
 from tests.helpers import SOFT_GAINS, TRACKING_GAINS, short_spec
 
 LIMP = PDGains(kp=(0,) * 7, kd=(0,) * 7)  # without gravity compensation, the arm falls
+PLAIN = {"interface": "torque"}
 PLANTS = {
     "ideal": IDEAL_PLANT,
     "realistic": REALISTIC_PLANT,
+    "realistic, plain torque": REALISTIC_PLANT.model_copy(update=PLAIN),
     "exact sensors, delay, friction": REALISTIC_PLANT.model_copy(
-        update={"sensors": IDEAL_PLANT.sensors}
+        update={"sensors": IDEAL_PLANT.sensors, **PLAIN}
     ),
     "no friction": REALISTIC_PLANT.model_copy(update={"friction": None}),
-    "no delay": REALISTIC_PLANT.model_copy(update={"delay": 0}),
+    "no delay": REALISTIC_PLANT.model_copy(update={"delay": 0, **PLAIN}),
     "rigid, no delay, one substep": REALISTIC_PLANT.model_copy(
         update={"delay": 0, "joints": "rigid", "substeps": 1}
     ),
     "ideal rigid": IDEAL_PLANT.model_copy(update={"joints": "rigid"}),
+    "ideal behind FRI": IDEAL_PLANT.model_copy(update={"interface": "fri"}),
 }
 
 
 def _episodes() -> list[EpisodeSpec]:
     """Every loop and stack kind, gains that track, idle and diverge, lengths that end mid-block
-    and on a block's edge (CHECK_EVERY = 250 ticks), with and without gravity compensation."""
+    and on a block's edge (CHECK_EVERY = 250 ticks), with and without gravity compensation (the
+    robot's, behind FRI, or a feed-forward on a plain torque interface)."""
     specs = []
     for index, plant in enumerate(PLANTS.values()):
         for gains in (TRACKING_GAINS, SOFT_GAINS, LIMP):
             duration = (0.5, 0.73, 1.0)[(index + len(specs)) % 3]
             spec = short_spec(duration=duration, gains=gains, seed=index)
+            compensated = index % 2 == 0 and plant.interface == "torque"
             specs.append(
-                spec.model_copy(update={"model": plant, "gravity_compensation": index % 2 == 0})
+                spec.model_copy(update={"model": plant, "gravity_compensation": compensated})
             )
     return specs
 
@@ -76,7 +81,8 @@ def test_a_batch_of_jobs_gives_each_the_outcome_it_has_alone() -> None:
     good = short_spec(duration=0.5)
     too_fast = EpisodeSpec(gains=TRACKING_GAINS, trajectory=TrajectorySpec(duration=0.5))
     unknown = good.model_copy(update={"objectives": ("no-such-objective",)})
-    batch = [good, too_fast, unknown, short_spec(duration=0.6, gains=LIMP)]
+    falls = short_spec(duration=0.6, gains=LIMP).model_copy(update={"model": PLAIN_PLANT})
+    batch = [good, too_fast, unknown, falls]
     together = simulate_batch(batch, threads=2)
     for spec, outcome in zip(batch, together, strict=True):
         single = simulate(spec)
