@@ -24,7 +24,9 @@ FORMAT = "gainfarm-controller/1"
 UNITS = {"kp": "N·m/rad", "kd": "N·m·s/rad", "f_acc": "m", "f_t": "(N·m)²"}
 LAW = (
     "u = Kp (q_des − θ) + Kd (q̇_des − θ̇) per joint, every control period; θ, θ̇: the measured "
-    "joint angle and velocity (motor side on the realistic plant), q_des, q̇_des: the reference"
+    "joint angle and velocity (motor side on the realistic plant), q_des, q̇_des: the reference; "
+    "on a plant whose interface is fri (source.model.interface) u is the torque commanded on "
+    "top of the robot's own gravity compensation, as KUKA's FRI torque mode takes it"
 )
 
 

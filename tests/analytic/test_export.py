@@ -278,6 +278,8 @@ def test_a_diverged_episode_says_why_its_mean_error_exceeds_its_largest(tmp_path
         "fourier",
         "--duration",
         "1",
+        "--plant",
+        "plain",
         "--run-dir",
         "b",
         cwd=tmp_path,

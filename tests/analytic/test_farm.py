@@ -20,6 +20,7 @@ from gainfarm.schemas import keys
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import score
+from gainfarm.schemas.robot import PLAIN_PLANT
 from tests.helpers import (
     SOFT_GAINS,
     TRACKING_GAINS,
@@ -283,7 +284,8 @@ def test_a_diverged_episode_is_an_evaluation_with_penalised_scores(
     worker = spawn_worker(broker.endpoints[0], "w")
     try:
         with FarmClient(broker.endpoints, "s", tmp_path) as farm:
-            farm.submit({"falls": short_spec(duration=2.0, gains=weak)})
+            falls = short_spec(duration=2.0, gains=weak).model_copy(update={"model": PLAIN_PLANT})
+            farm.submit({"falls": falls})
             [evaluation] = list(farm.results(timeout=60))
     finally:
         stop_workers([worker])

@@ -14,7 +14,7 @@ import pytest
 from gainfarm.analytic.data import learning
 from gainfarm.analytic.data.learning import LearnError, fit, learn, read_split, score
 from gainfarm.models.dynamics import digest, from_bytes, load, to_bytes
-from gainfarm.schemas.robot import IDEAL_PLANT, JOINT_NAMES, REALISTIC_PLANT
+from gainfarm.schemas.robot import IDEAL_PLANT, JOINT_NAMES, PLAIN_PLANT
 from tests.learning_data import SPLITS, write_dataset
 
 REQUIRED = {"nmse", "rmse", "nmse_mean", "nmse_mean_all", "rows", "target", "kind"}
@@ -24,7 +24,7 @@ REQUIRED |= {"mean_predictor_nmse"}
 @pytest.fixture(scope="module")
 def realistic(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Six training, one validation and two test fourier episodes of 2 s, realistic plant."""
-    return write_dataset(tmp_path_factory.mktemp("data") / "realistic", REALISTIC_PLANT)
+    return write_dataset(tmp_path_factory.mktemp("data") / "realistic", PLAIN_PLANT)
 
 
 def _leftovers(directory: Path) -> list[str]:
@@ -134,12 +134,12 @@ def test_a_linear_forward_model_is_refused(realistic, tmp_path):
 
 
 def test_a_dataset_without_a_test_split_is_refused(tmp_path):
-    dataset = write_dataset(tmp_path / "d", REALISTIC_PLANT, SPLITS[:2], 2.0)
+    dataset = write_dataset(tmp_path / "d", PLAIN_PLANT, SPLITS[:2], 2.0)
     _refused(dataset, tmp_path / "m", "the dataset has no test split: build it with --split")
 
 
 def test_a_dataset_without_training_rows_is_refused(tmp_path):
-    dataset = write_dataset(tmp_path / "d", REALISTIC_PLANT, [(7, "test")], 2.0)
+    dataset = write_dataset(tmp_path / "d", PLAIN_PLANT, [(7, "test")], 2.0)
     _refused(dataset, tmp_path / "m", "no rows in its train split", kind="mlp")
 
 
@@ -190,7 +190,7 @@ def test_the_learn_command_writes_a_model_the_feedforward_takes_and_refuses_in_o
         cwd=tmp_path,
     )
     assert ran.returncode == 0, ran.stderr
-    no_test = write_dataset(tmp_path / "d", REALISTIC_PLANT, SPLITS[:2], 1.0)
+    no_test = write_dataset(tmp_path / "d", PLAIN_PLANT, SPLITS[:2], 1.0)
     for arguments, expected in [
         ([str(no_test), "--out", str(tmp_path / "n")], "no test split"),
         ([str(realistic), "--out", str(tmp_path / "n"), "--kind", "nope"], "--kind"),
