@@ -21,6 +21,7 @@ from gainfarm.schemas.wire import (
     MAX_MESSAGE_BYTES,
     MAX_SUBMISSION_JOBS,
     MAX_TORQUE_CHANGE,
+    MAX_TORQUE_SHARE,
     MAX_TRACKING_ERROR,
     MESSAGES,
     PROTOCOL_VERSION,
@@ -87,7 +88,7 @@ def test_a_bad_message_is_refused_with_its_reason(raw: bytes | None, reason: str
     assert "\n" not in str(refused.value)
 
 
-NOT_INTEGERS = [b"6.0", b"6e0", b"6.000001", b'"6"', b"true", b"[6]", b'{"v": 6}']
+NOT_INTEGERS = [b"7.0", b"7e0", b"7.000001", b'"7"', b"true", b"[7]", b'{"v": 7}']
 
 
 @pytest.mark.parametrize("kind", MESSAGES, ids=lambda kind: kind.__name__)
@@ -96,7 +97,7 @@ def test_the_protocol_version_is_an_integer_in_every_message(kind: type, version
     # Before the schema is checked (the slow path) and after the fast one: both refuse it alike.
     for raw in (
         b'{"protocol": %s}' % version,
-        honest_bytes(kind).replace(b'"protocol":6', b'"protocol":' + version),
+        honest_bytes(kind).replace(b'"protocol":7', b'"protocol":' + version),
     ):
         assert version in raw
         with pytest.raises(BadMessage, match=r"protocol version .* is not an integer") as refused:
@@ -107,7 +108,7 @@ def test_the_protocol_version_is_an_integer_in_every_message(kind: type, version
 
 @pytest.mark.parametrize("version", NOT_INTEGERS, ids=lambda raw: raw.decode())
 def test_a_submission_with_a_version_not_an_integer_is_refused_whole(version: bytes) -> None:
-    raw = honest_bytes(Submission).replace(b'"protocol":6', b'"protocol":' + version)
+    raw = honest_bytes(Submission).replace(b'"protocol":7', b'"protocol":' + version)
     with pytest.raises(BadMessage, match=r"^Submission: protocol version .* is not an integer"):
         decode_submission(raw)
     nested = Result.model_validate_json(honest_bytes(Result)).model_dump(mode="json")
@@ -152,7 +153,7 @@ def honest_bytes(kind: type) -> bytes:
         ),
     }
     raw = examples[kind].to_bytes()
-    assert raw.startswith(b'{"protocol":6,') and decode(kind, raw) == examples[kind]
+    assert raw.startswith(b'{"protocol":7,') and decode(kind, raw) == examples[kind]
     return raw
 
 
@@ -184,6 +185,9 @@ SCORES = {
     "saturated_fraction": 0.0,
     "diverged": False,
     "ticks": 10,
+    "torque_step": 0.01,
+    "speed": 0.5,
+    "chatter": 0.001,
 }
 
 
@@ -248,6 +252,15 @@ def result_with_scores(**scores: object) -> bytes:
         ({"saturated_fraction": -3}, "scores.saturated_fraction: Input should be greater than"),
         ({"saturated_fraction": 1.01}, "scores.saturated_fraction: Input should be less than"),
         ({"ticks": -5}, "scores.ticks: Input should be greater than or equal to 0"),
+        ({"torque_step": -0.0}, "scores.torque_step: Value error, -0.0 is not a score"),
+        ({"torque_step": 2.0001}, "scores.torque_step: Input should be less than or equal to 2"),
+        ({"speed": -1.0}, "scores.speed: Input should be greater than or equal to 0"),
+        ({"speed": 1000.5}, "scores.speed: Input should be less than or equal to 1000"),
+        ({"speed": "Infinity"}, "scores.speed: Input should be a finite number"),
+        ({"chatter": -0.0}, "scores.chatter: Value error, -0.0 is not a score"),
+        ({"chatter": 2.5}, "scores.chatter: Input should be less than or equal to 2"),
+        ({"chatter": None}, "scores.chatter: Input should be a valid number"),
+        ({"torque_step": None, "speed": None}, "scores.torque_step: Input should be a valid"),
         ({"ticks": 60_002}, "scores.ticks: Input should be less than or equal to 60001"),
         ({"values": [0.1, 1e999]}, "scores.values.1: Input should be a finite number"),
         ({"values": ["NaN", 0.1]}, "scores.values.0: Input should be a finite number"),
@@ -268,6 +281,7 @@ def test_honest_scores_keep_their_json_on_the_wire() -> None:
         scores = Scores(**SCORES, values=values)
         assert WireScores(**scores.model_dump()).model_dump_json() == scores.model_dump_json()
     edge = {"f_acc": 0.0, "f_t": 0.0, "max_error": 0.0, "saturated_fraction": 1.0, "ticks": 0}
+    edge |= {"torque_step": 2.0, "speed": 1000.0, "chatter": 0.0}
     assert decode(Result, result_with_scores(**edge)).scores == WireScores(**{**SCORES, **edge})
 
 
@@ -326,6 +340,18 @@ def test_no_episode_scores_beyond_the_wires_bounds(diverged_log: EpisodeLog) -> 
     assert 0.999 * swing_every_tick < score(worst).f_t <= swing_every_tick < MAX_TORQUE_CHANGE
     assert score(cut).f_t == swing_every_tick
     assert score(worst).max_error == pytest.approx(2 * 0.946)
+    assert score(worst).torque_step == MAX_TORQUE_SHARE  # limit to limit, exactly
+    assert 0.9 < score(worst).chatter <= MAX_TORQUE_SHARE  # all of it above the cut-off
+    assert score(cut).torque_step == score(cut).speed == score(cut).chatter == 0.0
+    assert score(logs[2]).speed > 1 and score(logs[2]).chatter > 0.05  # saturating gains
+
+
+def test_scores_without_the_safety_measures_are_refused_on_the_wire() -> None:
+    """A worker of protocol 6 sent none: this protocol's always measures them."""
+    for name in ("torque_step", "speed", "chatter"):
+        old = {key: value for key, value in SCORES.items() if key != name}
+        with pytest.raises(BadMessage, match=f"^Result: scores.{name}: Field required"):
+            decode(Result, json.dumps({**json.loads(result_with_scores()), "scores": old}).encode())
 
 
 def columns(log: EpisodeLog) -> list[tuple[str, np.ndarray]]:
@@ -409,6 +435,7 @@ def test_the_largest_confirmation_and_its_reply_fit_in_a_message() -> None:
         decode(ConfirmRequest, request.replace(b'"]}', b'","' + b"j" * 64 + b'"]}'))
     tiny = 2.2250738585072014e-308
     worst = {"f_acc": tiny, "f_t": tiny, "max_error": tiny, "saturated_fraction": tiny}
+    worst |= {"torque_step": tiny, "speed": tiny, "chatter": tiny}
     scores = WireScores(**{**SCORES, **worst, "values": (-tiny, -tiny), "ticks": 60_001})
     accepted = [
         Accepted(job_id=name, lease_id="l" * 64, worker="w" * 64, digest="f" * 64, scores=scores)
