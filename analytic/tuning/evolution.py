@@ -181,7 +181,11 @@ class OptunaTPE:
                 n_startup_trials=self.pop_size,
                 multivariate=True,
                 constant_liar=True,
-                constraints_func=_trial_constraints if self.constrained else None,
+                # Optuna 5 reads a trial's constraints itself (Trial.set_constraint); 4 through
+                # the constraints_func, which 5 deprecates.
+                constraints_func=_trial_constraints
+                if self.constrained and not _sets_constraints(optuna)
+                else None,
             )
 
     def ask(self) -> Population:
@@ -219,6 +223,9 @@ class OptunaTPE:
                 self._told_g[number] = [float(g) for g in constraints[index]]
                 if trial is None:  # asked before a resume: replayed with its constraints below
                     replay = True
+                elif _sets_constraints(_optuna()):
+                    for key, g in enumerate(self._told_g[number]):
+                        trial.set_constraint(str(key), g)  # the keys the replay's list gives
                 else:  # read by the sampler's constraints_func as the trial is told
                     trial.set_user_attr(CONSTRAINTS_KEY, self._told_g[number])
             told = self._study.tell(trial if trial is not None else number, values)  # NaN: fails
@@ -228,7 +235,13 @@ class OptunaTPE:
             self._study = self._new_study()
 
 
-CONSTRAINTS_KEY = "constraints"  # Optuna's own key for a trial's constraint values
+# Optuna's own key for a trial's constraint values, as a list (Optuna 5 reads it too).
+CONSTRAINTS_KEY = "constraints"
+
+
+def _sets_constraints(optuna: Any) -> bool:
+    """Whether this Optuna keeps a trial's constraints itself (5 does; 4 needs a function)."""
+    return hasattr(optuna.trial.Trial, "set_constraint")
 
 
 def _trial_constraints(trial: Any) -> list[float]:
