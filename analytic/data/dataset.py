@@ -767,6 +767,13 @@ def card(
     caution = " Do not edit a log in place: a hard-linked one changes in its run too." * bool(
         counts["linked"]
     )
+    left_out = counts.get("infeasible_left_out", 0)
+    limits = (
+        f" {left_out} episodes of controllers that break their run's safety limits were left "
+        "out (`analytic dataset --infeasible` keeps them)."
+        if left_out
+        else ""
+    )
     command = f"analytic dataset ... --select {selection} --split {fractions}"
     command += f" --split-seed {split_seed}" + (" --rerun FILE" if counts["rerun"] else "")
     return f"""# gainfarm dynamics dataset
@@ -778,7 +785,7 @@ tuned on{rerun_line}.
 
 {counts["episodes"]} episodes, {counts["ticks"]:,} ticks at 500 Hz (control period
 {CONTROL_PERIOD} s), {counts["controllers"]} controllers from {counts["runs"]} runs, on
-{counts["trajectories"]} trajectories. Dataset version {DATASET_VERSION}.
+{counts["trajectories"]} trajectories. Dataset version {DATASET_VERSION}.{limits}
 
 {runs}
 
