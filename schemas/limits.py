@@ -44,9 +44,9 @@ class Limits(BaseModel):
     torque_step: Limit | None = Field(
         0.1,
         # Assumption: KUKA publishes no torque rate. A tenth of the joint's limit in 2 ms (32
-        # N·m on A1, 4 N·m on A7) is 16 times the largest step of the default gains and 7 times
-        # that of the most accurate smooth controllers measured; the chattering ones step by
-        # 0.4 to 2 (a real arm's safety stop would trip).
+        # N·m on A1, 4 N·m on A7) is 11 times the default gains' largest step and 6 times that
+        # of the smooth controllers measured (bench/limit_measures.py); the chattering ones step
+        # by 0.44 to 2 (a real arm's safety stop would trip).
         description="largest torque change in one tick, share of the joint's torque limit "
         "(assumption: KUKA publishes no torque rate)",
     )
@@ -60,8 +60,8 @@ class Limits(BaseModel):
         1.5,
         # Source: KUKA's LBR iiwa 14 R820 data sheet (schemas.robot.SPEED_LIMITS), which the
         # measure is a share of. The 50 % over it is an assumption: a reference may use the full
-        # rated speed (worker.reference), and smooth, accurate controllers overshoot a fast one
-        # by up to 20 % (1.0-1.2 on 3 s pyramids, measured); the chattering ones reach 2 to 6.
+        # rated speed (worker.reference), and smooth controllers overshoot a fast one (up to
+        # 1.37 on a 3 s pyramid, bench/limit_measures.py); the chattering ones reach 3.6 to 6.7.
         description="largest measured joint speed, share of KUKA's data-sheet speed limit "
         "(source: the data sheet; the 50 % over it for tracking fast references an assumption)",
     )
@@ -69,8 +69,8 @@ class Limits(BaseModel):
         0.02,
         # Assumption: the RMS of a joint's command above CHATTER_CUTOFF (the arm's lowest
         # elastic mode, schemas.objectives) at 2 % of its torque limit (6.4 N·m on A1, 0.8 N·m
-        # on A7). The default gains put 0.02 % there, smooth tuned controllers under 0.4 %,
-        # the chattering ones 7 % to 99 %.
+        # on A7). The default gains put at most 0.05 % there, the smooth controllers measured
+        # at most 0.8 %, the chattering ones 50 % to 99 % (bench/limit_measures.py).
         description="RMS of the command above 10 Hz, share of the joint's torque limit "
         "(assumption; the cut-off is the arm's lowest elastic mode)",
     )
