@@ -209,7 +209,15 @@ class FakeAnalytic:
 
 EMPTY_LOG = b""  # what a NoopWorker sends as an episode log
 NOOP_SCORES = WireScores(  # and the scores it claims for it
-    f_acc=0.01, f_t=0.1, max_error=0.02, saturated_fraction=0.0, diverged=False, ticks=1
+    f_acc=0.01,
+    f_t=0.1,
+    max_error=0.02,
+    saturated_fraction=0.0,
+    diverged=False,
+    ticks=1,
+    torque_step=0.01,
+    speed=0.5,
+    chatter=0.001,
 )
 
 

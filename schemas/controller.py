@@ -16,6 +16,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from gainfarm.schemas.gains import PDGains, PerJointGains
+from gainfarm.schemas.limits import Limits
 from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.schemas.wire import describe
@@ -44,6 +45,11 @@ class Member(BaseModel):
     f_t: float = Field(description="mean squared torque change per tick, (N·m)²")
     diverged: bool = Field(description="an episode was stopped early: the scores are a penalty")
     sharing: int = Field(1, ge=1, description="front members with exactly these scores")
+    measures: dict[str, float] | None = Field(
+        None,
+        description="its safety measures, worst over its episodes (schemas.limits); null from a "
+        "run from before the limits",
+    )
 
 
 class Source(BaseModel):
@@ -82,6 +88,11 @@ class Controller(BaseModel):
     units: dict[str, str] = UNITS
     member: Member
     source: Source
+    limits: Limits | None = Field(
+        None,
+        description="the safety limits its episodes were checked against and kept to (null: "
+        "exported from a run from before the limits, never checked)",
+    )
 
     @property
     def gains(self) -> PDGains:

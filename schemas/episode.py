@@ -87,6 +87,19 @@ class Scores(BaseModel):
     saturated_fraction: float = Field(description="share of ticks with a joint at its torque limit")
     diverged: bool
     ticks: int = Field(description="ticks actually simulated")
+    # The safety measures (schemas.limits bounds them); 0.0 in scores from before they were
+    # measured (an old checkpoint's), which therefore never count as a violation.
+    torque_step: float = Field(
+        0.0, description="largest torque change in one tick, as a share of its joint's limit"
+    )
+    speed: float = Field(
+        0.0, description="largest measured joint speed, as a share of its data-sheet limit"
+    )
+    chatter: float = Field(
+        0.0,
+        description="largest RMS of a joint's command above CHATTER_CUTOFF, as a share of its "
+        "torque limit",
+    )
     values: tuple[float, float] | None = Field(
         None,
         exclude_if=lambda values: values is None,  # the JSON of the paper's scores as it was
@@ -100,6 +113,10 @@ class Scores(BaseModel):
         return self.values if self.values is not None else (self.f_acc, self.f_t)
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        """Checkpoints from before objectives could be chosen pickled scores without `values`."""
-        state["__dict__"].setdefault("values", None)
+        """Checkpoints from before objectives could be chosen pickled scores without `values`,
+        and from before the safety measures without those (read as 0: never a violation)."""
+        fields = state["__dict__"]
+        fields.setdefault("values", None)
+        for name in ("torque_step", "speed", "chatter"):
+            fields.setdefault(name, 0.0)
         super().__setstate__(state)

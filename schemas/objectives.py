@@ -15,6 +15,18 @@ not count as a change. A diverged episode is scored as if every tick it did not 
 worst error and the worst torque change, so it is never preferred to one that finished, and the
 later it diverged the less it is penalised.
 
+And the safety measures schemas.limits bounds, from the ticks run (a diverged episode's too):
+
+torque_step = max_(i,j) |u_ij − u_(i−1)j| / τmax_j     largest torque change in a tick, a share
+speed       = max_(i,j) |q̇_ij| / q̇max_j                 largest measured joint speed, a share
+chatter     = max_j RMS(u_j above CHATTER_CUTOFF) / τmax_j   the command's content the arm
+                                                        cannot follow, a share of the limit
+
+(the saturated fraction, a diagnostic already, is the fourth). The RMS above the cut-off is the
+square root of the command's power spectral density (Welch's estimate, 0.5 s Hann segments)
+integrated above it: absolute, not a share of the command's power, since a smooth controller's
+tiny command would make any share of sensor noise look large.
+
 An episode may name other objectives (EpisodeSpec.objectives): a plug-in's, of the
 gainfarm.objectives group, is a function of the decoded log like `f_acc` and `f_t` here. The
 contract loads no plug-in: `score` is given the functions of the ones its log names.
@@ -23,15 +35,28 @@ contract loads no plug-in: `score` is given the functions of the ones its log na
 from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
+from scipy import signal
 
 from gainfarm.schemas.episode import DEFAULT_OBJECTIVES, Scores
 from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.robot import SPEED_LIMITS
 
 # An objective: the decoded log in, a finite number out, lower is better.
 Objective = Callable[[EpisodeLog], float]
 
 DIVERGED_TICK_ERROR = 1.0  # m: more than any real tracking error (the arm's reach is 0.82 m)
 SATURATION_TOLERANCE = 1e-9  # N·m: a torque this close to its limit is saturated
+
+# Hz: torque above this is chatter, not control. The arm's lowest elastic modes at the ready
+# posture are 19 Hz on the ideal plant's soft joints and 51 Hz on the realistic plant's medium
+# ones (models/README.md), and fall to about 10 Hz with the rotor inertia drake's notes estimate:
+# above the lowest mode the joint's spring filters the command out before it moves the link, so
+# torque there only excites the modes. The references move well below it (a 5 s path, under 2 Hz).
+CHATTER_CUTOFF = 10.0
+CHATTER_SEGMENT = 256  # ticks per Welch segment: 0.5 s, bins 2 Hz apart
+# A measured speed is counted at most this many times its limit: beyond, no limit cares how
+# far, and the wire's bound holds whatever a wild simulation does.
+SPEED_CAP = 1000.0
 
 # The objectives of a candidate with no episode to score (its path out of reach, or lost): worse
 # than any diverged episode, so NSGA-II ranks it last and moves on. A plug-in objective in either
@@ -82,8 +107,43 @@ def score(log: EpisodeLog, plugins: Mapping[str, Objective] | None = None) -> Sc
         saturated_fraction=float(saturated.mean()) if log.ticks else 0.0,
         diverged=meta.diverged,
         ticks=log.ticks,
+        torque_step=torque_step(log),
+        speed=speed(log),
+        chatter=chatter(log),
         values=values,
     )
+
+
+def torque_step(log: EpisodeLog) -> float:
+    """The largest torque change in one tick, as a share of its joint's torque limit (at most
+    2: limit to limit); the first tick changes nothing (see f_t)."""
+    if log.ticks < 2:
+        return 0.0
+    limits = np.asarray(log.metadata.torque_limits)
+    return float(np.max(np.abs(np.diff(log.u, axis=0)) / limits))
+
+
+def speed(log: EpisodeLog) -> float:
+    """The largest measured joint speed, as a share of its data-sheet limit (SPEED_LIMITS),
+    at most SPEED_CAP."""
+    if not log.ticks:
+        return 0.0
+    share = float(np.max(np.abs(log.qd) / np.asarray(SPEED_LIMITS)))
+    return min(share, SPEED_CAP)
+
+
+def chatter(log: EpisodeLog) -> float:
+    """The largest RMS of a joint's torque command above CHATTER_CUTOFF, as a share of its
+    torque limit (at most 2: a detrended command stays within twice its limit)."""
+    if log.ticks < 2:
+        return 0.0
+    meta = log.metadata
+    frequencies, density = signal.welch(
+        log.u, fs=1.0 / meta.control_period, nperseg=min(CHATTER_SEGMENT, log.ticks), axis=0
+    )
+    above = frequencies > CHATTER_CUTOFF
+    power = density[above].sum(axis=0) * (frequencies[1] - frequencies[0])
+    return float(np.max(np.sqrt(power) / np.asarray(meta.torque_limits)))
 
 
 def _plugin_value(name: str, log: EpisodeLog, plugins: Mapping[str, Objective]) -> float:

@@ -21,8 +21,10 @@ from pydantic import (
 )
 
 from gainfarm.schemas.episode import EpisodeSpec, Scores
+from gainfarm.schemas.objectives import SPEED_CAP
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 
+# 7: scores carry the safety measures (Scores.torque_step, speed, chatter; schemas.limits).
 # 6: plug-ins: a trajectory kind is any name of its form, a job may name its objectives
 # (EpisodeSpec.objectives) and its scores then carry their values (Scores.values), and a worker
 # that lacks a plug-in the job names refuses it (JobStatus.refused); a job of the built-in kinds
@@ -68,7 +70,7 @@ class WireMessage(BaseModel):
     @field_validator("protocol", mode="before")
     @classmethod
     def _an_integer(cls, version: object) -> object:
-        # Literal[6] would take 6.0 (and JSON true is 1 to Python): a version is an integer.
+        # Literal[7] would take 7.0 (and JSON true is 1 to Python): a version is an integer.
         if type(version) is not int:
             raise ValueError(_not_an_integer(version))
         return version
@@ -145,6 +147,9 @@ MAX_TRACKING_ERROR = 2.0  # m: f_acc and max_error
 # limit to limit on every joint, 1.13e6 (N·m)², which is what a tick not run counts.
 MAX_TORQUE_CHANGE = 1.2e6  # (N·m)²: f_t
 MAX_TICKS = round(MAX_DURATION / CONTROL_PERIOD) + 1  # the longest trajectory's
+# The applied torque is within ±its limit, so a tick changes it by at most twice the limit, and a
+# command less its mean stays within twice the limit: its RMS above any frequency too.
+MAX_TORQUE_SHARE = 2.0  # torque_step and chatter
 
 
 class WireScores(Scores):
@@ -166,8 +171,18 @@ class WireScores(Scores):
         ge=0, le=1, description=Scores.model_fields["saturated_fraction"].description
     )
     ticks: int = Field(ge=0, le=MAX_TICKS, description=Scores.model_fields["ticks"].description)
+    # Required here: a worker of this protocol measures them (a Scores default is for old pickles).
+    torque_step: float = Field(
+        ge=0, le=MAX_TORQUE_SHARE, description=Scores.model_fields["torque_step"].description
+    )
+    speed: float = Field(ge=0, le=SPEED_CAP, description=Scores.model_fields["speed"].description)
+    chatter: float = Field(
+        ge=0, le=MAX_TORQUE_SHARE, description=Scores.model_fields["chatter"].description
+    )
 
-    @field_validator("f_acc", "f_t", "max_error", "saturated_fraction")
+    @field_validator(
+        "f_acc", "f_t", "max_error", "saturated_fraction", "torque_step", "speed", "chatter"
+    )
     @classmethod
     def _no_negative_zero(cls, value: float) -> float:
         # -0.0 passes ge=0 and would compare equal to 0, but no episode scores it (its sums start

@@ -147,7 +147,15 @@ def result_for(study: str, job_id: str, worker: str = "w", **fields: object) -> 
 
 
 HAND_MADE_SCORES = WireScores(
-    f_acc=0.01, f_t=0.1, max_error=0.02, saturated_fraction=0.0, diverged=False, ticks=1
+    f_acc=0.01,
+    f_t=0.1,
+    max_error=0.02,
+    saturated_fraction=0.0,
+    diverged=False,
+    ticks=1,
+    torque_step=0.01,
+    speed=0.5,
+    chatter=0.001,
 )
 
 

@@ -60,6 +60,12 @@ def _split() -> str:
     help="JSON list of trajectories (TrajectorySpec objects): run every selected controller once "
     "more on each, through the farm (a local one unless --connect), and add those episodes",
 )
+@click.option(
+    "--infeasible",
+    is_flag=True,
+    help="keep controllers that break their run's safety limits on an episode (a run from "
+    "before the limits, or on a --rerun trajectory); their rows say so (within_limits)",
+)
 @farm_options
 def dataset(
     run_dirs: tuple[Path, ...],
@@ -68,6 +74,7 @@ def dataset(
     split_text: str,
     split_seed: int,
     rerun_file: Path | None,
+    infeasible: bool,
     connect: tuple[str, ...],
     tls: Path | None,
     participant: str | None,
@@ -128,6 +135,7 @@ def dataset(
             split_seed=split_seed,
             rerun_trajectories=trajectories,
             farm=rerun_farm,
+            infeasible=infeasible,
         )
     except BadSplit as error:  # too few trajectories for the parts asked for
         raise CliError(f"--split: {error}") from None

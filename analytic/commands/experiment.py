@@ -59,6 +59,7 @@ def _shared_options(duration: float | None) -> list[click.Parameter]:
             else []
         ),
         options.plant(),
+        options.limits(),
         termination_options(per_run=True),
         farm_options,
         click.option(
@@ -171,6 +172,7 @@ def _run(
     parallel_runs: int | None,
     out: Path,
     duration: float | None = None,
+    limits_file: Path | None = None,
     **given: str | None,
 ) -> None:
     """Check everything the experiment needs before anything runs, then run it on the farm."""
@@ -186,6 +188,7 @@ def _run(
     from gainfarm.schemas.trajectory import TrajectorySpec
 
     identity = check_farm(connect, local, tls, participant)
+    limits = options.limits_from(limits_file)
     values: dict[str, object] = {}
     for option in spec.options:
         text = given[option.parameter]
@@ -202,6 +205,7 @@ def _run(
                 TrajectorySpec() if duration is None else TrajectorySpec(duration=duration),
             ),
             model=PLANTS[plant],
+            limits=limits,
             generations=generations,
             evaluations=evaluations,
             keep="front",

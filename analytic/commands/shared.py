@@ -172,6 +172,7 @@ def run_with_progress(
     from gainfarm.analytic.evaluators.farm import FarmUnavailable
     from gainfarm.analytic.view.export import describe_pick, picks
     from gainfarm.analytic.view.progress import Display, RunDisplay
+    from gainfarm.analytic.view.run_report import limits_line
     from gainfarm.cli import interrupts
 
     console = Console(stderr=True)
@@ -225,6 +226,10 @@ def run_with_progress(
             ),
             err=True,
         )
+    click.echo(
+        f"limits: {limits_line(run.config.limits, run.state.measured, len(run.front()))}",
+        err=True,
+    )
     click.echo(f"front, history, figures and report in {run.directory}/", err=True)
     chosen = picks(run.front())
     if chosen:  # last, what to do next; each line within 80 columns for a short run directory

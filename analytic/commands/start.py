@@ -42,6 +42,7 @@ from gainfarm.cli.app import CliError
     help="add a learned inverse-dynamics model's torque for the reference to every episode's "
     "PD and tune the gains on top (a directory from `analytic learn`, or its model.npz)"
 )
+@options.limits()
 @farm_options
 @click.option("--out", type=click.Path(path_type=Path), help="run directory  [default: runs/TIME]")
 @click.option(
@@ -113,6 +114,7 @@ def start(
     joints: str,
     plant: str,
     feedforward: Path | None,
+    limits_file: Path | None,
     connect: tuple[str, ...],
     tls: Path | None,
     participant: str | None,
@@ -141,6 +143,7 @@ def start(
     from gainfarm.analytic.tuning.run import RunBusy
 
     identity = check_farm(connect, local, tls, participant)
+    limits = options.limits_from(limits_file)
     trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
     learned = options.feedforward_model(feedforward)
     model_file = learned[0] if learned is not None else None
@@ -150,6 +153,7 @@ def start(
             seed=seed,
             trajectories=trajectories,
             model=options.model_spec(plant, joints),
+            limits=limits,
             generations=generations,
             evaluations=evaluations,
             keep=keep,

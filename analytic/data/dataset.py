@@ -15,10 +15,16 @@ two runs in directories of one name cannot overwrite each other; an id that woul
 (the same run given twice, or a copy of a run) is refused. The split into train, validation and
 test is by trajectory, so no trajectory is seen in training and again in testing.
 
+A controller that breaks its run's safety limits (schemas.limits) on any of its episodes, the
+rerun's included, is left out with all its episodes unless `infeasible` asks for it: a run's
+front holds none, but a run from before the limits may, and a rerun trajectory may find one. Each
+episode's row carries its measures and whether they are within the limits.
+
 The directory appears whole or not at all: it is built beside its destination and renamed.
 """
 
 import contextlib
+import dataclasses
 import hashlib
 import json
 import math
@@ -53,6 +59,7 @@ from gainfarm.analytic.tuning.run import RunBusy, TuningRun, upgrade
 from gainfarm.edges.files import staging_directory, write_atomically
 from gainfarm.plugins import OBJECTIVES, load_plugins
 from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.limits import MEASURES, Limits
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
@@ -114,6 +121,11 @@ COLUMNS = {
     "feedforward": ("", "SHA-256 of the learned inverse-dynamics feed-forward, if any"),
     "candidate_f_acc": ("m", "the controller's f_acc over its run's trajectory set"),
     "candidate_f_t": ("(N*m)^2", "the controller's f_t over its run's trajectory set"),
+    "torque_step": ("1", "largest torque change in a tick, share of the joint's torque limit"),
+    "saturated_fraction": ("1", "share of ticks with a joint at its torque limit"),
+    "speed": ("1", "largest measured joint speed, share of its data-sheet limit"),
+    "chatter": ("1", "RMS of the command above 10 Hz, share of the joint's torque limit"),
+    "within_limits": ("", "the controller keeps its run's safety limits on all its episodes"),
     "kind": ("", "the trajectory's kind"),
     "seed": ("", "seed of the random kind's waypoints and the fourier kind's series"),
     "center_x": ("m", "the Cartesian path's centre, base frame"),
@@ -170,6 +182,8 @@ class ChosenRun:
     model: ModelSpec
     members: list[FrontMember]
     feedforward: str | None = None  # the learned model its episodes add to the PD, if any
+    # The safety limits its config checks every episode against.
+    limits: Limits = dataclasses.field(default_factory=Limits)
 
 
 @dataclass(frozen=True)
@@ -236,7 +250,13 @@ def choose(run_dirs: Sequence[Path], selection: Selection) -> list[ChosenRun]:
         members = select(run, selection)
         chosen.append(
             ChosenRun(
-                Path(run_dir), name, run_id, run.config.model, members, run.config.feedforward
+                Path(run_dir),
+                name,
+                run_id,
+                run.config.model,
+                members,
+                run.config.feedforward,
+                run.config.limits,
             )
         )
     return chosen
@@ -419,6 +439,7 @@ def episode_row(source: EpisodeSource, log: EpisodeLog) -> dict[str, object]:
         "candidate_f_acc": source.member.f_acc,
         "candidate_f_t": source.member.f_t,
     }
+    row |= {name: float(getattr(scores, name)) for name in MEASURES}
     return row
 
 
@@ -562,6 +583,7 @@ def build(
     split_seed: int = 0,
     rerun_trajectories: Sequence[TrajectorySpec] = (),
     farm: RerunFarm = local_rerun_farm,
+    infeasible: bool = False,
 ) -> dict[str, int]:
     """Write the dataset to `out` (which must not exist); return its counts.
 
@@ -608,6 +630,12 @@ def build(
         copied = len(episodes) - linked
         if rerun_trajectories:
             episodes += rerun(chosen, rerun_trajectories, staging, farm)
+        episodes, left_out = within_limits(episodes, chosen, staging / "episodes", infeasible)
+        if not episodes:
+            raise NoEpisodes(
+                f"every selected controller breaks its run's safety limits ({left_out} episodes "
+                "left out); --infeasible keeps them"
+            )
         trajectories = {trajectory_id(e.trajectory): e.trajectory for e in episodes}
         splits = assign_splits(list(trajectories), fractions, split_seed)
         metadata = {
@@ -656,6 +684,7 @@ def build(
             "rerun_trajectories": len(rerun_trajectories),
             "linked": linked,
             "copied": copied,
+            "infeasible_left_out": left_out,
         } | {name: sum(s == name for s in splits.values()) for name in SPLITS}
         text = card(counts, chosen, selection, fractions, split_seed)
         write_atomically(staging / "README.md", text.encode())
@@ -664,6 +693,33 @@ def build(
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return counts
+
+
+def within_limits(
+    episodes: list[Episode], chosen: Sequence[ChosenRun], staged: Path, keep: bool
+) -> tuple[list[Episode], int]:
+    """Mark each episode's row with whether its controller keeps its run's limits on every
+    episode it has here; unless `keep`, leave out (and unstage) the episodes of those that do
+    not. Returns the episodes and how many were left out."""
+    limits = {run.run_id: run.limits for run in chosen}
+
+    def owner(episode: Episode) -> tuple[str, object]:
+        return episode.source.run_id, episode.source.member.gains
+
+    broken = {
+        owner(episode)
+        for episode in episodes
+        if limits[episode.source.run_id].violated([episode.row[name] for name in MEASURES])
+    }
+    for episode in episodes:
+        episode.row["within_limits"] = owner(episode) not in broken
+    if keep:
+        return episodes, 0
+    kept = [episode for episode in episodes if owner(episode) not in broken]
+    for episode in episodes:
+        if owner(episode) in broken:
+            (staged / f"{episode.source.episode_id}.mcap").unlink(missing_ok=True)
+    return kept, len(episodes) - len(kept)
 
 
 def card(
@@ -711,6 +767,13 @@ def card(
     caution = " Do not edit a log in place: a hard-linked one changes in its run too." * bool(
         counts["linked"]
     )
+    left_out = counts.get("infeasible_left_out", 0)
+    limits = (
+        f" {left_out} episodes of controllers that break their run's safety limits were left "
+        "out (`analytic dataset --infeasible` keeps them)."
+        if left_out
+        else ""
+    )
     command = f"analytic dataset ... --select {selection} --split {fractions}"
     command += f" --split-seed {split_seed}" + (" --rerun FILE" if counts["rerun"] else "")
     return f"""# gainfarm dynamics dataset
@@ -722,7 +785,7 @@ tuned on{rerun_line}.
 
 {counts["episodes"]} episodes, {counts["ticks"]:,} ticks at 500 Hz (control period
 {CONTROL_PERIOD} s), {counts["controllers"]} controllers from {counts["runs"]} runs, on
-{counts["trajectories"]} trajectories. Dataset version {DATASET_VERSION}.
+{counts["trajectories"]} trajectories. Dataset version {DATASET_VERSION}.{limits}
 
 {runs}
 

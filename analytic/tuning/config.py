@@ -17,6 +17,7 @@ from gainfarm.analytic.tuning.termination import (
     Termination,
 )
 from gainfarm.schemas.episode import DEFAULT_OBJECTIVES
+from gainfarm.schemas.limits import Limits
 from gainfarm.schemas.robot import ModelSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 
@@ -65,6 +66,12 @@ class RunConfig(BaseModel):
         "weighted per trajectory by these (f_acc weight, f_t weight) pairs, in the order of "
         "`trajectories` (schemas.objectives.balancing_weights: each trajectory counts alike at "
         "the default gains); None: the plain means",
+    )
+    limits: Limits = Field(
+        Limits(),
+        description="the safety limits every episode of a candidate must keep to, or it is "
+        "infeasible: never on the front (schemas.limits; a config.json from before them reads "
+        "the defaults)",
     )
     keep: defaults.Keep = Field(
         defaults.KEEP,

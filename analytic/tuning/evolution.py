@@ -16,6 +16,15 @@ Whatever the optimiser, the front is this module's archive of every non-dominate
 raw units. The optimiser itself may be told the objectives as the hypervolume sees them
 (objective_scaling "log": `normalise`, f_t on a log scale) instead of raw (f_t spans six decades,
 and crowding on raw f_t neglects the smooth end).
+
+Constraints (the safety limits, schemas.limits: g ≤ 0 met) are told with the objectives. The
+archive, and so the front, holds feasible points only. The optimiser ranks feasibility first:
+pymoo's NSGA-II, NSGA-III, SMS-EMOA and AGE-MOEA-II by their own constraint handling (the
+problem declares the constraints, so survival keeps the feasible before the least violating,
+and tournaments compare violations first); Optuna's TPE by its constraints_func (a trial's
+constraint values replayed with it); pymoo's MOEA/D has none (it refuses a constrained problem),
+so it, and any plug-in without a pymoo problem, is told an infeasible point's objectives as
+worse than any episode's (NO_EPISODE, times 1 + the violation); random sampling needs nothing.
 """
 
 import warnings
@@ -24,10 +33,11 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
-from pymoo.algorithms.moo.moead import ParallelMOEAD
+from pymoo.algorithms.moo.moead import MOEAD, ParallelMOEAD
 from pymoo.algorithms.moo.nsga2 import NSGA2
 from pymoo.algorithms.moo.nsga3 import NSGA3, comp_by_cv_then_random
 from pymoo.algorithms.moo.sms import SMSEMOA, cv_and_dom_tournament
+from pymoo.core.individual import calc_cv
 from pymoo.core.population import Population
 from pymoo.core.problem import Problem
 from pymoo.core.termination import NoTermination
@@ -40,6 +50,7 @@ from gainfarm import plugins
 from gainfarm.analytic.tuning.defaults import OBJECTIVE_SCALINGS
 from gainfarm.analytic.tuning.search_space import SearchSpace
 from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.objectives import NO_EPISODE
 
 # The hypervolume is taken in a normalised objective space, the same for every run so that runs
 # compare: f_acc linearly, 0 → 0 and REFERENCE_POINT[0] → 1; f_t logarithmically, F_T_FLOOR → 0
@@ -116,13 +127,18 @@ class OptunaTPE:
         self._told: list[tuple[list[float], list[float] | None]] = []  # in trial number order
         self._asked: list[list[float]] = []  # the points of the trials asked, not yet told
         self.pop = None  # no population: nothing for Evolution.correct to correct
+        # Told constraints (Evolution sets `constrained`): each told trial's values, by number.
+        self.constrained = False
+        self._told_g: dict[int, list[float]] = {}
+        self._live: dict[int, Any] = {}  # the Trials asked in this process, to be told
         self._study = self._new_study()
 
     def __getstate__(self) -> dict:
-        return {key: value for key, value in self.__dict__.items() if key != "_study"}
+        return {k: v for k, v in self.__dict__.items() if k not in ("_study", "_live")}
 
     def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
+        """Checkpoints from before constraints told none."""
+        self.__dict__.update({"constrained": False, "_told_g": {}, **state, "_live": {}})
         self._study = self._new_study()
 
     def _new_study(self) -> Any:
@@ -145,8 +161,12 @@ class OptunaTPE:
                     params=dict(zip(self.names, x, strict=True)),
                     distributions=distributions,
                     values=values,
+                    # What the constraints_func would have recorded had the trial been told here.
+                    system_attrs={CONSTRAINTS_KEY: self._told_g[number]}
+                    if number in self._told_g
+                    else None,
                 )
-                for x, trial_state, values in trials
+                for number, (x, trial_state, values) in enumerate(trials)
             ]
         )
         return study
@@ -157,7 +177,15 @@ class OptunaTPE:
         with warnings.catch_warnings():  # Optuna 4 calls both options experimental; 5 does not
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
             return optuna.samplers.TPESampler(
-                seed=seed, n_startup_trials=self.pop_size, multivariate=True, constant_liar=True
+                seed=seed,
+                n_startup_trials=self.pop_size,
+                multivariate=True,
+                constant_liar=True,
+                # Optuna 5 reads a trial's constraints itself (Trial.set_constraint); 4 through
+                # the constraints_func, which 5 deprecates.
+                constraints_func=_trial_constraints
+                if self.constrained and not _sets_constraints(optuna)
+                else None,
             )
 
     def ask(self) -> Population:
@@ -167,6 +195,7 @@ class OptunaTPE:
         self._study.sampler = self._sampler(optuna)
         for _ in range(self.pop_size):
             trial = self._study.ask()
+            self._live[trial.number] = trial
             self._asked.append(
                 [
                     trial.suggest_float(name, float(low), float(high))
@@ -184,11 +213,40 @@ class OptunaTPE:
             raise ValueError("tell() takes the trials asked last, in the order asked")
         complete = _optuna().trial.TrialState.COMPLETE
         first = len(self._told)  # trials are numbered in the order asked, and told in that order
-        for number, (x, f) in enumerate(zip(self._asked, infills.get("F"), strict=True), first):
+        constraints = infills.get("G") if self.constrained else None
+        replay = False
+        for index, (x, f) in enumerate(zip(self._asked, infills.get("F"), strict=True)):
+            number = first + index
             values = [float(value) for value in f]
-            told = self._study.tell(number, values)  # a NaN fails the trial
+            trial = self._live.pop(number, None)
+            if constraints is not None:
+                self._told_g[number] = [float(g) for g in constraints[index]]
+                if trial is None:  # asked before a resume: replayed with its constraints below
+                    replay = True
+                elif _sets_constraints(_optuna()):
+                    for key, g in enumerate(self._told_g[number]):
+                        trial.set_constraint(str(key), g)  # the keys the replay's list gives
+                else:  # read by the sampler's constraints_func as the trial is told
+                    trial.set_user_attr(CONSTRAINTS_KEY, self._told_g[number])
+            told = self._study.tell(trial if trial is not None else number, values)  # NaN: fails
             self._told.append((x, values if told.state == complete else None))
         self._asked = []
+        if replay:
+            self._study = self._new_study()
+
+
+# Optuna's own key for a trial's constraint values, as a list (Optuna 5 reads it too).
+CONSTRAINTS_KEY = "constraints"
+
+
+def _sets_constraints(optuna: Any) -> bool:
+    """Whether this Optuna keeps a trial's constraints itself (5 does; 4 needs a function)."""
+    return hasattr(optuna.trial.Trial, "set_constraint")
+
+
+def _trial_constraints(trial: Any) -> list[float]:
+    """TPE's constraints_func: the values tell() attached to the trial (≤ 0 met)."""
+    return trial.user_attrs[CONSTRAINTS_KEY]
 
 
 def _optuna() -> Any:
@@ -329,12 +387,14 @@ class Evolution:
         algorithm: str = "nsga2",
         objective_scaling: str = "raw",
         reference: tuple[float, float] = REFERENCE_POINT,
+        constraints: int = 0,
     ):
         """Generational algorithms ask a whole generation at a time. NSGA-II's steady-state
         variant (mu + 1) asks one offspring at a time (ask_one) and takes each result as it
         comes (tell_one), so that no worker waits for a generation's slowest episode.
         `objective_scaling` "log" tells the optimiser `normalise(objectives, reference)`
         instead of the raw objectives; the archive, the front and everything recorded stay raw.
+        `constraints`: how many constraint values each point is told with (none: unconstrained).
         """
         if objective_scaling not in OBJECTIVE_SCALINGS:
             raise ValueError(
@@ -360,6 +420,21 @@ class Evolution:
         self._seen_x = np.empty((0, len(self.space.lower)))
         self._seen_f = np.empty((0, 2))
         self._front: list[Candidate] | None = None  # front(), until the archive changes
+        self.constraints = 0
+        self._ranks_feasibility = False  # whether the optimiser handles the constraints itself
+        self._seen_g = np.empty((0, 0))
+        self.constrain(constraints)
+
+    def constrain(self, count: int) -> None:
+        """From now on, tell `count` constraint values with each point (an unconstrained
+        evolution, or one from an older checkpoint, whose points told so far count as met)."""
+        if count == self.constraints:
+            return
+        if self.constraints:
+            raise ValueError(f"told {self.constraints} constraints so far, not {count}")
+        self.constraints = count
+        self._seen_g = np.zeros((len(self._seen_f), count))
+        self._ranks_feasibility = _declare(self.algorithm, count)
 
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_front": None}  # derived; and a checkpoint holds no Candidate
@@ -371,10 +446,14 @@ class Evolution:
             "algorithm_name": "nsga2",
             "objective_scaling": "raw",
             "reference": REFERENCE_POINT,
+            "constraints": 0,
+            "_ranks_feasibility": False,
         }
         self.__dict__.update({**defaults, **state, "_front": None})
         if "_seen_x" not in state:
             self._seen_x, self._seen_f = self._archive_x.copy(), self._archive_f.copy()
+        if "_seen_g" not in state:  # from before constraints: none told
+            self._seen_g = np.zeros((len(self._seen_f), 0))
 
     def ask(self) -> list[PDGains]:
         """The next generation's candidates (the first is the random initial population)."""
@@ -382,11 +461,16 @@ class Evolution:
             self._asked = self.algorithm.ask()
         return [self.space.gains(x) for x in self._asked.get("X")]
 
-    def tell(self, objectives: Sequence[tuple[float, float]]) -> None:
-        """The objectives of the candidates last asked, in the order asked."""
+    def tell(
+        self,
+        objectives: Sequence[tuple[float, float]],
+        constraints: Sequence[Sequence[float]] | None = None,
+    ) -> None:
+        """The objectives of the candidates last asked, in the order asked, and their
+        constraint values (`constraints` of each; none: all met)."""
         if self._asked is None or len(objectives) != len(self._asked):
             raise ValueError("tell() takes one pair of objectives per candidate asked")
-        self._tell(self._asked, objectives)
+        self._tell(self._asked, objectives, constraints)
         self._asked = None
         self.generation += 1
 
@@ -400,42 +484,89 @@ class Evolution:
             offspring = self.algorithm.ask()
         return offspring[:1], self.space.gains(offspring.get("X")[0])
 
-    def tell_one(self, handle: Population, objectives: tuple[float, float]) -> None:
-        self._tell(handle, [objectives])
+    def tell_one(
+        self,
+        handle: Population,
+        objectives: tuple[float, float],
+        constraints: Sequence[float] | None = None,
+    ) -> None:
+        self._tell(handle, [objectives], None if constraints is None else [constraints])
         self.generation = self.evaluations // self.pop_size
 
-    def _tell(self, individuals: Population, objectives: Sequence[tuple[float, float]]) -> None:
+    def _constraint_rows(self, count: int, constraints: object) -> np.ndarray:
+        if constraints is None:
+            return np.zeros((count, self.constraints))
+        g = np.asarray(constraints, dtype=float)
+        if g.shape != (count, self.constraints):
+            raise ValueError(f"tell() takes {self.constraints} constraint values per candidate")
+        return g
+
+    def _tell(
+        self,
+        individuals: Population,
+        objectives: Sequence[tuple[float, float]],
+        constraints: Sequence[Sequence[float]] | None = None,
+    ) -> None:
         f = np.asarray(objectives, dtype=float).reshape(-1, 2)
-        individuals.set("F", self.seen_by_optimiser(f))
+        g = self._constraint_rows(len(f), constraints)
+        self._set(individuals, f, g)
         self.algorithm.tell(infills=individuals)
         self._seen_x = np.vstack([self._seen_x, individuals.get("X")])
         self._seen_f = np.vstack([self._seen_f, f])
-        x = np.vstack([self._archive_x, individuals.get("X")])
-        f = np.vstack([self._archive_f, f])
+        self._seen_g = np.vstack([self._seen_g, g])
+        met = feasible_rows(g)
+        x = np.vstack([self._archive_x, individuals.get("X")[met]])
+        f = np.vstack([self._archive_f, f[met]])
         first = non_dominated_indices(f)
         self._archive_x, self._archive_f = x[first], f[first]
         self._front = None
         self.evaluations += len(individuals)
 
-    def correct(self, gains: PDGains, objectives: tuple[float, float]) -> list[int]:
-        """A candidate's objectives were false (a replica outvoted its log): take the true ones,
-        in the archive, among the points seen and in the optimiser's population. Returns where
-        the candidate was told, as indices into the points told in order (empty for a
-        checkpoint from before every point was kept, whose points seen are its archive)."""
+    def _set(self, individuals: Population, f: np.ndarray, g: np.ndarray) -> None:
+        """Tell the optimiser's individuals their objectives and constraints, as it takes them."""
+        told = self.seen_by_optimiser(f)
+        if self.constraints and self._ranks_feasibility:
+            individuals.set("G", g)
+            individuals.set("CV", np.array([calc_cv(G=row) for row in g]).reshape(-1, 1))
+        elif self.constraints:  # it ranks by objectives alone: an infeasible point is worst
+            violation = np.array([calc_cv(G=row) for row in g])
+            worst = self.seen_by_optimiser([NO_EPISODE])[0]
+            told = np.where((violation > 0)[:, None], worst * (1 + violation[:, None]), told)
+        individuals.set("F", told)
+
+    def correct(
+        self,
+        gains: PDGains,
+        objectives: tuple[float, float],
+        constraints: Sequence[float] | None = None,
+    ) -> list[int]:
+        """A candidate's objectives (and constraint values) were false (a replica outvoted its
+        log): take the true ones, in the archive, among the points seen and in the optimiser's
+        population. Returns where the candidate was told, as indices into the points told in
+        order (empty for a checkpoint from before every point was kept, whose points seen are
+        its archive)."""
+        g = self._constraint_rows(1, None if constraints is None else [constraints])
         rows = []
         for row, x in enumerate(self._seen_x):
             if self.space.gains(x) == gains:
                 self._seen_f[row] = objectives
+                self._seen_g[row] = g[0]
                 rows.append(row)
-        first = non_dominated_indices(self._seen_f)
+        met = np.flatnonzero(feasible_rows(self._seen_g))
+        first = met[non_dominated_indices(self._seen_f[met])]
         self._archive_x, self._archive_f = self._seen_x[first], self._seen_f[first]
         self._front = None
         population = getattr(self.algorithm, "pop", None)  # a plug-in may hold none
         if population is not None:
             for individual in population:
                 if self.space.gains(individual.X) == gains:
-                    individual.set("F", self.seen_by_optimiser(objectives)[0])
+                    self._set(Population([individual]), np.array([objectives]), g)
         return rows if len(self._seen_f) == self.evaluations else []
+
+    @property
+    def infeasible(self) -> int:
+        """How many of the points told broke a constraint."""
+        return int(np.count_nonzero(~feasible_rows(self._seen_g)))
 
     def seen_by_optimiser(
         self, objectives: Sequence[tuple[float, float]] | np.ndarray
@@ -455,6 +586,30 @@ class Evolution:
             ]
             self._front = sorted(members, key=lambda member: member.objectives)
         return list(self._front)
+
+
+def _declare(algorithm: Any, constraints: int) -> bool:
+    """Set an optimiser up to rank `constraints` itself, feasibility first; False if it cannot
+    (it is then told an infeasible point as the worst: Evolution._set)."""
+    if not constraints:
+        return False
+    if isinstance(algorithm, OptunaTPE):
+        algorithm.constrained = True
+        return True
+    if isinstance(algorithm, UniformRandom):
+        return True  # it asks the same whatever it is told
+    problem = getattr(algorithm, "problem", None)
+    if isinstance(problem, Problem) and not isinstance(algorithm, MOEAD):
+        # pymoo's survival splits by feasibility when the problem has constraints, and its
+        # tournaments compare the violation (CV) first.
+        problem.n_ieq_constr = constraints
+        return True
+    return False
+
+
+def feasible_rows(g: np.ndarray) -> np.ndarray:
+    """Which rows of constraint values meet every constraint (≤ 0)."""
+    return np.all(np.asarray(g) <= 0, axis=1)
 
 
 def non_dominated_indices(f: np.ndarray) -> np.ndarray:

@@ -17,7 +17,8 @@ identical runs give byte-identical files. Each file appears whole or not at all 
                     provenance, and what validation found over the run
     provenance.csv  one line per episode of each front member: which worker ran it and how the
                     referee checked it (front.csv's side file: its `member` is the row there)
-    evaluated.csv   every candidate's objectives, in the order told: the cloud behind the front
+    evaluated.csv   every candidate's objectives, in the order told: the cloud behind the front;
+                    and its safety measures (schemas.limits) and whether they met the limits
     baseline.json   the default gains' point on the run's trajectories, evaluated once when
                     the run reports: what the tuned controllers are measured against
     checkpoint.pkl  the evolution's own state, for `analytic resume` only (analytic.checkpoint)
@@ -37,6 +38,7 @@ from pathlib import Path
 
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.limits import MEASURES, Limits
 from gainfarm.schemas.robot import N_JOINTS
 
 # The names a run directory uses; the report links to the figures by these relative names.
@@ -156,6 +158,9 @@ class FrontMember:
     logs: tuple[str, ...] = field(default=(), compare=False)
     diverged: bool = False
     episodes: tuple[EpisodeCheck, ...] = field(default=(), compare=False)  # their provenance
+    # Its safety measures, worst over its episodes, in schemas.limits.MEASURES' order (front.json
+    # holds them; empty for a run from before the limits): the front holds only those within.
+    measures: tuple[float, ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
         for name in ("kp", "kd"):
@@ -168,6 +173,7 @@ class FrontMember:
         if not isinstance(self.diverged, bool):
             raise ValueError(f"diverged must be true or false, got {self.diverged!r}")
         object.__setattr__(self, "logs", tuple(str(path) for path in self.logs))
+        object.__setattr__(self, "measures", tuple(float(value) for value in self.measures))
 
     @property
     def gains(self) -> PDGains:
@@ -290,13 +296,41 @@ def read_front(path: Path) -> list[FrontMember]:
     ]
 
 
-def evaluated_csv(points: Sequence[tuple[float, float]]) -> bytes:
-    """evaluated.csv's content: each candidate's (f_acc, f_t), in the order told."""
-    return _csv_bytes(("f_acc", "f_t"), ((_exact(a), _exact(t)) for a, t in points))
+EVALUATED_FIELDS = ("f_acc", "f_t", *MEASURES, "feasible")
+LEGACY_EVALUATED_FIELDS = EVALUATED_FIELDS[:2]  # before the limits: the objectives alone
+
+
+def evaluated_csv(
+    points: Sequence[tuple[float, float]],
+    measured: Sequence[Sequence[float]],
+    limits: Limits,
+) -> bytes:
+    """evaluated.csv's content: each candidate's (f_acc, f_t), its safety measures and whether
+    they are within `limits`, in the order told."""
+    return _csv_bytes(
+        EVALUATED_FIELDS,
+        (
+            (
+                _exact(a),
+                _exact(t),
+                *map(_exact, values),
+                str(not limits.violated(values)).lower(),
+            )
+            for (a, t), values in zip(points, measured, strict=True)
+        ),
+    )
 
 
 def read_evaluated(path: Path) -> list[tuple[float, float]]:
-    return [(float(row["f_acc"]), float(row["f_t"])) for row in _read_rows(path, ("f_acc", "f_t"))]
+    """evaluated.csv's objectives, in the order told."""
+    rows = _read_rows(path, EVALUATED_FIELDS, LEGACY_EVALUATED_FIELDS)
+    return [(float(row["f_acc"]), float(row["f_t"])) for row in rows]
+
+
+def read_measured(path: Path) -> list[tuple[float, ...]]:
+    """evaluated.csv's safety measures, in the order told (none in a run from before them)."""
+    rows = _read_rows(path, EVALUATED_FIELDS, LEGACY_EVALUATED_FIELDS)
+    return [tuple(float(row[name]) for name in MEASURES) for row in rows if "feasible" in row]
 
 
 def front_json(front: Sequence[FrontMember], validation: ValidationRecord | None = None) -> bytes:
@@ -311,6 +345,9 @@ def front_json(front: Sequence[FrontMember], validation: ValidationRecord | None
             "diverged": member.diverged,
             "logs": list(member.logs),
             "episodes": [dataclasses.asdict(episode) for episode in member.episodes],
+            "measures": dict(zip(MEASURES, member.measures, strict=True))
+            if member.measures
+            else {},
         }
         for member in sorted_front(front)
     ]
@@ -326,8 +363,9 @@ def read_front_json(path: Path) -> list[FrontMember]:
         members = json.loads(Path(path).read_bytes())["members"]
         return [
             FrontMember(
-                **{key: value for key, value in member.items() if key != "episodes"},
+                **{k: v for k, v in member.items() if k not in ("episodes", "measures")},
                 episodes=tuple(EpisodeCheck(**episode) for episode in member.get("episodes", ())),
+                measures=tuple(member.get("measures", {}).values()),
             )
             for member in members
         ]
@@ -456,6 +494,8 @@ class RunRecord:
     history: list[HistoryRow] = field(default_factory=list)
     front: list[FrontMember] = field(default_factory=list)
     evaluated: list[tuple[float, float]] = field(default_factory=list)
+    # The safety measures of each evaluated candidate (empty: a run from before the limits).
+    measured: list[tuple[float, ...]] = field(default_factory=list)
 
     @property
     def evaluations(self) -> int:
@@ -488,6 +528,7 @@ def read_run(directory: Path) -> RunRecord:
         read_history(directory / HISTORY_CSV),
         read_front_json(directory / FRONT_JSON),
         read_evaluated(directory / EVALUATED_CSV),
+        read_measured(directory / EVALUATED_CSV),
     )
 
 

@@ -93,6 +93,7 @@ from gainfarm.edges.files import (
 from gainfarm.models.dynamics import digest
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
+from gainfarm.schemas.limits import MEASURES, measures
 from gainfarm.schemas.objectives import objectives
 from gainfarm.schemas.trajectory import TrajectorySpec
 
@@ -130,6 +131,8 @@ class RunState:
     evolution: Evolution
     history: list[HistoryRow] = field(default_factory=list)
     evaluated: list[tuple[float, float]] = field(default_factory=list)
+    # Each evaluated candidate's safety measures (schemas.limits.measures), in the same order.
+    measured: list[tuple[float, ...]] = field(default_factory=list)
     episodes: dict[PDGains, list[str]] = field(default_factory=dict)  # job ids of kept logs
     wall_seconds: float = 0.0
     stopped: str | None = None
@@ -160,6 +163,8 @@ class RunState:
             "unchecked": "",
         }
         self.__dict__.update({**defaults, **state})
+        if "measured" not in state:  # from before the limits: its points count as within them
+            self.measured = [(0.0,) * len(MEASURES) for _ in self.evaluated]
 
 
 @dataclass(frozen=True)
@@ -239,6 +244,7 @@ class TuningRun:
                 state = decode(checkpoint.read_bytes(), checkpoint, identity, config.algorithm)
                 if not (isinstance(state, RunState) and isinstance(state.evolution, Evolution)):
                     raise CheckpointRefused(f"{checkpoint}: not a gainfarm checkpoint (no run)")
+                state.evolution.constrain(len(MEASURES))  # from before the limits: none yet
             else:  # stopped before its first generation ended
                 state = RunState(_evolution(config))
         except BaseException:
@@ -427,7 +433,8 @@ class TuningRun:
         if self._should_rewind(evaluator):
             self._rewind(evaluator)
             return
-        evolution.tell([self._candidate_done(gains) for gains in candidates])
+        done = [self._candidate_done(gains) for gains in candidates]
+        evolution.tell([found for found, _ in done], [g for _, g in done])
         self._generation_done(started, evaluator)
         on_progress(self._progress(0, started, ended=True))
         if self._should_rewind(evaluator):  # a front member's fetched log gave its worker away
@@ -512,6 +519,7 @@ class TuningRun:
         state.evolution = _evolution(self.config)
         state.history.clear()
         state.evaluated.clear()
+        state.measured.clear()
         state.stopped = None
         state.rewinds += 1
         log.warning(
@@ -616,7 +624,7 @@ class TuningRun:
                 if caught and self._nobody_left(evaluator):
                     return
                 self._record(gains, ids, results)
-                evolution.tell_one(handle, self._candidate_done(gains))
+                evolution.tell_one(handle, *self._candidate_done(gains))
                 on_progress(self._progress(0, started))
                 if evolution.evaluations % self.config.pop == 0 or evolution.evaluations >= budget:
                     self._generation_done(started, evaluator)
@@ -771,9 +779,13 @@ class TuningRun:
         the run keeps them: evaluated.csv holds the points in the order told, so the true one
         replaces the false one there too, and the cloud and the front agree."""
         self.state.provenance[gains] = standing
-        true = objectives([ran.scores for ran in standing], self.config.objective_weights)
-        for row in self.state.evolution.correct(gains, true):
+        scores = [ran.scores for ran in standing]
+        true = objectives(scores, self.config.objective_weights)
+        measured = measures(scores)
+        g = self.config.limits.constraints(measured)
+        for row in self.state.evolution.correct(gains, true, g):
             self.state.evaluated[row] = true
+            self.state.measured[row] = measured
 
     def _keep_refereed(self, gains: PDGains, standing: list[EpisodeResult | None]) -> None:
         """A member's logs validation left here (the referee's, where the worker's is not
@@ -808,8 +820,8 @@ class TuningRun:
         return dataclasses.replace(
             row,
             hypervolume=hypervolume(points, self.config.reference_point),
-            best_f_acc=min(f_acc for f_acc, _ in points),
-            best_f_t=min(f_t for _, f_t in points),
+            best_f_acc=min((f_acc for f_acc, _ in points), default=math.nan),
+            best_f_t=min((f_t for _, f_t in points), default=math.nan),
         )
 
     # --- bookkeeping -------------------------------------------------------------------------
@@ -859,13 +871,15 @@ class TuningRun:
         self.state.episodes[gains] = [i for i in job_ids if results[i].log is not None]
         self.state.provenance[gains] = tuple(Ran.of(results[job_id]) for job_id in job_ids)
 
-    def _candidate_done(self, gains: PDGains) -> tuple[float, float]:
-        """A recorded candidate's objectives, with its point recorded as told."""
-        found = objectives(
-            [ran.scores for ran in self.state.provenance[gains]], self.config.objective_weights
-        )
+    def _candidate_done(self, gains: PDGains) -> tuple[tuple[float, float], tuple[float, ...]]:
+        """A recorded candidate's objectives and constraint values (schemas.limits: its worst
+        measures over all its episodes), with its point recorded as told."""
+        scores = [ran.scores for ran in self.state.provenance[gains]]
+        found = objectives(scores, self.config.objective_weights)
+        measured = measures(scores)
         self.state.evaluated.append(found)
-        return found
+        self.state.measured.append(measured)
+        return found, self.config.limits.constraints(measured)
 
     def _generation_done(self, started: float, evaluator: Evaluator) -> None:
         """History row, front, its logs (pruned, or fetched), termination verdict and checkpoint."""
@@ -882,8 +896,9 @@ class TuningRun:
                 hypervolume=hypervolume(
                     [member.objectives for member in front], self.config.reference_point
                 ),
-                best_f_acc=min(member.objectives[0] for member in front),
-                best_f_t=min(member.objectives[1] for member in front),
+                # NaN while no candidate is feasible: the front is empty.
+                best_f_acc=min((member.objectives[0] for member in front), default=math.nan),
+                best_f_t=min((member.objectives[1] for member in front), default=math.nan),
                 wall_seconds=state.wall_seconds,
             )
         )
@@ -925,7 +940,10 @@ class TuningRun:
         resume runs that generation again, to the same, deterministic, result.)"""
         self.check_open()
         rows = _rows(self.state)
-        write_atomically(self.directory / EVALUATED_CSV, evaluated_csv(self.state.evaluated))
+        write_atomically(
+            self.directory / EVALUATED_CSV,
+            evaluated_csv(self.state.evaluated, self.state.measured, self.config.limits),
+        )
         write_atomically(self.directory / FRONT_JSON, front_json(rows, self.validation()))
         write_atomically(self.directory / PROVENANCE_CSV, provenance_csv(rows))
         write_atomically(self.directory / FRONT_CSV, front_csv(rows))
@@ -940,6 +958,7 @@ def _evolution(config: RunConfig) -> Evolution:
         algorithm=config.algorithm,
         objective_scaling=config.objective_scaling,
         reference=config.reference_point,
+        constraints=len(MEASURES),
     )
 
 
@@ -957,9 +976,15 @@ def _rows(state: RunState) -> list[FrontMember]:
                 for ran in state.provenance.get(member.gains, ())
             ),
             episodes=tuple(_checked(state, ran) for ran in state.provenance.get(member.gains, ())),
+            measures=_measures(state.provenance.get(member.gains, ())),
         )
         for member in state.evolution.front()
     ]
+
+
+def _measures(episodes: tuple[Ran, ...]) -> tuple[float, ...]:
+    """A member's safety measures over its episodes (none known without its provenance)."""
+    return measures([ran.scores for ran in episodes]) if episodes else ()
 
 
 def _checked(state: RunState, ran: Ran) -> EpisodeCheck:

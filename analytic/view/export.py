@@ -22,15 +22,18 @@ from gainfarm.analytic.tuning.picks import Pick, pick_at, picks
 from gainfarm.analytic.tuning.records import (
     CONFIG_JSON,
     FRONT_CSV,
+    FRONT_JSON,
     HISTORY_CSV,
     RUN_JSON,
     FrontMember,
     read_front,
+    read_front_json,
     read_history,
     read_identity,
     sorted_front,
 )
 from gainfarm.schemas.controller import Controller, Member, Source
+from gainfarm.schemas.limits import MEASURES
 from gainfarm.schemas.robot import PLANTS, ModelSpec
 
 MEMBERS = ("knee", "accurate", "smooth")
@@ -99,9 +102,20 @@ def controller(directory: Path, which: str = "knee") -> Controller:
     except (OSError, ValueError, ValidationError) as error:
         raise BadRun(f"{str(directory)!r}: unreadable run ({_one_line(error)})") from None
     if not front:
+        if history:
+            raise BadRun(
+                f"{str(directory)!r} has an empty front: no candidate has kept to the safety "
+                "limits yet (report.md says which ones they broke)"
+            )
         raise BadRun(f"{str(directory)!r} has no front yet: no generation has finished")
     chosen = pick(front, which)
     member = chosen.member
+    measured = _measures(directory, member)
+    if measured and config.limits.violated(measured):  # a front from before the limits
+        raise BadMember(
+            f"that member breaks the run's safety limits "
+            f"({', '.join(config.limits.violated(measured))}): not a controller to use"
+        )
     evaluations = history[-1].evaluations if history else 0
     return Controller(
         kp=member.kp,
@@ -114,7 +128,9 @@ def controller(directory: Path, which: str = "knee") -> Controller:
             f_t=member.f_t,
             diverged=member.diverged,
             sharing=chosen.sharing,
+            measures=dict(zip(MEASURES, measured, strict=True)) if measured else None,
         ),
+        limits=config.limits if measured else None,
         source=Source(
             run_id=identity.run_id if identity is not None else "",
             directory=str(directory),
@@ -131,6 +147,16 @@ def controller(directory: Path, which: str = "knee") -> Controller:
             stopped=config.termination.reason([row.hypervolume for row in history], evaluations),
         ),
     )
+
+
+def _measures(directory: Path, member: FrontMember) -> tuple[float, ...]:
+    """The member's safety measures as front.json keeps them (none from a run before them)."""
+    try:
+        members = read_front_json(directory / FRONT_JSON)
+    except (OSError, ValueError):
+        return ()
+    same = [m for m in members if (m.kp, m.kd) == (member.kp, member.kd)]
+    return same[0].measures if same else ()
 
 
 def render(controller: Controller, fmt: str) -> bytes:

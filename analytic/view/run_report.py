@@ -5,11 +5,15 @@ experiment's runner) draws them when it ends, and again whenever asked: the figu
 function of the records.
 """
 
+from collections.abc import Sequence
+
 from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import HYPERVOLUME_PNG, PARETO_PNG, REPORT_MD
 from gainfarm.analytic.tuning.run import TuningRun
 from gainfarm.analytic.view.figures import plot_hypervolume, plot_pareto
 from gainfarm.analytic.view.reports import run_setup, run_title, write_report
+from gainfarm.edges.files import write_atomically
+from gainfarm.schemas.limits import MEASURES, UNITS, Limits, tally
 
 
 def write_run_report(run: TuningRun) -> None:
@@ -19,10 +23,16 @@ def write_run_report(run: TuningRun) -> None:
     run.check_open()
     front, title = run.front(), run_title(run.config)
     chosen, baseline = picks(front), run.baseline()
+    limits = run.config.limits
     plot_pareto(
         run.directory / PARETO_PNG,
         front,
-        run.state.evaluated,
+        # The cloud of candidates within the limits: the others are not controllers to use.
+        [
+            point
+            for point, values in zip(run.state.evaluated, run.state.measured, strict=True)
+            if not limits.violated(values)
+        ],
         title=title,
         picks=chosen,
         baseline=baseline,
@@ -40,3 +50,37 @@ def write_run_report(run: TuningRun) -> None:
         run_dir=str(run.directory),
         validation=run.validation(),
     )
+    report = run.directory / REPORT_MD
+    section = "\n".join(limits_section(limits, run.state.measured, len(front)))
+    write_atomically(report, report.read_bytes().rstrip(b"\n") + b"\n\n" + section.encode())
+
+
+def limits_line(limits: Limits, measured: Sequence[Sequence[float]], front: int) -> str:
+    """How many candidates broke the limits, and which: one line, for the report and stderr."""
+    infeasible, counts = tally(limits, measured)
+    why = ", ".join(f"{name} {count}" for name, count in counts.items() if count)
+    line = f"{infeasible} of {len(measured)} candidates broke a safety limit"
+    line += f" ({why})" if why else ""
+    if measured and not front:
+        line += "; none met them all: the front is empty"
+    return line
+
+
+def limits_section(limits: Limits, measured: Sequence[Sequence[float]], front: int) -> list[str]:
+    """report.md's section on the safety limits: what each candidate was checked against, and
+    how many broke each (docs/limits.md)."""
+    _, counts = tally(limits, measured)
+    lines = [
+        "## Safety limits",
+        "",
+        f"{limits_line(limits, measured, front)}. A candidate that breaks one on any episode is "
+        "infeasible: it is on no front, in no export and in no dataset (docs/limits.md). Each "
+        "limit, and how many candidates broke it:",
+        "",
+        "| limit | largest allowed | unit | candidates over it |",
+        "|---|---|---|---|",
+    ]
+    for name, limit in zip(MEASURES, limits.values(), strict=True):
+        shown = "not checked" if limit is None else f"{limit:g}"
+        lines.append(f"| {name} | {shown} | {UNITS[name]} | {counts[name]} |")
+    return [*lines, ""]

@@ -19,6 +19,7 @@ from gainfarm.cli.app import CliError, parse_numbers
 
 if TYPE_CHECKING:
     from gainfarm.models.dynamics import DynamicsModel
+    from gainfarm.schemas.limits import Limits
     from gainfarm.schemas.robot import ModelSpec
     from gainfarm.schemas.security import Role, TlsIdentity
     from gainfarm.schemas.trajectory import TrajectorySpec
@@ -270,6 +271,44 @@ def feedforward_model(path: Path | None) -> tuple[bytes, "DynamicsModel"] | None
     except BadDynamicsModel as error:
         raise CliError(f"--feedforward: {str(file)!r}: {error}") from None
     return raw, model
+
+
+# --- the safety limits ---------------------------------------------------------------------------
+
+
+def limits(
+    help: str = "a JSON object of safety limits to check every episode against instead of the "
+    'defaults, e.g. {"torque_step": 0.05, "chatter": null} (null: not checked; see '
+    "docs/limits.md)",
+) -> Callable[[F], F]:
+    return click.option(
+        "--limits", "limits_file", type=click.Path(path_type=Path), metavar="FILE", help=help
+    )
+
+
+def limits_from(path: Path | None) -> "Limits":
+    """--limits FILE's limits (the defaults without one), or one line naming the option."""
+    import json
+
+    from pydantic import ValidationError
+
+    from gainfarm.schemas.limits import Limits
+    from gainfarm.schemas.wire import describe
+
+    if path is None:
+        return Limits()
+    try:
+        fields = json.loads(path.read_bytes())
+    except OSError as error:
+        raise CliError(f"--limits: cannot read {str(path)!r}: {error.strerror}") from None
+    except ValueError as error:  # JSONDecodeError, UnicodeDecodeError
+        raise CliError(f"--limits: {str(path)!r} is not JSON ({error})") from None
+    if not isinstance(fields, dict):
+        raise CliError(f"--limits: {str(path)!r} is not a JSON object of limits")
+    try:
+        return Limits.model_validate(fields)
+    except ValidationError as error:
+        raise CliError(f"--limits: {str(path)!r}: {describe(error)}") from None
 
 
 # --- the farm -------------------------------------------------------------------------------------

@@ -21,6 +21,7 @@ from gainfarm.schemas.wire import (
     MAX_MESSAGE_BYTES,
     MAX_SUBMISSION_JOBS,
     MAX_TORQUE_CHANGE,
+    MAX_TORQUE_SHARE,
     MAX_TRACKING_ERROR,
     MESSAGES,
     PROTOCOL_VERSION,
@@ -186,6 +187,9 @@ SCORES = {
     "saturated_fraction": 0.0,
     "diverged": False,
     "ticks": 10,
+    "torque_step": 0.01,
+    "speed": 0.5,
+    "chatter": 0.001,
 }
 
 
@@ -250,6 +254,15 @@ def result_with_scores(**scores: object) -> bytes:
         ({"saturated_fraction": -3}, "scores.saturated_fraction: Input should be greater than"),
         ({"saturated_fraction": 1.01}, "scores.saturated_fraction: Input should be less than"),
         ({"ticks": -5}, "scores.ticks: Input should be greater than or equal to 0"),
+        ({"torque_step": -0.0}, "scores.torque_step: Value error, -0.0 is not a score"),
+        ({"torque_step": 2.0001}, "scores.torque_step: Input should be less than or equal to 2"),
+        ({"speed": -1.0}, "scores.speed: Input should be greater than or equal to 0"),
+        ({"speed": 1000.5}, "scores.speed: Input should be less than or equal to 1000"),
+        ({"speed": "Infinity"}, "scores.speed: Input should be a finite number"),
+        ({"chatter": -0.0}, "scores.chatter: Value error, -0.0 is not a score"),
+        ({"chatter": 2.5}, "scores.chatter: Input should be less than or equal to 2"),
+        ({"chatter": None}, "scores.chatter: Input should be a valid number"),
+        ({"torque_step": None, "speed": None}, "scores.torque_step: Input should be a valid"),
         ({"ticks": 60_002}, "scores.ticks: Input should be less than or equal to 60001"),
         ({"values": [0.1, 1e999]}, "scores.values.1: Input should be a finite number"),
         ({"values": ["NaN", 0.1]}, "scores.values.0: Input should be a finite number"),
@@ -270,6 +283,7 @@ def test_honest_scores_keep_their_json_on_the_wire() -> None:
         scores = Scores(**SCORES, values=values)
         assert WireScores(**scores.model_dump()).model_dump_json() == scores.model_dump_json()
     edge = {"f_acc": 0.0, "f_t": 0.0, "max_error": 0.0, "saturated_fraction": 1.0, "ticks": 0}
+    edge |= {"torque_step": 2.0, "speed": 1000.0, "chatter": 0.0}
     assert decode(Result, result_with_scores(**edge)).scores == WireScores(**{**SCORES, **edge})
 
 
@@ -328,6 +342,18 @@ def test_no_episode_scores_beyond_the_wires_bounds(diverged_log: EpisodeLog) -> 
     assert 0.999 * swing_every_tick < score(worst).f_t <= swing_every_tick < MAX_TORQUE_CHANGE
     assert score(cut).f_t == swing_every_tick
     assert score(worst).max_error == pytest.approx(2 * 0.946)
+    assert score(worst).torque_step == MAX_TORQUE_SHARE  # limit to limit, exactly
+    assert 0.9 < score(worst).chatter <= MAX_TORQUE_SHARE  # all of it above the cut-off
+    assert score(cut).torque_step == score(cut).speed == score(cut).chatter == 0.0
+    assert score(logs[2]).speed > 1 and score(logs[2]).chatter > 0.05  # saturating gains
+
+
+def test_scores_without_the_safety_measures_are_refused_on_the_wire() -> None:
+    """A worker of protocol 6 sent none: this protocol's always measures them."""
+    for name in ("torque_step", "speed", "chatter"):
+        old = {key: value for key, value in SCORES.items() if key != name}
+        with pytest.raises(BadMessage, match=f"^Result: scores.{name}: Field required"):
+            decode(Result, json.dumps({**json.loads(result_with_scores()), "scores": old}).encode())
 
 
 def columns(log: EpisodeLog) -> list[tuple[str, np.ndarray]]:
@@ -411,6 +437,7 @@ def test_the_largest_confirmation_and_its_reply_fit_in_a_message() -> None:
         decode(ConfirmRequest, request.replace(b'"]}', b'","' + b"j" * 64 + b'"]}'))
     tiny = 2.2250738585072014e-308
     worst = {"f_acc": tiny, "f_t": tiny, "max_error": tiny, "saturated_fraction": tiny}
+    worst |= {"torque_step": tiny, "speed": tiny, "chatter": tiny}
     scores = WireScores(**{**SCORES, **worst, "values": (-tiny, -tiny), "ticks": 60_001})
     accepted = [
         Accepted(job_id=name, lease_id="l" * 64, worker="w" * 64, digest="f" * 64, scores=scores)

@@ -54,7 +54,8 @@ def test_the_ideal_plant_reproduces_the_first_waves_episodes_exactly():
         reference = _joint_space_reference(q, arrays[f"ee{i}"])
         gravity = gravity_torques(q, "open") if spec.gravity_compensation else None
         log = simulate(spec, reference, gravity)
-        assert score(log).model_dump(mode="json") == record["scores"], i
+        scores = score(log).model_dump(mode="json")  # and the safety measures, recorded since
+        assert {name: scores[name] for name in record["scores"]} == record["scores"], i
 
 
 def test_coulomb_friction_adds_its_level_to_the_torque_that_moves_a_joint_steadily():

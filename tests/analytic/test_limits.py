@@ -1,0 +1,202 @@
+"""Safety limits as constraints of a run: infeasible candidates never reach the front, the
+records, the report, an export or a dataset; `--limits FILE` decides which are."""
+
+import json
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+from gainfarm.analytic.tuning.checkpoint import decode, encode
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.evolution import ALGORITHMS, Evolution
+from gainfarm.analytic.tuning.records import REPORT_MD, read_front_json, read_run
+from gainfarm.analytic.tuning.run import CHECKPOINT, TuningRun
+from gainfarm.analytic.view.export import BadRun, controller
+from gainfarm.analytic.view.run_report import write_run_report
+from gainfarm.schemas import EpisodeSpec, Scores, TrajectorySpec
+from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
+from gainfarm.schemas.limits import MEASURES, Limits, measures, tally
+from gainfarm.schemas.objectives import score
+from gainfarm.schemas.robot import IDEAL_PLANT
+from gainfarm.worker.episode import run_episode
+from tests.analytic.test_run_directory import one_error_line
+from tests.analytic.toy import toy_scores
+from tests.helpers import analytic
+
+TINY = RunConfig(
+    pop=6, seed=7, trajectories=(TrajectorySpec(kind="fourier", duration=0.5),), generations=4
+)
+
+
+def rough_toy(spec: EpisodeSpec) -> Scores:
+    """The toy's scores, with chatter growing with stiffness, as a real arm's does: the
+    stiffer, the more accurate (the toy's own trade) and the rougher its command; over the
+    limit once a joint is 1.4 times as stiff as the default gains make it."""
+    kp = float(np.max(np.array(spec.gains.kp) / np.array(DEFAULT_GAINS.kp)))
+    return toy_scores(spec).model_copy(update={"chatter": 0.01 * kp**2})
+
+
+def tuned(directory: Path, config: RunConfig = TINY) -> TuningRun:
+    with TuningRun.create(directory, config) as run:
+        run.run(InProcessEvaluator(scorer=rough_toy))
+        write_run_report(run)
+    return run
+
+
+# --- real episodes: the optimiser never keeps a chattering candidate on its front --------------
+
+
+@pytest.fixture(scope="module")
+def real() -> dict[str, Scores]:
+    """A chattering controller (the top of the search space, as accurate as the defaults) and a
+    smooth, soft one (far less accurate), on the ideal plant's real episodes."""
+    gains = {
+        "chattering": PDGains(
+            kp=tuple(3 * k for k in DEFAULT_GAINS.kp), kd=tuple(5 * k for k in DEFAULT_GAINS.kd)
+        ),
+        "soft": PDGains(
+            kp=tuple(0.3 * k for k in DEFAULT_GAINS.kp), kd=tuple(0.5 * k for k in DEFAULT_GAINS.kd)
+        ),
+    }
+    path = TrajectorySpec(kind="fourier", duration=1.5)
+    return {
+        name: score(run_episode(EpisodeSpec(gains=g, trajectory=path, model=IDEAL_PLANT)))
+        for name, g in gains.items()
+    }
+
+
+@pytest.mark.parametrize(
+    "algorithm",
+    # AGE-MOEA-II compiles with numba on first use: 10 s.
+    [pytest.param(a, marks=pytest.mark.slow) if a == "agemoea2" else a for a in ALGORITHMS],
+)
+def test_a_chattering_candidate_is_on_no_front_whatever_the_optimiser(
+    real: dict[str, Scores], algorithm: str
+) -> None:
+    rough, soft = real["chattering"], real["soft"]
+    assert rough.f_acc < soft.f_acc and rough.f_t > soft.f_t  # unconstrained: both on the front
+    limits = Limits()
+    told = {
+        "chattering": ((rough.f_acc, rough.f_t), limits.constraints(measures([rough]))),
+        "soft": ((soft.f_acc, soft.f_t), limits.constraints(measures([soft]))),
+    }
+    for constrained in (False, True):
+        evolution = Evolution(4, 1, algorithm=algorithm, constraints=4 if constrained else 0)
+        for _ in range(2):  # and once more after a checkpoint's round trip
+            asked = evolution.ask()
+            names = ["chattering", "soft"] * (len(asked) // 2)
+            evolution.tell(
+                [told[name][0] for name in names],
+                [told[name][1] for name in names] if constrained else None,
+            )
+            evolution = pickle.loads(pickle.dumps(evolution))
+        on_front = {member.objectives for member in evolution.front()}
+        if constrained:
+            assert on_front == {told["soft"][0]}
+            assert evolution.infeasible == evolution.evaluations // 2
+        else:
+            assert on_front == {told["soft"][0], told["chattering"][0]}
+
+
+# --- a run ----------------------------------------------------------------------------------
+
+
+def test_an_infeasible_candidate_is_on_no_front_and_the_run_says_how_many_and_why(
+    tmp_path: Path,
+) -> None:
+    run = tuned(tmp_path / "run")
+    record = read_run(run.directory)
+    infeasible, why = tally(run.config.limits, record.measured)
+    assert len(record.measured) == len(record.evaluated) == run.state.evolution.evaluations
+    assert infeasible > 0 and why["chatter"] == infeasible  # the toy breaks chatter alone
+    front = read_front_json(run.directory / "front.json")
+    assert front and all(not run.config.limits.violated(m.measures) for m in front)
+    lines = (run.directory / "evaluated.csv").read_text().splitlines()
+    assert lines[0].split(",") == ["f_acc", "f_t", *MEASURES, "feasible"]
+    assert sum(line.endswith(",false") for line in lines[1:]) == infeasible
+    report = (run.directory / REPORT_MD).read_text()
+    assert f"{infeasible} of {len(lines) - 1} candidates broke a safety limit (chatter " in report
+    exported = controller(run.directory)
+    assert exported.limits == run.config.limits
+    assert exported.member.measures is not None
+    assert exported.member.measures["chatter"] <= run.config.limits.chatter
+
+
+def test_limits_from_the_config_decide_the_front(tmp_path: Path) -> None:
+    """Without the chatter limit, the most accurate (stiffest) candidates chatter and take the
+    front; with it they are gone."""
+    free = tuned(tmp_path / "free", TINY.model_copy(update={"limits": Limits(chatter=None)}))
+    bound = tuned(tmp_path / "bound")
+    chatter = MEASURES.index("chatter")
+    assert max(m.measures[chatter] for m in free.front()) > Limits().chatter
+    assert max(m.measures[chatter] for m in bound.front()) <= Limits().chatter
+    assert free.front() != bound.front()
+    assert json.loads((tmp_path / "free" / "config.json").read_text())["limits"]["chatter"] is None
+
+
+def test_a_run_nothing_of_which_keeps_the_limits_has_an_empty_front_and_says_so(
+    tmp_path: Path,
+) -> None:
+    run = tuned(tmp_path / "run", TINY.model_copy(update={"limits": Limits(chatter=1e-9)}))
+    assert run.front() == [] and run.state.stopped == "4 generations"
+    assert read_run(run.directory).front == []
+    assert "none met them all: the front is empty" in (run.directory / REPORT_MD).read_text()
+    with pytest.raises(BadRun, match="empty front: no candidate has kept to the safety limits"):
+        controller(run.directory)
+
+
+def test_a_checkpoint_from_before_the_limits_resumes(tmp_path: Path) -> None:
+    """Its state lacks every constraint and measure: its points count as within the limits,
+    and the run goes on to the same end as one that never stopped."""
+    whole = tuned(tmp_path / "whole")
+    # Stopped after 2 generations, as an older gainfarm would have left it.
+    config = TINY.model_copy(update={"generations": 2})
+    with TuningRun.create(tmp_path / "old2", config) as run:
+        run.run(InProcessEvaluator(scorer=toy_scores))  # its scores never measured anything
+    path = tmp_path / "old2" / CHECKPOINT
+    state = decode(path.read_bytes(), path, run.identity, config.algorithm)
+    del state.__dict__["measured"]
+    evolution = state.evolution
+    for name in ("_seen_g", "constraints", "_ranks_feasibility"):
+        del evolution.__dict__[name]
+    evolution.algorithm.problem.n_ieq_constr = 0
+    state.stopped = None
+    path.write_bytes(encode(pickle.loads(pickle.dumps(state)), run.identity))
+    (tmp_path / "old2" / "config.json").write_text(TINY.model_dump_json())
+    with TuningRun.open(tmp_path / "old2") as resumed:
+        assert resumed.state.measured == [(0.0,) * 4] * 12
+        resumed.run(InProcessEvaluator(scorer=rough_toy))
+        assert resumed.state.stopped == whole.state.stopped == "4 generations"
+        assert len(resumed.state.measured) == resumed.state.evolution.evaluations == 24
+        assert all(not resumed.config.limits.violated(m.measures) for m in resumed.front())
+
+
+# --- --limits FILE ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("content", "says"),
+    [
+        (None, "cannot read"),
+        ("{not json", "is not JSON"),
+        ("[0.1]", "is not a JSON object of limits"),
+        ('{"chatter": -1}', "chatter: Input should be greater than 0"),
+        ('{"jerk": 1}', "jerk: Extra inputs are not permitted"),
+    ],
+)
+def test_a_bad_limits_file_is_one_line_naming_the_option(
+    tmp_path: Path, content: str | None, says: str
+) -> None:
+    file = tmp_path / "limits.json"
+    if content is not None:
+        file.write_text(content)
+    for command in (["start"], ["experiment", "popsize", "--out", str(tmp_path / "x")]):
+        result = analytic(*command, "--limits", str(file), cwd=tmp_path)
+        assert result.returncode != 0
+        line = one_error_line(result.stderr)
+        assert line.startswith("analytic: error: --limits: ") and says in line, line
+    written = ["limits.json"] if content is not None else []
+    assert sorted(path.name for path in tmp_path.iterdir()) == written  # no run, no experiment
