@@ -41,7 +41,7 @@ from gainfarm.schemas.robot import PLANTS, ModelSpec
 MEMBERS = ("recommended", "knee", "accurate", "smooth")
 FORMATS = ("json", "yaml", "ros2_control")
 RULES = {
-    "recommended": "the knee of the members that dominate the default gains on the run's "
+    "recommended": "the knee among the members that dominate the default gains on the run's "
     "trajectories (baseline.json)",
     "knee": "the knee: least worse normalised objective (pymoo ASF, equal weights; both "
     "objectives on a log scale, normalised between the front's ideal and nadir)",
@@ -81,8 +81,8 @@ def pick(front: Sequence[FrontMember], which: str, baseline: Baseline | None = N
         if baseline is None:
             raise BadMember(
                 "recommended (the default) compares the front with the default gains' scores, "
-                f"and the run has no {BASELINE_JSON} (a run stopped before it scored them); "
-                f"name one: {others}"
+                f"and the run has no {BASELINE_JSON} of them (stopped before it scored them, or "
+                f"scored before they changed); name one: {others}"
             )
         raise BadMember(
             "recommended (the default): no member of the front dominates the default gains "

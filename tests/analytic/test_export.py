@@ -259,7 +259,11 @@ def test_exporting_what_is_not_recommended_is_one_line_naming_the_closest_member
     hand_made: Path,
 ) -> None:
     for baseline, says in [
-        (None, "the run has no baseline.json (a run stopped before it scored them); name one: "),
+        (
+            None,
+            "the run has no baseline.json of them (stopped before it scored them, or scored before "
+            "they changed); name one: knee, accurate, smooth or a row of front.csv (1-4)",
+        ),
         (
             defaults_at(0.004, 0.05),
             "no member of the front dominates the default gains (4.000 mm, f_t 0.05 (N·m)²), so "
