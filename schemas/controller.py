@@ -36,7 +36,7 @@ class Member(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    selected: str = Field(description="knee, accurate, smooth, or row N")
+    selected: str = Field(description="recommended, knee, accurate, smooth, or row N")
     row: int = Field(
         ge=1, description="its row in the run's front.csv (1 is the first after the header)"
     )

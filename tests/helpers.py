@@ -3,6 +3,7 @@
 import dataclasses
 import hashlib
 import os
+import re
 import subprocess
 import sys
 import time
@@ -249,3 +250,31 @@ def analytic(*arguments: str, cwd: Path) -> subprocess.CompletedProcess[str]:
         timeout=300,
         env={**os.environ, "COLUMNS": "200"},
     )
+
+
+def ends_with_closing_lines(lines: list[str], run_dir: Path) -> int:
+    """Assert that `lines` (a command's standard error) end as `analytic start` and `resume` end
+    a run, saying what its report.md's first line says: the controller to use and how to export
+    it, or that none beats the default gains, the closest and where to read more. Returns how
+    many closing lines there are."""
+    verdict = (run_dir / "report.md").read_text(encoding="utf-8").splitlines()[2]
+    scores = r"\(([\d.]+) mm, f_t (\S+) \(N·m\)²\)"
+    if used := re.match(rf"\*\*Use front\.csv row (\d+)\*\* {scores}", verdict):
+        row, error, smoothness = used.groups()
+        expected = [
+            f"controller to use: row {row} of front.csv: {error} mm, f_t {smoothness} (N·m)²",
+            f"its gains: analytic export {run_dir.name}",
+        ]
+    else:
+        closest = re.search(rf"Closest to dominating them: row (\d+) {scores}", verdict)
+        assert verdict.startswith("**No member of the front dominates") and closest, verdict
+        row, error, smoothness = closest.groups()
+        expected = [
+            "controller to use: none, no member beats the default gains",
+            f"closest to them: row {row} of front.csv: {error} mm, f_t {smoothness} (N·m)²",
+            f"what to do: {run_dir.name}/report.md",
+        ]
+    # A member sharing its scores, or diverged, says so after them.
+    closing = lines[-len(expected) :]
+    assert all(line.startswith(want) for line, want in zip(closing, expected, strict=True)), lines
+    return len(expected)

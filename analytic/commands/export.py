@@ -18,11 +18,12 @@ def _formats() -> tuple[str, ...]:
 @click.argument("run_dir", metavar="RUN", type=click.Path(path_type=Path))
 @click.option(
     "--member",
-    default="knee",
+    default="recommended",
     show_default=True,
-    metavar="knee|accurate|smooth|N",
-    help="which front member: the knee (the best compromise), the most accurate, the "
-    "smoothest, or row N of front.csv (the report's #)",
+    metavar="recommended|knee|accurate|smooth|N",
+    help="which front member: the recommended one (the best compromise among those that "
+    "dominate the default gains; refused if none does), the knee (the best compromise of the "
+    "whole front), the most accurate, the smoothest, or row N of front.csv (the report's #)",
 )
 @click.option(
     "--format",

@@ -170,6 +170,7 @@ def run_with_progress(
     from gainfarm import plugins
     from gainfarm.analytic.compose import TuningInterrupted
     from gainfarm.analytic.evaluators.farm import FarmUnavailable
+    from gainfarm.analytic.tuning.records import REPORT_MD
     from gainfarm.analytic.view.export import describe_pick, picks
     from gainfarm.analytic.view.progress import Display, RunDisplay
     from gainfarm.analytic.view.run_report import limits_line
@@ -231,10 +232,23 @@ def run_with_progress(
         err=True,
     )
     click.echo(f"front, history, figures and report in {run.directory}/", err=True)
-    chosen = picks(run.front())
-    if chosen:  # last, what to do next; each line within 80 columns for a short run directory
-        click.echo(f"controller to use: {describe_pick(chosen[0])}", err=True)
+    chosen = picks(run.front(), run.baseline())
+    if not chosen:
+        return
+    # Last, what to do next, as report.md's first line says; each line within 80 columns for a
+    # short run directory.
+    verdict = chosen[0]
+    if verdict.name == "recommended":
+        click.echo(f"controller to use: {describe_pick(verdict)}", err=True)
         click.echo(f"its gains: analytic export {run.directory}", err=True)
+        return
+    if verdict.name == "closest":
+        click.echo("controller to use: none, no member beats the default gains", err=True)
+        click.echo(f"closest to them: {describe_pick(verdict)}", err=True)
+    else:  # the run has no baseline.json
+        click.echo("controller to use: unknown, the default gains were not scored", err=True)
+        click.echo(f"the knee: {describe_pick(verdict)}", err=True)
+    click.echo(f"what to do: {run.directory}/{REPORT_MD}", err=True)
 
 
 def _workers(farm: "Evaluator") -> int | None:

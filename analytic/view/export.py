@@ -1,13 +1,14 @@
 """The controller to use from a run, and the files that carry it out of the run.
 
-A run's front offers many controllers; `picks` names three: the knee (the best compromise), the
-most accurate and the smoothest. `controller` makes any member a `schemas.controller.Controller`
+A run's front offers many controllers; `picks` names them: the recommended member (the best
+compromise among those that dominate the default gains: what `controller` takes unless told
+otherwise), the knee (the best compromise of the whole front), the most accurate and the
+smoothest. `controller` makes any member a `schemas.controller.Controller`
 (gains, joints, units, objectives, provenance) and `render` writes it as JSON (what `analytic
 batch --gains` and `worker episode --gains` read), as the same document in YAML, or as a
 ros2_control parameter file.
 
-The knee and the other picks are gainfarm.analytic.tuning.picks' (one rule for every reader
-of a run).
+The picks are gainfarm.analytic.tuning.picks' (one rule for every reader of a run).
 """
 
 import hashlib
@@ -20,12 +21,15 @@ from pydantic import ValidationError
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.picks import Pick, pick_at, picks
 from gainfarm.analytic.tuning.records import (
+    BASELINE_JSON,
     CONFIG_JSON,
     FRONT_CSV,
     FRONT_JSON,
     HISTORY_CSV,
     RUN_JSON,
+    Baseline,
     FrontMember,
+    read_baseline,
     read_front,
     read_front_json,
     read_history,
@@ -33,12 +37,15 @@ from gainfarm.analytic.tuning.records import (
     sorted_front,
 )
 from gainfarm.schemas.controller import Controller, Member, Source
+from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.limits import MEASURES
 from gainfarm.schemas.robot import PLANTS, ModelSpec
 
-MEMBERS = ("knee", "accurate", "smooth")
+MEMBERS = ("recommended", "knee", "accurate", "smooth")
 FORMATS = ("json", "yaml", "ros2_control")
 RULES = {
+    "recommended": "the knee among the members that dominate the default gains on the run's "
+    "trajectories (baseline.json)",
     "knee": "the knee: least worse normalised objective (pymoo ASF, equal weights; both "
     "objectives on a log scale, normalised between the front's ideal and nadir)",
     "accurate": "the most accurate member (smallest f_acc)",
@@ -65,17 +72,31 @@ def plant_name(model: ModelSpec) -> str:
     return "custom"
 
 
-def pick(front: Sequence[FrontMember], which: str) -> Pick:
-    """The member `which` names: knee, accurate, smooth, or a row of front.csv (1-based)."""
+def pick(front: Sequence[FrontMember], which: str, baseline: Baseline | None = None) -> Pick:
+    """The member `which` names: recommended (beside the default gains' `baseline`), knee,
+    accurate, smooth, or a row of front.csv (1-based). BadMember if there is none such."""
     front = sorted_front(front)
+    others = f"knee, accurate, smooth or a row of front.csv (1-{len(front)})"
     if which in MEMBERS:
-        return next(p for p in picks(front) if p.name == which)
+        named = {chosen.name: chosen for chosen in picks(front, baseline)}
+        if which in named:
+            return named[which]
+        if baseline is None:
+            raise BadMember(
+                "recommended (the default) compares the front with the default gains' scores, "
+                f"and the run has no {BASELINE_JSON} of them (stopped before it scored them, or "
+                f"scored before they changed); name one: {others}"
+            )
+        raise BadMember(
+            "recommended (the default): no member of the front dominates the default gains "
+            f"({baseline.f_acc * 1000:.3f} mm, f_t {baseline.f_t:.4g} (N·m)²), so none is "
+            f"recommended (closest: row {named['closest'].row}, report.md); keep the default "
+            f"gains, run longer, or name one: {others}"
+        )
     try:
         row = int(which)
     except ValueError:
-        raise BadMember(
-            f"expected knee, accurate, smooth or a row of front.csv (1-{len(front)}), got {which!r}"
-        ) from None
+        raise BadMember(f"expected recommended, {others}, got {which!r}") from None
     if not 1 <= row <= len(front):
         raise BadMember(
             f"row {row} is out of range: front.csv has {len(front)} members (1-{len(front)})"
@@ -83,7 +104,17 @@ def pick(front: Sequence[FrontMember], which: str) -> Pick:
     return pick_at(front, "row", row - 1)
 
 
-def controller(directory: Path, which: str = "knee") -> Controller:
+def baseline_of(directory: Path) -> Baseline | None:
+    """The default gains' scores in the run at `directory` (baseline.json); None if it has none,
+    or one that is unreadable or of other gains (a run's `baseline` would score them again)."""
+    try:
+        found = read_baseline(Path(directory) / BASELINE_JSON)
+    except (OSError, ValueError):
+        return None
+    return found if found.gains == DEFAULT_GAINS else None
+
+
+def controller(directory: Path, which: str = "recommended") -> Controller:
     """Front member `which` of the run in `directory` as a Controller. BadRun if the directory
     holds no run or no front yet, BadMember if `which` names no member."""
     directory = Path(directory)
@@ -108,7 +139,7 @@ def controller(directory: Path, which: str = "knee") -> Controller:
                 "limits yet (report.md says which ones they broke)"
             )
         raise BadRun(f"{str(directory)!r} has no front yet: no generation has finished")
-    chosen = pick(front, which)
+    chosen = pick(front, which, baseline_of(directory))
     member = chosen.member
     measured = _measures(directory, member)
     if measured and config.limits.violated(measured):  # a front from before the limits
@@ -247,20 +278,12 @@ def point_groups(
     return [(first + 1, count) for first, count in groups]
 
 
-PICK_TEXT = {
-    "knee": "the knee",
-    "accurate": "the most accurate member",
-    "smooth": "the smoothest member",
-    "row": "the member",
-}
-
-
 def describe_pick(chosen: Pick) -> str:
-    """A pick in one line: 'the knee (front.csv row 12): 12.345 mm, f_t 0.0301 (N·m)²'."""
+    """A pick in one short line: 'row 12 of front.csv: 12.345 mm, f_t 0.0301 (N·m)²'."""
     member = chosen.member
     shared = f", one of {chosen.sharing} members with these scores" if chosen.sharing > 1 else ""
     diverged = " (diverged: a penalty, not a measurement)" if member.diverged else ""
     return (
-        f"{PICK_TEXT[chosen.name]} (front.csv row {chosen.row}): {member.f_acc * 1000:.3f} mm, "
+        f"row {chosen.row} of front.csv: {member.f_acc * 1000:.3f} mm, "
         f"f_t {member.f_t:.4g} (N·m)²{shared}{diverged}"
     )

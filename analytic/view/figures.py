@@ -39,12 +39,17 @@ def save_png(figure: Figure, path: Path) -> None:
     write_atomically(Path(path), buffer.getvalue())
 
 
-# How each pick is marked on a run's Pareto figure (analytic.export.picks names them).
+# How each pick is marked on a run's Pareto figure (analytic.tuning.picks names them): largest
+# first and drawn first, so that picks of one member show as markers one inside the other.
 PICK_STYLES = {
-    "knee": ("*", 260, "gold", "knee (the controller to use)"),
-    "accurate": ("^", 110, "tab:blue", "most accurate"),
-    "smooth": ("s", 90, "tab:green", "smoothest"),
+    "recommended": ("*", 420, "gold", "recommended (use this)"),
+    "closest": ("P", 300, "darkorange", "closest to dominating the defaults"),
+    "knee": ("D", 170, "tab:purple", "knee of the whole front"),
+    "accurate": ("^", 90, "tab:blue", "most accurate"),
+    "smooth": ("s", 30, "tab:green", "smoothest"),
 }
+MARGIN = 0.08  # of the view's span, either side
+LOG_MARGIN = 0.15  # decades of f_t, at least, either side
 
 
 def plot_pareto(
@@ -59,6 +64,12 @@ def plot_pareto(
     save_png(pareto_figure(front, evaluated, title, picks, baseline), path)
 
 
+def _span(low: float, high: float, least: float) -> tuple[float, float]:
+    """[low, high] widened by MARGIN of its span either side, and by at least `least`."""
+    margin = max(MARGIN * (high - low), least)
+    return low - margin, high + margin
+
+
 def pareto_figure(
     front: Sequence[FrontMember],
     evaluated: Sequence[tuple[float, float]] = (),
@@ -66,43 +77,52 @@ def pareto_figure(
     picks: Sequence[Pick] = (),
     baseline: Baseline | None = None,
 ) -> Figure:
-    """Every evaluation (f_acc, f_t) in light grey with the front on top; the `picks` (knee,
-    most accurate, smoothest) marked and labelled with their front.csv rows, and the default
-    gains' point (`baseline`) as a black cross, unless it diverged (a penalty, named in a note).
+    """Every evaluation (f_acc, f_t) in light grey with the front on top; the `picks`
+    (recommended or closest, knee, most accurate, smoothest) marked and labelled with their
+    front.csv rows, and the default gains' point (`baseline`) as a black cross, unless it
+    diverged (a penalty, named in a note).
 
-    f_acc is drawn in mm; f_t on a log axis, since a run's f_t spans orders of magnitude (a
-    diverged episode is charged the worst torque change for every tick it missed). A log axis
-    cannot show f_t ≤ 0, so such points are drawn on the axis floor, a decade below the smallest
-    positive value, and counted in a note; points with a non-finite objective are left out and
-    counted too. The front is joined by a step line sorted by f_acc: the boundary of what it
-    dominates, so a gap in the front shows as a long flat step.
+    The view is the front's: its measured members (not the penalty points of diverged ones),
+    the picks and the default gains, with a margin. What else was evaluated (a chattering or a
+    soft candidate far off) would squash the front into a corner, so it is left out of the view
+    and counted in a note. f_acc is drawn in mm; f_t on a log axis, since a front's f_t spans
+    orders of magnitude. A log axis cannot show f_t ≤ 0, so such points are drawn on the axis
+    floor, a decade below the smallest positive value, and counted in a note; points with a
+    non-finite objective are left out and counted too. The front is joined by a step line
+    sorted by f_acc: the boundary of what it dominates, so a gap in the front shows as a long
+    flat step. The legend sits below the axes, where it covers no point.
     """
     cloud = [(float(f_acc), float(f_t)) for f_acc, f_t in evaluated]
-    members = [(member.f_acc, member.f_t) for member in sorted_front(front)]
+    ordered = sorted_front(front)
+    members = [(member.f_acc, member.f_t) for member in ordered]
     reference = [baseline.objectives] if baseline is not None and not baseline.diverged else []
 
-    finite = [
-        (f_acc, f_t)
-        for f_acc, f_t in cloud + members + reference
-        if math.isfinite(f_acc) and math.isfinite(f_t)
-    ]
-    positive = [f_t for _, f_t in finite if f_t > 0]
+    def finite(points: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
+        return [(x, y) for x, y in points if math.isfinite(x) and math.isfinite(y)]
+
+    drawn = finite(cloud + members + reference)
+    positive = [f_t for _, f_t in drawn if f_t > 0]
     log_scale = bool(positive)
     floor = min(positive) / 10 if positive else 0.0
     notes = []
-    if dropped := len(cloud) + len(members) + len(reference) - len(finite):
+    if dropped := len(cloud) + len(members) + len(reference) - len(drawn):
         notes.append(f"{dropped} point(s) with a non-finite objective not drawn")
-    if log_scale and (clipped := sum(1 for _, f_t in finite if f_t <= 0)):
+    if log_scale and (clipped := sum(1 for _, f_t in drawn if f_t <= 0)):
         notes.append(f"{clipped} point(s) with f_t ≤ 0 drawn at the axis floor")
     if baseline is not None and baseline.diverged:
         notes.append("default gains diverged: their penalty point is not drawn")
 
-    def drawable(points: list[tuple[float, float]]) -> tuple[list[float], list[float]]:
-        kept = [(x, y) for x, y in points if math.isfinite(x) and math.isfinite(y)]
+    def drawable(points: Sequence[tuple[float, float]]) -> tuple[list[float], list[float]]:
+        kept = finite(points)
         return (
             [x * 1000.0 for x, _ in kept],
             [max(y, floor) if log_scale else y for _, y in kept],
         )
+
+    measured = [(m.f_acc, m.f_t) for m in ordered if not m.diverged]
+    view_x, view_y = drawable(
+        (measured or members) + reference + [chosen.member.objectives for chosen in picks]
+    )
 
     figure = new_figure()
     axes = figure.add_subplot()
@@ -121,7 +141,19 @@ def pareto_figure(
         label=f"Pareto front ({len(members)})",
         zorder=3,
     )
-    for chosen in picks:
+    if reference:
+        x, y = drawable(reference)
+        axes.scatter(
+            x,
+            y,
+            marker="X",
+            s=110,
+            color="black",
+            label=f"default gains: {reference[0][0] * 1000:.2f} mm, {reference[0][1]:.3g}",
+            zorder=4,
+        )
+    rows: dict[int, list[str]] = {}
+    for order, chosen in enumerate(sorted(picks, key=lambda p: list(PICK_STYLES).index(p.name))):
         marker, size, colour, name = PICK_STYLES[chosen.name]
         x, y = drawable([chosen.member.objectives])
         axes.scatter(
@@ -134,37 +166,54 @@ def pareto_figure(
             linewidth=0.8,
             label=f"{name}: row {chosen.row}, {chosen.member.f_acc * 1000:.2f} mm, "
             f"{chosen.member.f_t:.3g}",
-            zorder=5,
+            zorder=5 + order,
         )
-    if reference:
-        x, y = drawable(reference)
-        axes.scatter(
-            x,
-            y,
-            marker="X",
-            s=110,
-            color="black",
-            label=f"default gains: {reference[0][0] * 1000:.2f} mm, {reference[0][1]:.3g}",
-            zorder=4,
+        if x:
+            rows.setdefault(chosen.row, [x[0], y[0]])
+    for row, (x, y) in rows.items():  # one label a member, however many picks it is
+        axes.annotate(
+            f"row {row}",
+            (x, y),
+            xytext=(9, 7),
+            textcoords="offset points",
+            fontsize=8,
+            zorder=10,
         )
     if log_scale:
         axes.set_yscale("log")
+    if view_x:
+        low, high = _span(min(view_x), max(view_x), 0.05 * max(view_x) or 1.0)
+        axes.set_xlim(max(low, 0.0) if min(view_x) > 0 else low, high)  # no error below 0 mm
+        if log_scale:
+            low, high = _span(math.log10(min(view_y)), math.log10(max(view_y)), LOG_MARGIN)
+            axes.set_ylim(10**low, 10**high)
+        else:
+            axes.set_ylim(*_span(min(view_y), max(view_y), 0.05 * max(view_y) or 1.0))
+        (x_low, x_high), (y_low, y_high) = axes.get_xlim(), axes.get_ylim()
+        outside = sum(
+            1
+            for x, y in zip(cloud_x, cloud_y, strict=True)
+            if not (x_low <= x <= x_high and y_low <= y <= y_high)
+        )
+        if outside:
+            notes.append(f"{outside} evaluated point(s) outside the view")
     axes.set_xlabel("f_acc: mean end-effector error (mm)")
     axes.set_ylabel("f_t: mean squared torque change per tick ((N·m)²)")
     axes.set_title(title or "Pareto front", fontsize=10)
     axes.grid(True, which="major", alpha=0.3)
-    axes.legend(loc="upper right", fontsize=8)
-    if notes:  # top left: the front lies low and the legend sits top right
+    if axes.get_legend_handles_labels()[0]:
+        figure.legend(loc="outside lower center", ncols=2, fontsize=8)
+    if notes:  # bottom left: the ideal corner, where no point of the front can be
         axes.text(
             0.01,
-            0.99,
+            0.01,
             "\n".join(notes),
             transform=axes.transAxes,
-            va="top",
+            va="bottom",
             fontsize=8,
             color="0.3",
         )
-    if not finite:
+    if not drawn:
         axes.text(0.5, 0.5, "no evaluations yet", transform=axes.transAxes, ha="center")
     return figure
 

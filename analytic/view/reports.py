@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.picks import dominating, shortfall
 from gainfarm.analytic.tuning.records import (
     FRONT_CSV,
     HISTORY_CSV,
@@ -140,27 +141,88 @@ def front_table_row(rank: int, member: FrontMember, count: int = 1) -> str:
     return f"| {rank} | {_error(member)} | {member.f_t:.4g} | {rows} | {gains_text(member)} |"
 
 
-PICK_NAMES = {"knee": "**knee** (use this)", "accurate": "most accurate", "smooth": "smoothest"}
+PICK_NAMES = {
+    "recommended": "**recommended** (use this)",
+    "closest": "closest to dominating the defaults (not recommended)",
+    "knee": "knee of the whole front",
+    "accurate": "most accurate",
+    "smooth": "smoothest",
+}
+DOMINATING_SHOWN = 10  # the members listed as dominating the defaults; the rest are counted
 
 
-def _dominates(a: tuple[float, float], b: tuple[float, float]) -> bool:
-    return a[0] <= b[0] and a[1] <= b[1] and a != b
+def _scores(objectives: tuple[float, float]) -> str:
+    return f"{objectives[0] * 1000:.3f} mm, f_t {objectives[1]:.4g} (N·m)²"
 
 
-def baseline_text(front: Sequence[FrontMember], baseline: Baseline, knee: FrontMember) -> str:
-    """How the front fares against the default gains, in one sentence."""
-    if baseline.diverged:
-        return "The default gains diverged on these trajectories: their scores are a penalty."
-    better = sum(
-        1 for m in front if not m.diverged and _dominates(m.objectives, baseline.objectives)
+def verdict_text(picks: Sequence[Pick], baseline: Baseline | None) -> str:
+    """The report's first line: which member to use and why, or that none is recommended, what
+    to do instead and which member comes closest (`picks`: `analytic.tuning.picks.picks` given
+    `baseline`)."""
+    verdict = picks[0]
+    member = verdict.member
+    if verdict.name == "recommended" and baseline is not None and baseline.diverged:
+        return (
+            f"**Use front.csv row {verdict.row}** ({_scores(member.objectives)}): the default "
+            "gains diverged on the run's trajectories, so every member that finished its "
+            "episodes beats them, and this is the knee among those."
+        )
+    if verdict.name == "recommended" and baseline is not None:
+        return (
+            f"**Use front.csv row {verdict.row}** ({_scores(member.objectives)}): it dominates "
+            f"the default gains ({_scores(baseline.objectives)}) on the run's trajectories, as "
+            "accurate and as smooth and better in one, and is the knee among the members that do."
+        )
+    if verdict.name == "closest" and baseline is not None:
+        return (
+            "**No member of the front dominates the default gains** "
+            f"({_scores(baseline.objectives)}) on the run's trajectories, so none is "
+            "recommended: keep the default gains, or run longer (more evaluations, a larger "
+            f"population). Closest to dominating them: row {verdict.row} "
+            f"({_scores(member.objectives)}), whose worse objective is "
+            f"{10 ** shortfall(member, baseline):.3g} times the defaults' (the least of any "
+            "member)."
+        )
+    return (
+        "**The default gains were not scored for this run** (no baseline.json), so no member is "
+        f"known to beat them and none is recommended; the knee of the front is row {verdict.row}."
     )
-    text = (
-        f"{better} of the front's {len(front)} members dominate the default gains (as accurate "
-        "and as smooth, and better in one)"
+
+
+def dominating_text(
+    front: Sequence[FrontMember], baseline: Baseline, picks: Sequence[Pick]
+) -> list[str]:
+    """The members that dominate the default gains, the first `DOMINATING_SHOWN` as a table and
+    the rest counted; and whether the knee of the whole front is one of them."""
+    members = sorted_front(front)
+    rows = dominating(members, baseline)
+    if not rows:
+        return []
+    whom = (
+        "finish their episodes, which the default gains did not"
+        if baseline.diverged
+        else "dominate the default gains"
     )
-    if _dominates(baseline.objectives, knee.objectives):
-        text += "; the default gains dominate the knee: the run has not beaten them there yet"
-    return text + "."
+    lines = [
+        f"{len(rows)} of the front's {len(members)} members {whom}:",
+        "",
+        "| front.csv row | f_acc (mm) | f_t ((N·m)²) |",
+        "|---:|---:|---:|",
+        *(
+            f"| {i + 1} | {_error(members[i])} | {members[i].f_t:.4g} |"
+            for i in rows[:DOMINATING_SHOWN]
+        ),
+    ]
+    if rest := rows[DOMINATING_SHOWN:]:
+        lines += ["", f"and {len(rest)} more, between rows {rest[0] + 1} and {rest[-1] + 1}."]
+    knee = next((chosen for chosen in picks if chosen.name == "knee"), None)
+    if knee is not None and knee.row - 1 not in rows:
+        lines += [
+            "",
+            f"The knee of the whole front (row {knee.row}) is not one of them: it gives up "
+            "accuracy or smoothness against the default gains.",
+        ]
+    return lines
 
 
 def controllers_section(
@@ -169,9 +231,10 @@ def controllers_section(
     run_dir: str = "RUN",
     front: Sequence[FrontMember] = (),
 ) -> list[str]:
-    """The report's answer to "which controller?": the knee, the most accurate and the
-    smoothest member with their gains, beside the default gains and how the front fares
-    against them; how the knee is chosen, and how to take it out of the run."""
+    """The report's answer to "which controller?": the recommended member (or the one closest
+    to it), the knee, the most accurate and the smoothest member with their gains, beside the
+    default gains; the members that dominate the defaults; how the picks are chosen, and how to
+    take one out of the run. `picks` are `analytic.tuning.picks.picks(front, baseline)`."""
     lines = ["## The controller to use", ""]
     if not picks:
         return [*lines, "No front yet.", ""]
@@ -194,20 +257,31 @@ def controllers_section(
             f"{' '.join(f'{g:.4g}' for g in baseline.gains.kp)} | "
             f"{' '.join(f'{g:.4g}' for g in baseline.gains.kd)} |"
         )
+    if baseline is not None and baseline.diverged:
+        lines += [
+            "",
+            "The default gains diverged on these trajectories: their scores are a penalty.",
+        ]
     if baseline is not None and front:
-        lines += ["", baseline_text(front, baseline, picks[0].member)]
+        lines += ["", *dominating_text(front, baseline, picks)]
     lines += [
         "",
-        "The knee is the member whose worse objective is the least bad once both are taken on a "
-        "log scale (a front spans decades in each) and normalised between the front's ideal and "
-        "nadir points: the minimum of pymoo's achievement scalarisation function with equal "
-        "weights, ties to the lowest row; diverged members are never picked unless all are. It "
-        "gives up neither accuracy nor smoothness for the other.",
+        "The knee is the member whose worse objective is the least bad once both are taken on "
+        "a log scale (a front spans decades in each) and normalised between the front's ideal "
+        "and nadir points: the minimum of pymoo's achievement scalarisation function with equal "
+        "weights, ties to the lowest row; it gives up neither accuracy nor smoothness for the "
+        "other. The recommended member is the knee among the members that dominate the default "
+        "gains (as accurate and as smooth on the run's trajectories, scored as the run scored "
+        "every candidate, and better in one): of those, the one that measure ranks best, so "
+        "the knee itself whenever it dominates them. When no member dominates the defaults, "
+        "the closest to dominating them is the one whose worse objective is the smallest "
+        "multiple of the defaults'. Diverged members are never picked unless all are.",
         "",
-        f"Take it out of the run: `analytic export {run_dir}` writes its gains as JSON (which "
-        "`analytic batch --gains` and `worker episode --gains` read); `--format ros2_control` "
-        "as a ros2_control controller configuration; `--member accurate|smooth|N` another "
-        "member (N: its front.csv row).",
+        f"Take it out of the run: `analytic export {run_dir}` writes the recommended member's "
+        "gains as JSON (which `analytic batch --gains` and `worker episode --gains` read), and "
+        "refuses when none is recommended; `--format ros2_control` as a ros2_control controller "
+        "configuration; `--member knee|accurate|smooth|N` another member (N: its front.csv "
+        "row).",
         "",
         UNITS_LINE,
         "",
@@ -229,7 +303,8 @@ def report_markdown(
 ) -> str:
     """The text of report.md (see `write_report`)."""
     lines = [f"# {title}", ""]
-    if picks:
+    if picks:  # first the verdict: what to use, or that nothing here beats the defaults
+        lines += [verdict_text(picks, baseline), ""]
         lines += controllers_section(picks, baseline, run_dir, front)
     lines += ["## Configuration", ""]
     lines += [f"- {line}" for line in config_lines] or ["- (none given)"]
@@ -300,9 +375,10 @@ def write_report(
     run_dir: str = "RUN",
     validation: ValidationRecord | None = None,
 ) -> None:
-    """A short report.md at `path`: the controller to use (`picks`, beside the default gains'
-    `baseline`; `run_dir` for the export command it shows), configuration, summary, the front
-    as a table (members with identical scores on one line), the figures.
+    """A short report.md at `path`: first the verdict (the recommended member, or that none
+    dominates the default gains), then the controller to use (`picks`, computed beside the
+    default gains' `baseline`; `run_dir` for the export command it shows), configuration,
+    summary, the front as a table (members with identical scores on one line), the figures.
 
     `converged` is the caller's one-line verdict on why the run stopped (or that it has not),
     e.g. "converged after 240 evaluations (hypervolume gain < 0.1% over 3 generations)". The

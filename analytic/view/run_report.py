@@ -17,12 +17,13 @@ from gainfarm.schemas.limits import MEASURES, UNITS, Limits, tally
 
 
 def write_run_report(run: TuningRun) -> None:
-    """`run`'s figures and report.md: its front with the knee, the most accurate and the
-    smoothest member marked, beside the default gains if they were evaluated (baseline.json).
-    The run must be open: its directory is written."""
+    """`run`'s figures and report.md: its front with the recommended member (or the one closest
+    to dominating the default gains), the knee, the most accurate and the smoothest member
+    marked, beside the default gains if they were evaluated (baseline.json). The run must be
+    open: its directory is written."""
     run.check_open()
-    front, title = run.front(), run_title(run.config)
-    chosen, baseline = picks(front), run.baseline()
+    front, title, baseline = run.front(), run_title(run.config), run.baseline()
+    chosen = picks(front, baseline)
     limits = run.config.limits
     plot_pareto(
         run.directory / PARETO_PNG,

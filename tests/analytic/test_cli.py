@@ -19,7 +19,7 @@ from gainfarm.analytic.evaluators.local import free_port, spawn_worker, stop_wor
 from gainfarm.analytic.tuning.records import FRONT_FIELDS, read_front_json
 from gainfarm.broker.service import Broker
 from gainfarm.cli import interrupts
-from tests.helpers import analytic, crafted_log, write_log
+from tests.helpers import analytic, crafted_log, ends_with_closing_lines, write_log
 
 ANALYTIC = [sys.executable, "-c", "from gainfarm.analytic.cli import main; main()"]
 
@@ -155,9 +155,11 @@ def test_start_on_a_terminal_keeps_a_live_line_within_80_columns(tmp_path: Path)
     farm = CORES_WORKERS  # a local farm: one worker per core
     assert any(re.search(rf"gen [1-4] · \d+ evals · [\d.]+/s · HV .* · {farm}$", x) for x in live)
     assert not any("nan" in line or "0 workers" in line for line in live), live
-    assert lines[-4:-2] == ["stopped: 4 generations", "front, history, figures and report in run/"]
-    assert lines[-2].startswith("controller to use: the knee (front.csv row ")
-    assert lines[-1] == "its gains: analytic export run"
+    closing = ends_with_closing_lines(lines, tmp_path / "run")
+    assert lines[-closing - 2 : -closing] == [
+        "stopped: 4 generations",
+        "front, history, figures and report in run/",
+    ]
     assert not any(line.startswith("generation ") for line in lines)  # plain lines: off one
 
 
@@ -176,9 +178,11 @@ def test_start_off_a_terminal_says_one_line_per_generation_and_keeps_the_front_s
             rf"hypervolume 0\.\d{{4}}, best error [\d.]+ mm, {CORES_WORKERS}",
             line,
         ), line
-    assert lines[-4:-2] == ["stopped: 3 generations", "front, history, figures and report in run/"]
-    assert lines[-2].startswith("controller to use: the knee (front.csv row ")
-    assert lines[-1] == "its gains: analytic export run"
+    closing = ends_with_closing_lines(lines, tmp_path / "run")
+    assert lines[-closing - 2 : -closing] == [
+        "stopped: 3 generations",
+        "front, history, figures and report in run/",
+    ]
     # --keep front, the default: the front's logs, and no other.
     assert json.loads((tmp_path / "run" / "config.json").read_text())["keep"] == "front"
     front_logs = {log for m in read_front_json(tmp_path / "run" / "front.json") for log in m.logs}

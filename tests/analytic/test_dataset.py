@@ -339,9 +339,10 @@ def test_the_knee_is_one_controller_on_every_trajectory(run_dir: Path, tmp_path:
 
 
 def test_the_knee_is_the_member_analytic_export_takes(run_dir: Path) -> None:
-    """One knee rule: `--select knee` takes the controller `analytic export` writes."""
+    """One knee rule: `--select knee` takes the controller `analytic export --member knee`
+    writes."""
     [knee] = select(read_run(run_dir), "knee")
-    exported = controller(run_dir)
+    exported = controller(run_dir, "knee")
     assert (knee.kp, knee.kd) == (exported.kp, exported.kd) and exported.member.selected == "knee"
 
 

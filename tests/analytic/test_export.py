@@ -1,6 +1,6 @@
-"""The controller to use: the knee and the other picks on hand-made fronts, the three formats
-parsed back, and a real run's knee exported and run again by `analytic batch --gains` and
-`worker episode --gains`, reproducing the scores the run recorded for it."""
+"""The controller to use: the recommended member, the knee and the other picks on hand-made
+fronts, the three formats parsed back, and a real run's knee exported and run again by `analytic
+batch --gains` and `worker episode --gains`, reproducing the scores the run recorded for it."""
 
 import json
 import subprocess
@@ -8,11 +8,19 @@ import sys
 from pathlib import Path
 
 import mujoco
+import numpy as np
 import pytest
 import yaml
 
-from gainfarm.analytic.tuning.picks import knee_index
-from gainfarm.analytic.tuning.records import FrontMember, front_csv, read_front
+from gainfarm.analytic.tuning.picks import closest_index, dominating, knee_index, shortfall
+from gainfarm.analytic.tuning.records import (
+    Baseline,
+    FrontMember,
+    baseline_json,
+    front_csv,
+    read_front,
+    sorted_front,
+)
 from gainfarm.analytic.view.export import (
     BadMember,
     BadRun,
@@ -24,9 +32,10 @@ from gainfarm.analytic.view.export import (
 )
 from gainfarm.models.iiwa14 import RIGID_MJCF
 from gainfarm.schemas.controller import FORMAT, UNITS, Controller, read_gains
+from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.robot import JOINT_NAMES
 from tests.analytic.samples import KD, KP
-from tests.helpers import WEAK_GAINS, analytic
+from tests.helpers import WEAK_GAINS, analytic, ends_with_closing_lines
 
 WORKER = [sys.executable, "-c", "from gainfarm.worker.cli import main; main()"]
 SHORT = ["--trajectory", "fourier", "--duration", "0.5"]
@@ -46,8 +55,12 @@ def front_of(*points: tuple[float, float], diverged: tuple[int, ...] = ()) -> li
     ]
 
 
-def named(front: list[FrontMember]) -> dict[str, int]:
-    return {chosen.name: chosen.row for chosen in picks(front)}
+def named(front: list[FrontMember], baseline: Baseline | None = None) -> dict[str, int]:
+    return {chosen.name: chosen.row for chosen in picks(front, baseline)}
+
+
+def defaults_at(f_acc: float, f_t: float, diverged: bool = False) -> Baseline:
+    return Baseline(DEFAULT_GAINS, f_acc=f_acc, f_t=f_t, diverged=diverged)
 
 
 # --- the picks ---------------------------------------------------------------------------------
@@ -83,10 +96,63 @@ def test_no_pick_is_a_diverged_member_unless_all_are() -> None:
     assert knee_index(everyone) == 0 and pick(everyone, "knee").member.diverged
 
 
+def test_the_recommended_member_is_the_knee_among_those_that_dominate_the_default_gains() -> None:
+    # The README's case: the front's knee (row 4, 18.6 mm) is 30 % less accurate than the
+    # defaults (14.3 mm); rows 2 and 3 beat them on both objectives (row 2 matches their f_t and
+    # is more accurate), and of those the knee's rule ranks row 3 best.
+    front = front_of((0.005, 20.0), (0.0186, 0.2), (0.012, 2.0), (0.013, 1.9), (0.1, 0.1))
+    defaults = defaults_at(0.0143, 2.0)
+    assert named(front) == {"knee": 4, "accurate": 1, "smooth": 5}
+    assert dominating(sorted_front(front), defaults) == [1, 2]
+    assert named(front, defaults) == {"recommended": 3, "knee": 4, "accurate": 1, "smooth": 5}
+    recommended = pick(front, "recommended", defaults)
+    assert recommended.member.objectives == (0.013, 1.9) and recommended.name == "recommended"
+    # Whenever the knee itself dominates the defaults, it is the one recommended.
+    assert named(front, defaults_at(0.02, 0.3))["recommended"] == 4
+
+
+def test_when_no_member_dominates_the_defaults_none_is_recommended_and_the_closest_is_named() -> (
+    None
+):
+    # Row 1 is 10 times the defaults' f_t, row 2 twice their error, row 3 3 times their f_t.
+    front = front_of((0.009, 10.0), (0.02, 0.5), (0.03, 0.1))
+    defaults = defaults_at(0.01, 1.0)
+    assert named(front, defaults) == {"closest": 2, "knee": 2, "accurate": 1, "smooth": 3}
+    assert shortfall(front[1], defaults) == pytest.approx(np.log10(2.0))
+    assert shortfall(front[0], defaults) == pytest.approx(1.0)
+    # A member that is the defaults' own point falls short by nothing, yet does not dominate.
+    assert closest_index(front_of((0.01, 1.0), (0.005, 1.5)), defaults) == 0
+    assert "recommended" not in named(front_of((0.01, 1.0)), defaults)
+    with pytest.raises(
+        BadMember,
+        match=r"no member of the front dominates the default gains .*"
+        r"\(closest: row 2, report.md\); keep the default gains, run longer",
+    ):
+        pick(front, "recommended", defaults)
+    with pytest.raises(BadMember, match=r"the run has no baseline\.json"):
+        pick(front, "recommended")
+    assert pick(front, "knee", defaults).row == 2  # the others are there still
+
+
+def test_diverged_defaults_are_beaten_by_every_member_that_finished_and_by_no_diverged_one() -> (
+    None
+):
+    front = front_of((0.001, 0.001), (0.01, 0.5), (0.02, 0.1), diverged=(0,))
+    fell = defaults_at(2.0, 4e4, diverged=True)
+    assert named(front, fell) == {"recommended": 2, "knee": 2, "accurate": 2, "smooth": 3}
+    # A diverged member is never recommended, even beside defaults it would dominate.
+    assert named(front, defaults_at(0.015, 1.0))["recommended"] == 2
+    assert "recommended" not in named(front, defaults_at(0.005, 1.0))
+
+
 @pytest.mark.parametrize(
     ("which", "says"),
     [
-        ("middle", "expected knee, accurate, smooth or a row of front.csv (1-3), got 'middle'"),
+        (
+            "middle",
+            "expected recommended, knee, accurate, smooth or a row of front.csv (1-3), got "
+            "'middle'",
+        ),
         ("0", "row 0 is out of range: front.csv has 3 members (1-3)"),
         ("4", "row 4 is out of range"),
         ("-1", "row -1 is out of range"),
@@ -119,7 +185,7 @@ def hand_made(tmp_path: Path) -> Path:
 def test_the_json_is_a_controller_with_gains_joints_units_scores_and_provenance(
     hand_made: Path,
 ) -> None:
-    text = render(controller(hand_made), "json")
+    text = render(controller(hand_made, "knee"), "json")
     exported = Controller.model_validate_json(text)
     knee = read_front(hand_made / "front.csv")[2]
     assert exported.format == FORMAT and exported.joints == JOINT_NAMES
@@ -173,6 +239,46 @@ def test_the_ros2_control_file_runs_the_gains_on_the_models_joints(hand_made: Pa
         assert all(type(value) is float for value in gains.values())
 
 
+def test_the_default_export_is_the_recommended_member_beside_the_run_s_default_gains(
+    hand_made: Path,
+) -> None:
+    # Rows: 5 mm at f_t 1000, 6 mm at 2, the knee 8 mm at 0.2, 50 mm at 0.1.
+    (hand_made / "baseline.json").write_bytes(baseline_json(defaults_at(0.007, 3.0)))
+    exported = controller(hand_made)
+    assert (exported.member.selected, exported.member.row) == ("recommended", 2)
+    assert "dominate the default gains" in exported.member.rule
+    assert controller(hand_made, "knee").member.row == 3
+    # A baseline.json of other gains (the defaults have changed since) compares nothing.
+    other = Baseline(WEAK_GAINS, f_acc=0.007, f_t=3.0, diverged=False)
+    (hand_made / "baseline.json").write_bytes(baseline_json(other))
+    with pytest.raises(BadMember, match=r"the run has no baseline\.json"):
+        controller(hand_made)
+
+
+def test_exporting_what_is_not_recommended_is_one_line_naming_the_closest_member(
+    hand_made: Path,
+) -> None:
+    for baseline, says in [
+        (
+            None,
+            "the run has no baseline.json of them (stopped before it scored them, or scored before "
+            "they changed); name one: knee, accurate, smooth or a row of front.csv (1-4)",
+        ),
+        (
+            defaults_at(0.004, 0.05),
+            "no member of the front dominates the default gains (4.000 mm, f_t 0.05 (N·m)²), so "
+            "none is recommended (closest: row 3, report.md); keep the default gains, run longer",
+        ),
+    ]:
+        if baseline is not None:
+            (hand_made / "baseline.json").write_bytes(baseline_json(baseline))
+        ran = analytic("export", "run", "--out", "k.json", cwd=hand_made.parent)
+        assert ran.returncode == 2 and ran.stdout == "", ran.stderr
+        assert ran.stderr.startswith("analytic: error: --member: recommended (the default)")
+        assert says in ran.stderr and len(ran.stderr.splitlines()) == 1
+        assert not (hand_made.parent / "k.json").exists()
+
+
 def test_a_directory_without_a_run_or_a_front_is_refused(tmp_path: Path) -> None:
     with pytest.raises(BadRun, match="holds no run"):
         controller(tmp_path)
@@ -192,8 +298,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
         "start", "--pop", "4", "--generations", "2", *SHORT, "--local", "--out", "run", cwd=here
     )
     assert ran.returncode == 0, ran.stderr
-    assert "controller to use: the knee (front.csv row " in ran.stderr
-    assert "its gains: analytic export run\n" in ran.stderr
+    ends_with_closing_lines(ran.stderr.splitlines(), here / "run")
     return here / "run"
 
 
@@ -206,13 +311,14 @@ def worker(*arguments: str, cwd: Path) -> subprocess.CompletedProcess[str]:
 @pytest.mark.slow
 def test_the_exported_knee_runs_again_to_the_scores_its_run_recorded(run_dir: Path) -> None:
     here = run_dir.parent
-    exported = analytic("export", "run", "--out", "knee.json", cwd=here)
+    exported = analytic("export", "run", "--member", "knee", "--out", "knee.json", cwd=here)
     assert exported.returncode == 0 and exported.stdout == "", exported.stderr
     knee = json.loads((here / "knee.json").read_text())
     member = read_front(run_dir / "front.csv")[knee["member"]["row"] - 1]
     assert (tuple(knee["kp"]), tuple(knee["kd"])) == (member.kp, member.kd)
     assert (
-        f"| **knee** (use this) | {knee['member']['row']} |" in (run_dir / "report.md").read_text()
+        f"| knee of the whole front | {knee['member']['row']} |"
+        in (run_dir / "report.md").read_text()
     )
 
     batch = analytic(
@@ -294,11 +400,17 @@ def test_a_diverged_episode_says_why_its_mean_error_exceeds_its_largest(tmp_path
     [
         (["nothere"], "'nothere' holds no run (no config.json)"),
         (["empty"], "'empty' has no front yet"),
-        (["run", "--member", "middle"], "--member: expected knee, accurate, smooth or a row"),
+        (["run", "--member", "middle"], "--member: expected recommended, knee, accurate, smooth"),
         (["run", "--member", "999"], "--member: row 999 is out of range: front.csv has"),
         (["run", "--format", "xml"], "Invalid value for '--format': 'xml' is not one of"),
-        (["run", "--out", "missing/knee.json"], "--out: directory 'missing' does not exist"),
-        (["run", "--out", "taken"], "--out: cannot write 'taken': Is a directory"),
+        (
+            ["run", "--member", "knee", "--out", "missing/k.json"],
+            "--out: directory 'missing' does not exist",
+        ),
+        (
+            ["run", "--member", "knee", "--out", "taken"],
+            "--out: cannot write 'taken': Is a directory",
+        ),
     ],
 )
 def test_bad_export_options_are_one_line_and_write_nothing(

@@ -8,7 +8,12 @@ import pytest
 
 from gainfarm.analytic.tuning.records import Baseline, FrontMember
 from gainfarm.analytic.view.export import picks
-from gainfarm.analytic.view.figures import pareto_figure, plot_hypervolume, plot_pareto
+from gainfarm.analytic.view.figures import (
+    PICK_STYLES,
+    pareto_figure,
+    plot_hypervolume,
+    plot_pareto,
+)
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from tests.analytic.samples import KD, KP, SAMPLE_FRONT, SAMPLE_HISTORY, leftovers
 
@@ -73,22 +78,72 @@ def marks(figure: object) -> dict[str, tuple[float, float]]:
 
 def test_the_pareto_figure_marks_the_picks_and_the_default_gains(tmp_path: Path) -> None:
     front = [m for m in SAMPLE_FRONT if not m.diverged]
-    chosen = picks(front)
     baseline = Baseline(DEFAULT_GAINS, f_acc=0.02, f_t=0.05, diverged=False)
+    chosen = picks(front, baseline)
+    assert [p.name for p in chosen] == ["closest", "knee", "accurate", "smooth"]
     figure = pareto_figure(front, [], "spiral 5 s", chosen, baseline)
     marked = marks(figure)
     for pick in chosen:
-        name = {"knee": "knee (the controller to use)", "accurate": "most accurate"}.get(
-            pick.name, "smoothest"
-        )
+        name = PICK_STYLES[pick.name][3]
         assert marked[name] == pytest.approx((pick.member.f_acc * 1000, pick.member.f_t))
     assert marked["default gains"] == pytest.approx((20.0, 0.05))
     labels = figure.axes[0].get_legend_handles_labels()[1]
     assert any(
-        label.startswith(f"knee (the controller to use): row {chosen[0].row},") for label in labels
+        label.startswith(f"closest to dominating the defaults: row {chosen[0].row},")
+        for label in labels
     )
     plot_pareto(tmp_path / "pareto.png", front, [], "spiral 5 s", chosen, baseline)
     assert_png(tmp_path / "pareto.png")
+
+
+def test_the_view_is_the_front_and_what_lies_outside_it_is_counted() -> None:
+    # A front from 4 to 80 mm and f_t 0.006 to 50; chattering and soft candidates far off.
+    errors = np.geomspace(0.004, 0.08, 30)
+    front = [
+        FrontMember(kp=KP, kd=KD, f_acc=float(e), f_t=float(50 * (0.004 / e) ** 3)) for e in errors
+    ]
+    front.append(FrontMember(kp=KP, kd=KD, f_acc=0.001, f_t=1e7, diverged=True))  # a penalty
+    outliers = [(0.3, 1e5), (0.25, 3e4), (0.006, 8e4), (0.5, 0.01)]
+    evaluated = [m.objectives for m in front] + [(0.02, 1.0), (0.05, 0.5)] + outliers
+    baseline = Baseline(DEFAULT_GAINS, f_acc=0.0143, f_t=2.0, diverged=False)
+    figure = pareto_figure(front, evaluated, "", picks(front, baseline), baseline)
+    [axes] = figure.axes
+    (x_low, x_high), (y_low, y_high) = axes.get_xlim(), axes.get_ylim()
+    assert axes.get_yscale() == "log"
+    # The front, with a margin either side, and no more: not the outliers' 500 mm or 1e5.
+    assert 0 <= x_low < 4 and 80 < x_high < 90
+    assert 0.6e-2 / 3 < y_low < 0.6e-2 * 1.0 and 50 < y_high < 50 * 3
+    notes = [text.get_text() for text in axes.texts]
+    # The four outliers and the diverged member's penalty point lie outside the view.
+    assert any("5 evaluated point(s) outside the view" in note for note in notes), notes
+    # The recommended member, the knee and the defaults lie in it, each marked.
+    for x, y in marks(figure).values():
+        assert x_low < x < x_high and y_low < y < y_high
+
+
+def test_picks_of_one_member_are_told_apart_and_labelled_once() -> None:
+    front = [m for m in SAMPLE_FRONT if not m.diverged]
+    baseline = Baseline(DEFAULT_GAINS, f_acc=0.05, f_t=1.0, diverged=False)
+    chosen = picks(front, baseline)  # both members dominate: the knee, row 1, is recommended
+    assert [(p.name, p.row) for p in chosen] == [
+        ("recommended", 1),
+        ("knee", 1),
+        ("accurate", 1),
+        ("smooth", 2),
+    ]
+    [axes] = pareto_figure(front, [], "", chosen, baseline).axes
+    at_row_1 = [
+        c
+        for c in axes.collections
+        if c.get_label().split(":")[0]
+        in {PICK_STYLES[name][3] for name in ("recommended", "knee", "accurate")}
+    ]
+    sizes = [float(c.get_sizes()[0]) for c in at_row_1]
+    orders = [c.get_zorder() for c in at_row_1]
+    # One inside the other: each larger than the next, and drawn beneath it.
+    assert sizes == sorted(sizes, reverse=True) and len(set(sizes)) == 3
+    assert orders == sorted(orders) and len(set(orders)) == 3
+    assert sorted(text.get_text() for text in axes.texts) == ["row 1", "row 2"]
 
 
 def test_default_gains_that_diverged_are_named_not_drawn() -> None:

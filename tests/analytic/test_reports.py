@@ -1,6 +1,7 @@
 """A run's report: the summary, the sorted front and the links; whole or not at all."""
 
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -9,10 +10,12 @@ from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import Baseline, FrontMember
 from gainfarm.analytic.view.export import picks
 from gainfarm.analytic.view.reports import (
-    baseline_text,
+    DOMINATING_SHOWN,
+    controllers_section,
     front_table_row,
     plant_text,
     run_title,
+    verdict_text,
     write_report,
 )
 from gainfarm.schemas.gains import DEFAULT_GAINS
@@ -146,16 +149,22 @@ def test_the_report_names_the_controller_to_use_beside_the_default_gains(tmp_pat
         history=SAMPLE_HISTORY,
         front=front,
         converged="",
-        picks=picks(front),
+        picks=picks(front, baseline),
         baseline=baseline,
         run_dir="runs/r1",
     )
     text = (tmp_path / "report.md").read_text(encoding="utf-8")
+    assert text.splitlines()[2] == (
+        "**Use front.csv row 2** (10.000 mm, f_t 0.3 (N·m)²): it dominates the default gains "
+        "(20.000 mm, f_t 0.5 (N·m)²) on the run's trajectories, as accurate and as smooth and "
+        "better in one, and is the knee among the members that do."
+    )
     assert text.index("## The controller to use") < text.index("## Configuration")
     assert (
-        "| **knee** (use this) | 2 (2 members share it) | 10.000 | 0.3 | "
+        "| **recommended** (use this) | 2 (2 members share it) | 10.000 | 0.3 | "
         "2000 2000 1200 1200 400 200 100 | 40 40 30 30 8 4 2 |" in text
     )
+    assert "| knee of the whole front | 2 (2 members share it) | 10.000 | 0.3 |" in text
     assert (
         "| most accurate | 1 | 5.000 | 2 |" in text and "| smoothest | 4 | 50.000 | 0.01 |" in text
     )
@@ -163,11 +172,17 @@ def test_the_report_names_the_controller_to_use_beside_the_default_gains(tmp_pat
         "| default gains (not tuned) | – | 20.000 | 0.5 | 2000 2000 1200 1200 400 200 100 | "
         "20 20 15 15 4 2 1 |" in text
     )
-    assert "2 of the front's 4 members dominate the default gains" in text
+    assert (
+        "2 of the front's 4 members dominate the default gains:\n\n"
+        "| front.csv row | f_acc (mm) | f_t ((N·m)²) |\n|---:|---:|---:|\n"
+        "| 2 | 10.000 | 0.3 |\n| 3 | 10.000 | 0.3 |\n" in text
+    )
+    assert "The knee of the whole front" not in text  # it is one of them
     assert "`analytic export runs/r1`" in text and "pymoo's achievement scalarisation" in text
     # Members at one point are one line, saying how many share it.
     assert "## Pareto front (4 members, 3 distinct at the precision shown," in text
-    rows = [line for line in text.splitlines() if line.startswith("| ") and line[2].isdigit()]
+    table = text.split("## Pareto front")[1].splitlines()
+    rows = [line for line in table if line.startswith("| ") and line[2].isdigit()]
     assert [row.split(" | ")[:4] for row in rows] == [
         ["| 1", "5.000", "2", "1"],
         ["| 2", "10.000", "0.3", "2 (rows 2-3)"],
@@ -175,13 +190,68 @@ def test_the_report_names_the_controller_to_use_beside_the_default_gains(tmp_pat
     ]
 
 
-def test_the_report_says_when_the_default_gains_diverged_or_dominate_the_knee() -> None:
-    front = [FrontMember(kp=KP, kd=KD, f_acc=0.03, f_t=0.6)]
-    knee = picks(front)[0].member
-    better = Baseline(DEFAULT_GAINS, f_acc=0.02, f_t=0.5, diverged=False)
-    assert "the default gains dominate the knee" in baseline_text(front, better, knee)
+def test_a_run_whose_front_never_dominates_the_defaults_says_so_in_its_first_line(
+    tmp_path: Path,
+) -> None:
+    # The knee (row 2) is 30 % less accurate than the defaults; row 1 is 5 times rougher.
+    front = [
+        FrontMember(kp=KP, kd=KD, f_acc=0.010, f_t=2.5),
+        FrontMember(kp=KP, kd=tuple(k * 2 for k in KD), f_acc=0.0186, f_t=0.3),
+        FrontMember(kp=tuple(k / 2 for k in KP), kd=KD, f_acc=0.05, f_t=0.01),
+    ]
+    baseline = Baseline(DEFAULT_GAINS, f_acc=0.0143, f_t=0.5, diverged=False)
+    write_report(
+        tmp_path / "report.md",
+        title="t",
+        config_lines=[],
+        history=SAMPLE_HISTORY,
+        front=front,
+        converged="",
+        picks=picks(front, baseline),
+        baseline=baseline,
+    )
+    text = (tmp_path / "report.md").read_text(encoding="utf-8")
+    assert text.splitlines()[2] == (
+        "**No member of the front dominates the default gains** (14.300 mm, f_t 0.5 (N·m)²) on "
+        "the run's trajectories, so none is recommended: keep the default gains, or run longer "
+        "(more evaluations, a larger population). Closest to dominating them: row 2 (18.600 mm, "
+        "f_t 0.3 (N·m)²), whose worse objective is 1.3 times the defaults' (the least of any "
+        "member)."
+    )
+    assert "use this" not in text and "**recommended**" not in text
+    assert "| closest to dominating the defaults (not recommended) | 2 | 18.600 | 0.3 |" in text
+    assert "members dominate the default gains" not in text  # no list of none
+
+
+def test_the_first_line_when_the_defaults_diverged_or_were_not_scored() -> None:
+    front = [
+        FrontMember(kp=KP, kd=KD, f_acc=0.002, f_t=4e4, diverged=True),
+        FrontMember(kp=KP, kd=KD, f_acc=0.03, f_t=0.6),
+    ]
     fell = Baseline(DEFAULT_GAINS, f_acc=10.0, f_t=1e12, diverged=True)
-    assert "default gains diverged" in baseline_text(front, fell, knee)
+    assert verdict_text(picks(front, fell), fell).startswith(
+        "**Use front.csv row 2** (30.000 mm, f_t 0.6 (N·m)²): the default gains diverged"
+    )
+    assert verdict_text(picks(front), None) == (
+        "**The default gains were not scored for this run** (no baseline.json), so no member is "
+        "known to beat them and none is recommended; the knee of the front is row 2."
+    )
+
+
+def test_the_members_that_dominate_the_defaults_are_listed_the_first_ten_and_a_count() -> None:
+    front = [FrontMember(kp=KP, kd=KD, f_acc=0.001 * (n + 1), f_t=1.0 / (n + 1)) for n in range(25)]
+    # Rows 3-22 dominate (20 of them): f_acc at most 22 mm, f_t at most 1/3.
+    baseline = Baseline(DEFAULT_GAINS, f_acc=0.0225, f_t=0.34, diverged=False)
+    lines = controllers_section(picks(front, baseline), baseline, "RUN", front)
+    assert "20 of the front's 25 members dominate the default gains:" in lines
+    listed = [line for line in lines if re.match(r"\| \d+ \| [\d.]+ \| ", line)]
+    assert [line.split(" | ")[0] for line in listed] == [f"| {row}" for row in range(3, 13)]
+    assert len(listed) == DOMINATING_SHOWN
+    assert "and 10 more, between rows 13 and 22." in lines
+    # The knee of the whole front, row 5, is one of them; with defaults it loses to, it says so.
+    stricter = Baseline(DEFAULT_GAINS, f_acc=0.003, f_t=1.0, diverged=False)
+    lines = controllers_section(picks(front, stricter), stricter, "RUN", front)
+    assert any(line.startswith("The knee of the whole front (row 5) is not one") for line in lines)
 
 
 def test_a_runs_title_says_what_it_was_tuned_on() -> None:
