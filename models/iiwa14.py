@@ -84,6 +84,11 @@ def build_spec(spec: ModelSpec) -> mujoco.MjSpec:
     elif spec.inertials == "menagerie":
         for body, orientation in MENAGERIE_AXES.items():
             mj.body(body).iquat = orientation
+    for i, scale in enumerate(spec.mass_scale):
+        if scale != 1.0:  # the true link, heavier or lighter than its set says, its shape kept
+            link = mj.body(f"link{i + 1}")
+            link.mass = link.mass * scale
+            link.inertia = link.inertia * scale
     if spec.payload > 0:
         # A solid sphere of PAYLOAD_RADIUS centred on the flange (assumption: a compact load).
         flange = next(site for site in mj.sites if site.name == FLANGE)

@@ -32,6 +32,7 @@ gainfarm.objectives group, is a function of the decoded log like `f_acc` and `f_
 contract loads no plug-in: `score` is given the functions of the ones its log names.
 """
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
@@ -152,23 +153,54 @@ def _plugin_value(name: str, log: EpisodeLog, plugins: Mapping[str, Objective]) 
     return float(plugins[name](log))
 
 
+# How a candidate's episodes on the plant variants of one trajectory (the nominal plant first)
+# become that trajectory's objectives (robust tuning, `--aggregate`): their mean, the worst, or
+# the conditional value at risk, the mean of the worst CVAR_SHARE of them (at least one).
+AGGREGATES = ("mean", "worst", "cvar")
+CVAR_SHARE = 0.25
+
+
 def objectives(
-    scores: Sequence[Scores | None], weights: Sequence[tuple[float, float]] | None = None
+    scores: Sequence[Scores | None],
+    weights: Sequence[tuple[float, float]] | None = None,
+    plants: int = 1,
+    aggregate: str = "mean",
 ) -> tuple[float, float]:
     """A candidate's objectives over its trajectories: the means of each episode's two
     (Scores.objectives: f_acc and f_t, unless the run named others; the generic controller's;
     one trajectory gives the specific controller's), weighted by `weights`, one (first weight,
-    second weight) per trajectory (see `balancing_weights`), if given."""
+    second weight) per trajectory (see `balancing_weights`), if given.
+
+    With `plants` > 1, `scores` are each trajectory's episodes on that many plants in turn (the
+    nominal first), and each trajectory's objectives are first their `aggregate` (AGGREGATES),
+    objective by objective."""
     if not scores or any(score is None for score in scores):
         return NO_EPISODE
     acc = np.array([score.objectives[0] for score in scores])
     t = np.array([score.objectives[1] for score in scores])
+    if plants > 1:
+        acc, t = _over_plants(acc, plants, aggregate), _over_plants(t, plants, aggregate)
     if weights is None:
         return float(np.mean(acc)), float(np.mean(t))
     w = np.asarray(weights, dtype=float).reshape(-1, 2)
-    if len(w) != len(scores):
-        raise ValueError(f"{len(w)} objective weights for {len(scores)} trajectories")
+    if len(w) != len(acc):
+        raise ValueError(f"{len(w)} objective weights for {len(acc)} trajectories")
     return float(acc @ w[:, 0] / w[:, 0].sum()), float(t @ w[:, 1] / w[:, 1].sum())
+
+
+def _over_plants(values: np.ndarray, plants: int, aggregate: str) -> np.ndarray:
+    """Each trajectory's value over its `plants` episodes (a row each), as `aggregate` says."""
+    if len(values) % plants:
+        raise ValueError(f"{len(values)} episodes are not {plants} plants' per trajectory")
+    rows = values.reshape(-1, plants)
+    if aggregate == "mean":
+        return rows.mean(axis=1)
+    if aggregate == "worst":
+        return rows.max(axis=1)
+    if aggregate == "cvar":
+        worst = max(1, math.ceil(CVAR_SHARE * plants))
+        return np.sort(rows, axis=1)[:, -worst:].mean(axis=1)
+    raise ValueError(f"aggregate {aggregate!r} is not one of {', '.join(AGGREGATES)}")
 
 
 def balancing_weights(

@@ -116,6 +116,11 @@ class ModelSpec(BaseModel):
         "motor", description="the side whose measured angle the PD feeds back"
     )
     substeps: int = Field(2, ge=1, le=50, description="physics steps per 2 ms control tick")
+    mass_scale: PerJointPositive = Field(
+        (1.0,) * N_JOINTS,
+        description="each link's true mass (and its inertia alike) against the named set's, "
+        "links 1-7; the robot's gravity model does not know it",
+    )
     payload: float = Field(
         0.0,
         ge=0,
@@ -160,7 +165,7 @@ class ModelSpec(BaseModel):
 
 
 # What every dump of a ModelSpec held before the torque interface was a choice.
-_EARLIER_FIELDS = frozenset(ModelSpec.model_fields) - {"interface", "payload"}
+_EARLIER_FIELDS = frozenset(ModelSpec.model_fields) - {"interface", "payload", "mass_scale"}
 
 IDEAL_PLANT = ModelSpec(
     inertials="open",

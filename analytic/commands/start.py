@@ -43,6 +43,7 @@ from gainfarm.cli.app import CliError
     "PD and tune the gains on top (a directory from `analytic learn`, or its model.npz)"
 )
 @options.limits()
+@options.robustness()
 @farm_options
 @click.option("--out", type=click.Path(path_type=Path), help="run directory  [default: runs/TIME]")
 @click.option(
@@ -115,6 +116,9 @@ def start(
     plant: str,
     feedforward: Path | None,
     limits_file: Path | None,
+    plants: int,
+    aggregate: str,
+    uncertainty_file: Path | None,
     connect: tuple[str, ...],
     tls: Path | None,
     participant: str | None,
@@ -147,12 +151,16 @@ def start(
     trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
     learned = options.feedforward_model(feedforward)
     model_file = learned[0] if learned is not None else None
+    model = options.model_spec(plant, joints)
+    variants = options.plants_from(plants, uncertainty_file, model, seed)
     try:
         config = RunConfig(
             pop=pop,
             seed=seed,
             trajectories=trajectories,
-            model=options.model_spec(plant, joints),
+            model=model,
+            plants=variants,
+            aggregate=aggregate,
             limits=limits,
             generations=generations,
             evaluations=evaluations,

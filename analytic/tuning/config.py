@@ -1,6 +1,6 @@
 """A tuning run's configuration: everything that decides its outcome, validated as a whole."""
 
-from typing import Annotated, Self
+from typing import Annotated, Literal, Self
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -66,6 +66,18 @@ class RunConfig(BaseModel):
         "weighted per trajectory by these (f_acc weight, f_t weight) pairs, in the order of "
         "`trajectories` (schemas.objectives.balancing_weights: each trajectory counts alike at "
         "the default gains); None: the plain means",
+    )
+    plants: tuple[ModelSpec, ...] = Field(
+        (),
+        max_length=64,
+        description="robust tuning: plant variants every candidate is scored on besides the "
+        "nominal `model`, the same for every candidate (analytic.tuning.plants draws them from "
+        "the uncertainty ranges); none: the nominal plant alone",
+    )
+    aggregate: Literal["mean", "worst", "cvar"] = Field(
+        "cvar",
+        description="each trajectory's objectives over the nominal plant and its variants: the "
+        "mean, the worst, or the mean of the worst quarter (schemas.objectives.CVAR_SHARE)",
     )
     limits: Limits = Field(
         Limits(),

@@ -34,7 +34,7 @@ import logging
 import math
 import secrets
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -91,7 +91,7 @@ from gainfarm.edges.files import (
     write_atomically,
 )
 from gainfarm.models.dynamics import digest
-from gainfarm.schemas.episode import EpisodeSpec
+from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import MEASURES, measures
 from gainfarm.schemas.objectives import objectives
@@ -366,15 +366,12 @@ class TuningRun:
                 return kept
         if evaluator is None:
             return None
-        jobs = {f"baseline-t{number}": number for number in range(len(self.config.trajectories))}
-        specs = {
-            job_id: self._spec(DEFAULT_GAINS, self.config.trajectories[number])
-            for job_id, number in jobs.items()
-        }
+        jobs = self._job_ids("baseline")
+        specs = {job_id: self._episode_spec(DEFAULT_GAINS, job_id) for job_id in jobs}
         evaluator.submit(specs)
         found = {evaluation.job_id: evaluation for evaluation in evaluator.results()}
         scores = [found[job_id].scores if job_id in found else None for job_id in jobs]
-        f_acc, f_t = objectives(scores, self.config.objective_weights)
+        f_acc, f_t = self._objectives(scores)
         baseline = Baseline(
             gains=DEFAULT_GAINS,
             f_acc=f_acc,
@@ -424,7 +421,7 @@ class TuningRun:
                 caught = self._spot_check(evaluator, referee, results, evaluation.job_id)
                 if caught and self._nobody_left(evaluator):  # the generation cannot finish
                     return
-                on_progress(self._progress(len(results) // len(self.config.trajectories), started))
+                on_progress(self._progress(len(results) // len(jobs[candidates[0]]), started))
         finally:  # stopped mid-generation (Ctrl-C): leave nothing queued in the evaluator
             evaluator.cancel([job_id for job_id in specs if job_id not in results])
         for gains in candidates:
@@ -703,8 +700,7 @@ class TuningRun:
 
     def _evaluation(self, gains: PDGains, ran: Ran) -> EpisodeResult:
         """An original as validation takes it: the episode's spec, who ran it, its log."""
-        trajectory = self.config.trajectories[int(ran.job_id.rsplit("-t", 1)[1])]
-        spec = self._spec(gains, trajectory)
+        spec = self._episode_spec(gains, ran.job_id)
         log = self.directory / EPISODES / f"{ran.job_id}.mcap"
         return EpisodeResult(
             job_id=ran.job_id,
@@ -780,7 +776,7 @@ class TuningRun:
         replaces the false one there too, and the cloud and the front agree."""
         self.state.provenance[gains] = standing
         scores = [ran.scores for ran in standing]
-        true = objectives(scores, self.config.objective_weights)
+        true = self._objectives(scores)
         measured = measures(scores)
         g = self.config.limits.constraints(measured)
         for row in self.state.evolution.correct(gains, true, g):
@@ -812,7 +808,9 @@ class TuningRun:
                 kept.remove(ran.job_id)
 
     def _episode_spec(self, gains: PDGains, job_id: str) -> EpisodeSpec:
-        return self._spec(gains, self.config.trajectories[int(job_id.rsplit("-t", 1)[1])])
+        """The spec of a candidate's episode, from its job id (`_job_ids`)."""
+        trajectory, plant = _slot(job_id)
+        return self._spec(gains, self.config.trajectories[trajectory], plant)
 
     def _row_of(self, front: list[Candidate], row: HistoryRow) -> HistoryRow:
         """`row` with the hypervolume and bests of `front` (after a correction)."""
@@ -832,23 +830,39 @@ class TuningRun:
             self.state.busy_seconds += timings.simulate_s + timings.encode_s
 
     def _job_ids(self, candidate: str) -> list[str]:
-        return [f"{candidate}-t{number}" for number in range(len(self.config.trajectories))]
+        """A candidate's episodes: each trajectory on the nominal plant (`-t<n>`, as before there
+        were variants), then on each plant variant (`-t<n>-p<k>`), the order `objectives` takes."""
+        variants = len(self.config.plants)
+        return [
+            f"{candidate}-t{number}{f'-p{plant}' if plant else ''}"
+            for number in range(len(self.config.trajectories))
+            for plant in range(1 + variants)
+        ]
 
-    def _spec(self, gains: PDGains, trajectory: TrajectorySpec) -> EpisodeSpec:
+    def _objectives(self, scores: Sequence[Scores | None]) -> tuple[float, float]:
+        """A candidate's objectives from its episodes' scores, in `_job_ids`' order."""
+        config = self.config
+        return objectives(
+            scores, config.objective_weights, 1 + len(config.plants), config.aggregate
+        )
+
+    def _spec(self, gains: PDGains, trajectory: TrajectorySpec, plant: int = 0) -> EpisodeSpec:
+        """The episode of `gains` on `trajectory` and plant `plant` (0: the nominal, k: the run's
+        k-th variant)."""
         config = self.config
         return EpisodeSpec(
             gains=gains,
             trajectory=trajectory,
-            model=config.model,
+            model=config.model if plant == 0 else config.plants[plant - 1],
             feedforward=config.feedforward,
             objectives=config.objectives,
         )
 
     def _specs(self, jobs: dict[PDGains, list[str]]) -> dict[str, EpisodeSpec]:
         return {
-            job_id: self._spec(gains, trajectory)
+            job_id: self._episode_spec(gains, job_id)
             for gains, ids in jobs.items()
-            for job_id, trajectory in zip(ids, self.config.trajectories, strict=True)
+            for job_id in ids
         }
 
     def _progress(
@@ -875,7 +889,7 @@ class TuningRun:
         """A recorded candidate's objectives and constraint values (schemas.limits: its worst
         measures over all its episodes), with its point recorded as told."""
         scores = [ran.scores for ran in self.state.provenance[gains]]
-        found = objectives(scores, self.config.objective_weights)
+        found = self._objectives(scores)
         measured = measures(scores)
         self.state.evaluated.append(found)
         self.state.measured.append(measured)
@@ -997,6 +1011,12 @@ def _checked(state: RunState, ran: Ran) -> EpisodeCheck:
     else:
         why = state.unchecked or "not yet: the run has not validated its front"
     return EpisodeCheck(ran.job_id, ran.worker, "not checked", why)
+
+
+def _slot(job_id: str) -> tuple[int, int]:
+    """(trajectory, plant) of a candidate's job id: `<candidate>-t<n>[-p<k>]`."""
+    number, _, plant = job_id.rsplit("-t", 1)[1].partition("-p")
+    return int(number), int(plant or 0)
 
 
 def _refuse_existing(directory: Path) -> None:

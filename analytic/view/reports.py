@@ -83,12 +83,25 @@ def run_setup(config: RunConfig) -> list[str]:
         + ", f_t "
         + " / ".join(f"{w:.2f}" for _, w in weights)
     )
+    robust = ""
+    if config.plants:
+        robust = (
+            f"; robust: scored on it and {len(config.plants)} plant variants (config.json's "
+            f"plants), each trajectory's objectives their {AGGREGATE_TEXT[config.aggregate]}"
+        )
     return [
         f"{controller} on {trajectories}{averaged}",
         f"{_search(config)}, population {config.pop}, seed {config.seed}",
-        f"{plant_text(config.model)}; reference point "
+        f"{plant_text(config.model)}{robust}; reference point "
         f"f_acc {config.reference_point[0]} m, f_t {config.reference_point[1]}",
     ]
+
+
+AGGREGATE_TEXT = {
+    "mean": "mean",
+    "worst": "worst",
+    "cvar": "CVaR (the mean of the worst quarter)",
+}
 
 
 def _duration(seconds: float) -> str:

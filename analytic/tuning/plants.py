@@ -1,0 +1,127 @@
+"""Plant variants: what robust tuning scores every candidate on besides the nominal plant.
+
+The ranges are data, models/uncertainty.toml (each with its source or labelled an assumption),
+or a file of the same form (`--uncertainty FILE`). `variants` draws K plants from them once, from
+the run's seed, so every candidate meets the same K (common random numbers: a difference between
+two candidates is theirs, not the draw's). Pure: numbers in, ModelSpecs out.
+"""
+
+import tomllib
+from collections.abc import Sequence
+from importlib.resources import files
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from gainfarm.models import min_substeps
+from gainfarm.schemas.robot import N_JOINTS, ModelSpec
+from gainfarm.schemas.wire import describe
+
+UNCERTAINTY = files("gainfarm.models").joinpath("uncertainty.toml")
+# The fields a range may move, and whether ModelSpec holds one value per joint there.
+FIELDS = {
+    "mass_scale": True,
+    "payload": False,
+    "rotor_inertia": True,
+    "stiffness": True,
+    "spring_damping": True,
+    "friction.coulomb": True,
+    "friction.viscous": True,
+    "delay": False,
+    "sensors.noise": False,
+    "sensors.torque_noise": False,
+}
+
+
+class Range(BaseModel):
+    """One group of the plant's numbers and how far it may be off: each variant draws a factor
+    on the nominal value (or, `absolute`, the value itself) between `low` and `high`."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    field: Literal[tuple(FIELDS)]  # type: ignore[valid-type]
+    per_joint: bool = False
+    absolute: bool = False
+    draw: Literal["log", "uniform", "integer"]
+    low: float = Field(ge=0, allow_inf_nan=False)
+    high: float = Field(ge=0, allow_inf_nan=False)
+    why: str = Field(min_length=1, description="its source, or that it is an assumption")
+
+    @model_validator(mode="after")
+    def _sensible(self) -> "Range":
+        if self.high < self.low:
+            raise ValueError(f"high {self.high:g} is below low {self.low:g}")
+        if self.draw == "log" and self.low <= 0:
+            raise ValueError("a log draw needs low > 0")
+        if self.per_joint and not FIELDS[self.field]:
+            raise ValueError(f"{self.field} is one number, not one per joint")
+        return self
+
+
+class BadUncertainty(ValueError):
+    """An uncertainty file that is not one: the message says where and what, in one line."""
+
+
+def ranges(text: str | None = None) -> dict[str, Range]:
+    """The ranges in `text` (TOML), or the shipped ones; BadUncertainty in one line."""
+    try:
+        table = tomllib.loads(UNCERTAINTY.read_text() if text is None else text)
+    except tomllib.TOMLDecodeError as error:
+        raise BadUncertainty(f"not TOML: {error}") from None
+    found = {}
+    for name, entry in table.items():
+        if not isinstance(entry, dict):
+            raise BadUncertainty(f"{name}: a table of field, draw, low, high and why expected")
+        try:
+            found[name] = Range.model_validate(entry)
+        except ValidationError as error:
+            raise BadUncertainty(f"{name}: {describe(error)}") from None
+    return found
+
+
+def variants(
+    nominal: ModelSpec, count: int, seed: int, uncertainty: dict[str, Range] | None = None
+) -> tuple[ModelSpec, ...]:
+    """`count` plants drawn around `nominal` from `uncertainty` (default: the shipped ranges),
+    deterministic in `seed`. Each has its own sensor noise seed and the physics steps its
+    springs need (at least the nominal's)."""
+    table = ranges() if uncertainty is None else uncertainty
+    rng = np.random.default_rng([seed, 0x706C616E7473])  # "plants": its own stream of the seed
+    drawn = []
+    for _ in range(count):
+        values = nominal.model_dump()
+        for item in table.values():
+            _apply(values, item, rng)
+        values["sensors"]["seed"] = int(rng.integers(2**63))
+        plant = ModelSpec.model_validate(values)
+        needed = min_substeps(plant)
+        if needed > plant.substeps:
+            plant = plant.model_copy(update={"substeps": needed})
+        drawn.append(plant)
+    return tuple(drawn)
+
+
+def _apply(values: dict, item: Range, rng: np.random.Generator) -> None:
+    """Move `item`'s field of the dumped spec `values` by one draw."""
+    *parents, name = item.field.split(".")
+    holder = values
+    for parent in parents:
+        holder = holder.get(parent) or {}
+    size = N_JOINTS if item.per_joint else 1
+    if item.draw == "integer":
+        draw = rng.integers(int(item.low), int(item.high) + 1, size=size).astype(float)
+    elif item.draw == "log":
+        draw = np.exp(rng.uniform(np.log(item.low), np.log(item.high), size=size))
+    else:
+        draw = rng.uniform(item.low, item.high, size=size)
+    if name not in holder:  # a field the nominal plant has not (no friction): nothing to move
+        return
+    current = holder[name]
+    if isinstance(current, Sequence) and not isinstance(current, str):
+        base = np.asarray(current, dtype=float)
+        moved = draw * (1.0 if item.absolute else base)
+        holder[name] = tuple(float(v) for v in np.broadcast_to(moved, base.shape))
+    else:
+        moved = float(draw[0] if item.absolute else draw[0] * current)
+        holder[name] = round(moved) if item.draw == "integer" else moved

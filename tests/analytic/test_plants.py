@@ -1,0 +1,113 @@
+"""Robust tuning: plant variants drawn from the uncertainty ranges, the same for every candidate,
+each trajectory's objectives aggregated over them."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.plants import BadUncertainty, ranges, variants
+from gainfarm.analytic.tuning.run import TuningRun
+from gainfarm.models import compile_model
+from gainfarm.schemas import Scores, TrajectorySpec
+from gainfarm.schemas.mcap_episode import read_episode
+from gainfarm.schemas.objectives import objectives
+from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
+from gainfarm.worker.plant import gravity_spec
+from tests.helpers import analytic
+
+
+def _scores(f_acc: float, f_t: float) -> Scores:
+    return Scores(
+        f_acc=f_acc, f_t=f_t, max_error=f_acc, saturated_fraction=0.0, diverged=False, ticks=1
+    )
+
+
+def test_variants_stay_in_their_ranges_and_the_robots_model_stays_nominal() -> None:
+    drawn = variants(REALISTIC_PLANT, 12, seed=3)
+    assert drawn == variants(REALISTIC_PLANT, 12, seed=3)  # deterministic in the seed
+    assert drawn != variants(REALISTIC_PLANT, 12, seed=4)
+    assert len(set(drawn)) == 12
+    nominal = REALISTIC_PLANT
+    for plant in drawn:
+        assert all(0.85 <= scale <= 1.15 for scale in plant.mass_scale)
+        assert 0.0 <= plant.payload <= 3.0 and plant.delay in (0, 1, 2)
+        factors = np.divide(plant.rotor_inertia, nominal.rotor_inertia)
+        assert np.all((factors >= 0.5) & (factors <= 10.0))
+        coulomb = np.divide(plant.friction.coulomb, nominal.friction.coulomb)
+        assert np.all((coulomb >= 0.5) & (coulomb <= 2.0))
+        assert plant.sensors.seed != nominal.sensors.seed
+        assert gravity_spec(plant) == gravity_spec(nominal)  # the robot knows none of it
+        compile_model(plant)  # the physics steps its springs need
+    # A plant without friction has none to vary; the rest varies as for any plant.
+    assert all(plant.friction is None for plant in variants(IDEAL_PLANT, 3, seed=0))
+
+
+def test_each_shipped_range_names_its_source_or_says_it_is_an_assumption() -> None:
+    for name, item in ranges().items():
+        assert "source" in item.why or "assumption" in item.why, name
+
+
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ("x = 1", "x: a table of field, draw, low, high and why expected"),
+        ('[a]\nfield = "stiffness"\ndraw = "log"\nlow = 2\nhigh = 1\nwhy = "w"', "below low"),
+        (
+            '[a]\nfield = "payload"\nper_joint = true\ndraw = "uniform"\nlow = 0\nhigh = 1\n'
+            'why = "w"',
+            "one number, not one per joint",
+        ),
+        ("[a", "not TOML"),
+    ],
+)
+def test_a_bad_uncertainty_file_is_refused_in_one_line(text: str, says: str) -> None:
+    with pytest.raises(BadUncertainty, match=says) as refused:
+        ranges(text)
+    assert "\n" not in str(refused.value)
+
+
+def test_each_trajectorys_objectives_aggregate_its_plants() -> None:
+    # Two trajectories on three plants each (nominal first): f_acc 1, 2, 9 and 4, 4, 4.
+    scores = [_scores(f_acc=v, f_t=10 * v) for v in (1.0, 2.0, 9.0, 4.0, 4.0, 4.0)]
+    assert objectives(scores, None, 3, "mean") == pytest.approx((4.0, 40.0))
+    assert objectives(scores, None, 3, "worst") == pytest.approx((6.5, 65.0))
+    assert objectives(scores, None, 3, "cvar") == pytest.approx((6.5, 65.0))  # 1 of 3: worst
+    nine = [_scores(f_acc=v, f_t=v) for v in range(1, 10)]
+    assert objectives(nine, None, 9, "cvar")[0] == pytest.approx(8.0)  # the worst 3 of 9
+    assert objectives(nine[:1], None, 1, "worst") == objectives(nine[:1])
+
+
+def test_every_candidate_meets_the_same_variants(tmp_path: Path) -> None:
+    config = RunConfig(
+        pop=4,
+        generations=2,
+        trajectories=(TrajectorySpec(kind="fourier", duration=0.3),),
+        plants=variants(REALISTIC_PLANT, 2, seed=0),
+        keep="all",
+    )
+    with TuningRun.create(tmp_path / "run", config) as run:
+        run.run(InProcessEvaluator(tmp_path / "run"), lambda progress: None)
+        logs = sorted((tmp_path / "run" / "episodes").glob("*.mcap"))
+        assert len(logs) == 8 * 3  # 8 candidates, each on the nominal plant and 2 variants
+        for log in logs:
+            plant = read_episode(log).metadata.spec.model
+            variant = log.stem.rpartition("-p")[2] if "-p" in log.stem else "0"
+            assert plant == ([config.model, *config.plants])[int(variant)], log.name
+    saved = (tmp_path / "run" / "config.json").read_bytes()
+    assert RunConfig.model_validate_json(saved).plants == config.plants  # and resumes with them
+
+
+def test_plants_and_uncertainty_bad_input_is_one_line(tmp_path: Path) -> None:
+    (tmp_path / "bad.toml").write_text('[a]\nfield = "nothing"\n')
+    for arguments, says in (
+        (["--plants", "-1"], "--plants"),
+        (["--plants", "2", "--uncertainty", "bad.toml"], "--uncertainty: 'bad.toml': a: "),
+        (["--plants", "2", "--uncertainty", "missing.toml"], "--uncertainty: cannot read"),
+    ):
+        result = analytic("start", *arguments, "--out", "run", cwd=tmp_path)
+        assert result.returncode == 2, result.stderr
+        assert result.stderr.count("\n") == 1 and says in result.stderr, result.stderr
+        assert not (tmp_path / "run").exists()
