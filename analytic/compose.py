@@ -18,6 +18,7 @@ from gainfarm.analytic.evaluators.evaluator import Evaluator
 from gainfarm.analytic.evaluators.farm import FarmClient, FarmUnavailable
 from gainfarm.analytic.evaluators.local import farm_endpoints
 from gainfarm.analytic.tuning import defaults
+from gainfarm.analytic.tuning.check import run_check
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import CONFIG_JSON, REPORT_MD
 from gainfarm.analytic.tuning.run import RunProgress, TuningRun
@@ -126,7 +127,8 @@ def tune_run(
     forget: Callable[[], None] | None = None,
 ) -> str:
     """Run `run` (open, so holding its lock) to its end on `evaluator`, or on the farm `tune`
-    says, evaluate the default gains beside it (baseline.json), draw its figures and report.md,
+    says, evaluate the default gains beside it (baseline.json), check the controllers it names
+    on held-out plants (check.json, if its config holds any), draw its figures and report.md,
     and close it; return why it stopped. `forget`, for a run just made: what removes it
     if nothing of it runs (the farm cannot be had, Ctrl-C or any failure before a job is sent).
     A Ctrl-C leaves as TuningInterrupted."""
@@ -143,6 +145,7 @@ def tune_run(
                 with shown as step:
                     stopped = run.run(chosen, step)
                     run.baseline(chosen)
+                    run_check(run, chosen)
             write_run_report(run)
             return stopped
     except BaseException as error:

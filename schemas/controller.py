@@ -31,6 +31,19 @@ LAW = (
 )
 
 
+class HeldOut(BaseModel):
+    """How the member fared on plants its run never tuned on (the held-out check, check.json)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    plants: int = Field(ge=1, description="held-out plants it ran every trajectory on")
+    nominal_f_acc: float = Field(description="its mean error on the nominal plant, m")
+    median_ratio: float = Field(description="median over the plants of its error over nominal")
+    worst_ratio: float = Field(description="the largest")
+    violations: int = Field(ge=0, description="plants on which it broke a safety limit")
+    diverged: int = Field(ge=0, description="plants on which an episode diverged")
+
+
 class Member(BaseModel):
     """Which front member the gains are, and how it scored in its run."""
 
@@ -49,6 +62,9 @@ class Member(BaseModel):
         None,
         description="its safety measures, worst over its episodes (schemas.limits); null from a "
         "run from before the limits",
+    )
+    held_out: HeldOut | None = Field(
+        None, description="the held-out check of it, if its run checked it (check.json)"
     )
 
 

@@ -18,6 +18,7 @@ if TYPE_CHECKING:
     from gainfarm.analytic.compose import Watch
     from gainfarm.analytic.evaluators.evaluator import Evaluator
     from gainfarm.analytic.tuning.run import RunProgress, TuningRun
+    from gainfarm.schemas.robot import ModelSpec
     from gainfarm.schemas.security import TlsIdentity
     from gainfarm.schemas.trajectory import TrajectorySpec
 
@@ -70,6 +71,80 @@ farm_options = options.stack(
         "its episodes on cores / N threads)  [default: one per core]",
     ),
 )
+
+
+def robustness() -> Callable[[F], F]:
+    """--plants K, --aggregate and --uncertainty FILE: robust tuning over plant variants."""
+    return options.stack(
+        click.option(
+            "--plants",
+            type=click.IntRange(0, 64),
+            default=0,
+            show_default=True,
+            metavar="K",
+            help="robust tuning: score every candidate on the nominal plant and K variants drawn "
+            "once from the uncertainty ranges (the same K for every candidate); constraints "
+            "hold on every one",
+        ),
+        click.option(
+            "--aggregate",
+            type=click.Choice(("mean", "worst", "cvar")),
+            default="cvar",
+            show_default=True,
+            help="each trajectory's objectives over its plants: the mean, the worst, or the mean "
+            "of the worst quarter",
+        ),
+        click.option(
+            "--check-plants",
+            type=click.IntRange(0, 256),
+            default=64,
+            show_default=True,
+            metavar="M",
+            help="once the run ends, run the controllers it names and the default gains on M "
+            "held-out plants drawn from the same ranges (check.json; 0: no check)",
+        ),
+        click.option(
+            "--uncertainty",
+            "uncertainty_file",
+            type=click.Path(path_type=Path),
+            metavar="FILE",
+            help="the ranges the variants are drawn from, a TOML file in the form of the shipped "
+            "models/uncertainty.toml (its defaults, each with its source)",
+        ),
+    )
+
+
+def plants_from(
+    count: int, path: Path | None, nominal: "ModelSpec", seed: int, held_out: bool = False
+) -> "tuple[ModelSpec, ...]":
+    """--plants K variants of `nominal` (`held_out`: --check-plants M of them, on the seed's
+    other stream), drawn from --uncertainty FILE's ranges (the shipped ones without it), or one
+    line naming the option."""
+    from gainfarm.analytic.tuning.plants import (
+        HELD_OUT,
+        TUNING,
+        BadUncertainty,
+        ranges,
+        variants,
+    )
+
+    stream = HELD_OUT if held_out else TUNING
+    if path is None:
+        return variants(nominal, count, seed, stream=stream)
+    try:
+        text = path.read_text()
+    except OSError as error:
+        raise CliError(f"--uncertainty: cannot read {str(path)!r}: {error.strerror}") from None
+    except UnicodeDecodeError:
+        raise CliError(f"--uncertainty: {str(path)!r} is not text") from None
+    try:
+        table = ranges(text)
+    except BadUncertainty as error:
+        raise CliError(f"--uncertainty: {str(path)!r}: {error}") from None
+    try:
+        return variants(nominal, count, seed, table, stream)
+    except ValueError as error:  # a range that takes the plant out of what it may be
+        raise CliError(f"--uncertainty: {str(path)!r}: a variant is no plant ({error})") from None
 
 
 def check_farm(

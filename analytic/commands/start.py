@@ -9,7 +9,9 @@ from gainfarm.analytic.commands.shared import (
     check_farm,
     config_problem,
     farm_options,
+    plants_from,
     pop_option,
+    robustness,
     run_with_progress,
     start_option,
     termination_options,
@@ -43,7 +45,7 @@ from gainfarm.cli.app import CliError
     "PD and tune the gains on top (a directory from `analytic learn`, or its model.npz)"
 )
 @options.limits()
-@options.robustness()
+@robustness()
 @farm_options
 @click.option("--out", type=click.Path(path_type=Path), help="run directory  [default: runs/TIME]")
 @click.option(
@@ -118,6 +120,7 @@ def start(
     limits_file: Path | None,
     plants: int,
     aggregate: str,
+    check_plants: int,
     uncertainty_file: Path | None,
     connect: tuple[str, ...],
     tls: Path | None,
@@ -152,7 +155,8 @@ def start(
     learned = options.feedforward_model(feedforward)
     model_file = learned[0] if learned is not None else None
     model = options.model_spec(plant, joints)
-    variants = options.plants_from(plants, uncertainty_file, model, seed)
+    variants = plants_from(plants, uncertainty_file, model, seed)
+    held_out = plants_from(check_plants, uncertainty_file, model, seed, held_out=True)
     try:
         config = RunConfig(
             pop=pop,
@@ -160,6 +164,7 @@ def start(
             trajectories=trajectories,
             model=model,
             plants=variants,
+            check_plants=held_out,
             aggregate=aggregate,
             limits=limits,
             generations=generations,

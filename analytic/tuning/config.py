@@ -74,6 +74,13 @@ class RunConfig(BaseModel):
         "nominal `model`, the same for every candidate (analytic.tuning.plants draws them from "
         "the uncertainty ranges); none: the nominal plant alone",
     )
+    check_plants: tuple[ModelSpec, ...] = Field(
+        (),
+        max_length=256,
+        description="the held-out check: plants drawn like `plants` on another stream of the "
+        "seed, which the named controllers and the default gains run on once the run ends "
+        "(analytic.tuning.check); none: no check",
+    )
     aggregate: Literal["mean", "worst", "cvar"] = Field(
         "cvar",
         description="each trajectory's objectives over the nominal plant and its variants: the "

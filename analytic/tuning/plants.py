@@ -80,14 +80,21 @@ def ranges(text: str | None = None) -> dict[str, Range]:
     return found
 
 
+TUNING, HELD_OUT = 0, 1  # the streams of a seed: the variants tuned on, those checked on
+
+
 def variants(
-    nominal: ModelSpec, count: int, seed: int, uncertainty: dict[str, Range] | None = None
+    nominal: ModelSpec,
+    count: int,
+    seed: int,
+    uncertainty: dict[str, Range] | None = None,
+    stream: int = TUNING,
 ) -> tuple[ModelSpec, ...]:
     """`count` plants drawn around `nominal` from `uncertainty` (default: the shipped ranges),
-    deterministic in `seed`. Each has its own sensor noise seed and the physics steps its
-    springs need (at least the nominal's)."""
+    deterministic in `seed` and `stream` (TUNING, HELD_OUT: never the same plants). Each has its
+    own sensor noise seed and the physics steps its springs need (at least the nominal's)."""
     table = ranges() if uncertainty is None else uncertainty
-    rng = np.random.default_rng([seed, 0x706C616E7473])  # "plants": its own stream of the seed
+    rng = np.random.default_rng([seed, 0x706C616E7473, stream])  # "plants", its own stream
     drawn = []
     for _ in range(count):
         values = nominal.model_dump()

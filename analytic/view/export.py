@@ -18,6 +18,7 @@ from pathlib import Path
 import yaml
 from pydantic import ValidationError
 
+from gainfarm.analytic.tuning.check import read_check
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.picks import Pick, pick_at, picks
 from gainfarm.analytic.tuning.records import (
@@ -36,7 +37,7 @@ from gainfarm.analytic.tuning.records import (
     read_identity,
     sorted_front,
 )
-from gainfarm.schemas.controller import Controller, Member, Source
+from gainfarm.schemas.controller import Controller, HeldOut, Member, Source
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.limits import MEASURES
 from gainfarm.schemas.robot import PLANTS, ModelSpec
@@ -160,6 +161,7 @@ def controller(directory: Path, which: str = "recommended") -> Controller:
             diverged=member.diverged,
             sharing=chosen.sharing,
             measures=dict(zip(MEASURES, measured, strict=True)) if measured else None,
+            held_out=_held_out(directory, member),
         ),
         limits=config.limits if measured else None,
         source=Source(
@@ -178,6 +180,16 @@ def controller(directory: Path, which: str = "recommended") -> Controller:
             stopped=config.termination.reason([row.hypervolume for row in history], evaluations),
         ),
     )
+
+
+def _held_out(directory: Path, member: FrontMember) -> HeldOut | None:
+    """The held-out check of the member, if its run checked it."""
+    record = read_check(directory)
+    for item in (record or {}).get("controllers", ()):
+        if tuple(item["kp"]) == member.kp and tuple(item["kd"]) == member.kd:
+            fields = {name: item[name] for name in HeldOut.model_fields if name in item}
+            return HeldOut(plants=record["plants"], **fields)  # type: ignore[index]
+    return None
 
 
 def _measures(directory: Path, member: FrontMember) -> tuple[float, ...]:

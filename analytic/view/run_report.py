@@ -7,6 +7,7 @@ function of the records.
 
 from collections.abc import Sequence
 
+from gainfarm.analytic.tuning.check import read_check
 from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import HYPERVOLUME_PNG, PARETO_PNG, REPORT_MD
 from gainfarm.analytic.tuning.run import TuningRun
@@ -52,7 +53,8 @@ def write_run_report(run: TuningRun) -> None:
         validation=run.validation(),
     )
     report = run.directory / REPORT_MD
-    section = "\n".join(limits_section(limits, run.state.measured, len(front)))
+    lines = limits_section(limits, run.state.measured, len(front))
+    section = "\n".join([*lines, *check_section(read_check(run.directory))])
     write_atomically(report, report.read_bytes().rstrip(b"\n") + b"\n\n" + section.encode())
 
 
@@ -85,3 +87,35 @@ def limits_section(limits: Limits, measured: Sequence[Sequence[float]], front: i
         shown = "not checked" if limit is None else f"{limit:g}"
         lines.append(f"| {name} | {shown} | {UNITS[name]} | {counts[name]} |")
     return [*lines, ""]
+
+
+def check_section(record: dict | None) -> list[str]:
+    """report.md's lines on the held-out check (none without one)."""
+    if not record:
+        return []
+    lines = [
+        "## Held-out plants",
+        "",
+        "Each controller below ran every trajectory on the nominal plant and on "
+        f"{record['plants']} plants drawn from the uncertainty ranges on a stream of the seed "
+        "the run never tuned on (check.json). Error ratio: its mean error on a plant over its "
+        "own on the nominal one.",
+        "",
+        "| controller | front.csv row | nominal f_acc (mm) | median ratio | worst ratio | "
+        "plants over a limit | plants diverged |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for item in record["controllers"]:
+        row = "–" if item["row"] is None else item["row"]
+        lines.append(
+            f"| {item['name']} | {row} | {item['nominal_f_acc'] * 1000:.3f} | "
+            f"{item['median_ratio']:.3f} | {item['worst_ratio']:.3f} | {item['violations']} | "
+            f"{item['diverged']} |"
+        )
+    cost = record.get("cost", {})
+    lines += [
+        "",
+        f"It cost {cost.get('episodes', '?')} episodes, {cost.get('wall_seconds', '?')} s.",
+        "",
+    ]
+    return lines

@@ -311,63 +311,6 @@ def limits_from(path: Path | None) -> "Limits":
         raise CliError(f"--limits: {str(path)!r}: {describe(error)}") from None
 
 
-def robustness() -> Callable[[F], F]:
-    """--plants K, --aggregate and --uncertainty FILE: robust tuning over plant variants."""
-    return stack(
-        click.option(
-            "--plants",
-            type=click.IntRange(0, 64),
-            default=0,
-            show_default=True,
-            metavar="K",
-            help="robust tuning: score every candidate on the nominal plant and K variants drawn "
-            "once from the uncertainty ranges (the same K for every candidate); constraints "
-            "hold on every one",
-        ),
-        click.option(
-            "--aggregate",
-            type=click.Choice(("mean", "worst", "cvar")),
-            default="cvar",
-            show_default=True,
-            help="each trajectory's objectives over its plants: the mean, the worst, or the mean "
-            "of the worst quarter",
-        ),
-        click.option(
-            "--uncertainty",
-            "uncertainty_file",
-            type=click.Path(path_type=Path),
-            metavar="FILE",
-            help="the ranges the variants are drawn from, a TOML file in the form of the shipped "
-            "models/uncertainty.toml (its defaults, each with its source)",
-        ),
-    )
-
-
-def plants_from(
-    count: int, path: Path | None, nominal: "ModelSpec", seed: int
-) -> "tuple[ModelSpec, ...]":
-    """--plants K variants of `nominal`, drawn from --uncertainty FILE's ranges (the shipped
-    ones without it), or one line naming the option."""
-    from gainfarm.analytic.tuning.plants import BadUncertainty, ranges, variants
-
-    if path is None:
-        return variants(nominal, count, seed)
-    try:
-        text = path.read_text()
-    except OSError as error:
-        raise CliError(f"--uncertainty: cannot read {str(path)!r}: {error.strerror}") from None
-    except UnicodeDecodeError:
-        raise CliError(f"--uncertainty: {str(path)!r} is not text") from None
-    try:
-        table = ranges(text)
-    except BadUncertainty as error:
-        raise CliError(f"--uncertainty: {str(path)!r}: {error}") from None
-    try:
-        return variants(nominal, count, seed, table)
-    except ValueError as error:  # a range that takes the plant out of what it may be
-        raise CliError(f"--uncertainty: {str(path)!r}: a variant is no plant ({error})") from None
-
-
 # --- the farm -------------------------------------------------------------------------------------
 
 
