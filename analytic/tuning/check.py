@@ -5,8 +5,9 @@ from the uncertainty ranges on another stream of the seed than the training vari
 controller a user takes away (the recommended member, or the closest to it), the front's knee
 and the default gains run every trajectory on the nominal plant and on each held-out plant:
 3 (M + 1) episodes a trajectory, a quarter of the main job's own at M = 64. The rest of the
-front is not checked: at some 30 members, that would be several times the run itself. Per controller: its error on each plant against its own on the nominal one (median and
-worst), and on how many plants it broke a safety limit or diverged. check.json holds it;
+front is not checked: at some 30 members, that would be several times the run itself. Per
+controller: its error on each plant against its own on the nominal one (median and worst), and on
+how many plants it broke a safety limit or diverged. check.json holds it;
 front.json, report.md and the exported controller carry it.
 """
 
