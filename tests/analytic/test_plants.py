@@ -1,6 +1,7 @@
 """Robust tuning: plant variants drawn from the uncertainty ranges, the same for every candidate,
 each trajectory's objectives aggregated over them."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -8,7 +9,7 @@ import pytest
 
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.tuning.config import RunConfig
-from gainfarm.analytic.tuning.plants import BadUncertainty, ranges, variants
+from gainfarm.analytic.tuning.plants import HELD_OUT, BadUncertainty, ranges, variants
 from gainfarm.analytic.tuning.run import TuningRun
 from gainfarm.models import compile_model
 from gainfarm.schemas import Scores, TrajectorySpec
@@ -111,3 +112,35 @@ def test_plants_and_uncertainty_bad_input_is_one_line(tmp_path: Path) -> None:
         assert result.returncode == 2, result.stderr
         assert result.stderr.count("\n") == 1 and says in result.stderr, result.stderr
         assert not (tmp_path / "run").exists()
+
+
+def test_the_held_out_check_runs_the_controller_to_use_and_the_defaults(tmp_path: Path) -> None:
+    from gainfarm.analytic.tuning.check import read_check, run_check
+    from gainfarm.analytic.view.export import controller
+    from gainfarm.analytic.view.run_report import write_run_report
+
+    config = RunConfig(
+        pop=4,
+        generations=2,
+        trajectories=(TrajectorySpec(kind="fourier", duration=0.3),),
+        check_plants=variants(REALISTIC_PLANT, 3, seed=0, stream=HELD_OUT),
+    )
+    assert not set(config.check_plants) & set(variants(REALISTIC_PLANT, 3, seed=0))
+    directory = tmp_path / "run"
+    with TuningRun.create(directory, config) as run:
+        evaluator = InProcessEvaluator(directory)
+        run.run(evaluator, lambda progress: None)
+        run.baseline(evaluator)
+        checked = run_check(run, evaluator)
+        write_run_report(run)
+    names = [item.name for item in checked]
+    assert names[-1] == "default gains" and names[0] in ("recommended", "closest")
+    for item in checked:
+        assert item.nominal_f_acc > 0 and 0 < item.median_ratio <= item.worst_ratio
+        assert item.violations + item.diverged <= 3
+    record = read_check(directory)
+    assert record["plants"] == 3 and record["cost"]["episodes"] == len(checked) * 4
+    assert json.loads((directory / "front.json").read_text())["held_out"] == record
+    assert "## Held-out plants" in (directory / "report.md").read_text()
+    exported = controller(directory, "knee")  # checked, whether or not it is the one to use
+    assert exported.member.held_out is not None and exported.member.held_out.plants == 3
