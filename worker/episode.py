@@ -46,7 +46,8 @@ def compensation(
 ) -> np.ndarray | None:
     """The torque the controller adds to its PD law, per tick: the gravity feed-forward, or a
     learned model's inverse dynamics of the whole reference, computed in bulk once per episode
-    so that the tick stays as lean as without; None if the spec asks for neither.
+    so that the tick stays as lean as without; None if the spec asks for neither. `reference`
+    is the spec trajectory's (reference_for).
 
     A model predicts the whole motor torque, gravity included (`motor_torque`); behind FRI the
     robot adds its own gravity model at the measured angles, so the controller adds the model's
@@ -55,8 +56,8 @@ def compensation(
         if model is None:
             raise MissingModel(f"feed-forward model {spec.feedforward[:12]} was not given")
         torque = model.inverse(reference.q, reference.qd, reference.qdd)
-        if spec.model.interface == "fri":
-            torque = torque - RobotGravity(spec.model).at(reference.q)
+        if spec.model.interface == "fri":  # g_robot(q_des), computed once per trajectory
+            torque = torque - gravity_for(spec.trajectory, spec.model.inertials)
         return torque
     if spec.gravity_compensation:
         return gravity_for(spec.trajectory, spec.model.inertials)

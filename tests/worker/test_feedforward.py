@@ -25,6 +25,7 @@ from gainfarm.worker import episode
 from gainfarm.worker.episode import MissingModel, run_episode
 from gainfarm.worker.feedforward import ModelCache, ModelUnavailable
 from gainfarm.worker.job import simulate
+from gainfarm.worker.plant import RobotGravity
 from gainfarm.worker.reference import reference_for
 from tests.helpers import SOFT_GAINS
 
@@ -65,6 +66,8 @@ def test_behind_fri_the_feedforward_leaves_gravity_to_the_robot() -> None:
     whole = model.inverse(reference.q, reference.qd, reference.qdd)
     fri = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=TRAJECTORY, model=REALISTIC_PLANT)
     errors["fri", "gravity twice"] = score(episode.simulate(fri, reference, whole)).f_acc
+    added = episode.compensation(fri.model_copy(update={"feedforward": name}), reference, model)
+    np.testing.assert_array_equal(added, whole - RobotGravity(REALISTIC_PLANT).at(reference.q))
     assert errors["fri", "model"] < 0.5 * errors["fri", "pd"], errors
     assert errors["fri", "model"] < 1.05 * errors["torque", "model"], errors
     assert errors["fri", "gravity twice"] > 3 * errors["fri", "model"], errors
