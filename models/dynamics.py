@@ -4,6 +4,9 @@ A `DynamicsModel` maps one joint-space state and a third signal to another, in b
 arrays, a whole reference at once):
 - target "inverse": (q, q̇, q̈) → the motor torque u that produces them, N·m;
 - target "forward": (q, q̇, u) → the link acceleration q̈ it produces, rad/s².
+u is the motors' whole torque (a dataset's u_motor): behind KUKA's FRI, the command and the
+robot's own gravity model together, which is why the worker's feed-forward there subtracts the
+latter (worker/episode.py `compensation`).
 
 Kinds:
 - "rigid": the physics prior. MuJoCo's dynamics of the rigid arm of `spec` (its inertial set, the

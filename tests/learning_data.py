@@ -2,7 +2,8 @@
 episodes of fourier excitations, written as ticks.parquet and episodes.parquet.
 
 Only the columns analytic/learning.py reads, plus the identifiers; each trajectory (one seed) is
-one episode, so splitting by episode is splitting by trajectory, as the real builder does.
+one episode, so splitting by episode is splitting by trajectory, as the real builder does. The
+motors' whole torque, u_motor, is the builder's own (worker.episode.motor_torque).
 """
 
 from collections.abc import Sequence
@@ -17,7 +18,7 @@ from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
-from gainfarm.worker.episode import run_episode
+from gainfarm.worker.episode import motor_torque, run_episode
 
 # Gains that track the fourier excitations within some 0.05 rad and keep the realistic plant calm
 # (peak link acceleration some 25 rad/s²), as a tuned controller does. tests.helpers'
@@ -39,8 +40,7 @@ SPLITS: tuple[tuple[int, str], ...] = (
 def episode(plant: ModelSpec, seed: int, duration: float) -> EpisodeLog:
     """A fourier excitation tracked with CALM_GAINS and gravity compensation on `plant` (a
     feed-forward, or the robot's own behind FRI); cached, as several tests write datasets from
-    the same episodes. The learning tests run on plain torque plants: the log's u is then the
-    whole motor torque, the target a rigid-body prior predicts."""
+    the same episodes."""
     spec = EpisodeSpec(
         gains=CALM_GAINS,
         trajectory=TrajectorySpec(kind="fourier", seed=seed, duration=duration),
@@ -57,8 +57,10 @@ def write_dataset(
     plant: ModelSpec,
     splits: Sequence[tuple[int, str]] = SPLITS,
     duration: float = 2.0,
+    motor_column: bool = True,
 ) -> Path:
-    """Write a dataset directory at `path` with one episode per (seed, split); return `path`."""
+    """Write a dataset directory at `path` with one episode per (seed, split); return `path`.
+    Without `motor_column`, as a dataset from before u_motor."""
     path.mkdir(parents=True)
     ticks, rows = [], []
     for seed, split in splits:
@@ -73,7 +75,9 @@ def write_dataset(
         # The contract's acceleration: forward differences of the measured velocity, NaN last.
         qdd = np.full_like(log.qd, np.nan)
         qdd[:-1] = np.diff(log.qd, axis=0) / CONTROL_PERIOD
-        for signal, values in [(name, getattr(log, name)) for name in SIGNALS] + [("qdd", qdd)]:
+        signals = [(name, getattr(log, name)) for name in SIGNALS] + [("qdd", qdd)]
+        signals += [("u_motor", motor_torque(log))] * motor_column
+        for signal, values in signals:
             for index, joint in enumerate(JOINT_NAMES):
                 columns[f"{signal}_{joint}"] = values[:, index]
         ticks.append(pa.table(columns))

@@ -46,11 +46,19 @@ def compensation(
 ) -> np.ndarray | None:
     """The torque the controller adds to its PD law, per tick: the gravity feed-forward, or a
     learned model's inverse dynamics of the whole reference, computed in bulk once per episode
-    so that the tick stays as lean as without; None if the spec asks for neither."""
+    so that the tick stays as lean as without; None if the spec asks for neither. `reference`
+    is the spec trajectory's (reference_for).
+
+    A model predicts the whole motor torque, gravity included (`motor_torque`); behind FRI the
+    robot adds its own gravity model at the measured angles, so the controller adds the model's
+    torque less that gravity model's at the reference, or gravity would be counted twice."""
     if spec.feedforward is not None:
         if model is None:
             raise MissingModel(f"feed-forward model {spec.feedforward[:12]} was not given")
-        return model.inverse(reference.q, reference.qd, reference.qdd)
+        torque = model.inverse(reference.q, reference.qd, reference.qdd)
+        if spec.model.interface == "fri":  # g_robot(q_des), computed once per trajectory
+            torque = torque - gravity_for(spec.trajectory, spec.model.inertials)
+        return torque
     if spec.gravity_compensation:
         return gravity_for(spec.trajectory, spec.model.inertials)
     return None
@@ -169,6 +177,19 @@ def _exact(model: ModelSpec) -> bool:
         and model.friction is None
         and model.interface == "torque"
     )
+
+
+def motor_torque(log: EpisodeLog) -> np.ndarray:
+    """(ticks, 7) N·m the motors exerted, from the log alone: behind FRI, its command `u` plus
+    the robot's gravity model at the angles the robot measured (the fed-back side's, as logged:
+    the loop's very numbers), clamped to the torque limits as the robot does; on a plain torque
+    interface, `u` itself. What a model of the arm's dynamics predicts."""
+    model = log.metadata.spec.model
+    if model.interface != "fri":
+        return log.u
+    measured = log.theta if model.feedback == "motor" else log.q
+    limits = np.asarray(log.metadata.torque_limits)
+    return np.clip(log.u + RobotGravity(model).at(measured), -limits, limits)
 
 
 @lru_cache(maxsize=64)

@@ -65,11 +65,13 @@ from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.schemas.wire import describe
+from gainfarm.worker.episode import motor_torque
 
 Selection = Literal["front", "knee"]
 Split = tuple[float, float, float]
 
-DATASET_VERSION = "2"  # 2: run-id episode ids, trajectories.parquet, qdd, split, units
+# 2: run-id episode ids, trajectories.parquet, qdd, split, units; 3: u_motor
+DATASET_VERSION = "3"
 SPLITS = ("train", "validation", "test")
 DEFAULT_SPLIT: Split = (0.6, 0.2, 0.2)
 RUN_ID_DIGITS = 8  # of the run's 32: unique enough, and a collision is refused, not merged
@@ -87,13 +89,22 @@ JOINT_SIGNALS = {
         "row k's command produced; NaN on an episode's last tick",
     ),
     "tau": ("N*m", "joint torque sensors' reading (the spring torque if the joints are elastic)"),
-    "u": ("N*m", "motor torque command as applied (delayed, saturated) from tick k to k + 1"),
+    "u": (
+        "N*m",
+        "the controller's torque command as the robot applied it (delayed, saturated) from tick "
+        "k to k + 1; behind FRI without the robot's own gravity compensation",
+    ),
+    "u_motor": (
+        "N*m",
+        "torque the motors exerted from tick k to k + 1: u, plus behind FRI the robot's gravity "
+        "model at its measured angles, saturated; what a model of the arm's dynamics predicts",
+    ),
     "theta": ("rad", "motor-side angle, as measured (the link angle if the joints are rigid)"),
     "theta_d": ("rad/s", "motor-side velocity, as measured"),
     "q_des": ("rad", "reference joint position"),
     "qd_des": ("rad/s", "reference joint velocity"),
 }
-LOGGED_JOINT_SIGNALS = tuple(signal for signal in JOINT_SIGNALS if signal != "qdd")
+LOGGED_JOINT_SIGNALS = tuple(s for s in JOINT_SIGNALS if s not in ("qdd", "u_motor"))
 CARTESIAN_SIGNALS = {
     "ee": ("m", "flange position, base frame"),
     "ee_des": ("m", "desired flange position, base frame"),
@@ -391,7 +402,8 @@ def tick_columns(episode_id: str, log: EpisodeLog) -> dict[str, np.ndarray]:
 
     qdd is differenced within the episode, forward: row k's u acts from tick k to k + 1, so
     (qd[k+1] - qd[k]) / period is the acceleration it produced. The last tick has no next one:
-    NaN, never a difference across two episodes.
+    NaN, never a difference across two episodes. u_motor is what the motors exerted
+    (worker.episode.motor_torque): u itself, or behind FRI u and the robot's gravity model.
     """
     ticks = log.ticks
     columns: dict[str, np.ndarray] = {
@@ -402,7 +414,8 @@ def tick_columns(episode_id: str, log: EpisodeLog) -> dict[str, np.ndarray]:
     }
     qdd = np.full_like(log.qd, np.nan, dtype=np.float64)
     qdd[:-1] = np.diff(log.qd, axis=0) / log.metadata.control_period
-    signals = {signal: getattr(log, signal) for signal in LOGGED_JOINT_SIGNALS} | {"qdd": qdd}
+    signals = {signal: getattr(log, signal) for signal in LOGGED_JOINT_SIGNALS}
+    signals |= {"qdd": qdd, "u_motor": motor_torque(log)}
     for signal in JOINT_SIGNALS:
         for index, joint in enumerate(JOINT_NAMES):
             columns[f"{signal}_{joint}"] = signals[signal][:, index]
@@ -722,6 +735,16 @@ def within_limits(
     return kept, len(episodes) - len(kept)
 
 
+def interface_text(model: ModelSpec) -> str:
+    """What the card says of a run's torque interface: how its `u` became `u_motor`."""
+    if model.interface == "fri":
+        return (
+            "behind KUKA's FRI torque interface (the robot added its gravity model of the "
+            f"{model.inertials} inertials to `u`: `u_motor` is the sum)"
+        )
+    return "on a plain torque interface (`u_motor` is `u`)"
+
+
 def card(
     counts: dict[str, int],
     chosen: Sequence[ChosenRun],
@@ -740,7 +763,9 @@ def card(
         else "the knee (the front member `analytic export` takes: the least worse objective, both "
         "on a log scale between the front's ideal and nadir)"
     )
-    runs = "\n".join(f"- `{run.name}`: run_id `{run.run_id}`" for run in chosen)
+    runs = "\n".join(
+        f"- `{run.name}`: run_id `{run.run_id}`, {interface_text(run.model)}" for run in chosen
+    )
     fractions = ",".join(f"{value:g}" for value in split)
     if counts["linked"] + counts["copied"] == 0:
         logs = "the rerun's own, none a tuning run's"
@@ -809,9 +834,13 @@ test) of the trajectories, ordered by the SHA-256 of `<split seed>:<trajectory_i
   `(qd[k+1] - qd[k]) / {CONTROL_PERIOD}`: the acceleration produced while row `k`'s `u` was
   applied, so it pairs with `u` exactly; it is NaN on each episode's last tick (never a
   difference across two episodes). Motor side (`theta`, `theta_d`) and torque sensors (`tau`)
-  are as the sensors report them, noise included on the realistic plant; `u` is the command as
-  the motors received it (after the plant's delay and saturation). The `model` column of
-  `episodes.parquet` says which plant: friction, delay, sensors, feedback side.
+  are as the sensors report them, noise included on the realistic plant; `u` is the
+  controller's command as the robot took it (after the plant's delay and saturation), and
+  `u_motor` the torque the motors exerted: behind KUKA's FRI torque interface, `u` plus the
+  robot's own gravity model at the angles it measured (the fed-back side's `theta` or `q`),
+  saturated; on a plain torque interface, `u`. A model of the arm's dynamics predicts
+  `u_motor`. Each run above says its interface; the `model` column of `episodes.parquet` says
+  which plant: interface, friction, delay, sensors, feedback side.
 - `episodes.parquet`: one row per episode. `episode_id` (`<first 8 hex digits of the
   run_id>-<job id>`, with `-rerun-` for reruns), `run` (the run directory's name, or `rerun`),
   `run_id` (the controller's run, from its run.json), `source` (`tuning` or `rerun`),

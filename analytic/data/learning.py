@@ -48,6 +48,9 @@ from gainfarm.models.dynamics import (
 from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
 
 TICKS = "ticks.parquet"
+# The whole motor torque a model of the arm learns (dataset version 3); a dataset from before it
+# has only u, the motor torque of its episodes, all on a plain torque interface.
+MOTOR_TORQUE, COMMAND = "u_motor", "u"
 EPISODES = "episodes.parquet"
 SCORES_FILE = "scores.json"
 REPORT_FILE = "report.md"
@@ -96,7 +99,7 @@ class Rows:
     q: np.ndarray  # rad, measured link side
     qd: np.ndarray  # rad/s
     qdd: np.ndarray  # rad/s², forward difference of qd
-    u: np.ndarray  # N·m, motor torque as applied
+    u: np.ndarray  # N·m, the motors' whole torque as applied (the dataset's u_motor)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -111,11 +114,13 @@ class Rows:
 
 
 def read_split(dataset_dir: Path, split: str) -> Rows:
-    """The rows of `split` ("train", "validation", "test"), last ticks (no q̈) dropped.
+    """The rows of `split` ("train", "validation", "test"), last ticks (no q̈) dropped; `u` is
+    the motors' whole torque (`u_motor`, or `u` in a dataset from before it).
 
     Raises LearnError, one line, if the dataset is missing or lacks the columns."""
-    signals = ("q", "qd", "qdd", "u")
-    columns = ["episode_id", "t"] + [f"{s}_{j}" for s in signals for j in JOINT_NAMES]
+    torque = motor_torque_column(dataset_dir)
+    signals = {"q": "q", "qd": "qd", "qdd": "qdd", "u": torque}  # Rows' name → the column's
+    columns = ["episode_id", "t"] + [f"{c}_{j}" for c in signals.values() for j in JOINT_NAMES]
     try:
         table = pq.read_table(
             Path(dataset_dir) / TICKS, columns=columns, filters=[("split", "==", split)]
@@ -125,10 +130,10 @@ def read_split(dataset_dir: Path, split: str) -> Rows:
     except (OSError, pa.ArrowException, ValueError, KeyError) as error:
         raise LearnError(f"{str(dataset_dir)!r}: unreadable {TICKS}: {_one_line(error)}") from None
     arrays = {
-        s: np.column_stack([table[f"{s}_{j}"].to_numpy() for j in JOINT_NAMES]).astype(float)
+        s: np.column_stack([table[f"{c}_{j}"].to_numpy() for j in JOINT_NAMES]).astype(float)
         if table.num_rows
         else np.empty((0, N_JOINTS))
-        for s in signals
+        for s, c in signals.items()
     }
     finite = np.isfinite(np.hstack(list(arrays.values()))).all(axis=1)
     return Rows(
@@ -136,6 +141,27 @@ def read_split(dataset_dir: Path, split: str) -> Rows:
         t=table["t"].to_numpy()[finite].astype(float),
         **{s: arrays[s][finite] for s in signals},
     )
+
+
+def motor_torque_column(dataset_dir: Path) -> str:
+    """The column of the motors' whole torque: `u_motor`, or in a dataset from before it `u`,
+    which was the motor torque only if every episode commanded it (a plain torque interface;
+    behind FRI the robot adds its gravity model to u). LearnError, one line, if it was not."""
+    try:
+        names = pq.read_schema(Path(dataset_dir) / TICKS).names
+    except FileNotFoundError:
+        raise LearnError(f"{str(dataset_dir)!r} holds no dataset (no {TICKS})") from None
+    except (OSError, pa.ArrowException, ValueError) as error:
+        raise LearnError(f"{str(dataset_dir)!r}: unreadable {TICKS}: {_one_line(error)}") from None
+    if f"{MOTOR_TORQUE}_{JOINT_NAMES[0]}" in names:
+        return MOTOR_TORQUE
+    if any(plant.interface == "fri" for plant in plants(dataset_dir)):
+        raise LearnError(
+            f"{str(dataset_dir)!r} has no {MOTOR_TORQUE} column and holds episodes behind FRI, "
+            "whose u leaves out the robot's gravity compensation: build it again with "
+            "analytic dataset"
+        )
+    return COMMAND
 
 
 def plants(dataset_dir: Path) -> list[ModelSpec]:
@@ -413,7 +439,7 @@ def plot_prediction(path: Path, model: DynamicsModel, rows: Rows) -> None:
     figure = Figure(figsize=(9.0, 10.0), dpi=DPI, layout="constrained")
     FigureCanvasAgg(figure)  # Agg explicitly, as analytic/figures.py: no backend, no display
     panels = figure.subplots(4, 2, sharex=True).ravel()
-    quantity = "u" if model.target == "inverse" else "q̈"
+    quantity = "motor torque" if model.target == "inverse" else "q̈"
     for index, (axes, joint) in enumerate(zip(panels, JOINT_NAMES, strict=False)):
         axes.plot(t, measured[:, index], color="black", linewidth=0.8, label="measured")
         axes.plot(t, predicted[:, index], color="tab:orange", linewidth=0.8, label="predicted")
@@ -444,6 +470,7 @@ def report(
         f"- dataset: `{Path(dataset_dir).resolve()}`, {plant_text(plant)}",
         f"- model: `{MODEL_FILE}`, SHA-256 `{scores['digest']}`",
         f"- seed {scores['seed']}, fitted in {scores['fit_seconds']:.1f} s",
+        f"- torque: {_torque_text(dataset_dir, found)}",
     ]
     for split, (episodes, rows) in counts.items():
         lines.append(f"- {split}: {episodes} episodes, {rows:,} ticks")
@@ -465,6 +492,15 @@ def report(
         "",
     ]
     return "\n".join(lines)
+
+
+def _torque_text(dataset_dir: Path, found: list[ModelSpec]) -> str:
+    """Which torque the model predicts (or takes, if forward): the motors' whole torque."""
+    if motor_torque_column(dataset_dir) == COMMAND:
+        return "`u`, the motors' whole torque (a dataset from before `u_motor`, plain torque)"
+    if any(plant.interface == "fri" for plant in found):
+        return "`u_motor`, the motors' whole torque (behind FRI: `u` and the robot's gravity model)"
+    return "`u_motor`, the motors' whole torque (`u`: a plain torque interface)"
 
 
 def _what(model: DynamicsModel) -> str:

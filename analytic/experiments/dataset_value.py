@@ -142,11 +142,12 @@ def random_gains(seed: int, count: int) -> list[PDGains]:
 def episode_rows(path: Path, episode_id: str) -> Rows:
     """One episode's ticks with a finite acceleration, by the dataset's own rule
     (analytic.dataset.tick_columns: q̈ forward-differenced within the episode, NaN at its
-    last tick, which is dropped here with any other non-finite row)."""
+    last tick, which is dropped here with any other non-finite row). `u` is the motors' whole
+    torque, the dataset's u_motor: what the models learn (analytic.learning.read_split)."""
     columns = tick_columns(episode_id, read_episode(path))
     signals = {
-        signal: np.column_stack([columns[f"{signal}_{joint}"] for joint in JOINT_NAMES])
-        for signal in ("q", "qd", "qdd", "u")
+        signal: np.column_stack([columns[f"{column}_{joint}"] for joint in JOINT_NAMES])
+        for signal, column in (("q", "q"), ("qd", "qd"), ("qdd", "qdd"), ("u", "u_motor"))
     }
     finite = np.isfinite(np.hstack(list(signals.values()))).all(axis=1)
     return Rows(

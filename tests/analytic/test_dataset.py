@@ -42,7 +42,8 @@ from gainfarm.analytic.view.export import controller
 from gainfarm.cli import interrupts
 from gainfarm.schemas import TrajectorySpec
 from gainfarm.schemas.mcap_episode import read_episode
-from gainfarm.schemas.robot import JOINT_NAMES
+from gainfarm.schemas.robot import JOINT_NAMES, PLAIN_PLANT
+from gainfarm.worker.episode import motor_torque
 from tests.helpers import write_log
 
 SPIRAL = TrajectorySpec(duration=3.0)
@@ -56,8 +57,9 @@ CONFIG = RunConfig(
     ),
     generations=2,
 )
-# Another run, in another directory of the same name, sharing the spiral.
-TWIN = RunConfig(pop=4, seed=5, trajectories=(SPIRAL,), generations=1)
+# Another run, in another directory of the same name, sharing the spiral; on a plain torque
+# interface, so that a dataset mixes both interfaces.
+TWIN = RunConfig(pop=4, seed=5, trajectories=(SPIRAL,), generations=1, model=PLAIN_PLANT)
 RERUN = [
     TrajectorySpec(kind="pyramid", duration=3.0, seed=1, center=(0.5, 0.1, 0.4)),
     TrajectorySpec(kind="fourier", duration=3.0, seed=2),
@@ -130,6 +132,12 @@ def assert_ticks_are_the_logs(dataset: Path) -> int:
             for signal in SIGNALS:
                 values = np.array(ticks[f"{signal}_{joint}"])[rows]
                 np.testing.assert_array_equal(values, getattr(log, signal)[:, index])
+        # The motors' whole torque: behind FRI the command and the robot's gravity model (the
+        # loop's own numbers: tests/worker/test_episode.py), on a torque interface the command.
+        u_motor = np.array([ticks[f"u_motor_{joint}"] for joint in JOINT_NAMES]).T[rows]
+        np.testing.assert_array_equal(u_motor, motor_torque(log))
+        fri = log.metadata.spec.model.interface == "fri"
+        assert fri == (np.abs(u_motor - log.u)[:, 1].min() > 10), fri  # A2 holds the arm up
         for index, axis in enumerate("xyz"):
             np.testing.assert_array_equal(np.array(ticks[f"ee_{axis}"])[rows], log.ee[:, index])
             np.testing.assert_array_equal(
@@ -163,6 +171,8 @@ def test_the_tick_table_is_the_episodes_tick_by_tick(run_dir: Path, tmp_path: Pa
     assert trajectories["center_z"][spiral] == 0.35 and trajectories["duration"][spiral] == 3.0
     card = (tmp_path / "dataset" / "README.md").read_text()
     assert "qdd_A1..A7" in card and "NaN on each episode's last tick" in card
+    assert f"run_id `{run_id}`, behind KUKA's FRI torque interface" in card
+    assert "`u_motor_A1..A7` (N*m): torque the motors exerted" in card
 
 
 @pytest.mark.slow
@@ -179,6 +189,9 @@ def test_two_runs_in_directories_of_one_name_keep_every_episode(
     assert assert_ticks_are_the_logs(tmp_path / "both") == sum(alone)
     _, episodes, _ = tables(tmp_path / "both")
     assert set(episodes["run"]) == {"generic"} and len(set(episodes["run_id"])) == 2
+    card = (tmp_path / "both" / "README.md").read_text()
+    twin_id = read_identity(twin_dir / RUN_JSON).run_id
+    assert f"run_id `{twin_id}`, on a plain torque interface (`u_motor` is `u`)" in card
 
 
 def test_a_run_given_twice_or_copied_is_refused(run_dir: Path, tmp_path: Path) -> None:
@@ -248,7 +261,7 @@ def test_every_column_has_a_unit(run_dir: Path, tmp_path: Path) -> None:
         schema = pq.read_schema(tmp_path / "dataset" / f"{name}.parquet")
         assert all(b"unit" in (field.metadata or {}) for field in schema), name
         assert schema.metadata[b"control_period"] == b"0.002"
-        assert schema.metadata[b"dataset_version"] == b"2"
+        assert schema.metadata[b"dataset_version"] == b"3"
     ticks = pq.read_schema(tmp_path / "dataset" / "ticks.parquet")
     expected = {
         "t": b"s",
@@ -257,6 +270,7 @@ def test_every_column_has_a_unit(run_dir: Path, tmp_path: Path) -> None:
         "qdd_A3": b"rad/s^2",
         "tau_A4": b"N*m",
         "u_A5": b"N*m",
+        "u_motor_A6": b"N*m",
         "theta_A6": b"rad",
         "theta_d_A7": b"rad/s",
         "ee_des_z": b"m",

@@ -1,5 +1,6 @@
 """Learning the arm's dynamics (analytic/learning.py) on small datasets of real MuJoCo episodes:
-real scikit-learn training and Pinocchio identification, scored on held-out trajectories."""
+real scikit-learn training and Pinocchio identification, scored on held-out trajectories. The
+plain torque plant's and the FRI plant's: the target is the motors' whole torque on both."""
 
 import json
 import subprocess
@@ -13,8 +14,12 @@ import pytest
 
 from gainfarm.analytic.data import learning
 from gainfarm.analytic.data.learning import LearnError, fit, learn, read_split, score
-from gainfarm.models.dynamics import digest, from_bytes, load, to_bytes
-from gainfarm.schemas.robot import IDEAL_PLANT, JOINT_NAMES, PLAIN_PLANT
+from gainfarm.models.dynamics import digest, from_bytes, load, rigid_prior, to_bytes
+from gainfarm.schemas import EpisodeSpec, TrajectorySpec
+from gainfarm.schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas.objectives import score as score_episode
+from gainfarm.schemas.robot import IDEAL_PLANT, JOINT_NAMES, PLAIN_PLANT, REALISTIC_PLANT
+from gainfarm.worker.episode import run_episode
 from tests.learning_data import SPLITS, write_dataset
 
 REQUIRED = {"nmse", "rmse", "nmse_mean", "nmse_mean_all", "rows", "target", "kind"}
@@ -25,6 +30,12 @@ REQUIRED |= {"mean_predictor_nmse"}
 def realistic(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Six training, one validation and two test fourier episodes of 2 s, realistic plant."""
     return write_dataset(tmp_path_factory.mktemp("data") / "realistic", PLAIN_PLANT)
+
+
+@pytest.fixture(scope="module")
+def fri(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The same episodes' trajectories on the realistic plant behind KUKA's FRI."""
+    return write_dataset(tmp_path_factory.mktemp("data") / "fri", REALISTIC_PLANT)
 
 
 def _leftovers(directory: Path) -> list[str]:
@@ -85,6 +96,62 @@ def test_learning_adds_what_the_rigid_prior_leaves_out(realistic, tmp_path):
     linear = score(fit(realistic, "inverse", "linear"), realistic)
     assert residual["nmse_mean"] < 0.8 * prior["nmse_mean"]
     assert linear["nmse_mean"] < 0.3 * prior["nmse_mean"]
+
+
+def test_behind_fri_the_target_is_the_motors_whole_torque(realistic, fri):
+    # The robot adds its gravity model to u behind FRI: the rigid prior explains u_motor as
+    # well as it explains the plain plant's u, and u alone not at all on the gravity joints.
+    plain_prior = score(fit(realistic, "inverse", "rigid"), realistic)
+    fri_prior = score(fit(fri, "inverse", "rigid"), fri)
+    assert fri_prior["nmse_mean"] < 1.1 * plain_prior["nmse_mean"] < 0.5, (fri_prior, plain_prior)
+    ticks = pq.read_table(fri / "ticks.parquet", filters=[("split", "==", "test")]).to_pydict()
+    usable = np.isfinite(ticks["qdd_A1"])
+
+    def joints(signal: str) -> np.ndarray:
+        return np.column_stack([ticks[f"{signal}_{joint}"] for joint in JOINT_NAMES])[usable]
+
+    q, qd, qdd, u = (joints(signal) for signal in ("q", "qd", "qdd", "u"))
+    predicted = fit(fri, "inverse", "rigid").inverse(q, qd, qdd)
+    missed = ((predicted - u) ** 2).mean(axis=0) / u.var(axis=0)  # the prior's nMSE on u
+    assert missed[1] > 10 * fri_prior["nmse"]["A2"], missed  # A2 carries most of the gravity
+    linear = score(fit(fri, "inverse", "linear"), fri)
+    assert linear["nmse_mean"] < 0.3 * fri_prior["nmse_mean"]
+
+
+def test_a_model_learned_behind_fri_is_the_feedforward_there(realistic, fri):
+    # Learned from FRI logs or plain ones, a model means the arm's dynamics: either, added as
+    # the feed-forward on a held-out trajectory, tracks as well behind FRI as on the plain
+    # plant, and far better than the PD alone.
+    learned = {
+        "fri": fit(fri, "inverse", "linear"),
+        "plain": fit(realistic, "inverse", "linear"),
+    }
+    held_out = TrajectorySpec(kind="fourier", seed=9, duration=2.0)
+    errors = {}
+    for plant in (REALISTIC_PLANT, PLAIN_PLANT):
+        spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=held_out, model=plant)
+        errors[plant.interface, "pd"] = score_episode(run_episode(spec)).f_acc
+        for source, model in learned.items():
+            added = spec.model_copy(update={"feedforward": digest(to_bytes(model))})
+            errors[plant.interface, source] = score_episode(run_episode(added, model)).f_acc
+    assert errors["fri", "fri"] < 0.2 * errors["fri", "pd"], errors
+    assert errors["fri", "fri"] < 1.05 * errors["torque", "plain"], errors
+    assert errors["fri", "plain"] == pytest.approx(errors["fri", "fri"], rel=0.05), errors
+    assert errors["torque", "fri"] == pytest.approx(errors["torque", "plain"], rel=0.05), errors
+
+
+def test_a_dataset_from_before_u_motor_learns_its_u_unless_it_was_behind_fri(realistic, tmp_path):
+    # Datasets from before u_motor were of plain torque plants: their u is the motor torque.
+    old = write_dataset(tmp_path / "old", PLAIN_PLANT, motor_column=False)
+    for split in ("train", "test"):
+        np.testing.assert_array_equal(read_split(old, split).u, read_split(realistic, split).u)
+    scores = learn(old, tmp_path / "m", kind="rigid")
+    assert scores["nmse_mean"] == pytest.approx(
+        score(rigid_prior(PLAIN_PLANT), realistic)["nmse_mean"]
+    )
+    assert "`u`, the motors' whole torque" in (tmp_path / "m" / "report.md").read_text()
+    fri = write_dataset(tmp_path / "fri", REALISTIC_PLANT, [(7, "test")], motor_column=False)
+    _refused(fri, tmp_path / "n", "no u_motor column and holds episodes behind FRI", kind="rigid")
 
 
 @pytest.mark.slow

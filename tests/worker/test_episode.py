@@ -3,14 +3,24 @@ import numpy as np
 import pytest
 
 from gainfarm.models import compile_model
+from gainfarm.models.urdf import description
 from gainfarm.schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
 from gainfarm.schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas.mcap_episode import decode_episode, episode_bytes
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import IDEAL_PLANT, PLAIN_PLANT
+from gainfarm.schemas.robot import IDEAL_PLANT, PLAIN_PLANT, REALISTIC_PLANT
 from gainfarm.worker.control import PDController
-from gainfarm.worker.episode import gravity_for, gravity_torques, run_episode
-from gainfarm.worker.plant import Plant
+from gainfarm.worker.episode import (
+    _log,
+    _setup,
+    gravity_for,
+    gravity_torques,
+    motor_torque,
+    run_episode,
+)
+from gainfarm.worker.plant import Plant, RobotGravity
 from gainfarm.worker.reference import reference_for
+from gainfarm.worker.stepping import step_all
 from tests.helpers import SOFT_GAINS, TRACKING_GAINS
 
 SHORT = TrajectorySpec(duration=3.0)
@@ -50,6 +60,42 @@ def test_the_robot_adds_its_own_models_gravity_not_the_plants():
     np.testing.assert_allclose(log.tau[-1], gravity_torques(log.q[-1:], "menagerie")[0], atol=0.5)
     assert abs(log.tau[-1, 1]) > 30  # A2 holds tens of N·m
     assert np.abs(log.ee - log.ee[0]).max() < 1e-6  # and holds it: rigid, no delay, exact
+
+
+@pytest.mark.parametrize(
+    "plant",
+    [
+        REALISTIC_PLANT,  # noisy counts of the motor side, fed back
+        REALISTIC_PLANT.model_copy(update={"feedback": "link", "payload": 5.0}),
+        IDEAL_PLANT.model_copy(update={"interface": "fri"}),  # exact sensors, link side
+        PLAIN_PLANT,
+    ],
+    ids=["realistic", "link side, payload", "ideal behind FRI", "plain torque"],
+)
+def test_the_log_gives_the_torque_the_motors_exerted_bit_for_bit(plant: ModelSpec, tmp_path):
+    # What a dataset's u_motor is made of: the logged command and the logged fed-back angles
+    # through the robot's gravity model give the loop's own compensation, number for number,
+    # alone and in a stack, after the MCAP round trip.
+    spec = EpisodeSpec(
+        gains=TRACKING_GAINS, trajectory=TrajectorySpec(kind="fourier", duration=0.6), model=plant
+    )
+    reference = reference_for(spec.trajectory)
+    alone, *stack = (_setup(spec, reference, None) for _ in range(3))
+    step_all([alone])
+    step_all(stack)
+    limits = Plant(plant).torque_limits
+    for run in (alone, stack[1]):
+        log = decode_episode(episode_bytes(_log(spec, run), description()))
+        assert log.ticks == run.ticks_run == reference.t.size
+        if plant.interface == "torque":
+            np.testing.assert_array_equal(motor_torque(log), log.u)
+            continue
+        loops = run.compensation[: run.ticks_run]
+        measured = log.theta if plant.feedback == "motor" else log.q
+        np.testing.assert_array_equal(RobotGravity(plant).at(measured), loops)
+        exerted = np.clip(log.u + loops, -limits, limits)  # as MuJoCo clamps the loop's ctrl
+        np.testing.assert_array_equal(motor_torque(log), exerted)
+        assert np.abs(exerted - log.u)[:, 1].min() > 10  # A2's gravity: not the command alone
 
 
 def test_high_gains_track_far_better_than_low_gains():

@@ -17,12 +17,16 @@ from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.local import local_farm
 from gainfarm.models.dynamics import digest, rigid_prior, to_bytes
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
+from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import IDEAL_PLANT
+from gainfarm.schemas.robot import IDEAL_PLANT, PLAIN_PLANT, REALISTIC_PLANT
+from gainfarm.worker import episode
 from gainfarm.worker.episode import MissingModel, run_episode
 from gainfarm.worker.feedforward import ModelCache, ModelUnavailable
 from gainfarm.worker.job import simulate
+from gainfarm.worker.plant import RobotGravity
+from gainfarm.worker.reference import reference_for
 from tests.helpers import SOFT_GAINS
 
 RIGID_IDEAL = IDEAL_PLANT.model_copy(update={"joints": "rigid"})
@@ -44,6 +48,29 @@ def test_a_perfect_model_cuts_the_tracking_error_by_a_large_factor_at_the_same_g
     assert not without.diverged and not with_model.diverged
     assert without.f_acc > 50 * with_model.f_acc, (without.f_acc, with_model.f_acc)
     assert log.metadata.spec.feedforward == digest(raw)  # the log says which model
+
+
+def test_behind_fri_the_feedforward_leaves_gravity_to_the_robot() -> None:
+    # A model predicts the whole motor torque; behind FRI the robot adds its gravity model, so
+    # the worker adds the model's torque less that gravity at the reference. The arm's rigid
+    # physics stands in for a learned model here (tests/analytic/test_learning.py learns one).
+    model = rigid_prior(REALISTIC_PLANT)
+    name = digest(to_bytes(model))
+    errors = {}
+    for plant in (REALISTIC_PLANT, PLAIN_PLANT):
+        spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=TRAJECTORY, model=plant)
+        errors[plant.interface, "pd"] = score(run_episode(spec)).f_acc
+        added = spec.model_copy(update={"feedforward": name})
+        errors[plant.interface, "model"] = score(run_episode(added, model)).f_acc
+    reference = reference_for(TRAJECTORY)
+    whole = model.inverse(reference.q, reference.qd, reference.qdd)
+    fri = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=TRAJECTORY, model=REALISTIC_PLANT)
+    errors["fri", "gravity twice"] = score(episode.simulate(fri, reference, whole)).f_acc
+    added = episode.compensation(fri.model_copy(update={"feedforward": name}), reference, model)
+    np.testing.assert_array_equal(added, whole - RobotGravity(REALISTIC_PLANT).at(reference.q))
+    assert errors["fri", "model"] < 0.5 * errors["fri", "pd"], errors
+    assert errors["fri", "model"] < 1.05 * errors["torque", "model"], errors
+    assert errors["fri", "gravity twice"] > 3 * errors["fri", "model"], errors
 
 
 def test_a_spec_naming_a_model_needs_the_model() -> None:

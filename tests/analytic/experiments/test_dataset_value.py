@@ -14,8 +14,10 @@ from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.experiments import dataset_value as dv
 from gainfarm.analytic.experiments.base import Experiment
 from gainfarm.analytic.tuning.config import RunConfig
-from gainfarm.schemas import TrajectorySpec
+from gainfarm.schemas import EpisodeSpec, TrajectorySpec
+from gainfarm.worker.episode import motor_torque, run_episode
 from tests.analytic.experiments.common import refusal
+from tests.helpers import TRACKING_GAINS, write_log
 
 BASE = RunConfig(pop=4, trajectories=(TrajectorySpec(duration=3.0),), generations=1, keep="front")
 REPS, TESTS, TICKS = 3, 2, 300
@@ -149,6 +151,19 @@ def test_subsampling_is_seeded_and_splits_a_fifth_for_validation(
     assert not keys & {(e, t) for e, t in zip(validation.episode_id, validation.t, strict=True)}
     with pytest.raises(ValueError, match="--ticks"):
         dv.subsample(pool, len(pool) + 1, seed=0)
+
+
+def test_the_rows_hold_the_motors_whole_torque(tmp_path: Path) -> None:
+    # Behind FRI (the default plant) the models learn u_motor, the command and the robot's
+    # gravity model, as analytic learn does; the last tick (no q̈) is dropped.
+    spec = EpisodeSpec(
+        gains=TRACKING_GAINS, trajectory=TrajectorySpec(kind="fourier", duration=0.5)
+    )
+    log = run_episode(spec)
+    write_log(log, tmp_path / "e.mcap")
+    rows = dv.episode_rows(tmp_path / "e.mcap", "e")
+    np.testing.assert_array_equal(rows.u, motor_torque(log)[:-1])
+    assert not np.array_equal(rows.u, log.u[:-1])
 
 
 # --- the statistics on numbers whose answer is known --------------------------------------------
