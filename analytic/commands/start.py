@@ -43,6 +43,7 @@ from gainfarm.cli.app import CliError
     "PD and tune the gains on top (a directory from `analytic learn`, or its model.npz)"
 )
 @options.limits()
+@options.min_damping()
 @farm_options
 @click.option("--out", type=click.Path(path_type=Path), help="run directory  [default: runs/TIME]")
 @click.option(
@@ -115,6 +116,7 @@ def start(
     plant: str,
     feedforward: Path | None,
     limits_file: Path | None,
+    min_damping: float | None,
     connect: tuple[str, ...],
     tls: Path | None,
     participant: str | None,
@@ -143,7 +145,7 @@ def start(
     from gainfarm.analytic.tuning.run import RunBusy
 
     identity = check_farm(connect, local, tls, participant)
-    limits = options.limits_from(limits_file)
+    limits = options.limits_from(limits_file, min_damping)
     trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
     learned = options.feedforward_model(feedforward)
     model_file = learned[0] if learned is not None else None

@@ -38,7 +38,7 @@ from gainfarm.analytic.tuning.records import (
 )
 from gainfarm.schemas.controller import Controller, Member, Source
 from gainfarm.schemas.gains import DEFAULT_GAINS
-from gainfarm.schemas.limits import MEASURES
+from gainfarm.schemas.limits import MEASURED
 from gainfarm.schemas.robot import PLANTS, ModelSpec
 
 MEMBERS = ("recommended", "knee", "accurate", "smooth")
@@ -159,7 +159,7 @@ def controller(directory: Path, which: str = "recommended") -> Controller:
             f_t=member.f_t,
             diverged=member.diverged,
             sharing=chosen.sharing,
-            measures=dict(zip(MEASURES, measured, strict=True)) if measured else None,
+            measures=dict(zip(MEASURED, measured, strict=False)) if measured else None,
         ),
         limits=config.limits if measured else None,
         source=Source(
