@@ -185,20 +185,21 @@ class WireScores(Scores):
     damping: float = Field(ge=-1, le=1, description=Scores.model_fields["damping"].description)
 
     @field_validator(
-        "f_acc",
-        "f_t",
-        "max_error",
-        "saturated_fraction",
-        "torque_step",
-        "speed",
-        "chatter",
-        "damping",
+        "f_acc", "f_t", "max_error", "saturated_fraction", "torque_step", "speed", "chatter"
     )
     @classmethod
     def _no_negative_zero(cls, value: float) -> float:
         # -0.0 passes ge=0 and would compare equal to 0, but no episode scores it (its sums start
         # at +0.0): refused, so a score's JSON is the one its episode gives.
         if math.copysign(1.0, value) < 0:
+            raise ValueError("-0.0 is not a score (no episode makes a negative zero)")
+        return value
+
+    @field_validator("damping")
+    @classmethod
+    def _no_signed_zero(cls, value: float) -> float:
+        # As above: worker.stability never gives −0.0 (it adds +0.0), so its JSON is one.
+        if value == 0 and math.copysign(1.0, value) < 0:
             raise ValueError("-0.0 is not a score (no episode makes a negative zero)")
         return value
 
