@@ -130,7 +130,7 @@ def test_an_infeasible_candidate_is_on_no_front_and_the_run_says_how_many_and_wh
     assert sum(line.endswith(",false") for line in lines[1:]) == infeasible
     report = (run.directory / REPORT_MD).read_text()
     assert f"{infeasible} of {len(lines) - 1} candidates broke a safety limit (chatter " in report
-    exported = controller(run.directory)
+    exported = controller(run.directory, "knee")  # the toy run scored no baseline
     assert exported.limits == run.config.limits
     assert exported.member.measures is not None
     assert exported.member.measures["chatter"] <= run.config.limits.chatter
