@@ -22,7 +22,7 @@ from gainfarm.schemas.robot import PLANTS
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.episode import run_episode
 from gainfarm.worker.job import simulate
-from gainfarm.worker.stability import least_damping
+from gainfarm.worker.stability import POSES, least_damping
 
 
 def scaled(kp: float, kd: float) -> PDGains:
@@ -44,7 +44,7 @@ CONTROLLERS = {
 
 @click.command()
 @click.option("--repeats", default=5, show_default=True, help="timed runs of each")
-@click.option("--poses", default=8, show_default=True, help="poses along the reference")
+@click.option("--poses", default=POSES, show_default=True, help="poses along the reference")
 def main(repeats: int, poses: int) -> None:
     path = TrajectorySpec()
     print("plant      controller           damping   chatter  step    f_acc mm  diverged")
