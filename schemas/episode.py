@@ -73,6 +73,13 @@ class EpisodeMetadata(BaseModel):
     diverged: bool
     divergence: str = Field("", description="why the episode stopped early, if it did")
     versions: dict[str, str]
+    # A property of the spec, not of the ticks, kept with them so that the worker's and the
+    # referee's logs agree on it bit for bit, and the scores of a log carry it (worker.stability).
+    damping: float | None = Field(
+        None,
+        description="least damping ratio of the closed loop linearised at poses along the "
+        "reference (worker.stability); None in logs from before it was measured",
+    )
 
 
 class Scores(BaseModel):
@@ -100,6 +107,11 @@ class Scores(BaseModel):
         description="largest RMS of a joint's command above CHATTER_CUTOFF, as a share of its "
         "torque limit",
     )
+    damping: float | None = Field(
+        None,
+        description="least damping ratio of the closed loop along the reference (≤ 0: unstable; "
+        "the log's, worker.stability); None for a log from before it was measured",
+    )
     values: tuple[float, float] | None = Field(
         None,
         exclude_if=lambda values: values is None,  # the JSON of the paper's scores as it was
@@ -114,9 +126,11 @@ class Scores(BaseModel):
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         """Checkpoints from before objectives could be chosen pickled scores without `values`,
-        and from before the safety measures without those (read as 0: never a violation)."""
+        and from before the safety measures without those (read as 0: never a violation), and from
+        before the damping margin without it (None: not measured)."""
         fields = state["__dict__"]
         fields.setdefault("values", None)
+        fields.setdefault("damping", None)
         for name in ("torque_step", "speed", "chatter"):
             fields.setdefault(name, 0.0)
         super().__setstate__(state)

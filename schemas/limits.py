@@ -11,6 +11,13 @@ the worker and the referee agree on it), a share of a published limit where ther
 candidate's measure is its worst over all its episodes (every trajectory, every plant variant),
 so a limit met holds on each. Its constraint value is g = measure / limit − 1, met when g ≤ 0
 (pymoo's convention); a limit set to null is not checked (g = −1, as if the measure were 0).
+
+One limit is a lower bound: `min_damping`, on the least damping ratio of the controller's closed
+loop (Scores.damping, worker.stability; a candidate's is the least over its episodes, measured
+after the others: MEASURED). It is not checked by default (None: a run's constraints are the four
+above, as before it existed); set, it is one more constraint, g = min_damping − damping. A
+damping ratio is already a dimensionless number in [−1, 1], and a share of a lower bound would
+blow up at the natural bound 0 (stable at all).
 """
 
 from collections.abc import Sequence
@@ -26,11 +33,18 @@ MEASURES = ("torque_step", "saturated_fraction", "speed", "chatter")
 # A candidate with an episode that did not run is measured the worst any episode can be: never
 # feasible, as its objectives are never preferred (schemas.objectives.NO_EPISODE).
 NOT_MEASURED = (2.0, 1.0, SPEED_CAP, 2.0)
+DAMPING = "damping"  # the lower-bounded measure: a Scores field
+# What a candidate's measures hold: the upper-bounded ones, then its least damping ratio.
+MEASURED = (*MEASURES, DAMPING)
+# The least damping of a candidate with an episode that did not run, or that predates the margin:
+# the least a damping ratio can be, so never feasible under a `min_damping`.
+NOT_DAMPED = -1.0
 UNITS = {
     "torque_step": "share of the joint's torque limit, per 2 ms tick",
     "saturated_fraction": "share of ticks with a joint at its torque limit",
     "speed": "share of the joint's data-sheet speed limit",
     "chatter": f"RMS above {CHATTER_CUTOFF:g} Hz, share of the joint's torque limit",
+    DAMPING: "least damping ratio of the closed loop along the reference, at least",
 }
 
 Limit = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -75,40 +89,69 @@ class Limits(BaseModel):
         "(assumption; the cut-off is the arm's lowest elastic mode)",
     )
 
+    min_damping: float | None = Field(
+        None,
+        ge=-1,
+        le=1,
+        allow_inf_nan=False,
+        # No default: how much damping a controller needs is the user's call (0 asks for a
+        # stable loop; the default gains keep 0.013 on the realistic plant, bench/damping.py).
+        description="the least damping ratio of its closed loop each episode must keep: a lower "
+        "bound (worker.stability; null: not checked)",
+    )
+
     def values(self) -> tuple[float | None, ...]:
+        """The upper limits, in MEASURES' order."""
         return tuple(getattr(self, name) for name in MEASURES)
 
-    def constraints(self, measures: Sequence[float]) -> tuple[float, ...]:
-        """g = measure / limit − 1 per limit, in MEASURES' order: met when ≤ 0."""
-        return tuple(
-            -1.0 if limit is None else float(value) / limit - 1.0
-            for value, limit in zip(measures, self.values(), strict=True)
-        )
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The constraints' names, in `constraints`' order: the damping's last, if bounded."""
+        return MEASURES if self.min_damping is None else MEASURED
 
-    def violated(self, measures: Sequence[float]) -> tuple[str, ...]:
-        """The names of the limits `measures` break."""
+    @property
+    def count(self) -> int:
+        """How many constraint values `constraints` gives."""
+        return len(self.names)
+
+    def constraints(self, measured: Sequence[float]) -> tuple[float, ...]:
+        """g per limit, met when ≤ 0: measure / limit − 1 for each of MEASURES, then
+        min_damping − damping if it is bounded. `measured` is in MEASURED's order (a record from
+        before the damping lacks it, and is judged on the others alone)."""
+        upper = tuple(
+            -1.0 if limit is None else float(value) / limit - 1.0
+            for value, limit in zip(measured[: len(MEASURES)], self.values(), strict=True)
+        )
+        if self.min_damping is None:
+            return upper
+        damping = measured[len(MEASURES)] if len(measured) > len(MEASURES) else self.min_damping
+        return (*upper, self.min_damping - float(damping))
+
+    def violated(self, measured: Sequence[float]) -> tuple[str, ...]:
+        """The names of the limits `measured` (MEASURED's order) break."""
         return tuple(
-            name for name, g in zip(MEASURES, self.constraints(measures), strict=True) if g > 0
+            name for name, g in zip(self.names, self.constraints(measured), strict=True) if g > 0
         )
 
 
 def measures(scores: Sequence[Scores | None]) -> tuple[float, ...]:
-    """A candidate's measures over its episodes: the worst of each, in MEASURES' order
-    (NOT_MEASURED if it has none, or one did not run)."""
+    """A candidate's measures over its episodes, in MEASURED's order: the worst of each, the
+    highest of MEASURES and the least damping (NOT_MEASURED and NOT_DAMPED if it has none, or one
+    did not run; NOT_DAMPED if one was not measured for its damping)."""
     if not scores or any(score is None for score in scores):
-        return NOT_MEASURED
-    return tuple(
-        max(float(getattr(score, name)) for score in scores if score is not None)
-        for name in MEASURES
-    )
+        return (*NOT_MEASURED, NOT_DAMPED)
+    ran = [score for score in scores if score is not None]
+    dampings = [score.damping for score in ran]
+    least = NOT_DAMPED if None in dampings else min(float(d) for d in dampings if d is not None)
+    return (*(max(float(getattr(score, name)) for score in ran) for name in MEASURES), least)
 
 
 def tally(limits: Limits, measured: Sequence[Sequence[float]]) -> tuple[int, dict[str, int]]:
     """How many candidates of `measured` break a limit, and how many break each (one may break
-    several), in MEASURES' order."""
+    several), in `limits.names`' order."""
     broken = [limits.violated(values) for values in measured]
     return sum(1 for names in broken if names), {
-        name: sum(1 for names in broken if name in names) for name in MEASURES
+        name: sum(1 for names in broken if name in names) for name in limits.names
     }
 
 

@@ -111,6 +111,7 @@ def score(log: EpisodeLog, plugins: Mapping[str, Objective] | None = None) -> Sc
         torque_step=torque_step(log),
         speed=speed(log),
         chatter=chatter(log),
+        damping=meta.damping,
         values=values,
     )
 

@@ -24,6 +24,8 @@ from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.objectives import SPEED_CAP
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 
+# 8: scores carry the closed loop's least damping ratio (Scores.damping; worker.stability), from
+# the log's metadata.
 # 7: scores carry the safety measures (Scores.torque_step, speed, chatter; schemas.limits).
 # 6: plug-ins: a trajectory kind is any name of its form, a job may name its objectives
 # (EpisodeSpec.objectives) and its scores then carry their values (Scores.values), and a worker
@@ -32,7 +34,7 @@ from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 # lease request; 4: results carry the worker's scores, and the log only when the job asks to keep
 # it (the worker keeps the others, to be fetched); 3: results handed in to the broker and
 # confirmed by it; 2: Job.spec
-PROTOCOL_VERSION = 7
+PROTOCOL_VERSION = 8
 
 # Names become key-expression chunks, so they may not contain '/', '*', '$', '?' or '#'.
 NAME_PATTERN = r"^[A-Za-z0-9_.\-]{1,64}$"
@@ -65,12 +67,12 @@ class BadMessage(ValueError):
 class WireMessage(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    protocol: Literal[7] = PROTOCOL_VERSION
+    protocol: Literal[8] = PROTOCOL_VERSION
 
     @field_validator("protocol", mode="before")
     @classmethod
     def _an_integer(cls, version: object) -> object:
-        # Literal[7] would take 7.0 (and JSON true is 1 to Python): a version is an integer.
+        # Literal[8] would take 8.0 (and JSON true is 1 to Python): a version is an integer.
         if type(version) is not int:
             raise ValueError(_not_an_integer(version))
         return version
@@ -179,6 +181,8 @@ class WireScores(Scores):
     chatter: float = Field(
         ge=0, le=MAX_TORQUE_SHARE, description=Scores.model_fields["chatter"].description
     )
+    # A damping ratio is −ln|z| / √(ln²|z| + arg²z): within [−1, 1] for any eigenvalue z.
+    damping: float = Field(ge=-1, le=1, description=Scores.model_fields["damping"].description)
 
     @field_validator(
         "f_acc", "f_t", "max_error", "saturated_fraction", "torque_step", "speed", "chatter"
@@ -188,6 +192,14 @@ class WireScores(Scores):
         # -0.0 passes ge=0 and would compare equal to 0, but no episode scores it (its sums start
         # at +0.0): refused, so a score's JSON is the one its episode gives.
         if math.copysign(1.0, value) < 0:
+            raise ValueError("-0.0 is not a score (no episode makes a negative zero)")
+        return value
+
+    @field_validator("damping")
+    @classmethod
+    def _no_signed_zero(cls, value: float) -> float:
+        # As above: worker.stability never gives −0.0 (it adds +0.0), so its JSON is one.
+        if value == 0 and math.copysign(1.0, value) < 0:
             raise ValueError("-0.0 is not a score (no episode makes a negative zero)")
         return value
 

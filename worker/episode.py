@@ -27,6 +27,7 @@ from gainfarm.worker.control import PDController
 from gainfarm.worker.plant import Plant, RobotGravity
 from gainfarm.worker.reference import Reference, reference_for
 from gainfarm.worker.sensors import LINK, MOTOR, TORQUE, Encoders, friction_torque, noise
+from gainfarm.worker.stability import least_damping
 from gainfarm.worker.stepping import Stepped, step_all
 
 
@@ -156,6 +157,7 @@ def _log(spec: EpisodeSpec, run: Stepped) -> EpisodeLog:
         diverged=bool(run.divergence),
         divergence=run.divergence,
         versions=software_versions(),
+        damping=least_damping(spec, reference),
     )
     return EpisodeLog(
         t=reference.t[:ticks_run].copy(),

@@ -45,6 +45,7 @@ from gainfarm.cli.app import CliError
     "PD and tune the gains on top (a directory from `analytic learn`, or its model.npz)"
 )
 @options.limits()
+@options.min_damping()
 @robustness()
 @farm_options
 @click.option("--out", type=click.Path(path_type=Path), help="run directory  [default: runs/TIME]")
@@ -118,6 +119,7 @@ def start(
     plant: str,
     feedforward: Path | None,
     limits_file: Path | None,
+    min_damping: float | None,
     plants: int,
     aggregate: str,
     check_plants: int,
@@ -150,7 +152,7 @@ def start(
     from gainfarm.analytic.tuning.run import RunBusy
 
     identity = check_farm(connect, local, tls, participant)
-    limits = options.limits_from(limits_file)
+    limits = options.limits_from(limits_file, min_damping)
     trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
     learned = options.feedforward_model(feedforward)
     model_file = learned[0] if learned is not None else None

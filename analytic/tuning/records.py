@@ -38,7 +38,7 @@ from pathlib import Path
 
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.limits import MEASURES, Limits
+from gainfarm.schemas.limits import MEASURED, MEASURES, Limits
 from gainfarm.schemas.robot import N_JOINTS
 
 # The names a run directory uses; the report links to the figures by these relative names.
@@ -158,8 +158,9 @@ class FrontMember:
     logs: tuple[str, ...] = field(default=(), compare=False)
     diverged: bool = False
     episodes: tuple[EpisodeCheck, ...] = field(default=(), compare=False)  # their provenance
-    # Its safety measures, worst over its episodes, in schemas.limits.MEASURES' order (front.json
-    # holds them; empty for a run from before the limits): the front holds only those within.
+    # Its safety measures, worst over its episodes, in schemas.limits.MEASURED's order, its least
+    # damping ratio last (front.json holds them; empty for a run from before the limits, without
+    # the damping for one from before it): the front holds only those within the run's limits.
     measures: tuple[float, ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
@@ -247,14 +248,13 @@ def front_csv(front: Sequence[FrontMember]) -> bytes:
     )
 
 
-def _read_rows(
-    path: Path, fields: Sequence[str], legacy: Sequence[str] | None = None
-) -> list[dict[str, str]]:
+def _read_rows(path: Path, fields: Sequence[str], *legacy: Sequence[str]) -> list[dict[str, str]]:
     """The rows of a CSV, refusing one whose header is not exactly `fields` (another format),
-    or `legacy`, the header an older version wrote."""
+    or one of `legacy`, the headers older versions wrote."""
     with Path(path).open(newline="", encoding="utf-8") as stream:
         reader = csv.DictReader(stream)
-        if tuple(reader.fieldnames or ()) not in (tuple(fields), tuple(legacy or fields)):
+        headers = {tuple(fields), *(tuple(header) for header in legacy)}
+        if tuple(reader.fieldnames or ()) not in headers:
             raise ValueError(
                 f"{path}: expected columns {','.join(fields)}, got {reader.fieldnames}"
             )
@@ -296,8 +296,11 @@ def read_front(path: Path) -> list[FrontMember]:
     ]
 
 
-EVALUATED_FIELDS = ("f_acc", "f_t", *MEASURES, "feasible")
-LEGACY_EVALUATED_FIELDS = EVALUATED_FIELDS[:2]  # before the limits: the objectives alone
+EVALUATED_FIELDS = ("f_acc", "f_t", *MEASURED, "feasible")
+LEGACY_EVALUATED_FIELDS = (
+    EVALUATED_FIELDS[:2],  # before the limits: the objectives alone
+    ("f_acc", "f_t", *MEASURES, "feasible"),  # before the damping margin
+)
 
 
 def evaluated_csv(
@@ -323,14 +326,19 @@ def evaluated_csv(
 
 def read_evaluated(path: Path) -> list[tuple[float, float]]:
     """evaluated.csv's objectives, in the order told."""
-    rows = _read_rows(path, EVALUATED_FIELDS, LEGACY_EVALUATED_FIELDS)
+    rows = _read_rows(path, EVALUATED_FIELDS, *LEGACY_EVALUATED_FIELDS)
     return [(float(row["f_acc"]), float(row["f_t"])) for row in rows]
 
 
 def read_measured(path: Path) -> list[tuple[float, ...]]:
-    """evaluated.csv's safety measures, in the order told (none in a run from before them)."""
-    rows = _read_rows(path, EVALUATED_FIELDS, LEGACY_EVALUATED_FIELDS)
-    return [tuple(float(row[name]) for name in MEASURES) for row in rows if "feasible" in row]
+    """evaluated.csv's safety measures, in the order told (none in a run from before them;
+    without the damping in one from before it)."""
+    rows = _read_rows(path, EVALUATED_FIELDS, *LEGACY_EVALUATED_FIELDS)
+    return [
+        tuple(float(row[name]) for name in MEASURED if name in row)
+        for row in rows
+        if "feasible" in row
+    ]
 
 
 def front_json(front: Sequence[FrontMember], validation: ValidationRecord | None = None) -> bytes:
@@ -345,9 +353,8 @@ def front_json(front: Sequence[FrontMember], validation: ValidationRecord | None
             "diverged": member.diverged,
             "logs": list(member.logs),
             "episodes": [dataclasses.asdict(episode) for episode in member.episodes],
-            "measures": dict(zip(MEASURES, member.measures, strict=True))
-            if member.measures
-            else {},
+            # A member of a run from before the damping margin has one measure fewer.
+            "measures": dict(zip(MEASURED, member.measures, strict=False)),
         }
         for member in sorted_front(front)
     ]

@@ -244,7 +244,7 @@ class TuningRun:
                 state = decode(checkpoint.read_bytes(), checkpoint, identity, config.algorithm)
                 if not (isinstance(state, RunState) and isinstance(state.evolution, Evolution)):
                     raise CheckpointRefused(f"{checkpoint}: not a gainfarm checkpoint (no run)")
-                state.evolution.constrain(len(MEASURES))  # from before the limits: none yet
+                state.evolution.constrain(config.limits.count)  # from before the limits: none yet
             else:  # stopped before its first generation ended
                 state = RunState(_evolution(config))
         except BaseException:
@@ -972,7 +972,7 @@ def _evolution(config: RunConfig) -> Evolution:
         algorithm=config.algorithm,
         objective_scaling=config.objective_scaling,
         reference=config.reference_point,
-        constraints=len(MEASURES),
+        constraints=config.limits.count,
     )
 
 

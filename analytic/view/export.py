@@ -39,7 +39,7 @@ from gainfarm.analytic.tuning.records import (
 )
 from gainfarm.schemas.controller import Controller, HeldOut, Member, Source
 from gainfarm.schemas.gains import DEFAULT_GAINS
-from gainfarm.schemas.limits import MEASURES
+from gainfarm.schemas.limits import MEASURED
 from gainfarm.schemas.robot import PLANTS, ModelSpec
 
 MEMBERS = ("recommended", "knee", "accurate", "smooth")
@@ -160,7 +160,7 @@ def controller(directory: Path, which: str = "recommended") -> Controller:
             f_t=member.f_t,
             diverged=member.diverged,
             sharing=chosen.sharing,
-            measures=dict(zip(MEASURES, measured, strict=True)) if measured else None,
+            measures=dict(zip(MEASURED, measured, strict=False)) if measured else None,
             held_out=_held_out(directory, member),
         ),
         limits=config.limits if measured else None,

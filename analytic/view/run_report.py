@@ -9,12 +9,12 @@ from collections.abc import Sequence
 
 from gainfarm.analytic.tuning.check import read_check
 from gainfarm.analytic.tuning.picks import picks
-from gainfarm.analytic.tuning.records import HYPERVOLUME_PNG, PARETO_PNG, REPORT_MD
+from gainfarm.analytic.tuning.records import HYPERVOLUME_PNG, PARETO_PNG, REPORT_MD, FrontMember
 from gainfarm.analytic.tuning.run import TuningRun
 from gainfarm.analytic.view.figures import plot_hypervolume, plot_pareto
 from gainfarm.analytic.view.reports import run_setup, run_title, write_report
 from gainfarm.edges.files import write_atomically
-from gainfarm.schemas.limits import MEASURES, UNITS, Limits, tally
+from gainfarm.schemas.limits import DAMPING, MEASURED, MEASURES, UNITS, Limits, tally
 
 
 def write_run_report(run: TuningRun) -> None:
@@ -53,8 +53,12 @@ def write_run_report(run: TuningRun) -> None:
         validation=run.validation(),
     )
     report = run.directory / REPORT_MD
-    lines = limits_section(limits, run.state.measured, len(front))
-    section = "\n".join([*lines, *check_section(read_check(run.directory))])
+    sections = [
+        *limits_section(limits, run.state.measured, len(front)),
+        *damping_section(front, limits),
+        *check_section(read_check(run.directory)),
+    ]
+    section = "\n".join(sections)
     write_atomically(report, report.read_bytes().rstrip(b"\n") + b"\n\n" + section.encode())
 
 
@@ -80,12 +84,41 @@ def limits_section(limits: Limits, measured: Sequence[Sequence[float]], front: i
         "infeasible: it is on no front, in no export and in no dataset (docs/limits.md). Each "
         "limit, and how many candidates broke it:",
         "",
-        "| limit | largest allowed | unit | candidates over it |",
+        "| limit | allowed | unit | candidates beyond it |",
         "|---|---|---|---|",
     ]
     for name, limit in zip(MEASURES, limits.values(), strict=True):
-        shown = "not checked" if limit is None else f"{limit:g}"
+        shown = "not checked" if limit is None else f"at most {limit:g}"
         lines.append(f"| {name} | {shown} | {UNITS[name]} | {counts[name]} |")
+    bound = limits.min_damping
+    shown = "not checked" if bound is None else f"at least {bound:g}"
+    lines.append(f"| {DAMPING} | {shown} | {UNITS[DAMPING]} | {counts.get(DAMPING, 0)} |")
+    return [*lines, ""]
+
+
+def damping_section(front: Sequence[FrontMember], limits: Limits) -> list[str]:
+    """report.md's section on each front member's damping margin (worker.stability): the least
+    damping ratio of its closed loop over the poses of all its episodes."""
+    damping = MEASURED.index(DAMPING)
+    checked = (
+        "not a constraint of this run (`--min-damping` makes it one)"
+        if limits.min_damping is None
+        else f"a constraint of this run: at least {limits.min_damping:g}"
+    )
+    lines = [
+        "## Damping margin",
+        "",
+        "Each front member's least damping ratio: its closed loop linearised at poses along "
+        "each of its references, the least over their modes (≤ 0: unstable there; "
+        f"docs/limits.md). It is {checked}.",
+        "",
+        "| # | f_acc (mm) | f_t ((N·m)²) | least damping ratio |",
+        "|---|---|---|---|",
+    ]
+    for row, member in enumerate(front):
+        least = member.measures[damping] if len(member.measures) > damping else None
+        shown = "not measured" if least is None else f"{least:.4f}"
+        lines.append(f"| {row} | {member.f_acc * 1e3:.2f} | {member.f_t:.4g} | {shown} |")
     return [*lines, ""]
 
 

@@ -286,8 +286,34 @@ def limits(
     )
 
 
-def limits_from(path: Path | None) -> "Limits":
-    """--limits FILE's limits (the defaults without one), or one line naming the option."""
+def min_damping() -> Callable[[F], F]:
+    return click.option(
+        "--min-damping",
+        type=float,
+        metavar="Z",
+        help="a constraint: every episode's closed loop, linearised along its reference, keeps "
+        "a least damping ratio of at least Z (-1 to 1; 0: stable; see docs/limits.md)  "
+        "[default: not checked]",
+    )
+
+
+def limits_from(path: Path | None, damping: float | None = None) -> "Limits":
+    """--limits FILE's limits (the defaults without one), with --min-damping's bound if given,
+    or one line naming the option."""
+    from pydantic import ValidationError
+
+    from gainfarm.schemas.wire import describe
+
+    limits = _limits_file(path)
+    if damping is None:
+        return limits
+    try:
+        return type(limits).model_validate({**limits.model_dump(), "min_damping": damping})
+    except ValidationError as error:
+        raise CliError(f"--min-damping: {describe(error)}") from None
+
+
+def _limits_file(path: Path | None) -> "Limits":
     import json
 
     from pydantic import ValidationError

@@ -3,6 +3,7 @@ records, the report, an export or a dataset; `--limits FILE` decides which are."
 
 import json
 import pickle
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ from gainfarm.analytic.view.export import BadRun, controller
 from gainfarm.analytic.view.run_report import write_run_report
 from gainfarm.schemas import EpisodeSpec, Scores, TrajectorySpec
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
-from gainfarm.schemas.limits import MEASURES, Limits, measures, tally
+from gainfarm.schemas.limits import MEASURED, MEASURES, Limits, measures, tally
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import IDEAL_PLANT
 from gainfarm.worker.episode import run_episode
@@ -39,9 +40,19 @@ def rough_toy(spec: EpisodeSpec) -> Scores:
     return toy_scores(spec).model_copy(update={"chatter": 0.01 * kp**2})
 
 
-def tuned(directory: Path, config: RunConfig = TINY) -> TuningRun:
+def damped_toy(spec: EpisodeSpec) -> Scores:
+    """The rough toy, its closed loop the less damped the more damping its gains ask for (as a
+    differenced velocity read a tick late makes a real arm's: worker.stability): unstable once
+    a joint's Kd is 3 times the default gains'."""
+    kd = float(np.max(np.array(spec.gains.kd) / np.array(DEFAULT_GAINS.kd)))
+    return rough_toy(spec).model_copy(update={"damping": round(0.03 - 0.01 * kd, 6)})
+
+
+def tuned(
+    directory: Path, config: RunConfig = TINY, scorer: Callable[[EpisodeSpec], Scores] = rough_toy
+) -> TuningRun:
     with TuningRun.create(directory, config) as run:
-        run.run(InProcessEvaluator(scorer=rough_toy))
+        run.run(InProcessEvaluator(scorer=scorer))
         write_run_report(run)
     return run
 
@@ -115,11 +126,11 @@ def test_an_infeasible_candidate_is_on_no_front_and_the_run_says_how_many_and_wh
     front = read_front_json(run.directory / "front.json")
     assert front and all(not run.config.limits.violated(m.measures) for m in front)
     lines = (run.directory / "evaluated.csv").read_text().splitlines()
-    assert lines[0].split(",") == ["f_acc", "f_t", *MEASURES, "feasible"]
+    assert lines[0].split(",") == ["f_acc", "f_t", *MEASURED, "feasible"]
     assert sum(line.endswith(",false") for line in lines[1:]) == infeasible
     report = (run.directory / REPORT_MD).read_text()
     assert f"{infeasible} of {len(lines) - 1} candidates broke a safety limit (chatter " in report
-    exported = controller(run.directory)
+    exported = controller(run.directory, "knee")  # the toy run scored no baseline
     assert exported.limits == run.config.limits
     assert exported.member.measures is not None
     assert exported.member.measures["chatter"] <= run.config.limits.chatter
@@ -172,6 +183,53 @@ def test_a_checkpoint_from_before_the_limits_resumes(tmp_path: Path) -> None:
         assert resumed.state.stopped == whole.state.stopped == "4 generations"
         assert len(resumed.state.measured) == resumed.state.evolution.evaluations == 24
         assert all(not resumed.config.limits.violated(m.measures) for m in resumed.front())
+
+
+# --- --min-damping -----------------------------------------------------------------------------
+
+
+def test_a_damping_bound_keeps_every_front_member_above_it_and_the_report_lists_each(
+    tmp_path: Path,
+) -> None:
+    free = tuned(tmp_path / "free", scorer=damped_toy)
+    assert free.state.evolution.constraints == len(MEASURES)  # not a constraint unless asked
+    assert min(member.measures[-1] for member in free.front()) < 0
+    assert "not a constraint of this run" in (free.directory / REPORT_MD).read_text()
+    config = TINY.model_copy(update={"limits": Limits(min_damping=0.0)})
+    run = tuned(tmp_path / "bound", config, damped_toy)
+    assert run.state.evolution.constraints == len(MEASURED)
+    _, why = tally(config.limits, read_run(run.directory).measured)
+    assert why["damping"] > 0
+    front = read_front_json(run.directory / "front.json")
+    assert front and all(member.measures[-1] >= 0 for member in front)
+    members = json.loads((run.directory / "front.json").read_text())["members"]
+    assert all(set(member["measures"]) == set(MEASURED) for member in members)
+    report = (run.directory / REPORT_MD).read_text()
+    assert "## Damping margin" in report and "a constraint of this run: at least 0" in report
+    for row, member in enumerate(run.front()):
+        assert f"| {row} | {member.f_acc * 1e3:.2f} | " in report
+        assert f" | {member.measures[-1]:.4f} |" in report
+    assert "| damping | at least 0 |" in report
+    exported = controller(run.directory, "knee")  # the toy has no baseline to recommend by
+    assert exported.limits is not None and exported.limits.min_damping == 0.0
+    assert exported.member.measures is not None and exported.member.measures["damping"] >= 0
+
+
+@pytest.mark.parametrize(
+    ("value", "says"),
+    [
+        ("2", "analytic: error: --min-damping: min_damping: Input should be less than or equal"),
+        ("nan", "analytic: error: --min-damping: min_damping: Input should be a finite number"),
+        ("abc", "'abc' is not a valid float"),
+    ],
+)
+def test_a_bad_damping_bound_is_one_line_naming_the_option(
+    tmp_path: Path, value: str, says: str
+) -> None:
+    result = analytic("start", "--min-damping", value, cwd=tmp_path)
+    assert result.returncode != 0
+    line = one_error_line(result.stderr)
+    assert says in line and "--min-damping" in line, line
 
 
 # --- --limits FILE ----------------------------------------------------------------------------

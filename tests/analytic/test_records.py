@@ -22,7 +22,7 @@ from gainfarm.analytic.tuning.records import (
     results_csv,
     sorted_front,
 )
-from gainfarm.schemas.limits import NOT_MEASURED, Limits
+from gainfarm.schemas.limits import NOT_DAMPED, NOT_MEASURED, Limits
 from tests.analytic.samples import KD, KP, SAMPLE_FRONT, SAMPLE_HISTORY
 
 
@@ -127,17 +127,32 @@ def test_reading_a_front_json_of_another_format_is_refused(tmp_path: Path) -> No
 
 def test_evaluated_points_round_trip_exactly(tmp_path: Path) -> None:
     points = [(0.1 + 0.2, 1e-3 / 7), (0.0123456789012345, 4.2e4), (10.0, 1e12)]
-    measured = [(0.01, 0.0, 0.5, 1e-3 / 3), (0.4, 0.3, 3.0, 0.7), NOT_MEASURED]
+    measured = [
+        (0.01, 0.0, 0.5, 1e-3 / 3, 0.05),
+        (0.4, 0.3, 3.0, 0.7, -0.2),
+        (*NOT_MEASURED, NOT_DAMPED),
+    ]
     path = tmp_path / "evaluated.csv"
     path.write_bytes(evaluated_csv(points, measured, Limits()))
     assert read_evaluated(path) == points
     assert read_measured(path) == measured
     lines = path.read_text().splitlines()
-    assert lines[0] == "f_acc,f_t,torque_step,saturated_fraction,speed,chatter,feasible"
+    assert lines[0] == "f_acc,f_t,torque_step,saturated_fraction,speed,chatter,damping,feasible"
     assert [line.rsplit(",", 1)[1] for line in lines[1:]] == ["true", "false", "false"]
     # Limits from a file decide it: the first breaks a tighter torque step.
     path.write_bytes(evaluated_csv(points, measured, Limits(torque_step=0.005)))
     assert path.read_text().splitlines()[1].endswith(",false")
+
+
+def test_evaluated_csv_from_before_the_damping_reads_its_measures(tmp_path: Path) -> None:
+    path = tmp_path / "evaluated.csv"
+    path.write_text(
+        "f_acc,f_t,torque_step,saturated_fraction,speed,chatter,feasible\n"
+        "0.01,2.5,0.01,0.0,0.5,0.001,true\n"
+    )
+    assert read_evaluated(path) == [(0.01, 2.5)]
+    assert read_measured(path) == [(0.01, 0.0, 0.5, 0.001)]
+    assert Limits(min_damping=0.1).violated(read_measured(path)[0]) == ()  # not judged
 
 
 def test_evaluated_csv_from_before_the_limits_reads_its_objectives(tmp_path: Path) -> None:

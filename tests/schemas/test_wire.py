@@ -190,6 +190,7 @@ SCORES = {
     "torque_step": 0.01,
     "speed": 0.5,
     "chatter": 0.001,
+    "damping": 0.05,
 }
 
 
@@ -262,6 +263,10 @@ def result_with_scores(**scores: object) -> bytes:
         ({"chatter": -0.0}, "scores.chatter: Value error, -0.0 is not a score"),
         ({"chatter": 2.5}, "scores.chatter: Input should be less than or equal to 2"),
         ({"chatter": None}, "scores.chatter: Input should be a valid number"),
+        ({"damping": -0.0}, "scores.damping: Value error, -0.0 is not a score"),
+        ({"damping": 1.5}, "scores.damping: Input should be less than or equal to 1"),
+        ({"damping": -1.01}, "scores.damping: Input should be greater than or equal to -1"),
+        ({"damping": None}, "scores.damping: Input should be a valid number"),
         ({"torque_step": None, "speed": None}, "scores.torque_step: Input should be a valid"),
         ({"ticks": 60_002}, "scores.ticks: Input should be less than or equal to 60001"),
         ({"values": [0.1, 1e999]}, "scores.values.1: Input should be a finite number"),
@@ -283,7 +288,7 @@ def test_honest_scores_keep_their_json_on_the_wire() -> None:
         scores = Scores(**SCORES, values=values)
         assert WireScores(**scores.model_dump()).model_dump_json() == scores.model_dump_json()
     edge = {"f_acc": 0.0, "f_t": 0.0, "max_error": 0.0, "saturated_fraction": 1.0, "ticks": 0}
-    edge |= {"torque_step": 2.0, "speed": 1000.0, "chatter": 0.0}
+    edge |= {"torque_step": 2.0, "speed": 1000.0, "chatter": 0.0, "damping": -1.0}
     assert decode(Result, result_with_scores(**edge)).scores == WireScores(**{**SCORES, **edge})
 
 
@@ -437,7 +442,7 @@ def test_the_largest_confirmation_and_its_reply_fit_in_a_message() -> None:
         decode(ConfirmRequest, request.replace(b'"]}', b'","' + b"j" * 64 + b'"]}'))
     tiny = 2.2250738585072014e-308
     worst = {"f_acc": tiny, "f_t": tiny, "max_error": tiny, "saturated_fraction": tiny}
-    worst |= {"torque_step": tiny, "speed": tiny, "chatter": tiny}
+    worst |= {"torque_step": tiny, "speed": tiny, "chatter": tiny, "damping": -tiny}
     scores = WireScores(**{**SCORES, **worst, "values": (-tiny, -tiny), "ticks": 60_001})
     accepted = [
         Accepted(job_id=name, lease_id="l" * 64, worker="w" * 64, digest="f" * 64, scores=scores)
