@@ -16,7 +16,7 @@ COMMANDS = {
         "dataset": "Gather tuned controllers' episodes into a dataset.",
         "evaluate": "Score an episode from its MCAP log alone.",
         "experiment": "Rerun the paper's experiments, or compare optimisers.",
-        "export": "Write a run's controller (the recommended one by default) to use.",
+        "export": "Write a run's controller to use (the recommended one).",
         "learn": "Learn the arm's dynamics from a dataset.",
         "replay": "Render an episode log as a video.",
         "resume": "Continue a stopped run from its last checkpoint.",

@@ -236,7 +236,8 @@ def perfect_log(spec: EpisodeSpec) -> bytes:
             tau=flat,
             u=flat,
             ee=log.ee_des.copy(),
-            metadata=log.metadata.model_copy(update={"spec": spec}),
+            # and a stable loop: a worker's log carries its margin (worker.stability)
+            metadata=log.metadata.model_copy(update={"spec": spec, "damping": 0.1}),
         )
     )
 

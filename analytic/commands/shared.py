@@ -248,8 +248,8 @@ def run_with_progress(
     from gainfarm.analytic.tuning.records import REPORT_MD
     from gainfarm.analytic.view.export import describe_pick, picks
     from gainfarm.analytic.view.progress import Display, RunDisplay
-    from gainfarm.analytic.view.run_report import limits_line
     from gainfarm.cli import interrupts
+    from gainfarm.schemas.limits import tally
 
     console = Console(stderr=True)
 
@@ -287,6 +287,13 @@ def run_with_progress(
             raise
         raise unwritable(error, f"go on with: analytic resume {directory}") from None
     # Plain lines, whole however long: rich would wrap them at 80 columns off a terminal.
+    infeasible, _ = tally(run.config.limits, run.state.measured)
+    if infeasible or not run.front():  # which limits: report.md's "Safety limits"
+        front = "" if run.front() else "; none kept to them all: the front is empty"
+        click.echo(
+            f"limits: {infeasible} of {len(run.state.measured)} candidates broke one{front}",
+            err=True,
+        )
     click.echo(f"stopped: {run.state.stopped}", err=True)
     ledger = run.replication
     if ledger.refereed or ledger.spot_checked:
@@ -302,10 +309,6 @@ def run_with_progress(
             ),
             err=True,
         )
-    click.echo(
-        f"limits: {limits_line(run.config.limits, run.state.measured, len(run.front()))}",
-        err=True,
-    )
     click.echo(f"front, history, figures and report in {run.directory}/", err=True)
     chosen = picks(run.front(), run.baseline())
     if not chosen:

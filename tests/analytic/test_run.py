@@ -363,6 +363,8 @@ def test_the_front_is_the_same_when_the_analytic_process_is_killed_and_resumed(
     with local_farm(workers=2) as endpoint:
         arguments = ["--connect", endpoint]
         config = [
+            "--check-plants",  # as `calm`, made without the held-out check
+            "0",
             "--pop",
             "6",
             "--seed",

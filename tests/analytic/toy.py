@@ -15,5 +15,11 @@ def toy_scores(spec: EpisodeSpec) -> Scores:
     f_acc = float(np.mean(0.01 / kp + 0.002 / kd))
     f_t = float(np.mean(kp**2 + 0.5 * kd))
     return Scores(
-        f_acc=f_acc, f_t=f_t, max_error=2 * f_acc, saturated_fraction=0.0, diverged=False, ticks=1
+        f_acc=f_acc,
+        f_t=f_t,
+        max_error=2 * f_acc,
+        saturated_fraction=0.0,
+        diverged=False,
+        ticks=1,
+        damping=0.1,  # a stable loop, as a worker's scores claim one (worker.stability)
     )
