@@ -4,7 +4,8 @@ At the end of a run whose config holds held-out plants (`analytic start --check-
 from the uncertainty ranges on another stream of the seed than the training variants), the
 controller a user takes away (the recommended member, or the closest to it), the front's knee
 and the default gains run every trajectory on the nominal plant and on each held-out plant:
-3 (M + 1) episodes a trajectory, a quarter of the main job's own at M = 64. The rest of the
+3 (M + 1) episodes a trajectory, where the budget allows (CHECK_SHARE: at most half the run's
+own episodes; the default run affords M = 64, some 40 % of its own). The rest of the
 front is not checked: at some 30 members, that would be several times the run itself. Per
 controller: its error on each plant against its own on the nominal one (median and worst), and on
 how many plants it broke a safety limit or diverged. check.json holds it;
@@ -30,6 +31,10 @@ from gainfarm.schemas.limits import measures
 from gainfarm.schemas.objectives import objectives
 
 CHECK_JSON = "check.json"
+# The check's episodes are at most this share of the run's own, so a short run is not made
+# several times longer by its check: the budget allows the held-out plants it allows (at least
+# one). The default run (400-700 evaluations) affords all 64.
+CHECK_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -59,6 +64,10 @@ def run_check(run: TuningRun, evaluator: Evaluator) -> list[Checked]:
     for pick in [named[0], *(pick for pick in named if pick.name == "knee")]:
         chosen.setdefault(pick.member.gains, (pick.name, pick.row))
     chosen.setdefault(DEFAULT_GAINS, ("default gains", None))
+    trajectories = len(run.config.trajectories)
+    ran = run.state.evolution.evaluations * trajectories * (1 + len(run.config.plants))
+    affordable = int(CHECK_SHARE * ran) // (len(chosen) * trajectories) - 1
+    plants = plants[: max(1, affordable)]
     started = time.monotonic()
     specs = {}
     for index, gains in enumerate(chosen):

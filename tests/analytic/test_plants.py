@@ -137,10 +137,11 @@ def test_the_held_out_check_runs_the_controller_to_use_and_the_defaults(tmp_path
     assert names[-1] == "default gains" and names[0] in ("recommended", "closest")
     for item in checked:
         assert item.nominal_f_acc > 0 and 0 < item.median_ratio <= item.worst_ratio
-        assert item.violations + item.diverged <= 3
+        assert item.violations + item.diverged <= 1
     record = read_check(directory)
-    assert record["plants"] == 3 and record["cost"]["episodes"] == len(checked) * 4
+    # 8 candidates' 8 episodes afford half as many: one held-out plant for 3 controllers.
+    assert record["plants"] == 1 and record["cost"]["episodes"] == len(checked) * 2
     assert json.loads((directory / "front.json").read_text())["held_out"] == record
     assert "## Held-out plants" in (directory / "report.md").read_text()
     exported = controller(directory, "knee")  # checked, whether or not it is the one to use
-    assert exported.member.held_out is not None and exported.member.held_out.plants == 3
+    assert exported.member.held_out is not None and exported.member.held_out.plants == 1
