@@ -15,7 +15,8 @@ its stack. An episode alone runs a loop over its own rows, cheaper than a stack 
 
 Two loops, as before batching: the first wave's lean one for exact sensors without delay or
 friction (the ideal plant, kept bit for bit: PD on the state, `ctrl = reference term − G·state`),
-and the one with encoders, a delay and motor friction (`command = P · recent measurements`).
+and the one with encoders, a delay, motor friction and, behind KUKA's FRI interface, the robot's
+gravity model at the measured angles (`command = P · recent measurements`, then `+ g_robot`).
 """
 
 from collections import deque
@@ -138,6 +139,7 @@ def _fitting(stack: list[Stepped]) -> int:
     flange positions: as many floats a tick as an episode's row and measurement, and ten)."""
     episode = max(stack, key=lambda episode: episode.ticks)
     width = 0 if episode.measure is None else episode.measure.shape[0]
+    width += N if episode.gravity is not None else 0  # the robot's gravity model, logged too
     floats = episode.ticks * (episode.plant.model.nq + episode.plant.model.nv + 2 * N + width + 10)
     return max(1, STACK_BYTES // (8 * floats))
 
