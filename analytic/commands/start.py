@@ -62,7 +62,8 @@ from gainfarm.cli.app import CliError
     "--async",
     "asynchronous",
     is_flag=True,
-    help="steady-state NSGA-II: a new candidate as soon as any result returns",
+    help="a steady state (NSGA-II's or TPE's): a new candidate as soon as any result returns, "
+    "each result told as it comes (TPE learns from every one, not a generation at a time)",
 )
 @click.option(
     "--algorithm",
@@ -70,7 +71,7 @@ from gainfarm.cli.app import CliError
     default=defaults.ALGORITHM,
     show_default=True,
     help="the optimiser: pymoo's NSGA-II, NSGA-III, SMS-EMOA, MOEA/D, AGE-MOEA-II, Optuna's "
-    "TPE, or uniform random sampling (--async: nsga2 only)",
+    "TPE, or uniform random sampling (--async: nsga2 or tpe only)",
 )
 @click.option(
     "--objective-scaling",

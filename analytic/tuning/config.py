@@ -8,7 +8,7 @@ from gainfarm import plugins
 from gainfarm.analytic.tuning import defaults
 from gainfarm.analytic.tuning.evolution import (
     REFERENCE_POINT,
-    STEADY_STATE_ONLY,
+    STEADY_STATE,
     steady_state_refusal,
 )
 from gainfarm.analytic.tuning.termination import (
@@ -40,7 +40,9 @@ class RunConfig(BaseModel):
     tolerance: float = Field(CONVERGENCE_TOLERANCE, gt=0)
     window: int = Field(CONVERGENCE_WINDOW, ge=1)
     reference_point: tuple[float, float] = REFERENCE_POINT
-    asynchronous: bool = Field(False, description="steady-state NSGA-II, not generational")
+    asynchronous: bool = Field(
+        False, description="a steady state (NSGA-II's or TPE's), not generational"
+    )
     algorithm: str = Field(
         defaults.ALGORITHM,
         pattern=plugins.NAME_PATTERN,
@@ -143,7 +145,7 @@ class RunConfig(BaseModel):
     def _one_termination(self) -> Self:
         if self.generations is not None and self.evaluations is not None:
             raise ValueError("generations and evaluations exclude each other")
-        if self.asynchronous and self.algorithm != STEADY_STATE_ONLY:
+        if self.asynchronous and self.algorithm not in STEADY_STATE:
             raise ValueError(steady_state_refusal(self.algorithm))
         weights = self.objective_weights
         if weights is not None and len(weights) != len(self.trajectories):

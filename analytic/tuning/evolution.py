@@ -9,7 +9,8 @@ The optimiser is NSGA-II by default; ALGORITHMS lists the other built-in ones, a
 whole population asked, then told): pymoo's NSGA-III, SMS-EMOA, MOEA/D and AGE-MOEA-II; "tpe",
 Optuna's multi-objective TPE through Optuna's ask and tell (OptunaTPE); and "random", uniform
 random sampling of the search space, a population a generation, the baseline any optimiser must
-beat. Each is a factory in the gainfarm.algorithms group of gainfarm.plugins, where a plug-in
+beat. NSGA-II and TPE also run in a steady state (STEADY_STATE: one candidate asked as another
+is told). Each is a factory in the gainfarm.algorithms group of gainfarm.plugins, where a plug-in
 adds its own (`optimiser`: what a factory takes and what it returns).
 
 Whatever the optimiser, the front is this module's archive of every non-dominated point told, in
@@ -64,7 +65,9 @@ F_T_FLOOR = 1e-2  # (N·m)²: smoother than this counts as perfectly smooth
 
 # The built-in optimisers, the default first; plugins.names(plugins.ALGORITHMS) adds the plug-ins.
 ALGORITHMS: tuple[str, ...] = plugins.builtin_names(plugins.ALGORITHMS)
-STEADY_STATE_ONLY = "nsga2"  # the one algorithm with a steady-state (ask_one/tell_one) variant
+# The algorithms with a steady-state variant (ask_one/tell_one): NSGA-II's (mu + 1) and TPE's
+# (one trial at a time, as Optuna runs it).
+STEADY_STATE = ("nsga2", "tpe")
 
 
 @dataclass(frozen=True)
@@ -100,32 +103,47 @@ class UniformRandom:
 
 class OptunaTPE:
     """The "tpe" algorithm: Optuna's multi-objective TPE (optuna.samplers.TPESampler) through
-    Optuna's ask and tell, `pop_size` trials asked a generation, each decision variable a float
-    between its bounds (already log10 of a gain: the search space is log-scaled). The first
-    generation is uniform random (TPE's startup trials); every later one is sampled from Parzen
-    estimators of the trials told: multivariate (the gains act together: a joint's damping is Kd
-    against Kp), with the constant liar, so that a generation's trials, asked before any of them
-    is told, spread out rather than pile onto one mode.
+    Optuna's ask and tell, each decision variable a float between its bounds (already log10 of a
+    gain: the search space is log-scaled). The first `pop_size` trials are uniform random (TPE's
+    startup trials); every later one is sampled from Parzen estimators of the trials told:
+    multivariate (the gains act together: a joint's damping is Kd against Kp), with the constant
+    liar, Optuna's way with trials asked before others are told: a trial still running counts as
+    a bad one, so that those in flight spread out rather than pile onto one mode.
 
-    Deterministic and picklable without any of Optuna's objects: each generation is asked of a
-    fresh sampler seeded by (seed, generation), so that the sampler carries no random state from
-    one generation to the next (its other state, the search space, is derived from the trials).
-    What is pickled is plain data: the seed, the generations asked, every trial told (its point and
-    the objectives it was told, None for a trial Optuna failed) and the trials asked and not yet
-    told; unpickling replays them into a new in-memory study (optuna.trial.create_trial,
-    study.add_trials), which then asks exactly what the uninterrupted one would have.
+    Generational, it asks `pop_size` trials at a time and is told them together: a generation of
+    30 is then sampled from what the previous ones taught, none of it from the others in it.
+    In a steady state (`steady_state`: the run's --async) it asks one trial at a time after the
+    first generation and is told each as it returns, in any order: only the trials in flight (two
+    per worker) are guessed by the liar, so TPE learns from every result as Optuna's own loop
+    does (the way it is meant to run: one trial at a time).
+
+    Deterministic and picklable without any of Optuna's objects: each ask is made of a fresh
+    sampler seeded by (seed, asks made), so that the sampler carries no random state from one ask
+    to the next (its other state, the search space, is derived from the trials). What is pickled
+    is plain data: the seed, the asks made, every trial's point in trial number order, the
+    objectives each told trial was told (None for a trial Optuna failed) and its constraint
+    values; unpickling replays them into a new in-memory study (optuna.trial.create_trial,
+    study.add_trials), which then asks exactly what the uninterrupted one would have. A trial
+    asked and not yet told is replayed running (a generation is told after a resume), except in a
+    steady state, whose candidates in flight a resumed run drops and asks anew: there it is
+    replayed failed, which TPE leaves out, so no trial runs forever under the liar.
     """
 
-    def __init__(self, pop_size: int, seed: int, space: SearchSpace):
+    def __init__(
+        self, pop_size: int, seed: int, space: SearchSpace, steady_state: bool = False
+    ) -> None:
         self.pop_size = pop_size
         self.seed = seed
+        self.steady_state = steady_state
         self.lower, self.upper = space.lower, space.upper
         self.names = tuple(f"log10_kp{j + 1}" for j in range(len(space.kp_low))) + tuple(
             f"log10_kd{j + 1}" for j in range(len(space.kd_low))
         )
-        self.generations = 0  # generations asked
-        self._told: list[tuple[list[float], list[float] | None]] = []  # in trial number order
-        self._asked: list[list[float]] = []  # the points of the trials asked, not yet told
+        self.generations = 0  # asks made: a generation each, or one trial in a steady state
+        self._points: list[list[float]] = []  # every trial's point, by trial number
+        # The objectives each told trial was told (None: Optuna failed it), by trial number;
+        # a trial asked and not in here is in flight.
+        self._values: dict[int, list[float] | None] = {}
         self.pop = None  # no population: nothing for Evolution.correct to correct
         # Told constraints (Evolution sets `constrained`): each told trial's values, by number.
         self.constrained = False
@@ -134,12 +152,27 @@ class OptunaTPE:
         self._study = self._new_study()
 
     def __getstate__(self) -> dict:
-        return {k: v for k, v in self.__dict__.items() if k not in ("_study", "_live")}
+        state = {k: v for k, v in self.__dict__.items() if k not in ("_study", "_live")}
+        if self.steady_state:  # in flight now, dropped by a resumed run: failed to it
+            state["_values"] = {n: self._values.get(n) for n in range(len(self._points))}
+        return state
 
     def __setstate__(self, state: dict) -> None:
-        """Checkpoints from before constraints told none."""
-        self.__dict__.update({"constrained": False, "_told_g": {}, **state, "_live": {}})
+        """Checkpoints from before constraints told none; from before a steady state kept the
+        trials told (in trial number order: they were told in the order asked) apart from the
+        trials asked."""
+        state = {"constrained": False, "_told_g": {}, "steady_state": False, **state}
+        if "_told" in state:
+            told, asked = state.pop("_told"), state.pop("_asked")
+            state["_points"] = [x for x, _ in told] + list(asked)
+            state["_values"] = {number: values for number, (_, values) in enumerate(told)}
+        self.__dict__.update({**state, "_live": {}})
         self._study = self._new_study()
+
+    @property
+    def pending(self) -> list[int]:
+        """The numbers of the trials asked and not yet told, in the order asked."""
+        return [n for n in range(len(self._points)) if n not in self._values]
 
     def _new_study(self) -> Any:
         """The study, with every trial told and asked so far replayed into it, in order."""
@@ -149,13 +182,17 @@ class OptunaTPE:
             name: optuna.distributions.FloatDistribution(float(low), float(high))
             for name, low, high in zip(self.names, self.lower, self.upper, strict=True)
         }
-        trials = [
-            (x, state.COMPLETE if values is not None else state.FAIL, values)
-            for x, values in self._told
-        ] + [(x, state.RUNNING, None) for x in self._asked]
-        study = optuna.create_study(directions=["minimize", "minimize"])
-        study.add_trials(
-            [
+
+        def replayed(number: int) -> tuple[Any, list[float] | None]:
+            if number not in self._values:
+                return state.RUNNING, None
+            values = self._values[number]
+            return (state.COMPLETE if values is not None else state.FAIL), values
+
+        trials = []
+        for number, x in enumerate(self._points):
+            trial_state, values = replayed(number)
+            trials.append(
                 optuna.trial.create_trial(
                     state=trial_state,
                     params=dict(zip(self.names, x, strict=True)),
@@ -166,13 +203,13 @@ class OptunaTPE:
                     if number in self._told_g
                     else None,
                 )
-                for number, (x, trial_state, values) in enumerate(trials)
-            ]
-        )
+            )
+        study = optuna.create_study(directions=["minimize", "minimize"])
+        study.add_trials(trials)
         return study
 
     def _sampler(self, optuna: Any) -> Any:
-        """This generation's sampler: seeded by (seed, generation), nothing carried over."""
+        """This ask's sampler: seeded by (seed, asks made), nothing carried over."""
         seed = int(np.random.SeedSequence([self.seed, self.generations]).generate_state(1)[0])
         with warnings.catch_warnings():  # Optuna 4 calls both options experimental; 5 does not
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
@@ -189,34 +226,43 @@ class OptunaTPE:
             )
 
     def ask(self) -> Population:
-        if self._asked:
+        """A generation of trials; in a steady state, one after the first generation."""
+        one = self.steady_state and self.generations > 0
+        if self.pending and not self.steady_state:
             raise RuntimeError("ask() follows the tell() of the trials asked last")
         optuna = _optuna()
         self._study.sampler = self._sampler(optuna)
-        for _ in range(self.pop_size):
+        asked = []
+        for _ in range(1 if one else self.pop_size):
             trial = self._study.ask()
             self._live[trial.number] = trial
-            self._asked.append(
+            asked.append(
                 [
                     trial.suggest_float(name, float(low), float(high))
                     for name, low, high in zip(self.names, self.lower, self.upper, strict=True)
                 ]
             )
+        self._points += asked
         self.generations += 1
-        return Population.new(X=np.array(self._asked, dtype=float))
+        return Population.new(X=np.array(asked, dtype=float))
 
     def tell(self, infills: Population) -> None:
-        """The objectives (F) of the trials asked last, in the order asked."""
-        if len(infills) != len(self._asked) or not np.array_equal(
-            infills.get("X"), np.array(self._asked, dtype=float).reshape(-1, len(self.names))
+        """The objectives (F) of trials asked: generationally, every one asked last, in the
+        order asked; in a steady state, any of those in flight."""
+        pending = self.pending
+        x = infills.get("X").reshape(-1, len(self.names))
+        if self.steady_state:
+            numbers = [self._in_flight(row, pending) for row in x]
+        elif len(x) == len(pending) and np.array_equal(
+            x, np.array([self._points[n] for n in pending], dtype=float)
         ):
+            numbers = pending
+        else:
             raise ValueError("tell() takes the trials asked last, in the order asked")
         complete = _optuna().trial.TrialState.COMPLETE
-        first = len(self._told)  # trials are numbered in the order asked, and told in that order
         constraints = infills.get("G") if self.constrained else None
         replay = False
-        for index, (x, f) in enumerate(zip(self._asked, infills.get("F"), strict=True)):
-            number = first + index
+        for index, (number, f) in enumerate(zip(numbers, infills.get("F"), strict=True)):
             values = [float(value) for value in f]
             trial = self._live.pop(number, None)
             if constraints is not None:
@@ -229,10 +275,17 @@ class OptunaTPE:
                 else:  # read by the sampler's constraints_func as the trial is told
                     trial.set_user_attr(CONSTRAINTS_KEY, self._told_g[number])
             told = self._study.tell(trial if trial is not None else number, values)  # NaN: fails
-            self._told.append((x, values if told.state == complete else None))
-        self._asked = []
+            self._values[number] = values if told.state == complete else None
         if replay:
             self._study = self._new_study()
+
+    def _in_flight(self, x: np.ndarray, pending: list[int]) -> int:
+        """The number of the trial in flight asked at `x`; ValueError if none is."""
+        for number in pending:
+            if np.array_equal(x, self._points[number]):
+                pending.remove(number)  # told once
+                return number
+        raise ValueError("tell() takes trials asked and not yet told")
 
 
 # Optuna's own key for a trial's constraint values, as a list (Optuna 5 reads it too).
@@ -302,11 +355,13 @@ def optimiser(
     A plug-in of that group is a factory called as factory(pop_size=, seed=, space=) that
     returns an Optimiser; it is deterministic given the seed. A checkpoint holds what it returns,
     so it is picklable, and the factory declares the globals its pickle names
-    (`checkpoint_globals`: analytic.tuning.checkpoint). Steady state is NSGA-II's only.
+    (`checkpoint_globals`: analytic.tuning.checkpoint). Steady state is STEADY_STATE's only.
     PluginError (a ValueError) if this installation has no such algorithm.
     """
-    if steady_state and algorithm != STEADY_STATE_ONLY:
+    if steady_state and algorithm not in STEADY_STATE:
         raise ValueError(steady_state_refusal(algorithm))
+    if steady_state and algorithm == "tpe":
+        return OptunaTPE(pop_size=pop_size, seed=seed, space=space, steady_state=True)
     if steady_state:
         return nsga2(pop_size=pop_size, seed=seed, space=space, steady_state=True)
     made = plugins.load(plugins.ALGORITHMS, algorithm)(pop_size=pop_size, seed=seed, space=space)
@@ -368,9 +423,10 @@ def agemoea2(pop_size: int, seed: int, space: SearchSpace) -> Any:
 
 def steady_state_refusal(algorithm: str) -> str:
     """Why a steady-state run of `algorithm` is refused, in one line naming the way out."""
+    which = " or ".join(STEADY_STATE)
     return (
-        f"steady state (asynchronous, --async) is {STEADY_STATE_ONLY}'s only, not {algorithm}'s: "
-        f"choose algorithm {STEADY_STATE_ONLY}, or drop --async to run {algorithm} generationally"
+        f"steady state (asynchronous, --async) is {which}'s only, not {algorithm}'s: "
+        f"choose algorithm {which}, or drop --async to run {algorithm} generationally"
     )
 
 

@@ -286,3 +286,68 @@ def test_tpe_resumes_from_plain_data_asking_what_it_would_have(tmp_path: Path) -
     assert resumed.front() == whole.front()
     assert resumed.ask() == whole.ask()
     assert all("optuna" not in module for module, _ in ALLOWED)
+
+
+# --- TPE in a steady state: told one result at a time ------------------------------------------
+
+needs_optuna = pytest.mark.skipif(importlib.util.find_spec("optuna") is None, reason="needs optuna")
+
+
+def steady_tpe(seed: int = 5) -> Evolution:
+    """A steady-state TPE past its first (random, generational) generation of six."""
+    evolution = Evolution(6, seed=seed, steady_state=True, algorithm="tpe")
+    evolution.tell([toy_objectives(TINY, gains) for gains in evolution.ask()])
+    return evolution
+
+
+@needs_optuna
+def test_steady_state_tpe_samples_from_every_result_told_so_far() -> None:
+    told = []
+    for worse in (False, True):
+        evolution = steady_tpe()
+        (first, first_gains), (second, second_gains) = evolution.ask_one(), evolution.ask_one()
+        # The second returns first (a farm's order): the best point yet, or the worst; what it
+        # found steers the next ask.
+        evolution.tell_one(second, (1e3, 1e6) if worse else (1e-6, 1e-6))
+        _, third_gains = evolution.ask_one()
+        evolution.tell_one(first, toy_objectives(TINY, first_gains))
+        told.append((first_gains, second_gains, third_gains))
+        assert evolution.evaluations == 8 and evolution.algorithm.pending == [8]
+        with pytest.raises(ValueError, match="not yet told"):
+            evolution.tell_one(second, (1e-6, 1e-6))  # told once only
+    (a1, b1, c1), (a2, b2, c2) = told
+    assert (a1, b1) == (a2, b2)  # asked alike, from the same seed
+    assert c1 != c2  # but the third learnt from the second's result, before the first's came
+
+
+@needs_optuna
+def test_a_steady_state_tpe_checkpoint_drops_the_trials_in_flight(tmp_path: Path) -> None:
+    evolution = steady_tpe()
+    handle, gains = evolution.ask_one()
+    evolution.tell_one(handle, toy_objectives(TINY, gains))
+    in_flight = [evolution.ask_one() for _ in range(2)]
+    assert evolution.algorithm.pending == [7, 8]
+    identity = RunIdentity.new()
+    checkpoint = encode(evolution, identity)
+    resumed, again = (decode(checkpoint, tmp_path / "checkpoint.pkl", identity) for _ in "ab")
+    # A resumed run asks anew for what was in flight: failed trials, which TPE leaves out
+    # (running ones would stand under the constant liar for ever).
+    states = [trial.state.name for trial in resumed.algorithm._study.trials]
+    assert states == ["COMPLETE"] * 7 + ["FAIL"] * 2 and resumed.algorithm.pending == []
+    assert resumed.ask_one()[1] == again.ask_one()[1]  # deterministic from the checkpoint
+    # The live run goes on telling them.
+    for handle, gains in in_flight:
+        evolution.tell_one(handle, toy_objectives(TINY, gains))
+    assert evolution.algorithm.pending == [] and evolution.evaluations == 9
+
+
+@needs_optuna
+def test_an_async_tpe_run_keeps_its_budget_exactly(tmp_path: Path) -> None:
+    config = TINY.model_copy(
+        update={"algorithm": "tpe", "asynchronous": True, "generations": None, "evaluations": 15}
+    )
+    run = read_run(tune(tmp_path / "run", config).directory)
+    assert run.config.asynchronous and run.config.algorithm == "tpe"
+    assert [row.evaluations for row in run.history] == [6, 12, 15]
+    assert len(run.evaluated) == 15
+    assert run.front and all(m.objectives in run.evaluated for m in run.front)
