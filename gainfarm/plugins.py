@@ -60,6 +60,8 @@ BUILTIN: dict[str, dict[str, str]] = {
     OBJECTIVES: {
         "f_acc": "gainfarm.schemas.objectives:f_acc",
         "f_t": "gainfarm.schemas.objectives:f_t",
+        # f_t with each joint's change weighed by its torque limit (schemas/objectives.py)
+        "f_t_joint": "gainfarm.schemas.objectives:f_t_joint",
     },
 }
 GROUPS = tuple(BUILTIN)

@@ -9,6 +9,15 @@ f_t   = (1/T) Σ_i ||u_i − u_(i−1)||²            mean squared torque change
 
 u is the torque command as applied (/joint_commands), not the joint torque sensors' reading.
 
+f_t sums the joints' raw squared changes, so the big joints (A1, A2: 320 N·m limits against the
+wrist's 40) dominate it. f_t_joint, an objective a run may name instead (EpisodeSpec.objectives),
+weighs each joint's change by its own limit:
+
+f_t_joint = (1/T) Σ_i Σ_j (τ̄ / τmax_j)² (u_ij − u_(i−1)j)²     (N·m)², τ̄² = n / Σ_j τmax_j^−2
+
+τ̄ (70 N·m on the iiwa 14) makes the weights average 1: a change of the same N·m on every joint
+scores as in f_t, and the same share of its limit on every joint counts alike.
+
 T is the number of ticks the episode was planned to run. u_0, the torque before the first tick,
 is taken equal to the first applied torque: the robot was already holding it, so starting does
 not count as a change. A diverged episode is scored as if every tick it did not run had the
@@ -85,6 +94,30 @@ def f_t(log: EpisodeLog) -> float:
     return (changes + missing * worst_change) / meta.ticks_planned
 
 
+def joint_weights(limits: Sequence[float]) -> np.ndarray:
+    """f_t_joint's weights (τ̄ / τmax_j)², one per joint: the limits' inverse squares, scaled to
+    average 1."""
+    inverse = 1.0 / np.asarray(limits, dtype=float) ** 2
+    return inverse * len(inverse) / inverse.sum()
+
+
+def f_t_joint(log: EpisodeLog) -> float:
+    """f_t with each joint's squared change weighed by joint_weights (see the module's docstring);
+    a tick not run counts as every joint's swing from one limit to the other, as in f_t."""
+    meta = log.metadata
+    limits = np.asarray(meta.torque_limits)
+    weights = joint_weights(limits)
+    worst_change = float(np.sum(weights * (2.0 * limits) ** 2))
+    changes = float(np.sum(weights * np.diff(log.u, axis=0) ** 2))
+    missing = meta.ticks_planned - log.ticks
+    return (changes + missing * worst_change) / meta.ticks_planned
+
+
+# The built-in objectives an episode may name besides the paper's two (gainfarm.plugins lists
+# them too): computed here, never loaded as plug-ins.
+OTHER_OBJECTIVES: dict[str, Objective] = {"f_t_joint": f_t_joint}
+
+
 def score(log: EpisodeLog, plugins: Mapping[str, Objective] | None = None) -> Scores:
     """The episode's scores. If its spec names objectives other than f_acc and f_t, `plugins`
     gives the function of each (gainfarm.plugins.load); ValueError naming one it lacks."""
@@ -97,7 +130,11 @@ def score(log: EpisodeLog, plugins: Mapping[str, Objective] | None = None) -> Sc
     values = None
     if names != DEFAULT_OBJECTIVES:
         first, second = (
-            built_in[name] if name in built_in else _plugin_value(name, log, plugins or {})
+            built_in[name]
+            if name in built_in
+            else OTHER_OBJECTIVES[name](log)
+            if name in OTHER_OBJECTIVES
+            else _plugin_value(name, log, plugins or {})
             for name in names
         )
         values = (first, second)

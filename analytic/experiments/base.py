@@ -346,13 +346,17 @@ class Experiment:
         trajectory: TrajectorySpec,
         config: RunConfig,
     ) -> list[Point]:
-        """Objectives of the controllers `gains` on `trajectory`, in order (simulated again)."""
+        """Objectives of the controllers `gains` on `trajectory`, in order (simulated again): the
+        two `config` names (the paper's f_acc and f_t unless it names others)."""
         directory = self.out / "cross" / name
         with self.evaluator(f"{self.out.name}-x-{name}", directory) as evaluator:
             evaluator.submit(
                 {
                     f"m{index:03d}": EpisodeSpec(
-                        gains=each, trajectory=trajectory, model=config.model
+                        gains=each,
+                        trajectory=trajectory,
+                        model=config.model,
+                        objectives=config.objectives,
                     )
                     for index, each in enumerate(gains)
                 }
@@ -361,7 +365,7 @@ class Experiment:
         points = []
         for key in sorted(found):
             scores = found[key].scores
-            point = (scores.f_acc, scores.f_t) if scores else NO_EPISODE
+            point = scores.objectives if scores else NO_EPISODE
             if scores and scores.diverged:
                 self._penalise([point])
             points.append(point)

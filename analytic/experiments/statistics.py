@@ -14,6 +14,9 @@ Pure (numpy, scipy), no files: `stats_csv` returns the text of an experiment's s
 - min_p: the smallest p-value the test can give with these sample sizes whatever the data (the
   exact test's, ties aside): 2 / C(n_a + n_b, n_a) for Mann-Whitney, 2 / 2^n for Wilcoxon.
   Mann-Whitney 3 against 3 can never go below 0.1: such a comparison cannot decide at 0.05.
+- p_holm: p_value after Holm's adjustment over the family of comparisons it belongs to (the
+  experiment's report names the family); a trailing column of stats.csv only in an experiment
+  that adjusts (StatsRow.p_holm), so that every other stats.csv keeps STATS_COLUMNS exactly.
 """
 
 import csv
@@ -201,15 +204,19 @@ class StatsRow:
     comparison: str
     metric: str
     result: Comparison
+    p_holm: float | None = None  # None: not adjusted (see the module's docstring)
 
 
 def stats_csv(rows: Sequence[StatsRow]) -> bytes:
-    """The text of stats.csv: exactly STATS_COLUMNS, one line per comparison."""
+    """The text of stats.csv: STATS_COLUMNS, one line per comparison, and p_holm after them
+    if any row has one (empty in a row that has none)."""
+    adjusted = any(row.p_holm is not None for row in rows)
     buffer = io.StringIO()
     writer = csv.writer(buffer)
-    writer.writerow(STATS_COLUMNS)
+    writer.writerow(STATS_COLUMNS + (("p_holm",) if adjusted else ()))
     for row in rows:
         r = row.result
+        holm_column = ["" if row.p_holm is None else row.p_holm] if adjusted else []
         writer.writerow(
             [
                 row.experiment,
@@ -223,6 +230,7 @@ def stats_csv(rows: Sequence[StatsRow]) -> bytes:
                 r.ci_high,
                 r.n_a,
                 r.n_b,
+                *holm_column,
             ]
         )
     return buffer.getvalue().encode()

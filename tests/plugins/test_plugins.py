@@ -95,7 +95,7 @@ def on_workers(installed: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 def test_each_group_lists_its_built_ins_first_the_default_leading() -> None:
     assert plugins.builtin_names(plugins.ALGORITHMS)[0] == "nsga2"
     assert plugins.builtin_names(plugins.TRAJECTORIES) == ("spiral", "random", "pyramid", "fourier")
-    assert plugins.builtin_names(plugins.OBJECTIVES) == ("f_acc", "f_t")
+    assert plugins.builtin_names(plugins.OBJECTIVES) == ("f_acc", "f_t", "f_t_joint")
     for group in plugins.GROUPS:
         assert plugins.names(group)[: len(plugins.BUILTIN[group])] == plugins.builtin_names(group)
 

@@ -1,3 +1,5 @@
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -6,6 +8,8 @@ from gainfarm.schemas.objectives import (
     DIVERGED_TICK_ERROR,
     NO_EPISODE,
     balancing_weights,
+    f_t_joint,
+    joint_weights,
     objectives,
     score,
 )
@@ -28,6 +32,27 @@ def test_a_diverged_episode_is_charged_the_worst_for_every_tick_it_missed():
     assert scores.f_acc == pytest.approx((0.7 + 2 * DIVERGED_TICK_ERROR) / 5)
     assert scores.f_t == pytest.approx((1609.0 + 2 * worst_change) / 5)
     assert scores.diverged
+
+
+def test_the_per_joint_torque_measure_weighs_each_joints_change_by_its_limit():
+    weights = joint_weights(TORQUE_LIMITS)
+    mean_square = len(TORQUE_LIMITS) / sum(limit**-2.0 for limit in TORQUE_LIMITS)
+    assert weights == pytest.approx([mean_square / limit**2 for limit in TORQUE_LIMITS])
+    assert weights.mean() == pytest.approx(1.0)  # the same N·m on every joint: f_t's value
+    # 3 N·m on A1 (limit 320) weighs little; 40 N·m on A7 (limit 40) weighs much more.
+    log = crafted_log()
+    assert f_t_joint(log) == pytest.approx((weights[0] * 9.0 + weights[6] * 1600.0) / 3)
+    assert weights[6] / weights[0] == pytest.approx((320 / 40) ** 2)
+    # A run names it as its second objective: the scores carry it, f_t stays the paper's.
+    named = log.metadata.spec.model_copy(update={"objectives": ("f_acc", "f_t_joint")})
+    metadata = log.metadata.model_copy(update={"spec": named})
+    scores = score(dataclasses.replace(log, metadata=metadata))
+    assert scores.objectives == (scores.f_acc, f_t_joint(log))
+    assert scores.f_t == pytest.approx((9.0 + 1600.0) / 3)
+    # A diverged episode's missing ticks are each every joint's swing from limit to limit.
+    diverged = crafted_log(planned=5, diverged=True)
+    worst = sum(w * (2 * limit) ** 2 for w, limit in zip(weights, TORQUE_LIMITS, strict=True))
+    assert f_t_joint(diverged) == pytest.approx((3 * f_t_joint(log) + 2 * worst) / 5)
 
 
 def test_diverged_episodes_score_worse_than_finished_ones(tracking_log, diverged_log):

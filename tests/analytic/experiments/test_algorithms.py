@@ -19,7 +19,9 @@ from gainfarm.analytic.tuning.records import HistoryRow, read_run
 from gainfarm.analytic.tuning.termination import Termination
 from gainfarm.schemas import EpisodeSpec, Scores, TrajectorySpec
 from gainfarm.schemas.gains import DEFAULT_GAINS
-from gainfarm.schemas.objectives import NO_EPISODE
+from gainfarm.schemas.limits import Limits
+from gainfarm.schemas.objectives import NO_EPISODE, f_acc, f_t, f_t_joint
+from gainfarm.worker.episode import run_episode
 from tests.analytic.experiments.common import refusal
 from tests.analytic.toy import toy_scores
 
@@ -34,6 +36,7 @@ BASE = RunConfig(
     keep="front",
 )
 ALGORITHMS = ("nsga2", "random")
+FIXED = (8, 16, 24, 40)  # the budget and beyond it: compared at 8 and 16 only
 SCALINGS = ("raw", "log")
 REPS = 2
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -44,6 +47,8 @@ RESULT_COLUMNS = [
     "seed",
     "evaluations",
     "hypervolume",
+    "hv_at_8",
+    "hv_at_16",
     "best_f_acc_mm",
     "evaluations_to_99",
     "stopped_by_rule_at",
@@ -77,7 +82,9 @@ def soft_arms_diverge(spec: EpisodeSpec) -> Scores:
 def out(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """One experiment, run once for the tests that read it."""
     directory = tmp_path_factory.mktemp("algorithms")
-    algorithms.run(Experiment(directory, in_process), BASE, REPS, ALGORITHMS, SCALINGS)
+    algorithms.run(
+        Experiment(directory, in_process), BASE, REPS, ALGORITHMS, SCALINGS, budgets=FIXED
+    )
     return directory
 
 
@@ -283,6 +290,7 @@ def test_the_rule_check_needs_a_run_the_rule_stopped() -> None:
         (["--algorithms", "nsga2,random,nsga2"], "--algorithms: algorithm 'nsga2' given twice"),
         (["--objective-scaling", "raw,sqrt"], "--objective-scaling: unknown objective scaling"),
         (["--generations", "3"], "--generations: the algorithms experiment compares on a budget"),
+        (["--torque-measure", "sum"], "--torque-measure: unknown torque measure 'sum': one of raw"),
     ],
 )
 @pytest.mark.slow
@@ -290,3 +298,101 @@ def test_the_algorithms_experiment_refuses_bad_options_in_one_line_before_anythi
     tmp_path: Path, arguments: list[str], message: str
 ) -> None:
     assert refusal(tmp_path, "algorithms", *arguments).startswith(message)
+
+
+# --- the measures that separate methods: fixed budgets, attainment, Holm ------------------------
+
+
+def test_each_run_is_compared_at_the_fixed_budgets_below_its_own(out: Path) -> None:
+    space = json.loads((out / "normalisation.json").read_text())[algorithms.SPACE]
+    normalisation = Normalisation(tuple(space["ideal"]), tuple(space["nadir"]))
+    for r in rows(out / "results.csv"):
+        run = read_run(out / "runs" / f"{r['algorithm']}-{r['scaling']}-rep{r['rep']}")
+        for k in (8, 16):  # every toy point keeps the limits: each is feasible
+            first = normalisation.hypervolume(non_dominated(run.evaluated[:k]))
+            assert float(r[f"hv_at_{k}"]) == first <= float(r["hypervolume"])
+    report = (out / "report.md").read_text()
+    assert "| median hypervolume after 8 | median hypervolume after 16 |" in report
+    assert "hypervolume after 16 evaluations: cannot decide" in report
+    assert "- random-raw against nsga2-raw: after 8: " in report  # attainment differences
+
+
+def test_holm_adjusts_every_hypervolume_claim_as_one_family(out: Path) -> None:
+    found = rows(out / "stats.csv")
+    hypervolume = [
+        r
+        for r in found
+        if r["metric"].startswith("hypervolume") and r["comparison"].endswith(" vs nsga2-raw")
+    ]
+    assert sorted({r["metric"] for r in hypervolume}) == [
+        "hypervolume",
+        "hypervolume_at_16",
+        "hypervolume_at_8",
+    ]
+    assert len(hypervolume) == 3 * 3  # three conditions against the reference, three budgets
+    adjusted = holm([float(r["p_value"]) for r in hypervolume])
+    assert [float(r["p_holm"]) for r in hypervolume] == pytest.approx(adjusted)
+    errors = [r for r in found if r["metric"] == "best_f_acc_mm"]
+    adjusted = holm([float(r["p_value"]) for r in errors])
+    assert [float(r["p_holm"]) for r in errors] == pytest.approx(adjusted)
+    (rule,) = [r for r in found if "convergence rule" in r["comparison"]]
+    assert rule["p_holm"] == rule["p_value"]  # a test of its own
+
+
+def test_the_hypervolume_curve_counts_feasible_points_only() -> None:
+    normalisation = Normalisation(ideal=(0.1, 1.0), nadir=(0.3, 10.0))
+    points = [(0.3, 10.0), (0.1, 1.0), (0.2, 5.0)]
+    curve = algorithms.hypervolume_curve(points, [2, 3], normalisation, kept=[True, False, True])
+    assert curve == [
+        normalisation.hypervolume([(0.3, 10.0)]),
+        normalisation.hypervolume([(0.3, 10.0), (0.2, 5.0)]),
+    ]
+
+
+def test_attainment_differences_count_each_sides_own_region() -> None:
+    normalisation = Normalisation(ideal=(0.0, 1.0), nadir=(0.5, 100.0))
+    accurate = [[(0.05, 100.0)], [(0.05, 100.0)]]  # each repetition's front
+    smooth = [[(0.5, 1.0)], [(0.5, 1.0)]]
+    only_a, only_b = algorithms.attainment_difference(accurate, smooth, normalisation)
+    both = normalisation.hypervolume([(0.05, 100.0), (0.5, 1.0)])
+    assert only_a == pytest.approx(both - normalisation.hypervolume([(0.5, 1.0)]))
+    assert only_b == pytest.approx(both - normalisation.hypervolume([(0.05, 100.0)]))
+    assert only_a > 0 and only_b > 0  # the fronts cross: each attains a region of its own
+    assert algorithms.attainment_difference(accurate, accurate, normalisation) == (0.0, 0.0)
+
+
+def test_tpe_runs_told_one_result_at_a_time_the_others_generationally(tmp_path: Path) -> None:
+    pytest.importorskip("optuna")
+    base = BASE.model_copy(update={"evaluations": 10})
+    algorithms.run(Experiment(tmp_path, in_process), base, 1, ["random", "tpe"], budgets=(5,))
+    for algorithm, asynchronous in (("random", False), ("tpe", True)):
+        run = read_run(tmp_path / "runs" / f"{algorithm}-raw-rep0")
+        assert run.config.asynchronous is asynchronous
+        # a steady state stops at the budget exactly; generations of four go past it
+        assert len(run.evaluated) == (10 if asynchronous else 12)
+    assert "tpe in a steady state" in (tmp_path / "report.md").read_text()
+
+
+def test_the_per_joint_torque_measure_is_what_every_run_and_baseline_minimises(
+    tmp_path: Path,
+) -> None:
+    """Real episodes, half a second each: the objectives are the simulated arm's."""
+    # No limits: random gains break them, and the front would be empty.
+    unlimited = Limits(torque_step=None, saturated_fraction=None, speed=None, chatter=None)
+    trajectory = TrajectorySpec(kind="fourier", duration=0.5)
+    base = BASE.model_copy(
+        update={"pop": 4, "evaluations": 4, "trajectories": (trajectory,), "limits": unlimited}
+    )
+    experiment = Experiment(tmp_path, lambda study, directory: InProcessEvaluator())
+    algorithms.run(experiment, base, 1, ["random"], budgets=(), torque_measure="per-joint")
+    run = read_run(tmp_path / "runs" / "random-raw-rep0")
+    assert run.config.objectives == ("f_acc", "f_t_joint")
+    member = run.front[0]
+    log = run_episode(EpisodeSpec(gains=member.gains, trajectory=trajectory, model=base.model))
+    assert member.objectives == pytest.approx((f_acc(log), f_t_joint(log)))
+    assert f_t_joint(log) != pytest.approx(f_t(log))
+    # The baselines are scored alike: the default gains' point is per-joint too.
+    [default] = experiment.evaluate_gains("again", [DEFAULT_GAINS], trajectory, run.config)
+    log = run_episode(EpisodeSpec(gains=DEFAULT_GAINS, trajectory=trajectory, model=base.model))
+    assert default == pytest.approx((f_acc(log), f_t_joint(log)))
+    assert "`--torque-measure per-joint`" in (tmp_path / "report.md").read_text()

@@ -93,3 +93,18 @@ def test_holm_steps_down_and_keeps_the_order() -> None:
     # Sorted 0.01, 0.03, 0.04 times 3, 2, 1: 0.03, 0.06, then max(0.06, 0.04).
     assert st.holm([0.04, 0.01, 0.03]) == pytest.approx([0.06, 0.03, 0.06])
     assert st.holm([0.5, math.nan, 0.9]) == pytest.approx([1.0, math.nan, 1.0], nan_ok=True)
+
+
+def test_stats_csv_adds_the_holm_column_only_where_an_experiment_adjusts() -> None:
+    result = st.compare(HIGH, LOW)
+    adjusted = st.stats_csv(
+        [
+            st.StatsRow("algorithms", "a vs ref", "hypervolume", result, 2 * result.p_value),
+            st.StatsRow("algorithms", "rule", "hypervolume", result),  # in no family
+        ]
+    )
+    first, second = parse(adjusted)
+    assert list(first) == [*st.STATS_COLUMNS, "p_holm"]
+    assert float(first["p_holm"]) == 2 * float(first["p_value"]) and second["p_holm"] == ""
+    plain = parse(st.stats_csv([st.StatsRow("popsize", "a vs b", "hypervolume", result)]))
+    assert list(plain[0]) == list(st.STATS_COLUMNS)
