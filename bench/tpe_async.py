@@ -11,14 +11,14 @@ told), the hypervolume of the feasible points among its first k evaluations, at 
 ... and N: the run's own measure (analytic.tuning.evolution.hypervolume: the fixed reference
 point, f_t on a log scale), and the algorithms experiment's (normalised between the ideal and the
 nadir of every run's front pooled). Printed: each run's line, then the medians per mode with the
-best error. A run directory is kept (under --out) and reused when the bench is run again with
-the same settings; "wall s" is then only the reading.
+best error and the runs' own wall time (history.csv: on a shared machine, a measure of the load
+as much as of the mode). A run directory is kept (under --out) and reused when the bench is run
+again with the same settings.
 """
 
 import statistics
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import click
@@ -67,11 +67,9 @@ def main(evaluations: int, seeds: int, workers: int, modes: str, out: Path) -> N
             raise click.BadParameter(f"{mode!r}: one of {', '.join(MODES)}", param_hint="--modes")
     at = [*range(STEP, evaluations, STEP), evaluations]
     runs: dict[str, list[RunRecord]] = {mode: [] for mode in chosen}
-    walls: dict[str, list[float]] = {mode: [] for mode in chosen}
     for seed in range(seeds):
         for mode in chosen:
             directory = out / f"{mode}-e{evaluations}-s{seed}"
-            started = time.monotonic()
             if not (directory / "report.md").exists():
                 command = [
                     *(sys.executable, "-m", "gainfarm.analytic", "start"),
@@ -81,7 +79,6 @@ def main(evaluations: int, seeds: int, workers: int, modes: str, out: Path) -> N
                     *("--out", str(directory)),
                 ]
                 subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
-            walls[mode].append(time.monotonic() - started)
             runs[mode].append(read_run(directory))
             values = ", ".join(f"{value:.4f}" for value in curve(runs[mode][-1], at))
             print(f"{mode}, seed {seed}: hypervolume at {at}: {values}", flush=True)
@@ -110,7 +107,7 @@ def main(evaluations: int, seeds: int, workers: int, modes: str, out: Path) -> N
             *medians(fixed, mode, len(at)),
             *medians(pooled, mode, len(at)),
             f"{best[mode]:.3f}",
-            f"{statistics.median(walls[mode]):.0f}",
+            f"{statistics.median(run.wall_seconds for run in runs[mode]):.0f}",
         ]
         for mode in chosen
     ]

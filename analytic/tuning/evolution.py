@@ -447,7 +447,8 @@ class Evolution:
     ):
         """Generational algorithms ask a whole generation at a time. NSGA-II's steady-state
         variant (mu + 1) asks one offspring at a time (ask_one) and takes each result as it
-        comes (tell_one), so that no worker waits for a generation's slowest episode.
+        comes (tell_one), so that no worker waits for a generation's slowest episode; TPE's asks
+        one trial at a time likewise, each sampled from every result told so far.
         `objective_scaling` "log" tells the optimiser `normalise(objectives, reference)`
         instead of the raw objectives; the archive, the front and everything recorded stay raw.
         `constraints`: how many constraint values each point is told with (none: unconstrained).
