@@ -122,7 +122,7 @@ def moved(plant: ModelSpec, setting: Setting) -> ModelSpec:
     for parent in parents:
         holder = holder.get(parent)
         if holder is None:
-            raise ValueError(f"this plant has no {parent} to move ({parameter.what})")
+            raise ValueError(f"the plant has no {parent} to move")
     current = holder[name]
     if parameter.absolute:
         holder[name] = type(current)(setting.value)
@@ -597,7 +597,7 @@ def prepare(base: RunConfig, options: Mapping[str, Any]) -> RunConfig:
             moved_config(base, s)
         except ValueError as error:
             problem = str(error).splitlines()[0]
-            raise ValueError(f"--parameters: {s.label}: {problem}") from None
+            raise ValueError(f"--parameters: {s.parameter.name}: {problem}") from None
     return base
 
 
