@@ -280,7 +280,7 @@ def stated_ranges(names: Sequence[str]) -> list[str]:
         stated = (
             f"uncertainty.toml {entry.low:g}-{entry.high:g}"
             + (" ticks" if entry.absolute else "×")
-            + (", an assumption" if "assumption" in entry.why else "")
+            + f", {entry.why.split(':')[0]}"  # "assumption", "source and assumption"
             if entry
             else "no range stated"
         )
@@ -385,7 +385,7 @@ def finding(
     if shifts:
         said = "shifts: " + ", ".join(shifts)
     elif not (stats.decidable(hv) or stats.decidable(error)):
-        said = f"cannot decide ({reps} repetitions too few after Holm)"
+        said = f"cannot decide ({repetitions(reps)} too few after Holm)"
     else:
         said = "survives: no significant shift"
     ft_nominal = statistics.median(nominal["recommended_f_t"])
@@ -482,7 +482,7 @@ def verdict(
         "neither shifts significantly under": [
             f.setting.label for f in found if f.verdict.startswith("survives")
         ],
-        f"{reps} repetitions cannot decide under": [
+        f"{repetitions(reps)} cannot decide under": [
             f.setting.label for f in found if f.verdict.startswith("cannot")
         ],
     }
@@ -530,6 +530,10 @@ def verdict(
             *survival,
         ]
     )
+
+
+def repetitions(count: int) -> str:
+    return f"{count} repetition{'' if count == 1 else 's'}"
 
 
 def repetitions_needed(family: int, alpha: float = stats.ALPHA) -> int:

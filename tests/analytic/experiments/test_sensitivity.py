@@ -71,7 +71,7 @@ def test_two_parameters_moved_tuned_again_and_judged_against_the_nominal(tmp_pat
     survival = report.split("## Which conclusions survive the plant's assumptions")[1]
     assert "| rotor inertia B | ×5 |" in survival
     assert "| command delay | 3 ticks |" in survival
-    assert survival.count("cannot decide (1 repetitions too few after Holm)") == 3
+    assert survival.count("cannot decide (1 repetition too few after Holm)") == 3
 
 
 def outcome(error_mm: float, hypervolume: float = 0.5) -> sens.Outcome:
