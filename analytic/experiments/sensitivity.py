@@ -151,7 +151,7 @@ def moved_config(base: RunConfig, setting: Setting) -> RunConfig:
 
 
 @dataclass(frozen=True)
-class Outcome:
+class RunOutcome:
     """What one run says: its front, its hypervolume and the controller it recommends
     (`pick`: recommended, or closest when no member dominates the default gains)."""
 
@@ -163,10 +163,10 @@ class Outcome:
     f_t: float
 
 
-def outcome(record: RunRecord, hypervolume: Callable[[Sequence[Point]], float]) -> Outcome:
+def outcome(record: RunRecord, hypervolume: Callable[[Sequence[Point]], float]) -> RunOutcome:
     baseline = read_baseline(record.directory / BASELINE_JSON)
     chosen = picks(record.front, baseline)[0]
-    return Outcome(
+    return RunOutcome(
         front=front_points(record),
         hypervolume=hypervolume(front_points(record)),
         pick=chosen.name,
@@ -291,7 +291,7 @@ def stated_ranges(names: Sequence[str]) -> list[str]:
 
 def results_rows(
     configs: Mapping[str, RunConfig],
-    outcomes: Mapping[tuple[str, int], Outcome],
+    outcomes: Mapping[tuple[str, int], RunOutcome],
     transfers: Mapping[tuple[str, int], Transfer],
     reps: int,
 ) -> list[dict[str, object]]:
@@ -320,7 +320,7 @@ def results_rows(
 
 
 def samples(
-    key: str, outcomes: Mapping[tuple[str, int], Outcome], reps: int
+    key: str, outcomes: Mapping[tuple[str, int], RunOutcome], reps: int
 ) -> dict[str, list[float]]:
     """A plant's runs' hypervolumes, recommended errors (mm) and f_t."""
     runs = [outcomes[(key, rep)] for rep in range(reps)]
@@ -333,7 +333,7 @@ def samples(
 
 def comparisons(
     settings: Sequence[Setting],
-    outcomes: Mapping[tuple[str, int], Outcome],
+    outcomes: Mapping[tuple[str, int], RunOutcome],
     transfers: Mapping[tuple[str, int], Transfer],
     reps: int,
 ) -> dict[tuple[Setting, str], stats.Comparison]:
@@ -368,7 +368,7 @@ class Finding:
 
 def finding(
     setting: Setting,
-    outcomes: Mapping[tuple[str, int], Outcome],
+    outcomes: Mapping[tuple[str, int], RunOutcome],
     transfers: Mapping[tuple[str, int], Transfer],
     adjusted: Mapping[tuple[Setting, str], stats.Comparison],
     reps: int,
@@ -405,7 +405,7 @@ def finding(
 
 def table(
     configs: Mapping[str, RunConfig],
-    outcomes: Mapping[tuple[str, int], Outcome],
+    outcomes: Mapping[tuple[str, int], RunOutcome],
     transfers: Mapping[tuple[str, int], Transfer],
     reps: int,
 ) -> list[str]:
@@ -548,7 +548,7 @@ def repetitions_needed(family: int, alpha: float = stats.ALPHA) -> int:
 def figure(
     path: Path,
     settings: Sequence[Setting],
-    outcomes: Mapping[tuple[str, int], Outcome],
+    outcomes: Mapping[tuple[str, int], RunOutcome],
     reps: int,
 ) -> None:
     """Per parameter, the median attainment surfaces of the nominal plant and each setting; and
