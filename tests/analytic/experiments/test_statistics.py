@@ -93,3 +93,16 @@ def test_holm_steps_down_and_keeps_the_order() -> None:
     # Sorted 0.01, 0.03, 0.04 times 3, 2, 1: 0.03, 0.06, then max(0.06, 0.04).
     assert st.holm([0.04, 0.01, 0.03]) == pytest.approx([0.06, 0.03, 0.06])
     assert st.holm([0.5, math.nan, 0.9]) == pytest.approx([1.0, math.nan, 1.0], nan_ok=True)
+
+
+def test_holm_adjusted_comparisons_carry_the_familys_p_values_and_floor() -> None:
+    clear = st.compare(HIGH, LOW)  # Mann-Whitney 8 against 8: min_p 2 / C(16, 8)
+    paired = st.compare(LOW, HIGH, paired=True)  # Wilcoxon, 8 pairs: min_p 2 / 2^8
+    adjusted = st.holm_adjusted({"clear": clear, "paired": paired})
+    assert [r.p_value for r in adjusted.values()] == pytest.approx(
+        st.holm([clear.p_value, paired.p_value])
+    )
+    # No adjusted p of a family of two can fall below twice its smallest reachable p.
+    assert adjusted["clear"].min_p == pytest.approx(2 * clear.min_p)
+    assert adjusted["paired"].min_p == pytest.approx(paired.min_p)
+    assert adjusted["clear"].a12 == clear.a12 and st.holm_adjusted({}) == {}
