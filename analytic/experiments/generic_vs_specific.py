@@ -402,7 +402,9 @@ def report(
             ("Two questions, one design each" if len(designs) > 1 else "One design")
             + f", {len(claims)} claims in all: the hypervolume and "
             "the dominance test of each design on each test trajectory, Holm-adjusted as one "
-            f"family (every p-value below; alpha {stats.ALPHA:g}).",
+            f"family (every p-value below; alpha {stats.ALPHA:g}). The table's Δ: specific − "
+            "generic, the difference of the medians over repetitions (below zero, the specific "
+            "controller is the more accurate or the smoother).",
             *sections,
             "",
             "The effects in physical units are estimates beside the claims, not tests (no "
