@@ -15,9 +15,9 @@ preregistration.json before the first run, and a directory is never resumed with
 experiment is extended after its result is seen (optional stopping). The report's claims are the
 hypervolume and the dominance test of each design on each test trajectory, Holm-adjusted as one
 family. Beside them, effect sizes in physical units, estimated, not tested (specific − generic,
-paired by repetition, 95 % bootstrap CI): the error at the default gains' torque smoothness (mm),
-and the recommended controllers' (analytic.tuning.picks) error (mm) and f_t ((N·m)²), both on
-the test trajectory.
+paired by repetition, 95 % bootstrap CI), as analytic.experiments.measures takes them: the error
+at one torque smoothness every front judged on the test trajectory reaches (mm), and the
+recommended controllers' error (mm) and f_t ((N·m)²) there.
 
 Each test trajectory is a problem of its own ("on spiral", ...: normalisation.json's keys), its
 space pooled over the fronts of both designs. Written: preregistration.json, results.csv (a row
@@ -33,6 +33,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from gainfarm.analytic.experiments import measures
 from gainfarm.analytic.experiments import statistics as stats
 from gainfarm.analytic.experiments.base import (
     ALL_KINDS,
@@ -50,8 +51,6 @@ from gainfarm.analytic.experiments.base import (
     write_experiment_report,
 )
 from gainfarm.analytic.tuning.config import RunConfig
-from gainfarm.analytic.tuning.picks import picks
-from gainfarm.analytic.tuning.records import BASELINE_JSON, read_baseline
 from gainfarm.analytic.view.figures import new_figure, save_png
 from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.gains import DEFAULT_GAINS
@@ -71,12 +70,26 @@ QUESTIONS = {
 }
 GENERIC_LABELS = {PAPER: "generic (all)", HELD_OUT: "generic (held out)"}
 LOG_NOTE = "f_t on a log scale in it, a choice the paper does not make"
-# The effect sizes in physical units: results.csv's column, how the report names it, its unit
-# there and the factor from results.csv's unit (m, (N·m)²) to it.
+
+
+@dataclass(frozen=True)
+class Effect:
+    """An effect size in physical units: how the report names it, its unit there, the factor
+    from results.csv's unit (m, (N·m)²) to it, and its metric in stats.csv."""
+
+    what: str
+    unit: str
+    scale: float
+    metric: str
+
+
+# results.csv's column → its effect, in the order the report gives them.
 EFFECTS = {
-    "f_acc_at_default_f_t": ("error at the default gains' smoothness", "mm", 1e3),
-    "recommended_f_acc": ("the recommended controllers' error", "mm", 1e3),
-    "recommended_f_t": ("their f_t", "(N·m)²", 1.0),
+    "error_at_level": Effect("error at one torque smoothness", "mm", 1e3, "error_at_level_mm"),
+    "recommended_f_acc": Effect(
+        "the recommended controllers' error", "mm", 1e3, "recommended_error_mm"
+    ),
+    "recommended_f_t": Effect("their f_t", "(N·m)²", 1.0, "recommended_f_t"),
 }
 
 
@@ -179,15 +192,6 @@ class Judged:
     picked: Point
 
 
-def error_at(
-    points: Sequence[Point], f_t: float, penalised: frozenset[Point] | set[Point]
-) -> float:
-    """The least f_acc of the measured `points` no rougher than `f_t`; NaN if none is."""
-    return min(
-        (p[0] for p in points if p[1] <= f_t and not is_penalty(p, penalised)), default=math.nan
-    )
-
-
 def run(
     experiment: Experiment,
     base: RunConfig,
@@ -215,10 +219,9 @@ def run(
         """The run `name`'s front on each test trajectory of `on` (its own, or simulated again
         there), with its recommended member picked on its own trajectories."""
         record = experiment.tune(name, config)
-        path = record.directory / BASELINE_JSON
-        if not path.exists():
-            raise ValueError(f"{record.directory}: no {BASELINE_JSON} to pick a member by")
-        pick = picks(record.front, read_baseline(path))[0]
+        pick = measures.recommended(record)
+        if pick is None:
+            raise ValueError(f"{record.directory}: an empty front, nothing to judge")
         index = record.front.index(pick.member)
         judged = {}
         for kind in on:
@@ -258,15 +261,18 @@ def run(
     def of(design: str, controller: str, kind: str) -> list[Judged]:
         return [done[run_name(design, controller, kind, rep)][kind] for rep in range(reps)]
 
-    normalisations = {
-        kind: experiment.normalisation([on[kind].points for on in done.values() if kind in on])
-        for kind in tests
+    judged_on = {kind: [on[kind].points for on in done.values() if kind in on] for kind in tests}
+    normalisations = {kind: experiment.normalisation(sets) for kind, sets in judged_on.items()}
+    # One torque smoothness per test trajectory, the least every front judged there reaches.
+    levels = {
+        kind: measures.smoothness_level(sets, experiment.penalised)
+        for kind, sets in judged_on.items()
     }
     experiment.write_normalisation({f"on {k}": n for k, n in normalisations.items()})
     rows = []
     for design in chosen:
         for kind in tests:
-            level = defaults[tests[kind].kind][1]
+            level = levels[kind]
             for controller, other in ((GENERIC, SPECIFIC), (SPECIFIC, GENERIC)):
                 others = of(design, other, kind)
                 for rep, judged in enumerate(of(design, controller, kind)):
@@ -281,7 +287,10 @@ def run(
                             "run": run_name(design, controller, kind, rep),
                             "hypervolume": normalisations[kind].hypervolume(points),
                             "best_f_acc": min(p[0] for p in points),
-                            "f_acc_at_default_f_t": error_at(points, level, experiment.penalised),
+                            "f_t_level": level,
+                            "error_at_level": measures.error_at(
+                                points, level, experiment.penalised
+                            ),
                             "recommended": judged.pick,
                             "recommended_f_acc": judged.picked[0],
                             "recommended_f_t": judged.picked[1],
@@ -334,19 +343,16 @@ def described(a: Sequence[float], b: Sequence[float]) -> stats.Comparison:
     return replace(result, p_value=math.nan)
 
 
-def effect_text(result: stats.Comparison, unit: str, scale: float, reps: int) -> str:
-    """'1.2 against 1.5 mm (−0.3 mm, 95 % CI [−0.5, −0.1])': the medians, their difference and
-    its CI, in `unit` (`scale` times results.csv's)."""
-    a, b = result.median_a * scale, result.median_b * scale
+def effect_text(result: stats.Comparison, unit: str, reps: int) -> str:
+    """'8.73 against 11.9 mm (-3.22 mm [-4.1, -2.05])': the medians, their difference and its
+    95 % bootstrap interval (measures.difference), and how many repetitions gave both."""
     if not result.n_a:
         return "undefined in every repetition"
-    interval = (
-        f", 95 % CI [{result.ci_low * scale:+.3g}, {result.ci_high * scale:+.3g}]"
-        if math.isfinite(result.ci_low)
-        else ", no CI from one repetition"
+    fewer = f", from {result.n_a} of {reps} repetitions" if result.n_a < reps else ""
+    return (
+        f"{result.median_a:.3g} against {result.median_b:.3g} {unit} "
+        f"({measures.difference(result, unit)}{fewer})"
     )
-    fewer = f"; {result.n_a} of {reps} repetitions" if result.n_a < reps else ""
-    return f"{a:.3g} against {b:.3g} {unit} ({a - b:+.3g} {unit}{interval}{fewer})"
 
 
 def report(
@@ -378,22 +384,30 @@ def report(
                 _dominated_shares(rows, design, kind, SPECIFIC),
                 paired=True,
             )
-            for column in EFFECTS:
+            for column, effect in EFFECTS.items():
                 effects[(design, kind, column)] = described(
-                    _values(rows, design, kind, SPECIFIC, column),
-                    _values(rows, design, kind, GENERIC, column),
+                    *(
+                        [v * effect.scale for v in _values(rows, design, kind, c, column)]
+                        for c in (SPECIFIC, GENERIC)
+                    )
                 )
     adjusted = stats.holm_adjusted(claims)
     experiment.write_stats(
         [
             stats.StatsRow(NAME, f"{design}: specific vs generic, on {kind}", metric, result)
-            for (design, kind, metric), result in (claims | effects).items()
+            for (design, kind, metric), result in claims.items()
+        ]
+        + [
+            stats.StatsRow(
+                NAME, f"{design}: specific vs generic, on {kind}", EFFECTS[column].metric, result
+            )
+            for (design, kind, column), result in effects.items()
         ]
     )
     sections = []
     for design in designs:
         sections += ["", f"## {QUESTIONS[design]}", ""]
-        sections += design_verdict(design, kinds, rows, adjusted, effects, defaults, reps)
+        sections += design_verdict(design, kinds, rows, adjusted, effects, reps)
     runs = {r["run"]: r["recommended"] for r in rows}
     closest = sum(pick == "closest" for pick in runs.values())
     diverged = len({(r["run"], r["test_trajectory"]) for r in rows if r["recommended_penalty"]})
@@ -410,10 +424,15 @@ def report(
             "The effects in physical units are estimates beside the claims, not tests (no "
             "p-value; no verdict rests on them, so Holm does not count them; their 95 % "
             "bootstrap CIs are not adjusted): specific against generic, the same repetition's "
-            "two runs. The error at the default gains' smoothness is that of the most accurate "
-            "member of the front whose f_t on the test trajectory is at most the default gains' "
-            "there: "
-            + "; ".join(f"{kind} {defaults[TrajectoryKind(kind)][1]:.3g} (N·m)²" for kind in kinds)
+            "two runs. The error at one torque smoothness is each front's best error among its "
+            "members at least that smooth on the test trajectory, interpolated along the front "
+            "(analytic/experiments/measures.py), at the least f_t every front judged there "
+            "reaches: "
+            + "; ".join(
+                f"{kind} {next(r['f_t_level'] for r in rows if r['test_trajectory'] == kind):.3g}"
+                " (N·m)²"
+                for kind in kinds
+            )
             + ". The recommended controller is what `analytic export` gives (the knee among "
             "the members that dominate the default gains on the run's own trajectories; where "
             "none does, the closest to dominating them: "
@@ -466,9 +485,8 @@ def report(
                     statistics.median(_values(rows, design, kind, SPECIFIC, "hypervolume")),
                     statistics.median(_values(rows, design, kind, GENERIC, "hypervolume")),
                     *(
-                        (effects[(design, kind, c)].median_a - effects[(design, kind, c)].median_b)
-                        * scale
-                        for c, (_, _, scale) in EFFECTS.items()
+                        effects[(design, kind, c)].median_a - effects[(design, kind, c)].median_b
+                        for c in EFFECTS
                     ),
                 )
                 for design in designs
@@ -486,7 +504,6 @@ def design_verdict(
     rows: Sequence[Mapping[str, object]],
     adjusted: Mapping[tuple[str, str, str], stats.Comparison],
     effects: Mapping[tuple[str, str, str], stats.Comparison],
-    defaults: Mapping[TrajectoryKind, Point],
     reps: int,
 ) -> list[str]:
     """One design's section of the verdict: its headline, then a line per test trajectory."""
@@ -520,8 +537,8 @@ def design_verdict(
     for kind in kinds:
         of = functools.partial(_values, rows, design, kind)
         physical = "; ".join(
-            f"{what} {effect_text(effects[(design, kind, column)], unit, scale, reps)}"
-            for column, (what, unit, scale) in EFFECTS.items()
+            f"{effect.what} {effect_text(effects[(design, kind, column)], effect.unit, reps)}"
+            for column, effect in EFFECTS.items()
         )
         lines.append(
             f"- on the {kind} ({place}): hypervolume ({LOG_NOTE}): "
@@ -540,7 +557,7 @@ def design_verdict(
                 "the specific controller",
                 "the generic one",
             )
-            + ". Specific against generic, median over repetitions: "
+            + ". Specific against generic, medians over repetitions (their difference [95 % CI]): "
             + physical
             + "."
         )
@@ -556,7 +573,7 @@ def table(effects: Mapping[tuple[str, str], Sequence[float]]) -> list[str]:
             "judged on",
             "specific median hypervolume",
             "generic median hypervolume",
-            *(f"Δ {what} ({unit})" for what, unit, _ in EFFECTS.values()),
+            *(f"Δ {effect.what} ({effect.unit})" for effect in EFFECTS.values()),
         ],
         (
             [

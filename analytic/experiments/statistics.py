@@ -14,8 +14,6 @@ Pure (numpy, scipy), no files: `stats_csv` returns the text of an experiment's s
 - min_p: the smallest p-value the test can give with these sample sizes whatever the data (the
   exact test's, ties aside): 2 / C(n_a + n_b, n_a) for Mann-Whitney, 2 / 2^n for Wilcoxon.
   Mann-Whitney 3 against 3 can never go below 0.1: such a comparison cannot decide at 0.05.
-- holm, holm_adjusted: Holm's step-down adjustment over a family of tests (every claim a report
-  states), and the comparisons with their adjusted p-values.
 """
 
 import csv
@@ -246,9 +244,10 @@ def holm(p_values: Sequence[float]) -> list[float]:
 
 
 def holm_adjusted(results: Mapping[K, Comparison]) -> dict[K, Comparison]:
-    """`results`, one family, with Holm-adjusted p-values, and with the smallest adjusted
-    p-value each can reach (min_p): Holm multiplies the family's smallest p by the family's size,
-    so a sample size that could decide one test alone may decide none of many."""
+    """The family `results` with Holm-adjusted p-values, and with the smallest adjusted p-value
+    each can reach (Holm multiplies the family's smallest p by its size, so a sample size that
+    could decide one test alone may decide none of many): `decidable`, `better` and `decide`
+    then judge each claim as one of the family."""
     adjusted = holm([r.p_value for r in results.values()])
     tested = [r.min_p for r in results.values() if math.isfinite(r.p_value)]
     floor = len(tested) * min(tested, default=0.0)

@@ -2,12 +2,12 @@
 this process."""
 
 import json
-import math
+import re
 from pathlib import Path
 
 import pytest
 
-from gainfarm.analytic.experiments import generic_vs_specific
+from gainfarm.analytic.experiments import generic_vs_specific, measures
 from gainfarm.analytic.experiments.base import ALL_KINDS, Experiment
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.picks import picks
@@ -25,7 +25,7 @@ from tests.analytic.experiments.common import (
     stats_rows,
 )
 
-EFFECTS = {"f_acc_at_default_f_t", "recommended_f_acc", "recommended_f_t"}
+EFFECTS = {"error_at_level_mm", "recommended_error_mm", "recommended_f_t"}
 CLAIMS = {"hypervolume", "dominated_share"}
 
 
@@ -68,7 +68,7 @@ def test_on_a_real_farm(tmp_path: Path, endpoints: list[str]) -> None:
         cross = tmp_path / "cross" / f"{generic}-on-pyramid" / "episodes"
         assert len(list(cross.glob("*.mcap"))) >= 1
     # The effects in physical units, from the specific run's own front: its recommended member
-    # (as `analytic export` picks it), and its most accurate member no rougher than the defaults.
+    # (as `analytic export` picks it), and its error at the smoothness every front reaches.
     specific = next(r for r in results if r["controller"] == "specific")
     record = read_run(tmp_path / "runs" / "specific-pyramid-rep0")
     pick = picks(record.front, read_baseline(record.directory / BASELINE_JSON))[0]
@@ -76,9 +76,11 @@ def test_on_a_real_farm(tmp_path: Path, endpoints: list[str]) -> None:
     assert (float(specific["recommended_f_acc"]), float(specific["recommended_f_t"])) == (
         pick.member.objectives
     )
-    smooth_enough = [m.f_acc for m in record.front if m.f_t <= defaults["pyramid"][1]]
-    at_default = float(specific["f_acc_at_default_f_t"])
-    assert at_default == min(smooth_enough) if smooth_enough else math.isnan(at_default)
+    level = float(specific["f_t_level"])
+    assert {float(r["f_t_level"]) for r in results} == {level}  # one level per test trajectory
+    own = [m.objectives for m in record.front]
+    assert float(specific["error_at_level"]) == pytest.approx(measures.error_at(own, level))
+    assert level >= min(m.f_t for m in record.front)  # a smoothness every front reaches
     assert (tmp_path / "generic-vs-specific.png").read_bytes().startswith(PNG)
     report = (tmp_path / "report.md").read_text()
     for question in generic_vs_specific.QUESTIONS.values():
@@ -86,7 +88,11 @@ def test_on_a_real_farm(tmp_path: Path, endpoints: list[str]) -> None:
     assert "on the pyramid (in the generic set): hypervolume (f_t on a log scale" in report
     assert "on the pyramid (held out of the generic set): hypervolume (f_t on a log scale" in report
     assert report.count("By dominance, paired by repetition: cannot decide") == 2  # 1 pair
-    assert "the recommended controllers' error" in report and " mm (" in report
+    # Each effect as medians and their difference (no interval from one repetition).
+    for effect in ("error at one torque smoothness", "the recommended controllers' error"):
+        assert (
+            len(re.findall(rf"{effect} [\d.]+ against [\d.]+ mm \([+-][\d.e+-]+ mm\)", report)) == 2
+        )
     assert "4 claims in all" in report and "preregistered: 1 repetitions" in report
     assert {r["metric"] for r in stats_rows(tmp_path)} == CLAIMS | EFFECTS
 
@@ -170,14 +176,6 @@ def test_least_reps_lets_every_claim_of_the_family_reach_significance(
     # Wilcoxon on n pairs cannot go below 2 / 2^n; Holm multiplies the smallest p by the family.
     assert generic_vs_specific.least_reps(claims) == reps
     assert claims * 2 / 2**reps < 0.05 <= claims * 2 / 2 ** (reps - 1)
-
-
-def test_the_error_at_a_smoothness_is_the_most_accurate_point_no_rougher() -> None:
-    points = [(0.001, 0.5), (0.002, 0.1), (0.004, 0.01), (2.0, 0.001)]  # the last a penalty
-    assert generic_vs_specific.error_at(points, 0.1, set()) == 0.002
-    assert generic_vs_specific.error_at(points, 0.05, set()) == 0.004
-    assert math.isnan(generic_vs_specific.error_at(points, 0.05, {(0.004, 0.01)}))
-    assert math.isnan(generic_vs_specific.error_at(points, 0.0001, set()))
 
 
 @pytest.mark.parametrize("test", list(ALL_KINDS))

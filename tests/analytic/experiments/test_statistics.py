@@ -95,14 +95,21 @@ def test_holm_steps_down_and_keeps_the_order() -> None:
     assert st.holm([0.5, math.nan, 0.9]) == pytest.approx([1.0, math.nan, 1.0], nan_ok=True)
 
 
-def test_holm_adjusted_comparisons_carry_the_familys_p_values_and_floor() -> None:
-    clear = st.compare(HIGH, LOW)  # Mann-Whitney 8 against 8: min_p 2 / C(16, 8)
-    paired = st.compare(LOW, HIGH, paired=True)  # Wilcoxon, 8 pairs: min_p 2 / 2^8
-    adjusted = st.holm_adjusted({"clear": clear, "paired": paired})
-    assert [r.p_value for r in adjusted.values()] == pytest.approx(
-        st.holm([clear.p_value, paired.p_value])
-    )
-    # No adjusted p of a family of two can fall below twice its smallest reachable p.
-    assert adjusted["clear"].min_p == pytest.approx(2 * clear.min_p)
-    assert adjusted["paired"].min_p == pytest.approx(paired.min_p)
-    assert adjusted["clear"].a12 == clear.a12 and st.holm_adjusted({}) == {}
+def test_holm_adjusted_judges_each_claim_as_one_of_its_family() -> None:
+    def shifted(by: float) -> st.Comparison:
+        return st.compare(HIGH, [v - by for v in HIGH])
+
+    alone = {"near": shifted(3), "far": shifted(5)}  # p = 0.045 and 0.0045, each alone
+    family = st.holm_adjusted(alone)
+    assert list(family) == ["near", "far"]
+    assert family["far"].p_value == pytest.approx(2 * alone["far"].p_value)  # the least, doubled
+    assert family["near"].p_value == pytest.approx(alone["near"].p_value)  # the last, as it was
+    assert family["near"].a12 == alone["near"].a12 and family["near"].ci_low == alone["near"].ci_low
+    # Two claims each significant alone (p = 0.045) are not as a family of two (0.09).
+    twice = st.holm_adjusted({"a": shifted(3), "b": shifted(3)})
+    assert all(st.significant(shifted(3)) and not st.significant(r) for r in twice.values())
+    assert [r.p_value for r in twice.values()] == pytest.approx([2 * shifted(3).p_value] * 2)
+    # Four against four reaches 0.029 alone; as one of two claims, Holm's least is 0.057.
+    small = st.holm_adjusted({k: st.compare(HIGH[:4], LOW[:4]) for k in "ab"})
+    assert all(not st.decidable(r) and r.min_p == pytest.approx(4 / 70) for r in small.values())
+    assert st.holm_adjusted({}) == {}
