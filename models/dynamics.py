@@ -16,7 +16,13 @@ Kinds:
   rotor inertia (q̈), viscous friction (q̇) and Coulomb-like friction (tanh(q̇ / 0.05)). Inverse
   only: the identified π need not make a positive-definite mass matrix to invert;
 - "mlp": a feed-forward network, evaluated here with numpy;
-- "residual": the rigid prior plus a network trained on what the prior leaves out.
+- "residual": the rigid prior plus a network trained on what the prior leaves out;
+- "plant": the simulated plant's own dynamics (`true_model`), the anchor no learned model can
+  beat: the rigid arm as it really is (its payload and true link masses too) with the rotors as
+  armature, plus the motors' friction at the given velocity, as the plant applies it. Not learnt:
+  an oracle for the comparisons (analytic/experiments/feedforward.py) that any model file's user
+  can run like a learned one. Its spec is the plant's dynamic part (`plant_spec`), not the
+  nominal arm the other kinds start from, so a learned model's prior never sees the truth.
 
 A model file is an uncompressed .npz: a JSON header (a uint8 array) and float64 arrays, no pickle,
 so hostile bytes can be refused but never run (`from_bytes`). Jobs name a model by the SHA-256 of
@@ -43,12 +49,12 @@ from numpy.lib import format as npy_format
 from pydantic import ValidationError
 
 from gainfarm.models.iiwa14 import build_spec, compile_model
-from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, Friction, ModelSpec
 
 if TYPE_CHECKING:
     import pinocchio  # for annotations only; imported at run time by _pinocchio()
 
-Kind = Literal["rigid", "linear", "mlp", "residual"]
+Kind = Literal["rigid", "linear", "mlp", "residual", "plant"]
 Target = Literal["inverse", "forward"]
 Activation = Literal["relu", "tanh"]
 KINDS: tuple[str, ...] = get_args(Kind)
@@ -112,7 +118,8 @@ _ACTIVATION: dict[str, Callable[[np.ndarray], np.ndarray]] = {
 @dataclass(frozen=True, eq=False)
 class DynamicsModel:
     """One dynamics model (module docstring). `spec` is the rigid arm whose kinematics and
-    inertials the physics (rigid prior, Pinocchio regressor) uses: `rigid_spec` of the plant.
+    inertials the physics (rigid prior, Pinocchio regressor) uses: `rigid_spec` of the plant, or
+    for the plant kind `plant_spec` (the true arm and its friction).
     `about` is free provenance (what it was trained on), JSON-serialisable, stored in the file."""
 
     kind: Kind
@@ -147,6 +154,8 @@ class DynamicsModel:
         q, qd, third = _rows(q=q, qd=qd, **{third_name: third})
         if self.kind == "linear":
             return linear_torque(self.spec, self.parameters, q, qd, third)  # type: ignore[arg-type]
+        if self.kind == "plant":
+            return plant_dynamics(self.spec, self.target, q, qd, third)
         prior = 0.0
         if self.kind in ("rigid", "residual"):
             physics = rigid_inverse if self.target == "inverse" else rigid_forward
@@ -174,6 +183,50 @@ def rigid_prior(spec: ModelSpec, target: Target = "inverse") -> DynamicsModel:
     return DynamicsModel(kind="rigid", target=target, spec=rigid_spec(spec))
 
 
+def plant_spec(plant: ModelSpec) -> ModelSpec:
+    """What of `plant` its true dynamics depend on: the inertial set, the true link masses
+    (`mass_scale`), the payload, the rotor inertias and the friction, on rigid joints. Springs
+    are left out: at the reference the link and motor move alike, and what a spring's deflection
+    does is the controller's to compensate, not the model's (bench/true_feedforward.py)."""
+    return ModelSpec(
+        joints="rigid",
+        inertials=plant.inertials,
+        rotor_inertia=plant.rotor_inertia,
+        friction=plant.friction,
+        mass_scale=plant.mass_scale,
+        payload=plant.payload,
+        substeps=1,
+    )
+
+
+def true_model(plant: ModelSpec, target: Target = "inverse") -> DynamicsModel:
+    """The simulated `plant`'s own dynamics as a model (kind "plant"): computed torque with
+    the very arm, payload and friction the simulator runs; no training."""
+    return DynamicsModel(kind="plant", target=target, spec=plant_spec(plant))
+
+
+def friction_torque(friction: Friction | None, velocity: np.ndarray) -> np.ndarray:
+    """The motors' friction torque at motor velocities `velocity` (schemas.robot.Friction):
+    viscous·θ̇ + coulomb·tanh(θ̇ / smoothing), opposing the motion; what the plant applies."""
+    if friction is None:
+        return np.zeros_like(velocity)
+    coulomb = np.asarray(friction.coulomb) * np.tanh(velocity / friction.smoothing)
+    return np.asarray(friction.viscous) * velocity + coulomb
+
+
+def plant_dynamics(
+    spec: ModelSpec, target: Target, q: np.ndarray, qd: np.ndarray, third: np.ndarray
+) -> np.ndarray:
+    """The plant kind's prediction: inverse, the true arm's torque plus the friction the
+    motors must overcome at q̇; forward, the acceleration of what is left of u once friction
+    has taken its part."""
+    arm = compile_model(spec.model_copy(update={"friction": None}))
+    friction = friction_torque(spec.friction, qd)
+    if target == "inverse":
+        return _mj_inverse(arm, q, qd, third) + friction
+    return _mj_forward(arm, q, qd, third - friction)
+
+
 # --- physics: MuJoCo's rigid arm ---------------------------------------------------------------
 
 
@@ -182,7 +235,20 @@ def rigid_inverse(spec: ModelSpec, q: np.ndarray, qd: np.ndarray, qdd: np.ndarra
 
     One MjData per call, so concurrent calls share nothing (its cost, some 50 µs, is nothing
     beside the rows'); a row costs a few µs."""
-    model = compile_model(rigid_spec(spec))
+    return _mj_inverse(compile_model(rigid_spec(spec)), q, qd, qdd)
+
+
+def rigid_forward(spec: ModelSpec, q: np.ndarray, qd: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """(n, 7) accelerations of `spec`'s rigid arm (mj_forward) with torques u on its joints.
+
+    u goes in as applied joint forces, not as the motors' controls: a log's u is already the
+    clamped torque, and the motors would clamp it again."""
+    return _mj_forward(compile_model(rigid_spec(spec)), q, qd, u)
+
+
+def _mj_inverse(
+    model: mujoco.MjModel, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
+) -> np.ndarray:
     data = mujoco.MjData(model)
     torque = np.empty_like(q)
     inverse, qpos, qvel, qacc, result = (
@@ -199,12 +265,7 @@ def rigid_inverse(spec: ModelSpec, q: np.ndarray, qd: np.ndarray, qdd: np.ndarra
     return torque
 
 
-def rigid_forward(spec: ModelSpec, q: np.ndarray, qd: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """(n, 7) accelerations of `spec`'s rigid arm (mj_forward) with torques u on its joints.
-
-    u goes in as applied joint forces, not as the motors' controls: a log's u is already the
-    clamped torque, and the motors would clamp it again."""
-    model = compile_model(rigid_spec(spec))
+def _mj_forward(model: mujoco.MjModel, q: np.ndarray, qd: np.ndarray, u: np.ndarray) -> np.ndarray:
     data = mujoco.MjData(model)
     acceleration = np.empty_like(q)
     forward, qpos, qvel, applied, result = (
@@ -538,7 +599,9 @@ def _check(model: DynamicsModel) -> None:
         raise BadDynamicsModel(f"unknown kind {model.kind!r}: one of {', '.join(KINDS)}")
     if model.target not in TARGETS:
         raise BadDynamicsModel(f"unknown target {model.target!r}: one of {', '.join(TARGETS)}")
-    if model.spec != rigid_spec(model.spec):
+    if model.kind == "plant" and model.spec != plant_spec(model.spec):
+        raise BadDynamicsModel("a plant model's spec must be the plant's dynamics (plant_spec)")
+    if model.kind != "plant" and model.spec != rigid_spec(model.spec):
         raise BadDynamicsModel("the model's spec must be a rigid arm's (rigid_spec of the plant)")
     if model.kind == "linear" and model.target != "inverse":
         raise BadDynamicsModel("a linear model is inverse only: its π need not invert")

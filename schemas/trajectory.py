@@ -41,8 +41,8 @@ class TrajectorySpec(BaseModel):
     0.075 Hz of Gaz et al. 2019). worker/reference.py keeps every kind within the robot's joint
     ranges, speed and acceleration limits, and refuses a Cartesian path too fast for them.
     The defaults (a 16 cm path centred at (0.55, 0, 0.35) m, twist 0.4 rad) keep the paper's
-    3-6 s paths feasible: the spiral needs 2.6 s, the pyramid 2.8 s, the random kind 2.3 s at
-    most for seeds 0-9 (and 3 s for 99 of seeds 0-99).
+    3-6 s paths feasible: for seeds 0-15 the spiral needs 2.7 s, the pyramid 2.8 s at most; the
+    random kind 2.3 s at most for seeds 0-9 (and 3 s for 99 of seeds 0-99).
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
@@ -58,7 +58,9 @@ class TrajectorySpec(BaseModel):
         0,
         ge=0,
         lt=2**63,  # as a job's other numbers, of a bounded length: a submission's size is bounded
-        description="draws the random kind's control points and the fourier kind's series",
+        description="which path of its kind: draws the random kind's control points and the "
+        "fourier kind's series, turns and mirrors the spiral and the pyramid about their centre "
+        "(seed 0: unturned)",
     )
     center: tuple[Coordinate, Coordinate, Coordinate] = Field(
         (0.55, 0.0, 0.35), description="m, the Cartesian path's centre; fourier ignores it"

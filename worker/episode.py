@@ -18,15 +18,15 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from gainfarm.models.dynamics import DynamicsModel
+from gainfarm.models.dynamics import DynamicsModel, friction_torque, plant_spec, true_model
 from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
-from gainfarm.schemas.trajectory import TrajectorySpec
+from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.worker.control import PDController
 from gainfarm.worker.plant import Plant, RobotGravity
 from gainfarm.worker.reference import Reference, reference_for
-from gainfarm.worker.sensors import LINK, MOTOR, TORQUE, Encoders, friction_torque, noise
+from gainfarm.worker.sensors import LINK, MOTOR, TORQUE, Encoders, noise
 from gainfarm.worker.stability import least_damping
 from gainfarm.worker.stepping import Stepped, step_all
 
@@ -63,6 +63,40 @@ def compensation(
     if spec.gravity_compensation:
         return gravity_for(spec.trajectory, spec.model.inertials)
     return None
+
+
+def true_compensation(
+    spec: EpisodeSpec, reference: Reference, delay: bool = False, deflection: bool = False
+) -> np.ndarray:
+    """`compensation` with the plant's own model (models.dynamics.true_model) of the spec's
+    plant, and optionally what that model cannot say, for `simulate`:
+
+    - `delay`: the torque the reference needs `spec.model.delay` ticks ahead, when the command
+      acts (the last tick's held at the end);
+    - `deflection`: on elastic joints fed back from the motor side, the PD steers the motor
+      angle θ, and the link lags it by the spring's deflection τ_link / K (τ_link the torque the
+      spring carries: the true arm's without its rotors and friction, which act before it). The
+      motor's reference becomes q_des + τ_link / K, which the linear PD law takes as the added
+      torque Kp·δ + Kd·δ̇; behind FRI the robot's gravity model then sees θ ≈ q_des + δ.
+
+    Neither is a model file's to say (they need the gains, the tick and the springs), so the
+    farm's jobs run the plain true model; bench/true_feedforward.py measures both."""
+    model, plant = true_model(spec.model), spec.model
+    torque = model.inverse(reference.q, reference.qd, reference.qdd)
+    motor_angles = reference.q
+    if deflection and plant.joints == "flexible" and plant.feedback == "motor":
+        links = plant_spec(plant).model_copy(
+            update={"rotor_inertia": (0.0,) * len(JOINT_NAMES), "friction": None}
+        )
+        carried = true_model(links).inverse(reference.q, reference.qd, reference.qdd)
+        bend = carried / np.asarray(plant.stiffness)
+        rate = np.gradient(bend, CONTROL_PERIOD, axis=0)
+        torque += np.asarray(spec.gains.kp) * bend + np.asarray(spec.gains.kd) * rate
+        motor_angles = reference.q + bend
+    if plant.interface == "fri":
+        torque -= gravity_torques(motor_angles, plant.inertials)
+    ahead = plant.delay if delay else 0
+    return np.vstack([torque[ahead:], np.repeat(torque[-1:], ahead, axis=0)])
 
 
 def simulate(spec: EpisodeSpec, reference: Reference, added: np.ndarray | None) -> EpisodeLog:

@@ -1,4 +1,4 @@
-"""Sensor/actuator layer, part 2: what the robot's sensors report, and its joints' friction.
+"""Sensor/actuator layer, part 2: what the robot's sensors report.
 
 Pure NumPy: the tick loop folds these models into its matrices, and the log applies them in bulk
 after the episode, so each costs the 2 ms tick as little as possible.
@@ -17,7 +17,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from gainfarm.schemas.robot import N_JOINTS, Friction, Sensors
+from gainfarm.schemas.robot import N_JOINTS, Sensors
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 
 LINK, MOTOR, TORQUE = range(3)  # the noise streams: link encoders, motor encoders, torque sensors
@@ -83,15 +83,3 @@ class Encoders:
         gains[:, N_JOINTS * w :] = np.diag(kp * self.count + rate)
         gains[:, :N_JOINTS] -= np.diag(rate)
         return gains
-
-
-def coulomb(friction: Friction, velocity: np.ndarray) -> np.ndarray:
-    """The Coulomb part of the motor-side friction torque at motor velocities `velocity`."""
-    return np.asarray(friction.coulomb) * np.tanh(velocity / friction.smoothing)
-
-
-def friction_torque(friction: Friction | None, velocity: np.ndarray) -> np.ndarray:
-    """The whole motor-side friction torque (viscous + Coulomb), opposing `velocity`."""
-    if friction is None:
-        return np.zeros_like(velocity)
-    return np.asarray(friction.viscous) * velocity + coulomb(friction, velocity)

@@ -32,6 +32,11 @@ RANDOM_MIN_TURN_RADIUS = 0.3
 _TURN_SAMPLES = 1025  # samples of a candidate random curve at which its curvature is measured
 _RANDOM_BATCH = 256  # control polygons tested at once
 _RANDOM_BATCHES = 32  # at most; if none turns gently enough, the gentlest one is taken
+_FIBONACCI = 11400714819323198485  # ⌊2⁶⁴/φ⌋, odd: Knuth's multiplicative hashing constant
+# How far a seed turns the spiral and the pyramid, in turns (`placed`): the spiral any way; the
+# pyramid by ±30° at most, as beyond about 40° its edges lead the arm where the paper's 3 s
+# path is too fast for it (3.3 s needed at 90°, measured by worker/reference.py).
+SEED_TURNS = {TrajectoryKind.spiral: 1.0, TrajectoryKind.pyramid: 1.0 / 6.0}
 
 
 def sample_times(spec: TrajectorySpec) -> np.ndarray:
@@ -145,10 +150,34 @@ def tool_rotations(spec: TrajectorySpec, s: np.ndarray) -> np.ndarray:
 
 def spiral(spec: TrajectorySpec, u: np.ndarray) -> np.ndarray:
     """The spiral kind's Path, a conical helix: the radius grows from 0 to `size` while it
-    rises by `size`, in `turns` turns."""
+    rises by `size`, in `turns` turns; placed by its seed (`placed`)."""
     angle = 2.0 * np.pi * spec.turns * u
     radius = spec.size * u
-    return np.column_stack([radius * np.cos(angle), radius * np.sin(angle), spec.size * (u - 0.5)])
+    helix = np.column_stack([radius * np.cos(angle), radius * np.sin(angle), spec.size * (u - 0.5)])
+    return placed(spec, helix)
+
+
+def seed_turn(seed: int) -> float:
+    """Where seed `seed` lies in [-0.5, 0.5): frac(seed/φ + 1/2) − 1/2, by Fibonacci hashing in
+    exact integers, so any seed up to 2⁶³ counts. Consecutive seeds spread evenly over the
+    interval (the three-gap theorem); seed 0 lies at 0."""
+    return ((seed * _FIBONACCI + 2**63) % 2**64) / 2**64 - 0.5
+
+
+def placed(spec: TrajectorySpec, offsets: np.ndarray) -> np.ndarray:
+    """The spiral's and the pyramid's offsets (n, 3) as the spec's seed places them: turned
+    about the vertical through the centre by `seed_turn` times the kind's SEED_TURNS, and
+    mirrored (y → −y) for an odd seed. Another seed's path starts elsewhere and goes round the
+    other way (a left-handed spiral, a pyramid drawn the other way) with the same shape, size
+    and centre. Seed 0 is the path as it was before seeds placed it, bit for bit: old runs and
+    their logs' digests keep their meaning."""
+    if not spec.seed:
+        return offsets
+    angle = 2.0 * np.pi * seed_turn(spec.seed) * SEED_TURNS.get(spec.kind, 1.0)
+    cos, sin = np.cos(angle), np.sin(angle)
+    mirror = -1.0 if spec.seed % 2 else 1.0
+    turn = np.array([[cos, -sin * mirror, 0.0], [sin, cos * mirror, 0.0], [0.0, 0.0, 1.0]])
+    return offsets @ turn.T
 
 
 def random_path(spec: TrajectorySpec, u: np.ndarray) -> np.ndarray:
@@ -232,11 +261,12 @@ def pyramid(spec: TrajectorySpec, s: np.ndarray) -> np.ndarray:
 
 
 def _pyramid_vertices(spec: TrajectorySpec) -> np.ndarray:
-    """A square pyramid's edges (base half-width `size`, height `size`), in drawing order."""
+    """A square pyramid's edges (base half-width `size`, height `size`), in drawing order,
+    placed by its seed (`placed`)."""
     h = spec.size / 2.0
     b0, b1, b2, b3 = ([sx * spec.size, sy * spec.size, -h] for sx, sy in _BASE_CORNERS)
     apex = [0.0, 0.0, h]
-    return np.array([b0, apex, b1, b2, apex, b3, b0])
+    return placed(spec, np.array([b0, apex, b1, b2, apex, b3, b0]))
 
 
 def _cumulative_length(points: np.ndarray) -> np.ndarray:

@@ -46,7 +46,8 @@ def _default(parameter: str) -> object:
     default=Later(lambda: _default("kind")),
     show_default=True,
     help="rigid: the rigid-body physics prior, untrained; linear: its parameters identified "
-    "by least squares; mlp: a network; residual: the prior plus a network of what it misses",
+    "by least squares; mlp: a network; residual: the prior plus a network of what it misses; "
+    "plant: the simulated plant's own dynamics (payload and friction too), the anchor",
 )
 @click.option(
     "--seed", type=click.IntRange(min=0), default=Later(lambda: _default("seed")), show_default=True

@@ -138,7 +138,7 @@ COLUMNS = {
     "chatter": ("1", "RMS of the command above 10 Hz, share of the joint's torque limit"),
     "within_limits": ("", "the controller keeps its run's safety limits on all its episodes"),
     "kind": ("", "the trajectory's kind"),
-    "seed": ("", "seed of the random kind's waypoints and the fourier kind's series"),
+    "seed": ("", "which path of its kind (random, fourier; spiral, pyramid turned and mirrored)"),
     "center_x": ("m", "the Cartesian path's centre, base frame"),
     "center_y": ("m", "the Cartesian path's centre, base frame"),
     "center_z": ("m", "the Cartesian path's centre, base frame"),

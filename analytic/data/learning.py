@@ -44,6 +44,7 @@ from gainfarm.models.dynamics import (
     rigid_prior,
     rigid_spec,
     to_bytes,
+    true_model,
 )
 from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
 
@@ -200,6 +201,8 @@ def fit(dataset_dir: Path, target: Target, kind: Kind, seed: int = 0) -> Dynamic
     prior = rigid_prior(plant, target)
     if kind == "rigid":
         return prior
+    if kind == "plant":  # the simulated plant's own dynamics: the anchor, nothing to learn
+        return true_model(plant, target)
     train = read_split(dataset_dir, "train")
     if not len(train):
         raise LearnError(f"{str(dataset_dir)!r}: the dataset has no rows in its train split")
@@ -507,6 +510,11 @@ def _what(model: DynamicsModel) -> str:
     about = model.about
     if model.kind == "rigid":
         return "The rigid-body physics of the plant's arm (MuJoCo), no friction: not trained."
+    if model.kind == "plant":
+        return (
+            "The simulated plant's own dynamics (its true arm, payload and friction): not "
+            "trained, the anchor no learned model can beat; only noise separates it from the data."
+        )
     if model.kind == "linear":
         return (
             "Linear in 91 parameters (Pinocchio's regressor, rotor inertia, viscous and "

@@ -44,9 +44,9 @@ import functools
 import math
 import statistics
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
@@ -68,6 +68,7 @@ from gainfarm.analytic.experiments.base import (
     write_experiment_report,
 )
 from gainfarm.analytic.experiments.classical import classical_baseline
+from gainfarm.analytic.experiments.statistics import holm_adjusted
 from gainfarm.analytic.tuning import defaults
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import ALGORITHMS, OBJECTIVE_SCALINGS, optimiser
@@ -101,8 +102,6 @@ TARGET = 0.99  # of the reference condition's median final hypervolume
 TARGET_TEXT = "99 %"
 FIGURE = "algorithms.png"
 SPACE = "all runs"  # the one problem: normalisation.json's key
-
-K = TypeVar("K")
 
 
 @dataclass(frozen=True)
@@ -586,22 +585,6 @@ def _scores(
     """A baseline's hypervolume and best f_acc (m; NaN if it never finished an episode)."""
     kept = measured(points, penalised)
     return normalisation.hypervolume(kept), min((p[0] for p in kept), default=math.nan)
-
-
-def holm_adjusted(results: Mapping[K, stats.Comparison]) -> dict[K, stats.Comparison]:
-    """The comparisons with Holm-adjusted p-values (one family: all of them), and with the
-    smallest adjusted p-value each can reach: Holm multiplies the family's smallest p by the
-    family's size, so with many comparisons a sample size that could decide one test alone
-    may no longer decide any."""
-    if not results:
-        return {}
-    adjusted = stats.holm([r.p_value for r in results.values()])
-    tested = [r.min_p for r in results.values() if math.isfinite(r.p_value)]
-    floor = len(tested) * min(tested, default=0.0)
-    return {
-        c: replace(r, p_value=p, min_p=min(1.0, max(r.min_p, floor)))
-        for (c, r), p in zip(results.items(), adjusted, strict=True)
-    }
 
 
 def _verdict(

@@ -301,8 +301,9 @@ class Experiment:
         with self._lock:
             self.penalised.update(points)
 
-    def tune(self, name: str, config: RunConfig) -> RunRecord:
-        """The run `name` of `config`: kept if finished, resumed if not, started if new."""
+    def tune(self, name: str, config: RunConfig, feedforward: bytes | None = None) -> RunRecord:
+        """The run `name` of `config`: kept if finished, resumed if not, started if new.
+        `feedforward`: the model file `config.feedforward` names, served to the farm."""
         directory = self.out / "runs" / name
         record = _read(directory) if (directory / CONFIG_JSON).exists() else None
         if record is not None and record.config != config:
@@ -311,12 +312,17 @@ class Experiment:
         # figures is opened again, which only draws them.
         if record is None or record.stopped is None or not (directory / REPORT_MD).exists():
             try:
-                run = TuningRun.open(directory) if record else TuningRun.create(directory, config)
+                run = (
+                    TuningRun.open(directory)
+                    if record
+                    else TuningRun.create(directory, config, feedforward)
+                )
             except FileExistsError:  # another process created it since: it is running it
                 raise RunBusy(directory, "") from None
             # Closed however it ends: a run that failed is resumed by this same process when
             # the experiment goes on.
-            with run, self.evaluator(f"{self.out.name}-{name}", directory) as evaluator:
+            evaluating = serving(self.evaluator(f"{self.out.name}-{name}", directory), run.models())
+            with run, evaluating as evaluator:
                 run.run(
                     evaluator,
                     lambda step: self._progress(
@@ -414,6 +420,16 @@ class Experiment:
             verdict=verdict,
             figures=figures,
         )
+
+
+def serving(
+    evaluator: AbstractContextManager[Evaluator], models: Mapping[str, bytes]
+) -> AbstractContextManager[Evaluator]:
+    """`evaluator`, not yet entered, told to serve the feed-forward model files `models` (by
+    SHA-256) its jobs name: a FarmClient or an InProcessEvaluator, which both take them so."""
+    if models:
+        evaluator.models.update(models)  # type: ignore[attr-defined]
+    return evaluator
 
 
 def _read(directory: Path) -> RunRecord:

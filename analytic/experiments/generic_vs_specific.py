@@ -1,37 +1,150 @@
-"""The paper's generic-against-specific experiment, held out: for each test trajectory kind in
-turn, a generic controller tuned on the other kinds (never the test one) against a specific one
-tuned on the test trajectory, both judged on it, `reps` runs each (seed = rep).
+"""The paper's generic-against-specific experiment, in two designs, each asking its own question:
 
-Each test trajectory is a problem of its own ("on spiral", ...: normalisation.json's keys).
-Written: results.csv (a row per run and test trajectory), stats.csv, normalisation.json,
-generic-vs-specific.png and report.md.
+- paper: is a controller tuned on the test trajectory alone better than one tuned on every
+  trajectory, the test one included (the paper's generic controller)?
+- held-out: does a controller transfer to a path it never saw? For each test trajectory in turn,
+  a generic controller tuned on the other kinds against the specific one (a specialist beating
+  it is expected; the question is by how much).
+
+`reps` runs (seed = rep) of each: a specific controller per test trajectory (shared by both
+designs), one generic controller on every kind (paper), and one per test trajectory on the other
+kinds (held out). Generic fronts are simulated again on each test trajectory they are judged on.
+
+Preregistered: the repetitions, the designs and the test trajectories are written to
+preregistration.json before the first run, and a directory is never resumed with others, so no
+experiment is extended after its result is seen (optional stopping). The report's claims are the
+hypervolume and the dominance test of each design on each test trajectory, Holm-adjusted as one
+family. Beside them, effect sizes in physical units, estimated, not tested (specific − generic,
+paired by repetition, 95 % bootstrap CI), as analytic.experiments.measures takes them: the error
+at one torque smoothness every front judged on the test trajectory reaches (mm), and the
+recommended controllers' error (mm) and f_t ((N·m)²) there.
+
+Each test trajectory is a problem of its own ("on spiral", ...: normalisation.json's keys), its
+space pooled over the fronts of both designs. Written: preregistration.json, results.csv (a row
+per design, test trajectory, controller and repetition), stats.csv (raw p-values; the report's
+are Holm-adjusted), normalisation.json, generic-vs-specific.png and report.md.
 """
 
 import functools
+import json
+import math
 import statistics
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 
+from gainfarm.analytic.experiments import measures
 from gainfarm.analytic.experiments import statistics as stats
 from gainfarm.analytic.experiments.base import (
     ALL_KINDS,
     Experiment,
     ExperimentSpec,
+    Normalisation,
+    Option,
     Point,
     attainment_panel,
     dominated_count,
+    experiment_setup,
     front_points,
     is_penalty,
     markdown_table,
+    write_experiment_report,
 )
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.view.figures import new_figure, save_png
+from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.objectives import balancing_weights
 from gainfarm.schemas.trajectory import TrajectoryKind, TrajectorySpec
 
 NAME = "generic-vs-specific"
 FIGURE = "generic-vs-specific.png"
+PREREGISTRATION_JSON = "preregistration.json"
+PAPER, HELD_OUT = "paper", "held-out"
+DESIGNS = (PAPER, HELD_OUT)
+SPECIFIC, GENERIC = "specific", "generic"
+QUESTIONS = {
+    PAPER: "(a) The paper's design: is a controller tuned on the test trajectory alone better "
+    "than one tuned on every trajectory, the test one included?",
+    HELD_OUT: "(b) Held out: does a controller transfer to a path it never saw?",
+}
+GENERIC_LABELS = {PAPER: "generic (all)", HELD_OUT: "generic (held out)"}
+LOG_NOTE = "f_t on a log scale in it, a choice the paper does not make"
+
+
+@dataclass(frozen=True)
+class Effect:
+    """An effect size in physical units: how the report names it, its unit there, the factor
+    from results.csv's unit (m, (N·m)²) to it, and its metric in stats.csv."""
+
+    what: str
+    unit: str
+    scale: float
+    metric: str
+
+
+# results.csv's column → its effect, in the order the report gives them.
+EFFECTS = {
+    "error_at_level": Effect("error at one torque smoothness", "mm", 1e3, "error_at_level_mm"),
+    "recommended_f_acc": Effect(
+        "the recommended controllers' error", "mm", 1e3, "recommended_error_mm"
+    ),
+    "recommended_f_t": Effect("their f_t", "(N·m)²", 1.0, "recommended_f_t"),
+}
+
+
+def chosen_designs(text: str) -> tuple[str, ...]:
+    """--design: paper, held-out or both (ValueError otherwise)."""
+    if text == "both":
+        return DESIGNS
+    if text in DESIGNS:
+        return (text,)
+    raise ValueError(f"expected paper, held-out or both, got {text!r}")
+
+
+def preregister(
+    out: Path, reps: int, designs: Sequence[str], kinds: Sequence[TrajectoryKind]
+) -> None:
+    """Fix the repetitions, designs and test trajectories before the first run (in
+    preregistration.json), or check that a resumed experiment keeps them: ValueError, naming the
+    option, for a directory preregistered otherwise or holding runs from before any was."""
+    plan = {"reps": reps, "designs": list(designs), "test_trajectories": [k.value for k in kinds]}
+    path = out / PREREGISTRATION_JSON
+    if not path.exists():
+        if (out / "runs").exists():
+            raise ValueError(
+                f"--out: {out} holds runs started before their number was preregistered; "
+                "start the experiment in a new --out"
+            )
+        out.mkdir(parents=True, exist_ok=True)
+        write_atomically(path, (json.dumps(plan, indent=1) + "\n").encode())
+        return
+    try:
+        fixed = json.loads(path.read_bytes())
+    except (OSError, ValueError) as error:
+        raise ValueError(f"--out: {path} is unreadable ({error})") from None
+    for key, option in (
+        ("reps", "--reps"),
+        ("designs", "--design"),
+        ("test_trajectories", "--out"),
+    ):
+        if not isinstance(fixed, dict) or fixed.get(key) != plan[key]:
+            was = fixed.get(key) if isinstance(fixed, dict) else None
+            raise ValueError(
+                f"{option}: {out} was preregistered with {key.replace('_', ' ')} {was}, not "
+                f"{plan[key]} ({PREREGISTRATION_JSON}); changing them once results are seen is "
+                "optional stopping: start a new --out"
+            )
+
+
+def least_reps(claims: int, alpha: float = stats.ALPHA) -> int:
+    """The fewest repetitions with which any claim of a Holm family of `claims` can reach an
+    adjusted p < alpha whatever the others' p-values (Mann-Whitney n against n, and Wilcoxon
+    signed-rank on n pairs, the smallest raw p times the family's size)."""
+    n = 1
+    while claims * max(stats.min_p_value(n, n, True), stats.min_p_value(n, n, False)) >= alpha:
+        n += 1
+    return n
 
 
 def default_points(
@@ -64,9 +177,19 @@ def default_points(
 
 
 def generic_set(test: TrajectoryKind, duration: float) -> tuple[TrajectorySpec, ...]:
-    """What the generic controller judged on `test` is tuned on: every other kind, never
-    `test` itself."""
+    """What the held-out generic controller judged on `test` is tuned on: every other kind,
+    never `test` itself."""
     return tuple(TrajectorySpec(kind=kind, duration=duration) for kind in ALL_KINDS if kind != test)
+
+
+@dataclass(frozen=True)
+class Judged:
+    """A run's front as judged on one test trajectory, and there its recommended member (or the
+    closest to dominating the default gains, `pick`)."""
+
+    points: list[Point]
+    pick: str
+    picked: Point
 
 
 def run(
@@ -74,134 +197,252 @@ def run(
     base: RunConfig,
     reps: int,
     kinds: Sequence[TrajectoryKind] = ALL_KINDS,
+    designs: Sequence[str] = DESIGNS,
 ) -> None:
-    """Held out: for each test trajectory in turn, a generic controller tuned on the other
-    kinds (never the test one) against a specific one tuned on the test trajectory, both judged
-    on it. The generic controller's objectives are the means over its trajectories, balanced
+    """Both designs (or those of `designs`) on each test trajectory of `kinds`. A generic
+    controller's objectives are the means over its trajectories, balanced
     (schemas.objectives.balancing_weights) so that each trajectory counts alike at the default
     gains: unweighted, a pyramid's f_t, 10-40 times a spiral's, would make up nearly all of it."""
+    chosen = tuple(d for d in DESIGNS if d in designs)
+    preregister(experiment.out, reps, chosen, kinds)
     duration = base.trajectories[0].duration
     defaults = default_points(experiment, base, ALL_KINDS)  # every kind some generic set holds
+    tests = {kind.value: TrajectorySpec(kind=kind, duration=duration) for kind in kinds}
 
-    def judged_on(test: TrajectorySpec, name: str, config: RunConfig) -> list[Point]:
-        """A run's front as judged on `test`: its own, or simulated again on it."""
-        record = experiment.tune(name, config)
-        if config.trajectories == (test,):
-            return front_points(record)
-        return experiment.evaluate(f"{name}-on-{test.kind}", record.front, test, base)
-
-    tasks = {}
-    for kind in kinds:
-        test = TrajectorySpec(kind=kind, duration=duration)
-        trained_on = generic_set(kind, duration)
+    def balanced(trained_on: tuple[TrajectorySpec, ...], rep: int) -> RunConfig:
         weights = balancing_weights([defaults[t.kind] for t in trained_on])
-        for rep in range(reps):
-            specific = base.model_copy(update={"trajectories": (test,), "seed": rep})
-            generic = base.model_copy(
-                update={"trajectories": trained_on, "objective_weights": weights, "seed": rep}
+        return base.model_copy(
+            update={"trajectories": trained_on, "objective_weights": weights, "seed": rep}
+        )
+
+    def judge(name: str, config: RunConfig, on: Sequence[str]) -> dict[str, Judged]:
+        """The run `name`'s front on each test trajectory of `on` (its own, or simulated again
+        there), with its recommended member picked on its own trajectories."""
+        record = experiment.tune(name, config)
+        pick = measures.recommended(record)
+        if pick is None:
+            raise ValueError(f"{record.directory}: an empty front, nothing to judge")
+        index = record.front.index(pick.member)
+        judged = {}
+        for kind in on:
+            test = tests[kind]
+            points = (
+                front_points(record)
+                if config.trajectories == (test,)
+                else experiment.evaluate(f"{name}-on-{kind}", record.front, test, base)
             )
-            for controller, name, config in (
-                ("specific", f"specific-{kind.value}-rep{rep}", specific),
-                ("generic", f"generic-no-{kind.value}-rep{rep}", generic),
-            ):
-                tasks[(kind.value, controller, rep)] = functools.partial(
-                    judged_on, test, name, config
+            judged[kind] = Judged(points, pick.name, points[index])
+        return judged
+
+    def run_name(design: str, controller: str, kind: str, rep: int) -> str:
+        if controller == SPECIFIC:
+            return f"specific-{kind}-rep{rep}"
+        return f"generic-all-rep{rep}" if design == PAPER else f"generic-no-{kind}-rep{rep}"
+
+    plan: dict[str, tuple[RunConfig, list[str]]] = {}
+    for rep in range(reps):
+        for kind, test in tests.items():
+            plan[run_name(PAPER, SPECIFIC, kind, rep)] = (
+                base.model_copy(update={"trajectories": (test,), "seed": rep}),
+                [kind],
+            )
+            if HELD_OUT in chosen:
+                plan[run_name(HELD_OUT, GENERIC, kind, rep)] = (
+                    balanced(generic_set(test.kind, duration), rep),
+                    [kind],
                 )
-    judged = experiment.concurrently(tasks)
-    fronts: dict[str, dict[str, list[list[Point]]]] = {
-        kind.value: {
-            controller: [judged[(kind.value, controller, rep)] for rep in range(reps)]
-            for controller in ("generic", "specific")
-        }
-        for kind in kinds
-    }
-    normalisations = {
-        kind: experiment.normalisation([p for sets in per_kind.values() for p in sets])
-        for kind, per_kind in fronts.items()
+        if PAPER in chosen:
+            every = tuple(TrajectorySpec(kind=kind, duration=duration) for kind in ALL_KINDS)
+            plan[run_name(PAPER, GENERIC, "", rep)] = (balanced(every, rep), list(tests))
+    done = experiment.concurrently(
+        {name: functools.partial(judge, name, *task) for name, task in plan.items()}
+    )
+
+    def of(design: str, controller: str, kind: str) -> list[Judged]:
+        return [done[run_name(design, controller, kind, rep)][kind] for rep in range(reps)]
+
+    judged_on = {kind: [on[kind].points for on in done.values() if kind in on] for kind in tests}
+    normalisations = {kind: experiment.normalisation(sets) for kind, sets in judged_on.items()}
+    # One torque smoothness per test trajectory, the least every front judged there reaches.
+    levels = {
+        kind: measures.smoothness_level(sets, experiment.penalised)
+        for kind, sets in judged_on.items()
     }
     experiment.write_normalisation({f"on {k}": n for k, n in normalisations.items()})
     rows = []
-    for kind, per_kind in fronts.items():
-        for controller, other in (("generic", "specific"), ("specific", "generic")):
-            for rep, points in enumerate(per_kind[controller]):
-                rows.append(
-                    {
-                        "test_trajectory": kind,
-                        "controller": controller,
-                        "rep": rep,
-                        "seed": rep,
-                        "hypervolume": normalisations[kind].hypervolume(points),
-                        "best_f_acc": min(p[0] for p in points),
-                        "points": len(points),
-                        "dominated_by_other": dominated_count(points, per_kind[other][rep]),
-                    }
-                )
+    for design in chosen:
+        for kind in tests:
+            level = levels[kind]
+            for controller, other in ((GENERIC, SPECIFIC), (SPECIFIC, GENERIC)):
+                others = of(design, other, kind)
+                for rep, judged in enumerate(of(design, controller, kind)):
+                    points = judged.points
+                    rows.append(
+                        {
+                            "design": design,
+                            "test_trajectory": kind,
+                            "controller": controller,
+                            "rep": rep,
+                            "seed": rep,
+                            "run": run_name(design, controller, kind, rep),
+                            "hypervolume": normalisations[kind].hypervolume(points),
+                            "best_f_acc": min(p[0] for p in points),
+                            "f_t_level": level,
+                            "error_at_level": measures.error_at(
+                                points, level, experiment.penalised
+                            ),
+                            "recommended": judged.pick,
+                            "recommended_f_acc": judged.picked[0],
+                            "recommended_f_t": judged.picked[1],
+                            "recommended_penalty": is_penalty(judged.picked, experiment.penalised),
+                            "points": len(points),
+                            "dominated_by_other": dominated_count(points, others[rep].points),
+                        }
+                    )
     experiment.write_results(rows)
+    fronts = {
+        kind: {
+            label: [judged.points for judged in of(design, controller, kind)]
+            for design in chosen
+            for controller, label in ((SPECIFIC, SPECIFIC), (GENERIC, GENERIC_LABELS[design]))
+        }
+        for kind in tests
+    }
+    report(experiment, base, reps, chosen, rows, defaults, normalisations, fronts)
 
-    def values(kind: str, controller: str, column: str) -> list[float]:
-        return [
-            float(r[column])  # type: ignore[arg-type]
-            for r in rows
-            if r["test_trajectory"] == kind and r["controller"] == controller
-        ]
 
-    def dominated_shares(kind: str, controller: str) -> list[float]:
-        """Per repetition, the share of `controller`'s points the other's front dominates."""
-        return [
-            d / n if n else 0.0
-            for d, n in zip(
-                values(kind, controller, "dominated_by_other"),
-                values(kind, controller, "points"),
-                strict=True,
+def _values(
+    rows: Sequence[Mapping[str, object]], design: str, kind: str, controller: str, column: str
+) -> list[float]:
+    return [
+        float(r[column])  # type: ignore[arg-type]
+        for r in rows
+        if (r["design"], r["test_trajectory"], r["controller"]) == (design, kind, controller)
+    ]
+
+
+def _dominated_shares(
+    rows: Sequence[Mapping[str, object]], design: str, kind: str, controller: str
+) -> list[float]:
+    """Per repetition, the share of `controller`'s points the other's front dominates."""
+    return [
+        d / n if n else 0.0
+        for d, n in zip(
+            _values(rows, design, kind, controller, "dominated_by_other"),
+            _values(rows, design, kind, controller, "points"),
+            strict=True,
+        )
+    ]
+
+
+def described(a: Sequence[float], b: Sequence[float]) -> stats.Comparison:
+    """`a` against `b`, paired by repetition, pairs with an undefined side left out: an effect
+    size with its bootstrap CI, not a test (the p-value NaN: no claim rests on it)."""
+    kept = [(x, y) for x, y in zip(a, b, strict=True) if math.isfinite(x) and math.isfinite(y)]
+    result = stats.compare([x for x, _ in kept], [y for _, y in kept], paired=True)
+    return replace(result, p_value=math.nan)
+
+
+def effect_text(result: stats.Comparison, unit: str, reps: int) -> str:
+    """'8.73 against 11.9 mm (-3.22 mm [-4.1, -2.05])': the medians, their difference and its
+    95 % bootstrap interval (measures.difference), and how many repetitions gave both."""
+    if not result.n_a:
+        return "undefined in every repetition"
+    fewer = f", from {result.n_a} of {reps} repetitions" if result.n_a < reps else ""
+    return (
+        f"{result.median_a:.3g} against {result.median_b:.3g} {unit} "
+        f"({measures.difference(result, unit)}{fewer})"
+    )
+
+
+def report(
+    experiment: Experiment,
+    base: RunConfig,
+    reps: int,
+    designs: Sequence[str],
+    rows: Sequence[Mapping[str, object]],
+    defaults: Mapping[TrajectoryKind, Point],
+    normalisations: Mapping[str, Normalisation],
+    fronts: Mapping[str, Mapping[str, list[list[Point]]]],
+) -> None:
+    """stats.csv, the figure and report.md from results.csv's `rows`; `fronts`: per test
+    trajectory, each kind of controller's fronts judged there, a set per repetition."""
+    kinds = list(fronts)
+    claims: dict[tuple[str, str, str], stats.Comparison] = {}
+    effects: dict[tuple[str, str, str], stats.Comparison] = {}
+    for design in designs:
+        for kind in kinds:
+            claims[(design, kind, "hypervolume")] = stats.compare(
+                _values(rows, design, kind, SPECIFIC, "hypervolume"),
+                _values(rows, design, kind, GENERIC, "hypervolume"),
             )
-        ]
-
-    stats_rows: list[stats.StatsRow] = []
-    lines = []
-    holds = dominates = 0
-    for kind in fronts:
-        result = stats.compare(
-            values(kind, "specific", "hypervolume"), values(kind, "generic", "hypervolume")
-        )
-        accuracy = stats.compare(
-            values(kind, "specific", "best_f_acc"), values(kind, "generic", "best_f_acc")
-        )
-        # The same repetition's two fronts, point against point: the share of the generic
-        # points the specific front dominates, against the share of the specific ones the
-        # generic front dominates (Wilcoxon signed-rank, paired by repetition).
-        dominance = stats.compare(
-            dominated_shares(kind, "generic"), dominated_shares(kind, "specific"), paired=True
-        )
-        stats_rows += [
-            stats.StatsRow(NAME, f"specific vs generic, on {kind}", metric, r)
-            for metric, r in (
-                ("hypervolume", result),
-                ("best_f_acc", accuracy),
-                ("dominated_share", dominance),
+            # The same repetition's two fronts, point against point: the share of the generic
+            # points the specific front dominates, against the share of the specific ones the
+            # generic front dominates (Wilcoxon signed-rank, paired by repetition).
+            claims[(design, kind, "dominated_share")] = stats.compare(
+                _dominated_shares(rows, design, kind, GENERIC),
+                _dominated_shares(rows, design, kind, SPECIFIC),
+                paired=True,
             )
+            for column, effect in EFFECTS.items():
+                effects[(design, kind, column)] = described(
+                    *(
+                        [v * effect.scale for v in _values(rows, design, kind, c, column)]
+                        for c in (SPECIFIC, GENERIC)
+                    )
+                )
+    adjusted = stats.holm_adjusted(claims)
+    experiment.write_stats(
+        [
+            stats.StatsRow(NAME, f"{design}: specific vs generic, on {kind}", metric, result)
+            for (design, kind, metric), result in claims.items()
         ]
-        holds += stats.better(result) == "a"
-        dominates += stats.better(dominance) == "a"
-        generic_dominated = int(sum(values(kind, "generic", "dominated_by_other")))
-        specific_dominated = int(sum(values(kind, "specific", "dominated_by_other")))
-        lines.append(
-            f"- on the {kind} (held out of the generic set): "
-            + stats.decide(result, "the specific controller", "the generic one")
-            + f". Specific points dominate {generic_dominated} of "
-            f"{int(sum(values(kind, 'generic', 'points')))} generic points; generic points "
-            f"dominate {specific_dominated} of {int(sum(values(kind, 'specific', 'points')))} "
-            "specific points (each repetition against the same repetition). By dominance, "
-            "paired by repetition: "
-            + stats.decide(dominance, "the specific controller", "the generic one")
-            + "."
-        )
+        + [
+            stats.StatsRow(
+                NAME, f"{design}: specific vs generic, on {kind}", EFFECTS[column].metric, result
+            )
+            for (design, kind, column), result in effects.items()
+        ]
+    )
+    sections = []
+    for design in designs:
+        sections += ["", f"## {QUESTIONS[design]}", ""]
+        sections += design_verdict(design, kinds, rows, adjusted, effects, reps)
+    runs = {r["run"]: r["recommended"] for r in rows}
+    closest = sum(pick == "closest" for pick in runs.values())
+    diverged = len({(r["run"], r["test_trajectory"]) for r in rows if r["recommended_penalty"]})
     verdict = "\n".join(
         [
-            f"The paper found specific controllers better than generic ones: by hypervolume this "
-            f"holds significantly on {holds} of {len(fronts)} held-out trajectories, by the "
-            f"share of each other's points the fronts dominate on {dominates} of {len(fronts)}.",
+            ("Two questions, one design each" if len(designs) > 1 else "One design")
+            + f", {len(claims)} claims in all: the hypervolume and "
+            "the dominance test of each design on each test trajectory, Holm-adjusted as one "
+            f"family (every p-value below; alpha {stats.ALPHA:g}). The table's Δ: specific − "
+            "generic, the difference of the medians over repetitions (below zero, the specific "
+            "controller is the more accurate or the smoother).",
+            *sections,
             "",
-            *lines,
+            "The effects in physical units are estimates beside the claims, not tests (no "
+            "p-value; no verdict rests on them, so Holm does not count them; their 95 % "
+            "bootstrap CIs are not adjusted): specific against generic, the same repetition's "
+            "two runs. The error at one torque smoothness is each front's best error among its "
+            "members at least that smooth on the test trajectory, interpolated along the front "
+            "(analytic/experiments/measures.py), at the least f_t every front judged there "
+            "reaches: "
+            + "; ".join(
+                f"{kind} {next(r['f_t_level'] for r in rows if r['test_trajectory'] == kind):.3g}"
+                " (N·m)²"
+                for kind in kinds
+            )
+            + ". The recommended controller is what `analytic export` gives (the knee among "
+            "the members that dominate the default gains on the run's own trajectories; where "
+            "none does, the closest to dominating them: "
+            f"{closest} of {len(runs)} runs), simulated on the test trajectory"
+            + (
+                f"; {diverged} of them diverged there (a penalty, not a measurement)"
+                if diverged
+                else ""
+            )
+            + ".",
             "",
             "The generic objective is the mean over the generic set of each trajectory's f_acc "
             "and f_t, weighted by the inverse of the default gains' values there, so that each "
@@ -213,38 +454,137 @@ def run(
             + ".",
         ]
     )
-    experiment.write_stats(stats_rows)
-    medians = {
-        (kind, controller): statistics.median(values(kind, controller, "hypervolume"))
-        for kind in fronts
-        for controller in ("specific", "generic")
+    hypervolumes = {
+        kind: {
+            label: _values(rows, design, kind, controller, "hypervolume")
+            for design in designs
+            for controller, label in ((SPECIFIC, SPECIFIC), (GENERIC, GENERIC_LABELS[design]))
+        }
+        for kind in kinds
     }
-    figure(
-        experiment.out / FIGURE,
-        {
-            kind: {c: values(kind, c, "hypervolume") for c in ("specific", "generic")}
-            for kind in fronts
-        },
-        fronts,
-    )
-    experiment.write_report(
-        "Generic against specific controllers (held out)",
-        base,
-        reps,
-        table(medians),
-        verdict,
-        [FIGURE],
-        {f"on {k}": n for k, n in normalisations.items()},
+    figure(experiment.out / FIGURE, hypervolumes, fronts)
+    spaces = {f"on {k}": (n.ideal, n.nadir) for k, n in normalisations.items()}
+    floor = min((r.min_p for r in adjusted.values()), default=1.0)
+    write_experiment_report(
+        experiment.out / "report.md",
+        title="Generic against specific controllers: the paper's design and held out",
+        setup=[
+            *experiment_setup(base, reps, spaces),
+            f"preregistered: {reps} repetitions, designs {', '.join(designs)}, test "
+            f"trajectories {', '.join(kinds)}, fixed in `{PREREGISTRATION_JSON}` before the "
+            "first run; never extended once results are seen (resuming with another --reps or "
+            "--design is refused)",
+            f"claims: {len(claims)} tests, one Holm family (the p-values in this report; "
+            f"`stats.csv` holds the raw ones). With {reps} repetitions the smallest adjusted "
+            f"p-value a claim can reach is {floor:.3g}; every claim can reach p < "
+            f"{stats.ALPHA:g} from {least_reps(len(claims))} repetitions",
+        ],
+        table=table(
+            {
+                (design, kind): (
+                    statistics.median(_values(rows, design, kind, SPECIFIC, "hypervolume")),
+                    statistics.median(_values(rows, design, kind, GENERIC, "hypervolume")),
+                    *(
+                        effects[(design, kind, c)].median_a - effects[(design, kind, c)].median_b
+                        for c in EFFECTS
+                    ),
+                )
+                for design in designs
+                for kind in kinds
+            }
+        ),
+        verdict=verdict,
+        figures=[FIGURE],
     )
 
 
-def table(medians: Mapping[tuple[str, str], float]) -> list[str]:
-    """(test trajectory, kind of controller) → median hypervolume on that trajectory."""
-    kinds = list(dict.fromkeys(kind for kind, _ in medians))
-    controllers = list(dict.fromkeys(controller for _, controller in medians))
+def design_verdict(
+    design: str,
+    kinds: Sequence[str],
+    rows: Sequence[Mapping[str, object]],
+    adjusted: Mapping[tuple[str, str, str], stats.Comparison],
+    effects: Mapping[tuple[str, str, str], stats.Comparison],
+    reps: int,
+) -> list[str]:
+    """One design's section of the verdict: its headline, then a line per test trajectory."""
+
+    def count(metric: str, winner: str) -> int:
+        return sum(stats.better(adjusted[(design, k, metric)]) == winner for k in kinds)
+
+    n = len(kinds)
+    by = (
+        f"by hypervolume ({LOG_NOTE}) the specific controller is significantly better on "
+        f"{count('hypervolume', 'a')} of {n} test trajectories and the generic one on "
+        f"{count('hypervolume', 'b')}; by the share of each other's points the fronts "
+        f"dominate, on {count('dominated_share', 'a')} and {count('dominated_share', 'b')}."
+    )
+    if design == PAPER:
+        lines = [
+            "The paper found specific controllers better than generic ones. Against a generic "
+            "controller tuned on every trajectory, the test one included, as the paper tuned "
+            "it: " + by
+        ]
+    else:
+        lines = [
+            "A specialist beating a controller that never saw its path is expected; the "
+            "question is how much the generic one loses there. Against a generic controller "
+            "tuned on the other trajectories: " + by + " A difference the tests cannot decide "
+            "is no evidence that the controller transfers: the effects in mm and (N·m)² say "
+            "how large the loss may be."
+        ]
+    lines.append("")
+    place = "in the generic set" if design == PAPER else "held out of the generic set"
+    for kind in kinds:
+        of = functools.partial(_values, rows, design, kind)
+        physical = "; ".join(
+            f"{effect.what} {effect_text(effects[(design, kind, column)], effect.unit, reps)}"
+            for column, effect in EFFECTS.items()
+        )
+        lines.append(
+            f"- on the {kind} ({place}): hypervolume ({LOG_NOTE}): "
+            + stats.decide(
+                adjusted[(design, kind, "hypervolume")],
+                "the specific controller",
+                "the generic one",
+            )
+            + f". Specific points dominate {int(sum(of(GENERIC, 'dominated_by_other')))} of "
+            f"{int(sum(of(GENERIC, 'points')))} generic points; generic points dominate "
+            f"{int(sum(of(SPECIFIC, 'dominated_by_other')))} of "
+            f"{int(sum(of(SPECIFIC, 'points')))} specific points (each repetition against the "
+            "same repetition). By dominance, paired by repetition: "
+            + stats.decide(
+                adjusted[(design, kind, "dominated_share")],
+                "the specific controller",
+                "the generic one",
+            )
+            + ". Specific against generic, medians over repetitions (their difference [95 % CI]): "
+            + physical
+            + "."
+        )
+    return lines
+
+
+def table(effects: Mapping[tuple[str, str], Sequence[float]]) -> list[str]:
+    """(design, test trajectory) → the specific and the generic controller's median
+    hypervolume there, and the effects' median differences (specific − generic)."""
     return markdown_table(
-        ["judged on", *(f"{c} median hypervolume" for c in controllers)],
-        ([kind, *(f"{medians[(kind, c)]:.4f}" for c in controllers)] for kind in kinds),
+        [
+            "design",
+            "judged on",
+            "specific median hypervolume",
+            "generic median hypervolume",
+            *(f"Δ {effect.what} ({effect.unit})" for effect in EFFECTS.values()),
+        ],
+        (
+            [
+                design,
+                kind,
+                *(f"{value:.4f}" for value in values[:2]),
+                *(f"{v:+.3g}" for v in values[2:]),
+            ]
+            for (design, kind), values in effects.items()
+        ),
+        text_columns=2,
     )
 
 
@@ -253,23 +593,39 @@ def figure(
     hypervolumes: Mapping[str, Mapping[str, list[float]]],
     fronts: Mapping[str, Mapping[str, list[list[Point]]]],
 ) -> None:
-    """Per held-out test trajectory (a column each): hypervolume box plots per kind of
-    controller on top, their median attainment surfaces on that trajectory below."""
+    """Per test trajectory (a column each): hypervolume box plots per kind of controller on top,
+    their median attainment surfaces on that trajectory below."""
     kinds = list(hypervolumes)
     canvas = new_figure((4.5 * max(1, len(kinds)), 8))
     panels = canvas.subplots(2, max(1, len(kinds)), squeeze=False)
     for column, kind in enumerate(kinds):
         top, bottom = panels[0][column], panels[1][column]
         top.boxplot(list(hypervolumes[kind].values()), tick_labels=list(hypervolumes[kind]))
-        top.set(ylabel=f"hypervolume on the {kind}", title=f"judged on the {kind} (held out)")
+        top.set(ylabel=f"hypervolume on the {kind} (log f_t)", title=f"judged on the {kind}")
         attainment_panel(bottom, fronts.get(kind, {}), f"fronts on the {kind}")
     save_png(canvas, path)
 
 
 EXPERIMENT = ExperimentSpec(
     name=NAME,
-    summary="the paper's generic against specific controllers, each trajectory held out in turn",
+    summary="the paper's generic against specific controllers: its design, and held out",
     run=run,
+    help="Specific controllers (tuned on one trajectory) against generic ones, judged on each of "
+    "spiral, random and pyramid in turn, in two designs, each its own question: paper (the "
+    "generic controller tuned on every trajectory, the test one included) and held-out (tuned "
+    "on the other two: does it transfer to a path it never saw?). --reps is preregistered: "
+    "fixed in the experiment directory before the first run, and never changed there.",
+    options=(
+        Option(
+            "--design",
+            "designs",
+            "paper (generic tuned on every trajectory), held-out (on the others), or both; "
+            "fixed, with --reps, before the first run",
+            "both",
+            chosen_designs,
+            "paper|held-out|both",
+        ),
+    ),
     trajectories=lambda base, _options: [
         TrajectorySpec(kind=kind, duration=base.trajectories[0].duration) for kind in ALL_KINDS
     ],

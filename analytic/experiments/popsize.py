@@ -2,9 +2,16 @@
 on the base trajectory, each to its own stop; their final hypervolumes (in one normalised space,
 "all runs") and the evaluations each took, each size against the next smaller one.
 
+Beside the hypervolume, what a step buys in physical units (analytic.experiments.measures): each
+final front's error at one torque smoothness (the least f_t every run's front reaches), and the
+recommended controller's error and f_t; each size's median with a 95 % bootstrap confidence
+interval. The consecutive steps of each measure are one family: their p-values are
+Holm-adjusted in the report (stats.csv holds them unadjusted).
+
 Written: results.csv (a row per run), stats.csv, normalisation.json, popsize.png and report.md.
 """
 
+import math
 import statistics
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -22,6 +29,13 @@ from gainfarm.analytic.experiments.base import (
     numbers,
     step_comparisons,
 )
+from gainfarm.analytic.experiments.measures import (
+    difference,
+    error_at,
+    recommended,
+    shown,
+    smoothness_level,
+)
 from gainfarm.analytic.tuning import defaults
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.view.figures import new_figure, save_png
@@ -30,10 +44,20 @@ NAME = "popsize"
 SIZES = (10, 20, 30, 50, 80)
 FIGURE = "popsize.png"
 SPACE = "all runs"  # the one problem: normalisation.json's key
+MM = 1000.0  # mm per m
+# Each measure, as results.csv's column and stats.csv's metric → how the report says it and its
+# unit. The hypervolume is better higher; the others (errors, torque change, cost) lower.
+MEASURES = {
+    "hypervolume": ("hypervolume", ""),
+    "error_at_level_mm": ("error at the smoothness level", "mm"),
+    "recommended_error_mm": ("recommended controller's error", "mm"),
+    "recommended_f_t": ("recommended controller's f_t", "(N·m)²"),
+    "evaluations": ("evaluations", ""),
+}
 
 
 def run(experiment: Experiment, base: RunConfig, reps: int, sizes: Sequence[int] = SIZES) -> None:
-    """Evaluations to converge and final hypervolume, for each population size."""
+    """Evaluations to converge, final hypervolume and the practical measures, for each size."""
     plan = {
         (size, rep): (f"pop{size}-rep{rep}", base.model_copy(update={"pop": size, "seed": rep}))
         for size in sizes
@@ -44,58 +68,88 @@ def run(experiment: Experiment, base: RunConfig, reps: int, sizes: Sequence[int]
     fronts = {key: front_points(record) for key, record in runs.items()}
     normalisation = experiment.normalisation(list(fronts.values()))
     experiment.write_normalisation({SPACE: normalisation})
-    rows = [
-        {
-            "pop": size,
-            "rep": rep,
-            "seed": rep,
-            "evaluations": record.evaluations,
-            "hypervolume": normalisation.hypervolume(fronts[(size, rep)]),
-            "wall_seconds": record.wall_seconds,
-            "stopped": record.stopped,
-        }
-        for (size, rep), record in runs.items()
-    ]
+    level = smoothness_level(list(fronts.values()), experiment.penalised)
+    picks = {key: recommended(record) for key, record in runs.items()}
+    rows = []
+    for (size, rep), record in runs.items():
+        pick = picks[(size, rep)]
+        f_acc, f_t = pick.member.objectives if pick else (math.nan, math.nan)
+        rows.append(
+            {
+                "pop": size,
+                "rep": rep,
+                "seed": rep,
+                "evaluations": record.evaluations,
+                "hypervolume": normalisation.hypervolume(fronts[(size, rep)]),
+                "error_at_level_mm": error_at(fronts[(size, rep)], level, experiment.penalised)
+                * MM,
+                "recommended_error_mm": f_acc * MM,
+                "recommended_f_t": f_t,
+                "recommended": pick.name if pick else "",
+                "f_t_level": level,
+                "wall_seconds": record.wall_seconds,
+                "stopped": record.stopped,
+            }
+        )
     experiment.write_results(rows)
-    by_size = {size: [row for row in rows if row["pop"] == size] for size in sizes}
-    hypervolumes = {s: [float(r["hypervolume"]) for r in by_size[s]] for s in sizes}
-    evaluations = {s: [int(r["evaluations"]) for r in by_size[s]] for s in sizes}
+    values = {
+        metric: {s: [float(r[metric]) for r in rows if r["pop"] == s] for s in sizes}
+        for metric in MEASURES
+    }
     figure(
         experiment.out / FIGURE,
-        hypervolumes,
-        evaluations,
+        values["hypervolume"],
+        {s: [int(v) for v in evaluations] for s, evaluations in values["evaluations"].items()},
         {s: [fronts[(s, rep)] for rep in range(reps)] for s in sizes},
+        level,
     )
-    medians = {
-        s: (statistics.median(hypervolumes[s]), statistics.median(evaluations[s])) for s in sizes
+    # Each size against the next smaller one: does the larger population gain, at what cost?
+    compared = {
+        metric: step_comparisons({s: finite(v) for s, v in by_size.items()})
+        for metric, by_size in values.items()
     }
-    # Each size against the next smaller one: does the larger population gain?
-    compared = step_comparisons(hypervolumes)
     experiment.write_stats(
         [
-            stats.StatsRow(NAME, f"pop {large} vs pop {small}", "hypervolume", result)
-            for (small, large), result in compared.items()
-        ]
-        + [
-            stats.StatsRow(NAME, f"pop {large} vs pop {small}", "evaluations", result)
-            for (small, large), result in step_comparisons(evaluations).items()
+            stats.StatsRow(NAME, f"pop {large} vs pop {small}", metric, result)
+            for metric, steps in compared.items()
+            for (small, large), result in steps.items()
         ]
     )
+    closest = sum(pick is not None and pick.name == "closest" for pick in picks.values())
     experiment.write_report(
         "Population size",
         base,
         reps,
-        table(medians),
-        verdict(compared, reps),
+        table(values, level),
+        verdict(
+            compared["hypervolume"],
+            reps,
+            {metric: steps for metric, steps in compared.items() if metric != "hypervolume"},
+            closest,
+        ),
         [FIGURE],
         {SPACE: normalisation},
         populations=sizes,
     )
 
 
-def verdict(compared: Mapping[tuple[int, int], stats.Comparison], reps: int) -> str:
-    """Where the hypervolume levels off, against the paper's population near 30."""
-    found = levels_off(compared, reps, "the hypervolume", "population size")
+def finite(values: Sequence[float]) -> list[float]:
+    """The values a test compares: a run without a measure (NaN) left out."""
+    return [v for v in values if math.isfinite(v)]
+
+
+def verdict(
+    compared: Mapping[tuple[int, int], stats.Comparison],
+    reps: int,
+    practical: Mapping[str, Mapping[tuple[int, int], stats.Comparison]] | None = None,
+    closest: int = 0,
+) -> str:
+    """Where the hypervolume (`compared`: its consecutive steps) levels off, against the
+    paper's population near 30; and what each step buys or costs in the `practical` measures
+    (MEASURES' names → their steps). Each measure's steps Holm-adjusted as one family."""
+    hypervolume = stats.holm_adjusted(compared)
+    others = {metric: stats.holm_adjusted(steps) for metric, steps in (practical or {}).items()}
+    found = levels_off(hypervolume, reps, "the hypervolume", "population size")
     finding = found.text
     if found.rising:
         finding += (
@@ -106,21 +160,57 @@ def verdict(compared: Mapping[tuple[int, int], stats.Comparison], reps: int) -> 
         finding += " The paper found a population near 30 the best trade-off: " + (
             "this holds here." if 20 <= found.level <= 50 else "here it lies elsewhere."
         )
+    if closest:
+        finding += (
+            f" (In {closest} runs no member dominated the default gains: their recommended "
+            "controller is the one closest to dominating them.)"
+        )
     lines = [
-        f"- pop {large} against pop {small}: "
-        + stats.decide(result, f"pop {large}", f"pop {small}")
-        for (small, large), result in compared.items()
+        finding,
+        "",
+        f"Each size against the next smaller (two-sided, alpha {stats.ALPHA:g}; p Holm-adjusted "
+        "over the consecutive steps of each measure; differences in its unit):",
     ]
-    return "\n".join(
-        [finding, "", "Each size against the next smaller (two-sided, alpha 0.05):", *lines]
-    )
+    for (small, large), result in hypervolume.items():
+        lines.append(
+            f"- pop {large} against pop {small}: "
+            + stats.decide(result, f"pop {large}", f"pop {small}")
+            + ("" if stats.significant(result) else f" (hypervolume {difference(result)})")
+        )
+        for metric, steps in others.items():
+            if (small, large) in steps:
+                said, unit = MEASURES[metric]
+                step = steps[(small, large)]
+                lines.append(
+                    f"  - {said}, {difference(step, unit)}: "
+                    + stats.decide(step, f"pop {large}", f"pop {small}", higher_is_better=False)
+                )
+    return "\n".join(lines)
 
 
-def table(medians: Mapping[int, tuple[float, float]]) -> list[str]:
-    """Population size → (median hypervolume, median evaluations), as a Markdown table."""
+def table(values: Mapping[str, Mapping[int, list[float]]], level: float) -> list[str]:
+    """Per population size, the medians of each measure (`values`: MEASURES' names → size →
+    one value per run), the practical ones with their 95 % confidence intervals."""
     return markdown_table(
-        ["population", "median hypervolume", "median evaluations"],
-        ([s, f"{hv:.4f}", f"{evaluations:.0f}"] for s, (hv, evaluations) in medians.items()),
+        [
+            "population",
+            "median hypervolume",
+            f"error at f_t ≤ {level:.4g} (N·m)², mm",
+            "recommended's error, mm",
+            "recommended's f_t, (N·m)²",
+            "median evaluations",
+        ],
+        (
+            [
+                size,
+                f"{statistics.median(values['hypervolume'][size]):.4f}",
+                shown(values["error_at_level_mm"][size], 1),
+                shown(values["recommended_error_mm"][size], 1),
+                shown(values["recommended_f_t"][size], 1, 4),
+                f"{statistics.median(values['evaluations'][size]):.0f}",
+            ]
+            for size in values["hypervolume"]
+        ),
         text_columns=0,
     )
 
@@ -130,9 +220,11 @@ def figure(
     hypervolumes: Mapping[int, list[float]],
     evaluations: Mapping[int, list[int]],
     fronts: Mapping[int, list[list[Point]]] | None = None,
+    level: float | None = None,
 ) -> None:
     """Box plots per population size: final hypervolume, and evaluations to stop; and each
-    size's median attainment surface, if `fronts` (per size, one front per repetition)."""
+    size's median attainment surface, if `fronts` (per size, one front per repetition), with
+    the smoothness `level` the errors are read at."""
     canvas = new_figure((15 if fronts else 10, 4))
     panels = canvas.subplots(1, 3 if fronts else 2)
     left, right = panels[0], panels[1]
@@ -140,7 +232,7 @@ def figure(
     left.boxplot(list(hypervolumes.values()), tick_labels=labels)
     left.set(
         xlabel="population size",
-        ylabel="hypervolume (experiment normalised)",
+        ylabel="hypervolume (experiment normalised, f_t on a log scale)",
         title="final hypervolume",
     )
     right.boxplot([evaluations[size] for size in hypervolumes], tick_labels=labels)
@@ -149,6 +241,8 @@ def figure(
         attainment_panel(
             panels[2], {f"pop {s}": sets for s, sets in fronts.items()}, "fronts per size"
         )
+        if level is not None and math.isfinite(level):
+            panels[2].axhline(level, color="grey", linestyle=":", linewidth=1)
     save_png(canvas, path)
 
 

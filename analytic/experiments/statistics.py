@@ -23,11 +23,14 @@ import csv
 import io
 import math
 import warnings
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Hashable, Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import TypeVar
 
 import numpy as np
 from scipy import stats
+
+K = TypeVar("K", bound=Hashable)
 
 ALPHA = 0.05
 CONFIDENCE = 0.95
@@ -246,3 +249,17 @@ def holm(p_values: Sequence[float]) -> list[float]:
         running = max(running, min(1.0, (len(order) - rank) * p_values[index]))
         adjusted[index] = running
     return adjusted
+
+
+def holm_adjusted(results: Mapping[K, Comparison]) -> dict[K, Comparison]:
+    """The family `results` with Holm-adjusted p-values, and with the smallest adjusted p-value
+    each can reach (Holm multiplies the family's smallest p by its size, so a sample size that
+    could decide one test alone may decide none of many): `decidable`, `better` and `decide`
+    then judge each claim as one of the family."""
+    adjusted = holm([r.p_value for r in results.values()])
+    tested = [r.min_p for r in results.values() if math.isfinite(r.p_value)]
+    floor = len(tested) * min(tested, default=0.0)
+    return {
+        key: replace(r, p_value=p, min_p=min(1.0, max(r.min_p, floor)))
+        for (key, r), p in zip(results.items(), adjusted, strict=True)
+    }

@@ -136,7 +136,8 @@ def placement() -> Callable[[F], F]:
             type=click.IntRange(min=0),
             default=Later(lambda: _trajectory().seed),
             show_default=True,
-            help="seed of the random kind's waypoints and the fourier kind's coefficients",
+            help="which path of its kind: the random kind's waypoints, the fourier kind's "
+            "coefficients, the spiral's and the pyramid's turn about the centre (0: unturned)",
         ),
         click.option(
             "--center",

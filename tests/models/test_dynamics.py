@@ -30,15 +30,38 @@ from gainfarm.models.dynamics import (
     load,
     physical_parameters,
     pinocchio_model,
+    plant_spec,
     rigid_prior,
     rigid_spec,
     to_bytes,
+    true_model,
 )
-from gainfarm.schemas.robot import IDEAL_PLANT, POSITION_LIMITS, REALISTIC_PLANT, ModelSpec
+from gainfarm.schemas.robot import (
+    IDEAL_PLANT,
+    POSITION_LIMITS,
+    REALISTIC_PLANT,
+    ModelSpec,
+    Sensors,
+)
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 from tests.learning_data import episode
 
 RIGID_IDEAL = IDEAL_PLANT.model_copy(update={"joints": "rigid"})
+# The realistic plant carrying what the nominal arm does not know (a payload, heavier links), on
+# rigid joints fed back from exact sensors without delay: its log's u is the motors' whole torque
+# at the very state logged, so the plant's own model can be checked against it tick by tick.
+LOADED = REALISTIC_PLANT.model_copy(
+    update={
+        "joints": "rigid",
+        "payload": 5.0,
+        "mass_scale": (1.1,) * 7,
+        "delay": 0,
+        "sensors": Sensors(exact=True),
+        "feedback": "link",
+        "interface": "torque",
+        "substeps": 1,
+    }
+)
 
 
 def _nmse(predicted: np.ndarray, measured: np.ndarray) -> np.ndarray:
@@ -85,6 +108,29 @@ def test_the_prior_is_the_plants_rigid_arm_without_its_friction():
     # Plants that differ only in what the prior ignores share one prior (one file, one digest).
     noisy = REALISTIC_PLANT.model_copy(update={"delay": 3, "substeps": 4})
     assert to_bytes(rigid_prior(noisy)) == to_bytes(prior)
+
+
+def test_the_true_model_is_the_plants_own_dynamics_and_the_prior_is_not():
+    # The anchor: computed torque with the simulator's own arm, payload and friction. Not exact
+    # (MuJoCo damps the viscous part implicitly, the Coulomb part is taken at the tick's start),
+    # but six orders of magnitude nearer the plant than the nominal arm without friction.
+    q, qd, qdd, u = _dataset_rows(LOADED)
+    true = _nmse(true_model(LOADED).inverse(q, qd, qdd), u)
+    assert true.max() < 1e-4, true
+    assert _nmse(rigid_prior(LOADED).inverse(q, qd, qdd), u).max() > 0.1
+    forward = _nmse(true_model(LOADED, "forward").forward(q, qd, u), qdd)
+    assert forward.max() < 1e-3, forward
+
+
+def test_the_true_model_keeps_what_the_plants_dynamics_depend_on_and_nothing_else():
+    model = true_model(LOADED)
+    assert model.kind == "plant" and model.spec == plant_spec(LOADED)
+    assert (model.spec.payload, model.spec.mass_scale) == (5.0, (1.1,) * 7)
+    assert model.spec.friction == LOADED.friction and model.spec.joints == "rigid"
+    # The springs, sensors, delay and interface play no part: one model, one digest for them.
+    elsewhere = LOADED.model_copy(update={"delay": 3, "joints": "flexible", "substeps": 2})
+    assert to_bytes(true_model(elsewhere)) == to_bytes(model)
+    assert to_bytes(true_model(REALISTIC_PLANT)) != to_bytes(model)
 
 
 def test_the_rigid_prior_evaluates_a_reference_in_well_under_a_tenth_of_a_second():
@@ -170,6 +216,8 @@ def _models() -> dict[str, DynamicsModel]:
         "mlp forward": DynamicsModel("mlp", "forward", spec, network=_network(5)),
         "residual": DynamicsModel("residual", "inverse", spec, network=_network(6)),
         "residual forward": DynamicsModel("residual", "forward", spec, network=_network(7)),
+        "plant": true_model(LOADED),
+        "plant forward": true_model(LOADED, "forward"),
     }
 
 
@@ -259,6 +307,7 @@ def _with_array(raw: bytes, name: str, value: np.ndarray | None) -> bytes:
 
 MLP_BYTES = to_bytes(MODELS["mlp"])
 LINEAR_BYTES = to_bytes(MODELS["linear"])
+PLANT_BYTES = to_bytes(MODELS["plant"])
 NAN_WEIGHTS = np.full((21, 16), np.nan)
 
 BAD = {
@@ -279,6 +328,19 @@ BAD = {
     "flexible spec": (
         _with_header(MLP_BYTES, spec={"joints": "flexible"}),
         "must be a rigid arm",
+    ),
+    # The nominal arm a learned model starts from never carries the plant's hidden truth.
+    "prior with a payload": (
+        _with_header(MLP_BYTES, spec={"joints": "rigid", "payload": 5.0}),
+        "must be a rigid arm",
+    ),
+    "plant with springs": (
+        _with_header(PLANT_BYTES, spec={"joints": "flexible", "payload": 5.0}),
+        "must be the plant's dynamics",
+    ),
+    "plant with parameters": (
+        _with_array(PLANT_BYTES, "parameters", np.zeros(LINEAR_PARAMETERS)),
+        "unexpected ['parameters']",
     ),
     "missing layer": (_with_header(MLP_BYTES, layers=4), "missing"),
     "extra array": (

@@ -11,7 +11,10 @@ from gainfarm.worker.trajectories import (
     minimum_jerk,
     minimum_jerk_derivatives,
     path_points,
+    pyramid,
     rest_points,
+    seed_turn,
+    spiral,
     tool_rotations,
     twist_angle,
 )
@@ -54,6 +57,87 @@ def test_random_path_depends_on_its_seed_only():
     first = path_points(TrajectorySpec(kind="random", seed=1), S)
     assert np.array_equal(first, path_points(TrajectorySpec(kind="random", seed=1), S))
     assert not np.allclose(first, path_points(TrajectorySpec(kind="random", seed=2), S))
+
+
+# --- the seed of the spiral and the pyramid: where they start and which way they go ----------
+
+
+def unseeded_spiral(spec: TrajectorySpec, u: np.ndarray) -> np.ndarray:
+    """The spiral's Path as it was before its seed placed it (47f30f3), verbatim."""
+    angle = 2.0 * np.pi * spec.turns * u
+    radius = spec.size * u
+    return np.column_stack([radius * np.cos(angle), radius * np.sin(angle), spec.size * (u - 0.5)])
+
+
+def unseeded_pyramid(spec: TrajectorySpec, s: np.ndarray) -> np.ndarray:
+    """The pyramid's offsets as they were before its seed placed it (47f30f3), verbatim."""
+    h = spec.size / 2.0
+    b0, b1, b2, b3 = ([sx * spec.size, sy * spec.size, -h] for sx, sy in CORNERS)
+    vertices = np.array([b0, [0.0, 0.0, h], b1, b2, [0.0, 0.0, h], b3, b0])
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(vertices, axis=0), axis=1))])
+    return np.column_stack([np.interp(s * arc[-1], arc, vertices[:, i]) for i in range(3)])
+
+
+CORNERS = ((1, 1), (-1, 1), (-1, -1), (1, -1))
+
+
+def swept(offsets: np.ndarray) -> float:
+    """The area the path sweeps about the vertical through the centre, seen from above,
+    counter-clockwise positive (the shoelace formula): its sign is the way it goes round."""
+    x, y = offsets[:, 0], offsets[:, 1]
+    return float(np.sum(x[:-1] * y[1:] - x[1:] * y[:-1]) / 2)
+
+
+PLACED_KINDS = ("spiral", "pyramid")
+
+
+@pytest.mark.parametrize(
+    "fields", [{}, {"center": (0.5, -0.1, 0.45), "size": 0.12, "turns": 3.5}, {"size": 0.01}]
+)
+def test_seed_0_is_the_spiral_and_the_pyramid_of_before_bit_for_bit(fields):
+    spiral_spec = TrajectorySpec(kind="spiral", seed=0, **fields)
+    assert np.array_equal(spiral(spiral_spec, S), unseeded_spiral(spiral_spec, S))
+    pyramid_spec = TrajectorySpec(kind="pyramid", seed=0, **fields)
+    assert np.array_equal(pyramid(pyramid_spec, S), unseeded_pyramid(pyramid_spec, S))
+
+
+@pytest.mark.parametrize("kind", PLACED_KINDS)
+def test_another_seed_is_the_same_shape_turned_about_the_centre_and_mirrored_if_odd(kind):
+    center = np.array([0.5, 0.1, 0.4])
+    unturned = path_points(TrajectorySpec(kind=kind, center=center), S) - center
+    rests = rest_points(TrajectorySpec(kind=kind))
+    turns = []
+    for seed in (1, 2, 3, 4, 2**63 - 1):
+        spec = TrajectorySpec(kind=kind, center=center, seed=seed)
+        offsets = path_points(spec, S) - center
+        assert np.array_equal(offsets, path_points(spec, S) - center)  # the seed's path only
+        assert not np.allclose(offsets, unturned, atol=1e-3), seed  # another path...
+        # ...of the same shape: the same height and distance from the vertical through the
+        # centre at every point, the same corners, the same length.
+        np.testing.assert_allclose(offsets[:, 2], unturned[:, 2], atol=1e-12)
+        radius = np.linalg.norm(offsets[:, :2], axis=1)
+        np.testing.assert_allclose(radius, np.linalg.norm(unturned[:, :2], axis=1), atol=1e-9)
+        np.testing.assert_allclose(rest_points(spec), rests, atol=1e-12)
+        # Turned by the angle between their first points off the axis (the spiral's end, the
+        # pyramid's first corner), and mirrored for an odd seed: it goes round the other way.
+        angle = np.arctan2(offsets[-1, 1], offsets[-1, 0]) - np.arctan2(
+            unturned[-1, 1], unturned[-1, 0]
+        )
+        turns.append(np.angle(np.exp(1j * angle)))
+        assert swept(offsets) == pytest.approx((-1 if seed % 2 else 1) * swept(unturned))
+    assert len({round(t, 6) for t in turns}) == len(turns)  # each seed turns it otherwise
+
+
+def test_the_seeds_turns_spread_evenly_and_seed_0_does_not_turn():
+    assert seed_turn(0) == 0.0
+    shares = np.array([seed_turn(seed) for seed in range(100)])
+    assert np.all((shares >= -0.5) & (shares < 0.5))
+    # The three-gap theorem: consecutive seeds' shares cut the circle into gaps of at most three
+    # lengths, for 1/φ none more than φ² ≈ 2.62 times another (no clusters, no holes).
+    gaps = np.diff(np.sort(np.append(shares, shares.min() + 1.0)))
+    assert len(np.unique(gaps.round(12))) <= 3
+    assert gaps.max() < 2.7 * gaps.min() and gaps.max() < 2.0 / len(shares)
+    assert -0.5 <= seed_turn(2**63 - 1) < 0.5 and seed_turn(2**63 - 1) != seed_turn(1)
 
 
 @pytest.mark.parametrize("seed", range(10))

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from gainfarm.analytic.experiments import speed
-from gainfarm.analytic.experiments.base import Experiment
+from gainfarm.analytic.experiments.base import Experiment, front_points
+from gainfarm.analytic.experiments.measures import error_at, recommended
+from gainfarm.analytic.tuning.records import read_run
 from tests.analytic.experiments.common import (
     BASE,
     PNG,
@@ -28,10 +30,15 @@ def test_speed(tmp_path: Path, endpoints: list[str]) -> None:
         ("3.5", "3.0"),
         ("3.5", "3.5"),
     ]
-    assert all(float(r["median_error_of_most_accurate_m"]) > 0 for r in results)
+    for column in ("median_error_at_level_mm", "median_recommended_error_mm", "f_t_level"):
+        assert all(float(r[column]) > 0 for r in results), column
     assert (tmp_path / "speed.png").read_bytes().startswith(PNG)
     assert "| 3 s |" in (tmp_path / "report.md").read_text()
-    assert {r["metric"] for r in stats_rows(tmp_path)} == {"error_m", "hypervolume"}
+    assert {r["metric"] for r in stats_rows(tmp_path)} == {
+        "error_at_level_mm",
+        "recommended_error_mm",
+        "hypervolume",
+    }
 
 
 @pytest.mark.slow
@@ -40,9 +47,24 @@ def test_speed_in_process_writes_its_statistics(tmp_path: Path) -> None:
     comparisons = {r["comparison"] for r in stats_rows(tmp_path)}
     assert "3.5 s vs 3 s, own spiral" in comparisons and "4 s vs 3.5 s, own spiral" in comparisons
     assert "tuned on 3 s vs tuned on 4 s, on 4 s" in comparisons
-    assert (
-        "cannot decide whether or where accuracy levels off" in (tmp_path / "report.md").read_text()
+    report = (tmp_path / "report.md").read_text()
+    assert "cannot decide whether or where the error at that smoothness levels off" in report
+    assert "p Holm-adjusted over the consecutive steps of each measure" in report
+    # The errors are read at one smoothness every front reaches, and of each run's pick.
+    runs = [read_run(d) for d in sorted((tmp_path / "runs").iterdir())]
+    level = max(min(m.f_t for m in run.front) for run in runs)
+    results = {(r["tuned_on_s"], r["evaluated_on_s"]): r for r in rows(tmp_path / "results.csv")}
+    assert {float(r["f_t_level"]) for r in results.values()} == {level}
+    own = [run for run in runs if run.config.trajectories[0].duration == 3.0]
+    at_level = [error_at(front_points(run), level) * 1000 for run in own]
+    assert float(results[("3.0", "3.0")]["median_error_at_level_mm"]) == pytest.approx(
+        np.median(at_level)
     )
+    picked = [recommended(run).member.f_acc * 1000 for run in own]
+    assert float(results[("3.0", "3.0")]["median_recommended_error_mm"]) == pytest.approx(
+        np.median(picked)
+    )
+    assert f"Error at f_t ≤ {level:.4g} (N·m)², mm, median [95 % CI]:" in report
 
 
 # --- the speed experiment's heatmaps: numbers readable on every cell -------------------------

@@ -108,3 +108,23 @@ def test_stats_csv_adds_the_holm_column_only_where_an_experiment_adjusts() -> No
     assert float(first["p_holm"]) == 2 * float(first["p_value"]) and second["p_holm"] == ""
     plain = parse(st.stats_csv([st.StatsRow("popsize", "a vs b", "hypervolume", result)]))
     assert list(plain[0]) == list(st.STATS_COLUMNS)
+
+
+def test_holm_adjusted_judges_each_claim_as_one_of_its_family() -> None:
+    def shifted(by: float) -> st.Comparison:
+        return st.compare(HIGH, [v - by for v in HIGH])
+
+    alone = {"near": shifted(3), "far": shifted(5)}  # p = 0.045 and 0.0045, each alone
+    family = st.holm_adjusted(alone)
+    assert list(family) == ["near", "far"]
+    assert family["far"].p_value == pytest.approx(2 * alone["far"].p_value)  # the least, doubled
+    assert family["near"].p_value == pytest.approx(alone["near"].p_value)  # the last, as it was
+    assert family["near"].a12 == alone["near"].a12 and family["near"].ci_low == alone["near"].ci_low
+    # Two claims each significant alone (p = 0.045) are not as a family of two (0.09).
+    twice = st.holm_adjusted({"a": shifted(3), "b": shifted(3)})
+    assert all(st.significant(shifted(3)) and not st.significant(r) for r in twice.values())
+    assert [r.p_value for r in twice.values()] == pytest.approx([2 * shifted(3).p_value] * 2)
+    # Four against four reaches 0.029 alone; as one of two claims, Holm's least is 0.057.
+    small = st.holm_adjusted({k: st.compare(HIGH[:4], LOW[:4]) for k in "ab"})
+    assert all(not st.decidable(r) and r.min_p == pytest.approx(4 / 70) for r in small.values())
+    assert st.holm_adjusted({}) == {}

@@ -1,0 +1,102 @@
+"""The floor a feed-forward can reach: the default gains on held-out paths with PD alone, the
+nominal rigid arm's feed-forward, the plant's own model (the anchor), and that model with the
+command's delay and the springs' deflection compensated. docs/experiments.md quotes the table.
+
+    python bench/true_feedforward.py [--plant realistic|plain|ideal] [--paths 6] [--duration 3]
+
+Held-out paths: fourier excitations and random paths of seeds 4242.., and spirals whose centre
+moves 5-10 cm from the training paths' (a seed no run or test uses, alternately). Each condition's
+episode is simulated in this process (worker.episode.simulate, the worker's own loop); its mean
+Cartesian error f_acc is printed in mm per path, then the mean and the largest over the paths.
+"""
+
+import statistics
+import time
+from collections.abc import Callable
+
+import click
+import numpy as np
+
+from gainfarm.models.dynamics import rigid_prior, true_model
+from gainfarm.schemas.episode import EpisodeSpec
+from gainfarm.schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas.objectives import score
+from gainfarm.schemas.robot import PLANTS
+from gainfarm.schemas.trajectory import TrajectorySpec
+from gainfarm.worker.episode import compensation, simulate, true_compensation
+from gainfarm.worker.reference import Reference, reference_for
+
+FIRST_SEED = 4242
+CENTRES = ((0.5, 0.1, 0.4), (0.6, -0.1, 0.3))  # moved from the default (0.55, 0, 0.35) m
+
+Added = Callable[[EpisodeSpec, Reference], np.ndarray | None]
+
+
+def with_model(kind: str) -> Added:
+    """The worker's own feed-forward (`compensation`) of the nominal prior or the true model."""
+
+    def added(spec: EpisodeSpec, reference: Reference) -> np.ndarray | None:
+        model = (rigid_prior if kind == "rigid" else true_model)(spec.model)
+        return compensation(spec.model_copy(update={"feedforward": "0" * 64}), reference, model)
+
+    return added
+
+
+CONDITIONS: dict[str, Added] = {
+    "PD alone": lambda spec, reference: compensation(spec, reference),
+    "+ rigid prior FF": with_model("rigid"),
+    "+ true FF": with_model("plant"),
+    "+ true FF, delay": lambda s, r: true_compensation(s, r, delay=True),
+    "+ true FF, deflection": lambda s, r: true_compensation(s, r, deflection=True),
+    "+ true FF, both": lambda s, r: true_compensation(s, r, delay=True, deflection=True),
+}
+
+
+def held_out(count: int, duration: float) -> list[TrajectorySpec]:
+    """`count` paths: fourier, random and moved spirals in turn, seeds FIRST_SEED.."""
+    paths = []
+    for index in range(count):
+        seed, turn = FIRST_SEED + index // 3, index % 3
+        if turn == 2:
+            centre = CENTRES[(index // 3) % len(CENTRES)]
+            paths.append(TrajectorySpec(kind="spiral", duration=duration, center=centre))
+        else:
+            kind = "fourier" if turn == 0 else "random"
+            paths.append(TrajectorySpec(kind=kind, duration=duration, seed=seed))
+    return paths
+
+
+def label(path: TrajectorySpec) -> str:
+    if path.kind == "spiral":
+        return "spiral at ({:g}, {:g}, {:g})".format(*path.center)
+    return f"{path.kind} {path.seed}"
+
+
+@click.command(help=__doc__.split("\n\n")[0])
+@click.option("--plant", type=click.Choice(sorted(PLANTS)), default="realistic", show_default=True)
+@click.option("--paths", type=click.IntRange(min=1), default=6, show_default=True)
+@click.option("--duration", type=click.FloatRange(min=1.0), default=3.0, show_default=True)
+def main(plant: str, paths: int, duration: float) -> None:
+    started = time.perf_counter()
+    trajectories = held_out(paths, duration)
+    errors: dict[str, list[float]] = {name: [] for name in CONDITIONS}
+    for path in trajectories:
+        reference = reference_for(path)
+        spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=path, model=PLANTS[plant])
+        for name, added in CONDITIONS.items():
+            scores = score(simulate(spec, reference, added(spec, reference)))
+            errors[name].append(scores.f_acc * 1000)
+    header = ["condition", *(label(path) for path in trajectories), "mean", "max"]
+    click.echo("| " + " | ".join(header) + " |")
+    click.echo("|---|" + "---:|" * (len(header) - 1))
+    for name, values in errors.items():
+        cells = [f"{value:.3f}" for value in (*values, statistics.fmean(values), max(values))]
+        click.echo(f"| {name} | " + " | ".join(cells) + " |")
+    click.echo(
+        f"mean f_acc in mm, default gains, {plant} plant, {duration:g} s paths; "
+        f"{time.perf_counter() - started:.1f} s"
+    )
+
+
+if __name__ == "__main__":
+    main()
