@@ -13,10 +13,12 @@ f_t sums the joints' raw squared changes, so the big joints (A1, A2: 320 N·m li
 wrist's 40) dominate it. f_t_joint, an objective a run may name instead (EpisodeSpec.objectives),
 weighs each joint's change by its own limit:
 
-f_t_joint = (1/T) Σ_i Σ_j (τ̄ / τmax_j)² (u_ij − u_(i−1)j)²     (N·m)², τ̄² = n / Σ_j τmax_j^−2
+f_t_joint = (1/T) Σ_i Σ_j (τ_ref / τmax_j)² (u_ij − u_(i−1)j)²     (N·m)², τ_ref = max_j τmax_j
 
-τ̄ (70 N·m on the iiwa 14) makes the weights average 1: a change of the same N·m on every joint
-scores as in f_t, and the same share of its limit on every joint counts alike.
+Each joint's change is taken as a share of its limit and counted in the largest joint's N·m
+(A1's 320): the same share of its limit on every joint counts alike, and the weights, all at
+least 1, keep f_t_joint ≥ f_t, so the hypervolume's f_t floor and reference point serve it as
+they serve f_t (weights averaging 1 would put a smooth FRI controller's f_t_joint below the floor).
 
 T is the number of ticks the episode was planned to run. u_0, the torque before the first tick,
 is taken equal to the first applied torque: the robot was already holding it, so starting does
@@ -95,10 +97,10 @@ def f_t(log: EpisodeLog) -> float:
 
 
 def joint_weights(limits: Sequence[float]) -> np.ndarray:
-    """f_t_joint's weights (τ̄ / τmax_j)², one per joint: the limits' inverse squares, scaled to
-    average 1."""
-    inverse = 1.0 / np.asarray(limits, dtype=float) ** 2
-    return inverse * len(inverse) / inverse.sum()
+    """f_t_joint's weights (τ_ref / τmax_j)², one per joint, τ_ref the largest limit: 1 for the
+    strongest joint, more for each weaker one."""
+    limits = np.asarray(limits, dtype=float)
+    return (limits.max() / limits) ** 2
 
 
 def f_t_joint(log: EpisodeLog) -> float:
