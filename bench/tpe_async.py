@@ -24,6 +24,7 @@ from pathlib import Path
 import click
 from common import print_table
 
+from gainfarm.analytic.experiments import base
 from gainfarm.analytic.experiments.algorithms import feasible, hypervolume_curve
 from gainfarm.analytic.experiments.base import Normalisation
 from gainfarm.analytic.tuning.evolution import hypervolume
@@ -89,6 +90,11 @@ def main(evaluations: int, seeds: int, workers: int, modes: str, out: Path) -> N
     )
     fixed = {mode: [curve(run, at) for run in runs[mode]] for mode in chosen}
     pooled = {mode: [curve(run, at, normalisation) for run in runs[mode]] for mode in chosen}
+    # The experiments floor f_t at 10⁻² (N·m)² (base.F_T_FLOOR), inside the FRI plant's fronts:
+    # the same measure without the floor, so that the smooth end below it counts too.
+    floor, base.F_T_FLOOR = base.F_T_FLOOR, 1e-12
+    unfloored = {mode: [curve(run, at, normalisation) for run in runs[mode]] for mode in chosen}
+    base.F_T_FLOOR = floor
     best = {
         mode: statistics.median(min(m.objectives[0] for m in r.front) * 1000 for r in runs[mode])
         for mode in chosen
@@ -106,6 +112,7 @@ def main(evaluations: int, seeds: int, workers: int, modes: str, out: Path) -> N
             mode,
             *medians(fixed, mode, len(at)),
             *medians(pooled, mode, len(at)),
+            *medians(unfloored, mode, len(at)),
             f"{best[mode]:.3f}",
             f"{statistics.median(run.wall_seconds for run in runs[mode]):.0f}",
         ]
@@ -115,6 +122,7 @@ def main(evaluations: int, seeds: int, workers: int, modes: str, out: Path) -> N
         "mode",
         *(f"HV at {k}" for k in at),
         *(f"pooled HV at {k}" for k in at),
+        *(f"unfloored at {k}" for k in at),
         "best error mm",
         "wall s",
     ]
