@@ -32,7 +32,6 @@ from typing import Any
 from pydantic import ValidationError
 
 from gainfarm.analytic.experiments import statistics as stats
-from gainfarm.analytic.experiments.algorithms import holm_adjusted
 from gainfarm.analytic.experiments.base import (
     Experiment,
     ExperimentSpec,
@@ -241,7 +240,7 @@ def run(
     }
     experiment.write_results(results_rows(configs, outcomes, transfers, reps))
     compared = comparisons(settings, outcomes, transfers, reps)
-    adjusted = holm_adjusted(compared)
+    adjusted = stats.holm_adjusted(compared)
     experiment.write_stats(
         [
             stats.StatsRow(NAME, f"{s.label} vs nominal", metric, result)
