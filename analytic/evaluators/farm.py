@@ -501,10 +501,11 @@ class FarmClient:
         # the subscriber (one link, in order), before the token below lets any job be submitted.
         if token_held(self._results_session, token_key):
             raise FarmUnavailable(f"study {self.study!r} is already open in another process")
-        if self.models:
-            self._model_server = self.session.declare_queryable(
-                keys.model(self.study, "*"), self._on_model_query
-            )
+        # Declared whatever `models` holds now: an experiment adds a run's model to a client
+        # it has made (analytic.experiments.base.serving), and the workers must find it.
+        self._model_server = self.session.declare_queryable(
+            keys.model(self.study, "*"), self._on_model_query
+        )
         self._token = self.session.liveliness().declare_token(token_key)
         self._broker_watch = self.session.liveliness().declare_subscriber(
             keys.ALIVE_BROKER, self._on_broker_token

@@ -16,11 +16,13 @@ from gainfarm.analytic.evaluators.evaluator import Wanted
 from gainfarm.analytic.evaluators.farm import FarmClient, FarmUnavailable
 from gainfarm.analytic.evaluators.local import local_farm, spawn_worker, stop_workers
 from gainfarm.broker.service import Broker
+from gainfarm.models.dynamics import digest, rigid_prior, to_bytes
 from gainfarm.schemas import keys
+from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import PLAIN_PLANT
+from gainfarm.schemas.robot import PLAIN_PLANT, ModelSpec
 from tests.helpers import (
     SOFT_GAINS,
     TRACKING_GAINS,
@@ -371,3 +373,23 @@ def test_batch_command_refuses_bad_input_in_one_line(
     assert run.stderr.startswith("analytic: error: ") and message in run.stderr
     assert len(run.stderr.splitlines()) == 1
     assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.slow
+def test_a_model_handed_to_an_open_client_is_served_to_the_workers(
+    broker: Broker, tmp_path: Path
+) -> None:
+    # An experiment hands a run's model to a client it has already opened
+    # (analytic.experiments.base.serving): the workers must still be able to fetch it.
+    raw = to_bytes(rigid_prior(ModelSpec()))
+    spec = EpisodeSpec.model_validate({**short_spec().model_dump(), "feedforward": digest(raw)})
+    worker = spawn_worker(broker.endpoints[0], "w")
+    try:
+        with FarmClient(broker.endpoints, "s", tmp_path) as farm:
+            farm.models[digest(raw)] = raw
+            farm.submit({"j": spec})
+            [evaluation] = list(farm.results(timeout=120))
+    finally:
+        stop_workers([worker])
+    assert evaluation.status == "ok", evaluation.reason
+    assert read_episode(evaluation.log).metadata.spec.feedforward == digest(raw)
