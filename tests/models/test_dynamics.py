@@ -6,7 +6,6 @@ tests/analytic/test_learning.py's)."""
 import io
 import itertools
 import json
-import time
 import tracemalloc
 import zipfile
 from pathlib import Path
@@ -131,19 +130,6 @@ def test_the_true_model_keeps_what_the_plants_dynamics_depend_on_and_nothing_els
     elsewhere = LOADED.model_copy(update={"delay": 3, "joints": "flexible", "substeps": 2})
     assert to_bytes(true_model(elsewhere)) == to_bytes(model)
     assert to_bytes(true_model(REALISTIC_PLANT)) != to_bytes(model)
-
-
-def test_the_rigid_prior_evaluates_a_reference_in_well_under_a_tenth_of_a_second():
-    rng = np.random.default_rng(0)
-    q, qd, qdd = (rng.normal(size=(2500, 7)) for _ in range(3))
-    prior = rigid_prior(REALISTIC_PLANT)
-    prior.inverse(q[:1], qd[:1], qdd[:1])  # compiles the model once
-    best = np.inf
-    for _ in range(3):
-        started = time.perf_counter()
-        prior.inverse(q, qd, qdd)
-        best = min(best, time.perf_counter() - started)
-    assert best < 0.1, best
 
 
 # --- Pinocchio's arm is MuJoCo's --------------------------------------------------------------
