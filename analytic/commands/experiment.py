@@ -153,8 +153,10 @@ class Experiments(click.Group):
 def experiment() -> None:
     """Run one of the installed experiments: the paper's (popsize, generic-vs-specific, speed),
     the optimiser comparison (algorithms), or the test of the claim that tuned controllers'
-    data teach the dynamics better (dataset-value). `analytic experiment NAME --help` lists
-    NAME's options; an experiment directory (--out) that exists is resumed."""
+    data teach the dynamics better (dataset-value), the learned feed-forward against PD +
+    gravity compensation and the true model (feedforward), or what the plant's assumptions do
+    to the findings (sensitivity). `analytic experiment NAME --help` lists NAME's options; an
+    experiment directory (--out) that exists is resumed."""
 
 
 def _run(

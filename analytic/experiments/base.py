@@ -18,10 +18,10 @@ values spread over the range where the controllers really differ. normalisation.
 ideal and the nadir of each problem.
 
 Each experiment is one module of this package (popsize, generic_vs_specific, speed, algorithms,
-dataset_value) owning its computation, its table and its figure, declared by an `ExperimentSpec`
-named EXPERIMENT and found through the entry-point group `gainfarm.experiments`
-(analytic.experiments: the registry). The runs are read back from their plain files
-(analytic.tuning.records), never from their checkpoints.
+dataset_value, feedforward, sensitivity) owning its computation, its table and its figure,
+declared by an `ExperimentSpec` named EXPERIMENT and found through the entry-point group
+`gainfarm.experiments` (analytic.experiments: the registry). The runs are read back from their
+plain files (analytic.tuning.records), never from their checkpoints.
 """
 
 import functools
