@@ -425,8 +425,9 @@ class Experiment:
 def serving(
     evaluator: AbstractContextManager[Evaluator], models: Mapping[str, bytes]
 ) -> AbstractContextManager[Evaluator]:
-    """`evaluator`, not yet entered, told to serve the feed-forward model files `models` (by
-    SHA-256) its jobs name: a FarmClient or an InProcessEvaluator, which both take them so."""
+    """`evaluator`, before its first job, told to serve the feed-forward model files `models`
+    (by SHA-256) its jobs name: a FarmClient (whose model server answers from `models` whenever
+    asked) or an InProcessEvaluator, which both take them so."""
     if models:
         evaluator.models.update(models)  # type: ignore[attr-defined]
     return evaluator
