@@ -61,7 +61,8 @@ CONFIG = RunConfig(
 # interface, so that a dataset mixes both interfaces.
 TWIN = RunConfig(pop=4, seed=5, trajectories=(SPIRAL,), generations=1, model=PLAIN_PLANT)
 RERUN = [
-    TrajectorySpec(kind="pyramid", duration=3.0, seed=1, center=(0.5, 0.1, 0.4)),
+    # Seed 0: the pyramid unturned (a turned one at this centre asks A4 for more than its range).
+    TrajectorySpec(kind="pyramid", duration=3.0, seed=0, center=(0.5, 0.1, 0.4)),
     TrajectorySpec(kind="fourier", duration=3.0, seed=2),
 ]
 ANALYTIC = [sys.executable, "-m", "gainfarm.analytic", "dataset"]

@@ -74,8 +74,8 @@ def test_two_parameters_moved_tuned_again_and_judged_against_the_nominal(tmp_pat
     assert survival.count("cannot decide (1 repetition too few after Holm)") == 3
 
 
-def outcome(error_mm: float, hypervolume: float = 0.5) -> sens.Outcome:
-    return sens.Outcome([], hypervolume, "recommended", DEFAULT_GAINS, error_mm / 1000, 1.0)
+def outcome(error_mm: float, hypervolume: float = 0.5) -> sens.RunOutcome:
+    return sens.RunOutcome([], hypervolume, "recommended", DEFAULT_GAINS, error_mm / 1000, 1.0)
 
 
 def test_a_shift_the_data_show_is_one_and_an_equal_plant_survives() -> None:
