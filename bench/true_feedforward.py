@@ -19,6 +19,7 @@ from collections.abc import Callable
 import click
 import numpy as np
 
+from gainfarm.analytic.experiments.feedforward import held_out_paths
 from gainfarm.models.dynamics import rigid_prior, true_model
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS
@@ -54,20 +55,6 @@ CONDITIONS: dict[str, Added] = {
 }
 
 
-def held_out(count: int, duration: float) -> list[TrajectorySpec]:
-    """`count` paths: fourier, random and moved spirals in turn, seeds FIRST_SEED.."""
-    paths = []
-    for index in range(count):
-        seed, turn = FIRST_SEED + index // 3, index % 3
-        if turn == 2:
-            centre = CENTRES[(index // 3) % len(CENTRES)]
-            paths.append(TrajectorySpec(kind="spiral", duration=duration, center=centre))
-        else:
-            kind = "fourier" if turn == 0 else "random"
-            paths.append(TrajectorySpec(kind=kind, duration=duration, seed=seed))
-    return paths
-
-
 def row_cost(kind: str, plant: str) -> float:
     """µs per row of the model's inverse dynamics over 2,500 random rows, best of 3."""
     rng = np.random.default_rng(0)
@@ -94,7 +81,7 @@ def label(path: TrajectorySpec) -> str:
 @click.option("--duration", type=click.FloatRange(min=1.0), default=3.0, show_default=True)
 def main(plant: str, paths: int, duration: float) -> None:
     started = time.perf_counter()
-    trajectories = held_out(paths, duration)
+    trajectories = held_out_paths(paths, duration, FIRST_SEED, CENTRES)
     errors: dict[str, list[float]] = {name: [] for name in CONDITIONS}
     for path in trajectories:
         reference = reference_for(path)

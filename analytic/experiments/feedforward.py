@@ -110,13 +110,19 @@ def excitations(count: int, duration: float) -> list[TrajectorySpec]:
     ]
 
 
-def held_out_paths(count: int, duration: float) -> list[TrajectorySpec]:
-    """`count` paths no step saw: fourier, random (seeds 1000..) and moved spirals in turn."""
+def held_out_paths(
+    count: int,
+    duration: float,
+    first_seed: int = FIRST_HELD_OUT_SEED,
+    centres: Sequence[tuple[float, float, float]] = MOVED_CENTRES,
+) -> list[TrajectorySpec]:
+    """`count` paths no step saw: fourier, random (seeds `first_seed`..) and spirals moved to
+    `centres`, in turn."""
     paths = []
     for index in range(count):
-        seed, turn = FIRST_HELD_OUT_SEED + index // 3, index % 3
+        seed, turn = first_seed + index // 3, index % 3
         if turn == 2:
-            centre = MOVED_CENTRES[(index // 3) % len(MOVED_CENTRES)]
+            centre = centres[(index // 3) % len(centres)]
             paths.append(TrajectorySpec(kind="spiral", duration=duration, center=centre))
         else:
             kind = "fourier" if turn == 0 else "random"
