@@ -137,16 +137,6 @@ def preregister(
             )
 
 
-def least_reps(claims: int, alpha: float = stats.ALPHA) -> int:
-    """The fewest repetitions with which any claim of a Holm family of `claims` can reach an
-    adjusted p < alpha whatever the others' p-values (Mann-Whitney n against n, and Wilcoxon
-    signed-rank on n pairs, the smallest raw p times the family's size)."""
-    n = 1
-    while claims * max(stats.min_p_value(n, n, True), stats.min_p_value(n, n, False)) >= alpha:
-        n += 1
-    return n
-
-
 def default_points(
     experiment: Experiment, base: RunConfig, kinds: Sequence[TrajectoryKind]
 ) -> dict[TrajectoryKind, Point]:
@@ -477,7 +467,7 @@ def report(
             f"claims: {len(claims)} tests, one Holm family (the p-values in this report; "
             f"`stats.csv` holds the raw ones). With {reps} repetitions the smallest adjusted "
             f"p-value a claim can reach is {floor:.3g}; every claim can reach p < "
-            f"{stats.ALPHA:g} from {least_reps(len(claims))} repetitions",
+            f"{stats.ALPHA:g} from {stats.least_reps(len(claims), (True, False))} repetitions",
         ],
         table=table(
             {

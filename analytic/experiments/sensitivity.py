@@ -473,7 +473,7 @@ def verdict(
             f"- {len(undecidable)} of {len(adjusted)} comparisons cannot be decided: with "
             f"{reps} against {reps} repetitions and {len(adjusted)} comparisons no Holm-adjusted "
             f"p-value can fall below {stats.ALPHA:g}, whatever the data; "
-            f"{repetitions_needed(len(adjusted))} repetitions per plant could decide."
+            f"{stats.least_reps(len(adjusted))} repetitions per plant could decide."
         )
     groups = {
         "the recommended controller's error or the front's hypervolume shifts significantly "
@@ -533,15 +533,6 @@ def verdict(
 
 def repetitions(count: int) -> str:
     return f"{count} repetition{'' if count == 1 else 's'}"
-
-
-def repetitions_needed(family: int, alpha: float = stats.ALPHA) -> int:
-    """The fewest repetitions per plant with which a Mann-Whitney test, Holm-adjusted in a
-    family of `family` comparisons, can reach p < alpha at all."""
-    reps = 1
-    while family * stats.min_p_value(reps, reps, paired=False) >= alpha:
-        reps += 1
-    return reps
 
 
 def figure(

@@ -239,6 +239,17 @@ def stats_csv(rows: Sequence[StatsRow]) -> bytes:
     return buffer.getvalue().encode()
 
 
+def least_reps(family: int, paired: Sequence[bool] = (False,), alpha: float = ALPHA) -> int:
+    """The fewest repetitions (n against n, or n pairs) with which any claim of a Holm family of
+    `family` claims can reach an adjusted p < alpha whatever the others' p-values: the smallest
+    raw p of each kind of test in `paired` (Wilcoxon signed-rank if True, else Mann-Whitney U)
+    times the family's size."""
+    n = 1
+    while family * max(min_p_value(n, n, each) for each in paired) >= alpha:
+        n += 1
+    return n
+
+
 def holm(p_values: Sequence[float]) -> list[float]:
     """Holm's step-down adjustment of a family of p-values (NaN ones stay NaN, not counted)."""
     tested = [index for index, p in enumerate(p_values) if math.isfinite(p)]

@@ -169,15 +169,6 @@ def test_an_unknown_design_is_one_line_naming_the_option(tmp_path: Path) -> None
     )
 
 
-@pytest.mark.parametrize(("claims", "reps"), [(1, 6), (2, 7), (6, 8), (12, 9)])
-def test_least_reps_lets_every_claim_of_the_family_reach_significance(
-    claims: int, reps: int
-) -> None:
-    # Wilcoxon on n pairs cannot go below 2 / 2^n; Holm multiplies the smallest p by the family.
-    assert generic_vs_specific.least_reps(claims) == reps
-    assert claims * 2 / 2**reps < 0.05 <= claims * 2 / 2 ** (reps - 1)
-
-
 @pytest.mark.parametrize("test", list(ALL_KINDS))
 def test_the_held_out_generic_set_never_holds_the_test_trajectory(test: TrajectoryKind) -> None:
     kinds = [t.kind for t in generic_vs_specific.generic_set(test, 5.0)]

@@ -128,3 +128,12 @@ def test_holm_adjusted_judges_each_claim_as_one_of_its_family() -> None:
     small = st.holm_adjusted({k: st.compare(HIGH[:4], LOW[:4]) for k in "ab"})
     assert all(not st.decidable(r) and r.min_p == pytest.approx(4 / 70) for r in small.values())
     assert st.holm_adjusted({}) == {}
+
+
+@pytest.mark.parametrize(("claims", "reps"), [(1, 6), (2, 7), (6, 8), (12, 9)])
+def test_least_reps_lets_every_claim_of_the_family_reach_significance(
+    claims: int, reps: int
+) -> None:
+    # Wilcoxon on n pairs cannot go below 2 / 2^n; Holm multiplies the smallest p by the family.
+    assert st.least_reps(claims, (True, False)) == reps
+    assert claims * 2 / 2**reps < 0.05 <= claims * 2 / 2 ** (reps - 1)
