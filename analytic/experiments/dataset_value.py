@@ -6,12 +6,16 @@ three specific controllers (one per Cartesian trajectory kind) and a generic one
 gathers a pool of episodes per condition (which controllers, on which trajectories), draws the
 same number of ticks from every pool, trains the same models on each and scores them all on one
 held-out test pool, which no condition's controllers ran. Then, paired by repetition, a t-test
-and an effect size per tuned condition against the default gains and against random ones.
+and an effect size per tuned condition against the default gains and against random ones, all
+Holm-adjusted as one family. Two baselines score the same test pool untrained: the rigid prior
+(the nominal arm a learned model starts from) and the true model (the simulated plant's own
+dynamics: its error is what the logged columns' noise and the differenced q̈ leave, the floor a
+learned model is measured against).
 
     OUT/runs/NAME/             the tuning runs (Experiment.tune: kept, resumed, or started)
     OUT/simulated/NAME/        batches of extra episodes (reruns, default, random, the test
                                pool): kept when finished, so a second invocation reuses them
-    OUT/results.csv            one row per rep × condition × model (and the rigid reference)
+    OUT/results.csv            one row per rep × condition × model (and the two baselines)
     OUT/comparisons.csv        one row per paired comparison
     OUT/dataset-value.png      nMSE per condition, one panel per model
     OUT/report.md              setup, table, comparisons, verdict, limitations
@@ -52,7 +56,7 @@ from gainfarm.analytic.tuning.search_space import SearchSpace
 from gainfarm.analytic.view.figures import new_figure, save_png
 from gainfarm.analytic.view.reports import plant_text
 from gainfarm.edges.files import write_atomically
-from gainfarm.models.dynamics import DynamicsModel, rigid_prior
+from gainfarm.models.dynamics import DynamicsModel, rigid_prior, true_model
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.mcap_episode import read_episode
@@ -66,6 +70,8 @@ REFERENCES = ("default", "random")
 CONDITIONS = TUNED + REFERENCES
 MODELS = ("linear", "mlp", "residual")  # trained on each condition's rows
 REFERENCE_MODEL = "rigid"  # the physics prior: trained on nothing, scored once
+FLOOR_MODEL = "plant"  # the true model: the plant's own dynamics, scored once
+BASELINES = (REFERENCE_MODEL, FLOOR_MODEL)
 RANDOM_CONTROLLERS = 3  # random gain sets per repetition, each on the three trajectories
 TEST_SEED = 999  # the test pool's random controllers: fixed, the same in every repetition
 TEST_RANDOM_CONTROLLERS = 2
@@ -228,12 +234,16 @@ def fit_model(
 
 
 def score(model: DynamicsModel, test: Rows) -> dict[str, float]:
-    """nMSE (MSE over the variance of the test torque) and RMSE per joint, and the mean nMSE
-    over A1..A6 (analytic.learning's convention: A7's torque barely varies)."""
+    """nMSE (MSE over the variance of the test torque) and RMSE (N·m) per joint, and the mean
+    of each over A1..A6 (analytic.learning's convention: A7's torque barely varies)."""
     error = model.inverse(test.q, test.qd, test.qdd) - test.u
     mse = (error**2).mean(axis=0)
     nmse = mse / test.u.var(axis=0)
-    row = {"nmse_mean": float(np.mean([nmse[JOINT_NAMES.index(j)] for j in MEAN_JOINTS]))}
+    mean = [JOINT_NAMES.index(j) for j in MEAN_JOINTS]
+    row = {
+        "nmse_mean": float(np.mean(nmse[mean])),
+        "rmse_mean": float(np.mean(np.sqrt(mse[mean]))),
+    }
     row |= {f"nmse_{joint}": float(value) for joint, value in zip(JOINT_NAMES, nmse, strict=True)}
     row |= {
         f"rmse_{joint}": float(value)
@@ -316,21 +326,18 @@ def paired(
 def compare(
     nmse: Mapping[tuple[str, str], Sequence[float]], models: Sequence[str] = MODELS
 ) -> list[PairedTTest]:
-    """Each tuned condition against each reference, per model, Holm-adjusted within the model.
+    """Each tuned condition against each reference, per model, Holm-adjusted as one family:
+    the report shows every model's, so every one is a claim.
 
     `nmse` maps (model, condition) to the nmse_mean of repetitions 0..n-1, in that order."""
-    found = []
-    for model in models:
-        family = [
-            paired(model, condition, against, nmse[(model, condition)], nmse[(model, against)])
-            for condition in TUNED
-            for against in REFERENCES
-        ]
-        adjusted = holm([comparison.p for comparison in family])
-        found += [
-            PairedTTest(**(c.row() | {"p_holm": p})) for c, p in zip(family, adjusted, strict=True)
-        ]
-    return found
+    family = [
+        paired(model, condition, against, nmse[(model, condition)], nmse[(model, against)])
+        for model in models
+        for condition in TUNED
+        for against in REFERENCES
+    ]
+    adjusted = holm([comparison.p for comparison in family])
+    return [PairedTTest(**(c.row() | {"p_holm": p})) for c, p in zip(family, adjusted, strict=True)]
 
 
 def mean_nmse(nmse: Mapping[tuple[str, str], Sequence[float]], model: str, condition: str) -> float:
@@ -361,10 +368,13 @@ def verdict(
     nmse: Mapping[tuple[str, str], Sequence[float]],
     comparisons: Sequence[PairedTTest],
     models: Sequence[str] = MODELS,
+    rmse: Mapping[tuple[str, str], Sequence[float]] | None = None,
+    floor: Mapping[str, float] | None = None,
 ) -> Conclusion:
     """The answer in plain words, for the best model: does each tuned selection's data teach
     significantly more than the default gains' (Holm-adjusted, alpha 0.05)? And which selection
-    teaches the most, and is it significantly ahead of the runner-up?"""
+    teaches the most, and is it significantly ahead of the runner-up? With `rmse` (as `nmse`, in
+    N·m) and `floor` (the true model's scores), each figure also in N·m and beside the floor."""
     model = best_model(nmse, models)
     reps = len(nmse[(model, "default")])
     mine = {(c.condition, c.against): c for c in comparisons if c.model == model}
@@ -375,9 +385,22 @@ def verdict(
     better = [c for c in TUNED if findings[c] == "better"]
     worse = [c for c in TUNED if findings[c] == "worse"]
     default = mean_nmse(nmse, model, "default")
+
+    def newton_metres(condition: str) -> str:
+        if rmse is None:
+            return ""
+        return f", RMSE {statistics.fmean(rmse[(model, condition)]):.3f} N·m"
+
     lines = [
         f"With the best model here ({model}, the lowest median nMSE over all conditions), "
-        f"the default gains' data give a mean test nMSE of {default:.4f}."
+        f"the default gains' data give a mean test nMSE of {default:.4f}"
+        f"{newton_metres('default')}"
+        + (
+            f"; the true model scores {floor['nmse_mean']:.4f} ({floor['rmse_mean']:.3f} N·m) "
+            "on the same rows, the floor."
+            if floor is not None
+            else "."
+        )
     ]
     if reps < MIN_REPS:
         lines.append(
@@ -429,8 +452,9 @@ def verdict(
     else:
         ahead = "(too few repetitions to test the difference)"
     lines.append(
-        f"The most useful selection is {best} (mean nMSE {mean_nmse(nmse, model, best):.4f}), "
-        f"ahead of {second} ({mean_nmse(nmse, model, second):.4f}) {ahead}."
+        f"The most useful selection is {best} (mean nMSE {mean_nmse(nmse, model, best):.4f}"
+        f"{newton_metres(best)}), ahead of {second} ({mean_nmse(nmse, model, second):.4f}"
+        f"{newton_metres(second)}) {ahead}."
     )
     return Conclusion(model, findings, best, second, head, " ".join(lines))
 
@@ -614,10 +638,13 @@ def run(
     test, accepted = test_pool(experiment, duration, test_count, plant)
     test_digest = rows_digest(test)
     reference = score(rigid_prior(plant, "inverse"), test)
+    floor = score(true_model(plant, "inverse"), test)
     rows: list[dict[str, object]] = [
-        _result_row("all", "(none)", REFERENCE_MODEL, reference, 0, 0, 0.0, test_digest, len(test))
+        _result_row("all", "(none)", name, scores, 0, 0, 0.0, test_digest, len(test))
+        for name, scores in ((REFERENCE_MODEL, reference), (FLOOR_MODEL, floor))
     ]
     nmse: dict[tuple[str, str], list[float]] = {}
+    rmse: dict[tuple[str, str], list[float]] = {}
     for rep, episodes in enumerate(all_pools(experiment, base, reps)):
         pools = {c: pool_rows(logs) for c, logs in episodes.items()}
         count = ticks if ticks is not None else min(len(pool) for pool in pools.values())
@@ -629,6 +656,7 @@ def run(
                 seconds = time.perf_counter() - started
                 scores = score(model, test)
                 nmse.setdefault((kind, condition), []).append(scores["nmse_mean"])
+                rmse.setdefault((kind, condition), []).append(scores["rmse_mean"])
                 rows.append(
                     _result_row(
                         rep,
@@ -647,7 +675,7 @@ def run(
                     f"({seconds:.1f} s)"
                 )
     comparisons = compare(nmse)
-    found = verdict(nmse, comparisons)
+    found = verdict(nmse, comparisons, rmse=rmse, floor=floor)
     # The best selection against its runner-up, for the record: one test, so p_holm = p.
     written = [c.row() for c in comparisons] + [found.selection_test.row()]
     write_atomically(experiment.out / "results.csv", results_csv(rows))
@@ -656,15 +684,9 @@ def run(
         experiment.out / FIGURE,
         {model: {c: nmse[(model, c)] for c in CONDITIONS} for model in MODELS},
         reference["nmse_mean"],
+        floor["nmse_mean"],
     )
-    means = {
-        (model, condition): (
-            statistics.fmean(values),
-            statistics.stdev(values) if len(values) > 1 else math.nan,
-        )
-        for (model, condition), values in nmse.items()
-    }
-    train_rows = sorted({int(r["train_rows"]) for r in rows if r["model"] != REFERENCE_MODEL})  # type: ignore[call-overload]
+    train_rows = sorted({int(r["train_rows"]) for r in rows if r["model"] not in BASELINES})  # type: ignore[call-overload]
     setup = [
         f"{reps} repetitions (seeds 0..{reps - 1}); per repetition 3 specific runs (spiral, "
         f"random, pyramid) and 1 generic run (all three), {duration:g} s each; population "
@@ -684,8 +706,15 @@ def run(
         f"held-out trajectories (fourier and random-kind seeds {FIRST_TEST_SEED}..), the same "
         "for every condition and repetition: controllers no condition tuned, so no condition is "
         "favoured by sharing its test controller",
-        f"inverse dynamics (u from q, q̇, q̈); nMSE mean over {', '.join(MEAN_JOINTS)}; the rigid "
-        f"prior (no training) scores {reference['nmse_mean']:.4f}",
+        f"inverse dynamics (u from q, q̇, q̈); nMSE and RMSE (N·m) means over "
+        f"{', '.join(MEAN_JOINTS)}",
+        f"baselines, untrained, on the same test rows: the rigid prior (the nominal arm every "
+        f"learned model starts from) {baseline_text(reference)}; the true model (the simulated "
+        f"plant's own inverse dynamics with its friction and rotor terms: its error is what the "
+        f"columns' noise and the differenced q̈ leave, the floor) {baseline_text(floor)}",
+        "test: paired t-test per tuned selection against the default and the random gains' "
+        f"data, by repetition; Holm over all {len(comparisons)} comparisons of every model as one "
+        "family",
         "raw numbers in `results.csv` and `comparisons.csv`, runs in `runs/`, extra episodes in "
         f"`{SIMULATED}/`",
     ]
@@ -711,8 +740,8 @@ def run(
     write_report(
         experiment.out / "report.md",
         setup=setup,
-        means=means,
-        reference=reference["nmse_mean"],
+        means={"nMSE": spread(nmse), "RMSE (N·m)": spread(rmse)},
+        baselines={"rigid prior": reference, "true model (floor)": floor},
         comparisons=[*comparisons, found.selection_test],
         verdict=found.text,
         limitations=limitations,
@@ -721,11 +750,27 @@ def run(
     return found
 
 
+def baseline_text(scores: Mapping[str, float]) -> str:
+    return f"nMSE {scores['nmse_mean']:.4f}, RMSE {scores['rmse_mean']:.3f} N·m"
+
+
+def spread(
+    values: Mapping[tuple[str, str], Sequence[float]],
+) -> dict[tuple[str, str], tuple[float, float]]:
+    """(model, condition) → (mean, sd) over repetitions (sd NaN for one)."""
+    return {
+        key: (statistics.fmean(v), statistics.stdev(v) if len(v) > 1 else math.nan)
+        for key, v in values.items()
+    }
+
+
 def table(
-    means: dict[tuple[str, str], tuple[float, float]], reference: float | None = None
+    means: dict[tuple[str, str], tuple[float, float]],
+    measure: str = "nMSE",
+    baselines: Mapping[str, float] | None = None,
 ) -> list[str]:
-    """(model, condition) → (mean, sd) of the test nMSE: conditions as rows, models as
-    columns, "mean ± sd"; the rigid prior's single score as a last row, if given."""
+    """(model, condition) → (mean, sd) of a test measure: conditions as rows, models as
+    columns, "mean ± sd"; each untrained baseline's single score as a last row."""
     models = list(dict.fromkeys(model for model, _ in means))
     conditions = list(dict.fromkeys(condition for _, condition in means))
 
@@ -736,9 +781,9 @@ def table(
         [condition, *(cell(*means[(model, condition)]) for model in models)]
         for condition in conditions
     ]
-    if reference is not None:
-        rows.append(["(rigid prior, untrained)", *(f"{reference:.4f}" for _ in models)])
-    return markdown_table(["condition", *(f"{model} nMSE" for model in models)], rows)
+    for name, value in (baselines or {}).items():
+        rows.append([f"({name}, untrained)", *(f"{value:.4f}" for _ in models)])
+    return markdown_table(["condition", *(f"{model} {measure}" for model in models)], rows)
 
 
 def comparisons_table(comparisons: Sequence[PairedTTest]) -> list[str]:
@@ -772,24 +817,39 @@ def write_report(
     path: Path,
     *,
     setup: Sequence[str],
-    means: dict[tuple[str, str], tuple[float, float]],
-    reference: float | None,
+    means: Mapping[str, dict[tuple[str, str], tuple[float, float]]],
+    baselines: Mapping[str, Mapping[str, float]],
     comparisons: Sequence[PairedTTest],
     verdict: str,
     limitations: Sequence[str],
     figure: str,
 ) -> None:
-    """The dataset-value experiment's report.md: setup, nMSE table, comparisons, verdict,
-    limitations, figure."""
+    """The dataset-value experiment's report.md: question, setup, a table per measure (`means`:
+    measure → (model, condition) → (mean, sd)), verdict, comparisons, limitations, figure."""
+    tables = []
+    for measure, values in means.items():
+        key = "rmse_mean" if measure.startswith("RMSE") else "nmse_mean"
+        tables += [
+            f"## Test {measure} (mean ± sd over repetitions)",
+            "",
+            *table(values, measure, {name: b[key] for name, b in baselines.items()}),
+            "",
+        ]
     lines = [
         "# The value of tuned controllers' data for learning the dynamics",
         "",
+        "## Question",
+        "",
+        "Do tuned controllers' episodes teach a model of the arm's inverse dynamics more than the "
+        "default gains' or random gains' episodes do, at equal ticks (the paper's claim of a "
+        '"richer database")? Measured on one held-out test pool, against two untrained '
+        "baselines: the rigid prior, and the true model's floor.",
+        "",
+        "## Design",
+        "",
         *[f"- {line}" for line in setup],
         "",
-        "## Test nMSE (mean ± sd over repetitions)",
-        "",
-        *table(means, reference),
-        "",
+        *tables,
         "## Verdict",
         "",
         verdict,
@@ -798,8 +858,8 @@ def write_report(
         "",
         "Difference = the condition's nMSE minus the other's, paired by repetition (below zero: "
         "its data taught more); paired t-test, Cohen's d_z = mean difference / sd of the "
-        "differences; Holm's adjustment across the ten comparisons of each model (the last row, "
-        "best selection against runner-up, is one test of its own).",
+        "differences; Holm's adjustment across every model's comparisons as one family (the "
+        "last row, best selection against runner-up, is one test of its own).",
         "",
         *comparisons_table(comparisons),
         "",
@@ -814,17 +874,22 @@ def write_report(
 
 
 def figure(
-    path: Path, nmse: dict[str, dict[str, list[float]]], reference: float | None = None
+    path: Path,
+    nmse: dict[str, dict[str, list[float]]],
+    reference: float | None = None,
+    floor: float | None = None,
 ) -> None:
     """The dataset-value experiment: test nMSE per condition, one panel per model; a point per
-    repetition (jittered sideways so equal values stay visible) and a bar at the mean. A dashed
-    line at `reference` (the untrained rigid prior's nMSE), if given. Log scale when the values
-    span more than a decade, as random gains' data can be far worse than the rest."""
+    repetition (jittered sideways so equal values stay visible) and a bar at the mean. Dashed
+    lines at `reference` (the untrained rigid prior's nMSE) and `floor` (the true model's), if
+    given. Log scale when the values span more than a decade, as random gains' data can be far
+    worse than the rest."""
     models = list(nmse)
     canvas = new_figure((4.0 * max(1, len(models)), 4.5))
     panels = canvas.subplots(1, max(1, len(models)), sharey=True, squeeze=False)[0]
     values = [v for per_model in nmse.values() for vs in per_model.values() for v in vs]
-    finite = [v for v in values if math.isfinite(v) and v > 0]
+    lines_at = [v for v in (reference, floor) if v is not None]
+    finite = [v for v in [*values, *lines_at] if math.isfinite(v) and v > 0]
     logarithmic = bool(finite) and max(finite) > 10 * min(finite)
     for axes, model in zip(panels, models, strict=False):
         conditions = list(nmse[model])
@@ -841,8 +906,11 @@ def figure(
             )
             mean = sum(points) / len(points)
             axes.hlines(mean, index - 0.3, index + 0.3, color="black", linewidth=2, zorder=3)
-        if reference is not None and math.isfinite(reference):
-            axes.axhline(reference, color="grey", linestyle="--", linewidth=1, label="rigid prior")
+        lines = ((reference, "grey", "rigid prior"), (floor, "tab:green", "true model"))
+        for value, colour, label in lines:
+            if value is not None and math.isfinite(value):
+                axes.axhline(value, color=colour, linestyle="--", linewidth=1, label=label)
+        if any(value is not None for value, _, _ in lines):
             axes.legend(loc="upper left", fontsize=8)
         axes.set_xticks(range(len(conditions)))
         axes.set_xticklabels(conditions, rotation=45, ha="right", fontsize=8)

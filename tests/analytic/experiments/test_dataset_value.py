@@ -13,6 +13,7 @@ import pytest
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.experiments import dataset_value as dv
 from gainfarm.analytic.experiments.base import Experiment
+from gainfarm.analytic.experiments.statistics import holm
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.worker.episode import motor_torque, run_episode
@@ -67,9 +68,16 @@ def test_every_condition_model_and_rep_is_scored_at_equal_ticks(
 ) -> None:
     out, _ = finished
     results = rows(out / "results.csv")
-    reference = [r for r in results if r["model"] == dv.REFERENCE_MODEL]
-    trained = [r for r in results if r["model"] != dv.REFERENCE_MODEL]
-    assert len(reference) == 1 and reference[0]["train_rows"] == "0"
+    baselines = {r["model"]: r for r in results if r["model"] in dv.BASELINES}
+    trained = [r for r in results if r["model"] not in dv.BASELINES]
+    assert sorted(baselines) == sorted(dv.BASELINES)
+    assert all(r["train_rows"] == "0" and r["rep"] == "all" for r in baselines.values())
+    # The true model is the floor: on the same rows it beats the untrained nominal arm and every
+    # model trained on a few hundred of them (noisy q̈ could let a large fit shrink below it;
+    # 300 rows cannot).
+    floor = float(baselines[dv.FLOOR_MODEL]["nmse_mean"])
+    assert floor < float(baselines[dv.REFERENCE_MODEL]["nmse_mean"])
+    assert floor < min(float(r["nmse_mean"]) for r in trained)
     assert sorted((int(r["rep"]), r["condition"], r["model"]) for r in trained) == sorted(
         (rep, condition, model)
         for rep in range(REPS)
@@ -89,6 +97,8 @@ def test_every_condition_model_and_rep_is_scored_at_equal_ticks(
         nmse = [float(r[f"nmse_A{j}"]) for j in range(1, 8)]
         assert all(math.isfinite(v) and v > 0 for v in nmse)
         assert float(r["nmse_mean"]) == pytest.approx(np.mean(nmse[:6]))
+        rmse = [float(r[f"rmse_A{j}"]) for j in range(1, 8)]
+        assert float(r["rmse_mean"]) == pytest.approx(np.mean(rmse[:6]))
 
 
 @pytest.mark.slow
@@ -111,8 +121,17 @@ def test_comparisons_report_and_figure(finished: tuple[Path, dv.Conclusion]) -> 
         assert 0 <= float(c["p"]) <= 1 and 0 <= float(c["p_holm"]) <= 1
         assert float(c["p_holm"]) >= float(c["p"])
         assert math.isfinite(float(c["d_z"])) and c["n"] == str(REPS)
+    # Holm over every model's claims as one family; the last row is a test of its own.
+    family = comparisons[:-1]
+    assert [float(c["p_holm"]) for c in family] == pytest.approx(
+        holm([float(c["p"]) for c in family])
+    )
+    assert comparisons[-1]["p_holm"] == comparisons[-1]["p"]
     report = (out / "report.md").read_text()
     assert found.text in report and "## Limitations" in report
+    assert report.index("## Question") < report.index("## Design") < report.index("## Verdict")
+    assert "## Test RMSE (N·m)" in report and "| (true model (floor), untrained) |" in report
+    assert "the floor" in found.text and "N·m" in found.text
     assert "the paper's claim" in found.text and "The most useful selection is" in found.text
     assert found.model in dv.MODELS and found.best_selection in dv.TUNED
     assert f"| {found.best_selection} |" in report
