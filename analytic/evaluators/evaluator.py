@@ -121,8 +121,11 @@ class Evaluator(Protocol):
         what it still has in flight)."""
         ...
 
-    def fetch(self, wanted: Mapping[str, Wanted]) -> dict[str, Fetched]:
+    def fetch(
+        self, wanted: Mapping[str, Wanted], simulate_again: bool = True
+    ) -> dict[str, Fetched]:
         """The logs of these jobs (by job id), kept at RUN/episodes/<job id>.mcap and scored
         here: those an evaluator did not keep as their evaluations came (a farm whose workers
-        keep the logs). A log nobody has any more is simulated again."""
+        keep the logs). A log nobody has any more is simulated again, unless `simulate_again`
+        is false (then it is a Fetched without a log, and why)."""
         ...

@@ -370,7 +370,9 @@ class FarmClient:
                 break
         return messages
 
-    def fetch(self, wanted: Mapping[str, Wanted]) -> dict[str, Fetched]:
+    def fetch(
+        self, wanted: Mapping[str, Wanted], simulate_again: bool = True
+    ) -> dict[str, Fetched]:
         """The logs of these jobs, from the workers that keep them (each holder asked in turn;
         only bytes that hash to the wanted digest are taken, whoever answers), written to
         run_dir/episodes/<job id>.mcap and scored here (on a farm of this process's own
@@ -378,7 +380,8 @@ class FarmClient:
         has any more (its worker is gone, or let it go) is simulated again, episodes being
         deterministic: as the job `<job id>-k<n>`, on any worker, its log sent with its result
         with `keep_logs`, else fetched from that worker (a log that cannot be had is a Fetched
-        without one, and why)."""
+        without one, and why); with `simulate_again` false, not simulated: a Fetched without
+        one."""
         fetched: dict[str, Fetched] = {}
         again: dict[str, Wanted] = {}
         for job_id, want in wanted.items():
@@ -399,7 +402,10 @@ class FarmClient:
                     fetched[job_id] = Fetched(path, scores, want.digest, source=holder)
                     continue
             again[job_id] = want
-        if again:
+        if again and not simulate_again:
+            gone = Fetched(None, None, None, "its holders have it no more")
+            fetched.update(dict.fromkeys(again, gone))
+        elif again:
             fetched.update(self._simulate_again(again))
         return fetched
 

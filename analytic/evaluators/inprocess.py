@@ -87,9 +87,12 @@ class InProcessEvaluator:
             job_id = next(iter(self._pending))
             yield self._evaluate(job_id, self._pending.pop(job_id))
 
-    def fetch(self, wanted: Mapping[str, Wanted]) -> dict[str, Fetched]:
+    def fetch(
+        self, wanted: Mapping[str, Wanted], simulate_again: bool = True
+    ) -> dict[str, Fetched]:
         """Every log is kept here as it is made, so a fetch only scores it again; one pruned
-        since, or never kept (no run directory), is simulated again. A scorer keeps no logs."""
+        since, or never kept (no run directory), is simulated again (`simulate_again`: else a
+        Fetched without a log). A scorer keeps no logs."""
         fetched = {}
         for job_id, want in wanted.items():
             if self.scorer is not None:
@@ -98,6 +101,9 @@ class InProcessEvaluator:
             path = self.log_dir / f"{job_id}.mcap" if self.log_dir is not None else None
             if path is not None and path.exists():
                 content = path.read_bytes()
+            elif not simulate_again:
+                fetched[job_id] = Fetched(None, None, None, "not kept here")
+                continue
             else:
                 from gainfarm.worker.job import simulate  # MuJoCo loads only to simulate
 

@@ -139,6 +139,11 @@ def test_a_log_is_fetched_from_its_worker_or_else_simulated_again(
             job_id: Wanted(e.spec, e.digest, (e.worker,)) for job_id, e in evaluations.items()
         }
         wanted["c0"] = dataclasses.replace(wanted["c0"], holders=("nobody",))  # a holder gone
+        # Not simulating again (a run's periodic records): the gone log is left, nothing runs.
+        kept = farm.fetch(wanted, simulate_again=False)
+        assert kept["c0"].log is None and kept["c0"].reason == "its holders have it no more"
+        assert all(kept[j].digest == evaluations[j].digest for j in kept if j != "c0")
+        assert not (tmp_path / "episodes" / "c0.mcap").exists()
         fetched = farm.fetch(wanted)
     for job_id, got in fetched.items():
         assert got.log == tmp_path / "episodes" / f"{job_id}.mcap"
