@@ -47,7 +47,8 @@ def workers(broker: Broker, request: pytest.FixtureRequest):
         else spawn_worker(broker.endpoints[0], name)
         for name in names
     ]
-    wait_for(lambda: len(broker.status().workers) == len(names), what="the workers")
+    # Worker processes import MuJoCo as they start: 30 s, as every spawned worker is given.
+    wait_for(lambda: len(broker.status().workers) == len(names), 30, "the workers")
     yield names
     stop_workers(processes)
 

@@ -3,6 +3,7 @@
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -60,10 +61,21 @@ def test_a_started_broker_serves_workers_reports_them_and_stops_on_sigterm() -> 
     assert "worker cobot-7 joined" in log
 
 
+def accepting(port: int) -> bool:
+    """Whether something accepts TCP connections on 127.0.0.1:`port`."""
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=1.0):
+            return True
+    except OSError:
+        return False
+
+
 def test_a_broker_that_cannot_listen_says_so_in_one_line() -> None:
     taken = free_port()
     with subprocess.Popen(broker_command("start", "--listen", f"tcp/127.0.0.1:{taken}")) as first:
-        time.sleep(1.0)
+        # The port is taken once the first broker listens, not after a guessed sleep: on a
+        # loaded machine the second one had bound it first and served on (CI, 2026-11-26).
+        wait_for(lambda: accepting(taken), 60, "the first broker to listen")
         run = subprocess.run(
             broker_command("start", "--listen", f"tcp/127.0.0.1:{taken}"),
             capture_output=True,
