@@ -72,6 +72,7 @@ MODELS = ("linear", "mlp", "residual")  # trained on each condition's rows
 REFERENCE_MODEL = "rigid"  # the physics prior: trained on nothing, scored once
 FLOOR_MODEL = "plant"  # the true model: the plant's own dynamics, scored once
 BASELINES = (REFERENCE_MODEL, FLOOR_MODEL)
+MEASURES = {"nmse_mean": "nMSE", "rmse_mean": "RMSE (N·m)"}  # score column → report's name
 RANDOM_CONTROLLERS = 3  # random gain sets per repetition, each on the three trajectories
 TEST_SEED = 999  # the test pool's random controllers: fixed, the same in every repetition
 TEST_RANDOM_CONTROLLERS = 2
@@ -740,7 +741,7 @@ def run(
     write_report(
         experiment.out / "report.md",
         setup=setup,
-        means={"nMSE": spread(nmse), "RMSE (N·m)": spread(rmse)},
+        means={"nmse_mean": spread(nmse), "rmse_mean": spread(rmse)},
         baselines={"rigid prior": reference, "true model (floor)": floor},
         comparisons=[*comparisons, found.selection_test],
         verdict=found.text,
@@ -825,14 +826,14 @@ def write_report(
     figure: str,
 ) -> None:
     """The dataset-value experiment's report.md: question, setup, a table per measure (`means`:
-    measure → (model, condition) → (mean, sd)), verdict, comparisons, limitations, figure."""
+    a MEASURES column → (model, condition) → (mean, sd)), verdict, comparisons, limitations,
+    figure."""
     tables = []
-    for measure, values in means.items():
-        key = "rmse_mean" if measure.startswith("RMSE") else "nmse_mean"
+    for key, values in means.items():
         tables += [
-            f"## Test {measure} (mean ± sd over repetitions)",
+            f"## Test {MEASURES[key]} (mean ± sd over repetitions)",
             "",
-            *table(values, measure, {name: b[key] for name, b in baselines.items()}),
+            *table(values, MEASURES[key], {name: b[key] for name, b in baselines.items()}),
             "",
         ]
     lines = [
