@@ -14,6 +14,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from gainfarm.analytic.data.dataset import smoothed_acceleration
 from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
@@ -58,9 +59,13 @@ def write_dataset(
     splits: Sequence[tuple[int, str]] = SPLITS,
     duration: float = 2.0,
     motor_column: bool = True,
+    smoothed: bool = True,
+    rough: Sequence[int] = (),
 ) -> Path:
     """Write a dataset directory at `path` with one episode per (seed, split); return `path`.
-    Without `motor_column`, as a dataset from before u_motor."""
+    Without `motor_column`, as a dataset from before u_motor; without `smoothed`, as one from
+    before qdd_sg and the calm flag. The episodes of the seeds in `rough` are flagged not calm
+    (whatever they are: the flag's meaning is the builder's, tested in test_dataset.py)."""
     path.mkdir(parents=True)
     ticks, rows = [], []
     for seed, split in splits:
@@ -77,11 +82,13 @@ def write_dataset(
         qdd[:-1] = np.diff(log.qd, axis=0) / CONTROL_PERIOD
         signals = [(name, getattr(log, name)) for name in SIGNALS] + [("qdd", qdd)]
         signals += [("u_motor", motor_torque(log))] * motor_column
+        signals += [("qdd_sg", smoothed_acceleration(log.q, CONTROL_PERIOD))] * smoothed
         for signal, values in signals:
             for index, joint in enumerate(JOINT_NAMES):
                 columns[f"{signal}_{joint}"] = values[:, index]
         ticks.append(pa.table(columns))
-        rows.append({"episode_id": episode_id, "split": split, "model": plant.model_dump_json()})
+        row = {"episode_id": episode_id, "split": split, "model": plant.model_dump_json()}
+        rows.append(row | ({"calm": seed not in rough} if smoothed else {}))
     pq.write_table(pa.concat_tables(ticks), path / "ticks.parquet")
     pq.write_table(pa.Table.from_pylist(rows), path / "episodes.parquet")
     return path

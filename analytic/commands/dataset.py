@@ -66,6 +66,12 @@ def _split() -> str:
     help="keep controllers that break their run's safety limits on an episode (a run from "
     "before the limits, or on a --rerun trajectory); their rows say so (within_limits)",
 )
+@click.option(
+    "--include-rough",
+    is_flag=True,
+    help="keep episodes that chatter or diverged (clean by construction: left out unless "
+    "asked); their rows say so (calm false)",
+)
 @farm_options
 def dataset(
     run_dirs: tuple[Path, ...],
@@ -75,6 +81,7 @@ def dataset(
     split_seed: int,
     rerun_file: Path | None,
     infeasible: bool,
+    include_rough: bool,
     connect: tuple[str, ...],
     tls: Path | None,
     participant: str | None,
@@ -136,6 +143,7 @@ def dataset(
             rerun_trajectories=trajectories,
             farm=rerun_farm,
             infeasible=infeasible,
+            include_rough=include_rough,
         )
     except BadSplit as error:  # too few trajectories for the parts asked for
         raise CliError(f"--split: {error}") from None
@@ -148,6 +156,10 @@ def dataset(
     except OSError as error:
         raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
     rerun = f", {counts['rerun']} of them rerun" if counts["rerun"] else ""
+    if counts["rough_left_out"]:
+        rerun += f" ({counts['rough_left_out']} rough ones left out)"
+    elif counts["rough"]:
+        rerun += f" ({counts['rough']} of them rough, kept)"
     click.echo(
         f"{out}: {counts['episodes']} episodes{rerun}, {counts['ticks']:,} ticks, "
         f"{counts['controllers']} controllers from {counts['runs']} runs, "

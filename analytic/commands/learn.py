@@ -66,7 +66,11 @@ def learn(dataset_dir: Path, out: Path, target: str, kind: str, seed: int) -> No
     except LearnError as error:
         raise CliError(str(error)) from None
     nmse = " ".join(f"{joint} {value:.3f}" for joint, value in scores["nmse"].items())
+    calm = scores["calm"]
+    calm_text = f", calm {calm['nmse_mean']:.4f}" if calm and calm["rows"] < scores["rows"] else ""
     click.echo(
-        f"{out}: {kind} {target} model, test nMSE {scores['nmse_mean']:.4f} "
-        f"(mean over A1-A6; mean predictor {scores['mean_predictor_nmse']:.2f}) · {nmse}"
+        f"{out}: {kind} {target} model, test nMSE {scores['nmse_mean']:.4f}{calm_text} "
+        f"(mean over A1-A6; the plant's own dynamics {scores['floor']['nmse_mean']:.4f}, the "
+        f"rigid prior {scores['prior']['nmse_mean']:.3f}, the mean "
+        f"{scores['mean_predictor_nmse']:.2f}) · {nmse}"
     )

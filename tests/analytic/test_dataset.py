@@ -262,7 +262,7 @@ def test_every_column_has_a_unit(run_dir: Path, tmp_path: Path) -> None:
         schema = pq.read_schema(tmp_path / "dataset" / f"{name}.parquet")
         assert all(b"unit" in (field.metadata or {}) for field in schema), name
         assert schema.metadata[b"control_period"] == b"0.002"
-        assert schema.metadata[b"dataset_version"] == b"3"
+        assert schema.metadata[b"dataset_version"] == b"4"
     ticks = pq.read_schema(tmp_path / "dataset" / "ticks.parquet")
     expected = {
         "t": b"s",

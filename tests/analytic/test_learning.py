@@ -14,7 +14,7 @@ import pytest
 
 from gainfarm.analytic.data import learning
 from gainfarm.analytic.data.learning import LearnError, fit, learn, read_split, score
-from gainfarm.models.dynamics import digest, from_bytes, load, rigid_prior, to_bytes
+from gainfarm.models.dynamics import digest, from_bytes, load, rigid_prior, to_bytes, true_model
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.objectives import score as score_episode
@@ -42,13 +42,16 @@ def _leftovers(directory: Path) -> list[str]:
     return sorted(path.name for path in directory.iterdir() if path.name.startswith("."))
 
 
-def test_a_split_is_its_rows_without_the_last_ticks(realistic):
+def test_a_split_is_its_rows_with_an_acceleration(realistic, tmp_path):
     train, test = read_split(realistic, "train"), read_split(realistic, "test")
     assert len(set(train.episode_id)) == 6 and len(set(test.episode_id)) == 2
-    assert len(train) == 6 * 1000  # 1001 ticks an episode; the last has no acceleration
-    assert train.q.shape == train.u.shape == train.qdd.shape == (6000, 7)
-    assert np.isfinite(train.qdd).all()
+    assert len(train) == 6 * 1001  # 1001 ticks an episode, each with its smoothed q̈
+    assert train.q.shape == train.u.shape == train.qdd.shape == (6006, 7)
+    assert np.isfinite(train.qdd).all() and train.calm.all()
     assert len(read_split(realistic, "nonexistent")) == 0
+    # Before qdd_sg, the forward difference: the last tick of each episode has none.
+    old = read_split(write_dataset(tmp_path / "old", PLAIN_PLANT, smoothed=False), "train")
+    assert len(old) == 6 * 1000 and np.isfinite(old.qdd).all()
 
 
 @pytest.mark.parametrize(
@@ -269,3 +272,45 @@ def test_the_learn_command_writes_a_model_the_feedforward_takes_and_refuses_in_o
         assert ran.returncode != 0 and expected in ran.stderr, ran.stderr
         assert "Traceback" not in ran.stderr
         assert not (tmp_path / "n").exists()
+
+
+# --- honest scores: the smoothed acceleration, calm episodes, the floor ------------------------
+
+
+def test_the_smoothed_acceleration_gives_the_plants_own_model_its_floor(fri, tmp_path):
+    """The forward difference of the measured q̇ is noise a model cannot predict: even the
+    plant's own dynamics score far worse on it than on qdd_sg, which is what read_split gives."""
+    old = write_dataset(tmp_path / "old", REALISTIC_PLANT, smoothed=False)
+    assert learning.acceleration_column(old) == "qdd"
+    assert learning.acceleration_column(fri) == "qdd_sg"
+    differenced = score(true_model(REALISTIC_PLANT), old)["nmse_mean"]
+    smoothed = score(true_model(REALISTIC_PLANT), fri)["nmse_mean"]
+    assert smoothed < 0.01 and smoothed < differenced / 10, (smoothed, differenced)
+
+
+def test_calm_scores_leave_the_rough_episodes_out(tmp_path):
+    both = write_dataset(
+        tmp_path / "both", PLAIN_PLANT, [(0, "train"), (7, "test"), (8, "test")], rough=(8,)
+    )
+    calm = write_dataset(tmp_path / "calm", PLAIN_PLANT, [(0, "train"), (7, "test")])
+    prior = rigid_prior(PLAIN_PLANT)
+    mixed, alone = score(prior, both), score(prior, calm)
+    assert mixed["rows"] == 2 * alone["rows"] and mixed["calm"]["rows"] == alone["rows"]
+    for key in ("nmse_mean", "rmse_a1_a4"):
+        assert mixed["calm"][key] == pytest.approx(alone[key])
+        assert mixed[key] != pytest.approx(alone[key])
+    assert alone["calm"]["nmse_mean"] == alone["nmse_mean"]  # every episode calm
+
+
+def test_learn_puts_the_model_beside_the_floor_and_the_prior(fri, tmp_path):
+    scores = learn(fri, tmp_path / "m", kind="linear")
+    floor = score(true_model(REALISTIC_PLANT), fri)
+    prior = score(rigid_prior(REALISTIC_PLANT), fri)
+    assert scores["floor"]["nmse_mean"] == pytest.approx(floor["nmse_mean"])
+    assert scores["prior"]["nmse_mean"] == pytest.approx(prior["nmse_mean"])
+    # Identification on the smoothed acceleration comes near the floor, far below the prior.
+    assert scores["nmse_mean"] < 5 * floor["nmse_mean"] < prior["nmse_mean"], scores["nmse"]
+    report = (tmp_path / "m" / "report.md").read_text()
+    assert f"| plant's own dynamics (the floor) | {floor['nmse_mean']:.4f} |" in report
+    assert f"| rigid prior (untrained) | {prior['nmse_mean']:.4f} |" in report
+    assert "`qdd_sg`" in report and "0.14 N·m" in report
