@@ -507,6 +507,31 @@ def learn(
     return scores
 
 
+# The baselines of a benchmark table, in its order: the two untrained anchors (the floor, the
+# prior), then what a dynamics researcher trains beside them.
+BENCHMARK: tuple[str, ...] = ("plant", "rigid", "linear", "mlp", "residual")
+
+
+def benchmark(
+    dataset_dir: Path, seed: int = 0, kinds: tuple[str, ...] = BENCHMARK
+) -> dict[str, dict[str, Any]]:
+    """Every model of `kinds` (inverse dynamics) fitted on the dataset's train split and scored
+    on its test split (`score_rows`: all and calm), with its fit's seconds: the baseline table of
+    a release. The splits are read once. Raises LearnError, one line."""
+    splits = read_splits(dataset_dir)
+    test = splits["test"]
+    if not len(test):
+        raise LearnError(_no_rows(dataset_dir, "test"))
+    train = splits["train"] if len(splits["train"]) else test
+    table = {}
+    for kind in kinds:
+        started = time.perf_counter()
+        model = fit(dataset_dir, "inverse", kind, seed, splits)  # type: ignore[arg-type]
+        seconds = time.perf_counter() - started
+        table[kind] = score_rows(model, test, train) | {"fit_seconds": round(seconds, 3)}
+    return table
+
+
 def plot_prediction(path: Path, model: DynamicsModel, rows: Rows) -> None:
     """Predicted against measured over time for the first episode of `rows`, one panel a joint."""
     episode = sorted(set(rows.episode_id))[0]
