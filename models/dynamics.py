@@ -322,6 +322,37 @@ def physical_parameters(spec: ModelSpec) -> np.ndarray:
     return np.concatenate([*links, np.asarray(spec.rotor_inertia), friction])
 
 
+def inconsistencies(parameters: np.ndarray) -> list[str]:
+    """What makes identified π no physical arm: a link whose pseudo-inertia is not positive
+    definite (a mass at most zero, or second moments no body has: Wensing et al., RA-L 2018, the
+    condition Pinocchio's PseudoInertia states), whose rotational inertia about its centre of
+    mass breaks the triangle inequality, or a negative rotor inertia, viscous or Coulomb term.
+    Empty if π is physically consistent."""
+    pinocchio = _pinocchio()
+    found = []
+    links = LINK_PARAMETERS * N_JOINTS
+    for index, joint in enumerate(JOINT_NAMES):
+        link = np.asarray(parameters[index * LINK_PARAMETERS : (index + 1) * LINK_PARAMETERS])
+        if link[0] <= 0:
+            found.append(f"link {joint}: mass {link[0]:.3g} kg")
+            continue
+        pseudo = pinocchio.PseudoInertia.FromDynamicParameters(link).toMatrix()
+        if np.linalg.eigvalsh(pseudo).min() <= 0:
+            found.append(f"link {joint}: pseudo-inertia not positive definite")
+        moments = np.linalg.eigvalsh(pinocchio.Inertia.FromDynamicParameters(link).inertia)
+        if moments.min() <= 0 or moments[2] > moments[0] + moments[1] + 1e-12:
+            found.append(
+                f"link {joint}: principal moments {np.round(moments, 4).tolist()} break "
+                "the triangle inequality"
+            )
+    names = ("rotor inertia", "viscous friction", "Coulomb friction")
+    for name, values in zip(names, parameters[links:].reshape(3, N_JOINTS), strict=True):
+        for joint, value in zip(JOINT_NAMES, values, strict=True):
+            if value < 0:
+                found.append(f"{joint}: {name} {value:.3g}")
+    return found
+
+
 def regressor(spec: ModelSpec, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
     """(n, 7, LINEAR_PARAMETERS) Y with τ = Y·π: Pinocchio's joint torque regressor of the links,
     then diagonal columns q̈ (rotor inertia), q̇ (viscous), tanh(q̇ / 0.05) (Coulomb-like)."""

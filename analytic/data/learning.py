@@ -74,7 +74,8 @@ PUBLISHED_JOINTS = JOINT_NAMES[:4]
 PUBLISHED_RMSE = 0.14
 
 # The network and its training. Epochs are counted, not timed, so a seed gives one model on any
-# machine; ROW_PASSES bounds the work (50 epochs of 60,000 rows: some 15 s on 2 cores).
+# machine; ROW_PASSES bounds the work: 30 epochs of 600,000 rows (a release of a million ticks'
+# train split) take some 6 minutes on 2 cores (bench/learning_scale.py).
 HIDDEN_LAYERS = (128, 128, 128)
 BATCH_SIZE = 256
 LEARNING_RATE = 1e-3
@@ -83,11 +84,13 @@ LEARNING_RATE = 1e-3
 # penalised network memorises them: at 1e-5 the validation loss is lowest after the first epoch
 # and the test nMSE stays near 0.2. Measured on 20 realistic-plant fourier episodes (60,000
 # rows), 40 epochs: alpha 1, 3, 10 gave test nmse_mean 0.21, 0.072, 0.094 (residual) and 0.31,
-# 0.12, 0.17 (mlp).
+# 0.12, 0.17 (mlp). More rows need less: the penalty falls as 1 / rows beyond L2_ROWS (on 380,000
+# rows of a tuned front, alpha 0.1 gave the residual network 0.0085 where 3 gave 0.032).
 L2_PENALTY = 3.0
+L2_ROWS = 60_000
 MAX_EPOCHS = 60
 MIN_EPOCHS = 8
-ROW_PASSES = 3_000_000  # epochs × training rows, at most
+ROW_PASSES = 18_000_000  # epochs × training rows, at most
 PATIENCE = 10  # epochs without a better validation loss before stopping
 
 # Identification: rows regressed at a time (the regressor is 7 × 91 floats a row), and the
@@ -321,19 +324,34 @@ def train_network(
     prior: DynamicsModel | None,
     seed: int,
 ) -> tuple[Network, dict[str, Any]]:
-    """A network of `target` (of what `prior` leaves of it, if given) and how it was trained.
+    """A network of `target` (of what `prior` leaves of it, if given) and how it was trained
+    (`fit_network`)."""
+    x_train, y_train = _network_data(train, target, prior)
+    check = _network_data(validation, target, prior) if len(validation) else None
+    return fit_network(x_train, y_train, check, seed)
+
+
+def fit_network(
+    x_train: np.ndarray,
+    y_train: np.ndarray,
+    check: tuple[np.ndarray, np.ndarray] | None,
+    seed: int,
+) -> tuple[Network, dict[str, Any]]:
+    """A network from inputs to outputs, and how it was trained.
 
     Adam on mini-batches, one epoch per partial_fit, keeping the weights of the epoch with the
-    lowest validation loss; without validation rows, the lowest training loss (said in the
-    returned notes). Inputs and outputs are standardised on the training rows."""
-    x_train, y_train = _network_data(train, target, prior)
+    lowest loss on `check` (the validation rows); without them, the lowest training loss (said
+    in the returned notes). Inputs and outputs are standardised on the training rows."""
     input_mean, input_scale = _standardisation(x_train)
     output_mean, output_scale = _standardisation(y_train)
-    xs = (x_train - input_mean) / input_scale
-    ys = (y_train - output_mean) / output_scale
-    if len(validation):
-        x_check, y_check = _network_data(validation, target, prior)
-        xv, yv = (x_check - input_mean) / input_scale, (y_check - output_mean) / output_scale
+    # Single precision: half the time of each epoch's products, and the signals' noise is far
+    # above its 1e-7 rounding.
+    xs = ((x_train - input_mean) / input_scale).astype(np.float32)
+    ys = ((y_train - output_mean) / output_scale).astype(np.float32)
+    if check is not None:
+        x_check, y_check = check
+        xv = ((x_check - input_mean) / input_scale).astype(np.float32)
+        yv = ((y_check - output_mean) / output_scale).astype(np.float32)
         chosen_on = "validation"
     else:
         xv, yv, chosen_on = xs, ys, "train (the dataset has no validation split)"
@@ -347,7 +365,7 @@ def train_network(
         hidden_layer_sizes=HIDDEN_LAYERS,
         activation="relu",
         solver="adam",
-        alpha=L2_PENALTY,
+        alpha=l2_penalty(len(xs)),
         batch_size=BATCH_SIZE,
         learning_rate_init=LEARNING_RATE,
         shuffle=True,
@@ -366,8 +384,8 @@ def train_network(
     assert best is not None  # the first epoch's loss is finite or the data are
     weights, biases = best
     learned = Network(
-        weights=tuple(weights),
-        biases=tuple(biases),
+        weights=tuple(w.astype(np.float64) for w in weights),
+        biases=tuple(b.astype(np.float64) for b in biases),
         input_mean=input_mean,
         input_scale=input_scale,
         output_mean=output_mean,
@@ -382,6 +400,11 @@ def train_network(
         "chosen_on": chosen_on,
     }
     return learned, notes
+
+
+def l2_penalty(rows: int) -> float:
+    """sklearn's alpha for `rows` training rows: L2_PENALTY up to L2_ROWS, then ∝ 1 / rows."""
+    return L2_PENALTY * min(1.0, L2_ROWS / max(rows, 1))
 
 
 def _network_data(
@@ -414,10 +437,14 @@ def score(model: DynamicsModel, dataset_dir: Path, split: str = "test") -> dict[
     return score_rows(model, rows, train if len(train) else rows) | {"split": split}
 
 
-def score_rows(model: DynamicsModel, rows: Rows, train: Rows) -> dict[str, Any]:
-    """`score` on rows in memory; `train` gives the mean predictor's constant."""
+def score_rows(model: Any, rows: Rows, train: Rows) -> dict[str, Any]:
+    """`score` on rows in memory; `train` gives the mean predictor's constant. `model` is a
+    DynamicsModel, or a baseline that predicts from rows (analytic.data.baselines)."""
     measured = rows.output(model.target)
-    predicted = model.predict(*rows.inputs(model.target))
+    if hasattr(model, "predict_rows"):
+        predicted = model.predict_rows(rows)
+    else:
+        predicted = model.predict(*rows.inputs(model.target))
     baseline = train.output(model.target).mean(axis=0)
     everything = _errors(measured, predicted, baseline)
     calm = _errors(measured[rows.calm], predicted[rows.calm], baseline) if rows.calm.any() else None
@@ -509,7 +536,7 @@ def learn(
 
 # The baselines of a benchmark table, in its order: the two untrained anchors (the floor, the
 # prior), then what a dynamics researcher trains beside them.
-BENCHMARK: tuple[str, ...] = ("plant", "rigid", "linear", "mlp", "residual")
+BENCHMARK: tuple[str, ...] = ("plant", "rigid", "linear", "mlp", "residual", "gp", "history")
 
 
 def benchmark(
@@ -523,10 +550,19 @@ def benchmark(
     if not len(test):
         raise LearnError(_no_rows(dataset_dir, "test"))
     train = splits["train"] if len(splits["train"]) else test
+    from gainfarm.analytic.data.baselines import fit_gp, fit_history
+
+    prior = rigid_prior(plants(dataset_dir)[0])
     table = {}
     for kind in kinds:
         started = time.perf_counter()
-        model = fit(dataset_dir, "inverse", kind, seed, splits)  # type: ignore[arg-type]
+        model: Any
+        if kind == "gp":
+            model = fit_gp(prior, splits["train"], seed)
+        elif kind == "history":
+            model = fit_history(prior, splits["train"], splits["validation"], seed)
+        else:
+            model = fit(dataset_dir, "inverse", kind, seed, splits)  # type: ignore[arg-type]
         seconds = time.perf_counter() - started
         table[kind] = score_rows(model, test, train) | {"fit_seconds": round(seconds, 3)}
     return table
