@@ -425,18 +425,15 @@ def baselines_card(baselines: dict[str, dict[str, Any]]) -> str:
     floor = baselines.get("plant")
     said = []
     if best is not None:
-        said.append(
-            f"The best learned model here ({best[0]}) has an RMSE over A1-A4 of "
-            f"{best[1]['rmse_a1_a4']:.3g} N·m"
-        )
+        said.append(f"the best learned model's here ({best[0]}) is {best[1]['rmse_a1_a4']:.3g} N·m")
     if floor is not None:
-        said.append(f"the floor {floor['rmse_a1_a4']:.3g} N·m")
-    lead = "; ".join(said) + ", " if said else "These RMSEs stand "
+        said.append(f"the floor's {floor['rmse_a1_a4']:.3g} N·m")
+    placed = "RMSE over A1-A4: " + " and ".join(said) + ". Set them" if said else "Set these RMSEs"
     lines += [
         "",
-        f"{lead}beside the {PUBLISHED_RMSE} N·m published for a model learned on a real iiwa 14 "
-        "(Çallar and Böttger, RA-L 2022): this is a simulated plant with its noise, not that "
-        "robot.",
+        f"{placed[0].upper()}{placed[1:]} beside the {PUBLISHED_RMSE} N·m published for a model "
+        "learned on a real iiwa 14 (Çallar and Böttger, RA-L 2022): this is a simulated plant "
+        "with its noise, not that robot.",
         "",
     ]
     return "\n".join(lines)

@@ -408,3 +408,13 @@ def test_names_made_of_the_allowed_characters_pass() -> None:
     for name in (".hidden", "a b", "a/b", "A" * 65, "ü"):
         with pytest.raises(BadRelease, match=re.escape(repr(name))):
             check_name(name)
+
+
+@pytest.mark.slow
+def test_a_release_that_fails_leaves_nothing(run_dir: Path, tmp_path: Path) -> None:
+    from gainfarm.analytic.data.learning import LearnError
+
+    # The dataset is staged whole before its baselines fail: neither appears, nor the staging.
+    with pytest.raises(LearnError, match="unknown model 'nonsense'"):
+        build_release([run_dir], tmp_path / "out", "v1", kinds=("plant", "nonsense"))
+    assert list(tmp_path.iterdir()) == []
