@@ -7,8 +7,9 @@
         print(member.f_acc, member.f_t, member.kp, member.kd)
 
 The public surface: a run's configuration and the run itself, `tune` to do it in one call, the
-evaluators that run its episodes (the farm's client, this process) with the local farm, and
-`read_run` for a run directory. The rest (evolution, records, figures, reports, experiments,
+evaluators that run its episodes (the farm's client, this process) with the local farm,
+`read_run` for a run directory, and `load_dataset` to read a dataset's split for learning
+(`DatasetSplit`, `TickDataset`). The rest (evolution, records, figures, reports, experiments,
 the dataset) is importable by module. Names load on first use, so that importing one module of
 the package does not load Zenoh, pymoo and matplotlib with it.
 """
@@ -24,12 +25,18 @@ _WHERE = {
     "InProcessEvaluator": "gainfarm.analytic.evaluators.inprocess",
     "local_farm": "gainfarm.analytic.evaluators.local",
     "read_run": "gainfarm.analytic.tuning.records",
+    "load_dataset": "gainfarm.analytic.data.loader",
+    "DatasetSplit": "gainfarm.analytic.data.loader",
+    "TickDataset": "gainfarm.analytic.data.loader",
 }
 __all__ = [
+    "DatasetSplit",
     "FarmClient",
     "InProcessEvaluator",
     "RunConfig",
+    "TickDataset",
     "TuningRun",
+    "load_dataset",
     "local_farm",
     "read_run",
     "tune",
@@ -37,6 +44,7 @@ __all__ = [
 
 if TYPE_CHECKING:
     from gainfarm.analytic.compose import tune
+    from gainfarm.analytic.data.loader import DatasetSplit, TickDataset, load_dataset
     from gainfarm.analytic.evaluators.farm import FarmClient
     from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
     from gainfarm.analytic.evaluators.local import local_farm

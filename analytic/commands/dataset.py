@@ -72,6 +72,21 @@ def _split() -> str:
     help="keep episodes that chatter or diverged (clean by construction: left out unless "
     "asked); their rows say so (calm false)",
 )
+@click.option(
+    "--release",
+    "release_name",
+    metavar="NAME",
+    help="make the dataset a frozen release NAME: release.json (content hash, fixed splits), "
+    "stats.json (train only), baselines.json and the card's baselines (needs gainfarm[learn])",
+)
+@click.option(
+    "--format",
+    "release_format",
+    type=click.Choice(["gainfarm", "lerobot"]),
+    default="gainfarm",
+    show_default=True,
+    help="lerobot: the release also in LeRobot's v3.0 layout, in DIR/lerobot/ (with --release)",
+)
 @farm_options
 def dataset(
     run_dirs: tuple[Path, ...],
@@ -82,6 +97,8 @@ def dataset(
     rerun_file: Path | None,
     infeasible: bool,
     include_rough: bool,
+    release_name: str | None,
+    release_format: str,
     connect: tuple[str, ...],
     tls: Path | None,
     participant: str | None,
@@ -100,6 +117,14 @@ def dataset(
         read_rerun,
     )
     from gainfarm.analytic.data.dataset import build as build_dataset
+    from gainfarm.analytic.data.learning import LearnError
+    from gainfarm.analytic.data.release import (
+        BadRelease,
+        MissingExtra,
+        build_release,
+        check_learn_extra,
+        check_name,
+    )
     from gainfarm.analytic.evaluators.farm import FarmClient
     from gainfarm.analytic.tuning.records import CONFIG_JSON
     from gainfarm.schemas.wire import BadMessage
@@ -119,6 +144,23 @@ def dataset(
         raise CliError(f"--split: {error}") from None
     except BadRerun as error:
         raise CliError(f"--rerun: {error}") from None
+    if release_format != "gainfarm" and release_name is None:
+        raise CliError(
+            f"--format {release_format} needs --release NAME: only a release is exported"
+        )
+    if release_name is not None:
+        try:
+            check_name(release_name)
+        except BadRelease as error:
+            raise CliError(f"--release: {error}") from None
+        if split[2] <= 0:
+            raise CliError(
+                "--split: a release is scored on its test split: give it a positive fraction"
+            )
+        try:
+            check_learn_extra()
+        except MissingExtra as error:
+            raise CliError(f"--release: {error}") from None
 
     @contextlib.contextmanager
     def rerun_farm(directory: Path) -> Iterator["Evaluator"]:
@@ -133,24 +175,37 @@ def dataset(
             with client:
                 yield client
 
+    options = {
+        "selection": selection,
+        "split": split,
+        "split_seed": split_seed,
+        "rerun_trajectories": trajectories,
+        "farm": rerun_farm,
+        "infeasible": infeasible,
+        "include_rough": include_rough,
+    }
+    record: dict[str, object] = {}
     try:
-        counts = build_dataset(
-            list(run_dirs),
-            out,
-            selection,
-            split=split,
-            split_seed=split_seed,
-            rerun_trajectories=trajectories,
-            farm=rerun_farm,
-            infeasible=infeasible,
-            include_rough=include_rough,
-        )
+        if release_name is None:
+            counts = build_dataset(list(run_dirs), out, **options)  # type: ignore[arg-type]
+        else:
+            counts, record = build_release(
+                list(run_dirs),
+                out,
+                release_name,
+                format=release_format,  # type: ignore[arg-type]  # click's choice
+                **options,
+            )
     except BadSplit as error:  # too few trajectories for the parts asked for
         raise CliError(f"--split: {error}") from None
     except BadRerun as error:  # a trajectory the robot cannot follow
         raise CliError(f"--rerun: {error}") from None
     except (NoEpisodes, UnreadableRun, DuplicateEpisodes, RerunFailed, BadMessage) as error:
         raise CliError(str(error)) from None
+    except BadRelease as error:
+        raise CliError(f"--release: {error}") from None
+    except LearnError as error:  # the baselines could not be fitted
+        raise CliError(f"--release: the baselines: {error}") from None
     except ConnectionError as error:  # the farm's, not the disk's
         raise CliError(farm_problem(connect, error)) from None
     except OSError as error:
@@ -166,3 +221,8 @@ def dataset(
         f"{counts['trajectories']} trajectories ({counts['train']} train, "
         f"{counts['validation']} validation, {counts['test']} test)"
     )
+    if record:
+        formats = " and ".join(str(f) for f in record["formats"])  # type: ignore[attr-defined]
+        click.echo(
+            f"{out}: release {record['name']} ({formats}), content hash {record['content_hash']}"
+        )

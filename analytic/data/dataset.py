@@ -642,11 +642,15 @@ def build(
     farm: RerunFarm = local_rerun_farm,
     infeasible: bool = False,
     include_rough: bool = False,
+    finish: Callable[[Path, dict[str, int]], None] | None = None,
 ) -> dict[str, int]:
     """Write the dataset to `out` (which must not exist); return its counts.
 
     Everything that can be refused is, before anything is written or run: the runs, repeated
-    ids, the rerun's trajectories, the split. The rerun (if any) runs on `farm` last.
+    ids, the rerun's trajectories, the split. The rerun (if any) runs on `farm` last. `finish`,
+    if given, is called with the staged directory (complete, card included) and the counts
+    before it is renamed into place: what it adds (a release) appears with the dataset or not
+    at all, and if it raises, nothing does.
     """
     out = Path(out)
     if out.exists():
@@ -753,6 +757,8 @@ def build(
         } | {name: sum(s == name for s in splits.values()) for name in SPLITS}
         text = card(counts, chosen, selection, fractions, split_seed)
         write_atomically(staging / "README.md", text.encode())
+        if finish is not None:
+            finish(staging, counts)
         staging.rename(out)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
