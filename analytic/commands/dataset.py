@@ -61,6 +61,21 @@ def _split() -> str:
     "more on each, through the farm (a local one unless --connect), and add those episodes",
 )
 @click.option(
+    "--excitations",
+    type=click.IntRange(min=0, max=10_000),
+    default=0,
+    show_default=True,
+    help="add N fourier excitations (10 s each, seeds 0 to N-1) to the rerun's trajectories",
+)
+@click.option(
+    "--plants",
+    type=click.IntRange(min=0, max=100),
+    default=0,
+    show_default=True,
+    help="rerun on each run's plant and on K variants of it, drawn from the plant's "
+    "uncertainty ranges (models/uncertainty.toml, held-out stream, seed --split-seed)",
+)
+@click.option(
     "--infeasible",
     is_flag=True,
     help="keep controllers that break their run's safety limits on an episode (a run from "
@@ -95,6 +110,8 @@ def dataset(
     split_text: str,
     split_seed: int,
     rerun_file: Path | None,
+    excitations: int,
+    plants: int,
     infeasible: bool,
     include_rough: bool,
     release_name: str | None,
@@ -113,10 +130,12 @@ def dataset(
         NoEpisodes,
         RerunFailed,
         UnreadableRun,
+        canonical_json,
         check_split,
         read_rerun,
     )
     from gainfarm.analytic.data.dataset import build as build_dataset
+    from gainfarm.analytic.data.dataset import excitations as excitation_trajectories
     from gainfarm.analytic.data.learning import LearnError
     from gainfarm.analytic.data.release import (
         BadRelease,
@@ -130,8 +149,13 @@ def dataset(
     from gainfarm.schemas.wire import BadMessage
 
     identity = check_farm(connect, local, tls, participant)
-    if rerun_file is None and (connect or local):  # saying so beats ignoring the option
-        raise CliError("--connect and --local need --rerun: only a rerun runs episodes")
+    reruns = rerun_file is not None or excitations > 0
+    if not reruns and (connect or local):  # saying so beats ignoring the option
+        raise CliError(
+            "--connect and --local need --rerun or --excitations: only a rerun runs episodes"
+        )
+    if plants and not reruns:
+        raise CliError("--plants needs --rerun or --excitations: only a rerun runs episodes")
     for run_dir in run_dirs:
         if not (run_dir / CONFIG_JSON).is_file():
             raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG_JSON})")
@@ -144,6 +168,12 @@ def dataset(
         raise CliError(f"--split: {error}") from None
     except BadRerun as error:
         raise CliError(f"--rerun: {error}") from None
+    known = {canonical_json(trajectory) for trajectory in trajectories}
+    trajectories += [  # an excitation the file lists already is not run twice
+        trajectory
+        for trajectory in excitation_trajectories(excitations)
+        if canonical_json(trajectory) not in known
+    ]
     if release_format != "gainfarm" and release_name is None:
         raise CliError(
             f"--format {release_format} needs --release NAME: only a release is exported"
@@ -180,6 +210,7 @@ def dataset(
         "split": split,
         "split_seed": split_seed,
         "rerun_trajectories": trajectories,
+        "rerun_plants": plants,
         "farm": rerun_farm,
         "infeasible": infeasible,
         "include_rough": include_rough,

@@ -62,6 +62,7 @@ from gainfarm.analytic.tuning.records import (
 from gainfarm.analytic.tuning.run import RunBusy, TuningRun, upgrade
 from gainfarm.edges.files import staging_directory, write_atomically
 from gainfarm.plugins import OBJECTIVES, load_plugins
+from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.limits import MEASURES, Limits
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
@@ -96,6 +97,7 @@ SG_ORDER = 3
 # limit's 2 % of the torque limit. The smooth controllers measured put at most 0.8 % there, the
 # chattering ones 50 % to 99 % (schemas.limits).
 CALM_CHATTER = Limits().chatter
+EXCITATION_DURATION = 10.0  # s, each of `--excitations`: 5,000 ticks
 
 # Per-tick signals: name → (unit, what it is). Joint signals get _A1.._A7, Cartesian _x.._z.
 JOINT_SIGNALS = {
@@ -399,6 +401,13 @@ def read_rerun(path: Path) -> list[TrajectorySpec]:
     return trajectories
 
 
+def excitations(count: int, duration: float = EXCITATION_DURATION) -> list[TrajectorySpec]:
+    """`count` fourier excitations (seeds 0 to count - 1): band-limited joint motions over the
+    whole workspace, the identification literature's choice, each feasible by construction
+    (worker.reference); what `--excitations` adds to the rerun."""
+    return [TrajectorySpec(kind="fourier", seed=seed, duration=duration) for seed in range(count)]
+
+
 def check_rerun(trajectories: Sequence[TrajectorySpec], followable: bool = True) -> None:
     """A non-empty list without repeats (a repeat would be the same episode twice), and, with
     `followable`, only trajectories the iiwa can follow (every episode of another would fail)."""
@@ -581,25 +590,57 @@ def local_rerun_farm(run_dir: Path, workers: int | None = None) -> Iterator[Eval
         yield farm
 
 
-def rerun(
+Owner = tuple[ChosenRun, FrontMember, str]  # a rerun job's run, controller and episode id
+
+
+def plant_variants(nominal: ModelSpec, count: int, seed: int) -> tuple[ModelSpec, ...]:
+    """`count` plants around `nominal`, drawn from the shipped uncertainty ranges
+    (models/uncertainty.toml) on the held-out stream: never the plants a robust run tuned on."""
+    if count == 0:
+        return ()
+    from gainfarm.analytic.tuning.plants import HELD_OUT, variants
+
+    return variants(nominal, count, seed, stream=HELD_OUT)
+
+
+def rerun_jobs(
     chosen: Sequence[ChosenRun],
     trajectories: Sequence[TrajectorySpec],
-    staging: Path,
-    farm: RerunFarm,
-) -> list[Episode]:
-    """Run every selected controller on every rerun trajectory (on its own run's plant) through
-    the farm, in a batch directory inside the staging directory; move each log into episodes/.
-    RerunFailed if any episode could not run: the dataset would be silently short of it."""
-    jobs, owners = {}, {}
+    plants: int = 0,
+    seed: int = 0,
+) -> tuple[dict[str, EpisodeSpec], dict[str, Owner]]:
+    """Every selected controller on every trajectory, on its run's plant and on `plants`
+    variants of it (`plant_variants` with `seed`): job id → spec, and job id → its owner. The
+    nominal plant's episodes are `<run>-rerun-<job>`, the variants' `<run>-rerun-p<k>-<job>`."""
+    jobs: dict[str, EpisodeSpec] = {}
+    owners: dict[str, Owner] = {}
+    if not trajectories:
+        return jobs, owners
     for run in chosen:
         prefix = run.run_id[:RUN_ID_DIGITS]
         gains = [member.gains for member in run.members]
         # batch_jobs orders its jobs candidate by candidate, trajectory by trajectory.
         members = [member for member in run.members for _ in trajectories]
-        specs = batch_jobs(gains, trajectories, run.model)
-        for (job_id, spec), member in zip(specs.items(), members, strict=True):
-            jobs[f"{prefix}-{job_id}"] = spec
-            owners[f"{prefix}-{job_id}"] = (run, member, f"{prefix}-{RERUN}-{job_id}")
+        models = (run.model, *plant_variants(run.model, plants, seed))
+        for index, model in enumerate(models):
+            variant = f"p{index}-" if index else ""
+            specs = batch_jobs(gains, trajectories, model)
+            for (job_id, spec), member in zip(specs.items(), members, strict=True):
+                key = f"{prefix}-{variant}{job_id}"
+                jobs[key] = spec
+                owners[key] = (run, member, f"{prefix}-{RERUN}-{variant}{job_id}")
+    return jobs, owners
+
+
+def rerun(
+    jobs: dict[str, EpisodeSpec],
+    owners: dict[str, Owner],
+    staging: Path,
+    farm: RerunFarm,
+) -> list[Episode]:
+    """Run the rerun's jobs (`rerun_jobs`) through the farm, in a batch directory inside the
+    staging directory; move each log into episodes/. RerunFailed if any episode could not run:
+    the dataset would be silently short of it."""
     if not jobs:
         return []
     batch_dir = staging / RERUN_DIR
@@ -642,12 +683,14 @@ def build(
     farm: RerunFarm = local_rerun_farm,
     infeasible: bool = False,
     include_rough: bool = False,
+    rerun_plants: int = 0,
     finish: Callable[[Path, dict[str, int]], None] | None = None,
 ) -> dict[str, int]:
     """Write the dataset to `out` (which must not exist); return its counts.
 
     Everything that can be refused is, before anything is written or run: the runs, repeated
-    ids, the rerun's trajectories, the split. The rerun (if any) runs on `farm` last. `finish`,
+    ids, the rerun's trajectories, the split. The rerun (if any) runs on `farm` last, on each
+    run's plant and `rerun_plants` variants of it (`plant_variants`). `finish`,
     if given, is called with the staged directory (complete, card included) and the counts
     before it is renamed into place: what it adds (a release) appears with the dataset or not
     at all, and if it raises, nothing does.
@@ -666,16 +709,13 @@ def build(
                 f"run {learned[0]!r} tunes its PD on top of a learned feed-forward; rerunning "
                 "such controllers is not supported yet"
             )
-    reruns = len(rerun_trajectories) * sum(len(run.members) for run in chosen)
+    jobs, owners = rerun_jobs(chosen, rerun_trajectories, rerun_plants, split_seed)
+    reruns = len(jobs)
     if not found and not reruns:
         raise NoEpisodes(
             "none of the selected controllers has an episode log in its run's episodes/"
         )
-    rerun_ids = [
-        f"{run.run_id[:RUN_ID_DIGITS]}-{RERUN}-{job_id}"
-        for run in chosen
-        for job_id in batch_jobs([m.gains for m in run.members], rerun_trajectories, run.model)
-    ]
+    rerun_ids = [episode_id for _, _, episode_id in owners.values()]
     refuse_duplicates([source.episode_id for source in found] + rerun_ids)
     episodes = [read_source(source) for source in found]
     # The split is checked against every trajectory, the rerun's too, before the farm runs.
@@ -690,8 +730,8 @@ def build(
             for e in episodes
         )
         copied = len(episodes) - linked
-        if rerun_trajectories:
-            episodes += rerun(chosen, rerun_trajectories, staging, farm)
+        if jobs:
+            episodes += rerun(jobs, owners, staging, farm)
         episodes, left_out = within_limits(episodes, chosen, staging / "episodes", infeasible)
         if not episodes:
             raise NoEpisodes(
@@ -749,6 +789,7 @@ def build(
             "trajectories": len(trajectories),
             "rerun": sum(e.source.source == RERUN for e in episodes),
             "rerun_trajectories": len(rerun_trajectories),
+            "rerun_plants": rerun_plants,
             "linked": linked,
             "copied": copied,
             "infeasible_left_out": left_out,
@@ -853,9 +894,16 @@ def card(
         if counts["rerun"]
         else ""
     )
+    variants = counts.get("rerun_plants", 0)
     rerun_line = (
         f", and each of them run once more on the {counts['rerun_trajectories']} trajectories of "
         "the rerun (`source` rerun)"
+        + (
+            f", on its run's plant and on {variants} variants of it drawn from the plant's "
+            "uncertainty ranges (models/uncertainty.toml; the `model` column says which)"
+            if variants
+            else ""
+        )
         if counts["rerun"]
         else ""
     )
@@ -882,6 +930,7 @@ def card(
         )
     command = f"analytic dataset ... --select {selection} --split {fractions}"
     command += f" --split-seed {split_seed}" + (" --rerun FILE" if counts["rerun"] else "")
+    command += f" --plants {variants}" * bool(variants)
     command += " --include-rough" * bool(counts.get("rough", 0))
     return f"""# gainfarm dynamics dataset
 

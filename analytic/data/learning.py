@@ -39,6 +39,7 @@ from gainfarm.models.dynamics import (
     Network,
     Target,
     digest,
+    inconsistencies,
     physical_parameters,
     regressor,
     rigid_prior,
@@ -276,6 +277,7 @@ def fit(
         except ImportError as error:  # Pinocchio is optional: gainfarm[learn]
             raise LearnError(str(error)) from None
         about["identified_rank"] = rank
+        about["inconsistencies"] = inconsistencies(parameters)
         return DynamicsModel(
             kind=kind, target=target, spec=prior.spec, parameters=parameters, about=about
         )
@@ -654,10 +656,19 @@ def _what(model: DynamicsModel) -> str:
             "trained, the anchor no learned model can beat; only noise separates it from the data."
         )
     if model.kind == "linear":
+        flaws = about.get("inconsistencies", [])
+        consistency = (
+            "The identified parameters are physically consistent (every link's pseudo-inertia "
+            "positive definite, friction and rotor inertia non-negative)."
+            if not flaws
+            else f"The identified parameters are **not physically consistent** ({len(flaws)} "
+            f"flaws: {'; '.join(flaws[:3])}{'; ...' if len(flaws) > 3 else ''}): they predict the "
+            "torque, but are no arm's masses and inertias."
+        )
         return (
             "Linear in 91 parameters (Pinocchio's regressor, rotor inertia, viscous and "
             f"Coulomb-like friction per joint); {about['identified_rank']} directions identified "
-            "from the train split, the rest kept at the documented arm's values."
+            f"from the train split, the rest kept at the documented arm's values. {consistency}"
         )
     on = "the rigid physics' residual" if model.kind == "residual" else "the target"
     return (

@@ -18,6 +18,7 @@ import pytest
 
 from gainfarm.analytic.cli import main
 from gainfarm.analytic.compose import new_study_name
+from gainfarm.analytic.data import dataset as dataset_module
 from gainfarm.analytic.data.dataset import (
     RERUN_DIR,
     SPLITS,
@@ -42,7 +43,7 @@ from gainfarm.analytic.view.export import controller
 from gainfarm.cli import interrupts
 from gainfarm.schemas import TrajectorySpec
 from gainfarm.schemas.mcap_episode import read_episode
-from gainfarm.schemas.robot import JOINT_NAMES, PLAIN_PLANT
+from gainfarm.schemas.robot import JOINT_NAMES, PLAIN_PLANT, ModelSpec
 from gainfarm.worker.episode import motor_torque
 from tests.helpers import write_log
 
@@ -522,3 +523,97 @@ def test_dataset_of_a_damaged_log_names_it_in_one_line(run_dir: Path, tmp_path: 
         assert run.stderr == f"analytic: error: {damaged}: {run.stderr.split(': ', 3)[-1]}"
         assert message in run.stderr and run.stderr.count("\n") == 1
         assert not (tmp_path / "x").exists()
+
+
+# --- clean by construction, and more data from the same controllers ---------------------------
+
+
+def test_the_smoothed_acceleration_is_the_fit_of_q_within_each_episode(
+    run_dir: Path, tmp_path: Path
+) -> None:
+    """qdd_sg is the Savitzky-Golay fit of each episode's own q: a cubic's second derivative,
+    so on a cubic it is exact, and no window reaches across two episodes."""
+    t = np.arange(200) * 0.002
+    cubic = np.column_stack([(k + 1) * t**3 - t**2 for k in range(7)])
+    np.testing.assert_allclose(
+        dataset_module.smoothed_acceleration(cubic, 0.002),
+        np.column_stack([(k + 1) * 6 * t - 2 for k in range(7)]),
+        atol=1e-8,
+    )
+    assert np.isnan(dataset_module.smoothed_acceleration(cubic[:10], 0.002)).all()
+    build([run_dir], tmp_path / "dataset", "knee")
+    ticks, _, _ = tables(tmp_path / "dataset")
+    ids = np.asarray(ticks["episode_id"])
+    for episode in sorted(set(ids))[:2]:
+        mine = ids == episode
+        q = np.column_stack([np.asarray(ticks[f"q_{j}"])[mine] for j in JOINT_NAMES])
+        qdd_sg = np.column_stack([np.asarray(ticks[f"qdd_sg_{j}"])[mine] for j in JOINT_NAMES])
+        np.testing.assert_array_equal(qdd_sg, dataset_module.smoothed_acceleration(q, 0.002))
+
+
+def test_rough_episodes_are_left_out_unless_asked_and_flagged(
+    run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With the calm threshold between the front's episodes' chatter, those above it are left
+    out (their logs too), counted on the card; --include-rough keeps them with calm false."""
+    every = build([run_dir], tmp_path / "every", "front", include_rough=True)
+    _, rows, _ = tables(tmp_path / "every")
+    assert all(rows["calm"]) and every["rough"] == 0  # a tuned front is calm
+    chatter = sorted(rows["chatter"])
+    threshold = chatter[len(chatter) // 2]
+    monkeypatch.setattr(dataset_module, "CALM_CHATTER", threshold)
+    rough = sum(value > threshold for value in chatter)
+    assert 0 < rough < len(chatter)
+    clean = build([run_dir], tmp_path / "clean", "front")
+    _, kept, _ = tables(tmp_path / "clean")
+    assert clean["rough_left_out"] == rough and len(kept["episode_id"]) == len(chatter) - rough
+    assert all(kept["calm"]) and max(kept["chatter"]) <= threshold
+    assert len(list((tmp_path / "clean" / "episodes").iterdir())) == len(chatter) - rough
+    card = (tmp_path / "clean" / "README.md").read_text()
+    assert f"{rough} episodes that chatter or diverged were left out" in card
+    flagged = build([run_dir], tmp_path / "flagged", "front", include_rough=True)
+    _, both, _ = tables(tmp_path / "flagged")
+    assert flagged["rough"] == rough and flagged["rough_left_out"] == 0
+    assert [not calm for calm in both["calm"]] == [value > threshold for value in both["chatter"]]
+
+
+@pytest.mark.slow
+def test_excitations_on_plant_variants_through_the_cli(
+    run_dir: Path, endpoint: str, tmp_path: Path
+) -> None:
+    """--excitations N --plants K: the knee on N fourier excitations, on its run's plant and K
+    held-out variants of it, each episode's plant in its row."""
+    out = tmp_path / "dataset"
+    command = [str(run_dir), "--out", str(out), "--select", "knee", "--split", "0.5,0,0.5"]
+    result = subprocess.run(
+        [*ANALYTIC, *command, "--excitations", "1", "--plants", "2", "--connect", endpoint]
+        # The module's toy run is barely tuned: kept whatever it does on a 10 s excitation.
+        + ["--infeasible", "--include-rough"],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert result.returncode == 0, result.stderr
+    _, episodes, trajectories = tables(out)
+    reruns = [i for i, source in enumerate(episodes["source"]) if source == "rerun"]
+    assert len(reruns) == 3  # one excitation on three plants
+    ids = sorted(episodes["episode_id"][i] for i in reruns)
+    assert sum("-rerun-p1-" in i for i in ids) == sum("-rerun-p2-" in i for i in ids) == 1
+    nominal = read_run(run_dir).config.model
+    variants = dataset_module.plant_variants(nominal, 2, 0)
+    models = {ModelSpec.model_validate_json(episodes["model"][i]) for i in reruns}
+    assert models == {nominal, *variants} and len(models) == 3
+    excitation = dataset_module.excitations(1)[0]
+    assert trajectory_id(excitation) in trajectories["trajectory_id"]
+    assert "--plants 2" in (out / "README.md").read_text()
+
+
+def test_plants_without_a_rerun_is_one_line(run_dir: Path, tmp_path: Path) -> None:
+    result = subprocess.run(
+        [*ANALYTIC, str(run_dir), "--out", str(tmp_path / "d"), "--plants", "2"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode != 0 and not (tmp_path / "d").exists()
+    assert result.stderr.strip().count("\n") == 0 and "--plants" in result.stderr

@@ -12,9 +12,19 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from gainfarm.analytic.data import learning
+from gainfarm.analytic.data import baselines, learning
 from gainfarm.analytic.data.learning import LearnError, fit, learn, read_split, score
-from gainfarm.models.dynamics import digest, from_bytes, load, rigid_prior, to_bytes, true_model
+from gainfarm.models.dynamics import (
+    digest,
+    from_bytes,
+    inconsistencies,
+    load,
+    physical_parameters,
+    rigid_prior,
+    rigid_spec,
+    to_bytes,
+    true_model,
+)
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.objectives import score as score_episode
@@ -314,3 +324,49 @@ def test_learn_puts_the_model_beside_the_floor_and_the_prior(fri, tmp_path):
     assert f"| plant's own dynamics (the floor) | {floor['nmse_mean']:.4f} |" in report
     assert f"| rigid prior (untrained) | {prior['nmse_mean']:.4f} |" in report
     assert "`qdd_sg`" in report and "0.14 N·m" in report
+
+
+# --- the benchmark's baselines -----------------------------------------------------------------
+
+
+def test_the_history_inputs_are_earlier_ticks_of_the_same_episode():
+    n = 6
+    rows = learning.Rows(
+        episode_id=np.array(["a"] * 3 + ["b"] * 3),
+        t=np.array([0, 1, 2, 0, 1, 2]) * 0.002,
+        q=np.zeros((n, 7)),
+        qd=np.arange(n, dtype=float)[:, None] * np.ones(7),
+        qdd=10 * np.arange(n, dtype=float)[:, None] * np.ones(7),
+        u=np.zeros((n, 7)),
+        calm=np.ones(n, bool),
+    )
+    x = baselines.history_inputs(rows)
+    assert x.shape == (n, 21 + 14 * len(baselines.HISTORY_LAGS))
+    lag_one_qd = x[:, 21]  # q̇ one tick before, A1; an episode's first tick repeats itself
+    np.testing.assert_array_equal(lag_one_qd, [0, 0, 1, 3, 3, 4])
+    lag_one_qdd = x[:, 28]
+    np.testing.assert_array_equal(lag_one_qdd, [0, 0, 10, 30, 30, 40])
+
+
+@pytest.mark.slow
+def test_the_benchmark_scores_every_baseline_beside_the_floor(fri):
+    table = learning.benchmark(fri, kinds=("plant", "rigid", "gp", "history"))
+    assert list(table) == ["plant", "rigid", "gp", "history"]
+    floor, prior = table["plant"]["nmse_mean"], table["rigid"]["nmse_mean"]
+    for kind in ("gp", "history"):  # each learns some of what the prior leaves out
+        assert floor < table[kind]["nmse_mean"] < 0.9 * prior, (kind, table[kind]["nmse"])
+        assert table[kind]["calm"]["rows"] == table[kind]["rows"] and table[kind]["fit_seconds"] > 0
+    assert set(table["gp"]) >= REQUIRED | {"calm", "rmse_a1_a4"}
+
+
+def test_identified_parameters_that_are_no_arm_are_named():
+    documented = physical_parameters(rigid_spec(REALISTIC_PLANT))
+    assert inconsistencies(documented) == []
+    broken = documented.copy()
+    broken[10] = -1.0  # A2's mass
+    broken[20 + 4] = 50.0  # A3's Ixx·… far above the others: no body has such moments
+    broken[-1] = -0.5  # A7's Coulomb friction
+    found = inconsistencies(broken)
+    assert found[0].startswith("link A2: mass -1")
+    assert any(text.startswith("link A3:") for text in found)
+    assert found[-1] == "A7: Coulomb friction -0.5"
