@@ -585,10 +585,10 @@ def test_excitations_on_plant_variants_through_the_cli(
     held-out variants of it, each episode's plant in its row."""
     out = tmp_path / "dataset"
     command = [str(run_dir), "--out", str(out), "--select", "knee", "--split", "0.5,0,0.5"]
+    # The module's toy run is barely tuned: kept whatever it does on a 10 s excitation.
+    command += ["--infeasible", "--include-rough", "--connect", endpoint]
     result = subprocess.run(
-        [*ANALYTIC, *command, "--excitations", "1", "--plants", "2", "--connect", endpoint]
-        # The module's toy run is barely tuned: kept whatever it does on a 10 s excitation.
-        + ["--infeasible", "--include-rough"],
+        [*ANALYTIC, *command, "--excitations", "1", "--plants", "2"],
         capture_output=True,
         text=True,
         timeout=240,
