@@ -342,8 +342,8 @@ def inconsistencies(parameters: np.ndarray) -> list[str]:
         moments = np.linalg.eigvalsh(pinocchio.Inertia.FromDynamicParameters(link).inertia)
         if moments.min() <= 0 or moments[2] > moments[0] + moments[1] + 1e-12:
             found.append(
-                f"link {joint}: principal moments {np.round(moments, 4).tolist()} break "
-                "the triangle inequality"
+                f"link {joint}: principal moments {', '.join(f'{m:.3g}' for m in moments)} "
+                "kg·m² break the triangle inequality"
             )
     names = ("rotor inertia", "viscous friction", "Coulomb friction")
     for name, values in zip(names, parameters[links:].reshape(3, N_JOINTS), strict=True):
@@ -351,6 +351,65 @@ def inconsistencies(parameters: np.ndarray) -> list[str]:
             if value < 0:
                 found.append(f"{joint}: {name} {value:.3g}")
     return found
+
+
+def consistent_coordinates(parameters: np.ndarray) -> np.ndarray:
+    """θ with `from_consistent(θ)` = π, for a physically consistent π (`inconsistencies` empty,
+    friction and rotor inertia positive): each link's log-Cholesky parameters (Rucker and
+    Wensing, RA-L 2022: the pseudo-inertia J = U Uᵀ, U upper triangular with a positive
+    diagonal, as Pinocchio's LogCholeskyParameters), then softplus⁻¹ of the rest."""
+    links = LINK_PARAMETERS * N_JOINTS
+    theta = []
+    exchange = np.eye(4)[::-1]
+    pinocchio = _pinocchio()
+    for index in range(N_JOINTS):
+        link = parameters[index * LINK_PARAMETERS : (index + 1) * LINK_PARAMETERS]
+        pseudo = pinocchio.PseudoInertia.FromDynamicParameters(np.asarray(link)).toMatrix()
+        # The upper-triangular factor: the lower Cholesky factor of J with rows and columns
+        # reversed, reversed back.
+        upper = exchange @ np.linalg.cholesky(exchange @ pseudo @ exchange) @ exchange
+        alpha = upper[3, 3]
+        unit = upper / alpha
+        diagonal = np.log(np.diag(unit)[:3])
+        theta += [np.log(alpha), *diagonal, unit[0, 1], unit[1, 2], unit[0, 2], *unit[:3, 3]]
+    rest = np.asarray(parameters[links:], dtype=float)
+    return np.concatenate([theta, rest + np.log(-np.expm1(-rest))])  # softplus⁻¹
+
+
+def nearest_consistent(parameters: np.ndarray, floor: float = 1e-3) -> np.ndarray:
+    """A physically consistent π near `parameters`: each link's pseudo-inertia with its
+    eigenvalues raised to at least `floor` times its largest, friction and rotor inertia to at
+    least `floor`. A start for a constrained fit, not a fit."""
+    pinocchio = _pinocchio()
+    links = LINK_PARAMETERS * N_JOINTS
+    result = np.array(parameters, dtype=float)
+    for index in range(N_JOINTS):
+        part = slice(index * LINK_PARAMETERS, (index + 1) * LINK_PARAMETERS)
+        pseudo = pinocchio.PseudoInertia.FromDynamicParameters(result[part]).toMatrix()
+        values, vectors = np.linalg.eigh(pseudo)
+        values = np.maximum(values, floor * max(values.max(), floor))
+        raised = pinocchio.PseudoInertia.FromMatrix(vectors @ np.diag(values) @ vectors.T)
+        result[part] = raised.toDynamicParameters()
+    result[links:] = np.maximum(result[links:], floor)
+    return result
+
+
+def from_consistent(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """π and its Jacobian dπ/dθ for coordinates θ (`consistent_coordinates`): every θ gives a
+    physically consistent arm."""
+    pinocchio = _pinocchio()
+    links = LINK_PARAMETERS * N_JOINTS
+    parameters = np.empty(LINEAR_PARAMETERS)
+    jacobian = np.zeros((LINEAR_PARAMETERS, LINEAR_PARAMETERS))
+    for index in range(N_JOINTS):
+        part = slice(index * LINK_PARAMETERS, (index + 1) * LINK_PARAMETERS)
+        coordinates = pinocchio.LogCholeskyParameters(np.asarray(theta[part], dtype=float))
+        parameters[part] = coordinates.toDynamicParameters()
+        jacobian[part, part] = coordinates.calculateJacobian()
+    rest = np.asarray(theta[links:], dtype=float)
+    parameters[links:] = np.logaddexp(0.0, rest)  # softplus: positive, never stuck at zero
+    jacobian[links:, links:] = np.diag(1.0 / (1.0 + np.exp(-rest)))
+    return parameters, jacobian
 
 
 def regressor(spec: ModelSpec, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:

@@ -102,6 +102,13 @@ def _split() -> str:
     show_default=True,
     help="lerobot: the release also in LeRobot's v3.0 layout, in DIR/lerobot/ (with --release)",
 )
+@click.option(
+    "--baselines",
+    "baselines_text",
+    metavar="KIND,...",
+    help="with --release: the baseline models its card scores  [default: every one: plant, "
+    "rigid, linear, mlp, residual, gp, history]",
+)
 @farm_options
 def dataset(
     run_dirs: tuple[Path, ...],
@@ -116,6 +123,7 @@ def dataset(
     include_rough: bool,
     release_name: str | None,
     release_format: str,
+    baselines_text: str | None,
     connect: tuple[str, ...],
     tls: Path | None,
     participant: str | None,
@@ -178,6 +186,19 @@ def dataset(
         raise CliError(
             f"--format {release_format} needs --release NAME: only a release is exported"
         )
+    if baselines_text is not None and release_name is None:
+        raise CliError("--baselines needs --release NAME: only a release scores baselines")
+    kinds = None
+    if baselines_text is not None:
+        from gainfarm.analytic.data.learning import BENCHMARK
+
+        kinds = tuple(kind.strip() for kind in baselines_text.split(",") if kind.strip())
+        unknown = [kind for kind in kinds if kind not in BENCHMARK]
+        if unknown or not kinds or len(set(kinds)) < len(kinds):
+            raise CliError(
+                f"--baselines: expected distinct kinds among {', '.join(BENCHMARK)}, got "
+                f"{baselines_text!r}"
+            )
     if release_name is not None:
         try:
             check_name(release_name)
@@ -225,6 +246,7 @@ def dataset(
                 out,
                 release_name,
                 format=release_format,  # type: ignore[arg-type]  # click's choice
+                kinds=kinds,
                 **options,
             )
     except BadSplit as error:  # too few trajectories for the parts asked for
@@ -241,7 +263,11 @@ def dataset(
         raise CliError(farm_problem(connect, error)) from None
     except OSError as error:
         raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
-    rerun = f", {counts['rerun']} of them rerun" if counts["rerun"] else ""
+    rerun = (
+        f", {counts['rerun']} of them rerun in {counts['rerun_seconds']} s"
+        if counts["rerun"]
+        else ""
+    )
     if counts["rough_left_out"]:
         rerun += f" ({counts['rough_left_out']} rough ones left out)"
     elif counts["rough"]:
@@ -254,6 +280,8 @@ def dataset(
     )
     if record:
         formats = " and ".join(str(f) for f in record["formats"])  # type: ignore[attr-defined]
+        fitted = record["baselines"]["fit_seconds"]  # type: ignore[index]
         click.echo(
-            f"{out}: release {record['name']} ({formats}), content hash {record['content_hash']}"
+            f"{out}: release {record['name']} ({formats}), content hash {record['content_hash']}, "
+            f"baselines fitted in {fitted:.0f} s"
         )

@@ -33,6 +33,7 @@ import json
 import math
 import os
 import shutil
+import time
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import AbstractContextManager
@@ -730,8 +731,10 @@ def build(
             for e in episodes
         )
         copied = len(episodes) - linked
+        started = time.perf_counter()
         if jobs:
             episodes += rerun(jobs, owners, staging, farm)
+        rerun_seconds = time.perf_counter() - started
         episodes, left_out = within_limits(episodes, chosen, staging / "episodes", infeasible)
         if not episodes:
             raise NoEpisodes(
@@ -790,6 +793,7 @@ def build(
             "rerun": sum(e.source.source == RERUN for e in episodes),
             "rerun_trajectories": len(rerun_trajectories),
             "rerun_plants": rerun_plants,
+            "rerun_seconds": round(rerun_seconds),
             "linked": linked,
             "copied": copied,
             "infeasible_left_out": left_out,

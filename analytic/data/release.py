@@ -300,7 +300,12 @@ def write_release(
         "splits": splits,
         "plants": plants,
         "normalisation": {"file": STATS_JSON, "over": "train"},
-        "baselines": {"file": BASELINES_JSON, "seed": seed, "kinds": list(chosen)},
+        "baselines": {
+            "file": BASELINES_JSON,
+            "seed": seed,
+            "kinds": list(chosen),
+            "fit_seconds": round(sum(entry["fit_seconds"] for entry in baselines.values()), 1),
+        },
         "formats": ["gainfarm", *(["lerobot"] if format == "lerobot" else [])],
         "exports": exported,
     }

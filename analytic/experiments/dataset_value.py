@@ -9,8 +9,9 @@ held-out test pool, which no condition's controllers ran. Then, paired by repeti
 and an effect size per tuned condition against the default gains and against random ones, all
 Holm-adjusted as one family. Two baselines score the same test pool untrained: the rigid prior
 (the nominal arm a learned model starts from) and the true model (the simulated plant's own
-dynamics: its error is what the logged columns' noise and the differenced q̈ leave, the floor a
-learned model is measured against).
+dynamics: its error is what the logged columns' noise leaves, the floor a learned model is
+measured against). Every pool is clean by the dataset's rule (analytic.data.dataset): only calm
+episodes, with the Savitzky-Golay acceleration `qdd_sg`.
 
     OUT/runs/NAME/             the tuning runs (Experiment.tune: kept, resumed, or started)
     OUT/simulated/NAME/        batches of extra episodes (reruns, default, random, the test
@@ -38,7 +39,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from gainfarm.analytic.data.dataset import select, tick_columns
+from gainfarm.analytic.data.dataset import is_calm, select, tick_columns
 from gainfarm.analytic.data.learning import MEAN_JOINTS, Rows, identify, train_network
 from gainfarm.analytic.evaluators.batch import EVALUATIONS, batch_jobs, run_batch
 from gainfarm.analytic.experiments.base import (
@@ -148,18 +149,22 @@ def random_gains(seed: int, count: int) -> list[PDGains]:
 
 def episode_rows(path: Path, episode_id: str) -> Rows:
     """One episode's ticks with a finite acceleration, by the dataset's own rule
-    (analytic.dataset.tick_columns: q̈ forward-differenced within the episode, NaN at its
-    last tick, which is dropped here with any other non-finite row). `u` is the motors' whole
-    torque, the dataset's u_motor: what the models learn (analytic.learning.read_split)."""
-    columns = tick_columns(episode_id, read_episode(path))
+    (analytic.data.dataset.tick_columns: q̈ of the Savitzky-Golay fit, `qdd_sg`; any
+    non-finite row dropped), flagged calm or not as the dataset flags it. `u` is the motors'
+    whole torque, the dataset's u_motor: what the models learn (analytic.learning.read_split)."""
+    log = read_episode(path)
+    columns = tick_columns(episode_id, log)
     signals = {
         signal: np.column_stack([columns[f"{column}_{joint}"] for joint in JOINT_NAMES])
-        for signal, column in (("q", "q"), ("qd", "qd"), ("qdd", "qdd"), ("u", "u_motor"))
+        for signal, column in (("q", "q"), ("qd", "qd"), ("qdd", "qdd_sg"), ("u", "u_motor"))
     }
     finite = np.isfinite(np.hstack(list(signals.values()))).all(axis=1)
+    scores = score_episode(log)
+    calm = is_calm(float(scores.chatter), bool(scores.diverged))
     return Rows(
         episode_id=columns["episode_id"][finite].astype(str),
         t=np.asarray(columns["t"], dtype=float)[finite],
+        calm=np.full(int(finite.sum()), calm),
         **{signal: values[finite].astype(float) for signal, values in signals.items()},
     )
 
@@ -169,19 +174,24 @@ def objectives(path: Path) -> Scores:
     return score_episode(read_episode(path))
 
 
+ROW_FIELDS = ("episode_id", "t", "q", "qd", "qdd", "u", "calm")
+
+
 def concatenate(parts: Sequence[Rows]) -> Rows:
-    names = ("episode_id", "t", "q", "qd", "qdd", "u")
+    names = ROW_FIELDS
     return Rows(**{name: np.concatenate([getattr(part, name) for part in parts]) for name in names})
 
 
 def take(rows: Rows, index: np.ndarray) -> Rows:
-    names = ("episode_id", "t", "q", "qd", "qdd", "u")
+    names = ROW_FIELDS
     return Rows(**{name: getattr(rows, name)[index] for name in names})
 
 
 def pool_rows(episodes: Mapping[str, Path]) -> Rows:
-    """Every finite row of a pool's episodes (episode id → log), in id order."""
-    return concatenate([episode_rows(episodes[key], key) for key in sorted(episodes)])
+    """Every finite row of a pool's calm episodes (episode id → log), in id order: what
+    `analytic dataset` keeps unless --include-rough."""
+    rows = concatenate([episode_rows(episodes[key], key) for key in sorted(episodes)])
+    return take(rows, np.flatnonzero(rows.calm))
 
 
 def subsample(rows: Rows, count: int, seed: int) -> tuple[Rows, Rows]:
@@ -218,7 +228,7 @@ def fit_model(
         return prior
     about: dict[str, Any] = {"train_rows": len(train), "seed": seed}
     if kind == "linear":
-        parameters, rank = identify(prior.spec, train)
+        parameters, rank, _ = identify(prior.spec, train)
         return DynamicsModel(
             kind="linear",
             target="inverse",
@@ -622,8 +632,9 @@ def test_pool(
 
 def smallest_pool(duration: float) -> int:
     """Rows of the smallest pool possible before anything runs: three whole episodes (a knee on
-    its own trajectory, the default gains on the three); a diverged episode may leave fewer."""
-    return len(training_trajectories(duration)) * (TrajectorySpec(duration=duration).ticks - 1)
+    its own trajectory, the default gains on the three); a diverged or rough episode, left out,
+    may leave fewer."""
+    return len(training_trajectories(duration)) * TrajectorySpec(duration=duration).ticks
 
 
 def run(
@@ -707,12 +718,13 @@ def run(
         f"held-out trajectories (fourier and random-kind seeds {FIRST_TEST_SEED}..), the same "
         "for every condition and repetition: controllers no condition tuned, so no condition is "
         "favoured by sharing its test controller",
-        f"inverse dynamics (u from q, q̇, q̈); nMSE and RMSE (N·m) means over "
-        f"{', '.join(MEAN_JOINTS)}",
+        f"inverse dynamics (u from q, q̇, q̈, q̈ the Savitzky-Golay fit's `qdd_sg`); nMSE and "
+        f"RMSE (N·m) means over {', '.join(MEAN_JOINTS)}; every pool, the test's too, holds "
+        "calm episodes only (ran to their end without chatter: the dataset's rule)",
         f"baselines, untrained, on the same test rows: the rigid prior (the nominal arm every "
         f"learned model starts from) {baseline_text(reference)}; the true model (the simulated "
         f"plant's own inverse dynamics with its friction and rotor terms: its error is what the "
-        f"columns' noise and the differenced q̈ leave, the floor) {baseline_text(floor)}",
+        f"columns' noise leaves, the floor) {baseline_text(floor)}",
         "test: paired t-test per tuned selection against the default and the random gains' "
         f"data, by repetition; Holm over all {len(comparisons)} comparisons of every model as one "
         "family",

@@ -332,7 +332,7 @@ def test_the_rerun_through_the_cli(run_dir: Path, endpoint: str, tmp_path: Path)
         timeout=120,
     )
     assert result.returncode == 0, result.stderr
-    assert result.stdout.startswith(f"{out}: 4 episodes, 1 of them rerun,")
+    assert result.stdout.startswith(f"{out}: 4 episodes, 1 of them rerun in ")
     _, episodes, _ = tables(out)
     assert sorted(episodes["source"]) == ["rerun", "tuning", "tuning", "tuning"]
 
@@ -390,11 +390,11 @@ def test_the_documented_example_runs_on_a_dataset(
         timeout=60,
     )
     assert run.returncode == 0, run.stderr
-    # It fits on the train trajectories' ticks and scores on the test ones', less each
-    # episode's last tick (no qdd): the split column, not the order of the rows.
-    ticks = pq.read_table(tmp_path / "dataset" / "ticks.parquet", columns=["split", "qdd_A1"])
+    # It fits on the train trajectories' ticks and scores on the test ones', those with a
+    # smoothed acceleration: the split column, not the order of the rows.
+    ticks = pq.read_table(tmp_path / "dataset" / "ticks.parquet", columns=["split", "qdd_sg_A1"])
     split = np.array(ticks.column("split").to_pylist())
-    usable = ~np.isnan(ticks.column("qdd_A1").to_numpy())
+    usable = ~np.isnan(ticks.column("qdd_sg_A1").to_numpy())
     train, test = (int((usable & (split == part)).sum()) for part in ("train", "test"))
     assert train and test
     lines = run.stdout.splitlines()

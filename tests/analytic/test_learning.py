@@ -76,7 +76,7 @@ def test_learned_models_beat_the_mean_predictor_on_held_out_trajectories(
     scores = learn(realistic, out, target=target, kind=kind)
     assert set(scores) >= REQUIRED
     assert set(scores["nmse"]) == set(scores["rmse"]) == set(JOINT_NAMES)
-    assert (scores["kind"], scores["target"], scores["rows"]) == (kind, target, 2000)
+    assert (scores["kind"], scores["target"], scores["rows"]) == (kind, target, 2 * 1001)
     assert 0.8 < scores["mean_predictor_nmse"] < 1.5
     assert scores["nmse_mean"] < 0.5, scores["nmse"]
     assert scores["nmse_mean"] == pytest.approx(
@@ -88,7 +88,7 @@ def test_learned_models_beat_the_mean_predictor_on_held_out_trajectories(
     assert digest(raw) == scores["digest"]
     model = from_bytes(raw)
     assert (model.kind, model.target) == (kind, target)
-    assert model.about["train_rows"] == 6000
+    assert model.about["train_rows"] == 6 * 1001
     report = (out / "report.md").read_text()
     assert "prediction.png" in report and scores["digest"] in report and "| A6 |" in report
     assert (out / "prediction.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -176,9 +176,11 @@ def test_a_network_is_the_same_for_the_same_seed(realistic):
 
 @pytest.mark.slow
 def test_the_rigid_prior_scores_near_zero_on_a_rigid_plant(tmp_path):
-    # One physics step a tick: the dataset's q̈ is the acceleration MuJoCo integrated.
+    # One physics step a tick and exact sensors: the forward difference of q̇ (a dataset
+    # without qdd_sg, so it is what learn reads) is the very acceleration MuJoCo integrated.
     plant = IDEAL_PLANT.model_copy(update={"joints": "rigid", "substeps": 1})
-    dataset = write_dataset(tmp_path / "rigid", plant, [(0, "train"), (1, "test")], 1.0)
+    splits = [(0, "train"), (1, "test")]
+    dataset = write_dataset(tmp_path / "rigid", plant, splits, 1.0, smoothed=False)
     for target in ("inverse", "forward"):
         scores = learn(dataset, tmp_path / target, target=target, kind="rigid")
         assert scores["nmse_mean_all"] < 1e-20, scores["nmse"]
@@ -314,6 +316,7 @@ def test_calm_scores_leave_the_rough_episodes_out(tmp_path):
 
 def test_learn_puts_the_model_beside_the_floor_and_the_prior(fri, tmp_path):
     scores = learn(fri, tmp_path / "m", kind="linear")
+    assert inconsistencies(load(tmp_path / "m" / "model.npz").parameters) == []
     floor = score(true_model(REALISTIC_PLANT), fri)
     prior = score(rigid_prior(REALISTIC_PLANT), fri)
     assert scores["floor"]["nmse_mean"] == pytest.approx(floor["nmse_mean"])

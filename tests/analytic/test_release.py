@@ -388,6 +388,9 @@ def test_the_lerobot_copy_passes_an_independent_reader(release: tuple[Path, dict
         (["--release", ""], "--release: '' is not a release name"),
         (["--format", "lerobot"], "--format lerobot needs --release NAME"),
         (["--release", "fine", "--split", "0.5,0.5,0"], "--split: a release is scored on"),
+        (["--baselines", "plant"], "--baselines needs --release NAME"),
+        (["--release", "v1", "--baselines", "plant,wavelet"], "--baselines: expected distinct"),
+        (["--release", "v1", "--baselines", "plant,plant"], "--baselines: expected distinct"),
     ],
 )
 def test_bad_release_options_are_one_line_and_write_nothing(
@@ -418,3 +421,22 @@ def test_a_release_that_fails_leaves_nothing(run_dir: Path, tmp_path: Path) -> N
     with pytest.raises(LearnError, match="unknown model 'nonsense'"):
         build_release([run_dir], tmp_path / "out", "v1", kinds=("plant", "nonsense"))
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_the_release_command_writes_the_release_the_library_does(
+    run_dir: Path, release: tuple[Path, dict], tmp_path: Path
+) -> None:
+    """The CLI's release of the module's run is the library's, byte for byte in its data."""
+    _, record = release
+    run = analytic(
+        "dataset", str(run_dir), "--out", "cli", "--release", NAME,
+        "--baselines", ",".join(KINDS), cwd=tmp_path,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    line = run.stdout.splitlines()[-1]
+    assert line.startswith(f"cli: release {NAME} (gainfarm), content hash {record['content_hash']}")
+    assert re.search(r"baselines fitted in \d+ s$", line), line
+    written = json.loads((tmp_path / "cli" / "release.json").read_text())
+    assert written["content_hash"] == record["content_hash"]
+    assert written["baselines"]["kinds"] == list(KINDS)

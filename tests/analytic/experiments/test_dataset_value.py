@@ -89,10 +89,10 @@ def test_every_condition_model_and_rep_is_scored_at_equal_ticks(
     assert all(int(r["pool_ticks"]) >= TICKS for r in trained)
     pools = {r["condition"]: int(r["pool_ticks"]) for r in trained if r["rep"] == "0"}
     assert pools["specific-rerun"] == 3 * pools["specific-knee"]  # the knees on all three
-    assert pools["default"] == 3 * 1500  # three whole 3 s episodes, their last ticks dropped
+    assert pools["default"] == 3 * 1501  # three whole 3 s episodes, every tick (qdd_sg)
     # One test pool for all: the same rows (by digest) in every row of the table.
     assert len({(r["test_digest"], r["test_rows"]) for r in results}) == 1
-    assert int(results[0]["test_rows"]) == 3 * TESTS * 1500
+    assert int(results[0]["test_rows"]) == 3 * TESTS * 1501
     for r in results:
         nmse = [float(r[f"nmse_A{j}"]) for j in range(1, 8)]
         assert all(math.isfinite(v) and v > 0 for v in nmse)
@@ -174,15 +174,15 @@ def test_subsampling_is_seeded_and_splits_a_fifth_for_validation(
 
 def test_the_rows_hold_the_motors_whole_torque(tmp_path: Path) -> None:
     # Behind FRI (the default plant) the models learn u_motor, the command and the robot's
-    # gravity model, as analytic learn does; the last tick (no q̈) is dropped.
+    # gravity model, as analytic learn does, every tick with its smoothed q̈.
     spec = EpisodeSpec(
         gains=TRACKING_GAINS, trajectory=TrajectorySpec(kind="fourier", duration=0.5)
     )
     log = run_episode(spec)
     write_log(log, tmp_path / "e.mcap")
     rows = dv.episode_rows(tmp_path / "e.mcap", "e")
-    np.testing.assert_array_equal(rows.u, motor_torque(log)[:-1])
-    assert not np.array_equal(rows.u, log.u[:-1])
+    np.testing.assert_array_equal(rows.u, motor_torque(log))
+    assert not np.array_equal(rows.u, log.u)
 
 
 # --- the statistics on numbers whose answer is known --------------------------------------------
