@@ -144,14 +144,6 @@ def dataset(
     )
     from gainfarm.analytic.data.dataset import build as build_dataset
     from gainfarm.analytic.data.dataset import excitations as excitation_trajectories
-    from gainfarm.analytic.data.learning import LearnError
-    from gainfarm.analytic.data.release import (
-        BadRelease,
-        MissingExtra,
-        build_release,
-        check_learn_extra,
-        check_name,
-    )
     from gainfarm.analytic.evaluators.farm import FarmClient
     from gainfarm.analytic.tuning.records import CONFIG_JSON
     from gainfarm.schemas.wire import BadMessage
@@ -199,7 +191,19 @@ def dataset(
                 f"--baselines: expected distinct kinds among {', '.join(BENCHMARK)}, got "
                 f"{baselines_text!r}"
             )
+    # A release's modules (the learning's, matplotlib's) load only for a release.
+    release_errors: tuple[type[Exception], ...] = ()
     if release_name is not None:
+        from gainfarm.analytic.data.learning import LearnError
+        from gainfarm.analytic.data.release import (
+            BadRelease,
+            MissingExtra,
+            build_release,
+            check_learn_extra,
+            check_name,
+        )
+
+        release_errors = (BadRelease, LearnError)
         try:
             check_name(release_name)
         except BadRelease as error:
@@ -255,10 +259,9 @@ def dataset(
         raise CliError(f"--rerun: {error}") from None
     except (NoEpisodes, UnreadableRun, DuplicateEpisodes, RerunFailed, BadMessage) as error:
         raise CliError(str(error)) from None
-    except BadRelease as error:
-        raise CliError(f"--release: {error}") from None
-    except LearnError as error:  # the baselines could not be fitted
-        raise CliError(f"--release: the baselines: {error}") from None
+    except release_errors as error:  # a bad release, or baselines that could not be fitted
+        what = "the baselines: " if isinstance(error, release_errors[1]) else ""
+        raise CliError(f"--release: {what}{error}") from None
     except ConnectionError as error:  # the farm's, not the disk's
         raise CliError(farm_problem(connect, error)) from None
     except OSError as error:

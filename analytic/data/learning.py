@@ -72,8 +72,7 @@ PLOT_FILE = "prediction.png"
 MEAN_JOINTS = JOINT_NAMES[:6]
 UNITS = {"inverse": "N·m", "forward": "rad/s²"}
 # The one RMSE published for a learned model of a real iiwa 14, 0.14 N·m (Çallar and Böttger,
-# RA-L 2022, as the tracker cites it), is over the four heavy joints: the report puts the mean
-# of A1-A4's RMSE beside it.
+# RA-L 2022), is for the four heavy joints: the report puts the mean of A1-A4's RMSE beside it.
 PUBLISHED_JOINTS = JOINT_NAMES[:4]
 PUBLISHED_RMSE = 0.14
 
