@@ -33,6 +33,7 @@ import json
 import math
 import os
 import shutil
+import textwrap
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
@@ -838,6 +839,11 @@ def within_limits(
     return kept, len(episodes) - len(kept)
 
 
+def _paragraph(text: str) -> str:
+    """`text` wrapped as the card's other paragraphs are, at 96 columns."""
+    return textwrap.fill(text, width=96, break_long_words=False, break_on_hyphens=False)
+
+
 def calm_only(episodes: list[Episode], staged: Path, keep: bool) -> tuple[list[Episode], int]:
     """Unless `keep`, leave out (and unstage) the episodes that are not calm (`is_calm`).
     Returns the episodes and how many were left out."""
@@ -936,16 +942,22 @@ def card(
     command += f" --split-seed {split_seed}" + (" --rerun FILE" if counts["rerun"] else "")
     command += f" --plants {variants}" * bool(variants)
     command += " --include-rough" * bool(counts.get("rough", 0))
+    opening = _paragraph(
+        "Torque, position and velocity episodes of a simulated KUKA LBR iiwa 14 (MuJoCo, "
+        "elastic joints unless the `model` column says otherwise) under PD controllers tuned by "
+        f"NSGA-II for tracking accuracy and torque smoothness: {chosen_text} of each run below, "
+        f"on each trajectory it was tuned on{rerun_line}."
+    )
+    summary = _paragraph(
+        f"{counts['episodes']} episodes, {counts['ticks']:,} ticks at 500 Hz (control period "
+        f"{CONTROL_PERIOD} s), {counts['controllers']} controllers from {counts['runs']} runs, "
+        f"on {counts['trajectories']} trajectories. Dataset version {DATASET_VERSION}.{limits}"
+    )
     return f"""# gainfarm dynamics dataset
 
-Torque, position and velocity episodes of a simulated KUKA LBR iiwa 14 (MuJoCo, elastic joints
-unless the `model` column says otherwise) under PD controllers tuned by NSGA-II for tracking
-accuracy and torque smoothness: {chosen_text} of each run below, on each trajectory it was
-tuned on{rerun_line}.
+{opening}
 
-{counts["episodes"]} episodes, {counts["ticks"]:,} ticks at 500 Hz (control period
-{CONTROL_PERIOD} s), {counts["controllers"]} controllers from {counts["runs"]} runs, on
-{counts["trajectories"]} trajectories. Dataset version {DATASET_VERSION}.{limits}
+{summary}
 
 {runs}
 

@@ -216,6 +216,37 @@ def motor_torque_column(dataset_dir: Path) -> str:
     return COMMAND
 
 
+@dataclass(frozen=True, eq=False)
+class Floor:
+    """The floor of a dataset: each episode's rows predicted by its own plant's dynamics
+    (`true_model`), so a dataset of several plants (`analytic dataset --plants`) has one too."""
+
+    plant_of: dict[str, ModelSpec]  # episode id → its plant
+    target: Target = "inverse"
+    kind: str = "plant"
+
+    def predict_rows(self, rows: Rows) -> np.ndarray:
+        predicted = np.empty_like(rows.output(self.target))
+        for plant in {self.plant_of[episode] for episode in set(rows.episode_id)}:
+            mine = np.isin(rows.episode_id, [e for e, p in self.plant_of.items() if p == plant])
+            inputs = (signal[mine] for signal in rows.inputs(self.target))
+            predicted[mine] = true_model(plant, self.target).predict(*inputs)
+        return predicted
+
+
+def floor_model(dataset_dir: Path, target: Target = "inverse") -> Floor:
+    """The dataset's floor (`Floor`), from its episodes' `model` column."""
+    try:
+        table = pq.read_table(Path(dataset_dir) / EPISODES, columns=["episode_id", "model"])
+        texts = dict(zip(table["episode_id"].to_pylist(), table["model"].to_pylist(), strict=True))
+        specs = {text: ModelSpec.model_validate_json(text) for text in set(texts.values())}
+    except (OSError, pa.ArrowException, ValueError, KeyError) as error:
+        raise LearnError(
+            f"{str(dataset_dir)!r}: unreadable {EPISODES}: {_one_line(error)}"
+        ) from None
+    return Floor({str(episode): specs[text] for episode, text in texts.items()}, target)
+
+
 def plants(dataset_dir: Path) -> list[ModelSpec]:
     """The distinct plants of the dataset's episodes, in order of first appearance."""
     try:
@@ -551,7 +582,7 @@ def learn(
         "digest": digest(raw),
         # The anchors on the same rows: no learned model can beat the plant's own dynamics
         # but by chance, and one that does not beat the untrained rigid prior learned nothing.
-        "floor": score_rows(true_model(found[0], target), test, train),
+        "floor": score_rows(floor_model(dataset_dir, target), test, train),
         "prior": score_rows(rigid_prior(found[0], target), test, train),
     }
     counts = {split: _episode_count(rows) for split, rows in splits.items()}
@@ -601,7 +632,9 @@ def benchmark(
     for kind in kinds:
         started = time.perf_counter()
         model: Any
-        if kind == "gp":
+        if kind == "plant":  # each episode's own plant: the floor of a dataset of variants too
+            model = floor_model(dataset_dir)
+        elif kind == "gp":
             model = fit_gp(prior, splits["train"], seed)
         elif kind == "history":
             model = fit_history(prior, splits["train"], splits["validation"], seed)

@@ -373,3 +373,37 @@ def test_identified_parameters_that_are_no_arm_are_named():
     assert found[0].startswith("link A2: mass -1")
     assert any(text.startswith("link A3:") for text in found)
     assert found[-1] == "A7: Coulomb friction -0.5"
+
+
+def test_the_floor_of_a_dataset_of_plants_is_each_episodes_own(fri, tmp_path):
+    """A dataset of plant variants (analytic dataset --plants): the floor predicts each
+    episode with its own plant, as well as each plant's floor alone; the first plant's model
+    on every episode does far worse."""
+    heavy = REALISTIC_PLANT.model_copy(update={"payload": 3.0, "mass_scale": (1.1,) * 7})
+    splits = [(0, "train"), (7, "test")]
+    nominal = write_dataset(tmp_path / "nominal", REALISTIC_PLANT, splits)
+    variant = write_dataset(tmp_path / "variant", heavy, splits)
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    for name in ("ticks.parquet", "episodes.parquet"):
+        parts = [pq.read_table(d / name) for d in (nominal, variant)]
+        if name == "ticks.parquet":  # the variant's episodes under their own ids
+            ids = pa.array([f"v-{e}" for e in parts[1]["episode_id"].to_pylist()])
+            parts[1] = parts[1].set_column(
+                parts[1].schema.get_field_index("episode_id"), "episode_id", ids
+            )
+        else:
+            ids = pa.array([f"v-{e}" for e in parts[1]["episode_id"].to_pylist()])
+            parts[1] = parts[1].set_column(0, "episode_id", ids)
+        pq.write_table(pa.concat_tables(parts), mixed / name)
+    floor = learning.benchmark(mixed, kinds=("plant",))["plant"]
+    alone = [
+        score(true_model(plant), d)["nmse_mean"]
+        for plant, d in ((REALISTIC_PLANT, nominal), (heavy, variant))
+    ]
+    first = score(true_model(REALISTIC_PLANT), mixed)["nmse_mean"]
+    assert floor["nmse_mean"] < 2 * max(alone) and first > 5 * floor["nmse_mean"], (
+        floor,
+        alone,
+        first,
+    )
