@@ -77,8 +77,9 @@ PUBLISHED_JOINTS = JOINT_NAMES[:4]
 PUBLISHED_RMSE = 0.14
 
 # The network and its training. Epochs are counted, not timed, so a seed gives one model on any
-# machine; ROW_PASSES bounds the work: 30 epochs of 600,000 rows (a release of a million ticks'
-# train split) take some 6 minutes on 2 cores (bench/learning_scale.py).
+# machine; ROW_PASSES bounds the work: 16 epochs of a 1.1-million-row train split. On such a
+# release the networks took 147 s (MLP) to 224 s (history) on 2 cores, stopped early on their
+# validation loss (docs/dataset.md, "A release of a million ticks").
 HIDDEN_LAYERS = (128, 128, 128)
 BATCH_SIZE = 256
 LEARNING_RATE = 1e-3
