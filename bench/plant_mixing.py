@@ -1,0 +1,57 @@
+"""What mixing plants costs a learned model: identification on one plant's episodes or on all.
+
+    python bench/plant_mixing.py DATASET
+
+A dataset of several plants (`analytic dataset --plants K`, or robust runs' own tuning episodes,
+which ran on their variants) asks a model of (q, q̇, q̈) for one arm's dynamics where there are
+several. This scores, on the test episodes of the dataset's most common plant only: that
+plant's own dynamics (the floor), the consistent linear identification fitted on that plant's
+train episodes, and the same fitted on every train episode (what `learning.benchmark` does).
+"""
+
+import sys
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from gainfarm.analytic.data import learning
+from gainfarm.models.dynamics import DynamicsModel, true_model
+from gainfarm.schemas.robot import ModelSpec
+
+
+def only(rows: learning.Rows, episodes: list[str]) -> learning.Rows:
+    mine = np.isin(rows.episode_id, episodes)
+    fields = ("episode_id", "t", "q", "qd", "qdd", "u", "calm")
+    return learning.Rows(**{name: getattr(rows, name)[mine] for name in fields})
+
+
+def main(dataset: Path) -> None:
+    splits = learning.read_splits(dataset)
+    table = pq.read_table(dataset / "episodes.parquet", columns=["episode_id", "model"]).to_pydict()
+    counts = Counter(table["model"])
+    text, _ = counts.most_common(1)[0]
+    plant = ModelSpec.model_validate_json(text)
+    mine = [e for e, m in zip(table["episode_id"], table["model"], strict=True) if m == text]
+    train, test = only(splits["train"], mine), only(splits["test"], mine)
+    prior = learning.rigid_prior(plant)
+    parameters, _, _ = learning.identify(prior.spec, train)
+    alone = DynamicsModel(kind="linear", target="inverse", spec=prior.spec, parameters=parameters)
+    mixed = learning.fit(dataset, "inverse", "linear", 0, splits)
+    print(
+        f"{len(counts)} plants; the most common's {len(mine)} episodes: {len(train):,} train "
+        f"rows, {len(test):,} test rows"
+    )
+    for name, model in (
+        ("its own dynamics (floor)", true_model(plant)),
+        ("linear, fitted on its train episodes", alone),
+        ("linear, fitted on every train episode", mixed),
+    ):
+        print(f"{name}: test nMSE {learning.score_rows(model, test, train)['nmse_mean']:.5f}")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 2:
+        sys.exit(__doc__.splitlines()[2].strip())
+    main(Path(sys.argv[1]))
