@@ -21,12 +21,6 @@ from gainfarm.models.dynamics import DynamicsModel, true_model
 from gainfarm.schemas.robot import ModelSpec
 
 
-def only(rows: learning.Rows, episodes: list[str]) -> learning.Rows:
-    mine = np.isin(rows.episode_id, episodes)
-    fields = ("episode_id", "t", "q", "qd", "qdd", "u", "calm")
-    return learning.Rows(**{name: getattr(rows, name)[mine] for name in fields})
-
-
 def main(dataset: Path) -> None:
     splits = learning.read_splits(dataset)
     table = pq.read_table(dataset / "episodes.parquet", columns=["episode_id", "model"]).to_pydict()
@@ -34,7 +28,9 @@ def main(dataset: Path) -> None:
     text, _ = counts.most_common(1)[0]
     plant = ModelSpec.model_validate_json(text)
     mine = [e for e, m in zip(table["episode_id"], table["model"], strict=True) if m == text]
-    train, test = only(splits["train"], mine), only(splits["test"], mine)
+    train, test = (
+        splits[name].take(np.isin(splits[name].episode_id, mine)) for name in ("train", "test")
+    )
     prior = learning.rigid_prior(plant)
     parameters, _, _ = learning.identify(prior.spec, train)
     alone = DynamicsModel(kind="linear", target="inverse", spec=prior.spec, parameters=parameters)

@@ -13,6 +13,7 @@ well-kept library of modest size. PyTorch would be the field's usual choice, but
 gigabytes, for networks this small (3 × 128 units, tens of thousands of rows) on a CPU.
 """
 
+import dataclasses
 import json
 import math
 import shutil
@@ -124,6 +125,10 @@ class Rows:
 
     def __len__(self) -> int:
         return len(self.t)
+
+    def take(self, index: np.ndarray) -> "Rows":
+        """The rows at `index` (positions or a mask), every field alike."""
+        return Rows(**{f.name: getattr(self, f.name)[index] for f in dataclasses.fields(self)})
 
     def inputs(self, target: Target) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q, q̇, q̈) for an inverse model, (q, q̇, u) for a forward one."""

@@ -25,6 +25,7 @@ The pure parts (pools, subsampling, scoring, statistics, the verdict) are functi
 data; `run` is the only one that runs anything.
 """
 
+import dataclasses
 import functools
 import hashlib
 import json
@@ -174,24 +175,16 @@ def objectives(path: Path) -> Scores:
     return score_episode(read_episode(path))
 
 
-ROW_FIELDS = ("episode_id", "t", "q", "qd", "qdd", "u", "calm")
-
-
 def concatenate(parts: Sequence[Rows]) -> Rows:
-    names = ROW_FIELDS
+    names = [field.name for field in dataclasses.fields(Rows)]
     return Rows(**{name: np.concatenate([getattr(part, name) for part in parts]) for name in names})
-
-
-def take(rows: Rows, index: np.ndarray) -> Rows:
-    names = ROW_FIELDS
-    return Rows(**{name: getattr(rows, name)[index] for name in names})
 
 
 def pool_rows(episodes: Mapping[str, Path]) -> Rows:
     """Every finite row of a pool's calm episodes (episode id → log), in id order: what
     `analytic dataset` keeps unless --include-rough."""
     rows = concatenate([episode_rows(episodes[key], key) for key in sorted(episodes)])
-    return take(rows, np.flatnonzero(rows.calm))
+    return rows.take(rows.calm)
 
 
 def subsample(rows: Rows, count: int, seed: int) -> tuple[Rows, Rows]:
@@ -203,7 +196,7 @@ def subsample(rows: Rows, count: int, seed: int) -> tuple[Rows, Rows]:
         raise ValueError(f"--ticks: {count} rows asked for, but a pool holds only {len(rows)}")
     drawn = np.random.default_rng(seed).permutation(len(rows))[:count]
     held = round(VALIDATION_FRACTION * count)
-    return take(rows, np.sort(drawn[: count - held])), take(rows, np.sort(drawn[count - held :]))
+    return rows.take(np.sort(drawn[: count - held])), rows.take(np.sort(drawn[count - held :]))
 
 
 def rows_digest(rows: Rows) -> str:
