@@ -47,7 +47,6 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
-from scipy import signal
 
 from gainfarm.schemas.episode import DEFAULT_OBJECTIVES, Scores
 from gainfarm.schemas.episode_log import EpisodeLog
@@ -178,6 +177,10 @@ def chatter(log: EpisodeLog) -> float:
     torque limit (at most 2: a detrended command stays within twice its limit)."""
     if log.ticks < 2:
         return 0.0
+    # Imported here, not at the top: scipy.signal takes two seconds to import, and the broker
+    # and every client import this module for its constants, never scoring an episode.
+    from scipy import signal
+
     meta = log.metadata
     frequencies, density = signal.welch(
         log.u, fs=1.0 / meta.control_period, nperseg=min(CHATTER_SEGMENT, log.ticks), axis=0

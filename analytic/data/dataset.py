@@ -49,6 +49,7 @@ from pydantic import TypeAdapter, ValidationError
 from scipy.signal import savgol_filter
 
 from gainfarm.analytic.compose import new_study_name
+from gainfarm.analytic.data.loader import SPLITS, VARIANTS
 from gainfarm.analytic.evaluators.batch import batch_jobs, run_batch
 from gainfarm.analytic.evaluators.evaluator import EpisodeStatus, Evaluator
 from gainfarm.analytic.evaluators.farm import FarmClient
@@ -77,9 +78,9 @@ from gainfarm.worker.episode import motor_torque
 Selection = Literal["front", "knee"]
 Split = tuple[float, float, float]
 
-# 2: run-id episode ids, trajectories.parquet, qdd, split, units; 3: u_motor; 4: qdd_sg, calm
-DATASET_VERSION = "4"
-SPLITS = ("train", "validation", "test")
+# 2: run-id episode ids, trajectories.parquet, qdd, split, units; 3: u_motor; 4: qdd_sg, calm;
+# 5: the *_variants splits
+DATASET_VERSION = "5"
 DEFAULT_SPLIT: Split = (0.6, 0.2, 0.2)
 RUN_ID_DIGITS = 8  # of the run's 32: unique enough, and a collision is refused, not merged
 TRAJECTORY_ID_DIGITS = 12
@@ -475,6 +476,10 @@ def smoothed_acceleration(q: np.ndarray, period: float) -> np.ndarray:
     return savgol_filter(q, SG_WINDOW, SG_ORDER, deriv=2, delta=period, axis=0, mode="interp")
 
 
+def plant_of(episode: Episode) -> ModelSpec:
+    return ModelSpec.model_validate_json(str(episode.row["model"]))
+
+
 def is_calm(chatter: float, diverged: bool) -> bool:
     """The episode ran to its end and its command does not chatter (CALM_CHATTER)."""
     return not diverged and math.isfinite(chatter) and chatter <= CALM_CHATTER
@@ -749,6 +754,12 @@ def build(
             )
         trajectories = {trajectory_id(e.trajectory): e.trajectory for e in episodes}
         splits = assign_splits(list(trajectories), fractions, split_seed)
+        own = {run.run_id: run.model for run in chosen}
+        parts = {
+            e.source.episode_id: splits[trajectory_id(e.trajectory)]
+            + VARIANTS * (plant_of(e) != own[e.source.run_id])
+            for e in episodes
+        }
         metadata = {
             "dataset_version": DATASET_VERSION,
             "control_period": repr(CONTROL_PERIOD),
@@ -760,7 +771,7 @@ def build(
             episode.ticks.add_column(
                 episode.ticks.schema.get_field_index("t"),
                 "split",
-                pa.array([splits[trajectory_id(episode.trajectory)]] * episode.ticks.num_rows),
+                pa.array([parts[episode.source.episode_id]] * episode.ticks.num_rows),
             )
             for episode in episodes
         )
@@ -769,9 +780,7 @@ def build(
             staging / "ticks.parquet",
             compression="zstd",
         )
-        rows = [
-            episode.row | {"split": splits[episode.row["trajectory_id"]]} for episode in episodes
-        ]
+        rows = [episode.row | {"split": parts[episode.source.episode_id]} for episode in episodes]
         pq.write_table(
             with_units(pa.Table.from_pylist(rows), metadata | {"table": "episodes"}),
             staging / "episodes.parquet",
@@ -800,6 +809,7 @@ def build(
             "infeasible_left_out": left_out,
             "rough_left_out": rough,
             "rough": sum(not e.row["calm"] for e in episodes),
+            "on_variants": sum(part.endswith(VARIANTS) for part in parts.values()),
         } | {name: sum(s == name for s in splits.values()) for name in SPLITS}
         text = card(counts, chosen, selection, fractions, split_seed)
         write_atomically(staging / "README.md", text.encode())
@@ -953,6 +963,21 @@ def card(
         f"{CONTROL_PERIOD} s), {counts['controllers']} controllers from {counts['runs']} runs, "
         f"on {counts['trajectories']} trajectories. Dataset version {DATASET_VERSION}.{limits}"
     )
+    on_variants = counts.get("on_variants", 0)
+    variant_text = (
+        "\n\n"
+        + _paragraph(
+            f"One plant per part: the {on_variants} episodes on a plant other than their run's "
+            "own (a robust run's tuning variants, the rerun's `--plants`) are in "
+            "`train_variants`, `validation_variants` and `test_variants`, by the same "
+            "trajectories. `train`, `validation` and `test` hold the runs' own plants: the same "
+            "motion asks for other torques on another plant, a spread no model without the "
+            "plant among its inputs can learn. Train on the variants too to learn across plants; "
+            "`test_variants` measures what a model of one plant misses on the others."
+        )
+        if on_variants
+        else ""
+    )
     return f"""# gainfarm dynamics dataset
 
 {opening}
@@ -967,7 +992,7 @@ By trajectory, never by tick: every tick of every episode of one `trajectory_id`
 part, so a model is tested on motions it never saw. Fractions {fractions} (train, validation,
 test) of the trajectories, ordered by the SHA-256 of `<split seed>:<trajectory_id>` (split seed
 {split_seed}), each part with a positive fraction given at least one: {counts["train"]} train,
-{counts["validation"]} validation, {counts["test"]} test trajectories.
+{counts["validation"]} validation, {counts["test"]} test trajectories.{variant_text}
 
 ## Files
 

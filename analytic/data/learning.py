@@ -28,6 +28,7 @@ import pyarrow.parquet as pq
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from gainfarm.analytic.data.loader import EPISODES, SPLITS, TICKS, VARIANTS
 from gainfarm.analytic.view.figures import DPI, save_png
 from gainfarm.analytic.view.reports import plant_text
 from gainfarm.edges.files import staging_directory, write_atomically
@@ -53,8 +54,6 @@ from gainfarm.models.dynamics import (
 )
 from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
 
-TICKS = "ticks.parquet"
-SPLITS = ("train", "validation", "test")
 # The whole motor torque a model of the arm learns (dataset version 3); a dataset from before it
 # has only u, the motor torque of its episodes, all on a plain torque interface.
 MOTOR_TORQUE, COMMAND = "u_motor", "u"
@@ -62,7 +61,6 @@ MOTOR_TORQUE, COMMAND = "u_motor", "u"
 # version 4), whose noise leaves the true model nMSE 0.001 where the difference's leaves 0.09
 # (analytic.data.dataset.SG_WINDOW); a dataset from before it has only the difference.
 ACCELERATION, DIFFERENCED = "qdd_sg", "qdd"
-EPISODES = "episodes.parquet"
 SCORES_FILE = "scores.json"
 REPORT_FILE = "report.md"
 PLOT_FILE = "prediction.png"
@@ -254,11 +252,17 @@ def floor_model(dataset_dir: Path, target: Target = "inverse") -> Floor:
 
 
 def plants(dataset_dir: Path) -> list[ModelSpec]:
-    """The distinct plants of the dataset's episodes, in order of first appearance."""
+    """The distinct plants of the dataset's episodes, in order of first appearance, those of
+    train, validation and test (the runs' own) before those of the *_variants splits."""
     try:
-        table = pq.read_table(Path(dataset_dir) / EPISODES, columns=["model"])
+        table = pq.read_table(Path(dataset_dir) / EPISODES)
+        texts = table["model"].to_pylist()
+        if "split" in table.column_names:  # stable: a variant's plant after every run's own
+            parts = table["split"].to_pylist()
+            pairs = sorted(zip(parts, texts, strict=True), key=lambda p: p[0].endswith(VARIANTS))
+            texts = [text for _, text in pairs]
         found = []
-        for text in table["model"].to_pylist():
+        for text in texts:
             plant = ModelSpec.model_validate_json(text)
             if plant not in found:
                 found.append(plant)
@@ -624,13 +628,15 @@ def benchmark(
     dataset_dir: Path, seed: int = 0, kinds: tuple[str, ...] = BENCHMARK
 ) -> dict[str, dict[str, Any]]:
     """Every model of `kinds` (inverse dynamics) fitted on the dataset's train split and scored
-    on its test split (`score_rows`: all and calm), with its fit's seconds: the baseline table of
-    a release. The splits are read once. Raises LearnError, one line."""
+    on its test split (`score_rows`: all and calm), with its fit's seconds, and under "variants"
+    on test_variants if the dataset has it: the baseline table of a release. The splits are
+    read once. Raises LearnError, one line."""
     splits = read_splits(dataset_dir)
     test = splits["test"]
     if not len(test):
         raise LearnError(_no_rows(dataset_dir, "test"))
     train = splits["train"] if len(splits["train"]) else test
+    variants = read_split(dataset_dir, "test" + VARIANTS)
     from gainfarm.analytic.data.baselines import fit_gp, fit_history
 
     prior = rigid_prior(plants(dataset_dir)[0])
@@ -648,6 +654,8 @@ def benchmark(
             model = fit(dataset_dir, "inverse", kind, seed, splits)  # type: ignore[arg-type]
         seconds = time.perf_counter() - started
         table[kind] = score_rows(model, test, train) | {"fit_seconds": round(seconds, 3)}
+        if len(variants):  # the same model on the other plants: what it cannot know
+            table[kind]["variants"] = score_rows(model, variants, train)
     return table
 
 

@@ -14,8 +14,9 @@ same layout.
     meta/episodes/chunk-000/file-000.parquet  one row per episode: where its frames are
     data/chunk-XXX/file-YYY.parquet         the frames, whole episodes per file
 
-A frame is a tick. The episodes are ordered by split (train, validation, test), so that each
-split is the contiguous range of episode indices info.json's `splits` gives.
+A frame is a tick. The episodes are ordered by split (train, validation, test, then their
+_variants), so that each split is the contiguous range of episode indices info.json's `splits`
+gives.
 """
 
 import json
@@ -29,7 +30,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from gainfarm.analytic.data.dataset import SPLITS
+from gainfarm.analytic.data.loader import ALL_SPLITS
 from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.robot import JOINT_NAMES
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
@@ -183,7 +184,7 @@ def _episodes(dataset: Path) -> list[dict[str, Any]]:
     names = pq.read_schema(dataset / "episodes.parquet").names
     wanted = ["episode_id", "trajectory_id", "split", "ticks"] + ["calm"] * ("calm" in names)
     rows = pq.read_table(dataset / "episodes.parquet", columns=wanted).to_pylist()
-    order = {split: index for index, split in enumerate(SPLITS)}
+    order = {split: index for index, split in enumerate(ALL_SPLITS)}
     return sorted(rows, key=lambda row: order[row["split"]])  # stable: the dataset's order within
 
 
@@ -246,7 +247,7 @@ def export(dataset: Path, out: Path, layout: "LerobotLayout") -> list[str]:
     index_of = {row["episode_id"]: index for index, row in enumerate(rows)}
     episode_rows: list[dict[str, Any]] = []
     first = 0
-    for split in SPLITS:
+    for split in ALL_SPLITS:
         for episode_id, ticks in _split_ticks(dataset, split):
             episode_index = index_of[episode_id]
             if episode_index != len(episode_rows):  # the builder writes both in one order
@@ -310,7 +311,7 @@ def export(dataset: Path, out: Path, layout: "LerobotLayout") -> list[str]:
 def splits(episode_rows: Sequence[dict[str, Any]]) -> dict[str, str]:
     """Each non-empty split's episode indices as LeRobot writes them, "start:end" (end out)."""
     found = {}
-    for split in SPLITS:
+    for split in ALL_SPLITS:
         indices = [row["episode_index"] for row in episode_rows if row["split"] == split]
         if indices:
             found[split] = f"{min(indices)}:{max(indices) + 1}"

@@ -28,7 +28,17 @@ import pyarrow.parquet as pq
 from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS
 
 TICKS, EPISODES, STATS_JSON = "ticks.parquet", "episodes.parquet", "stats.json"
-LOADER_SPLITS = ("train", "validation", "test", "test_calm")
+# A dataset's parts (the `split` column), for every module that writes or reads one. An episode
+# on a plant other than its run's own (a robust run's tuning variants, a rerun's --plants) is in
+# its trajectory's part with the VARIANTS suffix: train, validation and test are the runs' own
+# plants, so that a model without the plant among its inputs can reach that plant's floor. Mixed,
+# the same motion asks for different torques on different plants, a spread no such model can
+# learn (docs/dataset.md, "One plant per split").
+SPLITS = ("train", "validation", "test")
+VARIANTS = "_variants"
+VARIANT_SPLITS = tuple(f"{split}{VARIANTS}" for split in SPLITS)
+ALL_SPLITS = SPLITS + VARIANT_SPLITS
+LOADER_SPLITS = (*SPLITS, "test_calm", *VARIANT_SPLITS)
 # DatasetSplit's arrays → their column in ticks.parquet (the joint's suffix _A1.._A7 added). The
 # acceleration and the motor torque are what a model of the arm learns (analytic.data.learning):
 # a dataset from before them (version 3, 2) has only the difference and the command.
@@ -129,9 +139,9 @@ class TickDataset:
 
 
 def load_dataset(path: str | Path, split: str = "train") -> DatasetSplit:
-    """The rows of `split` (train, validation, test, or test_calm: the test rows of calm
-    episodes) of the dataset at `path`. ValueError naming the split if it is not one of them;
-    FileNotFoundError if `path` holds no dataset."""
+    """The rows of `split` (train, validation, test, test_calm: the test rows of calm episodes,
+    or train_variants, validation_variants, test_variants) of the dataset at `path`. ValueError
+    naming the split if it is not one of them; FileNotFoundError if `path` holds no dataset."""
     if split not in LOADER_SPLITS:
         raise ValueError(f"unknown split {split!r}: one of {', '.join(LOADER_SPLITS)}")
     path = Path(path)

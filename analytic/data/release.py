@@ -38,11 +38,11 @@ import pyarrow.parquet as pq
 
 from gainfarm.analytic.data.dataset import (
     DATASET_VERSION,
-    SPLITS,
     build,
     check_split,
     interface_text,
 )
+from gainfarm.analytic.data.loader import ALL_SPLITS, VARIANTS
 from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.robot import ModelSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
@@ -56,7 +56,7 @@ RELEASE_JSON, STATS_JSON, BASELINES_JSON, CARD = (
 TICKS, EPISODES = "ticks.parquet", "episodes.parquet"
 LEROBOT_DIR = "lerobot"
 RELEASE_FORMAT = "1"  # of release.json itself
-RELEASE_SPLITS = (*SPLITS, "test_calm")
+RELEASE_SPLITS = (*ALL_SPLITS, "test_calm")
 ROBOT_TYPE = "kuka_iiwa14"
 CONTROL_RATE = round(1 / CONTROL_PERIOD)  # Hz: 500
 # Short and safe as a directory name, a file name and a URL path segment: no leading dot (a
@@ -162,14 +162,17 @@ def verify(directory: Path) -> list[str]:
 
 def split_members(directory: Path) -> dict[str, dict[str, Any]]:
     """Each fixed split's episodes and trajectories with their ticks, from episodes.parquet:
-    train, validation, test, and test_calm (the test episodes that are calm)."""
+    train, validation, test, their *_variants if the dataset has episodes on other plants, and
+    test_calm (the test episodes that are calm)."""
     names = pq.read_schema(Path(directory) / EPISODES).names
     columns = ["episode_id", "trajectory_id", "ticks", "split"] + ["calm"] * ("calm" in names)
     rows = pq.read_table(Path(directory) / EPISODES, columns=columns).to_pylist()
     members = {
-        **{split: [row for row in rows if row["split"] == split] for split in SPLITS},
-        "test_calm": [row for row in rows if row["split"] == "test" and row.get("calm", True)],
+        split: [row for row in rows if row["split"] == split]
+        for split in ALL_SPLITS
+        if not split.endswith(VARIANTS) or any(row["split"] == split for row in rows)
     }
+    members["test_calm"] = [row for row in rows if row["split"] == "test" and row.get("calm", True)]
     result = {}
     for split, chosen in members.items():
         per_trajectory: Counter[str] = Counter()
@@ -196,21 +199,25 @@ def split_members(directory: Path) -> dict[str, dict[str, Any]]:
 
 
 def release_plants(directory: Path) -> list[dict[str, Any]]:
-    """The distinct plants of the episodes (their `model` JSON), in order of first appearance:
-    the first the nominal one, the others variants."""
+    """The distinct plants of the episodes (their `model` JSON): the runs' own ("nominal", in
+    train, validation and test) first, then the variants (in the *_variants splits), each in
+    order of first appearance."""
     from gainfarm.analytic.view.export import plant_name
 
-    texts = pq.read_table(Path(directory) / EPISODES, columns=["model"])["model"].to_pylist()
+    table = pq.read_table(Path(directory) / EPISODES, columns=["model", "split"])
+    pairs = zip(table["split"].to_pylist(), table["model"].to_pylist(), strict=True)
     found: list[ModelSpec] = []
     counts: Counter[int] = Counter()
-    for text in texts:
+    variant: dict[int, bool] = {}
+    for split, text in sorted(pairs, key=lambda pair: pair[0].endswith(VARIANTS)):
         plant = ModelSpec.model_validate_json(text)
         if plant not in found:
             found.append(plant)
+            variant[len(found) - 1] = split.endswith(VARIANTS)
         counts[found.index(plant)] += 1
     return [
         {
-            "role": "nominal" if index == 0 else "variant",
+            "role": "variant" if variant[index] else "nominal",
             "name": plant_name(plant),
             "episodes": counts[index],
             "model": plant.model_dump(mode="json"),
@@ -380,7 +387,8 @@ recomputes in this directory; `release.json` lists every file's SHA-256.
 Robot type `{record["robot_type"]}`, a simulated KUKA LBR iiwa 14 in MuJoCo, controlled at
 {record["control_rate_hz"]} Hz (period {record["control_period_s"]} s).
 
-The plants (`model` in `episodes.parquet`; the nominal one is the first episode's):
+The plants (`model` in `episodes.parquet`; the nominal ones are the runs' own, in train,
+validation and test; the variants' episodes are in the `*_variants` splits):
 
 {plants}
 
@@ -415,16 +423,26 @@ def baselines_card(baselines: dict[str, dict[str, Any]]) -> str:
         "episodes whose `calm` is true. No learned model can beat the plant's own dynamics but "
         "by chance: only the sensors' noise separates it from the data.",
         "",
-        "| model | nMSE all | nMSE calm | RMSE A1-A4 all (N·m) | RMSE A1-A4 calm (N·m) | fit (s) |",
-        "|---|---|---|---|---|---|",
     ]
+    variants = any("variants" in scores for scores in baselines.values())
+    header = "| model | nMSE all | nMSE calm | RMSE A1-A4 all (N·m) | RMSE A1-A4 calm (N·m) |"
+    header += " nMSE test_variants |" * variants
+    lines += [f"{header} fit (s) |", "|---|---|---|---|---|" + "---|" * variants + "---|"]
     for kind, scores in baselines.items():
         calm = scores.get("calm") or {}
+        shift = f" {_shown((scores.get('variants') or {}).get('nmse_mean'), '.4f')} |" * variants
         lines.append(
             f"| {labels.get(kind, kind)} | {_shown(scores['nmse_mean'], '.4f')} | "
             f"{_shown(calm.get('nmse_mean'), '.4f')} | {_shown(scores['rmse_a1_a4'], '.3g')} | "
-            f"{_shown(calm.get('rmse_a1_a4'), '.3g')} | {scores['fit_seconds']:.2f} |"
+            f"{_shown(calm.get('rmse_a1_a4'), '.3g')} |{shift} {scores['fit_seconds']:.2f} |"
         )
+    if variants:
+        lines += [
+            "",
+            "nMSE test_variants: the same models, fitted on the runs' own plants, on the test "
+            "trajectories' episodes on the other plants; the floor there is each episode's own "
+            "plant, what a model that is not told the plant cannot reach.",
+        ]
     learned = {kind: s for kind, s in baselines.items() if kind not in labels}
     best = min(learned.items(), key=lambda item: item[1]["rmse_a1_a4"], default=None)
     floor = baselines.get("plant")

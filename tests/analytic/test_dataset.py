@@ -263,7 +263,7 @@ def test_every_column_has_a_unit(run_dir: Path, tmp_path: Path) -> None:
         schema = pq.read_schema(tmp_path / "dataset" / f"{name}.parquet")
         assert all(b"unit" in (field.metadata or {}) for field in schema), name
         assert schema.metadata[b"control_period"] == b"0.002"
-        assert schema.metadata[b"dataset_version"] == b"4"
+        assert schema.metadata[b"dataset_version"] == b"5"
     ticks = pq.read_schema(tmp_path / "dataset" / "ticks.parquet")
     expected = {
         "t": b"s",
@@ -594,7 +594,7 @@ def test_excitations_on_plant_variants_through_the_cli(
         timeout=240,
     )
     assert result.returncode == 0, result.stderr
-    _, episodes, trajectories = tables(out)
+    ticks, episodes, trajectories = tables(out)
     reruns = [i for i, source in enumerate(episodes["source"]) if source == "rerun"]
     assert len(reruns) == 3  # one excitation on three plants
     ids = sorted(episodes["episode_id"][i] for i in reruns)
@@ -605,7 +605,22 @@ def test_excitations_on_plant_variants_through_the_cli(
     assert models == {nominal, *variants} and len(models) == 3
     excitation = dataset_module.excitations(1)[0]
     assert trajectory_id(excitation) in trajectories["trajectory_id"]
-    assert "--plants 2" in (out / "README.md").read_text()
+    card = (out / "README.md").read_text()
+    assert "--plants 2" in card
+    # One plant per part: the variants' episodes in their trajectory's part, suffixed, ticks too.
+    part = dict(zip(trajectories["trajectory_id"], trajectories["split"], strict=True))
+    split_of = {}
+    for i in range(len(episodes["episode_id"])):
+        variant = ModelSpec.model_validate_json(episodes["model"][i]) != nominal
+        split_of[episodes["episode_id"][i]] = part[episodes["trajectory_id"][i]] + "_variants" * (
+            variant
+        )
+        assert episodes["split"][i] == split_of[episodes["episode_id"][i]]
+        assert variant == ("-rerun-p" in episodes["episode_id"][i])
+    assert {(e, s) for e, s in zip(ticks["episode_id"], ticks["split"], strict=True)} == set(
+        split_of.items()
+    )
+    assert "2 episodes on a plant other than their run's" in " ".join(card.split())
 
 
 def test_plants_without_a_rerun_is_one_line(run_dir: Path, tmp_path: Path) -> None:

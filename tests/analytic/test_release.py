@@ -20,7 +20,6 @@ import pyarrow.parquet as pq
 import pytest
 
 from gainfarm.analytic import TickDataset, load_dataset
-from gainfarm.analytic.data.dataset import build
 from gainfarm.analytic.data.release import (
     LerobotLayout,
     build_release,
@@ -29,11 +28,15 @@ from gainfarm.analytic.data.release import (
 )
 from gainfarm.analytic.evaluators.local import local_farm
 from gainfarm.schemas.robot import JOINT_NAMES
-from tests.analytic.test_dataset import CONFIG, tune
+from gainfarm.schemas.trajectory import TrajectorySpec
+from tests.analytic.test_dataset import CONFIG, farm_at, tune
 from tests.helpers import analytic
 
 NAME = "iiwa14-sim_0.1"
 KINDS = ("plant", "rigid", "linear")  # cheap: no network is trained
+# Rerun on the run's plant and a variant; its split (test, by the split seed's hash) gives the
+# release a test_variants split.
+VARIED = TrajectorySpec(kind="fourier", seed=7, duration=1.0)
 # Small files, few to a chunk: the export's chunking is exercised on a small dataset.
 LAYOUT = LerobotLayout(chunks_size=3, file_frames=4000)
 SIGNALS = {
@@ -61,9 +64,17 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory, endpoint: str) -> Path:
 
 
 @pytest.fixture(scope="module")
-def release(run_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+def release(
+    run_dir: Path, endpoint: str, tmp_path_factory: pytest.TempPathFactory
+) -> tuple[Path, dict]:
+    """The front on its run's trajectories, and once more on a short excitation (a test
+    trajectory) on its plant and on a variant of it: every kind of split has episodes."""
     out = tmp_path_factory.mktemp("releases") / NAME
-    _, record = build_release([run_dir], out, NAME, kinds=KINDS, format="lerobot", layout=LAYOUT)
+    _, record = build_release(
+        [run_dir], out, NAME, kinds=KINDS, format="lerobot", layout=LAYOUT,
+        rerun_trajectories=[VARIED], rerun_plants=1, farm=farm_at(endpoint),
+        infeasible=True, include_rough=True,  # a toy run's front, kept whatever it does
+    )  # fmt: skip
     return out, record
 
 
@@ -102,13 +113,16 @@ def test_the_release_holds_its_files_and_its_content_hash_verifies(
     assert len(hashes) == 3 + len(episodes(out))  # the three tables and every log
     assert record["content_hash"] == expected
     assert verify(out) == []
-    assert record["name"] == NAME and record["dataset_version"] == "4"
+    assert record["name"] == NAME and record["dataset_version"] == "5"
     assert record["robot_type"] == "kuka_iiwa14"
     assert record["control_rate_hz"] == 500 and record["control_period_s"] == 0.002
-    # The plants: the episodes' distinct models, the first nominal.
+    # The plants: the episodes' distinct models, the run's own nominal, the variant's not.
     models = {json.dumps(json.loads(row["model"]), sort_keys=True) for row in episodes(out)}
     assert {json.dumps(p["model"], sort_keys=True) for p in record["plants"]} == models
-    assert [p["role"] for p in record["plants"]] == ["nominal"] + ["variant"] * (len(models) - 1)
+    assert [p["role"] for p in record["plants"]] == ["nominal", "variant"]
+    variant = [row for row in episodes(out) if row["split"].endswith("_variants")]
+    assert record["plants"][1]["episodes"] == len(variant) > 0
+    assert all(json.loads(row["model"]) == record["plants"][1]["model"] for row in variant)
     # The export's files are listed with their hashes, apart from the content hash.
     exported = {entry["path"]: entry["sha256"] for entry in record["exports"]}
     assert "lerobot/meta/info.json" in exported
@@ -169,10 +183,17 @@ def test_the_splits_cover_every_episode_once_and_test_calm_is_calm_test(
     out, record = release
     rows = {row["episode_id"]: row for row in episodes(out)}
     splits = record["splits"]
-    assert list(splits) == ["train", "validation", "test", "test_calm"]
+    assert list(splits) == ["train", "validation", "test", "test_variants", "test_calm"]
     ids = {split: [e["episode_id"] for e in part["episodes"]] for split, part in splits.items()}
-    parts = [set(ids[split]) for split in ("train", "validation", "test")]
+    whole = ("train", "validation", "test", "test_variants")
+    parts = [set(ids[split]) for split in whole]
     assert sum(len(part) for part in parts) == len(rows) and set().union(*parts) == set(rows)
+    # One plant per part: the variant's episodes on the test trajectory the plant's own are on.
+    assert len(ids["test_variants"]) == sum("-rerun-" in i for i in ids["test"]) > 0
+    assert all("-rerun-p1-" in i for i in ids["test_variants"])
+    assert {t["trajectory_id"] for t in splits["test_variants"]["trajectories"]} <= {
+        t["trajectory_id"] for t in splits["test"]["trajectories"]
+    }
     assert set(ids["test_calm"]) == {i for i in ids["test"] if rows[i]["calm"]}
     assert set(ids["test_calm"]) <= set(ids["test"])
     trajectories = [
@@ -187,18 +208,16 @@ def test_the_splits_cover_every_episode_once_and_test_calm_is_calm_test(
             assert row["split"] == (split if split != "test_calm" else "test")
             assert (entry["trajectory_id"], entry["ticks"]) == (row["trajectory_id"], row["ticks"])
         assert part["ticks"] == sum(e["ticks"] for e in part["episodes"])
-    assert sum(splits[s]["ticks"] for s in ("train", "validation", "test")) == len(ticks(out)["t"])
+    assert sum(splits[s]["ticks"] for s in whole) == len(ticks(out)["t"])
 
 
 @pytest.mark.slow
-def test_load_dataset_gives_the_parquet_columns(
-    release: tuple[Path, dict], run_dir: Path, tmp_path: Path
-) -> None:
+def test_load_dataset_gives_the_parquet_columns(release: tuple[Path, dict], tmp_path: Path) -> None:
     out, _ = release
     columns = ticks(out)
     stats = json.loads((out / "stats.json").read_text())
     calm = {row["episode_id"]: row["calm"] for row in episodes(out)}
-    for split in ("train", "validation", "test", "test_calm"):
+    for split in ("train", "validation", "test", "test_calm", "test_variants"):
         loaded = load_dataset(out, split)
         rows = columns["split"] == (split if split != "test_calm" else "test")
         if split == "test_calm":
@@ -219,11 +238,14 @@ def test_load_dataset_gives_the_parquet_columns(
     train = load_dataset(out).inputs(normalised=True)
     finite = np.isfinite(train).all(axis=1)
     np.testing.assert_allclose(train[finite].mean(axis=0), 0, atol=0.05)
-    with pytest.raises(ValueError, match=r"'tset'.*train, validation, test, test_calm"):
+    with pytest.raises(ValueError, match=r"'tset'.*train, validation, test, test_calm, train_var"):
         load_dataset(out, "tset")
-    # A dataset that is not a release: the same arrays, no stats.
+    # A dataset that is not a release (its tables alone, as `analytic dataset` writes them):
+    # the same arrays, no stats.
     plain = tmp_path / "plain"
-    build([run_dir], plain)
+    plain.mkdir()
+    for name in ("ticks.parquet", "episodes.parquet"):
+        shutil.copy(out / name, plain / name)
     loaded = load_dataset(plain, "test")
     assert loaded.stats is None
     np.testing.assert_array_equal(loaded.u, load_dataset(out, "test").u)
@@ -266,8 +288,17 @@ def test_the_baselines_are_every_kind_on_the_frozen_test_split(
         if s == "test" and np.isfinite(q)
     )
     assert all(scores["rows"] == test_rows for scores in baselines.values())
-    # The floor is the floor: no baseline beats the plant's own dynamics.
-    assert all(s["nmse_mean"] >= baselines["plant"]["nmse_mean"] for s in baselines.values())
+    # The floor is the floor: no baseline beats the plant's own dynamics, on the test split's
+    # plant nor on the variant's (the floor there its own plant, no longer the run's).
+    for split in (None, "variants"):
+        scored = {kind: s[split] if split else s for kind, s in baselines.items()}
+        assert all(s["nmse_mean"] >= scored["plant"]["nmse_mean"] for s in scored.values())
+    variant_rows = sum(
+        1
+        for s, q in zip(ticks(out)["split"], ticks(out)["qdd_sg_A1"], strict=True)
+        if s == "test_variants" and np.isfinite(q)
+    )
+    assert all(s["variants"]["rows"] == variant_rows > 0 for s in baselines.values())
     card = (out / "README.md").read_text()
     section = card[card.index("## Baselines") :]
     for kind, scores in baselines.items():
@@ -275,7 +306,8 @@ def test_the_baselines_are_every_kind_on_the_frozen_test_split(
     assert "plant's own dynamics (the floor)" in section and "0.14 N·m" in section
     assert f"## Release `{NAME}`" in card and record_hash(out) in card
     assert "kuka_iiwa14" in card and "500 Hz" in card and "FRI" in card
-    assert "| test_calm |" in card
+    assert "| test_calm |" in card and "| test_variants |" in card
+    assert "nMSE test_variants" in section
 
 
 def record_hash(out: Path) -> str:
@@ -425,13 +457,15 @@ def test_a_release_that_fails_leaves_nothing(run_dir: Path, tmp_path: Path) -> N
 
 @pytest.mark.slow
 def test_the_release_command_writes_the_release_the_library_does(
-    run_dir: Path, release: tuple[Path, dict], tmp_path: Path
+    run_dir: Path, endpoint: str, release: tuple[Path, dict], tmp_path: Path
 ) -> None:
     """The CLI's release of the module's run is the library's, byte for byte in its data."""
     _, record = release
+    (tmp_path / "rerun.json").write_text(f"[{VARIED.model_dump_json()}]")
     run = analytic(
         "dataset", str(run_dir), "--out", "cli", "--release", NAME,
-        "--baselines", ",".join(KINDS), cwd=tmp_path,
+        "--baselines", ",".join(KINDS), "--rerun", "rerun.json", "--plants", "1",
+        "--infeasible", "--include-rough", "--connect", endpoint, cwd=tmp_path,
     )  # fmt: skip
     assert run.returncode == 0, run.stderr
     line = run.stdout.splitlines()[-1]

@@ -51,7 +51,8 @@ def test_episode_bench_prints_its_ratios_to_the_physics() -> None:
 
 @pytest.mark.slow
 def test_main_job_prints_the_runs_throughput_against_the_pools() -> None:
-    done = bench("main_job.py", "--quick", timeout=300)
+    # Smaller than --quick: a run of two generations is all this test needs to see.
+    done = bench("main_job.py", "--evaluations", "12", "--pop", "6", timeout=300)
     figures(rf"run/pool throughput: {NUMBER}x", done.stdout)
     figures(rf"optuna/pool throughput: {NUMBER}x", done.stdout)
     table = r"^\| (run|pool|optuna) \| (\d+) \| (\S+) \| (\S+) \| (\S+) \|$"
@@ -65,7 +66,9 @@ def test_main_job_prints_the_runs_throughput_against_the_pools() -> None:
 
 @pytest.mark.slow
 def test_scale_prints_the_plumbing_and_a_real_run() -> None:
-    done = bench("scale.py", "--quick", "--json", "--workers", "16", "--ingest", "200", timeout=300)
+    # The simulated workers' jobs are short (0.2 s, a sleep): the figures' shape is what is tested.
+    options = ["--quick", "--json", "--workers", "16", "--ingest", "200", "--job-seconds", "0.2"]
+    done = bench("scale.py", *options, "--window", "2", timeout=300)
     report = json.loads(done.stdout)
     assert "NoopWorker" in report["plumbing"]["what"]
     for run in report["plumbing"]["runs"]:
