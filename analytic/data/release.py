@@ -430,10 +430,10 @@ def baselines_card(baselines: dict[str, dict[str, Any]]) -> str:
     lines += [f"{header} fit (s) |", "|---|---|---|---|---|" + "---|" * variants + "---|"]
     for kind, scores in baselines.items():
         calm = scores.get("calm") or {}
-        shift = f" {_shown((scores.get('variants') or {}).get('nmse_mean'), '.4f')} |" * variants
+        shift = f" {_shown((scores.get('variants') or {}).get('nmse_mean'), '.3g')} |" * variants
         lines.append(
-            f"| {labels.get(kind, kind)} | {_shown(scores['nmse_mean'], '.4f')} | "
-            f"{_shown(calm.get('nmse_mean'), '.4f')} | {_shown(scores['rmse_a1_a4'], '.3g')} | "
+            f"| {labels.get(kind, kind)} | {_shown(scores['nmse_mean'], '.3g')} | "
+            f"{_shown(calm.get('nmse_mean'), '.3g')} | {_shown(scores['rmse_a1_a4'], '.3g')} | "
             f"{_shown(calm.get('rmse_a1_a4'), '.3g')} |{shift} {scores['fit_seconds']:.2f} |"
         )
     if variants:
@@ -452,8 +452,15 @@ def baselines_card(baselines: dict[str, dict[str, Any]]) -> str:
     if floor is not None:
         said.append(f"the floor's {floor['rmse_a1_a4']:.3g} N·m")
     placed = "RMSE over A1-A4: " + " and ".join(said) + ". Set them" if said else "Set these RMSEs"
+    lines.append("")
+    if best is not None and floor is not None and floor["nmse_mean"] > 0:
+        ratio = best[1]["nmse_mean"] / floor["nmse_mean"]
+        lines += [
+            f"The best learned model's test nMSE is {ratio:.2g} times the floor's "
+            f"({best[1]['nmse_mean']:.3g} against {floor['nmse_mean']:.3g}).",
+            "",
+        ]
     lines += [
-        "",
         f"{placed[0].upper()}{placed[1:]} beside the {PUBLISHED_RMSE} N·m published for a model "
         "learned on a real iiwa 14 (Çallar and Böttger, RA-L 2022): this is a simulated plant "
         "with its noise, not that robot.",
