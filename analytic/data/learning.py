@@ -251,28 +251,33 @@ def floor_model(dataset_dir: Path, target: Target = "inverse") -> Floor:
     return Floor({str(episode): specs[text] for episode, text in texts.items()}, target)
 
 
-def plants(dataset_dir: Path) -> list[ModelSpec]:
-    """The distinct plants of the dataset's episodes, in order of first appearance, those of
-    train, validation and test (the runs' own) before those of the *_variants splits."""
+def plants(dataset_dir: Path, variants: bool = False) -> list[ModelSpec]:
+    """The distinct plants of the dataset's episodes in train, validation and test (the runs'
+    own), in order of first appearance; with `variants`, those of the *_variants splits (none
+    in a dataset without them)."""
     try:
         table = pq.read_table(Path(dataset_dir) / EPISODES)
         texts = table["model"].to_pylist()
-        if "split" in table.column_names:  # stable: a variant's plant after every run's own
-            parts = table["split"].to_pylist()
-            pairs = sorted(zip(parts, texts, strict=True), key=lambda p: p[0].endswith(VARIANTS))
-            texts = [text for _, text in pairs]
-        found = []
-        for text in texts:
-            plant = ModelSpec.model_validate_json(text)
-            if plant not in found:
-                found.append(plant)
+        parts = table["split"].to_pylist() if "split" in table.column_names else None
     except FileNotFoundError:
         raise LearnError(f"{str(dataset_dir)!r} holds no dataset (no {EPISODES})") from None
     except (OSError, pa.ArrowException, ValueError, KeyError, TypeError) as error:
         raise LearnError(
             f"{str(dataset_dir)!r}: unreadable {EPISODES}: {_one_line(error)}"
         ) from None
-    if not found:
+    if parts is not None:
+        texts = [t for t, p in zip(texts, parts, strict=True) if p.endswith(VARIANTS) == variants]
+    found: list[ModelSpec] = []
+    try:
+        for text in texts:
+            plant = ModelSpec.model_validate_json(text)
+            if plant not in found:
+                found.append(plant)
+    except ValueError as error:
+        raise LearnError(
+            f"{str(dataset_dir)!r}: unreadable {EPISODES}: {_one_line(error)}"
+        ) from None
+    if not found and not variants:
         raise LearnError(f"{str(dataset_dir)!r}: {EPISODES} lists no episodes")
     return found
 
@@ -709,6 +714,12 @@ def report(
         same = "the same rigid arm" if len(arms) == 1 else f"{len(arms)} different rigid arms"
         lines.append(
             f"- the episodes mix {len(found)} plants ({same}); the physics uses the first's arm"
+        )
+    others = plants(dataset_dir, variants=True)
+    if others:
+        lines.append(
+            f"- not learned from: the *_variants splits' episodes, on {len(others)} other plants "
+            "(one plant per split, docs/dataset.md)"
         )
     lines += ["", _what(model), "", *_anchors_table(scores), "", *_scores_table(scores), ""]
     lines += [

@@ -375,31 +375,57 @@ def test_identified_parameters_that_are_no_arm_are_named():
     assert found[-1] == "A7: Coulomb friction -0.5"
 
 
+HEAVY = REALISTIC_PLANT.model_copy(update={"payload": 3.0, "mass_scale": (1.1,) * 7})
+
+
+def merged(path: Path, nominal: Path, variant: Path) -> Path:
+    """One dataset of both: the variant's episodes under their own ids (v-...)."""
+    path.mkdir()
+    for name in ("ticks.parquet", "episodes.parquet"):
+        parts = [pq.read_table(d / name) for d in (nominal, variant)]
+        ids = pa.array([f"v-{e}" for e in parts[1]["episode_id"].to_pylist()])
+        column = parts[1].schema.get_field_index("episode_id")
+        parts[1] = parts[1].set_column(column, "episode_id", ids)
+        pq.write_table(pa.concat_tables(parts), path / name)
+    return path
+
+
+def test_a_model_learns_one_plant_and_is_scored_on_the_variants_apart(fri, tmp_path):
+    """Dataset version 5: the variants' episodes in *_variants are not learned from; the
+    benchmark scores them apart, where the floor is each episode's own plant."""
+    nominal = write_dataset(tmp_path / "nominal", REALISTIC_PLANT, [(0, "train"), (7, "test")])
+    variant = write_dataset(
+        tmp_path / "variant", HEAVY, [(0, "train_variants"), (7, "test_variants")]
+    )
+    both = merged(tmp_path / "both", nominal, variant)
+    assert learning.plants(both) == [REALISTIC_PLANT]
+    assert learning.plants(both, variants=True) == [HEAVY]
+    assert set(learning.read_split(both, "train").episode_id) == {"fourier-0"}
+    table = learning.benchmark(both, kinds=("plant", "rigid"))
+    alone = learning.benchmark(nominal, kinds=("plant", "rigid"))
+    for kind in ("plant", "rigid"):  # the test split as if the variants were not there
+        assert table[kind]["nmse_mean"] == alone[kind]["nmse_mean"]
+        assert table[kind]["variants"]["rows"] == table[kind]["rows"]
+    # Its own plant predicts each variant episode; the nominal plant's rigid arm does not.
+    assert table["plant"]["variants"]["nmse_mean"] < 0.1 * table["rigid"]["variants"]["nmse_mean"]
+    learning.learn(both, tmp_path / "model", kind="rigid")
+    report = (tmp_path / "model" / "report.md").read_text()
+    assert "not learned from: the *_variants splits' episodes, on 1 other plants" in report
+    assert "mix" not in report
+
+
 def test_the_floor_of_a_dataset_of_plants_is_each_episodes_own(fri, tmp_path):
     """A dataset of plant variants (analytic dataset --plants): the floor predicts each
     episode with its own plant, as well as each plant's floor alone; the first plant's model
     on every episode does far worse."""
-    heavy = REALISTIC_PLANT.model_copy(update={"payload": 3.0, "mass_scale": (1.1,) * 7})
     splits = [(0, "train"), (7, "test")]
     nominal = write_dataset(tmp_path / "nominal", REALISTIC_PLANT, splits)
-    variant = write_dataset(tmp_path / "variant", heavy, splits)
-    mixed = tmp_path / "mixed"
-    mixed.mkdir()
-    for name in ("ticks.parquet", "episodes.parquet"):
-        parts = [pq.read_table(d / name) for d in (nominal, variant)]
-        if name == "ticks.parquet":  # the variant's episodes under their own ids
-            ids = pa.array([f"v-{e}" for e in parts[1]["episode_id"].to_pylist()])
-            parts[1] = parts[1].set_column(
-                parts[1].schema.get_field_index("episode_id"), "episode_id", ids
-            )
-        else:
-            ids = pa.array([f"v-{e}" for e in parts[1]["episode_id"].to_pylist()])
-            parts[1] = parts[1].set_column(0, "episode_id", ids)
-        pq.write_table(pa.concat_tables(parts), mixed / name)
+    variant = write_dataset(tmp_path / "variant", HEAVY, splits)
+    mixed = merged(tmp_path / "mixed", nominal, variant)
     floor = learning.benchmark(mixed, kinds=("plant",))["plant"]
     alone = [
         score(true_model(plant), d)["nmse_mean"]
-        for plant, d in ((REALISTIC_PLANT, nominal), (heavy, variant))
+        for plant, d in ((REALISTIC_PLANT, nominal), (HEAVY, variant))
     ]
     first = score(true_model(REALISTIC_PLANT), mixed)["nmse_mean"]
     assert floor["nmse_mean"] < 2 * max(alone) and first > 5 * floor["nmse_mean"], (
