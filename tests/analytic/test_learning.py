@@ -411,7 +411,7 @@ def test_a_model_learns_one_plant_and_is_scored_on_the_variants_apart(fri, tmp_p
     learning.learn(both, tmp_path / "model", kind="rigid")
     report = (tmp_path / "model" / "report.md").read_text()
     assert "not learned from: the *_variants splits' episodes, on 1 other plants" in report
-    assert "mix" not in report
+    assert "the episodes mix" not in report  # one plant learned from
 
 
 def test_the_floor_of_a_dataset_of_plants_is_each_episodes_own(fri, tmp_path):
