@@ -10,7 +10,6 @@ train episodes, and the same fitted on every train episode, train_variants' too 
 `learning.benchmark` did before a dataset kept one plant per split, version 5).
 """
 
-import dataclasses
 import sys
 from collections import Counter
 from pathlib import Path
@@ -23,17 +22,11 @@ from gainfarm.models.dynamics import DynamicsModel, true_model
 from gainfarm.schemas.robot import ModelSpec
 
 
-def both(first: learning.Rows, second: learning.Rows) -> learning.Rows:
-    names = [field.name for field in dataclasses.fields(learning.Rows)]
-    return learning.Rows(
-        **{n: np.concatenate([getattr(r, n) for r in (first, second)]) for n in names}
-    )
-
-
 def main(dataset: Path) -> None:
     splits = learning.read_splits(dataset)
     for name in ("train", "test"):  # every episode, whatever its plant
-        splits[name] = both(splits[name], learning.read_split(dataset, f"{name}_variants"))
+        variants = learning.read_split(dataset, f"{name}_variants")
+        splits[name] = learning.Rows.concatenate([splits[name], variants])
     table = pq.read_table(dataset / "episodes.parquet", columns=["episode_id", "model"]).to_pydict()
     counts = Counter(table["model"])
     text, _ = counts.most_common(1)[0]

@@ -18,6 +18,7 @@ import json
 import math
 import shutil
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -127,6 +128,12 @@ class Rows:
     def take(self, index: np.ndarray) -> "Rows":
         """The rows at `index` (positions or a mask), every field alike."""
         return Rows(**{f.name: getattr(self, f.name)[index] for f in dataclasses.fields(self)})
+
+    @staticmethod
+    def concatenate(parts: "Sequence[Rows]") -> "Rows":
+        """`parts`' rows one after the other, every field alike."""
+        names = [field.name for field in dataclasses.fields(Rows)]
+        return Rows(**{n: np.concatenate([getattr(part, n) for part in parts]) for n in names})
 
     def inputs(self, target: Target) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q, q̇, q̈) for an inverse model, (q, q̇, u) for a forward one."""

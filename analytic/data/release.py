@@ -199,30 +199,24 @@ def split_members(directory: Path) -> dict[str, dict[str, Any]]:
 
 
 def release_plants(directory: Path) -> list[dict[str, Any]]:
-    """The distinct plants of the episodes (their `model` JSON): the runs' own ("nominal", in
-    train, validation and test) first, then the variants (in the *_variants splits), each in
-    order of first appearance."""
+    """The distinct plants of the episodes (`learning.plants`): the runs' own ("nominal", in
+    train, validation and test) first, then the variants (in the *_variants splits), each with
+    its number of episodes there."""
+    from gainfarm.analytic.data.learning import plants
     from gainfarm.analytic.view.export import plant_name
 
     table = pq.read_table(Path(directory) / EPISODES, columns=["model", "split"])
     pairs = zip(table["split"].to_pylist(), table["model"].to_pylist(), strict=True)
-    found: list[ModelSpec] = []
-    counts: Counter[int] = Counter()
-    variant: dict[int, bool] = {}
-    for split, text in sorted(pairs, key=lambda pair: pair[0].endswith(VARIANTS)):
-        plant = ModelSpec.model_validate_json(text)
-        if plant not in found:
-            found.append(plant)
-            variant[len(found) - 1] = split.endswith(VARIANTS)
-        counts[found.index(plant)] += 1
+    episodes = [(s.endswith(VARIANTS), ModelSpec.model_validate_json(text)) for s, text in pairs]
     return [
         {
-            "role": "variant" if variant[index] else "nominal",
+            "role": "variant" if variant else "nominal",
             "name": plant_name(plant),
-            "episodes": counts[index],
+            "episodes": episodes.count((variant, plant)),
             "model": plant.model_dump(mode="json"),
         }
-        for index, plant in enumerate(found)
+        for variant in (False, True)
+        for plant in plants(directory, variants=variant)
     ]
 
 

@@ -25,7 +25,6 @@ The pure parts (pools, subsampling, scoring, statistics, the verdict) are functi
 data; `run` is the only one that runs anything.
 """
 
-import dataclasses
 import functools
 import hashlib
 import json
@@ -175,15 +174,10 @@ def objectives(path: Path) -> Scores:
     return score_episode(read_episode(path))
 
 
-def concatenate(parts: Sequence[Rows]) -> Rows:
-    names = [field.name for field in dataclasses.fields(Rows)]
-    return Rows(**{name: np.concatenate([getattr(part, name) for part in parts]) for name in names})
-
-
 def pool_rows(episodes: Mapping[str, Path]) -> Rows:
     """Every finite row of a pool's calm episodes (episode id → log), in id order: what
     `analytic dataset` keeps unless --include-rough."""
-    rows = concatenate([episode_rows(episodes[key], key) for key in sorted(episodes)])
+    rows = Rows.concatenate([episode_rows(episodes[key], key) for key in sorted(episodes)])
     return rows.take(rows.calm)
 
 
