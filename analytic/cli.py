@@ -12,15 +12,18 @@ COMMANDS = {
     name: (f"gainfarm.analytic.commands.{name}:{name}", summary)
     for name, summary in {
         "batch": "Evaluate given gains on the farm; keep every episode.",
+        "calibrate": "Fit a twin of an arm to its logged episodes.",
         "dashboard": "Watch runs and their farm live, in a web page.",
         "dataset": "Gather tuned controllers' episodes into a dataset.",
         "evaluate": "Score an episode from its MCAP log alone.",
+        "excite": "Write safe excitation references to record on a real arm.",
         "experiment": "Rerun the paper's experiments, or compare optimisers.",
         "export": "Write a run's controller to use (the recommended one).",
         "learn": "Learn the arm's dynamics from a dataset.",
         "replay": "Render an episode log as a video.",
         "resume": "Continue a stopped run from its last checkpoint.",
         "start": "Tune the 14 PD gains on the farm (NSGA-II by default).",
+        "validate": "Replay an arm's logged episodes on a twin: the gap.",
     }.items()
 }
 

@@ -7,7 +7,7 @@
     cli                what the command lines share (gainfarm/cli/): all of the above
     worker, broker     the layers below, never analytic nor each other
     analytic           everything; inside it, floors one way down:
-                       commands -> experiments -> data -> compose -> view -> tuning
+                       commands -> experiments -> calibration -> data -> compose -> view -> tuning
                        -> evaluators (compose: the module analytic/compose.py, `tune`)
 
 `gainfarm/__init__.py` names only `gainfarm.analytic`, and loads it lazily. Read from the source
@@ -49,7 +49,16 @@ FACE = "gainfarm/__init__.py"  # the public face: `import gainfarm`, `from gainf
 CONTRACT_MAY_NOT = {"click", "rich", "zenoh"}
 # analytic/'s floors, top to bottom: subpackages, and compose.py (the composition root, `tune`);
 # its other own modules (cli.py, __init__.py, __main__.py) are the face and the entry, above all.
-FLOORS = ("commands", "experiments", "data", "compose", "view", "tuning", "evaluators")
+FLOORS = (
+    "commands",
+    "experiments",
+    "calibration",
+    "data",
+    "compose",
+    "view",
+    "tuning",
+    "evaluators",
+)
 # Known upward arrows, each to be deleted the moment it is cut (a stale entry fails too).
 UPWARD: set[tuple[str, str]] = set()
 

@@ -186,7 +186,6 @@ def _run(
     from gainfarm.analytic.tuning.config import RunConfig
     from gainfarm.analytic.tuning.run import RunBusy
     from gainfarm.analytic.view.progress import Display
-    from gainfarm.schemas.robot import PLANTS
     from gainfarm.schemas.trajectory import TrajectorySpec
 
     identity = check_farm(connect, local, tls, participant)
@@ -206,7 +205,7 @@ def _run(
             trajectories=(
                 TrajectorySpec() if duration is None else TrajectorySpec(duration=duration),
             ),
-            model=PLANTS[plant],
+            model=options.model_spec(plant),
             limits=limits,
             generations=generations,
             evaluations=evaluations,

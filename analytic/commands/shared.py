@@ -115,22 +115,38 @@ def robustness() -> Callable[[F], F]:
 
 
 def plants_from(
-    count: int, path: Path | None, nominal: "ModelSpec", seed: int, held_out: bool = False
+    count: int,
+    path: Path | None,
+    nominal: "ModelSpec",
+    seed: int,
+    held_out: bool = False,
+    plant: str | None = None,
 ) -> "tuple[ModelSpec, ...]":
     """--plants K variants of `nominal` (`held_out`: --check-plants M of them, on the seed's
-    other stream), drawn from --uncertainty FILE's ranges (the shipped ones without it), or one
-    line naming the option."""
+    other stream), drawn from --uncertainty FILE's ranges, else from those of the plant file
+    --plant names (a calibrated twin's), else the shipped ones; or one line naming the option."""
     from gainfarm.analytic.tuning.plants import (
         HELD_OUT,
         TUNING,
         BadUncertainty,
         ranges,
+        ranges_of,
         variants,
     )
+    from gainfarm.schemas.robot import PLANTS
 
     stream = HELD_OUT if held_out else TUNING
     if path is None:
-        return variants(nominal, count, seed, stream=stream)
+        table = None
+        if plant is not None and plant not in PLANTS:
+            try:
+                table = ranges_of(options.plant_file(plant).uncertainty) or None
+            except BadUncertainty as error:
+                raise CliError(f"--plant: {plant!r}: uncertainty: {error}") from None
+        try:
+            return variants(nominal, count, seed, table, stream)
+        except ValueError as error:
+            raise CliError(f"--plant: {plant!r}: a variant is no plant ({error})") from None
     try:
         text = path.read_text()
     except OSError as error:

@@ -158,8 +158,8 @@ def start(
     learned = options.feedforward_model(feedforward)
     model_file = learned[0] if learned is not None else None
     model = options.model_spec(plant, joints)
-    variants = plants_from(plants, uncertainty_file, model, seed)
-    held_out = plants_from(check_plants, uncertainty_file, model, seed, held_out=True)
+    variants = plants_from(plants, uncertainty_file, model, seed, plant=plant)
+    held_out = plants_from(check_plants, uncertainty_file, model, seed, held_out=True, plant=plant)
     try:
         config = RunConfig(
             pop=pop,

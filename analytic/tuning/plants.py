@@ -34,9 +34,13 @@ FIELDS = {
 }
 
 
+Bound = float | tuple[float, ...]
+
+
 class Range(BaseModel):
     """One group of the plant's numbers and how far it may be off: each variant draws a factor
-    on the nominal value (or, `absolute`, the value itself) between `low` and `high`."""
+    on the nominal value (or, `absolute`, the value itself) between `low` and `high`, one pair
+    for every joint or, per joint, seven pairs (a calibrated twin knows some joints better)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -44,19 +48,31 @@ class Range(BaseModel):
     per_joint: bool = False
     absolute: bool = False
     draw: Literal["log", "uniform", "integer"]
-    low: float = Field(ge=0, allow_inf_nan=False)
-    high: float = Field(ge=0, allow_inf_nan=False)
+    low: Bound
+    high: Bound
     why: str = Field(min_length=1, description="its source, or that it is an assumption")
 
     @model_validator(mode="after")
     def _sensible(self) -> "Range":
-        if self.high < self.low:
-            raise ValueError(f"high {self.high:g} is below low {self.low:g}")
-        if self.draw == "log" and self.low <= 0:
-            raise ValueError("a log draw needs low > 0")
         if self.per_joint and not FIELDS[self.field]:
             raise ValueError(f"{self.field} is one number, not one per joint")
+        for name in ("low", "high"):
+            bound = getattr(self, name)
+            if isinstance(bound, tuple) and (not self.per_joint or len(bound) != N_JOINTS):
+                raise ValueError(f"{name}: one number, or {N_JOINTS} with per_joint = true")
+            values = np.atleast_1d(bound)
+            if not (np.isfinite(values).all() and (values >= 0).all()):
+                raise ValueError(f"{name}: finite and non-negative numbers expected")
+        low, high = np.atleast_1d(self.low), np.atleast_1d(self.high)
+        if (high < low).any():
+            raise ValueError(f"high {_show(self.high)} is below low {_show(self.low)}")
+        if self.draw == "log" and (low <= 0).any():
+            raise ValueError("a log draw needs low > 0")
         return self
+
+
+def _show(bound: Bound) -> str:
+    return f"{bound:g}" if isinstance(bound, float | int) else ", ".join(f"{v:g}" for v in bound)
 
 
 class BadUncertainty(ValueError):
@@ -69,6 +85,11 @@ def ranges(text: str | None = None) -> dict[str, Range]:
         table = tomllib.loads(UNCERTAINTY.read_text() if text is None else text)
     except tomllib.TOMLDecodeError as error:
         raise BadUncertainty(f"not TOML: {error}") from None
+    return ranges_of(table)
+
+
+def ranges_of(table: dict) -> dict[str, Range]:
+    """The ranges in a parsed table (a plant file's uncertainty); BadUncertainty in one line."""
     found = {}
     for name, entry in table.items():
         if not isinstance(entry, dict):
@@ -116,12 +137,13 @@ def _apply(values: dict, item: Range, rng: np.random.Generator) -> None:
     for parent in parents:
         holder = holder.get(parent) or {}
     size = N_JOINTS if item.per_joint else 1
+    low, high = np.asarray(item.low, dtype=float), np.asarray(item.high, dtype=float)
     if item.draw == "integer":
-        draw = rng.integers(int(item.low), int(item.high) + 1, size=size).astype(float)
+        draw = rng.integers(low.astype(int), high.astype(int) + 1, size=size).astype(float)
     elif item.draw == "log":
-        draw = np.exp(rng.uniform(np.log(item.low), np.log(item.high), size=size))
+        draw = np.exp(rng.uniform(np.log(low), np.log(high), size=size))
     else:
-        draw = rng.uniform(item.low, item.high, size=size)
+        draw = rng.uniform(low, high, size=size)
     if name not in holder:  # a field the nominal plant has not (no friction): nothing to move
         return
     current = holder[name]

@@ -20,6 +20,7 @@ from gainfarm.cli.app import CliError, parse_numbers
 if TYPE_CHECKING:
     from gainfarm.models.dynamics import DynamicsModel
     from gainfarm.schemas.limits import Limits
+    from gainfarm.schemas.plant_file import PlantFile
     from gainfarm.schemas.robot import ModelSpec
     from gainfarm.schemas.security import Role, TlsIdentity
     from gainfarm.schemas.trajectory import TrajectorySpec
@@ -227,25 +228,63 @@ def _joint_default() -> str:
     return ModelSpec().joints
 
 
-def plant() -> Callable[[F], F]:
-    """--plant: the realistic plant (the default) or the first wave's idealised one."""
+class PlantChoice(LazyChoice):
+    """A named plant, or a plant file (`analytic calibrate`'s twin): a name is checked as a
+    choice, anything else must be a file, read where the spec is made (`model_spec`)."""
+
+    name = "plant"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, str) and value not in self.choices and Path(value).is_file():
+            return value
+        try:
+            return super().convert(value, param, ctx)
+        except click.BadParameter:
+            self.fail(
+                f"{value!r} is neither {', '.join(self.choices)} nor a plant file", param, ctx
+            )
+
+    def get_metavar(self, param: click.Parameter, ctx: click.Context | None = None) -> str:
+        return f"[{'|'.join(self.choices)}|FILE]"
+
+
+def plant(flag: str = "--plant", help: str | None = None) -> Callable[[F], F]:
+    """--plant: the realistic plant (the default), another named one, or a plant file."""
     return click.option(
-        "--plant",
-        type=LazyChoice(_plants),
+        flag,
+        type=PlantChoice(_plants),
         default=Later(_default_plant),
         show_default=True,
-        help="realistic: behind KUKA's FRI torque interface (the robot adds gravity "
+        help=help
+        or "realistic: behind KUKA's FRI torque interface (the robot adds gravity "
         "compensation from its own model), with friction, a 1-tick delay, encoders and torque "
         "sensors with noise, motor-side feedback; plain: the same without the robot's gravity "
-        "compensation (the paper's plain PD); ideal: the paper's idealised plant",
+        "compensation (the paper's plain PD); ideal: the paper's idealised plant; FILE: a plant "
+        "file, such as the twin `analytic calibrate` writes",
     )
 
 
-def model_spec(plant: str, joints: str) -> "ModelSpec":
-    """The ModelSpec of `--plant` with `--joints`."""
+def model_spec(plant: str, joints: str | None = None) -> "ModelSpec":
+    """The ModelSpec of `--plant` (a name or a plant file), with `--joints` if the command has
+    that option."""
     from gainfarm.schemas.robot import PLANTS
 
-    return PLANTS[plant].model_copy(update={"joints": joints})
+    spec = PLANTS[plant] if plant in PLANTS else plant_file(plant).plant
+    return spec if joints is None else spec.model_copy(update={"joints": joints})
+
+
+def plant_file(plant: str) -> "PlantFile":
+    """--plant FILE's contents, or one line naming the option and what is wrong."""
+    from gainfarm.schemas.plant_file import BadPlantFile, read_plant_file
+
+    try:
+        raw = Path(plant).read_bytes()
+    except OSError as error:
+        raise CliError(f"--plant: cannot read {plant!r}: {error.strerror}") from None
+    try:
+        return read_plant_file(raw)
+    except BadPlantFile as error:
+        raise CliError(f"--plant: {plant!r}: {error}") from None
 
 
 def feedforward(

@@ -1,0 +1,137 @@
+"""The twin as a plant file: the fitted plant, its uncertainty as ranges, and its provenance.
+
+The ranges are in models/uncertainty.toml's form, around the twin's own numbers, so that robust
+tuning on the twin (`analytic start --plant TWIN --plants K`) draws its variants from what the
+calibration could not pin down rather than from the project's assumptions: a number the logs
+told spans SPREAD bootstrap standard deviations each way (at least FLOOR), per joint; one they
+could not tell keeps the shipped range and its source.
+"""
+
+import hashlib
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+from gainfarm.analytic.calibration.identify import FLOOR, SPREAD, Estimate, Fit
+from gainfarm.analytic.tuning.plants import ranges
+from gainfarm.schemas.plant_file import PlantFile
+from gainfarm.schemas.robot import ModelSpec
+
+# The twin's ranges: the shipped entry each replaces, and the Fit's estimate behind it.
+CALIBRATED = {
+    "rotor_inertia": "rotor_inertia",
+    "stiffness": "stiffness",
+    "spring_damping": "spring_damping",
+    "coulomb": "coulomb",
+    "viscous": "viscous",
+}
+
+
+def twin_file(fit: Fit, nominal: ModelSpec, logs: Sequence[Path]) -> PlantFile:
+    """The plant file of `fit` on `nominal`, naming the logs it came from."""
+    shipped = ranges()
+    uncertainty: dict[str, dict[str, Any]] = {}
+    for name, entry in shipped.items():
+        estimate = getattr(fit, CALIBRATED[name]) if name in CALIBRATED else None
+        if estimate is None or not estimate.told.any():
+            if name == "payload":  # the shipped range is absolute: around no payload
+                uncertainty[name] = _payload_range(fit.payload)
+            elif name == "delay":
+                uncertainty[name] = _delay_range(fit)
+            else:
+                uncertainty[name] = entry.model_dump(mode="json")
+            continue
+        uncertainty[name] = _calibrated_range(entry.model_dump(mode="json"), estimate)
+    calibration = {
+        "logs": [{"name": Path(log).name, "sha256": _digest(log)} for log in logs],
+        "episodes": fit.episodes,
+        "ticks": fit.ticks,
+        "delay": {"ticks": fit.delay, "support": fit.delay_support},
+        **{name: _summary(getattr(fit, name)) for name in _ESTIMATES},
+        "notes": list(fit.notes),
+    }
+    return PlantFile(plant=fit.plant(nominal), uncertainty=uncertainty, calibration=calibration)
+
+
+_ESTIMATES = (
+    "rotor_inertia",
+    "viscous",
+    "coulomb",
+    "stiffness",
+    "spring_damping",
+    "mass_scale",
+    "payload",
+)
+
+
+def write_text(plant_file: PlantFile) -> str:
+    """The plant file as TOML, read back by schemas.plant_file.read_plant_file."""
+    return tomli_w.dumps(plant_file.model_dump(mode="json"))
+
+
+def _calibrated_range(shipped: dict[str, Any], estimate: Estimate) -> dict[str, Any]:
+    """Per joint, SPREAD bootstrap deviations each way (at least FLOOR) where told, the shipped
+    factors where not."""
+    relative = estimate.spread / np.maximum(np.abs(estimate.value), 1e-12)
+    half = np.maximum(SPREAD * relative, math.log1p(FLOOR))
+    low = np.where(estimate.told, np.exp(-half), _per_joint(shipped["low"]))
+    high = np.where(estimate.told, np.exp(half), _per_joint(shipped["high"]))
+    return {
+        "field": shipped["field"],
+        "per_joint": True,
+        "draw": "log",
+        "low": [round(float(v), 6) for v in low],
+        "high": [round(float(v), 6) for v in high],
+        "why": f"calibrated: {SPREAD:g} bootstrap standard deviations each way, at least "
+        f"{FLOOR:.0%}, where the logs told it; elsewhere the shipped range ({shipped['why']})",
+    }
+
+
+def _payload_range(payload: Estimate) -> dict[str, Any]:
+    value, spread = float(payload.value[0]), float(payload.spread[0])
+    half = max(SPREAD * spread, 0.5)
+    return {
+        "field": "payload",
+        "absolute": True,
+        "draw": "uniform",
+        "low": round(max(value - half, 0.0), 6),
+        "high": round(min(value + half, 14.0), 6),
+        "why": f"calibrated: the fitted payload, {SPREAD:g} bootstrap standard deviations or "
+        "0.5 kg each way (it trades against the last links' masses)",
+    }
+
+
+def _delay_range(fit: Fit) -> dict[str, Any]:
+    certain = fit.delay_support >= 0.95
+    low, high = (fit.delay, fit.delay) if certain else (max(fit.delay - 1, 0), fit.delay + 1)
+    return {
+        "field": "delay",
+        "absolute": True,
+        "draw": "integer",
+        "low": low,
+        "high": high,
+        "why": f"calibrated: the delay that fits best in {fit.delay_support:.0%} of bootstrap "
+        "resamples" + ("" if certain else "; one tick either way"),
+    }
+
+
+def _per_joint(bound: float | Sequence[float]) -> np.ndarray:
+    return np.broadcast_to(np.asarray(bound, dtype=float), (len(ModelSpec().stiffness),))
+
+
+def _summary(estimate: Estimate) -> dict[str, Any]:
+    return {
+        "fit": [float(v) for v in estimate.value],
+        "spread": [float(v) for v in estimate.spread],
+        "told": [bool(v) for v in estimate.told],
+        "explained": [float(v) for v in estimate.explained],
+        "why": estimate.why,
+    }
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()

@@ -1,0 +1,115 @@
+"""`analytic calibrate`: fit a twin of an arm to its logged episodes, as a plant file."""
+
+from pathlib import Path
+
+import click
+
+from gainfarm.cli import options
+from gainfarm.cli.app import CliError
+
+
+@click.command()
+@click.argument("logs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path),
+    default="twin.toml",
+    show_default=True,
+    help="where to write the twin (a plant file: `--plant TWIN` runs on it)",
+)
+@options.plant()
+@click.option(
+    "--seed",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="the bootstrap's resamples of the episodes",
+)
+@click.option("--json", "as_json", is_flag=True, help="print the fit as one JSON object")
+def calibrate(logs: tuple[Path, ...], out: Path, plant: str, seed: int, as_json: bool) -> None:
+    """Fit a twin of an arm to LOGS, its recorded episodes (`analytic excite` says what to
+    record): the delay, rotor inertias, friction, joint stiffness and damping, and the links'
+    masses with a payload, each with its uncertainty; the twin is --plant's plant (the robot's
+    own model, the controller's settings, and every number the logs cannot tell) with them."""
+    import json
+
+    from gainfarm.analytic.calibration.identify import identify
+    from gainfarm.analytic.calibration.logs import BadLog, read_recording
+    from gainfarm.analytic.calibration.twin import twin_file, write_text
+    from gainfarm.edges.files import write_atomically
+
+    nominal = options.model_spec(plant)
+    if not out.parent.is_dir():
+        raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
+    recordings = []
+    for path in logs:
+        if not path.is_file():
+            raise CliError(f"{str(path)!r}: no such file")
+        try:
+            recordings.append(read_recording(path))
+        except BadLog as error:
+            raise CliError(str(error)) from None
+    if nominal.joints != "flexible":
+        raise CliError("--plant: calibration fits elastic joints; this plant's are rigid")
+    try:
+        fit = identify(recordings, nominal, seed)
+        twin = twin_file(fit, nominal, logs)
+    except ValueError as error:
+        raise CliError(str(error)) from None
+    try:
+        write_atomically(out, write_text(twin).encode())
+    except OSError as error:
+        raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
+    if as_json:
+        click.echo(json.dumps({"twin": str(out), **twin.calibration}))
+        return
+    _show(twin.calibration, out)
+
+
+def _show(calibration: dict, out: Path) -> None:
+    """The fit per joint, each number with its spread, the untold ones marked."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from gainfarm.schemas.robot import JOINT_NAMES
+
+    columns = (
+        ("rotor_inertia", "B kg·m²"),
+        ("stiffness", "K N·m/rad"),
+        ("spring_damping", "D N·m·s/rad"),
+        ("coulomb", "F_c N·m"),
+        ("viscous", "F_v N·m·s/rad"),
+        ("mass_scale", "mass scale"),
+    )
+    table = Table(
+        "joint",
+        *(label for _, label in columns),
+        title=f"{out}: fitted on {calibration['episodes']} episodes (± one bootstrap deviation; "
+        "dim: not told by the logs)",
+    )
+    for joint, name in enumerate(JOINT_NAMES):
+        cells = []
+        for key, _ in columns:
+            entry = calibration[key]
+            fit, spread = entry["fit"][joint], entry["spread"][joint]
+            if entry["told"][joint]:
+                cells.append(f"{fit:.4g} ±{spread / abs(fit):.1%}")
+            else:
+                cells.append(f"[dim]{fit:.4g}[/dim]")
+        table.add_row(name, *cells)
+    console = Console(stderr=False)
+    console.print(table)
+    delay = calibration["delay"]
+    payload = calibration["payload"]
+    console.print(
+        f"delay {delay['ticks']} ticks ({delay['support']:.0%} of bootstrap resamples); "
+        f"payload {payload['fit'][0]:.3g} kg"
+    )
+    seen = set()
+    for name, _ in (*columns, ("payload", "")):
+        why = calibration[name]["why"]
+        if why and why not in seen:
+            seen.add(why)
+            console.print(f"untold, {name}: {why}")
+    for note in calibration["notes"]:
+        console.print(f"note: {note}")

@@ -1,0 +1,248 @@
+"""From a hidden arm's logs to a twin, and back: `analytic calibrate` and `analytic validate`.
+
+A hidden arm is a plant file whose numbers are drawn here, outside the shipped uncertainty
+ranges (rotor inertias up to twelve times the nominal, stiffness and friction a factor of three
+off, a delay of three ticks, heavier or lighter links and a tool); it stands in for a real robot
+through `worker episode --plant HIDDEN`, and calibration sees only its logs.
+"""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tomli_w
+
+from gainfarm.analytic.tuning.plants import ranges, ranges_of, variants
+from gainfarm.models import min_substeps
+from gainfarm.schemas.mcap_episode import read_episode
+from gainfarm.schemas.plant_file import BadPlantFile, PlantFile, read_plant_file
+from gainfarm.schemas.robot import Friction, ModelSpec, Sensors
+from tests.helpers import analytic
+
+N = 7
+EXCITATIONS, HELD_OUT = 6, (100, 101)
+DURATION = "8"
+
+
+def hidden_arm(seed: int) -> ModelSpec:
+    """An arm unlike any the project assumes: its numbers off by more than their shipped ranges
+    allow (a side drawn at random where either side keeps the excitation's gains stable), its
+    delay a tick beyond the range."""
+    rng = np.random.default_rng(seed)
+    nominal = ModelSpec()
+
+    def beyond(values: tuple[float, ...], low: float, high: float) -> tuple[float, ...]:
+        side = rng.random(N) < 0.5
+        factor = np.where(
+            side, rng.uniform(low, 0.9 * low + 0.1, N), rng.uniform(high, 1.2 * high, N)
+        )
+        return tuple(float(v) for v in np.asarray(values) * factor)
+
+    friction = nominal.friction
+    assert friction is not None
+    arm = nominal.model_copy(
+        update={
+            # Heavier rotors only: drake's notes put the real ones near ten times the nominal,
+            # and lighter ones make the factory gains ring (the arm would not be excited).
+            "rotor_inertia": tuple(np.asarray(nominal.rotor_inertia) * rng.uniform(10, 12, N)),
+            "stiffness": beyond(nominal.stiffness, 0.35, 2.5),
+            "spring_damping": beyond(nominal.spring_damping, 0.4, 2.5),
+            "friction": Friction(
+                coulomb=beyond(friction.coulomb, 0.35, 2.5),
+                viscous=beyond(friction.viscous, 0.35, 2.5),
+            ),
+            "delay": 3,
+            "mass_scale": tuple(float(v) for v in rng.uniform(0.8, 1.2, N)),
+            "payload": float(rng.uniform(3.0, 4.0)),
+            "sensors": Sensors(seed=int(rng.integers(2**32))),
+        }
+    )
+    arm = ModelSpec.model_validate(arm.model_dump())
+    return arm.model_copy(update={"substeps": max(arm.substeps, min_substeps(arm))})
+
+
+def write_plant(path: Path, plant: ModelSpec) -> Path:
+    path.write_text(tomli_w.dumps(PlantFile(plant=plant).model_dump(mode="json")))
+    return path
+
+
+def record(directory: Path, hidden: Path, seeds: tuple[int, ...], gains: Path) -> list[Path]:
+    """`worker episode` on the hidden arm, as a robot-side user plays each excitation: real
+    processes, two at a time (the cores)."""
+    paths = [directory / f"excitation-{seed:03d}.mcap" for seed in seeds]
+    pending = []
+    for seed, path in zip(seeds, paths, strict=True):
+        command = [
+            sys.executable, "-m", "gainfarm.worker", "episode", "--plant", str(hidden),
+            "--trajectory", "fourier", "--trajectory-seed", str(seed), "--duration", DURATION,
+            "--gains", str(gains), "--out", str(path), "--json",
+        ]  # fmt: skip
+        pending.append(subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE))
+        if len(pending) == 2:
+            _wait(pending)
+    _wait(pending)
+    return paths
+
+
+def _wait(pending: list[subprocess.Popen]) -> None:
+    for process in pending:
+        _, err = process.communicate(timeout=120)
+        assert process.returncode == 0, err.decode()
+    pending.clear()
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """A hidden arm, its recorded excitations and held-out episodes, and the twin calibrated on
+    the excitations."""
+    directory = tmp_path_factory.mktemp("calibration")
+    arm = hidden_arm(2026)
+    hidden = write_plant(directory / "hidden.toml", arm)
+    excite = directory / "excite"
+    done = analytic(
+        "excite", "--out", str(excite), "--count", str(EXCITATIONS), "--duration", DURATION,
+        cwd=directory,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    # The robot side plays each excitation with the controller excite chose.
+    seeds = tuple(
+        json.loads(path.read_text())["trajectory"]["seed"]
+        for path in sorted(excite.glob("excitation-*.json"))
+    )
+    assert len(seeds) == EXCITATIONS
+    gains = excite / "controller.json"
+    logs = record(directory, hidden, seeds, gains)
+    held_out = record(directory, hidden, HELD_OUT, gains)
+    twin = directory / "twin.toml"
+    done = analytic("calibrate", *map(str, logs), "--out", str(twin), "--json", cwd=directory)
+    assert done.returncode == 0, done.stderr
+    return {
+        "arm": arm,
+        "twin": twin,
+        "fit": json.loads(done.stdout),
+        "held_out": held_out,
+        "logs": logs,
+        "directory": directory,
+    }
+
+
+def test_the_twin_recovers_the_hidden_arm(calibrated: dict) -> None:
+    arm: ModelSpec = calibrated["arm"]
+    twin = read_plant_file(calibrated["twin"].read_bytes())
+    plant = twin.plant
+    assert arm.friction is not None and plant.friction is not None
+    assert plant.delay == arm.delay  # exactly
+    told = {name: np.array(twin.calibration[name]["told"]) for name in twin.calibration if name in (
+        "rotor_inertia", "coulomb", "viscous", "stiffness")}  # fmt: skip
+    for name, recovered, true in (
+        ("rotor_inertia", plant.rotor_inertia, arm.rotor_inertia),
+        ("coulomb", plant.friction.coulomb, arm.friction.coulomb),
+        ("viscous", plant.friction.viscous, arm.friction.viscous),
+        ("stiffness", plant.stiffness, arm.stiffness),
+    ):
+        ratio = np.asarray(recovered) / np.asarray(true)
+        # Within 10 % wherever the logs told it; the rest untold, and said so.
+        assert np.all(np.abs(ratio[told[name]] - 1) < 0.1), (name, ratio)
+        assert told[name].all() or twin.calibration[name]["why"], name
+    # Every joint's rotor and Coulomb friction is told; most joints' viscous friction.
+    assert told["rotor_inertia"].all() and told["coulomb"].all() and told["viscous"].sum() >= 4
+    # A7 turns the flange alone: its torque is the sensor's noise, so its stiffness is untold,
+    # said, and left at the nominal.
+    stiffness = twin.calibration["stiffness"]
+    assert stiffness["told"] == [True] * 6 + [False]
+    assert "cannot tell stiffness" in stiffness["why"]
+    assert plant.stiffness[6] == ModelSpec().stiffness[6]
+    # The controller's settings are the nominal's, never the log's.
+    assert (plant.interface, plant.feedback, plant.inertials) == ("fri", "motor", "menagerie")
+    assert [log["name"] for log in twin.calibration["logs"]] == [p.name for p in calibrated["logs"]]
+
+
+def test_the_twins_uncertainty_is_what_robust_tuning_draws(calibrated: dict) -> None:
+    twin = read_plant_file(calibrated["twin"].read_bytes())
+    table = {name: entry for name, entry in twin.uncertainty.items()}
+    delay = calibrated["arm"].delay
+    assert table["delay"]["low"] == table["delay"]["high"] == delay
+    rotor = table["rotor_inertia"]
+    assert rotor["per_joint"] and all(
+        0.9 < low < 1 < high < 1.1 for low, high in zip(rotor["low"], rotor["high"], strict=True)
+    )
+    stiffness = table["stiffness"]
+    assert stiffness["low"][6] == 0.5 and stiffness["high"][6] == 2.0  # A7's: the shipped range
+    drawn = variants(twin.plant, 16, seed=1, uncertainty=ranges_of(twin.uncertainty))
+    rotor_ratios = np.array([p.rotor_inertia for p in drawn]) / np.asarray(twin.plant.rotor_inertia)
+    assert rotor_ratios.min() >= min(rotor["low"]) and rotor_ratios.max() <= max(rotor["high"])
+    assert {p.delay for p in drawn} == {delay}
+    shipped = variants(twin.plant, 16, seed=1, uncertainty=ranges())
+    assert {p.delay for p in shipped} != {delay}  # the shipped ranges would not have known it
+
+
+def test_validate_measures_the_gap_the_twin_closes(calibrated: dict) -> None:
+    directory = calibrated["directory"]
+    out = directory / "validation"
+    done = analytic(
+        "validate", str(calibrated["twin"]), *map(str, calibrated["held_out"]),
+        "--out", str(out), "--local", "--workers", "1", "--json", cwd=directory,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout)
+    assert report == json.loads((out / "validation.json").read_text())
+    assert report["summary"]["q_ratio"] <= 0.2
+    twin_q = np.array(report["summary"]["twin"]["q_rms"])
+    nominal_q = np.array(report["summary"]["nominal"]["q_rms"])
+    assert np.all(twin_q < nominal_q)
+    for episode in report["episodes"]:
+        logged = episode["logged"]["f_acc"]
+        assert abs(episode["twin"]["f_acc"] - logged) / logged < 0.1
+        # The nominal plant is the wrong arm: its prediction is off by far more.
+        assert abs(episode["nominal"]["f_acc"] - logged) / logged > 0.3
+
+
+def test_a_worker_runs_an_episode_on_the_twin(calibrated: dict, tmp_path: Path) -> None:
+    command = [
+        sys.executable, "-m", "gainfarm.worker", "episode", "--plant", str(calibrated["twin"]),
+        "--trajectory", "fourier", "--duration", "1", "--out", str(tmp_path / "ep.mcap"),
+    ]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+
+    twin = read_plant_file(calibrated["twin"].read_bytes()).plant
+    assert read_episode(tmp_path / "ep.mcap").metadata.spec.model == twin
+
+
+def test_bad_input_is_one_line_and_writes_nothing(calibrated: dict, tmp_path: Path) -> None:
+    logs = [str(p) for p in calibrated["logs"][:2]]
+    other = tmp_path / "ur5e.toml"
+    other.write_text('[plant]\nrobot = "ur5e"\n')
+    not_a_log = tmp_path / "notes.mcap"
+    not_a_log.write_text("hello")
+    out = tmp_path / "twin.toml"
+    cases = {
+        ("--plant", "robot 'ur5e'"): [*logs, "--plant", str(other), "--out", str(out)],
+        ("notes.mcap", "not"): [str(not_a_log), "--out", str(out)],
+        ("missing.mcap", "no such file"): [str(tmp_path / "missing.mcap"), "--out", str(out)],
+        ("--out", "does not exist"): [*logs, "--out", str(tmp_path / "no" / "twin.toml")],
+        ("--plant", "neither"): [*logs, "--plant", "gazebo", "--out", str(out)],
+    }
+    for (where, what), arguments in cases.items():
+        done = analytic("calibrate", *arguments, cwd=tmp_path)
+        assert done.returncode != 0
+        lines = done.stderr.strip().splitlines()
+        assert len(lines) == 1 and where in lines[0] and what in lines[0], done.stderr
+        assert "Traceback" not in done.stderr
+    assert not out.exists()
+    done = analytic("validate", str(other), *logs, "--out", str(tmp_path / "v"), cwd=tmp_path)
+    assert done.returncode != 0 and "ur5e" in done.stderr and len(done.stderr.splitlines()) == 1
+    assert not (tmp_path / "v").exists()
+
+
+def test_a_plant_file_from_another_robot_is_refused_in_one_line() -> None:
+    with pytest.raises(BadPlantFile, match="robot 'ur5e'; this farm simulates 'iiwa14'"):
+        read_plant_file(b'[plant]\nrobot = "ur5e"\n')
+    with pytest.raises(BadPlantFile, match="not TOML"):
+        read_plant_file(b"[plant\n")
+    with pytest.raises(BadPlantFile, match=r"plant\.delay"):
+        read_plant_file(b"[plant]\ndelay = -1\n")
+    assert read_plant_file(b"[plant]\n").plant == ModelSpec()
