@@ -13,13 +13,19 @@ arm's client logs what it sent. The PD law and the logged measurements give back
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
+from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
-from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
+from gainfarm.schemas.robot import JOINT_NAMES, SPEED_LIMITS
+from gainfarm.schemas.trajectory import CONTROL_PERIOD, CONTROL_PERIOD_NS, TrajectorySpec
+
+if TYPE_CHECKING:
+    from rosbags.highlevel import AnyReader
+    from rosbags.interfaces import Connection
 
 
 class BadLog(ValueError):
@@ -54,14 +60,42 @@ class Recording:
         return self.q, self.qd
 
 
-def read_recording(path: Path) -> Recording:
-    """One episode from a gainfarm MCAP log; BadLog in one line naming the file."""
-    try:
-        log = read_episode(path)
-    except OSError as error:
-        raise BadLog(f"{str(path)!r}: cannot read: {error.strerror}") from None
-    except NotAnEpisodeLog as error:
-        raise BadLog(f"{str(path)!r}: {error}") from None
+@dataclass(frozen=True)
+class Topics:
+    """Where a robot's bag keeps what calibration reads: `sensor_msgs/JointState` topics."""
+
+    joint_states: str = "/joint_states"  # position, velocity, effort (the torque sensors)
+    commands: str = "/joint_commands"  # effort: the torque the controller sent
+    motor_states: str = "/motor_states"  # position, velocity of the motors; optional
+
+
+def read_recording(path: Path, topics: Topics = Topics()) -> Recording:
+    """One episode: a gainfarm episode log, or else a ROS 2 bag (a directory, or an MCAP or
+    SQLite file) a robot recorded; BadLog in one line naming the file."""
+    path = Path(path)
+    if not path.exists():
+        raise BadLog(f"{str(path)!r}: no such file")
+    if path.is_file():
+        try:
+            log = read_episode(path)
+        except OSError as error:
+            raise BadLog(f"{str(path)!r}: cannot read: {error.strerror}") from None
+        except NotAnEpisodeLog as error:
+            if not _rosbag(path):
+                raise BadLog(f"{str(path)!r}: {error}") from None
+        else:
+            return _from_episode(path, log)
+    return read_bag(path, topics)
+
+
+def _rosbag(path: Path) -> bool:
+    """Whether `path` could be a ROS 2 bag's file that is not a gainfarm episode log."""
+    with path.open("rb") as file:
+        head = file.read(16)
+    return head.startswith(b"\x89MCAP") or head.startswith(b"SQLite format 3")
+
+
+def _from_episode(path: Path, log: EpisodeLog) -> Recording:
     spec = log.metadata.spec
     if log.metadata.diverged:
         raise BadLog(f"{str(path)!r}: the episode diverged ({log.metadata.divergence})")
@@ -98,3 +132,183 @@ def read_recording(path: Path) -> Recording:
 
 
 MIN_TICKS = 500  # 1 s: shorter says little beyond its start
+# A tick's stamp may be late by this share of a period (a real-time loop's jitter); a stamp
+# later than that is a gap, ticks the robot did not log.
+JITTER = 0.25
+# A joint's measured angle may not move more than this many times its speed limit allows in a
+# tick: more is a jump (an encoder glitch, a restart), not motion.
+JUMP = 3.0
+JOINT_STATE = "sensor_msgs/msg/JointState"
+
+
+def read_bag(path: Path, topics: Topics = Topics()) -> Recording:
+    """One episode a robot recorded as a ROS 2 bag: its joint states, commanded torques and, if
+    logged, motor states, each `sensor_msgs/JointState` at the plant's 500 Hz (a bag at an
+    integer multiple of it, 1 kHz say, is taken every k-th message); BadLog in one line naming
+    the file and what is missing or wrong."""
+    from rosbags.highlevel import AnyReader
+
+    name = str(path)
+    try:
+        with AnyReader([Path(path)]) as reader:
+            found = {c.topic: c for c in reader.connections}
+            wanted = {"joint_states": topics.joint_states, "commands": topics.commands}
+            if topics.motor_states in found:
+                wanted["motor_states"] = topics.motor_states
+            for role, topic in wanted.items():
+                option = "--" + role.replace("_", "-")
+                if topic not in found:
+                    raise BadLog(
+                        f"{name!r}: no {topic} topic ({_ROLES[role]}; {option} names another)"
+                    )
+                if found[topic].msgtype != JOINT_STATE:
+                    raise BadLog(
+                        f"{name!r}: {topic} holds {found[topic].msgtype}, not {JOINT_STATE}"
+                    )
+            columns = {role: _joint_states(reader, found[topic]) for role, topic in wanted.items()}
+    except BadLog:
+        raise
+    except Exception as error:  # rosbags' errors have no common base: any is the file's fault
+        raise BadLog(f"{name!r}: not a ROS 2 bag rosbags can read ({error})") from None
+    states = columns["joint_states"]
+    if states.effort is None:
+        raise BadLog(
+            f"{name!r}: {topics.joint_states} has no effort (the measured joint torques): "
+            "calibration needs the torque sensors"
+        )
+    commands = columns["commands"]
+    if commands.effort is None:
+        raise BadLog(f"{name!r}: {topics.commands} has no effort (the commanded torques)")
+    step = _step(name, topics.joint_states, states.stamps)
+    ticks = _ticks(name, topics.joint_states, states.stamps, step)
+    q = states.position[ticks]
+    _no_jumps(name, topics.joint_states, q, states.stamps[ticks])
+    command = _aligned(name, topics.commands, commands, states.stamps[ticks]).effort
+    motor = columns.get("motor_states")
+    theta = theta_d = None
+    if motor is not None:
+        motor = _aligned(name, topics.motor_states, motor, states.stamps[ticks])
+        theta, theta_d = motor.position, motor.velocity
+    velocity = states.velocity[ticks] if states.velocity is not None else None
+    if velocity is None:
+        raise BadLog(f"{name!r}: {topics.joint_states} has no velocity")
+    if len(q) < MIN_TICKS:
+        raise BadLog(f"{name!r}: {len(q)} ticks, fewer than the {MIN_TICKS} a fit needs")
+    return Recording(
+        name=Path(path).name,
+        q=q,
+        qd=velocity,
+        tau=states.effort[ticks],
+        command=command,
+        theta=theta,
+        theta_d=theta_d if theta_d is not None else None,
+        fed_back="motor" if theta is not None else "link",
+    )
+
+
+_ROLES = {
+    "joint_states": "the measured joint angles, velocities and torques",
+    "commands": "the commanded torques",
+    "motor_states": "the motor angles",
+}
+
+
+@dataclass(frozen=True)
+class _States:
+    stamps: np.ndarray  # (n,) int64 ns
+    position: np.ndarray  # (n, 7)
+    velocity: np.ndarray | None
+    effort: np.ndarray | None
+
+
+def _joint_states(reader: "AnyReader", connection: "Connection") -> _States:
+    """Every message of one JointState topic, its joints in A1..A7 order if so named, else in
+    the order the messages list them (seven of them)."""
+    stamps, rows = [], {"position": [], "velocity": [], "effort": []}
+    order = None
+    for _, time, raw in reader.messages(connections=[connection]):
+        message = reader.deserialize(raw, connection.msgtype)
+        if order is None:
+            names = list(message.name)
+            if len(names) != len(JOINT_NAMES):
+                raise BadLog(f"{connection.topic} names {len(names)} joints, the iiwa has 7")
+            order = (
+                [names.index(joint) for joint in JOINT_NAMES]
+                if set(names) == set(JOINT_NAMES)
+                else list(range(len(names)))
+            )
+        stamp = message.header.stamp
+        stamps.append(
+            stamp.sec * 1_000_000_000 + stamp.nanosec if stamp.sec or stamp.nanosec else time
+        )
+        for field, values in rows.items():
+            array = np.asarray(getattr(message, field), dtype=float)
+            values.append(array[order] if len(array) == len(order) else None)
+    if not stamps:
+        raise BadLog(f"{connection.topic} has no messages")
+    columns = {}
+    for field, values in rows.items():
+        columns[field] = None if any(v is None for v in values) else np.array(values)
+    if columns["position"] is None:
+        raise BadLog(f"{connection.topic} has messages without positions")
+    return _States(np.asarray(stamps, dtype=np.int64), **columns)
+
+
+def _step(name: str, topic: str, stamps: np.ndarray) -> int:
+    """How many messages make one 2 ms tick: 1 at 500 Hz, k at k × 500 Hz; else refused."""
+    if len(stamps) < 2 or np.any(np.diff(stamps) <= 0):
+        raise BadLog(f"{name!r}: {topic}'s stamps do not increase")
+    period = float(np.median(np.diff(stamps)))
+    step = round(CONTROL_PERIOD_NS / period)
+    if step < 1 or abs(step * period - CONTROL_PERIOD_NS) > 0.02 * CONTROL_PERIOD_NS:
+        raise BadLog(
+            f"{name!r}: {topic} is at {1e9 / period:.4g} Hz; the plant's rate is "
+            f"{1 / CONTROL_PERIOD:g} Hz (record at it, or at a multiple of it)"
+        )
+    return step
+
+
+def _ticks(name: str, topic: str, stamps: np.ndarray, step: int) -> np.ndarray:
+    """The indices of the messages one per tick: every `step`-th; a gap is refused."""
+    gaps = np.diff(stamps) > (1 + JITTER) * CONTROL_PERIOD_NS / step
+    if gaps.any():
+        first = int(np.argmax(gaps))
+        missing = (stamps[first + 1] - stamps[first]) / 1e6
+        at = (stamps[first] - stamps[0]) / 1e9
+        raise BadLog(
+            f"{name!r}: {topic} has a gap of {missing:.3g} ms at t = {at:.3f} s: calibration "
+            "needs every tick (record without drops, or cut the episode there)"
+        )
+    return np.arange(0, len(stamps), step)
+
+
+def _no_jumps(name: str, topic: str, q: np.ndarray, stamps: np.ndarray) -> None:
+    if not np.isfinite(q).all():
+        raise BadLog(f"{name!r}: {topic} has positions that are not numbers")
+    bound = JUMP * np.asarray(SPEED_LIMITS) * CONTROL_PERIOD
+    moves = np.abs(np.diff(q, axis=0)) > bound
+    if moves.any():
+        tick, joint = np.argwhere(moves)[0]
+        size = abs(q[tick + 1, joint] - q[tick, joint])
+        at = (stamps[tick + 1] - stamps[0]) / 1e9
+        raise BadLog(
+            f"{name!r}: {topic} jumps {size:.3g} rad in {JOINT_NAMES[joint]} at t = {at:.3f} s, "
+            f"more than {JUMP:g} times its speed limit allows in a tick"
+        )
+
+
+def _aligned(name: str, topic: str, states: _States, stamps: np.ndarray) -> _States:
+    """`states` at the joint states' ticks: the message stamped nearest each, within a quarter
+    period; refused where there is none."""
+    index = np.clip(np.searchsorted(states.stamps, stamps), 1, len(states.stamps) - 1)
+    before, after = states.stamps[index - 1], states.stamps[index]
+    index = np.where(np.abs(stamps - before) <= np.abs(after - stamps), index - 1, index)
+    off = np.abs(states.stamps[index] - stamps) > JITTER * CONTROL_PERIOD_NS
+    if off.any():
+        at = (stamps[int(np.argmax(off))] - stamps[0]) / 1e9
+        raise BadLog(
+            f"{name!r}: {topic} has no message within {JITTER * CONTROL_PERIOD * 1e3:g} ms of "
+            f"the joint states' tick at t = {at:.3f} s"
+        )
+    velocity, effort = (None if a is None else a[index] for a in (states.velocity, states.effort))
+    return _States(stamps, states.position[index], velocity, effort)

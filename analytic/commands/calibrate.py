@@ -25,28 +25,57 @@ from gainfarm.cli.app import CliError
     show_default=True,
     help="the bootstrap's resamples of the episodes",
 )
+@click.option(
+    "--joint-states",
+    default="/joint_states",
+    show_default=True,
+    help="a bag's sensor_msgs/JointState topic of the measured angles, velocities and torques",
+)
+@click.option(
+    "--commands",
+    default="/joint_commands",
+    show_default=True,
+    help="a bag's JointState topic whose effort is the torque the controller sent",
+)
+@click.option(
+    "--motor-states",
+    default="/motor_states",
+    show_default=True,
+    help="a bag's JointState topic of the motor angles, if the arm logs them (the joint "
+    "stiffness needs them)",
+)
 @click.option("--json", "as_json", is_flag=True, help="print the fit as one JSON object")
-def calibrate(logs: tuple[Path, ...], out: Path, plant: str, seed: int, as_json: bool) -> None:
+def calibrate(
+    logs: tuple[Path, ...],
+    out: Path,
+    plant: str,
+    seed: int,
+    joint_states: str,
+    commands: str,
+    motor_states: str,
+    as_json: bool,
+) -> None:
     """Fit a twin of an arm to LOGS, its recorded episodes (`analytic excite` says what to
-    record): the delay, rotor inertias, friction, joint stiffness and damping, and the links'
-    masses with a payload, each with its uncertainty; the twin is --plant's plant (the robot's
-    own model, the controller's settings, and every number the logs cannot tell) with them."""
+    record): gainfarm episode logs, or ROS 2 bags (directories, MCAP or SQLite files) of
+    sensor_msgs/JointState at 500 Hz. It fits the delay, rotor inertias, friction, joint
+    stiffness and damping, and the links' masses with a payload, each with its uncertainty; the
+    twin is --plant's plant (the robot's own model, the controller's settings, and every number
+    the logs cannot tell) with them."""
     import json
 
     from gainfarm.analytic.calibration.identify import identify
-    from gainfarm.analytic.calibration.logs import BadLog, read_recording
+    from gainfarm.analytic.calibration.logs import BadLog, Topics, read_recording
     from gainfarm.analytic.calibration.twin import twin_file, write_text
     from gainfarm.edges.files import write_atomically
 
     nominal = options.model_spec(plant)
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
+    topics = Topics(joint_states, commands, motor_states)
     recordings = []
     for path in logs:
-        if not path.is_file():
-            raise CliError(f"{str(path)!r}: no such file")
         try:
-            recordings.append(read_recording(path))
+            recordings.append(read_recording(path, topics))
         except BadLog as error:
             raise CliError(str(error)) from None
     if nominal.joints != "flexible":

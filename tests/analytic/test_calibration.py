@@ -6,6 +6,7 @@ off, a delay of three ticks, heavier or lighter links and a tool); it stands in 
 through `worker episode --plant HIDDEN`, and calibration sees only its logs.
 """
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 import tomli_w
 
+from gainfarm.analytic.calibration.logs import Recording, read_recording
 from gainfarm.analytic.tuning.plants import ranges, ranges_of, variants
 from gainfarm.models import min_substeps
 from gainfarm.schemas.mcap_episode import read_episode
@@ -246,3 +248,108 @@ def test_a_plant_file_from_another_robot_is_refused_in_one_line() -> None:
     with pytest.raises(BadPlantFile, match=r"plant\.delay"):
         read_plant_file(b"[plant]\ndelay = -1\n")
     assert read_plant_file(b"[plant]\n").plant == ModelSpec()
+
+
+# --- a robot's ROS 2 bags ------------------------------------------------------------------------
+
+
+def write_bag(
+    path: Path,
+    recording: Recording,
+    *,
+    every_ns: int = 2_000_000,
+    repeat: int = 1,
+    keep: slice | np.ndarray | None = None,
+    effort: bool = True,
+    commands: str = "/joint_commands",
+) -> Path:
+    """`recording` as a robot would log it: JointState on /joint_states, /joint_commands (the
+    torque sent) and /motor_states, stamped `every_ns` apart (each message `repeat` times, a
+    faster logger's), MCAP storage; `keep` picks the ticks written (a gap)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    state = store.types["sensor_msgs/msg/JointState"]
+    header, stamp = store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
+    names = [f"A{i}" for i in range(1, 8)]
+    ticks = np.arange(recording.ticks)[keep if keep is not None else slice(None)]
+    empty = np.zeros(0)
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        topics = {
+            topic: writer.add_connection(topic, "sensor_msgs/msg/JointState", typestore=store)
+            for topic in ("/joint_states", commands, "/motor_states")
+        }
+        for tick in ticks:
+            for copy in range(repeat):
+                ns = int(tick) * every_ns + copy * every_ns // repeat
+                head = header(stamp=stamp(sec=ns // 10**9, nanosec=ns % 10**9), frame_id="")
+                messages = {
+                    "/joint_states": (recording.q, recording.qd, recording.tau if effort else None),
+                    commands: (np.zeros_like(recording.q), None, recording.command),
+                    "/motor_states": (recording.theta, recording.theta_d, None),
+                }
+                for topic, (position, velocity, torque) in messages.items():
+                    message = state(
+                        header=head,
+                        name=names,
+                        position=position[tick],
+                        velocity=velocity[tick] if velocity is not None else empty,
+                        effort=torque[tick] if torque is not None else empty,
+                    )
+                    writer.write(
+                        topics[topic], ns, store.serialize_cdr(message, message.__msgtype__)
+                    )
+    return path
+
+
+def test_a_robots_bags_calibrate_the_same_twin(calibrated: dict, tmp_path: Path) -> None:
+    bags = [
+        write_bag(tmp_path / f"bag-{index}", read_recording(log))
+        for index, log in enumerate(calibrated["logs"])
+    ]
+    twin = tmp_path / "twin.toml"
+    done = analytic("calibrate", *map(str, bags), "--out", str(twin), cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    # The same numbers as the episode logs hold, read through rosbags: the same twin.
+    assert (
+        read_plant_file(twin.read_bytes()).plant
+        == read_plant_file(calibrated["twin"].read_bytes()).plant
+    )
+
+
+def test_a_faster_bag_is_taken_at_the_plants_rate(calibrated: dict, tmp_path: Path) -> None:
+    recording = read_recording(calibrated["logs"][0])
+    slow = read_recording(write_bag(tmp_path / "500", recording))
+    fast = read_recording(write_bag(tmp_path / "1k", recording, repeat=2))
+    for name in ("q", "qd", "tau", "command", "theta", "theta_d"):
+        assert np.array_equal(getattr(slow, name), getattr(fast, name)), name
+    assert np.array_equal(slow.q, recording.q) and slow.fed_back == "motor"
+
+
+def test_a_bag_calibration_cannot_use_is_one_line(calibrated: dict, tmp_path: Path) -> None:
+    recording = read_recording(calibrated["logs"][0])
+    keep = np.r_[0:1000, 1010 : recording.ticks]
+    bags = {
+        "has no effort": write_bag(tmp_path / "no-torque", recording, effort=False),
+        "is at 250 Hz": write_bag(tmp_path / "slow", recording, every_ns=4_000_000),
+        "has a gap of 22 ms at t = 1.998 s": write_bag(tmp_path / "gap", recording, keep=keep),
+        "no /joint_commands topic": write_bag(tmp_path / "topic", recording, commands="/cmd"),
+    }
+    jumped = dataclasses.replace(recording, q=recording.q.copy())
+    jumped.q[2000:, 3] += 0.2
+    bags["rad in A4 at t = 4.000 s, more than 3 times its speed limit"] = write_bag(
+        tmp_path / "jump", jumped
+    )
+    for what, bag in bags.items():
+        done = analytic("calibrate", str(bag), "--out", str(tmp_path / "twin.toml"), cwd=tmp_path)
+        assert done.returncode != 0
+        lines = done.stderr.strip().splitlines()
+        assert len(lines) == 1 and what in lines[0] and str(bag) in lines[0], done.stderr
+    assert not (tmp_path / "twin.toml").exists()
+    # The topic another robot uses is named by its option.
+    done = analytic(
+        "calibrate", str(bags["no /joint_commands topic"]), "--commands", "/cmd",
+        "--out", str(tmp_path / "twin.toml"), cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
