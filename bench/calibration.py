@@ -108,16 +108,18 @@ def record(
     return paths
 
 
-def on_hidden(controller: Path, hidden: Path, cwd: Path) -> float:
-    """The controller's f_acc on the hidden arm, on the run's trajectory (the default)."""
+def on_hidden(controller: Path, hidden: Path, cwd: Path) -> tuple[float, float]:
+    """The controller's f_acc and f_t on the hidden arm, on the run's trajectory (the
+    default)."""
     out = run(
         sys.executable, "-m", "gainfarm.worker", "episode", "--plant", str(hidden),
         "--gains", str(controller), "--out", str(cwd / "check.mcap"), "--json", cwd=cwd,
     )  # fmt: skip
-    return float(json.loads(out)["f_acc"])
+    scores = json.loads(out)
+    return float(scores["f_acc"]), float(scores["f_t"])
 
 
-def tuned(plant: str, name: str, evaluations: int, cwd: Path) -> tuple[Path, float]:
+def tuned(plant: str, name: str, evaluations: int, cwd: Path) -> tuple[Path, float, float]:
     """The recommended controller of a run tuned on `plant` (the knee if none is recommended),
     and its f_acc as the run saw it."""
     run_dir = cwd / f"run-{name}"
@@ -134,7 +136,8 @@ def tuned(plant: str, name: str, evaluations: int, cwd: Path) -> tuple[Path, flo
         )  # fmt: skip
         if done.returncode == 0:
             break
-    return controller, float(json.loads(controller.read_text())["member"]["f_acc"])
+    member = json.loads(controller.read_text())["member"]
+    return controller, float(member["f_acc"]), float(member["f_t"])
 
 
 def one_arm(seed: int, options: argparse.Namespace, cwd: Path) -> dict:
@@ -175,9 +178,9 @@ def one_arm(seed: int, options: argparse.Namespace, cwd: Path) -> dict:
     )
     gaps = {}
     for name, plant_option in (("twin", str(cwd / "twin.toml")), ("nominal", "realistic")):
-        controller, predicted = tuned(plant_option, name, options.evaluations, cwd)
-        actual = on_hidden(controller, hidden, cwd)
-        gaps[name] = (predicted, actual, abs(actual - predicted) / predicted)
+        controller, predicted, predicted_t = tuned(plant_option, name, options.evaluations, cwd)
+        actual, actual_t = on_hidden(controller, hidden, cwd)
+        gaps[name] = (predicted, actual, abs(actual - predicted) / predicted, predicted_t, actual_t)
     return {
         "seconds": seconds,
         "delay": (plant.delay, arm.delay),
@@ -208,10 +211,11 @@ def main() -> None:
         for name, (worst, count) in result["errors"].items():
             print(f"  {name}: worst error {worst:.1%} over the {count} joints told")
         print(f"  q simulation error, twin against nominal: {result['q_ratio']:.3f}x")
-        for name, (predicted, actual, error) in result["gaps"].items():
+        for name, (predicted, actual, error, predicted_t, actual_t) in result["gaps"].items():
             print(
                 f"  tuned on the {name}: f_acc predicted {predicted * 1e3:.2f} mm, on the arm "
-                f"{actual * 1e3:.2f} mm, off by {error:.1%}"
+                f"{actual * 1e3:.2f} mm, off by {error:.1%}; f_t predicted {predicted_t:.4g}, "
+                f"on the arm {actual_t:.4g} (N·m)²"
             )
     print("summary:")
     print(f"  calibrate, slowest: {max(r['seconds'] for r in results):.1f} s")

@@ -181,6 +181,22 @@ def test_the_twins_uncertainty_is_what_robust_tuning_draws(calibrated: dict) -> 
     assert {p.delay for p in shipped} != {delay}  # the shipped ranges would not have known it
 
 
+def test_robust_tuning_on_the_twin_draws_from_its_uncertainty(calibrated: dict) -> None:
+    from gainfarm.analytic.commands.shared import plants_from
+
+    twin_path = str(calibrated["twin"])
+    twin = read_plant_file(calibrated["twin"].read_bytes()).plant
+    # `analytic start --plant TWIN --plants K` (and its held-out check): the twin's ranges.
+    for held_out in (False, True):
+        drawn = plants_from(8, None, twin, seed=4, held_out=held_out, plant=twin_path)
+        assert {p.delay for p in drawn} == {twin.delay}
+        rotor = np.array([p.rotor_inertia for p in drawn]) / np.asarray(twin.rotor_inertia)
+        assert rotor.min() > 0.9 and rotor.max() < 1.1
+    # A named plant keeps the shipped ranges.
+    shipped = plants_from(8, None, twin, seed=4, plant="realistic")
+    assert len({p.delay for p in shipped}) > 1
+
+
 def test_validate_measures_the_gap_the_twin_closes(calibrated: dict) -> None:
     directory = calibrated["directory"]
     out = directory / "validation"

@@ -62,12 +62,37 @@ def test_each_shipped_range_names_its_source_or_says_it_is_an_assumption() -> No
             "one number, not one per joint",
         ),
         ("[a", "not TOML"),
+        (
+            '[a]\nfield = "stiffness"\ndraw = "log"\nlow = [1, 1]\nhigh = 2\nwhy = "w"',
+            "low: one number, or 7 with per_joint = true",
+        ),
+        (
+            '[a]\nfield = "stiffness"\nper_joint = true\ndraw = "log"\nlow = [1, 1, 1, 1, 1, 1, 3]'
+            '\nhigh = 2\nwhy = "w"',
+            "high 2 is below low 1, 1, 1, 1, 1, 1, 3",
+        ),
     ],
 )
 def test_a_bad_uncertainty_file_is_refused_in_one_line(text: str, says: str) -> None:
     with pytest.raises(BadUncertainty, match=says) as refused:
         ranges(text)
     assert "\n" not in str(refused.value)
+
+
+def test_per_joint_bounds_draw_each_joint_within_its_own() -> None:
+    # A calibrated twin's ranges: one pair per joint (analytic calibrate writes them).
+    low, high = (0.9, 0.5, 1.0, 0.95, 0.99, 0.8, 1.0), (1.1, 2.0, 1.0, 1.05, 1.01, 1.25, 1.0)
+    table = ranges(
+        f'[k]\nfield = "stiffness"\nper_joint = true\ndraw = "log"\nlow = {list(low)}\n'
+        f'high = {list(high)}\nwhy = "calibrated"\n'
+        '[d]\nfield = "delay"\nabsolute = true\ndraw = "integer"\nlow = 2\nhigh = 2\nwhy = "w"\n'
+    )
+    drawn = variants(REALISTIC_PLANT, 32, seed=5, uncertainty=table)
+    factors = np.array([p.stiffness for p in drawn]) / np.asarray(REALISTIC_PLANT.stiffness)
+    assert np.all(factors >= np.asarray(low) * (1 - 1e-12))
+    assert np.all(factors <= np.asarray(high) * (1 + 1e-12))
+    assert np.ptp(factors[:, 1]) > 1.0 and np.ptp(factors[:, 2]) == 0  # each joint its own
+    assert {p.delay for p in drawn} == {2}
 
 
 def test_each_trajectorys_objectives_aggregate_its_plants() -> None:
