@@ -44,8 +44,9 @@ def hidden_arm(seed: int) -> ModelSpec:
     nominal = ModelSpec()
 
     def beyond(values: tuple[float, ...], low: float, high: float) -> tuple[float, ...]:
-        side = rng.random(N) < 0.5
-        below, above = rng.uniform(low, 0.9 * low + 0.1, N), rng.uniform(high, 1.2 * high, N)
+        n = len(values)
+        side = rng.random(n) < 0.5
+        below, above = rng.uniform(low, 0.9 * low + 0.1, n), rng.uniform(high, 1.2 * high, n)
         return tuple(float(v) for v in np.asarray(values) * np.where(side, below, above))
 
     friction = nominal.friction
@@ -58,6 +59,8 @@ def hidden_arm(seed: int) -> ModelSpec:
             "friction": Friction(
                 coulomb=beyond(friction.coulomb, 0.35, 2.5),
                 viscous=beyond(friction.viscous, 0.35, 2.5),
+                # The Coulomb part's shape: sharper or smoother than assumed.
+                smoothing=float(beyond((friction.smoothing,), 0.35, 2.5)[0]),
             ),
             "delay": 3,
             "mass_scale": tuple(float(v) for v in rng.uniform(0.8, 1.2, N)),

@@ -8,12 +8,12 @@ joint, with θ the motor angle, q the link angle and τ_J the torque sensor's re
     link side:   τ_J = Σ_i m_i Y_i(q, q̇, q̈) + m_payload Y_payload(q, q̇, q̈)
 
 Each is linear in what it identifies: rotor inertia B and friction F_v, F_c (for each candidate
-delay: the delay is the one that fits best), stiffness K and damping D, and the links' true
-masses against the robot's model (mass_scale: each link's inertia scales with its mass, so the
-inverse dynamics is linear in the scales) and a payload at the flange: positive by bounds, a
-physically consistent arm by construction. Derivatives are Savitzky-Golay's, and every signal of
-an equation is filtered by the same low-pass (`WINDOW`), so that what the filter removes (the
-springs' ringing, noise) is removed from both sides alike.
+delay and friction smoothing s: those two are the ones that fit best, a profile), stiffness K
+and damping D, and the links' true masses against the robot's model (mass_scale: each link's
+inertia scales with its mass, so the inverse dynamics is linear in the scales) and a payload at
+the flange: positive by bounds, a physically consistent arm by construction. Derivatives are
+Savitzky-Golay's, and every signal of an equation is filtered by the same low-pass (`WINDOW`),
+so that what the filter removes (the springs' ringing, noise) is removed from both sides alike.
 
 A command acts over the control period after it is applied (a zero-order hold): the motor
 equation compares it with the motion half a tick later, the mean of two ticks' accelerations.
@@ -21,11 +21,11 @@ Without that half tick, delays d and d + 1 fit alike.
 
 How sure each number is: a bootstrap over episodes (each resample sums the episodes' normal
 equations, so it costs a small solve). A number the logs cannot tell (its bootstrap spread above
-`TOLD`, or its equation explains little of its torque) keeps the nominal value and the shipped
-range, and says why.
+`TOLD`, or its term's torque under MIN_SIGNAL times what the fit leaves unexplained) keeps the
+nominal value and the shipped range, and says why.
 """
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import mujoco
@@ -47,11 +47,13 @@ SKIP_START, SKIP_END = 150, WINDOW
 MAX_DELAY = 10  # ticks: 20 ms, an order of magnitude beyond FRI's one cycle
 BOOTSTRAP = 200  # resamples of the episodes
 TOLD = 0.1  # a number is told when its bootstrap spread is below this share of it ...
-# ... and the torque it accounts for (its term's RMS) is at least this many times what the fit
-# leaves unexplained: the residual is the filter's and the model's, the same in every episode,
-# so a term below it is bent by it however small the bootstrap spread (a heavy rotor's inertia
-# drowns a joint's viscous friction, a flange's torque its stiffness).
-MIN_SIGNAL = 2.0
+# ... and the torque only it accounts for (its term's RMS once the other terms' share of its
+# column is taken out: what is left when the others explain all they can) is at least this many
+# times what the fit leaves unexplained. The residual is the filter's and the model's, the same
+# in every episode, so a term below it is bent by it however small the bootstrap spread (a heavy
+# rotor's inertia drowns a joint's viscous friction, a smooth Coulomb part looks viscous, a
+# flange's torque is the sensor's noise).
+MIN_SIGNAL = 2.5
 SPREAD = 3.0  # the twin's range: this many bootstrap standard deviations each way ...
 FLOOR = 0.05  # ... and at least 5 % each way (what a linear fit of a real arm leaves unmodelled)
 
@@ -74,6 +76,7 @@ class Fit:
 
     delay: int
     delay_support: float  # share of bootstrap resamples that chose `delay`
+    smoothing: "Smoothing"
     rotor_inertia: Estimate
     viscous: Estimate
     coulomb: Estimate
@@ -92,7 +95,11 @@ class Fit:
         friction = nominal.friction
         if friction is not None:
             friction = friction.model_copy(
-                update={"viscous": _tuple(self.viscous), "coulomb": _tuple(self.coulomb)}
+                update={
+                    "viscous": _tuple(self.viscous),
+                    "coulomb": _tuple(self.coulomb),
+                    "smoothing": self.smoothing.value,
+                }
             )
         twin = nominal.model_copy(
             update={
@@ -127,12 +134,13 @@ def identify(
             "no motor-side angles: θ is estimated as q + τ_J / K with the nominal stiffness, "
             "and the stiffness and spring damping cannot be told"
         )
-    delay, support, motor = _motor_side(signals, weights, nominal)
+    delay, support, smoothing, motor = _motor_side(signals, weights, nominal)
     spring = _spring(signals, weights, nominal)
     masses = _link_side(signals, weights, nominal)
     return Fit(
         delay=delay,
         delay_support=support,
+        smoothing=smoothing,
         rotor_inertia=motor[0],
         viscous=motor[1],
         coulomb=motor[2],
@@ -203,46 +211,104 @@ def _solve(sums: np.ndarray) -> tuple[np.ndarray, float, float]:
 
 def _motor_side(
     signals: Sequence[_Signals], weights: np.ndarray, nominal: ModelSpec
-) -> tuple[int, float, tuple[Estimate, Estimate, Estimate]]:
-    """The delay, and per joint B, F_v, F_c."""
+) -> tuple[int, float, "Smoothing", tuple[Estimate, Estimate, Estimate]]:
+    """The delay, the Coulomb friction's smoothing, and per joint B, F_v, F_c.
+
+    Linear in B, F_v and F_c for a given delay and smoothing; each of those two is the one whose
+    least squares leave the least residual (a profile): the delay at the nominal smoothing, the
+    smoothing at that delay, the delay again at the smoothing found."""
     limits = np.asarray(TORQUE_LIMITS)
-    smoothing = nominal.friction.smoothing if nominal.friction is not None else 0.05
     fri = nominal.interface == "fri"
     gravity = RobotGravity(nominal) if fri else None
-    # sums[d][e, j]: episode e's normal equations for joint j at delay d.
-    sums = np.empty((MAX_DELAY + 1, len(signals), N, 4, 4))
-    for e, s in enumerate(signals):
+    # What does not depend on the delay or the smoothing, per episode.
+    inertial, targets, rates = [], [], []
+    for s in signals:
         recording = s.recording
         added = gravity.at(s.fed_back_angles) if gravity is not None else 0.0
-        columns = [
-            s.smooth(_half_tick(s.theta_dd)),
-            s.smooth(_half_tick(s.theta_d)),
-            s.smooth(np.tanh(s.fed_back_rates / smoothing)),
-        ]
+        inertial.append([s.smooth(_half_tick(s.theta_dd)), s.smooth(_half_tick(s.theta_d))])
         sensed = _half_tick(recording.tau)
+        by_delay = []
         for d in range(MAX_DELAY + 1):
             late = recording.command[np.maximum(np.arange(recording.ticks) - d, 0)]
             motor = np.clip(late, -limits, limits) + added if fri else late
-            target = s.smooth(np.clip(motor, -limits, limits) - sensed)
-            for j in range(N):
-                rows = np.column_stack([column[:, j] for column in columns])
-                sums[d, e, j] = _normal(rows, target[:, j])
-    every = np.ones(len(signals))
+            by_delay.append(s.smooth(np.clip(motor, -limits, limits) - sensed))
+        targets.append(by_delay)
+        rates.append(s.fed_back_rates)
 
-    def best_delay(w: np.ndarray) -> int:
+    def sums(delays: Sequence[int], smoothing: float) -> np.ndarray:
+        """[delay, episode, joint] normal equations of B, F_v, F_c at `smoothing`."""
+        out = np.empty((len(delays), len(signals), N, 4, 4))
+        for e, s in enumerate(signals):
+            coulomb = s.smooth(np.tanh(rates[e] / smoothing))
+            for i, d in enumerate(delays):
+                for j in range(N):
+                    rows = np.column_stack(
+                        [inertial[e][0][:, j], inertial[e][1][:, j], coulomb[:, j]]
+                    )
+                    out[i, e, j] = _normal(rows, targets[e][d][:, j])
+        return out
+
+    delays = list(range(MAX_DELAY + 1))
+    nominal_smoothing = nominal.friction.smoothing if nominal.friction is not None else 0.05
+    delay = _least_residual(sums(delays, nominal_smoothing), np.ones(len(signals)))
+    smoothing = _smoothing(lambda value: sums([delay], value)[0], nominal_smoothing, weights)
+    at_smoothing = sums(delays, smoothing.value)
+    delay = _least_residual(at_smoothing, np.ones(len(signals)))
+    picks = [_least_residual(at_smoothing, w) for w in weights[: min(len(weights), 50)]]
+    support = float(np.mean([pick == delay for pick in picks]))
+    estimates = _estimates(
+        at_smoothing[delay], weights, ("rotor_inertia", "viscous", "coulomb"), nominal
+    )
+    return delay, support, smoothing, estimates  # type: ignore[return-value]
+
+
+def _least_residual(sums: np.ndarray, w: np.ndarray) -> int:
+    """Which of sums' first axis (candidates) leaves the least residual, each joint's relative
+    to its best (no joint's torque scale outweighs another's), with episodes weighted `w`."""
+    residuals = np.array(
+        [[_solve(np.tensordot(w, sums[c, :, j], 1))[1] for j in range(N)] for c in range(len(sums))]
+    )
+    return int((residuals / residuals.min(axis=0)).sum(axis=1).argmin())
+
+
+@dataclass(frozen=True)
+class Smoothing:
+    """The Coulomb friction's smoothing (one number, rad/s: Friction.smoothing)."""
+
+    value: float
+    spread: float  # bootstrap standard deviation of its logarithm
+    told: bool
+
+
+SMOOTHINGS = 2.0 ** np.arange(-3.0, 3.01, 0.5)  # factors on the nominal searched
+
+
+def _smoothing(
+    sums_at: "Callable[[float], np.ndarray]", nominal: float, weights: np.ndarray
+) -> Smoothing:
+    """The smoothing whose fit leaves the least residual: a grid of factors on the nominal, then
+    a parabola through the least and its neighbours in the logarithm; bootstrapped."""
+    grid = nominal * SMOOTHINGS
+    per_episode = np.array([sums_at(float(value)) for value in grid])  # [grid, episode, joint]
+
+    def least(w: np.ndarray) -> float:
         residuals = np.array(
-            [
-                [_solve(np.tensordot(w, sums[d, :, j], 1))[1] for j in range(N)]
-                for d in range(len(sums))
-            ]
-        )
-        # Each joint's residuals relative to its best: no joint's torque scale outweighs another's.
-        return int((residuals / residuals.min(axis=0)).sum(axis=1).argmin())
+            [[_solve(np.tensordot(w, per_episode[g, :, j], 1))[1] for j in range(N)]
+             for g in range(len(grid))]
+        )  # fmt: skip
+        total = (residuals / residuals.min(axis=0)).sum(axis=1)
+        k = int(total.argmin())
+        if k in (0, len(grid) - 1):
+            return float("nan")  # at the grid's edge: no least inside it
+        x = np.log(grid[k - 1 : k + 2])
+        a, b, _ = np.polyfit(x, total[k - 1 : k + 2], 2)
+        return float(np.exp(-b / (2 * a))) if a > 0 else float(grid[k])
 
-    delay = best_delay(every)
-    support = float(np.mean([best_delay(w) == delay for w in weights[: min(len(weights), 50)]]))
-    estimates = _estimates(sums[delay], weights, ("rotor_inertia", "viscous", "coulomb"), nominal)
-    return delay, support, estimates  # type: ignore[return-value]
+    value = least(np.ones(per_episode.shape[1]))
+    draws = np.log([least(w) for w in weights[: min(len(weights), 50)]])
+    spread = float(np.std(draws)) if np.isfinite(draws).all() else float("inf")
+    told = bool(np.isfinite(value) and spread < np.log1p(TOLD))
+    return Smoothing(value if told else nominal, spread, told)
 
 
 def _spring(
@@ -358,7 +424,8 @@ def _estimates(
         boot = np.array([_solve(np.tensordot(w, sums[:, j], 1))[0] for w in weights])
         fits[j], spreads[j] = x, boot.std(axis=0)
         explained[j] = 1.0 - residual / max(total, 1e-30)
-        signal[j] = np.abs(x) * np.sqrt(np.diag(summed)[:p]) / max(np.sqrt(residual), 1e-30)
+        unique = 1.0 / np.sqrt(np.diag(np.linalg.pinv(summed[:p, :p])))  # norm left to each column
+        signal[j] = np.abs(x) * unique / max(np.sqrt(residual), 1e-30)
     out = []
     for i, name in enumerate(names):
         told = (spreads[:, i] < TOLD * np.abs(fits[:, i])) & (fits[:, i] > 0)
@@ -368,8 +435,9 @@ def _estimates(
             _with_nominal(
                 Estimate(fits[:, i], spreads[:, i], told, explained),
                 nominal_values,
-                f"the logs cannot tell {name} (its torque under {MIN_SIGNAL:g} times what the "
-                f"fit leaves unexplained, or a bootstrap spread above {TOLD:.0%})",
+                f"the logs cannot tell {name} (the torque only it explains is under "
+                f"{MIN_SIGNAL:g} times what the fit leaves unexplained, or a bootstrap spread "
+                f"above {TOLD:.0%})",
             )
         )
     return tuple(out)

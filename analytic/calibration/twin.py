@@ -51,6 +51,11 @@ def twin_file(fit: Fit, nominal: ModelSpec, logs: Sequence[Path]) -> PlantFile:
         "episodes": fit.episodes,
         "ticks": fit.ticks,
         "delay": {"ticks": fit.delay, "support": fit.delay_support},
+        "smoothing": {
+            "fit": fit.smoothing.value,
+            "spread": fit.smoothing.spread,
+            "told": fit.smoothing.told,
+        },
         **{name: _summary(getattr(fit, name)) for name in _ESTIMATES},
         "notes": list(fit.notes),
     }

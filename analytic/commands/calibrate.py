@@ -128,10 +128,12 @@ def _show(calibration: dict, out: Path) -> None:
         table.add_row(name, *cells)
     console = Console(stderr=False)
     console.print(table)
-    delay = calibration["delay"]
+    delay, smoothing = calibration["delay"], calibration["smoothing"]
     payload = calibration["payload"]
+    told = f"±{smoothing['spread']:.1%}" if smoothing["told"] else "untold, the nominal kept"
     console.print(
         f"delay {delay['ticks']} ticks ({delay['support']:.0%} of bootstrap resamples); "
+        f"friction smoothing {smoothing['fit']:.3g} rad/s ({told}); "
         f"payload {payload['fit'][0]:.3g} kg"
     )
     seen = set()

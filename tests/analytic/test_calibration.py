@@ -1,9 +1,10 @@
 """From a hidden arm's logs to a twin, and back: `analytic calibrate` and `analytic validate`.
 
-A hidden arm is a plant file whose numbers are drawn here, outside the shipped uncertainty
-ranges (rotor inertias up to twelve times the nominal, stiffness and friction a factor of three
-off, a delay of three ticks, heavier or lighter links and a tool); it stands in for a real robot
-through `worker episode --plant HIDDEN`, and calibration sees only its logs.
+A hidden arm is a plant file whose numbers are drawn outside the shipped uncertainty ranges
+(bench/calibration.py's `hidden_arm`: rotors ten to twelve times heavier, stiffness, friction
+and its shape some three times off either way, a delay of three ticks, heavier or lighter links
+and a tool); it stands in for a real robot through `worker episode --plant HIDDEN`, and
+calibration sees only its logs.
 """
 
 import dataclasses
@@ -14,61 +15,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import tomli_w
 
+from bench.calibration import hidden_arm, write_plant
 from gainfarm.analytic.calibration.logs import Recording, read_recording
 from gainfarm.analytic.tuning.plants import ranges, ranges_of, variants
-from gainfarm.models import min_substeps
 from gainfarm.schemas.mcap_episode import read_episode
-from gainfarm.schemas.plant_file import BadPlantFile, PlantFile, read_plant_file
-from gainfarm.schemas.robot import Friction, ModelSpec, Sensors
+from gainfarm.schemas.plant_file import BadPlantFile, read_plant_file
+from gainfarm.schemas.robot import ModelSpec
 from tests.helpers import analytic
 
 N = 7
 EXCITATIONS, HELD_OUT = 6, (100, 101)
 DURATION = "8"
-
-
-def hidden_arm(seed: int) -> ModelSpec:
-    """An arm unlike any the project assumes: its numbers off by more than their shipped ranges
-    allow (a side drawn at random where either side keeps the excitation's gains stable), its
-    delay a tick beyond the range."""
-    rng = np.random.default_rng(seed)
-    nominal = ModelSpec()
-
-    def beyond(values: tuple[float, ...], low: float, high: float) -> tuple[float, ...]:
-        side = rng.random(N) < 0.5
-        factor = np.where(
-            side, rng.uniform(low, 0.9 * low + 0.1, N), rng.uniform(high, 1.2 * high, N)
-        )
-        return tuple(float(v) for v in np.asarray(values) * factor)
-
-    friction = nominal.friction
-    assert friction is not None
-    arm = nominal.model_copy(
-        update={
-            # Heavier rotors only: drake's notes put the real ones near ten times the nominal,
-            # and lighter ones make the factory gains ring (the arm would not be excited).
-            "rotor_inertia": tuple(np.asarray(nominal.rotor_inertia) * rng.uniform(10, 12, N)),
-            "stiffness": beyond(nominal.stiffness, 0.35, 2.5),
-            "spring_damping": beyond(nominal.spring_damping, 0.4, 2.5),
-            "friction": Friction(
-                coulomb=beyond(friction.coulomb, 0.35, 2.5),
-                viscous=beyond(friction.viscous, 0.35, 2.5),
-            ),
-            "delay": 3,
-            "mass_scale": tuple(float(v) for v in rng.uniform(0.8, 1.2, N)),
-            "payload": float(rng.uniform(3.0, 4.0)),
-            "sensors": Sensors(seed=int(rng.integers(2**32))),
-        }
-    )
-    arm = ModelSpec.model_validate(arm.model_dump())
-    return arm.model_copy(update={"substeps": max(arm.substeps, min_substeps(arm))})
-
-
-def write_plant(path: Path, plant: ModelSpec) -> Path:
-    path.write_text(tomli_w.dumps(PlantFile(plant=plant).model_dump(mode="json")))
-    return path
 
 
 def record(directory: Path, hidden: Path, seeds: tuple[int, ...], gains: Path) -> list[Path]:
@@ -137,6 +95,8 @@ def test_the_twin_recovers_the_hidden_arm(calibrated: dict) -> None:
     plant = twin.plant
     assert arm.friction is not None and plant.friction is not None
     assert plant.delay == arm.delay  # exactly
+    smoothing = plant.friction.smoothing / arm.friction.smoothing
+    assert twin.calibration["smoothing"]["told"] and abs(smoothing - 1) < 0.1, smoothing
     told = {name: np.array(twin.calibration[name]["told"]) for name in twin.calibration if name in (
         "rotor_inertia", "coulomb", "viscous", "stiffness")}  # fmt: skip
     for name, recovered, true in (
@@ -149,8 +109,9 @@ def test_the_twin_recovers_the_hidden_arm(calibrated: dict) -> None:
         # Within 10 % wherever the logs told it; the rest untold, and said so.
         assert np.all(np.abs(ratio[told[name]] - 1) < 0.1), (name, ratio)
         assert told[name].all() or twin.calibration[name]["why"], name
-    # Every joint's rotor and Coulomb friction is told; most joints' viscous friction.
-    assert told["rotor_inertia"].all() and told["coulomb"].all() and told["viscous"].sum() >= 4
+    # Every joint's rotor and Coulomb friction is told; the viscous part only where a heavy
+    # rotor does not drown it (this arm's A5 and A6; bench/calibration.py counts them).
+    assert told["rotor_inertia"].all() and told["coulomb"].all() and told["viscous"].sum() >= 2
     # A7 turns the flange alone: its torque is the sensor's noise, so its stiffness is untold,
     # said, and left at the nominal.
     stiffness = twin.calibration["stiffness"]
