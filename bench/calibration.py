@@ -184,9 +184,11 @@ def one_arm(seed: int, options: argparse.Namespace, cwd: Path) -> dict:
         controller, predicted, predicted_t = tuned(plant_option, name, options.evaluations, cwd)
         actual, actual_t = on_hidden(controller, hidden, cwd)
         gaps[name] = (predicted, actual, abs(actual - predicted) / predicted, predicted_t, actual_t)
+    smoothing = plant.friction.smoothing / arm.friction.smoothing - 1
     return {
         "seconds": seconds,
         "delay": (plant.delay, arm.delay),
+        "smoothing": (smoothing, told["smoothing"]["told"]),
         "errors": errors,
         "q_ratio": report["summary"]["q_ratio"],
         "gaps": gaps,
@@ -211,6 +213,8 @@ def main() -> None:
             f"{result['seconds']:.1f} s"
         )
         print(f"  delay: {result['delay'][0]} ticks, the arm's {result['delay'][1]}")
+        error, told = result["smoothing"]
+        print(f"  friction smoothing: error {abs(error):.1%} ({'told' if told else 'untold'})")
         for name, (worst, count) in result["errors"].items():
             print(f"  {name}: worst error {worst:.1%} over the {count} joints told")
         print(f"  q simulation error, twin against nominal: {result['q_ratio']:.3f}x")

@@ -81,3 +81,15 @@ def test_scale_prints_the_plumbing_and_a_real_run() -> None:
         positive(run["utilisation"])
         positive(run["evaluations_per_s"])
         positive(run["analytic_cpu_ms"])
+
+
+@pytest.mark.slow
+def test_calibration_prints_its_targets_on_a_hidden_arm() -> None:
+    options = ["--arms", "1", "--excitations", "3", "--duration", "8", "--evaluations", "24"]
+    done = bench("calibration.py", *options, timeout=600)
+    figures(rf"calibrate on 3 x 8 s: {NUMBER} s", done.stdout)
+    figures(rf"q simulation error, twin against nominal: {NUMBER}x", done.stdout)
+    assert "delays exact: 1 of 1" in done.stdout, done.stdout
+    for name in ("twin", "nominal"):
+        figures(rf"tuned on the {name}: f_acc predicted {NUMBER} mm", done.stdout)
+    assert len(figures(rf"on the arm {NUMBER} mm, off by", done.stdout)) == 2
