@@ -9,6 +9,7 @@ import click
 
 from gainfarm.analytic.commands.shared import (
     check_farm,
+    claimed,
     farm,
     farm_options,
     farm_problem,
@@ -78,7 +79,6 @@ def batch(
     as_json: bool,
 ) -> None:
     """Evaluate candidate gains on trajectories through the farm; keep and score every episode."""
-    from gainfarm.analytic.compose import CannotStart, claim
     from gainfarm.analytic.evaluators.batch import EVALUATIONS, batch_jobs, run_batch
     from gainfarm.analytic.evaluators.farm import FarmClient
     from gainfarm.analytic.view.progress import Display
@@ -98,50 +98,36 @@ def batch(
     run_dir = run_dir or Path("runs") / time.strftime("batch-%Y%m%d-%H%M%S")
     if (run_dir / EVALUATIONS).exists():
         raise CliError(f"--run-dir: {str(run_dir)!r} already holds a batch; choose another")
-    try:
-        forget = claim(run_dir)
-    except CannotStart as error:
-        raise CliError(f"--run-dir: {error}") from None
-    begun = False  # once the farm answers, the episodes are the batch's: kept, even if stopped
-    try:
+    with claimed(run_dir, "--run-dir") as keep, farm(connect, workers) as endpoints:
         try:
-            run_dir.mkdir(parents=True, exist_ok=True)
-        except OSError as error:
-            raise CliError(f"--run-dir: cannot create {str(run_dir)!r}: {error.strerror}") from None
-        with farm(connect, workers) as endpoints:
+            client = FarmClient(
+                endpoints,
+                study_name(run_dir, identity),
+                run_dir,
+                deadline=deadline,
+                identity=identity,
+                models=models,
+            )
+        except (ValueError, ConnectionError) as error:
+            raise CliError(farm_problem(connect, error)) from None
+        keep()  # once the farm answers, the episodes are the batch's: kept, even if stopped
+        with client, Display(enabled=not as_json) as display:
+            done = 0
+
+            def report(evaluation: "EpisodeResult") -> None:
+                nonlocal done
+                interrupts.check()
+                done += 1
+                display.show(f"{done} of {len(jobs)} evaluated")
+                if done * 10 // len(jobs) != (done - 1) * 10 // len(jobs):  # every tenth
+                    display.log(f"{done} of {len(jobs)} evaluated")
+                if as_json:
+                    click.echo(json.dumps(_summary(evaluation)))
+
             try:
-                client = FarmClient(
-                    endpoints,
-                    study_name(run_dir, identity),
-                    run_dir,
-                    deadline=deadline,
-                    identity=identity,
-                    models=models,
-                )
-            except (ValueError, ConnectionError) as error:
-                raise CliError(farm_problem(connect, error)) from None
-            begun = True
-            with client, Display(enabled=not as_json) as display:
-                done = 0
-
-                def report(evaluation: "EpisodeResult") -> None:
-                    nonlocal done
-                    interrupts.check()
-                    done += 1
-                    display.show(f"{done} of {len(jobs)} evaluated")
-                    if done * 10 // len(jobs) != (done - 1) * 10 // len(jobs):  # every tenth
-                        display.log(f"{done} of {len(jobs)} evaluated")
-                    if as_json:
-                        click.echo(json.dumps(_summary(evaluation)))
-
-                try:
-                    evaluations = run_batch(client, jobs, run_dir, report)
-                except BadMessage as error:
-                    raise CliError(str(error)) from None
-    except (CliError, KeyboardInterrupt):
-        if not begun:
-            forget()
-        raise
+                evaluations = run_batch(client, jobs, run_dir, report)
+            except BadMessage as error:
+                raise CliError(str(error)) from None
     if not as_json:
         _print_evaluations(evaluations, run_dir, EVALUATIONS)
 

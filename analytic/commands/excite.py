@@ -5,6 +5,7 @@ from pathlib import Path
 
 import click
 
+from gainfarm.analytic.commands.shared import uncertainty
 from gainfarm.cli.app import CliError
 
 # Light: the defaults and bounds click checks before anything heavy loads.
@@ -46,13 +47,9 @@ SHIPPED_RANGES = "the shipped models/uncertainty.toml"
     show_default=True,
     help="excitation NN is the fourier trajectory of seed K + NN",
 )
-@click.option(
-    "--uncertainty",
-    "uncertainty_file",
-    type=click.Path(path_type=Path),
-    metavar="FILE",
-    help="the plant ranges the gains must be stable on, a TOML file in the form of the shipped "
-    "models/uncertainty.toml  [default: that file]",
+@uncertainty(
+    "the plant ranges the gains must be stable on, a TOML file in the form of the shipped "
+    "models/uncertainty.toml  [default: that file]"
 )
 def excite(
     out: Path, duration: float, count: int, seed: int, uncertainty_file: Path | None

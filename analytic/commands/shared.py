@@ -103,14 +103,21 @@ def robustness() -> Callable[[F], F]:
             help="once the run ends, run the controllers it names and the default gains on M "
             "held-out plants drawn from the same ranges (check.json; 0: no check)",
         ),
-        click.option(
-            "--uncertainty",
-            "uncertainty_file",
-            type=click.Path(path_type=Path),
-            metavar="FILE",
-            help="the ranges the variants are drawn from, a TOML file in the form of the shipped "
-            "models/uncertainty.toml (its defaults, each with its source)",
+        uncertainty(
+            "the ranges the variants are drawn from, a TOML file in the form of the shipped "
+            "models/uncertainty.toml (its defaults, each with its source)"
         ),
+    )
+
+
+def uncertainty(help: str) -> Callable[[F], F]:
+    """--uncertainty FILE, the plant ranges (parameter `uncertainty_file`)."""
+    return click.option(
+        "--uncertainty",
+        "uncertainty_file",
+        type=click.Path(path_type=Path),
+        metavar="FILE",
+        help=help,
     )
 
 
@@ -200,6 +207,38 @@ def farm(connect: tuple[str, ...], workers: int | None) -> Iterator[list[str]]:
         except (ValueError, ConnectionError, FarmUnavailable) as error:
             raise CliError(f"local farm: {error}") from None
         yield [endpoint]
+
+
+@contextlib.contextmanager
+def claimed(directory: Path, option: str) -> Iterator[Callable[[], None]]:
+    """`directory`, new or empty, made for a command's output; if the block fails (or is
+    interrupted) before it calls the `keep` it is given, everything put there is removed again,
+    so that a refused or stopped command leaves nothing. One line naming `option` if it cannot
+    be had."""
+    from gainfarm.analytic.compose import CannotStart, claim
+
+    try:
+        forget = claim(directory)
+    except CannotStart as error:
+        raise CliError(f"{option}: {error}") from None
+    kept = False
+
+    def keep() -> None:
+        nonlocal kept
+        kept = True
+
+    try:
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise CliError(
+                f"{option}: cannot create {str(directory)!r}: {error.strerror}"
+            ) from None
+        yield keep
+    except (CliError, KeyboardInterrupt):
+        if not kept:
+            forget()
+        raise
 
 
 def farm_problem(connect: tuple[str, ...], error: Exception) -> str:

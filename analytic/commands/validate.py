@@ -7,6 +7,7 @@ import click
 
 from gainfarm.analytic.commands.shared import (
     check_farm,
+    claimed,
     farm,
     farm_options,
     farm_problem,
@@ -48,7 +49,6 @@ def validate(
 
     from gainfarm.analytic.calibration.gap import gap, pooled
     from gainfarm.analytic.calibration.logs import BadLog
-    from gainfarm.analytic.compose import CannotStart, claim
     from gainfarm.analytic.evaluators.batch import run_batch
     from gainfarm.analytic.evaluators.farm import FarmClient
     from gainfarm.edges.files import write_atomically
@@ -94,28 +94,16 @@ def validate(
     out = out or Path("runs") / time.strftime("validate-%Y%m%d-%H%M%S")
     if (out / REPORT).exists():
         raise CliError(f"--out: {str(out)!r} already holds a validation; choose another")
-    try:
-        forget = claim(out)
-    except CannotStart as error:
-        raise CliError(f"--out: {error}") from None
-    try:
+    with claimed(out, "--out"), farm(connect, workers) as endpoints:
         try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as error:
-            raise CliError(f"--out: cannot create {str(out)!r}: {error.strerror}") from None
-        with farm(connect, workers) as endpoints:
+            client = FarmClient(endpoints, study_name(out, identity), out, identity=identity)
+        except (ValueError, ConnectionError) as error:
+            raise CliError(farm_problem(connect, error)) from None
+        with client:
             try:
-                client = FarmClient(endpoints, study_name(out, identity), out, identity=identity)
-            except (ValueError, ConnectionError) as error:
-                raise CliError(farm_problem(connect, error)) from None
-            with client:
-                try:
-                    results = {r.job_id: r for r in run_batch(client, jobs, out)}
-                except BadMessage as error:
-                    raise CliError(str(error)) from None
-    except (CliError, KeyboardInterrupt):
-        forget()
-        raise
+                results = {r.job_id: r for r in run_batch(client, jobs, out)}
+            except BadMessage as error:
+                raise CliError(str(error)) from None
     report = {"twin": str(twin), "nominal": nominal, "episodes": []}
     gaps: dict[str, list] = {"twin": [], "nominal": []}
     for index, (path, log) in enumerate(zip(logs, logged, strict=True)):
