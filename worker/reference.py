@@ -342,6 +342,11 @@ def _lowest(model: mujoco.MjModel, data: mujoco.MjData, site: int, q: np.ndarray
 # --- Both -----------------------------------------------------------------------------------
 
 
+def flange_positions(q: np.ndarray) -> np.ndarray:
+    """(n, 3) flange positions, m, of the arm at joint angles `q` (n, 7): kinematics alone."""
+    return _flange(compile_model(_KINEMATIC_MODEL), np.asarray(q, dtype=float))[0]
+
+
 def _flange(model: mujoco.MjModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Flange positions (n, 3) and orientations (n, 3, 3) at q: kinematics alone (the gravity
     feed-forward depends on the plant's inertials: worker.episode.gravity_for computes it)."""

@@ -6,13 +6,21 @@ less the logged one, per joint: of the joint angle q and of the joint torque. Be
 episode's objectives as the plant predicts them and as the arm's log shows them.
 """
 
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+from pydantic import ValidationError
 
-from gainfarm.schemas.episode import Scores
+from gainfarm.analytic.calibration.logs import BadLog, Recording
+from gainfarm.schemas.controller import Controller
+from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec, Scores
 from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.robot import TORQUE_LIMITS, ModelSpec
+from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 
 
 @dataclass(frozen=True)
@@ -52,3 +60,115 @@ def _rms(error: np.ndarray) -> np.ndarray:
 def pooled(gaps: Sequence[Gap], attribute: str) -> np.ndarray:
     """Per joint RMS over episodes (each episode weighted alike)."""
     return np.sqrt(np.mean([np.square(getattr(g, attribute)) for g in gaps], axis=0))
+
+
+# --- a robot's bags: which controller and reference ran them ------------------------------------
+
+# A bag follows a reference when its angles stay this close to it (RMS over its ticks, rad): a
+# few centimetres at the flange, what the factory gains and the excitations' track within.
+FOLLOWS = 0.05
+
+
+@dataclass(frozen=True)
+class Played:
+    """A controller and a reference a robot played: what replays a bag of it."""
+
+    name: str
+    gains: PDGains
+    trajectory: TrajectorySpec
+
+
+def read_played(path: Path) -> list[Played]:
+    """What a file says was played: an excitation of `analytic excite` (its reference and gains)
+    or a controller of `analytic export` (its gains on each of its run's trajectories); BadLog in
+    one line."""
+    try:
+        document = json.loads(Path(path).read_bytes())
+    except OSError as error:
+        raise BadLog(f"--played: cannot read {str(path)!r}: {error.strerror}") from None
+    except ValueError:
+        raise BadLog(f"--played: {str(path)!r} is not JSON") from None
+    name = Path(path).stem
+    try:
+        if (
+            isinstance(document, dict)
+            and document.get("format") == Controller.model_fields["format"].default
+        ):
+            controller = Controller.model_validate(document)
+            return [
+                Played(f"{name}[{k}]", controller.gains, trajectory)
+                for k, trajectory in enumerate(controller.source.trajectories)
+            ]
+        if isinstance(document, dict) and {"trajectory", "gains"} <= document.keys():
+            return [
+                Played(
+                    name,
+                    PDGains.model_validate(document["gains"]),
+                    TrajectorySpec.model_validate(document["trajectory"]),
+                )
+            ]
+    except ValidationError as error:
+        raise BadLog(f"--played: {str(path)!r}: {error.errors()[0]['msg']}") from None
+    raise BadLog(
+        f"--played: {str(path)!r} is neither an excitation (`analytic excite`) nor a controller "
+        "(`analytic export`)"
+    )
+
+
+def played_by(recording: Recording, played: Sequence[Played]) -> Played:
+    """Which of `played` the recording's angles follow (the nearest reference, RMS); BadLog if
+    none within FOLLOWS."""
+    from gainfarm.worker.reference import reference_for
+
+    if not played:
+        raise BadLog(
+            f"{recording.name!r}: a robot's bag names no controller: say what was played "
+            "(--played EXCITATION.json or CONTROLLER.json)"
+        )
+    distances = []
+    for item in played:
+        reference = reference_for(item.trajectory)
+        n = min(len(reference.q), recording.ticks)
+        distances.append(float(np.sqrt(np.mean((recording.q[:n] - reference.q[:n]) ** 2))))
+    best = int(np.argmin(distances))
+    if distances[best] > FOLLOWS:
+        raise BadLog(
+            f"{recording.name!r} follows none of --played's references (the nearest, "
+            f"{played[best].name}, is {distances[best]:.3g} rad RMS away)"
+        )
+    return played[best]
+
+
+def as_episode(recording: Recording, played: Played, nominal: ModelSpec) -> EpisodeLog:
+    """The bag as an episode log of what was played: its reference and flange path beside the
+    arm's (the flange by the arm's kinematics from its angles), scored as any episode is. The
+    commanded torque stands for the applied one: the objectives of torque change do not see the
+    delay between them."""
+    from gainfarm.worker.reference import flange_positions, reference_for
+
+    reference = reference_for(played.trajectory)
+    n = min(len(reference.q), recording.ticks)
+    spec = EpisodeSpec(gains=played.gains, trajectory=played.trajectory, model=nominal)
+    theta = recording.theta if recording.theta is not None else recording.q
+    theta_d = recording.theta_d if recording.theta_d is not None else recording.qd
+    return EpisodeLog(
+        t=np.arange(n) * CONTROL_PERIOD,
+        q=recording.q[:n],
+        qd=recording.qd[:n],
+        tau=recording.tau[:n],
+        u=recording.command[:n],
+        theta=theta[:n],
+        theta_d=theta_d[:n],
+        q_des=np.asarray(reference.q[:n]),
+        qd_des=np.asarray(reference.qd[:n]),
+        ee=flange_positions(recording.q[:n]),
+        ee_des=np.asarray(reference.ee[:n]),
+        metadata=EpisodeMetadata(
+            spec=spec,
+            ticks_planned=len(reference.q),
+            ticks_run=n,
+            torque_limits=TORQUE_LIMITS,
+            diverged=False,
+            versions={"recorded": recording.name},
+        ),
+    )

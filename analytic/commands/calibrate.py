@@ -4,6 +4,7 @@ from pathlib import Path
 
 import click
 
+from gainfarm.analytic.commands.shared import bag_topics
 from gainfarm.cli import options
 from gainfarm.cli.app import CliError
 
@@ -25,25 +26,7 @@ from gainfarm.cli.app import CliError
     show_default=True,
     help="the bootstrap's resamples of the episodes",
 )
-@click.option(
-    "--joint-states",
-    default="/joint_states",
-    show_default=True,
-    help="a bag's sensor_msgs/JointState topic of the measured angles, velocities and torques",
-)
-@click.option(
-    "--commands",
-    default="/joint_commands",
-    show_default=True,
-    help="a bag's JointState topic whose effort is the torque the controller sent",
-)
-@click.option(
-    "--motor-states",
-    default="/motor_states",
-    show_default=True,
-    help="a bag's JointState topic of the motor angles, if the arm logs them (the joint "
-    "stiffness needs them)",
-)
+@bag_topics
 @click.option("--json", "as_json", is_flag=True, help="print the fit as one JSON object")
 def calibrate(
     logs: tuple[Path, ...],

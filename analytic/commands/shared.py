@@ -110,6 +110,29 @@ def robustness() -> Callable[[F], F]:
     )
 
 
+bag_topics = options.stack(
+    click.option(
+        "--joint-states",
+        default="/joint_states",
+        show_default=True,
+        help="a bag's sensor_msgs/JointState topic of the measured angles, velocities and torques",
+    ),
+    click.option(
+        "--commands",
+        default="/joint_commands",
+        show_default=True,
+        help="a bag's JointState topic whose effort is the torque the controller sent",
+    ),
+    click.option(
+        "--motor-states",
+        default="/motor_states",
+        show_default=True,
+        help="a bag's JointState topic of the motor angles, if the arm logs them (the joint "
+        "stiffness needs them)",
+    ),
+)
+
+
 def uncertainty(help: str) -> Callable[[F], F]:
     """--uncertainty FILE, the plant ranges (parameter `uncertainty_file`)."""
     return click.option(

@@ -2,10 +2,12 @@
 
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from gainfarm.analytic.commands.shared import (
+    bag_topics,
     check_farm,
     claimed,
     farm,
@@ -15,6 +17,12 @@ from gainfarm.analytic.commands.shared import (
 )
 from gainfarm.cli import options
 from gainfarm.cli.app import CliError
+
+if TYPE_CHECKING:
+    from gainfarm.analytic.calibration.gap import Played
+    from gainfarm.analytic.calibration.logs import Topics
+    from gainfarm.schemas.episode_log import EpisodeLog
+    from gainfarm.schemas.robot import ModelSpec
 
 REPORT = "validation.json"
 
@@ -29,6 +37,15 @@ REPORT = "validation.json"
     type=click.Path(path_type=Path),
     help=f"where the replays' episodes and {REPORT} go  [default: runs/validate-TIME]",
 )
+@click.option(
+    "--played",
+    multiple=True,
+    type=click.Path(path_type=Path),
+    metavar="FILE",
+    help="what a robot's bags played (repeat for several): an excitation of `analytic excite` "
+    "or a controller of `analytic export`; each bag is paired with the reference it follows",
+)
+@bag_topics
 @click.option("--json", "as_json", is_flag=True, help="print the report as one JSON object")
 def validate(
     twin: Path,
@@ -40,20 +57,25 @@ def validate(
     workers: int | None,
     nominal: str,
     out: Path | None,
+    played: tuple[Path, ...],
+    joint_states: str,
+    commands: str,
+    motor_states: str,
     as_json: bool,
 ) -> None:
     """Replay LOGS, an arm's episodes (held out of the calibration), through TWIN and the
     --nominal plant on the farm: per joint, the simulation error of q and of the joint torque
-    on each, and each episode's f_acc and f_t as the twin predicts them against the log's."""
+    on each, and each episode's f_acc and f_t as the twin predicts them against the log's.
+    LOGS are gainfarm episode logs, or a robot's ROS 2 bags of what --played names."""
     import json
 
-    from gainfarm.analytic.calibration.gap import gap, pooled
-    from gainfarm.analytic.calibration.logs import BadLog
+    from gainfarm.analytic.calibration.gap import gap, pooled, read_played
+    from gainfarm.analytic.calibration.logs import BadLog, Topics
     from gainfarm.analytic.evaluators.batch import run_batch
     from gainfarm.analytic.evaluators.farm import FarmClient
     from gainfarm.edges.files import write_atomically
     from gainfarm.schemas.episode import EpisodeSpec
-    from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
+    from gainfarm.schemas.mcap_episode import read_episode
     from gainfarm.schemas.objectives import score
     from gainfarm.schemas.plant_file import BadPlantFile, read_plant_file
     from gainfarm.schemas.wire import BadMessage
@@ -66,20 +88,12 @@ def validate(
     except BadPlantFile as error:
         raise CliError(f"TWIN: {str(twin)!r}: {error}") from None
     nominal_plant = options.model_spec(nominal)
-    logged = []
-    for path in logs:
-        try:
-            log = read_episode(path)
-        except OSError as error:
-            raise CliError(f"{str(path)!r}: cannot read: {error.strerror}") from None
-        except NotAnEpisodeLog as error:
-            raise CliError(f"{str(path)!r}: {error}") from None
-        if log.metadata.spec.feedforward is not None:
-            raise CliError(
-                f"{str(path)!r}: {BadLog.__name__}: its controller adds a feed-forward model; "
-                "validate replays PD controllers"
-            )
-        logged.append(log)
+    topics = Topics(joint_states, commands, motor_states)
+    try:
+        candidates = [item for path in played for item in read_played(path)]
+        logged = [_logged(path, topics, candidates, nominal_plant) for path in logs]
+    except BadLog as error:
+        raise CliError(str(error)) from None
     jobs = {}
     for index, log in enumerate(logged):
         for name, plant in (("twin", twin_plant), ("nominal", nominal_plant)):
@@ -138,6 +152,33 @@ def validate(
         click.echo(json.dumps(report))
         return
     _show(report, out)
+
+
+def _logged(
+    path: Path, topics: "Topics", played: "list[Played]", nominal: "ModelSpec"
+) -> "EpisodeLog":
+    """LOG as an episode log: a gainfarm one as it is, a robot's bag as an episode of what it
+    played; BadLog in one line."""
+    from gainfarm.analytic.calibration.gap import as_episode, played_by
+    from gainfarm.analytic.calibration.logs import BadLog, read_recording
+    from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
+
+    if path.is_file():
+        try:
+            log = read_episode(path)
+        except OSError as error:
+            raise BadLog(f"{str(path)!r}: cannot read: {error.strerror}") from None
+        except NotAnEpisodeLog:
+            pass  # a robot's bag, perhaps
+        else:
+            if log.metadata.spec.feedforward is not None:
+                raise BadLog(
+                    f"{str(path)!r}: its controller adds a feed-forward model; validate "
+                    "replays PD controllers"
+                )
+            return log
+    recording = read_recording(path, topics)
+    return as_episode(recording, played_by(recording, played), nominal)
 
 
 def _show(report: dict, out: Path) -> None:

@@ -25,7 +25,7 @@ from gainfarm.schemas.robot import ModelSpec
 from tests.helpers import analytic
 
 N = 7
-EXCITATIONS, HELD_OUT = 6, (100, 101)
+EXCITATIONS, HELD_OUT = 6, (6, 7)  # the held-out ones: the next seeds excite writes
 DURATION = "8"
 
 
@@ -158,7 +158,9 @@ def test_robust_tuning_on_the_twin_draws_from_its_uncertainty(calibrated: dict) 
     assert len({p.delay for p in shipped}) > 1
 
 
-def test_validate_measures_the_gap_the_twin_closes(calibrated: dict) -> None:
+@pytest.fixture(scope="module")
+def validated(calibrated: dict) -> dict:
+    """`analytic validate` of the held-out episodes' logs: its JSON output."""
     directory = calibrated["directory"]
     out = directory / "validation"
     done = analytic(
@@ -166,7 +168,12 @@ def test_validate_measures_the_gap_the_twin_closes(calibrated: dict) -> None:
         "--out", str(out), "--local", "--workers", "1", "--json", cwd=directory,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
-    report = json.loads(done.stdout)
+    return json.loads(done.stdout)
+
+
+def test_validate_measures_the_gap_the_twin_closes(calibrated: dict, validated: dict) -> None:
+    out = calibrated["directory"] / "validation"
+    report = validated
     assert report == json.loads((out / "validation.json").read_text())
     assert report["summary"]["q_ratio"] <= 0.2
     twin_q = np.array(report["summary"]["twin"]["q_rms"])
@@ -330,3 +337,47 @@ def test_a_bag_calibration_cannot_use_is_one_line(calibrated: dict, tmp_path: Pa
         "--out", str(tmp_path / "twin.toml"), cwd=tmp_path,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
+
+
+def test_validate_pairs_a_robots_bags_with_what_they_played(
+    calibrated: dict, validated: dict
+) -> None:
+    directory = calibrated["directory"]
+    held = directory / "excite-held"
+    first, count = HELD_OUT[0], str(len(HELD_OUT))
+    done = analytic(
+        "excite", "--out", str(held), "--seed", str(first), "--count", count,
+        "--duration", DURATION, cwd=directory,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    bags = [
+        write_bag(directory / f"held-bag-{index}", read_recording(log))
+        for index, log in enumerate(calibrated["held_out"])
+    ]
+    # Given in the other order: each bag is paired with the reference it follows.
+    excitations = sorted(held.glob("excitation-*.json"), reverse=True)
+    played = [arg for path in excitations for arg in ("--played", str(path))]
+    out = directory / "validation-bags"
+    done = analytic(
+        "validate", str(calibrated["twin"]), *map(str, bags), *played,
+        "--out", str(out), "--local", "--workers", "1", "--json", cwd=directory,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout)
+    assert report["summary"]["q_ratio"] <= 0.2
+    for bag, log in zip(report["episodes"], validated["episodes"], strict=True):
+        # The same episodes, read from the bag: the same replays, the same logged accuracy
+        # (the flange from the measured angles, not the simulator's: micrometres apart).
+        assert bag["twin"] == log["twin"] and bag["nominal"] == log["nominal"]
+        assert abs(bag["logged"]["f_acc"] / log["logged"]["f_acc"] - 1) < 0.01
+    # A bag with nothing said of what it played, or with what it did not: one line each.
+    for arguments, says in (
+        ([], "names no controller: say what was played (--played"),
+        (["--played", str(directory / "excite" / "excitation-00.json")],
+         "follows none of --played's references"),
+    ):  # fmt: skip
+        done = analytic(
+            "validate", str(calibrated["twin"]), str(bags[0]), *arguments, cwd=directory
+        )
+        assert done.returncode == 2 and len(done.stderr.splitlines()) == 1, done.stderr
+        assert says in done.stderr, done.stderr
