@@ -381,3 +381,22 @@ def test_validate_pairs_a_robots_bags_with_what_they_played(
         )
         assert done.returncode == 2 and len(done.stderr.splitlines()) == 1, done.stderr
         assert says in done.stderr, done.stderr
+
+
+def test_batch_and_experiment_take_the_twin(calibrated: dict, tmp_path: Path) -> None:
+    twin = str(calibrated["twin"])
+    done = analytic(
+        "batch", "--local", "--workers", "1", "--plant", twin, "--trajectory", "fourier",
+        "--duration", "1", "--run-dir", str(tmp_path / "batch"), "--json", cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    (episode,) = [json.loads(line) for line in done.stdout.splitlines()]
+    plant = read_episode(tmp_path / "batch" / episode["episode"]).metadata.spec.model
+    assert plant == read_plant_file(calibrated["twin"].read_bytes()).plant
+    # An experiment reads it as it parses its options: a bad one is refused before anything runs.
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[plant]\ndelay = 99\n")
+    done = analytic("experiment", "speed", "--plant", str(bad), "--out", "x", cwd=tmp_path)
+    assert done.returncode == 2 and len(done.stderr.splitlines()) == 1, done.stderr
+    assert "--plant" in done.stderr and "plant.delay" in done.stderr, done.stderr
+    assert not (tmp_path / "x").exists()
