@@ -63,7 +63,7 @@ class Estimate:
     """One group of the plant's numbers (per joint, or one): the fit, its spread, and which of
     them the logs told."""
 
-    value: np.ndarray  # the fit (nominal where not told)
+    value: np.ndarray  # the fit; the nominal where not told (the links' masses: their combination)
     spread: np.ndarray  # bootstrap standard deviation of the fit
     told: np.ndarray  # bool, per value
     explained: np.ndarray  # share of the equation's torque variance the fit explains
