@@ -264,27 +264,27 @@ def plant(flag: str = "--plant", help: str | None = None) -> Callable[[F], F]:
     )
 
 
-def model_spec(plant: str, joints: str | None = None) -> "ModelSpec":
-    """The ModelSpec of `--plant` (a name or a plant file), with `--joints` if the command has
-    that option."""
+def model_spec(plant: str, joints: str | None = None, option: str = "--plant") -> "ModelSpec":
+    """The ModelSpec of `--plant` (a name or a plant file; `option` names the option that gave
+    it), with `--joints` if the command has that option."""
     from gainfarm.schemas.robot import PLANTS
 
-    spec = PLANTS[plant] if plant in PLANTS else plant_file(plant).plant
+    spec = PLANTS[plant] if plant in PLANTS else plant_file(plant, option).plant
     return spec if joints is None else spec.model_copy(update={"joints": joints})
 
 
-def plant_file(plant: str) -> "PlantFile":
+def plant_file(plant: str, option: str = "--plant") -> "PlantFile":
     """--plant FILE's contents, or one line naming the option and what is wrong."""
     from gainfarm.schemas.plant_file import BadPlantFile, read_plant_file
 
     try:
         raw = Path(plant).read_bytes()
     except OSError as error:
-        raise CliError(f"--plant: cannot read {plant!r}: {error.strerror}") from None
+        raise CliError(f"{option}: cannot read {plant!r}: {error.strerror}") from None
     try:
         return read_plant_file(raw)
     except BadPlantFile as error:
-        raise CliError(f"--plant: {plant!r}: {error}") from None
+        raise CliError(f"{option}: {plant!r}: {error}") from None
 
 
 def feedforward(

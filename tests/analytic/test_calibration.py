@@ -219,8 +219,13 @@ def test_bad_input_is_one_line_and_writes_nothing(calibrated: dict, tmp_path: Pa
         assert len(lines) == 1 and where in lines[0] and what in lines[0], done.stderr
         assert "Traceback" not in done.stderr
     assert not out.exists()
-    done = analytic("validate", str(other), *logs, "--out", str(tmp_path / "v"), cwd=tmp_path)
-    assert done.returncode != 0 and "ur5e" in done.stderr and len(done.stderr.splitlines()) == 1
+    for arguments, says in (
+        ([str(other), *logs], "TWIN: "),
+        ([str(calibrated["twin"]), *logs, "--nominal", str(other)], "--nominal: "),
+    ):
+        done = analytic("validate", *arguments, "--out", str(tmp_path / "v"), cwd=tmp_path)
+        assert done.returncode != 0 and len(done.stderr.splitlines()) == 1, done.stderr
+        assert says in done.stderr and "robot 'ur5e'" in done.stderr, done.stderr
     assert not (tmp_path / "v").exists()
 
 
