@@ -17,26 +17,23 @@ import numpy as np
 import tomli_w
 
 from gainfarm.analytic.calibration.identify import FLOOR, SPREAD, Estimate, Fit
-from gainfarm.analytic.tuning.plants import ranges
+from gainfarm.analytic.tuning.plants import Range, ranges
 from gainfarm.schemas.plant_file import PlantFile
 from gainfarm.schemas.robot import ModelSpec
 
-# The twin's ranges: the shipped entry each replaces, and the Fit's estimate behind it.
-CALIBRATED = {
-    "rotor_inertia": "rotor_inertia",
-    "stiffness": "stiffness",
-    "spring_damping": "spring_damping",
-    "coulomb": "coulomb",
-    "viscous": "viscous",
-}
+# The ranges a calibration replaces where it tells the numbers: each is the Fit's estimate of
+# the same name.
+CALIBRATED = ("rotor_inertia", "stiffness", "spring_damping", "coulomb", "viscous")
 
 
-def twin_file(fit: Fit, nominal: ModelSpec, logs: Sequence[Path]) -> PlantFile:
-    """The plant file of `fit` on `nominal`, naming the logs it came from."""
-    shipped = ranges()
+def twin_file(
+    fit: Fit, nominal: ModelSpec, logs: Sequence[Path], prior: dict[str, Range] | None = None
+) -> PlantFile:
+    """The plant file of `fit` on `nominal`, naming the logs it came from; where the logs tell
+    nothing, the ranges are `prior`'s (a twin's own, calibrated again), else the shipped ones."""
     uncertainty: dict[str, dict[str, Any]] = {}
-    for name, entry in shipped.items():
-        estimate = getattr(fit, CALIBRATED[name]) if name in CALIBRATED else None
+    for name, entry in (prior or ranges()).items():
+        estimate = getattr(fit, name) if name in CALIBRATED else None
         if estimate is None or not estimate.told.any():
             if name == "payload":  # the shipped range is absolute: around no payload
                 uncertainty[name] = _payload_range(fit.payload)

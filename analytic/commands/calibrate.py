@@ -1,12 +1,16 @@
 """`analytic calibrate`: fit a twin of an arm to its logged episodes, as a plant file."""
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from gainfarm.analytic.commands.shared import bag_topics
 from gainfarm.cli import options
 from gainfarm.cli.app import CliError
+
+if TYPE_CHECKING:
+    from gainfarm.analytic.tuning.plants import Range
 
 
 @click.command()
@@ -52,6 +56,7 @@ def calibrate(
     from gainfarm.edges.files import write_atomically
 
     nominal = options.model_spec(plant)
+    prior = _prior_ranges(plant)
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
     topics = Topics(joint_states, commands, motor_states)
@@ -65,7 +70,7 @@ def calibrate(
         raise CliError("--plant: calibration fits elastic joints; this plant's are rigid")
     try:
         fit = identify(recordings, nominal, seed)
-        twin = twin_file(fit, nominal, logs)
+        twin = twin_file(fit, nominal, logs, prior)
     except ValueError as error:
         raise CliError(str(error)) from None
     try:
@@ -76,6 +81,19 @@ def calibrate(
         click.echo(json.dumps({"twin": str(out), **twin.calibration}))
         return
     _show(twin.calibration, out)
+
+
+def _prior_ranges(plant: str) -> "dict[str, Range] | None":
+    """--plant's own uncertainty, if it is a plant file that has one (a twin calibrated again)."""
+    from gainfarm.analytic.tuning.plants import BadUncertainty, ranges_of
+    from gainfarm.schemas.robot import PLANTS
+
+    if plant in PLANTS:
+        return None
+    try:
+        return ranges_of(options.plant_file(plant).uncertainty) or None
+    except BadUncertainty as error:
+        raise CliError(f"--plant: {plant!r}: uncertainty: {error}") from None
 
 
 def _show(calibration: dict, out: Path) -> None:

@@ -171,6 +171,29 @@ def validated(calibrated: dict) -> dict:
     return json.loads(done.stdout)
 
 
+def test_a_twin_calibrated_again_keeps_its_own_ranges_where_the_logs_tell_nothing(
+    calibrated: dict, tmp_path: Path
+) -> None:
+    import tomllib
+
+    import tomli_w
+
+    table = tomllib.loads(calibrated["twin"].read_text())
+    table["uncertainty"]["encoder_noise"].update(low=0.9, high=1.1, why="measured on our arm")
+    prior = tmp_path / "prior.toml"
+    prior.write_text(tomli_w.dumps(table))
+    again = tmp_path / "again.toml"
+    logs = [str(p) for p in calibrated["logs"]]
+    done = analytic("calibrate", *logs, "--plant", str(prior), "--out", str(again), cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    twin = read_plant_file(again.read_bytes())
+    assert twin.uncertainty["encoder_noise"]["why"] == "measured on our arm"
+    # The same logs, the same numbers (the smoothing's search starts from the prior's own).
+    first = read_plant_file(calibrated["twin"].read_bytes()).plant
+    assert twin.plant.delay == first.delay
+    assert np.allclose(twin.plant.rotor_inertia, first.rotor_inertia, rtol=0.01)
+
+
 def test_validate_measures_the_gap_the_twin_closes(calibrated: dict, validated: dict) -> None:
     out = calibrated["directory"] / "validation"
     report = validated
