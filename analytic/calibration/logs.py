@@ -194,6 +194,13 @@ def read_bag(path: Path, topics: Topics = Topics()) -> Recording:
         raise BadLog(f"{name!r}: {topics.joint_states} has no velocity")
     if len(q) < MIN_TICKS:
         raise BadLog(f"{name!r}: {len(q)} ticks, fewer than the {MIN_TICKS} a fit needs")
+    for what, values in (
+        ("torques", states.effort[ticks]),
+        ("commands", command),
+        ("velocities", velocity),
+    ):
+        if not np.isfinite(values).all():
+            raise BadLog(f"{name!r}: its {what} hold values that are not numbers")
     return Recording(
         name=Path(path).name,
         q=q,
@@ -201,7 +208,7 @@ def read_bag(path: Path, topics: Topics = Topics()) -> Recording:
         tau=states.effort[ticks],
         command=command,
         theta=theta,
-        theta_d=theta_d if theta_d is not None else None,
+        theta_d=theta_d,
         fed_back="motor" if theta is not None else "link",
     )
 
