@@ -345,6 +345,8 @@ def certs(
         for name in names:
             if not is_participant_name(name):
                 raise CliError(f"{option}: {name!r} is not a participant name: {PARTICIPANT_RULE}")
+    if directory.exists() and not directory.is_dir():
+        raise CliError(f"DIR: {str(directory)!r} is a file, not a directory")
     try:
         issued = write_dev_credentials(directory, hosts, days, if_missing, analytics, workers)
     except FileExistsError as error:

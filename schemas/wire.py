@@ -367,6 +367,14 @@ def describe(error: ValidationError) -> str:
     return f"{where}: {first['msg']}{suffix}"
 
 
+def one_line(error: Exception) -> str:
+    """What went wrong, in one line: a validation error as `describe` says it (not pydantic's
+    several lines with their type codes and links), any other error's text on one line."""
+    if isinstance(error, ValidationError):
+        return describe(error)
+    return " ".join(str(error).split())
+
+
 def decode(kind: type[M], raw: bytes | None, limit: int = MAX_MESSAGE_BYTES) -> M:
     """Parse `raw` as a `kind` message, or raise BadMessage saying why not.
 

@@ -17,8 +17,10 @@ def evaluate(log: Path, as_json: bool) -> None:
     from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
     from gainfarm.schemas.objectives import score
 
+    if log.is_dir():
+        raise CliError(f"LOG: {str(log)!r} is a directory, not an episode log (an MCAP file)")
     if not log.is_file():
-        raise CliError(f"{str(log)!r}: no such file")
+        raise CliError(f"LOG: {str(log)!r}: no such file")
     try:
         episode = read_episode(log)
         # The objectives its job named: a plug-in's is computed by the plug-in, if installed.

@@ -43,7 +43,9 @@ def resume(
             f"{str(run_dir)!r}: cannot open the run: {where}{error.strerror or error}"
         ) from None
     except ValueError as error:
-        raise CliError(f"{str(run_dir)!r}: unreadable run ({error})") from None
+        from gainfarm.schemas.wire import one_line
+
+        raise CliError(f"{str(run_dir)!r}: unreadable run ({one_line(error)})") from None
     if run.finished:
         run.close()
         raise CliError(f"{str(run_dir)!r} has finished: {run.state.stopped}")

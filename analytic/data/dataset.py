@@ -72,7 +72,7 @@ from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
-from gainfarm.schemas.wire import describe
+from gainfarm.schemas.wire import describe, one_line
 from gainfarm.worker.episode import motor_torque
 
 Selection = Literal["front", "knee"]
@@ -280,7 +280,7 @@ def choose(run_dirs: Sequence[Path], selection: Selection) -> list[ChosenRun]:
             run = read_run(run_dir)
             run_id = run_id_of(run_dir)
         except (OSError, ValueError, RunBusy) as error:
-            raise UnreadableRun(f"{str(run_dir)!r}: unreadable run ({error})") from None
+            raise UnreadableRun(f"{str(run_dir)!r}: unreadable run ({one_line(error)})") from None
         if run_id in seen:
             raise DuplicateEpisodes(
                 f"{str(seen[run_id])!r} and {str(run_dir)!r} are the same run (run_id {run_id}): "

@@ -59,6 +59,7 @@ from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR, NO_EPISODE
 from gainfarm.schemas.trajectory import TrajectoryKind, TrajectorySpec
+from gainfarm.schemas.wire import one_line
 
 K = TypeVar("K", bound=Hashable)
 T = TypeVar("T")
@@ -439,7 +440,7 @@ def _read(directory: Path) -> RunRecord:
         upgrade(directory)
         return read_run(directory)
     except (OSError, ValueError) as error:
-        raise ValueError(f"{directory}: unreadable run ({error})") from None
+        raise ValueError(f"{directory}: unreadable run ({one_line(error)})") from None
 
 
 def non_dominated(points: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:

@@ -41,6 +41,7 @@ from gainfarm.schemas.controller import Controller, HeldOut, Member, Source
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.limits import MEASURED
 from gainfarm.schemas.robot import PLANTS, ModelSpec
+from gainfarm.schemas.wire import one_line
 
 MEMBERS = ("recommended", "knee", "accurate", "smooth")
 FORMATS = ("json", "yaml", "ros2_control")
@@ -132,7 +133,7 @@ def controller(directory: Path, which: str = "recommended") -> Controller:
     except FileNotFoundError:
         raise BadRun(f"{str(directory)!r} has no front yet: no generation has finished") from None
     except (OSError, ValueError, ValidationError) as error:
-        raise BadRun(f"{str(directory)!r}: unreadable run ({_one_line(error)})") from None
+        raise BadRun(f"{str(directory)!r}: unreadable run ({one_line(error)})") from None
     if not front:
         if history:
             raise BadRun(
@@ -268,10 +269,6 @@ def ros2_control(controller: Controller) -> str:
         )
     body = yaml.safe_dump(parameters, sort_keys=False, default_flow_style=None, width=100)
     return "\n".join(header) + "\n" + body
-
-
-def _one_line(error: Exception) -> str:
-    return " ".join(str(error).split())
 
 
 def point_groups(

@@ -69,10 +69,15 @@ def test_evaluate_scores_a_crafted_log_from_the_file(tmp_path):
 def test_evaluate_rejects_what_is_not_an_episode_log(tmp_path, here):
     junk = tmp_path / "junk.mcap"
     junk.write_text("not an mcap file")
-    for target in (junk, tmp_path / "missing.mcap"):
+    for target, says in (
+        (junk, "junk.mcap"),
+        (tmp_path / "missing.mcap", "no such file"),
+        (tmp_path, "is a directory, not an episode log"),
+    ):
         result = here("evaluate", str(target), cwd=tmp_path)
         assert result.returncode == 2
         assert result.stderr.startswith("analytic: error:") and result.stderr.count("\n") == 1
+        assert says in result.stderr, result.stderr
 
 
 SEVEN = [1.0] * 7
@@ -335,3 +340,16 @@ def test_batch_off_a_terminal_says_its_progress_in_plain_lines(tmp_path: Path) -
     quiet = analytic("batch", *common, "--run-dir", "quiet", "--json", cwd=tmp_path)
     assert quiet.returncode == 0 and quiet.stderr == "", quiet.stderr
     assert [json.loads(line)["status"] for line in quiet.stdout.splitlines()] == ["ok"] * 3
+
+
+def test_a_corrupt_config_is_one_plain_line_on_resume_and_export(tmp_path, here):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text('{"pop": ')
+    (run / "front.csv").write_text("")
+    for command in ("resume", "export"):
+        result = here(command, str(run), cwd=tmp_path)
+        assert result.returncode == 2, result.stderr
+        assert result.stderr.count("\n") == 1, result.stderr
+        assert f"{str(run)!r}: unreadable run (" in result.stderr, result.stderr
+        assert "Invalid JSON" in result.stderr and "type=" not in result.stderr, result.stderr

@@ -141,3 +141,14 @@ def test_certs_says_in_whole_sentences_what_each_host_needs(tmp_path) -> None:
         "every host needs ca.pem and its own NAME.pem and NAME.key, and the broker's host also "
         "needs every participant's .pem\n"
     )
+
+
+def test_certs_into_a_file_is_one_plain_line(tmp_path) -> None:
+    file = tmp_path / "certs"
+    file.write_text("not a directory")
+    refused = subprocess.run(
+        broker_command("certs", str(file)), capture_output=True, text=True, timeout=60
+    )
+    assert refused.returncode == 2
+    assert refused.stderr == f"broker: error: DIR: {str(file)!r} is a file, not a directory\n"
+    assert file.read_text() == "not a directory"
