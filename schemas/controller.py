@@ -143,6 +143,21 @@ def read_gains(raw: bytes) -> list[PDGains]:
     return [_candidate(document, "")]
 
 
+def read_controller(raw: bytes) -> "Controller | None":
+    """The exported controller in `raw`, or None if it holds another kind of gains (read_gains
+    has said whether it holds gains at all)."""
+    try:
+        document = json.loads(raw)
+    except ValueError:
+        return None
+    if not (isinstance(document, dict) and "format" in document):
+        return None
+    try:
+        return Controller.model_validate(document)
+    except ValidationError:
+        return None
+
+
 def _candidate(item: Any, where: str) -> PDGains:
     if not isinstance(item, dict):
         raise BadGains(f'{where}expected an object with "kp" and "kd", got {type(item).__name__}')

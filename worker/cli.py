@@ -20,7 +20,11 @@ from gainfarm.cli import options
 from gainfarm.cli.app import CliError, parse_numbers, program_group, run_app, setup_logging
 
 if TYPE_CHECKING:
+    from gainfarm.schemas.controller import Controller
+    from gainfarm.schemas.episode import EpisodeSpec
     from gainfarm.schemas.gains import PDGains
+    from gainfarm.schemas.robot import ModelSpec
+    from gainfarm.schemas.trajectory import TrajectorySpec
 
 
 def _default_gains(which: str) -> str:
@@ -68,6 +72,12 @@ def app() -> None:
 @options.placement()
 @click.option("--gravity-compensation", is_flag=True, help="add g(q_des) feed-forward to the PD")
 @options.feedforward()
+@click.option(
+    "--as-tuned",
+    is_flag=True,
+    help="with --gains CONTROLLER: run it on the trajectory and plant it was tuned on (its run's "
+    "first trajectory, its plant) instead of the options'",
+)
 @click.option("--json", "as_json", is_flag=True, help="print the scores as one JSON object")
 def episode(
     out: Path,
@@ -83,6 +93,7 @@ def episode(
     size: float,
     gravity_compensation: bool,
     feedforward: Path | None,
+    as_tuned: bool,
     as_json: bool,
 ) -> None:
     """Simulate one PD episode on the iiwa 14, write its MCAP log and print its scores."""
@@ -101,8 +112,13 @@ def episode(
     from gainfarm.worker.ik import UnreachablePath
     from gainfarm.worker.reference import InfeasibleReference
 
-    gains = _file_gains(gains_file) if gains_file is not None else None
+    gains, controller = _file_gains(gains_file) if gains_file is not None else (None, None)
     (path,) = options.trajectories([trajectory], duration, trajectory_seed, center, size)
+    model = options.model_spec(plant, joints)
+    if as_tuned:
+        path, model = _as_tuned(controller, gains_file)
+    elif controller is not None:
+        _warn_if_not_as_tuned(controller, gains_file, path, model)
     learned = options.feedforward_model(feedforward)
     if learned is not None and gravity_compensation:
         raise CliError(
@@ -113,12 +129,13 @@ def episode(
         spec = EpisodeSpec(
             gains=gains or PDGains(kp=_gains("--kp", kp), kd=_gains("--kd", kd)),
             trajectory=path,
-            model=options.model_spec(plant, joints),
+            model=model,
             gravity_compensation=gravity_compensation,
             feedforward=digest(learned[0]) if learned is not None else None,
         )
     except ValidationError as error:
         raise CliError(describe(error)) from None
+    _refuse_saturating(spec, "--gains" if gains_file is not None else None)
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
     try:
@@ -221,9 +238,10 @@ def cores() -> int:
     return len(os.sched_getaffinity(0))
 
 
-def _file_gains(path: Path) -> "PDGains":
-    """--gains: the one controller in the file; --kp and --kd may not be given beside it."""
-    from gainfarm.schemas.controller import BadGains, read_gains
+def _file_gains(path: Path) -> "tuple[PDGains, Controller | None]":
+    """--gains: the one controller in the file (and the file as a Controller, if it is an
+    exported one); --kp and --kd may not be given beside it."""
+    from gainfarm.schemas.controller import BadGains, read_controller, read_gains
 
     context = click.get_current_context()
     given = [
@@ -246,7 +264,67 @@ def _file_gains(path: Path) -> "PDGains":
             f"--gains: {str(path)!r} holds {len(candidates)} candidates and an episode runs one; "
             "`analytic export RUN --member ...` writes one (`analytic batch --gains` runs many)"
         )
-    return candidates[0]
+    return candidates[0], read_controller(raw)
+
+
+# The options that choose the episode's trajectory and plant: what --as-tuned takes from the file.
+_CHOSEN = ("trajectory", "duration", "trajectory_seed", "center", "size", "plant", "joints")
+
+
+def _as_tuned(
+    controller: "Controller | None", path: Path | None
+) -> "tuple[TrajectorySpec, ModelSpec]":
+    """--as-tuned: the trajectory and plant the controller file says it was tuned on."""
+    if controller is None:
+        raise CliError(
+            "--as-tuned needs --gains with a controller from `analytic export` (it says what the "
+            "gains were tuned on)"
+        )
+    context = click.get_current_context()
+    for name in _CHOSEN:
+        if context.get_parameter_source(name) is ParameterSource.COMMANDLINE:
+            flag = "--" + name.replace("_", "-")
+            raise CliError(f"--as-tuned and {flag} exclude each other: the file says which")
+    return controller.source.trajectories[0], controller.source.model
+
+
+def _warn_if_not_as_tuned(
+    controller: "Controller", path: Path | None, trajectory: "TrajectorySpec", model: "ModelSpec"
+) -> None:
+    """One line on stderr if the episode is not what the controller was tuned on: its scores
+    then say how it carries over, not what its run found."""
+    source = controller.source
+    differs = []
+    if trajectory not in source.trajectories:
+        tuned = " and ".join(_described(t) for t in source.trajectories)
+        differs.append(f"tuned on {tuned}, run on {_described(trajectory)}")
+    if model != source.model:
+        differs.append(f"tuned on the {source.plant} plant, run on another")
+    if differs:
+        click.echo(
+            f"worker: warning: --gains {str(path)!r}: {'; '.join(differs)} (--as-tuned runs "
+            "it as tuned)",
+            err=True,
+        )
+
+
+def _described(trajectory: "TrajectorySpec") -> str:
+    seed = f" (seed {trajectory.seed})" if trajectory.seed else ""
+    return f"the {trajectory.duration:g} s {trajectory.kind}{seed}"
+
+
+def _refuse_saturating(spec: "EpisodeSpec", option: str | None) -> None:
+    """Refuse gains that saturate a motor on one encoder count: every tick would saturate."""
+    from gainfarm.schemas.gains import saturating
+
+    found = saturating(spec.gains, spec.model)
+    if found is not None:
+        which, joint, gain = found
+        flag = option or f"--{which}"
+        raise CliError(
+            f"{flag}: {which} of {joint} is {gain:g}, which saturates its motor on one encoder "
+            "count: every tick would saturate"
+        )
 
 
 def _gains(option: str, text: str) -> tuple[float, ...]:

@@ -137,3 +137,50 @@ def test_a_diverged_episode_says_why_its_mean_error_exceeds_its_largest(tmp_path
     assert "so f_acc and f_t are a penalty, not a measurement" in said
     evaluated = run(ANALYTIC, "evaluate", str(out))
     assert "so f_acc and f_t are a penalty, not a measurement" in " ".join(evaluated.stdout.split())
+
+
+def _controller_file(tmp_path, trajectory: dict) -> str:
+    """An exported controller tuned on `trajectory` (TrajectorySpec fields) on the realistic
+    plant, as `analytic export` writes it."""
+    from gainfarm.schemas.gains import DEFAULT_GAINS
+    from gainfarm.schemas.trajectory import TrajectorySpec
+    from tests.schemas.test_controller import exported
+
+    document = exported(DEFAULT_GAINS)
+    document["source"]["trajectories"] = [TrajectorySpec(**trajectory).model_dump(mode="json")]
+    path = tmp_path / "use.json"
+    path.write_text(json.dumps(document))
+    return str(path)
+
+
+def test_a_controller_run_off_what_it_was_tuned_on_says_so_and_as_tuned_runs_it_as_tuned(
+    tmp_path,
+):
+    controller = _controller_file(tmp_path, {"kind": "fourier", "duration": 1.0, "seed": 2})
+    other = run(WORKER, "episode", "--gains", controller, "--trajectory", "fourier",
+                "--duration", "1", "--out", str(tmp_path / "a.mcap"), "--json")  # fmt: skip
+    assert other.returncode == 0, other.stderr
+    assert other.stderr == (
+        f"worker: warning: --gains {controller!r}: tuned on the 1 s fourier (seed 2), run on the "
+        "1 s fourier (--as-tuned runs it as tuned)\n"
+    )
+    tuned = run(WORKER, "episode", "--gains", controller, "--as-tuned",
+                "--out", str(tmp_path / "b.mcap"), "--json")  # fmt: skip
+    assert tuned.returncode == 0 and tuned.stderr == "", tuned.stderr
+    from gainfarm.schemas.mcap_episode import read_episode
+
+    spec = read_episode(tmp_path / "b.mcap").metadata.spec
+    assert (spec.trajectory.kind, spec.trajectory.duration, spec.trajectory.seed) == (
+        "fourier",
+        1.0,
+        2,
+    )
+    for arguments, says in (
+        (["--gains", controller, "--as-tuned", "--duration", "2"], "--as-tuned and --duration"),
+        (["--as-tuned"], "--as-tuned needs --gains with a controller"),
+        (["--kp", "1e30,1,1,1,1,1,1"], "--kp: kp of A1 is 1e+30, which saturates its motor"),
+    ):
+        refused = run(WORKER, "episode", *arguments, "--out", str(tmp_path / "c.mcap"))
+        assert refused.returncode == 2 and refused.stderr.count("\n") == 1, refused.stderr
+        assert says in refused.stderr, refused.stderr
+        assert not (tmp_path / "c.mcap").exists()
