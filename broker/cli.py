@@ -225,10 +225,12 @@ def _watch(session: "zenoh.Session", farm: "BrokerStatus", as_json: bool, interv
 
 def summary(farm: "BrokerStatus") -> str:
     """The farm in one line."""
+    from gainfarm.cli.words import counted
+
     return (
-        f"up {farm.uptime_s:.0f} s · {farm.worker_count} workers ({farm.busy} busy) · "
-        f"{farm.study_count} studies · "
-        f"{farm.queued} queued · {farm.jobs_done} jobs done · "
+        f"up {farm.uptime_s:.0f} s · {counted(farm.worker_count, 'worker')} ({farm.busy} busy) · "
+        f"{counted(farm.study_count, 'study')} · "
+        f"{farm.queued} queued · {counted(farm.jobs_done, 'job')} done · "
         f"{farm.jobs_per_s:.1f} jobs/s over the last minute · "
         f"{farm.requeued} requeued · {farm.rejected} rejected"
     )

@@ -169,11 +169,12 @@ class FarmSeries:
 
 
 def farm_line(farm: BrokerStatus) -> str:
-    workers = "1 worker" if farm.worker_count == 1 else f"{farm.worker_count} workers"
+    from gainfarm.cli.words import counted
+
     return (
-        f"{workers} ({farm.busy} busy), {farm.queued} queued, "
-        f"{farm.jobs_per_s:.1f} jobs/s over the last minute, {farm.jobs_done} jobs done, "
-        f"{farm.study_count} studies"
+        f"{counted(farm.worker_count, 'worker')} ({farm.busy} busy), {farm.queued} queued, "
+        f"{farm.jobs_per_s:.1f} jobs/s over the last minute, "
+        f"{counted(farm.jobs_done, 'job')} done, {counted(farm.study_count, 'study')}"
     )
 
 

@@ -22,6 +22,7 @@ from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TaskID, TextColumn
 
 from gainfarm.analytic.tuning.run import RunProgress
+from gainfarm.cli.words import counted
 
 NONE_YET = "—"  # a figure no generation has given yet
 LOOK_SECONDS = 1.0  # how often the run's line asks the broker how many workers it has
@@ -108,7 +109,7 @@ def _figure(value: float, fmt: str) -> str:
 def workers_text(workers: int | None) -> str:
     if workers is None:
         return "workers: ?"
-    return f"{workers} worker" if workers == 1 else f"{workers} workers"
+    return counted(workers, "worker")
 
 
 def live_line(

@@ -51,7 +51,8 @@ def test_a_started_broker_serves_workers_reports_them_and_stops_on_sigterm() -> 
         assert farm["workers"] == [{"name": "cobot-7", "busy": False, "job": "", "jobs_done": 0}]
         table = status(endpoint)
         assert table.returncode == 0
-        assert "1 workers (0 busy)" in table.stdout and "cobot-7" in table.stdout
+        assert "1 worker (0 busy)" in table.stdout and "cobot-7" in table.stdout
+        assert "0 studies" in table.stdout and "0 jobs done" in table.stdout
     finally:
         stop_workers([worker])
         broker.send_signal(signal.SIGTERM)
