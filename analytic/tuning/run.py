@@ -180,6 +180,9 @@ class RunProgress:
     best_f_acc: float
     elapsed: float
     ended: bool = False
+    # The evaluations the run's budget allows (--evaluations, or --generations times the
+    # population); None when it stops on convergence, whose moment cannot be known ahead.
+    budget: int | None = None
 
 
 class TuningRun:
@@ -879,6 +882,8 @@ class TuningRun:
             best_f_acc=best.best_f_acc if best else math.nan,
             elapsed=time.monotonic() - started,
             ended=ended,
+            budget=self.config.evaluations
+            or (self.config.generations * self.config.pop if self.config.generations else None),
         )
 
     def _record(

@@ -106,6 +106,22 @@ def _figure(value: float, fmt: str) -> str:
     return NONE_YET if math.isnan(value) else fmt.format(value)
 
 
+def time_left(step: RunProgress) -> float | None:
+    """Seconds left until the run's budget is spent, at its pace so far (its evaluations over its
+    wall time); None without a budget (a run that stops on convergence) or before any pace."""
+    if step.budget is None or step.elapsed <= 0 or step.evaluations <= 0:
+        return None
+    return max(step.budget - step.evaluations, 0) / (step.evaluations / step.elapsed)
+
+
+def duration_text(seconds: float) -> str:
+    """A span as a person reads it: '40 s', '3 min', '1 h 20 min'."""
+    if seconds < 60:
+        return f"{seconds:.0f} s"
+    minutes = round(seconds / 60)
+    return f"{minutes} min" if minutes < 60 else f"{minutes // 60} h {minutes % 60} min"
+
+
 def workers_text(workers: int | None) -> str:
     if workers is None:
         return "workers: ?"
@@ -134,6 +150,9 @@ def live_line(
         (5, f"HV {_figure(step.hypervolume, '{:.4f}')}"),
         (6, f"best {_figure(step.best_f_acc * 1000, '{:.2f} mm')}"),
     ]
+    left = time_left(step)
+    if left is not None:
+        parts.append((7, f"~{duration_text(left)} left"))
     if not state:
         parts.append((4, workers_text(workers)))
     return fit(parts, width)
@@ -142,11 +161,17 @@ def live_line(
 def generation_line(step: RunProgress, workers: int | None) -> str:
     """The plain line of a generation that has ended."""
     rate = step.evaluations / step.elapsed if step.elapsed > 0 else 0.0
+    left = time_left(step)
+    budget = (
+        ""
+        if left is None
+        else f"; about {duration_text(left)} left of its {step.budget:,} evaluations at this pace"
+    )
     return (
         f"generation {step.generation}: {step.evaluations:,} evaluations in "
         f"{step.elapsed:.1f} s ({rate:.1f}/s), hypervolume "
         f"{_figure(step.hypervolume, '{:.4f}')}, best error "
-        f"{_figure(step.best_f_acc * 1000, '{:.2f} mm')}, {workers_text(workers)}"
+        f"{_figure(step.best_f_acc * 1000, '{:.2f} mm')}, {workers_text(workers)}{budget}"
     )
 
 

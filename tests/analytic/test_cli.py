@@ -180,7 +180,8 @@ def test_start_off_a_terminal_says_one_line_per_generation_and_keeps_the_front_s
     for number, line in enumerate(generations, 1):
         assert re.fullmatch(
             rf"generation {number}: {4 * number} evaluations in [\d.]+ s \([\d.]+/s\), "
-            rf"hypervolume 0\.\d{{4}}, best error [\d.]+ mm, {CORES_WORKERS}",
+            rf"hypervolume 0\.\d{{4}}, best error [\d.]+ mm, {CORES_WORKERS}; "
+            r"about \d+ (s|min) left of its 12 evaluations at this pace",
             line,
         ), line
     closing = ends_with_closing_lines(lines, tmp_path / "run")

@@ -75,3 +75,19 @@ def test_a_generation_s_plain_line() -> None:
         "best error 14.30 mm, 2 workers"
     )
     assert generation_line(ENDED, None).endswith("workers: ?")
+
+
+def test_a_budget_gives_the_time_left_at_the_runs_pace_and_convergence_none() -> None:
+    budgeted = RunProgress(
+        generation=3, evaluations=90, hypervolume=0.6, best_f_acc=0.01, elapsed=9.0, ended=True,
+        budget=600,
+    )  # fmt: skip
+    # 510 evaluations left at 10 per second.
+    assert generation_line(budgeted, 2).endswith(
+        "2 workers; about 51 s left of its 600 evaluations at this pace"
+    )
+    assert "~51 s left" in live_line(budgeted, 2, None, 120)
+    later = RunProgress(**{**budgeted.__dict__, "evaluations": 100, "elapsed": 100.0})
+    assert "~8 min left" in live_line(later, 2, None, 120)  # 500 at 1/s: 8 min 20 s
+    assert "left" not in live_line(ENDED, 2, None, 120)  # no budget: it stops on convergence
+    assert "left" not in generation_line(ENDED, 2)
