@@ -218,8 +218,30 @@ def pareto_figure(
     return figure
 
 
-def plot_hypervolume(path: Path, history: Sequence[HistoryRow], title: str = "") -> None:
-    """Hypervolume against evaluations spent, one marker per generation, as a PNG at `path`.
+def plot_hypervolume(
+    path: Path,
+    history: Sequence[HistoryRow],
+    title: str = "",
+    baseline: float | None = None,
+) -> None:
+    """`hypervolume_figure` as a PNG at `path`."""
+    save_png(hypervolume_figure(history, title, baseline), path)
+
+
+# What the hypervolume's axis is: the share of the normalised objective space a front dominates
+# (analytic/tuning/evolution.py's REFERENCE_POINT).
+HYPERVOLUME_LABEL = "hypervolume (normalised: 0 to 1)"
+HYPERVOLUME_NOTE = (
+    "normalised: f_acc linear from 0 to 0.2 m, f_t logarithmic from 0.01 to 10⁴ (N·m)²; "
+    "1 dominates all of it"
+)
+
+
+def hypervolume_figure(
+    history: Sequence[HistoryRow], title: str = "", baseline: float | None = None
+) -> Figure:
+    """Hypervolume against evaluations spent, one marker per generation; `baseline`: the
+    hypervolume the default gains alone dominate, drawn as a level the front should pass.
 
     Evaluations rather than generations on the x axis: they are what a run costs, and they make
     runs with different population sizes comparable.
@@ -232,11 +254,16 @@ def plot_hypervolume(path: Path, history: Sequence[HistoryRow], title: str = "")
         marker="o",
         markersize=4,
         color="tab:blue",
+        label="the run's front",
     )
+    if baseline is not None:
+        axes.axhline(baseline, color="tab:gray", linestyle="--", label="the default gains alone")
+        axes.legend(loc="best")
     axes.set_xlabel("evaluations")
-    axes.set_ylabel("hypervolume")
+    axes.set_ylabel(HYPERVOLUME_LABEL)
     axes.set_title(title or "Hypervolume")
+    figure.supxlabel(HYPERVOLUME_NOTE, fontsize=7, color="dimgray")  # laid out with the axes
     axes.grid(True, alpha=0.3)
     if not history:
         axes.text(0.5, 0.5, "no generations yet", transform=axes.transAxes, ha="center")
-    save_png(figure, path)
+    return figure

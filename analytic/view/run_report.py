@@ -8,6 +8,7 @@ function of the records.
 from collections.abc import Sequence
 
 from gainfarm.analytic.tuning.check import read_check
+from gainfarm.analytic.tuning.evolution import hypervolume
 from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import HYPERVOLUME_PNG, PARETO_PNG, REPORT_MD, FrontMember
 from gainfarm.analytic.tuning.run import TuningRun
@@ -39,7 +40,10 @@ def write_run_report(run: TuningRun) -> None:
         picks=chosen,
         baseline=baseline,
     )
-    plot_hypervolume(run.directory / HYPERVOLUME_PNG, run.state.history, title=title)
+    level = None
+    if baseline is not None and not baseline.diverged:
+        level = hypervolume([baseline.objectives], run.config.reference_point)
+    plot_hypervolume(run.directory / HYPERVOLUME_PNG, run.state.history, title, level)
     write_report(
         run.directory / REPORT_MD,
         title=f"gainfarm run {run.directory.name}",

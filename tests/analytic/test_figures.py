@@ -10,6 +10,7 @@ from gainfarm.analytic.tuning.records import Baseline, FrontMember
 from gainfarm.analytic.view.export import picks
 from gainfarm.analytic.view.figures import (
     PICK_STYLES,
+    hypervolume_figure,
     pareto_figure,
     plot_hypervolume,
     plot_pareto,
@@ -35,6 +36,20 @@ def test_pareto_and_hypervolume_figures_are_pngs(tmp_path: Path) -> None:
     assert_png(tmp_path / "pareto.png")
     assert_png(tmp_path / "hypervolume.png")
     assert leftovers(tmp_path) == []
+
+
+def test_the_hypervolume_says_it_is_normalised_and_shows_the_default_gains_level() -> None:
+    figure = hypervolume_figure(SAMPLE_HISTORY, "spiral", baseline=0.42)
+    (axes,) = figure.axes
+    assert axes.get_ylabel() == "hypervolume (normalised: 0 to 1)"
+    assert "f_t logarithmic from 0.01 to 10⁴ (N·m)²" in figure.get_supxlabel()
+    levels = [line for line in axes.get_lines() if line.get_linestyle() == "--"]
+    assert [tuple(line.get_ydata()) for line in levels] == [(0.42, 0.42)]
+    assert [t.get_text() for t in axes.get_legend().get_texts()] == [
+        "the run's front",
+        "the default gains alone",
+    ]
+    assert hypervolume_figure(SAMPLE_HISTORY).axes[0].get_legend() is None  # no level, no key
 
 
 def test_figures_survive_no_data_one_generation_and_unloggable_values(tmp_path: Path) -> None:
