@@ -90,6 +90,41 @@ class Source(BaseModel):
     stopped: str | None = Field(description="why the run stopped; null if it has not")
 
 
+class Assumptions(BaseModel):
+    """What running these gains on a robot takes for granted, said by the file rather than left
+    to be guessed: which joints, whose gravity compensation, which angle is fed back, how often."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    joints: str = Field(description="what A1..A7 are, and that they are to be mapped")
+    gravity_compensation: str = Field(description="whether the robot adds its own under u")
+    feedback: str = Field(description="the angle and velocity the law reads")
+    update_rate_hz: int = Field(gt=0, description="how often the law runs")
+
+    @classmethod
+    def of(cls, model: ModelSpec, control_period: float = CONTROL_PERIOD) -> "Assumptions":
+        """The assumptions of gains tuned on `model`."""
+        fri = model.interface == "fri"
+        return cls(
+            joints="A1..A7 are the LBR iiwa 14's axes from base to flange: map them to your "
+            "robot's joint names (lbr_iiwa_joint_1..7, say), in that order",
+            gravity_compensation=(
+                "the robot's own: KUKA's FRI torque mode adds its gravity model, and u is the "
+                "torque commanded on top of it"
+                if fri
+                else "none: u is the whole motor torque (a plain PD); behind FRI torque mode the "
+                "robot would add its gravity compensation to it, and the gains were not tuned so"
+            ),
+            feedback=(
+                "the motor-side joint angle, as the iiwa's encoders report it, and its velocity "
+                "as the mean of the last differences of that angle"
+                if model.feedback == "motor"
+                else "the link-side joint angle and its velocity"
+            ),
+            update_rate_hz=round(1 / control_period),
+        )
+
+
 class Controller(BaseModel):
     """One tuned PD controller of the iiwa 14, as `analytic export` writes it."""
 
@@ -108,6 +143,11 @@ class Controller(BaseModel):
         None,
         description="the safety limits its episodes were checked against and kept to (null: "
         "exported from a run from before the limits, never checked)",
+    )
+    assumes: Assumptions | None = Field(
+        None,
+        description="what running the gains on a robot takes for granted (null: exported "
+        "before the file said so; the law and source.model tell it)",
     )
 
     @property

@@ -12,6 +12,7 @@ The picks are gainfarm.analytic.tuning.picks' (one rule for every reader of a ru
 """
 
 import hashlib
+import textwrap
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -37,7 +38,7 @@ from gainfarm.analytic.tuning.records import (
     read_identity,
     sorted_front,
 )
-from gainfarm.schemas.controller import Controller, HeldOut, Member, Source
+from gainfarm.schemas.controller import Assumptions, Controller, HeldOut, Member, Source
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.limits import MEASURED
 from gainfarm.schemas.robot import PLANTS, ModelSpec
@@ -165,6 +166,7 @@ def controller(directory: Path, which: str = "recommended") -> Controller:
             held_out=_held_out(directory, member),
         ),
         limits=config.limits if measured else None,
+        assumes=Assumptions.of(config.model),
         source=Source(
             run_id=identity.run_id if identity is not None else "",
             directory=str(directory),
@@ -262,6 +264,15 @@ def ros2_control(controller: Controller) -> str:
         "# p in N·m/rad, d in N·m·s/rad; the episodes ran the law at "
         f"{round(1 / controller.control_period)} Hz, as update_rate does here.",
     ]
+    assumes = controller.assumes or Assumptions.of(source.model, controller.control_period)
+    header.append("# What it assumes (the JSON's `assumes` says the same):")
+    for fact in (
+        f"joints: {assumes.joints}.",
+        f"gravity compensation: {assumes.gravity_compensation}.",
+        f"feedback: {assumes.feedback}.",
+        f"update rate: {assumes.update_rate_hz} Hz (update_rate below).",
+    ):
+        header += textwrap.wrap(fact, 100, initial_indent="# - ", subsequent_indent="#   ")
     if source.feedforward:
         header.append(
             f"# These gains were tuned on top of a learned feed-forward ({source.feedforward[:12]}"

@@ -31,9 +31,9 @@ from gainfarm.analytic.view.export import (
     render,
 )
 from gainfarm.models.iiwa14 import RIGID_MJCF
-from gainfarm.schemas.controller import FORMAT, UNITS, Controller, read_gains
+from gainfarm.schemas.controller import FORMAT, UNITS, Assumptions, Controller, read_gains
 from gainfarm.schemas.gains import DEFAULT_GAINS
-from gainfarm.schemas.robot import JOINT_NAMES
+from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
 from tests.analytic.samples import KD, KP
 from tests.helpers import WEAK_GAINS, analytic, ends_with_closing_lines
 
@@ -237,6 +237,27 @@ def test_the_ros2_control_file_runs_the_gains_on_the_models_joints(hand_made: Pa
         assert gains == {"p": kp, "d": kd, "i": 0.0, "ff_velocity_scale": 0.0}
         # ROS 2 parameters are typed: an integer would be refused for a double.
         assert all(type(value) is float for value in gains.values())
+
+
+def test_the_files_say_what_running_the_gains_assumes(hand_made: Path) -> None:
+    exported = controller(hand_made, "knee")
+    assumes = Controller.model_validate_json(render(exported, "json")).assumes
+    assert assumes is not None and assumes.update_rate_hz == 500
+    assert "map them to your robot's joint names" in assumes.joints
+    assert "FRI torque mode adds its gravity model" in assumes.gravity_compensation  # realistic
+    assert assumes.feedback.startswith("the motor-side joint angle")
+    plain = Assumptions.of(ModelSpec(interface="torque", feedback="link"))
+    assert plain.gravity_compensation.startswith("none: u is the whole motor torque")
+    assert plain.feedback == "the link-side joint angle and its velocity"
+    # The ros2_control file says the same in its comments, each fact on lines of its own.
+    comments = [
+        line for line in render(exported, "ros2_control").decode().splitlines() if line[:1] == "#"
+    ]
+    said = " ".join(line[4:] for line in comments[comments.index(
+        "# What it assumes (the JSON's `assumes` says the same):") + 1 :])  # fmt: skip
+    for fact in (assumes.joints, assumes.gravity_compensation, assumes.feedback):
+        assert fact in said
+    assert "update rate: 500 Hz" in said
 
 
 def test_the_default_export_is_the_recommended_member_beside_the_run_s_default_gains(
