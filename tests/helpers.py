@@ -11,6 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import pytest
 import zenoh
 
 from gainfarm.broker.queue import LeaseQueue
@@ -35,6 +36,21 @@ from gainfarm.schemas.wire import (
     WireScores,
     decode,
 )
+
+# Set by .ci/run, which installs the Debian packages some tests need: there a missing one fails
+# the test; on a machine without them it is skipped, saying which (pytest -rs lists them).
+SYSTEM_TESTS = "GAINFARM_SYSTEM_TESTS"
+
+
+def needs(present: bool, what: str) -> None:
+    """Skip the test, saying `what` it needs, unless it is `present`; fail instead where the
+    system's packages are required (SYSTEM_TESTS=required: CI)."""
+    if present:
+        return
+    if os.environ.get(SYSTEM_TESTS) == "required":
+        pytest.fail(f"{what}; {SYSTEM_TESTS}=required (.ci/run installs them)")
+    pytest.skip(what)
+
 
 TRACKING_GAINS = PDGains(kp=(2000, 2000, 1200, 1200, 400, 200, 100), kd=(60, 60, 40, 40, 10, 5, 2))
 SOFT_GAINS = PDGains(kp=(200, 200, 120, 120, 40, 20, 10), kd=(20, 20, 12, 12, 4, 2, 1))

@@ -23,7 +23,7 @@ from gainfarm.analytic.evaluators.local import free_port, spawn_worker, stop_wor
 from gainfarm.analytic.tuning.records import HISTORY_CSV, read_front, read_history
 from gainfarm.analytic.view.dashboard import find_runs, run_view
 from gainfarm.broker.service import Broker
-from tests.helpers import analytic
+from tests.helpers import analytic, needs
 
 CHROMIUM, CHROMEDRIVER = shutil.which("chromium"), shutil.which("chromedriver")
 NEEDS = "the dashboard's test needs Debian's chromium and chromium-driver (apt-get install them)"
@@ -54,7 +54,7 @@ def page_state(browser: webdriver.Chrome, run: str) -> dict:
 
 @pytest.fixture
 def browser() -> Iterator[webdriver.Chrome]:
-    assert CHROMIUM and CHROMEDRIVER, NEEDS
+    needs(bool(CHROMIUM and CHROMEDRIVER), NEEDS)
     chrome = webdriver.ChromeOptions()
     chrome.binary_location = CHROMIUM
     for argument in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"):

@@ -2,6 +2,7 @@
 MP4 by a real process, decoded again by FFmpeg (PyAV): the right frames, the arm in them, the
 reference path drawn; bad input is one line and leaves nothing behind."""
 
+import ctypes.util
 import os
 from pathlib import Path
 
@@ -11,9 +12,18 @@ import pytest
 
 from gainfarm.analytic.view import replay
 from gainfarm.schemas.episode_log import EpisodeLog
-from tests.helpers import analytic, write_log
+from tests.helpers import analytic, needs, write_log
 
 FPS, WIDTH, HEIGHT = 5, 480, 360
+
+
+@pytest.fixture(autouse=True)
+def offscreen_opengl() -> None:
+    """These tests draw with MuJoCo offscreen: Mesa's EGL, from Debian's packages."""
+    needs(
+        ctypes.util.find_library("EGL") is not None,
+        f"analytic replay's tests need offscreen OpenGL: Debian's {replay.DEBIAN_PACKAGES}",
+    )
 
 
 def colours(frame: np.ndarray) -> dict[str, int]:
