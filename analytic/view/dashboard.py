@@ -37,11 +37,13 @@ from gainfarm.analytic.tuning.records import (
     EPISODES,
     FRONT_JSON,
     HISTORY_CSV,
+    LOCK,
     REPORT_MD,
     read_run,
 )
 from gainfarm.analytic.view.reports import run_title
 from gainfarm.broker.status import BrokerUnavailable, query_status
+from gainfarm.edges.files import lock_held
 from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR
 from gainfarm.schemas.wire import BadMessage, BrokerStatus
 
@@ -83,7 +85,7 @@ def run_view(directory: Path) -> RunView:
         return dataclasses.replace(empty, line=f"{title}: generation 0 running")
     last = record.history[-1]
     measured = [point for point in record.evaluated if _measured(point)]
-    state = "report written" if (directory / REPORT_MD).exists() else "running"
+    state = run_state(directory)
     line = (
         f"{title}: generation {last.generation}, {last.evaluations} evaluations, "
         f"hypervolume {last.hypervolume:.4g}, best error {last.best_f_acc * 1000:.2f} mm, "
@@ -100,6 +102,33 @@ def run_view(directory: Path) -> RunView:
         _points(sorted((m.f_acc, m.f_t) for m in record.front if _measured((m.f_acc, m.f_t)))),
         _points(measured),
     )
+
+
+def run_state(directory: Path) -> str:
+    """Running while a process holds the run's lock; else finished (its report written) or
+    stopped before it ended (`analytic resume` continues it)."""
+    held = lock_held(directory / LOCK)
+    if held:
+        return "running"
+    if (directory / REPORT_MD).exists():
+        return "report written"
+    if held is None:  # the kernel's table of locks could not be read: no telling
+        return "running, or stopped"
+    return "stopped: `analytic resume` continues it"
+
+
+def live_first(directories: Sequence[Path]) -> list[Path]:
+    """The runs in the order the page shows them: running ones first, then the newest (by when
+    their config.json was written), so that the run one is watching is at the top."""
+
+    def key(directory: Path) -> tuple[bool, int]:
+        try:
+            made = (directory / CONFIG_JSON).stat().st_mtime_ns
+        except OSError:
+            made = 0
+        return (not lock_held(directory / LOCK), -made)
+
+    return sorted(directories, key=key)
 
 
 def _measured(point: tuple[float, float]) -> bool:
@@ -239,7 +268,7 @@ class Watch:
     def runs(self) -> list[tuple[Path, object, RunView]]:
         """Every run found now: its path, a version that changes when its files do, its view."""
         views = []
-        for directory in find_runs(self.roots):
+        for directory in live_first(find_runs(self.roots)):
             version = _version(directory)
             with self._lock:
                 cached = self._views.get(directory)
@@ -253,13 +282,14 @@ class Watch:
 
 def _version(directory: Path) -> object:
     """What changes when a run writes its records (history.csv is written last, front.json
-    before it) or its report."""
-    stamps = []
+    before it) or its report, or when its process starts or ends (its lock)."""
+    stamps: list[object] = []
     for name in (CONFIG_JSON, FRONT_JSON, HISTORY_CSV, REPORT_MD):
         try:
             stamps.append((directory / name).stat().st_mtime_ns)
         except OSError:
             stamps.append(None)
+    stamps.append(lock_held(directory / LOCK))
     return tuple(stamps)
 
 
@@ -337,7 +367,8 @@ def page(watch: Watch) -> Callable:
         )
         queue.legend.location = "top_left"
         roots = ", ".join(map(str, watch.roots))
-        runs = column(Div(text=f"runs under {html.escape(roots)}"))
+        heading = Div(text=f"runs under {html.escape(roots)}: running ones first, then the newest")
+        runs = column(heading)
         panels: dict[Path, RunPanel] = {}
         farm_shown = [-1]  # the farm's version on the page
 
@@ -347,11 +378,14 @@ def page(watch: Watch) -> Callable:
                 farm_line.text = html.escape(text)
                 farm_series.data = series
                 farm_shown[0] = version
-            for directory, run_version, view in watch.runs():
+            found = watch.runs()
+            for directory, run_version, view in found:
                 if directory not in panels:
                     panels[directory] = RunPanel(directory)
-                    runs.children.append(panels[directory].layout)
                 panels[directory].show(run_version, view)
+            order = [heading, *(panels[directory].layout for directory, _, _ in found)]
+            if list(runs.children) != order:  # a new run, or one that stopped: reordered
+                runs.children = order
 
         document.title = "gainfarm dashboard"
         document.add_root(

@@ -97,6 +97,30 @@ def remove_leftovers(directory: Path) -> list[Path]:
     return found
 
 
+def lock_held(path: Path) -> bool | None:
+    """Whether some process holds `path`'s Lock now, read from the kernel's table of locks
+    (/proc/locks) without touching the lock: a look that took it, even for an instant, could
+    make the run that wants it refuse to start. None where the table cannot be read (no such
+    file off Linux)."""
+    try:
+        status = os.stat(path)
+    except FileNotFoundError:
+        return False  # a Lock creates its file: none there, none held
+    except OSError:
+        return None
+    try:
+        table = Path("/proc/locks").read_text()
+    except OSError:
+        return None
+    device = f"{os.major(status.st_dev):02x}:{os.minor(status.st_dev):02x}:{status.st_ino}"
+    # A line: "1: FLOCK  ADVISORY  WRITE 25003 fe:00:2146493 0 EOF" (id, kind, ..., where).
+    return any(
+        fields[1] == "FLOCK" and fields[5] == device
+        for fields in (line.split() for line in table.splitlines())
+        if len(fields) >= 6
+    )
+
+
 class Locked(Exception):
     """Another process holds the lock."""
 

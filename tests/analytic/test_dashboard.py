@@ -21,7 +21,7 @@ from selenium.webdriver.chrome.service import Service
 
 from gainfarm.analytic.evaluators.local import free_port, spawn_worker, stop_workers
 from gainfarm.analytic.tuning.records import HISTORY_CSV, read_front, read_history
-from gainfarm.analytic.view.dashboard import find_runs, run_view
+from gainfarm.analytic.view.dashboard import find_runs, live_first, run_state, run_view
 from gainfarm.broker.service import Broker
 from tests.helpers import analytic, needs
 
@@ -175,6 +175,30 @@ def test_a_run_reads_as_its_files_say(tmp_path: Path) -> None:
     assert run_view(tmp_path / "b").line == "starting: no config.json yet"
     broken = run_view(tmp_path / "a")
     assert broken.line.startswith("cannot read: ") and broken.history["evaluations"] == []
+
+
+def test_a_run_is_running_while_its_process_holds_it_and_the_live_and_newest_come_first(
+    tmp_path: Path,
+) -> None:
+    import os
+
+    from gainfarm.edges.files import Lock, lock_held
+
+    older, newer = tmp_path / "older", tmp_path / "newer"
+    for age, directory in enumerate((newer, older)):
+        directory.mkdir()
+        (directory / "config.json").write_text("{}")
+        os.utime(directory / "config.json", ns=(10**18 - age * 10**12,) * 2)
+    assert run_state(older) == "stopped: `analytic resume` continues it"
+    assert live_first([older, newer]) == [newer, older]  # the newest first
+    lock = Lock(older / "run.lock")  # a process writing it: this one
+    assert lock_held(older / "run.lock") is True and lock_held(newer / "run.lock") is False
+    assert run_state(older) == "running"
+    assert live_first([newer, older]) == [older, newer]  # the running one first
+    lock.release()
+    assert lock_held(older / "run.lock") is False and run_state(older).startswith("stopped")
+    (older / "report.md").write_text("done")
+    assert run_state(older) == "report written"
 
 
 @pytest.mark.slow
