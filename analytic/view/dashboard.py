@@ -32,15 +32,19 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
+from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import (
+    BASELINE_JSON,
     CONFIG_JSON,
     EPISODES,
     FRONT_JSON,
     HISTORY_CSV,
     LOCK,
     REPORT_MD,
+    read_baseline,
     read_run,
 )
+from gainfarm.analytic.view.progress import duration_text
 from gainfarm.analytic.view.reports import run_title
 from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.edges.files import lock_held
@@ -67,6 +71,9 @@ class RunView:
     history: dict[str, list[float]]  # evaluations, hypervolume
     front: dict[str, list[float]]  # f_acc_mm, f_t (step order: by f_acc)
     evaluated: dict[str, list[float]]  # f_acc_mm, f_t
+    # The default gains' point (baseline.json) and the recommended member's: none, or one each.
+    baseline: dict[str, list[float]] = field(default_factory=lambda: _points([]))
+    recommended: dict[str, list[float]] = field(default_factory=lambda: _points([]))
 
 
 def run_view(directory: Path) -> RunView:
@@ -89,10 +96,21 @@ def run_view(directory: Path) -> RunView:
     line = (
         f"{title}: generation {last.generation}, {last.evaluations} evaluations, "
         f"hypervolume {last.hypervolume:.4g}, best error {last.best_f_acc * 1000:.2f} mm, "
-        f"front {len(record.front)}; {state}"
+        f"front {len(record.front)}; {duration_text(record.wall_seconds)} in"
     )
+    budget = record.config.evaluations or (
+        record.config.generations * record.config.pop if record.config.generations else None
+    )
+    if state == "running" and budget and last.evaluations and record.wall_seconds > 0:
+        left = max(budget - last.evaluations, 0) * record.wall_seconds / last.evaluations
+        line += f", about {duration_text(left)} left of its {budget} evaluations"
+    line += f"; {state}"
     if penalties := len(record.evaluated) - len(measured):
         line += f" ({penalties} diverged or failed, not drawn)"
+    baseline = None
+    with contextlib.suppress(OSError, ValueError):
+        baseline = read_baseline(directory / BASELINE_JSON)
+    chosen = [p.member for p in picks(record.front, baseline) if p.name == "recommended"]
     return RunView(
         line,
         {
@@ -101,6 +119,8 @@ def run_view(directory: Path) -> RunView:
         },
         _points(sorted((m.f_acc, m.f_t) for m in record.front if _measured((m.f_acc, m.f_t)))),
         _points(measured),
+        _points([baseline.objectives] if baseline and _measured(baseline.objectives) else []),
+        _points([m.objectives for m in chosen]),
     )
 
 
@@ -314,6 +334,10 @@ def page(watch: Watch) -> Callable:
             )
             self.front = ColumnDataSource({"f_acc_mm": [], "f_t": []}, name=f"front:{key}")
             self.evaluated = ColumnDataSource({"f_acc_mm": [], "f_t": []}, name=f"evaluated:{key}")
+            self.baseline = ColumnDataSource({"f_acc_mm": [], "f_t": []}, name=f"baseline:{key}")
+            self.recommended = ColumnDataSource(
+                {"f_acc_mm": [], "f_t": []}, name=f"recommended:{key}"
+            )
             pareto = figure(
                 title="front over every evaluated point",
                 x_axis_label="f_acc: mean end-effector error (mm)",
@@ -325,6 +349,15 @@ def page(watch: Watch) -> Callable:
             pareto.scatter("f_acc_mm", "f_t", source=self.evaluated, size=4, color="lightgrey")
             pareto.step("f_acc_mm", "f_t", source=self.front, mode="after", color="crimson")
             pareto.scatter("f_acc_mm", "f_t", source=self.front, size=6, color="crimson")
+            pareto.scatter(
+                "f_acc_mm", "f_t", source=self.recommended, size=16, marker="star",
+                color="gold", line_color="black", legend_label="recommended",
+            )  # fmt: skip
+            pareto.scatter(
+                "f_acc_mm", "f_t", source=self.baseline, size=12, marker="x", color="black",
+                line_width=2, legend_label="default gains",
+            )  # fmt: skip
+            pareto.legend.location = "top_right"
             curve = figure(
                 title="hypervolume",
                 x_axis_label="evaluations",
@@ -343,6 +376,8 @@ def page(watch: Watch) -> Callable:
                 self.history.data = view.history
                 self.front.data = view.front
                 self.evaluated.data = view.evaluated
+                self.baseline.data = view.baseline
+                self.recommended.data = view.recommended
                 self.shown = version
 
     def build(document) -> None:  # bokeh.document.Document

@@ -46,6 +46,8 @@ def page_state(browser: webdriver.Chrome, run: str) -> dict:
             generations: history ? history.data.evaluations.length : 0,
             front: history ? named("front:" + run).data.f_acc_mm.length : 0,
             evaluated: history ? named("evaluated:" + run).data.f_acc_mm.length : 0,
+            baseline: history ? named("baseline:" + run).data.f_acc_mm.length : 0,
+            recommended: history ? named("recommended:" + run).data.f_acc_mm.length : 0,
         };
         """,
         run,
@@ -132,7 +134,11 @@ def test_the_page_follows_a_run_and_its_farm_live(tmp_path: Path, browser) -> No
                 _, stderr = tuning.communicate(timeout=300)
                 assert tuning.returncode == 0, stderr
                 history = read_history(run / HISTORY_CSV)
-                seen += watch(browser, str(run), lambda s: s["generations"] == len(history))
+                seen += watch(
+                    browser,
+                    str(run),
+                    lambda s: s["generations"] == len(history) and "report written" in s["line"],
+                )
         finally:
             stop_workers(workers)
     # The page changed as the run went, without a reload: the curve grew a point at a time.
@@ -145,6 +151,10 @@ def test_the_page_follows_a_run_and_its_farm_live(tmp_path: Path, browser) -> No
         f"generation {history[-1].generation}, {history[-1].evaluations} evaluations"
         in (last["line"])
     )
+    assert "running" in " ".join(state["line"] or "" for state in seen)  # while it ran
+    # The default gains on the front's plot, and the recommended member if the run names one.
+    recommends = "No member of the front dominates" not in (run / "report.md").read_text()
+    assert last["baseline"] == 1 and last["recommended"] == int(recommends), last
     assert last["farm_points"] > seen[0]["farm_points"]  # the farm's series grew too
     assert max(max(state["jobs_per_s"], default=0) for state in seen) > 0
 
