@@ -39,6 +39,17 @@ MARKER_RADIUS = 0.012  # m, the sphere at the current desired point
 MAX_SEGMENTS = 400  # per path: enough for a smooth curve, few enough for the scene's geoms
 # Looking at the arm and the paths in front of it, from the front left and a little above.
 CAMERA = {"lookat": (0.35, 0.0, 0.35), "distance": 1.5, "azimuth": 135.0, "elevation": -35.0}
+# The close-up in the frame's bottom-right corner: a camera the same way round, looking at the
+# middle of the desired point and the flange from three times their distance (4 cm to 60 cm),
+# so that the error fills a third of it whatever its size: millimetres are pixels apart there,
+# where the whole view, from 1.5 m, shows a few. The arm is see-through in it: from this close it
+# would hide the point it is at.
+INSET = {"azimuth": 135.0, "elevation": -35.0}
+INSET_DISTANCE = (3.0, 0.04, 0.6)  # times the error, at least, at most (m)
+INSET_ALPHA = 0.25
+INSET_SHARE = 0.36  # of the frame's width and height
+INSET_MARKER = 0.025  # the markers' radius in the close-up, as a share of its distance
+FLANGE_RGBA = (1.0, 1.0, 1.0, 1.0)  # where the flange is, in the close-up: white
 
 
 class ReplayError(ValueError):
@@ -99,6 +110,15 @@ def render(log: EpisodeLog, ticks: np.ndarray, width: int, height: int) -> list[
             setattr(camera, name, value)
         scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0  # see _scene_model
         viewport = mujoco.MjrRect(0, 0, width, height)
+        close = mujoco.MjvCamera()
+        close.type = mujoco.mjtCamera.mjCAMERA_FREE
+        for name, value in INSET.items():
+            setattr(close, name, value)
+        inset_w, inset_h = int(width * INSET_SHARE), int(height * INSET_SHARE)
+        margin = max(2, width // 80)
+        # OpenGL's rows run bottom up: the bottom-right corner, inside a white border.
+        inset = mujoco.MjrRect(width - inset_w - margin, margin, inset_w, inset_h)
+        border = mujoco.MjrRect(inset.left - 2, inset.bottom - 2, inset_w + 4, inset_h + 4)
         frames = []
         for tick in ticks:
             data.qpos[hinges] = log.q[tick]
@@ -117,6 +137,30 @@ def render(log: EpisodeLog, ticks: np.ndarray, width: int, height: int) -> list[
                 viewport,
                 "t\nerror",
                 f"{log.t[tick]:.2f} s\n{error:.1f} mm",
+                graphics,
+            )
+            # The close-up: the same paths about the error, the flange a white dot.
+            scale, nearest, farthest = INSET_DISTANCE
+            close.lookat[:] = (log.ee_des[tick] + log.ee[tick]) / 2
+            close.distance = float(np.clip(scale * error / 1000, nearest, farthest))
+            mujoco.mjv_updateScene(
+                model, data, option, None, close, mujoco.mjtCatBit.mjCAT_ALL, scene
+            )
+            for geom in range(scene.ngeom):  # the arm and the floor, see-through
+                scene.geoms[geom].rgba[3] = INSET_ALPHA
+            _add_line(scene, reference, line_width, REFERENCE_RGBA)
+            _add_line(scene, _path(log.ee[: tick + 1]), line_width, ACHIEVED_RGBA)
+            marker = INSET_MARKER * close.distance
+            _add_sphere(scene, log.ee_des[tick], marker, REFERENCE_RGBA)
+            _add_sphere(scene, log.ee[tick], marker, FLANGE_RGBA)
+            mujoco.mjr_rectangle(border, 1.0, 1.0, 1.0, 1.0)
+            mujoco.mjr_render(inset, scene, graphics)
+            mujoco.mjr_overlay(
+                mujoco.mjtFont.mjFONT_NORMAL,
+                mujoco.mjtGridPos.mjGRID_TOPLEFT,
+                inset,
+                "close-up",
+                f"from {close.distance * 100:.0f} cm",
                 graphics,
             )
             pixels = np.empty((height, width, 3), np.uint8)

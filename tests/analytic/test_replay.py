@@ -81,6 +81,12 @@ def test_the_colours_counted_are_the_paths(episode: Path, tracking_log, monkeypa
     for frame in without:
         assert colours(frame)["green"] == colours(frame)["magenta"] == 0
         assert colours(frame)["orange"] > 1_500
+    # The close-up in the bottom-right corner shows the paths near the desired point, large.
+    corner = (slice(int(HEIGHT * (1 - replay.INSET_SHARE)), HEIGHT),
+              slice(int(WIDTH * (1 - replay.INSET_SHARE)), WIDTH))  # fmt: skip
+    close_up = colours(with_paths[-1][corner])
+    assert close_up["green"] > 10 and close_up["magenta"] > 10, close_up
+    assert colours(without[-1][corner])["green"] == 0
 
 
 def test_frames_show_the_last_tick_at_or_before_their_time() -> None:
