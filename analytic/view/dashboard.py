@@ -316,6 +316,13 @@ def _version(directory: Path) -> object:
 # --- the page -------------------------------------------------------------------------------
 
 
+# The overlay's colours, one per run in the page's order (matplotlib's tab10, as the figures).
+COLOURS = (
+    "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd",
+    "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf",
+)  # fmt: skip
+
+
 def page(watch: Watch) -> Callable:
     """The function Bokeh calls to build each new page's document."""
     from bokeh.layouts import column, row
@@ -401,6 +408,21 @@ def page(watch: Watch) -> Callable:
             "t", "busy", source=farm_series, line_width=2, color="orange", legend_label="busy"
         )
         queue.legend.location = "top_left"
+        # Every run's hypervolume on one chart: the same normalisation for every run, so runs
+        # compare (evaluations on the x axis: what each cost, whatever its population).
+        overlay = ColumnDataSource({"xs": [], "ys": [], "run": [], "colour": []}, name="overlay")
+        compare = figure(
+            title="every run's hypervolume (normalised: 0 to 1) against evaluations",
+            x_axis_label="evaluations",
+            y_axis_label="hypervolume",
+            height=300,
+            width=980,
+        )
+        compare.multi_line(
+            "xs", "ys", source=overlay, line_color="colour", line_width=2, legend_field="run"
+        )
+        compare.legend.location = "bottom_right"
+        overlaid = [None]  # the runs' versions the chart shows
         roots = ", ".join(map(str, watch.roots))
         heading = Div(text=f"runs under {html.escape(roots)}: running ones first, then the newest")
         runs = column(heading)
@@ -421,10 +443,20 @@ def page(watch: Watch) -> Callable:
             order = [heading, *(panels[directory].layout for directory, _, _ in found)]
             if list(runs.children) != order:  # a new run, or one that stopped: reordered
                 runs.children = order
+            versions = [(directory, run_version) for directory, run_version, _ in found]
+            if versions != overlaid[0]:
+                with_points = [(d, v) for d, _, v in found if v.history["evaluations"]]
+                overlay.data = {
+                    "xs": [view.history["evaluations"] for _, view in with_points],
+                    "ys": [view.history["hypervolume"] for _, view in with_points],
+                    "run": [str(directory) for directory, _ in with_points],
+                    "colour": [COLOURS[k % len(COLOURS)] for k in range(len(with_points))],
+                }
+                overlaid[0] = versions
 
         document.title = "gainfarm dashboard"
         document.add_root(
-            column(Div(text="<h2>gainfarm</h2>"), farm_line, row(throughput, queue), runs)
+            column(Div(text="<h2>gainfarm</h2>"), farm_line, row(throughput, queue), compare, runs)
         )
         update()
         document.add_periodic_callback(update, int(REFRESH_SECONDS * 1000))

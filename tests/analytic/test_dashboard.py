@@ -48,6 +48,8 @@ def page_state(browser: webdriver.Chrome, run: str) -> dict:
             evaluated: history ? named("evaluated:" + run).data.f_acc_mm.length : 0,
             baseline: history ? named("baseline:" + run).data.f_acc_mm.length : 0,
             recommended: history ? named("recommended:" + run).data.f_acc_mm.length : 0,
+            overlay: Array.from(named("overlay").data.run),
+            overlay_points: named("overlay").data.xs.map((xs) => xs.length),
         };
         """,
         run,
@@ -152,6 +154,8 @@ def test_the_page_follows_a_run_and_its_farm_live(tmp_path: Path, browser) -> No
         in (last["line"])
     )
     assert "running" in " ".join(state["line"] or "" for state in seen)  # while it ran
+    # Every run's curve on the chart that compares them: this one, with all its generations.
+    assert last["overlay"] == [str(run)] and last["overlay_points"] == [len(history)], last
     # The default gains on the front's plot, and the recommended member if the run names one.
     recommends = "No member of the front dominates" not in (run / "report.md").read_text()
     assert last["baseline"] == 1 and last["recommended"] == int(recommends), last
