@@ -34,7 +34,7 @@ from scipy.optimize import lsq_linear
 from scipy.signal import savgol_filter
 
 from gainfarm.analytic.calibration.logs import Recording
-from gainfarm.models import compile_model
+from gainfarm.models import compile_model, min_substeps
 from gainfarm.schemas.robot import JOINT_NAMES, TORQUE_LIMITS, ModelSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 from gainfarm.worker.plant import RobotGravity
@@ -90,8 +90,6 @@ class Fit:
 
     def plant(self, nominal: ModelSpec) -> ModelSpec:
         """`nominal` with the numbers the logs told (its controller's settings kept)."""
-        from gainfarm.models import min_substeps
-
         friction = nominal.friction
         if friction is not None:
             friction = friction.model_copy(

@@ -72,19 +72,24 @@ class Topics:
 def read_recording(path: Path, topics: Topics = Topics()) -> Recording:
     """One episode: a gainfarm episode log, or else a ROS 2 bag (a directory, or an MCAP or
     SQLite file) a robot recorded; BadLog in one line naming the file."""
+    log = read_log(path, topics)
+    return _from_episode(Path(path), log) if isinstance(log, EpisodeLog) else log
+
+
+def read_log(path: Path, topics: Topics = Topics()) -> "EpisodeLog | Recording":
+    """The file as it is: a gainfarm episode log, or else a robot's ROS 2 bag's recording,
+    each read once; BadLog in one line naming the file."""
     path = Path(path)
     if not path.exists():
         raise BadLog(f"{str(path)!r}: no such file")
     if path.is_file():
         try:
-            log = read_episode(path)
+            return read_episode(path)
         except OSError as error:
             raise BadLog(f"{str(path)!r}: cannot read: {error.strerror}") from None
         except NotAnEpisodeLog as error:
             if not _rosbag(path):
                 raise BadLog(f"{str(path)!r}: {error}") from None
-        else:
-            return _from_episode(path, log)
     return read_bag(path, topics)
 
 

@@ -160,25 +160,18 @@ def _logged(
     """LOG as an episode log: a gainfarm one as it is, a robot's bag as an episode of what it
     played; BadLog in one line."""
     from gainfarm.analytic.calibration.gap import as_episode, played_by
-    from gainfarm.analytic.calibration.logs import BadLog, read_recording
-    from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
+    from gainfarm.analytic.calibration.logs import BadLog, read_log
+    from gainfarm.schemas.episode_log import EpisodeLog
 
-    if path.is_file():
-        try:
-            log = read_episode(path)
-        except OSError as error:
-            raise BadLog(f"{str(path)!r}: cannot read: {error.strerror}") from None
-        except NotAnEpisodeLog:
-            pass  # a robot's bag, perhaps
-        else:
-            if log.metadata.spec.feedforward is not None:
-                raise BadLog(
-                    f"{str(path)!r}: its controller adds a feed-forward model; validate "
-                    "replays PD controllers"
-                )
-            return log
-    recording = read_recording(path, topics)
-    return as_episode(recording, played_by(recording, played), nominal)
+    log = read_log(path, topics)
+    if not isinstance(log, EpisodeLog):  # a robot's bag
+        return as_episode(log, played_by(log, played), nominal)
+    if log.metadata.spec.feedforward is not None:
+        raise BadLog(
+            f"{str(path)!r}: its controller adds a feed-forward model; validate replays PD "
+            "controllers"
+        )
+    return log
 
 
 def _show(report: dict, out: Path) -> None:

@@ -25,10 +25,10 @@ import math
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
@@ -76,7 +76,12 @@ class RunView:
     recommended: dict[str, list[float]] = field(default_factory=lambda: _points([]))
 
 
-def run_view(directory: Path) -> RunView:
+# A run's lock state not read yet: the functions below read it themselves (Watch.runs reads it
+# once per look and passes it on: the kernel's table of locks, not three reads per run).
+UNREAD: Any = object()
+
+
+def run_view(directory: Path, held: "bool | None" = UNREAD) -> RunView:
     """Where the run in `directory` stands, from its plain files; a run whose files cannot be
     read says why in its line (and shows no points) rather than stopping the page."""
     empty = RunView("", {"evaluations": [], "hypervolume": []}, _points([]), _points([]))
@@ -92,7 +97,7 @@ def run_view(directory: Path) -> RunView:
         return dataclasses.replace(empty, line=f"{title}: generation 0 running")
     last = record.history[-1]
     measured = [point for point in record.evaluated if _measured(point)]
-    state = run_state(directory)
+    state = run_state(directory, held)
     line = (
         f"{title}: generation {last.generation}, {last.evaluations} evaluations, "
         f"hypervolume {last.hypervolume:.4g}, best error {last.best_f_acc * 1000:.2f} mm, "
@@ -124,10 +129,11 @@ def run_view(directory: Path) -> RunView:
     )
 
 
-def run_state(directory: Path) -> str:
-    """Running while a process holds the run's lock; else finished (its report written) or
-    stopped before it ended (`analytic resume` continues it)."""
-    held = lock_held(directory / LOCK)
+def run_state(directory: Path, held: "bool | None" = UNREAD) -> str:
+    """Running while a process holds the run's lock (`held`, lock_held's answer); else
+    finished (its report written) or stopped before it ended (`analytic resume` continues it)."""
+    if held is UNREAD:
+        held = lock_held(directory / LOCK)
     if held:
         return "running"
     if (directory / REPORT_MD).exists():
@@ -137,16 +143,20 @@ def run_state(directory: Path) -> str:
     return "stopped: `analytic resume` continues it"
 
 
-def live_first(directories: Sequence[Path]) -> list[Path]:
-    """The runs in the order the page shows them: running ones first, then the newest (by when
-    their config.json was written), so that the run one is watching is at the top."""
+def live_first(
+    directories: Sequence[Path], held: "Mapping[Path, bool | None] | None" = None
+) -> list[Path]:
+    """The runs in the order the page shows them: running ones first (`held`: each one's lock
+    state, read here if not given), then the newest (by when their config.json was written), so
+    that the run one is watching is at the top."""
 
     def key(directory: Path) -> tuple[bool, int]:
         try:
             made = (directory / CONFIG_JSON).stat().st_mtime_ns
         except OSError:
             made = 0
-        return (not lock_held(directory / LOCK), -made)
+        running = held[directory] if held is not None else lock_held(directory / LOCK)
+        return (not running, -made)
 
     return sorted(directories, key=key)
 
@@ -288,12 +298,14 @@ class Watch:
     def runs(self) -> list[tuple[Path, object, RunView]]:
         """Every run found now: its path, a version that changes when its files do, its view."""
         views = []
-        for directory in live_first(find_runs(self.roots)):
-            version = _version(directory)
+        found = find_runs(self.roots)
+        held = {directory: lock_held(directory / LOCK) for directory in found}
+        for directory in live_first(found, held):
+            version = (_version(directory), held[directory])  # its process starting or ending
             with self._lock:
                 cached = self._views.get(directory)
             if cached is None or cached[0] != version:
-                cached = (version, run_view(directory))
+                cached = (version, run_view(directory, held[directory]))
                 with self._lock:
                     self._views[directory] = cached
             views.append((directory, *cached))
@@ -302,14 +314,13 @@ class Watch:
 
 def _version(directory: Path) -> object:
     """What changes when a run writes its records (history.csv is written last, front.json
-    before it) or its report, or when its process starts or ends (its lock)."""
-    stamps: list[object] = []
+    before it) or its report."""
+    stamps = []
     for name in (CONFIG_JSON, FRONT_JSON, HISTORY_CSV, REPORT_MD):
         try:
             stamps.append((directory / name).stat().st_mtime_ns)
         except OSError:
             stamps.append(None)
-    stamps.append(lock_held(directory / LOCK))
     return tuple(stamps)
 
 
