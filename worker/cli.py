@@ -136,6 +136,7 @@ def episode(
     except ValidationError as error:
         raise CliError(describe(error)) from None
     _refuse_saturating(spec, "--gains" if gains_file is not None else None)
+    _warn_if_far_outside_search(spec.gains, gains_file)
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
     try:
@@ -324,6 +325,22 @@ def _refuse_saturating(spec: "EpisodeSpec", option: str | None) -> None:
         raise CliError(
             f"{flag}: {which} of {joint} is {gain:g}, which saturates its motor on one encoder "
             "count: every tick would saturate"
+        )
+
+
+def _warn_if_far_outside_search(gains: "PDGains", path: Path | None) -> None:
+    """One line on stderr for gains orders of magnitude outside what the farm searches: they
+    run (a user may mean them), but they are more often a slip of units or of an exponent."""
+    from gainfarm.schemas.gains import outside_search
+
+    found = outside_search(gains)
+    if found is not None:
+        # The phrase starts with the gain's name, kp or kd: the option that gave it.
+        given = f"--gains {str(path)!r}" if path is not None else f"--{found[:2]}"
+        click.echo(
+            f"worker: warning: {given}: {found}: far outside what the farm searches (a slip of "
+            "units or of an exponent?)",
+            err=True,
         )
 
 

@@ -90,6 +90,8 @@ def batch(
         raise CliError("say where the farm is: --connect ENDPOINT or --local")
     identity = check_farm(connect, local, tls, participant)
     candidates = _candidates(gains_file)
+    if gains_file is not None:
+        _warn_if_far_outside_search(candidates, gains_file)
     trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
     followable(trajectories)
     learned = options.feedforward_model(feedforward)
@@ -157,6 +159,24 @@ def _candidates(path: Path | None) -> list["PDGains"]:
         return read_gains(raw)
     except BadGains as error:
         raise CliError(f"--gains: {str(path)!r}: {error}") from None
+
+
+def _warn_if_far_outside_search(candidates: list["PDGains"], path: Path) -> None:
+    """One line on stderr for the first candidate with gains orders of magnitude outside what the
+    farm searches: its episodes run, but such gains are more often a slip of units or of an
+    exponent than meant."""
+    from gainfarm.schemas.gains import outside_search
+
+    for number, gains in enumerate(candidates, start=1):
+        found = outside_search(gains)
+        if found is not None:
+            which = f"candidate {number}: " if len(candidates) > 1 else ""
+            click.echo(
+                f"analytic: warning: --gains {str(path)!r}: {which}{found}: far outside what the "
+                "farm searches (a slip of units or of an exponent?)",
+                err=True,
+            )
+            return
 
 
 def _summary(evaluation: "EpisodeResult") -> dict[str, object]:

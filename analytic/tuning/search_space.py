@@ -10,11 +10,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
+# The bounds are the contract's (a worker warns about gains far outside them); named here too,
+# where the search is.
+from gainfarm.schemas.gains import DEFAULT_GAINS, KD_RANGE, KP_RANGE, PDGains
 from gainfarm.schemas.robot import N_JOINTS
-
-KP_RANGE = (0.1, 3.0)  # × the default Kp of each joint
-KD_RANGE = (0.1, 5.0)  # × the default Kd of each joint
 
 
 @dataclass(frozen=True)

@@ -343,6 +343,25 @@ def test_batch_off_a_terminal_says_its_progress_in_plain_lines(tmp_path: Path) -
     assert [json.loads(line)["status"] for line in quiet.stdout.splitlines()] == ["ok"] * 3
 
 
+@pytest.mark.slow
+def test_batch_warns_in_one_line_of_a_candidate_far_outside_the_search_space(
+    tmp_path: Path,
+) -> None:
+    """Its episodes still run: the line says which candidate and gain, and why it may be a slip."""
+    inside = {"kp": [2000, 2000, 1200, 1200, 400, 200, 100], "kd": [20, 20, 15, 15, 4, 2, 1]}
+    far = {**inside, "kd": [20, 20, 1e-6, 15, 4, 2, 1]}
+    (tmp_path / "candidates.json").write_text(json.dumps([inside, far]))
+    common = ["--local", "--workers", "1", *SHORT_RUN[2:], "--json"]
+    ran = analytic("batch", "--gains", "candidates.json", *common, "--run-dir", "b", cwd=tmp_path)
+    assert ran.returncode == 0, ran.stderr
+    assert ran.stderr == (
+        "analytic: warning: --gains 'candidates.json': candidate 2: kd of A3 is 1e-06 N·m·s/rad, "
+        "1/1,500,000 of the search space's lowest (1.5 N·m·s/rad: 0.1× the default 15): far "
+        "outside what the farm searches (a slip of units or of an exponent?)\n"
+    )
+    assert [json.loads(line)["status"] for line in ran.stdout.splitlines()] == ["ok"] * 2
+
+
 def test_a_corrupt_config_is_one_plain_line_on_resume_and_export(tmp_path, here):
     run = tmp_path / "run"
     run.mkdir()

@@ -184,3 +184,38 @@ def test_a_controller_run_off_what_it_was_tuned_on_says_so_and_as_tuned_runs_it_
         assert refused.returncode == 2 and refused.stderr.count("\n") == 1, refused.stderr
         assert says in refused.stderr, refused.stderr
         assert not (tmp_path / "c.mcap").exists()
+
+
+@pytest.mark.parametrize(
+    ("gains", "options", "says"),
+    [
+        (
+            None,
+            ["--kd", "20,20,1e-6,15,4,2,1"],
+            "--kd: kd of A3 is 1e-06 N·m·s/rad, 1/1,500,000 of the search space's lowest "
+            "(1.5 N·m·s/rad: 0.1× the default 15)",
+        ),
+        (  # 1000× the default Kp: far outside the search, yet no motor saturates on one count
+            {"kp": [k * 1000 for k in GAINS["kp"]], "kd": GAINS["kd"]},
+            [],
+            "--gains 'far.json': kp of A1 is 2e+06 N·m/rad, 333× the search space's highest "
+            "(6000 N·m/rad: 3× the default 2000)",
+        ),
+    ],
+)
+def test_gains_far_outside_the_search_space_run_with_one_line_naming_the_option(
+    tmp_path, monkeypatch, gains, options, says
+):
+    monkeypatch.chdir(tmp_path)  # the file named as given, relative
+    if gains is not None:
+        (tmp_path / "far.json").write_text(json.dumps(gains))
+        options = ["--gains", "far.json"]
+    ran = run(WORKER, "episode", *options, "--trajectory", "fourier", "--duration", "0.2",
+              "--out", "ep.mcap", "--json")  # fmt: skip
+    assert ran.returncode == 0, ran.stderr
+    assert ran.stderr == (
+        f"worker: warning: {says}: far outside what the farm searches (a slip of units or of an "
+        "exponent?)\n"
+    )
+    assert json.loads(ran.stdout)["ticks"] == 101  # the episode ran, whole
+    assert (tmp_path / "ep.mcap").is_file()
