@@ -220,8 +220,10 @@ def start(
             cobot = CobotWorker(
                 connect, name, identity, models, log_memory * 2**20, threads=threads or cores()
             )
-        except (NameTaken, ValueError) as error:
+        except NameTaken as error:
             raise CliError(str(error)) from None
+        except ValueError as error:  # the name is checked above: what is left is an endpoint
+            raise CliError(f"--connect: {error}") from None
         except ConnectionError as error:
             if not waiting:  # a farm's workers often start before its broker
                 log.warning("%s; retrying every second", error)

@@ -210,7 +210,11 @@ def test_a_second_worker_with_a_taken_name_is_refused(broker: Broker) -> None:
 def test_bad_names_and_endpoints_are_one_line_errors() -> None:
     for arguments, message in [
         (["--name", "a/b"], "--name: 'a/b' is not 1 to 64 letters, digits"),
-        (["--connect", "nonsense"], "bad endpoint"),
+        (["--connect", "nonsense"], "worker: error: --connect: bad endpoint: Endpoints must be"),
+        (
+            ["--connect", "tls/127.0.0.1:1"],
+            "worker: error: --connect: tls/127.0.0.1:1: a tls/ endpoint needs TLS credentials",
+        ),
         (["--log-memory", "8"], "--log-memory"),
         (["--log-memory", "lots"], "--log-memory"),
         (["--threads", "0"], "--threads"),
