@@ -44,8 +44,11 @@ def replay(log: Path, out: Path, fps: int, width: int, height: int) -> None:
     from gainfarm.analytic.view.replay import ReplayError
     from gainfarm.analytic.view.replay import replay as replay_episode
 
+    # As `analytic evaluate` says it: a directory is not a missing file.
+    if log.is_dir():
+        raise CliError(f"LOG: {str(log)!r} is a directory, not an episode log (an MCAP file)")
     if not log.is_file():
-        raise CliError(f"{str(log)!r}: no such file")
+        raise CliError(f"LOG: {str(log)!r}: no such file")
     try:
         frames = replay_episode(log, out, fps, width, height)
     except ReplayError as error:

@@ -108,7 +108,15 @@ def test_bad_input_is_one_line_and_writes_nothing(episode: Path, tmp_path: Path)
     directory.mkdir()
     out = str(tmp_path / "out.mp4")
     cases = [
-        ((str(tmp_path / "missing.mcap"), "--out", out), "no such file"),
+        (
+            (str(tmp_path / "missing.mcap"), "--out", out),
+            f"analytic: error: LOG: {str(tmp_path / 'missing.mcap')!r}: no such file\n",
+        ),
+        (
+            (str(directory), "--out", out),
+            f"analytic: error: LOG: {str(directory)!r} is a directory, not an episode log (an "
+            "MCAP file)\n",
+        ),
         ((str(junk), "--out", out), "not an MCAP file"),
         ((str(truncated), "--out", out), "truncated MCAP file"),
         ((str(episode), "--out", str(tmp_path / "nowhere" / "x.mp4")), "--out: no directory"),
