@@ -32,6 +32,15 @@ class BadLog(ValueError):
     """A log calibration cannot use: the message names the file and why, in one line."""
 
 
+class UnreadableBag(BadLog):
+    """A file or directory rosbags cannot read as a bag at all (not one whose topics are wrong):
+    `reason` is rosbags' own word on it."""
+
+    def __init__(self, message: str, reason: str):
+        super().__init__(message)
+        self.reason = reason
+
+
 @dataclass(frozen=True)
 class Recording:
     """One episode of an arm, every array (n, 7) at the 500 Hz control rate, SI units."""
@@ -80,16 +89,31 @@ def read_log(path: Path, topics: Topics = Topics()) -> "EpisodeLog | Recording":
     """The file as it is: a gainfarm episode log, or else a robot's ROS 2 bag's recording,
     each read once; BadLog in one line naming the file."""
     path = Path(path)
+    name = str(path)
     if not path.exists():
-        raise BadLog(f"{str(path)!r}: no such file")
+        raise BadLog(f"{name!r}: no such file")
+    if path.is_dir() and not (path / "metadata.yaml").is_file():
+        # Checked here: rosbags would say that its metadata file "'DIR' does not exist".
+        raise BadLog(f"{name!r} is a directory but no ROS 2 bag (no metadata.yaml in it)")
     if path.is_file():
         try:
             return read_episode(path)
         except OSError as error:
-            raise BadLog(f"{str(path)!r}: cannot read: {error.strerror}") from None
+            raise BadLog(f"{name!r}: cannot read: {error.strerror}") from None
         except NotAnEpisodeLog as error:
+            # The reader's message starts with the path: named once, quoted as ours are.
+            reason = str(error).removeprefix(f"{path}: ")
             if not _rosbag(path):
-                raise BadLog(f"{str(path)!r}: {error}") from None
+                raise BadLog(f"{name!r}: {reason}") from None
+        try:
+            return read_bag(path, topics)
+        except UnreadableBag as error:
+            # An MCAP file that is neither: a truncated episode log as likely as a broken bag,
+            # so both readers' reasons.
+            raise BadLog(
+                f"{name!r}: neither an episode log ({reason}) nor a ROS 2 bag rosbags can read "
+                f"({error.reason})"
+            ) from None
     return read_bag(path, topics)
 
 
@@ -174,7 +198,9 @@ def read_bag(path: Path, topics: Topics = Topics()) -> Recording:
     except BadLog:
         raise
     except Exception as error:  # rosbags' errors have no common base: any is the file's fault
-        raise BadLog(f"{name!r}: not a ROS 2 bag rosbags can read ({error})") from None
+        raise UnreadableBag(
+            f"{name!r}: not a ROS 2 bag rosbags can read ({error})", str(error)
+        ) from None
     states = columns["joint_states"]
     if states.effort is None:
         raise BadLog(

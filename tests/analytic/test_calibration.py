@@ -22,7 +22,7 @@ from gainfarm.analytic.tuning.plants import ranges, ranges_of, variants
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.plant_file import BadPlantFile, read_plant_file
 from gainfarm.schemas.robot import ModelSpec
-from tests.helpers import analytic
+from tests.helpers import analytic, crafted_log, write_log
 
 N = 7
 EXCITATIONS, HELD_OUT = 6, (6, 7)  # the held-out ones: the next seeds excite writes
@@ -250,6 +250,28 @@ def test_bad_input_is_one_line_and_writes_nothing(calibrated: dict, tmp_path: Pa
         assert done.returncode != 0 and len(done.stderr.splitlines()) == 1, done.stderr
         assert says in done.stderr and "robot 'ur5e'" in done.stderr, done.stderr
     assert not (tmp_path / "v").exists()
+
+
+def test_what_is_neither_a_log_nor_a_bag_is_one_line_naming_it(tmp_path: Path) -> None:
+    """Refused before anything is fitted, each in one line: a directory that holds no bag, a
+    binary file, and an episode log cut short (an MCAP file, so both readers are asked)."""
+    (tmp_path / "logs").mkdir()
+    (tmp_path / "noise.bin").write_bytes(bytes(range(256)))
+    write_log(crafted_log(), tmp_path / "whole.mcap")
+    (tmp_path / "cut.mcap").write_bytes((tmp_path / "whole.mcap").read_bytes()[:-40])
+    for given, says in (
+        ("logs", "'logs' is a directory but no ROS 2 bag (no metadata.yaml in it)"),
+        ("noise.bin", "'noise.bin': not an MCAP file (no MCAP magic at its start)"),
+        (
+            "cut.mcap",
+            "'cut.mcap': neither an episode log (truncated MCAP file (no MCAP magic at its end)) "
+            "nor a ROS 2 bag rosbags can read (File end magic is invalid.)",
+        ),
+    ):
+        done = analytic("calibrate", given, "--out", "twin.toml", cwd=tmp_path)
+        assert done.returncode == 2, done.stderr
+        assert done.stderr == f"analytic: error: {says}\n"
+    assert not (tmp_path / "twin.toml").exists()
 
 
 def test_a_plant_file_from_another_robot_is_refused_in_one_line() -> None:
