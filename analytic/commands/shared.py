@@ -187,6 +187,13 @@ def plants_from(
         table = ranges(text)
     except BadUncertainty as error:
         raise CliError(f"--uncertainty: {str(path)!r}: {error}") from None
+    if not table:
+        # An empty file (or one with no table) would draw every variant equal to the nominal
+        # plant: robust tuning that is not, without a word.
+        raise CliError(
+            f"--uncertainty: {str(path)!r} holds no ranges (a table per parameter, as in the "
+            "shipped models/uncertainty.toml)"
+        )
     try:
         return variants(nominal, count, seed, table, stream)
     except ValueError as error:  # a range that takes the plant out of what it may be

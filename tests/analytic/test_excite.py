@@ -216,15 +216,21 @@ why = "a test: rotors far lighter than any arm's"
         (["--duration", "1.2", "--count", "3"], "excitation-02 (seed 2) moves it"),
         (["--uncertainty", "tiny.toml", "--count", "2", "--duration", "2"], "--uncertainty: "),
         (["--uncertainty", "missing.toml"], "--uncertainty: cannot read"),
+        (
+            ["--uncertainty", "empty.toml"],
+            "analytic: error: --uncertainty: 'empty.toml' holds no ranges (a table per "
+            "parameter, as in the shipped models/uncertainty.toml)\n",
+        ),
     ],
 )
 def test_bad_input_is_one_line_naming_the_option_and_nothing_is_written(tmp_path, args, says):
     (tmp_path / "tiny.toml").write_text(TINY_ROTORS)
+    (tmp_path / "empty.toml").write_text("")
     result = run(ANALYTIC, "excite", "--out", "EXCITE", *args, cwd=tmp_path)
     assert result.returncode == 2
     assert result.stderr.startswith("analytic: error: ") and result.stderr.count("\n") == 1
     assert says in result.stderr
-    assert sorted(path.name for path in tmp_path.iterdir()) == ["tiny.toml"]
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["empty.toml", "tiny.toml"]
 
 
 def test_unstable_gains_are_refused_naming_the_excitation_the_variant_and_its_damping(tmp_path):

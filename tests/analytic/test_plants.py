@@ -128,10 +128,16 @@ def test_every_candidate_meets_the_same_variants(tmp_path: Path) -> None:
 
 def test_plants_and_uncertainty_bad_input_is_one_line(tmp_path: Path) -> None:
     (tmp_path / "bad.toml").write_text('[a]\nfield = "nothing"\n')
+    (tmp_path / "empty.toml").write_text("# nothing yet\n")
     for arguments, says in (
         (["--plants", "-1"], "--plants"),
         (["--plants", "2", "--uncertainty", "bad.toml"], "--uncertainty: 'bad.toml': a: "),
         (["--plants", "2", "--uncertainty", "missing.toml"], "--uncertainty: cannot read"),
+        (
+            ["--plants", "2", "--uncertainty", "empty.toml"],
+            "analytic: error: --uncertainty: 'empty.toml' holds no ranges (a table per "
+            "parameter, as in the shipped models/uncertainty.toml)\n",
+        ),
     ):
         result = analytic("start", *arguments, "--out", "run", cwd=tmp_path)
         assert result.returncode == 2, result.stderr
