@@ -7,15 +7,24 @@ them share one `Watch`, which reads the runs' plain files (analytic.records) whe
 and asks the broker for its status (BrokerStatus) once a second, in a thread of its own.
 
 The page, top to bottom: the farm (workers, busy, queued, jobs per second, and the last ten
-minutes of throughput and queue), then a panel per run: what it tunes and where it stands, its
-front over every evaluated point (as pareto.png draws them: f_acc in mm, f_t on a log axis), and
-its hypervolume against evaluations. Runs that appear under a watched directory while the page is
-open are added to it.
+minutes of throughput and queue); the chosen runs compared (their hypervolume against
+evaluations, and their fronts in the space the hypervolume is measured in, one normalisation for
+all); one run inspected: its verdict, its members in a sortable table, a chosen member's
+controller files (`analytic export`'s) and one of its episodes plotted from its log
+(analytic.view.members); then a panel per run: what it tunes and where it stands, its front over
+every evaluated point (as pareto.png draws them: f_acc in mm, f_t on a log axis) with the
+recommended member and the default gains, and its hypervolume against evaluations. Runs that
+appear under a watched directory while the page is open are added to it.
 
 Every model a test or a script may want to read is named (`Bokeh.documents[0]
 .get_model_by_name(NAME)` in the page): "farm" (the farm's line), "farm-series" (its sources'
-columns t, jobs_per_s, queued, busy), and for each run, by its path as given: "run:PATH" (its
-line), "history:PATH", "front:PATH" and "evaluated:PATH" (its sources).
+columns t, jobs_per_s, queued, busy); "chosen-runs" (the runs compared), "overlay" and "fronts"
+(the comparison's sources); "inspect" (the run inspected), "verdict", "members" (the table's
+source, columns members.COLUMNS; its selection is the member chosen), "table", "export" (the
+chosen member's files), "episode-choice", "episode" (which episode, from where) and
+"episode-joints", "episode-error", "episode-torques" (its series); and for each run, by its path
+as given: "run:PATH" (its line), "history:PATH", "front:PATH", "evaluated:PATH",
+"baseline:PATH" and "recommended:PATH" (its sources).
 """
 
 import contextlib
@@ -32,6 +41,9 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
+from gainfarm.analytic.tuning.check import CHECK_JSON, read_check
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.evolution import F_T_FLOOR, REFERENCE_POINT, normalise
 from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import (
     BASELINE_JSON,
@@ -41,14 +53,29 @@ from gainfarm.analytic.tuning.records import (
     HISTORY_CSV,
     LOCK,
     REPORT_MD,
+    FrontMember,
     read_baseline,
     read_run,
+    sorted_front,
+)
+from gainfarm.analytic.view.members import (
+    COLUMNS,
+    EMPTY_SERIES,
+    GAINS,
+    episode,
+    export_links,
+    robustness_text,
+    series,
+    slots,
+    table,
 )
 from gainfarm.analytic.view.progress import duration_text
-from gainfarm.analytic.view.reports import run_title
+from gainfarm.analytic.view.reports import run_title, verdict_text
 from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.edges.files import lock_held
+from gainfarm.schemas.limits import MEASURED
 from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR
+from gainfarm.schemas.robot import JOINT_NAMES
 from gainfarm.schemas.wire import BadMessage, BrokerStatus
 
 if TYPE_CHECKING:
@@ -74,6 +101,14 @@ class RunView:
     # The default gains' point (baseline.json) and the recommended member's: none, or one each.
     baseline: dict[str, list[float]] = field(default_factory=lambda: _points([]))
     recommended: dict[str, list[float]] = field(default_factory=lambda: _points([]))
+    # What the inspector shows of it: its config, its front in front.csv's order, the member
+    # table's columns, its verdict (the controller to use, and how robust), and its front in
+    # the hypervolume's space (x: f_acc, y: f_t, normalised; by x) for the comparison.
+    config: RunConfig | None = None
+    members: tuple[FrontMember, ...] = ()
+    table: dict[str, list] = field(default_factory=lambda: {name: [] for name in COLUMNS})
+    verdict: str = ""
+    normalised: dict[str, list[float]] = field(default_factory=lambda: {"x": [], "y": []})
 
 
 # A run's lock state not read yet: the functions below read it themselves (Watch.runs reads it
@@ -115,7 +150,13 @@ def run_view(directory: Path, held: "bool | None" = UNREAD) -> RunView:
     baseline = None
     with contextlib.suppress(OSError, ValueError):
         baseline = read_baseline(directory / BASELINE_JSON)
-    chosen = [p.member for p in picks(record.front, baseline) if p.name == "recommended"]
+    named = picks(record.front, baseline)
+    chosen = [p.member for p in named if p.name == "recommended"]
+    check = read_check(directory)
+    finished = [m.objectives for m in record.front if _measured(m.objectives)]
+    # One normalisation for every run: the hypervolume's, at the default reference point.
+    x, y = normalise(sorted(finished), REFERENCE_POINT).T.tolist() if finished else ([], [])
+    verdict = verdict_text(named, baseline).replace("**", "") if named else "no front yet"
     return RunView(
         line,
         {
@@ -126,6 +167,11 @@ def run_view(directory: Path, held: "bool | None" = UNREAD) -> RunView:
         _points(measured),
         _points([baseline.objectives] if baseline and _measured(baseline.objectives) else []),
         _points([m.objectives for m in chosen]),
+        record.config,
+        tuple(sorted_front(record.front)),
+        table(record.front, named, record.config, check),
+        f"{verdict} {robustness_text(named, check)}." if named else verdict,
+        {"x": x, "y": y},
     )
 
 
@@ -316,7 +362,7 @@ def _version(directory: Path) -> object:
     """What changes when a run writes its records (history.csv is written last, front.json
     before it) or its report."""
     stamps = []
-    for name in (CONFIG_JSON, FRONT_JSON, HISTORY_CSV, REPORT_MD):
+    for name in (CONFIG_JSON, FRONT_JSON, HISTORY_CSV, REPORT_MD, CHECK_JSON):
         try:
             stamps.append((directory / name).stat().st_mtime_ns)
         except OSError:
@@ -337,8 +383,18 @@ COLOURS = (
 def page(watch: Watch) -> Callable:
     """The function Bokeh calls to build each new page's document."""
     from bokeh.layouts import column, row
-    from bokeh.models import ColumnDataSource, Div
+    from bokeh.models import (
+        ColumnDataSource,
+        DataTable,
+        Div,
+        MultiChoice,
+        NumberFormatter,
+        Select,
+        TableColumn,
+    )
     from bokeh.plotting import figure
+
+    wide = {"sizing_mode": "stretch_width"}  # the window's width, shared by a row's plots
 
     class RunPanel:
         """A run's part of the page: its heading, its line, its front and its curve."""
@@ -347,6 +403,7 @@ def page(watch: Watch) -> Callable:
             key = str(directory)
             self.shown: object = None  # the run's version on the page
             self.line = Div(name=f"run:{key}", text="")
+            self.verdict = Div(name=f"verdict:{key}", text="", **wide)
             self.history = ColumnDataSource(
                 {"evaluations": [], "hypervolume": []}, name=f"history:{key}"
             )
@@ -362,7 +419,7 @@ def page(watch: Watch) -> Callable:
                 y_axis_label="f_t: mean squared torque change per tick ((N·m)²)",
                 y_axis_type="log",
                 height=360,
-                width=480,
+                **wide,
             )
             pareto.scatter("f_acc_mm", "f_t", source=self.evaluated, size=4, color="lightgrey")
             pareto.step("f_acc_mm", "f_t", source=self.front, mode="after", color="crimson")
@@ -377,26 +434,267 @@ def page(watch: Watch) -> Callable:
             )  # fmt: skip
             pareto.legend.location = "top_right"
             curve = figure(
-                title="hypervolume",
+                title="hypervolume (normalised: 0 to 1)",
                 x_axis_label="evaluations",
                 y_axis_label="hypervolume",
                 height=360,
-                width=480,
+                **wide,
             )
             curve.line("evaluations", "hypervolume", source=self.history, line_width=2)
             curve.scatter("evaluations", "hypervolume", source=self.history, size=5)
             heading = Div(text=f"<h3>{html.escape(key)}</h3>")
-            self.layout = column(heading, self.line, row(pareto, curve))
+            self.layout = column(
+                heading, self.line, self.verdict, row(pareto, curve, **wide), **wide
+            )
 
         def show(self, version: object, view: RunView) -> None:
             if version != self.shown:
                 self.line.text = html.escape(view.line)
+                self.verdict.text = html.escape(view.verdict)
                 self.history.data = view.history
                 self.front.data = view.front
                 self.evaluated.data = view.evaluated
                 self.baseline.data = view.baseline
                 self.recommended.data = view.recommended
                 self.shown = version
+
+    class Compare:
+        """The chosen runs side by side: their hypervolume curves and their fronts, each in the
+        hypervolume's normalised space, so that runs of other populations and budgets compare.
+        Every run is chosen as it appears; one taken out of the choice stays out."""
+
+        def __init__(self) -> None:
+            self.choice = MultiChoice(name="chosen-runs", title="runs compared", **wide)
+            self.overlay = ColumnDataSource(
+                {"xs": [], "ys": [], "run": [], "colour": []}, name="overlay"
+            )
+            self.fronts = ColumnDataSource(
+                {"xs": [], "ys": [], "run": [], "colour": []}, name="fronts"
+            )
+            self.points = ColumnDataSource({"x": [], "y": [], "colour": []}, name="front-points")
+            curves = figure(
+                title="hypervolume (normalised: 0 to 1) against evaluations",
+                x_axis_label="evaluations",
+                y_axis_label="hypervolume",
+                height=320,
+                **wide,
+            )
+            curves.multi_line(
+                "xs", "ys", source=self.overlay, line_color="colour", line_width=2,
+                legend_field="run",
+            )  # fmt: skip
+            curves.legend.location = "bottom_right"
+            fronts = figure(
+                title="fronts, normalised as the hypervolume measures them (0 to 1)",
+                x_axis_label=f"f_acc / {REFERENCE_POINT[0] * 1000:g} mm",
+                y_axis_label=(
+                    f"f_t on a log scale: {F_T_FLOOR:g} (N·m)² at 0, {REFERENCE_POINT[1]:g} at 1"
+                ),
+                height=320,
+                **wide,
+            )
+            fronts.multi_line(
+                "xs", "ys", source=self.fronts, line_color="colour", line_width=2,
+                legend_field="run",
+            )  # fmt: skip
+            fronts.scatter("x", "y", source=self.points, color="colour", size=5)
+            fronts.legend.location = "top_right"
+            self.layout = column(self.choice, row(curves, fronts, **wide), **wide)
+            self.known: list[str] = []
+            self.shown: object = None
+            self.found: list[tuple[Path, object, RunView]] = []
+            self.choice.on_change("value", lambda _attr, _old, _new: self.draw())
+
+        def show(self, found: list[tuple[Path, object, RunView]]) -> None:
+            self.found = found
+            names = [str(directory) for directory, _, _ in found]
+            new = [name for name in names if name not in self.known]
+            self.known += new
+            if self.choice.options != names:
+                self.choice.options = names
+            if new:
+                self.choice.value = [*self.choice.value, *new]  # draws, through on_change
+            self.draw()
+
+        def draw(self) -> None:
+            chosen = set(self.choice.value)
+            shown = [
+                (k, directory, view)
+                for k, (directory, _, view) in enumerate(self.found)
+                if str(directory) in chosen
+            ]
+            version = [(directory, v) for directory, v, _ in self.found if str(directory) in chosen]
+            if version == self.shown:
+                return
+            self.shown = version
+            curves = [(k, d, v) for k, d, v in shown if v.history["evaluations"]]
+            self.overlay.data = {
+                "xs": [view.history["evaluations"] for _, _, view in curves],
+                "ys": [view.history["hypervolume"] for _, _, view in curves],
+                "run": [str(directory) for _, directory, _ in curves],
+                "colour": [COLOURS[k % len(COLOURS)] for k, _, _ in curves],
+            }
+            fronts = [(k, d, v) for k, d, v in shown if v.normalised["x"]]
+            self.fronts.data = {
+                "xs": [view.normalised["x"] for _, _, view in fronts],
+                "ys": [view.normalised["y"] for _, _, view in fronts],
+                "run": [str(directory) for _, directory, _ in fronts],
+                "colour": [COLOURS[k % len(COLOURS)] for k, _, _ in fronts],
+            }
+            self.points.data = {
+                "x": [x for _, _, view in fronts for x in view.normalised["x"]],
+                "y": [y for _, _, view in fronts for y in view.normalised["y"]],
+                "colour": [
+                    COLOURS[k % len(COLOURS)] for k, _, view in fronts for _ in view.normalised["x"]
+                ],
+            }
+
+    class Inspector:
+        """One run looked into: its verdict, its members in a sortable table, and the member
+        chosen there: its controller files and one of its episodes, plotted."""
+
+        def __init__(self) -> None:
+            self.run: Path | None = None
+            self.view: RunView | None = None
+            self.shown: object = None
+            self.chosen: FrontMember | None = None
+            self.choice = Select(name="inspect", title="run inspected", options=[], value="")
+            self.verdict = Div(name="verdict", text="", **wide)
+            self.members = ColumnDataSource({name: [] for name in COLUMNS}, name="members")
+            self.table = DataTable(
+                name="table",
+                source=self.members,
+                columns=_table_columns(TableColumn, NumberFormatter),
+                sortable=True,
+                selectable=True,
+                index_position=None,
+                height=300,
+                **wide,
+            )
+            self.export = Div(name="export", text=NOTHING_CHOSEN, **wide)
+            self.episode_choice = Select(name="episode-choice", title="episode", options=[])
+            self.episode = Div(name="episode", text="", **wide)
+            self.joints = ColumnDataSource(EMPTY_SERIES["joints"], name="episode-joints")
+            self.error = ColumnDataSource(EMPTY_SERIES["error"], name="episode-error")
+            self.torques = ColumnDataSource(EMPTY_SERIES["torques"], name="episode-torques")
+            angles = figure(
+                title="joint angles (solid) and their reference (dashed)",
+                x_axis_label="time (s)",
+                y_axis_label="rad",
+                height=300,
+                **wide,
+            )
+            error = figure(
+                title="tracking error: the end effector's distance from the desired point",
+                x_axis_label="time (s)",
+                y_axis_label="mm",
+                height=300,
+                **wide,
+            )
+            error.line("t", "error_mm", source=self.error, line_width=2)
+            torques = figure(
+                title="torque commands (solid) and measured joint torques (dashed)",
+                x_axis_label="time (s)",
+                y_axis_label="N·m",
+                height=300,
+                **wide,
+            )
+            for j, joint in enumerate(JOINT_NAMES):
+                solid = {"color": COLOURS[j], "legend_label": joint}
+                dashed = {"color": COLOURS[j], "line_dash": "dashed"}
+                angles.line("t", f"q_{joint}", source=self.joints, **solid)
+                angles.line("t", f"q_des_{joint}", source=self.joints, **dashed)
+                torques.line("t", f"u_{joint}", source=self.torques, **solid)
+                torques.line("t", f"tau_{joint}", source=self.torques, **dashed)
+            for plot in (angles, torques):
+                plot.legend.location = "top_left"
+                plot.legend.orientation = "horizontal"
+            self.layout = column(
+                self.choice, self.verdict, self.table, self.export, self.episode_choice,
+                self.episode, row(angles, error, torques, **wide), **wide,
+            )  # fmt: skip
+            self.choice.on_change("value", lambda _attr, _old, _new: self.refresh())
+            self.members.selected.on_change("indices", lambda _attr, _old, _new: self.pick())
+            self.episode_choice.on_change("value", lambda _attr, _old, _new: self.plot())
+
+        def show(self, found: list[tuple[Path, object, RunView]]) -> None:
+            names = [str(directory) for directory, _, _ in found]
+            if self.choice.options != names:
+                self.choice.options = names
+            if self.choice.value not in names and names:
+                self.choice.value = names[0]  # the run at the top: running, or the newest
+            self.found = {str(directory): (version, view) for directory, version, view in found}
+            self.refresh()
+
+        def refresh(self) -> None:
+            version, view = getattr(self, "found", {}).get(self.choice.value, (None, None))
+            if view is None or (self.choice.value, version) == self.shown:
+                return
+            if self.run != Path(self.choice.value):
+                self.chosen = None
+            self.run, self.view, self.shown = (
+                Path(self.choice.value),
+                view,
+                (
+                    self.choice.value,
+                    version,
+                ),
+            )
+            self.verdict.text = html.escape(view.verdict)
+            self.members.data = view.table
+            # The member chosen stays chosen while it is on the front (its row may move).
+            keep = [i for i, m in enumerate(view.members) if m == self.chosen]
+            if self.members.selected.indices != keep:
+                self.members.selected.indices = keep  # picks again, through on_change
+            else:
+                self.pick()
+
+        def pick(self) -> None:
+            view, indices = self.view, self.members.selected.indices
+            if view is None or self.run is None or not indices or indices[0] >= len(view.members):
+                self.chosen = None
+                self.export.text = NOTHING_CHOSEN
+                self.episode_choice.options, self.episode.text = [], ""
+                for source, empty in self._episode_sources():
+                    source.data = empty
+                return
+            member = view.members[indices[0]]
+            if member == self.chosen and self.episode.text:
+                return  # the same member, drawn already
+            self.chosen = member
+            self.export.text = export_links(self.run, indices[0] + 1)
+            assert view.config is not None  # a run with members has its config
+            labels = [slot.label() for slot in slots(view.config)]
+            if self.episode_choice.options != labels:
+                self.episode_choice.options = labels
+            if self.episode_choice.value != labels[0]:
+                self.episode_choice.value = labels[0]  # plots, through on_change
+            else:
+                self.plot()
+
+        def plot(self) -> None:
+            view, member = self.view, self.chosen
+            if view is None or view.config is None or member is None or self.run is None:
+                return
+            labels = [slot.label() for slot in slots(view.config)]
+            if self.episode_choice.value not in labels:
+                return
+            slot = slots(view.config)[labels.index(self.episode_choice.value)]
+            found, where = episode(self.run, view.config, member, slot)
+            row_number = view.members.index(member) + 1
+            self.episode.text = html.escape(f"row {row_number}, {slot.label()}: {where}")
+            drawn = series(found) if found is not None else EMPTY_SERIES
+            for (source, _), name in zip(
+                self._episode_sources(), ("joints", "error", "torques"), strict=True
+            ):
+                source.data = drawn[name]
+
+        def _episode_sources(self) -> list[tuple[Any, dict]]:
+            return [
+                (self.joints, EMPTY_SERIES["joints"]),
+                (self.error, EMPTY_SERIES["error"]),
+                (self.torques, EMPTY_SERIES["torques"]),
+            ]
 
     def build(document) -> None:  # bokeh.document.Document
         farm_line = Div(name="farm", text="", styles={"font-size": "110%"})
@@ -408,35 +706,21 @@ def page(watch: Watch) -> Callable:
             title="throughput (jobs/s over the last minute)",
             x_axis_label=since,
             height=220,
-            width=480,
+            **wide,
         )
         throughput.line("t", "jobs_per_s", source=farm_series, line_width=2)
-        queue = figure(
-            title="queued jobs and busy workers", x_axis_label=since, height=220, width=480
-        )
+        queue = figure(title="queued jobs and busy workers", x_axis_label=since, height=220, **wide)
         queue.line("t", "queued", source=farm_series, line_width=2, legend_label="queued")
         queue.line(
             "t", "busy", source=farm_series, line_width=2, color="orange", legend_label="busy"
         )
         queue.legend.location = "top_left"
-        # Every run's hypervolume on one chart: the same normalisation for every run, so runs
-        # compare (evaluations on the x axis: what each cost, whatever its population).
-        overlay = ColumnDataSource({"xs": [], "ys": [], "run": [], "colour": []}, name="overlay")
-        compare = figure(
-            title="every run's hypervolume (normalised: 0 to 1) against evaluations",
-            x_axis_label="evaluations",
-            y_axis_label="hypervolume",
-            height=300,
-            width=980,
-        )
-        compare.multi_line(
-            "xs", "ys", source=overlay, line_color="colour", line_width=2, legend_field="run"
-        )
-        compare.legend.location = "bottom_right"
-        overlaid = [None]  # the runs' versions the chart shows
+        compare, inspector = Compare(), Inspector()
         roots = ", ".join(map(str, watch.roots))
-        heading = Div(text=f"runs under {html.escape(roots)}: running ones first, then the newest")
-        runs = column(heading)
+        heading = Div(
+            text=f"<h2>runs</h2>under {html.escape(roots)}: running ones first, then the newest"
+        )
+        runs = column(heading, **wide)
         panels: dict[Path, RunPanel] = {}
         farm_shown = [-1]  # the farm's version on the page
 
@@ -454,25 +738,41 @@ def page(watch: Watch) -> Callable:
             order = [heading, *(panels[directory].layout for directory, _, _ in found)]
             if list(runs.children) != order:  # a new run, or one that stopped: reordered
                 runs.children = order
-            versions = [(directory, run_version) for directory, run_version, _ in found]
-            if versions != overlaid[0]:
-                with_points = [(d, v) for d, _, v in found if v.history["evaluations"]]
-                overlay.data = {
-                    "xs": [view.history["evaluations"] for _, view in with_points],
-                    "ys": [view.history["hypervolume"] for _, view in with_points],
-                    "run": [str(directory) for directory, _ in with_points],
-                    "colour": [COLOURS[k % len(COLOURS)] for k in range(len(with_points))],
-                }
-                overlaid[0] = versions
+            compare.show(found)
+            inspector.show(found)
 
         document.title = "gainfarm dashboard"
-        document.add_root(
-            column(Div(text="<h2>gainfarm</h2>"), farm_line, row(throughput, queue), compare, runs)
-        )
+        farm = [Div(text="<h2>gainfarm</h2>"), farm_line, row(throughput, queue, **wide)]
+        compared = [Div(text="<h2>compare</h2>"), compare.layout]
+        inspected = [Div(text="<h2>inspect</h2>"), inspector.layout]
+        document.add_root(column(*farm, *compared, *inspected, runs, **wide))
         update()
         document.add_periodic_callback(update, int(REFRESH_SECONDS * 1000))
 
     return build
+
+
+NOTHING_CHOSEN = "choose a member in the table: its controller files and an episode show here"
+
+
+def _table_columns(column: type, number: type) -> list:
+    """The member table's columns (bokeh's TableColumn, NumberFormatter), each sortable."""
+
+    def numeric(field: str, title: str, fmt: str, width: int = 70) -> Any:
+        return column(field=field, title=title, formatter=number(format=fmt), width=width)
+
+    return [
+        column(field="row", title="row", width=40),
+        column(field="picked", title="picked", width=110),
+        numeric("f_acc_mm", "f_acc (mm)", "0.000", 80),
+        numeric("f_t", "f_t ((N·m)²)", "0.0000", 90),
+        *(numeric(name, name.replace("_", " "), "0.0", 60) for name in GAINS[: len(JOINT_NAMES)]),
+        *(numeric(name, name.replace("_", " "), "0.00", 60) for name in GAINS[len(JOINT_NAMES) :]),
+        *(numeric(name, name.replace("_", " "), "0.000", 90) for name in MEASURED),
+        column(field="limits", title="limits", width=80),
+        column(field="validation", title="validation", width=220),
+        column(field="held_out", title="held-out plants", width=360),
+    ]
 
 
 class NoBokeh(RuntimeError):

@@ -14,6 +14,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 from selenium import webdriver
 from selenium.common.exceptions import WebDriverException
@@ -22,6 +23,7 @@ from selenium.webdriver.chrome.service import Service
 from gainfarm.analytic.evaluators.local import free_port, spawn_worker, stop_workers
 from gainfarm.analytic.tuning.records import HISTORY_CSV, read_front, read_history
 from gainfarm.analytic.view.dashboard import find_runs, live_first, run_state, run_view
+from gainfarm.analytic.view.members import FILE_NAMES
 from gainfarm.broker.service import Broker
 from tests.helpers import analytic, needs
 
@@ -250,3 +252,160 @@ def test_a_port_in_use_is_one_line(tmp_path: Path) -> None:
     assert run.stderr.startswith(f"analytic: error: --port: cannot serve on {taken}: ")
     assert run.stderr.count("\n") == 1, run.stderr
     assert os.listdir(tmp_path) == []
+
+
+# A finished run in seconds: two trajectories' worth of episodes is not needed, one is.
+QUICK = (
+    "--trajectory", "fourier", "--duration", "0.5", "--pop", "4", "--generations", "2",
+    "--seed", "3", "--local",
+)  # fmt: skip
+
+# The page's DOM is in Bokeh's shadow roots: a selector is looked for through them.
+FIND = """
+const find = (root, selector) => {
+    const hit = root.querySelector(selector);
+    if (hit) return hit;
+    for (const element of root.querySelectorAll("*")) {
+        const found = element.shadowRoot && find(element.shadowRoot, selector);
+        if (found) return found;
+    }
+    return null;
+};
+const findAll = (root, selector) => [
+    ...root.querySelectorAll(selector),
+    ...[...root.querySelectorAll("*")].flatMap(
+        (element) => (element.shadowRoot ? findAll(element.shadowRoot, selector) : [])
+    ),
+];
+"""
+
+
+def inspector_state(browser: webdriver.Chrome) -> dict:
+    return browser.execute_script(
+        FIND
+        + """
+        const doc = Bokeh.documents[0];
+        if (doc === undefined) return null;
+        const named = (name) => doc.get_model_by_name(name);
+        const figures = [...doc.all_models].filter((m) => m.outer_width !== undefined);
+        return {
+            inspect: named("inspect").value,
+            runs: Array.from(named("inspect").options),
+            chosen: Array.from(named("chosen-runs").value),
+            overlay: Array.from(named("overlay").data.run),
+            fronts: Array.from(named("fronts").data.run),
+            front_xs: named("fronts").data.xs.map((xs) => Array.from(xs)),
+            front_ys: named("fronts").data.ys.map((ys) => Array.from(ys)),
+            rows: Array.from(named("members").data.row),
+            selected: Array.from(named("members").selected.indices),
+            verdict: named("verdict").text,
+            export: named("export").text,
+            episode: named("episode").text,
+            ticks: named("episode-joints").data.t.length,
+            error_mm: Array.from(named("episode-error").data.error_mm),
+            first_row: (findAll(document, ".slick-row")
+                .map((row) => [row.getBoundingClientRect().top, row])
+                .filter(([top]) => top > 0)
+                .sort((a, b) => a[0] - b[0])
+                .map(([, row]) => row.querySelector(".slick-cell"))
+                .find((cell) => cell) || {}).textContent,
+            window: window.innerWidth,
+            widths: figures.map((figure) => figure.outer_width),
+        };
+        """
+    )
+
+
+def until(browser: webdriver.Chrome, holds, timeout: float = 60) -> dict:
+    """The inspector's state once `holds` of it."""
+    state = None
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        with contextlib.suppress(WebDriverException):
+            state = inspector_state(browser)
+            if state is not None and holds(state):
+                return state
+        time.sleep(0.2)
+    raise AssertionError(f"the page never got there: {json.dumps(state)[:3000]}")
+
+
+def js(browser: webdriver.Chrome, statement: str, *arguments: object) -> object:
+    return browser.execute_script(
+        FIND
+        + "const doc = Bokeh.documents[0]; const named = (n) => doc.get_model_by_name(n);"
+        + statement,
+        *arguments,
+    )
+
+
+@pytest.mark.slow
+def test_runs_compare_and_a_member_is_inspected_exported_and_its_episode_plotted(
+    tmp_path: Path, browser
+) -> None:
+    from gainfarm.analytic.tuning.evolution import normalise
+    from gainfarm.schemas.mcap_episode import read_episode
+
+    runs = tmp_path / "runs"
+    made = analytic("start", *QUICK, "--out", str(runs / "a"), cwd=tmp_path)
+    assert made.returncode == 0, made.stderr
+    shutil.copytree(runs / "a", runs / "b")  # a second run to compare, newer
+    (runs / "b" / "config.json").touch()
+    a, b = str(runs / "a"), str(runs / "b")
+    front = read_front(runs / "a" / "front.csv")
+    downloads = tmp_path / "downloads"
+    downloads.mkdir()
+    browser.execute_cdp_cmd(
+        "Browser.setDownloadBehavior", {"behavior": "allow", "downloadPath": str(downloads)}
+    )
+    browser.set_window_size(1400, 1000)
+    with dashboard(str(runs), cwd=tmp_path) as address:
+        browser.get(address)
+        # Both runs compared, each front in the hypervolume's space; the newest inspected.
+        state = until(browser, lambda s: sorted(s["fronts"]) == [a, b] and s["rows"])
+        assert state["inspect"] == b and state["runs"] == [b, a] and state["chosen"] == [b, a]
+        expected = normalise(sorted(member.objectives for member in front))
+        for xs, ys in zip(state["front_xs"], state["front_ys"], strict=True):
+            assert np.allclose(xs, expected[:, 0]) and np.allclose(ys, expected[:, 1])
+        # The plots share the window's width, two to a row: not a fixed 480 px.
+        assert max(state["widths"]) > 0.45 * state["window"], state["widths"]
+        # One run taken out of the comparison: both charts drop it.
+        js(browser, "named('chosen-runs').value = arguments[0];", [a])
+        until(browser, lambda s: s["fronts"] == [a] and s["overlay"] == [a])
+        # The other run inspected: its table, sortable; a member chosen in it.
+        js(browser, "named('inspect').value = arguments[0];", a)
+        state = until(browser, lambda s: s["inspect"] == a and s["rows"])
+        assert state["rows"] == list(range(1, len(front) + 1)) and "held-out" in state["verdict"]
+        assert state["first_row"] == "1"  # by row: the most accurate first
+        header = "f_t ((N·m)²)"
+        js(browser, "findAll(document, '.slick-header-column').find("
+           "(c) => c.textContent.trim() === arguments[0]).click();", header)  # fmt: skip
+        smoothest = min(range(len(front)), key=lambda k: (front[k].f_t, k)) + 1
+        until(browser, lambda s: s["first_row"] == str(smoothest))
+        row = len(front)  # the least accurate: not one of the picks necessarily
+        js(browser, "named('members').selected.indices = [arguments[0]];", row - 1)
+        state = until(browser, lambda s: s["ticks"] > 0 and f"row {row} as" in s["export"])
+        log = front[row - 1].logs if front[row - 1].logs else None
+        assert log is None  # front.csv holds no logs: front.json does
+        members = read_front_json_sorted(runs / "a")
+        kept = read_episode(runs / "a" / members[row - 1].logs[0])
+        assert state["episode"] == (
+            f"row {row}, trajectory 1 on the nominal plant: its log, {members[row - 1].logs[0]}"
+        )
+        assert state["ticks"] == kept.ticks
+        assert np.allclose(state["error_mm"], np.linalg.norm(kept.ee - kept.ee_des, axis=1) * 1e3)
+        # Each of the member's files saved from the page is `analytic export`'s, byte for byte.
+        for fmt, name in FILE_NAMES.items():
+            js(browser, "find(document, `a[name=export-${arguments[0]}]`).click();", fmt)
+            saved = downloads / f"row{row}-{name}"
+            deadline = time.monotonic() + 30
+            while not saved.exists() and time.monotonic() < deadline:
+                time.sleep(0.2)
+            exported = analytic("export", a, "--member", str(row), "--format", fmt, cwd=tmp_path)
+            assert exported.returncode == 0, exported.stderr
+            assert saved.read_bytes() == exported.stdout.encode(), fmt
+
+
+def read_front_json_sorted(directory: Path) -> list:
+    from gainfarm.analytic.tuning.records import read_front_json, sorted_front
+
+    return sorted_front(read_front_json(directory / "front.json"))

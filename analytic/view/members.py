@@ -1,0 +1,230 @@
+"""A run's front member by member, as the dashboard shows it: the table's columns, a member's
+controller files (what `analytic export` writes), and one of its episodes as series to plot.
+
+Rows are front.csv's (most accurate first, numbered from 1), so a row named on the page is the
+`--member N` of `analytic export` and the report's #. A member's episode is read from the log
+the run keeps of it (front.json's `logs`, in episodes/: the run fetches the front's logs from
+the workers that made them as it writes its records); one the run has not kept (its worker let
+it go first, or a run that keeps none) is simulated again here, episodes being deterministic,
+and the page says so.
+"""
+
+import base64
+import html
+import math
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.picks import Pick
+from gainfarm.analytic.tuning.records import EPISODES, FEEDFORWARD, FrontMember, sorted_front
+from gainfarm.schemas.episode import EpisodeSpec
+from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.limits import MEASURED
+from gainfarm.schemas.robot import JOINT_NAMES
+
+# The table's columns, in its order: the row, the picks it is, its scores, its gains, its safety
+# measures (schemas.limits), how its episodes were checked, and how it fared on held-out plants.
+SCORES = ("f_acc_mm", "f_t")
+GAINS = tuple(f"{gain}_{joint}" for gain in ("kp", "kd") for joint in JOINT_NAMES)
+TEXTS = ("picked", "limits", "validation", "held_out")
+COLUMNS = ("row", *SCORES, *GAINS, *MEASURED, *TEXTS)
+
+# The files one member's export offers: `analytic export`'s formats, each under its file name.
+FILE_NAMES = {"json": "controller.json", "yaml": "controller.yaml", "ros2_control": "ros2.yaml"}
+
+
+def table(
+    front: Sequence[FrontMember], chosen: Sequence[Pick], config: RunConfig, check: dict | None
+) -> dict[str, list]:
+    """The member table's columns (COLUMNS): one row per member of `front`, front.csv's order.
+    `chosen`: the run's picks; `check`: its check.json (None: not checked)."""
+    members = sorted_front(front)
+    named: dict[int, list[str]] = {}
+    for pick in chosen:
+        named.setdefault(pick.row, []).append(pick.name)
+    checked = (check or {}).get("controllers", ())
+    held = {(tuple(item["kp"]), tuple(item["kd"])): item for item in checked}
+    columns: dict[str, list] = {name: [] for name in COLUMNS}
+    for row, member in enumerate(members, start=1):
+        columns["row"].append(row)
+        columns["f_acc_mm"].append(member.f_acc * 1000.0)
+        columns["f_t"].append(member.f_t)
+        for name, gain in zip(GAINS, member.kp + member.kd, strict=True):
+            columns[name].append(gain)
+        measured = member.measures + (math.nan,) * (len(MEASURED) - len(member.measures))
+        for name, value in zip(MEASURED, measured, strict=True):
+            columns[name].append(value)
+        columns["picked"].append(", ".join(named.get(row, ())))
+        columns["limits"].append(_limits(member, config))
+        columns["validation"].append(_validation(member))
+        item = held.get((member.kp, member.kd))
+        columns["held_out"].append(held_out_text(item, check["plants"]) if item and check else "")
+    return columns
+
+
+def _limits(member: FrontMember, config: RunConfig) -> str:
+    if member.diverged:
+        return "diverged"
+    if not member.measures:
+        return "not measured"
+    broken = config.limits.violated(member.measures)
+    return f"breaks {', '.join(broken)}" if broken else "within"
+
+
+def _validation(member: FrontMember) -> str:
+    """How the member's episodes were checked: each kind with its count, e.g. "refereed:
+    agreed ×2"."""
+    kinds = Counter(
+        episode.check if episode.check == "not checked" else f"{episode.check}: {episode.ruling}"
+        for episode in member.episodes
+    )
+    return "; ".join(f"{kind} ×{count}" for kind, count in sorted(kinds.items()))
+
+
+def held_out_text(item: dict, plants: int) -> str:
+    """A checked controller on the held-out plants, in a line: its error ratio (median, worst),
+    and on how many plants it broke a limit or diverged."""
+    return (
+        f"error ×{item['median_ratio']:.3g} median, ×{item['worst_ratio']:.3g} worst on "
+        f"{plants} plants; {item['violations']} broke a limit, {item['diverged']} diverged"
+    )
+
+
+def robustness_text(chosen: Sequence[Pick], check: dict | None) -> str:
+    """The run's verdict on robustness: how the controller to use fared on the held-out plants
+    (analytic.tuning.check), or why there is no telling."""
+    if check is None:
+        return "held-out check: not run (`analytic start --check-plants M` runs one)"
+    verdict = chosen[0] if chosen else None
+    for item in check.get("controllers", ()):
+        if verdict is not None and item.get("row") == verdict.row:
+            return f"held-out check of row {verdict.row} ({verdict.name}): " + held_out_text(
+                item, check["plants"]
+            )
+    return "held-out check: its controllers are no longer on the front"
+
+
+def export_links(directory: Path, row: int) -> str:
+    """HTML: each of `analytic export`'s files of the member at `row`, as a link that saves it
+    (the bytes are the command's own: analytic.view.export), or why it cannot be exported."""
+    from gainfarm.analytic.view.export import FORMATS, BadMember, BadRun, controller, render
+
+    try:
+        chosen = controller(directory, str(row))
+    except (BadRun, BadMember) as error:
+        return html.escape(f"row {row}: {error}")
+    links = []
+    for fmt in FORMATS:
+        encoded = base64.b64encode(render(chosen, fmt)).decode()
+        name = f"row{row}-{FILE_NAMES[fmt]}"
+        links.append(
+            f'<a name="export-{fmt}" download="{name}" '
+            f'href="data:application/octet-stream;base64,{encoded}">{html.escape(name)}</a>'
+        )
+    command = f"analytic export {directory} --member {row} --format FORMAT"
+    return (
+        f"row {row} as {' · '.join(links)} "
+        f"<span style='color:grey'>(the files of <code>{html.escape(command)}</code>)</span>"
+    )
+
+
+# --- one member's episode --------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Slot:
+    """One of a member's episodes: a trajectory (0-based) on a plant (0: the nominal)."""
+
+    trajectory: int
+    plant: int
+
+    def label(self) -> str:
+        plant = "the nominal plant" if self.plant == 0 else f"plant variant {self.plant}"
+        return f"trajectory {self.trajectory + 1} on {plant}"
+
+
+def slots(config: RunConfig) -> list[Slot]:
+    """Every episode a member runs, in its job ids' order (analytic.tuning.run)."""
+    return [
+        Slot(trajectory, plant)
+        for trajectory in range(len(config.trajectories))
+        for plant in range(1 + len(config.plants))
+    ]
+
+
+def _slot(log: str) -> Slot:
+    """The slot of a kept log, from its name: episodes/<candidate>-t<n>[-p<k>].mcap."""
+    number, _, plant = Path(log).stem.rsplit("-t", 1)[1].partition("-p")
+    return Slot(int(number), int(plant or 0))
+
+
+def episode(
+    directory: Path, config: RunConfig, member: FrontMember, slot: Slot
+) -> tuple[EpisodeLog | None, str]:
+    """The member's episode at `slot` and where it came from: its log in the run directory, or
+    else simulated again here; (None, why) if neither can be had."""
+    from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, decode_episode, read_episode
+
+    kept = {}
+    for log in member.logs:
+        try:
+            kept[_slot(log)] = log
+        except (IndexError, ValueError):  # a name of another form: not one this reads
+            continue
+    if slot in kept:
+        path = directory / kept[slot]
+        try:
+            return read_episode(path), f"its log, {kept[slot]}"
+        except FileNotFoundError:
+            pass  # pruned since the front was written: simulated again below
+        except (OSError, NotAnEpisodeLog) as error:
+            return None, f"{kept[slot]}: {error}"
+    from gainfarm.worker.job import simulate  # MuJoCo loads only to simulate
+
+    spec = EpisodeSpec(
+        gains=member.gains,
+        trajectory=config.trajectories[slot.trajectory],
+        model=config.model if slot.plant == 0 else config.plants[slot.plant - 1],
+        feedforward=config.feedforward,
+        objectives=config.objectives,
+    )
+    outcome = simulate(spec, lambda _digest: _feedforward(directory))
+    if not outcome.content:
+        return None, f"no log in {EPISODES}/, and it cannot be simulated here: {outcome.reason}"
+    why = "simulated again here (episodes are deterministic): the run keeps no log of it"
+    return decode_episode(outcome.content), why
+
+
+def _feedforward(directory: Path):  # -> gainfarm.models.dynamics.DynamicsModel
+    from gainfarm.models.dynamics import feedforward_from_bytes
+
+    return feedforward_from_bytes((directory / FEEDFORWARD).read_bytes())
+
+
+def series(log: EpisodeLog) -> dict[str, dict[str, list[float]]]:
+    """The episode as the page plots it, against time: "joints" (each joint's angle q_A1.. and
+    its reference q_des_A1.., rad), "error" (the end effector's distance from the desired
+    point, mm: what f_acc averages) and "torques" (each joint's command u_A1.. and its measured
+    torque tau_A1.., N·m)."""
+    t = log.t.tolist()
+    joints: dict[str, list[float]] = {"t": t}
+    torques: dict[str, list[float]] = {"t": t}
+    for j, joint in enumerate(JOINT_NAMES):
+        joints[f"q_{joint}"] = log.q[:, j].tolist()
+        joints[f"q_des_{joint}"] = log.q_des[:, j].tolist()
+        torques[f"u_{joint}"] = log.u[:, j].tolist()
+        torques[f"tau_{joint}"] = log.tau[:, j].tolist()
+    error = (np.linalg.norm(log.ee - log.ee_des, axis=1) * 1000.0).tolist()
+    return {"joints": joints, "error": {"t": t, "error_mm": error}, "torques": torques}
+
+
+EMPTY_SERIES = {
+    "joints": {"t": [], **{f"{q}_{j}": [] for q in ("q", "q_des") for j in JOINT_NAMES}},
+    "error": {"t": [], "error_mm": []},
+    "torques": {"t": [], **{f"{u}_{j}": [] for u in ("u", "tau") for j in JOINT_NAMES}},
+}
