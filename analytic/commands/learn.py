@@ -58,11 +58,13 @@ def learn(dataset_dir: Path, out: Path, target: str, kind: str, seed: int) -> No
     Writes OUT/model.npz (what --feedforward takes), scores.json (nMSE and RMSE per joint),
     report.md and prediction.png.
     """
-    from gainfarm.analytic.data.learning import LearnError
+    from gainfarm.analytic.data.learning import LearnError, OutUnwritable
     from gainfarm.analytic.data.learning import learn as learn_model
 
     try:
         scores = learn_model(dataset_dir, out, target, kind, seed)
+    except OutUnwritable as error:
+        raise CliError(f"--out: {error}") from None
     except LearnError as error:
         raise CliError(str(error)) from None
     nmse = " ".join(f"{joint} {value:.3f}" for joint, value in scores["nmse"].items())

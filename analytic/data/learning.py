@@ -110,6 +110,10 @@ class LearnError(ValueError):
     """The dataset or the request cannot give a model; the message is one line for the user."""
 
 
+class OutUnwritable(LearnError):
+    """The model directory cannot be written there: the command names its option."""
+
+
 @dataclass(frozen=True)
 class Rows:
     """The ticks of one split with a finite acceleration, as (n, 7) arrays (n,) identifiers."""
@@ -592,7 +596,11 @@ def learn(
     return the scores. `out_dir` must not exist. Raises LearnError, one line."""
     dataset_dir, out_dir = Path(dataset_dir), Path(out_dir)
     if out_dir.exists():
-        raise LearnError(f"{str(out_dir)!r} already exists")
+        raise OutUnwritable(f"{str(out_dir)!r} already exists")
+    # Found before the fit, which may take minutes, rather than when its files are written.
+    ancestor = next((parent for parent in out_dir.parents if parent.exists()), None)
+    if ancestor is not None and not ancestor.is_dir():
+        raise OutUnwritable(f"cannot write {str(out_dir)!r}: {str(ancestor)!r} is a file")
     if kind == "linear" and target == "forward":
         fit(dataset_dir, target, kind, seed)  # raises the one explanation
     found = plants(dataset_dir)
@@ -621,7 +629,7 @@ def learn(
         out_dir.parent.mkdir(parents=True, exist_ok=True)
         staging = staging_directory(out_dir)
     except OSError as error:
-        raise LearnError(f"cannot write {str(out_dir)!r}: {error.strerror}") from None
+        raise OutUnwritable(f"cannot write {str(out_dir)!r}: {error.strerror}") from None
     try:
         write_atomically(staging / MODEL_FILE, raw)
         write_atomically(staging / SCORES_FILE, (json.dumps(scores, indent=2) + "\n").encode())
@@ -629,11 +637,11 @@ def learn(
         text = report(dataset_dir, model, scores, found, counts)
         write_atomically(staging / REPORT_FILE, text.encode())
         if out_dir.exists():  # made while we trained: never replaced
-            raise LearnError(f"{str(out_dir)!r} already exists")
+            raise OutUnwritable(f"{str(out_dir)!r} already exists")
         staging.rename(out_dir)
     except OSError as error:
         shutil.rmtree(staging, ignore_errors=True)
-        raise LearnError(f"cannot write {str(out_dir)!r}: {error.strerror}") from None
+        raise OutUnwritable(f"cannot write {str(out_dir)!r}: {error.strerror}") from None
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise

@@ -240,6 +240,28 @@ def test_an_existing_out_directory_is_refused_and_left_alone(realistic, tmp_path
     assert [p.name for p in (tmp_path / "m").iterdir()] == ["keep"]
 
 
+def test_an_out_that_cannot_be_a_directory_is_refused_naming_the_option_before_any_fit(
+    tmp_path: Path,
+) -> None:
+    """Before the dataset is read, let alone fitted: no dataset is needed to be refused."""
+    (tmp_path / "notes").write_text("mine")
+    for out, says in (
+        ("notes", "--out: 'notes' already exists"),
+        ("notes/model", "--out: cannot write 'notes/model': 'notes' is a file"),
+        ("notes/a/model", "--out: cannot write 'notes/a/model': 'notes' is a file"),
+    ):
+        ran = subprocess.run(
+            [sys.executable, "-m", "gainfarm.analytic", "learn", "no-dataset", "--out", out],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            cwd=tmp_path,
+        )
+        assert ran.returncode == 2, ran.stderr
+        assert ran.stderr == f"analytic: error: {says}\n"
+    assert [path.name for path in tmp_path.iterdir()] == ["notes"]
+
+
 def test_a_failure_while_writing_leaves_nothing(realistic, tmp_path, monkeypatch):
     def full_disk(*args: object) -> None:
         raise OSError(28, "No space left on device")
