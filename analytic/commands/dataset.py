@@ -12,6 +12,7 @@ from gainfarm.analytic.commands.shared import (
     farm,
     farm_options,
     farm_problem,
+    refuse_under_a_file,
     study_name,
 )
 from gainfarm.cli.app import CliError, parse_numbers
@@ -161,6 +162,7 @@ def dataset(
             raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG_JSON})")
     if out.exists():
         raise CliError(f"--out: {str(out)!r} already exists")
+    refuse_under_a_file(out, "--out")
     try:
         split = check_split(parse_numbers("--split", split_text, 3))
         trajectories = read_rerun(rerun_file) if rerun_file is not None else []

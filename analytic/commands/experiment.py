@@ -19,6 +19,7 @@ from gainfarm.analytic.commands.shared import (
     farm_problem,
     followable,
     pop_option,
+    refuse_under_a_file,
     study_name,
     termination_options,
     unwritable,
@@ -218,6 +219,7 @@ def _run(
     except ValueError as error:
         raise CliError(str(error)) from None
     followable(trajectories, spec.trajectory_option)
+    refuse_under_a_file(out, "--out")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as error:

@@ -303,6 +303,18 @@ def config_problem(error: "ValidationError") -> str:
     return text.replace("generations and evaluations", "--generations and --evaluations")
 
 
+def refuse_under_a_file(directory: Path, option: str) -> None:
+    """Refuse, before anything runs, a directory to be made under a file: mkdir would say only
+    "File exists" or "Not a directory", and after the work it was to hold."""
+    if directory.exists():
+        if not directory.is_dir():
+            raise CliError(f"{option}: {str(directory)!r} is a file, not a directory")
+        return
+    ancestor = next((parent for parent in directory.parents if parent.exists()), None)
+    if ancestor is not None and not ancestor.is_dir():
+        raise CliError(f"{option}: cannot write {str(directory)!r}: {str(ancestor)!r} is a file")
+
+
 def unwritable(error: OSError, then: str) -> CliError:
     """A file of a run that could not be written (disk full, read-only, no permission), in one
     line: the files are each whole or absent and the checkpoint is the last good one, so once

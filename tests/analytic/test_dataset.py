@@ -459,6 +459,27 @@ def test_bad_split_and_rerun_options_are_one_line_and_write_nothing(
     assert sorted(os.listdir(tmp_path)) == sorted(name for name in files if files[name])
 
 
+def test_an_out_under_a_file_is_refused_before_the_runs_are_read(tmp_path: Path) -> None:
+    """Not "File exists" from mkdir once a rerun has run: the file in the way, at once."""
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "config.json").write_text("{}")  # a run, as far as this check looks
+    (tmp_path / "notes").write_text("mine")
+    for out, says in (
+        ("notes/data", "--out: cannot write 'notes/data': 'notes' is a file"),
+        ("notes/a/data", "--out: cannot write 'notes/a/data': 'notes' is a file"),
+    ):
+        run = subprocess.run(
+            [*ANALYTIC, "run", "--out", out],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=tmp_path,
+        )
+        assert run.returncode == 2, run.stderr
+        assert run.stderr == f"analytic: error: {says}\n"
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["notes", "run"]
+
+
 @pytest.mark.slow
 def test_dataset_command_errors_are_one_line(tmp_path: Path) -> None:
     run = subprocess.run(

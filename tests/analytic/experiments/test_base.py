@@ -319,6 +319,23 @@ def test_bad_input_to_an_experiment_is_one_line_naming_the_option_before_anythin
     assert refusal(tmp_path, *arguments).startswith(message)
 
 
+@pytest.mark.parametrize(
+    ("out", "says"),
+    [
+        ("notes", "--out: 'notes' is a file, not a directory"),
+        ("notes/experiment", "--out: cannot write 'notes/experiment': 'notes' is a file"),
+    ],
+)
+def test_an_experiment_out_that_is_or_is_under_a_file_is_one_line_naming_it(
+    tmp_path: Path, out: str, says: str
+) -> None:
+    (tmp_path / "notes").write_text("mine")
+    run = analytic("experiment", "popsize", "--local", "--out", out, cwd=tmp_path)
+    assert run.returncode == 2, run.stderr
+    assert run.stderr == f"analytic: error: {says}\n"
+    assert (tmp_path / "notes").read_text() == "mine"
+
+
 TOY_EXPERIMENT = '''
 """A plug-in experiment: one module, declared in its distribution's entry points."""
 
