@@ -160,6 +160,12 @@ class RunConfig(BaseModel):
         return Termination(self.generations, self.evaluations, self.tolerance, self.window)
 
     @property
+    def budget(self) -> int | None:
+        """The evaluations the run may spend (--evaluations, or --generations times the
+        population); None for a run that stops on convergence."""
+        return self.evaluations or (self.generations * self.pop if self.generations else None)
+
+    @property
     def termination_text(self) -> str:
         if self.generations:
             return f"{self.generations} generations"

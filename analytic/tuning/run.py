@@ -83,6 +83,7 @@ from gainfarm.analytic.tuning.records import (
     run_json,
     sorted_front,
 )
+from gainfarm.analytic.tuning.termination import expected_generations
 from gainfarm.edges.files import (
     Lock,
     Locked,
@@ -183,6 +184,9 @@ class RunProgress:
     # The evaluations the run's budget allows (--evaluations, or --generations times the
     # population); None when it stops on convergence, whose moment cannot be known ahead.
     budget: int | None = None
+    # For a run that stops on convergence, the evaluations at which it is expected to: a fit of
+    # its hypervolume's course (termination.expected_generations); None without one.
+    expected: int | None = None
 
 
 class TuningRun:
@@ -201,6 +205,7 @@ class TuningRun:
         self._lock = lock
         self._said_alone: set[str] = set()  # caught workers with nobody to run their episodes
         self._records_due = -math.inf  # when a generation's end next writes the records
+        self._expected: int | None = None  # evaluations, as RunProgress.expected
 
     @classmethod
     def create(
@@ -882,8 +887,8 @@ class TuningRun:
             best_f_acc=best.best_f_acc if best else math.nan,
             elapsed=time.monotonic() - started,
             ended=ended,
-            budget=self.config.evaluations
-            or (self.config.generations * self.config.pop if self.config.generations else None),
+            budget=self.config.budget,
+            expected=self._expected,
         )
 
     def _record(
@@ -943,6 +948,11 @@ class TuningRun:
             front = state.evolution.front()  # a member's scores were false: the front moved
             state.history[-1] = self._row_of(front, state.history[-1])
         state.stopped = self._stops()
+        # Fitted once a generation, not at every evaluation's progress line.
+        expected = expected_generations(
+            self.config.termination, [row.hypervolume for row in state.history]
+        )
+        self._expected = None if expected is None else expected * self.config.pop
         if state.stopped is None and not due:
             return
         # A Ctrl-C between history.csv and the checkpoint would leave them a generation apart.

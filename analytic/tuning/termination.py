@@ -49,3 +49,54 @@ class Termination:
         if now > 0 and now - before <= self.tolerance * before:
             return f"converged after {evaluations} evaluations ({self.rule})"
         return None
+
+
+# The convergence estimate. The hypervolume of a run that converges rises ever more slowly; its
+# course so far is fitted as h(g) = H − A·exp(−k·g) (least squares, SciPy), continued from the
+# last generation on, and the rule is applied to the continued course: the first generation it
+# would stop at is the estimate. Not before ESTIMATE_AFTER generations (a fit of 3 parameters
+# needs some), nor beyond ESTIMATE_HORIZON generations from now (a course that flat says little).
+ESTIMATE_AFTER = 5
+ESTIMATE_HORIZON = 500
+
+
+def expected_generations(termination: Termination, hypervolumes: list[float]) -> int | None:
+    """The generation at which `termination`'s convergence rule is expected to stop a run whose
+    generations so far had `hypervolumes`; None for a run with a budget (whose end is known),
+    too few generations, no growth to fit, or a fit that does not converge."""
+    import numpy as np
+    from scipy.optimize import curve_fit
+
+    if termination.generations is not None or termination.evaluations is not None:
+        return None
+    h = np.asarray(hypervolumes, dtype=float)
+    if len(h) < ESTIMATE_AFTER or not np.all(np.isfinite(h)) or h[-1] <= 0:
+        return None
+    if termination.reason(list(h), 0) is not None:
+        return len(h)  # the rule stops it now
+    g = np.arange(1, len(h) + 1, dtype=float)
+
+    def course(g: np.ndarray, top: float, gap: float, rate: float) -> np.ndarray:
+        return top - gap * np.exp(-rate * g)
+
+    rise = max(h[-1] - h[0], 1e-12)
+    try:
+        (top, gap, rate), _ = curve_fit(
+            course,
+            g,
+            h,
+            p0=(h[-1] + 0.1 * rise, rise, 0.1),
+            bounds=((h[-1], 0.0, 1e-4), (np.inf, np.inf, 10.0)),
+            maxfev=2000,
+        )
+    except (RuntimeError, ValueError):  # no fit found
+        return None
+    later = np.arange(len(h) + 1, len(h) + ESTIMATE_HORIZON + 1, dtype=float)
+    # Continued from the last generation: its value, and the fit's rise from there on.
+    ahead = h[-1] + course(later, top, gap, rate) - course(np.array([g[-1]]), top, gap, rate)[0]
+    whole = np.concatenate([h, ahead])
+    for end in range(max(len(h), termination.window) + 1, len(whole) + 1):  # the rule's first
+        before, now = whole[end - 1 - termination.window], whole[end - 1]
+        if now - before <= termination.tolerance * before:
+            return end
+    return None

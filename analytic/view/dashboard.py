@@ -58,6 +58,8 @@ from gainfarm.analytic.tuning.records import (
     read_run,
     sorted_front,
 )
+from gainfarm.analytic.tuning.run import RunProgress
+from gainfarm.analytic.tuning.termination import expected_generations
 from gainfarm.analytic.view.members import (
     COLUMNS,
     EMPTY_SERIES,
@@ -69,7 +71,7 @@ from gainfarm.analytic.view.members import (
     slots,
     table,
 )
-from gainfarm.analytic.view.progress import duration_text
+from gainfarm.analytic.view.progress import duration_text, left_text
 from gainfarm.analytic.view.reports import run_title, verdict_text
 from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.edges.files import lock_held
@@ -138,12 +140,21 @@ def run_view(directory: Path, held: "bool | None" = UNREAD) -> RunView:
         f"hypervolume {last.hypervolume:.4g}, best error {last.best_f_acc * 1000:.2f} mm, "
         f"front {len(record.front)}; {duration_text(record.wall_seconds)} in"
     )
-    budget = record.config.evaluations or (
-        record.config.generations * record.config.pop if record.config.generations else None
-    )
-    if state == "running" and budget and last.evaluations and record.wall_seconds > 0:
-        left = max(budget - last.evaluations, 0) * record.wall_seconds / last.evaluations
-        line += f", about {duration_text(left)} left of its {budget} evaluations"
+    if state == "running":  # the time left as the terminal says it, budget or convergence
+        config = record.config
+        expected = expected_generations(config.termination, [r.hypervolume for r in record.history])
+        line += left_text(
+            RunProgress(
+                generation=last.generation,
+                evaluations=last.evaluations,
+                hypervolume=last.hypervolume,
+                best_f_acc=last.best_f_acc,
+                elapsed=record.wall_seconds,
+                ended=True,
+                budget=config.budget,
+                expected=None if expected is None else expected * config.pop,
+            )
+        ).replace(";", ",", 1)
     line += f"; {state}"
     if penalties := len(record.evaluated) - len(measured):
         line += f" ({penalties} diverged or failed, not drawn)"

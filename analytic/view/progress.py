@@ -107,11 +107,26 @@ def _figure(value: float, fmt: str) -> str:
 
 
 def time_left(step: RunProgress) -> float | None:
-    """Seconds left until the run's budget is spent, at its pace so far (its evaluations over its
-    wall time); None without a budget (a run that stops on convergence) or before any pace."""
-    if step.budget is None or step.elapsed <= 0 or step.evaluations <= 0:
+    """Seconds left until the run's budget is spent, or else until it is expected to converge
+    (RunProgress.expected: a fit of its hypervolume's course), at its pace so far (its
+    evaluations over its wall time); None with neither, or before any pace."""
+    end = step.budget or step.expected
+    if end is None or step.elapsed <= 0 or step.evaluations <= 0:
         return None
-    return max(step.budget - step.evaluations, 0) / (step.evaluations / step.elapsed)
+    return max(end - step.evaluations, 0) / (step.evaluations / step.elapsed)
+
+
+def left_text(step: RunProgress) -> str:
+    """ "; about 3 min left ..." and how that is known, or "" if it is not."""
+    left = time_left(step)
+    if left is None:
+        return ""
+    if step.budget:
+        return f"; about {duration_text(left)} left of its {step.budget:,} evaluations at this pace"
+    return (
+        f"; about {duration_text(left)} left if it converges at about {step.expected:,} "
+        "evaluations, as a fit of its hypervolume's course says (a rough guess)"
+    )
 
 
 def duration_text(seconds: float) -> str:
@@ -151,8 +166,8 @@ def live_line(
         (6, f"best {_figure(step.best_f_acc * 1000, '{:.2f} mm')}"),
     ]
     left = time_left(step)
-    if left is not None:
-        parts.append((7, f"~{duration_text(left)} left"))
+    if left is not None:  # a budget's is known; a convergence's guessed (left_text says how)
+        parts.append((7, f"~{duration_text(left)} left{'' if step.budget else '?'}"))
     if not state:
         parts.append((4, workers_text(workers)))
     return fit(parts, width)
@@ -161,17 +176,11 @@ def live_line(
 def generation_line(step: RunProgress, workers: int | None) -> str:
     """The plain line of a generation that has ended."""
     rate = step.evaluations / step.elapsed if step.elapsed > 0 else 0.0
-    left = time_left(step)
-    budget = (
-        ""
-        if left is None
-        else f"; about {duration_text(left)} left of its {step.budget:,} evaluations at this pace"
-    )
     return (
         f"generation {step.generation}: {step.evaluations:,} evaluations in "
         f"{step.elapsed:.1f} s ({rate:.1f}/s), hypervolume "
         f"{_figure(step.hypervolume, '{:.4f}')}, best error "
-        f"{_figure(step.best_f_acc * 1000, '{:.2f} mm')}, {workers_text(workers)}{budget}"
+        f"{_figure(step.best_f_acc * 1000, '{:.2f} mm')}, {workers_text(workers)}{left_text(step)}"
     )
 
 

@@ -89,5 +89,17 @@ def test_a_budget_gives_the_time_left_at_the_runs_pace_and_convergence_none() ->
     assert "~51 s left" in live_line(budgeted, 2, None, 120)
     later = RunProgress(**{**budgeted.__dict__, "evaluations": 100, "elapsed": 100.0})
     assert "~8 min left" in live_line(later, 2, None, 120)  # 500 at 1/s: 8 min 20 s
-    assert "left" not in live_line(ENDED, 2, None, 120)  # no budget: it stops on convergence
+    assert "left" not in live_line(ENDED, 2, None, 120)  # no budget, no estimate of convergence
     assert "left" not in generation_line(ENDED, 2)
+
+
+def test_a_converging_run_s_time_left_is_its_fitted_end_at_its_pace_and_says_so() -> None:
+    converging = RunProgress(
+        generation=3, evaluations=90, hypervolume=0.6, best_f_acc=0.01, elapsed=9.0, ended=True,
+        expected=300,
+    )  # fmt: skip
+    assert generation_line(converging, 2).endswith(
+        "2 workers; about 21 s left if it converges at about 300 evaluations, as a fit of its "
+        "hypervolume's course says (a rough guess)"
+    )
+    assert "~21 s left?" in live_line(converging, 2, None, 120)  # a guess, and marked one

@@ -1,6 +1,8 @@
 """When a run stops, as a pure function of its hypervolumes and evaluations."""
 
-from gainfarm.analytic.tuning.termination import Termination
+import math
+
+from gainfarm.analytic.tuning.termination import Termination, expected_generations
 
 
 def test_a_fixed_number_of_generations_or_evaluations() -> None:
@@ -28,3 +30,21 @@ def test_the_rule_reads_as_set() -> None:
     assert reason == (
         "converged after 60 evaluations (hypervolume gain below 0.25% over 1 generations)"
     )
+
+
+def test_the_convergence_is_expected_where_the_fitted_course_meets_the_rule() -> None:
+    rule = Termination()
+    # A course that slows as an exponential does: h = 0.8 − 0.3·exp(−g/6). The rule (0.25 %
+    # over 10 generations) stops it at the first g > 10 with 0.3·e^(−g/6)·(e^(10/6) − 1)
+    # ≤ 0.0025·h(g − 10): generation 37.
+    course = [0.8 - 0.3 * math.exp(-g / 6) for g in range(1, 60)]
+    stop = next(g for g in range(11, 60) if rule.reason(course[:g], 0) is not None)
+    assert stop == 39
+    for now in (5, 12, 20, 30):
+        assert expected_generations(rule, course[:now]) == stop
+    assert expected_generations(rule, course[:stop]) == stop  # it stops now
+    assert expected_generations(rule, course[:4]) is None  # too few to fit
+    assert expected_generations(Termination(generations=40), course[:20]) is None  # a budget
+    assert expected_generations(rule, [0.0] * 8) is None  # nothing found yet
+    # A flat course converges as soon as the rule can see a whole window of it.
+    assert expected_generations(rule, [0.5] * 6) == 11
