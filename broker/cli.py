@@ -5,6 +5,7 @@ development credentials for a secure farm (`certs`)."""
 # load inside the command that runs, so that `broker --help` costs little more than click.
 
 import logging
+import re
 import signal
 import threading
 import time
@@ -347,6 +348,10 @@ def certs(
         for name in names:
             if not is_participant_name(name):
                 raise CliError(f"{option}: {name!r} is not a participant name: {PARTICIPANT_RULE}")
+    for host in hosts:
+        if not _is_host(host):
+            # Else written into the broker's certificate, and every TLS client refused later.
+            raise CliError(f"--host: {host!r} is neither a host name nor an IP address")
     if directory.exists() and not directory.is_dir():
         raise CliError(f"DIR: {str(directory)!r} is a file, not a directory")
     try:
@@ -354,7 +359,7 @@ def certs(
     except FileExistsError as error:
         raise CliError(str(error)) from None
     except OSError as error:
-        raise CliError(f"cannot write {str(directory)!r}: {error.strerror}") from None
+        raise CliError(f"DIR: cannot write {str(directory)!r}: {error.strerror}") from None
     except ValueError as error:
         raise CliError(str(error)) from None
     made = sorted({path.stem for path in issued.written} - {"ca"})
@@ -366,6 +371,23 @@ def certs(
         )
     else:
         click.echo(f"{directory}/ already holds those credentials; kept them")
+
+
+# A DNS name: dot-separated labels of letters, digits and inner hyphens, 253 characters at most;
+# underscores too, as container service names have them (TLS clients accept them).
+_HOST_LABEL = r"[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?"
+_HOST_NAME = re.compile(rf"(?=.{{1,253}}$){_HOST_LABEL}(?:\.{_HOST_LABEL})*\.?")
+
+
+def _is_host(host: str) -> bool:
+    """Whether `host` can stand in a certificate's subject alternative names."""
+    import ipaddress
+
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return _HOST_NAME.fullmatch(host) is not None
+    return True
 
 
 def _revoke(directory: Path, revoke: tuple[str, ...]) -> None:

@@ -144,6 +144,42 @@ def test_certs_says_in_whole_sentences_what_each_host_needs(tmp_path) -> None:
     )
 
 
+@pytest.mark.parametrize(
+    ("arguments", "says"),
+    [
+        (["--host", ""], "--host: '' is neither a host name nor an IP address"),
+        (["--host", "my broker"], "--host: 'my broker' is neither a host name nor an IP address"),
+        (["--host", "-x.lan"], "--host: '-x.lan' is neither a host name nor an IP address"),
+    ],
+)
+def test_certs_for_a_host_no_client_could_dial_is_one_line_and_writes_nothing(
+    tmp_path, arguments: list[str], says: str
+) -> None:
+    refused = subprocess.run(
+        broker_command("certs", str(tmp_path / "certs"), *arguments),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert refused.returncode == 2
+    assert refused.stderr == f"broker: error: {says}\n"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_certs_under_a_file_names_the_directory_option(tmp_path) -> None:
+    (tmp_path / "notes").write_text("mine")
+    refused = subprocess.run(
+        broker_command("certs", str(tmp_path / "notes" / "certs")),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert refused.returncode == 2
+    assert refused.stderr == (
+        f"broker: error: DIR: cannot write {str(tmp_path / 'notes' / 'certs')!r}: Not a directory\n"
+    )
+
+
 def test_certs_into_a_file_is_one_plain_line(tmp_path) -> None:
     file = tmp_path / "certs"
     file.write_text("not a directory")
