@@ -151,7 +151,9 @@ def _candidates(path: Path | None) -> list["PDGains"]:
         try:
             front = read_front(path)
         except ValueError as error:
-            raise CliError(f"--gains: {str(path)!r}: {error}") from None
+            # The reader's message starts with the path: named once, quoted as ours are.
+            reason = str(error).removeprefix(f"{path}: ")
+            raise CliError(f"--gains: {str(path)!r}: {reason}") from None
         if not front:
             raise CliError(f"--gains: {str(path)!r} is a front.csv with no members")
         return [member.gains for member in front]

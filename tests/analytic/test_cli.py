@@ -90,7 +90,7 @@ SEVEN = [1.0] * 7
         (json.dumps([{"kp": SEVEN, "kd": SEVEN}, {"kp": SEVEN}]), "candidate 2: kd missing"),
         (json.dumps([{"kp": [1, 2], "kd": SEVEN}]), "candidate 1: kp: 2 gains given, 7 needed"),
         (json.dumps({"kp": SEVEN, "kd": [*SEVEN[:6], "x"]}), "kd of A7: 'x' is not a number"),
-        ("kp1,kp2\n1,2\n", "expected columns kp1,kp2,kp3,"),  # a CSV, but not a front.csv
+        ("kp1,kp2\n1,2\n", "'gains': expected columns kp1,kp2,kp3,"),  # not a front.csv
         (",".join(FRONT_FIELDS) + "\n", "is a front.csv with no members"),
         ("kp: [1]", "not JSON (Expecting value at line 1 column 1)"),
     ],
