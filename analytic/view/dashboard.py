@@ -569,6 +569,8 @@ def page(watch: Watch) -> Callable:
             self.view: RunView | None = None
             self.shown: object = None
             self.chosen: FrontMember | None = None
+            self.drawn: tuple[Path, FrontMember, int] | None = None  # run, member, row shown
+            self.found: dict[str, tuple[object, RunView]] = {}  # every run: version, view
             self.choice = Select(name="inspect", title="run inspected", options=[], value="")
             self.verdict = Div(name="verdict", text="", **wide)
             self.members = ColumnDataSource({name: [] for name in COLUMNS}, name="members")
@@ -638,19 +640,13 @@ def page(watch: Watch) -> Callable:
             self.refresh()
 
         def refresh(self) -> None:
-            version, view = getattr(self, "found", {}).get(self.choice.value, (None, None))
+            version, view = self.found.get(self.choice.value, (None, None))
             if view is None or (self.choice.value, version) == self.shown:
                 return
             if self.run != Path(self.choice.value):
                 self.chosen = None
-            self.run, self.view, self.shown = (
-                Path(self.choice.value),
-                view,
-                (
-                    self.choice.value,
-                    version,
-                ),
-            )
+            self.run, self.view = Path(self.choice.value), view
+            self.shown = (self.choice.value, version)
             self.verdict.text = html.escape(view.verdict)
             self.members.data = view.table
             # The member chosen stays chosen while it is on the front (its row may move).
@@ -663,16 +659,16 @@ def page(watch: Watch) -> Callable:
         def pick(self) -> None:
             view, indices = self.view, self.members.selected.indices
             if view is None or self.run is None or not indices or indices[0] >= len(view.members):
-                self.chosen = None
+                self.chosen = self.drawn = None
                 self.export.text = NOTHING_CHOSEN
                 self.episode_choice.options, self.episode.text = [], ""
                 for source, empty in self._episode_sources():
                     source.data = empty
                 return
             member = view.members[indices[0]]
-            if member == self.chosen and self.episode.text:
-                return  # the same member, drawn already
-            self.chosen = member
+            if (self.run, member, indices[0] + 1) == self.drawn:
+                return  # the same member at the same row, drawn already
+            self.chosen, self.drawn = member, (self.run, member, indices[0] + 1)
             self.export.text = export_links(self.run, indices[0] + 1)
             assert view.config is not None  # a run with members has its config
             labels = [slot.label() for slot in slots(view.config)]
