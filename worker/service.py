@@ -193,11 +193,8 @@ class CobotWorker:
             if verdict is None or not verdict.accepted:
                 self.refused += 1
                 reason = "no verdict on it" if verdict is None else verdict.reason
-                # A study that ended while its job ran (its analytic process stopped, or was
-                # stopped with Ctrl-C) is no fault of anyone's: said quietly.
-                ended = reason.startswith("unknown study")
                 log.log(
-                    logging.INFO if ended else logging.WARNING,
+                    logging.INFO if _no_ones_fault(reason) else logging.WARNING,
                     "%s/%s: the broker did not take the result: %s",
                     result.study,
                     result.job_id,
@@ -286,3 +283,16 @@ def _shown(text: str, limit: int = 200) -> str:
     """`text` fit for one line of a reply or a log: whatever a querier sent, bounded."""
     text = " ".join(text.split())
     return text if len(text) <= limit else f"{text[: limit - 3]}..."
+
+
+def _no_ones_fault(reason: str) -> bool:
+    """Whether the broker refused a result for a reason that is no one's fault, said quietly: a
+    study that ended while its job ran (its analytic process stopped, or was stopped with
+    Ctrl-C), or a copy of an overdue job whose other copy was taken first (the broker gives idle
+    workers copies of stragglers: broker/queue.py), whether or not the study has collected that
+    one yet. Those are the broker's reasons (broker/queue.py `complete`)."""
+    return (
+        reason.startswith("unknown study")
+        or reason.endswith("is done already")
+        or (reason.startswith("no job ") and "waits for a result" in reason)
+    )

@@ -576,3 +576,32 @@ def test_garbage_on_the_log_queryable_never_takes_the_worker_down(
     client.close()
     fake.close()
     assert "the store broke" in caplog.text and "no key" in caplog.text
+
+
+def test_a_copy_beaten_to_its_result_or_an_ended_study_is_said_quietly_and_a_wrong_lease_not() -> (
+    None
+):
+    """The refusals a worker logs at INFO are the broker's own reasons for a result no one is
+    at fault for (broker/queue.py's `complete`, run here): a copy of an overdue job whose other
+    copy was taken, before and after its study collected it, and a study that ended."""
+    from gainfarm.worker.service import _no_ones_fault
+    from tests.broker.test_queue import LEASE_SECONDS, hand_in, jobs, make_queue, take
+
+    queue, clock = make_queue("s")
+    queue.submit("s", jobs("j1"))
+    first = take(queue, "w1")
+    clock.advance(LEASE_SECONDS)
+    queue.expire()
+    second = take(queue, "w2")  # j1 again: w1 is overdue
+    assert hand_in(queue, second, "w2") is None  # w2's copy is taken first
+    done_already = hand_in(queue, first, "w1")
+    queue.confirm("s", ["j1"])  # the study collected w2's
+    collected = hand_in(queue, first, "w1")
+    assert done_already and _no_ones_fault(done_already), done_already
+    assert collected and _no_ones_fault(collected), collected
+    ended = queue.complete("gone", "j1", first.lease_id, "w1", "0" * 64)
+    assert ended and _no_ones_fault(ended), ended
+    queue.submit("s", jobs("j2"))
+    third = take(queue, "w1")
+    stolen = hand_in(queue, third, "w2")  # a lease handed to another worker: someone's fault
+    assert stolen and not _no_ones_fault(stolen), stolen
