@@ -48,7 +48,8 @@ def dashboard(
 
     for root in runs:
         if not root.is_dir():
-            raise CliError(f"RUNS: {str(root)!r}: no such directory")
+            why = "not a directory" if root.exists() else "no such directory"
+            raise CliError(f"RUNS: {str(root)!r}: {why}")
     if tls is not None and not connect:
         raise CliError("--tls needs --connect: the farm to watch")
     identity = options.identity(tls, "analytic", participant)

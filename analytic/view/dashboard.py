@@ -9,7 +9,7 @@ and asks the broker for its status (BrokerStatus) once a second, in a thread of 
 The page, top to bottom: the farm (workers, busy, queued, jobs per second, and the last ten
 minutes of throughput and queue); the chosen runs compared (their hypervolume against
 evaluations, and their fronts in the space the hypervolume is measured in, one normalisation for
-all); one run inspected: its verdict, its members in a sortable table, a chosen member's
+all); one run inspected: its recommendation, its members in a sortable table, a chosen member's
 controller files (`analytic export`'s) and one of its episodes plotted from its log
 (analytic.view.members); then a panel per run: what it tunes and where it stands, its front over
 every evaluated point (as pareto.png draws them: f_acc in mm, f_t on a log axis) with the
@@ -19,7 +19,7 @@ appear under a watched directory while the page is open are added to it.
 Every model a test or a script may want to read is named (`Bokeh.documents[0]
 .get_model_by_name(NAME)` in the page): "farm" (the farm's line), "farm-series" (its sources'
 columns t, jobs_per_s, queued, busy); "chosen-runs" (the runs compared), "overlay" and "fronts"
-(the comparison's sources); "inspect" (the run inspected), "verdict", "members" (the table's
+(the comparison's sources); "inspect" (the run inspected), "recommendation", "members" (the table's
 source, columns members.COLUMNS; its selection is the member chosen), "table", "export" (the
 chosen member's files), "episode-choice", "episode" (which episode, from where) and
 "episode-joints", "episode-error", "episode-torques" (its series); and for each run, by its path
@@ -44,7 +44,7 @@ import zenoh
 from gainfarm.analytic.tuning.check import CHECK_JSON, read_check
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import F_T_FLOOR, REFERENCE_POINT, normalise
-from gainfarm.analytic.tuning.picks import picks
+from gainfarm.analytic.tuning.picks import Pick, picks
 from gainfarm.analytic.tuning.records import (
     BASELINE_JSON,
     CONFIG_JSON,
@@ -53,12 +53,13 @@ from gainfarm.analytic.tuning.records import (
     HISTORY_CSV,
     LOCK,
     REPORT_MD,
+    Baseline,
     FrontMember,
     read_baseline,
     read_run,
     sorted_front,
 )
-from gainfarm.analytic.tuning.run import RunProgress
+from gainfarm.analytic.tuning.run import RECORD_SECONDS, RunProgress
 from gainfarm.analytic.tuning.termination import expected_generations
 from gainfarm.analytic.view.members import (
     COLUMNS,
@@ -72,8 +73,10 @@ from gainfarm.analytic.view.members import (
     table,
 )
 from gainfarm.analytic.view.progress import duration_text, left_text
-from gainfarm.analytic.view.reports import run_title, verdict_text
+from gainfarm.analytic.view.reports import run_title
+from gainfarm.analytic.view.reports import verdict_text as recommendation_text
 from gainfarm.broker.status import BrokerUnavailable, query_status
+from gainfarm.cli.words import counted
 from gainfarm.edges.files import lock_held
 from gainfarm.schemas.limits import MEASURED
 from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR
@@ -86,6 +89,10 @@ if TYPE_CHECKING:
 REFRESH_SECONDS = 1.0  # how often a page and the farm's status are brought up to date
 FARM_HISTORY_SECONDS = 600.0  # the throughput and queue the page plots
 DASHBOARD_PORT = 5006  # Bokeh's own default
+TABLE_ROWS_SHOWN = 12  # the member table's rows in view; more scroll
+TABLE_ROW_PX = 25  # a row's height in the table (Bokeh's)
+VIEW_MARGIN = 0.08  # of a front's plot's span, either side (as pareto.png's)
+VIEW_LOG_MARGIN = 0.15  # decades of f_t, at least, either side
 SEARCH_DEPTH = 3  # a watched directory's runs: itself, its runs, an experiment's, ...
 
 
@@ -100,16 +107,24 @@ class RunView:
     history: dict[str, list[float]]  # evaluations, hypervolume
     front: dict[str, list[float]]  # f_acc_mm, f_t (step order: by f_acc)
     evaluated: dict[str, list[float]]  # f_acc_mm, f_t
-    # The default gains' point (baseline.json) and the recommended member's: none, or one each.
+    # The default gains' point (baseline.json), the recommended member's, and when none is
+    # recommended the closest to dominating the defaults: none, or one each.
     baseline: dict[str, list[float]] = field(default_factory=lambda: _points([]))
     recommended: dict[str, list[float]] = field(default_factory=lambda: _points([]))
+    closest: dict[str, list[float]] = field(default_factory=lambda: _points([]))
+    # The front's plot's view (f_acc in mm, f_t), as pareto.png's: the front, the picks and the
+    # default gains with a margin, so that a far-off candidate does not squash the front; and
+    # how many evaluated points lie outside it. None: no point to frame.
+    view: tuple[float, float, float, float] | None = None
+    outside: int = 0
     # What the inspector shows of it: its config, its front in front.csv's order, the member
-    # table's columns, its verdict (the controller to use, and how robust), and its front in
-    # the hypervolume's space (x: f_acc, y: f_t, normalised; by x) for the comparison.
+    # table's columns, its recommendation (the controller to use, and how it fared on held-out
+    # plants), and its front in the hypervolume's space (x: f_acc, y: f_t, normalised; by x)
+    # for the comparison.
     config: RunConfig | None = None
     members: tuple[FrontMember, ...] = ()
     table: dict[str, list] = field(default_factory=lambda: {name: [] for name in COLUMNS})
-    verdict: str = ""
+    recommendation: str = ""
     normalised: dict[str, list[float]] = field(default_factory=lambda: {"x": [], "y": []})
 
 
@@ -130,15 +145,17 @@ def run_view(directory: Path, held: "bool | None" = UNREAD) -> RunView:
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         return dataclasses.replace(empty, line=f"cannot read: {reason}")
     title = run_title(record.config).splitlines()[0]
+    state = run_state(directory, held)
     if not record.history:
-        return dataclasses.replace(empty, line=f"{title}: generation 0 running")
+        if state == "running":
+            return dataclasses.replace(empty, line=f"{title}: generation 1 under way; running")
+        return dataclasses.replace(empty, line=f"{title}: no generation recorded; {state}")
     last = record.history[-1]
     measured = [point for point in record.evaluated if _measured(point)]
-    state = run_state(directory, held)
     line = (
-        f"{title}: generation {last.generation}, {last.evaluations} evaluations, "
+        f"{title}: generation {last.generation}, {counted(last.evaluations, 'evaluation')}, "
         f"hypervolume {last.hypervolume:.4g}, best error {last.best_f_acc * 1000:.2f} mm, "
-        f"front {len(record.front)}; {duration_text(record.wall_seconds)} in"
+        f"front {len(record.front)}; {duration_text(record.wall_seconds)} of tuning"
     )
     if state == "running":  # the time left as the terminal says it, budget or convergence
         config = record.config
@@ -162,12 +179,15 @@ def run_view(directory: Path, held: "bool | None" = UNREAD) -> RunView:
     with contextlib.suppress(OSError, ValueError):
         baseline = read_baseline(directory / BASELINE_JSON)
     named = picks(record.front, baseline)
-    chosen = [p.member for p in named if p.name == "recommended"]
+    chosen = {p.name: p.member for p in named}
     check = read_check(directory)
     finished = [m.objectives for m in record.front if _measured(m.objectives)]
     # One normalisation for every run: the hypervolume's, at the default reference point.
     x, y = normalise(sorted(finished), REFERENCE_POINT).T.tolist() if finished else ([], [])
-    verdict = verdict_text(named, baseline).replace("**", "") if named else "no front yet"
+    framed = finished + [p.member.objectives for p in named if _measured(p.member.objectives)]
+    if baseline is not None and _measured(baseline.objectives):
+        framed.append(baseline.objectives)
+    view = _view(framed)
     return RunView(
         line,
         {
@@ -177,12 +197,68 @@ def run_view(directory: Path, held: "bool | None" = UNREAD) -> RunView:
         _points(sorted((m.f_acc, m.f_t) for m in record.front if _measured((m.f_acc, m.f_t)))),
         _points(measured),
         _points([baseline.objectives] if baseline and _measured(baseline.objectives) else []),
-        _points([m.objectives for m in chosen]),
+        _points([chosen["recommended"].objectives] if "recommended" in chosen else []),
+        _points([chosen["closest"].objectives] if "closest" in chosen else []),
+        view,
+        _outside(measured, view),
         record.config,
         tuple(sorted_front(record.front)),
         table(record.front, named, record.config, check),
-        f"{verdict} {robustness_text(named, check)}." if named else verdict,
+        _recommendation(named, baseline, state, record.config, check),
         {"x": x, "y": y},
+    )
+
+
+def _recommendation(
+    named: list[Pick], baseline: Baseline | None, state: str, config: RunConfig, check: dict | None
+) -> str:
+    """The run's recommendation as report.md's first line says it, or that it has none yet;
+    then how that controller fared on the held-out plants, or when it will be known."""
+    if not named:
+        return "No front yet."
+    if baseline is None and state != "report written":
+        knee = next(p for p in named if p.name == "knee")
+        said = (
+            "No recommendation yet: the default gains are scored as the run ends, and the "
+            f"recommended member is the knee among those that beat them (the knee so far: row "
+            f"{knee.row})."
+        )
+    else:
+        said = recommendation_text(named, baseline).replace("**", "")
+    if check is None and config.check_plants and state != "report written":
+        held = (
+            f"Held-out check: on {counted(len(config.check_plants), 'plant')}, once the run ends."
+        )
+    else:
+        held = robustness_text(named, check, len(config.check_plants))
+    return f"{said} {held}"
+
+
+def _view(points: Sequence[tuple[float, float]]) -> tuple[float, float, float, float] | None:
+    """The frame of `points` (f_acc in m, f_t), as pareto.png frames its view: f_acc in mm
+    (never below 0), f_t in decades, each widened by a margin."""
+    if not points:
+        return None
+    xs = [f_acc * 1000.0 for f_acc, _ in points]
+    decades = [math.log10(max(f_t, 1e-12)) for _, f_t in points]
+    x_margin = max(VIEW_MARGIN * (max(xs) - min(xs)), 0.05 * max(xs) or 1.0)
+    y_margin = max(VIEW_MARGIN * (max(decades) - min(decades)), VIEW_LOG_MARGIN)
+    return (
+        max(min(xs) - x_margin, 0.0),
+        max(xs) + x_margin,
+        10 ** (min(decades) - y_margin),
+        10 ** (max(decades) + y_margin),
+    )
+
+
+def _outside(points: Sequence[tuple[float, float]], view: "tuple | None") -> int:
+    if view is None:
+        return 0
+    x_low, x_high, y_low, y_high = view
+    return sum(
+        1
+        for f_acc, f_t in points
+        if not (x_low <= f_acc * 1000.0 <= x_high and y_low <= f_t <= y_high)
     )
 
 
@@ -285,8 +361,6 @@ class FarmSeries:
 
 
 def farm_line(farm: BrokerStatus) -> str:
-    from gainfarm.cli.words import counted
-
     return (
         f"{counted(farm.worker_count, 'worker')} ({farm.busy} busy), {farm.queued} queued, "
         f"{farm.jobs_per_s:.1f} jobs/s over the last minute, "
@@ -384,11 +458,31 @@ def _version(directory: Path) -> object:
 # --- the page -------------------------------------------------------------------------------
 
 
-# The overlay's colours, one per run in the page's order (matplotlib's tab10, as the figures).
+# The lines' colours: a joint's, and a compared run's in the page's order (matplotlib's tab10,
+# as the figures, then tab20's lighter ten: twenty runs before a colour comes again).
 COLOURS = (
     "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd",
     "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf",
 )  # fmt: skip
+RUN_COLOURS = (
+    *COLOURS,
+    "#aec7e8", "#ffbb78", "#98df8a", "#ff9896", "#c5b0d5",
+    "#c49c94", "#f7b6d2", "#c7c7c7", "#dbdb8d", "#9edae5",
+)  # fmt: skip
+
+
+def _colour(k: int) -> str:
+    """The colour of the k-th run compared."""
+    return RUN_COLOURS[k % len(RUN_COLOURS)]
+
+
+def _legend_beside(plot: Any) -> None:
+    """The plot's legend to the right of its axes, where it covers no point; a click on an
+    entry hides what it names."""
+    legend = plot.legend[0]
+    legend.click_policy = "hide"
+    legend.label_text_font_size = "9pt"
+    plot.add_layout(legend, "right")
 
 
 def page(watch: Watch) -> Callable:
@@ -400,6 +494,7 @@ def page(watch: Watch) -> Callable:
         Div,
         MultiChoice,
         NumberFormatter,
+        Range1d,
         Select,
         TableColumn,
     )
@@ -414,7 +509,7 @@ def page(watch: Watch) -> Callable:
             key = str(directory)
             self.shown: object = None  # the run's version on the page
             self.line = Div(name=f"run:{key}", text="")
-            self.verdict = Div(name=f"verdict:{key}", text="", **wide)
+            self.recommendation = Div(name=f"recommendation:{key}", text="", **wide)
             self.history = ColumnDataSource(
                 {"evaluations": [], "hypervolume": []}, name=f"history:{key}"
             )
@@ -424,11 +519,14 @@ def page(watch: Watch) -> Callable:
             self.recommended = ColumnDataSource(
                 {"f_acc_mm": [], "f_t": []}, name=f"recommended:{key}"
             )
-            pareto = figure(
+            self.closest = ColumnDataSource({"f_acc_mm": [], "f_t": []}, name=f"closest:{key}")
+            self.pareto = pareto = figure(
                 title="front over every evaluated point",
                 x_axis_label="f_acc: mean end-effector error (mm)",
                 y_axis_label="f_t: mean squared torque change per tick ((N·m)²)",
                 y_axis_type="log",
+                x_range=Range1d(0, 1),
+                y_range=Range1d(1e-2, 1e4),
                 height=360,
                 **wide,
             )
@@ -436,14 +534,19 @@ def page(watch: Watch) -> Callable:
             pareto.step("f_acc_mm", "f_t", source=self.front, mode="after", color="crimson")
             pareto.scatter("f_acc_mm", "f_t", source=self.front, size=6, color="crimson")
             pareto.scatter(
-                "f_acc_mm", "f_t", source=self.recommended, size=16, marker="star",
-                color="gold", line_color="black", legend_label="recommended",
+                "f_acc_mm", "f_t", source=self.recommended, size=18, marker="star",
+                color="gold", line_color="black", legend_label="recommended (use this)",
+            )  # fmt: skip
+            pareto.scatter(
+                "f_acc_mm", "f_t", source=self.closest, size=14, marker="plus",
+                color="darkorange", line_color="black",
+                legend_label="none recommended: closest to the defaults",
             )  # fmt: skip
             pareto.scatter(
                 "f_acc_mm", "f_t", source=self.baseline, size=12, marker="x", color="black",
                 line_width=2, legend_label="default gains",
             )  # fmt: skip
-            pareto.legend.location = "top_right"
+            _legend_beside(pareto)
             curve = figure(
                 title="hypervolume (normalised: 0 to 1)",
                 x_axis_label="evaluations",
@@ -455,13 +558,20 @@ def page(watch: Watch) -> Callable:
             curve.scatter("evaluations", "hypervolume", source=self.history, size=5)
             heading = Div(text=f"<h3>{html.escape(key)}</h3>")
             self.layout = column(
-                heading, self.line, self.verdict, row(pareto, curve, **wide), **wide
+                heading, self.line, self.recommendation, row(pareto, curve, **wide), **wide
             )
 
         def show(self, version: object, view: RunView) -> None:
             if version != self.shown:
                 self.line.text = html.escape(view.line)
-                self.verdict.text = html.escape(view.verdict)
+                self.recommendation.text = html.escape(view.recommendation)
+                if view.view is not None:  # framed as pareto.png is: the front, not the cloud
+                    x_low, x_high, y_low, y_high = view.view
+                    self.pareto.x_range.update(start=x_low, end=x_high)
+                    self.pareto.y_range.update(start=y_low, end=y_high)
+                outside = f" ({view.outside} outside the view)" if view.outside else ""
+                self.pareto.title.text = f"front over every evaluated point{outside}"
+                self.closest.data = view.closest
                 self.history.data = view.history
                 self.front.data = view.front
                 self.evaluated.data = view.evaluated
@@ -494,7 +604,7 @@ def page(watch: Watch) -> Callable:
                 "xs", "ys", source=self.overlay, line_color="colour", line_width=2,
                 legend_field="run",
             )  # fmt: skip
-            curves.legend.location = "bottom_right"
+            _legend_beside(curves)
             fronts = figure(
                 title="fronts, normalised as the hypervolume measures them (0 to 1)",
                 x_axis_label=f"f_acc / {REFERENCE_POINT[0] * 1000:g} mm",
@@ -509,7 +619,7 @@ def page(watch: Watch) -> Callable:
                 legend_field="run",
             )  # fmt: skip
             fronts.scatter("x", "y", source=self.points, color="colour", size=5)
-            fronts.legend.location = "top_right"
+            _legend_beside(fronts)
             self.layout = column(self.choice, row(curves, fronts, **wide), **wide)
             self.known: list[str] = []
             self.shown: object = None
@@ -543,25 +653,23 @@ def page(watch: Watch) -> Callable:
                 "xs": [view.history["evaluations"] for _, _, view in curves],
                 "ys": [view.history["hypervolume"] for _, _, view in curves],
                 "run": [str(directory) for _, directory, _ in curves],
-                "colour": [COLOURS[k % len(COLOURS)] for k, _, _ in curves],
+                "colour": [_colour(k) for k, _, _ in curves],
             }
             fronts = [(k, d, v) for k, d, v in shown if v.normalised["x"]]
             self.fronts.data = {
                 "xs": [view.normalised["x"] for _, _, view in fronts],
                 "ys": [view.normalised["y"] for _, _, view in fronts],
                 "run": [str(directory) for _, directory, _ in fronts],
-                "colour": [COLOURS[k % len(COLOURS)] for k, _, _ in fronts],
+                "colour": [_colour(k) for k, _, _ in fronts],
             }
             self.points.data = {
                 "x": [x for _, _, view in fronts for x in view.normalised["x"]],
                 "y": [y for _, _, view in fronts for y in view.normalised["y"]],
-                "colour": [
-                    COLOURS[k % len(COLOURS)] for k, _, view in fronts for _ in view.normalised["x"]
-                ],
+                "colour": [_colour(k) for k, _, view in fronts for _ in view.normalised["x"]],
             }
 
     class Inspector:
-        """One run looked into: its verdict, its members in a sortable table, and the member
+        """One run looked into: its recommendation, its members in a sortable table, and the member
         chosen there: its controller files and one of its episodes, plotted."""
 
         def __init__(self) -> None:
@@ -572,7 +680,7 @@ def page(watch: Watch) -> Callable:
             self.drawn: tuple[Path, FrontMember, int] | None = None  # run, member, row shown
             self.found: dict[str, tuple[object, RunView]] = {}  # every run: version, view
             self.choice = Select(name="inspect", title="run inspected", options=[], value="")
-            self.verdict = Div(name="verdict", text="", **wide)
+            self.recommendation = Div(name="recommendation", text="", **wide)
             self.members = ColumnDataSource({name: [] for name in COLUMNS}, name="members")
             self.table = DataTable(
                 name="table",
@@ -581,7 +689,8 @@ def page(watch: Watch) -> Callable:
                 sortable=True,
                 selectable=True,
                 index_position=None,
-                height=300,
+                autosize_mode="none",
+                height=TABLE_ROWS_SHOWN * TABLE_ROW_PX + TABLE_ROW_PX,
                 **wide,
             )
             self.export = Div(name="export", text=NOTHING_CHOSEN, **wide)
@@ -591,14 +700,14 @@ def page(watch: Watch) -> Callable:
             self.error = ColumnDataSource(EMPTY_SERIES["error"], name="episode-error")
             self.torques = ColumnDataSource(EMPTY_SERIES["torques"], name="episode-torques")
             angles = figure(
-                title="joint angles (solid) and their reference (dashed)",
+                title="joint angles: measured (solid), reference (dashed)",
                 x_axis_label="time (s)",
                 y_axis_label="rad",
                 height=300,
                 **wide,
             )
             error = figure(
-                title="tracking error: the end effector's distance from the desired point",
+                title="tracking error: distance from the desired point",
                 x_axis_label="time (s)",
                 y_axis_label="mm",
                 height=300,
@@ -606,7 +715,7 @@ def page(watch: Watch) -> Callable:
             )
             error.line("t", "error_mm", source=self.error, line_width=2)
             torques = figure(
-                title="torque commands (solid) and measured joint torques (dashed)",
+                title="torques: command (solid), measured (dashed)",
                 x_axis_label="time (s)",
                 y_axis_label="N·m",
                 height=300,
@@ -614,16 +723,15 @@ def page(watch: Watch) -> Callable:
             )
             for j, joint in enumerate(JOINT_NAMES):
                 solid = {"color": COLOURS[j], "legend_label": joint}
-                dashed = {"color": COLOURS[j], "line_dash": "dashed"}
+                dashed = {**solid, "line_dash": "dashed"}  # one legend entry hides both
                 angles.line("t", f"q_{joint}", source=self.joints, **solid)
                 angles.line("t", f"q_des_{joint}", source=self.joints, **dashed)
                 torques.line("t", f"u_{joint}", source=self.torques, **solid)
                 torques.line("t", f"tau_{joint}", source=self.torques, **dashed)
             for plot in (angles, torques):
-                plot.legend.location = "top_left"
-                plot.legend.orientation = "horizontal"
+                _legend_beside(plot)
             self.layout = column(
-                self.choice, self.verdict, self.table, self.export, self.episode_choice,
+                self.choice, self.recommendation, self.table, self.export, self.episode_choice,
                 self.episode, row(angles, error, torques, **wide), **wide,
             )  # fmt: skip
             self.choice.on_change("value", lambda _attr, _old, _new: self.refresh())
@@ -647,8 +755,11 @@ def page(watch: Watch) -> Callable:
                 self.chosen = None
             self.run, self.view = Path(self.choice.value), view
             self.shown = (self.choice.value, version)
-            self.verdict.text = html.escape(view.verdict)
+            self.recommendation.text = html.escape(view.recommendation)
             self.members.data = view.table
+            # As tall as its rows, up to TABLE_ROWS_SHOWN (then it scrolls): no blank below.
+            shown = min(max(len(view.members), 1), TABLE_ROWS_SHOWN)
+            self.table.height = (shown + 1) * TABLE_ROW_PX + TABLE_ROW_PX // 2
             # The member chosen stays chosen while it is on the front (its row may move).
             keep = [i for i, m in enumerate(view.members) if m == self.chosen]
             if self.members.selected.indices != keep:
@@ -689,7 +800,13 @@ def page(watch: Watch) -> Callable:
             slot = slots(view.config)[labels.index(self.episode_choice.value)]
             found, where = episode(self.run, view.config, member, slot)
             row_number = view.members.index(member) + 1
-            self.episode.text = html.escape(f"row {row_number}, {slot.label()}: {where}")
+            said = f"row {row_number}, {slot.label()}: {where}."
+            if view.config.model.interface == "fri":  # what the dashed torques hold
+                said += (
+                    " Its measured torques hold the gravity torque the robot's own "
+                    "compensation adds under the command (FRI torque mode)."
+                )
+            self.episode.text = html.escape(said)
             drawn = series(found) if found is not None else EMPTY_SERIES
             for (source, _), name in zip(
                 self._episode_sources(), ("joints", "error", "torques"), strict=True
@@ -725,7 +842,9 @@ def page(watch: Watch) -> Callable:
         compare, inspector = Compare(), Inspector()
         roots = ", ".join(map(str, watch.roots))
         heading = Div(
-            text=f"<h2>runs</h2>under {html.escape(roots)}: running ones first, then the newest"
+            text=f"<h2>runs</h2>under {html.escape(roots)}: running ones first, then the "
+            f"newest, each as its records say (a run writes them every {RECORD_SECONDS:g} s "
+            "and as it stops, so a running one's may be that far behind its terminal)"
         )
         runs = column(heading, **wide)
         panels: dict[Path, RunPanel] = {}
@@ -768,17 +887,19 @@ def _table_columns(column: type, number: type) -> list:
     def numeric(field: str, title: str, fmt: str, width: int = 70) -> Any:
         return column(field=field, title=title, formatter=number(format=fmt), width=width)
 
+    # Widths that hold their headers and values whole (the table scrolls sideways); a measure's
+    # title is its name's first word ("saturated", for saturated_fraction).
     return [
-        column(field="row", title="row", width=40),
-        column(field="picked", title="picked", width=110),
-        numeric("f_acc_mm", "f_acc (mm)", "0.000", 80),
-        numeric("f_t", "f_t ((N·m)²)", "0.0000", 90),
-        *(numeric(name, name.replace("_", " "), "0.0", 60) for name in GAINS[: len(JOINT_NAMES)]),
-        *(numeric(name, name.replace("_", " "), "0.00", 60) for name in GAINS[len(JOINT_NAMES) :]),
-        *(numeric(name, name.replace("_", " "), "0.000", 90) for name in MEASURED),
-        column(field="limits", title="limits", width=80),
-        column(field="validation", title="validation", width=220),
-        column(field="held_out", title="held-out plants", width=360),
+        column(field="row", title="row", width=45),
+        column(field="picked", title="picked", width=170),
+        numeric("f_acc_mm", "f_acc (mm)", "0.000", 95),
+        numeric("f_t", "f_t ((N·m)²)", "0.0000", 105),
+        *(numeric(name, name.replace("_", " "), "0", 70) for name in GAINS[: len(JOINT_NAMES)]),
+        *(numeric(name, name.replace("_", " "), "0.00", 65) for name in GAINS[len(JOINT_NAMES) :]),
+        *(numeric(name, name.split("_")[0], "0.000", 90) for name in MEASURED),
+        column(field="limits", title="limits", width=110),
+        column(field="validation", title="validation", width=200),
+        column(field="held_out", title="held-out plants", width=520),
     ]
 
 

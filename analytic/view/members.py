@@ -14,7 +14,7 @@ import html
 import math
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +22,7 @@ import numpy as np
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.picks import Pick
 from gainfarm.analytic.tuning.records import EPISODES, FEEDFORWARD, FrontMember, sorted_front
+from gainfarm.cli.words import counted
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.limits import MEASURED
@@ -91,22 +92,35 @@ def held_out_text(item: dict, plants: int) -> str:
     and on how many plants it broke a limit or diverged."""
     return (
         f"error ×{item['median_ratio']:.3g} median, ×{item['worst_ratio']:.3g} worst on "
-        f"{plants} plants; {item['violations']} broke a limit, {item['diverged']} diverged"
+        f"{counted(plants, 'plant')}; {item['violations']} broke a limit, "
+        f"{item['diverged']} diverged"
     )
 
 
-def robustness_text(chosen: Sequence[Pick], check: dict | None) -> str:
-    """The run's verdict on robustness: how the controller to use fared on the held-out plants
-    (analytic.tuning.check), or why there is no telling."""
+def robustness_text(chosen: Sequence[Pick], check: dict | None, asked: int) -> str:
+    """How the controller to use fared on the held-out plants (analytic.tuning.check), beside
+    the default gains, of the `asked` plants; or that the run ran no check."""
     if check is None:
-        return "held-out check: not run (`analytic start --check-plants M` runs one)"
-    verdict = chosen[0] if chosen else None
-    for item in check.get("controllers", ()):
-        if verdict is not None and item.get("row") == verdict.row:
-            return f"held-out check of row {verdict.row} ({verdict.name}): " + held_out_text(
-                item, check["plants"]
-            )
-    return "held-out check: its controllers are no longer on the front"
+        if asked:
+            return "Held-out check: not written (`analytic resume RUN` runs it)."
+        return "Held-out check: not run (`analytic start --check-plants M` runs one)."
+    pick = chosen[0] if chosen else None
+    items = check.get("controllers", ())
+    mine = next((i for i in items if pick is not None and i.get("row") == pick.row), None)
+    if pick is None or mine is None:
+        return "Held-out check: its controllers are no longer on the front."
+    plants = check["plants"]
+    said = f"Held-out check of row {pick.row} ({pick.name}): " + held_out_text(mine, plants)
+    if plants < asked:  # the check's budget allowed fewer than the config asks for
+        said += f" (of the {asked} asked: the check's budget)"
+    default = next((i for i in items if i.get("row") is None), None)
+    if default is not None:
+        said += (
+            f"; the default gains: ×{default['median_ratio']:.3g} median, "
+            f"×{default['worst_ratio']:.3g} worst, {default['violations']} broke a limit, "
+            f"{default['diverged']} diverged"
+        )
+    return said + "."
 
 
 def export_links(directory: Path, row: int) -> str:
@@ -142,17 +156,19 @@ class Slot:
 
     trajectory: int
     plant: int
+    path: str = field(default="", compare=False)  # the trajectory in words: "3 s spiral"
 
     def label(self) -> str:
         plant = "the nominal plant" if self.plant == 0 else f"plant variant {self.plant}"
-        return f"trajectory {self.trajectory + 1} on {plant}"
+        path = f" ({self.path})" if self.path else ""
+        return f"trajectory {self.trajectory + 1}{path} on {plant}"
 
 
 def slots(config: RunConfig) -> list[Slot]:
     """Every episode a member runs, in its job ids' order (analytic.tuning.run)."""
     return [
-        Slot(trajectory, plant)
-        for trajectory in range(len(config.trajectories))
+        Slot(trajectory, plant, f"{path.duration:g} s {path.kind}")
+        for trajectory, path in enumerate(config.trajectories)
         for plant in range(1 + len(config.plants))
     ]
 

@@ -298,7 +298,7 @@ def inspector_state(browser: webdriver.Chrome) -> dict:
             front_ys: named("fronts").data.ys.map((ys) => Array.from(ys)),
             rows: Array.from(named("members").data.row),
             selected: Array.from(named("members").selected.indices),
-            verdict: named("verdict").text,
+            recommendation: named("recommendation").text,
             export: named("export").text,
             episode: named("episode").text,
             ticks: named("episode-joints").data.t.length,
@@ -374,7 +374,10 @@ def test_runs_compare_and_a_member_is_inspected_exported_and_its_episode_plotted
         # The other run inspected: its table, sortable; a member chosen in it.
         js(browser, "named('inspect').value = arguments[0];", a)
         state = until(browser, lambda s: s["inspect"] == a and s["rows"])
-        assert state["rows"] == list(range(1, len(front) + 1)) and "held-out" in state["verdict"]
+        assert state["rows"] == list(range(1, len(front) + 1))
+        # The default 64 held-out plants asked, fewer run: a short run's check is cut to size.
+        assert "Held-out check of row" in state["recommendation"]
+        assert "of the 64 asked: the check&#x27;s budget" in state["recommendation"]
         assert state["first_row"] == "1"  # by row: the most accurate first
         header = "f_t ((N·m)²)"
         js(browser, "findAll(document, '.slick-header-column').find("
@@ -409,3 +412,34 @@ def read_front_json_sorted(directory: Path) -> list:
     from gainfarm.analytic.tuning.records import read_front_json, sorted_front
 
     return sorted_front(read_front_json(directory / "front.json"))
+
+
+def test_a_run_says_when_it_has_no_recommendation_or_held_out_check_yet(tmp_path: Path) -> None:
+    """A run stopped before its first record is stopped, not "running"; a running one has no
+    recommendation before the default gains are scored (as it ends) and its check is to come."""
+    from gainfarm.edges.files import Lock
+
+    made = analytic("start", *QUICK, "--check-plants", "2", "--out", "run", cwd=tmp_path)
+    assert made.returncode == 0, made.stderr
+    run = tmp_path / "run"
+    done = run_view(run).recommendation
+    assert "Held-out check of row" in done and "No recommendation yet" not in done
+    for name in ("baseline.json", "check.json", "report.md"):
+        (run / name).unlink()  # as the run stands before it ends
+    lock = Lock(run / "run.lock")  # a process running it: this one
+    try:
+        live = run_view(run)
+        assert live.line.endswith("; running"), live.line
+        assert live.recommendation.startswith("No recommendation yet: the default gains are")
+        assert live.recommendation.endswith("Held-out check: on 2 plants, once the run ends.")
+    finally:
+        lock.release()
+    stopped = run_view(run)
+    assert stopped.line.endswith("stopped: `analytic resume` continues it"), stopped.line
+    assert stopped.recommendation.endswith(
+        "Held-out check: not written (`analytic resume RUN` runs it)."
+    )
+    for name in ("history.csv", "front.json", "front.csv", "evaluated.csv"):
+        (run / name).unlink()  # stopped before its first record
+    assert run_view(run).line.endswith("no generation recorded; stopped: `analytic resume` "
+                                       "continues it")  # fmt: skip

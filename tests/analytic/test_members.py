@@ -1,5 +1,5 @@
 """A run's members as the dashboard shows them (analytic.view.members), on a real run: the table
-is front.csv's rows with their picks, checks and held-out verdict; a member's files are `analytic
+is front.csv's rows with their picks, checks and held-out results; a member's files are `analytic
 export`'s bytes; its episode is its kept log, or the same episode simulated again."""
 
 import base64
@@ -43,7 +43,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return here / "run"
 
 
-def test_the_table_is_front_csv_with_each_rows_picks_checks_and_held_out_verdict(
+def test_the_table_is_front_csv_with_each_rows_picks_checks_and_held_out_results(
     run_dir: Path,
 ) -> None:
     record = read_run(run_dir)
@@ -64,13 +64,19 @@ def test_the_table_is_front_csv_with_each_rows_picks_checks_and_held_out_verdict
         assert pick.name in columns["picked"][pick.row - 1].split(", ")
     checked = [row for row, text in zip(columns["row"], columns["held_out"], strict=True) if text]
     assert checked and set(checked) <= {item["row"] for item in check["controllers"]}
-    verdict = robustness_text(named, check)
+    said = robustness_text(named, check, 1)
+    ratios = r"×[\d.]+ median, ×[\d.]+ worst"
     assert re.fullmatch(
-        rf"held-out check of row {named[0].row} \({named[0].name}\): error ×[\d.]+ median, "
-        r"×[\d.]+ worst on 1 plants; [01] broke a limit, [01] diverged",
-        verdict,
-    ), verdict
-    assert robustness_text(named, None).startswith("held-out check: not run")
+        rf"Held-out check of row {named[0].row} \({named[0].name}\): error {ratios} on 1 plant; "
+        rf"[01] broke a limit, [01] diverged; the default gains: {ratios}, [01] broke a limit, "
+        r"[01] diverged\.",
+        said,
+    ), said
+    assert "of the 3 asked: the check's budget" in robustness_text(named, check, 3)
+    assert robustness_text(named, None, 0).startswith("Held-out check: not run")
+    assert robustness_text(named, None, 4) == (
+        "Held-out check: not written (`analytic resume RUN` runs it)."
+    )
 
 
 def test_a_members_files_are_the_export_commands_bytes(run_dir: Path) -> None:
@@ -95,6 +101,10 @@ def test_an_episode_is_its_kept_log_or_else_the_same_episode_simulated_again(
     record = read_run(run_dir)
     member = sorted(record.front, key=lambda m: m.f_acc)[0]
     assert slots(record.config) == [Slot(0, 0), Slot(0, 1)]
+    assert [slot.label() for slot in slots(record.config)] == [
+        "trajectory 1 (0.5 s fourier) on the nominal plant",
+        "trajectory 1 (0.5 s fourier) on plant variant 1",
+    ]
     for slot, log in zip(slots(record.config), member.logs, strict=True):
         found, where = episode(run_dir, record.config, member, slot)
         assert where == f"its log, {log}"
