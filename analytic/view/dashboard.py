@@ -523,7 +523,7 @@ def page(watch: Watch) -> Callable:
             self.pareto = pareto = figure(
                 title="front over every evaluated point",
                 x_axis_label="f_acc: mean end-effector error (mm)",
-                y_axis_label="f_t: mean squared torque change per tick ((N·m)²)",
+                y_axis_label="f_t: mean squared torque step ((N·m)²)",
                 y_axis_type="log",
                 x_range=Range1d(0, 1),
                 y_range=Range1d(1e-2, 1e4),
@@ -546,7 +546,10 @@ def page(watch: Watch) -> Callable:
                 "f_acc_mm", "f_t", source=self.baseline, size=12, marker="x", color="black",
                 line_width=2, legend_label="default gains",
             )  # fmt: skip
-            _legend_beside(pareto)
+            # Below the axes, across: beside them, the long names would squeeze the front.
+            self.marks = pareto.legend[0].items  # recommended, closest, default gains
+            pareto.legend[0].orientation = "horizontal"
+            pareto.add_layout(pareto.legend[0], "below")
             curve = figure(
                 title="hypervolume (normalised: 0 to 1)",
                 x_axis_label="evaluations",
@@ -572,6 +575,10 @@ def page(watch: Watch) -> Callable:
                 outside = f" ({view.outside} outside the view)" if view.outside else ""
                 self.pareto.title.text = f"front over every evaluated point{outside}"
                 self.closest.data = view.closest
+                for item, points in zip(
+                    self.marks, (view.recommended, view.closest, view.baseline), strict=True
+                ):
+                    item.visible = bool(points["f_acc_mm"])  # no entry for what is not drawn
                 self.history.data = view.history
                 self.front.data = view.front
                 self.evaluated.data = view.evaluated
@@ -606,11 +613,12 @@ def page(watch: Watch) -> Callable:
             )  # fmt: skip
             _legend_beside(curves)
             fronts = figure(
-                title="fronts, normalised as the hypervolume measures them (0 to 1)",
-                x_axis_label=f"f_acc / {REFERENCE_POINT[0] * 1000:g} mm",
-                y_axis_label=(
-                    f"f_t on a log scale: {F_T_FLOOR:g} (N·m)² at 0, {REFERENCE_POINT[1]:g} at 1"
+                title=(
+                    f"fronts in the hypervolume's space: f_acc / {REFERENCE_POINT[0] * 1000:g} "
+                    f"mm, log f_t ({F_T_FLOOR:g} → 0, {REFERENCE_POINT[1]:g} → 1)"
                 ),
+                x_axis_label=f"f_acc / {REFERENCE_POINT[0] * 1000:g} mm",
+                y_axis_label="log f_t (normalised)",
                 height=320,
                 **wide,
             )
