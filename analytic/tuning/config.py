@@ -16,6 +16,7 @@ from gainfarm.analytic.tuning.termination import (
     CONVERGENCE_WINDOW,
     Termination,
 )
+from gainfarm.cli.words import counted
 from gainfarm.schemas.episode import DEFAULT_OBJECTIVES
 from gainfarm.schemas.limits import Limits
 from gainfarm.schemas.robot import ModelSpec
@@ -168,9 +169,9 @@ class RunConfig(BaseModel):
     @property
     def termination_text(self) -> str:
         if self.generations:
-            return f"{self.generations} generations"
+            return counted(self.generations, "generation")
         if self.evaluations:
-            return f"{self.evaluations} evaluations"
+            return counted(self.evaluations, "evaluation")
         return f"until converged ({self.termination.rule})"
 
     @property

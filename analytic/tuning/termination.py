@@ -20,6 +20,8 @@ rule's standard is that what is left is no more than what another seed would cha
 
 from dataclasses import dataclass
 
+from gainfarm.cli.words import counted
+
 CONVERGENCE_TOLERANCE = 0.0025  # 0.25 % relative hypervolume gain ...
 CONVERGENCE_WINDOW = 10  # ... over this many generations
 
@@ -40,9 +42,9 @@ class Termination:
         """Why to stop after these generations' hypervolumes, or None to go on."""
         generation = len(hypervolumes)
         if self.generations is not None:
-            return f"{generation} generations" if generation >= self.generations else None
+            return counted(generation, "generation") if generation >= self.generations else None
         if self.evaluations is not None:
-            return f"{evaluations} evaluations" if evaluations >= self.evaluations else None
+            return counted(evaluations, "evaluation") if evaluations >= self.evaluations else None
         if generation <= self.window:
             return None
         before, now = hypervolumes[-1 - self.window], hypervolumes[-1]

@@ -254,11 +254,13 @@ def ros2_control(controller: Controller) -> str:
         },
     }
     diverged = " (diverged: the scores are a penalty)" if member.diverged else ""
+    # A member chosen by its row is "row N" already: the row is said once.
+    picked = "" if member.selected == f"row {member.row}" else f": {member.selected}"
     header = [
         "# ros2_control parameters: the iiwa 14's joint PD gains tuned by gainfarm, run on the",
         "# effort interface by joint_trajectory_controller (its PID with i = 0 is a PD).",
         f"# Run {source.run_id or '(no run id)'} ({source.directory}), front.csv row "
-        f"{member.row}: {member.selected}.",
+        f"{member.row}{picked}.",
         f"# Tuned on {trajectories}, {source.plant} plant: f_acc {member.f_acc * 1000:.3f} mm, "
         f"f_t {member.f_t:.4g} (N·m)²{diverged}.",
         "# p in N·m/rad, d in N·m·s/rad; the episodes ran the law at "

@@ -19,6 +19,7 @@ from matplotlib.figure import Figure
 
 from gainfarm.analytic.tuning.records import Baseline, FrontMember, HistoryRow, sorted_front
 from gainfarm.analytic.view.export import Pick
+from gainfarm.cli.words import counted
 from gainfarm.edges.files import write_atomically
 
 DPI = 120
@@ -59,9 +60,10 @@ def plot_pareto(
     title: str = "",
     picks: Sequence[Pick] = (),
     baseline: Baseline | None = None,
+    infeasible: int = 0,
 ) -> None:
     """The figure of `pareto_figure`, as a PNG at `path`."""
-    save_png(pareto_figure(front, evaluated, title, picks, baseline), path)
+    save_png(pareto_figure(front, evaluated, title, picks, baseline, infeasible), path)
 
 
 def _span(low: float, high: float, least: float) -> tuple[float, float]:
@@ -76,8 +78,10 @@ def pareto_figure(
     title: str = "",
     picks: Sequence[Pick] = (),
     baseline: Baseline | None = None,
+    infeasible: int = 0,
 ) -> Figure:
-    """Every evaluation (f_acc, f_t) in light grey with the front on top; the `picks`
+    """Every evaluation (f_acc, f_t) in light grey with the front on top (`infeasible`: those
+    left out of `evaluated` for breaking a safety limit, counted in the legend); the `picks`
     (recommended or closest, knee, most accurate, smoothest) marked and labelled with their
     front.csv rows, and the default gains' point (`baseline`) as a black cross, unless it
     diverged (a penalty, named in a note).
@@ -106,9 +110,9 @@ def pareto_figure(
     floor = min(positive) / 10 if positive else 0.0
     notes = []
     if dropped := len(cloud) + len(members) + len(reference) - len(drawn):
-        notes.append(f"{dropped} point(s) with a non-finite objective not drawn")
+        notes.append(f"{counted(dropped, 'point')} with a non-finite objective not drawn")
     if log_scale and (clipped := sum(1 for _, f_t in drawn if f_t <= 0)):
-        notes.append(f"{clipped} point(s) with f_t ≤ 0 drawn at the axis floor")
+        notes.append(f"{counted(clipped, 'point')} with f_t ≤ 0 drawn at the axis floor")
     if baseline is not None and baseline.diverged:
         notes.append("default gains diverged: their penalty point is not drawn")
 
@@ -128,7 +132,12 @@ def pareto_figure(
     axes = figure.add_subplot()
     cloud_x, cloud_y = drawable(cloud)
     front_x, front_y = drawable(members)
-    axes.scatter(cloud_x, cloud_y, s=12, color="0.75", label=f"evaluated ({len(cloud)})", zorder=1)
+    # The cloud is what the caller passes: a run's candidates within its limits; those that
+    # broke one are counted here, so the legend's count adds up to the run's evaluations.
+    beyond = f"; {infeasible} beyond a limit, not drawn" if infeasible else ""
+    axes.scatter(
+        cloud_x, cloud_y, s=12, color="0.75", label=f"evaluated ({len(cloud)}{beyond})", zorder=1
+    )
     if front_x:
         axes.step(front_x, front_y, where="post", color="tab:red", linewidth=1.2, zorder=2)
     axes.scatter(
@@ -196,7 +205,7 @@ def pareto_figure(
             if not (x_low <= x <= x_high and y_low <= y <= y_high)
         )
         if outside:
-            notes.append(f"{outside} evaluated point(s) outside the view")
+            notes.append(f"{counted(outside, 'evaluated point')} outside the view")
     axes.set_xlabel("f_acc: mean end-effector error (mm)")
     axes.set_ylabel("f_t: mean squared torque change per tick ((N·m)²)")
     axes.set_title(title or "Pareto front", fontsize=10)

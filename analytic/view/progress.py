@@ -119,7 +119,7 @@ def time_left(step: RunProgress) -> float | None:
 def left_text(step: RunProgress) -> str:
     """ "; about 3 min left ..." and how that is known, or "" if it is not."""
     left = time_left(step)
-    if left is None:
+    if left is None or left <= 0:  # nothing left to guess: the budget is spent
         return ""
     if step.budget:
         return f"; about {duration_text(left)} left of its {step.budget:,} evaluations at this pace"
@@ -166,7 +166,8 @@ def live_line(
         (6, f"best {_figure(step.best_f_acc * 1000, '{:.2f} mm')}"),
     ]
     left = time_left(step)
-    if left is not None:  # a budget's is known; a convergence's guessed (left_text says how)
+    # A budget's time left is known, a convergence's guessed (left_text says how); none once spent.
+    if left:
         parts.append((7, f"~{duration_text(left)} left{'' if step.budget else '?'}"))
     if not state:
         parts.append((4, workers_text(workers)))

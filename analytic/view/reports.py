@@ -24,6 +24,7 @@ from gainfarm.analytic.tuning.records import (
     sorted_front,
 )
 from gainfarm.analytic.view.export import Pick, plant_name, point_groups
+from gainfarm.cli.words import counted
 from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.controller import UNITS
 from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR
@@ -193,7 +194,7 @@ def verdict_text(picks: Sequence[Pick], baseline: Baseline | None) -> str:
             "recommended: keep the default gains, or run longer (more evaluations, a larger "
             f"population). Closest to dominating them: row {verdict.row} "
             f"({_scores(member.objectives)}), whose worse objective is "
-            f"{10 ** shortfall(member, baseline):.3g} times the defaults' (the least of any "
+            f"{10 ** shortfall(member, baseline):#.3g} times the defaults' (the least of any "
             "member)."
         )
     return (
@@ -217,7 +218,7 @@ def dominating_text(
         else "dominate the default gains"
     )
     lines = [
-        f"{len(rows)} of the front's {len(members)} members {whom}:",
+        f"{len(rows)} of the front's {counted(len(members), 'member')} {whom}:",
         "",
         "| front.csv row | f_acc (mm) | f_t ((N·m)²) |",
         "|---:|---:|---:|",
@@ -302,6 +303,14 @@ def controllers_section(
     return lines
 
 
+def stopped_text(why: str) -> str:
+    """Why a run stopped, as the report's Summary and the terminal say it: "stopped after 4
+    generations", "stopped: converged after 240 evaluations (...)"."""
+    if why[:1].isdigit():  # a budget spent: "4 generations", "24 evaluations"
+        return f"stopped after {why}"
+    return why if why.startswith("stopped") else f"stopped: {why}"
+
+
 def report_markdown(
     *,
     title: str,
@@ -334,14 +343,18 @@ def report_markdown(
     else:
         lines.append("- no generation finished yet")
     if converged:
-        lines.append(f"- {converged}")
+        lines.append(f"- {stopped_text(converged)}")
 
     members = sorted_front(front)
     groups = point_groups(members, shown)
     points = (
         f", {len(groups)} distinct at the precision shown" if len(groups) != len(members) else ""
     )
-    lines += ["", f"## Pareto front ({len(members)} members{points}, most accurate first)", ""]
+    lines += [
+        "",
+        f"## Pareto front ({counted(len(members), 'member')}{points}, most accurate first)",
+        "",
+    ]
     if members:
         lines += [
             "Members whose scores agree to the precision shown share one line (the first one's "
@@ -423,7 +436,7 @@ def validation_section(validation: ValidationRecord, members: Sequence[FrontMemb
         rate = f" (rate {validation.spot_check_rate:g})" if validation.spot_check_rate else ""
         lines += [
             f"- episodes the referee (this process) ran again: {validation.refereed} of the "
-            f"front's, {validation.spot_checked} spot checks{rate}",
+            f"front's, {counted(validation.spot_checked, 'spot check')}{rate}",
             f"- disagreements: {validation.disagreements}; could not be rerun (failed): "
             f"{validation.unsettled}",
         ]
@@ -431,7 +444,7 @@ def validation_section(validation: ValidationRecord, members: Sequence[FrontMemb
             lines.append(f"- distrusted: {worker}, which {evidence}")
         if validation.rewinds:
             lines.append(
-                f"- the evolution started again {validation.rewinds} time(s) without the "
+                f"- the evolution started again {counted(validation.rewinds, 'time')} without the "
                 "distrusted workers' results, which ran again elsewhere"
             )
         lines.append("")

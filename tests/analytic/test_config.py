@@ -20,6 +20,7 @@ def test_generations_and_evaluations_exclude_each_other() -> None:
 
 def test_the_termination_follows_the_config() -> None:
     assert RunConfig(generations=3).termination_text == "3 generations"
+    assert RunConfig(generations=1).termination_text == "1 generation"
     assert RunConfig(evaluations=90).termination.evaluations == 90
     assert RunConfig().termination_text.startswith("until converged")
     assert RunConfig().mode == "specific"

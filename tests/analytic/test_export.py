@@ -237,6 +237,12 @@ def test_the_ros2_control_file_runs_the_gains_on_the_models_joints(hand_made: Pa
         assert gains == {"p": kp, "d": kd, "i": 0.0, "ff_velocity_scale": 0.0}
         # ROS 2 parameters are typed: an integer would be refused for a double.
         assert all(type(value) is float for value in gains.values())
+    # A member chosen by its row says the row once; one chosen by name says both.
+    comments = render(exported, "ros2_control").decode()
+    assert "front.csv row 2.\n" in comments and "row 2: row 2" not in comments
+    assert (
+        "front.csv row 3: knee.\n" in render(controller(hand_made, "knee"), "ros2_control").decode()
+    )
 
 
 def test_the_files_say_what_running_the_gains_assumes(hand_made: Path) -> None:

@@ -130,10 +130,21 @@ def test_the_view_is_the_front_and_what_lies_outside_it_is_counted() -> None:
     assert 0.6e-2 / 3 < y_low < 0.6e-2 * 1.0 and 50 < y_high < 50 * 3
     notes = [text.get_text() for text in axes.texts]
     # The four outliers and the diverged member's penalty point lie outside the view.
-    assert any("5 evaluated point(s) outside the view" in note for note in notes), notes
+    assert any("5 evaluated points outside the view" in note for note in notes), notes
+    one = pareto_figure(front, [(0.02, 1.0), outliers[0]], "", picks(front, baseline), baseline)
+    assert any("1 evaluated point outside the view" in t.get_text() for t in one.axes[0].texts)
     # The recommended member, the knee and the defaults lie in it, each marked.
     for x, y in marks(figure).values():
         assert x_low < x < x_high and y_low < y < y_high
+
+
+def test_the_legend_counts_the_candidates_left_out_for_breaking_a_limit() -> None:
+    evaluated = [m.objectives for m in SAMPLE_FRONT if not m.diverged]
+    [axes] = pareto_figure(SAMPLE_FRONT, evaluated, "", infeasible=4).axes
+    labels = axes.get_legend_handles_labels()[1]
+    assert f"evaluated ({len(evaluated)}; 4 beyond a limit, not drawn)" in labels, labels
+    [axes] = pareto_figure(SAMPLE_FRONT, evaluated, "").axes
+    assert f"evaluated ({len(evaluated)})" in axes.get_legend_handles_labels()[1]
 
 
 def test_picks_of_one_member_are_told_apart_and_labelled_once() -> None:

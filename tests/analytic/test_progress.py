@@ -90,6 +90,10 @@ def test_a_budget_gives_the_time_left_at_the_runs_pace_and_convergence_none() ->
     later = RunProgress(**{**budgeted.__dict__, "evaluations": 100, "elapsed": 100.0})
     assert "~8 min left" in live_line(later, 2, None, 120)  # 500 at 1/s: 8 min 20 s
     assert "left" not in live_line(ENDED, 2, None, 120)  # no budget, no estimate of convergence
+    spent = RunProgress(**{**budgeted.__dict__, "evaluations": 600, "elapsed": 60.0})
+    # The last generation: nothing is left, so nothing is guessed ("about 0 s left").
+    assert generation_line(spent, 2).endswith("2 workers")
+    assert "left" not in live_line(spent, 2, None, 120)
     assert "left" not in generation_line(ENDED, 2)
 
 

@@ -8,6 +8,8 @@ from gainfarm.analytic.tuning.termination import Termination, expected_generatio
 def test_a_fixed_number_of_generations_or_evaluations() -> None:
     assert Termination(generations=3).reason([0.1, 0.2], 60) is None
     assert Termination(generations=3).reason([0.1, 0.2, 0.3], 90) == "3 generations"
+    assert Termination(generations=1).reason([0.1], 30) == "1 generation"
+    assert Termination(evaluations=1).reason([0.1], 1) == "1 evaluation"
     assert Termination(evaluations=100).reason([0.1, 0.2, 0.3], 90) is None
     assert Termination(evaluations=100).reason([0.1] * 4, 120) == "120 evaluations"
 
