@@ -18,7 +18,7 @@ from gainfarm.analytic.evaluators.evaluator import Evaluator
 from gainfarm.analytic.evaluators.farm import FarmClient, FarmUnavailable
 from gainfarm.analytic.evaluators.local import farm_endpoints
 from gainfarm.analytic.tuning import defaults
-from gainfarm.analytic.tuning.check import run_check
+from gainfarm.analytic.tuning.check import CheckPlan, read_check, run_check
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import CONFIG_JSON, REPORT_MD
 from gainfarm.analytic.tuning.run import RunProgress, TuningRun
@@ -46,13 +46,42 @@ class CannotStart(ValueError):
         self.part = part
 
 
+# What a run does after its evolution, in order (`TuningInterrupted.stage`), as a Ctrl-C says it.
+STAGES = {
+    "evolution": "the evolution",
+    "validation": "the front's validation",
+    "baseline": "the default gains' episodes",
+    "check": "the held-out check",
+    "report": "the figures and report",
+}
+
+
 class TuningInterrupted(KeyboardInterrupt):
     """Ctrl-C during `tune`: `run` is the run, to go on with later (`tune` again, or `analytic
-    resume`); None if the run was new and nothing of it had run, so nothing of it is left."""
+    resume`); None if the run was new and nothing of it had run, so nothing of it is left.
+    `stage`: what it was doing (a key of STAGES); after "evolution", its evolution is over and
+    saved, and a resume does only what is left."""
 
-    def __init__(self, run: TuningRun | None):
+    def __init__(self, run: TuningRun | None, stage: str = "evolution"):
         super().__init__()
         self.run = run
+        self.stage = stage
+
+
+def complete(run: TuningRun) -> bool:
+    """Whether `run` has nothing left to do: its evolution finished, and what follows it (the
+    front's validation, the default gains' episodes, the held-out check) was done and drawn:
+    report.md is written last."""
+    return run.finished and (run.directory / REPORT_MD).exists() and not _check_missing(run)
+
+
+def _check_missing(run: TuningRun) -> bool:
+    return bool(run.config.check_plants and run.front() and read_check(run.directory) is None)
+
+
+def _needs_evaluator(run: TuningRun) -> bool:
+    """Whether a finished run has episodes left to run before its report."""
+    return run.validation_pending() or run.baseline() is None or _check_missing(run)
 
 
 def tune(
@@ -67,6 +96,7 @@ def tune(
     balance: bool = defaults.BALANCE,
     on_progress: Callable[[RunProgress], None] = lambda _: None,
     watch: Watch | None = None,
+    on_check: Callable[[CheckPlan], None] = lambda _: None,
 ) -> TuningRun:
     """Tune the PD gains as `config` says (the defaults: `analytic start`'s) and return the
     finished run; its front is `run.front()`, its files are in `run.directory`.
@@ -79,7 +109,8 @@ def tune(
     `feedforward`: the model file `config.feedforward` names. With `balance`, a new generic run
     (several trajectories, no `objective_weights`) weighs each trajectory's objectives so that
     all count alike at the default gains (`balanced`). `watch`: see `Watch`; else `on_progress`
-    is called after every evaluation.
+    is called after every evaluation. `on_check` is told what the held-out check will run
+    as it starts.
 
     A new run is checked before anything is written (CannotStart: a trajectory the arm cannot
     follow, nothing to balance by, `out` taken); if the farm cannot be had (FarmUnavailable) or
@@ -111,6 +142,7 @@ def tune(
         on_progress=on_progress,
         watch=watch,
         forget=forget,
+        on_check=on_check,
     )
     return run
 
@@ -125,29 +157,37 @@ def tune_run(
     on_progress: Callable[[RunProgress], None] = lambda _: None,
     watch: Watch | None = None,
     forget: Callable[[], None] | None = None,
+    on_check: Callable[[CheckPlan], None] = lambda _: None,
 ) -> str:
     """Run `run` (open, so holding its lock) to its end on `evaluator`, or on the farm `tune`
     says, evaluate the default gains beside it (baseline.json), check the controllers it names
-    on held-out plants (check.json, if its config holds any), draw its figures and report.md,
-    and close it; return why it stopped. `forget`, for a run just made: what removes it
-    if nothing of it runs (the farm cannot be had, Ctrl-C or any failure before a job is sent).
-    A Ctrl-C leaves as TuningInterrupted."""
+    on held-out plants (check.json, if its config holds any; `on_check` told as it starts),
+    draw its figures and report.md, and close it; return why it stopped. A run whose evolution
+    has finished does only what is left of that (what a Ctrl-C after the evolution left).
+    `forget`, for a run just made: what removes it if nothing of it runs (the farm cannot be
+    had, Ctrl-C or any failure before a job is sent). A Ctrl-C leaves as TuningInterrupted."""
     begun = False
+    stage = "evolution"
     try:
         with run:
-            if run.finished:
-                if not (run.directory / REPORT_MD).exists():  # killed before it was drawn
-                    write_run_report(run)
+            if complete(run):
                 return run.state.stopped or ""
-            with _evaluator(run, evaluator, connect, workers, identity) as chosen:
-                begun = True
-                shown = watch(chosen) if watch else contextlib.nullcontext(on_progress)
-                with shown as step:
-                    stopped = run.run(chosen, step)
-                    run.baseline(chosen)
-                    run_check(run, chosen)
+            if not run.finished or _needs_evaluator(run):
+                with _evaluator(run, evaluator, connect, workers, identity) as chosen:
+                    begun = True
+                    shown = watch(chosen) if watch else contextlib.nullcontext(on_progress)
+                    with shown as step:
+                        # A finished run's evolution is not run again: only a validation
+                        # a Ctrl-C cut short goes on.
+                        run.run(chosen, step)
+                        stage = "baseline"
+                        run.baseline(chosen)
+                        if read_check(run.directory) is None:
+                            stage = "check"
+                            run_check(run, chosen, on_check)
+            stage = "report"
             write_run_report(run)
-            return stopped
+            return run.state.stopped or ""
     except BaseException as error:
         if not begun and forget is not None:  # nothing of a new run ran: nothing of it is left
             forget()
@@ -155,7 +195,9 @@ def tune_run(
                 raise TuningInterrupted(None) from None
             raise
         if isinstance(error, KeyboardInterrupt):
-            raise TuningInterrupted(run) from None
+            if stage == "evolution" and run.saved_stopped:  # stopped, then its front validated
+                stage = "validation"
+            raise TuningInterrupted(run, stage) from None
         raise
 
 

@@ -2,6 +2,7 @@
 
 import dataclasses
 import hashlib
+import json
 import os
 import re
 import subprocess
@@ -270,6 +271,33 @@ def analytic(*arguments: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     )
 
 
+def held_out_closing(run_dir: Path, row: int) -> list[str]:
+    """The closing lines on how the controller at front.csv `row` did on the held-out plants,
+    from check.json (none without one): its figures as the file has them."""
+    path = run_dir / "check.json"
+    if not path.exists():
+        return []
+    record = json.loads(path.read_text())
+    [item] = [item for item in record["controllers"] if item["row"] == row]
+    plants, asked = record["plants"], record["asked"]
+    on = (
+        f"{plants} of the {asked} plants asked"
+        if plants < asked
+        else f"{plants} plant{'' if plants == 1 else 's'}"
+    )
+    lines = [
+        f"held out, on {on}: error ratio median {item['median_ratio']:.3f}, "
+        f"worst {item['worst_ratio']:.3f}"
+    ]
+    if plants < asked:
+        lines.append("  (the check may take at most half the run's own episodes)")
+    plural = "plant" if item["violations"] == 1 else "plants"
+    lines.append(
+        f"held out: {item['violations']} {plural} broke a limit, {item['diverged']} diverged"
+    )
+    return lines
+
+
 def ends_with_closing_lines(lines: list[str], run_dir: Path) -> int:
     """Assert that `lines` (a command's standard error) end as `analytic start` and `resume` end
     a run, saying what its report.md's first line says: the controller to use and how to export
@@ -292,6 +320,9 @@ def ends_with_closing_lines(lines: list[str], run_dir: Path) -> int:
             f"closest to them: row {row} of front.csv: {error} mm, f_t {smoothness} (N·m)²",
             f"what to do: {run_dir.name}/report.md",
         ]
+    held_out = held_out_closing(run_dir, int(row))
+    at = 1 if used else 2  # after the line that names the controller
+    expected[at:at] = held_out
     # A member sharing its scores, or diverged, says so after them.
     closing = lines[-len(expected) :]
     assert all(line.startswith(want) for line, want in zip(closing, expected, strict=True)), lines

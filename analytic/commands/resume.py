@@ -9,7 +9,10 @@ from gainfarm.analytic.commands.shared import check_farm, farm_options, run_with
 from gainfarm.cli.app import CliError
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from gainfarm.analytic.compose import Watch
+    from gainfarm.analytic.tuning.check import CheckPlan
     from gainfarm.analytic.tuning.run import TuningRun
 
 
@@ -24,8 +27,9 @@ def resume(
     local: bool,
     workers: int | None,
 ) -> None:
-    """Continue a stopped run from its last checkpoint."""
-    from gainfarm.analytic.compose import CannotStart, tune_run
+    """Continue a stopped run from its last checkpoint; or finish one whose evolution had
+    ended (its front's validation, the held-out check, the figures and report.md)."""
+    from gainfarm.analytic.compose import CannotStart, complete, tune_run
     from gainfarm.analytic.tuning.checkpoint import CheckpointRefused
     from gainfarm.analytic.tuning.records import CONFIG_JSON
     from gainfarm.analytic.tuning.run import RunBusy, TuningRun
@@ -46,12 +50,19 @@ def resume(
         from gainfarm.schemas.wire import one_line
 
         raise CliError(f"{str(run_dir)!r}: unreadable run ({one_line(error)})") from None
-    if run.finished:
+    if complete(run):  # else what a Ctrl-C after the evolution left is done now
         run.close()
         raise CliError(f"{str(run_dir)!r} has finished: {run.state.stopped}")
 
-    def go(watch: "Watch") -> "TuningRun":
-        tune_run(run, connect=connect, workers=workers, identity=identity, watch=watch)
+    def go(watch: "Watch", on_check: "Callable[[CheckPlan], None]") -> "TuningRun":
+        tune_run(
+            run,
+            connect=connect,
+            workers=workers,
+            identity=identity,
+            watch=watch,
+            on_check=on_check,
+        )
         return run
 
     try:

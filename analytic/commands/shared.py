@@ -11,12 +11,14 @@ import click
 from gainfarm.analytic.tuning import defaults
 from gainfarm.cli import options
 from gainfarm.cli.app import CliError
+from gainfarm.cli.words import counted
 
 if TYPE_CHECKING:
     from pydantic import ValidationError
 
     from gainfarm.analytic.compose import Watch
     from gainfarm.analytic.evaluators.evaluator import Evaluator
+    from gainfarm.analytic.tuning.check import CheckPlan
     from gainfarm.analytic.tuning.run import RunProgress, TuningRun
     from gainfarm.schemas.robot import ModelSpec
     from gainfarm.schemas.security import TlsIdentity
@@ -332,19 +334,25 @@ def algorithm_names() -> tuple[str, ...]:
 
 
 def run_with_progress(
-    go: Callable[["Watch"], "TuningRun"], directory: Path, connect: tuple[str, ...]
+    go: Callable[["Watch", Callable[["CheckPlan"], None]], "TuningRun"],
+    directory: Path,
+    connect: tuple[str, ...],
 ) -> None:
     """Tune as `go` does (`tune`, or `tune_run` of an opened run), given what shows its progress
-    (a live line, or a plain line a generation) and stops it at a Ctrl-C; then say why it
-    stopped, what replication found and which controller to use. `directory` is the run's."""
+    (a live line, or a plain line a generation) and stops it at a Ctrl-C, and what says the
+    held-out check as it starts; then say why it stopped, what replication found, which
+    controller to use and how it did held out. `directory` is the run's."""
     from rich.console import Console
 
     from gainfarm import plugins
     from gainfarm.analytic.compose import TuningInterrupted
     from gainfarm.analytic.evaluators.farm import FarmUnavailable
+    from gainfarm.analytic.tuning.check import read_check
     from gainfarm.analytic.tuning.records import REPORT_MD
     from gainfarm.analytic.view.export import describe_pick, picks
     from gainfarm.analytic.view.progress import Display, RunDisplay
+    from gainfarm.analytic.view.reports import stopped_text
+    from gainfarm.analytic.view.run_report import check_start_line, held_out_lines
     from gainfarm.cli import interrupts
     from gainfarm.schemas.limits import tally
 
@@ -365,8 +373,14 @@ def run_with_progress(
 
             yield step
 
+    def checking(plan: "CheckPlan") -> None:
+        # Seconds to minutes with no other line: say what runs. Through the live line's console,
+        # which prints it above that line (a plain write would land on its end).
+        if not interrupts.INTERRUPTED.is_set():
+            console.print(check_start_line(plan), markup=False, highlight=False, soft_wrap=True)
+
     try:
-        run = go(watch)
+        run = go(watch, checking)
     except FarmUnavailable as error:
         raise CliError(farm_problem(connect, error)) from None
     except plugins.PluginError as error:  # a worker (or this process) lacks a plug-in
@@ -374,11 +388,7 @@ def run_with_progress(
     except TuningInterrupted as stopped:
         if stopped.run is None:  # nothing ran: nothing to resume
             interrupts.stop("analytic")
-        interrupts.stop(
-            "analytic",
-            f"stopped after {len(stopped.run.state.history)} generations; "
-            f"continue with: analytic resume {stopped.run.directory}",
-        )
+        interrupts.stop("analytic", interrupted_text(stopped.run, stopped.stage))
     except OSError as error:
         if isinstance(error, ConnectionError):  # the farm's: said where it happens
             raise
@@ -388,14 +398,16 @@ def run_with_progress(
     if infeasible or not run.front():  # which limits: report.md's "Safety limits"
         front = "" if run.front() else "; none kept to them all: the front is empty"
         click.echo(
-            f"limits: {infeasible} of {len(run.state.measured)} candidates broke one{front}",
+            f"limits: {infeasible} of {counted(len(run.state.measured), 'candidate')} broke "
+            f"one{front}",
             err=True,
         )
-    click.echo(f"stopped: {run.state.stopped}", err=True)
+    click.echo(stopped_text(run.state.stopped or ""), err=True)
     ledger = run.replication
     if ledger.refereed or ledger.spot_checked:
         click.echo(
-            f"front validated: {ledger.refereed} episodes and {ledger.spot_checked} spot checks "
+            f"front validated: {counted(ledger.refereed, 'episode')} and "
+            f"{counted(ledger.spot_checked, 'spot check')} "
             f"rerun here in {ledger.seconds:.1f} s, {ledger.disagreements} disagreed"
             + (f", {ledger.unsettled} could not be rerun (failed)" if ledger.unsettled else "")
             + (f"; distrusted: {', '.join(sorted(ledger.dissenters))}" if ledger.dissenters else "")
@@ -413,8 +425,14 @@ def run_with_progress(
     # Last, what to do next, as report.md's first line says; each line within 80 columns for a
     # short run directory.
     verdict = chosen[0]
+    record = read_check(run.directory)
+    # How the controller named fared on the held-out plants, beside its name: "use row 14" is
+    # not said without "12 of 37 held-out plants broke a limit".
+    held_out = held_out_lines(record, verdict.row) if record else []
     if verdict.name == "recommended":
         click.echo(f"controller to use: {describe_pick(verdict)}", err=True)
+        for line in held_out:
+            click.echo(line, err=True)
         click.echo(f"its gains: analytic export {run.directory}", err=True)
         return
     if verdict.name == "closest":
@@ -423,7 +441,32 @@ def run_with_progress(
     else:  # the run has no baseline.json
         click.echo("controller to use: unknown, the default gains were not scored", err=True)
         click.echo(f"the knee: {describe_pick(verdict)}", err=True)
+    for line in held_out:
+        click.echo(line, err=True)
     click.echo(f"what to do: {run.directory}/{REPORT_MD}", err=True)
+
+
+def interrupted_text(run: "TuningRun", stage: str) -> str:
+    """What a Ctrl-C leaves, in one line: the generations saved (a resume starts after them,
+    which can be fewer than were shown: the records are written at most every RECORD_SECONDS),
+    or, after the evolution, what is left to finish."""
+    from gainfarm.analytic.compose import STAGES
+
+    resume = f"analytic resume {run.directory}"
+    saved, reached = run.saved_generations, len(run.state.history)
+    if stage != "evolution":
+        return (
+            f"stopped during {STAGES[stage]}, after the evolution's "
+            f"{counted(saved, 'generation')}; finish with: {resume}"
+        )
+    if saved == 0:
+        return f"stopped before its first generation was saved; continue with: {resume}"
+    if saved == reached:
+        return f"stopped after {counted(saved, 'generation')}; continue with: {resume}"
+    return (
+        f"stopped after {counted(reached, 'generation')}, saved at generation {saved}; "
+        f"continue with: {resume} (it runs generation {saved + 1} on)"
+    )
 
 
 def _workers(farm: "Evaluator") -> int | None:

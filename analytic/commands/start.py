@@ -187,7 +187,7 @@ def start(
         raise CliError(f"--out: {str(out)!r} already holds a run; resume it or choose another")
     try:
         run_with_progress(
-            lambda watch: compose.tune(
+            lambda watch, on_check: compose.tune(
                 config,
                 out,
                 connect=connect,
@@ -196,6 +196,7 @@ def start(
                 feedforward=model_file,
                 balance=balance,
                 watch=watch,
+                on_check=on_check,
             ),
             out,
             connect,

@@ -15,7 +15,7 @@ front.json, report.md and the exported controller carry it.
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -24,7 +24,7 @@ from gainfarm.analytic.evaluators.evaluator import Evaluator
 from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import FRONT_JSON
 from gainfarm.analytic.tuning.run import TuningRun
-from gainfarm.edges.files import write_atomically
+from gainfarm.edges.files import interrupts_deferred, write_atomically
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import measures
@@ -52,10 +52,27 @@ class Checked:
     diverged: int  # held-out plants on which an episode diverged or could not run
 
 
-def run_check(run: TuningRun, evaluator: Evaluator) -> list[Checked]:
+@dataclass(frozen=True)
+class CheckPlan:
+    """The check about to run: `episodes` in all, on `plants` held-out plants of the `asked`
+    (fewer when CHECK_SHARE caps them), for `controllers` controllers."""
+
+    episodes: int
+    plants: int
+    asked: int
+    controllers: int
+
+
+def run_check(
+    run: TuningRun,
+    evaluator: Evaluator,
+    on_start: Callable[[CheckPlan], None] = lambda _: None,
+) -> list[Checked]:
     """Run the check of `run` (open) on `evaluator` and write it down (check.json, front.json);
-    none if its config holds no held-out plants, or its front is empty."""
+    none if its config holds no held-out plants, or its front is empty. `on_start` is told what
+    it is about to run, before the first episode is sent."""
     plants = run.config.check_plants
+    asked = len(plants)
     front = run.front()
     if not plants or not front:
         return []
@@ -81,6 +98,7 @@ def run_check(run: TuningRun, evaluator: Evaluator) -> list[Checked]:
                     feedforward=run.config.feedforward,
                     objectives=run.config.objectives,
                 )
+    on_start(CheckPlan(len(specs), len(plants), asked, len(chosen)))
     evaluator.submit(specs)
     found = {evaluation.job_id: evaluation.scores for evaluation in evaluator.results()}
     checked = [
@@ -88,7 +106,7 @@ def run_check(run: TuningRun, evaluator: Evaluator) -> list[Checked]:
         for index, gains in enumerate(chosen)
     ]
     cost = {"episodes": len(specs), "wall_seconds": round(time.monotonic() - started, 1)}
-    _write(run, checked, len(plants), cost)
+    _write(run, checked, len(plants), asked, cost)
     return checked
 
 
@@ -130,13 +148,21 @@ def _summary(
     )
 
 
-def _write(run: TuningRun, checked: Sequence[Checked], plants: int, cost: dict) -> None:
-    record = {"plants": plants, "controllers": [asdict(item) for item in checked], "cost": cost}
-    write_atomically(run.directory / CHECK_JSON, json.dumps(record, indent=1).encode())
+def _write(run: TuningRun, checked: Sequence[Checked], plants: int, asked: int, cost: dict) -> None:
+    # "asked": the config's held-out plants; "plants": those the budget allowed (CHECK_SHARE).
+    record = {
+        "plants": plants,
+        "asked": asked,
+        "controllers": [asdict(item) for item in checked],
+        "cost": cost,
+    }
     front = run.directory / FRONT_JSON
     content = json.loads(front.read_bytes())
     content["held_out"] = record
-    write_atomically(front, json.dumps(content, indent=1).encode())
+    # Both or neither: a resume runs the check again while check.json is missing.
+    with interrupts_deferred():
+        write_atomically(front, json.dumps(content, indent=1).encode())
+        write_atomically(run.directory / CHECK_JSON, json.dumps(record, indent=1).encode())
 
 
 def read_check(directory) -> dict | None:

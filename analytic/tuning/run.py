@@ -206,6 +206,13 @@ class TuningRun:
         self._said_alone: set[str] = set()  # caught workers with nobody to run their episodes
         self._records_due = -math.inf  # when a generation's end next writes the records
         self._expected: int | None = None  # evaluations, as RunProgress.expected
+        # What the checkpoint on disk holds: a Ctrl-C says this, not the generation reached,
+        # since the records are written at most every RECORD_SECONDS and a resume starts from
+        # them. (Not written on the way out: mid-generation the optimiser has already been
+        # asked for the next candidates, and keeping a copy of every ended generation's state
+        # would cost the pickling RECORD_SECONDS saves.)
+        self.saved_generations = len(state.history)
+        self.saved_stopped = state.stopped is not None
 
     @classmethod
     def create(
@@ -968,6 +975,19 @@ class TuningRun:
 
     def _checkpoint(self) -> None:
         write_atomically(self.directory / CHECKPOINT, encode(self.state, self.identity))
+        self.saved_generations = len(self.state.history)
+        self.saved_stopped = self.state.stopped is not None
+
+    def validation_pending(self) -> bool:
+        """Whether a front member's episodes are still to be refereed: a run stopped (Ctrl-C)
+        while its front was being validated, whose `run()` goes on with it."""
+        if not self.config.replicate or self.state.unchecked:
+            return False
+        return any(
+            ran.job_id not in self.state.validated
+            for member in self.state.evolution.front()
+            for ran in self.state.provenance.get(member.gains, ())
+        )
 
     # --- the record --------------------------------------------------------------------------
 

@@ -7,13 +7,14 @@ function of the records.
 
 from collections.abc import Sequence
 
-from gainfarm.analytic.tuning.check import read_check
+from gainfarm.analytic.tuning.check import CHECK_SHARE, CheckPlan, read_check
 from gainfarm.analytic.tuning.evolution import hypervolume
 from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import HYPERVOLUME_PNG, PARETO_PNG, REPORT_MD, FrontMember
 from gainfarm.analytic.tuning.run import TuningRun
 from gainfarm.analytic.view.figures import plot_hypervolume, plot_pareto
 from gainfarm.analytic.view.reports import run_setup, run_title, write_report
+from gainfarm.cli.words import counted
 from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.limits import DAMPING, MEASURED, MEASURES, UNITS, Limits, tally
 
@@ -27,18 +28,20 @@ def write_run_report(run: TuningRun) -> None:
     front, title, baseline = run.front(), run_title(run.config), run.baseline()
     chosen = picks(front, baseline)
     limits = run.config.limits
+    # The cloud of candidates within the limits: the others are not controllers to use.
+    within = [
+        point
+        for point, values in zip(run.state.evaluated, run.state.measured, strict=True)
+        if not limits.violated(values)
+    ]
     plot_pareto(
         run.directory / PARETO_PNG,
         front,
-        # The cloud of candidates within the limits: the others are not controllers to use.
-        [
-            point
-            for point, values in zip(run.state.evaluated, run.state.measured, strict=True)
-            if not limits.violated(values)
-        ],
+        within,
         title=title,
         picks=chosen,
         baseline=baseline,
+        infeasible=len(run.state.evaluated) - len(within),
     )
     level = None
     if baseline is not None and not baseline.diverged:
@@ -70,7 +73,7 @@ def limits_line(limits: Limits, measured: Sequence[Sequence[float]], front: int)
     """How many candidates broke the limits, and which: one line, for the report and stderr."""
     infeasible, counts = tally(limits, measured)
     why = ", ".join(f"{name} {count}" for name, count in counts.items() if count)
-    line = f"{infeasible} of {len(measured)} candidates broke a safety limit"
+    line = f"{infeasible} of {counted(len(measured), 'candidate')} broke a safety limit"
     line += f" ({why})" if why else ""
     if measured and not front:
         line += "; none met them all: the front is empty"
@@ -119,7 +122,7 @@ def damping_section(front: Sequence[FrontMember], limits: Limits) -> list[str]:
         "| # | f_acc (mm) | f_t ((N·m)²) | least damping ratio |",
         "|---|---|---|---|",
     ]
-    for row, member in enumerate(front):
+    for row, member in enumerate(front, start=1):  # front.csv's rows, as every table
         least = member.measures[damping] if len(member.measures) > damping else None
         shown = "not measured" if least is None else f"{least:.4f}"
         lines.append(f"| {row} | {member.f_acc * 1e3:.2f} | {member.f_t:.4g} | {shown} |")
@@ -134,9 +137,9 @@ def check_section(record: dict | None) -> list[str]:
         "## Held-out plants",
         "",
         "Each controller below ran every trajectory on the nominal plant and on "
-        f"{record['plants']} plants drawn from the uncertainty ranges on a stream of the seed "
-        "the run never tuned on (check.json). Error ratio: its mean error on a plant over its "
-        "own on the nominal one.",
+        f"{check_plants_text(record['plants'], record.get('asked'))}, drawn from the "
+        "uncertainty ranges on a stream of the seed the run never tuned on (check.json). Error "
+        "ratio: its mean error on a plant over its own on the nominal one.",
         "",
         "| controller | front.csv row | nominal f_acc (mm) | median ratio | worst ratio | "
         "plants over a limit | plants diverged |",
@@ -150,9 +153,65 @@ def check_section(record: dict | None) -> list[str]:
             f"{item['diverged']} |"
         )
     cost = record.get("cost", {})
-    lines += [
-        "",
-        f"It cost {cost.get('episodes', '?')} episodes, {cost.get('wall_seconds', '?')} s.",
-        "",
-    ]
+    episodes = cost.get("episodes")
+    spent = "? episodes" if episodes is None else counted(episodes, "episode")
+    lines += ["", f"It cost {spent}, {cost.get('wall_seconds', '?')} s.", ""]
     return lines
+
+
+# CHECK_SHARE in words, for the line that says why a check ran on fewer plants than asked.
+_SHARES = {0.5: "half"}
+
+
+def check_cap_text() -> str:
+    """Why a check can run on fewer held-out plants than asked."""
+    share = _SHARES.get(CHECK_SHARE, f"{CHECK_SHARE:.0%} of")
+    return f"the check may take at most {share} the run's own episodes"
+
+
+def check_plants_text(plants: int, asked: int | None = None) -> str:
+    """The held-out plants a check ran on: "64 held-out plants", or, when the budget cut them,
+    "1 of the 64 held-out plants asked (the check may take at most half the run's own
+    episodes)". `asked` is None in a check.json from before it was recorded."""
+    if asked is None or plants >= asked:
+        return counted(plants, "held-out plant")
+    return f"{plants} of the {asked} held-out plants asked ({check_cap_text()})"
+
+
+def _plants_short(plants: int, asked: int | None) -> str:
+    """The terminal's: "64 held-out plants", "1 of the 64 held-out plants asked"."""
+    if asked is None or plants >= asked:
+        return counted(plants, "held-out plant")
+    return f"{plants} of the {asked} held-out plants asked"
+
+
+def check_start_line(plan: CheckPlan) -> str:
+    """The terminal's line as the held-out check starts (within 80 columns)."""
+    return (
+        f"held-out check: {counted(plan.episodes, 'episode')} on "
+        f"{_plants_short(plan.plants, plan.asked)}"
+    )
+
+
+def held_out_lines(record: dict, row: int | None) -> list[str]:
+    """The held-out check's result for the controller at front.csv row `row` (None: the
+    default gains), for the terminal's closing lines, each within 80 columns; none if it was
+    not checked."""
+    for item in record.get("controllers", []):
+        if item["row"] != row:
+            continue
+        plants, asked = record["plants"], record.get("asked")
+        cut = asked is not None and plants < asked
+        on = f"{plants} of the {asked} plants asked" if cut else counted(plants, "plant")
+        lines = [
+            f"held out, on {on}: error ratio median "
+            f"{item['median_ratio']:.3f}, worst {item['worst_ratio']:.3f}"
+        ]
+        if cut:
+            lines.append(f"  ({check_cap_text()})")
+        lines.append(
+            f"held out: {counted(item['violations'], 'plant')} broke a limit, "
+            f"{item['diverged']} diverged"
+        )
+        return lines
+    return []

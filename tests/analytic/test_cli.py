@@ -162,7 +162,7 @@ def test_start_on_a_terminal_keeps_a_live_line_within_80_columns(tmp_path: Path)
     assert not any("nan" in line or "0 workers" in line for line in live), live
     closing = ends_with_closing_lines(lines, tmp_path / "run")
     assert lines[-closing - 2 : -closing] == [
-        "stopped: 4 generations",
+        "stopped after 4 generations",
         "front, history, figures and report in run/",
     ]
     assert not any(line.startswith("generation ") for line in lines)  # plain lines: off one
@@ -178,15 +178,22 @@ def test_start_off_a_terminal_says_one_line_per_generation_and_keeps_the_front_s
     generations = [line for line in lines if line.startswith("generation ")]
     assert [line.split(":")[0] for line in generations] == [f"generation {n}" for n in (1, 2, 3)]
     for number, line in enumerate(generations, 1):
+        # The last says no time left: its budget is spent.
+        left = r"; about \d+ (s|min) left of its 12 evaluations at this pace" if number < 3 else ""
         assert re.fullmatch(
             rf"generation {number}: {4 * number} evaluations in [\d.]+ s \([\d.]+/s\), "
-            rf"hypervolume 0\.\d{{4}}, best error [\d.]+ mm, {CORES_WORKERS}; "
-            r"about \d+ (s|min) left of its 12 evaluations at this pace",
+            rf"hypervolume 0\.\d{{4}}, best error [\d.]+ mm, {CORES_WORKERS}{left}",
             line,
         ), line
+    # The check says itself as it starts: nothing is said for seconds otherwise.
+    check = json.loads((tmp_path / "run" / "check.json").read_text())
+    assert (
+        f"held-out check: {check['cost']['episodes']} episodes on {check['plants']} of the "
+        f"{check['asked']} held-out plants asked"
+    ) in lines
     closing = ends_with_closing_lines(lines, tmp_path / "run")
     assert lines[-closing - 2 : -closing] == [
-        "stopped: 3 generations",
+        "stopped after 3 generations",
         "front, history, figures and report in run/",
     ]
     # --keep front, the default: the front's logs, and no other.

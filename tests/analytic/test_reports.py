@@ -45,7 +45,7 @@ def test_report_holds_the_summary_the_sorted_table_and_the_links(tmp_path: Path)
     assert "- population 30\n- trajectory spiral, 6 s\n" in text
     assert "- generations: 3\n- evaluations: 90\n- final hypervolume: 0.8\n" in text
     assert "- wall time: 2 h 01 min\n" in text
-    assert f"- {SAMPLE_CONVERGED}\n" in text
+    assert f"- stopped: {SAMPLE_CONVERGED}\n" in text
     rows = [line for line in text.splitlines() if line.startswith("| ") and line[2].isdigit()]
     assert rows == [
         "| 1 | 2.000 *diverged* | 4.2e+04 | 1 | kp 3000 3000 1800 1800 600 300 150 / kd 2.857 "
@@ -82,10 +82,34 @@ def test_a_single_generation_report(tmp_path: Path) -> None:
         config_lines=["pop 30"],
         history=SAMPLE_HISTORY[:1],
         front=SAMPLE_FRONT[:1],
-        converged="stopped after 1 generation",
+        converged="1 generation",  # a budget spent, as the termination says it
     )
     text = (tmp_path / "report.md").read_text(encoding="utf-8")
     assert "- generations: 1\n- evaluations: 30\n" in text and "- wall time: 12.5 s\n" in text
+    assert "- stopped after 1 generation\n" in text and "1 generations" not in text
+    assert "## Pareto front (1 member, most accurate first)" in text
+
+
+def test_the_counts_of_one_are_singular_in_the_report(tmp_path: Path) -> None:
+    from gainfarm.analytic.tuning.records import ValidationRecord
+    from gainfarm.analytic.view.reports import validation_section
+
+    once = ValidationRecord(
+        refereed=2,
+        spot_checked=1,
+        spot_check_rate=0.05,
+        disagreements=0,
+        unsettled=0,
+        distrusted={},
+        rewinds=1,
+        unchecked="",
+    )
+    lines = validation_section(once, [])
+    assert lines[2] == (
+        "- episodes the referee (this process) ran again: 2 of the front's, 1 spot check "
+        "(rate 0.05)"
+    )
+    assert "started again 1 time without" in "\n".join(lines)
 
 
 def test_a_report_written_into_a_missing_directory_raises_and_creates_nothing(
@@ -215,7 +239,7 @@ def test_a_run_whose_front_never_dominates_the_defaults_says_so_in_its_first_lin
         "**No member of the front dominates the default gains** (14.300 mm, f_t 0.5 (N·m)²) on "
         "the run's trajectories, so none is recommended: keep the default gains, or run longer "
         "(more evaluations, a larger population). Closest to dominating them: row 2 (18.600 mm, "
-        "f_t 0.3 (N·m)²), whose worse objective is 1.3 times the defaults' (the least of any "
+        "f_t 0.3 (N·m)²), whose worse objective is 1.30 times the defaults' (the least of any "
         "member)."
     )
     assert "use this" not in text and "**recommended**" not in text
@@ -270,3 +294,48 @@ def test_a_runs_title_says_what_it_was_tuned_on() -> None:
     assert "on spiral 3 s, random 4 s, ideal plant, flexible joints, population 30" in run_title(
         mixed
     )
+
+
+def test_the_damping_table_numbers_its_rows_as_front_csv_does() -> None:
+    from gainfarm.analytic.view.run_report import damping_section
+    from gainfarm.schemas.limits import Limits
+
+    lines = damping_section(SAMPLE_FRONT, Limits())
+    rows = [line.split(" | ")[0] for line in lines if line[:3] in ("| 1", "| 2", "| 3", "| 0")]
+    assert rows == ["| 1", "| 2", "| 3"]
+
+
+def test_a_check_cut_by_its_budget_says_how_many_plants_of_those_asked_and_why() -> None:
+    from gainfarm.analytic.tuning.check import CheckPlan
+    from gainfarm.analytic.view.run_report import check_section, check_start_line, held_out_lines
+
+    item = {
+        "name": "recommended",
+        "row": 14,
+        "median_ratio": 1.0213,
+        "worst_ratio": 1.3521,
+        "violations": 12,
+        "diverged": 0,
+        "nominal_f_acc": 0.004,
+    }
+    cut = {"plants": 37, "asked": 64, "controllers": [item], "cost": {"episodes": 1}}
+    text = "\n".join(check_section(cut))
+    assert (
+        "on the nominal plant and on 37 of the 64 held-out plants asked (the check may take at "
+        "most half the run's own episodes), drawn" in text
+    )
+    assert "It cost 1 episode, ? s." in text
+    assert held_out_lines(cut, 14) == [
+        "held out, on 37 of the 64 plants asked: error ratio median 1.021, worst 1.352",
+        "  (the check may take at most half the run's own episodes)",
+        "held out: 12 plants broke a limit, 0 diverged",
+    ]
+    assert held_out_lines(cut, 3) == []  # not a controller the check ran
+    whole = {"plants": 1, "asked": 1, "controllers": [{**item, "violations": 1}]}
+    assert "on the nominal plant and on 1 held-out plant, drawn" in "\n".join(check_section(whole))
+    assert held_out_lines(whole, 14)[-1] == "held out: 1 plant broke a limit, 0 diverged"
+    assert check_start_line(CheckPlan(episodes=6, plants=1, asked=64, controllers=3)) == (
+        "held-out check: 6 episodes on 1 of the 64 held-out plants asked"
+    )
+    for line in held_out_lines(cut, 14):
+        assert len(line) <= 80, line  # the terminal's closing lines, as test_cli's live line

@@ -30,6 +30,7 @@ from gainfarm.analytic.tuning.checkpoint import ALLOWED, CheckpointRefused, _Unp
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import read_history, read_identity, read_run
 from gainfarm.analytic.tuning.run import RunBusy, RunProgress, TuningRun, upgrade
+from gainfarm.analytic.view.run_report import write_run_report
 from gainfarm.edges.files import Lock
 from gainfarm.schemas import TrajectorySpec
 from gainfarm.schemas.wire import NAME_PATTERN
@@ -449,6 +450,8 @@ def test_leftovers_of_killed_writes_are_removed_at_resume_only_by_the_lock_holde
     tmp_path: Path,
 ) -> None:
     run = toy_run(tmp_path / "run")
+    with TuningRun.open(run.directory) as finished:  # drawn: a run with nothing left to do
+        write_run_report(finished)
     (run.directory / "episodes").mkdir(exist_ok=True)
     leftovers = [
         run.directory / ".history.csv.k2j4h5g6.part",
@@ -586,7 +589,7 @@ def test_a_full_or_read_only_disk_is_one_line_and_a_resume_goes_on(
     disk.remount("rw,size=64m")
     resumed = analytic("resume", "disk/run", cwd=tmp_path)
     assert resumed.returncode == 0, resumed.stderr
-    assert f"stopped: {generations} generations" in resumed.stderr
+    assert f"stopped after {generations} generations" in resumed.stderr
     assert (directory / "front.csv").read_bytes() == (calm / "front.csv").read_bytes()
     history = read_history(directory / "history.csv")
     assert [row.generation for row in history] == list(range(1, generations + 1))
