@@ -8,6 +8,7 @@ reject a bad message with a reason and go on serving. The key expressions are in
 import json
 import math
 import re
+from collections.abc import Iterable
 from enum import StrEnum
 from typing import Annotated, Literal, TypeVar
 
@@ -19,6 +20,7 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from pydantic_core import ErrorDetails
 
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.objectives import SPEED_CAP
@@ -355,16 +357,84 @@ MESSAGES: tuple[type[WireMessage], ...] = (
 M = TypeVar("M", bound=WireMessage)
 
 
-def describe(error: ValidationError) -> str:
-    """'field: what is wrong' for the first problem, and how many more there are; a rule about
-    several fields (a model validator's) is its message alone."""
+def describe(
+    error: ValidationError, known: Iterable[str] | None = None, noun: str = "field"
+) -> str:
+    """'field: what is wrong' for the first problem, in plain words ('duration: must be at least
+    0.1, got 0'), and how many more there are; a rule about several fields (a model validator's)
+    is its message alone. An unknown top-level field is called a `noun` ('unknown limit
+    'torque_stp''), followed by the `known` names if given."""
     first = error.errors()[0]
     more = error.error_count() - 1
     suffix = f" (and {more} more problem{'s' if more > 1 else ''})" if more else ""
-    if not first["loc"] and first["type"] == "value_error":
+    loc = first["loc"]
+    if not loc and first["type"] == "value_error":
         return f"{first['msg'].removeprefix('Value error, ')}{suffix}"
-    where = ".".join(str(part) for part in first["loc"]) or "value"
-    return f"{where}: {first['msg']}{suffix}"
+    if first["type"] == "extra_forbidden" and loc:
+        parent = ".".join(str(part) for part in loc[:-1])
+        listed = f" (known: {', '.join(known)})" if known is not None and not parent else ""
+        said = f"unknown {noun if not parent else 'field'} {str(loc[-1])!r}{listed}"
+        return f"{parent}: {said}{suffix}" if parent else f"{said}{suffix}"
+    where = ".".join(str(part) for part in loc) or "value"
+    return f"{where}: {plainly(first)}{suffix}"
+
+
+_BOUNDS = {
+    "greater_than": ("more than", "gt"),
+    "greater_than_equal": ("at least", "ge"),
+    "less_than": ("less than", "lt"),
+    "less_than_equal": ("at most", "le"),
+}
+
+
+def plainly(problem: ErrorDetails) -> str:
+    """One of pydantic's errors as a person says it, without its field: 'must be at least 0.1,
+    got 0', 'expected a number, got 'abc'', 'missing', '9 items, at most 7 allowed'."""
+    kind, context = problem["type"], problem.get("ctx") or {}
+    got = _got(problem.get("input"))
+    if kind in _BOUNDS and _BOUNDS[kind][1] in context:
+        words, key = _BOUNDS[kind]
+        return f"must be {words} {_number(context[key])}{got}"
+    if kind in ("float_parsing", "float_type"):
+        return f"expected a number{got}"
+    if kind in ("int_parsing", "int_type", "int_from_float"):
+        return f"expected a whole number{got}"
+    if kind == "finite_number":
+        return f"must be a finite number{got}"
+    if kind == "missing":
+        return "missing"
+    if kind in ("too_short", "too_long"):
+        short = kind == "too_short"
+        bound = context.get("min_length" if short else "max_length")
+        actual = context.get("actual_length")
+        given = f"{actual} item{'' if actual == 1 else 's'}, " if actual is not None else ""
+        needs = f"at least {bound} needed" if short else f"at most {bound} allowed"
+        return f"{given}{needs}"
+    if kind == "value_error":
+        return problem["msg"].removeprefix("Value error, ")
+    if kind == "string_pattern_mismatch":
+        return f"must match the pattern {context.get('pattern', '')}{got}"
+    # Any other: pydantic's sentence, without its "Input should be" and its explanations.
+    said = problem["msg"].split(", unable to")[0].replace("Input should be", "must be")
+    return f"{said}{got}"
+
+
+def _got(value: object) -> str:
+    """', got X' for a value worth quoting (a number, a short text), else nothing."""
+    if isinstance(value, bool) or value is None:
+        return f", got {'null' if value is None else str(value).lower()}"
+    if isinstance(value, int | float):
+        return f", got {_number(value)}"
+    if isinstance(value, str):
+        return f", got {value!r}" if len(value) <= 30 else f", got {value[:30]!r}..."
+    return ""
+
+
+def _number(value: object) -> str:
+    """A bound or a value as it would be typed: 0.1, 120, 1200000, 1e+300."""
+    if isinstance(value, float) and value.is_integer() and abs(value) < 1e15:
+        return str(int(value))
+    return str(value)
 
 
 def one_line(error: Exception) -> str:

@@ -374,7 +374,8 @@ def _limits_file(path: Path | None) -> "Limits":
     try:
         return Limits.model_validate(fields)
     except ValidationError as error:
-        raise CliError(f"--limits: {str(path)!r}: {describe(error)}") from None
+        said = describe(error, known=Limits.model_fields, noun="limit")
+        raise CliError(f"--limits: {str(path)!r}: {said}") from None
 
 
 # --- the farm -------------------------------------------------------------------------------------

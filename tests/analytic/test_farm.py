@@ -354,7 +354,7 @@ def test_batch_command_in_local_mode(tmp_path: Path) -> None:
         (["--local", "--gains", "missing.json"], "--gains: cannot read 'missing.json'"),
         (
             ["--local", "--duration", "0"],
-            "--duration: Input should be greater than or equal to 0.1",
+            "--duration: must be at least 0.1, got 0",
         ),
     ],
 )

@@ -218,8 +218,8 @@ def test_a_damping_bound_keeps_every_front_member_above_it_and_the_report_lists_
 @pytest.mark.parametrize(
     ("value", "says"),
     [
-        ("2", "analytic: error: --min-damping: min_damping: Input should be less than or equal"),
-        ("nan", "analytic: error: --min-damping: min_damping: Input should be a finite number"),
+        ("2", "analytic: error: --min-damping: min_damping: must be at most 1, got 2"),
+        ("nan", "analytic: error: --min-damping: min_damping: must be a finite number, got nan"),
         ("abc", "'abc' is not a valid float"),
     ],
 )
@@ -241,8 +241,13 @@ def test_a_bad_damping_bound_is_one_line_naming_the_option(
         (None, "cannot read"),
         ("{not json", "is not JSON"),
         ("[0.1]", "is not a JSON object of limits"),
-        ('{"chatter": -1}', "chatter: Input should be greater than 0"),
-        ('{"jerk": 1}', "jerk: Extra inputs are not permitted"),
+        ('{"chatter": -1}', "chatter: must be more than 0, got -1"),
+        (
+            '{"jerk": 1}',
+            "unknown limit 'jerk' (known: torque_step, saturated_fraction, speed, chatter, "
+            "min_damping)",
+        ),
+        ('{"torque_step": "abc"}', "torque_step: expected a number, got 'abc'"),
     ],
 )
 def test_a_bad_limits_file_is_one_line_naming_the_option(
