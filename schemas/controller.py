@@ -1,9 +1,10 @@
 """A tuned controller as a file, and the gains files the command lines read.
 
 `analytic export RUN` writes one front member as a `Controller`: its 14 gains with the joints
-they belong to and their units, its objectives, and the run it came from. `worker episode
---gains FILE` and `analytic batch --gains FILE` read it (`read_gains`), as `analytic batch`
-has always read a JSON list of {"kp": [7], "kd": [7]} candidates. It lives in the contract
+they belong to and their units, its objectives, and the run it came from, as JSON or YAML (the
+same document). `worker episode --gains FILE` and `analytic batch --gains FILE` read either
+(`read_gains`), as `analytic batch` has always read a JSON list of {"kp": [7], "kd": [7]}
+candidates. It lives in the contract
 because the worker reads it and never imports the analytic layer.
 
 Bad files are refused in the user's words, not pydantic's: which candidate, which gain of which
@@ -160,22 +161,15 @@ class BadGains(ValueError):
 
 
 def read_gains(raw: bytes) -> list[PDGains]:
-    """The candidates in a gains file: a JSON list whose items are {"kp", "kd"} objects or
-    exported controllers, or one such object alone. BadGains, in plain words, otherwise."""
+    """The candidates in a gains file, JSON or YAML (`analytic export --format yaml` writes the
+    same document): a list whose items are {"kp", "kd"} objects or exported controllers, or one
+    such object alone. BadGains, in plain words, otherwise."""
     if raw.startswith(b"kp1,"):  # the header of front.csv (analytic.records)
         raise BadGains(
             "a run's front.csv, not a controller: `analytic export RUN --member N` writes its "
             "row N as one"
         )
-    try:
-        document = json.loads(raw)
-    except UnicodeDecodeError:
-        raise BadGains("not JSON text (binary data)") from None
-    except json.JSONDecodeError as error:
-        raise BadGains(
-            f"not JSON ({error.msg} at line {error.lineno} column {error.colno}); expected a "
-            'controller from `analytic export` or a list of {"kp": [7 numbers], "kd": [7 numbers]}'
-        ) from None
+    document = _document(raw)
     if isinstance(document, list):
         if not document:
             raise BadGains("the list of candidates is empty")
@@ -184,11 +178,11 @@ def read_gains(raw: bytes) -> list[PDGains]:
 
 
 def read_controller(raw: bytes) -> "Controller | None":
-    """The exported controller in `raw`, or None if it holds another kind of gains (read_gains
-    has said whether it holds gains at all)."""
+    """The exported controller in `raw` (JSON or YAML), or None if it holds another kind of gains
+    (read_gains has said whether it holds gains at all)."""
     try:
-        document = json.loads(raw)
-    except ValueError:
+        document = _document(raw)
+    except BadGains:
         return None
     if not (isinstance(document, dict) and "format" in document):
         return None
@@ -196,6 +190,43 @@ def read_controller(raw: bytes) -> "Controller | None":
         return Controller.model_validate(document)
     except ValidationError:
         return None
+
+
+_EXPECTED = (
+    'expected a controller from `analytic export` or a list of {"kp": [7 numbers], '
+    '"kd": [7 numbers]}'
+)
+
+
+def _document(raw: bytes) -> Any:
+    """The JSON or YAML document in a gains file: one reader for both, since a controller file is
+    either (YAML's safe loader: plain data, never objects). BadGains if it is neither, with the
+    reason of the syntax it looks like: JSON if it opens with { or [, else YAML."""
+    try:
+        text = raw.decode()
+    except UnicodeDecodeError:
+        raise BadGains("not JSON or YAML text (binary data)") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as error:
+        if text.lstrip().startswith(("{", "[")):
+            raise BadGains(
+                f"not JSON ({error.msg} at line {error.lineno} column {error.colno}); {_EXPECTED}"
+            ) from None
+    import yaml  # only for a file that is not JSON
+
+    try:
+        document = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        problem = getattr(error, "problem", None) or "unreadable"
+        where = f" at line {mark.line + 1} column {mark.column + 1}" if mark is not None else ""
+        raise BadGains(f"not JSON or YAML ({problem}{where}); {_EXPECTED}") from None
+    if document is None:
+        raise BadGains(f"empty; {_EXPECTED}")
+    if not isinstance(document, dict | list):
+        raise BadGains(f"a lone value ({str(document)[:40]!r}), not gains; {_EXPECTED}")
+    return document
 
 
 def _candidate(item: Any, where: str) -> PDGains:

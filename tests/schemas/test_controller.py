@@ -3,8 +3,16 @@
 import json
 
 import pytest
+import yaml
 
-from gainfarm.schemas.controller import BadGains, Controller, Member, Source, read_gains
+from gainfarm.schemas.controller import (
+    BadGains,
+    Controller,
+    Member,
+    Source,
+    read_controller,
+    read_gains,
+)
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.robot import ModelSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
@@ -74,10 +82,37 @@ def test_a_bad_gains_file_says_which_candidate_which_gain_and_what(
     assert "Input should" not in str(refused.value)  # not pydantic's words
 
 
-def test_non_finite_gains_and_files_that_are_not_json_are_refused() -> None:
+def test_non_finite_gains_and_files_that_are_neither_json_nor_yaml_are_refused() -> None:
     with pytest.raises(BadGains, match=r"kp of A1: inf is not finite"):
         read_gains(b'{"kp": [1e999, 1, 1, 1, 1, 1, 1], "kd": [1, 1, 1, 1, 1, 1, 1]}')
-    with pytest.raises(BadGains, match=r"not JSON \(Expecting value at line 1 column 1\)"):
-        read_gains(b"kp: [1]")
+    expected = (
+        'expected a controller from `analytic export` or a list of {"kp": [7 numbers], '
+        '"kd": [7 numbers]}'
+    )
+    for raw, says in (
+        (b'{"kp": [1,', f"not JSON (Expecting value at line 1 column 11); {expected}"),
+        (
+            b"kp: [1\n",
+            "not JSON or YAML (expected ',' or ']', but got '<stream end>' at line 2 column 1); "
+            + expected,
+        ),
+        (b"\xff\xfe", "not JSON or YAML text (binary data)"),
+        (b"", f"empty; {expected}"),
+        (b"fast", f"a lone value ('fast'), not gains; {expected}"),
+        (b"kp: [1]", "kp: 1 gains given, 7 needed (A1..A7) (and 1 more problem)"),  # YAML
+    ):
+        with pytest.raises(BadGains) as refused:
+            read_gains(raw)
+        assert str(refused.value) == says
     with pytest.raises(BadGains, match=r"a run's front\.csv, not a controller"):
         read_gains(b"kp1,kp2,kp3\n")
+
+
+def test_a_yaml_controller_is_the_same_controller_as_its_json() -> None:
+    document = exported(SOFT)
+    as_yaml = yaml.safe_dump(document, allow_unicode=True, sort_keys=False).encode()
+    assert read_gains(as_yaml) == read_gains(json.dumps(document).encode()) == [SOFT]
+    assert read_controller(as_yaml) == read_controller(json.dumps(document).encode())
+    assert read_controller(as_yaml) is not None
+    listed = yaml.safe_dump([GAINS, document]).encode()
+    assert read_gains(listed) == [DEFAULT_GAINS, SOFT]
