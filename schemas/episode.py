@@ -55,7 +55,7 @@ class EpisodeSpec(BaseModel):
         if self.gravity_compensation and self.model.interface == "fri":
             raise ValueError(
                 "gravity_compensation on a plant with interface fri: the robot already adds "
-                "its own gravity compensation (interface torque is the plain one)"
+                "its own gravity compensation (a plant with interface torque does not)"
             )
         return self
 

@@ -40,6 +40,8 @@ KD_RANGE = (0.1, 5.0)  # × the default Kd of each joint
 FAR_OUTSIDE = 10.0
 
 _UNITS = {"kp": "N·m/rad", "kd": "N·m·s/rad"}
+# Factors from here on are said as powers of ten: ten million and more are a lost exponent.
+HUGE = 1e7
 
 
 def saturating(gains: PDGains, model: ModelSpec) -> tuple[str, str, float] | None:
@@ -96,5 +98,8 @@ def outside_search(gains: PDGains) -> str | None:
 
 def _times(factor: float) -> str:
     """A factor as a person reads it: three figures while small (10.5), whole and grouped once
-    large (1,500,000), where more figures would be noise."""
-    return f"{factor:.3g}" if factor < 100 else f"{factor:,.0f}"
+    large (1,500,000), where more figures would be noise, and as a power of ten once huge
+    (1.7e+26), where grouped figures would be a wall of noise."""
+    if factor < 100:
+        return f"{factor:.3g}"
+    return f"{factor:,.0f}" if factor < HUGE else f"{factor:.2g}"

@@ -21,7 +21,6 @@ from gainfarm.cli.app import CliError, parse_numbers, program_group, run_app, se
 
 if TYPE_CHECKING:
     from gainfarm.schemas.controller import Controller
-    from gainfarm.schemas.episode import EpisodeSpec
     from gainfarm.schemas.gains import PDGains
     from gainfarm.schemas.robot import ModelSpec
     from gainfarm.schemas.trajectory import TrajectorySpec
@@ -64,8 +63,8 @@ def app() -> None:
     "--gains",
     "gains_file",
     type=click.Path(path_type=Path),
-    help="the gains from a file instead of --kp/--kd: a controller from `analytic export`, or "
-    'one {"kp": [7], "kd": [7]} object',
+    help="the gains from a file instead of --kp/--kd: a controller from `analytic export` (JSON "
+    'or YAML), or one {"kp": [7], "kd": [7]} object',
 )
 @options.joints()
 @options.plant()
@@ -99,6 +98,7 @@ def episode(
     """Simulate one PD episode on the iiwa 14, write its MCAP log and print its scores."""
     from pydantic import ValidationError
 
+    from gainfarm.cli.gains import refuse_saturating, warn_far_outside_search
     from gainfarm.cli.scores import show_scores
     from gainfarm.edges.files import write_atomically
     from gainfarm.models.dynamics import digest
@@ -125,6 +125,13 @@ def episode(
             "--feedforward and --gravity-compensation exclude each other: "
             "an inverse-dynamics model already holds the arm against gravity"
         )
+    if gravity_compensation and model.interface == "fri":
+        on = "the plant --as-tuned runs" if as_tuned else _plant_named(model)
+        raise CliError(
+            f"--gravity-compensation: {on} already adds the robot's own gravity compensation "
+            "(KUKA's FRI torque mode); with --plant plain or --plant ideal the PD's torque is "
+            "the whole motor torque, and this flag adds it"
+        )
     try:
         spec = EpisodeSpec(
             gains=gains or PDGains(kp=_gains("--kp", kp), kd=_gains("--kd", kd)),
@@ -135,14 +142,16 @@ def episode(
         )
     except ValidationError as error:
         raise CliError(describe(error)) from None
-    _refuse_saturating(spec, "--gains" if gains_file is not None else None)
-    _warn_if_far_outside_search(spec.gains, gains_file)
+    refuse_saturating([spec.gains], spec.model, gains_file)
+    warn_far_outside_search("worker", [spec.gains], gains_file)
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
     try:
         log = run_episode(spec, learned[1] if learned is not None else None)
-    except (UnreachablePath, InfeasibleReference) as error:
-        raise CliError(str(error)) from None
+    except UnreachablePath as error:
+        raise CliError(f"{'--as-tuned' if as_tuned else '--center/--size'}: {error}") from None
+    except InfeasibleReference as error:
+        raise CliError(f"{'--as-tuned' if as_tuned else '--duration'}: {error}") from None
     try:
         write_atomically(out, episode_bytes(log, description()))
     except OSError as error:
@@ -294,15 +303,27 @@ def _as_tuned(
 def _warn_if_not_as_tuned(
     controller: "Controller", path: Path | None, trajectory: "TrajectorySpec", model: "ModelSpec"
 ) -> None:
-    """One line on stderr if the episode is not what the controller was tuned on: its scores
+    """One line on stderr if the episode is not what the controller was tuned on, naming both
+    sides (the trajectories by what tells them apart, the plants by name and joints): its scores
     then say how it carries over, not what its run found."""
     source = controller.source
     differs = []
     if trajectory not in source.trajectories:
-        tuned = " and ".join(_described(t) for t in source.trajectories)
-        differs.append(f"tuned on {tuned}, run on {_described(trajectory)}")
+        # What tells them apart: the fields in which the run's trajectory differs from the
+        # nearest one tuned on, said of every trajectory.
+        fields = min(
+            (_differing(trajectory, tuned) for tuned in source.trajectories),
+            key=len,
+            default=[],
+        )
+        tuned = " and ".join(_described(t, fields) for t in source.trajectories)
+        differs.append(f"tuned on {tuned}, run on {_described(trajectory, fields)}")
     if model != source.model:
-        differs.append(f"tuned on the {source.plant} plant, run on another")
+        joints = model.joints != source.model.joints
+        was, now = _plant_named(source.model, joints), _plant_named(model, joints)
+        if was == now:  # two custom plants, with the same joints
+            now = "another custom plant"
+        differs.append(f"tuned on {was}, run on {now}")
     if differs:
         click.echo(
             f"worker: warning: --gains {str(path)!r}: {'; '.join(differs)} (--as-tuned runs "
@@ -311,39 +332,51 @@ def _warn_if_not_as_tuned(
         )
 
 
-def _described(trajectory: "TrajectorySpec") -> str:
-    seed = f" (seed {trajectory.seed})" if trajectory.seed else ""
-    return f"the {trajectory.duration:g} s {trajectory.kind}{seed}"
+# A trajectory's fields, as _described says them, in that order (kind and duration always).
+_SAID = ("seed", "center", "size", "turns", "waypoints", "twist", "harmonics")
 
 
-def _refuse_saturating(spec: "EpisodeSpec", option: str | None) -> None:
-    """Refuse gains that saturate a motor on one encoder count: every tick would saturate."""
-    from gainfarm.schemas.gains import saturating
-
-    found = saturating(spec.gains, spec.model)
-    if found is not None:
-        which, joint, gain = found
-        flag = option or f"--{which}"
-        raise CliError(
-            f"{flag}: {which} of {joint} is {gain:g}, which saturates its motor on one encoder "
-            "count: every tick would saturate"
-        )
+def _differing(trajectory: "TrajectorySpec", other: "TrajectorySpec") -> list[str]:
+    return [
+        name
+        for name in ("kind", "duration", *_SAID)
+        if getattr(trajectory, name) != getattr(other, name)
+    ]
 
 
-def _warn_if_far_outside_search(gains: "PDGains", path: Path | None) -> None:
-    """One line on stderr for gains orders of magnitude outside what the farm searches: they
-    run (a user may mean them), but they are more often a slip of units or of an exponent."""
-    from gainfarm.schemas.gains import outside_search
+def _described(trajectory: "TrajectorySpec", fields: "list[str] | None" = None) -> str:
+    """'the 3 s spiral', with the `fields` that tell it from another ('the 3 s spiral (size
+    0.1 m, centre 0.5,0,0.4 m)'); a seed other than 0 is always said."""
+    fields = fields or []
+    said = []
+    for name in _SAID:
+        value = getattr(trajectory, name)
+        if name not in fields and not (name == "seed" and value):
+            continue
+        if name == "center":
+            said.append(f"centre {','.join(f'{v:g}' for v in value)} m")
+        elif name in ("size", "twist"):
+            said.append(f"{name} {value:g} {'m' if name == 'size' else 'rad'}")
+        else:
+            said.append(f"{name} {value:g}")
+    detail = f" ({', '.join(said)})" if said else ""
+    return f"the {trajectory.duration:g} s {trajectory.kind}{detail}"
 
-    found = outside_search(gains)
-    if found is not None:
-        # The phrase starts with the gain's name, kp or kd: the option that gave it.
-        given = f"--gains {str(path)!r}" if path is not None else f"--{found[:2]}"
-        click.echo(
-            f"worker: warning: {given}: {found}: far outside what the farm searches (a slip of "
-            "units or of an exponent?)",
-            err=True,
-        )
+
+def _plant_named(model: "ModelSpec", joints: bool = False) -> str:
+    """'the realistic plant' (a named plant with any joints), or 'a custom plant'; with `joints`,
+    which joints it has: 'the realistic plant with rigid joints'."""
+    from gainfarm.schemas.robot import PLANTS
+
+    name = next(
+        (
+            f"the {name} plant"
+            for name, spec in PLANTS.items()
+            if spec.model_copy(update={"joints": model.joints}) == model
+        ),
+        "a custom plant",
+    )
+    return f"{name} with {model.joints} joints" if joints else name
 
 
 def _gains(option: str, text: str) -> tuple[float, ...]:

@@ -36,7 +36,7 @@ def _deadline() -> float:
     "--gains",
     "gains_file",
     type=click.Path(path_type=Path),
-    help="the candidates: a controller from `analytic export`, a JSON list of "
+    help="the candidates: a controller from `analytic export` (JSON or YAML), a list of "
     '{"kp": [7], "kd": [7]} objects, or a run\'s front.csv (every member)  '
     "[default: the default gains]",
 )
@@ -83,6 +83,7 @@ def batch(
     from gainfarm.analytic.evaluators.farm import FarmClient
     from gainfarm.analytic.view.progress import Display
     from gainfarm.cli import interrupts
+    from gainfarm.cli.gains import refuse_saturating, warn_far_outside_search
     from gainfarm.models.dynamics import digest
     from gainfarm.schemas.wire import BadMessage
 
@@ -90,13 +91,16 @@ def batch(
         raise CliError("say where the farm is: --connect ENDPOINT or --local")
     identity = check_farm(connect, local, tls, participant)
     candidates = _candidates(gains_file)
+    model = options.model_spec(plant, joints)
+    # Episodes that saturate every tick are refused, as `worker episode` refuses them.
+    refuse_saturating(candidates, model, gains_file)
     if gains_file is not None:
-        _warn_if_far_outside_search(candidates, gains_file)
+        warn_far_outside_search("analytic", candidates, gains_file)
     trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
     followable(trajectories)
     learned = options.feedforward_model(feedforward)
     models = {digest(learned[0]): learned[0]} if learned is not None else {}
-    jobs = batch_jobs(candidates, trajectories, options.model_spec(plant, joints), *models)
+    jobs = batch_jobs(candidates, trajectories, model, *models)
     run_dir = run_dir or Path("runs") / time.strftime("batch-%Y%m%d-%H%M%S")
     if (run_dir / EVALUATIONS).exists():
         raise CliError(f"--run-dir: {str(run_dir)!r} already holds a batch; choose another")
@@ -135,7 +139,7 @@ def batch(
 
 
 def _candidates(path: Path | None) -> list["PDGains"]:
-    """--gains' candidates: an exported controller or a JSON list of gains
+    """--gains' candidates: an exported controller or a list of gains, JSON or YAML
     (schemas.controller.read_gains), or every member of a run's front.csv."""
     from gainfarm.analytic.tuning.records import FRONT_FIELDS, read_front
     from gainfarm.schemas.controller import BadGains, read_gains
@@ -163,24 +167,6 @@ def _candidates(path: Path | None) -> list["PDGains"]:
         raise CliError(f"--gains: {str(path)!r}: {error}") from None
 
 
-def _warn_if_far_outside_search(candidates: list["PDGains"], path: Path) -> None:
-    """One line on stderr for the first candidate with gains orders of magnitude outside what the
-    farm searches: its episodes run, but such gains are more often a slip of units or of an
-    exponent than meant."""
-    from gainfarm.schemas.gains import outside_search
-
-    for number, gains in enumerate(candidates, start=1):
-        found = outside_search(gains)
-        if found is not None:
-            which = f"candidate {number}: " if len(candidates) > 1 else ""
-            click.echo(
-                f"analytic: warning: --gains {str(path)!r}: {which}{found}: far outside what the "
-                "farm searches (a slip of units or of an exponent?)",
-                err=True,
-            )
-            return
-
-
 def _summary(evaluation: "EpisodeResult") -> dict[str, object]:
     scores = evaluation.scores.model_dump() if evaluation.scores else {}
     episode = str(evaluation.log) if evaluation.log else None
@@ -197,7 +183,7 @@ def _print_evaluations(evaluations: list["EpisodeResult"], run_dir: Path, name: 
     from rich.console import Console
     from rich.table import Table
 
-    from gainfarm.cli.scores import DIVERGED_TEXT
+    from gainfarm.cli.scores import DIVERGED_TEXT, print_title
 
     table = Table(
         "job",
@@ -205,8 +191,6 @@ def _print_evaluations(evaluations: list["EpisodeResult"], run_dir: Path, name: 
         "f_acc (mm)",
         "f_t ((N·m)²)",
         "worker",
-        title=f"{run_dir}/{name}",
-        title_justify="left",
     )
     for evaluation in evaluations:
         scores = evaluation.scores
@@ -219,6 +203,7 @@ def _print_evaluations(evaluations: list["EpisodeResult"], run_dir: Path, name: 
             f"{scores.f_t:.4g}" if scores else "",
             evaluation.worker,
         )
+    print_title(Console(), f"{run_dir}/{name}")
     Console().print(table)
     if any(evaluation.scores and evaluation.scores.diverged for evaluation in evaluations):
         Console().print(DIVERGED_TEXT, highlight=False)

@@ -28,13 +28,21 @@ def show_scores(scores: Scores, log: Path, as_json: bool) -> None:
 
 
 def print_scores(scores: Scores, source: str) -> None:
-    table = Table(title=source, show_header=False, title_justify="left")
+    """`source` on a line of its own, then the scores as a table."""
+    table = Table(show_header=False)
     table.add_row("f_acc", f"{scores.f_acc * 1000:.3f} mm", "mean end-effector error")
     table.add_row("f_t", f"{scores.f_t:.4g} (N·m)²", "mean squared torque change per tick")
     table.add_row("max error", f"{scores.max_error * 1000:.3f} mm", "")
     table.add_row("saturated", f"{scores.saturated_fraction:.1%}", "of ticks, any joint")
     table.add_row("diverged", "yes" if scores.diverged else "no", f"{scores.ticks} ticks run")
     console = Console()
+    print_title(console, source)
     console.print(table)
     if scores.diverged:
         console.print(DIVERGED_TEXT, highlight=False)
+
+
+def print_title(console: Console, title: str) -> None:
+    """A table's title on its own line, as rich styles one, but not padded to the table's width
+    with trailing spaces (rich's own title is): a path, to be copied as it is."""
+    console.print(title, style="table.title", highlight=False, soft_wrap=True)

@@ -92,7 +92,22 @@ SEVEN = [1.0] * 7
         (json.dumps({"kp": SEVEN, "kd": [*SEVEN[:6], "x"]}), "kd of A7: 'x' is not a number"),
         ("kp1,kp2\n1,2\n", "'gains': expected columns kp1,kp2,kp3,"),  # not a front.csv
         (",".join(FRONT_FIELDS) + "\n", "is a front.csv with no members"),
-        ("kp: [1]", "not JSON (Expecting value at line 1 column 1)"),
+        (
+            "kp: [1",
+            "not JSON or YAML (expected ',' or ']', but got '<stream end>' at line 1 column 7",
+        ),
+        ("kp: [1]\nkd: [1]", "kp: 1 gains given, 7 needed (A1..A7) (and 1 more problem)"),
+        (  # saturates on one encoder count: every tick would, as `worker episode` refuses
+            json.dumps({"kp": [1e30, *SEVEN[1:]], "kd": SEVEN}),
+            "'gains': kp of A1 is 1e+30, which saturates its motor on one encoder count: every "
+            "tick would saturate",
+        ),
+        (
+            "- {kp: [1, 1, 1, 1, 1, 1, 1], kd: [1, 1, 1, 1, 1, 1, 1]}\n"
+            "- {kp: [1, 1, 1, 1, 1, 1, 1], kd: [1, 1, 1, 1, 1, 1, 1e+30]}\n",
+            "'gains': candidate 2: kd of A7 is 1e+30, which saturates its motor on one encoder "
+            "count: every tick would saturate",
+        ),
     ],
 )
 def test_a_bad_gains_file_is_one_line_naming_the_option_before_any_farm(

@@ -63,6 +63,20 @@ def test_exactly_ten_times_beyond_a_bound_says_nothing():
             "kd of A3 is 1e-06 N·m·s/rad, 1/1,500,000 of the search space's lowest "
             "(1.5 N·m·s/rad: 0.1× the default 15)",
         ),
+        (  # a lost exponent: the factor as a power of ten, not thirty grouped figures
+            "kp",
+            0,
+            1e30,
+            "kp of A1 is 1e+30 N·m/rad, 1.7e+26× the search space's highest "
+            "(6000 N·m/rad: 3× the default 2000)",
+        ),
+        (
+            "kd",
+            2,
+            1e-12,
+            "kd of A3 is 1e-12 N·m·s/rad, 1/1.5e+12 of the search space's lowest "
+            "(1.5 N·m·s/rad: 0.1× the default 15)",
+        ),
         (
             "kd",
             6,

@@ -44,6 +44,9 @@ def test_human_readable_scores(tmp_path):
     )
     assert result.returncode == 0, result.stderr
     assert "f_acc" in result.stdout and "mm" in result.stdout
+    # The log's path on a line of its own, to be copied: no trailing spaces on any line.
+    assert result.stdout.splitlines()[0] == str(out)
+    assert [line for line in result.stdout.splitlines() if line != line.rstrip()] == []
 
 
 SEVEN = "1,1,1,1,1,1,1"
@@ -88,7 +91,35 @@ def test_unreachable_path_is_a_clear_error(tmp_path):
     out = tmp_path / "ep.mcap"
     result = run(WORKER, "episode", "--center", "2,0,0.4", "--duration", "0.5", "--out", str(out))
     assert result.returncode == 2, result.stderr
-    assert "unreachable" in result.stderr and "Traceback" not in result.stderr
+    assert result.stderr.count("\n") == 1, result.stderr
+    assert result.stderr.startswith(
+        "worker: error: --center/--size: the path is unreachable at 0 % of the path: the pose at "
+    ), result.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("args", "line"),
+    [
+        (["--duration", "0"], "--duration: must be at least 0.1, got 0"),
+        (["--duration", "200"], "--duration: must be at most 120, got 200"),
+        (
+            ["--gravity-compensation"],
+            "--gravity-compensation: the realistic plant already adds the robot's own gravity "
+            "compensation (KUKA's FRI torque mode); with --plant plain or --plant ideal the PD's "
+            "torque is the whole motor torque, and this flag adds it",
+        ),
+        (
+            ["--trajectory", "spiral", "--duration", "1"],
+            "--duration: the 1 s spiral is too fast for the iiwa 14: A7 would need 2.55x its "
+            "speed limit; the shortest feasible duration is 2.6 s",
+        ),
+    ],
+)
+def test_bad_options_are_one_plain_line_naming_the_option(tmp_path, args, line):
+    result = run(WORKER, "episode", "--out", str(tmp_path / "ep.mcap"), *args)
+    assert result.returncode == 2
+    assert result.stderr == f"worker: error: {line}\n"
     assert list(tmp_path.iterdir()) == []
 
 
@@ -162,8 +193,35 @@ def test_a_controller_run_off_what_it_was_tuned_on_says_so_and_as_tuned_runs_it_
     assert other.returncode == 0, other.stderr
     assert other.stderr == (
         f"worker: warning: --gains {controller!r}: tuned on the 1 s fourier (seed 2), run on the "
-        "1 s fourier (--as-tuned runs it as tuned)\n"
+        "1 s fourier (seed 0) (--as-tuned runs it as tuned)\n"
     )
+    for options, says in (
+        (["--plant", "plain"], "tuned on the realistic plant, run on the plain plant"),
+        (
+            ["--joints", "rigid"],
+            "tuned on the realistic plant with flexible joints, run on the realistic plant with "
+            "rigid joints",
+        ),
+        (
+            ["--size", "0.1"],
+            "tuned on the 1 s fourier (seed 2, size 0.08 m), run on the 1 s "
+            "fourier (seed 2, size 0.1 m)",
+        ),
+        (
+            ["--center", "0.5,0,0.4", "--plant", "ideal"],
+            "tuned on the 1 s fourier (seed 2, centre 0.55,0,0.35 m), run on the 1 s fourier "
+            "(seed 2, centre 0.5,0,0.4 m); tuned on the realistic plant, run on the ideal plant",
+        ),
+    ):
+        off = run(WORKER, "episode", "--gains", controller, "--trajectory", "fourier",
+                  "--duration", "1", "--trajectory-seed", "2", *options,
+                  "--out", str(tmp_path / "a.mcap"), "--json")  # fmt: skip
+        assert off.returncode == 0, off.stderr
+        assert off.stderr == (
+            f"worker: warning: --gains {controller!r}: {says} (--as-tuned runs it as tuned)\n"
+        )
+    saturating = str(tmp_path / "sat.json")
+    (tmp_path / "sat.json").write_text(json.dumps({**GAINS, "kp": [1e30, *GAINS["kp"][1:]]}))
     tuned = run(WORKER, "episode", "--gains", controller, "--as-tuned",
                 "--out", str(tmp_path / "b.mcap"), "--json")  # fmt: skip
     assert tuned.returncode == 0 and tuned.stderr == "", tuned.stderr
@@ -179,6 +237,11 @@ def test_a_controller_run_off_what_it_was_tuned_on_says_so_and_as_tuned_runs_it_
         (["--gains", controller, "--as-tuned", "--duration", "2"], "--as-tuned and --duration"),
         (["--as-tuned"], "--as-tuned needs --gains with a controller"),
         (["--kp", "1e30,1,1,1,1,1,1"], "--kp: kp of A1 is 1e+30, which saturates its motor"),
+        (
+            ["--gains", saturating],
+            f"--gains: {saturating!r}: kp of A1 is 1e+30, which saturates its motor on one encoder "
+            "count: every tick would saturate",
+        ),
     ):
         refused = run(WORKER, "episode", *arguments, "--out", str(tmp_path / "c.mcap"))
         assert refused.returncode == 2 and refused.stderr.count("\n") == 1, refused.stderr
@@ -219,3 +282,32 @@ def test_gains_far_outside_the_search_space_run_with_one_line_naming_the_option(
     )
     assert json.loads(ran.stdout)["ticks"] == 101  # the episode ran, whole
     assert (tmp_path / "ep.mcap").is_file()
+
+
+@pytest.mark.slow
+def test_an_exported_yaml_controller_runs_as_its_json_does(tmp_path):
+    """`analytic export --format yaml` writes the same document as the JSON: `worker episode
+    --gains` and `analytic batch --gains` take it, and score it as they score the JSON."""
+    tiny = ["--pop", "4", "--generations", "1", "--trajectory", "fourier", "--duration", "0.5"]
+    started = run(ANALYTIC, "start", "--local", *tiny, "--out", str(tmp_path / "run"))
+    assert started.returncode == 0, started.stderr
+    scores = {}
+    for form in ("json", "yaml"):
+        file = tmp_path / f"c.{form}"
+        exported = run(ANALYTIC, "export", str(tmp_path / "run"), "--member", "1",
+                       "--format", form, "--out", str(file))  # fmt: skip
+        assert exported.returncode == 0, exported.stderr
+        ran = run(WORKER, "episode", "--gains", str(file), "--as-tuned",
+                  "--out", str(tmp_path / f"{form}.mcap"), "--json")  # fmt: skip
+        assert ran.returncode == 0 and ran.stderr == "", ran.stderr
+        scores[form] = json.loads(ran.stdout)
+        batch = run(ANALYTIC, "batch", "--local", "--workers", "1", "--gains", str(file),
+                    "--trajectory", "fourier", "--duration", "0.5", "--json",
+                    "--run-dir", str(tmp_path / f"batch-{form}"))  # fmt: skip
+        assert batch.returncode == 0, batch.stderr
+        (evaluation,) = [json.loads(line) for line in batch.stdout.splitlines()]
+        assert evaluation["f_acc"] == scores[form]["f_acc"]
+        assert evaluation["f_t"] == scores[form]["f_t"]
+    assert {**scores["yaml"], "log": ""} == {**scores["json"], "log": ""}
+    member = json.loads((tmp_path / "c.json").read_text())["member"]
+    assert (scores["yaml"]["f_acc"], scores["yaml"]["f_t"]) == (member["f_acc"], member["f_t"])
