@@ -424,23 +424,23 @@ def run_with_progress(
         return
     # Last, what to do next, as report.md's first line says; each line within 80 columns for a
     # short run directory.
-    verdict = chosen[0]
+    first = chosen[0]
     record = read_check(run.directory)
     # How the controller named fared on the held-out plants, beside its name: "use row 14" is
     # not said without "12 of 37 held-out plants broke a limit".
-    held_out = held_out_lines(record, verdict.row) if record else []
-    if verdict.name == "recommended":
-        click.echo(f"controller to use: {describe_pick(verdict)}", err=True)
+    held_out = held_out_lines(record, first.row) if record else []
+    if first.name == "recommended":
+        click.echo(f"controller to use: {describe_pick(first)}", err=True)
         for line in held_out:
             click.echo(line, err=True)
         click.echo(f"its gains: analytic export {run.directory}", err=True)
         return
-    if verdict.name == "closest":
+    if first.name == "closest":
         click.echo("controller to use: none, no member beats the default gains", err=True)
-        click.echo(f"closest to them: {describe_pick(verdict)}", err=True)
+        click.echo(f"closest to them: {describe_pick(first)}", err=True)
     else:  # the run has no baseline.json
         click.echo("controller to use: unknown, the default gains were not scored", err=True)
-        click.echo(f"the knee: {describe_pick(verdict)}", err=True)
+        click.echo(f"the knee: {describe_pick(first)}", err=True)
     for line in held_out:
         click.echo(line, err=True)
     click.echo(f"what to do: {run.directory}/{REPORT_MD}", err=True)

@@ -144,16 +144,16 @@ def picks(front: Sequence[FrontMember], baseline: Baseline | None = None) -> lis
     if not front:
         return []
     rows = _measured(front)
-    verdict = []
+    first = []
     if baseline is not None:
         recommended = recommended_index(front, baseline)
-        verdict = [
+        first = [
             pick_at(front, "closest", closest_index(front, baseline))
             if recommended is None
             else pick_at(front, "recommended", recommended)
         ]
     return [
-        *verdict,
+        *first,
         pick_at(front, "knee", knee_index(front)),
         pick_at(front, "accurate", rows[0]),  # sorted by f_acc, then f_t
         pick_at(front, "smooth", min(rows, key=lambda i: (front[i].f_t, i))),

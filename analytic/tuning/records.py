@@ -514,7 +514,7 @@ class RunRecord:
 
     @property
     def stopped(self) -> str | None:
-        """Why the run stopped, or None if it has not: the termination's verdict on the
+        """Why the run stopped, or None if it has not: the termination's reason, from the
         history, which is how the run itself decided."""
         if not self.history:
             return None

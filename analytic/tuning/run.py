@@ -916,7 +916,8 @@ class TuningRun:
         return found, self.config.limits.constraints(measured)
 
     def _generation_done(self, started: float, evaluator: Evaluator) -> None:
-        """History row, front, its logs (pruned, or fetched), termination verdict and checkpoint."""
+        """History row, front, its logs (pruned, or fetched), whether it stops (the termination)
+        and checkpoint."""
         state = self.state
         front = state.evolution.front()
         state.wall_seconds = time.monotonic() - started
@@ -969,7 +970,7 @@ class TuningRun:
         self._records_due = time.monotonic() + RECORD_SECONDS
 
     def _stops(self) -> str | None:
-        """Why the run stops now (the termination's verdict on its history), or None."""
+        """Why the run stops now (the termination's reason, from its history), or None."""
         hypervolumes = [row.hypervolume for row in self.state.history]
         return self.config.termination.reason(hypervolumes, self.state.evolution.evaluations)
 

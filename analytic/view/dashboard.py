@@ -73,8 +73,7 @@ from gainfarm.analytic.view.members import (
     table,
 )
 from gainfarm.analytic.view.progress import duration_text, left_text
-from gainfarm.analytic.view.reports import run_title
-from gainfarm.analytic.view.reports import verdict_text as recommendation_text
+from gainfarm.analytic.view.reports import recommendation_text, run_title
 from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.cli.words import counted
 from gainfarm.edges.files import lock_held

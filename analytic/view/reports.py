@@ -169,37 +169,37 @@ def _scores(objectives: tuple[float, float]) -> str:
     return f"{objectives[0] * 1000:.3f} mm, f_t {objectives[1]:.4g} (N·m)²"
 
 
-def verdict_text(picks: Sequence[Pick], baseline: Baseline | None) -> str:
+def recommendation_text(picks: Sequence[Pick], baseline: Baseline | None) -> str:
     """The report's first line: which member to use and why, or that none is recommended, what
     to do instead and which member comes closest (`picks`: `analytic.tuning.picks.picks` given
     `baseline`)."""
-    verdict = picks[0]
-    member = verdict.member
-    if verdict.name == "recommended" and baseline is not None and baseline.diverged:
+    first = picks[0]
+    member = first.member
+    if first.name == "recommended" and baseline is not None and baseline.diverged:
         return (
-            f"**Use front.csv row {verdict.row}** ({_scores(member.objectives)}): the default "
+            f"**Use front.csv row {first.row}** ({_scores(member.objectives)}): the default "
             "gains diverged on the run's trajectories, so every member that finished its "
             "episodes beats them, and this is the knee among those."
         )
-    if verdict.name == "recommended" and baseline is not None:
+    if first.name == "recommended" and baseline is not None:
         return (
-            f"**Use front.csv row {verdict.row}** ({_scores(member.objectives)}): it dominates "
+            f"**Use front.csv row {first.row}** ({_scores(member.objectives)}): it dominates "
             f"the default gains ({_scores(baseline.objectives)}) on the run's trajectories, as "
             "accurate and as smooth and better in one, and is the knee among the members that do."
         )
-    if verdict.name == "closest" and baseline is not None:
+    if first.name == "closest" and baseline is not None:
         return (
             "**No member of the front dominates the default gains** "
             f"({_scores(baseline.objectives)}) on the run's trajectories, so none is "
             "recommended: keep the default gains, or run longer (more evaluations, a larger "
-            f"population). Closest to dominating them: row {verdict.row} "
+            f"population). Closest to dominating them: row {first.row} "
             f"({_scores(member.objectives)}), whose worse objective is "
             f"{10 ** shortfall(member, baseline):#.3g} times the defaults' (the least of any "
             "member)."
         )
     return (
         "**The default gains were not scored for this run** (no baseline.json), so no member is "
-        f"known to beat them and none is recommended; the knee of the front is row {verdict.row}."
+        f"known to beat them and none is recommended; the knee of the front is row {first.row}."
     )
 
 
@@ -325,8 +325,8 @@ def report_markdown(
 ) -> str:
     """The text of report.md (see `write_report`)."""
     lines = [f"# {title}", ""]
-    if picks:  # first the verdict: what to use, or that nothing here beats the defaults
-        lines += [verdict_text(picks, baseline), ""]
+    if picks:  # first the recommendation: what to use, or that nothing here beats the defaults
+        lines += [recommendation_text(picks, baseline), ""]
         lines += controllers_section(picks, baseline, run_dir, front)
     lines += ["## Configuration", ""]
     lines += [f"- {line}" for line in config_lines] or ["- (none given)"]
@@ -401,12 +401,12 @@ def write_report(
     run_dir: str = "RUN",
     validation: ValidationRecord | None = None,
 ) -> None:
-    """A short report.md at `path`: first the verdict (the recommended member, or that none
+    """A short report.md at `path`: first the recommendation (the recommended member, or that none
     dominates the default gains), then the controller to use (`picks`, computed beside the
     default gains' `baseline`; `run_dir` for the export command it shows), configuration,
     summary, the front as a table (members with identical scores on one line), the figures.
 
-    `converged` is the caller's one-line verdict on why the run stopped (or that it has not),
+    `converged` is the caller's one line on why the run stopped (or that it has not),
     e.g. "converged after 240 evaluations (hypervolume gain < 0.1% over 3 generations)". The
     figures and CSVs are linked by their standard names relative to the report, so write them
     into the same directory. The table is rounded for reading; front.csv holds the exact values.

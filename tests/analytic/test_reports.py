@@ -14,8 +14,8 @@ from gainfarm.analytic.view.reports import (
     controllers_section,
     front_table_row,
     plant_text,
+    recommendation_text,
     run_title,
-    verdict_text,
     write_report,
 )
 from gainfarm.schemas.gains import DEFAULT_GAINS
@@ -253,10 +253,10 @@ def test_the_first_line_when_the_defaults_diverged_or_were_not_scored() -> None:
         FrontMember(kp=KP, kd=KD, f_acc=0.03, f_t=0.6),
     ]
     fell = Baseline(DEFAULT_GAINS, f_acc=10.0, f_t=1e12, diverged=True)
-    assert verdict_text(picks(front, fell), fell).startswith(
+    assert recommendation_text(picks(front, fell), fell).startswith(
         "**Use front.csv row 2** (30.000 mm, f_t 0.6 (N·m)²): the default gains diverged"
     )
-    assert verdict_text(picks(front), None) == (
+    assert recommendation_text(picks(front), None) == (
         "**The default gains were not scored for this run** (no baseline.json), so no member is "
         "known to beat them and none is recommended; the knee of the front is row 2."
     )
