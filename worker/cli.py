@@ -222,6 +222,8 @@ def start(
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
     log = logging.getLogger("gainfarm.worker")
+    from gainfarm.cli.words import counted
+
     models = ModelCache(model_cache)  # one for the process: a reconnect keeps what it fetched
     waiting = False
     while not stop.is_set():
@@ -240,7 +242,12 @@ def start(
             stop.wait(1.0)
             continue
         with cobot:
-            log.info("worker %s serving %s on %d threads", name, ", ".join(connect), cobot.threads)
+            log.info(
+                "worker %s serving %s on %s",
+                name,
+                ", ".join(connect),
+                counted(cobot.threads, "thread"),
+            )
             done = cobot.serve(stop)
         log.info("worker %s stopped after %d jobs", name, done)
 

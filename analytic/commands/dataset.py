@@ -147,6 +147,7 @@ def dataset(
     from gainfarm.analytic.data.dataset import excitations as excitation_trajectories
     from gainfarm.analytic.evaluators.farm import FarmClient
     from gainfarm.analytic.tuning.records import CONFIG_JSON
+    from gainfarm.cli.words import counted
     from gainfarm.schemas.wire import BadMessage
 
     identity = check_farm(connect, local, tls, participant)
@@ -278,9 +279,9 @@ def dataset(
     elif counts["rough"]:
         rerun += f" ({counts['rough']} of them rough, kept)"
     click.echo(
-        f"{out}: {counts['episodes']} episodes{rerun}, {counts['ticks']:,} ticks, "
-        f"{counts['controllers']} controllers from {counts['runs']} runs, "
-        f"{counts['trajectories']} trajectories ({counts['train']} train, "
+        f"{out}: {counted(counts['episodes'], 'episode')}{rerun}, {counts['ticks']:,} ticks, "
+        f"{counted(counts['controllers'], 'controller')} from {counted(counts['runs'], 'run')}, "
+        f"{counted(counts['trajectories'], 'trajectory')} ({counts['train']} train, "
         f"{counts['validation']} validation, {counts['test']} test)"
     )
     if record:

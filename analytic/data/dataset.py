@@ -63,6 +63,7 @@ from gainfarm.analytic.tuning.records import (
     read_run,
 )
 from gainfarm.analytic.tuning.run import RunBusy, TuningRun, upgrade
+from gainfarm.cli.words import counted
 from gainfarm.edges.files import staging_directory, write_atomically
 from gainfarm.plugins import OBJECTIVES, load_plugins
 from gainfarm.schemas.episode import EpisodeSpec
@@ -959,9 +960,11 @@ def card(
         f"on each trajectory it was tuned on{rerun_line}."
     )
     summary = _paragraph(
-        f"{counts['episodes']} episodes, {counts['ticks']:,} ticks at 500 Hz (control period "
-        f"{CONTROL_PERIOD} s), {counts['controllers']} controllers from {counts['runs']} runs, "
-        f"on {counts['trajectories']} trajectories. Dataset version {DATASET_VERSION}.{limits}"
+        f"{counted(counts['episodes'], 'episode')}, {counts['ticks']:,} ticks at 500 Hz (control "
+        f"period {CONTROL_PERIOD} s), {counted(counts['controllers'], 'controller')} from "
+        f"{counted(counts['runs'], 'run')}, on "
+        f"{counted(counts['trajectories'], 'trajectory')}. Dataset version "
+        f"{DATASET_VERSION}.{limits}"
     )
     on_variants = counts.get("on_variants", 0)
     variant_text = (

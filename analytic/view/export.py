@@ -38,6 +38,7 @@ from gainfarm.analytic.tuning.records import (
     read_identity,
     sorted_front,
 )
+from gainfarm.cli.words import counted
 from gainfarm.schemas.controller import Assumptions, Controller, HeldOut, Member, Source
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.limits import MEASURED
@@ -102,7 +103,8 @@ def pick(front: Sequence[FrontMember], which: str, baseline: Baseline | None = N
         raise BadMember(f"expected recommended, {others}, got {which!r}") from None
     if not 1 <= row <= len(front):
         raise BadMember(
-            f"row {row} is out of range: front.csv has {len(front)} members (1-{len(front)})"
+            f"row {row} is out of range: front.csv has {counted(len(front), 'member')} "
+            f"(1-{len(front)})"
         )
     return pick_at(front, "row", row - 1)
 

@@ -24,6 +24,7 @@ from gainfarm.analytic.view.members import (
     slots,
     table,
 )
+from gainfarm.cli.words import counted
 from gainfarm.schemas.mcap_episode import read_episode
 from tests.helpers import analytic
 
@@ -91,7 +92,8 @@ def test_a_members_files_are_the_export_commands_bytes(run_dir: Path) -> None:
         assert exported.returncode == 0, exported.stderr
         assert base64.b64decode(encoded) == exported.stdout.encode(), name
     assert export_links(run_dir, row + 1) == (
-        f"row {row + 1}: row {row + 1} is out of range: front.csv has {row} members (1-{row})"
+        f"row {row + 1}: row {row + 1} is out of range: front.csv has {counted(row, 'member')} "
+        f"(1-{row})"
     )
 
 
