@@ -224,7 +224,7 @@ def _recommendation(
         )
     else:
         said = recommendation_text(named, baseline).replace("**", "")
-    if check is None and config.check_plants and state != "report written":
+    if check is None and config.check_plants and state.startswith("running"):
         held = (
             f"Held-out check: on {counted(len(config.check_plants), 'plant')}, once the run ends."
         )

@@ -206,7 +206,7 @@ def test_a_damping_bound_keeps_every_front_member_above_it_and_the_report_lists_
     assert all(set(member["measures"]) == set(MEASURED) for member in members)
     report = (run.directory / REPORT_MD).read_text()
     assert "## Damping margin" in report and "a constraint of this run: at least 0" in report
-    for row, member in enumerate(run.front()):
+    for row, member in enumerate(run.front(), start=1):  # as front.csv numbers them
         assert f"| {row} | {member.f_acc * 1e3:.2f} | " in report
         assert f" | {member.measures[-1]:.4f} |" in report
     assert "| damping | at least 0 |" in report

@@ -199,7 +199,7 @@ def test_start_and_resume_commands(tmp_path: Path) -> None:
         cwd=tmp_path,
     )
     assert run.returncode == 0, run.stderr
-    assert "stopped: 2 generations" in run.stderr
+    assert "stopped after 2 generations" in run.stderr
     config = json.loads((tmp_path / "run" / "config.json").read_text())
     assert config["pop"] == 4 and config["generations"] == 2
     again = analytic("resume", "run", cwd=tmp_path)

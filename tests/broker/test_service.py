@@ -438,7 +438,7 @@ def test_a_bad_query_is_refused_with_a_reason_and_the_broker_serves_on(
         ok, reason = query(session, key, payload)
     assert not ok
     assert reason.decode() in caplog.text and "\n" not in reason.decode()
-    words = ("JSON", "protocol", "Field", "limit", "empty")
+    words = ("JSON", "protocol", "missing", "unknown", "limit", "empty")
     assert any(word in reason.decode() for word in words), reason
     assert status(session).rejected == 1
     _s = open_study(session, broker, "s")

@@ -91,4 +91,4 @@ def test_a_command_started_deaf_to_ctrl_c_stays_so(tmp_path: Path) -> None:
     _, err = running.communicate(timeout=120)
     assert running.returncode == 0, err
     lines = err.splitlines()
-    assert lines[lines.index("stopped: 3 generations") + 1].startswith("front, history"), err
+    assert lines[lines.index("stopped after 3 generations") + 1].startswith("front, history"), err

@@ -298,7 +298,7 @@ def test_a_study_across_hosts_finds_the_front_a_local_farm_finds(
     out = tmp_path / "run"
     study = lan.start_study(out)
     assert study.wait(120) == 0, lan.tail("analytic")
-    assert "stopped: 2 generations" in (tmp_path / "analytic.log").read_text()
+    assert "stopped after 2 generations" in (tmp_path / "analytic.log").read_text()
     check_run(out, local_front)
     # What the broker says, asked by the operator's real command from another host.
     asked = lan.run(
