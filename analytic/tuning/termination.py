@@ -66,8 +66,10 @@ def expected_generations(termination: Termination, hypervolumes: list[float]) ->
     """The generation at which `termination`'s convergence rule is expected to stop a run whose
     generations so far had `hypervolumes`; None for a run with a budget (whose end is known),
     too few generations, no growth to fit, or a fit that does not converge."""
+    import warnings
+
     import numpy as np
-    from scipy.optimize import curve_fit
+    from scipy.optimize import OptimizeWarning, curve_fit
 
     if termination.generations is not None or termination.evaluations is not None:
         return None
@@ -83,14 +85,18 @@ def expected_generations(termination: Termination, hypervolumes: list[float]) ->
 
     rise = max(h[-1] - h[0], 1e-12)
     try:
-        (top, gap, rate), _ = curve_fit(
-            course,
-            g,
-            h,
-            p0=(h[-1] + 0.1 * rise, rise, 0.1),
-            bounds=((h[-1], 0.0, 1e-4), (np.inf, np.inf, 10.0)),
-            maxfev=2000,
-        )
+        # A course with flat stretches leaves the fit's covariance unknown, which SciPy warns of
+        # on stderr (through a run's live line); only the fitted values are used here.
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", OptimizeWarning)
+            (top, gap, rate), _ = curve_fit(
+                course,
+                g,
+                h,
+                p0=(h[-1] + 0.1 * rise, rise, 0.1),
+                bounds=((h[-1], 0.0, 1e-4), (np.inf, np.inf, 10.0)),
+                maxfev=2000,
+            )
     except (RuntimeError, ValueError):  # no fit found
         return None
     later = np.arange(len(h) + 1, len(h) + ESTIMATE_HORIZON + 1, dtype=float)
