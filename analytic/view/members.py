@@ -209,7 +209,10 @@ def episode(
         feedforward=config.feedforward,
         objectives=config.objectives,
     )
-    outcome = simulate(spec, lambda _digest: _feedforward(directory))
+    try:
+        outcome = simulate(spec, lambda _digest: _feedforward(directory))
+    except (OSError, ValueError) as error:  # the run's feed-forward model, unreadable
+        return None, f"no log in {EPISODES}/, and its run's {FEEDFORWARD} cannot be read: {error}"
     if not outcome.content:
         return None, f"no log in {EPISODES}/, and it cannot be simulated here: {outcome.reason}"
     why = "simulated again here (episodes are deterministic): the run keeps no log of it"
