@@ -17,7 +17,8 @@ from gainfarm.analytic.tuning.termination import (
     Termination,
 )
 from gainfarm.cli.words import counted
-from gainfarm.schemas.episode import DEFAULT_OBJECTIVES
+from gainfarm.schemas.episode import DEFAULT_OBJECTIVES, EpisodeSpec
+from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.limits import Limits
 from gainfarm.schemas.robot import ModelSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
@@ -159,6 +160,17 @@ class RunConfig(BaseModel):
     @property
     def termination(self) -> Termination:
         return Termination(self.generations, self.evaluations, self.tolerance, self.window)
+
+    def episode_spec(self, gains: PDGains, trajectory: int, plant: int = 0) -> EpisodeSpec:
+        """The episode of `gains` on the run's trajectory `trajectory` (0-based) and plant
+        `plant` (0: the nominal, k: the k-th variant): what the run scores a candidate by."""
+        return EpisodeSpec(
+            gains=gains,
+            trajectory=self.trajectories[trajectory],
+            model=self.model if plant == 0 else self.plants[plant - 1],
+            feedforward=self.feedforward,
+            objectives=self.objectives,
+        )
 
     @property
     def budget(self) -> int | None:

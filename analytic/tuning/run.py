@@ -96,7 +96,6 @@ from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import MEASURES, measures
 from gainfarm.schemas.objectives import objectives
-from gainfarm.schemas.trajectory import TrajectorySpec
 
 log = logging.getLogger("gainfarm.analytic")
 
@@ -827,8 +826,7 @@ class TuningRun:
 
     def _episode_spec(self, gains: PDGains, job_id: str) -> EpisodeSpec:
         """The spec of a candidate's episode, from its job id (`_job_ids`)."""
-        trajectory, plant = _slot(job_id)
-        return self._spec(gains, self.config.trajectories[trajectory], plant)
+        return self.config.episode_spec(gains, *slot_of(job_id))
 
     def _row_of(self, front: list[Candidate], row: HistoryRow) -> HistoryRow:
         """`row` with the hypervolume and bests of `front` (after a correction)."""
@@ -862,18 +860,6 @@ class TuningRun:
         config = self.config
         return objectives(
             scores, config.objective_weights, 1 + len(config.plants), config.aggregate
-        )
-
-    def _spec(self, gains: PDGains, trajectory: TrajectorySpec, plant: int = 0) -> EpisodeSpec:
-        """The episode of `gains` on `trajectory` and plant `plant` (0: the nominal, k: the run's
-        k-th variant)."""
-        config = self.config
-        return EpisodeSpec(
-            gains=gains,
-            trajectory=trajectory,
-            model=config.model if plant == 0 else config.plants[plant - 1],
-            feedforward=config.feedforward,
-            objectives=config.objectives,
         )
 
     def _specs(self, jobs: dict[PDGains, list[str]]) -> dict[str, EpisodeSpec]:
@@ -1058,7 +1044,7 @@ def _checked(state: RunState, ran: Ran) -> EpisodeCheck:
     return EpisodeCheck(ran.job_id, ran.worker, "not checked", why)
 
 
-def _slot(job_id: str) -> tuple[int, int]:
+def slot_of(job_id: str) -> tuple[int, int]:
     """(trajectory, plant) of a candidate's job id: `<candidate>-t<n>[-p<k>]`."""
     number, _, plant = job_id.rsplit("-t", 1)[1].partition("-p")
     return int(number), int(plant or 0)

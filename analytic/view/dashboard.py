@@ -61,6 +61,7 @@ from gainfarm.analytic.tuning.records import (
 )
 from gainfarm.analytic.tuning.run import RECORD_SECONDS, RunProgress
 from gainfarm.analytic.tuning.termination import expected_generations
+from gainfarm.analytic.view.figures import log_view, x_view
 from gainfarm.analytic.view.members import (
     COLUMNS,
     EMPTY_SERIES,
@@ -90,8 +91,6 @@ FARM_HISTORY_SECONDS = 600.0  # the throughput and queue the page plots
 DASHBOARD_PORT = 5006  # Bokeh's own default
 TABLE_ROWS_SHOWN = 12  # the member table's rows in view; more scroll
 TABLE_ROW_PX = 25  # a row's height in the table (Bokeh's)
-VIEW_MARGIN = 0.08  # of a front's plot's span, either side (as pareto.png's)
-VIEW_LOG_MARGIN = 0.15  # decades of f_t, at least, either side
 SEARCH_DEPTH = 3  # a watched directory's runs: itself, its runs, an experiment's, ...
 
 
@@ -234,20 +233,13 @@ def _recommendation(
 
 
 def _view(points: Sequence[tuple[float, float]]) -> tuple[float, float, float, float] | None:
-    """The frame of `points` (f_acc in m, f_t), as pareto.png frames its view: f_acc in mm
-    (never below 0), f_t in decades, each widened by a margin."""
+    """The frame of `points` (f_acc in m, f_t) as pareto.png frames its view (figures'
+    x_view and log_view): f_acc in mm, f_t on a log axis."""
     if not points:
         return None
-    xs = [f_acc * 1000.0 for f_acc, _ in points]
-    decades = [math.log10(max(f_t, 1e-12)) for _, f_t in points]
-    x_margin = max(VIEW_MARGIN * (max(xs) - min(xs)), 0.05 * max(xs) or 1.0)
-    y_margin = max(VIEW_MARGIN * (max(decades) - min(decades)), VIEW_LOG_MARGIN)
-    return (
-        max(min(xs) - x_margin, 0.0),
-        max(xs) + x_margin,
-        10 ** (min(decades) - y_margin),
-        10 ** (max(decades) + y_margin),
-    )
+    x = x_view([f_acc * 1000.0 for f_acc, _ in points])
+    y = log_view([max(f_t, 1e-12) for _, f_t in points])
+    return (*x, *y)
 
 
 def _outside(points: Sequence[tuple[float, float]], view: "tuple | None") -> int:

@@ -72,6 +72,19 @@ def _span(low: float, high: float, least: float) -> tuple[float, float]:
     return low - margin, high + margin
 
 
+# The view pareto.png frames around its points, an axis at a time (the dashboard's front is
+# framed so too): f_acc widened by a margin, never below 0 when every point is above it (no error
+# below 0 mm); f_t (> 0, on a log axis) by a margin in decades.
+def x_view(x: Sequence[float]) -> tuple[float, float]:
+    low, high = _span(min(x), max(x), 0.05 * max(x) or 1.0)
+    return max(low, 0.0) if min(x) > 0 else low, high
+
+
+def log_view(y: Sequence[float]) -> tuple[float, float]:
+    low, high = _span(math.log10(min(y)), math.log10(max(y)), LOG_MARGIN)
+    return 10**low, 10**high
+
+
 def pareto_figure(
     front: Sequence[FrontMember],
     evaluated: Sequence[tuple[float, float]] = (),
@@ -191,11 +204,9 @@ def pareto_figure(
     if log_scale:
         axes.set_yscale("log")
     if view_x:
-        low, high = _span(min(view_x), max(view_x), 0.05 * max(view_x) or 1.0)
-        axes.set_xlim(max(low, 0.0) if min(view_x) > 0 else low, high)  # no error below 0 mm
+        axes.set_xlim(*x_view(view_x))
         if log_scale:
-            low, high = _span(math.log10(min(view_y)), math.log10(max(view_y)), LOG_MARGIN)
-            axes.set_ylim(10**low, 10**high)
+            axes.set_ylim(*log_view(view_y))
         else:
             axes.set_ylim(*_span(min(view_y), max(view_y), 0.05 * max(view_y) or 1.0))
         (x_low, x_high), (y_low, y_high) = axes.get_xlim(), axes.get_ylim()

@@ -22,8 +22,8 @@ import numpy as np
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.picks import Pick
 from gainfarm.analytic.tuning.records import EPISODES, FEEDFORWARD, FrontMember, sorted_front
+from gainfarm.analytic.tuning.run import slot_of
 from gainfarm.cli.words import counted
-from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.limits import MEASURED
 from gainfarm.schemas.robot import JOINT_NAMES
@@ -174,9 +174,8 @@ def slots(config: RunConfig) -> list[Slot]:
 
 
 def _slot(log: str) -> Slot:
-    """The slot of a kept log, from its name: episodes/<candidate>-t<n>[-p<k>].mcap."""
-    number, _, plant = Path(log).stem.rsplit("-t", 1)[1].partition("-p")
-    return Slot(int(number), int(plant or 0))
+    """The slot of a kept log, from its name: episodes/<job id>.mcap."""
+    return Slot(*slot_of(Path(log).stem))
 
 
 def episode(
@@ -202,13 +201,7 @@ def episode(
             return None, f"{kept[slot]}: {error}"
     from gainfarm.worker.job import simulate  # MuJoCo loads only to simulate
 
-    spec = EpisodeSpec(
-        gains=member.gains,
-        trajectory=config.trajectories[slot.trajectory],
-        model=config.model if slot.plant == 0 else config.plants[slot.plant - 1],
-        feedforward=config.feedforward,
-        objectives=config.objectives,
-    )
+    spec = config.episode_spec(member.gains, slot.trajectory, slot.plant)
     try:
         outcome = simulate(spec, lambda _digest: _feedforward(directory))
     except (OSError, ValueError) as error:  # the run's feed-forward model, unreadable
