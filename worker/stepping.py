@@ -19,24 +19,25 @@ and the one with encoders, a delay, motor friction and, behind KUKA's FRI interf
 gravity model at the measured angles (`command = P · recent measurements`, then `+ g_robot`).
 """
 
-from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import cache
 
 import mujoco
 import numpy as np
+from mujoco.batch import Batch
 
 from gainfarm.schemas.robot import JOINT_NAMES
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
-from gainfarm.worker.plant import Plant, RobotGravity
+from gainfarm.worker.plant import ArmsGravity, Plant, RobotGravity
 from gainfarm.worker.reference import Reference
 
 CHECK_EVERY = 250  # ticks between divergence checks (0.5 s): cheap, and early enough
 MAX_JOINT_ERROR = 1.0  # rad: a tracking error this large is a lost arm, not a tuning trade-off
 _STATE = mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL  # what a tick senses
-_CTRL = mujoco.mjtState.mjSTATE_CTRL
-_DRIVE = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_QFRC_APPLIED
+_INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION  # a world's whole state, as a batch holds it
+_VELOCITY = mujoco.mjtStage.mjSTAGE_VEL  # a batch's stages computed after a step
 N = len(JOINT_NAMES)
 # Worlds stepped together at most: beyond some 32, their MjData no longer stay in the caches
 # between ticks and each tick costs more than it saves (bench/episode_bench.py, 128: 2x).
@@ -86,13 +87,12 @@ class Stepped:
 
     def kind(self) -> tuple:
         """Episodes of one kind stack: the same array shapes, the same steps in the loop."""
-        nx = self.plant.model.nq + self.plant.model.nv
         if self.exact:
-            return ("exact", nx)
+            return ("exact", _layout(self.plant.model))
         assert self.measure is not None
         return (
             "sensed",
-            nx,
+            _layout(self.plant.model),
             self.measure.shape,
             self.window,
             self.plant.spec.delay,
@@ -102,6 +102,20 @@ class Stepped:
             self.plant.motor_dof_slice.indices(self.plant.model.nv),
             self.gravity is not None,
         )
+
+
+def _layout(model: mujoco.MjModel) -> tuple[int, ...]:
+    """A model's sizes (nq, nv, nbody, ...): worlds of one batch must share their MjData's
+    layout, which these decide. All of them, to be safe: variants of a plant share them all."""
+    return tuple(getattr(model, name) for name in _sizes())
+
+
+@cache
+def _sizes() -> tuple[str, ...]:
+    model = mujoco.MjModel.from_xml_string("<mujoco/>")
+    return tuple(
+        name for name in dir(model) if name.startswith("n") and type(getattr(model, name)) is int
+    )
 
 
 def step_all(
@@ -144,101 +158,59 @@ def _fitting(stack: list[Stepped]) -> int:
     return max(1, STACK_BYTES // (8 * floats))
 
 
-def _loop(stack: list[Stepped]) -> None:
+def _loop(stack: list[Stepped], threads: int = 1) -> None:
     if len(stack) == 1:  # alone: a loop over one episode's rows costs less per tick
         (_exact_alone if stack[0].exact else _sensed_alone)(stack[0])
     else:
-        (_exact_loop if stack[0].exact else _sensed_loop)(stack)
+        (_exact_loop if stack[0].exact else _sensed_loop)(stack, threads)
 
 
 # --- many episodes -----------------------------------------------------------------------------
 # Logs are (ticks, episodes, ...): a tick's rows of every episode are one block, copied at once.
 
 
-@dataclass
-class _World:
-    """One episode's handles for the per-world steps of a tick."""
+class _Worlds:
+    """A stack's plants as one `mujoco.batch.Batch`: each episode a simulation on its own model
+    (set_models: the plant variants of a robust run differ in their numbers, not their layout),
+    its state a row that the loop reads and writes in place, every world stepped by one call a
+    tick without the GIL.
 
-    index: int
-    episode: Stepped
-    model: mujoco.MjModel
-    data: mujoco.MjData
-    sensed: np.ndarray  # its row of the batch's state this tick
-    drive: np.ndarray  # what it applies this tick: ctrl (and qfrc_applied)
-    flange: np.ndarray  # its row of the batch's flange positions this tick
-    site: np.ndarray  # MuJoCo's flange position, live
-    remaining: int  # physics steps after the first in a tick
+    The batch is persistent (an MjData per world) and each call ends by computing the position
+    and velocity stages at the new state: the next step continues from them rather than
+    computing them again (at no cost: bench/episode_bench.py), and a tick's flange position is
+    read from them before the tick steps, as a lone world's loop reads it after its first
+    substep (the same computation on the same state: the same bits)."""
 
+    def __init__(self, stack: list[Stepped], threads: int) -> None:
+        first = stack[0].plant
+        self.batch = Batch(first.model, len(stack), threads, persistent=True)
+        self.batch.set_models([episode.plant.model for episode in stack])
+        for row, episode in zip(self.batch.state, stack, strict=True):
+            mujoco.mj_getState(episode.plant.model, episode.plant.data, row, _INTEGRATION)
+        # What a tick senses and what it applies, each one block of the state rows (MuJoCo's
+        # state order: qpos then qvel, ctrl then qfrc_applied), so a copy or a ufunc does it.
+        self.sensed = _columns(self.batch, "qpos", "qvel")
+        self.drive = _columns(self.batch, "ctrl", "qfrc_applied")
+        self.site = self.batch.bind("site_xpos")[:, first.flange]
+        self.substeps = first.substeps
+        self.batch.forward(stage=_VELOCITY)
 
-def _worlds(
-    stack: list[Stepped], sensed: np.ndarray, drive: np.ndarray, flange: np.ndarray
-) -> list[_World]:
-    worlds = []
-    for index, episode in enumerate(stack):
-        plant = episode.plant
-        world = _World(
-            index,
-            episode,
-            plant.model,
-            plant.data,
-            sensed[index],
-            drive[index],
-            flange[index],
-            plant.data.site_xpos[plant.flange],
-            plant.substeps - 1,
-        )
-        mujoco.mj_getState(world.model, world.data, world.sensed, _STATE)
-        worlds.append(world)
-    return worlds
+    def step(self, live: np.ndarray | None) -> None:
+        """Every live world one control tick on, its kinematics computed at its new state."""
+        self.batch.step(live, self.substeps, _VELOCITY)
 
 
-def _tick_worlds(worlds: list[_World], signature: int) -> Callable[[], None]:
-    """The per-world part of a tick: apply the drive, step (logging the flange where this
-    tick's kinematics left it, before the remaining substeps move it), sense the next state.
-    Each step is one `map` over the worlds (a loop in C: a Python loop over five calls costs
-    them a sixth more); the worlds are independent, so the order of steps across them is free."""
-    models, datas = [w.model for w in worlds], [w.data for w in worlds]
-    drives, flanges = [w.drive for w in worlds], [w.flange for w in worlds]
-    sites, sensed = [w.site for w in worlds], [w.sensed for w in worlds]
-    signatures, states = [signature] * len(worlds), [_STATE] * len(worlds)
-    substeps = [w for w in worlds if w.remaining]
-    rest_models, rest_datas = [w.model for w in substeps], [w.data for w in substeps]
-    remaining = [w.remaining for w in substeps]
-    apply, step, sense, copy = mujoco.mj_setState, mujoco.mj_step, mujoco.mj_getState, np.copyto
-
-    def run() -> None:
-        deque(map(apply, models, datas, drives, signatures), 0)
-        deque(map(step, models, datas), 0)
-        deque(map(copy, flanges, sites), 0)
-        deque(map(step, rest_models, rest_datas, remaining), 0)
-        deque(map(sense, models, datas, sensed, states), 0)
-
-    return run
+def _columns(batch: Batch, first: str, last: str) -> np.ndarray:
+    """The (nsim, n) view of the state rows from field `first` through field `last`."""
+    start, end = batch.bind(first), batch.bind(last)
+    row = batch.state.ctypes.data
+    begin = (start.ctypes.data - row) // batch.state.itemsize
+    stop = (end.ctypes.data - row) // batch.state.itemsize + end[0].size
+    assert stop - begin == start[0].size + end[0].size, f"{first} and {last} are not adjacent"
+    return batch.state[:, begin:stop]
 
 
-def _gravity_worlds(
-    worlds: list[_World], angles: np.ndarray, added: np.ndarray
-) -> Callable[[], None]:
-    """The robot's gravity model at each world's measured angles (`angles`, rad, by world), into
-    its row of `added`: as `_tick_worlds`, one `map` over the worlds a call."""
-    models = [w.episode.gravity.model for w in worlds]  # type: ignore[union-attr]
-    datas = [w.episode.gravity.data for w in worlds]  # type: ignore[union-attr]
-    qposes = [data.qpos for data in datas]
-    rows, into = [angles[w.index] for w in worlds], [added[w.index] for w in worlds]
-    flags = [0] * len(worlds)
-    kinematics, centres, rne = mujoco.mj_kinematics, mujoco.mj_comPos, mujoco.mj_rne
-    copy = np.copyto
-
-    def run() -> None:
-        deque(map(copy, qposes, rows), 0)
-        deque(map(kinematics, models, datas), 0)
-        deque(map(centres, models, datas), 0)
-        deque(map(rne, models, datas, flags, into), 0)
-
-    return run
-
-
-def _exact_loop(stack: list[Stepped]) -> None:
+def _exact_loop(stack: list[Stepped], threads: int) -> None:
     """Exact sensors, no delay, no friction: ctrl = reference term − G · (qpos, qvel).
 
     MuJoCo clamps each command to the motor's ctrlrange when applying it; the log keeps it
@@ -250,28 +222,26 @@ def _exact_loop(stack: list[Stepped]) -> None:
     for index, episode in enumerate(stack):
         term[: episode.ticks, index] = episode.term
     states, commands, flanges = (np.empty((ticks, count, width)) for width in (nx, N, 3))
-    sensed, flange = np.empty((count, nx)), np.empty((count, 3))
-    command = np.empty((count, N))  # this tick's: the drive of every world
     feedback = np.empty((count, N, 1))
-    worlds = _worlds(stack, sensed, command, flange)
+    worlds = _Worlds(stack, threads)
+    sensed, command, site = worlds.sensed, worlds.drive[:, :N], worlds.site
+    columns, fed_back = states[:, :, :, None], feedback[:, :, 0]
     matmul, subtract, copy = np.matmul, np.subtract, np.copyto
-    column, fed_back = sensed[:, :, None], feedback[:, :, 0]
     with np.errstate(all="ignore"):  # a diverging world computes on until its block ends
-        for start, stop, live in _segments(worlds, states):
-            tick = _tick_worlds(live, _CTRL)
+        for start, stop, live in _segments(stack, states):
             for k in range(start, stop):
-                matmul(gains, column, out=feedback)
-                subtract(term[k], fed_back, out=command)
                 copy(states[k], sensed)
+                matmul(gains, columns[k], out=feedback)  # a contiguous copy: BLAS, as alone
+                subtract(term[k], fed_back, out=command)
                 copy(commands[k], command)
-                tick()
-                copy(flanges[k], flange)
+                copy(flanges[k], site)
+                worlds.step(live)
     for index, episode in enumerate(stack):
         episode.state, episode.command = states[:, index], commands[:, index]
         episode.flange = flanges[:, index]
 
 
-def _sensed_loop(stack: list[Stepped]) -> None:
+def _sensed_loop(stack: list[Stepped], threads: int) -> None:
     """Sensors, a delay and friction.
 
     Each row (qpos, qvel, encoder noise, feed-forward) is known but for its state before the
@@ -283,8 +253,7 @@ def _sensed_loop(stack: list[Stepped]) -> None:
     from this tick's velocities."""
     first = stack[0]
     count, ticks = len(stack), max(episode.ticks for episode in stack)
-    nx = first.plant.model.nq + first.plant.model.nv
-    nu, nv = first.plant.model.nu, first.plant.model.nv
+    nx, nu = first.plant.model.nq + first.plant.model.nv, first.plant.model.nu
     assert first.measure is not None
     width, window, delay = len(first.measure), first.window, first.plant.spec.delay
     measure = np.stack([episode.measure for episode in stack])  # (B, width, nx + 14)
@@ -301,18 +270,17 @@ def _sensed_loop(stack: list[Stepped]) -> None:
         strides=(width * item, measured.strides[0], item, item),
     )
     commands, flanges = np.empty((ticks, count, N)), np.empty((ticks, count, 3))
+    worlds = _Worlds(stack, threads)
+    sensed, site = worlds.sensed, worlds.site
+    applied = worlds.drive[:, :nu]
     friction = first.opposing is not None
     opposing = np.stack([episode.opposing for episode in stack]) if friction else None
-    sensed, flange = np.empty((count, nx)), np.empty((count, 3))
-    drive = np.zeros((count, nu + (nv if friction else 0)))
-    applied = drive[:, :nu]
-    motor_force = drive[:, nu:][:, first.plant.motor_dof_slice] if friction else None
-    worlds = _worlds(stack, sensed, drive, flange)
+    motor_force = worlds.drive[:, nu:][:, first.plant.motor_dof_slice]
     fri = first.gravity is not None
     if fri:  # the robot adds its gravity model at the measured angles to the command, clamped
         units = np.array([[episode.unit] for episode in stack])
         limits = np.stack([episode.plant.torque_limits for episode in stack])
-        at, added = np.empty((count, N)), np.empty((count, N))
+        gravity = ArmsGravity([episode.plant.spec for episode in stack])
         compensations = np.empty((ticks, count, N))
     # Views by tick: rows' state columns, rows and measurements as columns, the angles, θ̇ / s.
     states, row_columns = rows[:, :, :nx], rows[:, :, :, None]
@@ -323,29 +291,27 @@ def _sensed_loop(stack: list[Stepped]) -> None:
     clip, add = np.clip, np.add
     quantised = first.quantised
     with np.errstate(all="ignore"):  # a diverging world computes on until its block ends
-        for start, stop, live in _segments(worlds, states):
-            tick = _tick_worlds(live, _DRIVE if friction else _CTRL)
-            gravity = _gravity_worlds(live, at, added) if fri else None
+        for start, stop, live in _segments(stack, states):
             for k in range(start, stop):
                 copy(states[k], sensed)
                 matmul(measure, row_columns[k], out=measurements[k])
                 if quantised:
                     rint(angles[k], out=angles[k])
                 matmul(law, recent[k], out=command_columns[k])
-                if gravity is not None:
-                    multiply(angles[k], units, out=at)
-                    gravity()
-                    copy(compensations[k], added)
+                if fri:
+                    multiply(angles[k], units, out=gravity.angles)
+                    gravity.compute()
+                    copy(compensations[k], gravity.torque)
                     clip(commands[k - delay if k > delay else 0], -limits, limits, out=applied)
-                    add(applied, added, out=applied)
+                    add(applied, gravity.torque, out=applied)
                 else:
                     copy(applied, commands[k - delay if k > delay else 0])
                 if friction:
                     rate = rates[k]
                     tanh(rate, out=rate)
                     multiply(rate, opposing, out=motor_force)
-                tick()
-                copy(flanges[k], flange)
+                copy(flanges[k], site)
+                worlds.step(live)
     for index, episode in enumerate(stack):
         episode.state = states[:, index]
         episode.command, episode.flange = commands[:, index], flanges[:, index]
@@ -493,22 +459,20 @@ def _ended(episode: Stepped, states: np.ndarray, start: int, stop: int) -> bool:
     return False
 
 
-def _segments(worlds: list[_World], states: np.ndarray) -> Iterator[tuple[int, int, list[_World]]]:
-    """(start, stop, worlds still running) over the ticks, between two divergence checks: every
-    CHECK_EVERY ticks, and where an episode ends. After each, an episode that diverged in it or
-    reached its end leaves the loop with its ticks run and why it stopped."""
-    live = list(worlds)
+def _segments(
+    stack: list[Stepped], states: np.ndarray
+) -> Iterator[tuple[int, int, np.ndarray | None]]:
+    """(start, stop, the worlds still running) over the ticks, between two divergence checks:
+    every CHECK_EVERY ticks, and where an episode ends. The worlds are the batch's ids (None:
+    all of them). After each, an episode that diverged in it or reached its end leaves the loop
+    with its ticks run and why it stopped."""
+    live = list(range(len(stack)))
     start = 0
     while live:
-        stop = min([start - start % CHECK_EVERY + CHECK_EVERY] + [w.episode.ticks for w in live])
-        yield start, stop, live
-        still = []
-        for world in live:
-            episode = world.episode
-            block = start - start % CHECK_EVERY
-            if not _ended(episode, states[:, world.index], block, stop):
-                still.append(world)
-        live = still
+        stop = min([start - start % CHECK_EVERY + CHECK_EVERY] + [stack[i].ticks for i in live])
+        yield start, stop, None if len(live) == len(stack) else np.array(live, np.int32)
+        block = start - start % CHECK_EVERY
+        live = [i for i in live if not _ended(stack[i], states[:, i], block, stop)]
         start = stop
 
 
