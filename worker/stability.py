@@ -20,6 +20,7 @@ construction), and a z of 0 (a register's mode, a deadbeat one) is ζ = 1.
 """
 
 import threading
+from dataclasses import dataclass
 from functools import lru_cache
 
 import mujoco
@@ -57,11 +58,26 @@ def least_damping(
     ticks = np.unique((spans * (len(reference.t) - 1)).round().astype(int))
     least = 1.0
     for tick in ticks:
-        matrix = loop.at(*operating_point(plant, reference, tick))
+        pose = (reference.q[tick], reference.qd[tick], reference.qdd[tick])
+        matrix = loop.closed(_linearised(spec.model, *(part.tobytes() for part in pose)))
         if not np.isfinite(matrix).all():  # gains beyond what the physics can differentiate
             return -1.0
         least = min(least, float(damping_ratios(np.linalg.eigvals(matrix)).min()))
     return round(least, 6) + 0.0  # + 0.0: never −0.0
+
+
+@lru_cache(maxsize=256)
+def _linearised(model: ModelSpec, q: bytes, qd: bytes, qdd: bytes) -> "Linearised":
+    """The plant's part of the loop at the pose whose reference is (q, qd, qdd), as bytes: it
+    does not depend on the gains, so every candidate on a path shares it, and only the PD law
+    is the episode's to add (the differentiation is half the margin's cost, bench/damping.py)."""
+    plant, gravity = _scratch(model, threading.get_ident())
+    state = pose_state(plant, *(np.frombuffer(part) for part in (q, qd, qdd)))
+    linearised = linearise(plant, gravity, *state)
+    for part in (linearised.a, linearised.b, linearised.gravity, linearised.friction):
+        if part is not None:
+            part.flags.writeable = False  # shared by every episode at the pose
+    return linearised
 
 
 @lru_cache(maxsize=32)
@@ -82,11 +98,17 @@ def damping_ratios(z: np.ndarray) -> np.ndarray:
 def operating_point(
     plant: Plant, reference: Reference, tick: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(qpos, qvel, motor torque) of the arm following the reference exactly at `tick`: its link
-    angles, velocities and accelerations, each spring deflected by what its link needs (elastic
-    joints), the motors' torque what the whole arm needs (mj_inverse), their friction included."""
+    """(qpos, qvel, motor torque) of the arm following the reference exactly at `tick`."""
+    return pose_state(plant, reference.q[tick], reference.qd[tick], reference.qdd[tick])
+
+
+def pose_state(
+    plant: Plant, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(qpos, qvel, motor torque) of the arm at link angles, velocities and accelerations (q,
+    qd, qdd), each spring deflected by what its link needs (elastic joints), the motors' torque
+    what the whole arm needs (mj_inverse), their friction included."""
     model, data = plant.model, plant.data
-    q, qd, qdd = reference.q[tick], reference.qd[tick], reference.qdd[tick]
     link_index = plant.link_map.argmax(axis=0)  # the joint each hinge belongs to
     motors = plant.motor_map.sum(axis=0) > 0
     springs = ~motors
@@ -118,7 +140,7 @@ class ClosedLoop:
     ) -> None:
         """`gravity`: the robot's gravity model to differentiate (FRI), if already made."""
         model, spec = plant.model, plant.spec
-        _check_actuators(plant)
+        _checked(spec)
         self.plant, self.spec = plant, spec
         self.gravity = None
         if spec.interface == "fri":
@@ -148,16 +170,11 @@ class ClosedLoop:
         """The closed loop's transition matrix at the state (qpos, qvel), the motors' torque
         `motor_torque` (their command and friction together: the operating point's acceleration
         enters the Jacobians)."""
-        plant, nx, w, d = self.plant, self.nx, self.window, self.delay
-        friction = self.spec.friction
-        motor_velocity = plant.motor_map @ qvel
-        coulomb = np.zeros(N)
-        slope = np.zeros(N)
-        if friction is not None:  # qfrc_applied = −c·tanh(θ̇ / s), from this tick's velocity
-            c, s = np.asarray(friction.coulomb), friction.smoothing
-            coulomb = -c * np.tanh(motor_velocity / s)
-            slope = -c / s / np.cosh(motor_velocity / s) ** 2
-        plant_a, plant_b = self._tick(qpos, qvel, motor_torque - coulomb, coulomb)
+        return self.closed(linearise(self.plant, self.gravity, qpos, qvel, motor_torque))
+
+    def closed(self, plant: "Linearised") -> np.ndarray:
+        """The closed loop's transition matrix, the plant's part of it `plant` (linearise)."""
+        nx, w, d = self.nx, self.window, self.delay
         # The command's dependence on the loop's state z = (x, y_{k−1}..y_{k−w}, c_{k−1}..c_{k−d}).
         command = np.zeros((N, self.size))
         command[:, :nx] = self.law
@@ -167,14 +184,12 @@ class ClosedLoop:
         if d:  # the command of d ticks ago acts now
             start = nx + N * w + N * (d - 1)
             applied[:, start : start + N] = np.eye(N)
-        if self.gravity is not None:  # the robot's gravity model at the measured angles
-            applied[:, :nx] += self._gravity_slope(self.measured[:, : len(qpos)] @ qpos) @ (
-                self.measured
-            )
-        applied[:, :nx] += slope[:, None] * np.hstack([np.zeros((N, len(qpos))), plant.motor_map])
+        if plant.gravity is not None:  # the robot's gravity model at the measured angles
+            applied[:, :nx] += plant.gravity
+        applied[:, :nx] += plant.friction
         loop = np.zeros((self.size, self.size))
-        loop[:nx, :nx] = plant_a
-        loop[:nx] += plant_b @ applied
+        loop[:nx, :nx] = plant.a
+        loop[:nx] += plant.b @ applied
         if w:  # this tick's measured angle joins the window, the others age by one
             loop[nx : nx + N, :nx] = self.measured
             loop[nx + N : nx + N * w, nx : nx + N * (w - 1)] = np.eye(N * (w - 1))
@@ -184,32 +199,77 @@ class ClosedLoop:
             loop[base + N : base + N * d, base : base + N * (d - 1)] = np.eye(N * (d - 1))
         return loop
 
-    def _tick(
-        self, qpos: np.ndarray, qvel: np.ndarray, ctrl: np.ndarray, applied: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """(A, B) of one tick, its substeps composed along the path they take: x' = A x + B u,
-        u the motors' torque (ctrl and a motor's qfrc_applied enter alike: _check_actuators)."""
-        plant = self.plant
-        model, data = plant.model, plant.data
-        mujoco.mj_resetData(model, data)
-        data.qpos[:], data.qvel[:], data.ctrl[:] = qpos, qvel, ctrl
-        data.qfrc_applied[plant.motor_dof_slice] = applied
-        mujoco.mj_forward(model, data)
-        nx, nu = self.nx, model.nu
-        tick_a, tick_b = np.eye(nx), np.zeros((nx, nu))
-        step_a, step_b = np.empty((nx, nx)), np.empty((nx, nu))
-        for _ in range(plant.substeps):
-            mujoco.mjd_transitionFD(model, data, EPSILON, CENTERED, step_a, step_b, None, None)
-            tick_a, tick_b = step_a @ tick_a, step_a @ tick_b + step_b
-            mujoco.mj_step(model, data)
-        return tick_a, tick_b
 
-    def _gravity_slope(self, angles: np.ndarray) -> np.ndarray:
-        """∂(robot's gravity torque)/∂(measured angles) at `angles`, by central differences."""
-        assert self.gravity is not None
-        steps = EPSILON * np.eye(N)
-        torques = self.gravity.at(np.vstack([angles + steps, angles - steps]))
-        return (torques[:N] - torques[N:]).T / (2 * EPSILON)
+@dataclass(frozen=True)
+class Linearised:
+    """A tick of the plant linearised at a pose: x' = a x + b u, u the motors' torque, and the
+    parts of that torque the state moves besides the PD law (each (7, nx), on x): the robot's
+    gravity model at the measured angles (FRI; else None) and the motors' Coulomb friction
+    from this tick's velocity. None of it depends on the gains."""
+
+    a: np.ndarray
+    b: np.ndarray
+    gravity: np.ndarray | None
+    friction: np.ndarray
+
+
+def linearise(
+    plant: Plant,
+    gravity: RobotGravity | None,
+    qpos: np.ndarray,
+    qvel: np.ndarray,
+    motor_torque: np.ndarray,
+) -> Linearised:
+    """The plant's part of the loop at the state (qpos, qvel), the motors' torque `motor_torque`;
+    `gravity` the robot's gravity model (FRI), else None."""
+    friction = plant.spec.friction
+    motor_velocity = plant.motor_map @ qvel
+    coulomb = np.zeros(N)
+    slope = np.zeros(N)
+    if friction is not None:  # qfrc_applied = −c·tanh(θ̇ / s), from this tick's velocity
+        c, s = np.asarray(friction.coulomb), friction.smoothing
+        coulomb = -c * np.tanh(motor_velocity / s)
+        slope = -c / s / np.cosh(motor_velocity / s) ** 2
+    plant_a, plant_b = _tick(plant, qpos, qvel, motor_torque - coulomb, coulomb)
+    measured = np.hstack([plant.feedback_map, np.zeros((N, plant.model.nv))])
+    by_gravity = None
+    if gravity is not None:
+        by_gravity = _gravity_slope(gravity, measured[:, : len(qpos)] @ qpos) @ measured
+    by_friction = slope[:, None] * np.hstack([np.zeros((N, len(qpos))), plant.motor_map])
+    return Linearised(plant_a, plant_b, by_gravity, by_friction)
+
+
+def _tick(
+    plant: Plant, qpos: np.ndarray, qvel: np.ndarray, ctrl: np.ndarray, applied: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of one tick, its substeps composed along the path they take: x' = A x + B u,
+    u the motors' torque (ctrl and a motor's qfrc_applied enter alike: _check_actuators)."""
+    model, data = plant.model, plant.data
+    mujoco.mj_resetData(model, data)
+    data.qpos[:], data.qvel[:], data.ctrl[:] = qpos, qvel, ctrl
+    data.qfrc_applied[plant.motor_dof_slice] = applied
+    mujoco.mj_forward(model, data)
+    nx, nu = 2 * model.nv, model.nu
+    tick_a, tick_b = np.eye(nx), np.zeros((nx, nu))
+    step_a, step_b = np.empty((nx, nx)), np.empty((nx, nu))
+    for _ in range(plant.substeps):
+        mujoco.mjd_transitionFD(model, data, EPSILON, CENTERED, step_a, step_b, None, None)
+        tick_a, tick_b = step_a @ tick_a, step_a @ tick_b + step_b
+        mujoco.mj_step(model, data)
+    return tick_a, tick_b
+
+
+def _gravity_slope(gravity: RobotGravity, angles: np.ndarray) -> np.ndarray:
+    """∂(robot's gravity torque)/∂(measured angles) at `angles`, by central differences."""
+    steps = EPSILON * np.eye(N)
+    torques = gravity.at(np.vstack([angles + steps, angles - steps]))
+    return (torques[:N] - torques[N:]).T / (2 * EPSILON)
+
+
+@lru_cache(maxsize=64)
+def _checked(model: ModelSpec) -> None:
+    """_check_actuators, once per plant (it costs a sixth of a margin)."""
+    _check_actuators(Plant(model))
 
 
 def _check_actuators(plant: Plant) -> None:

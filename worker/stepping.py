@@ -280,6 +280,7 @@ def _sensed_loop(stack: list[Stepped], threads: int) -> None:
     if fri:  # the robot adds its gravity model at the measured angles to the command, clamped
         units = np.array([[episode.unit] for episode in stack])
         limits = np.stack([episode.plant.torque_limits for episode in stack])
+        lowest = -limits
         gravity = ArmsGravity([episode.plant.spec for episode in stack])
         compensations = np.empty((ticks, count, N))
     # Views by tick: rows' state columns, rows and measurements as columns, the angles, θ̇ / s.
@@ -288,7 +289,7 @@ def _sensed_loop(stack: list[Stepped], threads: int) -> None:
     measurements, angles, rates = ahead[:, :, :, None], ahead[:, :, :N], ahead[:, :, first.slip]
     command_columns = commands[:, :, :, None]
     matmul, multiply, rint, tanh, copy = np.matmul, np.multiply, np.rint, np.tanh, np.copyto
-    clip, add = np.clip, np.add
+    cap, floor, add = np.minimum, np.maximum, np.add  # np.clip as two ufuncs, without its wrappers
     quantised = first.quantised
     with np.errstate(all="ignore"):  # a diverging world computes on until its block ends
         for start, stop, live in _segments(stack, states):
@@ -302,7 +303,8 @@ def _sensed_loop(stack: list[Stepped], threads: int) -> None:
                     multiply(angles[k], units, out=gravity.angles)
                     gravity.compute()
                     copy(compensations[k], gravity.torque)
-                    clip(commands[k - delay if k > delay else 0], -limits, limits, out=applied)
+                    cap(commands[k - delay if k > delay else 0], limits, out=applied)
+                    floor(applied, lowest, out=applied)
                     add(applied, gravity.torque, out=applied)
                 else:
                     copy(applied, commands[k - delay if k > delay else 0])
