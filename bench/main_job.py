@@ -2,7 +2,7 @@
 against the same episodes run by a plain multiprocessing.Pool over every core, and against
 Optuna's own parallel loop with the same evaluation. All measured in one run of this script.
 
-    python bench/main_job.py [--evaluations 600] [--pop 30] [--workers N]
+    python bench/main_job.py [--evaluations 600] [--pop 30] [--workers N] [--plants 8]
                              [--baseline-python PATH] [--quick]
 
 Three cases, each a process tree started from here and measured whole (wall time from its start
@@ -19,8 +19,16 @@ once each has been waited for):
   the run's search space (log10 of each gain, analytic.tuning.search_space), the objective being
   the pool's evaluation. Optuna's n_jobs are threads in one process.
 
-Printed: each case's wall time, CPU per evaluation and evaluations/s; the run's throughput over
-the pool's (target >= 1.3x). With --baseline-python PATH, the same run again with that
+- robust run: the same `analytic start` with `--plants K` (each candidate also on K plant
+  variants: K + 1 episodes an evaluation), at the same evaluations.
+
+The anchor: one episode's physics stepped in one C call, `mj_step(model, data, nstep)` on the
+run's plant for as many physics steps as an episode of its first path takes, the arm held at the
+path's start by constant motor torques (what holding it at rest takes: mj_inverse); the fastest
+of five, in CPU time. Printed: each case's wall time, CPU per evaluation and evaluations/s; the
+run's throughput over the pool's (target >= 1.3x); the run's CPU per evaluation over its
+episodes' physics (target <= 1.4x); the robust run's wall time over the run's (target <= 3.5x).
+With --baseline-python PATH, the same run again with that
 interpreter (whose `analytic` is an older checkout, e.g. the previous main), back to back, and
 the wall-time ratio now/then (target <= 0.5x). The machine's other load moves every figure:
 compare the ratios of one run, not figures of different runs.
@@ -41,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 import click
+import mujoco
 from common import SPAWN, print_table
 
 from gainfarm.analytic.tuning.config import RunConfig
@@ -50,9 +59,13 @@ from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.objectives import objectives
 from gainfarm.worker.job import simulate
+from gainfarm.worker.plant import Plant
+from gainfarm.worker.reference import reference_for
 
 CORES = os.cpu_count() or 1
 RUN_TARGET = 1.3  # the run's throughput over the pool's, at least
+PHYSICS_TARGET = 1.4  # the run's CPU per evaluation over its episodes' physics, at most
+ROBUST_TARGET = 3.5  # the robust run's wall time over the nominal run's, at most
 BASELINE_TARGET = 0.5  # the run's wall time over the previous main's, at most
 
 
@@ -137,6 +150,28 @@ def candidates(out: Path) -> tuple[RunConfig, list[PDGains]]:
     """The run's config and every candidate it evaluated, in the order told."""
     with TuningRun.open(out) as run:
         return run.config, list(run.state.provenance)
+
+
+def physics_seconds(config: RunConfig, repeats: int = 5) -> float:
+    """CPU s of one episode's physics in one C call (the module's docstring), the fastest of
+    `repeats`."""
+    plant = Plant(config.model)
+    trajectory = config.trajectories[0]
+    start = reference_for(trajectory).q[0]
+    fastest = float("inf")
+    for _ in range(repeats):
+        plant.reset(start)
+        mujoco.mj_inverse(plant.model, plant.data)
+        plant.data.ctrl[:] = plant.data.qfrc_inverse[plant.motor_dof_slice]
+        began = time.process_time()
+        mujoco.mj_step(plant.model, plant.data, trajectory.ticks * plant.substeps)
+        fastest = min(fastest, time.process_time() - began)
+    return fastest
+
+
+def episodes_per_evaluation(config: RunConfig) -> int:
+    """A candidate's episodes: each path on the nominal plant and on each variant."""
+    return len(config.trajectories) * (1 + len(config.plants))
 
 
 # --- the same evaluation, without the farm -----------------------------------------------------
@@ -229,6 +264,14 @@ def tree_case(name: str, target: Callable[..., None], *args: object) -> Case:
     type=click.Path(exists=True, dir_okay=False, path_type=Path),
     help="also time the same run with this interpreter (its `analytic` an older checkout)",
 )
+@click.option(
+    "--plants",
+    type=click.IntRange(min=0),
+    default=8,
+    show_default=True,
+    metavar="K",
+    help="also the run with --plants K, at the same evaluations (0: not)",
+)
 @click.option("--quick", is_flag=True, help="a CI-sized run: 60 evaluations, population 10")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
 def main(
@@ -236,6 +279,7 @@ def main(
     pop: int | None,
     workers: int | None,
     baseline_python: Path | None,
+    plants: int,
     quick: bool,
     seed: int,
 ) -> None:
@@ -258,7 +302,19 @@ def main(
         pool = tree_case("pool", pool_tree, config_json, told, CORES)
         say(f"optuna, {budget} trials on {CORES} threads ...")
         study = tree_case("optuna", optuna_tree, config_json, budget, pop, seed, CORES)
+        physics = physics_seconds(config) * episodes_per_evaluation(config)
         cases = [run, pool, study]
+        if plants:
+            say(f"the same run with --plants {plants} ...")
+            robust = ["--plants", str(plants)]
+            cases.append(
+                run_case(
+                    "robust run",
+                    analytic_command(sys.executable),
+                    [*options, *robust],
+                    out / "robust",
+                )
+            )
         if then is not None:
             say(f"the same run with {baseline_python} ...")
             cases.append(run_case("baseline run", then, options, out / "then"))
@@ -282,6 +338,17 @@ def main(
         f"optuna/pool throughput: {study.per_s / pool.per_s:.2f}x; "
         f"CPU per evaluation: {study.cpu_ms / pool.cpu_ms:.2f}x the pool's"
     )
+    print(
+        f"run CPU per evaluation / its episodes' physics (mj_step(nstep), one C call): "
+        f"{run.cpu_s / run.evaluations / physics:.2f}x (target <= {PHYSICS_TARGET}x; "
+        f"{1000 * physics:.1f} ms of physics an evaluation)"
+    )
+    if plants:
+        robust_case = cases[3]
+        print(
+            f"robust/nominal wall time (--plants {plants}, same evaluations): "
+            f"{robust_case.wall_s / run.wall_s:.2f}x (target <= {ROBUST_TARGET}x)"
+        )
     if baseline_python is not None:
         then = cases[-1]
         print(

@@ -113,7 +113,7 @@ class ArmsGravity:
     rigid arm of each, side by side, so that one call each of kinematics, centres of mass and
     Newton-Euler computes them all (some 1 µs an arm, a third of an arm's own calls or of a
     Batch's per-world cost). An arm's arithmetic reads only its own bodies, so each gets the
-    same bits as its RobotGravity (tests/worker/test_plant_effects.py).
+    same bits as its RobotGravity (tests/worker/test_plant.py).
 
     Write each arm's angles into its row of `angles`, `compute()`, read its row of `torque`."""
 

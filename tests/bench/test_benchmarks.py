@@ -52,12 +52,15 @@ def test_episode_bench_prints_its_ratios_to_the_physics() -> None:
 @pytest.mark.slow
 def test_main_job_prints_the_runs_throughput_against_the_pools() -> None:
     # Smaller than --quick: a run of two generations is all this test needs to see.
-    done = bench("main_job.py", "--evaluations", "12", "--pop", "6", timeout=300)
+    options = ["--evaluations", "12", "--pop", "6", "--plants", "1"]
+    done = bench("main_job.py", *options, timeout=300)
     figures(rf"run/pool throughput: {NUMBER}x", done.stdout)
     figures(rf"optuna/pool throughput: {NUMBER}x", done.stdout)
-    table = r"^\| (run|pool|optuna) \| (\d+) \| (\S+) \| (\S+) \| (\S+) \|$"
+    figures(rf"its episodes' physics \(mj_step\(nstep\), one C call\): {NUMBER}x", done.stdout)
+    figures(rf"robust/nominal wall time \(--plants 1, same evaluations\): {NUMBER}x", done.stdout)
+    table = r"^\| (run|pool|optuna|robust run) \| (\d+) \| (\S+) \| (\S+) \| (\S+) \|$"
     rows = re.findall(table, done.stdout, re.MULTILINE)
-    assert [row[0] for row in rows] == ["run", "pool", "optuna"], done.stdout
+    assert [row[0] for row in rows] == ["run", "pool", "optuna", "robust run"], done.stdout
     for _, evaluations, *measured in rows:
         assert int(evaluations) > 0
         for text in measured:
