@@ -92,26 +92,42 @@ def rotations(q: np.ndarray) -> np.ndarray:
     """(n, len(tree()), 4): each transform's rotation (x y z w, as ROS orders a quaternion) at
     each of the n rows of joint angles `q` (n, 7): the fixed rotation, then the hinge's turn.
 
-    The Hamilton product is written out: scipy's Rotation takes 2 ms to compose a 5 s
-    episode's /tf (251 messages of 9 transforms), a fifth of writing its whole log; this
-    takes 0.25 ms (tested against MuJoCo).
+    The Hamilton product is written out, for all hinges at once: scipy's Rotation takes 2 ms to
+    compose a 5 s episode's /tf (251 messages of 9 transforms), a fifth of writing its whole
+    log; a product per hinge took 0.24 ms, this 0.1 ms (tested against MuJoCo). Each number is
+    the same expression of the same operands as per hinge, so the same bits.
     """
     q = np.asarray(q, dtype=float)
-    transforms = tree()
-    out = np.empty((len(q), len(transforms), 4))
-    for i, transform in enumerate(transforms):
-        w, x, y, z = transform.rotation
-        if transform.joint is None:
-            out[:, i] = (x, y, z, w)
-            continue
-        half = q[:, transform.joint] / 2
-        c, s = np.cos(half), np.sin(half)
-        ax, ay, az = (s * component for component in transform.axis)
-        out[:, i, 0] = w * ax + x * c + y * az - z * ay
-        out[:, i, 1] = w * ay - x * az + y * c + z * ax
-        out[:, i, 2] = w * az + x * ay - y * ax + z * c
-        out[:, i, 3] = w * c - x * ax - y * ay - z * az
+    fixed, hinged, joints, axes = _turns()
+    out = np.empty((len(q), len(fixed), 4))
+    out[:, ~hinged] = fixed[~hinged][:, [1, 2, 3, 0]]
+    half = q[:, joints] / 2  # (n, hinges)
+    c, s = np.cos(half), np.sin(half)
+    ax, ay, az = (s * component for component in axes.T)
+    w, x, y, z = fixed[hinged].T
+    out[:, hinged] = np.stack(
+        (
+            w * ax + x * c + y * az - z * ay,
+            w * ay - x * az + y * c + z * ax,
+            w * az + x * ay - y * ax + z * c,
+            w * c - x * ax - y * ay - z * az,
+        ),
+        axis=-1,
+    )
     return out
+
+
+@cache
+def _turns() -> tuple[np.ndarray, np.ndarray, list[int], np.ndarray]:
+    """What rotations needs of the tree: each transform's fixed rotation (w x y z), which
+    transforms a hinge turns, and the hinges' joints and axes, in tree order."""
+    transforms = tree()
+    fixed = np.array([transform.rotation for transform in transforms])
+    hinged = np.array([transform.joint is not None for transform in transforms])
+    turned = [transform for transform in transforms if transform.joint is not None]
+    joints = [transform.joint for transform in turned]
+    axes = np.array([transform.axis for transform in turned], dtype=float).reshape(-1, 3)
+    return fixed, hinged, joints, axes
 
 
 @cache

@@ -19,17 +19,21 @@ unread: logs written before it existed read as before, the scores never depend o
 reading needs no description.
 
 The records around the messages (Header, Metadata, Chunk, MessageIndex, DataEnd, the summary
-section and the Footer) are written with the mcap library's record classes, with the contents and
-CRCs its Writer would give them, so that any MCAP reader and any ROS 2 decoder reads these files.
+section and the Footer) are written with the mcap library's record classes, with the contents its
+Writer would give them, so that any MCAP reader and any ROS 2 decoder reads these files. One
+deliberate difference: a chunk's uncompressed_crc is 0, which the MCAP spec defines as "not
+computed" (readers skip it, validate_crcs or not); its zstd frame carries zstd's own checksum of
+the same bytes instead, which every zstd decoder verifies (see CHUNK_CRC).
 """
 
 import io
 import json
 import struct
+import threading
 import zlib
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -75,16 +79,29 @@ from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS
 from gainfarm.schemas.wire import MAX_EPISODE_BYTES
 
 NANOSECONDS = 1_000_000_000
-CHUNK_SIZE = 4 * 1024 * 1024  # uncompressed bytes of messages per chunk, at most (~12 s of ticks)
+CHUNK_SIZE = 4 * 1024 * 1024  # uncompressed bytes of messages per chunk, at most (~7.5 s of ticks)
 
 # Chunks are compressed with zstd at a negative ("fast") level: compression is most of the cost of
-# writing, and the payloads are mostly float64 noise that stronger settings barely shrink. Measured
-# on the 1.76 MB chunk of a 5 s episode: level 3 (the mcap Writer's default) 5.2 ms -> 844 kB,
-# level 1 2.7 ms -> 833 kB, -1 1.7 ms -> 861 kB, -4 1.1 ms -> 894 kB, -10 0.84 ms -> 916 kB, -12
-# 0.75 ms -> 1078 kB (the ratio collapses below -10); lz4 1.4 ms -> 942 kB and is not a declared
-# dependency. Negative levels also decompress in 0.3 ms instead of 0.9 ms. -10 is the fastest
-# setting that still compresses well; it costs 10% more disk than level 1.
+# writing, and the payloads are mostly float64 noise that no setting shrinks (zstd keeps the
+# numbers as they are and removes the template's bytes around them). Measured on the 2.8 MB chunk
+# of a 5 s episode's ticks (with the frame checksum): level 3 (the mcap Writer's default) 8.4 ms
+# -> 1058 kB, level 1 4.5 ms -> 1081 kB, -1 3.6 ms -> 1119 kB, -4 2.7 ms -> 1173 kB, -10 2.3 ms
+# -> 1244 kB, -12 2.2 ms -> 1454 kB (the ratio collapses below -10); zstd's other parameters
+# (window, hash table, minimum match) trade size for time along the same line, and lz4 is not a
+# declared dependency. -10 is the fastest setting that still compresses well; it costs 15% more
+# disk than level 1. No worker threads: the cores step episodes. It is most of a log's cost (~3
+# ms of CPU for a 5 s episode, against ~40 ms for the episode in a batch: bench/encode_bench.py).
 ZSTD_LEVEL = -10
+
+# A chunk's records are checked by the zstd frame's checksum (XXH64 of the uncompressed bytes,
+# verified by every zstd decoder: this reader, the mcap library's, any other tool's), not by the
+# Chunk record's CRC-32, which is written as 0 ("not computed", MCAP spec, Chunk; readers skip it,
+# validating CRCs or not). Either catches a number corrupted on disk, which nothing else would
+# (zstd stores the numbers as raw literals, and any number fits the template); the checksum costs
+# 0.2 ms per 5 s episode where zlib.crc32 cost 0.65 ms, a fifth of writing the log. In transit the
+# farm checks a log by its SHA-256 digest anyway (worker.job.Outcome.digest). Logs written with a
+# CRC (before this) are still checked by it.
+CHUNK_CRC = 0
 
 # The Message record's header: opcode, record length, then these (MCAP spec, "Message").
 _MESSAGE_HEADER = [
@@ -326,20 +343,20 @@ def episode_bytes(log: EpisodeLog, robot: RobotDescription) -> bytes:
     out.write(MCAP0_MAGIC)
     Header(profile=_PROFILE, library=_LIBRARY).write(out)
     metadata_index = _write_metadata(out, log.metadata)
-    compressor = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
-    records = _records(log, log_times)  # first: it checks the columns' shapes
+    compressor = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_checksum=True)
+    _check_columns(log)  # first: no byte is written of a malformed log
     chunk_indexes = []
     counts = {}
     if log.ticks:
         # First the description and the transforms, so that a tool reading the file from its
         # start draws the arm before the data plays; the definitions of every channel open it.
-        prefix = _definition_records(schemas, channels)
+        prefix = _definition_records()
         content, indexes = _derived_messages(log, log_times, len(prefix), robot)
         chunk_indexes.append(_write_chunk(out, compressor, prefix + content, indexes))
         counts = {channel.id: log.ticks for channel in channels[: len(CHANNELS)]}
         counts |= {channel_id: len(times) for channel_id, times, _ in indexes}
     for part in _chunk_parts(log.ticks, layout.size):
-        content = records[part].view(np.uint8)
+        content = _records(log, log_times, part).view(np.uint8)
         tick_offsets = layout.size * np.arange(part.stop - part.start, dtype=np.uint64)
         indexes = [
             (channel_id, log_times[part], tick_offsets + layout.record_offset(channel.topic))
@@ -363,7 +380,8 @@ def episode_bytes(log: EpisodeLog, robot: RobotDescription) -> bytes:
     return out.end()
 
 
-def _definitions() -> tuple[list[Schema], list[ChannelRecord]]:
+@cache
+def _definitions() -> tuple[tuple[Schema, ...], tuple[ChannelRecord, ...]]:
     """One Schema per message type; one Channel per entry of CHANNELS, numbered from 1, then
     /tf and /robot_description. Each channel states the QoS a ROS 2 publisher of it would offer
     (the ros2 profile's offered_qos_profiles), so that `ros2 bag play` latches the description."""
@@ -388,7 +406,7 @@ def _definitions() -> tuple[list[Schema], list[ChannelRecord]]:
                 schema_id=schemas[message_type].id,
             )
         )
-    return list(schemas.values()), channels
+    return tuple(schemas.values()), tuple(channels)
 
 
 # rmw's durability policies, as rosbag2 (Humble) writes them in offered_qos_profiles.
@@ -406,9 +424,12 @@ def _offered_qos(durability: int) -> str:
     )
 
 
-def _definition_records(schemas: list[Schema], channels: list[ChannelRecord]) -> bytes:
+@cache
+def _definition_records() -> bytes:
     """The Schema and Channel records that open the first chunk, in registration order, as the
-    Writer puts them there: each schema just before the first channel that uses it."""
+    Writer puts them there: each schema just before the first channel that uses it. The same in
+    every log: written once per process."""
+    schemas, channels = _definitions()
     builder = RecordBuilder()
     unwritten = {schema.id: schema for schema in schemas}
     for channel in channels:
@@ -429,21 +450,67 @@ def _metadata_record(metadata: EpisodeMetadata) -> dict[str, str]:
     return {key: json.dumps(value) for key, value in metadata.model_dump(mode="json").items()}
 
 
-def _records(log: EpisodeLog, log_times: np.ndarray) -> np.ndarray:
-    """All ticks' Message records as one (ticks,) structured array: template copies, filled in."""
+def _check_columns(log: EpisodeLog) -> None:
+    """Each column must be one row per tick of the numbers its message field holds."""
+    fields = _tick_layout().dtype
+    for channel in CHANNELS:
+        data = fields[channel.topic]["data"]
+        for field, attribute in channel.fields:
+            shape = (log.ticks, *data[field].shape)
+            if np.shape(getattr(log, attribute)) != shape:
+                raise ValueError(
+                    f"{attribute} is {np.shape(getattr(log, attribute))}, not {shape}: one row "
+                    f"of {channel.topic} {field} per tick"
+                )
+
+
+class _Ticks(threading.local):
+    """Each thread's chunk of template ticks, filled in and compressed log after log (a worker
+    encodes each log on the thread that stepped it). Every log writes all the variable bytes of
+    the ticks it fills, so the template's bytes stay as they are; and a log of the same ticks
+    as the last (each episode of a trajectory, unless one diverged) rewrites only its numbers:
+    the sequence numbers, times and stamps are the last log's. Reused, not made anew: a fresh
+    2.8 MB array of a 5 s episode's ticks, its page faults, the template's copy and the times
+    cost ~0.5 ms more than the numbers alone, a sixth of writing the log."""
+
+    ticks: np.ndarray | None = None  # template ticks, as many as the longest chunk yet
+    times: tuple[int, bytes] | None = None  # (first sequence, log times) the ticks carry
+
+
+_TICKS = _Ticks()
+
+
+def _records(log: EpisodeLog, log_times: np.ndarray, part: slice) -> np.ndarray:
+    """The Message records of the ticks `part` as one structured array: template copies,
+    filled in. (Valid until this thread's next call: they are to be compressed at once.)"""
     layout = _tick_layout()
-    ticks = np.tile(layout.template, log.ticks).view(layout.dtype)
+    count = part.stop - part.start
+    if _TICKS.ticks is None or len(_TICKS.ticks) < count:  # at most a chunk's, per thread
+        _TICKS.ticks = np.tile(layout.template, count).view(layout.dtype)
+        _TICKS.times = None
+    ticks = _TICKS.ticks[:count]
+    times = (part.start, log_times[part].tobytes())
+    if _TICKS.times != times:
+        _TICKS.times = None  # until they are all written
+        _write_times(ticks, log_times[part], part.start)
+        _TICKS.times = times
+    for channel in CHANNELS:
+        data = ticks[channel.topic]["data"]
+        for field, attribute in channel.fields:
+            data[field] = getattr(log, attribute)[part]
+    return ticks
+
+
+def _write_times(ticks: np.ndarray, log_times: np.ndarray, first: int) -> None:
+    """Every channel's sequence numbers (from `first`), log and publish times and stamps."""
     stamps = np.column_stack(divmod(log_times, NANOSECONDS)).astype("<u4")
-    sequences = np.arange(log.ticks, dtype="<u4")
+    sequences = np.arange(first, first + len(ticks), dtype="<u4")
     for channel in CHANNELS:
         records = ticks[channel.topic]
         records["sequence"] = sequences
         records["log_time"] = log_times
         records["publish_time"] = log_times
         records["data"]["stamp"] = stamps
-        for field, attribute in channel.fields:
-            records["data"][field] = getattr(log, attribute)
-    return ticks
 
 
 def _derived_messages(
@@ -451,17 +518,7 @@ def _derived_messages(
 ) -> tuple[bytes, list[tuple[int, np.ndarray, np.ndarray]]]:
     """The /robot_description record (at the first tick) and the /tf records (every TF_EVERY
     ticks and at the last), and each channel's (id, log times, offsets from `offset` on)."""
-    store = _typestore()
-    description = store.types[STRING](data=robot.urdf)
-    builder = RecordBuilder()
-    Message(
-        channel_id=_DESCRIPTION_ID,
-        log_time=int(log_times[0]),
-        data=bytes(store.serialize_cdr(description, STRING)),
-        publish_time=int(log_times[0]),
-        sequence=0,
-    ).write(builder)
-    first = builder.end()
+    first = _description_record(robot.urdf, int(log_times[0]))
     ticks = np.unique(np.append(np.arange(0, log.ticks, TF_EVERY), log.ticks - 1))
     template, dtype = _tf_layout(tuple(robot.frames))
     rotations = np.asarray(robot.rotations(log.q[ticks]))
@@ -487,6 +544,22 @@ def _derived_messages(
     return first + records.tobytes(), indexes
 
 
+@lru_cache(maxsize=4)
+def _description_record(urdf: str, log_time: int) -> bytes:
+    """The /robot_description Message record: the same in every log of a robot (its first tick
+    is at time 0), so serialised once per process, not once per log."""
+    store = _typestore()
+    builder = RecordBuilder()
+    Message(
+        channel_id=_DESCRIPTION_ID,
+        log_time=log_time,
+        data=bytes(store.serialize_cdr(store.types[STRING](data=urdf), STRING)),
+        publish_time=log_time,
+        sequence=0,
+    ).write(builder)
+    return builder.end()
+
+
 def _chunk_parts(ticks: int, tick_size: int) -> Iterator[slice]:
     """Split the ticks into chunks of at most CHUNK_SIZE bytes of messages (at least one tick)."""
     per_chunk = max(1, CHUNK_SIZE // tick_size)
@@ -502,8 +575,7 @@ def _write_chunk(
 ) -> ChunkIndex:
     """Write one Chunk record holding the records `uncompressed`, and its MessageIndex records
     (per channel: its id, and its messages' log times and offsets in the chunk); return its
-    ChunkIndex."""
-    uncompressed = bytes(uncompressed)
+    ChunkIndex. (The records are compressed from where they lie: no copy of them is made.)"""
     start = min(int(times.min()) for _, times, _ in indexes)
     end = max(int(times.max()) for _, times, _ in indexes)
     chunk = Chunk(
@@ -511,8 +583,8 @@ def _write_chunk(
         data=compressor.compress(uncompressed),
         message_end_time=end,
         message_start_time=start,
-        uncompressed_crc=zlib.crc32(uncompressed),
-        uncompressed_size=len(uncompressed),
+        uncompressed_crc=CHUNK_CRC,  # zstd's frame checksum checks them instead
+        uncompressed_size=memoryview(uncompressed).nbytes,
     )
     chunk_offset = out.count
     chunk.write(out)
@@ -552,8 +624,8 @@ def _write_message_index(
 
 def _write_summary(
     out: RecordBuilder,
-    schemas: list[Schema],
-    channels: list[ChannelRecord],
+    schemas: Sequence[Schema],
+    channels: Sequence[ChannelRecord],
     statistics: Statistics,
     chunk_indexes: list[ChunkIndex],
     metadata_indexes: list[MetadataIndex],

@@ -50,6 +50,12 @@ def test_episode_bench_prints_its_ratios_to_the_physics() -> None:
 
 
 @pytest.mark.slow
+def test_encode_bench_prints_the_logs_share_of_its_episode() -> None:
+    done = bench("encode_bench.py", "--quick", timeout=300)
+    assert len(figures(rf"log/episode \([^)]*\): {NUMBER}", done.stdout)) == 2
+
+
+@pytest.mark.slow
 def test_main_job_prints_the_runs_throughput_against_the_pools() -> None:
     # Smaller than --quick: a run of two generations is all this test needs to see.
     options = ["--evaluations", "12", "--pop", "6", "--plants", "1"]

@@ -146,7 +146,7 @@ def written(log: EpisodeLog, compress: Callable[[bytes], bytes], **claims: objec
         return Chunk(**{**fields, **claims})
 
     with pytest.MonkeyPatch.context() as patch:
-        fake = SimpleNamespace(ZstdCompressor=lambda level: Compressor())
+        fake = SimpleNamespace(ZstdCompressor=lambda level, **options: Compressor())
         patch.setattr(mcap_episode, "zstandard", fake)
         patch.setattr(mcap_episode, "Chunk", chunk)
         return episode_bytes(log, description())
@@ -402,6 +402,25 @@ def test_bad_crcs_magics_and_lengths_are_refused_with_their_reason(honest: bytes
     }
     for reason, content in cases.items():
         assert reason in refused(NotAnEpisodeLog, lambda content=content: decode_episode(content))
+
+
+def test_a_corrupted_number_is_refused_by_zstds_checksum(
+    honest: bytes, tracking_log: EpisodeLog
+) -> None:
+    """The chunks state no CRC (0: not computed); a number altered in a chunk's compressed
+    data, where nothing else would notice (the numbers are zstd's raw literals, and any value
+    fits the template), is refused by the zstd frame's checksum, here and by the mcap library's
+    reader."""
+    number = tracking_log.q[len(tracking_log.q) // 2, 3].tobytes()
+    at = honest.index(number)  # stored as it is: a literal
+    assert honest.count(number) == 1 and at > chunk_offsets(honest)[0]
+    content = bytearray(honest)
+    content[at] ^= 0x01
+    reason = refused(NotAnEpisodeLog, lambda: decode_episode(bytes(content)))
+    assert "checksum" in reason
+    with pytest.raises(zstandard.ZstdError, match="checksum"):
+        for _ in make_reader(io.BytesIO(bytes(content)), validate_crcs=True).iter_messages():
+            pass
 
 
 def test_a_chunk_claiming_2_40_bytes_is_refused_before_decompressing(

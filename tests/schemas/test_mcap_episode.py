@@ -2,6 +2,7 @@
 arm's description and transforms for ROS 2 tools, which the writer is given."""
 
 import io
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import mujoco
@@ -9,7 +10,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import yaml
+import zstandard
+from mcap.data_stream import ReadDataStream
 from mcap.reader import make_reader
+from mcap.records import Chunk
 from mcap.writer import Writer
 from mcap_ros2.reader import read_ros2_messages
 from scipy.spatial.transform import Rotation
@@ -102,6 +106,42 @@ def test_file_is_chunked_compressed_and_carries_its_metadata(tracking_log, tmp_p
     for key in ("spec", "diverged", "versions", "ticks_planned", "torque_limits"):
         assert key in record.metadata
     assert '"mujoco"' in record.metadata["versions"]
+
+
+def test_chunks_are_checked_by_zstds_checksum_and_read_with_crcs_validated(tracking_log):
+    """A chunk states no CRC-32 (0: "not computed", which readers skip); its zstd frame carries
+    a checksum of the same records instead. The mcap library's reader, validating CRCs, and the
+    ROS 2 decoder read every message."""
+    content = episode_bytes(tracking_log, description())
+    reader = make_reader(io.BytesIO(content), validate_crcs=True)
+    chunk_indexes = reader.get_summary().chunk_indexes
+    for index in chunk_indexes:
+        stream = io.BytesIO(content[index.chunk_start_offset + 1 + 8 :])
+        chunk = Chunk.read(ReadDataStream(stream))
+        assert chunk.uncompressed_crc == 0
+        assert zstandard.get_frame_parameters(chunk.data).has_checksum
+    messages = sum(1 for _ in reader.iter_messages())
+    tf = len(tf_ticks(tracking_log.ticks))
+    assert messages == len(CHANNELS) * tracking_log.ticks + tf + 1
+    decoded = list(read_ros2_messages(io.BytesIO(content)))
+    assert len(decoded) == messages
+
+
+def test_logs_encoded_one_after_another_and_on_threads_are_each_their_own(
+    tracking_log, diverged_log
+):
+    """The writer reuses its ticks from log to log, per thread: whatever was encoded before, and
+    on whichever thread, a log's bytes are the same and read back as the log."""
+    first = episode_bytes(tracking_log, description())
+    diverged = episode_bytes(diverged_log, description())
+    assert episode_bytes(tracking_log, description()) == first
+    logs = [tracking_log, diverged_log] * 4
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        made = list(pool.map(lambda log: episode_bytes(log, description()), logs))
+    assert made == [first, diverged] * 4
+    back = decode_episode(diverged)
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(back, name), getattr(diverged_log, name), name)
 
 
 def test_the_robot_description_is_the_arms_urdf_latched(tracking_log, tmp_path):
