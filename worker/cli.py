@@ -245,12 +245,20 @@ def start(
         except ValueError as error:  # the name is checked above: what is left is an endpoint
             raise CliError(f"--connect: {error}") from None
         except ConnectionError as error:
+            cobot = None
+            why = str(error)
+        if cobot is not None and not cobot.broker_serves():
+            # Its router listens a moment before the broker serves on it: a request for work
+            # then would go unanswered, and be asked again only a second later.
+            cobot.close()
+            cobot, why = None, f"no broker serves on {', '.join(connect)} yet"
+        if cobot is None:
             # A farm's workers often start before its broker (a local farm starts them all at
             # once): tried again at once and said only if it lasts.
             pause = retry_pause(tries)
             tries += 1
             if tries == QUIET_TRIES:
-                log.warning("%s; retrying every second", error)
+                log.warning("%s; retrying every second", why)
             stop.wait(pause)
             continue
         tries = 0

@@ -131,6 +131,11 @@ class CobotWorker:
             self.session.close()
             raise
 
+    def broker_serves(self) -> bool:
+        """Whether the farm's broker answers (its status): its router may listen before it
+        serves, and a worker that asked for work then would wait a second to ask again."""
+        return ask(self.session, keys.STATUS, timeout=ANSWER_SECONDS) is not None
+
     def __enter__(self) -> "CobotWorker":
         return self
 
