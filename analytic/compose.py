@@ -175,8 +175,11 @@ def tune_run(
     begun = False
     stage = "evolution"
     try:
-        # A local farm stops while the report is drawn; `stopping` waits for it after.
+        # A local farm stops while the report is drawn; `stopping` waits for it after, and for
+        # the figures, drawn while the held-out check runs.
         with run, contextlib.ExitStack() as stopping:
+            figures = _Figures()
+            stopping.callback(figures.wait)
             if complete(run):
                 return run.state.stopped or ""
             if not run.finished or _needs_evaluator(run):
@@ -191,11 +194,12 @@ def tune_run(
                         run.run(chosen, step)
                         stage = "baseline"
                         run.baseline(chosen)
+                        figures.begin(run)
                         if read_check(run.directory) is None:
                             stage = "check"
                             run_check(run, chosen, on_check)
             stage = "report"
-            _draw(run)
+            figures.finish(run)
             return run.state.stopped or ""
     except BaseException as error:
         if not begun and forget is not None:  # nothing of a new run ran: nothing of it is left
@@ -236,12 +240,40 @@ def _balance_of(config: RunConfig, found: RunConfig, balance: bool) -> RunConfig
     return config.model_copy(update={"objective_weights": found.objective_weights})
 
 
-def _draw(run: TuningRun) -> None:
-    """The run's figures and report.md. Loaded here, not at the top: matplotlib is half a
-    second of a run's start, before its first job."""
-    from gainfarm.analytic.view.run_report import write_run_report
+class _Figures:
+    """A run's figures, drawn on a thread of their own once its default gains have run (what
+    they show is then settled), while its held-out check's episodes run and its farm stops:
+    only report.md is left for its end. What draws them is loaded in the function, not at the
+    top: matplotlib is half a second of a run's start, before its first job."""
 
-    write_run_report(run)
+    def __init__(self) -> None:
+        self._thread: threading.Thread | None = None
+        self._failed: list[BaseException] = []
+
+    def begin(self, run: TuningRun) -> None:
+        self._thread = threading.Thread(target=self._draw, args=(run,), name="figures")
+        self._thread.start()
+
+    def _draw(self, run: TuningRun) -> None:
+        try:
+            from gainfarm.analytic.view.run_report import draw_figures
+
+            draw_figures(run)
+        except BaseException as error:  # raised again by `finish`, in the run's thread
+            self._failed.append(error)
+
+    def wait(self) -> None:
+        if self._thread is not None:
+            self._thread.join()
+
+    def finish(self, run: TuningRun) -> None:
+        """The report: the figures drawn (here, if they were not begun), then report.md."""
+        from gainfarm.analytic.view.run_report import write_run_report
+
+        self.wait()
+        if self._failed:
+            raise self._failed[0]
+        write_run_report(run, figures=self._thread is None)
 
 
 def _draw_soon() -> None:
@@ -251,7 +283,7 @@ def _draw_soon() -> None:
 
 
 def _load_figures() -> None:
-    with contextlib.suppress(Exception):  # whatever fails here fails again, and is said, in _draw
+    with contextlib.suppress(Exception):  # whatever fails here fails again, and is said there
         importlib.import_module("gainfarm.analytic.view.run_report")
 
 
