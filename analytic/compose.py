@@ -186,12 +186,11 @@ def tune_run(
                 chosen_farm = _evaluator(run, evaluator, connect, workers, farm, identity, stopping)
                 with chosen_farm as chosen:
                     begun = True
-                    _draw_soon()
                     shown = watch(chosen) if watch else contextlib.nullcontext(on_progress)
                     with shown as step:
                         # A finished run's evolution is not run again: only a validation
                         # a Ctrl-C cut short goes on.
-                        run.run(chosen, step)
+                        run.run(chosen, _loading_figures(step))
                         stage = "baseline"
                         run.baseline(chosen)
                         figures.begin(run)
@@ -276,10 +275,20 @@ class _Figures:
         write_run_report(run, figures=self._thread is None)
 
 
-def _draw_soon() -> None:
-    """Load what draws the report on a thread of its own while the run waits for its results,
-    so that its end does not wait for the import (about half a second)."""
-    threading.Thread(target=_load_figures, name="load-figures", daemon=True).start()
+def _loading_figures(step: Callable[[RunProgress], None]) -> Callable[[RunProgress], None]:
+    """`step`, which also loads what draws the report, on a thread of its own, once the first
+    result is in: the run's end then need not wait for the import (half a second), and its
+    start (the imports of its worker processes, its first jobs) does not share the cores
+    with it."""
+    loading: list[threading.Thread] = []
+
+    def stepped(progress: RunProgress) -> None:
+        if not loading:
+            loading.append(threading.Thread(target=_load_figures, name="load-figures", daemon=True))
+            loading[0].start()
+        step(progress)
+
+    return stepped
 
 
 def _load_figures() -> None:

@@ -376,7 +376,7 @@ def run_with_progress(
         # Seconds to minutes with no other line: say what runs. Through the live line's console,
         # which prints it above that line (a plain write would land on its end).
         # Loaded here, not before the run: run_report brings matplotlib (the run loads it while
-        # its first jobs run, compose._draw_soon).
+        # its first results come in, compose._loading_figures).
         from gainfarm.analytic.view.run_report import check_start_line
 
         if not interrupts.INTERRUPTED.is_set():
