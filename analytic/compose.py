@@ -6,9 +6,11 @@ generic run's balance, the run directory's claim) is the same from Python and fr
 line."""
 
 import contextlib
+import importlib
 import re
 import secrets
 import shutil
+import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import AbstractContextManager
@@ -16,13 +18,12 @@ from pathlib import Path
 
 from gainfarm.analytic.evaluators.evaluator import Evaluator
 from gainfarm.analytic.evaluators.farm import FarmClient, FarmUnavailable
-from gainfarm.analytic.evaluators.local import farm_endpoints
+from gainfarm.analytic.evaluators.local import LocalFarm, farm_endpoints
 from gainfarm.analytic.tuning import defaults
 from gainfarm.analytic.tuning.check import CheckPlan, read_check, run_check
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import CONFIG_JSON, REPORT_MD
 from gainfarm.analytic.tuning.run import RunProgress, TuningRun
-from gainfarm.analytic.view.run_report import write_run_report
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import NAME_PATTERN
@@ -91,6 +92,7 @@ def tune(
     evaluator: Evaluator | None = None,
     connect: Sequence[str] = (),
     workers: int | None = None,
+    farm: LocalFarm | None = None,
     identity: TlsIdentity | None = None,
     feedforward: bytes | None = None,
     balance: bool = defaults.BALANCE,
@@ -103,7 +105,9 @@ def tune(
 
     The episodes run on `evaluator` if one is given (an InProcessEvaluator, say); else on the
     farm whose broker is at `connect`; else on a local farm of `workers` processes (None: one per
-    core) started for this call. `out` (default runs/TIME) is the run directory: new or empty, or
+    core) started for this call, or `farm` if given: a local farm its caller started early, so
+    that its processes start while this one imports and checks the run (`tune` stops it when
+    done with it). `out` (default runs/TIME) is the run directory: new or empty, or
     one that already holds a run of the same configuration, which is resumed (or returned as it
     is, if finished).
     `feedforward`: the model file `config.feedforward` names. With `balance`, a new generic run
@@ -138,6 +142,7 @@ def tune(
         evaluator=evaluator,
         connect=connect,
         workers=workers,
+        farm=farm,
         identity=identity,
         on_progress=on_progress,
         watch=watch,
@@ -153,6 +158,7 @@ def tune_run(
     evaluator: Evaluator | None = None,
     connect: Sequence[str] = (),
     workers: int | None = None,
+    farm: LocalFarm | None = None,
     identity: TlsIdentity | None = None,
     on_progress: Callable[[RunProgress], None] = lambda _: None,
     watch: Watch | None = None,
@@ -169,24 +175,30 @@ def tune_run(
     begun = False
     stage = "evolution"
     try:
-        with run:
+        # A local farm stops while the report is drawn; `stopping` waits for it after, and for
+        # the figures, drawn while the held-out check runs.
+        with run, contextlib.ExitStack() as stopping:
+            figures = _Figures()
+            stopping.callback(figures.wait)
             if complete(run):
                 return run.state.stopped or ""
             if not run.finished or _needs_evaluator(run):
-                with _evaluator(run, evaluator, connect, workers, identity) as chosen:
+                chosen_farm = _evaluator(run, evaluator, connect, workers, farm, identity, stopping)
+                with chosen_farm as chosen:
                     begun = True
                     shown = watch(chosen) if watch else contextlib.nullcontext(on_progress)
                     with shown as step:
                         # A finished run's evolution is not run again: only a validation
                         # a Ctrl-C cut short goes on.
-                        run.run(chosen, step)
+                        run.run(chosen, _loading_figures(step))
                         stage = "baseline"
                         run.baseline(chosen)
+                        figures.begin(run)
                         if read_check(run.directory) is None:
                             stage = "check"
                             run_check(run, chosen, on_check)
             stage = "report"
-            write_run_report(run)
+            figures.finish(run)
             return run.state.stopped or ""
     except BaseException as error:
         if not begun and forget is not None:  # nothing of a new run ran: nothing of it is left
@@ -227,16 +239,76 @@ def _balance_of(config: RunConfig, found: RunConfig, balance: bool) -> RunConfig
     return config.model_copy(update={"objective_weights": found.objective_weights})
 
 
+class _Figures:
+    """A run's figures, drawn on a thread of their own once its default gains have run (what
+    they show is then settled), while its held-out check's episodes run and its farm stops:
+    only report.md is left for its end. What draws them is loaded in the function, not at the
+    top: matplotlib is half a second of a run's start, before its first job."""
+
+    def __init__(self) -> None:
+        self._thread: threading.Thread | None = None
+        self._failed: list[BaseException] = []
+
+    def begin(self, run: TuningRun) -> None:
+        self._thread = threading.Thread(target=self._draw, args=(run,), name="figures")
+        self._thread.start()
+
+    def _draw(self, run: TuningRun) -> None:
+        try:
+            from gainfarm.analytic.view.run_report import draw_figures
+
+            draw_figures(run)
+        except BaseException as error:  # raised again by `finish`, in the run's thread
+            self._failed.append(error)
+
+    def wait(self) -> None:
+        if self._thread is not None:
+            self._thread.join()
+
+    def finish(self, run: TuningRun) -> None:
+        """The report: the figures drawn (here, if they were not begun), then report.md."""
+        from gainfarm.analytic.view.run_report import write_run_report
+
+        self.wait()
+        if self._failed:
+            raise self._failed[0]
+        write_run_report(run, figures=self._thread is None)
+
+
+def _loading_figures(step: Callable[[RunProgress], None]) -> Callable[[RunProgress], None]:
+    """`step`, which also loads what draws the report, on a thread of its own, once the first
+    result is in: the run's end then need not wait for the import (half a second), and its
+    start (the imports of its worker processes, its first jobs) does not share the cores
+    with it."""
+    loading: list[threading.Thread] = []
+
+    def stepped(progress: RunProgress) -> None:
+        if not loading:
+            loading.append(threading.Thread(target=_load_figures, name="load-figures", daemon=True))
+            loading[0].start()
+        step(progress)
+
+    return stepped
+
+
+def _load_figures() -> None:
+    with contextlib.suppress(Exception):  # whatever fails here fails again, and is said there
+        importlib.import_module("gainfarm.analytic.view.run_report")
+
+
 @contextlib.contextmanager
 def _evaluator(
     run: TuningRun,
     evaluator: Evaluator | None,
     connect: Sequence[str],
     workers: int | None,
+    farm: LocalFarm | None,
     identity: TlsIdentity | None,
+    stopping: contextlib.ExitStack,
 ) -> Iterator[Evaluator]:
     """`evaluator`, or else the farm's client (FarmUnavailable if the farm cannot be had; what
-    goes wrong later in the block is not relabelled)."""
+    goes wrong later in the block is not relabelled). A local farm (`farm`, or one started
+    here) begins to stop as the block ends, and `stopping` waits for it."""
     if evaluator is not None:
         yield evaluator
         return
@@ -244,10 +316,13 @@ def _evaluator(
         models = run.models()
     except ValueError as error:  # its feed-forward model file is missing or another
         raise CannotStart(f"{str(run.directory)!r}: {error}", "out") from None
+    if not connect:
+        farm = farm or LocalFarm(workers)
+        stopping.callback(farm.stop)
     with contextlib.ExitStack() as stack:
         try:
-            endpoints = stack.enter_context(farm_endpoints(connect, workers))
-            farm = stack.enter_context(
+            endpoints = stack.enter_context(farm_endpoints(connect, workers, farm))
+            client = stack.enter_context(
                 FarmClient(
                     endpoints,
                     new_study_name(run.directory, identity.name if identity else None),
@@ -263,7 +338,7 @@ def _evaluator(
             if isinstance(error, FarmUnavailable):
                 raise
             raise FarmUnavailable(str(error)) from error
-        yield farm
+        yield client
 
 
 def new_directory() -> Path:

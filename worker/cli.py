@@ -3,12 +3,15 @@
 # Light at the top (click and the shared options): MuJoCo, Zenoh and pydantic load inside the
 # command that runs, so that `worker --help` and a refused option cost little more than click.
 
+import contextlib
+import importlib
 import logging
 import math
 import os
 import re
 import signal
 import socket
+import sys
 import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -225,22 +228,40 @@ def start(
     from gainfarm.cli.words import counted
 
     models = ModelCache(model_cache)  # one for the process: a reconnect keeps what it fetched
-    waiting = False
+    tries = 0
     while not stop.is_set():
         try:
             cobot = CobotWorker(
-                connect, name, identity, models, log_memory * 2**20, threads=threads or cores()
+                connect,
+                name,
+                identity,
+                models,
+                log_memory * 2**20,
+                threads=threads or cores(),
+                on_idle=warm_up,
             )
         except NameTaken as error:
             raise CliError(str(error)) from None
         except ValueError as error:  # the name is checked above: what is left is an endpoint
             raise CliError(f"--connect: {error}") from None
         except ConnectionError as error:
-            if not waiting:  # a farm's workers often start before its broker
-                log.warning("%s; retrying every second", error)
-                waiting = True
-            stop.wait(1.0)
+            cobot = None
+            why = str(error)
+        if cobot is not None and not cobot.broker_serves():
+            # Its router listens a moment before the broker serves on it: a request for work
+            # then would go unanswered, and be asked again only a second later.
+            cobot.close()
+            cobot, why = None, f"no broker serves on {', '.join(connect)} yet"
+        if cobot is None:
+            # A farm's workers often start before its broker (a local farm starts them all at
+            # once): tried again at once and said only if it lasts.
+            pause = retry_pause(tries)
+            tries += 1
+            if tries == QUIET_TRIES:
+                log.warning("%s; retrying every second", why)
+            stop.wait(pause)
             continue
+        tries = 0
         with cobot:
             log.info(
                 "worker %s serving %s on %s",
@@ -248,8 +269,36 @@ def start(
                 ", ".join(connect),
                 counted(cobot.threads, "thread"),
             )
-            done = cobot.serve(stop)
+            done = cobot.serve_until(stop)
         log.info("worker %s stopped after %d jobs", name, done)
+
+
+# Connecting again: at first every RETRY_FIRST s, doubling up to RETRY_SECONDS; the first
+# QUIET_TRIES failures (about a second) are not said: a broker started beside the worker listens
+# within that.
+RETRY_FIRST = 0.05
+RETRY_SECONDS = 1.0
+QUIET_TRIES = 5
+
+
+def retry_pause(tries: int) -> float:
+    """How long to wait before connecting again, after `tries` failures in a row."""
+    return min(RETRY_SECONDS, RETRY_FIRST * 2**tries)
+
+
+def warm_up() -> None:
+    """Load, on a thread of its own while the worker waits for work, what scoring a job loads
+    on first use: scipy.signal (schemas.objectives.chatter), about a second of the first job's
+    time otherwise. Only once idle: while a local farm starts, the analytic process's own start
+    needs the cores. A job that needs it before it is loaded waits for this import (Python's
+    import lock) rather than doing it twice; if it fails here, the job's says why."""
+    if "scipy.signal" not in sys.modules:
+        threading.Thread(target=_load_scoring, name="warm-up", daemon=True).start()
+
+
+def _load_scoring() -> None:
+    with contextlib.suppress(Exception):
+        importlib.import_module("scipy.signal")
 
 
 def cores() -> int:

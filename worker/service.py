@@ -100,16 +100,21 @@ class CobotWorker:
         log_memory: int = LOG_MEMORY,
         simulate: Simulate | None = None,
         threads: int = 1,
+        on_idle: Callable[[], None] | None = None,
     ):
         """`log_memory`: bytes of episode logs kept for the studies to fetch. `simulate` runs an
         episode in place of MuJoCo, one at a time (only for simulated workers:
-        bench/campaign.py --simulated). `threads`: threads stepping a batch's episodes."""
+        bench/campaign.py --simulated). `threads`: threads stepping a batch's episodes.
+        `on_idle`: called once, the first time the broker has no work for it (what a first job
+        would load can load then, rather than in that job)."""
         request = LeaseRequest(worker=name)  # validates the name: it becomes a key chunk
         self.name = request.worker
         self.models = models if models is not None else ModelCache()
         self.logs = LogStore(log_memory)
         self._simulate = simulate
         self.threads = threads
+        self._on_idle = on_idle
+        self._idle = False  # waiting for work, nothing to hand in (set by the serving thread)
         self._job_seconds: float | None = None  # a recent job's share of its batch's wall time
         self.jobs_done = 0
         self.refused = 0  # results the broker did not take (e.g. the lease had gone elsewhere)
@@ -125,6 +130,11 @@ class CobotWorker:
         except BaseException:
             self.session.close()
             raise
+
+    def broker_serves(self) -> bool:
+        """Whether the farm's broker answers (its status): its router may listen before it
+        serves, and a worker that asked for work then would wait a second to ask again."""
+        return ask(self.session, keys.STATUS, timeout=ANSWER_SECONDS) is not None
 
     def __enter__(self) -> "CobotWorker":
         return self
@@ -144,7 +154,11 @@ class CobotWorker:
             want = 0 if stop.is_set() else self._want(max_jobs, len(ran))
             if want == 0 and not ran:
                 return self.jobs_done
-            reply = self._ask_for_work(want, ran)
+            self._idle = not ran  # asking for work with nothing to hand in: the broker holds it
+            try:
+                reply = self._ask_for_work(want, ran)
+            finally:
+                self._idle = False
             if reply is None:
                 now = time.monotonic()
                 for lost in (r for r in ran if r.give_up <= now or stop.is_set()):
@@ -155,7 +169,45 @@ class CobotWorker:
                 stop.wait(RETRY_SECONDS)
                 continue
             self._send(ran, reply.verdicts)
+            if not reply.leases and self._on_idle is not None:
+                self._on_idle, on_idle = None, self._on_idle
+                on_idle()
             ran = self._run(reply.leases)
+
+    def serve_until(self, stop: threading.Event) -> int:
+        """`serve` on a thread of its own until `stop` is set, as a signal's handler sets it.
+        Python runs a signal's handler in the main thread only, once it is back from Zenoh: a
+        worker waiting for work, its request held by the broker (up to LEASE_HOLD_SECONDS),
+        heard a SIGTERM only when the hold ended. Here the main thread waits on `stop` itself,
+        and lets the held request go at once (`_leave`): a local farm stops in a moment, not a
+        second, when its run ends."""
+        done: list[int] = []
+        failed: list[BaseException] = []
+
+        def serve() -> None:
+            try:
+                done.append(self.serve(stop))
+            except BaseException as error:  # re-raised in the main thread
+                failed.append(error)
+
+        thread = threading.Thread(target=serve, name="serve")
+        thread.start()
+        while thread.is_alive():
+            if stop.wait(0.5):
+                self._leave()
+                thread.join()
+        if failed:
+            raise failed[0]
+        return done[0]
+
+    def _leave(self) -> None:
+        """If the serving thread waits for work with nothing to hand in, ask for none: the
+        broker answers the request it holds with no work (a worker's new request replaces its
+        held one), and the thread, told to stop, returns. A batch being run is left to finish
+        and be handed in."""
+        if self._idle:
+            request = LeaseRequest(worker=self.name, want=0)
+            ask(self.session, keys.lease(self.name), request.to_bytes(), ANSWER_MARGIN)
 
     def _want(self, max_jobs: int | None, waiting: int) -> int:
         """Leases to ask for: about BATCH_SECONDS of work at the pace of the last jobs (at

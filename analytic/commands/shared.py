@@ -352,7 +352,6 @@ def run_with_progress(
     from gainfarm.analytic.view.export import describe_pick, picks
     from gainfarm.analytic.view.progress import Display, RunDisplay
     from gainfarm.analytic.view.reports import stopped_text
-    from gainfarm.analytic.view.run_report import check_start_line, held_out_lines
     from gainfarm.cli import interrupts
     from gainfarm.schemas.limits import tally
 
@@ -376,6 +375,10 @@ def run_with_progress(
     def checking(plan: "CheckPlan") -> None:
         # Seconds to minutes with no other line: say what runs. Through the live line's console,
         # which prints it above that line (a plain write would land on its end).
+        # Loaded here, not before the run: run_report brings matplotlib (the run loads it while
+        # its first results come in, compose._loading_figures).
+        from gainfarm.analytic.view.run_report import check_start_line
+
         if not interrupts.INTERRUPTED.is_set():
             console.print(check_start_line(plan), markup=False, highlight=False, soft_wrap=True)
 
@@ -428,6 +431,8 @@ def run_with_progress(
     record = read_check(run.directory)
     # How the controller named fared on the held-out plants, beside its name: "use row 14" is
     # not said without "12 of 37 held-out plants broke a limit".
+    from gainfarm.analytic.view.run_report import held_out_lines
+
     held_out = held_out_lines(record, first.row) if record else []
     if first.name == "recommended":
         click.echo(f"controller to use: {describe_pick(first)}", err=True)

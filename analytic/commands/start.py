@@ -1,6 +1,9 @@
 """`analytic start`: a tuning run, as `tune` makes it, with its progress on the terminal."""
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
@@ -19,6 +22,9 @@ from gainfarm.analytic.commands.shared import (
 from gainfarm.analytic.tuning import defaults
 from gainfarm.cli import options
 from gainfarm.cli.app import CliError
+
+if TYPE_CHECKING:
+    from gainfarm.analytic.evaluators.local import LocalFarm
 
 
 @click.command()
@@ -145,67 +151,86 @@ def start(
     Stops after --generations, after --evaluations, or (by default) when the hypervolume has
     stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
     """
-    from pydantic import ValidationError
-
-    from gainfarm.analytic import compose
-    from gainfarm.analytic.tuning.config import RunConfig
-    from gainfarm.analytic.tuning.records import CONFIG_JSON
-    from gainfarm.analytic.tuning.run import RunBusy
-
     identity = check_farm(connect, local, tls, participant)
-    limits = options.limits_from(limits_file, min_damping)
-    trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
-    learned = options.feedforward_model(feedforward)
-    model_file = learned[0] if learned is not None else None
-    model = options.model_spec(plant, joints)
-    variants = plants_from(plants, uncertainty_file, model, seed, plant=plant)
-    held_out = plants_from(check_plants, uncertainty_file, model, seed, held_out=True, plant=plant)
-    try:
-        config = RunConfig(
-            pop=pop,
-            seed=seed,
-            trajectories=trajectories,
-            model=model,
-            plants=variants,
-            check_plants=held_out,
-            aggregate=aggregate,
-            limits=limits,
-            generations=generations,
-            evaluations=evaluations,
-            keep=keep,
-            asynchronous=asynchronous,
-            algorithm=algorithm,
-            objective_scaling=objective_scaling,
-            replicate=replicate,
-            spot_checks=spot_checks,
-            feedforward=_digest(model_file) if model_file is not None else None,
+    with _farm(connect, workers) as farm:
+        from pydantic import ValidationError
+
+        from gainfarm.analytic import compose
+        from gainfarm.analytic.tuning.config import RunConfig
+        from gainfarm.analytic.tuning.records import CONFIG_JSON
+        from gainfarm.analytic.tuning.run import RunBusy
+
+        limits = options.limits_from(limits_file, min_damping)
+        trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
+        learned = options.feedforward_model(feedforward)
+        model_file = learned[0] if learned is not None else None
+        model = options.model_spec(plant, joints)
+        variants = plants_from(plants, uncertainty_file, model, seed, plant=plant)
+        held_out = plants_from(
+            check_plants, uncertainty_file, model, seed, held_out=True, plant=plant
         )
-    except ValidationError as error:
-        raise CliError(config_problem(error)) from None
-    out = out or compose.new_directory()
-    if (out / CONFIG_JSON).exists():  # `tune` would resume it: a start does not
-        raise CliError(f"--out: {str(out)!r} already holds a run; resume it or choose another")
-    try:
-        run_with_progress(
-            lambda watch, on_check: compose.tune(
-                config,
+        try:
+            config = RunConfig(
+                pop=pop,
+                seed=seed,
+                trajectories=trajectories,
+                model=model,
+                plants=variants,
+                check_plants=held_out,
+                aggregate=aggregate,
+                limits=limits,
+                generations=generations,
+                evaluations=evaluations,
+                keep=keep,
+                asynchronous=asynchronous,
+                algorithm=algorithm,
+                objective_scaling=objective_scaling,
+                replicate=replicate,
+                spot_checks=spot_checks,
+                feedforward=_digest(model_file) if model_file is not None else None,
+            )
+        except ValidationError as error:
+            raise CliError(config_problem(error)) from None
+        out = out or compose.new_directory()
+        if (out / CONFIG_JSON).exists():  # `tune` would resume it: a start does not
+            raise CliError(f"--out: {str(out)!r} already holds a run; resume it or choose another")
+        try:
+            run_with_progress(
+                lambda watch, on_check: compose.tune(
+                    config,
+                    out,
+                    connect=connect,
+                    workers=workers,
+                    farm=farm,
+                    identity=identity,
+                    feedforward=model_file,
+                    balance=balance,
+                    watch=watch,
+                    on_check=on_check,
+                ),
                 out,
-                connect=connect,
-                workers=workers,
-                identity=identity,
-                feedforward=model_file,
-                balance=balance,
-                watch=watch,
-                on_check=on_check,
-            ),
-            out,
-            connect,
-        )
-    except compose.CannotStart as error:
-        also = "; give --no-balance" if error.part == "balance" else ""
-        raise CliError(f"{start_option(error.part)}: {error}{also}") from None
-    except RunBusy as error:
-        raise CliError(f"--out: {error}") from None
+                connect,
+            )
+        except compose.CannotStart as error:
+            also = "; give --no-balance" if error.part == "balance" else ""
+            raise CliError(f"{start_option(error.part)}: {error}{also}") from None
+        except RunBusy as error:
+            raise CliError(f"--out: {error}") from None
+
+
+@contextlib.contextmanager
+def _farm(connect: tuple[str, ...], workers: int | None) -> "Iterator[LocalFarm | None]":
+    """Without --connect, a local farm started before anything else is imported or checked:
+    its processes start while this one does that (a second or two), so it serves by the time
+    the first jobs are ready. `tune` stops it when done with it; this block, if `tune` never
+    used it (a refused option, a run directory taken)."""
+    if connect:
+        yield None
+        return
+    from gainfarm.analytic.evaluators.local import LocalFarm
+
+    with LocalFarm(workers) as farm:
+        yield farm
 
 
 def _digest(model_file: bytes) -> str:

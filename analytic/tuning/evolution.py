@@ -28,13 +28,13 @@ so it, and any plug-in without a pymoo problem, is told an infeasible point's ob
 worse than any episode's (NO_EPISODE, times 1 + the violation); random sampling needs nothing.
 """
 
+import sys
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
-from pymoo.algorithms.moo.moead import MOEAD, ParallelMOEAD
 from pymoo.algorithms.moo.nsga2 import NSGA2
 from pymoo.algorithms.moo.nsga3 import NSGA3, comp_by_cv_then_random
 from pymoo.algorithms.moo.sms import SMSEMOA, cv_and_dom_tournament
@@ -407,8 +407,11 @@ def smsemoa(pop_size: int, seed: int, space: SearchSpace) -> SMSEMOA:
     return _set_up(method, seed, space)
 
 
-def moead(pop_size: int, seed: int, space: SearchSpace) -> ParallelMOEAD:
+def moead(pop_size: int, seed: int, space: SearchSpace) -> Any:
     """pymoo's MOEA/D, the parallel variant: a whole generation asked at once."""
+    # Loaded here: its module brings scipy.spatial, a third of a second of every run's start.
+    from pymoo.algorithms.moo.moead import ParallelMOEAD
+
     return _set_up(ParallelMOEAD(ref_dirs=reference_directions(pop_size)), seed, space)
 
 
@@ -656,12 +659,18 @@ def _declare(algorithm: Any, constraints: int) -> bool:
     if isinstance(algorithm, UniformRandom):
         return True  # it asks the same whatever it is told
     problem = getattr(algorithm, "problem", None)
-    if isinstance(problem, Problem) and not isinstance(algorithm, MOEAD):
+    if isinstance(problem, Problem) and not _is_moead(algorithm):
         # pymoo's survival splits by feasibility when the problem has constraints, and its
         # tournaments compare the violation (CV) first.
         problem.n_ieq_constr = constraints
         return True
     return False
+
+
+def _is_moead(algorithm: Any) -> bool:
+    """Whether `algorithm` is pymoo's MOEA/D (no MOEA/D was made if its module is not loaded)."""
+    module = sys.modules.get("pymoo.algorithms.moo.moead")
+    return module is not None and isinstance(algorithm, module.MOEAD)
 
 
 def feasible_rows(g: np.ndarray) -> np.ndarray:

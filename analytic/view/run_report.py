@@ -19,11 +19,44 @@ from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.limits import DAMPING, MEASURED, MEASURES, UNITS, Limits, tally
 
 
-def write_run_report(run: TuningRun) -> None:
-    """`run`'s figures and report.md: its front with the recommended member (or the one closest
-    to dominating the default gains), the knee, the most accurate and the smoothest member
-    marked, beside the default gains if they were evaluated (baseline.json). The run must be
-    open: its directory is written."""
+def write_run_report(run: TuningRun, figures: bool = True) -> None:
+    """`run`'s figures (unless `figures` is False: drawn already, by `draw_figures`) and
+    report.md: its front with the recommended member (or the one closest to dominating the
+    default gains), the knee, the most accurate and the smoothest member marked, beside the
+    default gains if they were evaluated (baseline.json). The run must be open: its directory
+    is written."""
+    run.check_open()
+    if figures:
+        draw_figures(run)
+    front, baseline = run.front(), run.baseline()
+    chosen = picks(front, baseline)
+    limits = run.config.limits
+    write_report(
+        run.directory / REPORT_MD,
+        title=f"gainfarm run {run.directory.name}",
+        config_lines=run_setup(run.config),
+        history=run.state.history,
+        front=front,
+        converged=run.state.stopped or "stopped before it ended",
+        picks=chosen,
+        baseline=baseline,
+        run_dir=str(run.directory),
+        validation=run.validation(),
+    )
+    report = run.directory / REPORT_MD
+    sections = [
+        *limits_section(limits, run.state.measured, len(front)),
+        *damping_section(front, limits),
+        *check_section(read_check(run.directory)),
+    ]
+    section = "\n".join(sections)
+    write_atomically(report, report.read_bytes().rstrip(b"\n") + b"\n\n" + section.encode())
+
+
+def draw_figures(run: TuningRun) -> None:
+    """`run`'s pareto.png and hypervolume.png: what they show is settled once its evolution
+    has ended and its default gains have run (baseline.json), so they may be drawn while its
+    held-out check runs. The run must be open."""
     run.check_open()
     front, title, baseline = run.front(), run_title(run.config), run.baseline()
     chosen = picks(front, baseline)
@@ -47,26 +80,6 @@ def write_run_report(run: TuningRun) -> None:
     if baseline is not None and not baseline.diverged:
         level = hypervolume([baseline.objectives], run.config.reference_point)
     plot_hypervolume(run.directory / HYPERVOLUME_PNG, run.state.history, title, level)
-    write_report(
-        run.directory / REPORT_MD,
-        title=f"gainfarm run {run.directory.name}",
-        config_lines=run_setup(run.config),
-        history=run.state.history,
-        front=front,
-        converged=run.state.stopped or "stopped before it ended",
-        picks=chosen,
-        baseline=baseline,
-        run_dir=str(run.directory),
-        validation=run.validation(),
-    )
-    report = run.directory / REPORT_MD
-    sections = [
-        *limits_section(limits, run.state.measured, len(front)),
-        *damping_section(front, limits),
-        *check_section(read_check(run.directory)),
-    ]
-    section = "\n".join(sections)
-    write_atomically(report, report.read_bytes().rstrip(b"\n") + b"\n\n" + section.encode())
 
 
 def limits_line(limits: Limits, measured: Sequence[Sequence[float]], front: int) -> str:

@@ -14,7 +14,12 @@ import zenoh
 from gainfarm.analytic.evaluators.batch import run_batch
 from gainfarm.analytic.evaluators.evaluator import Wanted
 from gainfarm.analytic.evaluators.farm import FarmClient, FarmUnavailable
-from gainfarm.analytic.evaluators.local import local_farm, spawn_worker, stop_workers
+from gainfarm.analytic.evaluators.local import (
+    LocalFarm,
+    local_farm,
+    spawn_worker,
+    stop_workers,
+)
 from gainfarm.broker.service import Broker
 from gainfarm.models.dynamics import digest, rigid_prior, to_bytes
 from gainfarm.schemas import keys
@@ -59,6 +64,22 @@ def test_a_local_farm_starts_its_block_with_every_worker_joined(tmp_path: Path) 
     # Else the first worker up takes the whole first batch and the others idle through it.
     with local_farm(workers=2) as endpoint, FarmClient([endpoint], "s", tmp_path) as farm:
         assert sorted(worker.name for worker in farm.status().workers) == ["local-0", "local-1"]
+
+
+@pytest.mark.slow
+def test_a_local_farm_takes_jobs_as_soon_as_its_broker_serves(tmp_path: Path) -> None:
+    # Its broker and workers start together; the jobs wait in the broker's queue for the
+    # workers to join. Stopping begins on a thread of its own, and the block's end waits for it.
+    specs = {f"j{n}": short_spec(duration=0.5) for n in range(4)}
+    with LocalFarm(workers=2) as local:
+        endpoint = local.ready(joined=False)
+        with FarmClient([endpoint], "s", tmp_path) as farm:
+            farm.submit(specs)
+            evaluations = list(farm.results(timeout=120))
+        local.stop(wait=False)
+    assert sorted(evaluation.job_id for evaluation in evaluations) == sorted(specs)
+    assert all(evaluation.status == "ok" for evaluation in evaluations)
+    assert all(process.poll() == 0 for process in [local.broker, *local.workers])
 
 
 @pytest.mark.slow

@@ -13,9 +13,16 @@ from typing import ClassVar
 
 import pytest
 
+from gainfarm.analytic import compose
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
-from gainfarm.analytic.evaluators.local import free_port, local_farm, spawn_worker, stop_workers
+from gainfarm.analytic.evaluators.local import (
+    LocalFarm,
+    free_port,
+    local_farm,
+    spawn_worker,
+    stop_workers,
+)
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import read_baseline, read_front, read_history
 from gainfarm.analytic.tuning.run import RunProgress, TuningRun
@@ -146,6 +153,19 @@ def test_the_front_is_the_same_on_one_worker_as_on_two(tmp_path: Path, farm_endp
         one = tune(tmp_path / "one", endpoint)
     assert (one.directory / "front.csv").read_bytes() == (two.directory / "front.csv").read_bytes()
     assert [row[:5] for row in _history(one)] == [row[:5] for row in _history(two)]
+
+
+@pytest.mark.slow
+def test_tune_on_a_local_farm_started_early_stops_it_and_finds_the_same_front(
+    tmp_path: Path, calm: TuningRun
+) -> None:
+    # `analytic start` starts its farm before its imports and checks, and hands it to `tune`,
+    # which stops it as the report is drawn and waits for it before returning.
+    with LocalFarm(workers=2) as farm:
+        run = compose.tune(TINY, tmp_path / "run", farm=farm)
+        assert all(process.poll() == 0 for process in [farm.broker, *farm.workers])
+    assert_same_outcome(run, calm)
+    assert (run.directory / "report.md").is_file() and (run.directory / "pareto.png").is_file()
 
 
 def _history(run: TuningRun) -> list[tuple]:

@@ -74,6 +74,18 @@ def test_main_job_prints_the_runs_throughput_against_the_pools() -> None:
 
 
 @pytest.mark.slow
+def test_fixed_cost_prints_a_runs_start_and_end_beyond_its_episodes() -> None:
+    done = bench("fixed_cost.py", "--evaluations", "8", "--pop", "4", "--repeats", "1", timeout=300)
+    figures(rf"first job {NUMBER} s,", done.stdout)
+    figures(rf"last episode to exit {NUMBER} s,", done.stdout)
+    table = r"^\| now \| (first_job_s|tail_s|fixed_s|wall_s) \| (\S+) \| (\S+) \|"
+    rows = re.findall(table, done.stdout, re.MULTILINE)
+    assert [row[0] for row in rows] == ["first_job_s", "tail_s", "fixed_s", "wall_s"], done.stdout
+    for _, median, fastest in rows:
+        assert positive(fastest) <= positive(median)
+
+
+@pytest.mark.slow
 def test_scale_prints_the_plumbing_and_a_real_run() -> None:
     # The simulated workers' jobs are short (0.2 s, a sleep): the figures' shape is what is tested.
     options = ["--quick", "--json", "--workers", "16", "--ingest", "200", "--job-seconds", "0.2"]

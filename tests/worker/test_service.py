@@ -182,6 +182,68 @@ def test_a_worker_started_before_its_broker_waits_for_it() -> None:
         assert worker.wait(15) == 0
 
 
+@pytest.mark.slow
+def test_a_worker_waiting_for_work_stops_at_once_on_sigterm() -> None:
+    # Its lease request is held by the broker (30 s here): the worker lets it go when told to
+    # stop, rather than hearing the signal only once the hold ends.
+    with Broker([f"tcp/127.0.0.1:{free_port()}"], hold_seconds=30.0) as broker:
+        worker = spawn_worker(broker.endpoints[0], "idle")
+        try:
+            wait_for(lambda: broker.status().workers, timeout=30, what="the worker to join")
+            time.sleep(0.5)  # its first request for work is sent as it joins, and held
+            worker.send_signal(signal.SIGTERM)
+            assert worker.wait(10) == 0
+        finally:
+            worker.kill()
+            worker.wait()
+
+
+def test_serve_until_returns_once_stopped_while_its_request_is_held() -> None:
+    with (
+        Broker([f"tcp/127.0.0.1:{free_port()}"], hold_seconds=30.0) as broker,
+        CobotWorker(broker.endpoints, "w") as worker,
+    ):
+        stop = threading.Event()
+        threading.Timer(0.5, stop.set).start()
+        started = time.monotonic()
+        assert worker.serve_until(stop) == 0
+        assert time.monotonic() - started < 10  # not the 30 s hold
+
+
+@pytest.mark.slow
+def test_a_worker_whose_router_has_no_broker_yet_waits_and_says_so() -> None:
+    # A router that listens before its broker serves: the worker does not join it until the
+    # broker answers (it would ask for work and hear nothing).
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_session("router", listen=[endpoint])
+    worker = subprocess.Popen(
+        [sys.executable, "-m", "gainfarm.worker", "start", "--connect", endpoint, "--name", "w"],
+        stdin=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        time.sleep(4.0)  # its imports, then a second and more of quiet retries
+        assert worker.poll() is None
+        worker.terminate()
+        _, stderr = worker.communicate(timeout=15)
+    finally:
+        worker.kill()
+        worker.wait()
+        router.close()
+    assert worker.returncode == 0
+    assert f"no broker serves on {endpoint} yet; retrying every second" in stderr
+    assert stderr.count("retrying") == 1
+
+
+def test_a_worker_tries_to_connect_again_at_once_then_every_second() -> None:
+    from gainfarm.worker.cli import QUIET_TRIES, RETRY_SECONDS, retry_pause
+
+    pauses = [retry_pause(tries) for tries in range(10)]
+    assert pauses[0] <= 0.1 and pauses == sorted(pauses) and pauses[-1] == RETRY_SECONDS
+    assert sum(pauses[: QUIET_TRIES - 1]) < 1.0  # said within a second
+
+
 def run_worker(*arguments: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "gainfarm.worker", "start", *arguments],
