@@ -128,7 +128,11 @@ _DERIVED_IDS = frozenset({_TF_ID, _DESCRIPTION_ID})
 _SCHEMA_ENCODING = "ros2msg"
 _MESSAGE_ENCODING = "cdr"
 _PROFILE = "ros2"
-_LIBRARY = "gainfarm"
+# The writer and its log layout's version, in the Header's free-form library field (readers
+# ignore it; a person or a tool telling logs apart reads it). 1 (written as plain "gainfarm"):
+# chunks carried their CRC-32. 2: a chunk's CRC is 0 and its zstd frame carries zstd's checksum
+# (CHUNK_CRC): the same messages, other bytes, so a log's digest differs from version 1's.
+_LIBRARY = "gainfarm episode log 2"
 _UNREADABLE = (
     OSError,
     McapError,

@@ -114,6 +114,7 @@ def test_chunks_are_checked_by_zstds_checksum_and_read_with_crcs_validated(track
     ROS 2 decoder read every message."""
     content = episode_bytes(tracking_log, description())
     reader = make_reader(io.BytesIO(content), validate_crcs=True)
+    assert reader.get_header().library == "gainfarm episode log 2"  # the layout's version
     chunk_indexes = reader.get_summary().chunk_indexes
     for index in chunk_indexes:
         stream = io.BytesIO(content[index.chunk_start_offset + 1 + 8 :])
