@@ -22,16 +22,19 @@ once each has been waited for):
 - robust run: the same `analytic start` with `--plants K` (each candidate also on K plant
   variants: K + 1 episodes an evaluation), at the same evaluations.
 
-The anchor: one episode's physics stepped in one C call, `mj_step(model, data, nstep)` on the
-run's plant for as many physics steps as an episode of its first path takes, the arm held at the
-path's start by constant motor torques (what holding it at rest takes: mj_inverse); the fastest
-of five, in CPU time. Printed: each case's wall time, CPU per evaluation and evaluations/s; the
-run's throughput over the pool's (target >= 1.3x); the run's CPU per evaluation over its
-episodes' physics (target <= 1.4x); the robust run's wall time over the run's (target <= 3.5x).
-With --baseline-python PATH, the same run again with that
-interpreter (whose `analytic` is an older checkout, e.g. the previous main), back to back, and
-the wall-time ratio now/then (target <= 0.5x). The machine's other load moves every figure:
-compare the ratios of one run, not figures of different runs.
+The anchor: one episode's physics stepped in one C call: the default gains' episode on the run's
+first path and plant, its recorded motor torques and friction replayed through MuJoCo's
+`rollout` from its first state (bench/episode_bench.py's anchor, checked to retrace the
+episode), the fastest of five, in CPU time. Not `mj_step(nstep)` with constant torques: an arm
+held open loop drifts into its joint limits and pays their constraints, some 45 % more physics
+than the episode's (31.3 against 21.5 ms, measured once), which would flatter every ratio.
+
+Printed: each case's wall time, CPU per evaluation and evaluations/s; the run's throughput over
+the pool's (target >= 1.3x); the run's CPU per evaluation over its episodes' physics (target <=
+1.4x); the robust run's wall time over the run's (target <= 3.5x). With --baseline-python PATH,
+the same run again with that interpreter (whose `analytic` is an older checkout, e.g. the
+previous main), back to back, and the wall-time ratio now/then (target <= 0.5x). The machine's
+other load moves every figure: compare the ratios of one run, not figures of different runs.
 """
 
 import csv
@@ -49,18 +52,16 @@ from pathlib import Path
 from typing import Any
 
 import click
-import mujoco
 from common import SPAWN, print_table
+from episode_bench import physics
 
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.run import TuningRun
 from gainfarm.analytic.tuning.search_space import SearchSpace
 from gainfarm.schemas.episode import EpisodeSpec
-from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.objectives import objectives
 from gainfarm.worker.job import simulate
-from gainfarm.worker.plant import Plant
-from gainfarm.worker.reference import reference_for
 
 CORES = os.cpu_count() or 1
 RUN_TARGET = 1.3  # the run's throughput over the pool's, at least
@@ -155,16 +156,12 @@ def candidates(out: Path) -> tuple[RunConfig, list[PDGains]]:
 def physics_seconds(config: RunConfig, repeats: int = 5) -> float:
     """CPU s of one episode's physics in one C call (the module's docstring), the fastest of
     `repeats`."""
-    plant = Plant(config.model)
-    trajectory = config.trajectories[0]
-    start = reference_for(trajectory).q[0]
+    spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=config.trajectories[0], model=config.model)
+    replay = physics(spec)  # checked to retrace the episode
     fastest = float("inf")
     for _ in range(repeats):
-        plant.reset(start)
-        mujoco.mj_inverse(plant.model, plant.data)
-        plant.data.ctrl[:] = plant.data.qfrc_inverse[plant.motor_dof_slice]
         began = time.process_time()
-        mujoco.mj_step(plant.model, plant.data, trajectory.ticks * plant.substeps)
+        replay()
         fastest = min(fastest, time.process_time() - began)
     return fastest
 
@@ -339,7 +336,7 @@ def main(
         f"CPU per evaluation: {study.cpu_ms / pool.cpu_ms:.2f}x the pool's"
     )
     print(
-        f"run CPU per evaluation / its episodes' physics (mj_step(nstep), one C call): "
+        f"run CPU per evaluation / its episodes' physics (replayed in one C call): "
         f"{run.cpu_s / run.evaluations / physics:.2f}x (target <= {PHYSICS_TARGET}x; "
         f"{1000 * physics:.1f} ms of physics an evaluation)"
     )

@@ -2,11 +2,13 @@
 
 Used by `analytic ... --local [--workers N]` and by the tests. By default one worker process per
 core, each stepping its batches on one thread; N processes share the cores, cores / N threads
-each (at least one). Processes, not threads: every world's step releases the GIL and takes it
-back, so two threads of one process hand it to each other twice a tick per world, and a batch on
-two threads ran 1.3x faster than on one where two processes run 2x (bench/episode_bench.py,
-bench/main_job.py). A process costs its start (imports, each trajectory's plan, each plant's
-model): a second or two, once.
+each (at least one). Processes, not threads, measured: a worker's stacks of episodes step on a
+mujoco.batch.Batch, which takes the GIL back once a tick per stack, and two threads of one
+process step a batch 1.67x faster than one; yet `analytic start --pop 30 --evaluations 600` ran
+in 21.7-26.8 s on two processes of one thread against 34.9-37.0 s on one process of two
+(docs/performance.md, "The main job against a plain pool and Optuna"). A process costs its
+start (imports, each trajectory's plan, each plant's model): a second or two, once, while the
+analytic starts (below).
 
 The broker runs in a process of its own, not in this one: routing and scheduling every job took
 about a third of the analytic process's CPU per evaluation (bench/analytic_cost.py), on the core

@@ -62,7 +62,7 @@ def test_main_job_prints_the_runs_throughput_against_the_pools() -> None:
     done = bench("main_job.py", *options, timeout=300)
     figures(rf"run/pool throughput: {NUMBER}x", done.stdout)
     figures(rf"optuna/pool throughput: {NUMBER}x", done.stdout)
-    figures(rf"its episodes' physics \(mj_step\(nstep\), one C call\): {NUMBER}x", done.stdout)
+    figures(rf"its episodes' physics \(replayed in one C call\): {NUMBER}x", done.stdout)
     figures(rf"robust/nominal wall time \(--plants 1, same evaluations\): {NUMBER}x", done.stdout)
     table = r"^\| (run|pool|optuna|robust run) \| (\d+) \| (\S+) \| (\S+) \| (\S+) \|$"
     rows = re.findall(table, done.stdout, re.MULTILINE)
