@@ -4,7 +4,7 @@ from gainfarm.cli.interrupts import launch
 
 
 def main() -> None:
-    launch("gainfarm.analytic.cli", "analytic")
+    launch("gainfarm.analytic.cli", "analytic", skip_teardown=True)
 
 
 if __name__ == "__main__":

@@ -122,9 +122,13 @@ def stop(program: str, message: str = "interrupted") -> NoReturn:
     os._exit(INTERRUPTED_EXIT)
 
 
-def launch(module: str, program: str) -> None:
+def launch(module: str, program: str, skip_teardown: bool = False) -> None:
     """The entry point of a command line: Ctrl-C handled first, then `module` imported and its
-    `main()` run. A Ctrl-C during the imports stops here, in one line."""
+    `main()` run. A Ctrl-C during the imports stops here, in one line. `skip_teardown`: end
+    with `exit_now`, for a command whose last messages are all received, none sent (a worker's
+    last result, put as it stops, or a broker's last answers could still be on their way out
+    of Zenoh when an `os._exit` ends its threads: a result lost at a worker's SIGTERM, seen
+    once in the suite)."""
     # `import mujoco` with MUJOCO_GL unset loads GLFW, whose import starts a Python child to
     # probe the library (60 ms of every start, measured); a Ctrl-C then cut the pipe it reads
     # and it printed a traceback of its own (2 runs of the Ctrl-C tests in 20). No command draws
@@ -157,7 +161,9 @@ def launch(module: str, program: str) -> None:
         # 0.15 s instead of 1.6). A service's own handler, set in place of ours, stays.
         if ours():
             signal.signal(signal.SIGINT, signal.SIG_IGN)
-    exit_now(status)
+    if skip_teardown:
+        exit_now(status)
+    sys.exit(status)
 
 
 def exit_now(code: object = None) -> NoReturn:
