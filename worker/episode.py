@@ -155,7 +155,7 @@ def _setup(spec: EpisodeSpec, reference: Reference, added: np.ndarray | None) ->
         quantised=sensing.quantised,
         slip=sensing.slip,
         opposing=None if friction is None else -np.asarray(friction.coulomb),
-        gravity=RobotGravity(spec.model) if fri else None,
+        fri=fri,
         unit=1.0 if spec.model.sensors.exact else sensing.encoders.count,
     )
 
@@ -173,7 +173,7 @@ def _log(spec: EpisodeSpec, run: Stepped) -> EpisodeLog:
         delay = np.maximum(np.arange(ticks_run) - spec.model.delay, 0)
         applied = np.clip(run.command[delay], -plant.torque_limits, plant.torque_limits)
         motor = applied  # what the motors exert: the command, and the robot's gravity model's
-        if run.gravity is not None:
+        if run.fri:
             motor = np.clip(
                 applied + run.compensation[:ticks_run], -plant.torque_limits, plant.torque_limits
             )

@@ -71,8 +71,9 @@ class Stepped:
     quantised: bool = False
     slip: slice = field(default_factory=lambda: slice(0))
     opposing: np.ndarray | None = None  # −Coulomb level per motor, if the joints have friction
-    # The robot's gravity model, if it adds one (FRI) at the measured angles: rad per unit of them.
-    gravity: RobotGravity | None = None
+    # Whether the robot adds its gravity model at the measured angles (FRI): rad per unit of them.
+    # The model itself is the loop's to make: one per lone episode, one of many arms per stack.
+    fri: bool = False
     unit: float = 1.0
     # Filled by the loop:
     ticks_run: int = 0
@@ -106,7 +107,7 @@ class Stepped:
             self.slip.indices(self.measure.shape[0]),  # slices are unhashable before 3.12
             self.opposing is not None,
             self.plant.motor_dof_slice.indices(self.plant.model.nv),
-            self.gravity is not None,
+            self.fri,
         )
 
 
@@ -159,16 +160,16 @@ def _fitting(stack: list[Stepped]) -> int:
     flange positions: as many floats a tick as an episode's row and measurement, and ten)."""
     episode = max(stack, key=lambda episode: episode.ticks)
     width = 0 if episode.measure is None else episode.measure.shape[0]
-    width += N if episode.gravity is not None else 0  # the robot's gravity model, logged too
+    width += N if episode.fri else 0  # the robot's gravity model, logged too
     floats = episode.ticks * (episode.plant.model.nq + episode.plant.model.nv + 2 * N + width + 10)
     return max(1, STACK_BYTES // (8 * floats))
 
 
-def _loop(stack: list[Stepped], threads: int = 1) -> None:
+def _loop(stack: list[Stepped]) -> None:
     if len(stack) == 1:  # alone: a loop over one episode's rows costs less per tick
         (_exact_alone if stack[0].exact else _sensed_alone)(stack[0])
     else:
-        (_exact_loop if stack[0].exact else _sensed_loop)(stack, threads)
+        (_exact_loop if stack[0].exact else _sensed_loop)(stack)
 
 
 # --- many episodes -----------------------------------------------------------------------------
@@ -187,9 +188,11 @@ class _Worlds:
     read from them before the tick steps, as a lone world's loop reads it after its first
     substep (the same computation on the same state: the same bits)."""
 
-    def __init__(self, stack: list[Stepped], threads: int) -> None:
+    def __init__(self, stack: list[Stepped]) -> None:
         first = stack[0].plant
-        self.batch = Batch(first.model, len(stack), threads, persistent=True)
+        # One thread: step_all runs stacks side by side on its own threads, each stack's array
+        # work beside another's physics (docs/performance.md, "One episode").
+        self.batch = Batch(first.model, len(stack), 1, persistent=True)
         self.batch.set_models([episode.plant.model for episode in stack])
         for row, episode in zip(self.batch.state, stack, strict=True):
             mujoco.mj_getState(episode.plant.model, episode.plant.data, row, _INTEGRATION)
@@ -216,7 +219,7 @@ def _columns(batch: Batch, first: str, last: str) -> np.ndarray:
     return batch.state[:, begin:stop]
 
 
-def _exact_loop(stack: list[Stepped], threads: int) -> None:
+def _exact_loop(stack: list[Stepped]) -> None:
     """Exact sensors, no delay, no friction: ctrl = reference term − G · (qpos, qvel).
 
     MuJoCo clamps each command to the motor's ctrlrange when applying it; the log keeps it
@@ -229,7 +232,7 @@ def _exact_loop(stack: list[Stepped], threads: int) -> None:
         term[: episode.ticks, index] = episode.term
     states, commands, flanges = (np.empty((ticks, count, width)) for width in (nx, N, 3))
     feedback = np.empty((count, N, 1))
-    worlds = _Worlds(stack, threads)
+    worlds = _Worlds(stack)
     sensed, command, site = worlds.sensed, worlds.drive[:, :N], worlds.site
     columns, fed_back = states[:, :, :, None], feedback[:, :, 0]
     matmul, subtract, copy = np.matmul, np.subtract, np.copyto
@@ -247,7 +250,7 @@ def _exact_loop(stack: list[Stepped], threads: int) -> None:
         episode.flange = flanges[:, index]
 
 
-def _sensed_loop(stack: list[Stepped], threads: int) -> None:
+def _sensed_loop(stack: list[Stepped]) -> None:
     """Sensors, a delay and friction.
 
     Each row (qpos, qvel, encoder noise, feed-forward) is known but for its state before the
@@ -276,13 +279,13 @@ def _sensed_loop(stack: list[Stepped], threads: int) -> None:
         strides=(width * item, measured.strides[0], item, item),
     )
     commands, flanges = np.empty((ticks, count, N)), np.empty((ticks, count, 3))
-    worlds = _Worlds(stack, threads)
+    worlds = _Worlds(stack)
     sensed, site = worlds.sensed, worlds.site
     applied = worlds.drive[:, :nu]
     friction = first.opposing is not None
     opposing = np.stack([episode.opposing for episode in stack]) if friction else None
     motor_force = worlds.drive[:, nu:][:, first.plant.motor_dof_slice]
-    fri = first.gravity is not None
+    fri = first.fri
     if fri:  # the robot adds its gravity model at the measured angles to the command, clamped
         units = np.array([[episode.unit] for episode in stack])
         limits = np.stack([episode.plant.torque_limits for episode in stack])
@@ -392,7 +395,8 @@ def _sensed_alone(episode: Stepped) -> None:
     states = rows[:, :nx]
     measurements = measured[window:]
     angles, rates = measurements[:, :N], measurements[:, episode.slip]
-    gravity, unit, limits = episode.gravity, episode.unit, plant.torque_limits
+    gravity = RobotGravity(plant.spec) if episode.fri else None
+    unit, limits = episode.unit, plant.torque_limits
     compensations = np.empty((ticks, N)) if gravity is not None else commands  # unused if not
     clip, add = np.clip, np.add
     for start, stop in _blocks(episode):

@@ -106,7 +106,7 @@ def _motor(episode: Stepped, tick: int) -> np.ndarray:
     plant, spec = episode.plant, episode.plant.spec
     limits = plant.torque_limits
     torque = np.clip(episode.command[max(tick - spec.delay, 0)], -limits, limits)
-    if episode.gravity is not None:
+    if episode.fri:
         torque = torque + episode.compensation[tick]
     if spec.friction is not None:
         velocity = plant.motor_map @ episode.state[tick][plant.model.nq :]
