@@ -218,6 +218,7 @@ NOOP_SCORES = WireScores(  # and the scores it claims for it
     torque_step=0.01,
     speed=0.5,
     chatter=0.001,
+    lag=0.006,
     damping=0.05,
 )
 

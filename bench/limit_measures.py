@@ -3,23 +3,34 @@ controllers and chattering ones score, on both plants, against the default limit
 defaults' comments and docs/limits.md quote these numbers.
 
     python bench/limit_measures.py [--seed 0] [--random 4]
+    python bench/limit_measures.py --variants 8 [--seed 0]
+
 
 Each controller runs the default 5 s spiral and a 3 s pyramid on the realistic and the ideal
 plant: the default gains, three times their stiffness (smooth and accurate), the top of the
 search space (three times the stiffness, five times the damping: the chattering end the issue
 found on fronts), fifty times the damping, and `--random` gains drawn log-uniformly from the
 search space.
+
+With `--variants N` it measures instead what the speed, damping and lag limits must allow (issue
+46): the default gains, smooth ones (all gains 0.3 times, stiffness 3 times), the defaults with
+A7's gains a hundredth (the wrist lag the issue found on fronts), and chattering ones, on the
+default 5 s spiral, a fourier and a pyramid path, each on the realistic plant and on
+`variants(ModelSpec(), N, seed)` (analytic/tuning/plants.py, a robust run's): each episode's
+reference's peak speed and measured peak speed (shares of the data sheet's), least damping ratio
+and each joint's RMS lag, then each controller's worst over its episodes.
 """
 
 import click
 import numpy as np
 
+from gainfarm.analytic.tuning.plants import variants
 from gainfarm.analytic.tuning.search_space import SearchSpace
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import Limits, measures
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import PLANTS
+from gainfarm.schemas.robot import PLANTS, SPEED_LIMITS, ModelSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.episode import run_episode
 
@@ -31,10 +42,73 @@ def scaled(kp: float, kd: float) -> PDGains:
     )
 
 
+def wrist(share: float) -> PDGains:
+    """The default gains with A7's (the last joint's) scaled by `share`."""
+    return PDGains(
+        kp=(*DEFAULT_GAINS.kp[:-1], share * DEFAULT_GAINS.kp[-1]),
+        kd=(*DEFAULT_GAINS.kd[:-1], share * DEFAULT_GAINS.kd[-1]),
+    )
+
+
+def robust(seed: int, count: int) -> None:
+    """The speed, damping and lag of each controller's episodes on the nominal plant and
+    `count` variants, then its worst over them (a robust run's measures)."""
+    controllers = {
+        "default": DEFAULT_GAINS,
+        "soft 0.3x": scaled(0.3, 0.3),
+        "stiff 3x": scaled(3, 1),
+        "A7 /100": wrist(0.01),
+        "kd 0.1x": scaled(1, 0.1),
+        "top 3x/5x": scaled(3, 5),
+    }
+    paths = {
+        "spiral": TrajectorySpec(),
+        "fourier": TrajectorySpec(kind="fourier"),
+        "pyramid": TrajectorySpec(kind="pyramid"),
+    }
+    plants = {"nominal": ModelSpec()} | {
+        f"variant {n}": plant for n, plant in enumerate(variants(ModelSpec(), count, seed))
+    }
+    limit = np.asarray(SPEED_LIMITS)
+    print("controller  path     plant       ref spd  speed  damping  lag per joint, mrad RMS")
+    for name, gains in controllers.items():
+        worst = {"ref": 0.0, "speed": 0.0, "damping": 1.0, "lag": np.zeros(7)}
+        for path_name, path in paths.items():
+            for plant_name, plant in plants.items():
+                log = run_episode(EpisodeSpec(gains=gains, trajectory=path, model=plant))
+                s = score(log)
+                ref = float(np.max(np.abs(log.qd_des) / limit))
+                lag = np.sqrt(np.mean((log.q - log.q_des) ** 2, axis=0)) * 1000
+                worst["ref"] = max(worst["ref"], ref)
+                worst["speed"] = max(worst["speed"], s.speed)
+                worst["damping"] = min(worst["damping"], float(s.damping or -1.0))
+                worst["lag"] = np.maximum(worst["lag"], lag)
+                print(
+                    f"{name:11} {path_name:8} {plant_name:10} {ref:7.3f} {s.speed:6.3f} "
+                    f"{s.damping:+8.4f}  " + " ".join(f"{v:6.2f}" for v in lag),
+                    flush=True,
+                )
+        print(
+            f"{name:11} WORST                 {worst['ref']:7.3f} {worst['speed']:6.3f} "
+            f"{worst['damping']:+8.4f}  " + " ".join(f"{v:6.2f}" for v in worst["lag"]),
+            flush=True,
+        )
+
+
 @click.command()
-@click.option("--seed", default=0, show_default=True, help="of the random gains")
+@click.option("--seed", default=0, show_default=True, help="of the random gains, or the variants")
 @click.option("--random", "count", default=4, show_default=True, help="random gains to add")
-def main(seed: int, count: int) -> None:
+@click.option(
+    "--variants",
+    "plants",
+    default=0,
+    show_default=True,
+    help="measure speed, damping and lag on the nominal plant and this many variants instead",
+)
+def main(seed: int, count: int, plants: int) -> None:
+    if plants:
+        robust(seed, plants)
+        return
     space = SearchSpace()
     rng = np.random.default_rng(seed)
     controllers = {

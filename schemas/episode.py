@@ -75,6 +75,10 @@ class EpisodeMetadata(BaseModel):
     versions: dict[str, str]
     # A property of the spec, not of the ticks, kept with them so that the worker's and the
     # referee's logs agree on it bit for bit, and the scores of a log carry it (worker.stability).
+    lag: float = Field(
+        0.0,
+        description="largest RMS over the ticks run of a joint's angle less its reference's, rad",
+    )
     damping: float | None = Field(
         None,
         description="least damping ratio of the closed loop linearised at poses along the "
@@ -107,6 +111,10 @@ class Scores(BaseModel):
         description="largest RMS of a joint's command above CHATTER_CUTOFF, as a share of its "
         "torque limit",
     )
+    lag: float = Field(
+        0.0,
+        description="largest RMS over the ticks run of a joint's angle less its reference's, rad",
+    )
     damping: float | None = Field(
         None,
         description="least damping ratio of the closed loop along the reference (≤ 0: unstable; "
@@ -127,10 +135,11 @@ class Scores(BaseModel):
     def __setstate__(self, state: dict[str, Any]) -> None:
         """Checkpoints from before objectives could be chosen pickled scores without `values`,
         and from before the safety measures without those (read as 0: never a violation), and from
-        before the damping margin without it (None: not measured)."""
+        before the damping margin without it (None: not measured), and from before the lag
+        without it (0.0, as the other measures)."""
         fields = state["__dict__"]
         fields.setdefault("values", None)
         fields.setdefault("damping", None)
-        for name in ("torque_step", "speed", "chatter"):
+        for name in ("torque_step", "speed", "chatter", "lag"):
             fields.setdefault(name, 0.0)
         super().__setstate__(state)

@@ -32,6 +32,8 @@ torque_step = max_(i,j) |u_ij − u_(i−1)j| / τmax_j     largest torque chang
 speed       = max_(i,j) |q̇_ij| / q̇max_j                 largest measured joint speed, a share
 chatter     = max_j RMS(u_j above CHATTER_CUTOFF) / τmax_j   the command's content the arm
                                                         cannot follow, a share of the limit
+lag         = max_j √((1/n) Σ_i (q_ij − q_des_ij)²)      the worst joint's RMS lag behind its
+                                                        reference over the n ticks run, rad
 
 (the saturated fraction, a diagnostic already, is the fourth). The RMS above the cut-off is the
 square root of the command's power spectral density (Welch's estimate, 0.5 s Hann segments)
@@ -68,6 +70,9 @@ CHATTER_SEGMENT = 256  # ticks per Welch segment: 0.5 s, bins 2 Hz apart
 # A measured speed is counted at most this many times its limit: beyond, no limit cares how
 # far, and the wire's bound holds whatever a wild simulation does.
 SPEED_CAP = 1000.0
+# rad: a joint's RMS lag is counted at most this: a joint turns at most 2 x 175° from its
+# reference within its position limits (schemas.robot), so beyond it only a wild simulation goes.
+LAG_CAP = 2 * math.pi
 
 # The objectives of a candidate with no episode to score (its path out of reach, or lost): worse
 # than any diverged episode, so NSGA-II ranks it last and moves on. A plug-in objective in either
@@ -149,6 +154,7 @@ def score(log: EpisodeLog, plugins: Mapping[str, Objective] | None = None) -> Sc
         torque_step=torque_step(log),
         speed=speed(log),
         chatter=chatter(log),
+        lag=lag(log),
         damping=meta.damping,
         values=values,
     )
@@ -170,6 +176,17 @@ def speed(log: EpisodeLog) -> float:
         return 0.0
     share = float(np.max(np.abs(log.qd) / np.asarray(SPEED_LIMITS)))
     return min(share, SPEED_CAP)
+
+
+def lag(log: EpisodeLog) -> float:
+    """The largest RMS over the ticks run of a joint's measured angle less its reference's, rad,
+    at most LAG_CAP. f_acc sees the flange's position only, to which the wrist's last joint (A7)
+    adds nothing: this sees every joint."""
+    if not log.ticks:
+        return 0.0
+    rms = np.sqrt(np.mean((log.q - log.q_des) ** 2, axis=0))
+    worst = float(np.max(rms))
+    return min(worst, LAG_CAP) if math.isfinite(worst) else LAG_CAP
 
 
 def chatter(log: EpisodeLog) -> float:

@@ -23,9 +23,10 @@ from pydantic import (
 from pydantic_core import ErrorDetails
 
 from gainfarm.schemas.episode import EpisodeSpec, Scores
-from gainfarm.schemas.objectives import SPEED_CAP
+from gainfarm.schemas.objectives import LAG_CAP, SPEED_CAP
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 
+# 9: scores carry the worst joint's RMS lag behind its reference (Scores.lag; schemas.limits).
 # 8: scores carry the closed loop's least damping ratio (Scores.damping; worker.stability), from
 # the log's metadata.
 # 7: scores carry the safety measures (Scores.torque_step, speed, chatter; schemas.limits).
@@ -36,7 +37,7 @@ from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 # lease request; 4: results carry the worker's scores, and the log only when the job asks to keep
 # it (the worker keeps the others, to be fetched); 3: results handed in to the broker and
 # confirmed by it; 2: Job.spec
-PROTOCOL_VERSION = 8
+PROTOCOL_VERSION = 9
 
 # Names become key-expression chunks, so they may not contain '/', '*', '$', '?' or '#'.
 NAME_PATTERN = r"^[A-Za-z0-9_.\-]{1,64}$"
@@ -69,12 +70,12 @@ class BadMessage(ValueError):
 class WireMessage(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    protocol: Literal[8] = PROTOCOL_VERSION
+    protocol: Literal[9] = PROTOCOL_VERSION
 
     @field_validator("protocol", mode="before")
     @classmethod
     def _an_integer(cls, version: object) -> object:
-        # Literal[8] would take 8.0 (and JSON true is 1 to Python): a version is an integer.
+        # Literal[9] would take 9.0 (and JSON true is 1 to Python): a version is an integer.
         if type(version) is not int:
             raise ValueError(_not_an_integer(version))
         return version
@@ -183,11 +184,12 @@ class WireScores(Scores):
     chatter: float = Field(
         ge=0, le=MAX_TORQUE_SHARE, description=Scores.model_fields["chatter"].description
     )
+    lag: float = Field(ge=0, le=LAG_CAP, description=Scores.model_fields["lag"].description)
     # A damping ratio is −ln|z| / √(ln²|z| + arg²z): within [−1, 1] for any eigenvalue z.
     damping: float = Field(ge=-1, le=1, description=Scores.model_fields["damping"].description)
 
     @field_validator(
-        "f_acc", "f_t", "max_error", "saturated_fraction", "torque_step", "speed", "chatter"
+        "f_acc", "f_t", "max_error", "saturated_fraction", "torque_step", "speed", "chatter", "lag"
     )
     @classmethod
     def _no_negative_zero(cls, value: float) -> float:

@@ -174,6 +174,7 @@ HAND_MADE_SCORES = WireScores(
     torque_step=0.01,
     speed=0.5,
     chatter=0.001,
+    lag=0.006,
     damping=0.05,
 )
 

@@ -166,6 +166,7 @@ COLUMNS = {
     "saturated_fraction": ("1", "share of ticks with a joint at its torque limit"),
     "speed": ("1", "largest measured joint speed, share of its data-sheet limit"),
     "chatter": ("1", "RMS of the command above 10 Hz, share of the joint's torque limit"),
+    "lag": ("rad", "largest RMS of a joint's measured angle less its reference's"),
     "within_limits": ("", "the controller keeps its run's safety limits on all its episodes"),
     "calm": ("", "the episode ran to its end without chatter (chatter within 0.02)"),
     "kind": ("", "the trajectory's kind"),
@@ -1027,7 +1028,7 @@ test) of the trajectories, ordered by the SHA-256 of `<split seed>:<trajectory_i
   `trajectory`, `duration` (s), `trajectory_spec` and `model` (JSON), `gravity_compensation`,
   `feedforward` (the learned model's SHA-256, or empty),
   `candidate_f_acc`, `candidate_f_t` (the controller's objectives over its run's trajectory set),
-  the safety measures `torque_step`, `saturated_fraction`, `speed`, `chatter`, `within_limits`,
+  the safety measures `torque_step`, `saturated_fraction`, `speed`, `chatter`, `lag`, `within_limits`,
   `calm` (ran to its end, chatter within {CALM_CHATTER:g}), `split`.
 - `trajectories.parquet`: one row per distinct trajectory. `trajectory_id` (the first
   {TRAJECTORY_ID_DIGITS} hex digits of the SHA-256 of `spec`), `kind`, `seed`, `center_x..z` (m),

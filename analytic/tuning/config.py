@@ -94,7 +94,7 @@ class RunConfig(BaseModel):
         Limits(),
         description="the safety limits every episode of a candidate must keep to, or it is "
         "infeasible: never on the front (schemas.limits; a config.json from before them reads "
-        "the defaults)",
+        "the defaults, one from before a limit does not check it)",
     )
     keep: defaults.Keep = Field(
         defaults.KEEP,
@@ -121,6 +121,16 @@ class RunConfig(BaseModel):
         "they return, that the referee runs again too: a worker lying about episodes that never "
         "reach the front is caught as well",
     )
+
+    @field_validator("limits", mode="before")
+    @classmethod
+    def _as_they_were(cls, limits: object) -> object:
+        # Limits as a stored config.json names them (a command line's are a Limits already): one
+        # it lacks did not exist when the run ran and was not checked, so it is not now; its
+        # default would change a resumed run's constraints (the lag, and the damping's bound).
+        if isinstance(limits, dict):
+            return {name: None for name in Limits.model_fields} | limits
+        return limits
 
     @field_validator("algorithm")
     @classmethod

@@ -38,7 +38,7 @@ from pathlib import Path
 
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.limits import MEASURED, MEASURES, Limits
+from gainfarm.schemas.limits import BEFORE_LAG, DAMPING, MEASURED, Limits, named
 from gainfarm.schemas.robot import N_JOINTS
 
 # The names a run directory uses; the report links to the figures by these relative names.
@@ -299,7 +299,8 @@ def read_front(path: Path) -> list[FrontMember]:
 EVALUATED_FIELDS = ("f_acc", "f_t", *MEASURED, "feasible")
 LEGACY_EVALUATED_FIELDS = (
     EVALUATED_FIELDS[:2],  # before the limits: the objectives alone
-    ("f_acc", "f_t", *MEASURES, "feasible"),  # before the damping margin
+    ("f_acc", "f_t", *BEFORE_LAG, "feasible"),  # before the damping margin
+    ("f_acc", "f_t", *BEFORE_LAG, DAMPING, "feasible"),  # before the lag
 )
 
 
@@ -331,14 +332,11 @@ def read_evaluated(path: Path) -> list[tuple[float, float]]:
 
 
 def read_measured(path: Path) -> list[tuple[float, ...]]:
-    """evaluated.csv's safety measures, in the order told (none in a run from before them;
-    without the damping in one from before it)."""
+    """evaluated.csv's safety measures, in MEASURED's order, in the order told (none in a run
+    from before them; without the damping in one from before it, the lag 0.0 in one from before
+    it: schemas.limits.named)."""
     rows = _read_rows(path, EVALUATED_FIELDS, *LEGACY_EVALUATED_FIELDS)
-    return [
-        tuple(float(row[name]) for name in MEASURED if name in row)
-        for row in rows
-        if "feasible" in row
-    ]
+    return [named(row) for row in rows if "feasible" in row]
 
 
 def front_json(front: Sequence[FrontMember], validation: ValidationRecord | None = None) -> bytes:
@@ -372,7 +370,7 @@ def read_front_json(path: Path) -> list[FrontMember]:
             FrontMember(
                 **{k: v for k, v in member.items() if k not in ("episodes", "measures")},
                 episodes=tuple(EpisodeCheck(**episode) for episode in member.get("episodes", ())),
-                measures=tuple(member.get("measures", {}).values()),
+                measures=named(member.get("measures", {})),
             )
             for member in members
         ]

@@ -94,7 +94,7 @@ from gainfarm.edges.files import (
 from gainfarm.models.dynamics import digest
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
-from gainfarm.schemas.limits import MEASURES, measures
+from gainfarm.schemas.limits import MEASURES, before_lag, measures
 from gainfarm.schemas.objectives import objectives
 
 log = logging.getLogger("gainfarm.analytic")
@@ -150,6 +150,7 @@ class RunState:
     spot_key: bytes = field(default_factory=lambda: secrets.token_bytes(16))
     rewinds: int = 0  # times the evolution started again without a caught worker's results
     unchecked: str = ""  # why the front's episodes are not refereed (trusted, or switched off)
+    lag_measured: bool = True  # `measured` holds the lag (False: a checkpoint from before it)
 
     def __setstate__(self, state: dict) -> None:
         """Checkpoints from before validation by a referee have nothing validated yet."""
@@ -165,6 +166,9 @@ class RunState:
         self.__dict__.update({**defaults, **state})
         if "measured" not in state:  # from before the limits: its points count as within them
             self.measured = [(0.0,) * len(MEASURES) for _ in self.evaluated]
+        elif not state.get("lag_measured", False):  # from before the lag: its points had none
+            self.measured = [before_lag(values) for values in self.measured]
+        self.lag_measured = True
 
 
 @dataclass(frozen=True)

@@ -333,7 +333,7 @@ def min_damping() -> Callable[[F], F]:
         metavar="Z",
         help="a constraint: every episode's closed loop, linearised along its reference, keeps "
         "a least damping ratio of at least Z (-1 to 1; 0: stable; see docs/limits.md)  "
-        "[default: not checked]",
+        "[default: -0.1; a --limits file's min_damping null: not checked]",
     )
 
 

@@ -17,6 +17,7 @@ from gainfarm.analytic.tuning.records import REPORT_MD, read_front_json, read_ru
 from gainfarm.analytic.tuning.run import CHECKPOINT, TuningRun
 from gainfarm.analytic.view.export import BadRun, controller
 from gainfarm.analytic.view.run_report import write_run_report
+from gainfarm.cli.options import limits_from
 from gainfarm.schemas import EpisodeSpec, Scores, TrajectorySpec
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import MEASURED, MEASURES, Limits, measures, tally
@@ -63,13 +64,15 @@ def tuned(
 @pytest.fixture(scope="module")
 def real() -> dict[str, Scores]:
     """A chattering controller (the top of the search space, as accurate as the defaults) and a
-    smooth, soft one (far less accurate), on the ideal plant's real episodes."""
+    smooth, soft one (far less accurate), on the ideal plant's real episodes. The soft one is
+    half the default stiffness: at 0.3 of it (and half the damping) its wrist overshoots this
+    fast path to 1.17 times the data sheet's speed and lags 91 mrad, beyond the limits."""
     gains = {
         "chattering": PDGains(
             kp=tuple(3 * k for k in DEFAULT_GAINS.kp), kd=tuple(5 * k for k in DEFAULT_GAINS.kd)
         ),
         "soft": PDGains(
-            kp=tuple(0.3 * k for k in DEFAULT_GAINS.kp), kd=tuple(0.5 * k for k in DEFAULT_GAINS.kd)
+            kp=tuple(0.5 * k for k in DEFAULT_GAINS.kp), kd=tuple(1.0 * k for k in DEFAULT_GAINS.kd)
         ),
     }
     path = TrajectorySpec(kind="fourier", duration=1.5)
@@ -95,7 +98,9 @@ def test_a_chattering_candidate_is_on_no_front_whatever_the_optimiser(
         "soft": ((soft.f_acc, soft.f_t), limits.constraints(measures([soft]))),
     }
     for constrained in (False, True):
-        evolution = Evolution(4, 1, algorithm=algorithm, constraints=4 if constrained else 0)
+        evolution = Evolution(
+            4, 1, algorithm=algorithm, constraints=limits.count if constrained else 0
+        )
         for _ in range(2):  # and once more after a checkpoint's round trip
             asked = evolution.ask()
             names = ["chattering", "soft"] * (len(asked) // 2)
@@ -178,11 +183,46 @@ def test_a_checkpoint_from_before_the_limits_resumes(tmp_path: Path) -> None:
     path.write_bytes(encode(pickle.loads(pickle.dumps(state)), run.identity))
     (tmp_path / "old2" / "config.json").write_text(TINY.model_dump_json())
     with TuningRun.open(tmp_path / "old2") as resumed:
-        assert resumed.state.measured == [(0.0,) * 4] * 12
+        assert resumed.state.measured == [(0.0,) * len(MEASURES)] * 12
         resumed.run(InProcessEvaluator(scorer=rough_toy))
         assert resumed.state.stopped == whole.state.stopped == "4 generations"
         assert len(resumed.state.measured) == resumed.state.evolution.evaluations == 24
         assert all(not resumed.config.limits.violated(m.measures) for m in resumed.front())
+
+
+def test_a_checkpoint_from_before_the_lag_resumes_with_its_constraints(tmp_path: Path) -> None:
+    """Its config.json names no lag and no damping bound, its measures lack the lag: neither is
+    checked (its evolution was told four constraints), its points read a lag of 0, and it goes
+    on to its end, its new points measured for the lag."""
+    old_limits = Limits(lag=None, min_damping=None)
+    assert old_limits.count == 4  # the constraints an older gainfarm told
+    config = TINY.model_copy(update={"generations": 2, "limits": old_limits})
+    with TuningRun.create(tmp_path / "old", config) as run:
+        run.run(InProcessEvaluator(scorer=rough_toy))
+    path = tmp_path / "old" / CHECKPOINT
+    state = decode(path.read_bytes(), path, run.identity, config.algorithm)
+    lag = MEASURED.index("lag")
+    state.measured = [(*m[:lag], *m[lag + 1 :]) for m in state.measured]  # as it kept them
+    del state.__dict__["lag_measured"]
+    state.stopped = None
+    path.write_bytes(encode(pickle.loads(pickle.dumps(state)), run.identity))
+    stored = json.loads(TINY.model_dump_json())
+    for name in ("lag", "min_damping"):
+        del stored["limits"][name]
+    (tmp_path / "old" / "config.json").write_text(json.dumps(stored))
+    with TuningRun.open(tmp_path / "old") as resumed:
+        assert resumed.config.limits == old_limits
+        assert all(len(m) == len(MEASURED) and m[lag] == 0.0 for m in resumed.state.measured)
+        resumed.run(InProcessEvaluator(scorer=lag_toy))
+        assert resumed.state.stopped == "4 generations"
+        assert resumed.state.evolution.constraints == 4
+        assert len(resumed.state.measured) == resumed.state.evolution.evaluations == 24
+        assert all(m[lag] == 0.02 for m in resumed.state.measured[12:])
+
+
+def lag_toy(spec: EpisodeSpec) -> Scores:
+    """The rough toy, lagging 20 mrad."""
+    return rough_toy(spec).model_copy(update={"lag": 0.02})
 
 
 # --- --min-damping -----------------------------------------------------------------------------
@@ -191,8 +231,10 @@ def test_a_checkpoint_from_before_the_limits_resumes(tmp_path: Path) -> None:
 def test_a_damping_bound_keeps_every_front_member_above_it_and_the_report_lists_each(
     tmp_path: Path,
 ) -> None:
-    free = tuned(tmp_path / "free", scorer=damped_toy)
-    assert free.state.evolution.constraints == len(MEASURES)  # not a constraint unless asked
+    assert TINY.limits.min_damping == -0.1  # a constraint by default (schemas.limits argues it)
+    unbounded = TINY.model_copy(update={"limits": Limits(min_damping=None)})
+    free = tuned(tmp_path / "free", unbounded, scorer=damped_toy)
+    assert free.state.evolution.constraints == len(MEASURES)  # not one when switched off
     assert min(member.measures[-1] for member in free.front()) < 0
     assert "not a constraint of this run" in (free.directory / REPORT_MD).read_text()
     config = TINY.model_copy(update={"limits": Limits(min_damping=0.0)})
@@ -244,10 +286,12 @@ def test_a_bad_damping_bound_is_one_line_naming_the_option(
         ('{"chatter": -1}', "chatter: must be more than 0, got -1"),
         (
             '{"jerk": 1}',
-            "unknown limit 'jerk' (known: torque_step, saturated_fraction, speed, chatter, "
+            "unknown limit 'jerk' (known: torque_step, saturated_fraction, speed, chatter, lag, "
             "min_damping)",
         ),
         ('{"torque_step": "abc"}', "torque_step: expected a number, got 'abc'"),
+        ('{"lag": 0}', "lag: must be more than 0, got 0"),
+        ('{"lag": "1 deg"}', "lag: expected a number, got '1 deg'"),
     ],
 )
 def test_a_bad_limits_file_is_one_line_naming_the_option(
@@ -263,3 +307,18 @@ def test_a_bad_limits_file_is_one_line_naming_the_option(
         assert line.startswith("analytic: error: --limits: ") and says in line, line
     written = ["limits.json"] if content is not None else []
     assert sorted(path.name for path in tmp_path.iterdir()) == written  # no run, no experiment
+
+
+def test_a_limits_file_sets_the_lag_and_switches_limits_off(tmp_path: Path) -> None:
+    """The lag is a limit like the others in --limits FILE: set, or null (not checked); the
+    damping's bound too, and --min-damping over the file's."""
+    file = tmp_path / "limits.json"
+    file.write_text('{"lag": 0.02, "min_damping": null}')
+    limits = limits_from(file)
+    assert limits.lag == 0.02 and limits.min_damping is None
+    assert limits == Limits(lag=0.02, min_damping=None)  # the others keep their defaults
+    assert limits.count == len(MEASURES)
+    assert limits.violated((0.01, 0.0, 0.5, 0.001, 0.03)) == ("lag",)
+    file.write_text('{"lag": null}')
+    assert limits_from(file, damping=0.0) == Limits(lag=None, min_damping=0.0)
+    assert limits_from(file).violated((0.01, 0.0, 0.5, 0.001, 3.0, -0.05)) == ()

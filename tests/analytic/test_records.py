@@ -128,8 +128,8 @@ def test_reading_a_front_json_of_another_format_is_refused(tmp_path: Path) -> No
 def test_evaluated_points_round_trip_exactly(tmp_path: Path) -> None:
     points = [(0.1 + 0.2, 1e-3 / 7), (0.0123456789012345, 4.2e4), (10.0, 1e12)]
     measured = [
-        (0.01, 0.0, 0.5, 1e-3 / 3, 0.05),
-        (0.4, 0.3, 3.0, 0.7, -0.2),
+        (0.01, 0.0, 0.5, 1e-3 / 3, 0.006, 0.05),
+        (0.4, 0.3, 3.0, 0.7, 0.2, -0.2),
         (*NOT_MEASURED, NOT_DAMPED),
     ]
     path = tmp_path / "evaluated.csv"
@@ -137,7 +137,9 @@ def test_evaluated_points_round_trip_exactly(tmp_path: Path) -> None:
     assert read_evaluated(path) == points
     assert read_measured(path) == measured
     lines = path.read_text().splitlines()
-    assert lines[0] == "f_acc,f_t,torque_step,saturated_fraction,speed,chatter,damping,feasible"
+    assert lines[0] == (
+        "f_acc,f_t,torque_step,saturated_fraction,speed,chatter,lag,damping,feasible"
+    )
     assert [line.rsplit(",", 1)[1] for line in lines[1:]] == ["true", "false", "false"]
     # Limits from a file decide it: the first breaks a tighter torque step.
     path.write_bytes(evaluated_csv(points, measured, Limits(torque_step=0.005)))
@@ -151,8 +153,20 @@ def test_evaluated_csv_from_before_the_damping_reads_its_measures(tmp_path: Path
         "0.01,2.5,0.01,0.0,0.5,0.001,true\n"
     )
     assert read_evaluated(path) == [(0.01, 2.5)]
-    assert read_measured(path) == [(0.01, 0.0, 0.5, 0.001)]
+    assert read_measured(path) == [(0.01, 0.0, 0.5, 0.001, 0.0)]  # no lag either: read as 0
     assert Limits(min_damping=0.1).violated(read_measured(path)[0]) == ()  # not judged
+
+
+def test_evaluated_csv_from_before_the_lag_reads_it_as_zero(tmp_path: Path) -> None:
+    path = tmp_path / "evaluated.csv"
+    path.write_text(
+        "f_acc,f_t,torque_step,saturated_fraction,speed,chatter,damping,feasible\n"
+        "0.01,2.5,0.01,0.0,0.5,0.001,-0.02,true\n"
+    )
+    assert read_evaluated(path) == [(0.01, 2.5)]
+    assert read_measured(path) == [(0.01, 0.0, 0.5, 0.001, 0.0, -0.02)]  # the damping in place
+    assert Limits().violated(read_measured(path)[0]) == ()
+    assert Limits(min_damping=0.0).violated(read_measured(path)[0]) == ("damping",)
 
 
 def test_evaluated_csv_from_before_the_limits_reads_its_objectives(tmp_path: Path) -> None:

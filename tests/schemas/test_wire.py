@@ -13,7 +13,7 @@ from gainfarm.schemas import json_schema
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR, score
+from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR, LAG_CAP, score
 from gainfarm.schemas.robot import IDEAL_PLANT, PLAIN_PLANT, ModelSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import (
@@ -190,6 +190,7 @@ SCORES = {
     "torque_step": 0.01,
     "speed": 0.5,
     "chatter": 0.001,
+    "lag": 0.006,
     "damping": 0.05,
 }
 
@@ -263,6 +264,10 @@ def result_with_scores(**scores: object) -> bytes:
         ({"chatter": -0.0}, "scores.chatter: -0.0 is not a score"),
         ({"chatter": 2.5}, "scores.chatter: must be at most 2"),
         ({"chatter": None}, "scores.chatter: expected a number"),
+        ({"lag": -0.0}, "scores.lag: -0.0 is not a score"),
+        ({"lag": 7.0}, "scores.lag: must be at most 6.28"),
+        ({"lag": -0.1}, "scores.lag: must be at least 0"),
+        ({"lag": None}, "scores.lag: expected a number"),
         ({"damping": -0.0}, "scores.damping: -0.0 is not a score"),
         ({"damping": 1.5}, "scores.damping: must be at most 1"),
         ({"damping": -1.01}, "scores.damping: must be at least -1"),
@@ -288,7 +293,7 @@ def test_honest_scores_keep_their_json_on_the_wire() -> None:
         scores = Scores(**SCORES, values=values)
         assert WireScores(**scores.model_dump()).model_dump_json() == scores.model_dump_json()
     edge = {"f_acc": 0.0, "f_t": 0.0, "max_error": 0.0, "saturated_fraction": 1.0, "ticks": 0}
-    edge |= {"torque_step": 2.0, "speed": 1000.0, "chatter": 0.0, "damping": -1.0}
+    edge |= {"torque_step": 2.0, "speed": 1000.0, "chatter": 0.0, "lag": LAG_CAP, "damping": -1.0}
     assert decode(Result, result_with_scores(**edge)).scores == WireScores(**{**SCORES, **edge})
 
 
@@ -354,8 +359,9 @@ def test_no_episode_scores_beyond_the_wires_bounds(diverged_log: EpisodeLog) -> 
 
 
 def test_scores_without_the_safety_measures_are_refused_on_the_wire() -> None:
-    """A worker of protocol 6 sent none: this protocol's always measures them."""
-    for name in ("torque_step", "speed", "chatter"):
+    """A worker of protocol 6 sent none, one of protocol 8 no lag: this protocol's always
+    measures them."""
+    for name in ("torque_step", "speed", "chatter", "lag"):
         old = {key: value for key, value in SCORES.items() if key != name}
         with pytest.raises(BadMessage, match=f"^Result: scores.{name}: missing"):
             decode(Result, json.dumps({**json.loads(result_with_scores()), "scores": old}).encode())
@@ -447,7 +453,7 @@ def test_the_largest_confirmation_and_its_reply_fit_in_a_message() -> None:
         decode(ConfirmRequest, request.replace(b'"]}', b'","' + b"j" * 64 + b'"]}'))
     tiny = 2.2250738585072014e-308
     worst = {"f_acc": tiny, "f_t": tiny, "max_error": tiny, "saturated_fraction": tiny}
-    worst |= {"torque_step": tiny, "speed": tiny, "chatter": tiny, "damping": -tiny}
+    worst |= {"torque_step": tiny, "speed": tiny, "chatter": tiny, "lag": tiny, "damping": -tiny}
     scores = WireScores(**{**SCORES, **worst, "values": (-tiny, -tiny), "ticks": 60_001})
     accepted = [
         Accepted(job_id=name, lease_id="l" * 64, worker="w" * 64, digest="f" * 64, scores=scores)
