@@ -1028,8 +1028,8 @@ test) of the trajectories, ordered by the SHA-256 of `<split seed>:<trajectory_i
   `trajectory`, `duration` (s), `trajectory_spec` and `model` (JSON), `gravity_compensation`,
   `feedforward` (the learned model's SHA-256, or empty),
   `candidate_f_acc`, `candidate_f_t` (the controller's objectives over its run's trajectory set),
-  the safety measures `torque_step`, `saturated_fraction`, `speed`, `chatter`, `lag`, `within_limits`,
-  `calm` (ran to its end, chatter within {CALM_CHATTER:g}), `split`.
+  the safety measures `torque_step`, `saturated_fraction`, `speed`, `chatter`, `lag` (rad),
+  `within_limits`, `calm` (ran to its end, chatter within {CALM_CHATTER:g}), `split`.
 - `trajectories.parquet`: one row per distinct trajectory. `trajectory_id` (the first
   {TRAJECTORY_ID_DIGITS} hex digits of the SHA-256 of `spec`), `kind`, `seed`, `center_x..z` (m),
   `size` (m), `duration` (s), `twist` (rad), `turns`, `waypoints`, `harmonics`, `spec` (the

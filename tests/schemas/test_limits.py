@@ -14,6 +14,7 @@ from gainfarm.schemas.limits import (
     MEASURES,
     NOT_DAMPED,
     NOT_MEASURED,
+    SPEED_TOLERANCE,
     Limits,
     before_lag,
     measures,
@@ -173,6 +174,19 @@ def test_a_wrist_at_a_hundredth_of_its_gains_breaks_the_lag_limit_alone() -> Non
     assert abs(wrist.f_acc - default.f_acc) < 0.01 * default.f_acc  # f_acc cannot tell them apart
     assert Limits().violated(measures([wrist])) == ("lag",), wrist
     assert wrist.lag > 3 * Limits().lag > 10 * default.lag
+
+
+def test_the_speed_is_judged_with_its_stated_tolerance() -> None:
+    """The data sheet's speed, overshot by a controller following a reference at up to it: 10 %
+    over is allowed, more is not, and a tighter limit is tolerated by the same share."""
+    assert SPEED_TOLERANCE == 0.1 and Limits().speed == 1.0
+    lenient = {"lag": None, "min_damping": None}
+    at = {share: (0.0, 0.0, share, 0.0, 0.0) for share in (1.05, 1.099, 1.101)}
+    assert Limits(**lenient).violated(at[1.099]) == ()
+    assert Limits(**lenient).violated(at[1.101]) == ("speed",)
+    assert Limits(**lenient).constraints(at[1.05])[2] == pytest.approx(1.05 / 1.1 - 1)
+    assert Limits(speed=0.9, **lenient).violated((0.0, 0.0, 0.98, 0.0, 0.0)) == ()  # 0.99 allowed
+    assert Limits(speed=0.9, **lenient).violated((0.0, 0.0, 1.0, 0.0, 0.0)) == ("speed",)
 
 
 def test_a_record_from_before_the_lag_reads_it_as_zero() -> None:

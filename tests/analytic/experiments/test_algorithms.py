@@ -72,8 +72,16 @@ def soft_arms_diverge(spec: EpisodeSpec) -> Scores:
     """The toy objective, but a shoulder far softer than the default's lets the arm fall."""
     if spec.gains.kp[1] < 0.2 * DEFAULT_GAINS.kp[1]:
         f_acc, f_t = PENALTY
+        # With the damping margin a worker measures before the episode runs (its log's
+        # metadata), as the default gains' on the realistic plant.
         return Scores(
-            f_acc=f_acc, f_t=f_t, max_error=f_acc, saturated_fraction=0.0, diverged=True, ticks=1
+            f_acc=f_acc,
+            f_t=f_t,
+            max_error=f_acc,
+            saturated_fraction=0.0,
+            diverged=True,
+            ticks=1,
+            damping=0.013,
         )
     return toy_scores(spec)
 
