@@ -4,7 +4,8 @@ defaults' comments and docs/limits.md quote these numbers.
 
     python bench/limit_measures.py [--seed 0] [--random 4]
     python bench/limit_measures.py --variants 8 [--seed 0]
-
+    python bench/limit_measures.py --variants 8 --runs 9
+    python bench/limit_measures.py --variants 8 --fast
 
 Each controller runs the default 5 s spiral and a 3 s pyramid on the realistic and the ideal
 plant: the default gains, three times their stiffness (smooth and accurate), the top of the
@@ -18,7 +19,11 @@ A7's gains a hundredth (the wrist lag the issue found on fronts), and chattering
 default 5 s spiral, a fourier and a pyramid path, each on the realistic plant and on
 `variants(ModelSpec(), N, seed)` (analytic/tuning/plants.py, a robust run's): each episode's
 reference's peak speed and measured peak speed (shares of the data sheet's), least damping ratio
-and each joint's RMS lag, then each controller's worst over its episodes.
+and each joint's RMS lag, then each controller's worst over its episodes. With `--runs R` as well,
+the default gains' worst speed and lag per path and least damping and largest chatter on each of
+R robust runs' variants (seeds 0 to R − 1), and on a 3 s pyramid; with `--fast`, the default, soft
+and stiff gains on each Cartesian kind at its shortest feasible duration (its reference at the
+full rated speed, worker.reference) and on a 3 s pyramid, on the realistic plant and the variants.
 """
 
 import click
@@ -33,6 +38,13 @@ from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import PLANTS, SPEED_LIMITS, ModelSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.episode import run_episode
+from gainfarm.worker.reference import shortest_duration
+
+PATHS = {
+    "spiral": TrajectorySpec(),
+    "fourier": TrajectorySpec(kind="fourier"),
+    "pyramid": TrajectorySpec(kind="pyramid"),
+}
 
 
 def scaled(kp: float, kd: float) -> PDGains:
@@ -61,11 +73,7 @@ def robust(seed: int, count: int) -> None:
         "kd 0.1x": scaled(1, 0.1),
         "top 3x/5x": scaled(3, 5),
     }
-    paths = {
-        "spiral": TrajectorySpec(),
-        "fourier": TrajectorySpec(kind="fourier"),
-        "pyramid": TrajectorySpec(kind="pyramid"),
-    }
+    paths = PATHS
     plants = {"nominal": ModelSpec()} | {
         f"variant {n}": plant for n, plant in enumerate(variants(ModelSpec(), count, seed))
     }
@@ -95,6 +103,61 @@ def robust(seed: int, count: int) -> None:
         )
 
 
+def runs(count: int, runs: int) -> None:
+    """The default gains' worst measures over each of `runs` robust runs' `count` variants."""
+    paths = PATHS | {"pyramid 3 s": TrajectorySpec(kind="pyramid", duration=3.0)}
+    for seed in range(runs):
+        lag: dict[str, float] = {}
+        speed: dict[str, float] = {}
+        damping, chatter = 1.0, 0.0
+        for plant in variants(ModelSpec(), count, seed):
+            for name, path in paths.items():
+                s = score(
+                    run_episode(EpisodeSpec(gains=DEFAULT_GAINS, trajectory=path, model=plant))
+                )
+                lag[name] = max(lag.get(name, 0.0), s.lag)
+                speed[name] = max(speed.get(name, 0.0), s.speed)
+                if name in PATHS:  # the 5 s paths
+                    damping, chatter = (
+                        min(damping, float(s.damping or -1.0)),
+                        max(chatter, s.chatter),
+                    )
+        print(
+            f"seed {seed}: lag mrad "
+            + " ".join(f"{k} {v * 1000:.1f}" for k, v in lag.items())
+            + f"; least damping {damping:+.4f}; largest chatter {chatter:.4f}; speed "
+            + " ".join(f"{k} {v:.3f}" for k, v in speed.items()),
+            flush=True,
+        )
+
+
+def fast(count: int) -> None:
+    """Default, soft and stiff gains on references at (nearly) the full rated speed."""
+    controllers = {
+        "default": DEFAULT_GAINS,
+        "soft 0.3x": scaled(0.3, 0.3),
+        "stiff 3x": scaled(3, 1),
+    }
+    plants = (ModelSpec(), *variants(ModelSpec(), count, 0))
+    limit = np.asarray(SPEED_LIMITS)
+    paths = [
+        TrajectorySpec(kind=kind, duration=shortest_duration(TrajectorySpec(kind=kind)))
+        for kind in ("spiral", "pyramid", "random")
+    ] + [TrajectorySpec(kind="pyramid", duration=3.0)]
+    for path in paths:
+        for name, gains in controllers.items():
+            speeds = []
+            for plant in plants:
+                log = run_episode(EpisodeSpec(gains=gains, trajectory=path, model=plant))
+                speeds.append(score(log).speed)
+            ref = float(np.max(np.abs(log.qd_des) / limit))
+            print(
+                f"{path.kind:8} {path.duration:.1f} s, reference {ref:.3f}: {name:10} "
+                f"nominal {speeds[0]:.3f}, variants up to {max(speeds[1:]):.3f}",
+                flush=True,
+            )
+
+
 @click.command()
 @click.option("--seed", default=0, show_default=True, help="of the random gains, or the variants")
 @click.option("--random", "count", default=4, show_default=True, help="random gains to add")
@@ -105,7 +168,17 @@ def robust(seed: int, count: int) -> None:
     show_default=True,
     help="measure speed, damping and lag on the nominal plant and this many variants instead",
 )
-def main(seed: int, count: int, plants: int) -> None:
+@click.option(
+    "--runs", "run_count", default=0, help="with --variants: the default gains on this many runs'"
+)
+@click.option("--fast", "at_rated", is_flag=True, help="with --variants: rated-speed references")
+def main(seed: int, count: int, plants: int, run_count: int, at_rated: bool) -> None:
+    if plants and run_count:
+        runs(plants, run_count)
+        return
+    if plants and at_rated:
+        fast(plants)
+        return
     if plants:
         robust(seed, plants)
         return
