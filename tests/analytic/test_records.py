@@ -1,5 +1,6 @@
 """A run's records: CSVs and JSON that read back exactly, a run read from its plain files."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -116,6 +117,22 @@ def test_front_json_round_trips_with_each_members_logs(tmp_path: Path) -> None:
 def _csv(directory: Path, front: list[FrontMember]) -> Path:
     (directory / "front.csv").write_bytes(front_csv(front))
     return directory / "front.csv"
+
+
+def test_a_front_json_from_before_the_lag_reads_it_as_zero(tmp_path: Path) -> None:
+    """Its members' measures name no lag: read in MEASURED's order with a lag of 0, the damping
+    in its place; one from before the damping has none."""
+    old = {"torque_step": 0.01, "saturated_fraction": 0.0, "speed": 0.5, "chatter": 0.001}
+    members = [
+        {"kp": list(KP), "kd": list(KD), "f_acc": 0.01, "f_t": 1.0, "measures": measures}
+        for measures in (old | {"damping": -0.02}, old)
+    ]
+    (tmp_path / "front.json").write_text(json.dumps({"members": members}))
+    damped, undamped = read_front_json(tmp_path / "front.json")
+    assert damped.measures == (0.01, 0.0, 0.5, 0.001, 0.0, -0.02)
+    assert undamped.measures == (0.01, 0.0, 0.5, 0.001, 0.0)
+    again = json.loads(front_json([damped]))["members"][0]["measures"]
+    assert again == old | {"lag": 0.0, "damping": -0.02}
 
 
 def test_reading_a_front_json_of_another_format_is_refused(tmp_path: Path) -> None:
