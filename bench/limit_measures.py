@@ -197,7 +197,7 @@ def main(seed: int, count: int, plants: int, run_count: int, at_rated: bool) -> 
     limits = Limits()
     print(
         "plant      path         controller   f_acc mm   f_t       step   sat    speed  "
-        "chatter  breaks"
+        "chatter  lag mrad  breaks"
     )
     for plant, model in (("realistic", PLANTS["realistic"]), ("ideal", PLANTS["ideal"])):
         for path_name, path in paths.items():
@@ -208,7 +208,7 @@ def main(seed: int, count: int, plants: int, run_count: int, at_rated: bool) -> 
                 print(
                     f"{plant:10} {path_name:12} {name:12} {s.f_acc * 1000:8.2f} {s.f_t:9.3g} "
                     f"{s.torque_step:6.3f} {s.saturated_fraction:6.3f} {s.speed:6.2f} "
-                    f"{s.chatter:8.5f}  {broken}",
+                    f"{s.chatter:8.5f} {s.lag * 1000:8.1f}  {broken}",
                     flush=True,
                 )
 
