@@ -26,8 +26,9 @@ number in [−1, 1], and a share of a lower bound would blow up at the natural b
 The defaults are argued from measurements (bench/limit_measures.py --variants 8): each keeps
 the default gains feasible on the 5 s spiral, fourier and pyramid paths, on the nominal plant and
 on robust runs' plant variants (where the default gains run away on some variant, as on 4 of the
-9 seeds measured, they break the torque step, chatter and speed limits, whatever these are). A run's config.json from before a limit existed does not check it (RunConfig), so a
-resumed run keeps its constraints; a record from before the lag reads it as 0.0 (`named`).
+9 seeds measured, they break the torque step, chatter and speed limits, whatever these are).
+A run's config.json from before a limit existed does not check it (RunConfig), so a resumed run
+keeps its constraints; a record from before the lag reads it as 0.0 (`named`).
 """
 
 from collections.abc import Mapping, Sequence
