@@ -193,10 +193,11 @@ def tune_run(
                         run.run(chosen, _loading_figures(step))
                         stage = "baseline"
                         run.baseline(chosen)
-                        figures.begin(run)
                         if read_check(run.directory) is None:
                             stage = "check"
                             run_check(run, chosen, on_check)
+                        # After the check: the controller the figure marks is its advice.
+                        figures.begin(run)
             stage = "report"
             figures.finish(run)
             return run.state.stopped or ""
@@ -240,8 +241,8 @@ def _balance_of(config: RunConfig, found: RunConfig, balance: bool) -> RunConfig
 
 
 class _Figures:
-    """A run's figures, drawn on a thread of their own once its default gains have run (what
-    they show is then settled), while its held-out check's episodes run and its farm stops:
+    """A run's figures, drawn on a thread of their own once its default gains have run and its
+    held-out check has advised (what they show is then settled), while its farm stops:
     only report.md is left for its end. What draws them is loaded in the function, not at the
     top: matplotlib is half a second of a run's start, before its first job."""
 

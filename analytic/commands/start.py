@@ -80,6 +80,15 @@ if TYPE_CHECKING:
     "TPE, or uniform random sampling (--async: nsga2 or tpe only)",
 )
 @click.option(
+    "--torque-measure",
+    type=click.Choice(tuple(defaults.TORQUE_MEASURES)),
+    default=defaults.TORQUE_MEASURE,
+    show_default=True,
+    help="the second objective: per-joint, each joint's squared torque change weighed by its "
+    "torque limit (f_t_joint: the wrist counts), or raw, the paper's f_t (A1, A2 and A4 make "
+    "nearly all of it)",
+)
+@click.option(
     "--objective-scaling",
     type=click.Choice(defaults.OBJECTIVE_SCALINGS),
     default=defaults.OBJECTIVE_SCALING,
@@ -140,6 +149,7 @@ def start(
     keep: str,
     asynchronous: bool,
     algorithm: str,
+    torque_measure: str,
     objective_scaling: str,
     replicate: bool,
     spot_checks: float,
@@ -165,7 +175,7 @@ def start(
         learned = options.feedforward_model(feedforward)
         model_file = learned[0] if learned is not None else None
         model = options.model_spec(plant, joints)
-        variants = plants_from(plants, uncertainty_file, model, seed, plant=plant)
+        variants = plants_from(plants, uncertainty_file, model, seed, plant=plant, designed=True)
         held_out = plants_from(
             check_plants, uncertainty_file, model, seed, held_out=True, plant=plant
         )
@@ -184,6 +194,7 @@ def start(
                 keep=keep,
                 asynchronous=asynchronous,
                 algorithm=algorithm,
+                objectives=("f_acc", defaults.TORQUE_MEASURES[torque_measure]),
                 objective_scaling=objective_scaling,
                 replicate=replicate,
                 spot_checks=spot_checks,

@@ -86,9 +86,10 @@ class RunConfig(BaseModel):
         "(analytic.tuning.check); none: no check",
     )
     aggregate: Literal["mean", "worst", "cvar"] = Field(
-        "cvar",
-        description="each trajectory's objectives over the nominal plant and its variants: the "
-        "mean, the worst, or the mean of the worst quarter (schemas.objectives.CVAR_SHARE)",
+        defaults.AGGREGATE,
+        description="each trajectory's objectives over the nominal plant and its variants, "
+        "objective by objective: the mean, the worst (a bound that holds on every plant), or the "
+        "mean of the worst quarter (schemas.objectives.CVAR_SHARE)",
     )
     limits: Limits = Field(
         Limits(),

@@ -9,7 +9,15 @@ import pytest
 
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.tuning.config import RunConfig
-from gainfarm.analytic.tuning.plants import HELD_OUT, BadUncertainty, ranges, variants
+from gainfarm.analytic.tuning.plants import (
+    CORNERS,
+    HELD_OUT,
+    BadUncertainty,
+    corner,
+    design,
+    ranges,
+    variants,
+)
 from gainfarm.analytic.tuning.run import TuningRun
 from gainfarm.models import compile_model
 from gainfarm.schemas import Scores, TrajectorySpec
@@ -44,6 +52,35 @@ def test_variants_stay_in_their_ranges_and_the_robots_model_stays_nominal() -> N
         compile_model(plant)  # the physics steps its springs need
     # A plant without friction has none to vary; the rest varies as for any plant.
     assert all(plant.friction is None for plant in variants(IDEAL_PLANT, 3, seed=0))
+
+
+def test_the_design_puts_the_corners_first_at_their_ranges_ends_then_random_draws() -> None:
+    table = ranges()
+    heavy, light, *drawn = design(REALISTIC_PLANT, 4, seed=3)
+    assert list(CORNERS) == ["heavy", "light"]
+    assert tuple(drawn) == variants(REALISTIC_PLANT, 2, seed=3)  # the random ones as before
+    assert design(REALISTIC_PLANT, 1, seed=3) == (heavy,)  # fewer: the corners in order
+    assert design(REALISTIC_PLANT, 0, seed=3) == ()
+    assert heavy.payload == table["payload"].high and light.payload == table["payload"].low
+    assert heavy.delay == light.delay == table["delay"].high  # both late by the range's top
+    assert heavy.mass_scale == (table["mass_scale"].high,) * 7
+    rotor = np.divide(heavy.rotor_inertia, REALISTIC_PLANT.rotor_inertia)
+    assert np.allclose(rotor, table["rotor_inertia"].high)
+    stiffness = np.divide(light.stiffness, REALISTIC_PLANT.stiffness)
+    assert np.allclose(stiffness, table["stiffness"].high)
+    # Only what a corner names moves: its sensors keep the nominal noise, on a seed of its own.
+    assert heavy.spring_damping == REALISTIC_PLANT.spring_damping
+    assert heavy.sensors.noise == REALISTIC_PLANT.sensors.noise
+    assert len({REALISTIC_PLANT.sensors.seed, heavy.sensors.seed, light.sensors.seed}) == 3
+    assert gravity_spec(heavy) == gravity_spec(REALISTIC_PLANT)  # the robot knows none of it
+    for plant in (heavy, light):
+        compile_model(plant)  # the physics steps its springs need
+    assert heavy.substeps == REALISTIC_PLANT.substeps < light.substeps  # stiffer: finer steps
+    # A table without a range leaves its field nominal at every corner.
+    table.pop("payload")
+    assert design(REALISTIC_PLANT, 1, seed=3, uncertainty=table)[0].payload == 0.0
+    with pytest.raises(KeyError):
+        corner(REALISTIC_PLANT, {"payload": "high"}, table)
 
 
 def test_each_shipped_range_names_its_source_or_says_it_is_an_assumption() -> None:
@@ -165,13 +202,17 @@ def test_the_held_out_check_runs_the_controller_to_use_and_the_defaults(tmp_path
         checked = run_check(run, evaluator)
         write_run_report(run)
     names = [item.name for item in checked]
-    assert names[-1] == "default gains" and names[0] in ("recommended", "closest")
+    assert names[2] == "default gains" and names[0] in ("recommended", "candidate")
     for item in checked:
-        assert item.nominal_f_acc > 0 and 0 < item.median_ratio <= item.worst_ratio
+        assert item.nominal_f_acc > 0 and 0 < item.median_f_acc <= item.worst_f_acc
         assert item.violations + item.diverged <= 1
+        assert (item.row is None or item.name == "recommended") == (not item.failed)
     record = read_check(directory)
-    # 8 candidates' 8 episodes afford half as many: one held-out plant for 3 controllers.
-    assert record["plants"] == 1 and record["cost"]["episodes"] == len(checked) * 2
+    # 8 candidates' 8 episodes afford half as many: one held-out plant for 3 controllers, and
+    # no second round.
+    assert record["plants"] == 1 and record["cost"]["episodes"] == len(checked) * 2 == 6
+    recommended = [item for item in checked if item.name == "recommended"]
+    assert record["advice"]["row"] == (recommended[0].row if recommended else None)
     assert json.loads((directory / "front.json").read_text())["held_out"] == record
     assert "## Held-out plants" in (directory / "report.md").read_text()
     exported = controller(directory, "knee")  # checked, whether or not it is the one to use
