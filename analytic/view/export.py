@@ -48,8 +48,9 @@ from gainfarm.schemas.wire import one_line
 MEMBERS = ("recommended", "knee", "accurate", "smooth")
 FORMATS = ("json", "yaml", "ros2_control")
 RULES = {
-    "recommended": "the knee among the members that dominate the default gains on the run's "
-    "trajectories (baseline.json)",
+    "recommended": "the first member, in the knee's order among those that dominate the default "
+    "gains as the run scored them (baseline.json), that holds against them on the held-out "
+    "check (check.json); a run without a check: the first of those",
     "knee": "the knee: least worse normalised objective (pymoo ASF, equal weights; both "
     "objectives on a log scale, normalised between the front's ideal and nadir)",
     "accurate": "the most accurate member (smallest f_acc)",
@@ -95,6 +96,12 @@ def pick(
                 "recommended (the default) compares the front with the default gains' scores, "
                 f"and the run has no {BASELINE_JSON} of them (stopped before it scored them, or "
                 f"scored before they changed); name one: {others}"
+            )
+        if advice is not None:
+            raise BadMember(
+                "recommended (the default): on the held-out check no member held against the "
+                f"default gains (closest: row {named['closest'].row}, report.md), so none is "
+                f"recommended; keep the default gains, or name one: {others}"
             )
         raise BadMember(
             "recommended (the default): no member of the front dominates the default gains "
