@@ -19,30 +19,33 @@ No mode is excluded: the closed loop of a PD with positive gains has no integrat
 construction), and a z of 0 (a register's mode, a deadbeat one) is ζ = 1.
 
 `least_damping`, the number every episode log carries, mixes two kinds of mode. On an elastic
-arm, the springs' own modes (48-58 Hz on the realistic plant, 22 Hz with ten times its rotor
-inertia, 18 Hz on the ideal plant's soft springs) are lightly damped (ζ 0.01-0.1) whatever
-the controller; the controller's tracking modes (2-40 Hz) are what its gains set. `margins`
-splits them (`tracking_modes`), for a reader who wants the controller's own margins:
+arm the springs' own modes (near 50-60 Hz on the realistic plant, 22-34 Hz with ten times its
+rotor inertia, near 18 Hz on the ideal plant's soft springs) are lightly damped under every
+controller; the controller's tracking modes (2-40 Hz) are what its gains set. `margins` splits
+them (`tracking_modes`), for a reader who wants the controller's own margins:
 
 - a mode is *tracking* if in it each joint's motor moves with its link, *elastic* if the motor
   moves against it: the sign of Re Σ conj(θ) q over the joints, θ and q the mode's motor and
   link angles (its eigenvector's). Why the sign: a joint alone, a rotor J_m on a spring K to a
-  link J_l, the PD on the motor angle, has (undamped) modes at ω² where
-  (Kp + K − J_m ω²)(K − J_l ω²) = K²; the link's equation gives θ = q (1 − J_l ω² / K), and the
-  left side is K·Kp > 0 at ω = 0 and −K² < 0 at ω² = K / J_l, so for any gain and any rotor one
-  mode lies below K / J_l (θ with q: tracking) and one above (θ against q: elastic). The split
-  moves with the plant, as no fixed frequency does: with ten times the rotor inertia the elastic
-  modes fall to 22 Hz, below the 38 Hz tracking mode of the search space's top gains on the
-  realistic plant. Measured on the realistic plant, the ten-times rotor and a rigid one, six
-  gain sets across the search space, delays 0-9 (`python bench/margins.py --split`): every mode
-  with ζ < 0.15 has |c| ≥ 0.15, c the sign's cosine (Re Σ conj(θ) q / (|θ| |q|)); and the
-  lightly damped tracking modes lie below the elastic ones (tests/worker/test_stability.py).
-  On rigid joints θ = q: every mode tracks. The register modes (the velocity's window, the
-  delay line; ζ ≥ 0.4 at 180-290 Hz on the realistic plant) fall on either side; a z of 0 has
-  no motion and counts as tracking. Where the rule blurs: the ideal
-  plant's link-side feedback across its soft springs with high gains (Kd three times the
-  default's, Kp above a spring's stiffness) makes modes near 40-58 Hz in which motor and link
-  share the motion (|c| < 0.5); c ≥ 0 counts them as tracking, which errs on the cautious side.
+  link J_l, the PD on the motor angle, has (undamped) modes at the ω² where
+  (Kp + K − J_m ω²)(K − J_l ω²) = K². The link's equation gives θ = q (1 − J_l ω² / K), and the
+  difference of the two sides is K·Kp > 0 at ω = 0 and −K² < 0 at ω² = K / J_l, so for any
+  gain and any rotor one mode lies below K / J_l (θ with q: tracking), one above (θ against q:
+  elastic). The split moves with the plant, as no fixed frequency does: with ten times the
+  rotor inertia the elastic modes fall to 22 Hz, below the 38 Hz tracking mode of the search
+  space's top gains on the realistic plant (whose elastic modes span 38-88 Hz across the search
+  space). Measured (`python bench/margins.py --split`: six controllers across the search
+  space, command delays 0-9, the spiral and a fourier path), the modes that decide the margins
+  (each class's least damped) are clear-cut: |c| ≥ 0.53 on the realistic plant, ≥ 0.92 with
+  the ten-times rotor (c the sign's cosine, Re Σ conj(θ) q / (|θ| |q|)), but for two (the
+  search space's top gains on the fourier path: a 65 Hz mode, |c| 0.07). On rigid joints
+  θ = q: every mode tracks. The register modes (the velocity's window, the delay line; ζ ≥ 0.4
+  at 180-290 Hz on the realistic plant) fall on either side; a z of 0 has no motion and counts
+  as tracking. Where the rule blurs: on the ideal plant, whose PD feeds back the link angle
+  across soft springs, three times the default Kp (above A1's and A2's spring stiffness) makes
+  modes in which motor and link share the motion (10 of its 120 deciding modes on the spiral
+  have |c| < 0.5). A mixed mode with c ≥ 0 counts as tracking: the tracking margin errs on the
+  cautious side.
 - the *tracking damping* is the least ζ among the tracking modes over the poses, with its
   mode's natural frequency |s| / 2π: the controller's own stability margin, read as
   least_damping is (a small-signal check at frozen poses, not a prediction of chatter).
@@ -51,12 +54,12 @@ splits them (`tracking_modes`), for a reader who wants the controller's own marg
   at every frequency, and a loop with little lag to spare goes unstable first at its tracking
   crossover. The delay changes only the loop's delay line, not the plant's linearisation
   (`_linearised`, cached per plant and pose), so each extra delay costs an eigenvalue problem
-  per pose. Read it as "the loop survives d + margin ticks": −1 is unstable at its own delay,
-  0 stable there but not with one tick more, MAX_EXTRA_DELAY (8) at least that many (the search
-  stops there). The elastic modes are left out of it (their damping stays in `least` and
-  `elastic`): with delay they lose damping under many controllers, the default gains' among
-  them (its least damped spring mode, near 56 Hz, is unstable at 2 ticks on the realistic
-  plant, its tracking modes not until 5).
+  per pose. Read it as "the loop survives its delay + margin ticks": −1 is unstable at its own
+  delay, 0 stable there but not with one tick more, MAX_EXTRA_DELAY (8) at least that many
+  (the search stops there: `Margins.capped`). The elastic modes are left out of it (their
+  damping stays in `least` and `elastic`): with delay they lose damping under many controllers,
+  the default gains' among them (on the realistic plant their least damped spring mode, near
+  56 Hz, is unstable at 2 ticks, their tracking modes not until 5).
 """
 
 import threading
