@@ -221,7 +221,8 @@ def _least_modes(
         pose = (reference.q[tick], reference.qd[tick], reference.qdd[tick])
         matrix = loop.closed(_linearised(spec.model, *(part.tobytes() for part in pose)))
         if not np.isfinite(matrix).all():  # as least_damping: gains beyond the physics
-            return (-1.0, float("nan")), (-1.0, float("nan")) if plant.elastic else None
+            failed = (-1.0, float("nan"))
+            return failed, (failed if plant.elastic else None)
         z, vectors = np.linalg.eig(matrix)
         ratios, hz = damping_ratios(z), natural_hz(z)
         tracking = tracking_modes(plant, vectors)
