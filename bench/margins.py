@@ -171,7 +171,9 @@ def _cosines(plant: Plant, vectors: np.ndarray) -> np.ndarray:
 
 
 @click.command()
-@click.option("--repeats", default=5, show_default=True, help="timed runs of each")
+@click.option(
+    "--repeats", default=5, show_default=True, type=click.IntRange(min=1), help="timed runs of each"
+)
 @click.option("--split", "check_split", is_flag=True, help="check the tracking/elastic rule")
 def main(repeats: int, check_split: bool) -> None:
     table()
