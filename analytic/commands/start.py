@@ -117,9 +117,10 @@ if TYPE_CHECKING:
     "--balance/--no-balance",
     default=defaults.BALANCE,
     show_default=True,
-    help="generic: weigh each trajectory's objectives so that all count alike at the default "
-    "gains (simulated here first, one episode per trajectory), rather than the plain means, "
-    "which the roughest trajectory would dominate",
+    help="weigh each trajectory's objectives (generic) and scale each plant's (robust) so "
+    "that all count alike at the default gains (simulated here first, one episode per "
+    "trajectory and plant), rather than the plain means and worsts, which the roughest "
+    "trajectory and the worst plant would dominate",
 )
 def start(
     pop: int,

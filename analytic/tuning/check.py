@@ -262,13 +262,40 @@ def _judged(checked: list[Checked]) -> list[Checked]:
     return judged
 
 
-def _margins(config: RunConfig, gains: PDGains) -> dict | None:
-    """The closed loop's margins of `gains` on the run's nominal plant (none yet)."""
-    return None
+def _margins(config: RunConfig, gains: PDGains) -> dict:
+    """The closed loop's margins of `gains` on the run's nominal plant (worker.stability), the
+    least over its trajectories: its tracking modes' damping at the plant's delay and at the
+    largest delay any plant of the run has (the uncertainty range's top, where reviewers found
+    tuned members unstable), and its delay margin in ticks. About an episode's cost each."""
+    from gainfarm.worker.stability import margins  # MuJoCo: loaded only by a check
+
+    top = max(plant.delay for plant in (config.model, *config.plants, *config.check_plants))
+    found = [
+        margins(config.episode_spec(gains, number), delay=top)
+        for number in range(len(config.trajectories))
+    ]
+    least = min(found, key=lambda m: m.tracking)
+    late = min(found, key=lambda m: m.tracking_at)
+    return {
+        "tracking": least.tracking,
+        "tracking_hz": least.tracking_hz,
+        "delay": top,
+        "tracking_at_delay": late.tracking_at,
+        "tracking_at_delay_hz": late.tracking_at_hz,
+        "delay_margin": min(m.delay_margin for m in found),
+    }
 
 
 def _margin_failures(margins: dict | None, default: dict | None) -> list[str]:
-    """Why `margins` fall short of the default gains' (none yet)."""
+    """Why `margins` fall short of the default gains' `default`: its tracking modes less damped
+    than theirs at the largest delay the run's plants have (a controller a late packet makes
+    ring where the factory gains do not is no improvement on a real arm)."""
+    if not margins or not default:
+        return []
+    mine, theirs = margins["tracking_at_delay"], default["tracking_at_delay"]
+    if mine < theirs:
+        late = counted(margins["delay"], "tick")
+        return [f"tracking damping {mine:.3f} {late} late < {theirs:.3f}"]
     return []
 
 

@@ -71,6 +71,14 @@ class RunConfig(BaseModel):
         "`trajectories` (schemas.objectives.balancing_weights: each trajectory counts alike at "
         "the default gains); None: the plain means",
     )
+    plant_scales: tuple[tuple[PositiveFinite, PositiveFinite], ...] | None = Field(
+        None,
+        exclude_if=lambda scales: scales is None,  # a config.json as it was without them
+        description="robust tuning: each episode's objectives are scaled by these (first, "
+        "second) pairs, one per trajectory and plant in the order of the job ids, before they are "
+        "aggregated over the plants (schemas.objectives.plant_scales: each plant counts alike at "
+        "the default gains); None: as they are",
+    )
     plants: tuple[ModelSpec, ...] = Field(
         (),
         max_length=64,
@@ -155,6 +163,13 @@ class RunConfig(BaseModel):
             raise ValueError(
                 f"objective_weights: {len(weights)} pairs for {len(self.trajectories)} "
                 "trajectories (one pair per trajectory)"
+            )
+        scales = self.plant_scales
+        episodes = len(self.trajectories) * (1 + len(self.plants))
+        if scales is not None and len(scales) != episodes:
+            raise ValueError(
+                f"plant_scales: {len(scales)} pairs for {episodes} episodes (one pair per "
+                "trajectory and plant)"
             )
         return self
 

@@ -215,8 +215,9 @@ def check_section(record: dict | None) -> list[str]:
         "(docs/tuning.md). Errors are the mean Cartesian error of an episode, mm.",
         "",
         "| controller | front.csv row | nominal f_acc | nominal f_t | held-out median | "
-        "held-out worst | plants over a limit | plants diverged | why not |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---|",
+        "held-out worst | plants over a limit | plants diverged | tracking ζ | "
+        "tracking ζ, command late | delay margin (ticks) | why not |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for item in record["controllers"]:
         if "median_f_acc" not in item:  # a check from before it was absolute
@@ -226,13 +227,34 @@ def check_section(record: dict | None) -> list[str]:
         lines.append(
             f"| {item['name']} | {row} | {nominal} | {item['nominal_f_t']:.4g} | "
             f"{_mm(item['median_f_acc'])} | {_mm(item['worst_f_acc'])} | {item['violations']} | "
-            f"{item['diverged']} | {'; '.join(item.get('failed', ())) or '–'} |"
+            f"{item['diverged']} | {_margins_cells(item.get('margins'))} | "
+            f"{'; '.join(item.get('failed', ())) or '–'} |"
         )
     cost = record.get("cost", {})
     episodes = cost.get("episodes")
     spent = "? episodes" if episodes is None else counted(episodes, "episode")
-    lines += ["", f"It cost {spent}, {cost.get('wall_seconds', '?')} s.", ""]
+    lines += [
+        "",
+        "Margins, on the nominal plant (worker.stability, docs/limits.md): the least damping "
+        "ratio of the closed loop's tracking modes, at the plant's delay and with the command as "
+        "late as the run's latest plant; the delay margin is the extra ticks of delay the "
+        "tracking modes take and stay stable (−1: unstable already).",
+        "",
+        f"It cost {spent}, {cost.get('wall_seconds', '?')} s.",
+        "",
+    ]
     return lines
+
+
+def _margins_cells(margins: dict | None) -> str:
+    """A checked controller's margins as three table cells."""
+    if not margins:
+        return "– | – | –"
+    late = counted(margins["delay"], "tick")
+    return (
+        f"{margins['tracking']:.3f} ({margins['tracking_hz']:.1f} Hz) | "
+        f"{margins['tracking_at_delay']:.3f} ({late} late) | {margins['delay_margin']}"
+    )
 
 
 # CHECK_SHARE in words, for the line that says why a check ran on fewer plants than asked.

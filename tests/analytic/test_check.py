@@ -53,6 +53,15 @@ def test_each_way_a_member_falls_short_is_said(changed: dict, says: str) -> None
     assert failures(_member(1, **changed), DEFAULT) == (says,)
 
 
+def test_a_member_less_damped_than_the_defaults_when_the_command_is_late_falls_short() -> None:
+    theirs = {"delay": 2, "tracking_at_delay": 0.063}
+    default = replace(DEFAULT, margins=theirs)
+    ringing = _member(1, margins={"delay": 2, "tracking_at_delay": -0.088})
+    assert failures(ringing, default) == ("tracking damping -0.088 2 ticks late < 0.063",)
+    damped = _member(1, margins={"delay": 2, "tracking_at_delay": 0.07})
+    assert failures(damped, default) == ()
+
+
 def test_the_first_candidate_that_holds_is_recommended_and_the_others_say_why_not() -> None:
     checked = [
         _member(3, worst_f_acc=20e-3),  # the knee's first choice, worse held out
