@@ -42,8 +42,14 @@ def test_a_member_that_holds_against_the_defaults_has_no_failure() -> None:
     [
         ({"median_f_acc": 8.5e-3}, "median held-out error 8.50 mm > 8.00"),
         ({"worst_f_acc": 13.0e-3}, "worst held-out error 13.00 mm > 12.00"),
-        ({"violations": 2}, "broke a limit on 2 held-out plants"),
-        ({"diverged": 1}, "diverged on 1 held-out plant"),
+        (
+            {"violations": 2, "failed_on": (3, 9)},
+            "broke a limit or diverged on 2 held-out plants the default gains keep to",
+        ),
+        (
+            {"diverged": 1, "failed_on": (4,)},
+            "broke a limit or diverged on 1 held-out plant the default gains keep to",
+        ),
         ({"nominal_f_t": 0.2}, "does not dominate the default gains on the nominal plant"),
         ({"nominal_f_acc": 2.5e-3}, "does not dominate the default gains on the nominal plant"),
         ({"nominal_failed": True}, "failed on the nominal plant"),
@@ -80,7 +86,15 @@ def test_the_first_candidate_that_holds_is_recommended_and_the_others_say_why_no
     ]
     assert judged[0].failed == ("worst held-out error 20.00 mm > 12.00",)
     assert judged[3].failed == judged[4].failed == judged[1].failed == ()
-    assert _judged([_member(3, diverged=2), DEFAULT])[0].name == "candidate"
+    assert _judged([_member(3, diverged=2, failed_on=(1, 2)), DEFAULT])[0].name == "candidate"
+
+
+def test_a_member_may_break_a_limit_only_where_the_default_gains_break_it_too() -> None:
+    default = replace(DEFAULT, violations=1, failed_on=(27,))
+    assert failures(_member(1, violations=1, failed_on=(27,)), default) == ()
+    assert failures(_member(1, violations=2, failed_on=(5, 27)), default) == (
+        "broke a limit or diverged on 1 held-out plant the default gains keep to",
+    )
 
 
 def _front_member(row: int, f_acc: float, f_t: float) -> FrontMember:
