@@ -185,9 +185,10 @@ def rigid_prior(spec: ModelSpec, target: Target = "inverse") -> DynamicsModel:
 
 def plant_spec(plant: ModelSpec) -> ModelSpec:
     """What of `plant` its true dynamics depend on: the inertial set, the true link masses
-    (`mass_scale`), the payload, the rotor inertias and the friction, on rigid joints. Springs
-    are left out: at the reference the link and motor move alike, and what a spring's deflection
-    does is the controller's to compensate, not the model's (bench/true_feedforward.py)."""
+    (`mass_scale`), the payload and the load as truly held, the rotor inertias and the friction,
+    on rigid joints. Springs are left out: at the reference the link and motor move alike, and
+    what a spring's deflection does is the controller's to compensate, not the model's
+    (bench/true_feedforward.py)."""
     return ModelSpec(
         joints="rigid",
         inertials=plant.inertials,
@@ -195,6 +196,7 @@ def plant_spec(plant: ModelSpec) -> ModelSpec:
         friction=plant.friction,
         mass_scale=plant.mass_scale,
         payload=plant.payload,
+        load=plant.load,
         substeps=1,
     )
 

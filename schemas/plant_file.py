@@ -14,7 +14,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import RATED_PAYLOAD, Load, ModelSpec
 from gainfarm.schemas.wire import describe
 
 FORMAT = "gainfarm-plant/1"
@@ -36,6 +36,39 @@ class PlantFile(BaseModel):
     calibration: dict[str, Any] = Field(
         default_factory=dict, description="where the numbers came from: logs, fit, residuals"
     )
+
+    def told(self) -> "PlantFile":
+        """The file as a run uses it: a calibrated payload (the mass the logs found at the
+        flange, untold on the arm they came from, which `analytic validate` replays) becomes
+        the load the robot is told, and its range the error of that load data (a factor on
+        the told mass) with nothing left untold. Unchanged if the calibration found none."""
+        mass = min(self.plant.payload, RATED_PAYLOAD)
+        if "payload" not in self.calibration or mass <= 0:
+            return self
+        plant = self.plant.model_copy(
+            update={"payload": self.plant.payload - mass, "load": Load(mass=mass)}
+        )
+        uncertainty = dict(self.uncertainty)
+        fitted = uncertainty.get("payload")
+        if isinstance(fitted, dict) and fitted.get("absolute"):
+            low, high = float(fitted.get("low", mass)), float(fitted.get("high", mass))
+            uncertainty["load_mass"] = {
+                "field": "load.mass_scale",
+                "draw": "uniform",
+                "low": round(max(low / mass, 1e-3), 6),
+                "high": round(min(max(high / mass, 1e-3), 5.0), 6),
+                "why": f"calibrated: the fitted payload's range ({fitted.get('why', '')}), as "
+                "a factor on the told load it became",
+            }
+            uncertainty["payload"] = {
+                "field": "payload",
+                "absolute": True,
+                "draw": "uniform",
+                "low": 0.0,
+                "high": 0.0,
+                "why": "calibrated: the logs weighed what the arm holds, and the robot is told it",
+            }
+        return self.model_copy(update={"plant": plant, "uncertainty": uncertainty})
 
 
 class BadPlantFile(ValueError):

@@ -118,7 +118,7 @@ class ArmsGravity:
     Write each arm's angles into its row of `angles`, `compute()`, read its row of `torque`."""
 
     def __init__(self, specs: Sequence[ModelSpec]) -> None:
-        self.model = _arms(tuple(spec.inertials for spec in specs))
+        self.model = _arms(tuple(gravity_spec(spec) for spec in specs))
         self.data = mujoco.MjData(self.model)
         self.angles = self.data.qpos.reshape(len(specs), len(JOINT_NAMES))
         self._out = np.zeros(self.model.nv)
@@ -131,13 +131,14 @@ class ArmsGravity:
 
 
 @lru_cache(maxsize=16)
-def _arms(inertials: tuple[str, ...]) -> mujoco.MjModel:
-    """One rigid arm per inertial set named, in order, their joints' angles one after another.
-    Only the bodies' inertials count: shapes, sites and motors are left out of all but the
-    first (whose options the model keeps: attaching an arm with other options would warn)."""
-    whole = build_spec(gravity_spec(ModelSpec(inertials=inertials[0])))  # type: ignore[arg-type]
-    for index, name in enumerate(inertials[1:], start=1):
-        arm = build_spec(gravity_spec(ModelSpec(inertials=name)))  # type: ignore[arg-type]
+def _arms(arms: tuple[ModelSpec, ...]) -> mujoco.MjModel:
+    """One rigid arm per gravity model given (gravity_spec's), in order, their joints' angles
+    one after another. Only the bodies' inertials count: shapes, sites and motors are left out
+    of all but the first (whose options the model keeps: attaching an arm with other options
+    would warn)."""
+    whole = build_spec(arms[0])
+    for index, spec in enumerate(arms[1:], start=1):
+        arm = build_spec(spec)
         for part in [*arm.geoms, *arm.sites, *arm.actuators]:
             arm.delete(part)
         whole.worldbody.add_frame().attach_body(arm.worldbody.first_body(), f"arm{index}/", "")
@@ -145,8 +146,15 @@ def _arms(inertials: tuple[str, ...]) -> mujoco.MjModel:
 
 
 def gravity_spec(spec: ModelSpec) -> ModelSpec:
-    """The rigid arm whose gravity the robot's model of `spec` computes: its inertial set, no
-    more (rotor inertia, springs and friction exert no gravity torque)."""
+    """The rigid arm whose gravity the robot's model of `spec` computes: its inertial set and
+    the load it is told (KUKA's load data), no more (rotor inertia, springs and friction exert
+    no gravity torque; the untold payload and the links' and load's true masses it never
+    knows)."""
     return ModelSpec(
-        joints="rigid", inertials=spec.inertials, friction=None, substeps=1, interface="torque"
+        joints="rigid",
+        inertials=spec.inertials,
+        friction=None,
+        substeps=1,
+        interface="torque",
+        load=None if spec.load is None else spec.load.told,
     )

@@ -20,9 +20,11 @@ from gainfarm.schemas.wire import describe
 
 UNCERTAINTY = files("gainfarm.models").joinpath("uncertainty.toml")
 # The fields a range may move, and whether ModelSpec holds one value per joint there.
+# `load.mass_scale` is the error of the load data the robot is told (schemas.robot.Load).
 FIELDS = {
     "mass_scale": True,
     "payload": False,
+    "load.mass_scale": False,
     "rotor_inertia": True,
     "stiffness": True,
     "spring_damping": True,
@@ -133,6 +135,10 @@ def variants(
 def _apply(values: dict, item: Range, rng: np.random.Generator) -> None:
     """Move `item`'s field of the dumped spec `values` by one draw."""
     *parents, name = item.field.split(".")
+    if parents == ["load"] and values.get("load") is None:
+        # The error of a told load: a plant told of none draws nothing for it, so its variants
+        # are, draw for draw, those drawn before a load could be told.
+        return
     holder = values
     for parent in parents:
         holder = holder.get(parent) or {}
