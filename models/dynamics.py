@@ -166,8 +166,9 @@ class DynamicsModel:
 
 
 def rigid_spec(plant: ModelSpec) -> ModelSpec:
-    """The rigid arm of `plant` that a physics prior uses: its inertial set and rotor inertias
-    (as armature), rigid joints, no friction. Fields that play no part (sensors, delay, springs,
+    """The rigid arm of `plant` that a physics prior uses: its inertial set, rotor inertias (as
+    armature) and the load the robot is told (known, as the set is), rigid joints, no friction.
+    Fields that play no part (sensors, delay, springs,
     physics step) are left at their defaults, so plants differing only there share one prior."""
     return ModelSpec(
         joints="rigid",
@@ -175,6 +176,7 @@ def rigid_spec(plant: ModelSpec) -> ModelSpec:
         rotor_inertia=plant.rotor_inertia,
         friction=None,
         substeps=1,
+        load=None if plant.load is None else plant.load.told,
     )
 
 

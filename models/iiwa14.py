@@ -22,7 +22,7 @@ from importlib.resources import files
 import mujoco
 import numpy as np
 
-from gainfarm.schemas.robot import JOINT_NAMES, Load, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, LoadData, ModelSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 
 log = logging.getLogger("gainfarm.models")
@@ -121,7 +121,7 @@ def build_spec(spec: ModelSpec) -> mujoco.MjSpec:
     return mj
 
 
-def _add_load(mj: mujoco.MjSpec, load: Load) -> None:
+def _add_load(mj: mujoco.MjSpec, load: LoadData) -> None:
     """The load, a solid sphere of PAYLOAD_RADIUS (assumption, as the payload's) centred on its
     centre of mass, given in the flange frame: of its true mass (the plant's, or, `load.told`,
     the robot's own model's: gravity reads only its mass and centre)."""

@@ -14,7 +14,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from gainfarm.schemas.robot import RATED_PAYLOAD, Load, ModelSpec
+from gainfarm.schemas.robot import RATED_PAYLOAD, LoadData, ModelSpec
 from gainfarm.schemas.wire import describe
 
 FORMAT = "gainfarm-plant/1"
@@ -46,7 +46,7 @@ class PlantFile(BaseModel):
         if "payload" not in self.calibration or mass <= 0:
             return self
         plant = self.plant.model_copy(
-            update={"payload": self.plant.payload - mass, "load": Load(mass=mass)}
+            update={"payload": self.plant.payload - mass, "load": LoadData(mass=mass)}
         )
         uncertainty = dict(self.uncertainty)
         fitted = uncertainty.get("payload")

@@ -94,7 +94,7 @@ RATED_PAYLOAD = 14.0
 MAX_LOAD_OFFSET = 0.5
 
 
-class Load(BaseModel):
+class LoadData(BaseModel):
     """The load data the robot is told (KUKA's load data: mass and centre of mass, in the flange
     frame), which its own gravity model carries (FRI gravity compensation), and how far the load
     really held is off it (`mass_scale`), which the robot's model does not know.
@@ -130,7 +130,7 @@ class Load(BaseModel):
         return self
 
     @property
-    def told(self) -> "Load":
+    def told(self) -> "LoadData":
         """The load as the robot knows it: its true mass is the told one."""
         return self if self.mass_scale == 1.0 else self.model_copy(update={"mass_scale": 1.0})
 
@@ -178,7 +178,7 @@ class ModelSpec(BaseModel):
         "that the robot was not told of: its gravity model does not know it (a told load is "
         "`load`)",
     )
-    load: Load | None = Field(
+    load: LoadData | None = Field(
         None,
         # Left out of the JSON when no load is told: every spec from before it keeps its bytes
         # (a log's metadata, a run's config, the wire).

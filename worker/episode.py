@@ -21,7 +21,7 @@ import numpy as np
 from gainfarm.models.dynamics import DynamicsModel, friction_torque, plant_spec, true_model
 from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
-from gainfarm.schemas.robot import JOINT_NAMES, Load, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, LoadData, ModelSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.worker.control import PDController
 from gainfarm.worker.plant import Plant, RobotGravity
@@ -229,14 +229,16 @@ def motor_torque(log: EpisodeLog) -> np.ndarray:
 
 
 @lru_cache(maxsize=64)
-def gravity_for(trajectory: TrajectorySpec, inertials: str, load: Load | None = None) -> np.ndarray:
+def gravity_for(
+    trajectory: TrajectorySpec, inertials: str, load: LoadData | None = None
+) -> np.ndarray:
     """The gravity feed-forward of `trajectory`'s reference, computed once per worker."""
     torques = gravity_torques(reference_for(trajectory).q, inertials, load)
     torques.flags.writeable = False
     return torques
 
 
-def gravity_torques(q: np.ndarray, inertials: str, load: Load | None = None) -> np.ndarray:
+def gravity_torques(q: np.ndarray, inertials: str, load: LoadData | None = None) -> np.ndarray:
     """(n, 7) N·m holding link angles `q` against gravity. The controller's gravity model is the
     plant's own inertial set (as KUKA's controller knows its robot) and the load it is told."""
     return RobotGravity(ModelSpec(inertials=inertials, load=load)).at(q)

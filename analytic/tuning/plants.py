@@ -20,7 +20,7 @@ from gainfarm.schemas.wire import describe
 
 UNCERTAINTY = files("gainfarm.models").joinpath("uncertainty.toml")
 # The fields a range may move, and whether ModelSpec holds one value per joint there.
-# `load.mass_scale` is the error of the load data the robot is told (schemas.robot.Load).
+# `load.mass_scale` is the error of the load data the robot is told (schemas.robot.LoadData).
 FIELDS = {
     "mass_scale": True,
     "payload": False,

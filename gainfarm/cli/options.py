@@ -345,9 +345,9 @@ def with_load(
             return spec
         told = plant_file(plant).told().plant
         return spec.model_copy(update={"payload": told.payload, "load": told.load})
-    from gainfarm.schemas.robot import Load
+    from gainfarm.schemas.robot import LoadData
 
-    told = Load(mass=payload, com=payload_com or (0.0, 0.0, 0.0)) if payload > 0 else None
+    told = LoadData(mass=payload, com=payload_com or (0.0, 0.0, 0.0)) if payload > 0 else None
     return spec.model_copy(update={"load": told})
 
 

@@ -217,8 +217,13 @@ def test_a_worker_runs_an_episode_on_the_twin(calibrated: dict, tmp_path: Path) 
     done = subprocess.run(command, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
 
-    twin = read_plant_file(calibrated["twin"].read_bytes()).plant
-    assert read_episode(tmp_path / "ep.mcap").metadata.spec.model == twin
+    # The twin's calibrated payload is the load the robot is told as the file runs (told: the
+    # plant holds what the file's does, the robot's gravity model carries the payload).
+    twin = read_plant_file(calibrated["twin"].read_bytes())
+    ran = read_episode(tmp_path / "ep.mcap").metadata.spec.model
+    assert ran == twin.told().plant
+    assert ran.payload == 0.0 and ran.load is not None
+    assert ran.load.mass == pytest.approx(twin.plant.payload)
 
 
 def test_bad_input_is_one_line_and_writes_nothing(calibrated: dict, tmp_path: Path) -> None:

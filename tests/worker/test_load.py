@@ -6,12 +6,12 @@ import numpy as np
 
 from gainfarm.models import compile_model
 from gainfarm.schemas import EpisodeSpec, ModelSpec, TrajectorySpec
-from gainfarm.schemas.robot import JOINT_NAMES, Load
+from gainfarm.schemas.robot import JOINT_NAMES, LoadData
 from gainfarm.worker.episode import run_episode
 from gainfarm.worker.plant import ArmsGravity, RobotGravity, gravity_spec
 from tests.helpers import SOFT_GAINS
 
-TOLD = Load(mass=5.0, com=(0.03, -0.02, 0.08))
+TOLD = LoadData(mass=5.0, com=(0.03, -0.02, 0.08))
 ANGLES = np.random.default_rng(7).uniform(-1.5, 1.5, (20, 7))
 
 
@@ -54,7 +54,7 @@ def test_many_arms_gravity_gives_a_loaded_arm_the_bits_its_own_model_gives() -> 
     specs = [
         ModelSpec(load=TOLD),
         ModelSpec(),
-        ModelSpec(inertials="cad", load=Load(mass=2.0)),
+        ModelSpec(inertials="cad", load=LoadData(mass=2.0)),
         ModelSpec(load=TOLD.model_copy(update={"mass_scale": 0.9})),  # told alike: the same
     ]
     arms = ArmsGravity(specs)
@@ -73,7 +73,7 @@ def test_a_told_load_tracks_far_better_than_the_same_load_untold() -> None:
     # Soft gains, so that the robot's gravity model, not the PD's stiffness, holds the load.
     path = TrajectorySpec(kind="fourier", duration=2.0)
     plants = {
-        "told": ModelSpec(load=Load(mass=5.0)),
+        "told": ModelSpec(load=LoadData(mass=5.0)),
         "untold": ModelSpec(payload=5.0),  # the same sphere at the flange's centre
         "bare": ModelSpec(),
     }
