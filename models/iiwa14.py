@@ -131,7 +131,13 @@ def _add_load(mj: mujoco.MjSpec, load: LoadData) -> None:
     mass = load.mass * load.mass_scale
     inertia = 0.4 * mass * PAYLOAD_RADIUS**2
     mj.body("link7").add_body(
-        name="load", pos=np.asarray(flange.pos) + offset, mass=mass, inertia=[inertia] * 3
+        name="load",
+        pos=np.asarray(flange.pos) + offset,
+        # The centre of mass on the body's origin: left unset, MuJoCo puts it at `pos` again,
+        # twice as far out.
+        ipos=[0.0, 0.0, 0.0],
+        mass=mass,
+        inertia=[inertia] * 3,
     )
 
 

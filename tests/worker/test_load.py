@@ -85,3 +85,15 @@ def test_a_told_load_tracks_far_better_than_the_same_load_untold() -> None:
     assert error["told"] < 0.5 * error["untold"], error
     # What the load adds to the bare arm's error: its inertia, told or not, but not its weight.
     assert error["told"] - error["bare"] < 0.25 * (error["untold"] - error["bare"]), error
+
+
+def test_the_load_is_centred_where_the_robot_was_told_in_the_flange_frame() -> None:
+    model = compile_model(ModelSpec(load=TOLD))
+    data = mujoco.MjData(model)
+    for row in ANGLES[:5]:
+        data.qpos[[model.joint(f"{name}_motor").qposadr[0] for name in JOINT_NAMES]] = row
+        mujoco.mj_forward(model, data)
+        flange = model.site("flange").id
+        told = data.site_xpos[flange] + data.site_xmat[flange].reshape(3, 3) @ TOLD.com
+        np.testing.assert_allclose(data.xipos[model.body("load").id], told, atol=1e-12)
+    assert model.body_mass[model.body("load").id] == TOLD.mass
