@@ -447,7 +447,8 @@ def test_batch_and_experiment_take_the_twin(calibrated: dict, tmp_path: Path) ->
     assert done.returncode == 0, done.stderr
     (episode,) = [json.loads(line) for line in done.stdout.splitlines()]
     plant = read_episode(tmp_path / "batch" / episode["episode"]).metadata.spec.model
-    assert plant == read_plant_file(calibrated["twin"].read_bytes()).plant
+    # As the twin file runs: its calibrated payload the load the robot is told (PlantFile.told).
+    assert plant == read_plant_file(calibrated["twin"].read_bytes()).told().plant
     # An experiment reads it as it parses its options: a bad one is refused before anything runs.
     bad = tmp_path / "bad.toml"
     bad.write_text("[plant]\ndelay = 99\n")
