@@ -94,7 +94,11 @@ def build_spec(spec: ModelSpec) -> mujoco.MjSpec:
         flange = next(site for site in mj.sites if site.name == FLANGE)
         inertia = 0.4 * spec.payload * PAYLOAD_RADIUS**2
         mj.body("link7").add_body(
-            name="payload", pos=flange.pos, mass=spec.payload, inertia=[inertia] * 3
+            name="payload",
+            pos=flange.pos,
+            ipos=[0.0, 0.0, 0.0],  # on the flange's centre, not as far out again (as the load)
+            mass=spec.payload,
+            inertia=[inertia] * 3,
         )
     if spec.load is not None:
         _add_load(mj, spec.load)

@@ -97,3 +97,17 @@ def test_the_load_is_centred_where_the_robot_was_told_in_the_flange_frame() -> N
         told = data.site_xpos[flange] + data.site_xmat[flange].reshape(3, 3) @ TOLD.com
         np.testing.assert_allclose(data.xipos[model.body("load").id], told, atol=1e-12)
     assert model.body_mass[model.body("load").id] == TOLD.mass
+
+
+def test_an_untold_payload_is_centred_on_the_flange_as_documented() -> None:
+    # models/README.md: a sphere centred on the flange, where the told load's default centre is
+    # and where a calibration fits a payload (it sat 4.5 cm further out before).
+    model = compile_model(ModelSpec(payload=2.0))
+    data = mujoco.MjData(model)
+    data.qpos[[model.joint(f"{name}_motor").qposadr[0] for name in JOINT_NAMES]] = ANGLES[0]
+    mujoco.mj_forward(model, data)
+    flange = data.site_xpos[model.site("flange").id]
+    np.testing.assert_allclose(data.xipos[model.body("payload").id], flange, atol=1e-12)
+    told = compile_model(ModelSpec(load=LoadData(mass=2.0)))
+    assert np.array_equal(told.body("load").pos, model.body("payload").pos)
+    assert np.array_equal(told.body("load").ipos, model.body("payload").ipos)
