@@ -71,14 +71,15 @@ def test_an_episode_runs_on_the_load_it_was_told(tmp_path: Path) -> None:
     assert read_episode(tmp_path / "0.mcap").metadata.spec.model == ModelSpec()
 
 
-def twin(path: Path, payload: float) -> Path:
-    """A calibrated plant file whose fit found `payload` kg at the flange, ±0.5 kg."""
-    plant = ModelSpec(payload=payload)
+def twin(path: Path, payload: float, load: LoadData | None = None) -> Path:
+    """A calibrated plant file whose fit found `payload` kg at the flange, ±0.5 kg (not below 0),
+    on a plant told of `load`."""
+    plant = ModelSpec(payload=payload, load=load)
     fitted = {
         "field": "payload",
         "absolute": True,
         "draw": "uniform",
-        "low": payload - 0.5,
+        "low": max(payload - 0.5, 0.0),
         "high": payload + 0.5,
         "why": "calibrated",
     }
@@ -106,3 +107,17 @@ def test_a_twins_calibrated_payload_is_the_load_the_robot_is_told(tmp_path: Path
     plain.write_text(write_text(PlantFile(plant=ModelSpec(payload=2.0))))
     kept = options.with_load(options.model_spec(str(plain)), None, None, str(plain))
     assert kept == ModelSpec(payload=2.0)
+    # Nor does one whose fit cannot tell its payload from none (its range reaches 0).
+    light = str(twin(tmp_path / "light.toml", 0.3))
+    assert options.with_load(options.model_spec(light), None, None, light) == ModelSpec(payload=0.3)
+
+
+def test_a_twins_payload_joins_the_load_its_arm_was_told_of(tmp_path: Path) -> None:
+    # Calibrated on an arm told of 4 kg 10 cm out: the 1 kg more the logs found at the flange's
+    # centre is told with it, one load at their common centre (all gravity reads).
+    file = str(twin(tmp_path / "twin.toml", 1.0, LoadData(mass=4.0, com=(0.0, 0.0, 0.1))))
+    nominal = options.with_load(options.model_spec(file), None, None, file)
+    assert nominal.payload == 0.0 and nominal.load is not None
+    assert nominal.load.mass == 5.0 and nominal.load.com == pytest.approx((0.0, 0.0, 0.08))
+    for plant in plants_from(16, None, nominal, 1, plant=file):
+        assert 0.9 - 1e-6 <= plant.load.mass_scale <= 1.1 + 1e-6  # (4 + 1 ± 0.5) / 5
