@@ -90,7 +90,7 @@ class Sensors(BaseModel):
 # The data sheet's rated payload, kg: the most a load may weigh.
 RATED_PAYLOAD = 14.0
 # How far from the flange's centre a load's centre of mass may be, m (assumption: a tool as
-# long as a forearm; KUKA's load diagram for the iiwa 14 stops well inside it).
+# long as a forearm, beyond which a told centre is more likely a typo in mm than a tool).
 MAX_LOAD_OFFSET = 0.5
 
 
