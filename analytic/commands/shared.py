@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from gainfarm.analytic.evaluators.evaluator import Evaluator
     from gainfarm.analytic.tuning.check import CheckPlan
     from gainfarm.analytic.tuning.run import RunProgress, TuningRun
+    from gainfarm.schemas.plant_file import PlantFile
     from gainfarm.schemas.robot import ModelSpec
     from gainfarm.schemas.security import TlsIdentity
     from gainfarm.schemas.trajectory import TrajectorySpec
@@ -147,6 +148,15 @@ def uncertainty(help: str) -> Callable[[F], F]:
     )
 
 
+def _uncertainty(plant_file: "PlantFile", nominal: "ModelSpec") -> dict:
+    """The plant file's ranges for `nominal`: once its calibrated payload is the told load (no
+    --payload given: options.with_load), that load's error instead of the untold payload's."""
+    told = plant_file.told()
+    if (nominal.load, nominal.payload) == (told.plant.load, told.plant.payload):
+        return told.uncertainty
+    return plant_file.uncertainty
+
+
 def plants_from(
     count: int,
     path: Path | None,
@@ -182,7 +192,7 @@ def plants_from(
         table = None
         if plant is not None and plant not in PLANTS:
             try:
-                table = ranges_of(options.plant_file(plant).uncertainty) or None
+                table = ranges_of(_uncertainty(options.plant_file(plant), nominal)) or None
             except BadUncertainty as error:
                 raise CliError(f"--plant: {plant!r}: uncertainty: {error}") from None
         try:

@@ -46,6 +46,7 @@ if TYPE_CHECKING:
 @termination_options()
 @options.joints()
 @options.plant()
+@options.load()
 @options.feedforward(
     help="add a learned inverse-dynamics model's torque for the reference to every episode's "
     "PD and tune the gains on top (a directory from `analytic learn`, or its model.npz)"
@@ -134,6 +135,8 @@ def start(
     evaluations: int | None,
     joints: str,
     plant: str,
+    payload: float | None,
+    payload_com: tuple[float, ...] | None,
     feedforward: Path | None,
     limits_file: Path | None,
     min_damping: float | None,
@@ -162,6 +165,7 @@ def start(
     Stops after --generations, after --evaluations, or (by default) when the hypervolume has
     stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
     """
+    options.check_load(payload, payload_com)
     identity = check_farm(connect, local, tls, participant)
     with _farm(connect, workers) as farm:
         from pydantic import ValidationError
@@ -175,7 +179,7 @@ def start(
         trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
         learned = options.feedforward_model(feedforward)
         model_file = learned[0] if learned is not None else None
-        model = options.model_spec(plant, joints)
+        model = options.with_load(options.model_spec(plant, joints), payload, payload_com, plant)
         variants = plants_from(plants, uncertainty_file, model, seed, plant=plant, designed=True)
         held_out = plants_from(
             check_plants, uncertainty_file, model, seed, held_out=True, plant=plant

@@ -20,9 +20,11 @@ from gainfarm.schemas.wire import describe
 
 UNCERTAINTY = files("gainfarm.models").joinpath("uncertainty.toml")
 # The fields a range may move, and whether ModelSpec holds one value per joint there.
+# `load.mass_scale` is the error of the load data the robot is told (schemas.robot.LoadData).
 FIELDS = {
     "mass_scale": True,
     "payload": False,
+    "load.mass_scale": False,
     "rotor_inertia": True,
     "stiffness": True,
     "spring_damping": True,
@@ -132,6 +134,10 @@ def variants(
 
 def _apply(values: dict, item: Range, rng: np.random.Generator) -> None:
     """Move `item`'s field of the dumped spec `values` by one draw."""
+    if item.field.startswith("load.") and values.get("load") is None:
+        # The error of a told load: a plant told of none draws nothing for it, so its variants
+        # are, draw for draw, those drawn before a load could be told.
+        return
     size = N_JOINTS if item.per_joint else 1
     low, high = np.asarray(item.low, dtype=float), np.asarray(item.high, dtype=float)
     if item.draw == "integer":
@@ -186,10 +192,11 @@ def corner(
 # The designed plants robust tuning scores every candidate on first (`design`): two opposite
 # corners of the ranges, where a sensitivity screen (bench/corners.py, docs/tuning.md) of the
 # default gains and a nominal run's front found controllers break:
-# - heavy: the robot's gravity model short of the most (the largest unknown load, every link
-#   heavier) with the most friction, where every controller's error grows most (x7 on the
-#   spiral), and the command late by the range's top on the softest joints with the heaviest
-#   rotors: the lowest elastic modes, nearest the tracking loop's;
+# - heavy: the robot's gravity model short of the most (the largest unknown load, a told
+#   load at its heaviest, every link heavier) with the most friction, where every
+#   controller's error grows most (x7 on the spiral), and the command late by the range's
+#   top on the softest joints with the heaviest rotors: the lowest elastic modes, nearest the
+#   tracking loop's;
 # - light: gravity over-compensated with the least friction to damp the arm, the command as
 #   late, on the stiffest joints with the lightest rotors and the least damped springs: the
 #   highest, least damped elastic modes.
@@ -201,6 +208,7 @@ def corner(
 CORNERS: dict[str, dict[str, End]] = {
     "heavy": {
         "payload": "high",
+        "load_mass": "high",
         "mass_scale": "high",
         "coulomb": "high",
         "viscous": "high",
@@ -210,6 +218,7 @@ CORNERS: dict[str, dict[str, End]] = {
     },
     "light": {
         "payload": "low",
+        "load_mass": "low",
         "mass_scale": "low",
         "coulomb": "low",
         "viscous": "low",

@@ -23,7 +23,7 @@ from gainfarm.models import compile_model
 from gainfarm.schemas import Scores, TrajectorySpec
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import objectives
-from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
+from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT, LoadData
 from gainfarm.worker.plant import gravity_spec
 from tests.helpers import analytic
 
@@ -217,3 +217,22 @@ def test_the_held_out_check_runs_the_controller_to_use_and_the_defaults(tmp_path
     assert "## Held-out plants" in (directory / "report.md").read_text()
     exported = controller(directory, "knee")  # checked, whether or not it is the one to use
     assert exported.member.held_out is not None and exported.member.held_out.plants == 1
+
+
+def test_variants_draw_the_told_loads_error_around_it_and_the_robot_keeps_what_it_was_told() -> (
+    None
+):
+    told = REALISTIC_PLANT.model_copy(update={"load": LoadData(mass=5.0, com=(0.0, 0.0, 0.1))})
+    drawn = variants(told, 16, seed=3)
+    scales = np.array([plant.load.mass_scale for plant in drawn])
+    low, high = ranges()["load_mass"].low, ranges()["load_mass"].high
+    assert np.all((scales >= low) & (scales <= high)) and np.ptp(scales) > 0.1
+    assert scales.min() < 1.0 < scales.max()  # around the told mass, both ways
+    for plant in drawn:
+        assert gravity_spec(plant) == gravity_spec(told)  # told 5 kg at 10 cm, whatever is held
+        assert 0.0 <= plant.payload <= 3.0  # and, as ever, a tool it may not have been told of
+    # A plant told of no load draws nothing for the load's error: its variants are, draw for
+    # draw, those of a table without that range.
+    without = {name: item for name, item in ranges().items() if name != "load_mass"}
+    assert variants(REALISTIC_PLANT, 4, seed=3) == variants(REALISTIC_PLANT, 4, 3, without)
+    assert all(plant.load is None for plant in variants(REALISTIC_PLANT, 4, seed=3))
