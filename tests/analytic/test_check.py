@@ -66,6 +66,10 @@ def test_a_member_less_damped_than_the_defaults_when_the_command_is_late_falls_s
     assert failures(ringing, default) == ("tracking damping -0.088 2 ticks late < 0.063",)
     damped = _member(1, margins={"delay": 2, "tracking_at_delay": 0.07})
     assert failures(damped, default) == ()
+    alike = _member(1, margins={"delay": 2, "tracking_at_delay": 0.0626})  # a thousandth off
+    assert failures(alike, default) == ()
+    less = _member(1, margins={"delay": 2, "tracking_at_delay": 0.0615})
+    assert failures(less, default) == ("tracking damping 0.061 2 ticks late < 0.063",)
 
 
 def test_the_first_candidate_that_holds_is_recommended_and_the_others_say_why_not() -> None:
