@@ -115,16 +115,16 @@ def robustness_text(chosen: Sequence[Pick], check: dict | None, asked: int) -> s
     default = next((i for i in items if i.get("row") is None), None)
     mine = next((i for i in items if pick is not None and i.get("row") == pick.row), None)
     plants = check["plants"]
+    budget = f" (of the {asked} asked: the check's budget)" if plants < asked else ""
     if pick is not None and pick.name == "closest" and "advice" in check:
         said = "Held-out check: no member held against the default gains; keep them"
         if default is not None:
-            said += f" ({held_out_text(default, plants)})"
+            said += f" ({held_out_text(default, plants)}){budget}"
         return said + "."
     if pick is None or mine is None:
         return "Held-out check: its controllers are no longer on the front."
     said = f"Held-out check of row {pick.row} ({pick.name}): " + held_out_text(mine, plants)
-    if plants < asked:  # the check's budget allowed fewer than the config asks for
-        said += f" (of the {asked} asked: the check's budget)"
+    said += budget  # the check's budget allowed fewer than the config asks for
     if default is not None:
         said += "; the default gains: " + held_out_text(default, plants)
     return said + "."
