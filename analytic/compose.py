@@ -7,6 +7,7 @@ line."""
 
 import contextlib
 import importlib
+import math
 import re
 import secrets
 import shutil
@@ -133,7 +134,7 @@ def tune(
             raise ValueError(f"{directory} holds a run of another configuration")
     else:
         check_followable(config.trajectories)
-        if balance and len(config.trajectories) > 1 and config.objective_weights is None:
+        if balance and _unbalanced(config):
             config = balanced(config, feedforward)
         forget = claim(directory)
         run = _create(directory, config, feedforward, forget)
@@ -193,10 +194,11 @@ def tune_run(
                         run.run(chosen, _loading_figures(step))
                         stage = "baseline"
                         run.baseline(chosen)
-                        figures.begin(run)
                         if read_check(run.directory) is None:
                             stage = "check"
                             run_check(run, chosen, on_check)
+                        # After the check: the controller the figure marks is its advice.
+                        figures.begin(run)
             stage = "report"
             figures.finish(run)
             return run.state.stopped or ""
@@ -231,17 +233,29 @@ def _create(
         raise TuningInterrupted(None) from None
 
 
+def _unbalanced(config: RunConfig) -> bool:
+    """Whether `balanced` has something to do for `config`: trajectories to weigh, or plants to
+    scale, that it was not given weights or scales for."""
+    trajectories = len(config.trajectories) > 1 and config.objective_weights is None
+    return trajectories or bool(config.plants and config.plant_scales is None)
+
+
 def _balance_of(config: RunConfig, found: RunConfig, balance: bool) -> RunConfig | None:
-    """`config` with the weights a balanced run in its directory found, if `tune` would have
-    balanced it: what it is resumed as."""
-    if not balance or config.objective_weights is not None or len(config.trajectories) < 2:
+    """`config` with the weights and scales a balanced run in its directory found, if `tune`
+    would have balanced it: what it is resumed as."""
+    if not balance or not _unbalanced(config):
         return None
-    return config.model_copy(update={"objective_weights": found.objective_weights})
+    update = {}
+    if len(config.trajectories) > 1 and config.objective_weights is None:
+        update["objective_weights"] = found.objective_weights
+    if config.plants and config.plant_scales is None:
+        update["plant_scales"] = found.plant_scales
+    return config.model_copy(update=update)
 
 
 class _Figures:
-    """A run's figures, drawn on a thread of their own once its default gains have run (what
-    they show is then settled), while its held-out check's episodes run and its farm stops:
+    """A run's figures, drawn on a thread of their own once its default gains have run and its
+    held-out check has advised (what they show is then settled), while its farm stops:
     only report.md is left for its end. What draws them is loaded in the function, not at the
     top: matplotlib is half a second of a run's start, before its first job."""
 
@@ -363,42 +377,45 @@ def check_followable(trajectories: Iterable[TrajectorySpec]) -> None:
 
 
 def balanced(config: RunConfig, feedforward: bytes | None = None) -> RunConfig:
-    """`config` with the generic objective balanced by the default gains' scores on each of its
-    trajectories (schemas.objectives.balancing_weights), simulated in this process: a few
-    episodes, before any farm is asked for. CannotStart if the default gains do not finish one."""
+    """`config` with its objectives balanced by the default gains' scores, simulated in this
+    process (a few episodes, before any farm is asked for): a generic objective's trajectories
+    weighed alike (schemas.objectives.balancing_weights), a robust run's plants scaled alike
+    (schemas.objectives.plant_scales), each unless `config` gives them. CannotStart if the
+    default gains do not finish a trajectory of a generic run on the nominal plant (a plant
+    they do not finish is left unscaled)."""
     from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
-    from gainfarm.schemas.episode import EpisodeSpec
     from gainfarm.schemas.gains import DEFAULT_GAINS
-    from gainfarm.schemas.objectives import balancing_weights
+    from gainfarm.schemas.objectives import balancing_weights, plant_scales
 
+    plants = 1 + len(config.plants)
+    pairs = [(t, p) for t in range(len(config.trajectories)) for p in range(plants)]
     models = {config.feedforward: feedforward} if config.feedforward and feedforward else {}
     with InProcessEvaluator(models=models) as evaluator:
-        evaluator.submit(
-            {
-                f"t{index}": EpisodeSpec(
-                    gains=DEFAULT_GAINS,
-                    trajectory=trajectory,
-                    model=config.model,
-                    feedforward=config.feedforward,
-                    objectives=config.objectives,
-                )
-                for index, trajectory in enumerate(config.trajectories)
-            }
-        )
+        evaluator.submit({f"t{t}-p{p}": config.episode_spec(DEFAULT_GAINS, t, p) for t, p in pairs})
         found = {evaluation.job_id: evaluation.scores for evaluation in evaluator.results()}
-    reference = []
-    for index, trajectory in enumerate(config.trajectories):
-        scores = found[f"t{index}"]
-        if scores is None or scores.diverged:
-            raise CannotStart(
-                f"the default gains do not finish the {trajectory.kind} trajectory, so "
-                "there is nothing to balance by",
-                "balance",
-            )
-        reference.append(scores.objectives)  # the run's two, a plug-in's included
-    return RunConfig.model_validate(
-        config.model_dump() | {"objective_weights": balancing_weights(reference)}
-    )
+    update = {}
+    if len(config.trajectories) > 1 and config.objective_weights is None:
+        reference = []
+        for index, trajectory in enumerate(config.trajectories):
+            scores = found[f"t{index}-p0"]
+            if scores is None or scores.diverged:
+                raise CannotStart(
+                    f"the default gains do not finish the {trajectory.kind} trajectory, so "
+                    "there is nothing to balance by",
+                    "balance",
+                )
+            reference.append(scores.objectives)  # the run's two, a plug-in's included
+        update["objective_weights"] = balancing_weights(reference)
+    if config.plants and config.plant_scales is None:
+        # A plant the default gains diverge on is left unscaled (its penalty as it is).
+        each = [
+            (math.nan, math.nan)
+            if (s := found[f"t{t}-p{p}"]) is None or s.diverged
+            else s.objectives
+            for t, p in pairs
+        ]
+        update["plant_scales"] = plant_scales(each, plants)
+    return RunConfig.model_validate(config.model_dump() | update)
 
 
 def claim(directory: Path) -> Callable[[], None]:

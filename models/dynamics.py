@@ -166,8 +166,9 @@ class DynamicsModel:
 
 
 def rigid_spec(plant: ModelSpec) -> ModelSpec:
-    """The rigid arm of `plant` that a physics prior uses: its inertial set and rotor inertias
-    (as armature), rigid joints, no friction. Fields that play no part (sensors, delay, springs,
+    """The rigid arm of `plant` that a physics prior uses: its inertial set, rotor inertias (as
+    armature) and the load the robot is told (known, as the set is), rigid joints, no friction.
+    Fields that play no part (sensors, delay, springs,
     physics step) are left at their defaults, so plants differing only there share one prior."""
     return ModelSpec(
         joints="rigid",
@@ -175,6 +176,7 @@ def rigid_spec(plant: ModelSpec) -> ModelSpec:
         rotor_inertia=plant.rotor_inertia,
         friction=None,
         substeps=1,
+        load=None if plant.load is None else plant.load.told,
     )
 
 
@@ -185,9 +187,10 @@ def rigid_prior(spec: ModelSpec, target: Target = "inverse") -> DynamicsModel:
 
 def plant_spec(plant: ModelSpec) -> ModelSpec:
     """What of `plant` its true dynamics depend on: the inertial set, the true link masses
-    (`mass_scale`), the payload, the rotor inertias and the friction, on rigid joints. Springs
-    are left out: at the reference the link and motor move alike, and what a spring's deflection
-    does is the controller's to compensate, not the model's (bench/true_feedforward.py)."""
+    (`mass_scale`), the payload and the load as truly held, the rotor inertias and the friction,
+    on rigid joints. Springs are left out: at the reference the link and motor move alike, and
+    what a spring's deflection does is the controller's to compensate, not the model's
+    (bench/true_feedforward.py)."""
     return ModelSpec(
         joints="rigid",
         inertials=plant.inertials,
@@ -195,6 +198,7 @@ def plant_spec(plant: ModelSpec) -> ModelSpec:
         friction=plant.friction,
         mass_scale=plant.mass_scale,
         payload=plant.payload,
+        load=plant.load,
         substeps=1,
     )
 

@@ -22,7 +22,7 @@ from importlib.resources import files
 import mujoco
 import numpy as np
 
-from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, LoadData, ModelSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 
 log = logging.getLogger("gainfarm.models")
@@ -94,8 +94,14 @@ def build_spec(spec: ModelSpec) -> mujoco.MjSpec:
         flange = next(site for site in mj.sites if site.name == FLANGE)
         inertia = 0.4 * spec.payload * PAYLOAD_RADIUS**2
         mj.body("link7").add_body(
-            name="payload", pos=flange.pos, mass=spec.payload, inertia=[inertia] * 3
+            name="payload",
+            pos=flange.pos,
+            ipos=[0.0, 0.0, 0.0],  # on the flange's centre, not as far out again (as the load)
+            mass=spec.payload,
+            inertia=[inertia] * 3,
         )
+    if spec.load is not None:
+        _add_load(mj, spec.load)
     for i, name in enumerate(JOINT_NAMES):
         hinge = mj.joint(name)
         hinge.armature = spec.rotor_inertia[i]
@@ -117,6 +123,26 @@ def build_spec(spec: ModelSpec) -> mujoco.MjSpec:
                 limited=mujoco.mjtLimited.mjLIMITED_FALSE,
             )
     return mj
+
+
+def _add_load(mj: mujoco.MjSpec, load: LoadData) -> None:
+    """The load, a solid sphere of PAYLOAD_RADIUS (assumption, as the payload's) centred on its
+    centre of mass, given in the flange frame: of its true mass (the plant's, or, `load.told`,
+    the robot's own model's: gravity reads only its mass and centre)."""
+    flange = next(site for site in mj.sites if site.name == FLANGE)
+    offset = np.zeros(3)
+    mujoco.mju_rotVecQuat(offset, np.asarray(load.com, dtype=float), np.asarray(flange.quat))
+    mass = load.mass * load.mass_scale
+    inertia = 0.4 * mass * PAYLOAD_RADIUS**2
+    mj.body("link7").add_body(
+        name="load",
+        pos=np.asarray(flange.pos) + offset,
+        # The centre of mass on the body's origin: left unset, MuJoCo puts it at `pos` again,
+        # twice as far out.
+        ipos=[0.0, 0.0, 0.0],
+        mass=mass,
+        inertia=[inertia] * 3,
+    )
 
 
 @lru_cache(maxsize=16)

@@ -33,16 +33,31 @@ LAW = (
 
 
 class HeldOut(BaseModel):
-    """How the member fared on plants its run never tuned on (the held-out check, check.json)."""
+    """How the member fared on plants its run never tuned on (the held-out check, check.json),
+    in absolute terms beside the default gains' on the same plants."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     plants: int = Field(ge=1, description="held-out plants it ran every trajectory on")
     nominal_f_acc: float = Field(description="its mean error on the nominal plant, m")
-    median_ratio: float = Field(description="median over the plants of its error over nominal")
-    worst_ratio: float = Field(description="the largest")
+    nominal_f_t: float | None = Field(None, description="its second objective there")
+    median_f_acc: float | None = Field(
+        None, description="the median over the held-out plants of its mean error, m"
+    )
+    worst_f_acc: float | None = Field(None, description="the largest, m")
     violations: int = Field(ge=0, description="plants on which it broke a safety limit")
     diverged: int = Field(ge=0, description="plants on which an episode diverged")
+    default_median_f_acc: float | None = Field(
+        None, description="the default gains' median error on the same plants, m"
+    )
+    default_worst_f_acc: float | None = Field(None, description="their largest, m")
+    recommended: bool | None = Field(
+        None, description="whether the check advises it: it holds against the default gains"
+    )
+    failed: tuple[str, ...] = Field((), description="why not, in words (none: it holds)")
+    # From a check before it was absolute: each error over its own on the nominal plant.
+    median_ratio: float | None = Field(None, exclude_if=lambda value: value is None)
+    worst_ratio: float | None = Field(None, exclude_if=lambda value: value is None)
 
 
 class Member(BaseModel):

@@ -225,6 +225,7 @@ def objectives(
     weights: Sequence[tuple[float, float]] | None = None,
     plants: int = 1,
     aggregate: str = "mean",
+    scales: Sequence[tuple[float, float]] | None = None,
 ) -> tuple[float, float]:
     """A candidate's objectives over its trajectories: the means of each episode's two
     (Scores.objectives: f_acc and f_t, unless the run named others; the generic controller's;
@@ -233,11 +234,17 @@ def objectives(
 
     With `plants` > 1, `scores` are each trajectory's episodes on that many plants in turn (the
     nominal first), and each trajectory's objectives are first their `aggregate` (AGGREGATES),
-    objective by objective."""
+    objective by objective, of the episodes' objectives times `scales`, one (first, second)
+    pair per episode, if given (see `plant_scales`)."""
     if not scores or any(score is None for score in scores):
         return NO_EPISODE
     acc = np.array([score.objectives[0] for score in scores])
     t = np.array([score.objectives[1] for score in scores])
+    if scales is not None:
+        factors = np.asarray(scales, dtype=float).reshape(-1, 2)
+        if len(factors) != len(acc):
+            raise ValueError(f"{len(factors)} plant scales for {len(acc)} episodes")
+        acc, t = acc * factors[:, 0], t * factors[:, 1]
     if plants > 1:
         acc, t = _over_plants(acc, plants, aggregate), _over_plants(t, plants, aggregate)
     if weights is None:
@@ -261,6 +268,24 @@ def _over_plants(values: np.ndarray, plants: int, aggregate: str) -> np.ndarray:
         worst = max(1, math.ceil(CVAR_SHARE * plants))
         return np.sort(rows, axis=1)[:, -worst:].mean(axis=1)
     raise ValueError(f"aggregate {aggregate!r} is not one of {', '.join(AGGREGATES)}")
+
+
+def plant_scales(
+    reference: Sequence[tuple[float, float]], plants: int
+) -> tuple[tuple[float, float], ...]:
+    """Scales for `objectives` under which every plant counts alike at the `reference` (the
+    default gains' objectives on each trajectory's `plants` plants, the nominal first, in the
+    order `objectives` takes): each episode's objective times the reference's on the nominal
+    plant over the reference's on its own plant. At the reference every plant of a trajectory
+    then scores its nominal values, so a candidate's worst over the plants is as good as the
+    reference's exactly when it is as good as the reference on each plant; the objectives keep
+    their units. A reference value that is not finite and positive on a plant leaves that
+    plant's episodes as they are (a scale of 1)."""
+    values = np.array(reference, dtype=float).reshape(-1, plants, 2)
+    nominal = values[:, :1, :]
+    usable = np.isfinite(values) & (values > 0) & np.isfinite(nominal) & (nominal > 0)
+    scales = np.where(usable, nominal / np.where(usable, values, 1.0), 1.0)
+    return tuple((float(a), float(t)) for a, t in scales.reshape(-1, 2))
 
 
 def balancing_weights(

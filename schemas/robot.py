@@ -87,6 +87,54 @@ class Sensors(BaseModel):
     seed: int = Field(0, ge=0, lt=2**63)
 
 
+# The data sheet's rated payload, kg: the most a load may weigh.
+RATED_PAYLOAD = 14.0
+# How far from the flange's centre a load's centre of mass may be, m (assumption: a tool as
+# long as a forearm, beyond which a told centre is more likely a typo in mm than a tool).
+MAX_LOAD_OFFSET = 0.5
+
+
+class LoadData(BaseModel):
+    """The load data the robot is told (KUKA's load data: mass and centre of mass, in the flange
+    frame), which its own gravity model carries (FRI gravity compensation), and how far the load
+    really held is off it (`mass_scale`), which the robot's model does not know.
+
+    The plant holds a solid sphere of `mass` × `mass_scale` centred on `com`; the robot's model
+    the same sphere of `mass` (gravity reads only a body's mass and centre).
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    mass: float = Field(
+        gt=0, le=RATED_PAYLOAD, allow_inf_nan=False, description="kg, as the robot is told"
+    )
+    com: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0),
+        description="m, in the flange frame (z along the flange's axis, away from the arm): "
+        "the centre of mass as the robot is told; by default the flange's centre",
+    )
+    mass_scale: float = Field(
+        1.0,
+        gt=0,
+        le=5,
+        allow_inf_nan=False,
+        # Not bound by the rated payload: a load heavier than told is what a variant tests.
+        description="the load's true mass against the told one (a variant's error of the load "
+        "data); the robot's gravity model does not know it",
+    )
+
+    @model_validator(mode="after")
+    def _sensible(self) -> Self:
+        if not all(math.isfinite(v) and abs(v) <= MAX_LOAD_OFFSET for v in self.com):
+            raise ValueError(f"com: finite, each within {MAX_LOAD_OFFSET:g} m of the flange")
+        return self
+
+    @property
+    def told(self) -> "LoadData":
+        """The load as the robot knows it: its true mass is the told one."""
+        return self if self.mass_scale == 1.0 else self.model_copy(update={"mass_scale": 1.0})
+
+
 class ModelSpec(BaseModel):
     """Which simulated robot runs an episode. Values are explicit so that logs record them.
 
@@ -124,10 +172,19 @@ class ModelSpec(BaseModel):
     payload: float = Field(
         0.0,
         ge=0,
-        le=14,
+        le=RATED_PAYLOAD,
         allow_inf_nan=False,
-        description="kg held at the flange (the data sheet's rated payload is 14 kg); the "
-        "robot's gravity model does not know it",
+        description="kg held at the flange's centre (the data sheet's rated payload is 14 kg) "
+        "that the robot was not told of: its gravity model does not know it (a told load is "
+        "`load`)",
+    )
+    load: LoadData | None = Field(
+        None,
+        # Left out of the JSON when no load is told: every spec from before it keeps its bytes
+        # (a log's metadata, a run's config, the wire).
+        exclude_if=lambda load: load is None,
+        description="the load data the robot is told, which both the plant and the robot's "
+        "gravity model carry (the plant off by the load's `mass_scale`); None: told of none",
     )
     interface: Literal["fri", "torque"] = Field(
         "fri",
@@ -165,7 +222,7 @@ class ModelSpec(BaseModel):
 
 
 # What every dump of a ModelSpec held before the torque interface was a choice.
-_EARLIER_FIELDS = frozenset(ModelSpec.model_fields) - {"interface", "payload", "mass_scale"}
+_EARLIER_FIELDS = frozenset(ModelSpec.model_fields) - {"interface", "payload", "mass_scale", "load"}
 
 IDEAL_PLANT = ModelSpec(
     inertials="open",

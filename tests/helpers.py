@@ -272,14 +272,16 @@ def analytic(*arguments: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     )
 
 
-def held_out_closing(run_dir: Path, row: int) -> list[str]:
-    """The closing lines on how the controller at front.csv `row` did on the held-out plants,
-    from check.json (none without one): its figures as the file has them."""
+def held_out_closing(run_dir: Path, row: int | None) -> list[str]:
+    """The closing lines on how the controller at front.csv `row` (None: the default gains) did
+    on the held-out plants, from check.json (none without one): its figures as the file has
+    them, beside the default gains' for a member."""
     path = run_dir / "check.json"
     if not path.exists():
         return []
     record = json.loads(path.read_text())
     [item] = [item for item in record["controllers"] if item["row"] == row]
+    [default] = [item for item in record["controllers"] if item["row"] is None]
     plants, asked = record["plants"], record["asked"]
     on = (
         f"{plants} of the {asked} plants asked"
@@ -287,9 +289,14 @@ def held_out_closing(run_dir: Path, row: int) -> list[str]:
         else f"{plants} plant{'' if plants == 1 else 's'}"
     )
     lines = [
-        f"held out, on {on}: error ratio median {item['median_ratio']:.3f}, "
-        f"worst {item['worst_ratio']:.3f}"
+        f"held out, on {on}: error {item['median_f_acc'] * 1e3:.2f} mm median, "
+        f"{item['worst_f_acc'] * 1e3:.2f} mm worst"
     ]
+    if row is not None:
+        lines.append(
+            f"  (default gains: {default['median_f_acc'] * 1e3:.2f} mm, "
+            f"{default['worst_f_acc'] * 1e3:.2f} mm)"
+        )
     if plants < asked:
         lines.append("  (the check may take at most half the run's own episodes)")
     plural = "plant" if item["violations"] == 1 else "plants"
@@ -302,15 +309,28 @@ def held_out_closing(run_dir: Path, row: int) -> list[str]:
 def ends_with_closing_lines(lines: list[str], run_dir: Path) -> int:
     """Assert that `lines` (a command's standard error) end as `analytic start` and `resume` end
     a run, saying what its report.md's first line says: the controller to use and how to export
-    it, or that none beats the default gains, the closest and where to read more. Returns how
-    many closing lines there are."""
+    it, or that none beats the default gains (none held on the held-out check: keep them), the
+    closest and where to read more. Returns how many closing lines there are."""
     verdict = (run_dir / "report.md").read_text(encoding="utf-8").splitlines()[2]
     scores = r"\(([\d.]+) mm, f_t (\S+) \(N·m\)²\)"
-    if used := re.match(rf"\*\*Use front\.csv row (\d+)\*\* {scores}", verdict):
+    if checked := re.match(r"\*\*Use front\.csv row (\d+)\*\*: on ", verdict):
+        row, used = checked.group(1), True
+        expected = [
+            f"controller to use: row {row} of front.csv: ",
+            f"its gains: analytic export {run_dir.name}",
+        ]
+    elif used := re.match(rf"\*\*Use front\.csv row (\d+)\*\* {scores}", verdict):
         row, error, smoothness = used.groups()
         expected = [
             f"controller to use: row {row} of front.csv: {error} mm, f_t {smoothness} (N·m)²",
             f"its gains: analytic export {run_dir.name}",
+        ]
+    elif verdict.startswith("**Keep the default gains**"):
+        row, used = None, False
+        expected = [
+            "controller to use: the default gains; no member held against them",
+            "on the held-out check; closest: row ",
+            f"what to do: {run_dir.name}/report.md",
         ]
     else:
         closest = re.search(rf"Closest to dominating them: row (\d+) {scores}", verdict)
@@ -321,7 +341,7 @@ def ends_with_closing_lines(lines: list[str], run_dir: Path) -> int:
             f"closest to them: row {row} of front.csv: {error} mm, f_t {smoothness} (N·m)²",
             f"what to do: {run_dir.name}/report.md",
         ]
-    held_out = held_out_closing(run_dir, int(row))
+    held_out = held_out_closing(run_dir, None if row is None else int(row))
     at = 1 if used else 2  # after the line that names the controller
     expected[at:at] = held_out
     # A member sharing its scores, or diverged, says so after them.

@@ -71,6 +71,7 @@ def app() -> None:
 )
 @options.joints()
 @options.plant()
+@options.load()
 @options.placement()
 @click.option("--gravity-compensation", is_flag=True, help="add g(q_des) feed-forward to the PD")
 @options.feedforward()
@@ -90,6 +91,8 @@ def episode(
     gains_file: Path | None,
     joints: str,
     plant: str,
+    payload: float | None,
+    payload_com: tuple[float, ...] | None,
     trajectory_seed: int,
     center: str,
     size: float,
@@ -117,8 +120,10 @@ def episode(
 
     gains, controller = _file_gains(gains_file) if gains_file is not None else (None, None)
     (path,) = options.trajectories([trajectory], duration, trajectory_seed, center, size)
-    model = options.model_spec(plant, joints)
+    model = options.with_load(options.model_spec(plant, joints), payload, payload_com, plant)
     if as_tuned:
+        if payload is not None:
+            raise CliError("--payload: --as-tuned runs the controller on its own plant")
         path, model = _as_tuned(controller, gains_file)
     elif controller is not None:
         _warn_if_not_as_tuned(controller, gains_file, path, model)

@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 
 from gainfarm.models import FLANGE, build_spec, compile_model
-from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, LoadData, ModelSpec
 
 
 class Plant:
@@ -118,7 +118,9 @@ class ArmsGravity:
     Write each arm's angles into its row of `angles`, `compute()`, read its row of `torque`."""
 
     def __init__(self, specs: Sequence[ModelSpec]) -> None:
-        self.model = _arms(tuple(spec.inertials for spec in specs))
+        # Keyed by what the robot's model knows of each arm (cheaper than a gravity_spec each:
+        # a stack makes one per block of episodes).
+        self.model = _arms(tuple((spec.inertials, _told(spec)) for spec in specs))
         self.data = mujoco.MjData(self.model)
         self.angles = self.data.qpos.reshape(len(specs), len(JOINT_NAMES))
         self._out = np.zeros(self.model.nv)
@@ -131,22 +133,37 @@ class ArmsGravity:
 
 
 @lru_cache(maxsize=16)
-def _arms(inertials: tuple[str, ...]) -> mujoco.MjModel:
-    """One rigid arm per inertial set named, in order, their joints' angles one after another.
-    Only the bodies' inertials count: shapes, sites and motors are left out of all but the
-    first (whose options the model keeps: attaching an arm with other options would warn)."""
-    whole = build_spec(gravity_spec(ModelSpec(inertials=inertials[0])))  # type: ignore[arg-type]
-    for index, name in enumerate(inertials[1:], start=1):
-        arm = build_spec(gravity_spec(ModelSpec(inertials=name)))  # type: ignore[arg-type]
+def _arms(arms: tuple[tuple[str, LoadData | None], ...]) -> mujoco.MjModel:
+    """One rigid arm per (inertial set, told load) given, in order, their joints' angles one
+    after another: each the robot's model of its arm (gravity_spec). Only the bodies' inertials
+    count: shapes, sites and motors are left out of all but the first (whose options the model
+    keeps: attaching an arm with other options would warn)."""
+    whole, *others = (build_spec(gravity_spec(_known(*arm))) for arm in arms)
+    for index, arm in enumerate(others, start=1):
         for part in [*arm.geoms, *arm.sites, *arm.actuators]:
             arm.delete(part)
         whole.worldbody.add_frame().attach_body(arm.worldbody.first_body(), f"arm{index}/", "")
     return whole.compile()
 
 
+def _told(spec: ModelSpec) -> LoadData | None:
+    return None if spec.load is None else spec.load.told
+
+
+def _known(inertials: str, load: LoadData | None) -> ModelSpec:
+    return ModelSpec(inertials=inertials, load=load)  # type: ignore[arg-type]
+
+
 def gravity_spec(spec: ModelSpec) -> ModelSpec:
-    """The rigid arm whose gravity the robot's model of `spec` computes: its inertial set, no
-    more (rotor inertia, springs and friction exert no gravity torque)."""
+    """The rigid arm whose gravity the robot's model of `spec` computes: its inertial set and
+    the load it is told (KUKA's load data), no more (rotor inertia, springs and friction exert
+    no gravity torque; the untold payload and the links' and load's true masses it never
+    knows)."""
     return ModelSpec(
-        joints="rigid", inertials=spec.inertials, friction=None, substeps=1, interface="torque"
+        joints="rigid",
+        inertials=spec.inertials,
+        friction=None,
+        substeps=1,
+        interface="torque",
+        load=_told(spec),
     )

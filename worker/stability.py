@@ -17,9 +17,53 @@ without ringing, 0 on the unit circle (an undamped ring), negative outside it (g
 negative z (a sign flip every tick: chatter at the Nyquist frequency) has arg π, so a small ζ.
 No mode is excluded: the closed loop of a PD with positive gains has no integrator (no z = 1 by
 construction), and a z of 0 (a register's mode, a deadbeat one) is ζ = 1.
+
+`least_damping`, the number every episode log carries, mixes two kinds of mode. On an elastic
+arm the springs' own modes (near 50-60 Hz on the realistic plant, 22-34 Hz with ten times its
+rotor inertia, near 18 Hz on the ideal plant's soft springs) are lightly damped under every
+controller; the controller's tracking modes (2-40 Hz) are what its gains set. `margins` splits
+them (`tracking_modes`), for a reader who wants the controller's own margins:
+
+- a mode is *tracking* if in it each joint's motor moves with its link, *elastic* if the motor
+  moves against it: the sign of Re Σ conj(θ) q over the joints, θ and q the mode's motor and
+  link angles (its eigenvector's). Why the sign: a joint alone, a rotor J_m on a spring K to a
+  link J_l, the PD on the motor angle, has (undamped) modes at the ω² where
+  (Kp + K − J_m ω²)(K − J_l ω²) = K². The link's equation gives θ = q (1 − J_l ω² / K), and the
+  difference of the two sides is K·Kp > 0 at ω = 0 and −K² < 0 at ω² = K / J_l, so for any
+  gain and any rotor one mode lies below K / J_l (θ with q: tracking), one above (θ against q:
+  elastic). The split moves with the plant, as no fixed frequency does: with ten times the
+  rotor inertia the elastic modes fall to 22 Hz, below the 38 Hz tracking mode of the search
+  space's top gains on the realistic plant (whose elastic modes span 38-88 Hz across the search
+  space). Measured (`python bench/margins.py --split`: six controllers across the search
+  space, command delays 0-9, the spiral and a fourier path), the modes that decide the margins
+  (each class's least damped) are clear-cut: |c| ≥ 0.53 on the realistic plant, ≥ 0.92 with
+  the ten-times rotor (c the sign's cosine, Re Σ conj(θ) q / (|θ| |q|)), but for two (the
+  search space's top gains on the fourier path: a 65 Hz mode, |c| 0.07). On rigid joints
+  θ = q: every mode tracks. The register modes (the velocity's window, the delay line; ζ ≥ 0.4
+  at 180-290 Hz on the realistic plant) fall on either side; a z of 0 has no motion and counts
+  as tracking. Where the rule blurs: on the ideal plant, whose PD feeds back the link angle
+  across soft springs, three times the default Kp (above A1's and A2's spring stiffness) makes
+  modes in which motor and link share the motion (10 of its 120 deciding modes on the spiral
+  have |c| < 0.5). A mixed mode with c ≥ 0 counts as tracking: the tracking margin errs on the
+  cautious side.
+- the *tracking damping* is the least ζ among the tracking modes over the poses, with its
+  mode's natural frequency |s| / 2π: the controller's own stability margin, read as
+  least_damping is (a small-signal check at frozen poses, not a prediction of chatter).
+- the *delay margin* is how many extra ticks of command delay, beyond the plant's own, the
+  tracking modes take and stay stable (ζ > 0 at every pose): each tick of delay adds phase lag
+  at every frequency, and a loop with little lag to spare goes unstable first at its tracking
+  crossover. The delay changes only the loop's delay line, not the plant's linearisation
+  (`_linearised`, cached per plant and pose), so each extra delay costs an eigenvalue problem
+  per pose. Read it as "the loop survives its delay + margin ticks": −1 is unstable at its own
+  delay, 0 stable there but not with one tick more, MAX_EXTRA_DELAY (8) at least that many
+  (the search stops there: `Margins.capped`). The elastic modes are left out of it (their
+  damping stays in `least` and `elastic`): with delay they lose damping under many controllers,
+  the default gains' among them (on the realistic plant their least damped spring mode, near
+  56 Hz, is unstable at 2 ticks, their tracking modes not until 5).
 """
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -54,16 +98,163 @@ def least_damping(
     reference = reference_for(spec.trajectory) if reference is None else reference
     plant, gravity = _scratch(spec.model, threading.get_ident())
     loop = ClosedLoop(plant, PDController.from_gains(spec.gains, plant.torque_limits), gravity)
-    spans = (np.arange(poses) + 0.5) / poses
-    ticks = np.unique((spans * (len(reference.t) - 1)).round().astype(int))
     least = 1.0
-    for tick in ticks:
+    for tick in _pose_ticks(reference, poses):
         pose = (reference.q[tick], reference.qd[tick], reference.qdd[tick])
         matrix = loop.closed(_linearised(spec.model, *(part.tobytes() for part in pose)))
         if not np.isfinite(matrix).all():  # gains beyond what the physics can differentiate
             return -1.0
         least = min(least, float(damping_ratios(np.linalg.eigvals(matrix)).min()))
     return round(least, 6) + 0.0  # + 0.0: never −0.0
+
+
+# The delay margin's search stops this many ticks (16 ms) past the spec's own delay: four times the
+# top of models/uncertainty.toml's `delay` range (2 ticks), and past where the tracking modes of
+# gains across the search space have gone unstable on the realistic plant (bench/margins.py).
+MAX_EXTRA_DELAY = 8
+
+
+@dataclass(frozen=True)
+class Margins:
+    """A controller's margins on one plant and path (`margins`), each a damping ratio ζ (≤ 0:
+    unstable at some pose) with its mode's natural frequency in Hz (rounded to 1e-3; nan if the
+    loop could not be linearised, when its ζ is −1 as least_damping's is):
+
+    - `least`: least_damping's number, over every mode;
+    - `tracking`, `tracking_hz`: the least damped tracking mode at the spec's own delay;
+    - `elastic`, `elastic_hz`: the least damped elastic mode there (None on rigid joints);
+    - `delay`, `tracking_at`, `tracking_at_hz`: the least damped tracking mode with the command
+      `delay` ticks late (the spec's own delay unless asked otherwise);
+    - `delay_margin`: the extra ticks of command delay, beyond the spec's own, the tracking modes
+      take and stay stable: stable at every delay from the spec's to spec's + margin, unstable
+      at one more tick. −1: unstable at the spec's own delay already. MAX_EXTRA_DELAY: stable
+      through that many extra ticks, where the search stops ("that many or more": `capped`).
+    """
+
+    least: float
+    tracking: float
+    tracking_hz: float
+    elastic: float | None
+    elastic_hz: float | None
+    delay: int
+    tracking_at: float
+    tracking_at_hz: float
+    delay_margin: int
+
+    @property
+    def capped(self) -> bool:
+        """Whether the delay margin is the search's cap: the loop may take more."""
+        return self.delay_margin >= MAX_EXTRA_DELAY
+
+
+# (ζ, Hz) of a class's least damped mode over the poses; None: the class has no mode.
+Least = tuple[float, float] | None
+
+
+def margins(
+    spec: EpisodeSpec,
+    delay: int | None = None,
+    reference: Reference | None = None,
+    poses: int = POSES,
+) -> Margins:
+    """The margins of `spec`'s controller on its plant along its reference (Margins), the
+    tracking damping also at a command `delay` in ticks (default: the spec's own), at the
+    `poses` poses least_damping uses. Pure: the plant's linearisations are cached per (plant,
+    pose), so every delay, and least_damping, shares them."""
+    reference = reference_for(spec.trajectory) if reference is None else reference
+    nominal = spec.model.delay
+    delay = nominal if delay is None else delay
+    if delay < 0:
+        raise ValueError(f"delay {delay}: a command cannot act before it is made")
+    ticks = _pose_ticks(reference, poses)
+    found: dict[int, tuple[Least, Least]] = {}
+
+    def at(ticks_late: int) -> tuple[Least, Least]:
+        if ticks_late not in found:
+            found[ticks_late] = _least_modes(spec, reference, ticks, ticks_late)
+        return found[ticks_late]
+
+    tracking, elastic = at(nominal)
+    tracking_at = at(delay)[0]
+    assert tracking is not None and tracking_at is not None  # every loop has tracking modes
+    return Margins(
+        least=least_damping(spec, reference, poses),
+        tracking=tracking[0],
+        tracking_hz=tracking[1],
+        elastic=None if elastic is None else elastic[0],
+        elastic_hz=None if elastic is None else elastic[1],
+        delay=delay,
+        tracking_at=tracking_at[0],
+        tracking_at_hz=tracking_at[1],
+        delay_margin=_delay_margin(lambda extra: _stable(at(nominal + extra)[0])),
+    )
+
+
+def _stable(tracking: Least) -> bool:
+    return tracking is not None and tracking[0] > 0
+
+
+def _delay_margin(stable: Callable[[int], bool]) -> int:
+    """The extra ticks of delay before the first at which `stable` fails, less one (Margins)."""
+    for extra in range(MAX_EXTRA_DELAY + 1):
+        if not stable(extra):
+            return extra - 1
+    return MAX_EXTRA_DELAY
+
+
+def _pose_ticks(reference: Reference, poses: int) -> np.ndarray:
+    """The ticks of the reference's poses: the middles of `poses` equal spans of its time."""
+    spans = (np.arange(poses) + 0.5) / poses
+    return np.unique((spans * (len(reference.t) - 1)).round().astype(int))
+
+
+def _least_modes(
+    spec: EpisodeSpec, reference: Reference, ticks: np.ndarray, delay: int
+) -> tuple[Least, Least]:
+    """The least damped (tracking, elastic) modes over the poses at `ticks`, the command `delay`
+    ticks late, each rounded as least_damping rounds (hosts agree on them)."""
+    plant, gravity = _scratch(spec.model, threading.get_ident())
+    controller = PDController.from_gains(spec.gains, plant.torque_limits)
+    loop = ClosedLoop(plant, controller, gravity, delay=delay)
+    least: list[Least] = [None, None]
+    for tick in ticks:
+        pose = (reference.q[tick], reference.qd[tick], reference.qdd[tick])
+        matrix = loop.closed(_linearised(spec.model, *(part.tobytes() for part in pose)))
+        if not np.isfinite(matrix).all():  # as least_damping: gains beyond the physics
+            failed = (-1.0, float("nan"))
+            return failed, (failed if plant.elastic else None)
+        z, vectors = np.linalg.eig(matrix)
+        ratios, hz = damping_ratios(z), natural_hz(z)
+        tracking = tracking_modes(plant, vectors)
+        for index, modes in enumerate((tracking, ~tracking)):
+            if modes.any():
+                weakest = np.flatnonzero(modes)[ratios[modes].argmin()]
+                mode = (float(ratios[weakest]), float(hz[weakest]))
+                if least[index] is None or mode[0] < least[index][0]:
+                    least[index] = mode
+    return _rounded(least[0]), _rounded(least[1])
+
+
+def _rounded(mode: Least) -> Least:
+    return None if mode is None else (round(mode[0], 6) + 0.0, round(mode[1], 3) + 0.0)
+
+
+def natural_hz(z: np.ndarray) -> np.ndarray:
+    """The natural frequency |s| / 2π of each discrete-time eigenvalue z, s = ln z / dt (the
+    module's docstring): a z of 0 (deadbeat) is infinitely fast."""
+    with np.errstate(divide="ignore"):
+        return np.abs(np.log(z.astype(complex))) / (2 * np.pi * CONTROL_PERIOD)
+
+
+def tracking_modes(plant: Plant, vectors: np.ndarray) -> np.ndarray:
+    """Which modes (the columns of the closed loop's eigenvectors `vectors`) are tracking ones:
+    those in which each joint's motor moves with its link, Re Σ conj(θ) q ≥ 0 over the joints'
+    motor angles θ and link angles q (the module's docstring says why). The others, the motor
+    against its link, are the elastic joints' spring modes. On rigid joints θ = q: every mode
+    tracks."""
+    positions = vectors[: plant.model.nq]
+    motor, link = plant.motor_map @ positions, plant.link_map @ positions
+    return np.real(np.sum(np.conj(motor) * link, axis=0)) >= 0
 
 
 @lru_cache(maxsize=256)
@@ -136,9 +327,15 @@ class ClosedLoop:
     commands), as worker.stepping's sensed loop or exact loop computes a tick."""
 
     def __init__(
-        self, plant: Plant, controller: PDController, gravity: RobotGravity | None = None
+        self,
+        plant: Plant,
+        controller: PDController,
+        gravity: RobotGravity | None = None,
+        delay: int | None = None,
     ) -> None:
-        """`gravity`: the robot's gravity model to differentiate (FRI), if already made."""
+        """`gravity`: the robot's gravity model to differentiate (FRI), if already made; `delay`:
+        the command's delay in ticks, if not the plant's own (only the delay line changes: the
+        plant's linearisation is the same, so a `Linearised` serves every delay)."""
         model, spec = plant.model, plant.spec
         _checked(spec)
         self.plant, self.spec = plant, spec
@@ -146,7 +343,9 @@ class ClosedLoop:
         if spec.interface == "fri":
             self.gravity = RobotGravity(spec) if gravity is None else gravity
         self.window = 0 if spec.sensors.exact else spec.sensors.velocity_window
-        self.delay = spec.delay
+        self.delay = spec.delay if delay is None else delay
+        if self.delay < 0:
+            raise ValueError(f"delay {self.delay}: a command cannot act before it is made")
         nv = model.nv
         self.nx = 2 * nv
         # The measured angles from the state (qpos, qvel); the PD law's gains on the state and

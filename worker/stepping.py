@@ -93,13 +93,16 @@ class Stepped:
         return self.measure is None
 
     def kind(self) -> tuple:
-        """Episodes of one kind stack: the same array shapes, the same steps in the loop."""
+        """Episodes of one kind stack: the same array shapes, the same steps in the loop (a
+        tick's physics steps too: a stack steps its worlds by one count, and a plant variant with
+        stiffer springs needs more)."""
         if self.exact:
-            return ("exact", _layout(self.plant.model))
+            return ("exact", _layout(self.plant.model), self.plant.substeps)
         assert self.measure is not None
         return (
             "sensed",
             _layout(self.plant.model),
+            self.plant.substeps,
             self.measure.shape,
             self.window,
             self.plant.spec.delay,

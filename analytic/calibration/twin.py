@@ -94,6 +94,9 @@ def _calibrated_range(shipped: dict[str, Any], estimate: Estimate) -> dict[str, 
 
 
 def _payload_range(payload: Estimate) -> dict[str, Any]:
+    """The fitted payload's range, absolute: the file keeps the payload untold, as on the arm the
+    logs came from (validate replays them); a run on the file tells it (PlantFile.told), this
+    range then the told load's error."""
     value, spread = float(payload.value[0]), float(payload.spread[0])
     half = max(SPREAD * spread, 0.5)
     return {

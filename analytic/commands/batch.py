@@ -45,6 +45,7 @@ def _deadline() -> float:
 @options.placement()
 @options.joints(help=None)
 @options.plant()
+@options.load()
 @options.feedforward()
 @click.option(
     "--run-dir",
@@ -73,6 +74,8 @@ def batch(
     size: float,
     joints: str,
     plant: str,
+    payload: float | None,
+    payload_com: tuple[float, ...] | None,
     feedforward: Path | None,
     run_dir: Path | None,
     deadline: float,
@@ -91,7 +94,7 @@ def batch(
         raise CliError("say where the farm is: --connect ENDPOINT or --local")
     identity = check_farm(connect, local, tls, participant)
     candidates = _candidates(gains_file)
-    model = options.model_spec(plant, joints)
+    model = options.with_load(options.model_spec(plant, joints), payload, payload_com, plant)
     # Episodes that saturate every tick are refused, as `worker episode` refuses them.
     refuse_saturating(candidates, model, gains_file)
     if gains_file is not None:

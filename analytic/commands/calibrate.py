@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     help="where to write the twin (a plant file: `--plant TWIN` runs on it)",
 )
 @options.plant()
+@options.load()
 @click.option(
     "--seed",
     type=click.IntRange(min=0),
@@ -36,6 +37,8 @@ def calibrate(
     logs: tuple[Path, ...],
     out: Path,
     plant: str,
+    payload: float | None,
+    payload_com: tuple[float, ...] | None,
     seed: int,
     joint_states: str,
     commands: str,
@@ -47,7 +50,7 @@ def calibrate(
     sensor_msgs/JointState at 500 Hz. It fits the delay, rotor inertias, friction, joint
     stiffness and damping, and the links' masses with a payload, each with its uncertainty; the
     twin is --plant's plant (the robot's own model, the controller's settings, and every number
-    the logs cannot tell) with them."""
+    the logs cannot tell) with them; --payload: the load the arm was told as it recorded them."""
     import json
 
     from gainfarm.analytic.calibration.identify import identify
@@ -55,7 +58,8 @@ def calibrate(
     from gainfarm.analytic.calibration.twin import twin_file, write_text
     from gainfarm.edges.files import write_atomically
 
-    nominal = options.model_spec(plant)
+    # The arm as it recorded: a twin's own payload stays untold (no `plant` given), as it was.
+    nominal = options.with_load(options.model_spec(plant), payload, payload_com)
     prior = _prior_ranges(plant)
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")

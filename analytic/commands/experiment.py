@@ -60,6 +60,7 @@ def _shared_options(duration: float | None) -> list[click.Parameter]:
             else []
         ),
         options.plant(),
+        options.load(),
         options.limits(),
         termination_options(per_run=True),
         farm_options,
@@ -176,6 +177,8 @@ def _run(
     out: Path,
     duration: float | None = None,
     limits_file: Path | None = None,
+    payload: float | None = None,
+    payload_com: tuple[float, ...] | None = None,
     **given: str | None,
 ) -> None:
     """Check everything the experiment needs before anything runs, then run it on the farm."""
@@ -189,6 +192,7 @@ def _run(
     from gainfarm.analytic.view.progress import Display
     from gainfarm.schemas.trajectory import TrajectorySpec
 
+    options.check_load(payload, payload_com)
     identity = check_farm(connect, local, tls, participant)
     limits = options.limits_from(limits_file)
     values: dict[str, object] = {}
@@ -206,7 +210,7 @@ def _run(
             trajectories=(
                 TrajectorySpec() if duration is None else TrajectorySpec(duration=duration),
             ),
-            model=options.model_spec(plant),
+            model=options.with_load(options.model_spec(plant), payload, payload_com, plant),
             limits=limits,
             generations=generations,
             evaluations=evaluations,

@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from gainfarm.analytic.evaluators.evaluator import Evaluator
     from gainfarm.analytic.tuning.check import CheckPlan
     from gainfarm.analytic.tuning.run import RunProgress, TuningRun
+    from gainfarm.schemas.plant_file import PlantFile
     from gainfarm.schemas.robot import ModelSpec
     from gainfarm.schemas.security import TlsIdentity
     from gainfarm.schemas.trajectory import TrajectorySpec
@@ -81,20 +82,21 @@ def robustness() -> Callable[[F], F]:
         click.option(
             "--plants",
             type=click.IntRange(0, 64),
-            default=0,
+            default=defaults.PLANTS,
             show_default=True,
             metavar="K",
-            help="robust tuning: score every candidate on the nominal plant and K variants drawn "
-            "once from the uncertainty ranges (the same K for every candidate); constraints "
-            "hold on every one",
+            help="robust tuning: score every candidate on the nominal plant and K variants, the "
+            "designed corners first (the heavy and the light arm), then random "
+            "draws from the uncertainty ranges, the same for every candidate; constraints hold "
+            "on every one (0: the nominal plant alone)",
         ),
         click.option(
             "--aggregate",
             type=click.Choice(("mean", "worst", "cvar")),
-            default="cvar",
+            default=defaults.AGGREGATE,
             show_default=True,
-            help="each trajectory's objectives over its plants: the mean, the worst, or the mean "
-            "of the worst quarter",
+            help="each trajectory's objectives over its plants, each objective apart: the mean, "
+            "the worst (a bound on every plant), or the mean of the worst quarter",
         ),
         click.option(
             "--check-plants",
@@ -146,6 +148,15 @@ def uncertainty(help: str) -> Callable[[F], F]:
     )
 
 
+def _uncertainty(plant_file: "PlantFile", nominal: "ModelSpec") -> dict:
+    """The plant file's ranges for `nominal`: once its calibrated payload is the told load (no
+    --payload given: options.with_load), that load's error instead of the untold payload's."""
+    told = plant_file.told()
+    if (nominal.load, nominal.payload) == (told.plant.load, told.plant.payload):
+        return told.uncertainty
+    return plant_file.uncertainty
+
+
 def plants_from(
     count: int,
     path: Path | None,
@@ -153,14 +164,17 @@ def plants_from(
     seed: int,
     held_out: bool = False,
     plant: str | None = None,
+    designed: bool = False,
 ) -> "tuple[ModelSpec, ...]":
     """--plants K variants of `nominal` (`held_out`: --check-plants M of them, on the seed's
-    other stream), drawn from --uncertainty FILE's ranges, else from those of the plant file
-    --plant names (a calibrated twin's), else the shipped ones; or one line naming the option."""
+    other stream; `designed`: robust tuning's, the corners first), drawn from --uncertainty
+    FILE's ranges, else from those of the plant file --plant names (a calibrated twin's), else
+    the shipped ones; or one line naming the option."""
     from gainfarm.analytic.tuning.plants import (
         HELD_OUT,
         TUNING,
         BadUncertainty,
+        design,
         ranges,
         ranges_of,
         variants,
@@ -168,15 +182,21 @@ def plants_from(
     from gainfarm.schemas.robot import PLANTS
 
     stream = HELD_OUT if held_out else TUNING
+
+    def drawn(table: "dict | None") -> "tuple[ModelSpec, ...]":
+        if designed:
+            return design(nominal, count, seed, table)
+        return variants(nominal, count, seed, table, stream)
+
     if path is None:
         table = None
         if plant is not None and plant not in PLANTS:
             try:
-                table = ranges_of(options.plant_file(plant).uncertainty) or None
+                table = ranges_of(_uncertainty(options.plant_file(plant), nominal)) or None
             except BadUncertainty as error:
                 raise CliError(f"--plant: {plant!r}: uncertainty: {error}") from None
         try:
-            return variants(nominal, count, seed, table, stream)
+            return drawn(table)
         except ValueError as error:
             raise CliError(f"--plant: {plant!r}: a variant is no plant ({error})") from None
     try:
@@ -197,7 +217,7 @@ def plants_from(
             "shipped models/uncertainty.toml)"
         )
     try:
-        return variants(nominal, count, seed, table, stream)
+        return drawn(table)
     except ValueError as error:  # a range that takes the plant out of what it may be
         raise CliError(f"--uncertainty: {str(path)!r}: a variant is no plant ({error})") from None
 
@@ -347,7 +367,7 @@ def run_with_progress(
     from gainfarm import plugins
     from gainfarm.analytic.compose import TuningInterrupted
     from gainfarm.analytic.evaluators.farm import FarmUnavailable
-    from gainfarm.analytic.tuning.check import read_check
+    from gainfarm.analytic.tuning.check import advice_of, read_check
     from gainfarm.analytic.tuning.records import REPORT_MD
     from gainfarm.analytic.view.export import describe_pick, picks
     from gainfarm.analytic.view.progress import Display, RunDisplay
@@ -422,25 +442,30 @@ def run_with_progress(
             err=True,
         )
     click.echo(f"front, history, figures and report in {run.directory}/", err=True)
-    chosen = picks(run.front(), run.baseline())
+    record = read_check(run.directory)
+    chosen = picks(run.front(), run.baseline(), advice_of(record))
     if not chosen:
         return
     # Last, what to do next, as report.md's first line says; each line within 80 columns for a
     # short run directory.
     first = chosen[0]
-    record = read_check(run.directory)
     # How the controller named fared on the held-out plants, beside its name: "use row 14" is
     # not said without "12 of 37 held-out plants broke a limit".
     from gainfarm.analytic.view.run_report import held_out_lines
 
-    held_out = held_out_lines(record, first.row) if record else []
+    # Keeping the default gains on the check's advice: theirs are the figures to quote.
+    kept = first.name == "closest" and advice_of(record) is not None
+    held_out = held_out_lines(record, None if kept else first.row) if record else []
     if first.name == "recommended":
         click.echo(f"controller to use: {describe_pick(first)}", err=True)
         for line in held_out:
             click.echo(line, err=True)
         click.echo(f"its gains: analytic export {run.directory}", err=True)
         return
-    if first.name == "closest":
+    if first.name == "closest" and advice_of(record) is not None:
+        click.echo("controller to use: the default gains; no member held against them", err=True)
+        click.echo(f"on the held-out check; closest: {describe_pick(first)}", err=True)
+    elif first.name == "closest":
         click.echo("controller to use: none, no member beats the default gains", err=True)
         click.echo(f"closest to them: {describe_pick(first)}", err=True)
     else:  # the run has no baseline.json

@@ -46,6 +46,7 @@ if TYPE_CHECKING:
 @termination_options()
 @options.joints()
 @options.plant()
+@options.load()
 @options.feedforward(
     help="add a learned inverse-dynamics model's torque for the reference to every episode's "
     "PD and tune the gains on top (a directory from `analytic learn`, or its model.npz)"
@@ -80,6 +81,15 @@ if TYPE_CHECKING:
     "TPE, or uniform random sampling (--async: nsga2 or tpe only)",
 )
 @click.option(
+    "--torque-measure",
+    type=click.Choice(tuple(defaults.TORQUE_MEASURES)),
+    default=defaults.TORQUE_MEASURE,
+    show_default=True,
+    help="the second objective: per-joint, each joint's squared torque change weighed by its "
+    "torque limit (f_t_joint: the wrist counts), or raw, the paper's f_t (A1, A2 and A4 make "
+    "nearly all of it)",
+)
+@click.option(
     "--objective-scaling",
     type=click.Choice(defaults.OBJECTIVE_SCALINGS),
     default=defaults.OBJECTIVE_SCALING,
@@ -108,9 +118,10 @@ if TYPE_CHECKING:
     "--balance/--no-balance",
     default=defaults.BALANCE,
     show_default=True,
-    help="generic: weigh each trajectory's objectives so that all count alike at the default "
-    "gains (simulated here first, one episode per trajectory), rather than the plain means, "
-    "which the roughest trajectory would dominate",
+    help="weigh each trajectory's objectives (generic) and scale each plant's (robust) so "
+    "that all count alike at the default gains (simulated here first, one episode per "
+    "trajectory and plant), rather than the plain means and worsts, which the roughest "
+    "trajectory and the worst plant would dominate",
 )
 def start(
     pop: int,
@@ -124,6 +135,8 @@ def start(
     evaluations: int | None,
     joints: str,
     plant: str,
+    payload: float | None,
+    payload_com: tuple[float, ...] | None,
     feedforward: Path | None,
     limits_file: Path | None,
     min_damping: float | None,
@@ -140,6 +153,7 @@ def start(
     keep: str,
     asynchronous: bool,
     algorithm: str,
+    torque_measure: str,
     objective_scaling: str,
     replicate: bool,
     spot_checks: float,
@@ -151,6 +165,7 @@ def start(
     Stops after --generations, after --evaluations, or (by default) when the hypervolume has
     stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
     """
+    options.check_load(payload, payload_com)
     identity = check_farm(connect, local, tls, participant)
     with _farm(connect, workers) as farm:
         from pydantic import ValidationError
@@ -164,8 +179,8 @@ def start(
         trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
         learned = options.feedforward_model(feedforward)
         model_file = learned[0] if learned is not None else None
-        model = options.model_spec(plant, joints)
-        variants = plants_from(plants, uncertainty_file, model, seed, plant=plant)
+        model = options.with_load(options.model_spec(plant, joints), payload, payload_com, plant)
+        variants = plants_from(plants, uncertainty_file, model, seed, plant=plant, designed=True)
         held_out = plants_from(
             check_plants, uncertainty_file, model, seed, held_out=True, plant=plant
         )
@@ -184,6 +199,7 @@ def start(
                 keep=keep,
                 asynchronous=asynchronous,
                 algorithm=algorithm,
+                objectives=("f_acc", defaults.TORQUE_MEASURES[torque_measure]),
                 objective_scaling=objective_scaling,
                 replicate=replicate,
                 spot_checks=spot_checks,

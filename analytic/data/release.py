@@ -344,6 +344,8 @@ def plant_description(model: ModelSpec) -> str:
         f"{model.feedback}-side feedback",
         f"{model.inertials} inertials",
     ]
+    if model.load is not None:
+        parts.append(f"a {model.load.mass:g} kg load the robot is told of")
     if model.payload:
         parts.append(f"a {model.payload:g} kg payload")
     if any(scale != 1 for scale in model.mass_scale):

@@ -88,7 +88,7 @@ FIXED_BUDGETS = (100, 300)
 # What f_t the runs minimise: the paper's Eq. 1 (raw squared torque changes, summed over joints,
 # which A1 and A2 dominate) or each joint's change weighed by its torque limit
 # (schemas.objectives.f_t_joint).
-TORQUE_MEASURES = {"raw": "f_t", "per-joint": "f_t_joint"}
+TORQUE_MEASURES = defaults.TORQUE_MEASURES
 TORQUE_TEXT = {
     "raw": "f_t (the paper's Eq. 1: raw squared torque changes summed over the joints)",
     "per-joint": "f_t_joint (each joint's squared torque change weighed by its torque limit, "

@@ -13,22 +13,30 @@ front.json, report.md and the exported controller carry it.
 """
 
 import json
-import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
 from gainfarm.analytic.evaluators.evaluator import Evaluator
-from gainfarm.analytic.tuning.picks import picks
-from gainfarm.analytic.tuning.records import FRONT_JSON
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.picks import (
+    Advice,
+    closest_index,
+    dominates,
+    knee_index,
+    ranked_dominating,
+)
+from gainfarm.analytic.tuning.records import FRONT_JSON, Baseline, FrontMember, sorted_front
 from gainfarm.analytic.tuning.run import TuningRun
+from gainfarm.cli.words import counted
 from gainfarm.edges.files import interrupts_deferred, write_atomically
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import measures
 from gainfarm.schemas.objectives import objectives
+from gainfarm.schemas.robot import ModelSpec
 
 CHECK_JSON = "check.json"
 # The check's episodes are at most this share of the run's own, so a short run is not made
@@ -39,28 +47,46 @@ CHECK_SHARE = 0.5
 
 @dataclass(frozen=True)
 class Checked:
-    """One controller on the held-out plants."""
+    """One controller on the nominal plant and the held-out plants, in absolute terms: a ratio to
+    its own nominal error would reward a controller for being worse on the nominal plant."""
 
-    name: str  # a pick's name, or "default gains"
+    name: str  # a pick's name, a candidate's ("candidate"), or "default gains"
     row: int | None  # its front.csv row (None: the default gains)
     kp: tuple[float, ...]
     kd: tuple[float, ...]
-    nominal_f_acc: float  # m, on the nominal plant
-    median_ratio: float  # median over the held-out plants of f_acc / nominal_f_acc
-    worst_ratio: float  # the largest
+    nominal_f_acc: float  # m, on the nominal plant (the run's objectives over its trajectories)
+    nominal_f_t: float  # the second objective there
+    nominal_failed: bool  # an episode on the nominal plant diverged or could not run
+    median_f_acc: float  # m, the median over the held-out plants
+    worst_f_acc: float  # m, the largest
     violations: int  # held-out plants on which an episode broke a safety limit
     diverged: int  # held-out plants on which an episode diverged or could not run
+    failed_on: tuple[int, ...] = ()  # those plants, 1-based in check_plants' order
+    margins: dict | None = None  # its closed loop's margins on the nominal plant (_margins)
+    failed: tuple[str, ...] = ()  # why it is not the controller to use (none: it may be)
 
 
 @dataclass(frozen=True)
 class CheckPlan:
-    """The check about to run: `episodes` in all, on `plants` held-out plants of the `asked`
-    (fewer when CHECK_SHARE caps them), for `controllers` controllers."""
+    """The check about to run: `episodes` in its first round, on `plants` held-out plants of the
+    `asked` (fewer when CHECK_SHARE caps them), for `controllers` controllers."""
 
     episodes: int
     plants: int
     asked: int
     controllers: int
+
+
+# At most this many members that dominate the default gains on the run's own plants are
+# checked, in the knee's order, until one holds: the first with the knee and the defaults, then
+# two a round (the episodes of a round run together on the farm).
+CANDIDATES = 6
+# A damping ratio this much below the default gains' is as damped as theirs: a thousandth of
+# critical damping is no difference a control engineer reads (report.md shows three decimals),
+# and a member that keeps the default gains on the joint whose mode is least damped differs
+# from them by that much through the other joints' coupling (0.0626 against 0.0635, measured).
+DAMPING_TOLERANCE = 1e-3
+ROUND = 2
 
 
 def run_check(
@@ -70,44 +96,80 @@ def run_check(
 ) -> list[Checked]:
     """Run the check of `run` (open) on `evaluator` and write it down (check.json, front.json);
     none if its config holds no held-out plants, or its front is empty. `on_start` is told what
-    it is about to run, before the first episode is sent."""
+    it is about to run, before the first episode is sent.
+
+    The advice comes from it: the members that dominate the default gains as the run scored them
+    are checked in the knee's order, with the knee and the default gains, until one holds on the
+    held-out plants as `failures` asks (at most CANDIDATES, within CHECK_SHARE); the first that
+    holds is the controller to use, and if none does, the default gains are."""
     plants = run.config.check_plants
     asked = len(plants)
-    front = run.front()
+    front = sorted_front(run.front())
     if not plants or not front:
         return []
-    chosen = {}
-    named = picks(front, run.baseline())
-    for pick in [named[0], *(pick for pick in named if pick.name == "knee")]:
-        chosen.setdefault(pick.member.gains, (pick.name, pick.row))
-    chosen.setdefault(DEFAULT_GAINS, ("default gains", None))
+    baseline = run.baseline()
+    ranked = _candidates(front, baseline)
+    first = {}
+    for index in ranked[:1]:
+        first.setdefault(front[index].gains, ("candidate", index + 1))
+    knee = knee_index(front)
+    first.setdefault(front[knee].gains, ("knee", knee + 1))
+    first.setdefault(DEFAULT_GAINS, ("default gains", None))
     trajectories = len(run.config.trajectories)
     ran = run.state.evolution.evaluations * trajectories * (1 + len(run.config.plants))
-    affordable = int(CHECK_SHARE * ran) // (len(chosen) * trajectories) - 1
+    budget = int(CHECK_SHARE * ran)
+    affordable = budget // (len(first) * trajectories) - 1
     plants = plants[: max(1, affordable)]
+    per_controller = (1 + len(plants)) * trajectories
     started = time.monotonic()
+    on_start(CheckPlan(len(first) * per_controller, len(plants), asked, len(first)))
+    checked = _round(run, evaluator, first, plants, 0)
+    spent, queue = len(first) * per_controller, [i for i in ranked[1:CANDIDATES]]
+    while not _holding(checked) and queue and spent + ROUND * per_controller <= budget:
+        batch = {front[i].gains: ("candidate", i + 1) for i in queue[:ROUND]}
+        queue = queue[ROUND:]
+        checked += _round(run, evaluator, batch, plants, len(checked))
+        spent += len(batch) * per_controller
+    checked = _judged(checked)
+    cost = {"episodes": spent, "wall_seconds": round(time.monotonic() - started, 1)}
+    _write(run, checked, len(plants), asked, cost)
+    return checked
+
+
+def _candidates(front: Sequence[FrontMember], baseline: Baseline | None) -> list[int]:
+    """The indices of the sorted `front` that may be recommended, best first: those that
+    dominate the default gains as the run scored them, in the knee's order (picks); the member
+    closest to dominating them alone if none does, so that the check says how far it is."""
+    if baseline is None:
+        return [knee_index(front)]
+    return ranked_dominating(front, baseline) or [closest_index(front, baseline)]
+
+
+def _round(
+    run: TuningRun,
+    evaluator: Evaluator,
+    chosen: dict[PDGains, tuple[str, int | None]],
+    plants: Sequence[ModelSpec],
+    offset: int,
+) -> list[Checked]:
+    """Run `chosen` controllers on the nominal plant and `plants`, every trajectory."""
     specs = {}
-    for index, gains in enumerate(chosen):
+    for index, gains in enumerate(chosen, start=offset):
         for number, trajectory in enumerate(run.config.trajectories):
             for plant, model in enumerate((run.config.model, *plants)):
-                job_id = f"check-c{index}-t{number}-h{plant}"
-                specs[job_id] = EpisodeSpec(
+                specs[f"check-c{index}-t{number}-h{plant}"] = EpisodeSpec(
                     gains=gains,
                     trajectory=trajectory,
                     model=model,
                     feedforward=run.config.feedforward,
                     objectives=run.config.objectives,
                 )
-    on_start(CheckPlan(len(specs), len(plants), asked, len(chosen)))
     evaluator.submit(specs)
     found = {evaluation.job_id: evaluation.scores for evaluation in evaluator.results()}
-    checked = [
+    return [
         _summary(run, index, gains, *chosen[gains], found, len(plants))
-        for index, gains in enumerate(chosen)
+        for index, gains in enumerate(chosen, start=offset)
     ]
-    cost = {"episodes": len(specs), "wall_seconds": round(time.monotonic() - started, 1)}
-    _write(run, checked, len(plants), asked, cost)
-    return checked
 
 
 def _summary(
@@ -125,27 +187,131 @@ def _summary(
     def on(plant: int) -> list[Scores | None]:
         return [found.get(f"check-c{index}-t{number}-h{plant}") for number in trajectories]
 
-    nominal = objectives(on(0), config.objective_weights)[0]
-    errors, violations, diverged = [], 0, 0
+    nominal_scores = on(0)
+    nominal = objectives(nominal_scores, config.objective_weights)
+    errors, violations, diverged, failed_on = [], 0, 0, []
     for plant in range(1, count + 1):
         scores = on(plant)
         errors.append(objectives(scores, config.objective_weights)[0])
         if any(score is None or score.diverged for score in scores):
             diverged += 1
+            failed_on.append(plant)
         elif config.limits.violated(measures(scores)):
             violations += 1
-    ratios = np.asarray(errors) / nominal if nominal > 0 else np.full(count, math.inf)
+            failed_on.append(plant)
     return Checked(
         name=name,
         row=row,
         kp=gains.kp,
         kd=gains.kd,
-        nominal_f_acc=nominal,
-        median_ratio=float(np.median(ratios)),
-        worst_ratio=float(ratios.max()),
+        nominal_f_acc=nominal[0],
+        nominal_f_t=nominal[1],
+        nominal_failed=any(score is None or score.diverged for score in nominal_scores),
+        median_f_acc=float(np.median(errors)),
+        worst_f_acc=float(np.max(errors)),
         violations=violations,
         diverged=diverged,
+        failed_on=tuple(failed_on),
+        margins=_margins(config, gains),
     )
+
+
+def failures(item: Checked, default: Checked) -> tuple[str, ...]:
+    """Why `item` is not a controller to use in place of the `default` gains, in words (none:
+    it is): it must dominate them on the nominal plant, be at most as far off as they are on the
+    held-out plants (median and worst), break no limit and diverge on no held-out plant on which
+    they keep to the limits (where the factory gains break one too, so may it: requiring more
+    would leave the defaults to be advised, which fail the same test), and its tracking modes
+    be as damped as theirs with the command late (`_margin_failures`)."""
+    mm = 1e3
+    why = []
+    if item.nominal_failed:
+        why.append("failed on the nominal plant")
+    elif not default.nominal_failed and not dominates(
+        (item.nominal_f_acc, item.nominal_f_t), (default.nominal_f_acc, default.nominal_f_t)
+    ):
+        why.append("does not dominate the default gains on the nominal plant")
+    if item.median_f_acc > default.median_f_acc:
+        why.append(
+            f"median held-out error {item.median_f_acc * mm:.2f} mm > "
+            f"{default.median_f_acc * mm:.2f}"
+        )
+    if item.worst_f_acc > default.worst_f_acc:
+        why.append(
+            f"worst held-out error {item.worst_f_acc * mm:.2f} mm > {default.worst_f_acc * mm:.2f}"
+        )
+    theirs = set(default.failed_on)
+    broke = [plant for plant in item.failed_on if plant not in theirs]
+    if broke:
+        why.append(
+            f"broke a limit or diverged on {counted(len(broke), 'held-out plant')} the default "
+            "gains keep to"
+        )
+    why += _margin_failures(item.margins, default.margins)
+    return tuple(why)
+
+
+def _holding(checked: Sequence[Checked]) -> bool:
+    """Whether a checked candidate holds against the default gains."""
+    default = next((item for item in checked if item.row is None), None)
+    return default is not None and any(
+        item.row is not None and item.name == "candidate" and not failures(item, default)
+        for item in checked
+    )
+
+
+def _judged(checked: list[Checked]) -> list[Checked]:
+    """`checked` with each member's failures said; the first candidate that holds (the knee's
+    order) named "recommended"."""
+    default = next(item for item in checked if item.row is None)
+    judged, chosen = [], False
+    for item in checked:
+        if item.row is None:
+            judged.append(item)
+            continue
+        why = failures(item, default)
+        name = item.name
+        if not why and not chosen and item.name == "candidate":
+            name, chosen = "recommended", True
+        judged.append(replace(item, name=name, failed=why))
+    return judged
+
+
+def _margins(config: RunConfig, gains: PDGains) -> dict:
+    """The closed loop's margins of `gains` on the run's nominal plant (worker.stability), the
+    least over its trajectories: its tracking modes' damping at the plant's delay and at the
+    largest delay any plant of the run has (the uncertainty range's top, where reviewers found
+    tuned members unstable), and its delay margin in ticks. About an episode's cost each."""
+    from gainfarm.worker.stability import margins  # MuJoCo: loaded only by a check
+
+    top = max(plant.delay for plant in (config.model, *config.plants, *config.check_plants))
+    found = [
+        margins(config.episode_spec(gains, number), delay=top)
+        for number in range(len(config.trajectories))
+    ]
+    least = min(found, key=lambda m: m.tracking)
+    late = min(found, key=lambda m: m.tracking_at)
+    return {
+        "tracking": least.tracking,
+        "tracking_hz": least.tracking_hz,
+        "delay": top,
+        "tracking_at_delay": late.tracking_at,
+        "tracking_at_delay_hz": late.tracking_at_hz,
+        "delay_margin": min(m.delay_margin for m in found),
+    }
+
+
+def _margin_failures(margins: dict | None, default: dict | None) -> list[str]:
+    """Why `margins` fall short of the default gains' `default`: its tracking modes less damped
+    than theirs at the largest delay the run's plants have (a controller a late packet makes
+    ring where the factory gains do not is no improvement on a real arm)."""
+    if not margins or not default:
+        return []
+    mine, theirs = margins["tracking_at_delay"], default["tracking_at_delay"]
+    if mine < theirs - DAMPING_TOLERANCE:
+        late = counted(margins["delay"], "tick")
+        return [f"tracking damping {mine:.3f} {late} late < {theirs:.3f}"]
+    return []
 
 
 def _write(run: TuningRun, checked: Sequence[Checked], plants: int, asked: int, cost: dict) -> None:
@@ -154,6 +320,14 @@ def _write(run: TuningRun, checked: Sequence[Checked], plants: int, asked: int, 
         "plants": plants,
         "asked": asked,
         "controllers": [asdict(item) for item in checked],
+        "advice": next(
+            (
+                {"row": item.row, "kp": item.kp, "kd": item.kd}
+                for item in checked
+                if item.name == "recommended"
+            ),
+            {"row": None},
+        ),
         "cost": cost,
     }
     front = run.directory / FRONT_JSON
@@ -174,3 +348,19 @@ def read_check(directory) -> dict | None:
         return json.loads(path.read_bytes())
     except (OSError, ValueError):
         return None
+
+
+def advice_of(record: dict | None) -> Advice | None:
+    """The advice of a check record (check.json): the gains it recommends, or none (keep the
+    default gains); None for no record, or one from before the check gave advice."""
+    if not record or "advice" not in record:
+        return None
+    advice = record["advice"]
+    if advice.get("row") is None:
+        return Advice(None)
+    return Advice(PDGains(kp=advice["kp"], kd=advice["kd"]))
+
+
+def advice_in(directory) -> Advice | None:
+    """The advice of the check of the run in `directory` (advice_of)."""
+    return advice_of(read_check(directory))

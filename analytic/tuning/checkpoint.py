@@ -54,6 +54,7 @@ ALLOWED: frozenset[tuple[str, str]] = frozenset(
         ("gainfarm.analytic.tuning.records", "FrontMember"),
         ("gainfarm.analytic.tuning.evolution", "Evolution"),
         ("gainfarm.analytic.tuning.evolution", "GainProblem"),
+        ("gainfarm.analytic.tuning.evolution", "FromTheDefaults"),
         ("gainfarm.analytic.tuning.evolution", "UniformRandom"),
         # --algorithm tpe. Not one of Optuna's classes: Study can be called with a storage URL
         # (a database on disk or the network), so the wrapper pickles plain data only (the points

@@ -71,6 +71,14 @@ class RunConfig(BaseModel):
         "`trajectories` (schemas.objectives.balancing_weights: each trajectory counts alike at "
         "the default gains); None: the plain means",
     )
+    plant_scales: tuple[tuple[PositiveFinite, PositiveFinite], ...] | None = Field(
+        None,
+        exclude_if=lambda scales: scales is None,  # a config.json as it was without them
+        description="robust tuning: each episode's objectives are scaled by these (first, "
+        "second) pairs, one per trajectory and plant in the order of the job ids, before they are "
+        "aggregated over the plants (schemas.objectives.plant_scales: each plant counts alike at "
+        "the default gains); None: as they are",
+    )
     plants: tuple[ModelSpec, ...] = Field(
         (),
         max_length=64,
@@ -86,9 +94,10 @@ class RunConfig(BaseModel):
         "(analytic.tuning.check); none: no check",
     )
     aggregate: Literal["mean", "worst", "cvar"] = Field(
-        "cvar",
-        description="each trajectory's objectives over the nominal plant and its variants: the "
-        "mean, the worst, or the mean of the worst quarter (schemas.objectives.CVAR_SHARE)",
+        defaults.AGGREGATE,
+        description="each trajectory's objectives over the nominal plant and its variants, "
+        "objective by objective: the mean, the worst (a bound that holds on every plant), or the "
+        "mean of the worst quarter (schemas.objectives.CVAR_SHARE)",
     )
     limits: Limits = Field(
         Limits(),
@@ -164,6 +173,13 @@ class RunConfig(BaseModel):
             raise ValueError(
                 f"objective_weights: {len(weights)} pairs for {len(self.trajectories)} "
                 "trajectories (one pair per trajectory)"
+            )
+        scales = self.plant_scales
+        episodes = len(self.trajectories) * (1 + len(self.plants))
+        if scales is not None and len(scales) != episodes:
+            raise ValueError(
+                f"plant_scales: {len(scales)} pairs for {episodes} episodes (one pair per "
+                "trajectory and plant)"
             )
         return self
 

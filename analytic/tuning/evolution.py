@@ -43,6 +43,7 @@ from pymoo.core.population import Population
 from pymoo.core.problem import Problem
 from pymoo.core.termination import NoTermination
 from pymoo.indicators.hv import HV
+from pymoo.operators.sampling.rnd import FloatRandomSampling
 from pymoo.operators.selection.tournament import TournamentSelection
 from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
 from pymoo.util.ref_dirs import get_reference_directions
@@ -50,7 +51,7 @@ from pymoo.util.ref_dirs import get_reference_directions
 from gainfarm import plugins
 from gainfarm.analytic.tuning.defaults import OBJECTIVE_SCALINGS
 from gainfarm.analytic.tuning.search_space import SearchSpace
-from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.objectives import NO_EPISODE
 
 # The hypervolume is taken in a normalised objective space, the same for every run so that runs
@@ -381,10 +382,26 @@ def _set_up(method: Any, seed: int, space: SearchSpace) -> Any:
     return method
 
 
+class FromTheDefaults(FloatRandomSampling):
+    """pymoo's random sampling with the default gains as the first sample: a tuning starts from
+    the factory's controller, which it is judged against (analytic.tuning.picks), so the front
+    holds it or what dominates it, and the search around it is NSGA-II's from the first
+    generation. The other samples are the ones random sampling draws, the same random state."""
+
+    def _do(self, problem: Problem, n_samples: int, *args: Any, **kwargs: Any) -> np.ndarray:
+        x = super()._do(problem, n_samples, *args, **kwargs)
+        x[0] = np.clip(np.log10(DEFAULT_GAINS.kp + DEFAULT_GAINS.kd), problem.xl, problem.xu)
+        return x
+
+
 def nsga2(pop_size: int, seed: int, space: SearchSpace, steady_state: bool = False) -> NSGA2:
-    """pymoo's NSGA-II; steady state (mu + 1) asks one offspring at a time."""
+    """pymoo's NSGA-II, its first population the default gains and random samples; steady
+    state (mu + 1) asks one offspring at a time."""
     method = NSGA2(
-        pop_size=pop_size, n_offsprings=1 if steady_state else None, eliminate_duplicates=True
+        pop_size=pop_size,
+        sampling=FromTheDefaults(),
+        n_offsprings=1 if steady_state else None,
+        eliminate_duplicates=True,
     )
     return _set_up(method, seed, space)
 

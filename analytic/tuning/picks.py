@@ -35,6 +35,15 @@ import numpy as np
 from pymoo.decomposition.asf import ASF
 
 from gainfarm.analytic.tuning.records import Baseline, FrontMember, sorted_front
+from gainfarm.schemas.gains import PDGains
+
+
+@dataclass(frozen=True)
+class Advice:
+    """What the held-out check (analytic.tuning.check) advises: the gains of the member that
+    holds on the held-out plants, or None: keep the default gains."""
+
+    gains: PDGains | None
 
 
 @dataclass(frozen=True)
@@ -99,16 +108,31 @@ def dominating(front: Sequence[FrontMember], baseline: Baseline) -> list[int]:
     return [i for i in finished if dominates(front[i].objectives, baseline.objectives)]
 
 
-def recommended_index(front: Sequence[FrontMember], baseline: Baseline) -> int | None:
-    """The recommended member's index in the sorted `front`: of the members that dominate the
-    default gains, the one the knee's measure ranks best (ties to the lowest row); None if none
-    dominates them."""
+def ranked_dominating(front: Sequence[FrontMember], baseline: Baseline) -> list[int]:
+    """The indices in the sorted `front` of the members that dominate the default gains, in the
+    knee's order (its measure, ties to the lowest row): the candidates to recommend."""
     rows = dominating(front, baseline)
     if not rows:
-        return None
+        return []
     measured = _measured(front)
     ranked = dict(zip(measured, _asf(front, measured), strict=True))
-    return min(rows, key=lambda i: (ranked[i], i))
+    return sorted(rows, key=lambda i: (ranked[i], i))
+
+
+def recommended_index(
+    front: Sequence[FrontMember], baseline: Baseline, advice: "Advice | None" = None
+) -> int | None:
+    """The recommended member's index in the sorted `front`: the one the held-out check's
+    `advice` names, if there is advice (None: it found none that holds); without advice, of
+    the members that dominate the default gains, the one the knee's measure ranks best (ties
+    to the lowest row); None if none dominates them."""
+    if advice is not None:
+        if advice.gains is None:
+            return None
+        same = [i for i, m in enumerate(front) if m.gains == advice.gains]
+        return same[0] if same else None
+    rows = ranked_dominating(front, baseline)
+    return rows[0] if rows else None
 
 
 def shortfall(member: FrontMember | Baseline, baseline: Baseline) -> float:
@@ -136,17 +160,20 @@ def pick_at(front: Sequence[FrontMember], name: str, index: int) -> Pick:
     return Pick(name, index + 1, member, sum(1 for m in front if m.objectives == member.objectives))
 
 
-def picks(front: Sequence[FrontMember], baseline: Baseline | None = None) -> list[Pick]:
+def picks(
+    front: Sequence[FrontMember], baseline: Baseline | None = None, advice: Advice | None = None
+) -> list[Pick]:
     """The members of `front` worth naming (none if it is empty): given the default gains'
-    `baseline`, first the recommended member, or the closest to dominating the defaults if none
-    dominates them; then the knee, the most accurate and the smoothest."""
+    `baseline`, first the recommended member (the held-out check's `advice`, if it gave one),
+    or the closest to dominating the defaults if none is; then the knee, the most accurate and
+    the smoothest."""
     front = sorted_front(front)
     if not front:
         return []
     rows = _measured(front)
     first = []
     if baseline is not None:
-        recommended = recommended_index(front, baseline)
+        recommended = recommended_index(front, baseline, advice)
         first = [
             pick_at(front, "closest", closest_index(front, baseline))
             if recommended is None

@@ -20,9 +20,11 @@ from gainfarm.schemas.wire import describe
 
 UNCERTAINTY = files("gainfarm.models").joinpath("uncertainty.toml")
 # The fields a range may move, and whether ModelSpec holds one value per joint there.
+# `load.mass_scale` is the error of the load data the robot is told (schemas.robot.LoadData).
 FIELDS = {
     "mass_scale": True,
     "payload": False,
+    "load.mass_scale": False,
     "rotor_inertia": True,
     "stiffness": True,
     "spring_damping": True,
@@ -132,10 +134,10 @@ def variants(
 
 def _apply(values: dict, item: Range, rng: np.random.Generator) -> None:
     """Move `item`'s field of the dumped spec `values` by one draw."""
-    *parents, name = item.field.split(".")
-    holder = values
-    for parent in parents:
-        holder = holder.get(parent) or {}
+    if item.field.startswith("load.") and values.get("load") is None:
+        # The error of a told load: a plant told of none draws nothing for it, so its variants
+        # are, draw for draw, those drawn before a load could be told.
+        return
     size = N_JOINTS if item.per_joint else 1
     low, high = np.asarray(item.low, dtype=float), np.asarray(item.high, dtype=float)
     if item.draw == "integer":
@@ -144,6 +146,16 @@ def _apply(values: dict, item: Range, rng: np.random.Generator) -> None:
         draw = np.exp(rng.uniform(np.log(low), np.log(high), size=size))
     else:
         draw = rng.uniform(low, high, size=size)
+    _move(values, item, draw)
+
+
+def _move(values: dict, item: Range, draw: np.ndarray) -> None:
+    """Set `item`'s field of the dumped spec `values` to `draw` times its nominal value (or, if
+    `absolute`, to `draw`)."""
+    *parents, name = item.field.split(".")
+    holder = values
+    for parent in parents:
+        holder = holder.get(parent) or {}
     if name not in holder:  # a field the nominal plant has not (no friction): nothing to move
         return
     current = holder[name]
@@ -154,3 +166,82 @@ def _apply(values: dict, item: Range, rng: np.random.Generator) -> None:
     else:
         moved = float(draw[0] if item.absolute else draw[0] * current)
         holder[name] = round(moved) if item.draw == "integer" else moved
+
+
+End = Literal["low", "high"]
+
+
+def corner(
+    nominal: ModelSpec, ends: dict[str, End], uncertainty: dict[str, Range] | None = None
+) -> ModelSpec:
+    """`nominal` with each range `ends` names (a key of `uncertainty`, default the shipped
+    ranges) at its low or high end, every joint alike; the others nominal. KeyError for a range
+    the table has not."""
+    table = ranges() if uncertainty is None else uncertainty
+    values = nominal.model_dump()
+    for name, end in ends.items():
+        item = table[name]
+        size = N_JOINTS if item.per_joint else 1
+        bound = np.asarray(getattr(item, end), dtype=float)
+        _move(values, item, np.broadcast_to(bound, (size,)) if bound.ndim == 0 else bound)
+    plant = ModelSpec.model_validate(values)
+    needed = min_substeps(plant)
+    return plant.model_copy(update={"substeps": needed}) if needed > plant.substeps else plant
+
+
+# The designed plants robust tuning scores every candidate on first (`design`): two opposite
+# corners of the ranges, where a sensitivity screen (bench/corners.py, docs/tuning.md) of the
+# default gains and a nominal run's front found controllers break:
+# - heavy: the robot's gravity model short of the most (the largest unknown load, a told
+#   load at its heaviest, every link heavier) with the most friction, where every
+#   controller's error grows most (x7 on the spiral), and the command late by the range's
+#   top on the softest joints with the heaviest rotors: the lowest elastic modes, nearest the
+#   tracking loop's;
+# - light: gravity over-compensated with the least friction to damp the arm, the command as
+#   late, on the stiffest joints with the lightest rotors and the least damped springs: the
+#   highest, least damped elastic modes.
+# On each, half a nominal front is unstable (least damping ratio below 0) where the default gains
+# keep 0.037 and 0.012; the ends apart (the heavy, light, lagging and brisk arm) catch the same
+# members, each with fewer, at a plant's cost each. The heavy end with the light one's joints
+# is beyond what the default gains hold (-0.14), so it is no design plant. Sensor noise and
+# spring damping alone move no controller's error.
+CORNERS: dict[str, dict[str, End]] = {
+    "heavy": {
+        "payload": "high",
+        "load_mass": "high",
+        "mass_scale": "high",
+        "coulomb": "high",
+        "viscous": "high",
+        "delay": "high",
+        "rotor_inertia": "high",
+        "stiffness": "low",
+    },
+    "light": {
+        "payload": "low",
+        "load_mass": "low",
+        "mass_scale": "low",
+        "coulomb": "low",
+        "viscous": "low",
+        "delay": "high",
+        "rotor_inertia": "low",
+        "stiffness": "high",
+        "spring_damping": "low",
+    },
+}
+
+
+def design(
+    nominal: ModelSpec, count: int, seed: int, uncertainty: dict[str, Range] | None = None
+) -> tuple[ModelSpec, ...]:
+    """The `count` plants robust tuning scores every candidate on besides `nominal`: the
+    CORNERS first (as many as `count` allows; a range `uncertainty` lacks stays nominal there),
+    then random draws (`variants`, TUNING stream). Each has its own sensor noise seed, drawn from
+    `seed`."""
+    table = ranges() if uncertainty is None else uncertainty
+    rng = np.random.default_rng([seed, 0x636F726E657273])  # "corners": a stream of its own
+    designed = []
+    for ends in list(CORNERS.values())[:count]:
+        plant = corner(nominal, {name: end for name, end in ends.items() if name in table}, table)
+        sensors = plant.sensors.model_copy(update={"seed": int(rng.integers(2**63))})
+        designed.append(plant.model_copy(update={"sensors": sensors}))
+    return (*designed, *variants(nominal, count - len(designed), seed, table))

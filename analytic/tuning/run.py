@@ -863,7 +863,11 @@ class TuningRun:
         """A candidate's objectives from its episodes' scores, in `_job_ids`' order."""
         config = self.config
         return objectives(
-            scores, config.objective_weights, 1 + len(config.plants), config.aggregate
+            scores,
+            config.objective_weights,
+            1 + len(config.plants),
+            config.aggregate,
+            config.plant_scales,
         )
 
     def _specs(self, jobs: dict[PDGains, list[str]]) -> dict[str, EpisodeSpec]:

@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from gainfarm.analytic.tuning.check import CHECK_JSON, read_check
+from gainfarm.analytic.tuning.check import CHECK_JSON, advice_of, read_check
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import F_T_FLOOR, REFERENCE_POINT, normalise
 from gainfarm.analytic.tuning.picks import Pick, picks
@@ -176,9 +176,9 @@ def run_view(directory: Path, held: "bool | None" = UNREAD) -> RunView:
     baseline = None
     with contextlib.suppress(OSError, ValueError):
         baseline = read_baseline(directory / BASELINE_JSON)
-    named = picks(record.front, baseline)
-    chosen = {p.name: p.member for p in named}
     check = read_check(directory)
+    named = picks(record.front, baseline, advice_of(check))
+    chosen = {p.name: p.member for p in named}
     finished = [m.objectives for m in record.front if _measured(m.objectives)]
     # One normalisation for every run: the hypervolume's, at the default reference point.
     x, y = normalise(sorted(finished), REFERENCE_POINT).T.tolist() if finished else ([], [])

@@ -19,9 +19,9 @@ from pathlib import Path
 import yaml
 from pydantic import ValidationError
 
-from gainfarm.analytic.tuning.check import read_check
+from gainfarm.analytic.tuning.check import advice_in, read_check
 from gainfarm.analytic.tuning.config import RunConfig
-from gainfarm.analytic.tuning.picks import Pick, pick_at, picks
+from gainfarm.analytic.tuning.picks import Advice, Pick, pick_at, picks
 from gainfarm.analytic.tuning.records import (
     BASELINE_JSON,
     CONFIG_JSON,
@@ -48,8 +48,9 @@ from gainfarm.schemas.wire import one_line
 MEMBERS = ("recommended", "knee", "accurate", "smooth")
 FORMATS = ("json", "yaml", "ros2_control")
 RULES = {
-    "recommended": "the knee among the members that dominate the default gains on the run's "
-    "trajectories (baseline.json)",
+    "recommended": "the first member, in the knee's order among those that dominate the default "
+    "gains as the run scored them (baseline.json), that holds against them on the held-out "
+    "check (check.json); a run without a check: the first of those",
     "knee": "the knee: least worse normalised objective (pymoo ASF, equal weights; both "
     "objectives on a log scale, normalised between the front's ideal and nadir)",
     "accurate": "the most accurate member (smallest f_acc)",
@@ -76,13 +77,18 @@ def plant_name(model: ModelSpec) -> str:
     return "custom"
 
 
-def pick(front: Sequence[FrontMember], which: str, baseline: Baseline | None = None) -> Pick:
+def pick(
+    front: Sequence[FrontMember],
+    which: str,
+    baseline: Baseline | None = None,
+    advice: Advice | None = None,
+) -> Pick:
     """The member `which` names: recommended (beside the default gains' `baseline`), knee,
     accurate, smooth, or a row of front.csv (1-based). BadMember if there is none such."""
     front = sorted_front(front)
     others = f"knee, accurate, smooth or a row of front.csv (1-{len(front)})"
     if which in MEMBERS:
-        named = {chosen.name: chosen for chosen in picks(front, baseline)}
+        named = {chosen.name: chosen for chosen in picks(front, baseline, advice)}
         if which in named:
             return named[which]
         if baseline is None:
@@ -90,6 +96,12 @@ def pick(front: Sequence[FrontMember], which: str, baseline: Baseline | None = N
                 "recommended (the default) compares the front with the default gains' scores, "
                 f"and the run has no {BASELINE_JSON} of them (stopped before it scored them, or "
                 f"scored before they changed); name one: {others}"
+            )
+        if advice is not None:
+            raise BadMember(
+                "recommended (the default): on the held-out check no member held against the "
+                f"default gains (closest: row {named['closest'].row}, report.md), so none is "
+                f"recommended; keep the default gains, or name one: {others}"
             )
         raise BadMember(
             "recommended (the default): no member of the front dominates the default gains "
@@ -144,7 +156,7 @@ def controller(directory: Path, which: str = "recommended") -> Controller:
                 "limits yet (report.md says which ones they broke)"
             )
         raise BadRun(f"{str(directory)!r} has no front yet: no generation has finished")
-    chosen = pick(front, which, baseline_of(directory))
+    chosen = pick(front, which, baseline_of(directory), advice_in(directory))
     member = chosen.member
     measured = _measures(directory, member)
     if measured and config.limits.violated(measured):  # a front from before the limits
@@ -188,12 +200,21 @@ def controller(directory: Path, which: str = "recommended") -> Controller:
 
 
 def _held_out(directory: Path, member: FrontMember) -> HeldOut | None:
-    """The held-out check of the member, if its run checked it."""
+    """The held-out check of the member beside the default gains', if its run checked it."""
     record = read_check(directory)
-    for item in (record or {}).get("controllers", ()):
+    items = (record or {}).get("controllers", ())
+    default = next((item for item in items if item["row"] is None), {})
+    for item in items:
         if tuple(item["kp"]) == member.kp and tuple(item["kd"]) == member.kd:
             fields = {name: item[name] for name in HeldOut.model_fields if name in item}
-            return HeldOut(plants=record["plants"], **fields)  # type: ignore[index]
+            if "advice" in record:  # type: ignore[operator]
+                fields["recommended"] = item["name"] == "recommended"
+            return HeldOut(
+                plants=record["plants"],  # type: ignore[index]
+                default_median_f_acc=default.get("median_f_acc"),
+                default_worst_f_acc=default.get("worst_f_acc"),
+                **fields,
+            )
     return None
 
 

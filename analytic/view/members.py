@@ -88,11 +88,17 @@ def _validation(member: FrontMember) -> str:
 
 
 def held_out_text(item: dict, plants: int) -> str:
-    """A checked controller on the held-out plants, in a line: its error ratio (median, worst),
+    """A checked controller on the held-out plants, in a line: its mean error (median, worst),
     and on how many plants it broke a limit or diverged."""
+    if "median_f_acc" in item:
+        error = (
+            f"error {item['median_f_acc'] * 1e3:.2f} mm median, "
+            f"{item['worst_f_acc'] * 1e3:.2f} mm worst"
+        )
+    else:  # a check from before it was absolute
+        error = f"error ×{item['median_ratio']:.3g} median, ×{item['worst_ratio']:.3g} worst"
     return (
-        f"error ×{item['median_ratio']:.3g} median, ×{item['worst_ratio']:.3g} worst on "
-        f"{counted(plants, 'plant')}; {item['violations']} broke a limit, "
+        f"{error} on {counted(plants, 'plant')}; {item['violations']} broke a limit, "
         f"{item['diverged']} diverged"
     )
 
@@ -106,20 +112,21 @@ def robustness_text(chosen: Sequence[Pick], check: dict | None, asked: int) -> s
         return "Held-out check: not run (`analytic start --check-plants M` runs one)."
     pick = chosen[0] if chosen else None
     items = check.get("controllers", ())
+    default = next((i for i in items if i.get("row") is None), None)
     mine = next((i for i in items if pick is not None and i.get("row") == pick.row), None)
+    plants = check["plants"]
+    budget = f" (of the {asked} asked: the check's budget)" if plants < asked else ""
+    if pick is not None and pick.name == "closest" and "advice" in check:
+        said = "Held-out check: no member held against the default gains; keep them"
+        if default is not None:
+            said += f" ({held_out_text(default, plants)}){budget}"
+        return said + "."
     if pick is None or mine is None:
         return "Held-out check: its controllers are no longer on the front."
-    plants = check["plants"]
     said = f"Held-out check of row {pick.row} ({pick.name}): " + held_out_text(mine, plants)
-    if plants < asked:  # the check's budget allowed fewer than the config asks for
-        said += f" (of the {asked} asked: the check's budget)"
-    default = next((i for i in items if i.get("row") is None), None)
+    said += budget  # the check's budget allowed fewer than the config asks for
     if default is not None:
-        said += (
-            f"; the default gains: ×{default['median_ratio']:.3g} median, "
-            f"×{default['worst_ratio']:.3g} worst, {default['violations']} broke a limit, "
-            f"{default['diverged']} diverged"
-        )
+        said += "; the default gains: " + held_out_text(default, plants)
     return said + "."
 
 

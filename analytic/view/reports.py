@@ -322,11 +322,12 @@ def report_markdown(
     baseline: Baseline | None = None,
     run_dir: str = "RUN",
     validation: ValidationRecord | None = None,
+    advice: str | None = None,
 ) -> str:
     """The text of report.md (see `write_report`)."""
     lines = [f"# {title}", ""]
     if picks:  # first the recommendation: what to use, or that nothing here beats the defaults
-        lines += [recommendation_text(picks, baseline), ""]
+        lines += [advice or recommendation_text(picks, baseline), ""]
         lines += controllers_section(picks, baseline, run_dir, front)
     lines += ["## Configuration", ""]
     lines += [f"- {line}" for line in config_lines] or ["- (none given)"]
@@ -400,10 +401,12 @@ def write_report(
     baseline: Baseline | None = None,
     run_dir: str = "RUN",
     validation: ValidationRecord | None = None,
+    advice: str | None = None,
 ) -> None:
-    """A short report.md at `path`: first the recommendation (the recommended member, or that none
-    dominates the default gains), then the controller to use (`picks`, computed beside the
-    default gains' `baseline`; `run_dir` for the export command it shows), configuration,
+    """A short report.md at `path`: first the recommendation (`advice`, the held-out check's, if
+    given; else the recommended member, or that none dominates the default gains), then the
+    controller to use (`picks`, computed beside the default gains' `baseline`; `run_dir` for the
+    export command it shows), configuration,
     summary, the front as a table (members with identical scores on one line), the figures.
 
     `converged` is the caller's one line on why the run stopped (or that it has not),
@@ -421,6 +424,7 @@ def write_report(
         baseline=baseline,
         run_dir=run_dir,
         validation=validation,
+        advice=advice,
     )
     write_atomically(Path(path), text.encode("utf-8"))
 

@@ -7,7 +7,13 @@ function of the records.
 
 from collections.abc import Sequence
 
-from gainfarm.analytic.tuning.check import CHECK_SHARE, CheckPlan, read_check
+from gainfarm.analytic.tuning.check import (
+    CHECK_SHARE,
+    CheckPlan,
+    advice_in,
+    advice_of,
+    read_check,
+)
 from gainfarm.analytic.tuning.evolution import hypervolume
 from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import HYPERVOLUME_PNG, PARETO_PNG, REPORT_MD, FrontMember
@@ -29,7 +35,8 @@ def write_run_report(run: TuningRun, figures: bool = True) -> None:
     if figures:
         draw_figures(run)
     front, baseline = run.front(), run.baseline()
-    chosen = picks(front, baseline)
+    record = read_check(run.directory)
+    chosen = picks(front, baseline, advice_of(record))
     limits = run.config.limits
     write_report(
         run.directory / REPORT_MD,
@@ -42,12 +49,13 @@ def write_run_report(run: TuningRun, figures: bool = True) -> None:
         baseline=baseline,
         run_dir=str(run.directory),
         validation=run.validation(),
+        advice=advice_text(record),
     )
     report = run.directory / REPORT_MD
     sections = [
         *limits_section(limits, run.state.measured, len(front)),
         *damping_section(front, limits),
-        *check_section(read_check(run.directory)),
+        *check_section(record),
     ]
     section = "\n".join(sections)
     write_atomically(report, report.read_bytes().rstrip(b"\n") + b"\n\n" + section.encode())
@@ -59,7 +67,7 @@ def draw_figures(run: TuningRun) -> None:
     held-out check runs. The run must be open."""
     run.check_open()
     front, title, baseline = run.front(), run_title(run.config), run.baseline()
-    chosen = picks(front, baseline)
+    chosen = picks(front, baseline, advice_in(run.directory))
     limits = run.config.limits
     # The cloud of candidates within the limits: the others are not controllers to use.
     within = [
@@ -142,8 +150,57 @@ def damping_section(front: Sequence[FrontMember], limits: Limits) -> list[str]:
     return [*lines, ""]
 
 
+def _mm(metres: float) -> str:
+    return f"{metres * 1e3:.2f}"
+
+
+def _controller(record: dict, which: str) -> dict | None:
+    """The checked controller named `which` (its pick's name, "default gains"), if any."""
+    return next((item for item in record.get("controllers", ()) if item["name"] == which), None)
+
+
+def advice_text(record: dict | None) -> str | None:
+    """report.md's first line from the held-out check: the controller to use with its held-out
+    errors in mm beside the default gains', or that the default gains are, and why; None for
+    no check, or one from before the check gave advice (the run's own recommendation then)."""
+    if not record or "advice" not in record:
+        return None
+    default = _controller(record, "default gains")
+    if default is None:
+        return None
+    on = check_plants_text(record["plants"], record.get("asked"))
+    theirs = (
+        f"the default gains' {_mm(default['median_f_acc'])} mm and {_mm(default['worst_f_acc'])} mm"
+    )
+    if default["nominal_failed"]:
+        theirs += " (their nominal episode failed)"
+    chosen = _controller(record, "recommended")
+    if chosen is not None:
+        return (
+            f"**Use front.csv row {chosen['row']}**: on {on} its mean error is "
+            f"{_mm(chosen['median_f_acc'])} mm at the median and {_mm(chosen['worst_f_acc'])} mm "
+            f"at worst, against {theirs}; it broke no limit and diverged on none, and on the "
+            f"nominal plant it dominates them ({_mm(chosen['nominal_f_acc'])} mm, "
+            f"{chosen['nominal_f_t']:.4g} against {_mm(default['nominal_f_acc'])} mm, "
+            f"{default['nominal_f_t']:.4g})."
+        )
+    tried = [item for item in record["controllers"] if item["name"] == "candidate"]
+    if not tried:
+        return (
+            f"**Keep the default gains** ({_mm(default['median_f_acc'])} mm median, "
+            f"{_mm(default['worst_f_acc'])} mm worst on {on}): no member was a candidate."
+        )
+    best = tried[0]
+    return (
+        f"**Keep the default gains**: of the members that beat them on the run's own plants, "
+        f"the {counted(len(tried), 'one')} checked on {on} did not hold against "
+        f"{theirs} (median and worst error). The first, row {best['row']}: "
+        f"{'; '.join(best['failed'])}."
+    )
+
+
 def check_section(record: dict | None) -> list[str]:
-    """report.md's lines on the held-out check (none without one)."""
+    """report.md's lines on the held-out check (none without one), in absolute terms."""
     if not record:
         return []
     lines = [
@@ -151,25 +208,53 @@ def check_section(record: dict | None) -> list[str]:
         "",
         "Each controller below ran every trajectory on the nominal plant and on "
         f"{check_plants_text(record['plants'], record.get('asked'))}, drawn from the "
-        "uncertainty ranges on a stream of the seed the run never tuned on (check.json). Error "
-        "ratio: its mean error on a plant over its own on the nominal one.",
+        "uncertainty ranges on a stream of the seed the run never tuned on (check.json). The "
+        "members that beat the default gains on the run's own plants are checked in the knee's "
+        "order until one holds: it dominates the defaults on the nominal plant, its median and "
+        "worst held-out errors are at most theirs, it breaks no limit and diverges on none "
+        "(docs/tuning.md). Errors are the mean Cartesian error of an episode, mm.",
         "",
-        "| controller | front.csv row | nominal f_acc (mm) | median ratio | worst ratio | "
-        "plants over a limit | plants diverged |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "| controller | front.csv row | nominal f_acc | nominal f_t | held-out median | "
+        "held-out worst | plants over a limit | plants diverged | tracking ζ | "
+        "tracking ζ, command late | delay margin (ticks) | why not |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for item in record["controllers"]:
+        if "median_f_acc" not in item:  # a check from before it was absolute
+            continue
         row = "–" if item["row"] is None else item["row"]
+        nominal = "failed" if item["nominal_failed"] else _mm(item["nominal_f_acc"])
         lines.append(
-            f"| {item['name']} | {row} | {item['nominal_f_acc'] * 1000:.3f} | "
-            f"{item['median_ratio']:.3f} | {item['worst_ratio']:.3f} | {item['violations']} | "
-            f"{item['diverged']} |"
+            f"| {item['name']} | {row} | {nominal} | {item['nominal_f_t']:.4g} | "
+            f"{_mm(item['median_f_acc'])} | {_mm(item['worst_f_acc'])} | {item['violations']} | "
+            f"{item['diverged']} | {_margins_cells(item.get('margins'))} | "
+            f"{'; '.join(item.get('failed', ())) or '–'} |"
         )
     cost = record.get("cost", {})
     episodes = cost.get("episodes")
     spent = "? episodes" if episodes is None else counted(episodes, "episode")
-    lines += ["", f"It cost {spent}, {cost.get('wall_seconds', '?')} s.", ""]
+    lines += [
+        "",
+        "Margins, on the nominal plant (worker.stability, docs/limits.md): the least damping "
+        "ratio of the closed loop's tracking modes, at the plant's delay and with the command as "
+        "late as the run's latest plant; the delay margin is the extra ticks of delay the "
+        "tracking modes take and stay stable (−1: unstable already).",
+        "",
+        f"It cost {spent}, {cost.get('wall_seconds', '?')} s.",
+        "",
+    ]
     return lines
+
+
+def _margins_cells(margins: dict | None) -> str:
+    """A checked controller's margins as three table cells."""
+    if not margins:
+        return "– | – | –"
+    late = counted(margins["delay"], "tick")
+    return (
+        f"{margins['tracking']:.3f} ({margins['tracking_hz']:.1f} Hz) | "
+        f"{margins['tracking_at_delay']:.3f} ({late} late) | {margins['delay_margin']}"
+    )
 
 
 # CHECK_SHARE in words, for the line that says why a check ran on fewer plants than asked.
@@ -208,18 +293,24 @@ def check_start_line(plan: CheckPlan) -> str:
 
 def held_out_lines(record: dict, row: int | None) -> list[str]:
     """The held-out check's result for the controller at front.csv row `row` (None: the
-    default gains), for the terminal's closing lines, each within 80 columns; none if it was
-    not checked."""
+    default gains) beside the default gains', for the terminal's closing lines, each within 80
+    columns; none if it was not checked."""
+    default = _controller(record, "default gains")
     for item in record.get("controllers", []):
-        if item["row"] != row:
+        if item["row"] != row or "median_f_acc" not in item:
             continue
         plants, asked = record["plants"], record.get("asked")
         cut = asked is not None and plants < asked
         on = f"{plants} of the {asked} plants asked" if cut else counted(plants, "plant")
         lines = [
-            f"held out, on {on}: error ratio median "
-            f"{item['median_ratio']:.3f}, worst {item['worst_ratio']:.3f}"
+            f"held out, on {on}: error {_mm(item['median_f_acc'])} mm median, "
+            f"{_mm(item['worst_f_acc'])} mm worst"
         ]
+        if default is not None and row is not None:
+            lines.append(
+                f"  (default gains: {_mm(default['median_f_acc'])} mm, "
+                f"{_mm(default['worst_f_acc'])} mm)"
+            )
         if cut:
             lines.append(f"  ({check_cap_text()})")
         lines.append(

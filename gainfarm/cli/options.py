@@ -273,6 +273,84 @@ def model_spec(plant: str, joints: str | None = None, option: str = "--plant") -
     return spec if joints is None else spec.model_copy(update={"joints": joints})
 
 
+# Held here, not imported: parsing loads no schema (checked against schemas.robot in the tests).
+RATED_PAYLOAD = 14.0  # kg, the data sheet's rated payload (schemas.robot.RATED_PAYLOAD)
+MAX_LOAD_OFFSET = 0.5  # m (schemas.robot.MAX_LOAD_OFFSET)
+
+
+def _payload(ctx: click.Context, param: click.Parameter, value: float | None) -> float | None:
+    if value is not None and not 0 <= value <= RATED_PAYLOAD:  # NaN fails both
+        raise CliError(
+            f"--payload: {value:g} kg is not a load from 0 to the rated {RATED_PAYLOAD:g} kg"
+        )
+    return value
+
+
+def _payload_com(
+    ctx: click.Context, param: click.Parameter, value: str | None
+) -> tuple[float, ...] | None:
+    if value is None:
+        return None
+    com = parse_numbers("--payload-com", value, 3)
+    if not all(abs(v) <= MAX_LOAD_OFFSET for v in com):  # NaN fails too
+        raise CliError(
+            f"--payload-com: {value!r}: each coordinate must be within {MAX_LOAD_OFFSET:g} m "
+            "of the flange's centre"
+        )
+    return com
+
+
+def load() -> Callable[[F], F]:
+    """--payload and --payload-com: the load the robot is told (KUKA's load data), which its
+    gravity model carries as the plant does; checked as the command line is parsed."""
+    return stack(
+        click.option(
+            "--payload",
+            type=float,
+            metavar="KG",
+            callback=_payload,
+            help="the load at the flange the robot is told of (KUKA's load data): the plant "
+            "holds it and the robot's gravity compensation carries it; robust tuning draws "
+            "its error around it (models/uncertainty.toml)  [default: the plant's own told "
+            "load: none for a named plant, a twin's calibrated one]",
+        ),
+        click.option(
+            "--payload-com",
+            metavar="X,Y,Z",
+            callback=_payload_com,
+            help="the told load's centre of mass in the flange frame, m (z along the flange's "
+            "axis, away from the arm)  [default: 0,0,0, the flange's centre]",
+        ),
+    )
+
+
+def check_load(payload: float | None, payload_com: tuple[float, ...] | None) -> None:
+    """One line if --payload-com comes without --payload: a command calls it before its farm."""
+    if payload_com is not None and payload is None:
+        raise CliError("--payload-com: give the load's mass with --payload")
+
+
+def with_load(
+    spec: "ModelSpec",
+    payload: float | None,
+    payload_com: tuple[float, ...] | None,
+    plant: str | None = None,
+) -> "ModelSpec":
+    """`spec` (--plant `plant`'s) told of the load --payload and --payload-com give (--payload
+    0: told of none); without --payload, a plant file's calibrated payload (PlantFile.told),
+    else as it is."""
+    check_load(payload, payload_com)
+    if payload is None:
+        if plant is None or plant in _plants():
+            return spec
+        told = plant_file(plant).told().plant
+        return spec.model_copy(update={"payload": told.payload, "load": told.load})
+    from gainfarm.schemas.robot import LoadData
+
+    told = LoadData(mass=payload, com=payload_com or (0.0, 0.0, 0.0)) if payload > 0 else None
+    return spec.model_copy(update={"load": told})
+
+
 def plant_file(plant: str, option: str = "--plant") -> "PlantFile":
     """--plant FILE's contents, or one line naming the option and what is wrong."""
     from gainfarm.schemas.plant_file import BadPlantFile, read_plant_file

@@ -217,8 +217,13 @@ def test_a_worker_runs_an_episode_on_the_twin(calibrated: dict, tmp_path: Path) 
     done = subprocess.run(command, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
 
-    twin = read_plant_file(calibrated["twin"].read_bytes()).plant
-    assert read_episode(tmp_path / "ep.mcap").metadata.spec.model == twin
+    # The twin's calibrated payload is the load the robot is told as the file runs (told: the
+    # plant holds what the file's does, the robot's gravity model carries the payload).
+    twin = read_plant_file(calibrated["twin"].read_bytes())
+    ran = read_episode(tmp_path / "ep.mcap").metadata.spec.model
+    assert ran == twin.told().plant
+    assert ran.payload == 0.0 and ran.load is not None
+    assert ran.load.mass == pytest.approx(twin.plant.payload)
 
 
 def test_bad_input_is_one_line_and_writes_nothing(calibrated: dict, tmp_path: Path) -> None:
@@ -442,7 +447,8 @@ def test_batch_and_experiment_take_the_twin(calibrated: dict, tmp_path: Path) ->
     assert done.returncode == 0, done.stderr
     (episode,) = [json.loads(line) for line in done.stdout.splitlines()]
     plant = read_episode(tmp_path / "batch" / episode["episode"]).metadata.spec.model
-    assert plant == read_plant_file(calibrated["twin"].read_bytes()).plant
+    # As the twin file runs: its calibrated payload the load the robot is told (PlantFile.told).
+    assert plant == read_plant_file(calibrated["twin"].read_bytes()).told().plant
     # An experiment reads it as it parses its options: a bad one is refused before anything runs.
     bad = tmp_path / "bad.toml"
     bad.write_text("[plant]\ndelay = 99\n")

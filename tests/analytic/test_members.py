@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gainfarm.analytic.tuning.check import read_check
+from gainfarm.analytic.tuning.check import advice_of, read_check
 from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import read_front, read_run
 from gainfarm.analytic.view.export import FORMATS, baseline_of
@@ -48,9 +48,9 @@ def test_the_table_is_front_csv_with_each_rows_picks_checks_and_held_out_results
     run_dir: Path,
 ) -> None:
     record = read_run(run_dir)
-    named = picks(record.front, baseline_of(run_dir))
     check = read_check(run_dir)
     assert check is not None
+    named = picks(record.front, baseline_of(run_dir), advice_of(check))
     columns = table(record.front, named, record.config, check)
     assert list(columns) == list(COLUMNS)
     front = read_front(run_dir / "front.csv")
@@ -66,13 +66,20 @@ def test_the_table_is_front_csv_with_each_rows_picks_checks_and_held_out_results
     checked = [row for row, text in zip(columns["row"], columns["held_out"], strict=True) if text]
     assert checked and set(checked) <= {item["row"] for item in check["controllers"]}
     said = robustness_text(named, check, 1)
-    ratios = r"×[\d.]+ median, ×[\d.]+ worst"
-    assert re.fullmatch(
-        rf"Held-out check of row {named[0].row} \({named[0].name}\): error {ratios} on 1 plant; "
-        rf"[01] broke a limit, [01] diverged; the default gains: {ratios}, [01] broke a limit, "
-        r"[01] diverged\.",
-        said,
-    ), said
+    errors = (
+        r"error [\d.]+ mm median, [\d.]+ mm worst on 1 plant; [01] broke a limit, [01] diverged"
+    )
+    if named[0].name == "closest":  # the check kept the default gains
+        assert re.fullmatch(
+            rf"Held-out check: no member held against the default gains; keep them \({errors}\)\.",
+            said,
+        ), said
+    else:
+        assert re.fullmatch(
+            rf"Held-out check of row {named[0].row} \(recommended\): {errors}; the default "
+            rf"gains: {errors}\.",
+            said,
+        ), said
     assert "of the 3 asked: the check's budget" in robustness_text(named, check, 3)
     assert robustness_text(named, None, 0).startswith("Held-out check: not run")
     assert robustness_text(named, None, 4) == (

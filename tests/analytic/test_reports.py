@@ -312,21 +312,26 @@ def test_a_check_cut_by_its_budget_says_how_many_plants_of_those_asked_and_why()
     item = {
         "name": "recommended",
         "row": 14,
-        "median_ratio": 1.0213,
-        "worst_ratio": 1.3521,
+        "nominal_f_acc": 0.004,
+        "nominal_f_t": 0.1,
+        "nominal_failed": False,
+        "median_f_acc": 0.0061,
+        "worst_f_acc": 0.01204,
         "violations": 12,
         "diverged": 0,
-        "nominal_f_acc": 0.004,
     }
-    cut = {"plants": 37, "asked": 64, "controllers": [item], "cost": {"episodes": 1}}
+    default = {**item, "name": "default gains", "row": None, "median_f_acc": 0.0065}
+    cut = {"plants": 37, "asked": 64, "controllers": [item, default], "cost": {"episodes": 1}}
     text = "\n".join(check_section(cut))
     assert (
         "on the nominal plant and on 37 of the 64 held-out plants asked (the check may take at "
         "most half the run's own episodes), drawn" in text
     )
     assert "It cost 1 episode, ? s." in text
+    assert "| recommended | 14 | 4.00 | 0.1 | 6.10 | 12.04 | 12 | 0 | – | – | – | – |" in text
     assert held_out_lines(cut, 14) == [
-        "held out, on 37 of the 64 plants asked: error ratio median 1.021, worst 1.352",
+        "held out, on 37 of the 64 plants asked: error 6.10 mm median, 12.04 mm worst",
+        "  (default gains: 6.50 mm, 12.04 mm)",
         "  (the check may take at most half the run's own episodes)",
         "held out: 12 plants broke a limit, 0 diverged",
     ]

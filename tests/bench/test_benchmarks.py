@@ -114,3 +114,13 @@ def test_calibration_prints_its_targets_on_a_hidden_arm() -> None:
     for name in ("twin", "nominal"):
         figures(rf"tuned on the {name}: f_acc predicted {NUMBER} mm", done.stdout)
     assert len(figures(rf"on the arm {NUMBER} mm, off by", done.stdout)) == 2
+
+
+@pytest.mark.slow
+def test_margins_prints_each_controllers_margins_and_their_cost() -> None:
+    done = bench("margins.py", "--repeats", "1", timeout=300)
+    rows = re.findall(r"^(default|search top|soft|stiff|A1/A2|Kd 0\.1x)", done.stdout, re.M)
+    assert len(rows) == 6, done.stdout
+    figures(rf"margins cold {NUMBER} ms", done.stdout)
+    figures(rf"warm {NUMBER} ms", done.stdout)
+    figures(rf"one episode {NUMBER} ms", done.stdout)

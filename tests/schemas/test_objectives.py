@@ -11,6 +11,7 @@ from gainfarm.schemas.objectives import (
     f_t_joint,
     joint_weights,
     objectives,
+    plant_scales,
     score,
 )
 from gainfarm.schemas.robot import TORQUE_LIMITS
@@ -85,6 +86,25 @@ def test_balanced_weights_make_every_trajectory_count_alike_at_the_reference():
     assert objectives([scores(*point) for point in reference], weights) == pytest.approx(
         (2 / (1 / 0.01 + 1 / 0.02), 2 / (1 / 1.0 + 1 / 40.0))
     )
+
+
+def test_plant_scales_make_every_plant_count_alike_at_the_reference():
+    # Two trajectories on three plants each (the nominal first): the reference's objectives.
+    reference = [(0.002, 0.1), (0.016, 0.2), (0.004, 0.05), (0.01, 1.0), (0.01, 2.0), (0.02, 4.0)]
+    scales = plant_scales(reference, 3)
+    at_reference = objectives([scores(*p) for p in reference], None, 3, "worst", scales)
+    assert at_reference == pytest.approx((np.mean([0.002, 0.01]), np.mean([0.1, 1.0])))
+    # Twice as good as the reference on a plant where it is worst counts as the nominal's half.
+    better = [(0.002, 0.1), (0.008, 0.1), (0.004, 0.05), (0.01, 1.0), (0.01, 2.0), (0.02, 4.0)]
+    halved = objectives([scores(*p) for p in better], None, 3, "worst", scales)
+    assert halved == pytest.approx(at_reference)  # the worst is still another plant's
+    worse = [(0.002, 0.1), (0.032, 0.2), (0.004, 0.05), (0.01, 1.0), (0.01, 2.0), (0.02, 4.0)]
+    doubled = objectives([scores(*p) for p in worse], None, 3, "worst", scales)
+    assert doubled[0] == pytest.approx((2 * 0.002 + 0.01) / 2)  # its plant at twice nominal
+    # A plant the reference did not finish (nan) or scored 0 on is left as it is.
+    assert plant_scales([(0.002, 0.1), (float("nan"), 0.0)], 2) == ((1.0, 1.0), (1.0, 1.0))
+    with pytest.raises(ValueError, match="2 plant scales for 3 episodes"):
+        objectives([scores(0.01, 1.0)] * 3, None, 3, "worst", scales[:2])
 
 
 @pytest.mark.parametrize("reference", [[], [(0.01, 0.0)], [(0.01, float("nan"))], [(-1, 1)]])

@@ -82,3 +82,40 @@ def test_describe_names_the_field_and_counts_the_rest():
     assert message.startswith("kp.0:")
     assert "more problems" in message
     assert "\n" not in message
+
+
+def test_a_told_load_is_left_out_of_the_json_of_every_spec_told_of_none():
+    import json
+
+    from gainfarm.schemas.robot import PLANTS, LoadData
+
+    for plant in PLANTS.values():  # the JSON of every spec from before: no key added
+        assert "load" not in json.loads(plant.model_dump_json())
+    loaded = ModelSpec(load=LoadData(mass=5.0, com=(0.0, 0.0, 0.1)))
+    again = ModelSpec.model_validate_json(loaded.model_dump_json())
+    assert again == loaded and hash(again) == hash(loaded)
+    # A spec written before the interface was a choice (every field then, none added since)
+    # still reads as the plain torque interface it ran on.
+    earlier = json.loads(ModelSpec().model_dump_json())
+    for added in ("interface", "payload", "mass_scale"):
+        del earlier[added]
+    assert ModelSpec.model_validate(earlier).interface == "torque"
+
+
+@pytest.mark.parametrize(
+    "load",
+    [
+        {"mass": -1.0},
+        {"mass": 0.0},
+        {"mass": math.nan},
+        {"mass": 14.5},
+        {"mass": 1.0, "com": (0.0, 0.0, 0.6)},
+        {"mass": 1.0, "com": (0.0, math.nan, 0.0)},
+        {"mass": 1.0, "mass_scale": 0.0},
+    ],
+)
+def test_a_load_that_is_none_is_refused(load):
+    from gainfarm.schemas.robot import LoadData
+
+    with pytest.raises(ValidationError):
+        LoadData(**load)

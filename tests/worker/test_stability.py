@@ -1,6 +1,7 @@
 """The damping margin (worker.stability): the linearised tick loop predicts the simulator's ticks,
 and its least damping ratio tells a controller that settles from one that chatters, on real
-MuJoCo episodes."""
+MuJoCo episodes; `margins` splits the tracking modes from the elastic ones and finds how much
+command delay the tracking modes take."""
 
 import mujoco
 import numpy as np
@@ -19,7 +20,14 @@ from gainfarm.worker.control import PDController
 from gainfarm.worker.episode import _setup, compensation, run_episode
 from gainfarm.worker.plant import Plant
 from gainfarm.worker.reference import reference_for
-from gainfarm.worker.stability import ClosedLoop, damping_ratios, least_damping
+from gainfarm.worker.stability import (
+    MAX_EXTRA_DELAY,
+    ClosedLoop,
+    Margins,
+    damping_ratios,
+    least_damping,
+    margins,
+)
 from gainfarm.worker.stepping import Stepped, step_all
 
 PATH = TrajectorySpec(kind="fourier", duration=2.0)
@@ -143,3 +151,102 @@ def test_the_log_and_its_scores_carry_the_margin() -> None:
     scores = score(decoded)
     assert scores.damping == log.metadata.damping
     assert WireScores(**scores.model_dump()).damping == scores.damping
+
+
+# --- margins: the tracking modes' own damping, the delay margin --------------------------------
+
+# The default gains but a tenth of their Kd on A1 and A2: the big joints' tracking modes barely
+# damped, which least_damping (its least mode an elastic one) does not see.
+UNDER_DAMPED = PDGains(
+    kp=DEFAULT_GAINS.kp,
+    kd=tuple(k * f for k, f in zip(DEFAULT_GAINS.kd, (0.1, 0.1, 1, 1, 1, 1, 1), strict=True)),
+)
+TOP_DELAY = 2  # ticks: the top of models/uncertainty.toml's `delay` range (the nominal is 1)
+ROTOR_10X = ModelSpec(rotor_inertia=tuple(10 * r for r in ModelSpec().rotor_inertia))
+
+
+def test_the_default_gains_track_with_damping_to_spare_two_ticks_late() -> None:
+    spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=PATH)
+    found = margins(spec, delay=TOP_DELAY)
+    assert found.least == least_damping(spec)
+    assert found.elastic is not None and found.elastic_hz is not None
+    # The two classes are every mode: the least of them is least_damping's (to its rounding).
+    assert min(found.tracking, found.elastic) == pytest.approx(found.least, abs=2e-6)
+    assert found.tracking > 0 and found.tracking_at > 0
+    assert found.tracking_at < found.tracking  # a tick more delay takes some damping
+    assert found.delay == TOP_DELAY and found.delay_margin >= TOP_DELAY - spec.model.delay
+    # The least damped mode is a spring's, fast; the controller's own are slower and better damped.
+    assert found.elastic < found.tracking and found.tracking_hz < found.elastic_hz
+
+
+def test_an_under_damped_controller_loses_its_tracking_modes_two_ticks_late() -> None:
+    """least_damping passes it (its least mode is a spring's, as the default gains'); its
+    tracking modes go unstable with one tick more delay, where the defaults' keep theirs."""
+    default = margins(EpisodeSpec(gains=DEFAULT_GAINS, trajectory=PATH), delay=TOP_DELAY)
+    weak = margins(EpisodeSpec(gains=UNDER_DAMPED, trajectory=PATH), delay=TOP_DELAY)
+    assert weak.least > 0 and weak.tracking > 0  # stable at its own delay
+    assert weak.tracking < default.tracking
+    assert weak.tracking_at <= 0 < default.tracking_at
+    assert weak.delay_margin < default.delay_margin
+
+
+def _late(spec: EpisodeSpec, extra: int) -> float:
+    """The tracking damping of `spec`'s loop `extra` ticks later than its plant's delay."""
+    return margins(spec, delay=spec.model.delay + extra).tracking_at
+
+
+@pytest.mark.parametrize(
+    "gains",
+    [DEFAULT_GAINS, UNDER_DAMPED, scaled(3, 1), scaled(1, 0.1)],
+    ids=["default", "under-damped", "stiff", "kd-0.1x"],
+)
+def test_the_delay_margin_is_the_last_delay_the_tracking_modes_take(gains: PDGains) -> None:
+    spec = EpisodeSpec(gains=gains, trajectory=PATH)
+    found = margins(spec)
+    assert -1 <= found.delay_margin < MAX_EXTRA_DELAY and not found.capped
+    assert found.tracking_at == found.tracking  # no delay asked: the plant's own
+    for extra in range(found.delay_margin + 1):
+        assert _late(spec, extra) > 0, extra
+    assert _late(spec, found.delay_margin + 1) <= 0
+
+
+def test_a_delay_margin_past_the_search_reads_as_its_cap() -> None:
+    """Heavy rotors (ten times the nominal inertia) and three times the default Kd: the slow
+    tracking modes shrug off delay, stable still at the search's last tick."""
+    spec = EpisodeSpec(gains=scaled(1, 3), trajectory=PATH, model=ROTOR_10X)
+    found = margins(spec)
+    assert found.delay_margin == MAX_EXTRA_DELAY and found.capped
+    assert _late(spec, MAX_EXTRA_DELAY) > 0
+
+
+def test_a_delay_asked_of_margins_is_the_plant_with_that_delay() -> None:
+    """The delay lives in the loop's delay line alone: the plant linearised with its own
+    delay of 2 ticks gives the same loop as the nominal plant's linearisation 2 ticks late."""
+    spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=PATH)
+    late = spec.model_copy(update={"model": spec.model.model_copy(update={"delay": TOP_DELAY})})
+    asked, own = margins(spec, delay=TOP_DELAY), margins(late)
+    assert (asked.tracking_at, asked.tracking_at_hz) == (own.tracking, own.tracking_hz)
+    assert own.least == least_damping(late)
+    with pytest.raises(ValueError, match="delay -1"):
+        margins(spec, delay=-1)
+
+
+def test_the_split_follows_the_plant_not_a_frequency() -> None:
+    """On the realistic, ideal and ten-times-rotor plants the default gains' least damped
+    tracking mode is slower than their least damped elastic one; on rigid joints every mode
+    tracks. The heavy rotors' elastic modes are slower than the search space's top gains'
+    tracking mode on the realistic plant two ticks late: no one frequency splits the two kinds
+    on every plant."""
+    found: dict[str, Margins] = {}
+    for name, model in {"realistic": ModelSpec(), "ideal": IDEAL_PLANT, "rotor": ROTOR_10X}.items():
+        found[name] = margins(EpisodeSpec(gains=DEFAULT_GAINS, trajectory=PATH, model=model))
+        assert found[name].elastic_hz is not None, name
+        assert found[name].tracking_hz < found[name].elastic_hz, name
+    rigid = margins(
+        EpisodeSpec(gains=DEFAULT_GAINS, trajectory=PATH, model=ModelSpec(joints="rigid"))
+    )
+    assert rigid.elastic is None and rigid.elastic_hz is None
+    assert rigid.tracking == pytest.approx(rigid.least, abs=2e-6)
+    top = margins(EpisodeSpec(gains=scaled(3, 5), trajectory=PATH), delay=TOP_DELAY)
+    assert found["rotor"].elastic_hz < top.tracking_at_hz
+    assert found["rotor"].elastic_hz < 0.5 * found["realistic"].elastic_hz

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gainfarm.models import min_substeps
 from gainfarm.models.urdf import description
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.episode_log import EpisodeLog
@@ -79,6 +80,25 @@ def test_every_episode_logs_the_same_bytes_alone_and_in_any_batch() -> None:
             chosen,
             threads,
         )
+
+
+def test_plant_variants_of_one_layout_and_other_physics_steps_each_log_their_own() -> None:
+    # A robust run's variants share the nominal plant's layout, but stiffer springs take more
+    # physics steps a tick: a stack that stepped them all by its first's gave another episode.
+    plants = []
+    for factor in (1.0, 2.0, 0.5, 3.0):
+        stiffer = tuple(factor * k for k in REALISTIC_PLANT.stiffness)
+        plant = REALISTIC_PLANT.model_copy(update={"stiffness": stiffer})
+        plants.append(plant.model_copy(update={"substeps": min_substeps(plant)}))
+    assert len({plant.substeps for plant in plants}) == 3
+    prepared = []
+    for index, plant in enumerate(plants):
+        spec = short_spec(duration=0.5, gains=TRACKING_GAINS, seed=index)
+        spec = spec.model_copy(update={"model": plant})
+        reference = reference_for(spec.trajectory)
+        prepared.append((spec, reference, compensation(spec, reference)))
+    alone = [_digest(simulate_all([episode])[0]) for episode in prepared]
+    assert [_digest(log) for log in simulate_all(prepared)] == alone
 
 
 def _arrays_digest(log: EpisodeLog) -> str:
