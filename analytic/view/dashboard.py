@@ -75,6 +75,7 @@ from gainfarm.analytic.view.members import (
 )
 from gainfarm.analytic.view.progress import duration_text, left_text
 from gainfarm.analytic.view.reports import recommendation_text, run_title
+from gainfarm.analytic.view.run_report import advice_text
 from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.cli.words import counted
 from gainfarm.edges.files import lock_held
@@ -222,7 +223,7 @@ def _recommendation(
             f"{knee.row})."
         )
     else:
-        said = recommendation_text(named, baseline).replace("**", "")
+        said = (advice_text(check) or recommendation_text(named, baseline)).replace("**", "")
     if check is None and config.check_plants and state.startswith("running"):
         held = (
             f"Held-out check: on {counted(len(config.check_plants), 'plant')}, once the run ends."

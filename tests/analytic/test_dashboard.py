@@ -6,6 +6,7 @@ without a reload; bad input is one line."""
 import contextlib
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -159,7 +160,8 @@ def test_the_page_follows_a_run_and_its_farm_live(tmp_path: Path, browser) -> No
     # Every run's curve on the chart that compares them: this one, with all its generations.
     assert last["overlay"] == [str(run)] and last["overlay_points"] == [len(history)], last
     # The default gains on the front's plot, and the recommended member if the run names one.
-    recommends = "No member of the front dominates" not in (run / "report.md").read_text()
+    verdict = (run / "report.md").read_text().splitlines()[2]
+    recommends = verdict.startswith("**Use front.csv row")
     assert last["baseline"] == 1 and last["recommended"] == int(recommends), last
     assert last["farm_points"] > seen[0]["farm_points"]  # the farm's series grew too
     assert max(max(state["jobs_per_s"], default=0) for state in seen) > 0
@@ -376,7 +378,7 @@ def test_runs_compare_and_a_member_is_inspected_exported_and_its_episode_plotted
         state = until(browser, lambda s: s["inspect"] == a and s["rows"])
         assert state["rows"] == list(range(1, len(front) + 1))
         # The default 64 held-out plants asked, fewer run: a short run's check is cut to size.
-        assert "Held-out check of row" in state["recommendation"]
+        assert re.search(HELD_OUT_SAID, state["recommendation"]), state["recommendation"]
         assert "of the 64 asked: the check&#x27;s budget" in state["recommendation"]
         assert state["first_row"] == "1"  # by row: the most accurate first
         header = "f_t ((N·m)²)"
@@ -416,6 +418,13 @@ def read_front_json_sorted(directory: Path) -> list:
     return sorted_front(read_front_json(directory / "front.json"))
 
 
+# What the page says of a finished run's held-out check: how the controller to use fared, or
+# that the check kept the default gains.
+HELD_OUT_SAID = (
+    r"Held-out check( of row \d+ \(recommended\)|: no member held against the default gains)"
+)
+
+
 def test_a_run_says_when_it_has_no_recommendation_or_held_out_check_yet(tmp_path: Path) -> None:
     """A run stopped before its first record is stopped, not "running"; a running one has no
     recommendation before the default gains are scored (as it ends) and its check is to come."""
@@ -425,7 +434,7 @@ def test_a_run_says_when_it_has_no_recommendation_or_held_out_check_yet(tmp_path
     assert made.returncode == 0, made.stderr
     run = tmp_path / "run"
     done = run_view(run).recommendation
-    assert "Held-out check of row" in done and "No recommendation yet" not in done
+    assert re.search(HELD_OUT_SAID, done) and "No recommendation yet" not in done
     for name in ("baseline.json", "check.json", "report.md"):
         (run / name).unlink()  # as the run stands before it ends
     lock = Lock(run / "run.lock")  # a process running it: this one

@@ -32,9 +32,9 @@ from gainfarm.edges.transport import open_session
 from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.mcap_episode import read_episode
-from gainfarm.schemas.objectives import balancing_weights, score
+from gainfarm.schemas.objectives import balancing_weights, plant_scales, score
 from gainfarm.worker.episode import run_episode
-from gainfarm.worker.job import execute
+from gainfarm.worker.job import execute, simulate
 from tests.helpers import analytic, ask_for_work, hand_in, wait_for
 
 TINY = RunConfig(
@@ -236,17 +236,23 @@ def test_a_generic_start_is_balanced_by_the_default_gains_unless_told_not_to(
     run = analytic("start", *tiny, *both, "--out", "balanced", cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     config = RunConfig.model_validate_json((tmp_path / "balanced" / "config.json").read_text())
-    # The default gains' own episodes, simulated here, give the very weights the run recorded.
-    reference = []
-    for trajectory in config.trajectories:
-        spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=trajectory, model=config.model)
-        found = score(run_episode(spec))
-        reference.append((found.f_acc, found.f_t))
-    assert config.objective_weights == balancing_weights(reference)
+    # The default gains' own episodes, simulated here, give the very weights and plant scales
+    # the run recorded: its trajectories weighed alike on the nominal plant, its plants scaled
+    # alike on each trajectory.
+    plants = 1 + len(config.plants)
+    assert plants == 3  # robust by default: the nominal plant and two corners
+    found = [
+        simulate(config.episode_spec(DEFAULT_GAINS, number, plant)).scores.objectives
+        for number in range(len(config.trajectories))
+        for plant in range(plants)
+    ]
+    assert config.objective_weights == balancing_weights(found[::plants])
+    assert config.plant_scales == plant_scales(found, plants)
     assert "objectives averaged with weights" in (tmp_path / "balanced" / "report.md").read_text()
     plain = analytic("start", *tiny, *both, "--no-balance", "--out", "plain", cwd=tmp_path)
     assert plain.returncode == 0, plain.stderr
-    assert json.loads((tmp_path / "plain" / "config.json").read_text())["objective_weights"] is None
+    recorded = json.loads((tmp_path / "plain" / "config.json").read_text())
+    assert recorded["objective_weights"] is None and "plant_scales" not in recorded
 
 
 @pytest.mark.parametrize(
@@ -397,6 +403,7 @@ def test_the_front_is_the_same_when_the_analytic_process_is_killed_and_resumed(
             "3",
             "--keep",  # as `calm` keeps them (RunConfig's default)
             "all",
+            *("--plants", "0", "--torque-measure", "raw"),  # RunConfig's problem, as `calm`'s
         ]
         command = [
             sys.executable,

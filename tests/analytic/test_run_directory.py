@@ -556,6 +556,7 @@ def test_a_full_or_read_only_disk_is_one_line_and_a_resume_goes_on(
         "--generations",
         str(generations),
         *("--keep", "all"),  # every episode's log: the disk fills in the second generation
+        *("--plants", "0"),  # one episode a candidate: the disk is sized for a generation's 4
     ]
     command = [sys.executable, "-m", "gainfarm.analytic", "start", *options, "--out", "disk/run"]
     directory = disk.mount / "run"
