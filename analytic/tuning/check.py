@@ -57,6 +57,7 @@ class Checked:
     nominal_f_acc: float  # m, on the nominal plant (the run's objectives over its trajectories)
     nominal_f_t: float  # the second objective there
     nominal_failed: bool  # an episode on the nominal plant diverged or could not run
+    nominal_lag: float  # rad: its worst joint's RMS lag behind the reference there (Scores.lag)
     median_f_acc: float  # m, the median over the held-out plants
     worst_f_acc: float  # m, the largest
     violations: int  # held-out plants on which an episode broke a safety limit
@@ -207,6 +208,7 @@ def _summary(
         nominal_f_acc=nominal[0],
         nominal_f_t=nominal[1],
         nominal_failed=any(score is None or score.diverged for score in nominal_scores),
+        nominal_lag=max((score.lag for score in nominal_scores if score is not None), default=0),
         median_f_acc=float(np.median(errors)),
         worst_f_acc=float(np.max(errors)),
         violations=violations,
@@ -218,9 +220,10 @@ def _summary(
 
 def failures(item: Checked, default: Checked) -> tuple[str, ...]:
     """Why `item` is not a controller to use in place of the `default` gains, in words (none:
-    it is): it must dominate them on the nominal plant, be at most as far off as they are on the
-    held-out plants (median and worst), break no limit and diverge on no held-out plant on which
-    they keep to the limits (where the factory gains break one too, so may it: requiring more
+    it is): it must dominate them on the nominal plant and lag no more on any joint there (the
+    flange's position error does not see the wrist: a tool would roll off its path), be at most
+    as far off as they are on the held-out plants (median and worst), break no limit and diverge
+    on no held-out plant on which they keep to the limits (where the factory gains break one too, so may it: requiring more
     would leave the defaults to be advised, which fail the same test), and its tracking modes
     be as damped as theirs with the command late (`_margin_failures`)."""
     mm = 1e3
@@ -231,6 +234,11 @@ def failures(item: Checked, default: Checked) -> tuple[str, ...]:
         (item.nominal_f_acc, item.nominal_f_t), (default.nominal_f_acc, default.nominal_f_t)
     ):
         why.append("does not dominate the default gains on the nominal plant")
+    if item.nominal_lag > default.nominal_lag:  # the flange's error does not see the wrist
+        why.append(
+            f"a joint lags by {item.nominal_lag * 1e3:.1f} mrad RMS on the nominal plant > "
+            f"{default.nominal_lag * 1e3:.1f}"
+        )
     if item.median_f_acc > default.median_f_acc:
         why.append(
             f"median held-out error {item.median_f_acc * mm:.2f} mm > "

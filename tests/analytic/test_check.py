@@ -18,6 +18,7 @@ DEFAULT = Checked(
     nominal_f_acc=2.0e-3,
     nominal_f_t=0.1,
     nominal_failed=False,
+    nominal_lag=7.0e-3,
     median_f_acc=8.0e-3,
     worst_f_acc=12.0e-3,
     violations=0,
@@ -53,6 +54,7 @@ def test_a_member_that_holds_against_the_defaults_has_no_failure() -> None:
         ({"nominal_f_t": 0.2}, "does not dominate the default gains on the nominal plant"),
         ({"nominal_f_acc": 2.5e-3}, "does not dominate the default gains on the nominal plant"),
         ({"nominal_failed": True}, "failed on the nominal plant"),
+        ({"nominal_lag": 0.024}, "a joint lags by 24.0 mrad RMS on the nominal plant > 7.0"),
     ],
 )
 def test_each_way_a_member_falls_short_is_said(changed: dict, says: str) -> None:
