@@ -115,7 +115,7 @@ def run_check(
         first.setdefault(front[index].gains, ("candidate", index + 1))
     knee = knee_index(front)
     first.setdefault(front[knee].gains, ("knee", knee + 1))
-    first.setdefault(DEFAULT_GAINS, ("default gains", None))
+    first[DEFAULT_GAINS] = ("default gains", None)  # a member that is them is checked as them
     trajectories = len(run.config.trajectories)
     ran = run.state.evolution.evaluations * trajectories * (1 + len(run.config.plants))
     budget = int(CHECK_SHARE * ran)
@@ -223,9 +223,10 @@ def failures(item: Checked, default: Checked) -> tuple[str, ...]:
     it is): it must dominate them on the nominal plant and lag no more on any joint there (the
     flange's position error does not see the wrist: a tool would roll off its path), be at most
     as far off as they are on the held-out plants (median and worst), break no limit and diverge
-    on no held-out plant on which they keep to the limits (where the factory gains break one too, so may it: requiring more
-    would leave the defaults to be advised, which fail the same test), and its tracking modes
-    be as damped as theirs with the command late (`_margin_failures`)."""
+    on no held-out plant on which they keep to the limits (where the factory gains break one
+    too, so may it: requiring more would leave the defaults to be advised, which fail the same
+    test), and its tracking modes be as damped as theirs with the command late
+    (`_margin_failures`)."""
     mm = 1e3
     why = []
     if item.nominal_failed:
