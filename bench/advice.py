@@ -77,6 +77,9 @@ CASES = {
 }
 
 
+QUICK = ("--generations", "2", "--check-plants", "4")  # --quick: the bench's own test
+
+
 def _start(seed: int, out: Path, *extra: str) -> float:
     started = time.monotonic()
     subprocess.run(
@@ -128,17 +131,21 @@ def _cases(gains: PDGains, config: RunConfig) -> dict[str, tuple]:
 @click.option("--seeds", default=5, show_default=True)
 @click.option("--out", default="bench-advice", show_default=True, type=click.Path(path_type=Path))
 @click.option("--nominal/--no-nominal", default=True, help="time a nominal run of each seed too")
-def main(seeds: int, out: Path, nominal: bool) -> None:
+@click.option("--quick", is_flag=True, help="two generations, 4 held-out plants: a smoke test")
+def main(seeds: int, out: Path, nominal: bool, quick: bool) -> None:
     out.mkdir(exist_ok=True)
+    extra = QUICK if quick else ()
     recommended = 0
     for seed in range(seeds):
         robust = (
-            _start(seed, out / f"robust-{seed}") if not (out / f"robust-{seed}").exists() else None
+            _start(seed, out / f"robust-{seed}", *extra)
+            if not (out / f"robust-{seed}").exists()
+            else None
         )
         anchor = None
         if nominal and not (out / f"nominal-{seed}").exists():
             anchor = _start(
-                seed, out / f"nominal-{seed}", "--plants", "0", "--torque-measure", "raw"
+                seed, out / f"nominal-{seed}", *extra, "--plants", "0", "--torque-measure", "raw"
             )
         run = out / f"robust-{seed}"
         config = RunConfig.model_validate_json((run / "config.json").read_text())

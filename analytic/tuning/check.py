@@ -1,15 +1,17 @@
-"""The held-out check: how the controllers a run names fare on plants it never saw.
+"""The held-out check: how the controllers a run names fare on plants it never saw, and the
+advice it gives.
 
 At the end of a run whose config holds held-out plants (`analytic start --check-plants M`, drawn
 from the uncertainty ranges on another stream of the seed than the training variants), the
-controller a user takes away (the recommended member, or the closest to it), the front's knee
-and the default gains run every trajectory on the nominal plant and on each held-out plant:
-3 (M + 1) episodes a trajectory, where the budget allows (CHECK_SHARE: at most half the run's
-own episodes; the default run affords M = 64, some 40 % of its own). The rest of the
-front is not checked: at some 30 members, that would be several times the run itself. Per
-controller: its error on each plant against its own on the nominal one (median and worst), and on
-how many plants it broke a safety limit or diverged. check.json holds it;
-front.json, report.md and the exported controller carry it.
+candidates to recommend (the members that dominate the default gains as the run scored them, in
+the knee's order), the front's knee and the default gains run every trajectory on the nominal
+plant and on each held-out plant: the first candidate, the knee and the defaults in one round,
+then two candidates a round until one holds (`failures`), within CHECK_SHARE (at most half the
+run's own episodes). Per controller, in absolute terms: its objectives on the nominal plant, the
+median and the worst of its error over the held-out plants, on which plants it broke a safety
+limit or diverged, and its closed loop's margins on the nominal plant (worker.stability). The
+first candidate that holds is the controller to use (the advice); if none does, the default
+gains are. check.json holds it; front.json, report.md and the exported controller carry it.
 """
 
 import json

@@ -124,3 +124,20 @@ def test_margins_prints_each_controllers_margins_and_their_cost() -> None:
     figures(rf"margins cold {NUMBER} ms", done.stdout)
     figures(rf"warm {NUMBER} ms", done.stdout)
     figures(rf"one episode {NUMBER} ms", done.stdout)
+
+
+@pytest.mark.slow
+def test_corners_prints_each_ends_effect_and_the_designed_corners() -> None:
+    done = bench("corners.py", "--trajectory", "fourier", "--duration", "0.5", timeout=300)
+    ends = figures(rf"error x\s*{NUMBER} median", done.stdout)
+    assert len(ends) == 2 * 11 + 2, done.stdout  # each range's two ends, then the corners
+    assert "heavy" in done.stdout and "light" in done.stdout
+
+
+@pytest.mark.slow
+def test_advice_prints_each_seeds_advice_against_the_default_gains(tmp_path: Path) -> None:
+    out = tmp_path / "advice"
+    done = bench("advice.py", "--seeds", "1", "--quick", "--out", str(out), timeout=600)
+    figures(rf"nominal \S+ s: {NUMBER}x", done.stdout)
+    figures(rf"held out: default {NUMBER} /", done.stdout)
+    assert re.search(r"recommended in [01] of 1 seeds", done.stdout), done.stdout
