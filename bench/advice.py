@@ -16,6 +16,8 @@ raw`: the anchor of the wall time), then for each seed:
   plant with one change (2 kg the robot is not told of, a 2-tick delay, 10x rotor inertia,
   doubled friction, halved stiffness) and with all of them (`CASES`): as accurate or not, worse
   in both objectives or not, and whether it chatters (breaks the chatter limit);
+- the worst held-out error over the worst on the run's own plants (the nominal and the design's):
+  whether the check finds plants much worse than the design's worst;
 - the wall time of the robust run over the nominal one's.
 """
 
@@ -107,6 +109,12 @@ def _a7_lag(gains: PDGains, config: RunConfig) -> float:
     return float(np.sqrt(np.mean((log.q[:, 6] - log.q_des[:, 6]) ** 2)))
 
 
+def _design_worst(gains: PDGains, config: RunConfig) -> float:
+    """The largest error of `gains` over the run's own plants (the nominal and the design's)."""
+    specs = [config.episode_spec(gains, 0, plant) for plant in range(1 + len(config.plants))]
+    return max(outcome.scores.f_acc for outcome in simulate_batch(specs))
+
+
 def _cases(gains: PDGains, config: RunConfig) -> dict[str, tuple]:
     specs = [
         EpisodeSpec(gains=g, trajectory=t, model=m, objectives=config.objectives)
@@ -179,6 +187,12 @@ def main(seeds: int, out: Path, nominal: bool, quick: bool) -> None:
         click.echo(
             f"  tracking damping 2 ticks late {late[0]:+.3f} (default {late[1]:+.3f}); "
             f"A7 RMS error {lags[0] * 1e3:.1f} mrad (default {lags[1] * 1e3:.1f})"
+        )
+        design = _design_worst(gains, config), _design_worst(DEFAULT_GAINS, config)
+        click.echo(
+            "  worst error held out / on the design's plants: "
+            f"{shown['worst_f_acc'] / design[0]:.2f} "
+            f"(default {default['worst_f_acc'] / design[1]:.2f})"
         )
         cases = _cases(gains, config)
         accurate = sum(c[0] for c in cases.values())
