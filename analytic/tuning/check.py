@@ -145,7 +145,15 @@ def _candidates(front: Sequence[FrontMember], baseline: Baseline | None) -> list
     closest to dominating them alone if none does, so that the check says how far it is."""
     if baseline is None:
         return [knee_index(front)]
-    return ranked_dominating(front, baseline) or [closest_index(front, baseline)]
+    ranked = ranked_dominating(front, baseline) or [closest_index(front, baseline)]
+    # NSGA-II starts from the default gains: a member that is them (to the decision space's
+    # rounding) is no candidate to replace them.
+    return [i for i in ranked if not _are_the_defaults(front[i].gains)]
+
+
+def _are_the_defaults(gains: PDGains) -> bool:
+    mine = np.array(gains.kp + gains.kd)
+    return bool(np.allclose(mine, DEFAULT_GAINS.kp + DEFAULT_GAINS.kd, rtol=1e-9, atol=0))
 
 
 def _round(

@@ -188,7 +188,8 @@ def advice_text(record: dict | None) -> str | None:
     if not tried:
         return (
             f"**Keep the default gains** ({_mm(default['median_f_acc'])} mm median, "
-            f"{_mm(default['worst_f_acc'])} mm worst on {on}): no member was a candidate."
+            f"{_mm(default['worst_f_acc'])} mm worst on {on}): no member of the front but them "
+            "beats them on the run's own plants."
         )
     best = tried[0]
     return (

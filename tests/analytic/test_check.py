@@ -3,6 +3,7 @@ default gains on the plants the run never saw, in absolute terms."""
 
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from gainfarm.analytic.tuning.check import Checked, _judged, advice_of, failures
@@ -127,3 +128,17 @@ def test_advice_is_read_from_the_check_record() -> None:
     assert advice_of({"advice": {"row": None}}) == Advice(None)
     gains = {"row": 4, "kp": list(DEFAULT_GAINS.kp), "kd": list(DEFAULT_GAINS.kd)}
     assert advice_of({"advice": gains}) == Advice(DEFAULT_GAINS)
+
+
+def test_a_member_that_is_the_default_gains_is_no_candidate_to_replace_them() -> None:
+    from gainfarm.analytic.tuning.check import _candidates
+    from gainfarm.analytic.tuning.search_space import SearchSpace
+
+    space = SearchSpace()  # NSGA-II's first sample, through the decision space and back
+    defaults = space.gains(np.log10(np.array(DEFAULT_GAINS.kp + DEFAULT_GAINS.kd)))
+    baseline = Baseline(gains=DEFAULT_GAINS, f_acc=2e-3, f_t=0.1, diverged=False)
+    them = FrontMember(kp=defaults.kp, kd=defaults.kd, f_acc=2e-3, f_t=0.1)
+    other = _front_member(1, 1e-3, 0.3)
+    assert _candidates([other, them], baseline) == []  # the closest is them: none is left
+    better = _front_member(2, 1.5e-3, 0.09)
+    assert _candidates([other, better, them], baseline) == [1]
