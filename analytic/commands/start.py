@@ -81,6 +81,15 @@ if TYPE_CHECKING:
     "TPE, or uniform random sampling (--async: nsga2 or tpe only)",
 )
 @click.option(
+    "--first-population",
+    type=click.Choice(("defaults", "random")),
+    default="defaults",
+    show_default=True,
+    help="the optimiser's first population: the default gains and random samples (the run is "
+    "judged against them), or random samples alone (pymoo's algorithms; TPE and random "
+    "sampling sample as they do)",
+)
+@click.option(
     "--torque-measure",
     type=click.Choice(tuple(defaults.TORQUE_MEASURES)),
     default=defaults.TORQUE_MEASURE,
@@ -153,6 +162,7 @@ def start(
     keep: str,
     asynchronous: bool,
     algorithm: str,
+    first_population: str,
     torque_measure: str,
     objective_scaling: str,
     replicate: bool,
@@ -200,6 +210,7 @@ def start(
                 asynchronous=asynchronous,
                 algorithm=algorithm,
                 objectives=("f_acc", defaults.TORQUE_MEASURES[torque_measure]),
+                from_defaults=first_population == "defaults",
                 objective_scaling=objective_scaling,
                 replicate=replicate,
                 spot_checks=spot_checks,

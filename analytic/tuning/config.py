@@ -53,6 +53,13 @@ class RunConfig(BaseModel):
         "sampling, or a plug-in's, registered or installed here (TuningRun.create refuses one "
         "it cannot load)",
     )
+    from_defaults: bool = Field(
+        False,
+        exclude_if=lambda chosen: not chosen,  # a config.json as it was without it
+        description="the optimiser's first population holds the default gains (pymoo's "
+        "algorithms; `analytic start`'s main job does, RunConfig's plain problem and the "
+        "experiments sample at random)",
+    )
     objectives: tuple[str, str] = Field(
         DEFAULT_OBJECTIVES,
         description="the two objectives minimised, names of the gainfarm.objectives plug-in "

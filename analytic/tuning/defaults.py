@@ -25,7 +25,7 @@ AGGREGATE = "worst"
 # weighed by its torque limit (schemas.objectives.f_t_joint), so that the wrist counts: on the
 # paper's raw f_t (Eq. 1) A1, A2 and A4 make 94-99 % of it and A5-A7 at most 1 %, and a tuned
 # front drove the wrist's damping to the bottom of the space. The paper's f_t is `raw`.
-TORQUE_MEASURES = {"per-joint": "f_t_joint", "raw": "f_t"}
+TORQUE_MEASURES = {"raw": "f_t", "per-joint": "f_t_joint"}
 TORQUE_MEASURE = "per-joint"
 REPLICATE = True
 # The share of every worker's episodes the referee runs again as they return (spot checks): at

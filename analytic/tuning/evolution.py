@@ -383,10 +383,10 @@ def _set_up(method: Any, seed: int, space: SearchSpace) -> Any:
 
 
 class FromTheDefaults(FloatRandomSampling):
-    """pymoo's random sampling with the default gains as the first sample: a tuning starts from
-    the factory's controller, which it is judged against (analytic.tuning.picks), so the front
-    holds it or what dominates it, and the search around it is NSGA-II's from the first
-    generation. The other samples are the ones random sampling draws, the same random state."""
+    """pymoo's random sampling with the default gains as the first sample (`Evolution`'s
+    `from_defaults`): a tuning starts from the factory's controller, which it is judged against
+    (analytic.tuning.picks), so the front holds it or what dominates it. The other samples are
+    the ones random sampling draws, the same random state."""
 
     def _do(self, problem: Problem, n_samples: int, *args: Any, **kwargs: Any) -> np.ndarray:
         x = super()._do(problem, n_samples, *args, **kwargs)
@@ -395,13 +395,9 @@ class FromTheDefaults(FloatRandomSampling):
 
 
 def nsga2(pop_size: int, seed: int, space: SearchSpace, steady_state: bool = False) -> NSGA2:
-    """pymoo's NSGA-II, its first population the default gains and random samples; steady
-    state (mu + 1) asks one offspring at a time."""
+    """pymoo's NSGA-II; steady state (mu + 1) asks one offspring at a time."""
     method = NSGA2(
-        pop_size=pop_size,
-        sampling=FromTheDefaults(),
-        n_offsprings=1 if steady_state else None,
-        eliminate_duplicates=True,
+        pop_size=pop_size, n_offsprings=1 if steady_state else None, eliminate_duplicates=True
     )
     return _set_up(method, seed, space)
 
@@ -464,6 +460,7 @@ class Evolution:
         objective_scaling: str = "raw",
         reference: tuple[float, float] = REFERENCE_POINT,
         constraints: int = 0,
+        from_defaults: bool = False,
     ):
         """Generational algorithms ask a whole generation at a time. NSGA-II's steady-state
         variant (mu + 1) asks one offspring at a time (ask_one) and takes each result as it
@@ -472,6 +469,8 @@ class Evolution:
         `objective_scaling` "log" tells the optimiser `normalise(objectives, reference)`
         instead of the raw objectives; the archive, the front and everything recorded stay raw.
         `constraints`: how many constraint values each point is told with (none: unconstrained).
+        `from_defaults`: a pymoo algorithm's first population holds the default gains
+        (FromTheDefaults); the others (TPE, random sampling, a plug-in's) sample as they do.
         """
         if objective_scaling not in OBJECTIVE_SCALINGS:
             raise ValueError(
@@ -484,6 +483,10 @@ class Evolution:
         self.objective_scaling = objective_scaling
         self.reference = tuple(reference)
         self.algorithm = optimiser(algorithm, pop_size, seed, self.space, steady_state)
+        initialization = getattr(self.algorithm, "initialization", None)
+        if from_defaults and hasattr(initialization, "sampling"):
+            # Read at the first ask, not at set-up: the algorithm is otherwise as it was made.
+            initialization.sampling = FromTheDefaults()
         self._asked = None
         self.generation = 0
         self.evaluations = 0

@@ -192,19 +192,19 @@ def corner(
 # The designed plants robust tuning scores every candidate on first (`design`): two opposite
 # corners of the ranges, where a sensitivity screen (bench/corners.py, docs/tuning.md) of the
 # default gains and a nominal run's front found controllers break:
-# - heavy: the robot's gravity model short of the most (the largest unknown load, a told
-#   load at its heaviest, every link heavier) with the most friction, where every
-#   controller's error grows most (x7 on the spiral), and the command late by the range's
-#   top on the softest joints with the heaviest rotors: the lowest elastic modes, nearest the
-#   tracking loop's;
+# - heavy: the robot's gravity model short of the most (the largest unknown load, a told load
+#   at its heaviest, every link heavier) with the most friction, where every controller's error
+#   grows most (7-8x on the spiral), and the command late by the range's top on the softest
+#   joints: the lowest elastic modes, nearest the tracking loop's;
 # - light: gravity over-compensated with the least friction to damp the arm, the command as
 #   late, on the stiffest joints with the lightest rotors and the least damped springs: the
 #   highest, least damped elastic modes.
-# On each, half a nominal front is unstable (least damping ratio below 0) where the default gains
-# keep 0.037 and 0.012; the ends apart (the heavy, light, lagging and brisk arm) catch the same
-# members, each with fewer, at a plant's cost each. The heavy end with the light one's joints
-# is beyond what the default gains hold (-0.14), so it is no design plant. Sensor noise and
-# spring damping alone move no controller's error.
+# On each, most of a nominal front is unstable (least damping ratio below 0) where the default
+# gains keep +0.003 and +0.012. The heaviest rotors (10x) are left out of the heavy corner: with
+# them the default gains break the speed and lag limits on any path faster than the 5 s spiral
+# (a 4 s Fourier path: 1.19 times the rated speed, 86 mrad), and a run on such a path would have
+# no feasible candidate. The heavy end with the light one's joints is beyond what the default
+# gains hold (-0.14). Sensor noise and spring damping alone move no controller's error.
 CORNERS: dict[str, dict[str, End]] = {
     "heavy": {
         "payload": "high",
@@ -213,7 +213,6 @@ CORNERS: dict[str, dict[str, End]] = {
         "coulomb": "high",
         "viscous": "high",
         "delay": "high",
-        "rotor_inertia": "high",
         "stiffness": "low",
     },
     "light": {

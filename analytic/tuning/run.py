@@ -1012,6 +1012,7 @@ def _evolution(config: RunConfig) -> Evolution:
         objective_scaling=config.objective_scaling,
         reference=config.reference_point,
         constraints=config.limits.count,
+        from_defaults=config.from_defaults,
     )
 
 

@@ -42,9 +42,11 @@ def interrupt_at(command: list[str], cwd: Path, wanted: re.Pattern[str]) -> tupl
 @pytest.mark.slow
 def test_ctrl_c_during_the_held_out_check_is_finished_by_a_resume(tmp_path: Path) -> None:
     # One worker, so that the check's episodes run one after another: seconds to stop it in.
-    options = ["--pop", "4", "--generations", "2", "--duration", "3", "--seed", "7"]
+    # The default 5 s spiral on the nominal plant and the two corners, which the default gains
+    # (the first population's) keep the limits on: a front to check.
+    options = ["--pop", "4", "--generations", "2", "--duration", "5", "--seed", "7"]
     farm = ["--local", "--workers", "1"]
-    command = [*START, *options, "--plants", "3", *farm, "--out", "run"]
+    command = [*START, *options, "--plants", "2", *farm, "--out", "run"]
     seen, last = interrupt_at(command, tmp_path, re.compile(r"^held-out check: "))
     assert seen[-1].startswith("generation 2: ")
     assert last == (

@@ -64,8 +64,11 @@ def test_the_design_puts_the_corners_first_at_their_ranges_ends_then_random_draw
     assert heavy.payload == table["payload"].high and light.payload == table["payload"].low
     assert heavy.delay == light.delay == table["delay"].high  # both late by the range's top
     assert heavy.mass_scale == (table["mass_scale"].high,) * 7
-    rotor = np.divide(heavy.rotor_inertia, REALISTIC_PLANT.rotor_inertia)
-    assert np.allclose(rotor, table["rotor_inertia"].high)
+    rotor = np.divide(light.rotor_inertia, REALISTIC_PLANT.rotor_inertia)
+    assert np.allclose(rotor, table["rotor_inertia"].low)
+    assert heavy.rotor_inertia == REALISTIC_PLANT.rotor_inertia  # fast paths stay feasible
+    softer = np.divide(heavy.stiffness, REALISTIC_PLANT.stiffness)
+    assert np.allclose(softer, table["stiffness"].low)
     stiffness = np.divide(light.stiffness, REALISTIC_PLANT.stiffness)
     assert np.allclose(stiffness, table["stiffness"].high)
     # Only what a corner names moves: its sensors keep the nominal noise, on a seed of its own.

@@ -46,6 +46,7 @@ RUN = (
     *("--pop", "4", "--generations", "2", "--duration", "10", "--seed", "0", "--no-replicate"),
     *("--keep", "all"),  # every episode's log, to count them
     *("--check-plants", "0"),  # no held-out check: the jobs are the run's and the baseline's
+    *("--plants", "0"),  # one episode a candidate, on the nominal plant: the counts below
 )
 EVALUATIONS = 8  # pop × generations, one trajectory
 JOBS = EVALUATIONS + 1  # and the default gains' episode, once (baseline.json)
