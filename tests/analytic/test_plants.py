@@ -205,15 +205,20 @@ def test_the_held_out_check_runs_the_controller_to_use_and_the_defaults(tmp_path
         checked = run_check(run, evaluator)
         write_run_report(run)
     names = [item.name for item in checked]
-    assert names[2] == "default gains" and names[0] in ("recommended", "candidate")
+    assert names.count("default gains") == 1 and set(names) <= {
+        "recommended",
+        "candidate",
+        "knee",
+        "default gains",
+    }
     for item in checked:
         assert item.nominal_f_acc > 0 and 0 < item.median_f_acc <= item.worst_f_acc
         assert item.violations + item.diverged <= 1
         assert (item.row is None or item.name == "recommended") == (not item.failed)
     record = read_check(directory)
-    # 8 candidates' 8 episodes afford half as many: one held-out plant for 3 controllers, and
-    # no second round.
-    assert record["plants"] == 1 and record["cost"]["episodes"] == len(checked) * 2 == 6
+    # 8 candidates' 8 episodes afford half as many: one held-out plant for the first round's
+    # controllers (2 or 3), and no second round.
+    assert record["plants"] == 1 and record["cost"]["episodes"] == len(checked) * 2 <= 6
     recommended = [item for item in checked if item.name == "recommended"]
     assert record["advice"]["row"] == (recommended[0].row if recommended else None)
     assert json.loads((directory / "front.json").read_text())["held_out"] == record

@@ -289,6 +289,8 @@ def test_an_exported_yaml_controller_runs_as_its_json_does(tmp_path):
     """`analytic export --format yaml` writes the same document as the JSON: `worker episode
     --gains` and `analytic batch --gains` take it, and score it as they score the JSON."""
     tiny = ["--pop", "4", "--generations", "1", "--trajectory", "fourier", "--duration", "0.5"]
+    # The nominal problem on the paper's f_t: the member's recorded scores are one episode's.
+    tiny += ["--plants", "0", "--torque-measure", "raw"]
     started = run(ANALYTIC, "start", "--local", *tiny, "--out", str(tmp_path / "run"))
     assert started.returncode == 0, started.stderr
     scores = {}
