@@ -47,6 +47,7 @@ RUN = (
     *("--keep", "all"),  # every episode's log, to count them
     *("--check-plants", "0"),  # no held-out check: the jobs are the run's and the baseline's
     *("--plants", "0"),  # one episode a candidate, on the nominal plant: the counts below
+    *("--torque-measure", "raw"),  # the paper's f_t: what a log's scores are compared with
 )
 EVALUATIONS = 8  # pop × generations, one trajectory
 JOBS = EVALUATIONS + 1  # and the default gains' episode, once (baseline.json)
