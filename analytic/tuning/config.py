@@ -101,7 +101,7 @@ class RunConfig(BaseModel):
         "(analytic.tuning.check); none: no check",
     )
     aggregate: Literal["mean", "worst", "cvar"] = Field(
-        defaults.AGGREGATE,
+        "cvar",  # the experiments' robust runs, as they ran; `analytic start`'s is worst
         description="each trajectory's objectives over the nominal plant and its variants, "
         "objective by objective: the mean, the worst (a bound that holds on every plant), or the "
         "mean of the worst quarter (schemas.objectives.CVAR_SHARE)",
