@@ -127,7 +127,7 @@ def run_check(
     started = time.monotonic()
     on_start(CheckPlan(len(first) * per_controller, len(plants), asked, len(first)))
     checked = _round(run, evaluator, first, plants, 0)
-    spent, queue = len(first) * per_controller, [i for i in ranked[1:CANDIDATES]]
+    spent, queue = len(first) * per_controller, ranked[1:CANDIDATES]
     while not _holding(checked) and queue and spent + ROUND * per_controller <= budget:
         batch = {front[i].gains: ("candidate", i + 1) for i in queue[:ROUND]}
         queue = queue[ROUND:]
