@@ -404,7 +404,7 @@ def test_the_front_is_the_same_when_the_analytic_process_is_killed_and_resumed(
             "--keep",  # as `calm` keeps them (RunConfig's default)
             "all",
             *("--plants", "0", "--torque-measure", "raw", "--first-population", "random"),
-            # RunConfig's problem, as `calm`'s
+            *("--aggregate", "cvar"),  # RunConfig's problem, as `calm`'s
         ]
         command = [
             sys.executable,
