@@ -24,10 +24,11 @@ from mcap.reader import make_reader
 
 from gainfarm.analytic import RunConfig, tune
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+from gainfarm.analytic.tuning.defaults import PLANTS
 from gainfarm.analytic.tuning.records import read_run
+from gainfarm.analytic.view.members import episode, slots
 from gainfarm.schemas import TrajectorySpec
-from gainfarm.schemas.mcap_episode import read_episode
-from gainfarm.schemas.objectives import score
+from gainfarm.schemas.objectives import objectives, score
 
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "docker" / "e2e.py"
@@ -161,14 +162,23 @@ def test_the_compose_farm_runs_its_tuning_profiles_for_real(tmp_path: Path) -> N
         assert len(record.evaluated) == record.evaluations
         run_ids.add((kept / run / "run.json").read_text())
         assert record.front
+        config = record.config
+        plants = 1 + len(config.plants)  # analytic start's robust default: the nominal + corners
+        assert plants == 1 + PLANTS
         for member in record.front:
-            (log,) = member.logs  # one trajectory
-            scores = score(read_episode(kept / run / log))
-            assert (scores.f_acc, scores.f_t) == (member.f_acc, member.f_t), f"{run}: {log}"
-            with (kept / run / log).open("rb") as file:
-                summary = make_reader(file).get_summary()
-            assert summary is not None and summary.statistics is not None
-            assert summary.statistics.message_count > 0 and summary.channels
+            assert len(member.logs) == plants  # one trajectory, on each plant
+            found = [episode(kept / run, config, member, slot) for slot in slots(config)]
+            assert all(where.startswith("its log") for _, where in found), found
+            scores = [score(log) for log, _ in found if log is not None]
+            rescored = objectives(
+                scores, config.objective_weights, plants, config.aggregate, config.plant_scales
+            )
+            assert rescored == (member.f_acc, member.f_t), f"{run}: {member.logs}"
+            for log in member.logs:
+                with (kept / run / log).open("rb") as file:
+                    summary = make_reader(file).get_summary()
+                assert summary is not None and summary.statistics is not None
+                assert summary.statistics.message_count > 0 and summary.channels
     assert len(run_ids) == len(runs), "every run has an id of its own"
     # One seed and configuration: one front, byte for byte, on the plain farm, two runs at once
     # sharing it, and the secure farm (docs/tuning.md: Guarantees).
