@@ -61,6 +61,7 @@ from mcap.writer import MCAP0_MAGIC
 from pydantic import ValidationError
 from rosbags.typesys import Stores, get_typestore
 
+from gainfarm.schemas.documents import BadDocument, read_bounded
 from gainfarm.schemas.episode import EpisodeMetadata
 from gainfarm.schemas.episode_log import (
     CHANNELS,
@@ -671,8 +672,38 @@ def _write_summary(
 
 
 def read_episode(path: Path) -> EpisodeLog:
-    """Read an episode log file (episode_bytes' bytes); NotAnEpisodeLog if it is not one."""
-    return decode_episode(Path(path).read_bytes(), str(path))
+    """Read an episode log file (episode_bytes' bytes); NotAnEpisodeLog if it is not one, or
+    holds more than MAX_EPISODE_BYTES (refused before it is read)."""
+    try:
+        content = read_bounded(Path(path), MAX_EPISODE_BYTES)
+    except BadDocument as error:
+        raise NotAnEpisodeLog(f"{path}: {error}") from None
+    return decode_episode(content, str(path))
+
+
+def check_chunks(path: Path, bound: int = MAX_EPISODE_BYTES) -> None:
+    """Check, before another reader (rosbags) decompresses them, that the chunks of the MCAP
+    file `path` decompress to `bound` bytes at most, all together: NotAnEpisodeLog, in one line,
+    for a file larger than that, a chunk claiming more, or one whose data inflates past its
+    claim (a 200 kB "bomb" that rosbags would inflate to gigabytes). Each chunk is decompressed
+    here as decode_episode does, to its claim at most, and dropped."""
+    where = str(path)
+    try:
+        with Path(path).open("rb") as stream:
+            size = stream.seek(0, io.SEEK_END)
+            if size > bound:
+                raise NotAnEpisodeLog(f"{where}: {size} bytes, more than the {bound} read")
+            stream.seek(0)
+            reader = StreamReader(stream, emit_chunks=True, record_size_limit=bound)
+            left = bound
+            for record in reader.records:
+                if isinstance(record, Chunk):
+                    left -= len(_decompress(f"{where}: a chunk", record, left))
+    except NotAnEpisodeLog:
+        raise
+    except _UNREADABLE as error:
+        reason = " ".join(str(error).split())[:300] or type(error).__name__
+        raise NotAnEpisodeLog(f"{where}: unreadable MCAP ({reason})") from None
 
 
 def decode_episode(content: bytes, source: str = "episode log") -> EpisodeLog:
