@@ -6,6 +6,7 @@ MCAP chunk that inflates to 4 GiB) run under an address-space limit, so that a r
 here rather than eats the machine. No timing is asserted.
 """
 
+import itertools
 import json
 import resource
 import shutil
@@ -36,7 +37,7 @@ def laughs() -> str:
     """YAML's billion laughs: 9 aliases of 9 aliases ... nine levels down, 9^9 "lol"s."""
     lines = ['a: &a ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
     names = "abcdefghi"
-    for before, name in zip(names, names[1:], strict=False):
+    for before, name in itertools.pairwise(names):
         lines.append(f"{name}: &{name} [{', '.join(['*' + before] * 9)}]")
     return "\n".join([*lines, "kp: *i", "kd: *i", ""])
 
@@ -63,7 +64,14 @@ class Case:
     suffix: str = ""
 
 
-RANGE = '[x]\nfield = "stiffness"\nper_joint = true\ndraw = "uniform"\nlow = 1\nhigh = 1e308\nwhy = "x"\n'
+RANGE = """[x]
+field = "stiffness"
+per_joint = true
+draw = "uniform"
+low = 1
+high = 1e308
+why = "a range so wide its variants overflow"
+"""
 CASES = [
     # worker episode --gains: JSON or YAML
     Case("deep-json", ("worker", "episode", "--gains", "FILE", "--out", "OUT"),
@@ -175,9 +183,7 @@ def test_a_hostile_file_is_refused_in_one_line(case: Case, outcomes: dict) -> No
     assert expected in done.stderr, done.stderr
     assert len(done.stderr) < 400  # the input is never echoed whole
     assert not out.exists()
-    assert sorted(path.name for path in file.parent.iterdir()) == sorted(
-        [file.name, "twin.toml"]
-    )
+    assert sorted(path.name for path in file.parent.iterdir()) == sorted([file.name, "twin.toml"])
 
 
 def test_an_oversized_log_is_refused_before_it_is_read(tmp_path: Path) -> None:
