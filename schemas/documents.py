@@ -167,6 +167,8 @@ def _bounded_loader() -> type:
                     f"an alias at line {mark.line + 1} column {mark.column + 1}: aliases "
                     "(*name) are not read, write the value out"
                 )
+            if self.check_event(yaml.ScalarEvent):  # a leaf: no level of nesting
+                return super().compose_node(parent, index)
             self.depth += 1
             try:
                 if self.depth > MAX_DEPTH:
