@@ -887,8 +887,8 @@ def _decompress(where: str, chunk: Chunk, bound: int) -> bytes:
     size = chunk.uncompressed_size
     if size > bound:
         raise NotAnEpisodeLog(
-            f"{where} claims {size} bytes uncompressed, more than the {bound} this episode's "
-            "messages can take"
+            f"{where} claims {size} bytes uncompressed, more than the {bound} this log's "
+            "messages may take"
         )
     if chunk.compression == "zstd":
         # One byte more than claimed tells a longer output from an exact one. Not
