@@ -693,6 +693,9 @@ def check_chunks(path: Path, bound: int = MAX_EPISODE_BYTES) -> None:
             size = stream.seek(0, io.SEEK_END)
             if size > bound:
                 raise NotAnEpisodeLog(f"{where}: {size} bytes, more than the {bound} read")
+            stream.seek(max(0, size - len(MCAP0_MAGIC)))
+            if stream.read() != MCAP0_MAGIC:
+                return  # rosbags refuses a file without its end magic before reading a chunk
             stream.seek(0)
             reader = StreamReader(stream, emit_chunks=True, record_size_limit=bound)
             left = bound

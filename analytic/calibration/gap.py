@@ -78,12 +78,16 @@ class Played:
     trajectory: TrajectorySpec
 
 
+# An excitation's reference is sampled at every tick: a 60 s one is some MB of JSON.
+MAX_PLAYED_BYTES = 64 << 20
+
+
 def read_played(path: Path) -> list[Played]:
     """What a file says was played: an excitation of `analytic excite` (its reference and gains)
     or a controller of `analytic export` (its gains on each of its run's trajectories); BadLog in
     one line."""
     try:
-        document = load_json(read_bounded(Path(path)))
+        document = load_json(read_bounded(Path(path), MAX_PLAYED_BYTES))
     except OSError as error:
         raise BadLog(f"--played: cannot read {str(path)!r}: {error.strerror}") from None
     except BadDocument as error:

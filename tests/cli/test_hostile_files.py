@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 import tomli_w
 
+from gainfarm.models.dynamics import MAX_FILE_BYTES as MAX_MODEL_BYTES
 from gainfarm.schemas.documents import MAX_DEPTH, MAX_TEXT_BYTES
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.plant_file import PlantFile
@@ -58,7 +59,7 @@ def stiff_plant() -> str:
 class Case:
     name: str
     command: tuple[str, ...]  # FILE stands for the hostile file, OUT for where to write
-    content: str | bytes | None  # None: made by a fixture (the bomb)
+    content: str | bytes | int | None  # int: a sparse file of that size; None: the bomb
     said: str  # in the error line, after the option
     bomb: bool = False
     suffix: str = ""
@@ -87,6 +88,15 @@ CASES = [
     Case("oversized", ("worker", "episode", "--gains", "FILE", "--out", "OUT"),
          " " * (MAX_TEXT_BYTES + 1) + "{}",
          f"--gains: 'FILE': {MAX_TEXT_BYTES + 3} bytes, more than the {MAX_TEXT_BYTES}"),
+    Case("laughs-batch", ("analytic", "batch", "--gains", "FILE", *NO_FARM, "--run-dir", "OUT"),
+         laughs(), "--gains: 'FILE': an alias at line 2", bomb=True, suffix=".yaml"),
+    Case("deep-batch", ("analytic", "batch", "--gains", "FILE", *NO_FARM, "--run-dir", "OUT"),
+         "[" * DEEP + "]" * DEEP, f"--gains: 'FILE': nesting deeper than {MAX_DEPTH} levels"),
+    Case("oversized-model",
+         ("worker", "episode", *KP, "--feedforward", "FILE", "--out", "OUT"),
+         MAX_MODEL_BYTES + 1,
+         f"--feedforward: 'FILE': {MAX_MODEL_BYTES + 1} bytes, more than the {MAX_MODEL_BYTES}",
+         suffix=".npz"),
     # --plant FILE: TOML
     Case("stiffness", ("worker", "episode", "--plant", "FILE", *KP, "--out", "OUT"),
          stiff_plant(), "--plant: 'FILE': plant.stiffness.0: must be at most 10000000, got 1e+308",
@@ -129,6 +139,9 @@ CASES = [
     # MCAP logs: a bomb handed to calibrate and validate, an oversized log to evaluate
     Case("bomb-calibrate", ("analytic", "calibrate", "FILE", "--out", "OUT"), None,
          "'FILE': a chunk claims 4294967296 bytes uncompressed", bomb=True, suffix=".mcap"),
+    Case("deep-played",
+         ("analytic", "validate", "TWIN", "FILE", "--played", "FILE", "--out", "OUT"),
+         "[" * DEEP + "]" * DEEP, f"--played: 'FILE': nesting deeper than {MAX_DEPTH} levels"),
     Case("bomb-validate", ("analytic", "validate", "TWIN", "FILE", "--out", "OUT"), None,
          "'FILE': a chunk claims 4294967296 bytes uncompressed", bomb=True, suffix=".mcap"),
 ]  # fmt: skip
@@ -150,7 +163,11 @@ def run(case: Case, where: Path, bomb: bytes) -> tuple[subprocess.CompletedProce
     where.mkdir()
     file = where / f"hostile{case.suffix or '.json'}"
     content = bomb if case.content is None else case.content
-    file.write_bytes(content if isinstance(content, bytes) else content.encode())
+    if isinstance(content, int):
+        with file.open("wb") as stream:
+            stream.truncate(content)
+    else:
+        file.write_bytes(content if isinstance(content, bytes) else content.encode())
     (where / "twin.toml").write_text(plant_toml())
     out = where / "out"
     words = {"FILE": str(file), "OUT": str(out), "TWIN": str(where / "twin.toml")}
