@@ -37,15 +37,15 @@ NOBODY = 65534  # uid and gid of `nobody` (and `nogroup`) on Debian
 # Imports first (the interpreter and the venv may be out of another user's reach), then, with
 # `drop`, becomes nobody, then tries to join the farm: prints "joined" and whether the broker's
 # liveliness token is seen, or "refused" and why.
-STRANGER = """
+STRANGER = f"""
 import os, sys
 from gainfarm.edges.transport import open_session, token_held
 from gainfarm.schemas import keys
 endpoint, drop = sys.argv[1], sys.argv[2] == "drop"
 if drop:
     os.setgroups([])
-    os.setgid({nobody})
-    os.setuid({nobody})
+    os.setgid({NOBODY})
+    os.setuid({NOBODY})
 try:
     session = open_session("client", connect=[endpoint])
 except ConnectionError as error:
@@ -53,7 +53,7 @@ except ConnectionError as error:
 else:
     print("joined", os.getuid(), token_held(session, keys.ALIVE_BROKER, timeout=5.0))
     session.close()
-""".format(nobody=NOBODY)
+"""
 
 
 def stranger(endpoint: str, drop: bool) -> str:
