@@ -3,6 +3,7 @@
 import hashlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -49,7 +50,11 @@ def test_several_workers_share_a_batch_and_every_episode_is_kept_and_scored(
         evaluations = list(farm.results(timeout=120))
         workers = {worker.name: worker.jobs_done for worker in farm.status().workers}
     assert sorted(evaluation.job_id for evaluation in evaluations) == sorted(specs)
-    assert set(workers) == {"local-0", "local-1"} and all(workers.values())
+    assert [re.sub(r"-[0-9a-f]{8}$", "", name) for name in sorted(workers)] == [
+        "local-0",
+        "local-1",
+    ]
+    assert all(workers.values())
     for evaluation in evaluations:
         assert evaluation.status == "ok" and evaluation.attempts == 1
         assert evaluation.log == tmp_path / "episodes" / f"{evaluation.job_id}.mcap"
@@ -62,8 +67,8 @@ def test_several_workers_share_a_batch_and_every_episode_is_kept_and_scored(
 @pytest.mark.slow
 def test_a_local_farm_starts_its_block_with_every_worker_joined(tmp_path: Path) -> None:
     # Else the first worker up takes the whole first batch and the others idle through it.
-    with local_farm(workers=2) as endpoint, FarmClient([endpoint], "s", tmp_path) as farm:
-        assert sorted(worker.name for worker in farm.status().workers) == ["local-0", "local-1"]
+    with LocalFarm(workers=2) as local, FarmClient([local.ready()], "s", tmp_path) as farm:
+        assert sorted(worker.name for worker in farm.status().workers) == sorted(local.names)
 
 
 @pytest.mark.slow
