@@ -2,7 +2,7 @@
 process table, joins it as one more worker and forges every episode it is given (a forger,
 tests/analytic/liar.py: made-up, self-consistent logs that flatter its candidates).
 
-    python bench/stranger.py [--pop 8] [--generations 3] [--seed 7] [--duration 2] \
+    python bench/stranger.py [--pop 16] [--generations 3] [--seed 7] [--duration 2] \
         [--workers 2] [--as nobody]
 
 The same `analytic start --trajectory fourier --plants 0 --check-plants 0 --workers W` runs three
@@ -135,7 +135,7 @@ def run(arguments: list[str], out: Path, user: pwd.struct_passwd | None) -> dict
 
 
 @click.command()
-@click.option("--pop", default=8, show_default=True)
+@click.option("--pop", default=16, show_default=True)
 @click.option("--generations", default=3, show_default=True)
 @click.option("--seed", default=7, show_default=True)
 @click.option("--duration", default=2.0, show_default=True)
