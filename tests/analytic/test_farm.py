@@ -419,3 +419,39 @@ def test_a_model_handed_to_an_open_client_is_served_to_the_workers(
         stop_workers([worker])
     assert evaluation.status == "ok", evaluation.reason
     assert read_episode(evaluation.log).metadata.spec.feedforward == digest(raw)
+
+
+@pytest.mark.slow
+def test_a_result_from_a_worker_the_local_farm_did_not_start_is_refused_and_runs_on_its_own(
+    broker: Broker, session: zenoh.Session, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Two strangers take a job each and hand their results in to the broker, which takes them:
+    one sends its result to the study, the other never does (its result would be taken from the
+    broker's record). Both are refused, no attempt spent, and the jobs run on the farm's own."""
+    specs = {"j1": short_spec(duration=0.3), "j2": short_spec(duration=0.4)}
+    with (
+        caplog.at_level("WARNING", logger="gainfarm.analytic"),
+        FarmClient(broker.endpoints, "s", tmp_path, own_workers={"mine"}, attempts=1) as farm,
+    ):
+        farm.submit(specs)
+        for stranger, job_id, sends in (("putter", "j1", True), ("silent", "j2", False)):
+            lease = ask_for_work(session, stranger)
+            assert lease is not None and lease.job.job_id == job_id
+            result = result_for("s", job_id, worker=stranger, lease_id=lease.lease_id)
+            assert hand_in(session, result).accepted
+            if sends:
+                session.put(keys.result("s", job_id), b"", attachment=result.to_bytes())
+        worker = spawn_worker(broker.endpoints[0], "mine")
+        try:
+            evaluations = {evaluation.job_id: evaluation for evaluation in farm.results(120)}
+        finally:
+            stop_workers([worker])
+        assert farm.strangers == {"putter", "silent"}
+    for job_id in specs:
+        assert evaluations[job_id].status == "ok" and evaluations[job_id].worker == "mine"
+        assert evaluations[job_id].attempts == 1
+    said = sorted(r.getMessage() for r in caplog.records if "did not start" in r.getMessage())
+    assert said == [
+        f"result from worker {name}, which this local farm did not start: refused"
+        for name in ("putter", "silent")
+    ]
