@@ -437,13 +437,18 @@ def validation_section(validation: ValidationRecord, members: Sequence[FrontMemb
     if validation.unchecked:
         lines += [f"Not checked: {validation.unchecked}.", ""]
     else:
-        rate = f" (rate {validation.spot_check_rate:g})" if validation.spot_check_rate else ""
+        rate = f" (rate {validation.spot_check_rate:.3g})" if validation.spot_check_rate else ""
         lines += [
             f"- episodes the referee (this process) ran again: {validation.refereed} of the "
-            f"front's, {counted(validation.spot_checked, 'spot check')}{rate}",
+            f"front's, {counted(validation.spot_checked, 'spot check')}{rate}, "
+            f"{validation.failures_checked} its workers said failed, "
+            f"{validation.baseline_refereed} of the default gains' (baseline.json) and "
+            f"{validation.held_out_refereed} of the held-out check's",
             f"- disagreements: {validation.disagreements}; could not be rerun (failed): "
             f"{validation.unsettled}",
         ]
+        if validation.spot_check_guarantee:
+            lines.append(f"- spot checks: {validation.spot_check_guarantee}")
         for worker, evidence in sorted(validation.distrusted.items()):
             lines.append(f"- distrusted: {worker}, which {evidence}")
         if validation.rewinds:
