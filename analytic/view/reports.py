@@ -438,12 +438,19 @@ def validation_section(validation: ValidationRecord, members: Sequence[FrontMemb
         lines += [f"Not checked: {validation.unchecked}.", ""]
     else:
         rate = f" (rate {validation.spot_check_rate:.3g})" if validation.spot_check_rate else ""
+        more = [
+            f"{counted(count, what)}{where}"
+            for count, what, where in (
+                (validation.failures_checked, "failure", " its worker claimed"),
+                (validation.baseline_refereed, "episode", " of the default gains'"),
+                (validation.held_out_refereed, "episode", " of the held-out check's"),
+            )
+            if count
+        ]
         lines += [
             f"- episodes the referee (this process) ran again: {validation.refereed} of the "
-            f"front's, {counted(validation.spot_checked, 'spot check')}{rate}, "
-            f"{validation.failures_checked} its workers said failed, "
-            f"{validation.baseline_refereed} of the default gains' (baseline.json) and "
-            f"{validation.held_out_refereed} of the held-out check's",
+            f"front's, {counted(validation.spot_checked, 'spot check')}{rate}"
+            + "".join(f", {item}" for item in more),
             f"- disagreements: {validation.disagreements}; could not be rerun (failed): "
             f"{validation.unsettled}",
         ]
