@@ -117,6 +117,18 @@ def run_check(
     are checked in the knee's order, with the knee and the default gains, until one holds on the
     held-out plants as `failures` asks (at most CANDIDATES, within CHECK_SHARE); the first that
     holds is the controller to use, and if none does, the default gains are."""
+    while True:
+        checked = _check(run, evaluator, on_start)
+        # A worker caught in the check may have steered the evolution too: it runs again
+        # without that worker's results, and so does the check, on the front it then finds.
+        if not run.replay_without_caught(evaluator):
+            return checked
+
+
+def _check(
+    run: TuningRun, evaluator: Evaluator, on_start: Callable[[CheckPlan], None]
+) -> list[Checked]:
+    """`run_check`'s one pass: the check of the run's front as it stands."""
     plants = run.config.check_plants
     asked = len(plants)
     front = sorted_front(run.front())
@@ -235,8 +247,14 @@ class _Check:
 
 
 def _index_of(job_id: str) -> int:
-    """The controller's index of a check's job id, `check-c<index>-t<n>-h<plant>`."""
-    return int(job_id.split("-")[1].removeprefix("c"))
+    """The controller's index of a check's job id (`_job_id`)."""
+    return int(job_id.split("check-c", 1)[1].split("-", 1)[0])
+
+
+def _job_id(run: TuningRun, index: int, number: int, plant: int) -> str:
+    """A check's episode: controller `index`, trajectory `number`, on `plant` (0: nominal);
+    after a rewind with the run's new prefix, so no job of an earlier check is named again."""
+    return f"{run.job_prefix()}check-c{index}-t{number}-h{plant}"
 
 
 def _candidates(front: Sequence[FrontMember], baseline: Baseline | None) -> list[int]:
@@ -268,7 +286,7 @@ def _round(
     for index, gains in enumerate(chosen, start=offset):
         for number, trajectory in enumerate(run.config.trajectories):
             for plant, model in enumerate((run.config.model, *plants)):
-                specs[f"check-c{index}-t{number}-h{plant}"] = EpisodeSpec(
+                specs[_job_id(run, index, number, plant)] = EpisodeSpec(
                     gains=gains,
                     trajectory=trajectory,
                     model=model,
@@ -292,7 +310,7 @@ def _summary(
     trajectories = range(len(config.trajectories))
 
     def on(plant: int) -> list[Scores | None]:
-        return [found.get(f"check-c{index}-t{number}-h{plant}") for number in trajectories]
+        return [found.get(_job_id(run, index, number, plant)) for number in trajectories]
 
     nominal_scores = on(0)
     nominal = objectives(nominal_scores, config.objective_weights)

@@ -450,6 +450,7 @@ class TuningRun:
         evaluator.submit(specs)
         found = {evaluation.job_id: evaluation for evaluation in evaluator.results()}
         rulings = self._referee_baseline(evaluator, found)
+        self.replay_without_caught(evaluator)
         scores = [found[job_id].scores if job_id in found else None for job_id in jobs]
         f_acc, f_t = self._objectives(scores)
         baseline = Baseline(
@@ -475,6 +476,17 @@ class TuningRun:
                 self.write_records()
                 self._checkpoint()
         return baseline
+
+    def replay_without_caught(self, evaluator: Evaluator) -> bool:
+        """After the evolution, a worker caught lying (on the default gains' episodes, or the
+        held-out check's) may have steered it: a generational run starts it again from the seed
+        without that worker's results and runs it to its end (True), as a catch during the
+        evolution does."""
+        if not self._should_rewind(evaluator):
+            return False
+        self._rewind(evaluator)
+        self.run(evaluator)
+        return True
 
     def _referee_baseline(
         self, evaluator: Evaluator, found: dict[str, EpisodeResult]
@@ -552,6 +564,11 @@ class TuningRun:
     def _prefix(self) -> str:
         """Job ids after a rewind are new ones: a log of the run before is never overwritten."""
         return f"r{self.state.rewinds}-" if self.state.rewinds else ""
+
+    def job_prefix(self) -> str:
+        """What the job ids of the run's episodes start with now (`_prefix`): for the held-out
+        check's, which a rewind runs again."""
+        return self._prefix()
 
     def _distrusted(self, evaluator: Evaluator) -> set[str]:
         return {*self.state.ledger.dissenters, *getattr(evaluator, "distrusted", ())}

@@ -11,7 +11,8 @@
   F_ACC, in metres), honest on the others;
 - `--fail-good F_ACC`: says each good candidate's episode failed (no log, no scores), honest on
   the others;
-- `--forge-defaults`: forges as `--forge` does, only the default gains' episodes.
+- `--forge-defaults`: forges only the default gains' episodes, self-consistent logs 3 times worse
+  than they ran (the error and the torque steps): every candidate seems to beat them.
 
 Run as `python -m tests.analytic.liar ENDPOINT NAME [FLAG [F_ACC]]` by the replication tests."""
 
@@ -118,6 +119,12 @@ def _flattering(log: EpisodeLog) -> EpisodeLog:
     return dataclasses.replace(log, u=u, ee=ee)
 
 
+def _disparaging(log: EpisodeLog) -> EpisodeLog:
+    u = log.u[:1] + 3.0 * (log.u - log.u[:1])  # each torque step 3 times what it was
+    ee = log.ee_des + 3.0 * (log.ee - log.ee_des)  # and the error
+    return dataclasses.replace(log, u=u, ee=ee)
+
+
 lying_execute = altering(_one_sample_off)
 forging_execute = altering(_flattering)
 boasting_execute = claiming(0.9)
@@ -139,7 +146,7 @@ def main() -> None:
     if flags and flags[0] in picky:
         service.execute_batch = picky[flags[0]](float(flags[1]))
     elif flags == ["--forge-defaults"]:
-        service.execute_batch = altering(_flattering, of_the_default_gains)
+        service.execute_batch = altering(_disparaging, of_the_default_gains)
     else:
         service.execute_batch = next((how[flag] for flag in flags if flag in how), lying_execute)
     stop = threading.Event()
