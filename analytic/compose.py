@@ -346,6 +346,8 @@ def _evaluator(
                     # keep="front": the workers keep the logs, and the front's are fetched.
                     keep_logs=run.config.keep == "all",
                     trusted=not connect,  # a local farm of this process's own workers
+                    # ... and none other: a result from any other worker is refused
+                    own_workers=None if connect or farm is None else farm.names,
                 )
             )
         except (ValueError, ConnectionError) as error:

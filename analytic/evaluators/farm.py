@@ -41,6 +41,12 @@ silent holder's, and its worker is not blamed (docs/security.md, "Junk on a stud
 too): results then come on a session of their own that takes no message larger than a Result
 (MAX_RESULT_BYTES), so Zenoh drops a big sample on the way instead of reassembling it. Everything
 else (queries, logs fetched, models served, tokens) goes on the main session.
+
+On a local farm (`own_workers`: the names of the workers it started) a result the broker took from
+any other worker is refused and its job runs again on the farm's own. A worker that refuses a job
+(it lacks a plug-in the job names) is no verdict on the run: the job runs elsewhere, and the run
+stops (PluginError) only when no worker connected that has not refused it is left, or this process
+lacks the plug-in too.
 """
 
 import hashlib
@@ -49,12 +55,13 @@ import queue
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import zenoh
 
+from gainfarm import plugins
 from gainfarm.analytic.evaluators.evaluator import (
     EpisodeResult,
     EpisodeStatus,
@@ -168,6 +175,7 @@ class FarmClient:
         read_log: ReadLog = accept_log,
         trusted: bool = False,
         max_held_bytes: int = MAX_HELD_BYTES,
+        own_workers: Collection[str] | None = None,
     ):
         """`models`: the feed-forward models (file bytes by SHA-256) the study's jobs may name;
         the client serves them to the workers that ask. `keep_logs`: every job's log comes with
@@ -176,7 +184,9 @@ class FarmClient:
         `read_log` checks, keeps and scores a log (another only for simulated workers, whose
         "logs" are not episodes: bench/campaign.py --simulated). `trusted`: the farm's workers are
         this process's own (a local farm started for it), so a run has nothing to referee.
-        `max_held_bytes`: the bytes of results held before the broker confirms them."""
+        `max_held_bytes`: the bytes of results held before the broker confirms them.
+        `own_workers`: the names of the workers of a local farm started for this client; a
+        result from any other worker is refused, and the job runs again on these (`strangers`)."""
         Submission(study=study, jobs=[])  # validates the name before it becomes a key
         self.study = study
         self.trusted = trusted
@@ -209,6 +219,11 @@ class FarmClient:
         self._drops_logged = 0.0
         self._distrusted: set[str] = set()
         self._unheard_from: set[str] = set()
+        self.own_workers = None if own_workers is None else frozenset(own_workers)
+        self._strangers: set[str] = set()
+        # Who refused jobs needing what (a trajectory kind and objectives: `_needs`): a worker
+        # that lacks a plug-in gets no more jobs that need it.
+        self._refused_by: dict[tuple[str, ...], set[str]] = {}
         self._inbox: queue.SimpleQueue[_Arrival | str] = queue.SimpleQueue()
         self.session = open_session(
             "client", connect=connect, identity=identity, max_message_bytes=MAX_RECEIVED_BYTES
@@ -258,9 +273,19 @@ class FarmClient:
             status = self.status()
         except (BrokerUnavailable, BadMessage):
             return 1
-        barred = self._distrusted | self._unheard_from
+        return self._able(status, self._barred())
+
+    def _barred(self) -> set[str]:
+        """The workers given none of this study's jobs."""
+        return self._distrusted | self._unheard_from | self._strangers
+
+    def _able(self, status: BrokerStatus, barred: set[str]) -> int:
+        """How many workers connected now are not `barred` (and are this client's own, if it
+        has `own_workers`): by name where the status lists them all, else by count."""
         names = {worker.name for worker in status.workers}
         if len(names) == status.worker_count:
+            if self.own_workers is not None:
+                names &= self.own_workers
             return len(names - barred)
         return max(status.worker_count - len(barred), 0)
 
@@ -306,6 +331,12 @@ class FarmClient:
         """The workers given none of this study's jobs: named by `distrust`, or caught here
         claiming scores their logs do not have."""
         return frozenset(self._distrusted)
+
+    @property
+    def strangers(self) -> frozenset[str]:
+        """The workers outside `own_workers` whose results came (and were refused): given none of
+        this study's jobs."""
+        return frozenset(self._strangers)
 
     @property
     def unheard_from(self) -> frozenset[str]:
@@ -581,7 +612,8 @@ class FarmClient:
 
     def _job(self, job_id: str) -> Job:
         pending = self._pending[job_id]
-        avoid = sorted({*pending.avoid, *self._distrusted, *self._unheard_from})
+        refusers = self._refused_by.get(_needs(pending.spec), set())
+        avoid = sorted({*pending.avoid, *self._barred(), *refusers})
         return Job(job_id=job_id, spec=pending.spec, avoid=avoid, keep_log=pending.keep_log)
 
     def _on_model_query(self, query: zenoh.Query) -> None:
@@ -766,6 +798,8 @@ class FarmClient:
         record has no scores, runs again elsewhere (None). Unless this client dropped the result
         itself (its budget was full: `max_held_bytes`), its worker is left out (`_leave_out`)."""
         pending = self._pending[accepted.job_id]
+        if self._stranger(accepted.worker):
+            return self._turn_away(accepted.job_id, accepted.worker, pending)
         blamed = not pending.dropped_here
         if blamed:
             self.unheard += 1
@@ -813,7 +847,7 @@ class FarmClient:
             connected = self.status().worker_count
         except (BrokerUnavailable, BadMessage):
             return
-        if connected > len(self._distrusted | self._unheard_from | {worker}):
+        if connected > len(self._barred() | {worker}):
             self._unheard_from.add(worker)
             log.warning("%s gets no more of this study's jobs: its results do not come", worker)
 
@@ -906,9 +940,10 @@ class FarmClient:
             timings=result.timings,
             reason=result.reason,
         )
-        if result.status == JobStatus.refused:  # the farm lacks a plug-in: say so, and stop
-            reason = f"worker {result.worker} refused job {result.job_id}: {result.reason}"
-            raise PluginError(reason)
+        if self._stranger(result.worker):
+            return self._turn_away(result.job_id, result.worker, pending)
+        if result.status == JobStatus.refused:  # the worker lacks a plug-in
+            return self._refused(result, pending)
         if result.status == JobStatus.failed:
             del self._pending[result.job_id]
             return EpisodeResult(
@@ -945,6 +980,50 @@ class FarmClient:
         del self._pending[result.job_id]
         return EpisodeResult(**ran, scores=scores, log=path)
 
+    def _stranger(self, worker: str) -> bool:
+        """Whether `worker` is not one this client's local farm started."""
+        return self.own_workers is not None and worker not in self.own_workers
+
+    def _turn_away(self, job_id: str, worker: str, pending: _Pending) -> None:
+        """Refuse a result from a worker this client's local farm did not start (said once per
+        worker): the job runs again on the farm's own, no attempt spent (a stranger cannot use
+        them up), and the stranger gets none of the study's jobs."""
+        if worker not in self._strangers:
+            self._strangers.add(worker)
+            why = "which this local farm did not start: refused"
+            log.warning("result from worker %s, %s", worker, why)
+        pending.avoid = tuple(sorted({*pending.avoid, worker}))
+        self._resend(job_id, pending)
+
+    def _refused(self, result: Result, pending: _Pending) -> None:
+        """A worker refused the job, lacking a plug-in it needs: not the job's outcome while
+        another worker may run it. PluginError, naming the worker and the plug-in, if this
+        process lacks it too, or no worker connected that has not refused it is left."""
+        reason = f"worker {result.worker} refused job {result.job_id}: {result.reason}"
+        self._refused_by.setdefault(_needs(pending.spec), set()).add(result.worker)
+        pending.avoid = tuple(sorted({*pending.avoid, result.worker}))
+        if _lacked_here(pending.spec) or not self._others_for(pending):
+            raise PluginError(reason)
+        log.warning("%s; running it on another worker", reason)
+        self._resend(result.job_id, pending)
+
+    def _others_for(self, pending: _Pending) -> bool:
+        """Whether a worker connected now may run the job: not avoided by it, nor barred. A
+        broker that does not answer is no verdict: taken as yes (the job waits for it)."""
+        try:
+            status = self.status()
+        except (BrokerUnavailable, BadMessage):
+            return True
+        refusers = self._refused_by.get(_needs(pending.spec), set())
+        return self._able(status, {*self._barred(), *pending.avoid, *refusers}) > 0
+
+    def _resend(self, job_id: str, pending: _Pending) -> None:
+        """Submit the job again, avoiding whom it now avoids. The broker may not have closed
+        the lease yet and answer "already pending": look again soon, not after a deadline."""
+        still_pending = self._send([self._job(job_id)])
+        wait = RECHECK_SECONDS if job_id in still_pending else self.deadline
+        pending.deadline = time.monotonic() + wait
+
     def _run_again(
         self, job_id: str, worker: str, pending: _Pending, reason: str
     ) -> EpisodeResult | None:
@@ -955,11 +1034,7 @@ class FarmClient:
             del self._pending[job_id]
             return self._failed(job_id, pending, f"{reason} (attempt {pending.attempts})")
         pending.attempts += 1
-        # The broker may not have closed the damaged lease yet and answer "already pending":
-        # look again soon rather than after a whole deadline.
-        still_pending = self._send([self._job(job_id)])
-        wait = RECHECK_SECONDS if job_id in still_pending else self.deadline
-        pending.deadline = time.monotonic() + wait
+        self._resend(job_id, pending)
         return None
 
     def _failed(
@@ -991,3 +1066,18 @@ def _matches(result: Result, accepted: Accepted) -> bool:
         accepted.digest,
         accepted.scores,
     )
+
+
+def _needs(spec: EpisodeSpec) -> tuple[str, ...]:
+    """The plug-ins a job needs by name: its trajectory kind, then its objectives."""
+    return (spec.trajectory.kind, *spec.objectives)
+
+
+def _lacked_here(spec: EpisodeSpec) -> bool:
+    """Whether this process lacks a plug-in the job needs (cannot load it either)."""
+    try:
+        plugins.load(plugins.TRAJECTORIES, spec.trajectory.kind)
+        plugins.load_plugins(plugins.OBJECTIVES, spec.objectives)
+    except PluginError:
+        return True
+    return False
