@@ -438,13 +438,14 @@ def run_with_progress(
         )
     click.echo(stopped_text(run.state.stopped or ""), err=True)
     ledger = run.replication
-    others = ledger.failures_checked + ledger.baseline + ledger.held_out
-    if ledger.refereed or ledger.spot_checked or others:
+    defaults = ledger.baseline + ledger.held_out
+    if ledger.refereed or ledger.spot_checked or ledger.failures_checked or defaults:
         rate = f" (rate {run.state.spot_rate:.3g})" if run.state.spot_rate else ""
         click.echo(
             f"validation: {counted(ledger.refereed, 'front episode')}, "
-            f"{counted(ledger.spot_checked, 'spot check')}{rate} and {others} failures, "
-            f"default gains' and held-out check's episodes rerun here in "
+            f"{counted(ledger.spot_checked, 'spot check')}{rate}, "
+            f"{counted(ledger.failures_checked, 'claimed failure')} and {defaults} baseline and "
+            f"held-out check episodes rerun here in "
             f"{ledger.seconds:.1f} s, {ledger.disagreements} disagreed"
             + (f", {ledger.unsettled} could not be rerun (failed)" if ledger.unsettled else "")
             + (f"; distrusted: {', '.join(sorted(ledger.dissenters))}" if ledger.dissenters else "")
