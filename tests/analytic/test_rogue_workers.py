@@ -207,6 +207,10 @@ def test_a_saboteur_of_good_candidates_is_caught_at_the_sized_rate(
     tuning = farm_run(broker, ["rogue", "h1"], tmp_path / "run", CONFIG, flags, key)
     assert tuning.state.spot_rate == sized_rate(12)
     assert "scores its log does not have" in tuning.replication.dissenters["rogue"]
+    caught_by = {
+        check for check, ruling, worker in tuning.state.checks.values() if ruling == "contradicted"
+    }
+    assert caught_by == {"spot-checked"}  # as its results returned, not on the front
     assert_calm_front(tuning, calm, {"rogue"})
     validation = read_validation(tuning.directory / "front.json")
     assert validation is not None and validation.spot_check_rate == sized_rate(12)
