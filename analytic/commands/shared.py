@@ -438,11 +438,15 @@ def run_with_progress(
         )
     click.echo(stopped_text(run.state.stopped or ""), err=True)
     ledger = run.replication
-    if ledger.refereed or ledger.spot_checked:
+    defaults = ledger.baseline + ledger.held_out
+    if ledger.refereed or ledger.spot_checked or ledger.failures_checked or defaults:
+        rate = f" (rate {run.state.spot_rate:.3g})" if run.state.spot_rate else ""
         click.echo(
-            f"front validated: {counted(ledger.refereed, 'episode')} and "
-            f"{counted(ledger.spot_checked, 'spot check')} "
-            f"rerun here in {ledger.seconds:.1f} s, {ledger.disagreements} disagreed"
+            f"validation: {counted(ledger.refereed, 'front episode')}, "
+            f"{counted(ledger.spot_checked, 'spot check')}{rate}, "
+            f"{counted(ledger.failures_checked, 'claimed failure')} and {defaults} baseline and "
+            f"held-out check episodes rerun here in "
+            f"{ledger.seconds:.1f} s, {ledger.disagreements} disagreed"
             + (f", {ledger.unsettled} could not be rerun (failed)" if ledger.unsettled else "")
             + (f"; distrusted: {', '.join(sorted(ledger.dissenters))}" if ledger.dissenters else "")
             + (
