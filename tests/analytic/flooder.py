@@ -5,18 +5,29 @@ took it: only the job's lease holder's result is confirmed); the others have no 
 garbage one, or a well-formed Result of another study.
 
     python -m tests.analytic.flooder ENDPOINT STUDY [--mib 64] [--junk-only]
-        [--tls DIR --name WORKER]
+        [--tls DIR --name WORKER] [--ask KEY ...] [--put KEY ...]
 
 With `--tls`, it connects with worker WORKER's certificate (one that holds no lease of the
 study). It prints `flooding` once its first sample is out, and at SIGTERM the number it put.
+
+With `--ask` or `--put` (each may be given again) it floods those keys instead (issue 47, item 4):
+a query with a `--mib` MiB payload on each `--ask` key and a `--mib` MiB sample on each `--put`
+key, in turn, as fast as the farm takes them, without waiting for the answers. At SIGTERM it
+prints `sent N answered M refused R`: the queries and samples it sent, the answers its queries
+got, and how many of those were refusals.
 """
 
 import argparse
 import hashlib
 import itertools
 import signal
+import subprocess
+import sys
 import threading
-from collections.abc import Iterator
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import zenoh
@@ -25,6 +36,8 @@ from gainfarm.edges.transport import open_session
 from gainfarm.schemas import keys
 from gainfarm.schemas.security import TlsIdentity
 from tests.helpers import result_for
+
+ROOT = Path(__file__).resolve().parents[2]  # where `python -m tests.analytic.flooder` runs
 
 
 def samples(study: str, payload: bytes, forge: bool) -> Iterator[tuple[str, bytes | None]]:
@@ -48,6 +61,68 @@ def samples(study: str, payload: bytes, forge: bool) -> Iterator[tuple[str, byte
             yield kind
 
 
+class Asker:
+    """Floods keys with big queries and samples; counts the answers, on Zenoh's threads."""
+
+    def __init__(self, session: zenoh.Session, payload: bytes):
+        self.session, self.payload = session, payload
+        self.sent = self.answered = self.refused = 0
+        self._lock = threading.Lock()
+
+    def _on_reply(self, reply: zenoh.Reply) -> None:
+        with self._lock:
+            self.answered += 1
+            self.refused += reply.ok is None
+
+    def flood(self, ask: list[str], put: list[str], stop: threading.Event) -> None:
+        for kind, key in itertools.cycle([("ask", k) for k in ask] + [("put", k) for k in put]):
+            if stop.is_set():
+                return
+            if kind == "ask":  # a callback: the next query goes out without waiting
+                self.session.get(key, self._on_reply, payload=self.payload, timeout=10.0)
+            else:
+                block = zenoh.CongestionControl.BLOCK  # every one goes out
+                self.session.put(key, self.payload, congestion_control=block)
+            self.sent += 1
+            if self.sent == 1:
+                print("flooding", flush=True)
+
+
+@dataclass
+class Counts:
+    """What a key flood sent and the answers it got, read when it stopped."""
+
+    sent: int = 0
+    answered: int = 0
+    refused: int = 0
+
+
+@contextmanager
+def flooding_keys(
+    endpoint: str, mib: int, ask: Sequence[str] = (), put: Sequence[str] = ()
+) -> Iterator[Counts]:
+    """The flooder in a process of its own, asking (with a `mib` MiB payload) on every `ask` key
+    and putting on every `put` key until the block ends, seen flooding first; its counts are
+    filled in once it has stopped."""
+    options = [*(f"--ask={key}" for key in ask), *(f"--put={key}" for key in put)]
+    command = [sys.executable, "-m", "tests.analytic.flooder", endpoint, "-", "--mib", str(mib)]
+    flooder = subprocess.Popen(
+        [*command, *options], cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, text=True
+    )
+    counts = Counts()
+    try:
+        assert flooder.stdout is not None and flooder.stdout.readline() == "flooding\n"
+        yield counts
+        flooder.terminate()
+        out, _ = flooder.communicate(timeout=30)
+        _, sent, _, answered, _, refused = out.split()
+        counts.sent, counts.answered, counts.refused = int(sent), int(answered), int(refused)
+    finally:
+        if flooder.poll() is None:
+            flooder.kill()
+            flooder.wait()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("endpoint")
@@ -56,12 +131,23 @@ def main() -> None:
     parser.add_argument("--tls", type=Path)
     parser.add_argument("--name", default="cobot-1")
     parser.add_argument("--junk-only", action="store_true", help="no forged results")
+    parser.add_argument("--ask", action="append", default=[], help="query KEY with the payload")
+    parser.add_argument("--put", action="append", default=[], help="put the payload on KEY")
     options = parser.parse_args()
     identity = TlsIdentity(options.tls, "worker", options.name) if options.tls else None
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     payload = bytes(options.mib * 1024 * 1024)
     session = open_session("client", connect=[options.endpoint], identity=identity)
+    if options.ask or options.put:
+        asker = Asker(session, payload)
+        try:
+            asker.flood(options.ask, options.put, stop)
+            time.sleep(1.0)  # answers to the last queries, if any come
+        finally:
+            session.close()
+        print(f"sent {asker.sent} answered {asker.answered} refused {asker.refused}", flush=True)
+        return
     put = 0
     try:
         for job_id, attachment in samples(options.study, payload, forge=not options.junk_only):
