@@ -300,7 +300,8 @@ def _payload(query: zenoh.Query) -> bytes | None:
     if query.payload is None:
         return None
     if len(query.payload) > MAX_MESSAGE_BYTES:
-        raise BadMessage(f"{len(query.payload)} bytes, over the limit of {MAX_MESSAGE_BYTES}")
+        size = len(query.payload)
+        raise BadMessage(f"{size} bytes, over the limit of {MAX_MESSAGE_BYTES}: not read")
     return query.payload.to_bytes()
 
 
