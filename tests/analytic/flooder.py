@@ -12,9 +12,12 @@ study). It prints `flooding` once its first sample is out, and at SIGTERM the nu
 
 With `--ask` or `--put` (each may be given again) it floods those keys instead (issue 47, item 4):
 a query with a `--mib` MiB payload on each `--ask` key and a `--mib` MiB sample on each `--put`
-key, in turn, as fast as the farm takes them, without waiting for the answers. At SIGTERM it
-prints `sent N answered M refused R`: the queries and samples it sent, the answers its queries
-got, and how many of those were refusals.
+key, in turn, as fast as the farm takes them, with IN_FLIGHT queries at most waiting for their
+answers (each for QUERY_SECONDS): the flood costs each query's reassembly, not the link's
+bandwidth, which a flood of unanswered queries at loopback speed would fill until the router
+closes the link it cannot push to (Zenoh's `block/wait_before_close`). At SIGTERM it prints
+`sent N answered M refused R timed-out T`: the queries and samples it sent, the answers its
+queries got, how many of those were refusals, and the queries nobody answered in time.
 """
 
 import argparse
@@ -32,10 +35,13 @@ from pathlib import Path
 
 import zenoh
 
+from gainfarm.analytic.evaluators.local import spawn_worker, stop_workers
+from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.edges.transport import open_session
 from gainfarm.schemas import keys
 from gainfarm.schemas.security import TlsIdentity
-from tests.helpers import result_for
+from gainfarm.schemas.wire import Job, Result, Submission, SubmitReply, decode
+from tests.helpers import query, result_for, short_spec, wait_for
 
 ROOT = Path(__file__).resolve().parents[2]  # where `python -m tests.analytic.flooder` runs
 
@@ -61,15 +67,25 @@ def samples(study: str, payload: bytes, forge: bool) -> Iterator[tuple[str, byte
             yield kind
 
 
+IN_FLIGHT = 4  # queries waiting for their answers at once
+QUERY_SECONDS = 1.0  # how long each waits
+
+
 class Asker:
     """Floods keys with big queries and samples; counts the answers, on Zenoh's threads."""
 
     def __init__(self, session: zenoh.Session, payload: bytes):
         self.session, self.payload = session, payload
-        self.sent = self.answered = self.refused = 0
+        self.sent = self.answered = self.refused = self.timed_out = 0
         self._lock = threading.Lock()
+        self._in_flight = threading.BoundedSemaphore(IN_FLIGHT)
 
     def _on_reply(self, reply: zenoh.Reply) -> None:
+        # A query nobody answered in time is answered by the router: an error, "Timeout".
+        if reply.err is not None and reply.err.payload.to_bytes() == b"Timeout":
+            with self._lock:
+                self.timed_out += 1
+            return
         with self._lock:
             self.answered += 1
             self.refused += reply.ok is None
@@ -78,14 +94,48 @@ class Asker:
         for kind, key in itertools.cycle([("ask", k) for k in ask] + [("put", k) for k in put]):
             if stop.is_set():
                 return
-            if kind == "ask":  # a callback: the next query goes out without waiting
-                self.session.get(key, self._on_reply, payload=self.payload, timeout=10.0)
+            if kind == "ask":  # a callback: the next query goes out without waiting for it
+                while not self._in_flight.acquire(timeout=0.1):
+                    if stop.is_set():
+                        return
+                done = zenoh.handlers.Callback(self._on_reply, self._in_flight.release)
+                self.session.get(key, done, payload=self.payload, timeout=QUERY_SECONDS)
             else:
                 block = zenoh.CongestionControl.BLOCK  # every one goes out
                 self.session.put(key, self.payload, congestion_control=block)
             self.sent += 1
             if self.sent == 1:
                 print("flooding", flush=True)
+
+
+STUDY = "flooded"  # the study the key-flood tests run
+
+
+class Study:
+    """A study as an analytic process holds one: its token, and its results as they come."""
+
+    def __init__(self, session: zenoh.Session):
+        self.session = session
+        self.results: dict[str, Result] = {}
+        self._token = session.liveliness().declare_token(keys.alive_study(STUDY))
+        self._inbox = session.declare_subscriber(keys.study_results(STUDY), self._on_result)
+        wait_for(
+            lambda: STUDY in {study.name for study in query_status(session).studies},
+            what="the broker to open the study",
+        )
+
+    def _on_result(self, sample: zenoh.Sample) -> None:
+        result = decode(Result, sample.attachment.to_bytes())
+        self.results[result.job_id] = result
+
+    def run(self, job_id: str) -> Result:
+        """Submit a short job and wait for its result."""
+        jobs = [Job(job_id=job_id, spec=short_spec(), keep_log=False)]
+        submission = Submission(study=STUDY, jobs=jobs).to_bytes()
+        ok, payload = query(self.session, keys.submit(STUDY), submission)
+        assert ok and decode(SubmitReply, payload).queued == [job_id]
+        wait_for(lambda: job_id in self.results, timeout=120, what=f"job {job_id}")
+        return self.results[job_id]
 
 
 @dataclass
@@ -95,6 +145,7 @@ class Counts:
     sent: int = 0
     answered: int = 0
     refused: int = 0
+    timed_out: int = 0
 
 
 @contextmanager
@@ -115,12 +166,43 @@ def flooding_keys(
         yield counts
         flooder.terminate()
         out, _ = flooder.communicate(timeout=30)
-        _, sent, _, answered, _, refused = out.split()
-        counts.sent, counts.answered, counts.refused = int(sent), int(answered), int(refused)
+        figures = [int(word) for word in out.split()[1::2]]
+        counts.sent, counts.answered, counts.refused, counts.timed_out = figures
     finally:
         if flooder.poll() is None:
             flooder.kill()
             flooder.wait()
+
+
+@contextmanager
+def farm_processes(endpoint: str, workers: Sequence[str], broker_log: Path) -> Iterator[None]:
+    """A `broker start` process (its log written to `broker_log`) and a `worker start` process
+    for each of `workers`, all joined before the block starts; stopped at its end. Processes of
+    their own, as on a farm: Zenoh's threads are shared within a process, and a router blocked
+    pushing a flood to a session in its own process can starve that session's reading."""
+    command = ["-m", "gainfarm.broker", "start", "--listen", endpoint, "--log-level", "info"]
+    with broker_log.open("w") as log:
+        broker = subprocess.Popen(
+            [sys.executable, *command], stdin=subprocess.DEVNULL, stderr=log, cwd=ROOT
+        )
+    farm = [spawn_worker(endpoint, name) for name in workers]
+    try:
+        wait_for(lambda: _joined(endpoint, workers), timeout=60, what="the broker and workers")
+        yield
+    finally:
+        stop_workers(farm)
+        broker.terminate()
+        broker.wait(30)
+
+
+def _joined(endpoint: str, workers: Sequence[str]) -> bool:
+    """Whether the broker answers, with every one of `workers` joined."""
+    try:
+        with open_session("client", connect=[endpoint]) as session:
+            status = query_status(session, timeout=1.0)
+    except (ConnectionError, BrokerUnavailable):
+        return False
+    return set(workers) <= {worker.name for worker in status.workers}
 
 
 def main() -> None:
@@ -143,10 +225,11 @@ def main() -> None:
         asker = Asker(session, payload)
         try:
             asker.flood(options.ask, options.put, stop)
-            time.sleep(1.0)  # answers to the last queries, if any come
+            time.sleep(2 * QUERY_SECONDS)  # the last queries answered, or timed out
         finally:
             session.close()
-        print(f"sent {asker.sent} answered {asker.answered} refused {asker.refused}", flush=True)
+        counts = f"sent {asker.sent} answered {asker.answered} refused {asker.refused}"
+        print(f"{counts} timed-out {asker.timed_out}", flush=True)
         return
     put = 0
     try:
