@@ -299,8 +299,8 @@ def _payload(query: zenoh.Query) -> bytes | None:
     """The query's bytes, refused by their size before they are copied out of Zenoh."""
     if query.payload is None:
         return None
-    if len(query.payload) > MAX_MESSAGE_BYTES:
-        size = len(query.payload)
+    size = len(query.payload)
+    if size > MAX_MESSAGE_BYTES:
         raise BadMessage(f"{size} bytes, over the limit of {MAX_MESSAGE_BYTES}: not read")
     return query.payload.to_bytes()
 
