@@ -39,8 +39,12 @@ or lost on the way, is one the study never received: its record stands in for it
 silent holder's, and its worker is not blamed (docs/security.md, "Junk on a study's keys"). Without
 `keep_logs` no result brings a log, and the client asks for none (a log simulated again is fetched
 too): results then come on a session of their own that takes no message larger than a Result
-(MAX_RESULT_BYTES), so Zenoh drops a big sample on the way instead of reassembling it. Everything
-else (queries, logs fetched, models served, tokens) goes on the main session.
+(MAX_RESULT_BYTES), so Zenoh drops a big sample on the way instead of reassembling it. With
+`keep_logs` they come on a session of their own that takes a result with the largest log. The main
+session (queries to the broker, models served, tokens) takes no message larger than a wire
+message either, so a big query on the model key is dropped on the way too; fetched logs come on a
+session that serves nothing and takes big bytes only as answers to its own queries (docs/
+security.md, "Junk on every key").
 
 On a local farm (`own_workers`: the names of the workers it started) a result the broker took from
 any other worker is refused and its job runs again on the farm's own. A worker that refuses a job
@@ -73,7 +77,12 @@ from gainfarm.analytic.evaluators.evaluator import (
 from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.edges.ask import ask
 from gainfarm.edges.files import write_atomically
-from gainfarm.edges.transport import open_session, token_held
+from gainfarm.edges.transport import (
+    LOG_SESSION_BYTES,
+    SERVING_SESSION_BYTES,
+    open_session,
+    token_held,
+)
 from gainfarm.plugins import PluginError
 from gainfarm.schemas import keys
 from gainfarm.schemas.episode import EpisodeSpec, Scores
@@ -116,12 +125,12 @@ SILENT_BATCH = 200
 MAX_HELD_BYTES = MAX_EPISODE_BYTES
 # The largest message the client's session takes in: a result with the largest log (or a fetched
 # log). Zenoh reassembles a sample before any callback sees it, and drops a larger one on the way.
-MAX_RECEIVED_BYTES = MAX_EPISODE_BYTES + MAX_MESSAGE_BYTES
+MAX_RECEIVED_BYTES = LOG_SESSION_BYTES
 # Without logs a result is its attachment (a Result, at most MAX_MESSAGE_BYTES) and an empty
 # payload: Zenoh counts the whole message (key, headers, attachment, payload), hence the margin.
 # Results then come on a session of their own that takes no more: Zenoh drops a larger sample
 # after its first MAX_RESULT_BYTES instead of reassembling it (docs/security.md).
-MAX_RESULT_BYTES = MAX_MESSAGE_BYTES + 64 * 1024
+MAX_RESULT_BYTES = SERVING_SESSION_BYTES
 # How long the result the broker took for a job may take to reach us after the broker said so
 # (a worker hands its result in, then puts it; a log of megabytes takes a while); then the
 # broker's record stands in for it, or the job runs again.
@@ -225,16 +234,22 @@ class FarmClient:
         # that lacks a plug-in gets no more jobs that need it.
         self._refused_by: dict[tuple[str, ...], set[str]] = {}
         self._inbox: queue.SimpleQueue[_Arrival | str] = queue.SimpleQueue()
+        self._connect, self._identity = list(connect), identity  # for the fetch session
+        # Serves (the model key, tokens) and asks the broker, whose answers fit in a wire message.
         self.session = open_session(
-            "client", connect=connect, identity=identity, max_message_bytes=MAX_RECEIVED_BYTES
+            "client", connect=connect, identity=identity, max_message_bytes=SERVING_SESSION_BYTES
         )
         # Where results come: without logs, a session that drops any larger sample unread.
         self._results_session = self.session
+        # Where fetched logs come (opened at the first fetch): a session that serves nothing.
+        self._fetch_session: zenoh.Session | None = None
         try:
-            if not keep_logs:
-                self._results_session = open_session(
-                    "client", connect=connect, identity=identity, max_message_bytes=MAX_RESULT_BYTES
-                )
+            results_bytes = MAX_RECEIVED_BYTES if keep_logs else MAX_RESULT_BYTES
+            self._results_session = open_session(
+                "client", connect=connect, identity=identity, max_message_bytes=results_bytes
+            )
+            if keep_logs:  # it takes a log with a result: a fetched log too
+                self._fetch_session = self._results_session
             self._open_study(connect)
         except BaseException:
             self.close()
@@ -247,8 +262,8 @@ class FarmClient:
         self.close()
 
     def close(self) -> None:
-        for session in (self.session, self._results_session):
-            if not session.is_closed():
+        for session in (self.session, self._results_session, self._fetch_session):
+            if session is not None and not session.is_closed():
                 session.close()  # undeclares the token: the broker drops what is still queued
 
     @property
@@ -445,7 +460,7 @@ class FarmClient:
         for holder in want.holders:
             try:
                 key = keys.log(self.study, holder, want.digest)
-                replies = self.session.get(key, timeout=ANSWER_SECONDS)
+                replies = self._fetching().get(key, timeout=ANSWER_SECONDS)
             except zenoh.ZError as error:  # e.g. an empty or bad holder name
                 log.warning("cannot ask %r for a log: %s", holder, error)
                 continue
@@ -459,6 +474,18 @@ class FarmClient:
                     return content, holder
                 log.warning("ignored a log on %s: its bytes are not the ones the broker took", key)
         return None, ""
+
+    def _fetching(self) -> zenoh.Session:
+        """The session logs are fetched on: it takes a message as large as the largest log
+        (MAX_RECEIVED_BYTES), and declares nothing anyone may put to or ask of it."""
+        if self._fetch_session is None:
+            self._fetch_session = open_session(
+                "client",
+                connect=self._connect,
+                identity=self._identity,
+                max_message_bytes=MAX_RECEIVED_BYTES,
+            )
+        return self._fetch_session
 
     def _simulate_again(self, again: Mapping[str, Wanted]) -> dict[str, Fetched]:
         """Run these jobs again, as `<job id>-k<n>`, their logs taken as this client takes them:
