@@ -27,6 +27,7 @@ from gainfarm.analytic.tuning.check import CheckPlan, read_check, run_check
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import CONFIG_JSON, REPORT_MD
 from gainfarm.analytic.tuning.run import RunProgress, TuningRun
+from gainfarm.cli import interrupts
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import NAME_PATTERN, describe
@@ -206,12 +207,15 @@ def tune_run(
             figures.finish(run)
             return run.state.stopped or ""
     except BaseException as error:
+        # What a Ctrl-C or SIGTERM broke on its way out (a KeyboardInterrupt that a C extension's
+        # call turned into an error of its own) is the stop's doing: the run is as resumable.
+        stopped = isinstance(error, KeyboardInterrupt) or interrupts.INTERRUPTED.is_set()
         if not begun and forget is not None:  # nothing of a new run ran: nothing of it is left
             forget()
-            if isinstance(error, KeyboardInterrupt):
+            if stopped:
                 raise TuningInterrupted(None) from None
             raise
-        if isinstance(error, KeyboardInterrupt):
+        if stopped:
             if stage == "evolution" and run.saved_stopped:  # stopped, then its front validated
                 stage = "validation"
             raise TuningInterrupted(run, stage) from None
@@ -357,6 +361,8 @@ def _evaluator(
                     # keep="front": the workers keep the logs, and the front's are fetched.
                     keep_logs=run.config.keep == "all",
                     trusted=not connect,  # a local farm of this process's own workers
+                    # ... and none other: a result from any other worker is refused
+                    own_workers=None if connect or farm is None else farm.names,
                 )
             )
         except (ValueError, ConnectionError) as error:

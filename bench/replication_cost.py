@@ -4,13 +4,14 @@
                                      [--seed 0]
 
 The default run's configuration (`analytic start`: a 5 s spiral, the given population) is tuned
-three times on each local farm of `--workers` workers, connected to as a farm (so refereed):
-not validated (`--no-replicate`), the front alone refereed (`--spot-checks 0`), and the default
-(the front, and spot checks at 0.05). Printed for each: evaluations, the episodes the referee ran
-again (the front's, the spot checks') as a share of the run's, its time per evaluation against
-the workers' (simulating and encoding each episode), disagreements, wall time and its ratio to
-the unvalidated run's. Every run must reach the same front: an honest farm agrees with the
-referee bit for bit, so validation changes what a run costs, never what it finds.
+three times on each local farm of `--workers` workers, connected to as a farm (so refereed): not
+validated (`--no-replicate`), the front alone refereed (`--spot-checks 0`), and the front with spot
+checks at 0.05 (the former default; the default now sizes the rate: docs/security.md). Printed for
+each: evaluations, the episodes the referee ran again (the front's, the spot checks') as a share of
+the run's, its time per evaluation against the workers' (simulating and encoding each episode),
+disagreements, wall time and its ratio to the unvalidated run's. Every run must reach the same
+front: an honest farm agrees with the referee bit for bit, so validation changes what a run costs,
+never what it finds.
 """
 
 import tempfile
@@ -28,7 +29,7 @@ from gainfarm.analytic.tuning.run import TuningRun
 SETTINGS = {
     "not validated": {"replicate": False},
     "front only": {"spot_checks": 0.0},
-    "front and spot checks": {},
+    "front and spot checks": {"spot_checks": 0.05},
 }
 
 

@@ -24,11 +24,12 @@ from gainfarm.broker.queue import (
     LeaseQueue,
     UnknownStudy,
 )
-from gainfarm.edges.transport import open_session
+from gainfarm.edges.transport import LOG_SESSION_BYTES, open_session
 from gainfarm.schemas import keys
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.wire import (
     LEASE_HOLD_SECONDS,
+    MAX_MESSAGE_BYTES,
     BadMessage,
     BrokerStatus,
     ConfirmReply,
@@ -94,7 +95,10 @@ class Broker:
         self._lock = threading.Lock()
         self._held: deque[tuple[float, str, zenoh.Query]] = deque()  # by deadline: hold is fixed
         self._closed = threading.Event()
-        self.session = open_session("router", listen=listen, identity=identity)
+        # The router forwards episode logs (with results, or fetched): it must take the largest.
+        self.session = open_session(
+            "router", listen=listen, identity=identity, max_message_bytes=LOG_SESSION_BYTES
+        )
         liveliness = self.session.liveliness()
         self._entities = [
             liveliness.declare_subscriber(keys.ALIVE_STUDIES, self._on_study_token, history=True),
@@ -292,7 +296,13 @@ class Broker:
 
 
 def _payload(query: zenoh.Query) -> bytes | None:
-    return query.payload.to_bytes() if query.payload is not None else None
+    """The query's bytes, refused by their size before they are copied out of Zenoh."""
+    if query.payload is None:
+        return None
+    size = len(query.payload)
+    if size > MAX_MESSAGE_BYTES:
+        raise BadMessage(f"{size} bytes, over the limit of {MAX_MESSAGE_BYTES}: not read")
+    return query.payload.to_bytes()
 
 
 def _check_named(query: zenoh.Query, name: str, what: str) -> None:

@@ -9,6 +9,11 @@ the worker's `threads`.
 The episode log goes along with the result only when the job asks for it (Job.keep_log);
 otherwise the worker keeps the log in memory (a LogStore, bounded: the least recently used go
 first) and serves it by its digest, to the study whose job made it, on keys.log.
+
+Its session serves (the log queryable, the token) and takes in no message larger than a wire
+message (SERVING_SESSION_BYTES): a big query on its log keys is dropped by Zenoh on the way. A
+model, which may be larger, is fetched on a session of its own that lives for the fetch and
+serves nothing (docs/security.md, "Junk on every key").
 """
 
 import contextlib
@@ -21,7 +26,7 @@ from dataclasses import dataclass
 import zenoh
 
 from gainfarm.edges.ask import ask
-from gainfarm.edges.transport import open_session, token_held
+from gainfarm.edges.transport import SERVING_SESSION_BYTES, open_session, token_held
 from gainfarm.models.dynamics import MAX_FILE_BYTES, DynamicsModel, digest
 from gainfarm.schemas import keys
 from gainfarm.schemas.security import TlsIdentity
@@ -49,6 +54,8 @@ ANSWER_SECONDS = 10.0  # how long a study has to answer a model fetch
 # of some 8 episodes per thread (where stepping them together has paid most of what it pays).
 BATCH_SECONDS = 1.0
 LOG_MEMORY = 512 * 2**20  # bytes of kept episode logs: some 20 of 120 s, hundreds of short ones
+# The largest message a model fetch takes in: the largest model file and room for the headers.
+MODEL_SESSION_BYTES = MAX_FILE_BYTES + 64 * 1024
 
 
 class NameTaken(RuntimeError):
@@ -65,10 +72,28 @@ class HandIn:
     give_up: float  # monotonic time its lease expires: a result the broker never took is dropped
 
 
-def fetch_model(session: zenoh.Session, study: str, wanted: str) -> bytes | None:
+def fetch_model(
+    connect: Sequence[str], identity: TlsIdentity | None, study: str, wanted: str
+) -> bytes | None:
     """The bytes of the model hashing to `wanted`, from whoever serves them, or None. The
     content hash is the trust: unlike the broker's answers, these may come from any process,
-    and bytes that hash to anything else (or are too large to be a model) are ignored."""
+    and bytes that hash to anything else (or are too large to be a model) are ignored. Asked on
+    a session of its own that takes in no message larger than a model (MODEL_SESSION_BYTES) and
+    declares nothing: big bytes reach it only as answers to this one query."""
+    try:
+        session = open_session(
+            "client", connect=connect, identity=identity, max_message_bytes=MODEL_SESSION_BYTES
+        )
+    except ConnectionError as error:
+        log.warning("cannot fetch model %s: %s", wanted[:12], error)
+        return None
+    try:
+        return _model_from(session, study, wanted)
+    finally:
+        session.close()
+
+
+def _model_from(session: zenoh.Session, study: str, wanted: str) -> bytes | None:
     key = keys.model(study, wanted)
     replies = session.get(
         key,
@@ -118,7 +143,10 @@ class CobotWorker:
         self._job_seconds: float | None = None  # a recent job's share of its batch's wall time
         self.jobs_done = 0
         self.refused = 0  # results the broker did not take (e.g. the lease had gone elsewhere)
-        self.session = open_session("client", connect=connect, identity=identity)
+        self._connect, self._identity = list(connect), identity  # for model fetches
+        self.session = open_session(
+            "client", connect=connect, identity=identity, max_message_bytes=SERVING_SESSION_BYTES
+        )
         try:
             if token_held(self.session, keys.alive_worker(name)):
                 raise NameTaken(f"a worker named {name!r} is already connected to this farm")
@@ -304,7 +332,8 @@ class CobotWorker:
 
         def model(wanted: str) -> DynamicsModel:
             return self.models.model(
-                wanted, lambda _: fetch_model(self.session, lease.study, wanted)
+                wanted,
+                lambda _: fetch_model(self._connect, self._identity, lease.study, wanted),
             )
 
         return model

@@ -14,10 +14,10 @@ import click
 from gainfarm.analytic.commands.shared import (
     check_farm,
     config_problem,
-    farm,
     farm_options,
     farm_problem,
     followable,
+    own_farm,
     pop_option,
     refuse_under_a_file,
     study_name,
@@ -238,7 +238,7 @@ def _run(
 
     try:
         with (
-            farm(connect, workers) as endpoints,
+            own_farm(connect, workers) as (endpoints, own_workers),
             Display(console, hushed=interrupts.INTERRUPTED.is_set) as display,
         ):
             display.show(spec.name)
@@ -254,6 +254,7 @@ def _run(
                     identity=identity,
                     keep_logs=False,
                     trusted=not connect,  # a local farm of this process's own workers
+                    own_workers=own_workers,  # ... and none other
                 ),
                 progress,
                 parallel=parallel_runs,

@@ -238,7 +238,7 @@ def check_farm(
     if connect and local:
         raise CliError("--connect and --local exclude each other")
     if tls is not None and not connect:
-        raise CliError("--tls needs --connect: a local farm runs on loopback, unsecured")
+        raise CliError("--tls needs --connect: a local farm is this user's alone, without TLS")
     if participant is not None and tls is None:
         raise CliError("--as needs --tls: a participant is a secure farm's identity")
     return options.identity(tls, "analytic", participant)
@@ -256,18 +256,29 @@ def study_name(directory: Path, identity: "TlsIdentity | None") -> str:
 def farm(connect: tuple[str, ...], workers: int | None) -> Iterator[list[str]]:
     """The endpoints to use: the given broker's, or else a local farm's (a local farm that
     cannot start is one line; what goes wrong later in the block is not relabelled)."""
+    with own_farm(connect, workers) as (endpoints, _):
+        yield endpoints
+
+
+@contextlib.contextmanager
+def own_farm(
+    connect: tuple[str, ...], workers: int | None
+) -> Iterator[tuple[list[str], frozenset[str] | None]]:
+    """As `farm`, with the names of a local farm's workers (None with --connect): the only
+    workers whose results a client of it takes (FarmClient's `own_workers`)."""
     if connect:
-        yield list(connect)
+        yield list(connect), None
         return
     from gainfarm.analytic.evaluators.farm import FarmUnavailable
-    from gainfarm.analytic.evaluators.local import local_farm
+    from gainfarm.analytic.evaluators.local import LocalFarm
 
     with contextlib.ExitStack() as stack:
         try:
-            endpoint = stack.enter_context(local_farm(workers))
+            local = stack.enter_context(LocalFarm(workers))
+            endpoint = local.ready()
         except (ValueError, ConnectionError, FarmUnavailable) as error:
             raise CliError(f"local farm: {error}") from None
-        yield [endpoint]
+        yield [endpoint], frozenset(local.names)
 
 
 @contextlib.contextmanager
@@ -436,11 +447,15 @@ def run_with_progress(
         )
     click.echo(stopped_text(run.state.stopped or ""), err=True)
     ledger = run.replication
-    if ledger.refereed or ledger.spot_checked:
+    defaults = ledger.baseline + ledger.held_out
+    if ledger.refereed or ledger.spot_checked or ledger.failures_checked or defaults:
+        rate = f" (rate {run.state.spot_rate:.3g})" if run.state.spot_rate else ""
         click.echo(
-            f"front validated: {counted(ledger.refereed, 'episode')} and "
-            f"{counted(ledger.spot_checked, 'spot check')} "
-            f"rerun here in {ledger.seconds:.1f} s, {ledger.disagreements} disagreed"
+            f"validation: {counted(ledger.refereed, 'front episode')}, "
+            f"{counted(ledger.spot_checked, 'spot check')}{rate}, "
+            f"{counted(ledger.failures_checked, 'claimed failure')} and {defaults} baseline and "
+            f"held-out check episodes rerun here in "
+            f"{ledger.seconds:.1f} s, {ledger.disagreements} disagreed"
             + (f", {ledger.unsettled} could not be rerun (failed)" if ledger.unsettled else "")
             + (f"; distrusted: {', '.join(sorted(ledger.dissenters))}" if ledger.dissenters else "")
             + (

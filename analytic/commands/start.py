@@ -117,11 +117,12 @@ if TYPE_CHECKING:
     "--spot-checks",
     type=click.FloatRange(0, 1),
     default=defaults.SPOT_CHECKS,
-    show_default=True,
     metavar="RATE",
     help="on a farm, with --replicate: the share of every worker's episodes, drawn at random "
     "as they return, that this process also reruns (a worker lying about episodes that never "
-    "reach the front is caught too)",
+    "reach the front is caught too); 0: none. Default: sized as the run starts so that a "
+    "worker lying on a tenth of its share of the run's episodes is caught with probability "
+    "0.99",
 )
 @click.option(
     "--balance/--no-balance",
@@ -166,7 +167,7 @@ def start(
     torque_measure: str,
     objective_scaling: str,
     replicate: bool,
-    spot_checks: float,
+    spot_checks: float | None,
     balance: bool,
 ) -> None:
     """Tune the 14 PD gains with NSGA-II (or --algorithm) on the farm: maximise accuracy,

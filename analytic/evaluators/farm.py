@@ -39,8 +39,18 @@ or lost on the way, is one the study never received: its record stands in for it
 silent holder's, and its worker is not blamed (docs/security.md, "Junk on a study's keys"). Without
 `keep_logs` no result brings a log, and the client asks for none (a log simulated again is fetched
 too): results then come on a session of their own that takes no message larger than a Result
-(MAX_RESULT_BYTES), so Zenoh drops a big sample on the way instead of reassembling it. Everything
-else (queries, logs fetched, models served, tokens) goes on the main session.
+(MAX_RESULT_BYTES), so Zenoh drops a big sample on the way instead of reassembling it. With
+`keep_logs` they come on a session of their own that takes a result with the largest log. The main
+session (queries to the broker, models served, tokens) takes no message larger than a wire
+message either, so a big query on the model key is dropped on the way too; fetched logs come on a
+session that serves nothing and takes big bytes only as answers to its own queries (docs/
+security.md, "Junk on every key").
+
+On a local farm (`own_workers`: the names of the workers it started) a result the broker took from
+any other worker is refused and its job runs again on the farm's own. A worker that refuses a job
+(it lacks a plug-in the job names) is no verdict on the run: the job runs elsewhere, and the run
+stops (PluginError) only when no worker connected that has not refused it is left, or this process
+lacks the plug-in too.
 """
 
 import hashlib
@@ -49,12 +59,13 @@ import queue
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import zenoh
 
+from gainfarm import plugins
 from gainfarm.analytic.evaluators.evaluator import (
     EpisodeResult,
     EpisodeStatus,
@@ -66,7 +77,12 @@ from gainfarm.analytic.evaluators.evaluator import (
 from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.edges.ask import ask
 from gainfarm.edges.files import write_atomically
-from gainfarm.edges.transport import open_session, token_held
+from gainfarm.edges.transport import (
+    LOG_SESSION_BYTES,
+    SERVING_SESSION_BYTES,
+    open_session,
+    token_held,
+)
 from gainfarm.plugins import PluginError
 from gainfarm.schemas import keys
 from gainfarm.schemas.episode import EpisodeSpec, Scores
@@ -109,12 +125,12 @@ SILENT_BATCH = 200
 MAX_HELD_BYTES = MAX_EPISODE_BYTES
 # The largest message the client's session takes in: a result with the largest log (or a fetched
 # log). Zenoh reassembles a sample before any callback sees it, and drops a larger one on the way.
-MAX_RECEIVED_BYTES = MAX_EPISODE_BYTES + MAX_MESSAGE_BYTES
+MAX_RECEIVED_BYTES = LOG_SESSION_BYTES
 # Without logs a result is its attachment (a Result, at most MAX_MESSAGE_BYTES) and an empty
 # payload: Zenoh counts the whole message (key, headers, attachment, payload), hence the margin.
 # Results then come on a session of their own that takes no more: Zenoh drops a larger sample
 # after its first MAX_RESULT_BYTES instead of reassembling it (docs/security.md).
-MAX_RESULT_BYTES = MAX_MESSAGE_BYTES + 64 * 1024
+MAX_RESULT_BYTES = SERVING_SESSION_BYTES
 # How long the result the broker took for a job may take to reach us after the broker said so
 # (a worker hands its result in, then puts it; a log of megabytes takes a while); then the
 # broker's record stands in for it, or the job runs again.
@@ -168,6 +184,7 @@ class FarmClient:
         read_log: ReadLog = accept_log,
         trusted: bool = False,
         max_held_bytes: int = MAX_HELD_BYTES,
+        own_workers: Collection[str] | None = None,
     ):
         """`models`: the feed-forward models (file bytes by SHA-256) the study's jobs may name;
         the client serves them to the workers that ask. `keep_logs`: every job's log comes with
@@ -176,7 +193,9 @@ class FarmClient:
         `read_log` checks, keeps and scores a log (another only for simulated workers, whose
         "logs" are not episodes: bench/campaign.py --simulated). `trusted`: the farm's workers are
         this process's own (a local farm started for it), so a run has nothing to referee.
-        `max_held_bytes`: the bytes of results held before the broker confirms them."""
+        `max_held_bytes`: the bytes of results held before the broker confirms them.
+        `own_workers`: the names of the workers of a local farm started for this client; a
+        result from any other worker is refused, and the job runs again on these (`strangers`)."""
         Submission(study=study, jobs=[])  # validates the name before it becomes a key
         self.study = study
         self.trusted = trusted
@@ -209,17 +228,28 @@ class FarmClient:
         self._drops_logged = 0.0
         self._distrusted: set[str] = set()
         self._unheard_from: set[str] = set()
+        self.own_workers = None if own_workers is None else frozenset(own_workers)
+        self._strangers: set[str] = set()
+        # Who refused jobs needing what (a trajectory kind and objectives: `_needs`): a worker
+        # that lacks a plug-in gets no more jobs that need it.
+        self._refused_by: dict[tuple[str, ...], set[str]] = {}
         self._inbox: queue.SimpleQueue[_Arrival | str] = queue.SimpleQueue()
+        self._connect, self._identity = list(connect), identity  # for the fetch session
+        # Serves (the model key, tokens) and asks the broker, whose answers fit in a wire message.
         self.session = open_session(
-            "client", connect=connect, identity=identity, max_message_bytes=MAX_RECEIVED_BYTES
+            "client", connect=connect, identity=identity, max_message_bytes=SERVING_SESSION_BYTES
         )
         # Where results come: without logs, a session that drops any larger sample unread.
         self._results_session = self.session
+        # Where fetched logs come (opened at the first fetch): a session that serves nothing.
+        self._fetch_session: zenoh.Session | None = None
         try:
-            if not keep_logs:
-                self._results_session = open_session(
-                    "client", connect=connect, identity=identity, max_message_bytes=MAX_RESULT_BYTES
-                )
+            results_bytes = MAX_RECEIVED_BYTES if keep_logs else MAX_RESULT_BYTES
+            self._results_session = open_session(
+                "client", connect=connect, identity=identity, max_message_bytes=results_bytes
+            )
+            if keep_logs:  # it takes a log with a result: a fetched log too
+                self._fetch_session = self._results_session
             self._open_study(connect)
         except BaseException:
             self.close()
@@ -232,8 +262,8 @@ class FarmClient:
         self.close()
 
     def close(self) -> None:
-        for session in (self.session, self._results_session):
-            if not session.is_closed():
+        for session in (self.session, self._results_session, self._fetch_session):
+            if session is not None and not session.is_closed():
                 session.close()  # undeclares the token: the broker drops what is still queued
 
     @property
@@ -258,9 +288,19 @@ class FarmClient:
             status = self.status()
         except (BrokerUnavailable, BadMessage):
             return 1
-        barred = self._distrusted | self._unheard_from
+        return self._able(status, self._barred())
+
+    def _barred(self) -> set[str]:
+        """The workers given none of this study's jobs."""
+        return self._distrusted | self._unheard_from | self._strangers
+
+    def _able(self, status: BrokerStatus, barred: set[str]) -> int:
+        """How many workers connected now are not `barred` (and are this client's own, if it
+        has `own_workers`): by name where the status lists them all, else by count."""
         names = {worker.name for worker in status.workers}
         if len(names) == status.worker_count:
+            if self.own_workers is not None:
+                names &= self.own_workers
             return len(names - barred)
         return max(status.worker_count - len(barred), 0)
 
@@ -306,6 +346,12 @@ class FarmClient:
         """The workers given none of this study's jobs: named by `distrust`, or caught here
         claiming scores their logs do not have."""
         return frozenset(self._distrusted)
+
+    @property
+    def strangers(self) -> frozenset[str]:
+        """The workers outside `own_workers` whose results came (and were refused): given none of
+        this study's jobs."""
+        return frozenset(self._strangers)
 
     @property
     def unheard_from(self) -> frozenset[str]:
@@ -414,7 +460,7 @@ class FarmClient:
         for holder in want.holders:
             try:
                 key = keys.log(self.study, holder, want.digest)
-                replies = self.session.get(key, timeout=ANSWER_SECONDS)
+                replies = self._fetching().get(key, timeout=ANSWER_SECONDS)
             except zenoh.ZError as error:  # e.g. an empty or bad holder name
                 log.warning("cannot ask %r for a log: %s", holder, error)
                 continue
@@ -428,6 +474,18 @@ class FarmClient:
                     return content, holder
                 log.warning("ignored a log on %s: its bytes are not the ones the broker took", key)
         return None, ""
+
+    def _fetching(self) -> zenoh.Session:
+        """The session logs are fetched on: it takes a message as large as the largest log
+        (MAX_RECEIVED_BYTES), and declares nothing anyone may put to or ask of it."""
+        if self._fetch_session is None:
+            self._fetch_session = open_session(
+                "client",
+                connect=self._connect,
+                identity=self._identity,
+                max_message_bytes=MAX_RECEIVED_BYTES,
+            )
+        return self._fetch_session
 
     def _simulate_again(self, again: Mapping[str, Wanted]) -> dict[str, Fetched]:
         """Run these jobs again, as `<job id>-k<n>`, their logs taken as this client takes them:
@@ -581,7 +639,8 @@ class FarmClient:
 
     def _job(self, job_id: str) -> Job:
         pending = self._pending[job_id]
-        avoid = sorted({*pending.avoid, *self._distrusted, *self._unheard_from})
+        refusers = self._refused_by.get(_needs(pending.spec), set())
+        avoid = sorted({*pending.avoid, *self._barred(), *refusers})
         return Job(job_id=job_id, spec=pending.spec, avoid=avoid, keep_log=pending.keep_log)
 
     def _on_model_query(self, query: zenoh.Query) -> None:
@@ -766,6 +825,8 @@ class FarmClient:
         record has no scores, runs again elsewhere (None). Unless this client dropped the result
         itself (its budget was full: `max_held_bytes`), its worker is left out (`_leave_out`)."""
         pending = self._pending[accepted.job_id]
+        if self._stranger(accepted.worker):
+            return self._turn_away(accepted.job_id, accepted.worker, pending)
         blamed = not pending.dropped_here
         if blamed:
             self.unheard += 1
@@ -813,7 +874,7 @@ class FarmClient:
             connected = self.status().worker_count
         except (BrokerUnavailable, BadMessage):
             return
-        if connected > len(self._distrusted | self._unheard_from | {worker}):
+        if connected > len(self._barred() | {worker}):
             self._unheard_from.add(worker)
             log.warning("%s gets no more of this study's jobs: its results do not come", worker)
 
@@ -906,9 +967,10 @@ class FarmClient:
             timings=result.timings,
             reason=result.reason,
         )
-        if result.status == JobStatus.refused:  # the farm lacks a plug-in: say so, and stop
-            reason = f"worker {result.worker} refused job {result.job_id}: {result.reason}"
-            raise PluginError(reason)
+        if self._stranger(result.worker):
+            return self._turn_away(result.job_id, result.worker, pending)
+        if result.status == JobStatus.refused:  # the worker lacks a plug-in
+            return self._refused(result, pending)
         if result.status == JobStatus.failed:
             del self._pending[result.job_id]
             return EpisodeResult(
@@ -945,6 +1007,50 @@ class FarmClient:
         del self._pending[result.job_id]
         return EpisodeResult(**ran, scores=scores, log=path)
 
+    def _stranger(self, worker: str) -> bool:
+        """Whether `worker` is not one this client's local farm started."""
+        return self.own_workers is not None and worker not in self.own_workers
+
+    def _turn_away(self, job_id: str, worker: str, pending: _Pending) -> None:
+        """Refuse a result from a worker this client's local farm did not start (said once per
+        worker): the job runs again on the farm's own, no attempt spent (a stranger cannot use
+        them up), and the stranger gets none of the study's jobs."""
+        if worker not in self._strangers:
+            self._strangers.add(worker)
+            why = "which this local farm did not start: refused"
+            log.warning("result from worker %s, %s", worker, why)
+        pending.avoid = tuple(sorted({*pending.avoid, worker}))
+        self._resend(job_id, pending)
+
+    def _refused(self, result: Result, pending: _Pending) -> None:
+        """A worker refused the job, lacking a plug-in it needs: not the job's outcome while
+        another worker may run it. PluginError, naming the worker and the plug-in, if this
+        process lacks it too, or no worker connected that has not refused it is left."""
+        reason = f"worker {result.worker} refused job {result.job_id}: {result.reason}"
+        self._refused_by.setdefault(_needs(pending.spec), set()).add(result.worker)
+        pending.avoid = tuple(sorted({*pending.avoid, result.worker}))
+        if _lacked_here(pending.spec) or not self._others_for(pending):
+            raise PluginError(reason)
+        log.warning("%s; running it on another worker", reason)
+        self._resend(result.job_id, pending)
+
+    def _others_for(self, pending: _Pending) -> bool:
+        """Whether a worker connected now may run the job: not avoided by it, nor barred. A
+        broker that does not answer is no verdict: taken as yes (the job waits for it)."""
+        try:
+            status = self.status()
+        except (BrokerUnavailable, BadMessage):
+            return True
+        refusers = self._refused_by.get(_needs(pending.spec), set())
+        return self._able(status, {*self._barred(), *pending.avoid, *refusers}) > 0
+
+    def _resend(self, job_id: str, pending: _Pending) -> None:
+        """Submit the job again, avoiding whom it now avoids. The broker may not have closed
+        the lease yet and answer "already pending": look again soon, not after a deadline."""
+        still_pending = self._send([self._job(job_id)])
+        wait = RECHECK_SECONDS if job_id in still_pending else self.deadline
+        pending.deadline = time.monotonic() + wait
+
     def _run_again(
         self, job_id: str, worker: str, pending: _Pending, reason: str
     ) -> EpisodeResult | None:
@@ -955,11 +1061,7 @@ class FarmClient:
             del self._pending[job_id]
             return self._failed(job_id, pending, f"{reason} (attempt {pending.attempts})")
         pending.attempts += 1
-        # The broker may not have closed the damaged lease yet and answer "already pending":
-        # look again soon rather than after a whole deadline.
-        still_pending = self._send([self._job(job_id)])
-        wait = RECHECK_SECONDS if job_id in still_pending else self.deadline
-        pending.deadline = time.monotonic() + wait
+        self._resend(job_id, pending)
         return None
 
     def _failed(
@@ -991,3 +1093,18 @@ def _matches(result: Result, accepted: Accepted) -> bool:
         accepted.digest,
         accepted.scores,
     )
+
+
+def _needs(spec: EpisodeSpec) -> tuple[str, ...]:
+    """The plug-ins a job needs by name: its trajectory kind, then its objectives."""
+    return (spec.trajectory.kind, *spec.objectives)
+
+
+def _lacked_here(spec: EpisodeSpec) -> bool:
+    """Whether this process lacks a plug-in the job needs (cannot load it either)."""
+    try:
+        plugins.load(plugins.TRAJECTORIES, spec.trajectory.kind)
+        plugins.load_plugins(plugins.OBJECTIVES, spec.objectives)
+    except PluginError:
+        return True
+    return False

@@ -12,8 +12,14 @@ analytic starts (below).
 
 The broker runs in a process of its own, not in this one: routing and scheduling every job took
 about a third of the analytic process's CPU per evaluation (bench/analytic_cost.py), on the core
-the run's own loop needs. Everything listens on loopback, on a port the kernel picked as free,
-so nothing collides with a real farm on 7447.
+the run's own loop needs.
+
+Only this user's processes can reach the farm: its broker listens on a Unix socket in a directory
+made for it, mode 0700 (the kernel refuses anyone else a connect() through it), and on no TCP
+port, so nothing collides with a real farm on 7447 either. The directory goes when the farm stops.
+The analytic side also takes results only from the workers the farm started (`names`, given to
+FarmClient as `own_workers`): another process of this user that finds the socket and joins is
+turned away by name (docs/security.md, "The local farm").
 
 The broker and the workers start together (a worker imports for a second or more before it
 connects, and the broker listens well before that; one that finds it not yet listening tries
@@ -24,9 +30,12 @@ a local run's first 5 s.
 
 import contextlib
 import os
+import secrets
+import shutil
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Iterator, Sequence
@@ -34,6 +43,27 @@ from collections.abc import Iterator, Sequence
 STOP_SECONDS = 15.0  # a worker finishes its episode before leaving; longer than that is a hang
 # A worker imports MuJoCo and Zenoh before it joins: a few seconds on a loaded machine.
 READY_SECONDS = 120.0
+SOCKET = "broker.sock"  # the broker's socket, in the farm's own directory
+# A Unix socket's path has room for 107 bytes (sun_path); a TMPDIR deeper than that leaves none.
+SOCKET_PATH_BYTES = 100
+
+
+def private_endpoint() -> tuple[str, str]:
+    """A Unix-socket endpoint in a new directory of mode 0700 (tempfile.mkdtemp), and that
+    directory: only this user (and root) may connect to a socket in it. In /tmp if TMPDIR is too
+    deep for a socket's path."""
+    directory = tempfile.mkdtemp(prefix="gainfarm-farm-")
+    if len(os.fsencode(os.path.join(directory, SOCKET))) > SOCKET_PATH_BYTES:
+        os.rmdir(directory)
+        directory = tempfile.mkdtemp(prefix="gainfarm-farm-", dir="/tmp")
+    return f"unixsock-stream/{os.path.join(directory, SOCKET)}", directory
+
+
+def worker_names(count: int) -> tuple[str, ...]:
+    """`local-N-SUFFIX`, SUFFIX random per farm: a process that has not read this one's command
+    line cannot pose as one of its workers by guessing a name (`local-0`)."""
+    suffix = secrets.token_hex(4)
+    return tuple(f"local-{index}-{suffix}" for index in range(count))
 
 
 def free_port() -> int:
@@ -96,9 +126,10 @@ def spawn_broker(endpoint: str, *options: str, log_level: str = "warning") -> su
 
 
 def _await(
-    endpoint: str, broker: subprocess.Popen, workers: list[subprocess.Popen], joined: bool
+    endpoint: str, broker: subprocess.Popen, workers: dict[str, subprocess.Popen], joined: bool
 ) -> None:
-    """Return once the broker answers, with every one of `workers` joined if `joined`; without,
+    """Return once the broker answers, with every one of `workers` (by name) joined if `joined`
+    (by name: another process's joining does not count for one of them); without,
     a run's first jobs wait in the broker's queue for the workers to join, each asking for one
     job at first (a worker's first batch is one job per thread), so none takes a whole batch
     while the others idle."""
@@ -107,19 +138,20 @@ def _await(
     from gainfarm.schemas.wire import BadMessage
 
     deadline = time.monotonic() + READY_SECONDS
-    wanted = len(workers) if joined else 0
+    wanted = set(workers) if joined else set()
     session = None
     try:
         while True:
             if broker.poll() is not None:
                 raise ConnectionError(f"its broker exited (status {broker.returncode})")
-            if any(process.poll() is not None for process in workers):
+            if any(process.poll() is not None for process in workers.values()):
                 raise ConnectionError("a worker exited before joining")
             if time.monotonic() > deadline:
                 raise ConnectionError(f"its workers did not join in {READY_SECONDS:.0f} s")
             try:  # the broker may not listen yet: nothing to connect to, or no answer
                 session = session or open_session("client", connect=[endpoint])
-                if query_status(session, timeout=1.0).worker_count >= wanted:
+                status = query_status(session, timeout=1.0)
+                if wanted <= {worker.name for worker in status.workers}:
                     return
             except (ConnectionError, BadMessage):
                 pass
@@ -150,21 +182,24 @@ def farm_endpoints(
 class LocalFarm:
     """A broker process and `workers` worker processes (None: one per core), all started at
     once, as the object is made: the broker listens well before a worker has imported what it
-    runs, and a caller that imports and checks meanwhile finds the farm up. Stop it with
-    `stop` (or use it as a context manager)."""
+    runs, and a caller that imports and checks meanwhile finds the farm up. `endpoint`: its
+    broker's Unix socket, in a directory of this user's alone (`private_endpoint`); `names`:
+    its workers'. Stop it with `stop` (or use it as a context manager)."""
 
     def __init__(self, workers: int | None = None, lease_seconds: float = 60.0):
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.endpoint, self.directory = private_endpoint()
         cores = len(os.sched_getaffinity(0))
         count = workers or cores
-        self.broker = spawn_broker(self.endpoint, "--lease-seconds", str(lease_seconds))
+        self.names = worker_names(count)
         self.workers: list[subprocess.Popen] = []
         self._stopping: threading.Thread | None = None
+        self.broker: subprocess.Popen | None = None
         try:
+            self.broker = spawn_broker(self.endpoint, "--lease-seconds", str(lease_seconds))
             threads = str(max(1, cores // count))
-            for index in range(count):
+            for name in self.names:
                 self.workers.append(
-                    spawn_worker(self.endpoint, f"local-{index}", "warning", "--threads", threads)
+                    spawn_worker(self.endpoint, name, "warning", "--threads", threads)
                 )
         except BaseException:
             self.stop()
@@ -179,7 +214,8 @@ class LocalFarm:
     def ready(self, joined: bool = True) -> str:
         """The endpoint to connect to, once the broker answers (and, if `joined`, every worker
         has joined it); ConnectionError if a process exits first, or it takes READY_SECONDS."""
-        _await(self.endpoint, self.broker, self.workers, joined)
+        assert self.broker is not None  # made with the object, or the object was not
+        _await(self.endpoint, self.broker, dict(zip(self.names, self.workers, strict=True)), joined)
         return self.endpoint
 
     def stop(self, wait: bool = True) -> None:
@@ -196,7 +232,10 @@ class LocalFarm:
         try:
             stop_workers(self.workers)
         finally:
-            stop_workers([self.broker])
+            try:
+                stop_workers([self.broker] if self.broker is not None else [])
+            finally:  # its socket and the socket's lock file: nothing of the farm is left
+                shutil.rmtree(self.directory, ignore_errors=True)
 
 
 @contextlib.contextmanager

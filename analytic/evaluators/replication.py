@@ -12,30 +12,36 @@ named, and the evaluator stops giving it this run's jobs; the member takes the r
 scores. An episode the referee cannot run (a plug-in missing here) is left unsettled, and the
 caller must not report it.
 
-Two samples are refereed: the front, before the run reports it, and during the run a share of
-every worker's episodes chosen at random (`spot_checked`: a keyed hash of the job id, so the
-choice is reproducible on resume and unpredictable to a worker, which never learns the key). The
-front catches a worker whose lies flatter; spot checks one whose lies never reach the front (a
-saboteur, claiming worse than it ran): at rate r a worker lying on a share p of its episodes is
-caught within n of them with probability 1 - (1 - r p)^n. The cost is those episodes once more,
-in the analytic's process (bench/replication_cost.py and docs/performance.md measure it).
+What is refereed: the front, before the run reports it; during the run a share of every
+worker's episodes chosen at random (`spot_checked`: a keyed hash of the job id, so the choice is
+reproducible on resume and unpredictable to a worker, which never learns the key), at a rate
+sized for a stated guarantee (`sized_rate`); and every failure a worker claims (`claims_failure`:
+a worker could otherwise sink a good candidate by saying it failed, a claim no score betrays).
+The front catches a worker whose lies flatter; spot checks one whose lies never reach the front (a
+saboteur, claiming worse than it ran). The cost is those episodes once more, in the analytic's
+process (bench/replication_cost.py and docs/performance.md measure it).
 """
 
 import dataclasses
 import hashlib
 import logging
+import math
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-from gainfarm.analytic.evaluators.evaluator import EpisodeResult, Evaluator
+from gainfarm.analytic.evaluators.evaluator import EpisodeResult, EpisodeStatus, Evaluator
 from gainfarm.plugins import PluginError
 from gainfarm.schemas.episode import Scores
 
 log = logging.getLogger("gainfarm.analytic")
 
 REFEREE = "-ref"  # the referee's run of a job: the job's id with this
+# The spot checks' default guarantee: a worker that lies on LIE_SHARE of the episodes it returns
+# is caught with probability at least CONFIDENCE over a run in which it returns its share.
+LIE_SHARE = 0.10
+CONFIDENCE = 0.99
 
 
 @dataclass(frozen=True)
@@ -58,6 +64,9 @@ class Check(StrEnum):
 
     refereed = "refereed"  # a front member's, before the run reported it
     spot_checked = "spot-checked"  # drawn at random as it returned
+    failure_checked = "failure-checked"  # its worker said it failed: run again as it returned
+    baseline = "baseline"  # the default gains' on the run's plants (baseline.json)
+    held_out = "held-out"  # the held-out check's, before its advice (analytic.tuning.check)
 
 
 class Ruling(StrEnum):
@@ -68,6 +77,14 @@ class Ruling(StrEnum):
     unsettled = "unsettled"  # the referee could not run it: it fails
 
 
+# The ledger's count each check adds to (the front's by default).
+COUNTS = {
+    Check.spot_checked: "spot_checked",
+    Check.baseline: "baseline",
+    Check.held_out: "held_out",
+}
+
+
 @dataclass
 class Ledger:
     """What validation cost and found over a run."""
@@ -76,12 +93,16 @@ class Ledger:
     spot_checked: int = 0  # episodes drawn at random as they returned, run again
     disagreements: int = 0  # a worker's log or scores were not the referee's
     unsettled: int = 0  # episodes the referee could not run: failed, never reported
+    failures_checked: int = 0  # failures workers claimed, run again
+    baseline: int = 0  # the default gains' episodes (baseline.json), run again
+    held_out: int = 0  # the held-out check's episodes, run again before its advice
     # The workers the referee contradicted, each with the evidence: the first job it lied about.
     dissenters: dict[str, str] = field(default_factory=dict)
     seconds: float = 0.0
 
     def __setstate__(self, state: dict) -> None:
-        self.__dict__.update({"spot_checked": 0, **state})
+        before = {"spot_checked": 0, "failures_checked": 0, "baseline": 0, "held_out": 0}
+        self.__dict__.update({**before, **state})
 
 
 @dataclass
@@ -102,6 +123,35 @@ def spot_checked(key: bytes, job_id: str, rate: float) -> bool:
     return draw < rate * 2**64
 
 
+def sized_rate(episodes: float, share: float = LIE_SHARE, confidence: float = CONFIDENCE) -> float:
+    """The spot checks' rate r at which a worker lying on a `share` of its `episodes` is caught
+    with probability at least `confidence`:
+
+        r = 1 - (1 - confidence) ** (1 / (share * episodes)), at most 1
+
+    since each of its share * episodes lies is drawn independently with probability r (a keyed
+    hash), and all of them are missed with probability (1 - r) ** (share * episodes). With no
+    episodes to speak of, every one is checked (1)."""
+    lies = share * episodes
+    if lies <= 0:
+        return 1.0
+    return min(1.0, 1.0 - (1.0 - confidence) ** (1.0 / lies))
+
+
+def caught_probability(rate: float, episodes: float, share: float = LIE_SHARE) -> float:
+    """The chance that spot checks at `rate` catch a worker lying on a `share` of its
+    `episodes` (sized_rate's inverse): 1 - (1 - rate) ** (share * episodes)."""
+    if rate >= 1.0:
+        return 1.0 if share * episodes > 0 else 0.0
+    return -math.expm1(share * episodes * math.log1p(-rate))
+
+
+def claims_failure(evaluation: EpisodeResult) -> bool:
+    """Whether `evaluation` is a worker's word that the episode failed (not this process's
+    verdict on a result it could not use, which names no worker): the referee runs it too."""
+    return evaluation.status == EpisodeStatus.failed and bool(evaluation.worker)
+
+
 def validate(
     evaluator: Evaluator,
     originals: Iterable[EpisodeResult],
@@ -110,11 +160,17 @@ def validate(
     referee: Evaluator,
     check: Check = Check.refereed,
 ) -> Validation:
-    """Run each original (an evaluation that ran: ok or diverged) again on `referee`; a worker
-    whose log or scores differ from the referee's is distrusted on `evaluator`. `check` says
-    which count of the ledger the episodes go to."""
+    """Run each original (an evaluation that ran: ok or diverged; or a failure its worker
+    claims) again on `referee`; a worker whose log or scores differ from the referee's, or who
+    said an episode failed that the referee runs to scores, is distrusted on `evaluator`. A
+    failure the referee's run fails too stands (agreed). `check` says which count of the ledger
+    the episodes go to."""
     started = time.monotonic()
-    standing = {original.job_id: original for original in originals if original.digest}
+    standing = {
+        original.job_id: original
+        for original in originals
+        if original.digest or claims_failure(original)
+    }
     jobs = {f"{job_id}{REFEREE}": original.spec for job_id, original in standing.items()}
     referee.submit(jobs)
     reruns = {}
@@ -128,6 +184,15 @@ def validate(
     validation = Validation(standing)
     for job_id in list(standing):
         rerun = reruns.get(job_id)
+        if not _ran(standing[job_id]) and rerun is not None:  # a failure its worker claims
+            ledger.failures_checked += 1
+            validation.rulings[job_id] = _settle_failure(job_id, rerun, standing, ledger, evaluator)
+            continue
+        if not _ran(standing[job_id]):  # the referee cannot run it either: the failure stands
+            log.error("failed episode %s could not be refereed: its failure stands", job_id)
+            ledger.unsettled += 1
+            validation.rulings[job_id] = Ruling.unsettled
+            continue
         if rerun is None or not _ran(rerun):
             why = rerun.reason if rerun is not None else "no result"
             log.error("episode %s could not be refereed (%s): it fails", job_id, why)
@@ -135,10 +200,8 @@ def validate(
             validation.rulings[job_id] = Ruling.unsettled
             del standing[job_id]
             continue
-        if check == Check.spot_checked:
-            ledger.spot_checked += 1
-        else:
-            ledger.refereed += 1
+        name = COUNTS.get(check, "refereed")
+        setattr(ledger, name, getattr(ledger, name) + 1)
         validation.rulings[job_id] = _settle(job_id, rerun, standing, ledger, evaluator)
     ledger.unsettled += len(validation.unsettled)
     ledger.seconds += time.monotonic() - started
@@ -147,6 +210,39 @@ def validate(
 
 def _ran(evaluation: EpisodeResult) -> bool:
     return evaluation.digest is not None
+
+
+def _settle_failure(
+    job_id: str,
+    rerun: EpisodeResult,
+    standing: dict[str, EpisodeResult],
+    ledger: Ledger,
+    evaluator: Evaluator,
+) -> Ruling:
+    """A failure a worker claimed, against the referee's run of it: an honest failure if that
+    fails too; else the worker lied (a good candidate sunk by a claim no score betrays)."""
+    if not _ran(rerun):
+        return Ruling.agreed
+    _distrust(
+        standing[job_id].worker, f"failed job {job_id} that the referee ran to scores", ledger
+    )
+    ledger.disagreements += 1
+    evaluator.distrust(standing[job_id].worker)
+    kept = rerun.log.replace(rerun.log.with_name(f"{job_id}.mcap")) if rerun.log else None
+    standing[job_id] = dataclasses.replace(rerun, job_id=job_id, log=kept)
+    return Ruling.contradicted
+
+
+def _distrust(worker: str, evidence: str, ledger: Ledger) -> None:
+    """Name `worker` with the evidence (the first), and say so."""
+    if worker in ledger.dissenters:
+        return
+    ledger.dissenters[worker] = evidence
+    log.error(
+        "worker %r %s: its results are distrusted and it gets no more of this run's jobs",
+        worker,
+        evidence,
+    )
 
 
 def _settle(
@@ -166,18 +262,10 @@ def _settle(
         return Ruling.agreed
     ledger.disagreements += 1
     what = "a log" if original.digest != rerun.digest else "scores its log does not have"
-    if original.worker not in ledger.dissenters:
-        ledger.dissenters[original.worker] = (
-            f"returned {what} for {job_id} that the referee's run contradicts"
-        )
-        evaluator.distrust(original.worker)
-        log.error(
-            "worker %r returned %s for %s, which the referee's own run of it contradicts: its "
-            "results are distrusted and it gets no more of this run's jobs",
-            original.worker,
-            what,
-            job_id,
-        )
+    _distrust(
+        original.worker, f"returned {what} for {job_id} that the referee's run contradicts", ledger
+    )
+    evaluator.distrust(original.worker)
     kept = rerun.log
     if kept is not None:  # the referee's log where the original's is, or would be, kept
         kept = kept.replace(original.log or kept.with_name(f"{job_id}.mcap"))

@@ -12,6 +12,12 @@ median and the worst of its error over the held-out plants, on which plants it b
 limit or diverged, and its closed loop's margins on the nominal plant (worker.stability). The
 first candidate that holds is the controller to use (the advice); if none does, the default
 gains are. check.json holds it; front.json, report.md and the exported controller carry it.
+
+On a farm not its own the run's referee (analytic.evaluators.replication) runs again, before any
+candidate is judged to hold, every episode of the default gains and of each candidate that holds
+on the figures so far, every failure a worker claims, a spot-checked share at the run's rate, and
+every episode a caught worker ran: the advice is decided on figures the referee agreed with or
+replaced (`_Check`).
 """
 
 import json
@@ -21,7 +27,13 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from gainfarm.analytic.evaluators.evaluator import Evaluator
+from gainfarm.analytic.evaluators.evaluator import EpisodeResult, EpisodeStatus, Evaluator
+from gainfarm.analytic.evaluators.replication import (
+    Check,
+    claims_failure,
+    spot_checked,
+    validate,
+)
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.picks import (
     Advice,
@@ -111,6 +123,18 @@ def run_check(
     are checked in the knee's order, with the knee and the default gains, until one holds on the
     held-out plants as `failures` asks (at most CANDIDATES, within CHECK_SHARE); the first that
     holds is the controller to use, and if none does, the default gains are."""
+    while True:
+        checked = _check(run, evaluator, on_start)
+        # A worker caught in the check may have steered the evolution too: it runs again
+        # without that worker's results, and so does the check, on the front it then finds.
+        if not run.replay_without_caught(evaluator):
+            return checked
+
+
+def _check(
+    run: TuningRun, evaluator: Evaluator, on_start: Callable[[CheckPlan], None]
+) -> list[Checked]:
+    """`run_check`'s one pass: the check of the run's front as it stands."""
     plants = run.config.check_plants
     asked = len(plants)
     front = sorted_front(run.front())
@@ -132,17 +156,111 @@ def run_check(
     per_controller = (1 + len(plants)) * trajectories
     started = time.monotonic()
     on_start(CheckPlan(len(first) * per_controller, len(plants), asked, len(first)))
-    checked = _round(run, evaluator, first, plants, 0)
+    check = _Check(run, evaluator, plants)
+    check.round(first)
     spent, queue = len(first) * per_controller, ranked[1:CANDIDATES]
-    while not _holding(checked) and queue and spent + ROUND * per_controller <= budget:
+    while not _holding(check.checked) and queue and spent + ROUND * per_controller <= budget:
         batch = {front[i].gains: ("candidate", i + 1) for i in queue[:ROUND]}
         queue = queue[ROUND:]
-        checked += _round(run, evaluator, batch, plants, len(checked))
+        check.round(batch)
         spent += len(batch) * per_controller
-    checked = _judged(checked)
+    checked = _judged(check.checked)
     cost = {"episodes": spent, "wall_seconds": round(time.monotonic() - started, 1)}
     _write(run, checked, len(plants), asked, cost)
+    if check.referee is not None:  # the ledger's held-out count, in the records too
+        with interrupts_deferred():
+            run.write_records()
     return checked
+
+
+class _Check:
+    """The check's rounds so far: each controller's episodes (`results`, by job id) and
+    summaries (`checked`), refereed as `_refereed` says before a candidate is judged."""
+
+    def __init__(self, run: TuningRun, evaluator: Evaluator, plants: Sequence[ModelSpec]):
+        self.run, self.evaluator, self.plants = run, evaluator, plants
+        self.referee = run.referee_for(evaluator)
+        self.results: dict[str, EpisodeResult] = {}
+        self.chosen: list[tuple[PDGains, str, int | None]] = []
+        self.checked: list[Checked] = []
+        self.refereed: set[str] = set()
+
+    def round(self, chosen: dict[PDGains, tuple[str, int | None]]) -> None:
+        """Run `chosen` controllers on the nominal plant and the plants, every trajectory; then
+        referee what `_refereed` asks."""
+        offset = len(self.chosen)
+        self.chosen += [(gains, *chosen[gains]) for gains in chosen]
+        self.results.update(_round(self.run, self.evaluator, list(chosen), self.plants, offset))
+        self.checked += [self._summary(index) for index in range(offset, len(self.chosen))]
+        self._refereed()
+
+    def _summary(self, index: int) -> Checked:
+        found = {job_id: result.scores for job_id, result in self.results.items()}
+        gains, name, row = self.chosen[index]
+        return _summary(self.run, index, gains, name, row, found, len(self.plants))
+
+    def _refereed(self) -> None:
+        """On a farm not its own, the referee runs the episodes the advice rests on: the default
+        gains', each holding candidate's (on the figures so far), the failures workers claim,
+        the spot checks' share, and every episode of a worker caught lying. A contradicted
+        episode takes the referee's figures and its controller is summed up again, which can
+        change what holds: so again, until nothing is left to run."""
+        if self.referee is None:
+            return
+        while True:
+            wanted = [self.results[job_id] for job_id in self._wanted()]
+            if not wanted:
+                return
+            self.refereed.update(e.job_id for e in wanted)
+            validation = validate(
+                self.evaluator,
+                wanted,
+                self.run.state.ledger,
+                referee=self.referee,
+                check=Check.held_out,
+            )
+            for job_id in validation.unsettled:  # the referee cannot run it: it fails
+                self.results[job_id] = replace(
+                    self.results[job_id], status=EpisodeStatus.failed, scores=None, digest=None
+                )
+            self.results.update(validation.standing)
+            for index in {_index_of(job_id) for job_id in validation.rulings}:
+                self.checked[index] = self._summary(index)
+
+    def _wanted(self) -> list[str]:
+        """The episodes not yet refereed that `_refereed` runs now."""
+        default = next((item for item in self.checked if item.row is None), None)
+        holding = {
+            index
+            for index, item in enumerate(self.checked)
+            if item.row is None
+            or (item.name == "candidate" and default is not None and not failures(item, default))
+        }
+        caught = set(self.run.state.ledger.dissenters)
+        rate, key = self.run.state.spot_rate or 0.0, self.run.state.spot_key
+        return [
+            job_id
+            for job_id, result in self.results.items()
+            if job_id not in self.refereed
+            and (result.digest or claims_failure(result))
+            and (
+                _index_of(job_id) in holding
+                or claims_failure(result)
+                or result.worker in caught
+                or (rate and spot_checked(key, job_id, rate))
+            )
+        ]
+
+
+def _index_of(job_id: str) -> int:
+    """The controller's index of a check's job id (`_job_id`)."""
+    return int(job_id.split("check-c", 1)[1].split("-", 1)[0])
+
+
+def _job_id(run: TuningRun, index: int, number: int, plant: int) -> str:
+    """A check's episode: controller `index`, trajectory `number`, on `plant` (0: nominal);
+    after a rewind with the run's new prefix, so no job of an earlier check is named again."""
+    return f"{run.job_prefix()}check-c{index}-t{number}-h{plant}"
 
 
 def _candidates(front: Sequence[FrontMember], baseline: Baseline | None) -> list[int]:
@@ -165,16 +283,16 @@ def _are_the_defaults(gains: PDGains) -> bool:
 def _round(
     run: TuningRun,
     evaluator: Evaluator,
-    chosen: dict[PDGains, tuple[str, int | None]],
+    chosen: Sequence[PDGains],
     plants: Sequence[ModelSpec],
     offset: int,
-) -> list[Checked]:
+) -> dict[str, EpisodeResult]:
     """Run `chosen` controllers on the nominal plant and `plants`, every trajectory."""
     specs = {}
     for index, gains in enumerate(chosen, start=offset):
         for number, trajectory in enumerate(run.config.trajectories):
             for plant, model in enumerate((run.config.model, *plants)):
-                specs[f"check-c{index}-t{number}-h{plant}"] = EpisodeSpec(
+                specs[_job_id(run, index, number, plant)] = EpisodeSpec(
                     gains=gains,
                     trajectory=trajectory,
                     model=model,
@@ -182,11 +300,7 @@ def _round(
                     objectives=run.config.objectives,
                 )
     evaluator.submit(specs)
-    found = {evaluation.job_id: evaluation.scores for evaluation in evaluator.results()}
-    return [
-        _summary(run, index, gains, *chosen[gains], found, len(plants))
-        for index, gains in enumerate(chosen, start=offset)
-    ]
+    return {evaluation.job_id: evaluation for evaluation in evaluator.results()}
 
 
 def _summary(
@@ -202,7 +316,7 @@ def _summary(
     trajectories = range(len(config.trajectories))
 
     def on(plant: int) -> list[Scores | None]:
-        return [found.get(f"check-c{index}-t{number}-h{plant}") for number in trajectories]
+        return [found.get(_job_id(run, index, number, plant)) for number in trajectories]
 
     nominal_scores = on(0)
     nominal = objectives(nominal_scores, config.objective_weights)

@@ -129,13 +129,15 @@ class RunConfig(BaseModel):
         "episodes itself (the referee): each worker's log must be its own bit for bit, and the "
         "scores the log's (analytic/evaluators/replication.py)",
     )
-    spot_checks: float = Field(
+    spot_checks: float | None = Field(
         defaults.SPOT_CHECKS,
         ge=0,
         le=1,
         description="with `replicate`, the share of every worker's episodes, drawn at random as "
         "they return, that the referee runs again too: a worker lying about episodes that never "
-        "reach the front is caught as well",
+        "reach the front is caught as well. None: sized as the run first starts, so that a "
+        "worker lying on a tenth of its share of the run's episodes is caught with probability "
+        "0.99 (analytic.evaluators.replication.sized_rate; the run's records keep the rate)",
     )
 
     @field_validator("limits", mode="before")

@@ -28,11 +28,12 @@ AGGREGATE = "worst"
 TORQUE_MEASURES = {"raw": "f_t", "per-joint": "f_t_joint"}
 TORQUE_MEASURE = "per-joint"
 REPLICATE = True
-# The share of every worker's episodes the referee runs again as they return (spot checks): at
-# 0.05 a worker lying on all its episodes is caught within 60 of them with probability 0.95, one
-# lying on a tenth within 600 (1 - (1 - 0.05 p)^n); the cost is 5 % more episodes, in the
-# analytic's process (bench/replication_cost.py).
-SPOT_CHECKS = 0.05
+# The share of every worker's episodes the referee runs again as they return (spot checks):
+# None sizes it as the run starts, so that a worker lying on a tenth of its share of the run's
+# episodes is caught with probability 0.99 (analytic.evaluators.replication.sized_rate): for a
+# run of 48 evaluations on 3 plants and 2 workers, 0.47; for 600 evaluations, 0.05. A float
+# fixes it by hand (0: none).
+SPOT_CHECKS: float | None = None
 BALANCE = True  # a generic run weighs its trajectories alike at the default gains
 
 Keep = Literal["all", "front"]

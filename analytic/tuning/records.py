@@ -128,11 +128,18 @@ class ValidationRecord:
     """What validation found over a run, as front.json and report.md say it: episodes the
     referee ran again (the front's, and the spot checks'), how many disagreed or could not be
     rerun, the workers distrusted with the evidence against each, and how often the evolution
-    started again without a caught worker's results. `unchecked`: why nothing was checked."""
+    started again without a caught worker's results. `unchecked`: why nothing was checked.
+    `spot_check_guarantee`: what the spot checks' rate buys, in words; `failures_checked`: the
+    failures workers claimed that the referee ran too; `baseline_refereed` and
+    `held_out_refereed`: the default gains' episodes and the held-out check's it ran again."""
 
     refereed: int = 0
     spot_checked: int = 0
     spot_check_rate: float = 0.0
+    spot_check_guarantee: str = ""
+    failures_checked: int = 0
+    baseline_refereed: int = 0
+    held_out_refereed: int = 0
     disagreements: int = 0
     unsettled: int = 0
     distrusted: dict[str, str] = field(default_factory=dict)

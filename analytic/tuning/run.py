@@ -43,11 +43,15 @@ from pymoo.core.population import Population
 from gainfarm.analytic.evaluators.evaluator import EpisodeResult, EpisodeStatus, Evaluator, Wanted
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.evaluators.replication import (
+    LIE_SHARE,
     Check,
     Ledger,
     Ran,
     Ruling,
     Validation,
+    caught_probability,
+    claims_failure,
+    sized_rate,
     spot_checked,
     validate,
 )
@@ -85,6 +89,7 @@ from gainfarm.analytic.tuning.records import (
     sorted_front,
 )
 from gainfarm.analytic.tuning.termination import expected_generations
+from gainfarm.cli.words import counted
 from gainfarm.edges.files import (
     Lock,
     Locked,
@@ -153,6 +158,11 @@ class RunState:
     # The key of the spot checks' draw: never leaves this process, so no worker can tell which
     # of its episodes will be checked; kept, so a resumed run draws as it would have.
     spot_key: bytes = field(default_factory=lambda: secrets.token_bytes(16))
+    # The spot checks' rate, fixed as the run first starts (RunConfig.spot_checks, or sized for
+    # the farm it starts on) and kept, so a resumed run draws as it would have; and what it was
+    # sized on: the episodes the run plans and the farm's workers then.
+    spot_rate: float | None = None
+    spot_plan: tuple[int, int] | None = None
     rewinds: int = 0  # times the evolution started again without a caught worker's results
     unchecked: str = ""  # why the front's episodes are not refereed (trusted, or switched off)
     lag_measured: bool = True  # `measured` holds the lag (False: a checkpoint from before it)
@@ -165,6 +175,8 @@ class RunState:
             "checks": {},
             "ledger": Ledger(),
             "spot_key": secrets.token_bytes(16),
+            "spot_rate": None,
+            "spot_plan": None,
             "rewinds": 0,
             "unchecked": "",
         }
@@ -322,10 +334,15 @@ class TuningRun:
     def validation(self) -> ValidationRecord:
         """What validation found over the run, as its records say it."""
         ledger, state = self.state.ledger, self.state
+        rate = (state.spot_rate or 0.0) if self.config.replicate else 0.0
         return ValidationRecord(
             refereed=ledger.refereed,
             spot_checked=ledger.spot_checked,
-            spot_check_rate=self.config.spot_checks if self.config.replicate else 0.0,
+            spot_check_rate=rate,
+            spot_check_guarantee=self._guarantee() if self.config.replicate else "",
+            failures_checked=ledger.failures_checked,
+            baseline_refereed=ledger.baseline,
+            held_out_refereed=ledger.held_out,
             disagreements=ledger.disagreements,
             unsettled=ledger.unsettled,
             distrusted=dict(ledger.dissenters),
@@ -356,6 +373,8 @@ class TuningRun:
         self.check_open()
         started = time.monotonic() - self.state.wall_seconds
         referee = self._referee(evaluator, referee)
+        if referee is not None and self.state.spot_rate is None:
+            self._size_spot_checks(evaluator)
         while True:
             while self.state.stopped is None:
                 if self.config.asynchronous and self.state.evolution.generation > 0:
@@ -378,6 +397,48 @@ class TuningRun:
         self.state.unchecked = ""
         return referee or InProcessEvaluator(self.directory, models=self.models())
 
+    def referee_for(self, evaluator: Evaluator) -> Evaluator | None:
+        """The referee of `evaluator`'s episodes (this process), or None when none is needed
+        (the config's replicate is off, or `evaluator` is trusted): for the held-out check."""
+        return self._referee(evaluator, None)
+
+    def planned_episodes(self) -> int:
+        """The episodes the run plans: its budget of evaluations (for a run that stops on
+        convergence, the fewest it can: the termination's window and one generation more),
+        each an episode per trajectory and plant."""
+        config = self.config
+        evaluations = config.budget or (config.termination.window + 1) * config.pop
+        return evaluations * len(config.trajectories) * (1 + len(config.plants))
+
+    def _size_spot_checks(self, evaluator: Evaluator) -> None:
+        """Fix the spot checks' rate as the run first starts: the config's, or sized so that a
+        worker doing its share of the planned episodes (over the farm's workers now) and lying
+        on a tenth of them is caught with probability 0.99 (replication.sized_rate). A run that
+        converges later than it could only checks more lies at that rate."""
+        planned, workers = self.planned_episodes(), max(1, evaluator.capacity)
+        self.state.spot_plan = (planned, workers)
+        if self.config.spot_checks is None:
+            self.state.spot_rate = sized_rate(planned / workers)
+        else:
+            self.state.spot_rate = self.config.spot_checks
+
+    def _guarantee(self) -> str:
+        """What the spot checks' rate buys, in words, for the records."""
+        rate, plan = self.state.spot_rate, self.state.spot_plan
+        if rate is None or plan is None:
+            return ""
+        if not rate:
+            return "spot checks off (--spot-checks 0): only the front and failures are refereed"
+        planned, workers = plan
+        share = planned / workers
+        chance = caught_probability(rate, share)
+        how = "set by hand" if self.config.spot_checks is not None else "sized"
+        return (
+            f"{how}: a worker lying on {LIE_SHARE:.0%} of its share of the run's episodes "
+            f"({share:g}: {planned} planned over {counted(workers, 'worker')}) is caught with "
+            f"probability {chance:.3g}"
+        )
+
     def baseline(self, evaluator: Evaluator | None = None) -> Baseline | None:
         """The default gains' point on the run's trajectories, scored as the candidates are: from
         baseline.json, or (given an evaluator) evaluated now, one job per trajectory, and kept
@@ -396,6 +457,8 @@ class TuningRun:
         specs = {job_id: self._episode_spec(DEFAULT_GAINS, job_id) for job_id in jobs}
         evaluator.submit(specs)
         found = {evaluation.job_id: evaluation for evaluation in evaluator.results()}
+        rulings = self._referee_baseline(evaluator, found)
+        self.replay_without_caught(evaluator)
         scores = [found[job_id].scores if job_id in found else None for job_id in jobs]
         f_acc, f_t = self._objectives(scores)
         baseline = Baseline(
@@ -409,12 +472,53 @@ class TuningRun:
                     "status": found[job_id].status.value if job_id in found else "lost",
                     "reason": found[job_id].reason if job_id in found else "no result",
                     "scores": s.model_dump() if s is not None else None,
+                    "worker": found[job_id].worker if job_id in found else "",
+                    "check": rulings.get(job_id, self.state.unchecked or "not checked"),
                 }
                 for job_id, s in zip(jobs, scores, strict=True)
             ),
         )
         write_atomically(path, baseline_json(baseline))
+        if rulings:  # the ledger's baseline count, in the records and the checkpoint
+            with interrupts_deferred():
+                self.write_records()
+                self._checkpoint()
         return baseline
+
+    def replay_without_caught(self, evaluator: Evaluator) -> bool:
+        """After the evolution, a worker caught lying (on the default gains' episodes, or the
+        held-out check's) may have steered it: a generational run starts it again from the seed
+        without that worker's results and runs it to its end (True), as a catch during the
+        evolution does."""
+        if not self._should_rewind(evaluator):
+            return False
+        self._rewind(evaluator)
+        self.run(evaluator)
+        return True
+
+    def _referee_baseline(
+        self, evaluator: Evaluator, found: dict[str, EpisodeResult]
+    ) -> dict[str, str]:
+        """On a farm not its own, the referee runs every episode of the default gains: report.md
+        and the held-out check measure the front against them, so one forged episode would turn
+        the advice. Each takes the referee's standing evaluation in `found` (its own where it
+        contradicts the worker's); returns the rulings, by job id."""
+        referee = self._referee(evaluator, None)
+        if referee is None:
+            return {}
+        validation = validate(
+            evaluator,
+            list(found.values()),
+            self.state.ledger,
+            referee=referee,
+            check=Check.baseline,
+        )
+        for job_id in validation.unsettled:  # the referee cannot run it: it fails
+            found[job_id] = dataclasses.replace(
+                found[job_id], status=EpisodeStatus.failed, scores=None, digest=None
+            )
+        found.update(validation.standing)
+        return {job_id: ruling.value for job_id, ruling in validation.rulings.items()}
 
     # --- generational: a whole generation out, then told in the order asked -------------------
 
@@ -468,6 +572,11 @@ class TuningRun:
     def _prefix(self) -> str:
         """Job ids after a rewind are new ones: a log of the run before is never overwritten."""
         return f"r{self.state.rewinds}-" if self.state.rewinds else ""
+
+    def job_prefix(self) -> str:
+        """What the job ids of the run's episodes start with now (`_prefix`): for the held-out
+        check's, which a rewind runs again."""
+        return self._prefix()
 
     def _distrusted(self, evaluator: Evaluator) -> set[str]:
         return {*self.state.ledger.dissenters, *getattr(evaluator, "distrusted", ())}
@@ -561,23 +670,38 @@ class TuningRun:
         results: dict[str, EpisodeResult],
         *job_ids: str,
     ) -> bool:
-        """The referee runs again those of `job_ids` the spot checks draw; each takes the
-        referee's standing evaluation in `results` (its own where it contradicts the worker's,
-        a failure where it could not run it). True if it caught a worker lying."""
-        if referee is None or not self.config.spot_checks:
+        """The referee runs again those of `job_ids` the spot checks draw, and every failure a
+        worker claims (a claim no score betrays: it would sink a good candidate unchecked);
+        each takes the referee's standing evaluation in `results` (its own where it contradicts
+        the worker's, a failure where it could not run it). True if it caught a worker lying."""
+        if referee is None:
             return False
+        rate = self.state.spot_rate or 0.0
         drawn = [
             results[job_id]
             for job_id in job_ids
-            if results[job_id].digest
-            and spot_checked(self.state.spot_key, job_id, self.config.spot_checks)
+            if results[job_id].digest and rate and spot_checked(self.state.spot_key, job_id, rate)
         ]
-        if not drawn:
+        failures = [results[job_id] for job_id in job_ids if claims_failure(results[job_id])]
+        if not drawn and not failures:
             return False
-        validation = validate(
-            evaluator, drawn, self.state.ledger, referee=referee, check=Check.spot_checked
-        )
-        self._note_checks(Check.spot_checked, validation, {e.job_id: e.worker for e in drawn})
+        caught = False
+        for check, originals in ((Check.spot_checked, drawn), (Check.failure_checked, failures)):
+            if originals:
+                caught |= self._referee_arrivals(evaluator, referee, results, check, originals)
+        return caught
+
+    def _referee_arrivals(
+        self,
+        evaluator: Evaluator,
+        referee: Evaluator,
+        results: dict[str, EpisodeResult],
+        check: Check,
+        drawn: list[EpisodeResult],
+    ) -> bool:
+        """`_spot_check`'s work for one kind of check: True if it caught a worker lying."""
+        validation = validate(evaluator, drawn, self.state.ledger, referee=referee, check=check)
+        self._note_checks(check, validation, {e.job_id: e.worker for e in drawn})
         for evaluation in drawn:
             job_id = evaluation.job_id
             if job_id in validation.standing:

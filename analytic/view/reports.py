@@ -437,13 +437,25 @@ def validation_section(validation: ValidationRecord, members: Sequence[FrontMemb
     if validation.unchecked:
         lines += [f"Not checked: {validation.unchecked}.", ""]
     else:
-        rate = f" (rate {validation.spot_check_rate:g})" if validation.spot_check_rate else ""
+        rate = f" (rate {validation.spot_check_rate:.3g})" if validation.spot_check_rate else ""
+        more = [
+            f"{counted(count, what)}{where}"
+            for count, what, where in (
+                (validation.failures_checked, "failure", " its worker claimed"),
+                (validation.baseline_refereed, "episode", " of the default gains'"),
+                (validation.held_out_refereed, "episode", " of the held-out check's"),
+            )
+            if count
+        ]
         lines += [
             f"- episodes the referee (this process) ran again: {validation.refereed} of the "
-            f"front's, {counted(validation.spot_checked, 'spot check')}{rate}",
+            f"front's, {counted(validation.spot_checked, 'spot check')}{rate}"
+            + "".join(f", {item}" for item in more),
             f"- disagreements: {validation.disagreements}; could not be rerun (failed): "
             f"{validation.unsettled}",
         ]
+        if validation.spot_check_guarantee:
+            lines.append(f"- spot checks: {validation.spot_check_guarantee}")
         for worker, evidence in sorted(validation.distrusted.items()):
             lines.append(f"- distrusted: {worker}, which {evidence}")
         if validation.rewinds:

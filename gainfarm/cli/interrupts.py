@@ -10,6 +10,13 @@ thread, and a thread reading that pipe sets `INTERRUPTED`. Long loops check it b
 (`check`), and `cli.app.run_app` exits 130 when it is set, whatever the command did with the
 KeyboardInterrupt.
 
+For `analytic`, SIGTERM (what `kill`, a container's stop and a cluster's scheduler send) is taken
+as Ctrl-C: the command stops the same clean way, its run saved and its local farm's processes
+stopped as for a Ctrl-C, and exits 143 (128 + SIGTERM). Left to Python's default, a SIGTERM
+ended the process at once and orphaned the broker and workers of its local farm. A broker or
+worker takes SIGTERM over itself once it serves (stop cleanly, exit 0); before that it holds
+nothing, and Python's default ends it quietly, as the analytic stopping its farm early expects.
+
 This module imports nothing but the standard library, so that the entry points (`launch`) can
 take Ctrl-C over before the heavy imports (MuJoCo, Zenoh, pymoo: about a second) begin.
 """
@@ -26,14 +33,23 @@ from typing import Any, NoReturn
 
 INTERRUPTED_EXIT = 130  # 128 + SIGINT, as a shell reports a process Ctrl-C stopped
 INTERRUPTED = threading.Event()
+SIGNALS = (signal.SIGINT, signal.SIGTERM)  # both stop a command the same way
 
 _installed = False
 _write_end: int | None = None  # the wakeup pipe's, for uninstall
+_received = signal.SIGINT  # the signal that stopped the command: its exit status says which
 
 
 def _on_interrupt(signum: int, frame: FrameType | None) -> None:
-    INTERRUPTED.set()
+    _remember(signum)
     raise KeyboardInterrupt
+
+
+def _remember(signum: int) -> None:
+    global _received
+    if not INTERRUPTED.is_set():
+        _received = signal.Signals(signum)
+    INTERRUPTED.set()
 
 
 def _watch(pipe: int) -> None:
@@ -45,8 +61,9 @@ def _watch(pipe: int) -> None:
             return
         if not received:
             return
-        if signal.SIGINT in received:
-            INTERRUPTED.set()
+        for signum in SIGNALS:
+            if signum in received:
+                _remember(signum)
 
 
 def _quiet_unraisable(unraisable: Any) -> None:  # sys.UnraisableHookArgs
@@ -58,19 +75,22 @@ def _quiet_unraisable(unraisable: Any) -> None:  # sys.UnraisableHookArgs
     sys.__unraisablehook__(unraisable)
 
 
-def install() -> None:
-    """Take Ctrl-C over (once; from the main thread, which alone may set signal handlers). Not
-    if SIGINT is ignored: a shell starts background jobs so, and they are to stay deaf to it."""
+def install(signals: tuple[signal.Signals, ...] = (signal.SIGINT,)) -> None:
+    """Take Ctrl-C (and the other `signals`, of SIGNALS) over (once; from the main thread, which
+    alone may set signal handlers). Not a signal that is ignored: a shell starts background jobs
+    deaf to SIGINT, and they are to stay so."""
     global _installed, _write_end
     if _installed or threading.current_thread() is not threading.main_thread():
         return
-    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    taken = [signum for signum in signals if signal.getsignal(signum) is not signal.SIG_IGN]
+    if not taken:
         return
     read, write = os.pipe()
     os.set_blocking(write, False)  # the C handler must never block on a full pipe
     signal.set_wakeup_fd(write, warn_on_full_buffer=False)
     threading.Thread(target=_watch, args=(read,), name="interrupts", daemon=True).start()
-    signal.signal(signal.SIGINT, _on_interrupt)
+    for signum in taken:
+        signal.signal(signum, _on_interrupt)
     sys.unraisablehook = _quiet_unraisable
     _installed, _write_end = True, write
 
@@ -84,6 +104,8 @@ def uninstall() -> None:
         return
     if signal.getsignal(signal.SIGINT) is _on_interrupt:
         signal.signal(signal.SIGINT, signal.default_int_handler)
+    if signal.getsignal(signal.SIGTERM) is _on_interrupt:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.set_wakeup_fd(-1)
     if _write_end is not None:
         os.close(_write_end)
@@ -93,9 +115,9 @@ def uninstall() -> None:
 
 
 def ours() -> bool:
-    """Whether Ctrl-C is still this module's to handle (a service's `start` takes it over to
-    stop cleanly, and exits 0)."""
-    return signal.getsignal(signal.SIGINT) is _on_interrupt
+    """Whether Ctrl-C (or SIGTERM) is still this module's to handle (a service's `start` takes
+    both over to stop cleanly, and exits 0)."""
+    return any(signal.getsignal(signum) is _on_interrupt for signum in SIGNALS)
 
 
 def check() -> None:
@@ -106,7 +128,8 @@ def check() -> None:
 
 
 def stop(program: str, message: str = "interrupted") -> NoReturn:
-    """Say `program: message` in one line on stderr, and exit 130 at once.
+    """Say `program: message` in one line on stderr, and exit at once: 130 after a Ctrl-C, 143
+    after a SIGTERM (128 + the signal, as a shell reports it).
 
     Not by SystemExit: a KeyboardInterrupt that went through Python code a C extension ran
     (pybind11's and PyO3's exec: MuJoCo, Zenoh) marks the interpreter, which then ends itself
@@ -119,16 +142,16 @@ def stop(program: str, message: str = "interrupted") -> NoReturn:
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()
-    os._exit(INTERRUPTED_EXIT)
+    os._exit(INTERRUPTED_EXIT if _received == signal.SIGINT else 128 + _received)
 
 
-def launch(module: str, program: str, skip_teardown: bool = False) -> None:
+def launch(module: str, program: str, skip_teardown: bool = False, sigterm: bool = False) -> None:
     """The entry point of a command line: Ctrl-C handled first, then `module` imported and its
     `main()` run. A Ctrl-C during the imports stops here, in one line. `skip_teardown`: end
     with `exit_now`, for a command whose last messages are all received, none sent (a worker's
     last result, put as it stops, or a broker's last answers could still be on their way out
     of Zenoh when an `os._exit` ends its threads: a result lost at a worker's SIGTERM, seen
-    once in the suite)."""
+    once in the suite). `sigterm`: SIGTERM stops it as Ctrl-C does."""
     # `import mujoco` with MUJOCO_GL unset loads GLFW, whose import starts a Python child to
     # probe the library (60 ms of every start, measured); a Ctrl-C then cut the pipe it reads
     # and it printed a traceback of its own (2 runs of the Ctrl-C tests in 20). No command draws
@@ -136,7 +159,7 @@ def launch(module: str, program: str, skip_teardown: bool = False) -> None:
     # backend, else EGL). A user's MUJOCO_GL is kept.
     if not os.environ.get("MUJOCO_GL", "").strip():
         os.environ["MUJOCO_GL"] = "disable"
-    install()
+    install(SIGNALS if sigterm else (signal.SIGINT,))
     try:
         main = importlib.import_module(module).main
     except BaseException:
@@ -159,8 +182,9 @@ def launch(module: str, program: str, skip_teardown: bool = False) -> None:
         # The command is done: a Ctrl-C now comes too late to stop anything, and must not turn
         # its exit into a death by SIGINT (status -2, measured once `worker --version` took
         # 0.15 s instead of 1.6). A service's own handler, set in place of ours, stays.
-        if ours():
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        for signum in SIGNALS:
+            if signal.getsignal(signum) is _on_interrupt:
+                signal.signal(signum, signal.SIG_IGN)
     if skip_teardown:
         exit_now(status)
     sys.exit(status)

@@ -6,10 +6,15 @@
 - `--forge`: a forger returns a log it made up, self-consistent: the error and the torque steps
   cut to 0.3 of what they were, and the scores of that log (every such episode looks better);
 - `--sabotage`: a saboteur keeps its honest log and claims scores 5 times worse (its
-  candidates lose, so none reaches the front, where the referee looks before a run reports).
+  candidates lose, so none reaches the front, where the referee looks before a run reports);
+- `--sabotage-good F_ACC`: the same, only on good candidates' episodes (an honest f_acc at most
+  F_ACC, in metres), honest on the others;
+- `--fail-good F_ACC`: says each good candidate's episode failed (no log, no scores), honest on
+  the others;
+- `--forge-defaults`: forges only the default gains' episodes, self-consistent logs 3 times worse
+  than they ran (the error and the torque steps): every candidate seems to beat them.
 
-Run as `python -m tests.analytic.liar ENDPOINT NAME [--scores | --forge | --sabotage]` by the
-replication tests."""
+Run as `python -m tests.analytic.liar ENDPOINT NAME [FLAG [F_ACC]]` by the replication tests."""
 
 import dataclasses
 import hashlib
@@ -21,19 +26,22 @@ from collections.abc import Callable, Sequence
 from gainfarm.models.dynamics import DynamicsModel
 from gainfarm.models.urdf import description
 from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.mcap_episode import decode_episode, episode_bytes
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.wire import Lease, Result, WireScores
+from gainfarm.schemas.wire import JobStatus, Lease, Result, WireScores
 from gainfarm.worker import service
 from gainfarm.worker.job import execute_batch
 
 Executed = list[tuple[Result, bytes]]
 ExecuteBatch = Callable[..., Executed]
 Lie = Callable[[Result, bytes], tuple[Result, bytes]]
+Picks = Callable[[Result, bytes], bool]
 
 
-def lying(lie: Lie) -> ExecuteBatch:
-    """A worker's `execute_batch` that runs its batch honestly, then tells `lie` of each job."""
+def lying(lie: Lie, when: Picks = lambda *_: True) -> ExecuteBatch:
+    """A worker's `execute_batch` that runs its batch honestly, then tells `lie` of each job
+    `when` picks (the truth of the others)."""
 
     def execute(
         leases: Sequence[Lease],
@@ -41,12 +49,36 @@ def lying(lie: Lie) -> ExecuteBatch:
         model_of: Callable[[Lease], Callable[[str], DynamicsModel]] | None = None,
         threads: int = 1,
     ) -> Executed:
-        return [lie(*ran) for ran in execute_batch(leases, name, model_of, threads)]
+        ran = execute_batch(leases, name, model_of, threads)
+        return [lie(*one) if when(*one) else one for one in ran]
 
     return execute
 
 
-def altering(change: Callable[[EpisodeLog], EpisodeLog]) -> ExecuteBatch:
+def good(f_acc: float) -> Picks:
+    """A good candidate's episode: one that ran, with an honest f_acc at most `f_acc`."""
+    return lambda result, _: result.scores is not None and result.scores.f_acc <= f_acc
+
+
+def of_the_default_gains(result: Result, content: bytes) -> bool:
+    return bool(content) and decode_episode(content).metadata.spec.gains == DEFAULT_GAINS
+
+
+def failing(result: Result, content: bytes) -> tuple[Result, bytes]:
+    """Says the episode failed: no log, no scores, an ordinary reason."""
+    update = {
+        "status": JobStatus.failed,
+        "scores": None,
+        "digest": hashlib.sha256(b"").hexdigest(),  # a failed job's, as worker.job makes it
+        "episode_bytes": 0,
+        "reason": "the simulation could not run",
+    }
+    return Result.model_validate(result.model_dump() | update), b""
+
+
+def altering(
+    change: Callable[[EpisodeLog], EpisodeLog], when: Picks = lambda *_: True
+) -> ExecuteBatch:
     """Returns the log `change` makes of each honest one, with that log's own scores: a valid,
     self-consistent lie."""
 
@@ -59,10 +91,10 @@ def altering(change: Callable[[EpisodeLog], EpisodeLog]) -> ExecuteBatch:
         update = {"episode_bytes": len(altered), "digest": digest, "scores": scores}
         return result.model_copy(update=update), altered
 
-    return lying(lie)
+    return lying(lie, when)
 
 
-def claiming(factor: float) -> ExecuteBatch:
+def claiming(factor: float, when: Picks = lambda *_: True) -> ExecuteBatch:
     """Returns each honest log and claims f_acc and f_t `factor` times what the log has."""
 
     def lie(result: Result, content: bytes) -> tuple[Result, bytes]:
@@ -72,7 +104,7 @@ def claiming(factor: float) -> ExecuteBatch:
         scores = result.scores.model_copy(update=claimed)
         return result.model_copy(update={"scores": scores}), content
 
-    return lying(lie)
+    return lying(lie, when)
 
 
 def _one_sample_off(log: EpisodeLog) -> EpisodeLog:
@@ -84,6 +116,12 @@ def _one_sample_off(log: EpisodeLog) -> EpisodeLog:
 def _flattering(log: EpisodeLog) -> EpisodeLog:
     u = log.u[:1] + 0.3 * (log.u - log.u[:1])  # each torque step 0.3 of what it was
     ee = log.ee_des + 0.3 * (log.ee - log.ee_des)  # and the error
+    return dataclasses.replace(log, u=u, ee=ee)
+
+
+def _disparaging(log: EpisodeLog) -> EpisodeLog:
+    u = log.u[:1] + 3.0 * (log.u - log.u[:1])  # each torque step 3 times what it was
+    ee = log.ee_des + 3.0 * (log.ee - log.ee_des)  # and the error
     return dataclasses.replace(log, u=u, ee=ee)
 
 
@@ -100,7 +138,17 @@ def main() -> None:
         "--forge": forging_execute,
         "--sabotage": sabotaging_execute,
     }
-    service.execute_batch = next((how[flag] for flag in sys.argv[3:] if flag in how), lying_execute)
+    flags = sys.argv[3:]
+    picky = {
+        "--sabotage-good": lambda f_acc: claiming(5.0, good(f_acc)),
+        "--fail-good": lambda f_acc: lying(failing, good(f_acc)),
+    }
+    if flags and flags[0] in picky:
+        service.execute_batch = picky[flags[0]](float(flags[1]))
+    elif flags == ["--forge-defaults"]:
+        service.execute_batch = altering(_disparaging, of_the_default_gains)
+    else:
+        service.execute_batch = next((how[flag] for flag in flags if flag in how), lying_execute)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     with service.CobotWorker([endpoint], name) as cobot:

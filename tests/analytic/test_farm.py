@@ -3,6 +3,7 @@
 import hashlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -49,7 +50,11 @@ def test_several_workers_share_a_batch_and_every_episode_is_kept_and_scored(
         evaluations = list(farm.results(timeout=120))
         workers = {worker.name: worker.jobs_done for worker in farm.status().workers}
     assert sorted(evaluation.job_id for evaluation in evaluations) == sorted(specs)
-    assert set(workers) == {"local-0", "local-1"} and all(workers.values())
+    assert [re.sub(r"-[0-9a-f]{8}$", "", name) for name in sorted(workers)] == [
+        "local-0",
+        "local-1",
+    ]
+    assert all(workers.values())
     for evaluation in evaluations:
         assert evaluation.status == "ok" and evaluation.attempts == 1
         assert evaluation.log == tmp_path / "episodes" / f"{evaluation.job_id}.mcap"
@@ -62,8 +67,8 @@ def test_several_workers_share_a_batch_and_every_episode_is_kept_and_scored(
 @pytest.mark.slow
 def test_a_local_farm_starts_its_block_with_every_worker_joined(tmp_path: Path) -> None:
     # Else the first worker up takes the whole first batch and the others idle through it.
-    with local_farm(workers=2) as endpoint, FarmClient([endpoint], "s", tmp_path) as farm:
-        assert sorted(worker.name for worker in farm.status().workers) == ["local-0", "local-1"]
+    with LocalFarm(workers=2) as local, FarmClient([local.ready()], "s", tmp_path) as farm:
+        assert sorted(worker.name for worker in farm.status().workers) == sorted(local.names)
 
 
 @pytest.mark.slow
@@ -414,3 +419,39 @@ def test_a_model_handed_to_an_open_client_is_served_to_the_workers(
         stop_workers([worker])
     assert evaluation.status == "ok", evaluation.reason
     assert read_episode(evaluation.log).metadata.spec.feedforward == digest(raw)
+
+
+@pytest.mark.slow
+def test_a_result_from_a_worker_the_local_farm_did_not_start_is_refused_and_runs_on_its_own(
+    broker: Broker, session: zenoh.Session, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Two strangers take a job each and hand their results in to the broker, which takes them:
+    one sends its result to the study, the other never does (its result would be taken from the
+    broker's record). Both are refused, no attempt spent, and the jobs run on the farm's own."""
+    specs = {"j1": short_spec(duration=0.3), "j2": short_spec(duration=0.4)}
+    with (
+        caplog.at_level("WARNING", logger="gainfarm.analytic"),
+        FarmClient(broker.endpoints, "s", tmp_path, own_workers={"mine"}, attempts=1) as farm,
+    ):
+        farm.submit(specs)
+        for stranger, job_id, sends in (("putter", "j1", True), ("silent", "j2", False)):
+            lease = ask_for_work(session, stranger)
+            assert lease is not None and lease.job.job_id == job_id
+            result = result_for("s", job_id, worker=stranger, lease_id=lease.lease_id)
+            assert hand_in(session, result).accepted
+            if sends:
+                session.put(keys.result("s", job_id), b"", attachment=result.to_bytes())
+        worker = spawn_worker(broker.endpoints[0], "mine")
+        try:
+            evaluations = {evaluation.job_id: evaluation for evaluation in farm.results(120)}
+        finally:
+            stop_workers([worker])
+        assert farm.strangers == {"putter", "silent"}
+    for job_id in specs:
+        assert evaluations[job_id].status == "ok" and evaluations[job_id].worker == "mine"
+        assert evaluations[job_id].attempts == 1
+    said = sorted(r.getMessage() for r in caplog.records if "did not start" in r.getMessage())
+    assert said == [
+        f"result from worker {name}, which this local farm did not start: refused"
+        for name in ("putter", "silent")
+    ]

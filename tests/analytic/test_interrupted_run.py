@@ -102,3 +102,47 @@ def test_ctrl_c_names_the_generation_saved_and_resume_runs_on_from_it(tmp_path: 
     generations = [line for line in resumed.stderr.splitlines() if line.startswith("generation ")]
     assert generations[0].startswith("generation 2: "), generations
     assert [row.generation for row in read_history(run / "history.csv")] == list(range(1, 13))
+
+
+def children(pid: int) -> set[int]:
+    """The processes `pid` started and has not reaped (its local farm's broker and workers)."""
+    found: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        found |= {int(child) for child in (task / "children").read_text().split()}
+    return found
+
+
+def alive(pid: int) -> bool:
+    """Whether `pid` still runs (a zombie has ended: only its status is left to reap)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except FileNotFoundError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.slow
+def test_sigterm_stops_a_start_as_ctrl_c_does_and_leaves_no_farm_behind(tmp_path: Path) -> None:
+    options = ["--pop", "4", "--generations", "12", "--trajectory", "fourier", "--duration", "0.5"]
+    command = [*START, *options, "--check-plants", "0", "--workers", "2", "--out", "run"]
+    running = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.PIPE, text=True)
+    try:
+        assert running.stderr is not None
+        for line in running.stderr:
+            if line.startswith("generation 2: "):
+                break
+        else:
+            raise AssertionError("it ended before its second generation")
+        farm = children(running.pid)
+        assert len(farm) == 3  # the broker and two workers
+        running.send_signal(signal.SIGTERM)
+        rest = running.stderr.read().splitlines()
+        assert running.wait(timeout=60) == 128 + signal.SIGTERM, rest
+    finally:
+        running.kill()
+    assert not any("Traceback" in line for line in rest), rest
+    assert re.fullmatch(
+        r"analytic: stopped after \d+ generations, saved at generation 1; .*", rest[-1]
+    ), rest
+    # Stopped and reaped as the run stopped: none is left running, orphaned, to its init.
+    assert not [pid for pid in farm if alive(pid)]

@@ -11,14 +11,22 @@ from pathlib import Path
 
 import pytest
 
-from gainfarm.analytic.evaluators.evaluator import Wanted
+from gainfarm.analytic.evaluators.evaluator import EpisodeResult, EpisodeStatus, Wanted
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.evaluators.local import spawn_worker, stop_workers
-from gainfarm.analytic.evaluators.replication import Ledger, validate
+from gainfarm.analytic.evaluators.replication import (
+    Check,
+    Ledger,
+    Ruling,
+    caught_probability,
+    sized_rate,
+    validate,
+)
 from gainfarm.broker.service import Broker
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import score
+from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.service import CobotWorker
 from tests.helpers import short_spec, wait_for
 
@@ -180,3 +188,80 @@ def test_a_log_run_again_is_fetched_from_the_worker_that_ran_it_or_the_fetch_fai
     assert fetched.log is None and fetched.scores is None
     assert fetched.reason == "simulated again on forgetful, but its log was not had"
     assert not list((tmp_path / "episodes").glob("*.mcap"))
+
+
+@pytest.mark.parametrize("episodes", [1, 12, 72, 144, 900, 10_000])
+def test_the_sized_rate_catches_a_tenth_lied_on_with_probability_0_99(episodes: int) -> None:
+    rate = sized_rate(episodes)
+    assert 0 < rate <= 1
+    assert rate == pytest.approx(1 - 0.01 ** (1 / (0.1 * episodes)))
+    assert caught_probability(rate, episodes) >= 0.99 - 1e-12
+    if rate < 1:  # the least rate that buys it: any lower buys less
+        assert caught_probability(rate, episodes) == pytest.approx(0.99)
+        assert caught_probability(rate * 0.95, episodes) < 0.99
+
+
+def test_the_sized_rate_falls_as_a_worker_returns_more_episodes() -> None:
+    rates = [sized_rate(n) for n in (12, 72, 144, 900)]
+    assert rates == sorted(rates, reverse=True)
+    # A 48-evaluation 3-plant run on 2 workers; a 600-evaluation one: about the former 5 %.
+    assert round(sized_rate(48 * 3 / 2), 3) == 0.473 and round(sized_rate(600 * 3 / 2), 3) == 0.05
+    assert sized_rate(0) == 1.0 and sized_rate(20) < sized_rate(10) < 1.0
+    assert sized_rate(100, share=1.0, confidence=0.5) == pytest.approx(1 - 0.5 ** (1 / 100))
+
+
+def test_caught_probability_at_the_edges() -> None:
+    assert caught_probability(0.0, 100) == 0.0
+    assert caught_probability(1.0, 100) == 1.0 and caught_probability(1.0, 0) == 0.0
+    assert caught_probability(0.05, 600) == pytest.approx(1 - 0.95**60)
+
+
+def claimed_failure(job_id: str, spec, worker: str = "w1") -> EpisodeResult:
+    return EpisodeResult(
+        job_id=job_id,
+        spec=spec,
+        status=EpisodeStatus.failed,
+        scores=None,
+        log=None,
+        reason="it could not run",
+        worker=worker,
+        attempts=1,
+        timings=None,
+    )
+
+
+def test_a_failure_the_referee_runs_to_scores_names_its_worker(tmp_path: Path) -> None:
+    ledger = Ledger()
+    spec = SPECS["c0"]
+    validation = validate(
+        InProcessEvaluator(tmp_path / "farm"),
+        [claimed_failure("c0", spec)],
+        ledger,
+        referee=InProcessEvaluator(tmp_path / "referee"),
+        check=Check.failure_checked,
+    )
+    assert validation.rulings == {"c0": Ruling.contradicted}
+    standing = validation.standing["c0"]
+    assert standing.status == EpisodeStatus.ok and standing.log is not None
+    assert standing.scores == score(read_episode(standing.log))
+    assert ledger.dissenters == {"w1": "failed job c0 that the referee ran to scores"}
+    assert ledger.failures_checked == 1 and ledger.disagreements == 1
+
+
+def test_a_failure_the_referee_fails_too_stands_and_names_nobody(tmp_path: Path) -> None:
+    ledger = Ledger()
+    unreachable = SPECS["c0"].model_copy(
+        update={"trajectory": TrajectorySpec(center=(1.5, 0.0, 0.4), duration=3.0)}
+    )
+    validation = validate(
+        InProcessEvaluator(tmp_path / "farm"),
+        [claimed_failure("c0", unreachable), claimed_failure("c1", SPECS["c1"], worker="")],
+        ledger,
+        referee=InProcessEvaluator(tmp_path / "referee"),
+        check=Check.failure_checked,
+    )
+    # An honest failure stands; one this process made of a result it could not use (no
+    # worker's word) is no claim to referee.
+    assert validation.rulings == {"c0": Ruling.agreed}
+    assert validation.standing["c0"].status == EpisodeStatus.failed
+    assert ledger.dissenters == {} and ledger.failures_checked == 1 and ledger.disagreements == 0

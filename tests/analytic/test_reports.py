@@ -112,6 +112,37 @@ def test_the_counts_of_one_are_singular_in_the_report(tmp_path: Path) -> None:
     assert "started again 1 time without" in "\n".join(lines)
 
 
+def test_the_report_says_every_check_and_what_the_spot_checks_rate_buys() -> None:
+    from gainfarm.analytic.tuning.records import ValidationRecord
+    from gainfarm.analytic.view.reports import validation_section
+
+    guarantee = (
+        "sized: a worker lying on 10% of its share of the run's episodes (72: 144 planned over "
+        "2 workers) is caught with probability 0.99"
+    )
+    record = ValidationRecord(
+        refereed=4,
+        spot_checked=60,
+        spot_check_rate=0.4725002936297381,
+        spot_check_guarantee=guarantee,
+        failures_checked=1,
+        baseline_refereed=3,
+        held_out_refereed=8,
+        disagreements=1,
+        distrusted={"w1": "failed job g0000-c001-t0 that the referee ran to scores"},
+    )
+    lines = validation_section(record, [])
+    assert lines[2] == (
+        "- episodes the referee (this process) ran again: 4 of the front's, 60 spot checks "
+        "(rate 0.473), 1 failure its worker claimed, 3 episodes of the default gains', 8 "
+        "episodes of the held-out check's"
+    )
+    assert f"- spot checks: {guarantee}" in lines
+    assert (
+        "- distrusted: w1, which failed job g0000-c001-t0 that the referee ran to scores" in lines
+    )
+
+
 def test_a_report_written_into_a_missing_directory_raises_and_creates_nothing(
     tmp_path: Path,
 ) -> None:

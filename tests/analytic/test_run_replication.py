@@ -9,23 +9,26 @@ from pathlib import Path
 import pytest
 
 from gainfarm.analytic.evaluators.evaluator import EpisodeResult, EpisodeStatus, Fetched, Wanted
-from gainfarm.analytic.evaluators.replication import Ledger, validate
+from gainfarm.analytic.evaluators.replication import Ledger, sized_rate, validate
 from gainfarm.analytic.experiments.base import non_dominated
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import hypervolume
-from gainfarm.analytic.tuning.records import read_evaluated
-from gainfarm.analytic.tuning.run import TuningRun
+from gainfarm.analytic.tuning.records import read_evaluated, read_validation
+from gainfarm.analytic.tuning.run import RunProgress, TuningRun
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from tests.analytic.toy import toy_scores
 
-CONFIG = RunConfig(pop=8, generations=4, seed=3)
+# Spot checks at a fixed 0.05 (the default sizes them for this small run at 0.98: every
+# episode), so that the front's own refereeing is what these tests see.
+CONFIG = RunConfig(pop=8, generations=4, seed=3, spot_checks=0.05)
 
 
 class ToyFarm:
     """Workers take jobs in turn, skipping any a job avoids or the farm distrusts; a liar
     returns a log a little better than the truth; a boaster returns the true log and claims
-    better scores than it has; a saboteur claims worse ones. The workers keep the logs: with
+    better scores than it has; a saboteur claims worse ones; a failer says every episode it
+    runs failed. The workers keep the logs: with
     `log_dir`, `fetch` writes each wanted one there and scores it truly (the toy log is the
     spec); without, there are none."""
 
@@ -36,11 +39,13 @@ class ToyFarm:
         boasters: Iterable[str] = (),
         log_dir: Path | None = None,
         saboteurs: Iterable[str] = (),
+        failers: Iterable[str] = (),
     ):
         self.workers = list(workers)
         self.liars = set(liars)
         self.boasters = set(boasters)
         self.saboteurs = set(saboteurs)
+        self.failers = set(failers)
         self.log_dir = log_dir
         self.fetched: list[str] = []
         self.distrusted: set[str] = set()
@@ -112,6 +117,18 @@ class ToyFarm:
             scores = scores.model_copy(update={"f_acc": scores.f_acc * 0.5})
         if worker in self.saboteurs:
             scores = scores.model_copy(update={"f_acc": scores.f_acc * 5, "f_t": scores.f_t * 5})
+        if worker in self.failers:
+            return EpisodeResult(
+                job_id=job_id,
+                spec=spec,
+                status=EpisodeStatus.failed,
+                scores=None,
+                log=None,
+                reason="it could not run",
+                worker=worker,
+                attempts=1,
+                timings=None,
+            )
         return EpisodeResult(
             job_id=job_id,
             spec=spec,
@@ -392,3 +409,73 @@ def test_a_steady_state_run_distrusts_a_liar_and_reports_no_false_row(tmp_path: 
         if checks.get(job, ("", ""))[:2] == ("spot-checked", "contradicted")
     )
     assert all(worker == "h1" for worker in list(farm.ran.values())[caught + 1 :])
+
+
+def test_a_failure_a_worker_claims_is_refereed_and_a_false_one_names_it(tmp_path: Path) -> None:
+    front_only = CONFIG.model_copy(update={"spot_checks": 0.0})
+    farm = ToyFarm(["h1", "failer"], failers=["failer"])
+    checked = run(tmp_path, "checked", farm, front_only)
+    ledger = checked.replication
+    assert ledger.failures_checked >= 1 and ledger.disagreements >= 1
+    assert "that the referee ran to scores" in ledger.dissenters["failer"]
+    # Every episode it ran was a failure, each refereed and replaced: nothing of it is left to
+    # start again without, and no candidate took the failure penalty.
+    assert farm.distrusted == {"failer"}
+    assert front(checked) == front(run(tmp_path, "honest", ToyFarm(["h1"]), front_only))
+    validation = read_validation(checked.directory / "front.json")
+    assert validation is not None and validation.failures_checked == ledger.failures_checked
+
+
+def test_a_failure_is_taken_as_told_where_nothing_is_refereed(tmp_path: Path) -> None:
+    # The contrast: unrefereed, the same farm's failures sink candidates (the penalty).
+    unchecked = CONFIG.model_copy(update={"replicate": False})
+    told = run(tmp_path, "told", ToyFarm(["h1", "failer"], failers=["failer"]), unchecked)
+    honest = run(tmp_path, "honest", ToyFarm(["h1"]), unchecked)
+    assert front(told) != front(honest)
+
+
+def test_the_sized_spot_check_rate_is_fixed_as_the_run_starts_and_kept_on_resume(
+    tmp_path: Path,
+) -> None:
+    sized = CONFIG.model_copy(update={"spot_checks": None})
+    tuning = TuningRun.create(tmp_path / "run", sized)
+
+    def stop(progress: RunProgress) -> None:
+        if progress.ended:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        tuning.run(ToyFarm(["h1", "h2"]), stop, referee=ToyFarm(["referee"]))
+    tuning.close()
+    planned = 8 * 4  # pop x generations x one trajectory on one plant
+    with TuningRun.open(tmp_path / "run") as resumed:
+        assert resumed.state.spot_plan == (planned, 2)
+        assert resumed.state.spot_rate == sized_rate(planned / 2)
+        # Resumed on a farm of four, it draws as it would have: the rate of the start.
+        resumed.run(ToyFarm(["h1", "h2", "h3", "h4"]), referee=ToyFarm(["referee"]))
+        assert resumed.state.spot_rate == sized_rate(planned / 2)
+    validation = read_validation(tmp_path / "run" / "front.json")
+    assert validation is not None and validation.spot_check_rate == sized_rate(planned / 2)
+    assert validation.spot_check_guarantee == (
+        "sized: a worker lying on 10% of its share of the run's episodes (16: 32 planned over 2 "
+        "workers) is caught with probability 0.99"
+    )
+
+
+@pytest.mark.parametrize(
+    ("rate", "says"),
+    [
+        (0.0, "spot checks off (--spot-checks 0): only the front and failures are refereed"),
+        (
+            0.05,
+            "set by hand: a worker lying on 10% of its share of the run's episodes (16: 32 "
+            "planned over 2 workers) is caught with probability 0.0788",
+        ),
+    ],
+)
+def test_a_rate_set_by_hand_says_what_it_buys(tmp_path: Path, rate: float, says: str) -> None:
+    tuning = run(
+        tmp_path, "run", ToyFarm(["h1", "h2"]), CONFIG.model_copy(update={"spot_checks": rate})
+    )
+    assert tuning.state.spot_rate == rate
+    assert tuning.validation().spot_check_guarantee == says

@@ -1,8 +1,9 @@
 """Plug-ins (gainfarm.plugins): an optimiser, a trajectory kind and an objective from a real
 distribution (tests/plugins/fixture), installed on the path with the metadata setuptools makes
 of it, tuned with in this process and on a local farm; and a worker without them refuses the
-job, naming the plug-in, so the run stops with that reason instead of hanging or scoring
-nothing."""
+job, naming the plug-in: the job runs on another worker, and the run stops with that reason,
+instead of hanging or scoring nothing, only when no other worker is left to run it or this
+process lacks the plug-in too."""
 
 import importlib
 import os
@@ -20,11 +21,15 @@ from pydantic import ValidationError
 from gainfarm import plugins
 from gainfarm.analytic.cli import main as analytic_main
 from gainfarm.analytic.compose import tune
+from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
+from gainfarm.analytic.evaluators.local import spawn_worker, stop_workers
 from gainfarm.analytic.tuning.checkpoint import CheckpointRefused, decode, encode
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import Evolution
 from gainfarm.analytic.tuning.records import RunIdentity
+from gainfarm.analytic.tuning.run import TuningRun
+from gainfarm.broker.service import Broker
 from gainfarm.cli import interrupts
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS
@@ -33,6 +38,7 @@ from gainfarm.schemas.trajectory import KIND_PATTERN, TrajectorySpec
 from gainfarm.schemas.wire import JobStatus
 from gainfarm.worker.episode import run_episode
 from gainfarm.worker.job import simulate
+from tests.helpers import wait_for
 
 FIXTURE = Path(__file__).with_name("fixture")
 # A circle the arm follows in 1 s (0.9 s at least: worker.reference.shortest_duration).
@@ -257,7 +263,7 @@ def test_a_worker_without_the_plugin_refuses_and_the_run_says_so(
         tune(RunConfig(**WITH_ALL_THREE), tmp_path / "run", workers=1)
     message = str(raised.value)
     assert "\n" not in message
-    assert "refused job" in message and "local-0" in message
+    assert "refused job" in message and re.search(r"worker local-0-[0-9a-f]+ refused", message)
     assert "gainfarm.trajectories" in message and "'circle'" in message
 
 
@@ -276,9 +282,75 @@ def test_analytic_start_on_workers_without_the_plugin_is_one_line_and_resumable(
         interrupts.uninstall()  # the command took Ctrl-C over for its process: give it back
     error = capsys.readouterr().err.splitlines()[-1]
     assert exited.value.code == 2  # whichever local worker (one per core) took the job first
-    assert re.match(r"analytic: error: worker local-\d+ refused", error), error
+    assert re.match(r"analytic: error: worker local-\d+-[0-9a-f]+ refused", error), error
     assert "no plug-in named 'circle'" in error and error.endswith("then: analytic resume run")
     assert (tmp_path / "run" / "config.json").is_file()  # what it names resumes
+
+
+@pytest.fixture
+def refuser_and_able(
+    installed: Path, broker: Broker, monkeypatch: pytest.MonkeyPatch
+) -> Iterator[Broker]:
+    """`broker` with two workers: "refuser", without the plug-ins, and "able", with them."""
+    monkeypatch.delenv("PYTHONPATH", raising=False)
+    workers = [spawn_worker(broker.endpoints[0], "refuser")]
+    try:
+        monkeypatch.setenv("PYTHONPATH", str(installed))
+        workers.append(spawn_worker(broker.endpoints[0], "able"))
+        wait_for(lambda: broker.status().worker_count == 2, 60, "the workers")
+        yield broker
+    finally:
+        stop_workers(workers)
+
+
+@pytest.mark.slow
+def test_a_worker_without_the_plugin_beside_one_with_it_leaves_the_run_its_front(
+    refuser_and_able: Broker, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Its refusals are no verdict on the run: each job it refuses runs on the other worker."""
+    config = RunConfig(**WITH_ALL_THREE)
+    here = tune(config, tmp_path / "here", evaluator=InProcessEvaluator()).front()
+    tuning = TuningRun.create(tmp_path / "farm", config)
+    with (
+        caplog.at_level("WARNING", logger="gainfarm.analytic"),
+        FarmClient(refuser_and_able.endpoints, "s", tmp_path / "farm", trusted=True) as farm,
+    ):
+        tuning.run(farm)
+        done = {worker.name: worker.jobs_done for worker in farm.status().workers}
+    farmed = [(m.gains, m.objectives) for m in tuning.front()]
+    assert farmed == [(m.gains, m.objectives) for m in here]
+    said = [record.getMessage() for record in caplog.records]
+    assert any(
+        re.match(r"worker refuser refused job \S+: gainfarm\.trajectories: .*'circle'", line)
+        and line.endswith("; running it on another worker")
+        for line in said
+    ), said
+    # Every job the refuser took it refused, all of the first generation: once it had refused
+    # one, it was given no more that need the plug-in; every job ran on the other worker.
+    refused = [line.split()[4] for line in said if line.startswith("worker refuser refused job")]
+    assert refused and len(refused) == done["refuser"]
+    assert all(job_id.startswith("g0000-") for job_id in refused), refused
+    assert done["able"] == config.pop * config.generations
+    tuning.close()
+
+
+@pytest.mark.slow
+def test_a_refusal_stops_the_run_when_this_process_lacks_the_plugin_too(
+    refuser_and_able: Broker, installed: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Another worker could run the job; this process could not check it, nor run it itself."""
+    monkeypatch.setattr(sys, "path", [entry for entry in sys.path if entry != str(installed)])
+    monkeypatch.setattr(plugins, "_loaded", {})
+    with pytest.raises(plugins.PluginError):
+        plugins.load(plugins.TRAJECTORIES, "circle")  # lacking here
+    specs = {f"j{n}": EpisodeSpec(gains=DEFAULT_GAINS, trajectory=CIRCLE) for n in range(4)}
+    with FarmClient(refuser_and_able.endpoints, "s", tmp_path, trusted=True) as farm:
+        farm.submit(specs)
+        with pytest.raises(plugins.PluginError) as raised:
+            list(farm.results(timeout=120))
+    message = str(raised.value)
+    assert "\n" not in message and message.startswith("worker refuser refused job j")
+    assert "gainfarm.trajectories" in message and "'circle'" in message
 
 
 @pytest.mark.parametrize(
