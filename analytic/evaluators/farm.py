@@ -948,6 +948,8 @@ class FarmClient:
             reason = f"its log could not be fetched from {result.worker}"
             return self._run_again(result.job_id, result.worker, pending, reason)
         try:
+            if len(content) != result.episode_bytes:
+                raise NotAnEpisodeLog(f"{len(content)} bytes, not the {result.episode_bytes} sent")
             source = f"episode of {result.job_id} from {result.worker}"
             scores = self.read_log(content, pending.spec, path, source)
         except NotAnEpisodeLog as error:

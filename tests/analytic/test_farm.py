@@ -35,6 +35,7 @@ from tests.helpers import (
     ask_for_work,
     hand_in,
     result_for,
+    serve_log,
     short_spec,
     wait_for,
 )
@@ -260,23 +261,23 @@ def test_bad_results_on_the_studys_key_are_ignored_or_reported(
         farm.submit({"j1": short_spec(), "j2": short_spec(duration=0.6)})
         digest = hashlib.sha256(b"hello").hexdigest()
         forged = result_for("s", "j1", worker="liar", episode_bytes=5, digest=digest)
-        session.put(keys.result("s", "j1"), b"hello", attachment=b"garbage")
-        session.put(keys.result("s", "j1"), b"hello")
-        session.put(keys.result("s", "j1"), b"hullo", attachment=forged.to_bytes())
+        session.put(keys.result("s", "j1"), b"", attachment=b"garbage")
+        session.put(keys.result("s", "j1"), b"")
+        session.put(keys.result("s", "j1"), b"hello", attachment=forged.to_bytes())  # a log
         session.put(
             keys.result("s", "nope"),
             b"",
             attachment=forged.model_copy(update={"job_id": "nope"}).to_bytes(),
         )
-        session.put(keys.result("s", "j1"), b"hello", attachment=forged.to_bytes())
+        session.put(keys.result("s", "j1"), b"", attachment=forged.to_bytes())
         worker = spawn_worker(broker.endpoints[0], "w")
         try:
             evaluations = {evaluation.job_id: evaluation for evaluation in farm.results(60)}
         finally:
             stop_workers([worker])
-        # Garbage and no attachment; a job never submitted; and two results the broker never
-        # took, since "liar" held no lease (one of them not even its digest's log).
-        assert farm.ignored == 2 and farm.duplicates >= 1 and farm.unconfirmed == 2
+        # Garbage and no attachment, and a result that carries a log (none does); a job never
+        # submitted; and a result the broker never took, since "liar" held no lease.
+        assert farm.ignored == 3 and farm.duplicates >= 1 and farm.unconfirmed == 1
     assert evaluations["j1"].status == "ok" and evaluations["j1"].attempts == 1
     assert evaluations["j1"].worker == "w"
     assert read_episode(tmp_path / "episodes" / "j1.mcap").metadata.spec == short_spec()
@@ -297,7 +298,8 @@ def test_an_unusable_log_on_the_last_attempt_fails_the_job_with_the_reason(
             "s", "j", worker="broken", lease_id=lease.lease_id, episode_bytes=10, digest=digest
         )
         assert hand_in(session, truncated).accepted
-        session.put(keys.result("s", "j"), b"hello", attachment=truncated.to_bytes())
+        _served = serve_log(session, "s", "broken", b"hello")
+        session.put(keys.result("s", "j"), b"", attachment=truncated.to_bytes())
         [evaluation] = list(farm.results(timeout=10))
     assert evaluation.status == "failed" and evaluation.worker == ""
     assert evaluation.reason == "unusable episode log: 5 bytes, not the 10 sent (attempt 1)"
