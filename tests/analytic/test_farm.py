@@ -7,6 +7,7 @@ import re
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -29,6 +30,8 @@ from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import PLAIN_PLANT, ModelSpec
+from gainfarm.schemas.wire import MAX_EPISODE_BYTES, PART_BYTES, Part
+from gainfarm.worker.job import simulate
 from tests.helpers import (
     SOFT_GAINS,
     TRACKING_GAINS,
@@ -457,3 +460,54 @@ def test_a_result_from_a_worker_the_local_farm_did_not_start_is_refused_and_runs
         f"result from worker {name}, which this local farm did not start: refused"
         for name in ("putter", "silent")
     ]
+
+
+def lie(total: int, part: int, length: int) -> Callable[[zenoh.Query], None]:
+    """A holder that answers every part with `length` bytes, saying part `part` of `total`
+    (model_construct: a liar's Part need not be valid)."""
+    header = Part.model_construct(total=total, part=part).to_bytes()
+    return lambda query: query.reply(query.key_expr, bytes(length), attachment=header)
+
+
+@pytest.mark.slow
+def test_a_log_of_several_parts_comes_whole_and_lying_holders_are_skipped(
+    broker: Broker, session: zenoh.Session, tmp_path: Path
+) -> None:
+    """A long episode's log, larger than a part, fetched with its result (keep_logs) from a real
+    worker process, is the log the episode makes; fetched again with holders that lie about
+    its total, answer a part out of range or a part of the wrong size, each liar is refused
+    and the next holder asked, until the worker that keeps it."""
+    spec = short_spec(duration=15.0)
+    calm = simulate(spec)
+    assert len(calm.content) > PART_BYTES
+    liars = {
+        "liar-total": lie(MAX_EPISODE_BYTES + 1, 0, PART_BYTES),
+        "liar-range": lie(len(calm.content), 9, PART_BYTES),
+        "liar-size": lie(len(calm.content), 0, 100),
+    }
+    asked: list[str] = []
+
+    def liar(name: str) -> Callable[[zenoh.Query], None]:
+        def answer(query: zenoh.Query) -> None:
+            asked.append(name)
+            liars[name](query)
+
+        return answer
+
+    _liars = [
+        session.declare_queryable(keys.log("s", name, calm.digest), liar(name)) for name in liars
+    ]
+    worker = spawn_worker(broker.endpoints[0], "w")
+    try:
+        with FarmClient(broker.endpoints, "s", tmp_path) as farm:
+            farm.submit({"long": spec})
+            [evaluation] = list(farm.results(timeout=120))
+            assert evaluation.log is not None and evaluation.log.read_bytes() == calm.content
+            evaluation.log.unlink()
+            holders = (*liars, "w")
+            fetched = farm.fetch({"long": Wanted(spec, calm.digest, holders)})["long"]
+    finally:
+        stop_workers([worker])
+    assert asked == list(liars)
+    assert fetched.source == "w" and fetched.log.read_bytes() == calm.content
+    assert fetched.scores == evaluation.scores
