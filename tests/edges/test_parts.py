@@ -13,6 +13,7 @@ from gainfarm.edges.parts import fetch_parts, reply_part
 from gainfarm.edges.transport import SERVING_SESSION_BYTES, open_session
 from gainfarm.schemas.parts import asked_part, part_count, span
 from gainfarm.schemas.wire import MAX_EPISODE_BYTES, PART_BYTES, BadMessage, Part
+from tests.helpers import wait_for
 
 KEY = "gainfarm/study/s/log/w/" + "0" * 64
 CONTENT = bytes(range(256)) * (PART_BYTES * 5 // 2 // 256) + b"tail"  # three parts, the last short
@@ -35,33 +36,43 @@ def fetcher(broker: Broker) -> Iterator[zenoh.Session]:
 
 
 def serve(
-    holder: zenoh.Session, answer: Callable[[zenoh.Query], None], asked: list[int] | None = None
+    holder: zenoh.Session,
+    fetcher: zenoh.Session,
+    answer: Callable[[zenoh.Query], None],
+    asked: list[int] | None = None,
 ) -> zenoh.Queryable:
+    """Serve `answer` on KEY, once the router routes the fetcher's queries to it."""
+
     def on_query(query: zenoh.Query) -> None:
+        if query.parameters.get("probe") is not None:
+            query.reply_err("here")
+            return
         if asked is not None:
             asked.append(asked_part(query.parameters.get("part")))
         answer(query)
 
-    return holder.declare_queryable(KEY, on_query)
+    queryable = holder.declare_queryable(KEY, on_query)
+    wait_for(lambda: list(fetcher.get(f"{KEY}?probe", timeout=1.0)), what="the queryable")
+    return queryable
 
 
 def test_bytes_of_several_parts_come_back_whole(
     holder: zenoh.Session, fetcher: zenoh.Session
 ) -> None:
     asked: list[int] = []
-    _served = serve(holder, lambda query: reply_part(query, CONTENT), asked)
+    _served = serve(holder, fetcher, lambda query: reply_part(query, CONTENT), asked)
     assert part_count(len(CONTENT)) == 3
     assert fetch_parts(fetcher, KEY, MAX_EPISODE_BYTES, timeout=5.0) == CONTENT
     assert sorted(asked) == [0, 1, 2] and asked[0] == 0
 
 
 def test_empty_bytes_are_one_empty_part(holder: zenoh.Session, fetcher: zenoh.Session) -> None:
-    _served = serve(holder, lambda query: reply_part(query, b""))
+    _served = serve(holder, fetcher, lambda query: reply_part(query, b""))
     assert fetch_parts(fetcher, KEY, MAX_EPISODE_BYTES, timeout=5.0) == b""
 
 
 def test_nobody_answering_is_none(holder: zenoh.Session, fetcher: zenoh.Session) -> None:
-    _served = serve(holder, lambda query: query.reply_err("no such log"))
+    _served = serve(holder, fetcher, lambda query: query.reply_err("no such log"))
     assert fetch_parts(fetcher, KEY, MAX_EPISODE_BYTES, timeout=5.0) is None
 
 
@@ -118,7 +129,7 @@ def test_an_answer_that_breaks_the_rules_is_refused(
     holder: zenoh.Session, fetcher: zenoh.Session, lie: str
 ) -> None:
     answer, reason = LIES[lie]
-    _served = serve(holder, answer)
+    _served = serve(holder, fetcher, answer)
     limit = 2 * PART_BYTES if lie == "a total over the fetcher's limit" else MAX_EPISODE_BYTES
     with pytest.raises(BadMessage, match=reason):
         fetch_parts(fetcher, KEY, limit, timeout=5.0)
@@ -127,7 +138,7 @@ def test_an_answer_that_breaks_the_rules_is_refused(
 def test_a_query_that_names_no_part_or_no_such_part_gets_a_reason(
     holder: zenoh.Session, fetcher: zenoh.Session
 ) -> None:
-    _served = serve(holder, lambda query: reply_part(query, CONTENT))
+    _served = serve(holder, fetcher, lambda query: reply_part(query, CONTENT))
     for selector, reason in [
         (KEY, "ask for one part at a time (?part=N, from 0)"),
         (f"{KEY}?part=3", "part: no part 3, there are 3"),
