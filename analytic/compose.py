@@ -17,6 +17,8 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import AbstractContextManager
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from gainfarm.analytic.evaluators.evaluator import Evaluator
 from gainfarm.analytic.evaluators.farm import FarmClient, FarmUnavailable
 from gainfarm.analytic.evaluators.local import LocalFarm, farm_endpoints
@@ -28,7 +30,7 @@ from gainfarm.analytic.tuning.run import RunProgress, TuningRun
 from gainfarm.cli import interrupts
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.trajectory import TrajectorySpec
-from gainfarm.schemas.wire import NAME_PATTERN
+from gainfarm.schemas.wire import NAME_PATTERN, describe
 
 OWNER = re.compile(r"[A-Za-z0-9_-]{1,32}")  # a participant name of the secure profile
 STUDY_RANDOM_HEX = 8
@@ -41,8 +43,9 @@ Watch = Callable[[Evaluator], AbstractContextManager[Callable[[RunProgress], Non
 class CannotStart(ValueError):
     """A new run that cannot start, said in one line; `part` is what is wrong: "out" (the run
     directory), "duration" or "placement" (a trajectory the arm cannot follow: too fast for its
-    limits, or out of its reach), "balance" (a generic run with nothing to balance by), or
-    "algorithm" (one this installation cannot run)."""
+    limits, or out of its reach), "balance" (a generic run with nothing to balance by),
+    "algorithm" (one this installation cannot run), or the option that gave a part of the config
+    that is no longer valid ("uncertainty" for a plant variant, "plant")."""
 
     def __init__(self, message: str, part: str):
         super().__init__(message)
@@ -219,6 +222,11 @@ def tune_run(
         raise
 
 
+# The option that gave each part of a config that a command may have made without validating it
+# (a plant variant with the physics steps it needs, a plant told of a load).
+_PARTS = {"plants": "uncertainty", "check_plants": "uncertainty", "model": "plant"}
+
+
 def _create(
     directory: Path, config: RunConfig, feedforward: bytes | None, forget: Callable[[], None]
 ) -> TuningRun:
@@ -230,6 +238,9 @@ def _create(
         forget()
         where = str(error.filename or directory)
         raise CannotStart(f"cannot write {where!r}: {error.strerror}", "out") from None
+    except ValidationError as error:  # the config checked once more: a part given unchecked
+        field = str((error.errors()[0]["loc"] or ("config",))[0])
+        raise CannotStart(describe(error), _PARTS.get(field, field.replace("_", "-"))) from None
     except ValueError as error:  # an algorithm this installation cannot run (agemoea2: numba)
         raise CannotStart(str(error), "algorithm") from None
     except KeyboardInterrupt:

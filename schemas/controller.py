@@ -16,6 +16,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from gainfarm.schemas.documents import BadDocument, load_json, load_yaml, quoted
 from gainfarm.schemas.gains import PDGains, PerJointGains
 from gainfarm.schemas.limits import Limits
 from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
@@ -222,7 +223,9 @@ def _document(raw: bytes) -> Any:
     except UnicodeDecodeError:
         raise BadGains("not JSON or YAML text (binary data)") from None
     try:
-        return json.loads(text)
+        return load_json(raw)
+    except BadDocument as error:
+        raise BadGains(str(error)) from None
     except json.JSONDecodeError as error:
         if text.lstrip().startswith(("{", "[")):
             raise BadGains(
@@ -231,7 +234,9 @@ def _document(raw: bytes) -> Any:
     import yaml  # only for a file that is not JSON
 
     try:
-        document = yaml.safe_load(text)
+        document = load_yaml(text)
+    except BadDocument as error:
+        raise BadGains(str(error)) from None
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         problem = getattr(error, "problem", None) or "unreadable"
@@ -273,9 +278,9 @@ def problem(error: ValidationError) -> str:
     suffix = f" (and {more} more problem{'s' if more > 1 else ''})" if more else ""
     if not loc or loc[0] not in ("kp", "kd"):
         if kind == "literal_error" and loc == ("format",):
-            return f"format {value!r} is not {FORMAT!r} (a file of another gainfarm version?)"
+            return f"format {quoted(value)} is not {FORMAT!r} (a file of another gainfarm version?)"
         if kind == "extra_forbidden" and len(loc) == 1:
-            return f"unknown field {loc[0]!r}{suffix}"
+            return f"unknown field {quoted(loc[0])}{suffix}"
         return describe(error)
     name = str(loc[0])
     if len(loc) == 1:
@@ -289,10 +294,10 @@ def problem(error: ValidationError) -> str:
                 f"{name}: {len(value)} gains given, {N_JOINTS} needed "
                 f"({JOINT_NAMES[0]}..{JOINT_NAMES[-1]}){suffix}"
             )
-        return f"{name}: expected a list of {N_JOINTS} numbers, got {value!r}{suffix}"
+        return f"{name}: expected a list of {N_JOINTS} numbers, got {quoted(value)}{suffix}"
     where = f"{name} of {JOINT_NAMES[loc[1]]}" if isinstance(loc[1], int) else name
     if kind == "greater_than_equal":
-        return f"{where}: {value!r} is negative (gains are at least 0){suffix}"
+        return f"{where}: {quoted(value)} is negative (gains are at least 0){suffix}"
     if kind == "finite_number":
-        return f"{where}: {value!r} is not finite{suffix}"
-    return f"{where}: {value!r} is not a number{suffix}"
+        return f"{where}: {quoted(value)} is not finite{suffix}"
+    return f"{where}: {quoted(value)} is not a number{suffix}"

@@ -61,6 +61,7 @@ from mcap.writer import MCAP0_MAGIC
 from pydantic import ValidationError
 from rosbags.typesys import Stores, get_typestore
 
+from gainfarm.schemas.documents import BadDocument, read_bounded
 from gainfarm.schemas.episode import EpisodeMetadata
 from gainfarm.schemas.episode_log import (
     CHANNELS,
@@ -671,8 +672,41 @@ def _write_summary(
 
 
 def read_episode(path: Path) -> EpisodeLog:
-    """Read an episode log file (episode_bytes' bytes); NotAnEpisodeLog if it is not one."""
-    return decode_episode(Path(path).read_bytes(), str(path))
+    """Read an episode log file (episode_bytes' bytes); NotAnEpisodeLog if it is not one, or
+    holds more than MAX_EPISODE_BYTES (refused before it is read)."""
+    try:
+        content = read_bounded(Path(path), MAX_EPISODE_BYTES)
+    except BadDocument as error:
+        raise NotAnEpisodeLog(f"{path}: {error}") from None
+    return decode_episode(content, str(path))
+
+
+def check_chunks(path: Path, bound: int = MAX_EPISODE_BYTES) -> None:
+    """Check, before another reader (rosbags) decompresses them, that the chunks of the MCAP
+    file `path` decompress to `bound` bytes at most, all together: NotAnEpisodeLog, in one line,
+    for a file larger than that, a chunk claiming more, or one whose data inflates past its
+    claim (a 200 kB "bomb" that rosbags would inflate to gigabytes). Each chunk is decompressed
+    here as decode_episode does, to its claim at most, and dropped."""
+    where = str(path)
+    try:
+        with Path(path).open("rb") as stream:
+            size = stream.seek(0, io.SEEK_END)
+            if size > bound:
+                raise NotAnEpisodeLog(f"{where}: {size} bytes, more than the {bound} read")
+            stream.seek(max(0, size - len(MCAP0_MAGIC)))
+            if stream.read() != MCAP0_MAGIC:
+                return  # rosbags refuses a file without its end magic before reading a chunk
+            stream.seek(0)
+            reader = StreamReader(stream, emit_chunks=True, record_size_limit=bound)
+            left = bound
+            for record in reader.records:
+                if isinstance(record, Chunk):
+                    left -= len(_decompress(f"{where}: a chunk", record, left))
+    except NotAnEpisodeLog:
+        raise
+    except _UNREADABLE as error:
+        reason = " ".join(str(error).split())[:300] or type(error).__name__
+        raise NotAnEpisodeLog(f"{where}: unreadable MCAP ({reason})") from None
 
 
 def decode_episode(content: bytes, source: str = "episode log") -> EpisodeLog:
@@ -856,8 +890,8 @@ def _decompress(where: str, chunk: Chunk, bound: int) -> bytes:
     size = chunk.uncompressed_size
     if size > bound:
         raise NotAnEpisodeLog(
-            f"{where} claims {size} bytes uncompressed, more than the {bound} this episode's "
-            "messages can take"
+            f"{where} claims {size} bytes uncompressed, more than the {bound} this log's "
+            "messages may take"
         )
     if chunk.compression == "zstd":
         # One byte more than claimed tells a longer output from an exact one. Not

@@ -14,6 +14,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from gainfarm.schemas.documents import BadDocument, load_toml, quoted
 from gainfarm.schemas.robot import RATED_PAYLOAD, LoadData, ModelSpec
 from gainfarm.schemas.wire import describe
 
@@ -99,16 +100,18 @@ def read_plant_file(raw: bytes) -> PlantFile:
     if len(raw) > MAX_FILE_BYTES:
         raise BadPlantFile(f"{len(raw)} bytes, more than a plant file's {MAX_FILE_BYTES}")
     try:
-        table = tomllib.loads(raw.decode())
+        table = load_toml(raw.decode())
     except UnicodeDecodeError:
         raise BadPlantFile("not text") from None
     except tomllib.TOMLDecodeError as error:
         raise BadPlantFile(f"not TOML: {error}") from None
+    except BadDocument as error:
+        raise BadPlantFile(str(error)) from None
     robot = table.get("plant", {}).get("robot") if isinstance(table.get("plant"), dict) else None
     if robot is not None and robot != ModelSpec.model_fields["robot"].default:
         # Said plainly: a twin of another arm is not a typo in one of its numbers.
         raise BadPlantFile(
-            f"a plant of robot {robot!r}; this farm simulates "
+            f"a plant of robot {quoted(robot)}; this farm simulates "
             f"{ModelSpec.model_fields['robot'].default!r}"
         )
     try:

@@ -42,12 +42,24 @@ DEFAULT_ROTOR_INERTIA = (0.4, 0.4, 0.3, 0.3, 0.1, 0.1, 0.1)  # kg·m², reflecte
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-PerJointPositive = Annotated[
-    tuple[PositiveFloat, ...], Field(min_length=N_JOINTS, max_length=N_JOINTS)
-]
-PerJointNonNegative = Annotated[
-    tuple[NonNegativeFloat, ...], Field(min_length=N_JOINTS, max_length=N_JOINTS)
-]
+
+
+def _per_joint(low: float, high: float, strict: bool = False) -> Any:
+    """Seven finite numbers from `low` (excluded if `strict`) to `high`: the bounds of a
+    physical quantity, far outside any arm of this class, so that a file's 1e308 is refused
+    here, naming its field, rather than overflowing the physics that reads it."""
+    bounds = {"gt" if strict else "ge": low, "le": high}
+    number = Annotated[float, Field(allow_inf_nan=False, **bounds)]
+    return Annotated[tuple[number, ...], Field(min_length=N_JOINTS, max_length=N_JOINTS)]
+
+
+# 100 times the stiffest harmonic drive of the catalogues above (no ModelSpec's substeps can
+# integrate more than about 5e5 in any case), and alike far beyond every other number.
+Stiffness = _per_joint(0, 1e7, strict=True)
+SpringDamping = _per_joint(0, 1e5)
+RotorInertia = _per_joint(0, 1e3)
+MassScale = _per_joint(0, 100, strict=True)
+FrictionTorque = _per_joint(0, 1e4)
 
 
 class Friction(BaseModel):
@@ -60,8 +72,8 @@ class Friction(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    viscous: PerJointNonNegative = (0.5, 0.5, 0.3, 0.3, 0.2, 0.1, 0.1)  # N·m·s/rad
-    coulomb: PerJointNonNegative = tuple(round(0.015 * limit, 3) for limit in TORQUE_LIMITS)
+    viscous: FrictionTorque = (0.5, 0.5, 0.3, 0.3, 0.2, 0.1, 0.1)  # N·m·s/rad
+    coulomb: FrictionTorque = tuple(round(0.015 * limit, 3) for limit in TORQUE_LIMITS)
     smoothing: float = Field(0.05, gt=0, le=10, allow_inf_nan=False, description="rad/s")
 
 
@@ -154,9 +166,9 @@ class ModelSpec(BaseModel):
         "(30.6 kg; the data sheet's 29.9 kg), the open descriptions' older axes, or KUKA's CAD "
         "masses (22.7 kg). The robot's own gravity model (interface fri) is this set",
     )
-    stiffness: PerJointPositive = DEFAULT_STIFFNESS
-    spring_damping: PerJointNonNegative = DEFAULT_SPRING_DAMPING
-    rotor_inertia: PerJointNonNegative = DEFAULT_ROTOR_INERTIA
+    stiffness: Stiffness = DEFAULT_STIFFNESS
+    spring_damping: SpringDamping = DEFAULT_SPRING_DAMPING
+    rotor_inertia: RotorInertia = DEFAULT_ROTOR_INERTIA
     friction: Friction | None = Friction()
     delay: int = Field(1, ge=0, le=50, description="ticks before a command acts")
     sensors: Sensors = Sensors()
@@ -164,7 +176,7 @@ class ModelSpec(BaseModel):
         "motor", description="the side whose measured angle the PD feeds back"
     )
     substeps: int = Field(2, ge=1, le=50, description="physics steps per 2 ms control tick")
-    mass_scale: PerJointPositive = Field(
+    mass_scale: MassScale = Field(
         (1.0,) * N_JOINTS,
         description="each link's true mass (and its inertia alike) against the named set's, "
         "links 1-7; the robot's gravity model does not know it",

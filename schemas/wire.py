@@ -457,6 +457,9 @@ def _number(value: object) -> str:
     """A bound or a value as it would be typed: 0.1, 120, 1200000, 1e+300."""
     if isinstance(value, float) and value.is_integer() and abs(value) < 1e15:
         return str(int(value))
+    if isinstance(value, int) and abs(value).bit_length() > 64:
+        # Quoted whole, a file's 4,000-digit integer would be the error's whole line.
+        return f"an integer of {len(str(abs(value)))} digits"
     return str(value)
 
 

@@ -315,6 +315,7 @@ def _file_gains(path: Path) -> "tuple[PDGains, Controller | None]":
     """--gains: the one controller in the file (and the file as a Controller, if it is an
     exported one); --kp and --kd may not be given beside it."""
     from gainfarm.schemas.controller import BadGains, read_controller, read_gains
+    from gainfarm.schemas.documents import BadDocument, read_bounded
 
     context = click.get_current_context()
     given = [
@@ -325,9 +326,11 @@ def _file_gains(path: Path) -> "tuple[PDGains, Controller | None]":
     if given:
         raise CliError(f"--gains and {' and '.join(given)} exclude each other: give one of them")
     try:
-        raw = path.read_bytes()
+        raw = read_bounded(path)
     except OSError as error:
         raise CliError(f"--gains: cannot read {str(path)!r}: {error.strerror}") from None
+    except BadDocument as error:
+        raise CliError(f"--gains: {str(path)!r}: {error}") from None
     try:
         candidates = read_gains(raw)
     except BadGains as error:

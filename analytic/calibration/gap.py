@@ -6,7 +6,6 @@ less the logged one, per joint: of the joint angle q and of the joint torque. Be
 episode's objectives as the plant predicts them and as the arm's log shows them.
 """
 
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,6 +15,7 @@ from pydantic import ValidationError
 
 from gainfarm.analytic.calibration.logs import BadLog, Recording
 from gainfarm.schemas.controller import Controller
+from gainfarm.schemas.documents import BadDocument, load_json, read_bounded
 from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec, Scores
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import PDGains
@@ -78,14 +78,20 @@ class Played:
     trajectory: TrajectorySpec
 
 
+# An excitation's reference is sampled at every tick: a 60 s one is some MB of JSON.
+MAX_PLAYED_BYTES = 64 << 20
+
+
 def read_played(path: Path) -> list[Played]:
     """What a file says was played: an excitation of `analytic excite` (its reference and gains)
     or a controller of `analytic export` (its gains on each of its run's trajectories); BadLog in
     one line."""
     try:
-        document = json.loads(Path(path).read_bytes())
+        document = load_json(read_bounded(Path(path), MAX_PLAYED_BYTES))
     except OSError as error:
         raise BadLog(f"--played: cannot read {str(path)!r}: {error.strerror}") from None
+    except BadDocument as error:
+        raise BadLog(f"--played: {str(path)!r}: {error}") from None
     except ValueError:
         raise BadLog(f"--played: {str(path)!r} is not JSON") from None
     name = Path(path).stem

@@ -19,7 +19,7 @@ import numpy as np
 
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
+from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, check_chunks, read_episode
 from gainfarm.schemas.robot import JOINT_NAMES, SPEED_LIMITS
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, CONTROL_PERIOD_NS, TrajectorySpec
 
@@ -117,6 +117,28 @@ def read_log(path: Path, topics: Topics = Topics()) -> "EpisodeLog | Recording":
     return read_bag(path, topics)
 
 
+def _check_bounds(path: Path) -> None:
+    """Refuse, before rosbags reads it, a bag whose MCAP files would decompress past
+    MAX_EPISODE_BYTES: rosbags inflates each chunk to whatever its data says (a 200 kB file to
+    gigabytes). A bag's SQLite files hold their messages as they are, bounded by their size."""
+    files = [path] if path.is_file() else sorted(path.glob("*.mcap"))
+    for file in files:
+        if not _mcap(file):
+            continue
+        try:
+            check_chunks(file)
+        except NotAnEpisodeLog as error:
+            raise BadLog(f"{str(path)!r}: {str(error).removeprefix(f'{file}: ')}") from None
+
+
+def _mcap(path: Path) -> bool:
+    try:
+        with path.open("rb") as file:
+            return file.read(5) == b"\x89MCAP"
+    except OSError:  # rosbags says why, as for any file it cannot read
+        return False
+
+
 def _rosbag(path: Path) -> bool:
     """Whether `path` could be a ROS 2 bag's file that is not a gainfarm episode log."""
     with path.open("rb") as file:
@@ -178,6 +200,7 @@ def read_bag(path: Path, topics: Topics = Topics()) -> Recording:
     from rosbags.highlevel import AnyReader
 
     name = str(path)
+    _check_bounds(Path(path))
     try:
         with AnyReader([Path(path)]) as reader:
             found = {c.topic: c for c in reader.connections}

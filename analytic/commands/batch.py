@@ -146,14 +146,17 @@ def _candidates(path: Path | None) -> list["PDGains"]:
     (schemas.controller.read_gains), or every member of a run's front.csv."""
     from gainfarm.analytic.tuning.records import FRONT_FIELDS, read_front
     from gainfarm.schemas.controller import BadGains, read_gains
+    from gainfarm.schemas.documents import BadDocument, read_bounded
     from gainfarm.schemas.gains import DEFAULT_GAINS
 
     if path is None:
         return [DEFAULT_GAINS]
     try:
-        raw = path.read_bytes()
+        raw = read_bounded(path)
     except OSError as error:
         raise CliError(f"--gains: cannot read {str(path)!r}: {error.strerror}") from None
+    except BadDocument as error:
+        raise CliError(f"--gains: {str(path)!r}: {error}") from None
     if raw.startswith(FRONT_FIELDS[0].encode() + b","):  # a CSV whose header is front.csv's
         try:
             front = read_front(path)

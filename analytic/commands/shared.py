@@ -180,6 +180,7 @@ def plants_from(
         variants,
     )
     from gainfarm.schemas.robot import PLANTS
+    from gainfarm.schemas.wire import one_line
 
     stream = HELD_OUT if held_out else TUNING
 
@@ -198,11 +199,17 @@ def plants_from(
         try:
             return drawn(table)
         except ValueError as error:
-            raise CliError(f"--plant: {plant!r}: a variant is no plant ({error})") from None
+            raise CliError(
+                f"--plant: {plant!r}: a variant is no plant ({one_line(error)})"
+            ) from None
+    from gainfarm.schemas.documents import BadDocument, read_bounded
+
     try:
-        text = path.read_text()
+        text = read_bounded(path).decode()
     except OSError as error:
         raise CliError(f"--uncertainty: cannot read {str(path)!r}: {error.strerror}") from None
+    except BadDocument as error:
+        raise CliError(f"--uncertainty: {str(path)!r}: {error}") from None
     except UnicodeDecodeError:
         raise CliError(f"--uncertainty: {str(path)!r} is not text") from None
     try:
@@ -219,7 +226,9 @@ def plants_from(
     try:
         return drawn(table)
     except ValueError as error:  # a range that takes the plant out of what it may be
-        raise CliError(f"--uncertainty: {str(path)!r}: a variant is no plant ({error})") from None
+        raise CliError(
+            f"--uncertainty: {str(path)!r}: a variant is no plant ({one_line(error)})"
+        ) from None
 
 
 def check_farm(

@@ -66,6 +66,7 @@ from gainfarm.analytic.tuning.run import RunBusy, TuningRun, upgrade
 from gainfarm.cli.words import counted
 from gainfarm.edges.files import staging_directory, write_atomically
 from gainfarm.plugins import OBJECTIVES, load_plugins
+from gainfarm.schemas.documents import quoted
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.limits import MEASURES, Limits
@@ -309,9 +310,17 @@ def sources(chosen: Sequence[ChosenRun]) -> list[EpisodeSource]:
     """Every kept log of the selected members, as each run's front.json lists them."""
     found = []
     for run in chosen:
+        inside = run.directory.resolve()
         for member in run.members:
             for log in member.logs:
                 path = run.directory / log
+                if not path.resolve().is_relative_to(inside):
+                    # front.json is the run's word, not the farm's: a log named from outside the
+                    # run (../, an absolute path, a symlink out) is never read nor linked in.
+                    raise UnreadableRun(
+                        f"{str(run.directory)!r}: front.json names the log {quoted(str(log))}, "
+                        "which lies outside the run: refused"
+                    )
                 if path.is_file():
                     episode_id = f"{run.run_id[:RUN_ID_DIGITS]}-{path.stem}"
                     found.append(EpisodeSource(episode_id, run.name, run.run_id, path, member))

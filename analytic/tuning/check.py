@@ -42,7 +42,13 @@ from gainfarm.analytic.tuning.picks import (
     knee_index,
     ranked_dominating,
 )
-from gainfarm.analytic.tuning.records import FRONT_JSON, Baseline, FrontMember, sorted_front
+from gainfarm.analytic.tuning.records import (
+    FRONT_JSON,
+    Baseline,
+    FrontMember,
+    read_record,
+    sorted_front,
+)
 from gainfarm.analytic.tuning.run import TuningRun
 from gainfarm.cli.words import counted
 from gainfarm.edges.files import interrupts_deferred, write_atomically
@@ -464,7 +470,7 @@ def _write(run: TuningRun, checked: Sequence[Checked], plants: int, asked: int, 
         "cost": cost,
     }
     front = run.directory / FRONT_JSON
-    content = json.loads(front.read_bytes())
+    content = read_record(front)
     content["held_out"] = record
     # Both or neither: a resume runs the check again while check.json is missing.
     with interrupts_deferred():
@@ -478,7 +484,7 @@ def read_check(directory) -> dict | None:
     if not path.exists():
         return None
     try:
-        return json.loads(path.read_bytes())
+        return read_record(path)
     except (OSError, ValueError):
         return None
 

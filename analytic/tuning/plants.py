@@ -15,6 +15,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from gainfarm.models import min_substeps
+from gainfarm.schemas.documents import QUOTED, BadDocument, load_toml
 from gainfarm.schemas.robot import N_JOINTS, ModelSpec
 from gainfarm.schemas.wire import describe
 
@@ -84,9 +85,11 @@ class BadUncertainty(ValueError):
 def ranges(text: str | None = None) -> dict[str, Range]:
     """The ranges in `text` (TOML), or the shipped ones; BadUncertainty in one line."""
     try:
-        table = tomllib.loads(UNCERTAINTY.read_text() if text is None else text)
+        table = load_toml(UNCERTAINTY.read_text() if text is None else text)
     except tomllib.TOMLDecodeError as error:
         raise BadUncertainty(f"not TOML: {error}") from None
+    except BadDocument as error:
+        raise BadUncertainty(str(error)) from None
     return ranges_of(table)
 
 
@@ -95,11 +98,13 @@ def ranges_of(table: dict) -> dict[str, Range]:
     found = {}
     for name, entry in table.items():
         if not isinstance(entry, dict):
-            raise BadUncertainty(f"{name}: a table of field, draw, low, high and why expected")
+            raise BadUncertainty(
+                f"{name[:QUOTED]}: a table of field, draw, low, high and why expected"
+            )
         try:
             found[name] = Range.model_validate(entry)
         except ValidationError as error:
-            raise BadUncertainty(f"{name}: {describe(error)}") from None
+            raise BadUncertainty(f"{name[:QUOTED]}: {describe(error)}") from None
     return found
 
 
@@ -124,11 +129,7 @@ def variants(
         for item in table.values():
             _apply(values, item, rng)
         values["sensors"]["seed"] = int(rng.integers(2**63))
-        plant = ModelSpec.model_validate(values)
-        needed = min_substeps(plant)
-        if needed > plant.substeps:
-            plant = plant.model_copy(update={"substeps": needed})
-        drawn.append(plant)
+        drawn.append(stepped(ModelSpec.model_validate(values)))
     return tuple(drawn)
 
 
@@ -161,7 +162,8 @@ def _move(values: dict, item: Range, draw: np.ndarray) -> None:
     current = holder[name]
     if isinstance(current, Sequence) and not isinstance(current, str):
         base = np.asarray(current, dtype=float)
-        moved = draw * (1.0 if item.absolute else base)
+        with np.errstate(over="ignore"):  # an overflow is inf, which ModelSpec refuses
+            moved = draw * (1.0 if item.absolute else base)
         holder[name] = tuple(float(v) for v in np.broadcast_to(moved, base.shape))
     else:
         moved = float(draw[0] if item.absolute else draw[0] * current)
@@ -185,8 +187,17 @@ def corner(
         bound = np.asarray(getattr(item, end), dtype=float)
         _move(values, item, np.broadcast_to(bound, (size,)) if bound.ndim == 0 else bound)
     plant = ModelSpec.model_validate(values)
+    return stepped(plant)
+
+
+def stepped(plant: ModelSpec) -> ModelSpec:
+    """`plant` with the physics steps its springs need (at least its own), validated: a spring
+    too stiff for ModelSpec's most steps per tick is refused (ValidationError, naming
+    substeps), never simulated in millions of steps."""
     needed = min_substeps(plant)
-    return plant.model_copy(update={"substeps": needed}) if needed > plant.substeps else plant
+    if needed <= plant.substeps:
+        return plant
+    return ModelSpec.model_validate({**plant.model_dump(), "substeps": needed})
 
 
 # The designed plants robust tuning scores every candidate on first (`design`): two opposite

@@ -35,8 +35,10 @@ import secrets
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.schemas.documents import load_json, read_bounded
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.limits import BEFORE_LAG, DAMPING, MEASURED, Limits, named
 from gainfarm.schemas.robot import N_JOINTS
@@ -369,10 +371,20 @@ def front_json(front: Sequence[FrontMember], validation: ValidationRecord | None
     return json.dumps(content, indent=1).encode()
 
 
+# A run's own records (config.json, front.json, ...) are a few MB at most; read back by every
+# command on a run, and refused past this (BadDocument, a ValueError) as any file given to one.
+MAX_RECORD_BYTES = 256 << 20
+
+
+def read_record(path: Path) -> Any:
+    """A JSON record of a run, read within MAX_RECORD_BYTES and schemas.documents' nesting."""
+    return load_json(read_bounded(Path(path), MAX_RECORD_BYTES))
+
+
 def read_front_json(path: Path) -> list[FrontMember]:
     """front.json as written by `front_json`; ValueError if it is not one."""
     try:
-        members = json.loads(Path(path).read_bytes())["members"]
+        members = read_record(path)["members"]
         return [
             FrontMember(
                 **{k: v for k, v in member.items() if k not in ("episodes", "measures")},
@@ -388,7 +400,7 @@ def read_front_json(path: Path) -> list[FrontMember]:
 def read_validation(path: Path) -> ValidationRecord | None:
     """What validation found, as front.json says it (None if it says nothing: an older run)."""
     try:
-        found = json.loads(Path(path).read_bytes()).get("validation")
+        found = read_record(path).get("validation")
         return None if found is None else ValidationRecord(**found)
     except (TypeError, AttributeError, json.JSONDecodeError) as error:
         raise ValueError(f"{path}: not a front.json ({error})") from None
@@ -441,7 +453,7 @@ def baseline_json(baseline: Baseline) -> bytes:
 def read_baseline(path: Path) -> Baseline:
     """baseline.json as written by `baseline_json`; ValueError naming it if it is not one."""
     try:
-        fields = json.loads(Path(path).read_bytes())
+        fields = read_record(path)
         return Baseline(
             gains=PDGains.model_validate(fields["gains"]),
             f_acc=float(fields["f_acc"]),
@@ -483,7 +495,7 @@ def run_json(identity: RunIdentity) -> bytes:
 def read_identity(path: Path) -> RunIdentity:
     """run.json as written by `run_json`; ValueError naming it if it is not one."""
     try:
-        fields = json.loads(Path(path).read_bytes())
+        fields = read_record(path)
         identity = RunIdentity(fields["run_id"], fields.get("legacy_checkpoint"))
     except (KeyError, TypeError, AttributeError, UnicodeDecodeError, json.JSONDecodeError):
         identity = None
@@ -531,7 +543,7 @@ def read_run(directory: Path) -> RunRecord:
     """The run in `directory` as its files left it after its last generation (FileNotFoundError
     without a config.json; ValueError for a file of another format)."""
     directory = Path(directory)
-    config = RunConfig.model_validate_json((directory / CONFIG_JSON).read_bytes())
+    config = RunConfig.model_validate_json(read_bounded(directory / CONFIG_JSON, MAX_RECORD_BYTES))
     if not (directory / HISTORY_CSV).exists():  # stopped before its first generation ended
         return RunRecord(directory, config)
     return RunRecord(

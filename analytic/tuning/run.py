@@ -68,6 +68,7 @@ from gainfarm.analytic.tuning.records import (
     FRONT_JSON,
     HISTORY_CSV,
     LOCK,
+    MAX_RECORD_BYTES,
     PROVENANCE_CSV,
     RUN_JSON,
     Baseline,
@@ -96,7 +97,9 @@ from gainfarm.edges.files import (
     remove_leftovers,
     write_atomically,
 )
+from gainfarm.models.dynamics import MAX_FILE_BYTES as MAX_MODEL_BYTES
 from gainfarm.models.dynamics import digest
+from gainfarm.schemas.documents import read_bounded
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import MEASURES, before_lag, measures
@@ -105,6 +108,8 @@ from gainfarm.schemas.objectives import objectives
 log = logging.getLogger("gainfarm.analytic")
 
 CHECKPOINT = "checkpoint.pkl"
+# Read back within this: a population's whole state is some MB, a long TPE history tens.
+MAX_CHECKPOINT_BYTES = 1 << 30
 # A steady-state run asks the farm how many workers it has this often: a broker status query
 # per evaluation would cost more than the evaluation.
 CAPACITY_SECONDS = 2.0
@@ -264,14 +269,17 @@ class TuningRun:
         """The run in `directory`, as its last checkpoint left it, holding its lock.
         CheckpointRefused if the checkpoint is not this run's own."""
         directory = Path(directory)
-        config = RunConfig.model_validate_json((directory / CONFIG_JSON).read_bytes())
+        config = RunConfig.model_validate_json(
+            read_bounded(directory / CONFIG_JSON, MAX_RECORD_BYTES)
+        )
         lock = _lock(directory)
         try:
             remove_leftovers(directory)
             identity = _identity(directory)
             checkpoint = directory / CHECKPOINT
             if checkpoint.exists():
-                state = decode(checkpoint.read_bytes(), checkpoint, identity, config.algorithm)
+                raw = read_bounded(checkpoint, MAX_CHECKPOINT_BYTES)
+                state = decode(raw, checkpoint, identity, config.algorithm)
                 if not (isinstance(state, RunState) and isinstance(state.evolution, Evolution)):
                     raise CheckpointRefused(f"{checkpoint}: not a gainfarm checkpoint (no run)")
                 state.evolution.constrain(config.limits.count)  # from before the limits: none yet
@@ -305,7 +313,7 @@ class TuningRun:
         if wanted is None:
             return {}
         try:
-            raw = (self.directory / FEEDFORWARD).read_bytes()
+            raw = read_bounded(self.directory / FEEDFORWARD, MAX_MODEL_BYTES)
         except OSError as error:
             raise ValueError(
                 f"{FEEDFORWARD}: cannot read the run's model ({error.strerror})"

@@ -28,6 +28,7 @@ from gainfarm.analytic.tuning.records import (
     FRONT_CSV,
     FRONT_JSON,
     HISTORY_CSV,
+    MAX_RECORD_BYTES,
     RUN_JSON,
     Baseline,
     FrontMember,
@@ -40,6 +41,7 @@ from gainfarm.analytic.tuning.records import (
 )
 from gainfarm.cli.words import counted
 from gainfarm.schemas.controller import Assumptions, Controller, HeldOut, Member, Source
+from gainfarm.schemas.documents import read_bounded
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.limits import MEASURED
 from gainfarm.schemas.robot import PLANTS, ModelSpec
@@ -136,7 +138,7 @@ def controller(directory: Path, which: str = "recommended") -> Controller:
     holds no run or no front yet, BadMember if `which` names no member."""
     directory = Path(directory)
     try:
-        config_bytes = (directory / CONFIG_JSON).read_bytes()
+        config_bytes = read_bounded(directory / CONFIG_JSON, MAX_RECORD_BYTES)
     except OSError:
         raise BadRun(f"{str(directory)!r} holds no run (no {CONFIG_JSON})") from None
     try:

@@ -12,7 +12,8 @@ and the page says so.
 import base64
 import html
 import math
-from collections import Counter
+import threading
+from collections import Counter, OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +25,8 @@ from gainfarm.analytic.tuning.picks import Pick
 from gainfarm.analytic.tuning.records import EPISODES, FEEDFORWARD, FrontMember, sorted_front
 from gainfarm.analytic.tuning.run import slot_of
 from gainfarm.cli.words import counted
+from gainfarm.schemas.documents import quoted
+from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.limits import MEASURED
 from gainfarm.schemas.robot import JOINT_NAMES
@@ -190,7 +193,7 @@ def episode(
 ) -> tuple[EpisodeLog | None, str]:
     """The member's episode at `slot` and where it came from: its log in the run directory, or
     else simulated again here; (None, why) if neither can be had."""
-    from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, decode_episode, read_episode
+    from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
 
     kept = {}
     for log in member.logs:
@@ -200,15 +203,50 @@ def episode(
             continue
     if slot in kept:
         path = directory / kept[slot]
+        if not path.resolve().is_relative_to(Path(directory).resolve()):
+            return None, f"{quoted(kept[slot])} lies outside the run: not read"
         try:
             return read_episode(path), f"its log, {kept[slot]}"
         except FileNotFoundError:
             pass  # pruned since the front was written: simulated again below
         except (OSError, NotAnEpisodeLog) as error:
             return None, f"{kept[slot]}: {error}"
+    spec = config.episode_spec(member.gains, slot.trajectory, slot.plant)
+    key = (str(Path(directory).resolve()), spec.model_dump_json())
+    with _CACHE_LOCK:
+        if key in _SIMULATED:
+            _SIMULATED.move_to_end(key)
+            return _SIMULATED[key]
+    if not _SIMULATING.acquire(blocking=False):
+        return None, BUSY
+    try:
+        found = _simulated(directory, spec)
+    finally:
+        _SIMULATING.release()
+    if found[0] is not None:
+        with _CACHE_LOCK:
+            _SIMULATED[key] = found
+            while len(_SIMULATED) > CACHED_EPISODES:
+                _SIMULATED.popitem(last=False)
+    return found
+
+
+# The episodes simulated again, the latest used last: clicking back to a member costs nothing,
+# and the cache holds a few episodes (some MB each), never one per member clicked.
+CACHED_EPISODES = 8
+_SIMULATED: "OrderedDict[tuple[str, str], tuple[EpisodeLog, str]]" = OrderedDict()
+_CACHE_LOCK = threading.Lock()
+# One simulation at a time, in the whole dashboard: a click while one runs is told so at once
+# (BUSY) rather than queued, so clicking through members cannot pile up work.
+_SIMULATING = threading.Lock()
+BUSY = "busy simulating another episode (one at a time): pick it again in a moment"
+
+
+def _simulated(directory: Path, spec: EpisodeSpec) -> tuple[EpisodeLog | None, str]:
+    """The episode of `spec` simulated here, or (None, why not)."""
+    from gainfarm.schemas.mcap_episode import decode_episode
     from gainfarm.worker.job import simulate  # MuJoCo loads only to simulate
 
-    spec = config.episode_spec(member.gains, slot.trajectory, slot.plant)
     try:
         outcome = simulate(spec, lambda _digest: _feedforward(directory))
     except (OSError, ValueError) as error:  # the run's feed-forward model, unreadable
@@ -220,9 +258,10 @@ def episode(
 
 
 def _feedforward(directory: Path):  # -> gainfarm.models.dynamics.DynamicsModel
-    from gainfarm.models.dynamics import feedforward_from_bytes
+    from gainfarm.models.dynamics import MAX_FILE_BYTES, feedforward_from_bytes
+    from gainfarm.schemas.documents import read_bounded
 
-    return feedforward_from_bytes((directory / FEEDFORWARD).read_bytes())
+    return feedforward_from_bytes(read_bounded(directory / FEEDFORWARD, MAX_FILE_BYTES))
 
 
 def series(log: EpisodeLog) -> dict[str, dict[str, list[float]]]:

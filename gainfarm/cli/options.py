@@ -269,8 +269,18 @@ def model_spec(plant: str, joints: str | None = None, option: str = "--plant") -
     it), with `--joints` if the command has that option."""
     from gainfarm.schemas.robot import PLANTS
 
-    spec = PLANTS[plant] if plant in PLANTS else plant_file(plant, option).plant
-    return spec if joints is None else spec.model_copy(update={"joints": joints})
+    if plant in PLANTS:
+        spec = PLANTS[plant]
+        return spec if joints is None else spec.model_copy(update={"joints": joints})
+    from gainfarm.models.iiwa14 import check_substeps
+
+    spec = plant_file(plant, option).plant
+    spec = spec if joints is None else spec.model_copy(update={"joints": joints})
+    try:  # here, not in the middle of a run: a file's springs its physics step cannot hold
+        check_substeps(spec)
+    except ValueError as error:
+        raise CliError(f"{option}: {plant!r}: {error}") from None
+    return spec
 
 
 # Held here, not imported: parsing loads no schema (checked against schemas.robot in the tests).
@@ -353,12 +363,15 @@ def with_load(
 
 def plant_file(plant: str, option: str = "--plant") -> "PlantFile":
     """--plant FILE's contents, or one line naming the option and what is wrong."""
-    from gainfarm.schemas.plant_file import BadPlantFile, read_plant_file
+    from gainfarm.schemas.documents import BadDocument, read_bounded
+    from gainfarm.schemas.plant_file import MAX_FILE_BYTES, BadPlantFile, read_plant_file
 
     try:
-        raw = Path(plant).read_bytes()
+        raw = read_bounded(Path(plant), MAX_FILE_BYTES)
     except OSError as error:
         raise CliError(f"{option}: cannot read {plant!r}: {error.strerror}") from None
+    except BadDocument as error:
+        raise CliError(f"{option}: {plant!r}: {error}") from None
     try:
         return read_plant_file(raw)
     except BadPlantFile as error:
@@ -377,13 +390,21 @@ def feedforward_model(path: Path | None) -> tuple[bytes, "DynamicsModel"] | None
     be an inverse-dynamics model of the seven joints."""
     if path is None:
         return None
-    from gainfarm.models.dynamics import MODEL_FILE, BadDynamicsModel, feedforward_from_bytes
+    from gainfarm.models.dynamics import (
+        MAX_FILE_BYTES,
+        MODEL_FILE,
+        BadDynamicsModel,
+        feedforward_from_bytes,
+    )
+    from gainfarm.schemas.documents import BadDocument, read_bounded
 
     file = path / MODEL_FILE if path.is_dir() else path
     try:
-        raw = file.read_bytes()
+        raw = read_bounded(file, MAX_FILE_BYTES)
     except OSError as error:
         raise CliError(f"--feedforward: cannot read {str(file)!r}: {error.strerror}") from None
+    except BadDocument as error:
+        raise CliError(f"--feedforward: {str(file)!r}: {error}") from None
     try:
         model = feedforward_from_bytes(raw)
     except BadDynamicsModel as error:
@@ -432,19 +453,20 @@ def limits_from(path: Path | None, damping: float | None = None) -> "Limits":
 
 
 def _limits_file(path: Path | None) -> "Limits":
-    import json
-
     from pydantic import ValidationError
 
+    from gainfarm.schemas.documents import BadDocument, load_json, read_bounded
     from gainfarm.schemas.limits import Limits
     from gainfarm.schemas.wire import describe
 
     if path is None:
         return Limits()
     try:
-        fields = json.loads(path.read_bytes())
+        fields = load_json(read_bounded(path))
     except OSError as error:
         raise CliError(f"--limits: cannot read {str(path)!r}: {error.strerror}") from None
+    except BadDocument as error:
+        raise CliError(f"--limits: {str(path)!r}: {error}") from None
     except ValueError as error:  # JSONDecodeError, UnicodeDecodeError
         raise CliError(f"--limits: {str(path)!r} is not JSON ({error})") from None
     if not isinstance(fields, dict):

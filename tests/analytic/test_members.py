@@ -3,6 +3,7 @@ is front.csv's rows with their picks, checks and held-out results; a member's fi
 export`'s bytes; its episode is its kept log, or the same episode simulated again."""
 
 import base64
+import dataclasses
 import re
 import shutil
 from pathlib import Path
@@ -131,3 +132,42 @@ def test_an_episode_is_its_kept_log_or_else_the_same_episode_simulated_again(
             np.linalg.norm(kept.ee - kept.ee_des, axis=1) * 1000
         )
         assert len(drawn["joints"]["t"]) == kept.ticks and len(drawn["torques"]) == 15
+
+
+def test_an_episode_simulated_again_is_cached_and_simulated_one_at_a_time(
+    run_dir: Path, tmp_path: Path
+) -> None:
+    """The dashboard asks for an episode at every click: one simulated again is kept (the
+    latest few), and while one is being simulated another is refused at once, not queued."""
+    from gainfarm.analytic.view import members
+
+    record = read_run(run_dir)
+    bare = tmp_path / "bare"
+    shutil.copytree(run_dir, bare, ignore=shutil.ignore_patterns("*.mcap"))
+    member, (first, second) = record.front[0], slots(record.config)
+    found, why = episode(bare, record.config, member, first)
+    assert found is not None and why.startswith("simulated again here")
+    again, _ = episode(bare, record.config, member, first)
+    assert again is found  # the cached episode, not a second simulation
+    with members._SIMULATING:  # another click's simulation under way
+        busy, said = episode(bare, record.config, member, second)
+        cached, _ = episode(bare, record.config, member, first)
+    assert busy is None and said == members.BUSY
+    assert cached is found  # a cached episode needs no simulation: shown even then
+    for step in range(members.CACHED_EPISODES + 1):  # more distinct episodes than are kept
+        other = dataclasses.replace(member, kp=tuple(k * (1 + step / 100) for k in member.kp))
+        assert episode(bare, record.config, other, second)[0] is not None
+    assert len(members._SIMULATED) == members.CACHED_EPISODES
+    assert episode(bare, record.config, member, first)[0] is not found  # the oldest went
+
+
+def test_a_kept_log_named_outside_the_run_is_not_read(run_dir: Path, tmp_path: Path) -> None:
+    record = read_run(run_dir)
+    log = Path(record.front[0].logs[0])  # episodes/<job id>.mcap: its name says its slot
+    shutil.copyfile(run_dir / log, tmp_path / log.name)
+    outside = f"../{log.name}"
+    member = dataclasses.replace(record.front[0], logs=(outside,))
+    run = tmp_path / "run"
+    run.mkdir()
+    found, why = episode(run, record.config, member, slots(record.config)[0])
+    assert found is None and why == f"{outside!r} lies outside the run: not read"
