@@ -207,7 +207,15 @@ def test_forged_results_over_the_budget_are_dropped_and_a_dropped_result_comes_a
 
 
 def forged(study: str, job_id: str, content: bytes) -> bytes:
-    """A forged Result's attachment, claiming a log of `content`."""
+    """A forged Result's attachment, claiming a log of `content`, padded to be larger than an
+    honest one (so a budget it fills holds an honest one once it is let go)."""
     digest = hashlib.sha256(content).hexdigest()
-    result = result_for(study, job_id, worker="forger", episode_bytes=len(content), digest=digest)
+    result = result_for(
+        study,
+        job_id,
+        worker="forger",
+        episode_bytes=len(content),
+        digest=digest,
+        reason="padding " * 200,
+    )
     return result.to_bytes()
