@@ -57,6 +57,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -118,9 +119,13 @@ SILENT_BATCH = 200
 # then is dropped until the broker has been asked (each inbox drain confirms at once).
 MAX_HELD_BYTES = 4 * MAX_MESSAGE_BYTES
 # How long the result the broker took for a job may take to reach us after the broker said so
-# (a worker hands its result in, then puts it); then the
-# broker's record stands in for it, or the job runs again.
+# (a worker hands its result in, then puts it); then the broker's record stands in for it, or
+# the job runs again.
 TAKEN_PATIENCE = 1.0  # s
+# Logs of confirmed results fetched at once (`keep_logs`), each in parts with a few in flight:
+# a fetch is a round trip through the router to its worker, and one at a time made a `--keep all`
+# run slower than when logs came with their results.
+FETCHES_AT_ONCE = 4
 DROPS_LOGGED_EVERY = 10.0  # s: samples dropped are logged at most this often, with their count
 
 
@@ -427,13 +432,14 @@ class FarmClient:
             fetched.update(self._simulate_again(again))
         return fetched
 
-    def _fetch_log(self, want: Wanted) -> tuple[bytes | None, str]:
+    def _fetch_log(self, want: Wanted, limit: int = MAX_EPISODE_BYTES) -> tuple[bytes | None, str]:
         """The log's bytes and the holder that had them, or None. Each holder in turn is asked
-        for it in parts; one that answers badly (schemas.parts) or with other bytes is skipped."""
+        for it in parts, `limit` bytes at most; one that answers badly (schemas.parts) or with
+        other bytes is skipped."""
         for holder in want.holders:
             try:
                 key = keys.log(self.study, holder, want.digest)
-                content = fetch_parts(self.session, key, MAX_EPISODE_BYTES, ANSWER_SECONDS)
+                content = fetch_parts(self.session, key, limit, ANSWER_SECONDS)
             except zenoh.ZError as error:  # e.g. an empty or bad holder name
                 log.warning("cannot ask %r for a log: %s", holder, error)
                 continue
@@ -892,6 +898,7 @@ class FarmClient:
             return
         taken = {accepted.job_id: accepted for accepted in reply.accepted}
         now = time.monotonic()
+        received: list[_Arrival] = []  # confirmed: evaluated below, their logs fetched in batches
         for job_id in job_ids:
             arrivals = self._arrived.pop(job_id)
             self._release(arrivals)
@@ -907,13 +914,59 @@ class FarmClient:
                 with self._lock:
                     self._taken[job_id] = (accepted, now)
             if confirmed and job_id in self._pending:
-                evaluation = self._receive(confirmed[0])
-                if evaluation is not None:
-                    self._ready.append(evaluation)
+                received.append(confirmed[0])
+        for batch in self._fetch_batches(received):
+            logs = self._fetch_logs(batch)
+            for arrival in batch:
+                if arrival.result.job_id in self._pending:
+                    evaluation = self._receive(arrival, logs.get(arrival.result.job_id))
+                    if evaluation is not None:
+                        self._ready.append(evaluation)
 
-    def _receive(self, arrival: _Arrival) -> EpisodeResult | None:
-        """The evaluation a confirmed result makes; with `keep_log`, its log fetched from its
-        worker (None if it cannot be had or is unusable: it runs again)."""
+    def _wants_log(self, result: Result) -> bool:
+        """Whether a confirmed result's log is to be fetched with it (`keep_log`, it ran)."""
+        pending = self._pending.get(result.job_id)
+        return (
+            pending is not None
+            and pending.keep_log
+            and result.scores is not None
+            and not self._stranger(result.worker)
+        )
+
+    def _fetch_batches(self, arrivals: list[_Arrival]) -> Iterator[list[_Arrival]]:
+        """`arrivals` in turn, in batches whose logs are fetched at once: FETCHES_AT_ONCE at
+        most, and logs that say they add up to MAX_EPISODE_BYTES at most (one largest log), so
+        what is held stays as before the logs came in parts."""
+        batch: list[_Arrival] = []
+        claimed = 0
+        for arrival in arrivals:
+            size = arrival.result.episode_bytes if self._wants_log(arrival.result) else 0
+            if batch and (len(batch) == FETCHES_AT_ONCE or claimed + size > MAX_EPISODE_BYTES):
+                yield batch
+                batch, claimed = [], 0
+            batch.append(arrival)
+            claimed += size
+        if batch:
+            yield batch
+
+    def _fetch_logs(self, batch: list[_Arrival]) -> dict[str, bytes | None]:
+        """The logs of these confirmed results, by job id, fetched at once from their workers
+        (each within the size its result says)."""
+        wanted = [arrival.result for arrival in batch if self._wants_log(arrival.result)]
+        if not wanted:
+            return {}
+
+        def fetch(result: Result) -> bytes | None:
+            want = Wanted(self._pending[result.job_id].spec, result.digest, (result.worker,))
+            return self._fetch_log(want, result.episode_bytes)[0]
+
+        with ThreadPoolExecutor(max_workers=len(wanted)) as pool:
+            return dict(zip([r.job_id for r in wanted], pool.map(fetch, wanted), strict=True))
+
+    def _receive(self, arrival: _Arrival, content: bytes | None = None) -> EpisodeResult | None:
+        """The evaluation a confirmed result makes; with `keep_log`, its log (`content`, fetched
+        here if not given) from its worker (None if it cannot be had or is unusable: it runs
+        again)."""
         result = arrival.result
         pending = self._pending[result.job_id]
         common = dict(
@@ -943,7 +996,9 @@ class FarmClient:
             del self._pending[result.job_id]
             return EpisodeResult(**ran, scores=claimed, log=None)
         path = self.log_dir / f"{result.job_id}.mcap"
-        content, _ = self._fetch_log(Wanted(pending.spec, result.digest, (result.worker,)))
+        if content is None:
+            want = Wanted(pending.spec, result.digest, (result.worker,))
+            content, _ = self._fetch_log(want, result.episode_bytes)
         if content is None:  # gone already (its store was full), or not served as the rules say
             reason = f"its log could not be fetched from {result.worker}"
             return self._run_again(result.job_id, result.worker, pending, reason)
