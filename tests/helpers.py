@@ -150,10 +150,13 @@ def submit(session: zenoh.Session, study: str, specs: dict[str, EpisodeSpec]) ->
     return decode(SubmitReply, payload)
 
 
-def serve_log(session: zenoh.Session, study: str, worker: str, content: bytes) -> object:
-    """Serve `content` on `session` as `worker`'s kept log of `study`, in parts, as a worker
-    does; the queryable (undeclared when dropped or when the session closes)."""
-    key = keys.log(study, worker, hashlib.sha256(content).hexdigest())
+def serve_log(
+    session: zenoh.Session, study: str, worker: str, content: bytes, digest: str | None = None
+) -> object:
+    """Serve `content` on `session` as `worker`'s kept log of `study` (under its SHA-256, or
+    `digest`), in parts, as a worker does; the queryable (undeclared when dropped or when the
+    session closes)."""
+    key = keys.log(study, worker, digest or hashlib.sha256(content).hexdigest())
     return session.declare_queryable(key, lambda query: reply_part(query, content))
 
 

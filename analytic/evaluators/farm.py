@@ -919,7 +919,7 @@ class FarmClient:
             logs = self._fetch_logs(batch)
             for arrival in batch:
                 if arrival.result.job_id in self._pending:
-                    evaluation = self._receive(arrival, logs.get(arrival.result.job_id))
+                    evaluation = self._receive(arrival, logs)
                     if evaluation is not None:
                         self._ready.append(evaluation)
 
@@ -963,10 +963,12 @@ class FarmClient:
         with ThreadPoolExecutor(max_workers=len(wanted)) as pool:
             return dict(zip([r.job_id for r in wanted], pool.map(fetch, wanted), strict=True))
 
-    def _receive(self, arrival: _Arrival, content: bytes | None = None) -> EpisodeResult | None:
-        """The evaluation a confirmed result makes; with `keep_log`, its log (`content`, fetched
-        here if not given) from its worker (None if it cannot be had or is unusable: it runs
-        again)."""
+    def _receive(
+        self, arrival: _Arrival, fetched: Mapping[str, bytes | None] | None = None
+    ) -> EpisodeResult | None:
+        """The evaluation a confirmed result makes; with `keep_log`, its log from its worker, in
+        `fetched` (by job id: the log, or None if it could not be had) or fetched here (None if
+        it cannot be had or is unusable: it runs again)."""
         result = arrival.result
         pending = self._pending[result.job_id]
         common = dict(
@@ -996,7 +998,9 @@ class FarmClient:
             del self._pending[result.job_id]
             return EpisodeResult(**ran, scores=claimed, log=None)
         path = self.log_dir / f"{result.job_id}.mcap"
-        if content is None:
+        if fetched is not None and result.job_id in fetched:
+            content = fetched[result.job_id]
+        else:
             want = Wanted(pending.spec, result.digest, (result.worker,))
             content, _ = self._fetch_log(want, result.episode_bytes)
         if content is None:  # gone already (its store was full), or not served as the rules say
