@@ -28,6 +28,7 @@ from gainfarm.analytic.evaluators.farm import ANSWER_SECONDS, CONFIRM_BATCH, SUB
 from gainfarm.analytic.evaluators.local import free_port, spawn_broker
 from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.edges.ask import Answer, ask
+from gainfarm.edges.parts import reply_part
 from gainfarm.edges.transport import open_session
 from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec, keys
 from gainfarm.schemas.gains import DEFAULT_GAINS
@@ -225,9 +226,10 @@ NOOP_SCORES = WireScores(  # and the scores it claims for it
 
 class NoopWorker:
     """Asks for up to `batch` leases, runs each job (by default: does nothing), hands in ok
-    Results with `log` (by default an empty one) with its next request and puts each one the
-    broker takes, on a session it may share with other NoopWorkers. With a real episode's log
-    (and jobs that all name its spec), it is a cobot that skips the simulation."""
+    Results of `log` (by default an empty one) with its next request and puts each one the
+    broker takes, without its log, on a session it may share with other NoopWorkers; it serves
+    `log` in parts on its log keys, as a worker serves the logs it keeps. With a real episode's
+    log (and jobs that all name its spec), it is a cobot that skips the simulation."""
 
     def __init__(
         self,
@@ -239,8 +241,10 @@ class NoopWorker:
         batch: int = 1,
     ):
         self.session = session
-        self._log = log
         self._token = session.liveliness().declare_token(keys.alive_worker(name))
+        self._logs = session.declare_queryable(
+            keys.worker_logs(name), lambda query: reply_part(query, log)
+        )
         self._lease_key = keys.lease(name)
         self._name = name
         self._batch = batch
@@ -304,13 +308,14 @@ class NoopWorker:
                 continue
             self.session.put(
                 keys.result(lease["study"], result["job_id"]),
-                self._log if lease["job"]["keep_log"] else EMPTY_LOG,  # else it "keeps" it
+                b"",  # its log is fetched in parts, if it is wanted
                 attachment=json.dumps(result).encode(),
                 congestion_control=zenoh.CongestionControl.BLOCK,  # as CobotWorker: no drops
             )
             self.completed += 1
 
     def close(self) -> None:
+        self._logs.undeclare()
         self._token.undeclare()
 
 

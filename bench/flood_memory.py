@@ -10,9 +10,10 @@ process: calm; with tests/analytic/flooder.py putting `--mib` MiB samples of jun
 result keys from before the run starts to its end (no Result, a garbage one, another study's);
 and with every other sample a well-formed forgery for a job id the run is likely to have pending,
 which the client holds until the broker says it did not take it. With `--tls`, the secure
-profile: the flooder holds a worker certificate and no lease. With `--keep all` the logs come
-with the results, as in a `--keep all` run (the default, `front`, leaves them with the workers,
-and the client's results session takes no message larger than a Result). Printed for each: the
+profile: the flooder holds a worker certificate and no lease. With `--keep all` every log is
+fetched from its worker once its result is confirmed, as in a `--keep all` run (the default,
+`front`, fetches the front's alone); either way no result carries a log, and the client's session
+takes no message larger than a wire message. Printed for each: the
 analytic's peak RSS (VmHWM), wall time, samples put, what the client dropped, its peak of held
 bytes, and the ratio of the peaks; every run must reach the same front.
 """

@@ -320,7 +320,8 @@ class Ingest:
 def ingest(
     results: int, episode: PremadeEpisode, out: Path, send_logs: bool, fast_workers: int = 8
 ) -> Ingest:
-    """M results handed in while the client does not read, then yielded as fast as it can."""
+    """M results handed in while the client does not read, then yielded as fast as it can
+    (with `send_logs`, each log fetched from its worker, still serving)."""
     endpoint = loopback_endpoint()
     with (
         broker_process(endpoint, results),
@@ -328,6 +329,7 @@ def ingest(
     ):
         client.submit({f"j{index}": episode.spec for index in range(results)})
         load = Load(endpoint, client.study, fast_workers, episode, 0.0)
+        running = True
         try:
             give_up = time.monotonic() + 60 + results / 20
             while time.monotonic() < give_up:
@@ -337,17 +339,21 @@ def ingest(
                 time.sleep(0.2)
             else:
                 raise RuntimeError("the fast workers did not finish the ingest jobs in time")
+            if not send_logs:  # with logs, its workers serve the logs the client fetches
+                load.finish()
+                running = False
+            cpu = resource.getrusage(resource.RUSAGE_SELF)
+            started = time.perf_counter()
+            taken = 0
+            for evaluation in client.results():
+                taken += 1
+                if evaluation.log is not None:
+                    evaluation.log.unlink()
+            elapsed = time.perf_counter() - started
+            after = resource.getrusage(resource.RUSAGE_SELF)
         finally:
-            load.finish()
-        cpu = resource.getrusage(resource.RUSAGE_SELF)
-        started = time.perf_counter()
-        taken = 0
-        for evaluation in client.results():
-            taken += 1
-            if evaluation.log is not None:
-                evaluation.log.unlink()
-        elapsed = time.perf_counter() - started
-        after = resource.getrusage(resource.RUSAGE_SELF)
+            if running:
+                load.finish()
     if taken != results:
         raise RuntimeError(f"the client yielded {taken} of {results} results")
     spent = (after.ru_utime - cpu.ru_utime) + (after.ru_stime - cpu.ru_stime)
@@ -503,8 +509,8 @@ def counts(text: str) -> list[int]:
 @click.option(
     "--send-logs",
     is_flag=True,
-    help="plumbing: every result brings its log (as `--keep all` runs do); by default the "
-    "workers keep them",
+    help="plumbing: every result's log is fetched from its worker once it is confirmed (as "
+    "`--keep all` runs do); by default the workers keep them",
 )
 @click.option(
     "--ingest",
@@ -586,7 +592,7 @@ def main(
                     "ingest_results": taken.results,
                     "window_s": window,
                     "episode_log_bytes": episode.size,
-                    "logs": "sent with each result" if send_logs else "kept by the workers",
+                    "logs": "fetched with each result" if send_logs else "kept by the workers",
                 },
                 "real": {"what": REAL_WHAT, "runs": [asdict(figure) for figure in real]},
                 "job_seconds": job_seconds,

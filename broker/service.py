@@ -2,10 +2,10 @@
 queryables (submit, lease, confirm, status) and two liveliness subscribers.
 
 Everything Zenoh stays here; every scheduling decision is the queue's. Zenoh calls back on its
-own threads, so one lock guards the queue, and replies go out after it is released. Results
-themselves (episode logs) never pass through the broker's code: a worker hands in the Results of
-a batch of leases with its next lease request, then sends each taken one to its study; the study
-asks the broker which results it took.
+own threads, so one lock guards the queue, and replies go out after it is released. Episode logs
+(fetched in parts) never pass through the broker's code: a worker hands in the Results of a batch
+of leases with its next lease request, then sends each taken one to its study; the study asks the
+broker which results it took.
 """
 
 import functools
@@ -24,7 +24,7 @@ from gainfarm.broker.queue import (
     LeaseQueue,
     UnknownStudy,
 )
-from gainfarm.edges.transport import LOG_SESSION_BYTES, open_session
+from gainfarm.edges.transport import SERVING_SESSION_BYTES, open_session
 from gainfarm.schemas import keys
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.wire import (
@@ -95,9 +95,10 @@ class Broker:
         self._lock = threading.Lock()
         self._held: deque[tuple[float, str, zenoh.Query]] = deque()  # by deadline: hold is fixed
         self._closed = threading.Event()
-        # The router forwards episode logs (with results, or fetched): it must take the largest.
+        # The router forwards episode logs and models too, but in parts (schemas.parts): it takes
+        # no message larger than a wire message, and drops a larger one unassembled.
         self.session = open_session(
-            "router", listen=listen, identity=identity, max_message_bytes=LOG_SESSION_BYTES
+            "router", listen=listen, identity=identity, max_message_bytes=SERVING_SESSION_BYTES
         )
         liveliness = self.session.liveliness()
         self._entities = [

@@ -26,6 +26,10 @@ from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.objectives import LAG_CAP, SPEED_CAP
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 
+# 10: big bytes (an episode log, a model) move only in parts of at most PART_BYTES: a log or
+# model query names its part (`?part=N`) and the reply carries it with a Part attachment; a
+# Result's sample never carries its log (the study fetches it in parts from its worker, which keeps
+# every log it made; Job.keep_log says the study will).
 # 9: scores carry the worst joint's RMS lag behind its reference (Scores.lag; schemas.limits).
 # 8: scores carry the closed loop's least damping ratio (Scores.damping; worker.stability), from
 # the log's metadata.
@@ -37,7 +41,7 @@ from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 # lease request; 4: results carry the worker's scores, and the log only when the job asks to keep
 # it (the worker keeps the others, to be fetched); 3: results handed in to the broker and
 # confirmed by it; 2: Job.spec
-PROTOCOL_VERSION = 9
+PROTOCOL_VERSION = 10
 
 # Names become key-expression chunks, so they may not contain '/', '*', '$', '?' or '#'.
 NAME_PATTERN = r"^[A-Za-z0-9_.\-]{1,64}$"
@@ -61,6 +65,13 @@ MAX_SUBMISSION_JOBS = 500
 # any request fits too.
 MAX_CONFIRM_JOBS = 5000
 MAX_EPISODE_BYTES = 256 * 1024 * 1024  # a 120 s episode is ~26 MB
+# Big bytes (an episode log, up to MAX_EPISODE_BYTES; a model file) move in parts of at most this
+# many bytes, each the answer to a query of its own (schemas.parts): so no session anywhere, the
+# broker's router included (Zenoh reassembles every message it forwards), need take a message
+# larger than a wire message, and a 250 MiB message is dropped on the way by everyone
+# (docs/security.md, "Junk on every key"). Half a wire message: a part and its headers fit with
+# room to spare; a few in flight keep loopback fast.
+PART_BYTES = 2 * 1024 * 1024
 
 
 class BadMessage(ValueError):
@@ -70,12 +81,12 @@ class BadMessage(ValueError):
 class WireMessage(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    protocol: Literal[9] = PROTOCOL_VERSION
+    protocol: Literal[10] = PROTOCOL_VERSION
 
     @field_validator("protocol", mode="before")
     @classmethod
     def _an_integer(cls, version: object) -> object:
-        # Literal[9] would take 9.0 (and JSON true is 1 to Python): a version is an integer.
+        # Literal[10] would take 10.0 (and JSON true is 1 to Python): a version is an integer.
         if type(version) is not int:
             raise ValueError(_not_an_integer(version))
         return version
@@ -96,8 +107,8 @@ class Job(BaseModel):
     )
     keep_log: bool = Field(
         False,
-        description="send the episode log with the result; else the worker keeps it, to be "
-        "fetched if it is wanted (keys.log)",
+        description="the study fetches the episode log as soon as the result is confirmed; "
+        "either way the worker keeps it, to be fetched in parts (keys.log)",
     )
 
 
@@ -212,8 +223,8 @@ class Result(WireMessage):
     """Worker → broker, then → analytic: how a job went, and the scores the worker computed from
     its log (schemas.objectives.score, the analytic's own code). The worker hands it in to the
     broker first (with its next LeaseRequest: the broker checks that this worker holds this lease
-    and keeps what it took), then sends it as the attachment of a sample whose payload is the MCAP
-    episode log if the job said `keep_log`, else empty (the worker keeps the log). `digest` and
+    and keeps what it took), then sends it as the attachment of a sample whose payload is empty:
+    the worker keeps the MCAP episode log, to be fetched in parts (keys.log). `digest` and
     `episode_bytes` always describe the log the worker made (both empty when the job failed or
     was refused)."""
 
@@ -234,6 +245,15 @@ class Result(WireMessage):
         if ran != (self.scores is not None):
             raise ValueError("scores: required for an episode that ran, and only for one")
         return self
+
+
+class Part(WireMessage):
+    """The attachment of a reply to a query for part `part` of big bytes (an episode log, a
+    model): their total size. The reply's payload is bytes [part * PART_BYTES, + PART_BYTES) of
+    them (schemas.parts checks it, and the fetcher checks the whole's digest)."""
+
+    total: int = Field(ge=0, le=MAX_EPISODE_BYTES)
+    part: int = Field(ge=0, le=MAX_EPISODE_BYTES // PART_BYTES)
 
 
 class Lease(BaseModel):
@@ -354,6 +374,7 @@ MESSAGES: tuple[type[WireMessage], ...] = (
     ConfirmRequest,
     ConfirmReply,
     BrokerStatus,
+    Part,
 )
 
 M = TypeVar("M", bound=WireMessage)

@@ -18,6 +18,7 @@ import zenoh
 from gainfarm.broker.queue import LeaseQueue
 from gainfarm.broker.service import Broker
 from gainfarm.edges.ask import ask
+from gainfarm.edges.parts import reply_part
 from gainfarm.models.urdf import description
 from gainfarm.schemas import EpisodeMetadata, EpisodeSpec, PDGains, TrajectorySpec, keys
 from gainfarm.schemas.episode_log import EpisodeLog
@@ -147,6 +148,16 @@ def submit(session: zenoh.Session, study: str, specs: dict[str, EpisodeSpec]) ->
     ok, payload = query(session, keys.submit(study), Submission(study=study, jobs=jobs).to_bytes())
     assert ok, payload
     return decode(SubmitReply, payload)
+
+
+def serve_log(
+    session: zenoh.Session, study: str, worker: str, content: bytes, digest: str | None = None
+) -> object:
+    """Serve `content` on `session` as `worker`'s kept log of `study` (under its SHA-256, or
+    `digest`), in parts, as a worker does; the queryable (undeclared when dropped or when the
+    session closes)."""
+    key = keys.log(study, worker, digest or hashlib.sha256(content).hexdigest())
+    return session.declare_queryable(key, lambda query: reply_part(query, content))
 
 
 def result_for(study: str, job_id: str, worker: str = "w", **fields: object) -> Result:

@@ -1,9 +1,9 @@
 """The episode logs a worker keeps for the studies that may fetch them. No Zenoh here.
 
-A job that does not ask for its log (Job.keep_log false) gets only its Result; the worker keeps
-the log in memory, bounded, and serves it by its digest to the study whose job made it
-(keys.log). The least recently used logs go first when a new one needs the room: a study fetches
-the logs it wants soon after their results arrive, or not at all.
+A result goes out without its log; the worker keeps the log in memory, bounded, and serves it by
+its digest, in parts, to the study whose job made it (keys.log). The least recently used logs go
+first when a new one needs the room: a study fetches the logs it wants soon after their results
+arrive (a study that keeps every log, at once: Job.keep_log), or not at all.
 """
 
 import threading

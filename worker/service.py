@@ -6,14 +6,15 @@ A batch is about BATCH_SECONDS of work (one job when jobs are long): short jobs 
 one query per batch instead of two per job, and its episodes step together (worker.stepping), on
 the worker's `threads`.
 
-The episode log goes along with the result only when the job asks for it (Job.keep_log);
-otherwise the worker keeps the log in memory (a LogStore, bounded: the least recently used go
-first) and serves it by its digest, to the study whose job made it, on keys.log.
+A result's sample never carries its episode log: the worker keeps every log it made in memory (a
+LogStore, bounded: the least recently used go first) and serves it by its digest, in parts of at
+most PART_BYTES, to the study whose job made it, on keys.log. A job that says `keep_log` is one
+whose study fetches the log as soon as the broker confirms the result.
 
-Its session serves (the log queryable, the token) and takes in no message larger than a wire
+Its one session serves (the log queryable, the token) and takes in no message larger than a wire
 message (SERVING_SESSION_BYTES): a big query on its log keys is dropped by Zenoh on the way. A
-model, which may be larger, is fetched on a session of its own that lives for the fetch and
-serves nothing (docs/security.md, "Junk on every key").
+model, which may be larger, is fetched on it in parts (gainfarm/edges/parts.py; docs/security.md,
+"Junk on every key").
 """
 
 import contextlib
@@ -26,6 +27,7 @@ from dataclasses import dataclass
 import zenoh
 
 from gainfarm.edges.ask import ask
+from gainfarm.edges.parts import fetch_parts, reply_part
 from gainfarm.edges.transport import SERVING_SESSION_BYTES, open_session, token_held
 from gainfarm.models.dynamics import MAX_FILE_BYTES, DynamicsModel, digest
 from gainfarm.schemas import keys
@@ -53,9 +55,10 @@ ANSWER_SECONDS = 10.0  # how long a study has to answer a model fetch
 # Work asked for at once: results wait for their batch about this long. Long enough for batches
 # of some 8 episodes per thread (where stepping them together has paid most of what it pays).
 BATCH_SECONDS = 1.0
-LOG_MEMORY = 512 * 2**20  # bytes of kept episode logs: some 20 of 120 s, hundreds of short ones
-# The largest message a model fetch takes in: the largest model file and room for the headers.
-MODEL_SESSION_BYTES = MAX_FILE_BYTES + 64 * 1024
+# Bytes of kept episode logs: some 20 of 120 s, hundreds of short ones. A study that keeps every
+# log (`--keep all`) fetches each as soon as its result is confirmed, a moment after it is made:
+# the store then holds hundreds of seconds of this worker's output by the time a log goes.
+LOG_MEMORY = 512 * 2**20
 
 
 class NameTaken(RuntimeError):
@@ -72,47 +75,26 @@ class HandIn:
     give_up: float  # monotonic time its lease expires: a result the broker never took is dropped
 
 
-def fetch_model(
-    connect: Sequence[str], identity: TlsIdentity | None, study: str, wanted: str
-) -> bytes | None:
-    """The bytes of the model hashing to `wanted`, from whoever serves them, or None. The
-    content hash is the trust: unlike the broker's answers, these may come from any process,
-    and bytes that hash to anything else (or are too large to be a model) are ignored. Asked on
-    a session of its own that takes in no message larger than a model (MODEL_SESSION_BYTES) and
-    declares nothing: big bytes reach it only as answers to this one query."""
+def fetch_model(session: zenoh.Session, study: str, wanted: str) -> bytes | None:
+    """The bytes of the model hashing to `wanted`, from whoever serves them, in parts, or None.
+    The content hash is the trust: unlike the broker's answers, these may come from any process,
+    and bytes that hash to anything else (or are too large to be a model, or come in parts that
+    break the rules: schemas.parts) are ignored."""
+    key = keys.model(study, wanted)
     try:
-        session = open_session(
-            "client", connect=connect, identity=identity, max_message_bytes=MODEL_SESSION_BYTES
-        )
-    except ConnectionError as error:
+        raw = fetch_parts(session, key, MAX_FILE_BYTES, ANSWER_SECONDS, everyone=True)
+    except BadMessage as error:
+        log.warning("ignored a model on %s: %s", key, error)
+        return None
+    except zenoh.ZError as error:  # e.g. the session closed while it asked
         log.warning("cannot fetch model %s: %s", wanted[:12], error)
         return None
-    try:
-        return _model_from(session, study, wanted)
-    finally:
-        session.close()
-
-
-def _model_from(session: zenoh.Session, study: str, wanted: str) -> bytes | None:
-    key = keys.model(study, wanted)
-    replies = session.get(
-        key,
-        timeout=ANSWER_SECONDS,
-        target=zenoh.QueryTarget.ALL,
-        consolidation=zenoh.ConsolidationMode.NONE,
-    )
-    for reply in replies:
-        if reply.ok is None:
-            continue
-        payload = reply.ok.payload
-        if len(payload) > MAX_FILE_BYTES:
-            log.warning("ignored a %d-byte answer on %s: too large for a model", len(payload), key)
-            continue
-        raw = payload.to_bytes()
-        if digest(raw) == wanted:
-            return raw
-        log.warning("ignored an answer on %s that hashes to %s", key, digest(raw)[:12])
-    return None
+    if raw is None:
+        return None
+    if digest(raw) != wanted:
+        log.warning("ignored a model on %s that hashes to %s", key, digest(raw)[:12])
+        return None
+    return raw
 
 
 class CobotWorker:
@@ -143,7 +125,6 @@ class CobotWorker:
         self._job_seconds: float | None = None  # a recent job's share of its batch's wall time
         self.jobs_done = 0
         self.refused = 0  # results the broker did not take (e.g. the lease had gone elsewhere)
-        self._connect, self._identity = list(connect), identity  # for model fetches
         self.session = open_session(
             "client", connect=connect, identity=identity, max_message_bytes=SERVING_SESSION_BYTES
         )
@@ -264,8 +245,7 @@ class CobotWorker:
         ]
 
     def _send(self, ran: list[HandIn], verdicts: list[Verdict]) -> None:
-        """Send each result the broker took to its study, with its log if the job asked to keep
-        it; keep the others' logs here, to be fetched."""
+        """Send each result the broker took to its study; keep its log here, to be fetched."""
         verdict_of = {(v.job_id, v.lease_id): v for v in verdicts}
         for item in ran:
             result, content = item.result, item.content
@@ -281,8 +261,7 @@ class CobotWorker:
                     reason,
                 )
                 continue
-            keep_log = item.lease.job.keep_log
-            if not keep_log and result.scores is not None:  # it ran: not failed, nor refused
+            if result.scores is not None:  # it ran: not failed, nor refused
                 # Kept before the result goes out: a study may fetch the log the moment it arrives.
                 if len(content) > self.logs.max_bytes:
                     log.warning(
@@ -294,7 +273,7 @@ class CobotWorker:
                 self.logs.keep(result.study, result.digest, content)
             self.session.put(
                 keys.result(result.study, result.job_id),
-                content if keep_log else b"",
+                b"",  # the log is fetched in parts (keys.log)
                 attachment=result.to_bytes(),
                 congestion_control=zenoh.CongestionControl.BLOCK,
             )
@@ -308,8 +287,9 @@ class CobotWorker:
             )
 
     def _on_log_query(self, query: zenoh.Query) -> None:
-        """Serve a kept log: gainfarm/study/{study}/log/{worker}/{digest} → its bytes, to that
-        study only. Runs on Zenoh's threads; whatever the query, it answers and never raises."""
+        """Serve a kept log: gainfarm/study/{study}/log/{worker}/{digest}?part=N → that part of
+        its bytes (schemas.parts), to that study only. Runs on Zenoh's threads; whatever the
+        query, it answers and never raises."""
         try:
             key = str(query.key_expr)
             chunks = key.split("/")
@@ -321,7 +301,7 @@ class CobotWorker:
             if content is None:
                 query.reply_err(f"no such log: {_shown(key)} (never made, or no longer kept)")
                 return
-            query.reply(query.key_expr, content)
+            reply_part(query, content)
         except Exception as error:  # a bad query must not take the worker's queryable down
             log.warning("a log query failed: %s", _shown(f"{type(error).__name__}: {error}"))
             with contextlib.suppress(Exception):  # e.g. the query had already been answered
@@ -333,7 +313,7 @@ class CobotWorker:
         def model(wanted: str) -> DynamicsModel:
             return self.models.model(
                 wanted,
-                lambda _: fetch_model(self._connect, self._identity, lease.study, wanted),
+                lambda _: fetch_model(self.session, lease.study, wanted),
             )
 
         return model

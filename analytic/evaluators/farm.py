@@ -10,10 +10,12 @@ The client holds the study's liveliness token (the broker drops the study's queu
 goes), keeps a deadline per job and resubmits a job whose result has not come by then, and counts
 each job once however many results arrive for it.
 
-Every result brings the scores its worker computed from its log. With `keep_logs` (the default)
-the log comes along too: it must be the digest's bytes and score as claimed, and is kept. Without
-it the worker keeps the log, the evaluation is the worker's scores, and `fetch` brings the logs
-wanted later (checked by their digest and scored again here; a log gone is simulated again).
+Every result brings the scores its worker computed from its log, never the log: the worker keeps
+it, and serves it in parts (gainfarm/edges/parts.py). With `keep_logs` (the default) the client
+fetches each confirmed result's log from its worker at once: it must be the digest's bytes and
+score as claimed, and is kept. Without it the evaluation is the worker's scores, and `fetch`
+brings the logs wanted later (checked by their digest and scored again here; a log gone is
+simulated again).
 
 A result counts only once the broker confirms it: the broker takes a result from the worker that
 holds the job's lease alone, and tells the study which one it took (lease, worker, the log's
@@ -30,21 +32,16 @@ no scores (failed, or refused: the record does not say which, nor why), runs aga
 worker whose result never came gets none of the study's jobs from then on, while another worker
 is there to run them (`unheard_from`).
 
-Anyone on the farm may put samples on the study's keys, of any size. The client reads each
-sample's small attachment (the Result) on Zenoh's thread and copies the payload out of Zenoh only
-for a result this study waits for, with a log of the length it claims, and only while the results
-it holds unconfirmed stay within MAX_HELD_BYTES; everything else is dropped uncopied and counted
-(`ignored`, `duplicates`, `unconfirmed`, `dropped`). A result the broker took that was dropped,
-or lost on the way, is one the study never received: its record stands in for it, as for a
-silent holder's, and its worker is not blamed (docs/security.md, "Junk on a study's keys"). Without
-`keep_logs` no result brings a log, and the client asks for none (a log simulated again is fetched
-too): results then come on a session of their own that takes no message larger than a Result
-(MAX_RESULT_BYTES), so Zenoh drops a big sample on the way instead of reassembling it. With
-`keep_logs` they come on a session of their own that takes a result with the largest log. The main
-session (queries to the broker, models served, tokens) takes no message larger than a wire
-message either, so a big query on the model key is dropped on the way too; fetched logs come on a
-session that serves nothing and takes big bytes only as answers to its own queries (docs/
-security.md, "Junk on every key").
+Anyone on the farm may put samples on the study's keys. The client has one session, and it takes
+no message larger than a wire message (SERVING_SESSION_BYTES): Zenoh drops a larger sample, or a
+larger query on the model key, on the way instead of reassembling it, and logs and models move in
+parts no larger. The client reads each sample's small attachment (the Result) on Zenoh's thread,
+and holds it only for a result this study waits for, with no payload (a result carries no log),
+and only while the results it holds unconfirmed stay within MAX_HELD_BYTES; everything else is
+dropped and counted (`ignored`, `duplicates`, `unconfirmed`, `dropped`). A result the broker took
+that was dropped, or lost on the way, is one the study never received: its record stands in for
+it, as for a silent holder's, and its worker is not blamed (docs/security.md, "Junk on a study's
+keys", "Junk on every key").
 
 On a local farm (`own_workers`: the names of the workers it started) a result the broker took from
 any other worker is refused and its job runs again on the farm's own. A worker that refuses a job
@@ -60,6 +57,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,12 +75,8 @@ from gainfarm.analytic.evaluators.evaluator import (
 from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.edges.ask import ask
 from gainfarm.edges.files import write_atomically
-from gainfarm.edges.transport import (
-    LOG_SESSION_BYTES,
-    SERVING_SESSION_BYTES,
-    open_session,
-    token_held,
-)
+from gainfarm.edges.parts import fetch_parts, reply_part
+from gainfarm.edges.transport import SERVING_SESSION_BYTES, open_session, token_held
 from gainfarm.plugins import PluginError
 from gainfarm.schemas import keys
 from gainfarm.schemas.episode import EpisodeSpec, Scores
@@ -119,22 +113,19 @@ CONFIRM_BATCH = 1000  # results confirmed in one question to the broker
 SILENT_AFTER = 2.0  # s
 SILENT_FRACTION = 0.25
 SILENT_BATCH = 200
-# The bytes of results held before the broker says which it took (in the inbox and arrived): one
-# largest log fits; a flood of well-formed results for pending jobs fills it, and what comes then
-# is dropped uncopied until the broker has been asked (each inbox drain confirms at once).
-MAX_HELD_BYTES = MAX_EPISODE_BYTES
-# The largest message the client's session takes in: a result with the largest log (or a fetched
-# log). Zenoh reassembles a sample before any callback sees it, and drops a larger one on the way.
-MAX_RECEIVED_BYTES = LOG_SESSION_BYTES
-# Without logs a result is its attachment (a Result, at most MAX_MESSAGE_BYTES) and an empty
-# payload: Zenoh counts the whole message (key, headers, attachment, payload), hence the margin.
-# Results then come on a session of their own that takes no more: Zenoh drops a larger sample
-# after its first MAX_RESULT_BYTES instead of reassembling it (docs/security.md).
-MAX_RESULT_BYTES = SERVING_SESSION_BYTES
+# The bytes of results held before the broker says which it took (in the inbox and arrived): a
+# result is its attachment alone (a Result: about a kilobyte, at most a wire message), so this
+# holds thousands; a flood of well-formed forgeries for pending jobs fills it, and what comes
+# then is dropped until the broker has been asked (each inbox drain confirms at once).
+MAX_HELD_BYTES = 4 * MAX_MESSAGE_BYTES
 # How long the result the broker took for a job may take to reach us after the broker said so
-# (a worker hands its result in, then puts it; a log of megabytes takes a while); then the
-# broker's record stands in for it, or the job runs again.
+# (a worker hands its result in, then puts it); then the broker's record stands in for it, or
+# the job runs again.
 TAKEN_PATIENCE = 1.0  # s
+# Logs of confirmed results fetched at once (`keep_logs`), each in parts with a few in flight:
+# a fetch is a round trip through the router to its worker, and one at a time made a `--keep all`
+# run slower than when logs came with their results.
+FETCHES_AT_ONCE = 4
 DROPS_LOGGED_EVERY = 10.0  # s: samples dropped are logged at most this often, with their count
 
 
@@ -152,7 +143,7 @@ class _Pending:
     deadline: float
     attempts: int = 1
     avoid: tuple[str, ...] = ()  # workers that may not run it
-    keep_log: bool = True  # its log comes with its result; else its worker keeps it
+    keep_log: bool = True  # its log is fetched as soon as its result is confirmed
     submitted: float = 0.0  # monotonic time of its first submission
     ask_at: float = 0.0  # when to ask the broker about it if no result has come (SILENT_AFTER)
     dropped_here: bool = False  # a result of it was dropped here, max_held_bytes being full
@@ -163,8 +154,6 @@ class _Arrival:
     """A result as it arrived, waiting for the broker to confirm it."""
 
     result: Result
-    content: bytes | None  # its log, copied only if the job wants it and it is as long as said
-    length: int  # of the payload as it came
     held: int  # bytes counted against MAX_HELD_BYTES until it is let go
     taken: Accepted | None = None  # the result the broker said it took, if this is that one
 
@@ -187,9 +176,10 @@ class FarmClient:
         own_workers: Collection[str] | None = None,
     ):
         """`models`: the feed-forward models (file bytes by SHA-256) the study's jobs may name;
-        the client serves them to the workers that ask. `keep_logs`: every job's log comes with
-        its result, is checked, scored here again and kept; else the workers keep the logs, each
-        result brings the scores its worker computed, and `fetch` brings the logs wanted.
+        the client serves them to the workers that ask, in parts. `keep_logs`: every job's log
+        is fetched from its worker as soon as its result is confirmed, checked, scored here
+        again and kept; else each result brings the scores its worker computed, and `fetch`
+        brings the logs wanted.
         `read_log` checks, keeps and scores a log (another only for simulated workers, whose
         "logs" are not episodes: bench/campaign.py --simulated). `trusted`: the farm's workers are
         this process's own (a local farm started for it), so a run has nothing to referee.
@@ -234,22 +224,12 @@ class FarmClient:
         # that lacks a plug-in gets no more jobs that need it.
         self._refused_by: dict[tuple[str, ...], set[str]] = {}
         self._inbox: queue.SimpleQueue[_Arrival | str] = queue.SimpleQueue()
-        self._connect, self._identity = list(connect), identity  # for the fetch session
-        # Serves (the model key, tokens) and asks the broker, whose answers fit in a wire message.
+        # Serves (the model key, in parts), takes results, asks the broker and fetches logs in
+        # parts: no message it takes is larger than a wire message (docs/security.md).
         self.session = open_session(
             "client", connect=connect, identity=identity, max_message_bytes=SERVING_SESSION_BYTES
         )
-        # Where results come: without logs, a session that drops any larger sample unread.
-        self._results_session = self.session
-        # Where fetched logs come (opened at the first fetch): a session that serves nothing.
-        self._fetch_session: zenoh.Session | None = None
         try:
-            results_bytes = MAX_RECEIVED_BYTES if keep_logs else MAX_RESULT_BYTES
-            self._results_session = open_session(
-                "client", connect=connect, identity=identity, max_message_bytes=results_bytes
-            )
-            if keep_logs:  # it takes a log with a result: a fetched log too
-                self._fetch_session = self._results_session
             self._open_study(connect)
         except BaseException:
             self.close()
@@ -262,9 +242,8 @@ class FarmClient:
         self.close()
 
     def close(self) -> None:
-        for session in (self.session, self._results_session, self._fetch_session):
-            if session is not None and not session.is_closed():
-                session.close()  # undeclares the token: the broker drops what is still queued
+        if not self.session.is_closed():
+            self.session.close()  # undeclares the token: the broker drops what is still queued
 
     @property
     def pending(self) -> int:
@@ -313,11 +292,9 @@ class FarmClient:
     ) -> None:
         """Queue one job per (job id, spec). A job id may not be pending already. `avoid` names,
         per job id, workers that may not run it (a replica must run elsewhere). `keep_log`:
-        whether the logs come with the results (default: `keep_logs`; never without it: the
-        client's results session takes no logs)."""
+        whether their logs are fetched as soon as their results are confirmed (default:
+        `keep_logs`)."""
         keep = self.keep_logs if keep_log is None else keep_log
-        if keep and not self.keep_logs:
-            raise ValueError("keep_log: this client takes no logs with results (keep_logs=False)")
         clash = sorted(set(specs) & set(self._pending))
         if clash:
             raise ValueError(f"job ids already pending: {', '.join(clash[:5])}")
@@ -455,41 +432,30 @@ class FarmClient:
             fetched.update(self._simulate_again(again))
         return fetched
 
-    def _fetch_log(self, want: Wanted) -> tuple[bytes | None, str]:
-        """The log's bytes and the holder that had them, or None."""
+    def _fetch_log(self, want: Wanted, limit: int = MAX_EPISODE_BYTES) -> tuple[bytes | None, str]:
+        """The log's bytes and the holder that had them, or None. Each holder in turn is asked
+        for it in parts, `limit` bytes at most; one that answers badly (schemas.parts) or with
+        other bytes is skipped."""
         for holder in want.holders:
             try:
                 key = keys.log(self.study, holder, want.digest)
-                replies = self._fetching().get(key, timeout=ANSWER_SECONDS)
+                content = fetch_parts(self.session, key, limit, ANSWER_SECONDS)
             except zenoh.ZError as error:  # e.g. an empty or bad holder name
                 log.warning("cannot ask %r for a log: %s", holder, error)
                 continue
-            for reply in replies:
-                if reply.ok is None:
-                    continue  # it has it no more: ask the next holder
-                if len(reply.ok.payload) > MAX_EPISODE_BYTES:
-                    continue
-                content = reply.ok.payload.to_bytes()
-                if hashlib.sha256(content).hexdigest() == want.digest:
-                    return content, holder
-                log.warning("ignored a log on %s: its bytes are not the ones the broker took", key)
+            except BadMessage as error:
+                log.warning("ignored a log from %s: %s", holder, error)
+                continue
+            if content is None:
+                continue  # it has it no more: ask the next holder
+            if hashlib.sha256(content).hexdigest() == want.digest:
+                return content, holder
+            log.warning("ignored a log on %s: its bytes are not the ones the broker took", key)
         return None, ""
-
-    def _fetching(self) -> zenoh.Session:
-        """The session logs are fetched on: it takes a message as large as the largest log
-        (MAX_RECEIVED_BYTES), and declares nothing anyone may put to or ask of it."""
-        if self._fetch_session is None:
-            self._fetch_session = open_session(
-                "client",
-                connect=self._connect,
-                identity=self._identity,
-                max_message_bytes=MAX_RECEIVED_BYTES,
-            )
-        return self._fetch_session
 
     def _simulate_again(self, again: Mapping[str, Wanted]) -> dict[str, Fetched]:
         """Run these jobs again, as `<job id>-k<n>`, their logs taken as this client takes them:
-        with their results (`keep_logs`), or else fetched from the worker that ran them."""
+        fetched with their results (`keep_logs`), or else from the worker that ran them here."""
         reruns = {}
         for job_id in again:
             number = 1
@@ -518,7 +484,7 @@ class FarmClient:
             if evaluation.digest != again[job_id].digest:
                 log.warning("%s simulated again is not the log its worker had made", job_id)
             path = self.log_dir / f"{job_id}.mcap"
-            if evaluation.log is not None:  # it came with its result, checked and scored
+            if evaluation.log is not None:  # fetched with its result, checked and scored
                 evaluation.log.replace(path)
                 scores = evaluation.scores
             else:
@@ -558,12 +524,12 @@ class FarmClient:
 
     def _open_study(self, connect: Sequence[str]) -> None:
         token_key = keys.alive_study(self.study)
-        self._subscriber = self._results_session.declare_subscriber(
+        self._subscriber = self.session.declare_subscriber(
             keys.study_results(self.study), self._on_result
         )
-        # Asked on the results session, after its subscriber: once answered, the router knows
-        # the subscriber (one link, in order), before the token below lets any job be submitted.
-        if token_held(self._results_session, token_key):
+        # Asked after the subscriber: once answered, the router knows the subscriber (one link,
+        # in order), before the token below lets any job be submitted.
+        if token_held(self.session, token_key):
             raise FarmUnavailable(f"study {self.study!r} is already open in another process")
         # Declared whatever `models` holds now: an experiment adds a run's model to a client
         # it has made (analytic.experiments.base.serving), and the workers must find it.
@@ -646,21 +612,23 @@ class FarmClient:
     def _on_model_query(self, query: zenoh.Query) -> None:
         wanted = keys.last_chunk(str(query.key_expr))
         if wanted in self.models:
-            query.reply(query.key_expr, self.models[wanted])
+            reply_part(query, self.models[wanted])
         else:
             query.reply_err(f"study {self.study} has no model {wanted[:64]}")
 
     def _on_result(self, sample: zenoh.Sample) -> None:
         """Runs on Zenoh's thread for every sample on the study's keys, whoever put it: reads
-        the attachment (a Result, at most MAX_MESSAGE_BYTES) and copies the payload only for a
-        result of a pending job that wants its log, as long as it says, within max_held_bytes.
-        Never raises: whatever the sample, it is held or dropped."""
+        the attachment (a Result, at most MAX_MESSAGE_BYTES) and holds it only for a pending
+        job, with no payload (a result carries no log), within max_held_bytes. Never raises:
+        whatever the sample, it is held or dropped."""
         attachment = sample.attachment
         try:
             if attachment is None:
                 raise BadMessage("no attachment")
             if len(attachment) > MAX_MESSAGE_BYTES:
                 raise BadMessage(f"a {len(attachment)}-byte attachment")
+            if len(sample.payload):
+                raise BadMessage(f"a {len(sample.payload)}-byte payload: a result carries no log")
             raw = attachment.to_bytes()
             result = decode(Result, raw)
         except BadMessage as error:
@@ -670,15 +638,11 @@ class FarmClient:
         pending = self._pending.get(result.job_id)
         if pending is None:  # already evaluated (or never submitted here)
             return self._drop("duplicates")
-        length = len(sample.payload)
-        wanted = pending.keep_log and length == result.episode_bytes <= MAX_EPISODE_BYTES
-        if len(raw) + length > self.max_held_bytes:  # never to be held: unusable, as if too long
-            wanted = False
-        held = len(raw) + (length if wanted else 0)
+        held = len(raw)
         with self._lock:
             taken = self._taken.get(result.job_id)
             if taken is not None and not _matches(result, taken[0]):
-                self.unconfirmed += 1  # the broker took another: this one needs no copy
+                self.unconfirmed += 1  # the broker took another: this one is not held
                 return
             if taken is None and self.held_bytes + held > self.max_held_bytes:
                 self.dropped += 1
@@ -689,8 +653,7 @@ class FarmClient:
                 del self._taken[result.job_id]
             self.held_bytes += held
             self.peak_held_bytes = max(self.peak_held_bytes, self.held_bytes)
-        content = sample.payload.to_bytes() if wanted else None
-        self._inbox.put(_Arrival(result, content, length, held, taken and taken[0]))
+        self._inbox.put(_Arrival(result, held, taken and taken[0]))
 
     def _drop(self, counter: str, why: str = "") -> None:
         with self._lock:
@@ -704,7 +667,7 @@ class FarmClient:
         if now >= self._drops_logged + DROPS_LOGGED_EVERY:
             self._drops_logged = now
             log.warning(
-                "dropped %s, uncopied (so far: %d ignored, %d not waited for, %d not held)",
+                "dropped %s (so far: %d ignored, %d not waited for, %d not held)",
                 why,
                 self.ignored,
                 self.duplicates,
@@ -935,6 +898,7 @@ class FarmClient:
             return
         taken = {accepted.job_id: accepted for accepted in reply.accepted}
         now = time.monotonic()
+        received: list[_Arrival] = []  # confirmed: evaluated below, their logs fetched in batches
         for job_id in job_ids:
             arrivals = self._arrived.pop(job_id)
             self._release(arrivals)
@@ -950,14 +914,62 @@ class FarmClient:
                 with self._lock:
                     self._taken[job_id] = (accepted, now)
             if confirmed and job_id in self._pending:
-                evaluation = self._receive(confirmed[0])
-                if evaluation is not None:
-                    self._ready.append(evaluation)
+                received.append(confirmed[0])
+        for batch in self._fetch_batches(received):
+            logs = self._fetch_logs(batch)
+            for arrival in batch:
+                if arrival.result.job_id in self._pending:
+                    evaluation = self._receive(arrival, logs)
+                    if evaluation is not None:
+                        self._ready.append(evaluation)
 
-    def _receive(self, arrival: _Arrival) -> EpisodeResult | None:
-        """The evaluation a confirmed result makes (None if its log is unusable: it runs
-        again)."""
-        result, content = arrival.result, arrival.content
+    def _wants_log(self, result: Result) -> bool:
+        """Whether a confirmed result's log is to be fetched with it (`keep_log`, it ran)."""
+        pending = self._pending.get(result.job_id)
+        return (
+            pending is not None
+            and pending.keep_log
+            and result.scores is not None
+            and not self._stranger(result.worker)
+        )
+
+    def _fetch_batches(self, arrivals: list[_Arrival]) -> Iterator[list[_Arrival]]:
+        """`arrivals` in turn, in batches whose logs are fetched at once: FETCHES_AT_ONCE at
+        most, and logs that say they add up to MAX_EPISODE_BYTES at most (one largest log), so
+        what is held stays as before the logs came in parts."""
+        batch: list[_Arrival] = []
+        claimed = 0
+        for arrival in arrivals:
+            size = arrival.result.episode_bytes if self._wants_log(arrival.result) else 0
+            if batch and (len(batch) == FETCHES_AT_ONCE or claimed + size > MAX_EPISODE_BYTES):
+                yield batch
+                batch, claimed = [], 0
+            batch.append(arrival)
+            claimed += size
+        if batch:
+            yield batch
+
+    def _fetch_logs(self, batch: list[_Arrival]) -> dict[str, bytes | None]:
+        """The logs of these confirmed results, by job id, fetched at once from their workers
+        (each within the size its result says)."""
+        wanted = [arrival.result for arrival in batch if self._wants_log(arrival.result)]
+        if not wanted:
+            return {}
+
+        def fetch(result: Result) -> bytes | None:
+            want = Wanted(self._pending[result.job_id].spec, result.digest, (result.worker,))
+            return self._fetch_log(want, result.episode_bytes)[0]
+
+        with ThreadPoolExecutor(max_workers=len(wanted)) as pool:
+            return dict(zip([r.job_id for r in wanted], pool.map(fetch, wanted), strict=True))
+
+    def _receive(
+        self, arrival: _Arrival, fetched: Mapping[str, bytes | None] | None = None
+    ) -> EpisodeResult | None:
+        """The evaluation a confirmed result makes; with `keep_log`, its log from its worker, in
+        `fetched` (by job id: the log, or None if it could not be had) or fetched here (None if
+        it cannot be had or is unusable: it runs again)."""
+        result = arrival.result
         pending = self._pending[result.job_id]
         common = dict(
             job_id=result.job_id,
@@ -986,14 +998,17 @@ class FarmClient:
             del self._pending[result.job_id]
             return EpisodeResult(**ran, scores=claimed, log=None)
         path = self.log_dir / f"{result.job_id}.mcap"
+        if fetched is not None and result.job_id in fetched:
+            content = fetched[result.job_id]
+        else:
+            want = Wanted(pending.spec, result.digest, (result.worker,))
+            content, _ = self._fetch_log(want, result.episode_bytes)
+        if content is None:  # gone already (its store was full), or not served as the rules say
+            reason = f"its log could not be fetched from {result.worker}"
+            return self._run_again(result.job_id, result.worker, pending, reason)
         try:
-            if content is None:  # not copied: not the length its result says, or too long
-                sent, limit = result.episode_bytes, self.max_held_bytes
-                if arrival.length != sent:
-                    raise NotAnEpisodeLog(f"{arrival.length} bytes, not the {sent} sent")
-                raise NotAnEpisodeLog(f"{sent} bytes, more than this client holds ({limit})")
-            if hashlib.sha256(content).hexdigest() != result.digest:
-                raise NotAnEpisodeLog("its bytes are not the ones the worker handed in")
+            if len(content) != result.episode_bytes:
+                raise NotAnEpisodeLog(f"{len(content)} bytes, not the {result.episode_bytes} sent")
             source = f"episode of {result.job_id} from {result.worker}"
             scores = self.read_log(content, pending.spec, path, source)
         except NotAnEpisodeLog as error:

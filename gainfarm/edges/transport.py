@@ -19,7 +19,7 @@ from typing import Literal
 import zenoh
 
 from gainfarm.schemas.security import TlsIdentity, access_control, participants
-from gainfarm.schemas.wire import MAX_EPISODE_BYTES, MAX_MESSAGE_BYTES
+from gainfarm.schemas.wire import MAX_MESSAGE_BYTES, PART_BYTES
 
 # A connection is accepted in two steps, and Zenoh bounds each (the defaults, 100 pending for up
 # to 10 s each, let 300 idle sockets lock everyone out for 10 s, tests/broker/test_flood.py):
@@ -41,17 +41,16 @@ ACCEPT_PENDING_MIN = 100  # Zenoh's default
 #   An honest TLS handshake takes milliseconds; docs/security.md says what this cannot prevent.
 TLS_HANDSHAKE_TIMEOUT_MS = 60_000
 
-# The largest message a session that serves (declares a queryable, a subscriber or a liveliness
-# subscriber anyone may reach) takes in: any wire message (MAX_MESSAGE_BYTES) and 64 KiB for the
-# key, the headers and an attachment, since Zenoh counts the whole message. Zenoh drops a larger
-# one after its first SERVING_SESSION_BYTES instead of reassembling it, so a 250 MiB query costs
-# such a session nothing (docs/security.md, "Junk on every key"). Big bytes (a fetched log, a
-# model) come only on sessions that serve nothing and take them as answers to their own queries.
+# The largest message any session of the farm takes in, the broker's router included: any wire
+# message (MAX_MESSAGE_BYTES) and 64 KiB for the key, the headers and an attachment, since Zenoh
+# counts the whole message. Zenoh drops a larger one after its first SERVING_SESSION_BYTES instead
+# of reassembling it, so a 250 MiB put or query costs every process nothing (docs/security.md,
+# "Junk on every key"). Big bytes (an episode log, a model) move only in parts of PART_BYTES
+# (schemas.parts), each the answer to a query of its own, so no session needs to take more; the
+# router most of all, since Zenoh reassembles every message it forwards (a per-link or per-key
+# limit does not exist, and its low-pass filter acts after reassembly).
 SERVING_SESSION_BYTES = MAX_MESSAGE_BYTES + 64 * 1024
-# The largest message a session that must take an episode log takes in: a result with the largest
-# log, or a fetched log. The broker's router is one: Zenoh reassembles every message it forwards
-# (a per-link or per-key limit does not exist, and its low-pass filter acts after reassembly).
-LOG_SESSION_BYTES = MAX_EPISODE_BYTES + MAX_MESSAGE_BYTES
+assert PART_BYTES + 64 * 1024 <= SERVING_SESSION_BYTES  # a part and its headers fit
 
 
 def session_config(

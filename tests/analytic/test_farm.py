@@ -7,6 +7,7 @@ import re
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -29,12 +30,15 @@ from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import PLAIN_PLANT, ModelSpec
+from gainfarm.schemas.wire import MAX_EPISODE_BYTES, PART_BYTES, Part
+from gainfarm.worker.job import simulate
 from tests.helpers import (
     SOFT_GAINS,
     TRACKING_GAINS,
     ask_for_work,
     hand_in,
     result_for,
+    serve_log,
     short_spec,
     wait_for,
 )
@@ -260,23 +264,23 @@ def test_bad_results_on_the_studys_key_are_ignored_or_reported(
         farm.submit({"j1": short_spec(), "j2": short_spec(duration=0.6)})
         digest = hashlib.sha256(b"hello").hexdigest()
         forged = result_for("s", "j1", worker="liar", episode_bytes=5, digest=digest)
-        session.put(keys.result("s", "j1"), b"hello", attachment=b"garbage")
-        session.put(keys.result("s", "j1"), b"hello")
-        session.put(keys.result("s", "j1"), b"hullo", attachment=forged.to_bytes())
+        session.put(keys.result("s", "j1"), b"", attachment=b"garbage")
+        session.put(keys.result("s", "j1"), b"")
+        session.put(keys.result("s", "j1"), b"hello", attachment=forged.to_bytes())  # a log
         session.put(
             keys.result("s", "nope"),
             b"",
             attachment=forged.model_copy(update={"job_id": "nope"}).to_bytes(),
         )
-        session.put(keys.result("s", "j1"), b"hello", attachment=forged.to_bytes())
+        session.put(keys.result("s", "j1"), b"", attachment=forged.to_bytes())
         worker = spawn_worker(broker.endpoints[0], "w")
         try:
             evaluations = {evaluation.job_id: evaluation for evaluation in farm.results(60)}
         finally:
             stop_workers([worker])
-        # Garbage and no attachment; a job never submitted; and two results the broker never
-        # took, since "liar" held no lease (one of them not even its digest's log).
-        assert farm.ignored == 2 and farm.duplicates >= 1 and farm.unconfirmed == 2
+        # Garbage and no attachment, and a result that carries a log (none does); a job never
+        # submitted; and a result the broker never took, since "liar" held no lease.
+        assert farm.ignored == 3 and farm.duplicates >= 1 and farm.unconfirmed == 1
     assert evaluations["j1"].status == "ok" and evaluations["j1"].attempts == 1
     assert evaluations["j1"].worker == "w"
     assert read_episode(tmp_path / "episodes" / "j1.mcap").metadata.spec == short_spec()
@@ -297,7 +301,8 @@ def test_an_unusable_log_on_the_last_attempt_fails_the_job_with_the_reason(
             "s", "j", worker="broken", lease_id=lease.lease_id, episode_bytes=10, digest=digest
         )
         assert hand_in(session, truncated).accepted
-        session.put(keys.result("s", "j"), b"hello", attachment=truncated.to_bytes())
+        _served = serve_log(session, "s", "broken", b"hello")
+        session.put(keys.result("s", "j"), b"", attachment=truncated.to_bytes())
         [evaluation] = list(farm.results(timeout=10))
     assert evaluation.status == "failed" and evaluation.worker == ""
     assert evaluation.reason == "unusable episode log: 5 bytes, not the 10 sent (attempt 1)"
@@ -455,3 +460,54 @@ def test_a_result_from_a_worker_the_local_farm_did_not_start_is_refused_and_runs
         f"result from worker {name}, which this local farm did not start: refused"
         for name in ("putter", "silent")
     ]
+
+
+def lie(total: int, part: int, length: int) -> Callable[[zenoh.Query], None]:
+    """A holder that answers every part with `length` bytes, saying part `part` of `total`
+    (model_construct: a liar's Part need not be valid)."""
+    header = Part.model_construct(total=total, part=part).to_bytes()
+    return lambda query: query.reply(query.key_expr, bytes(length), attachment=header)
+
+
+@pytest.mark.slow
+def test_a_log_of_several_parts_comes_whole_and_lying_holders_are_skipped(
+    broker: Broker, session: zenoh.Session, tmp_path: Path
+) -> None:
+    """A long episode's log, larger than a part, fetched with its result (keep_logs) from a real
+    worker process, is the log the episode makes; fetched again with holders that lie about
+    its total, answer a part out of range or a part of the wrong size, each liar is refused
+    and the next holder asked, until the worker that keeps it."""
+    spec = short_spec(duration=15.0)
+    calm = simulate(spec)
+    assert len(calm.content) > PART_BYTES
+    liars = {
+        "liar-total": lie(MAX_EPISODE_BYTES + 1, 0, PART_BYTES),
+        "liar-range": lie(len(calm.content), 9, PART_BYTES),
+        "liar-size": lie(len(calm.content), 0, 100),
+    }
+    asked: list[str] = []
+
+    def liar(name: str) -> Callable[[zenoh.Query], None]:
+        def answer(query: zenoh.Query) -> None:
+            asked.append(name)
+            liars[name](query)
+
+        return answer
+
+    _liars = [
+        session.declare_queryable(keys.log("s", name, calm.digest), liar(name)) for name in liars
+    ]
+    worker = spawn_worker(broker.endpoints[0], "w")
+    try:
+        with FarmClient(broker.endpoints, "s", tmp_path) as farm:
+            farm.submit({"long": spec})
+            [evaluation] = list(farm.results(timeout=120))
+            assert evaluation.log is not None and evaluation.log.read_bytes() == calm.content
+            evaluation.log.unlink()
+            holders = (*liars, "w")
+            fetched = farm.fetch({"long": Wanted(spec, calm.digest, holders)})["long"]
+    finally:
+        stop_workers([worker])
+    assert asked == list(liars)
+    assert fetched.source == "w" and fetched.log.read_bytes() == calm.content
+    assert fetched.scores == evaluation.scores

@@ -26,6 +26,7 @@ from tests.helpers import (
     hand_in,
     perfect_log,
     result_for,
+    serve_log,
     short_spec,
     wait_for,
 )
@@ -119,7 +120,8 @@ def test_a_job_that_wanted_its_log_runs_again_elsewhere_when_its_result_never_co
         assert lease is not None and lease.job.avoid == ["quiet"]
         result, content = honest_result(spec, "j", "other", lease.lease_id)
         assert hand_in(session, result).accepted
-        session.put(keys.result("s", "j"), content, attachment=result.to_bytes())
+        _served = serve_log(session, "s", "other", content)
+        session.put(keys.result("s", "j"), b"", attachment=result.to_bytes())
         [evaluation] = list(farm.results(timeout=10))
     assert (evaluation.worker, evaluation.attempts) == ("other", 2)
     assert evaluation.log == tmp_path / "episodes" / "j.mcap" and evaluation.log.is_file()
@@ -139,7 +141,8 @@ def test_a_result_on_its_way_when_the_broker_is_asked_is_still_the_job_s(
         # The client asks about the job (the broker then forgets its record) before it comes.
         while broker.queue.collect("s", None, 0)[0]:  # reading, not collecting: forgets nothing
             assert list(farm.results(timeout=0.2)) == []
-        session.put(keys.result("s", "j"), content, attachment=result.to_bytes())
+        _served = serve_log(session, "s", "slow", content)
+        session.put(keys.result("s", "j"), b"", attachment=result.to_bytes())
         [evaluation] = list(farm.results(timeout=10))
         assert (evaluation.worker, evaluation.attempts) == ("slow", 1)
         assert evaluation.log is not None and evaluation.log.is_file()

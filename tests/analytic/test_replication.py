@@ -167,7 +167,7 @@ def test_a_log_is_fetched_from_its_worker_or_else_simulated_again(
 def test_a_log_run_again_is_fetched_from_the_worker_that_ran_it_or_the_fetch_fails(
     broker: Broker, tmp_path: Path
 ) -> None:
-    """A client that takes no logs with results asks for none, reruns included: the rerun's log
+    """A client without keep_logs fetches no log with a result, reruns included: the rerun's log
     is fetched from the worker that ran it, and a worker that keeps no logs fails the fetch
     cleanly, with a reason."""
     with (
@@ -176,8 +176,6 @@ def test_a_log_run_again_is_fetched_from_the_worker_that_ran_it_or_the_fetch_fai
     ):
         serving = threading.Thread(target=worker.serve, args=(threading.Event(), 2))
         serving.start()
-        with pytest.raises(ValueError, match="keep_log: this client takes no logs"):
-            farm.submit({"j": short_spec()}, keep_log=True)
         farm.submit({"j": short_spec()})
         [evaluation] = list(farm.results(60))
         assert evaluation.log is None and evaluation.worker == "forgetful"

@@ -35,7 +35,7 @@ from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import balancing_weights, plant_scales, score
 from gainfarm.worker.episode import run_episode
 from gainfarm.worker.job import execute, simulate
-from tests.helpers import analytic, ask_for_work, hand_in, wait_for
+from tests.helpers import analytic, ask_for_work, hand_in, serve_log, wait_for
 
 TINY = RunConfig(
     pop=6,
@@ -432,7 +432,8 @@ def test_the_front_is_the_same_when_the_analytic_process_is_killed_and_resumed(
 
 class Saboteur(threading.Thread):
     """A worker whose logs arrive damaged: it leases jobs and runs them for real, but each log is
-    mangled on its way back (truncated, or with bytes flipped in its data)."""
+    mangled on its way back (truncated, or with bytes flipped in its data): it serves the mangled
+    bytes under the log's digest, until it is stopped."""
 
     DAMAGES: ClassVar[list[Callable[[bytes], bytes]]] = [
         lambda log: log[: len(log) // 2],
@@ -448,6 +449,7 @@ class Saboteur(threading.Thread):
     def run(self) -> None:
         session = open_session("client", connect=[self.endpoint])
         _token = session.liveliness().declare_token(keys.alive_worker("saboteur"))
+        served = []
         try:
             for damage in self.DAMAGES:
                 lease = None
@@ -458,12 +460,14 @@ class Saboteur(threading.Thread):
                 result, log = execute(lease, "saboteur")
                 # Handed in whole, as a worker does; the damage is in transit.
                 assert hand_in(session, result).accepted
+                served.append(
+                    serve_log(session, lease.study, "saboteur", damage(log), result.digest)
+                )
                 session.put(
-                    keys.result(lease.study, lease.job.job_id),
-                    damage(log),
-                    attachment=result.to_bytes(),
+                    keys.result(lease.study, lease.job.job_id), b"", attachment=result.to_bytes()
                 )
                 self.damaged.append(lease.job.job_id)
+            self.stop.wait()  # serving the damaged logs
         finally:
             session.close()
 
@@ -490,7 +494,8 @@ def test_the_front_is_the_same_when_a_worker_returns_damaged_logs(
             saboteur.stop.set()
             saboteur.join(10)
     assert len(saboteur.damaged) == len(Saboteur.DAMAGES)
-    refused = [r.getMessage() for r in caplog.records if "unusable episode log" in r.getMessage()]
+    # Each damaged log was refused by its digest as it was fetched.
+    refused = [r.getMessage() for r in caplog.records if "are not the ones" in r.getMessage()]
     assert len(refused) == len(Saboteur.DAMAGES)
     assert_same_outcome(rough, calm)
     # Each damaged job was simply run again: every kept log is whole and of its own job.

@@ -34,6 +34,7 @@ from gainfarm.schemas.wire import (
     Lease,
     LeaseReply,
     LeaseRequest,
+    Part,
     Rejection,
     Result,
     Submission,
@@ -153,6 +154,7 @@ def honest_bytes(kind: type) -> bytes:
             requeued=0,
             rejected=0,
         ),
+        Part: Part(total=3 * 2**20, part=1),
     }
     raw = examples[kind].to_bytes()
     assert raw.startswith(b"{" + OURS + b",") and decode(kind, raw) == examples[kind]

@@ -16,11 +16,13 @@ import zenoh
 
 from gainfarm.analytic.evaluators.local import free_port, spawn_worker
 from gainfarm.broker.service import Broker
+from gainfarm.edges.parts import fetch_parts
 from gainfarm.edges.transport import open_session
 from gainfarm.schemas import EpisodeSpec, keys
 from gainfarm.schemas.mcap_episode import decode_episode
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.wire import (
+    MAX_EPISODE_BYTES,
     Job,
     JobStatus,
     Lease,
@@ -64,7 +66,7 @@ def submit(
 def get_log(
     session: zenoh.Session, key: str, payload: bytes | None = None
 ) -> list[tuple[bool, bytes]]:
-    """Every answer to a query on a log key, as (ok, payload): the log, or the reason not."""
+    """Every answer to a query on a log key, as (ok, payload): a part, or the reason not."""
     replies = session.get(key, payload=payload, timeout=5.0)
     return [
         (True, reply.ok.payload.to_bytes())
@@ -72,6 +74,11 @@ def get_log(
         else (False, reply.err.payload.to_bytes())
         for reply in replies
     ]
+
+
+def fetch_log(session: zenoh.Session, key: str) -> bytes | None:
+    """A kept log, fetched in parts as a study fetches it."""
+    return fetch_parts(session, key, MAX_EPISODE_BYTES, timeout=5.0)
 
 
 def spawn(endpoint: str, name: str, *options: str) -> subprocess.Popen:
@@ -95,8 +102,8 @@ def spawn(endpoint: str, name: str, *options: str) -> subprocess.Popen:
 def test_a_worker_process_serves_jobs_and_a_failing_job_does_not_stop_it(
     broker: Broker, session: zenoh.Session
 ) -> None:
-    """Jobs that ask for their logs get them with their results; one that does not finds it
-    kept by the worker (in the --log-memory it was given, the least allowed)."""
+    """No result carries its log, whether its job asks for it or not: the worker keeps every
+    log (in the --log-memory it was given, the least allowed) and serves it in parts."""
     inbox = Inbox(session, "s")
     _token = open_study(session, broker, "s")
     worker = spawn(broker.endpoints[0], "cobot-1", "--log-memory", "16")
@@ -106,7 +113,9 @@ def test_a_worker_process_serves_jobs_and_a_failing_job_does_not_stop_it(
         submit(session, "s", {"kept": short_spec(seed=1)}, keep_log=False)
         wait_for(lambda: len(inbox.received) == 3, timeout=60, what="the results")
         kept, empty = next((r, c) for r, c in inbox.received if r.job_id == "kept")
-        fetched = get_log(session, keys.log("s", "cobot-1", kept.digest))
+        fetched = fetch_log(session, keys.log("s", "cobot-1", kept.digest))
+        near = next(r for r, _ in inbox.received if r.job_id == "near")
+        content = fetch_log(session, keys.log("s", "cobot-1", near.digest))
     finally:
         worker.terminate()
         assert worker.wait(15) == 0
@@ -114,16 +123,15 @@ def test_a_worker_process_serves_jobs_and_a_failing_job_does_not_stop_it(
     failed, nothing = results["far"]
     assert failed.status == JobStatus.failed and "reach" in failed.reason and nothing == b""
     assert failed.scores is None
-    ran, content = results["near"]
-    assert ran.status == JobStatus.ok and ran.worker == "cobot-1"
-    assert ran.episode_bytes == len(content)
+    ran, sent = results["near"]
+    assert ran.status == JobStatus.ok and ran.worker == "cobot-1" and sent == b""
+    assert content is not None and ran.episode_bytes == len(content)
     assert decode_episode(content).metadata.spec == short_spec()
     assert ran.scores is not None
     assert ran.scores.model_dump() == score(decode_episode(content)).model_dump()
     assert kept.status == JobStatus.ok and empty == b""
-    ((ok, log),) = fetched
-    assert ok and hashlib.sha256(log).hexdigest() == kept.digest
-    assert decode_episode(log).metadata.spec == short_spec(seed=1)
+    assert fetched is not None and hashlib.sha256(fetched).hexdigest() == kept.digest
+    assert decode_episode(fetched).metadata.spec == short_spec(seed=1)
     assert broker.queue.jobs_done == 3
 
 
@@ -140,14 +148,17 @@ def test_workers_that_come_and_go_leave_no_memory_behind_in_the_broker(
     inbox = Inbox(session, "s")
     _token = open_study(session, broker, "s")
     before = _zenoh_shared_memory()
+    logs = []
     for index in range(3):
         worker = spawn_worker(broker.endpoints[0], f"passing-{index}")
         submit(session, "s", {f"j{index}": short_spec()})
         done = index + 1
         wait_for(lambda done=done: len(inbox.received) == done, timeout=60, what="the result")
+        result = inbox.received[-1][0]
+        logs.append(fetch_log(session, keys.log("s", result.worker, result.digest)))
         worker.terminate()
         assert worker.wait(15) == 0
-    assert all(len(content) > 100_000 for _, content in inbox.received)  # logs, not crumbs
+    assert all(log is not None and len(log) > 100_000 for log in logs)  # logs, not crumbs
     assert _zenoh_shared_memory() == before
 
 
@@ -525,8 +536,8 @@ def test_a_log_not_sent_is_kept_and_served_to_its_study_alone(
     broker: Broker, session: zenoh.Session
 ) -> None:
     """A job that does not ask for its log: its result comes with the worker's scores and no
-    log; the worker serves the log by its digest to the study, and an error to any other question;
-    then it runs a job that asks for its log, which comes with the result and is not kept."""
+    log; the worker serves the log by its digest to the study, in parts, and an error to any
+    other question; then it runs a job that asks for its log, which is kept the same way."""
     inbox = Inbox(session, "s")
     _token = open_study(session, broker, "s")
     with CobotWorker(broker.endpoints, "w") as worker:
@@ -536,27 +547,35 @@ def test_a_log_not_sent_is_kept_and_served_to_its_study_alone(
         wait_for(lambda: inbox.received, timeout=60, what="the result")
         ((result, payload),) = inbox.received
         assert result.status == JobStatus.ok and payload == b""
-        ((ok, content),) = get_log(session, keys.log("s", "w", result.digest))
-        assert ok and hashlib.sha256(content).hexdigest() == result.digest
+        content = fetch_log(session, keys.log("s", "w", result.digest))
+        assert content is not None and hashlib.sha256(content).hexdigest() == result.digest
         assert len(content) == result.episode_bytes
         assert result.scores is not None
         assert result.scores.model_dump() == score(decode_episode(content)).model_dump()
         for wrong in (keys.log("t", "w", result.digest), keys.log("s", "w", "0" * 64)):
-            ((ok, reason),) = get_log(session, wrong)
+            ((ok, reason),) = get_log(session, f"{wrong}?part=0")
             assert not ok
             assert reason.decode() == f"no such log: {wrong} (never made, or no longer kept)"
+        right = keys.log("s", "w", result.digest)
+        for asked, said in [
+            ("", "ask for one part at a time (?part=N, from 0)"),
+            ("?part=1", "part: no part 1, there are 1"),
+            ("?part=-1", "part: not a part number: '-1'"),
+        ]:
+            ((ok, reason),) = get_log(session, f"{right}{asked}")
+            assert not ok and reason.decode() == said
         submit(session, "s", {"sent": short_spec(seed=2)})
         serving.join(60)
         assert not serving.is_alive() and worker.jobs_done == 2
         wait_for(lambda: len(inbox.received) == 2, what="the second result")
-        sent, log = inbox.received[1]
-        assert sent.job_id == "sent" and hashlib.sha256(log).hexdigest() == sent.digest
+        sent, payload = inbox.received[1]
+        log = fetch_log(session, keys.log("s", "w", sent.digest))
+        assert sent.job_id == "sent" and payload == b""
+        assert log is not None and hashlib.sha256(log).hexdigest() == sent.digest
         assert decode_episode(log).metadata.spec == short_spec(seed=2)
         assert sent.scores is not None
         assert sent.scores.model_dump() == score(decode_episode(log)).model_dump()
-        assert len(worker.logs) == 1 and worker.logs.bytes == len(content)  # only the first
-        ((ok, _),) = get_log(session, keys.log("s", "w", sent.digest))
-        assert not ok
+        assert len(worker.logs) == 2 and worker.logs.bytes == len(content) + len(log)
     assert broker.queue.jobs_done == 2
 
 
@@ -635,8 +654,8 @@ def test_garbage_on_the_log_queryable_never_takes_the_worker_down(
         assert worker.serve(threading.Event(), max_jobs=1) == 1
         wait_for(lambda: fake.results, what="the result")
         (result,) = fake.results
-        ((ok, content),) = get_log(client, keys.log("s", "w", result.digest))
-        assert ok and hashlib.sha256(content).hexdigest() == result.digest
+        content = fetch_log(client, keys.log("s", "w", result.digest))
+        assert content is not None and hashlib.sha256(content).hexdigest() == result.digest
     client.close()
     fake.close()
     assert "the store broke" in caplog.text and "no key" in caplog.text
