@@ -175,7 +175,9 @@ def test_a_worker_that_says_every_good_candidate_failed_is_named_and_the_front_i
     assert tuning.replication.failures_checked > 0
     assert "failed job" in tuning.replication.dissenters["rogue"]
     assert "that the referee ran to scores" in tuning.replication.dissenters["rogue"]
-    assert tuning.state.rewinds >= 1
+    # Whether the evolution had to start again depends on which jobs the farm gave the rogue:
+    # caught on its first result, the run holds nothing of it to forget (no rewind); caught
+    # later, it does. Either way the run ends as the calm one.
     assert_calm_front(tuning, calm, {"rogue"})
 
 
