@@ -224,6 +224,7 @@ class _Check:
                     self.results[job_id], status=EpisodeStatus.failed, scores=None, digest=None
                 )
             self.results.update(validation.standing)
+            self.run.drop_refereed_logs(validation.standing.values())
             for index in {_index_of(job_id) for job_id in validation.rulings}:
                 self.checked[index] = self._summary(index)
 

@@ -34,7 +34,7 @@ import logging
 import math
 import secrets
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -518,7 +518,18 @@ class TuningRun:
                 found[job_id], status=EpisodeStatus.failed, scores=None, digest=None
             )
         found.update(validation.standing)
+        self.drop_refereed_logs(validation.standing.values())
         return {job_id: ruling.value for job_id, ruling in validation.rulings.items()}
+
+    def drop_refereed_logs(self, evaluations: Iterable[EpisodeResult]) -> None:
+        """With --keep front, the logs the referee made of episodes no front member has (the
+        default gains', the held-out check's) go once ruled on: the run keeps the logs it was
+        told to keep, whoever made them. Their records keep the rulings and the scores."""
+        if self.config.keep != "front":
+            return
+        for evaluation in evaluations:
+            if evaluation.log is not None:
+                evaluation.log.unlink(missing_ok=True)
 
     # --- generational: a whole generation out, then told in the order asked -------------------
 

@@ -267,3 +267,8 @@ def test_a_forger_of_the_default_gains_changes_neither_the_baseline_nor_the_advi
     assert checked is not None and calm_checked is not None
     assert checked["advice"] == calm_checked["advice"]
     assert checked["controllers"] == calm_checked["controllers"]
+    # --keep front (the default): the referee's logs of the default gains' and the check's
+    # episodes are not kept; episodes/ holds the front's logs alone.
+    assert tuning.config.keep == "front"
+    kept = {Path(log).name for member in tuning.front() for log in member.logs}
+    assert {path.name for path in (tuning.directory / "episodes").iterdir()} == kept
