@@ -53,7 +53,8 @@ def _remember(signum: int) -> None:
 
 
 def _watch(pipe: int) -> None:
-    """Set INTERRUPTED the moment a SIGINT reaches the process, whichever thread it reaches."""
+    """Set INTERRUPTED the moment a SIGINT (or SIGTERM) reaches the process, whichever thread
+    it reaches."""
     while True:
         try:
             received = os.read(pipe, 64)
@@ -99,7 +100,7 @@ def uninstall() -> None:
     """Give Ctrl-C back to Python, as `install` found it: for a command run inside a process that
     goes on (the tests run the command lines in-process). The watching thread sees its pipe close
     and ends."""
-    global _installed, _write_end
+    global _installed, _write_end, _received
     if not _installed or threading.current_thread() is not threading.main_thread():
         return
     if signal.getsignal(signal.SIGINT) is _on_interrupt:
@@ -111,6 +112,7 @@ def uninstall() -> None:
         os.close(_write_end)
     sys.unraisablehook = sys.__unraisablehook__
     INTERRUPTED.clear()
+    _received = signal.SIGINT
     _installed, _write_end = False, None
 
 
