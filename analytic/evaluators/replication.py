@@ -223,14 +223,8 @@ def _settle_failure(
     fails too; else the worker lied (a good candidate sunk by a claim no score betrays)."""
     if not _ran(rerun):
         return Ruling.agreed
-    _distrust(
-        standing[job_id].worker, f"failed job {job_id} that the referee ran to scores", ledger
-    )
-    ledger.disagreements += 1
-    evaluator.distrust(standing[job_id].worker)
-    kept = rerun.log.replace(rerun.log.with_name(f"{job_id}.mcap")) if rerun.log else None
-    standing[job_id] = dataclasses.replace(rerun, job_id=job_id, log=kept)
-    return Ruling.contradicted
+    evidence = f"failed job {job_id} that the referee ran to scores"
+    return _contradicted(job_id, rerun, standing, ledger, evaluator, evidence)
 
 
 def _distrust(worker: str, evidence: str, ledger: Ledger) -> None:
@@ -260,11 +254,24 @@ def _settle(
         elif rerun.log is not None:
             rerun.log.unlink(missing_ok=True)
         return Ruling.agreed
-    ledger.disagreements += 1
     what = "a log" if original.digest != rerun.digest else "scores its log does not have"
-    _distrust(
-        original.worker, f"returned {what} for {job_id} that the referee's run contradicts", ledger
-    )
+    evidence = f"returned {what} for {job_id} that the referee's run contradicts"
+    return _contradicted(job_id, rerun, standing, ledger, evaluator, evidence)
+
+
+def _contradicted(
+    job_id: str,
+    rerun: EpisodeResult,
+    standing: dict[str, EpisodeResult],
+    ledger: Ledger,
+    evaluator: Evaluator,
+    evidence: str,
+) -> Ruling:
+    """The referee's run stands in for the original, whose worker is named with `evidence` and
+    distrusted."""
+    original = standing[job_id]
+    ledger.disagreements += 1
+    _distrust(original.worker, evidence, ledger)
     evaluator.distrust(original.worker)
     kept = rerun.log
     if kept is not None:  # the referee's log where the original's is, or would be, kept
