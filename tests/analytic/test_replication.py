@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from gainfarm.analytic.evaluators.evaluator import EpisodeResult, EpisodeStatus, Wanted
+from gainfarm.analytic.evaluators.evaluator import EpisodeStatus, Wanted
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.evaluators.local import spawn_worker, stop_workers
@@ -28,6 +28,7 @@ from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.service import CobotWorker
+from tests.analytic.toy import claimed_failure
 from tests.helpers import short_spec, wait_for
 
 SPECS = {f"c{i}": short_spec(duration=0.4 + 0.1 * i) for i in range(3)}
@@ -212,20 +213,6 @@ def test_caught_probability_at_the_edges() -> None:
     assert caught_probability(0.0, 100) == 0.0
     assert caught_probability(1.0, 100) == 1.0 and caught_probability(1.0, 0) == 0.0
     assert caught_probability(0.05, 600) == pytest.approx(1 - 0.95**60)
-
-
-def claimed_failure(job_id: str, spec, worker: str = "w1") -> EpisodeResult:
-    return EpisodeResult(
-        job_id=job_id,
-        spec=spec,
-        status=EpisodeStatus.failed,
-        scores=None,
-        log=None,
-        reason="it could not run",
-        worker=worker,
-        attempts=1,
-        timings=None,
-    )
 
 
 def test_a_failure_the_referee_runs_to_scores_names_its_worker(tmp_path: Path) -> None:

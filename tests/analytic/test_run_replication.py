@@ -17,7 +17,7 @@ from gainfarm.analytic.tuning.records import read_evaluated, read_validation
 from gainfarm.analytic.tuning.run import RunProgress, TuningRun
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS
-from tests.analytic.toy import toy_scores
+from tests.analytic.toy import claimed_failure, toy_scores
 
 # Spot checks at a fixed 0.05 (the default sizes them for this small run at 0.98: every
 # episode), so that the front's own refereeing is what these tests see.
@@ -118,17 +118,7 @@ class ToyFarm:
         if worker in self.saboteurs:
             scores = scores.model_copy(update={"f_acc": scores.f_acc * 5, "f_t": scores.f_t * 5})
         if worker in self.failers:
-            return EpisodeResult(
-                job_id=job_id,
-                spec=spec,
-                status=EpisodeStatus.failed,
-                scores=None,
-                log=None,
-                reason="it could not run",
-                worker=worker,
-                attempts=1,
-                timings=None,
-            )
+            return claimed_failure(job_id, spec, worker)
         return EpisodeResult(
             job_id=job_id,
             spec=spec,

@@ -4,6 +4,7 @@ torque steps), so NSGA-II has a real front to find, in microseconds per candidat
 
 import numpy as np
 
+from gainfarm.analytic.evaluators.evaluator import EpisodeResult, EpisodeStatus
 from gainfarm.schemas import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS
 
@@ -22,4 +23,19 @@ def toy_scores(spec: EpisodeSpec) -> Scores:
         diverged=False,
         ticks=1,
         damping=0.1,  # a stable loop, as a worker's scores claim one (worker.stability)
+    )
+
+
+def claimed_failure(job_id: str, spec: EpisodeSpec, worker: str = "w1") -> EpisodeResult:
+    """A worker's word that the episode failed (the referee runs it too)."""
+    return EpisodeResult(
+        job_id=job_id,
+        spec=spec,
+        status=EpisodeStatus.failed,
+        scores=None,
+        log=None,
+        reason="it could not run",
+        worker=worker,
+        attempts=1,
+        timings=None,
     )
