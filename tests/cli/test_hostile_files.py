@@ -228,7 +228,7 @@ def test_an_oversized_log_is_refused_before_it_is_read(tmp_path: Path) -> None:
 
 # --- a dataset's logs: only from inside its runs ------------------------------------------------
 
-# A finished run in seconds (as tests/analytic/test_dashboard.py's).
+# A finished run in seconds (as tests/analytic/view/test_dashboard.py's).
 QUICK = (
     "--trajectory", "fourier", "--duration", "0.5", "--pop", "4", "--generations", "1",
     "--seed", "3", "--local", "--workers", "1",

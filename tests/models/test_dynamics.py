@@ -1,7 +1,7 @@
 """Dynamics models (models/dynamics.py): the physics is the plant's, the file is safe and exact.
 
 Real MuJoCo episodes and real Pinocchio; networks here have random weights (training is
-tests/analytic/test_learning.py's)."""
+tests/analytic/data/test_learning.py's)."""
 
 import io
 import itertools

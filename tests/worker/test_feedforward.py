@@ -59,7 +59,7 @@ def test_a_perfect_model_cuts_the_tracking_error_by_a_large_factor_at_the_same_g
 def test_behind_fri_the_feedforward_leaves_gravity_to_the_robot() -> None:
     # A model predicts the whole motor torque; behind FRI the robot adds its gravity model, so
     # the worker adds the model's torque less that gravity at the reference. The arm's rigid
-    # physics stands in for a learned model here (tests/analytic/test_learning.py learns one).
+    # physics stands in for a learned model here (tests/analytic/data/test_learning.py learns one).
     model = rigid_prior(REALISTIC_PLANT)
     name = digest(to_bytes(model))
     errors = {}

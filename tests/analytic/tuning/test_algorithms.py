@@ -22,8 +22,8 @@ from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.objectives import objectives
 from gainfarm.schemas.robot import ModelSpec
 from gainfarm.schemas.wire import describe
-from tests.analytic.test_run_in_process import Interrupt, Shuffled, tune
 from tests.analytic.toy import toy_scores
+from tests.analytic.tuning.test_run_in_process import Interrupt, Shuffled, tune
 from tests.helpers import analytic
 
 TINY = RunConfig(

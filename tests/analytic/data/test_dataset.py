@@ -393,7 +393,7 @@ def test_the_documented_example_runs_on_a_dataset(
     run_dir: Path, twin_dir: Path, tmp_path: Path
 ) -> None:
     build([run_dir, twin_dir], tmp_path / "dataset")
-    docs = (Path(__file__).parents[2] / "docs" / "dataset.md").read_text()
+    docs = (Path(__file__).parents[3] / "docs" / "dataset.md").read_text()
     [example] = re.findall(r"```python\n(.*?)```", docs, flags=re.DOTALL)
     script = tmp_path / "example.py"
     script.write_text(example)

@@ -24,8 +24,8 @@ from gainfarm.schemas.limits import MEASURED, MEASURES, Limits, measures, tally
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import IDEAL_PLANT
 from gainfarm.worker.episode import run_episode
-from tests.analytic.test_run_directory import one_error_line
 from tests.analytic.toy import toy_scores
+from tests.analytic.tuning.test_run_directory import one_error_line
 from tests.helpers import analytic
 
 TINY = RunConfig(

@@ -29,7 +29,7 @@ from gainfarm.analytic.data.release import (
 from gainfarm.analytic.evaluators.local import local_farm
 from gainfarm.schemas.robot import JOINT_NAMES
 from gainfarm.schemas.trajectory import TrajectorySpec
-from tests.analytic.test_dataset import CONFIG, farm_at, tune
+from tests.analytic.data.test_dataset import CONFIG, farm_at, tune
 from tests.helpers import analytic
 
 NAME = "iiwa14-sim_0.1"

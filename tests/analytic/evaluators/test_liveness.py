@@ -162,7 +162,7 @@ def spawn_rogue(kind: str, endpoint: str, name: str) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", "tests.rogue", kind, endpoint, name],
         stdin=subprocess.DEVNULL,
-        cwd=Path(__file__).parents[2],
+        cwd=Path(__file__).parents[3],
     )
 
 

@@ -1,5 +1,5 @@
 """The words of the progress lines; the lines themselves, on a terminal and off one, are tested
-through `analytic start` in tests/analytic/test_cli.py."""
+through `analytic start` in tests/analytic/commands/test_cli.py."""
 
 import math
 

@@ -15,7 +15,7 @@ from gainfarm.cli import options
 from gainfarm.schemas import TrajectorySpec
 from tests.analytic.toy import toy_scores
 
-README = Path(__file__).parents[2] / "README.md"
+README = Path(__file__).parents[3] / "README.md"
 CONFIG = RunConfig(
     pop=6, seed=1, trajectories=(TrajectorySpec(kind="fourier", duration=0.5),), generations=2
 )
