@@ -29,6 +29,8 @@ from typing import Any
 ALGORITHMS = "gainfarm.algorithms"
 TRAJECTORIES = "gainfarm.trajectories"
 OBJECTIVES = "gainfarm.objectives"
+EXPERIMENTS = "gainfarm.experiments"
+ROBOTS = "gainfarm.robots"
 
 # A plug-in's name becomes part of job ids and file names (a trajectory kind names the jobs of an
 # experiment) and of command-line choices: short, lower case, no separator of a key expression.
@@ -63,6 +65,17 @@ BUILTIN: dict[str, dict[str, str]] = {
         # f_t with each joint's change weighed by its torque limit (schemas/objectives.py)
         "f_t_joint": "gainfarm.schemas.objectives:f_t_joint",
     },
+    EXPERIMENTS: {
+        "popsize": "gainfarm.analytic.experiments.popsize:EXPERIMENT",
+        "generic-vs-specific": "gainfarm.analytic.experiments.generic_vs_specific:EXPERIMENT",
+        "speed": "gainfarm.analytic.experiments.speed:EXPERIMENT",
+        "algorithms": "gainfarm.analytic.experiments.algorithms:EXPERIMENT",
+        "dataset-value": "gainfarm.analytic.experiments.dataset_value:EXPERIMENT",
+        "sensitivity": "gainfarm.analytic.experiments.sensitivity:EXPERIMENT",
+        "feedforward": "gainfarm.analytic.experiments.feedforward:EXPERIMENT",
+    },
+    # An arm: its model builder, limits, default gains, the robot's gravity model, its workspace.
+    ROBOTS: {},
 }
 GROUPS = tuple(BUILTIN)
 
