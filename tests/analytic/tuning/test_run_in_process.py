@@ -126,7 +126,7 @@ def test_a_stopped_and_resumed_run_ends_where_an_uninterrupted_one_does(
 ) -> None:
     # Records written as each generation ends, or (fast generations) only the first one's: a
     # resume runs again whatever generations were not written, to the same front.
-    monkeypatch.setattr("gainfarm.analytic.tuning.run.RECORD_SECONDS", record_seconds)
+    monkeypatch.setattr("gainfarm.analytic.tuning.books.RECORD_SECONDS", record_seconds)
     whole = tune(tmp_path / "whole")
 
     def stop_in_generation_two(progress: RunProgress) -> None:
@@ -196,7 +196,7 @@ def test_a_steady_state_run_keeps_more_candidates_in_flight_when_the_farm_grows(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr(
-        "gainfarm.analytic.tuning.run.CAPACITY_SECONDS", 0.0
+        "gainfarm.analytic.tuning.steady_state.CAPACITY_SECONDS", 0.0
     )  # look up the farm every time
     farm = Growing()
     config = TINY.model_copy(update={"asynchronous": True, "generations": 5})
