@@ -24,23 +24,24 @@ they are within the limits and whether it is calm: data a rigid-body model canno
 chattering elastic joint) would otherwise dominate every score learned on it.
 
 The directory appears whole or not at all: it is built beside its destination and renamed.
+
+This module builds it; its parts are modules of their own: the runs and controllers it takes
+(analytic.data.dataset_runs), the split (dataset_split), the columns and their units
+(dataset_columns) and the card (dataset_card).
 """
 
 import contextlib
-import dataclasses
 import hashlib
 import json
 import math
 import os
 import shutil
-import textwrap
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import pyarrow as pa
@@ -49,159 +50,136 @@ from pydantic import TypeAdapter, ValidationError
 from scipy.signal import savgol_filter
 
 from gainfarm.analytic.compose import new_study_name
+from gainfarm.analytic.data.dataset_card import card, interface_text
+from gainfarm.analytic.data.dataset_columns import (
+    AXES,
+    CALM_CHATTER,
+    CARTESIAN_SIGNALS,
+    COLUMNS,
+    DATASET_VERSION,
+    JOINT_SIGNALS,
+    LOGGED_JOINT_SIGNALS,
+    SG_ORDER,
+    SG_WINDOW,
+    TRAJECTORY_ID_DIGITS,
+    column_unit,
+    with_units,
+)
+from gainfarm.analytic.data.dataset_runs import (
+    ChosenRun,
+    DuplicateEpisodes,
+    Selection,
+    UnreadableRun,
+    choose,
+    run_id_of,
+    select,
+)
+from gainfarm.analytic.data.dataset_split import (
+    DEFAULT_SPLIT,
+    BadSplit,
+    Split,
+    assign_splits,
+    check_split,
+    split_counts,
+)
 from gainfarm.analytic.data.loader import SPLITS, VARIANTS
 from gainfarm.analytic.evaluators.batch import batch_jobs, run_batch
 from gainfarm.analytic.evaluators.evaluator import EpisodeStatus, Evaluator
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.local import local_farm
-from gainfarm.analytic.tuning.picks import knee
+from gainfarm.analytic.tuning.plants import HELD_OUT, variants
 from gainfarm.analytic.tuning.records import (
-    RUN_JSON,
     FrontMember,
-    RunRecord,
-    read_identity,
-    read_run,
 )
-from gainfarm.analytic.tuning.run import RunBusy, TuningRun, upgrade
-from gainfarm.cli.words import counted
 from gainfarm.edges.files import staging_directory, write_atomically
 from gainfarm.plugins import OBJECTIVES, load_plugins
 from gainfarm.schemas.documents import quoted
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
-from gainfarm.schemas.limits import MEASURES, Limits
+from gainfarm.schemas.limits import MEASURES
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
-from gainfarm.schemas.wire import describe, one_line
+from gainfarm.schemas.wire import describe
 from gainfarm.worker.episode import motor_torque
+from gainfarm.worker.ik import UnreachablePath
+from gainfarm.worker.reference import InfeasibleReference, reference_for
 
-Selection = Literal["front", "knee"]
-Split = tuple[float, float, float]
+# The dataset's names, where they were before its card, columns, split and choice of runs had
+# modules of their own, and are imported from still.
+__all__ = [
+    "AXES",
+    "CALM_CHATTER",
+    "CARTESIAN_SIGNALS",
+    "COLUMNS",
+    "DATASET_VERSION",
+    "DEFAULT_SPLIT",
+    "EXCITATION_DURATION",
+    "JOINT_SIGNALS",
+    "LOGGED_JOINT_SIGNALS",
+    "RERUN",
+    "RERUN_DIR",
+    "RUN_ID_DIGITS",
+    "SG_ORDER",
+    "SG_WINDOW",
+    "SPLITS",
+    "TRAJECTORY_ID_DIGITS",
+    "TUNING",
+    "BadRerun",
+    "BadSplit",
+    "ChosenRun",
+    "DuplicateEpisodes",
+    "Episode",
+    "EpisodeSource",
+    "NoEpisodes",
+    "RerunFailed",
+    "RerunFarm",
+    "Selection",
+    "Split",
+    "UnreadableRun",
+    "assign_splits",
+    "build",
+    "calm_only",
+    "canonical_json",
+    "card",
+    "check_rerun",
+    "check_split",
+    "choose",
+    "column_unit",
+    "episode_row",
+    "excitations",
+    "interface_text",
+    "is_calm",
+    "link_or_copy",
+    "local_rerun_farm",
+    "plant_of",
+    "plant_variants",
+    "read_rerun",
+    "read_source",
+    "refuse_duplicates",
+    "rerun",
+    "rerun_jobs",
+    "run_id_of",
+    "select",
+    "smoothed_acceleration",
+    "sources",
+    "split_counts",
+    "tick_columns",
+    "trajectory_id",
+    "trajectory_row",
+    "with_units",
+    "within_limits",
+]
 
-# 2: run-id episode ids, trajectories.parquet, qdd, split, units; 3: u_motor; 4: qdd_sg, calm;
-# 5: the *_variants splits
-DATASET_VERSION = "5"
-DEFAULT_SPLIT: Split = (0.6, 0.2, 0.2)
 RUN_ID_DIGITS = 8  # of the run's 32: unique enough, and a collision is refused, not merged
-TRAJECTORY_ID_DIGITS = 12
 TUNING, RERUN = "tuning", "rerun"  # the `source` column: where an episode comes from
 RERUN_DIR = "rerun"  # the rerun's batch directory, inside the staging directory
-
-# qdd_sg: the second derivative of a Savitzky-Golay fit of q, a cubic over SG_WINDOW ticks
-# (42 ms) centred on each tick, within the episode. The forward difference of q̇ (itself a
-# 3-tick difference of quantised, noisy angles) leaves the true model of the realistic plant a
-# test nMSE of 0.093; this fit, 0.0011. Measured on 51 test episodes of a tuned front on the
-# FRI plant: windows 11, 21, 31, 51 gave 0.0031, 0.0011, 0.0016, 0.0059 with a cubic, and a
-# quintic did no better under 51 ticks (docs/dataset.md, "Two accelerations").
-SG_WINDOW = 21
-SG_ORDER = 3
-# An episode is calm if it ran to its end and its command keeps out of the band above the arm's
-# lowest elastic mode: the chatter measure (schemas.objectives) within the default safety
-# limit's 2 % of the torque limit. The smooth controllers measured put at most 0.8 % there, the
-# chattering ones 50 % to 99 % (schemas.limits).
-CALM_CHATTER = Limits().chatter
 EXCITATION_DURATION = 10.0  # s, each of `--excitations`: 5,000 ticks
-
-# Per-tick signals: name → (unit, what it is). Joint signals get _A1.._A7, Cartesian _x.._z.
-JOINT_SIGNALS = {
-    "q": ("rad", "link-side joint position, as the encoders measured it"),
-    "qd": ("rad/s", "link-side joint velocity, as measured"),
-    "qdd": (
-        "rad/s^2",
-        "link-side acceleration (qd[k+1] - qd[k]) / control period, within the episode: what "
-        "row k's command produced; NaN on an episode's last tick",
-    ),
-    "qdd_sg": (
-        "rad/s^2",
-        f"link-side acceleration at tick k: second derivative of a Savitzky-Golay fit of q "
-        f"(order {SG_ORDER}, {SG_WINDOW} ticks centred on k), within the episode; NaN in an "
-        f"episode shorter than {SG_WINDOW} ticks",
-    ),
-    "tau": ("N*m", "joint torque sensors' reading (the spring torque if the joints are elastic)"),
-    "u": (
-        "N*m",
-        "the controller's torque command as the robot applied it (delayed, saturated) from tick "
-        "k to k + 1; behind FRI without the robot's own gravity compensation",
-    ),
-    "u_motor": (
-        "N*m",
-        "torque the motors exerted from tick k to k + 1: u, plus behind FRI the robot's gravity "
-        "model at its measured angles, saturated; what a model of the arm's dynamics predicts",
-    ),
-    "theta": ("rad", "motor-side angle, as measured (the link angle if the joints are rigid)"),
-    "theta_d": ("rad/s", "motor-side velocity, as measured"),
-    "q_des": ("rad", "reference joint position"),
-    "qd_des": ("rad/s", "reference joint velocity"),
-}
-LOGGED_JOINT_SIGNALS = tuple(s for s in JOINT_SIGNALS if s not in ("qdd", "qdd_sg", "u_motor"))
-CARTESIAN_SIGNALS = {
-    "ee": ("m", "flange position, base frame"),
-    "ee_des": ("m", "desired flange position, base frame"),
-}
-AXES = ("x", "y", "z")
-
-# Every other column of the three tables: name → (unit, what it is). "" is no unit (ids, counts).
-COLUMNS = {
-    "episode_id": ("", "<first 8 hex digits of the run_id>-<job id> (-rerun- for reruns)"),
-    "trajectory": ("", "the trajectory's kind"),
-    "trajectory_id": ("", "short SHA-256 of the trajectory's canonical JSON spec"),
-    "split": ("", "train, validation or test: by trajectory"),
-    "t": ("s", "time since the episode started"),
-    "run": ("", "the tuning run's directory name, or 'rerun'"),
-    "run_id": ("", "the run_id (run.json) of the run the controller was tuned in"),
-    "source": ("", "tuning: an episode of the tuning run; rerun: run again for the dataset"),
-    "f_acc": ("m", "mean end-effector position error of this episode"),
-    "f_t": ("(N*m)^2", "mean squared torque change per tick of this episode"),
-    "diverged": ("", "the episode was stopped early"),
-    "ticks": ("", "ticks in the episode"),
-    "duration": ("s", "the trajectory's duration"),
-    "trajectory_spec": ("", "the TrajectorySpec, JSON"),
-    "model": ("", "the plant: ModelSpec, JSON"),
-    "gravity_compensation": ("", "g(q_des) feed-forward was on"),
-    "feedforward": ("", "SHA-256 of the learned inverse-dynamics feed-forward, if any"),
-    "candidate_f_acc": ("m", "the controller's f_acc over its run's trajectory set"),
-    "candidate_f_t": ("(N*m)^2", "the controller's f_t over its run's trajectory set"),
-    "torque_step": ("1", "largest torque change in a tick, share of the joint's torque limit"),
-    "saturated_fraction": ("1", "share of ticks with a joint at its torque limit"),
-    "speed": ("1", "largest measured joint speed, share of its data-sheet limit"),
-    "chatter": ("1", "RMS of the command above 10 Hz, share of the joint's torque limit"),
-    "lag": ("rad", "largest RMS of a joint's measured angle less its reference's"),
-    "within_limits": ("", "the controller keeps its run's safety limits on all its episodes"),
-    "calm": ("", "the episode ran to its end without chatter (chatter within 0.02)"),
-    "kind": ("", "the trajectory's kind"),
-    "seed": ("", "which path of its kind (random, fourier; spiral, pyramid turned and mirrored)"),
-    "center_x": ("m", "the Cartesian path's centre, base frame"),
-    "center_y": ("m", "the Cartesian path's centre, base frame"),
-    "center_z": ("m", "the Cartesian path's centre, base frame"),
-    "size": ("m", "the Cartesian path's half-width"),
-    "twist": ("rad", "amplitude of the flange's turn about the tool axis"),
-    "turns": ("", "spiral only: turns"),
-    "waypoints": ("", "random only: control points"),
-    "harmonics": ("", "fourier only: harmonics per joint"),
-    "spec": ("", "the TrajectorySpec, canonical JSON (sorted keys): what trajectory_id hashes"),
-    "episodes": ("", "episodes of this trajectory in the dataset"),
-}
-for _joint in JOINT_NAMES:
-    COLUMNS[f"kp_{_joint}"] = ("N*m/rad", "proportional gain")
-    COLUMNS[f"kd_{_joint}"] = ("N*m*s/rad", "derivative gain")
 
 
 class NoEpisodes(ValueError):
     pass
-
-
-class UnreadableRun(ValueError):
-    pass
-
-
-class DuplicateEpisodes(ValueError):
-    """Two sources would give the same episode id: refused, never merged."""
-
-
-class BadSplit(ValueError):
-    """The split's fractions, or too few trajectories for its non-empty parts."""
 
 
 class BadRerun(ValueError):
@@ -214,20 +192,6 @@ class RerunFailed(ValueError):
 
 # Given the directory a rerun's batch writes into, a context giving the evaluator to run it on.
 RerunFarm = Callable[[Path], AbstractContextManager[Evaluator]]
-
-
-@dataclass(frozen=True)
-class ChosenRun:
-    """One run and the controllers selected from it."""
-
-    directory: Path
-    name: str
-    run_id: str
-    model: ModelSpec
-    members: list[FrontMember]
-    feedforward: str | None = None  # the learned model its episodes add to the PD, if any
-    # The safety limits its config checks every episode against.
-    limits: Limits = dataclasses.field(default_factory=Limits)
 
 
 @dataclass(frozen=True)
@@ -251,59 +215,6 @@ class Episode:
     trajectory: TrajectorySpec
     ticks: pa.Table
     row: dict[str, object]
-
-
-def select(run: RunRecord, selection: Selection) -> list[FrontMember]:
-    """The front, or its knee: the member `analytic export` takes (analytic.tuning.picks)."""
-    front = run.front
-    if selection == "front" or not front:
-        return front
-    return [knee(front)]
-
-
-def run_id_of(run_dir: Path) -> str:
-    """The run's id from run.json. A run from between front.json and run ids has none yet:
-    opening it gives it one (what its next resume would do); one that another process is
-    running got it when that process opened it."""
-    path = Path(run_dir) / RUN_JSON
-    if not path.exists():
-        with contextlib.suppress(RunBusy):
-            TuningRun.open(run_dir).close()
-    return read_identity(path).run_id
-
-
-def choose(run_dirs: Sequence[Path], selection: Selection) -> list[ChosenRun]:
-    """Each run with its selected controllers; a run given twice (or a copy of one: the same
-    run_id) is refused, since its episodes would get the same ids."""
-    chosen: list[ChosenRun] = []
-    seen: dict[str, Path] = {}
-    for run_dir in run_dirs:
-        try:
-            upgrade(run_dir)
-            run = read_run(run_dir)
-            run_id = run_id_of(run_dir)
-        except (OSError, ValueError, RunBusy) as error:
-            raise UnreadableRun(f"{str(run_dir)!r}: unreadable run ({one_line(error)})") from None
-        if run_id in seen:
-            raise DuplicateEpisodes(
-                f"{str(seen[run_id])!r} and {str(run_dir)!r} are the same run (run_id {run_id}): "
-                "a run given twice, or a copy of one; give each run once"
-            )
-        seen[run_id] = Path(run_dir)
-        name = Path(run_dir).resolve().name
-        members = select(run, selection)
-        chosen.append(
-            ChosenRun(
-                Path(run_dir),
-                name,
-                run_id,
-                run.config.model,
-                members,
-                run.config.feedforward,
-                run.config.limits,
-            )
-        )
-    return chosen
 
 
 def sources(chosen: Sequence[ChosenRun]) -> list[EpisodeSource]:
@@ -347,60 +258,6 @@ def trajectory_id(trajectory: TrajectorySpec) -> str:
     return hashlib.sha256(canonical_json(trajectory).encode()).hexdigest()[:TRAJECTORY_ID_DIGITS]
 
 
-def check_split(fractions: Sequence[float]) -> Split:
-    """Three non-negative fractions summing to 1 (train, validation, test)."""
-    values = tuple(float(value) for value in fractions)
-    if (
-        len(values) != 3
-        or not all(math.isfinite(value) and value >= 0 for value in values)
-        or not math.isclose(sum(values), 1.0, abs_tol=1e-9)
-    ):
-        shown = ",".join(f"{value:g}" for value in values)
-        raise BadSplit(
-            f"expected three non-negative fractions (train,validation,test) summing to 1, "
-            f"got {shown}"
-        )
-    return values  # type: ignore[return-value]  # three, checked above
-
-
-def split_counts(fractions: Split, trajectories: int) -> list[int]:
-    """How many trajectories each part gets: the largest-remainder rounding of its share, then
-    every part with a positive fraction at least one, taken from the largest part."""
-    fractions = check_split(fractions)
-    positive = [index for index, value in enumerate(fractions) if value > 0]
-    if len(positive) > trajectories:
-        names = "/".join(SPLITS[index] for index in positive)
-        example = "1,0,0" if trajectories <= 1 else "0.5,0,0.5"
-        raise BadSplit(
-            f"{len(positive)} non-empty parts ({names}) but the dataset has only {trajectories} "
-            f"trajector{'y' if trajectories == 1 else 'ies'}: give the empty parts 0 "
-            f"(e.g. {example}), or add trajectories with --rerun"
-        )
-    total = sum(fractions)
-    exact = [value / total * trajectories for value in fractions]
-    counts = [math.floor(value) for value in exact]
-    leftover = trajectories - sum(counts)
-    by_remainder = sorted(positive, key=lambda index: (counts[index] - exact[index], index))
-    for index in by_remainder[:leftover]:
-        counts[index] += 1
-    for index in positive:
-        if counts[index] == 0:  # some other part has two or more: there are enough trajectories
-            donor = max(range(3), key=lambda other: (counts[other], -other))
-            counts[donor] -= 1
-            counts[index] += 1
-    return counts
-
-
-def assign_splits(ids: Sequence[str], fractions: Split, seed: int = 0) -> dict[str, str]:
-    """trajectory_id → split. Deterministic: the ids in the order of their hash with `seed`,
-    cut by `split_counts`; so the split does not depend on the order the runs were given in."""
-    unique = sorted(set(ids))
-    counts = split_counts(fractions, len(unique))
-    order = sorted(unique, key=lambda tid: hashlib.sha256(f"{seed}:{tid}".encode()).hexdigest())
-    names = [name for name, count in zip(SPLITS, counts, strict=True) for _ in range(count)]
-    return dict(zip(order, names, strict=True))
-
-
 def read_rerun(path: Path) -> list[TrajectorySpec]:
     """The rerun file: a JSON list of TrajectorySpec objects; BadRerun saying what is wrong."""
     try:
@@ -434,9 +291,6 @@ def check_rerun(trajectories: Sequence[TrajectorySpec], followable: bool = True)
             raise BadRerun(f"trajectory {number} repeats trajectory {earlier}")
     if not followable:
         return
-    from gainfarm.worker.ik import UnreachablePath  # MuJoCo loads only when a rerun needs it
-    from gainfarm.worker.reference import InfeasibleReference, reference_for
-
     for number, trajectory in enumerate(trajectories, start=1):
         try:
             reference_for(trajectory)
@@ -563,29 +417,6 @@ def read_source(source: EpisodeSource) -> Episode:
     return Episode(source, trajectory, ticks, episode_row(source, log))
 
 
-def column_unit(name: str) -> tuple[str, str]:
-    """A column's (unit, description); KeyError for a column nobody documented."""
-    if name in COLUMNS:
-        return COLUMNS[name]
-    signal, _, part = name.rpartition("_")
-    if part in JOINT_NAMES and signal in JOINT_SIGNALS:
-        return JOINT_SIGNALS[signal]
-    if part in AXES and signal in CARTESIAN_SIGNALS:
-        return CARTESIAN_SIGNALS[signal]
-    raise KeyError(f"column {name!r} has no unit")
-
-
-def with_units(table: pa.Table, metadata: dict[str, str]) -> pa.Table:
-    """`table` with every field's unit and description in its metadata, and `metadata` (the
-    control period, the dataset's version, ...) in the schema's: Parquet keeps both."""
-    fields = []
-    for field in table.schema:
-        unit, description = column_unit(field.name)
-        fields.append(field.with_metadata({"unit": unit, "description": description}))
-    schema = pa.schema(fields, metadata=metadata)
-    return pa.Table.from_arrays(table.columns, schema=schema)
-
-
 def link_or_copy(source: Path, target: Path) -> bool:
     """Hard-link `source` at `target` (no second copy of gigabytes of logs; the runs write
     their logs atomically, by rename, so the shared inode is never changed in place); copy it
@@ -616,8 +447,6 @@ def plant_variants(nominal: ModelSpec, count: int, seed: int) -> tuple[ModelSpec
     (models/uncertainty.toml) on the held-out stream: never the plants a robust run tuned on."""
     if count == 0:
         return ()
-    from gainfarm.analytic.tuning.plants import HELD_OUT, variants
-
     return variants(nominal, count, seed, stream=HELD_OUT)
 
 
@@ -860,11 +689,6 @@ def within_limits(
     return kept, len(episodes) - len(kept)
 
 
-def _paragraph(text: str) -> str:
-    """`text` wrapped as the card's other paragraphs are, at 96 columns."""
-    return textwrap.fill(text, width=96, break_long_words=False, break_on_hyphens=False)
-
-
 def calm_only(episodes: list[Episode], staged: Path, keep: bool) -> tuple[list[Episode], int]:
     """Unless `keep`, leave out (and unstage) the episodes that are not calm (`is_calm`).
     Returns the episodes and how many were left out."""
@@ -875,185 +699,3 @@ def calm_only(episodes: list[Episode], staged: Path, keep: bool) -> tuple[list[E
         if not episode.row["calm"]:
             (staged / f"{episode.source.episode_id}.mcap").unlink(missing_ok=True)
     return kept, len(episodes) - len(kept)
-
-
-def interface_text(model: ModelSpec) -> str:
-    """What the card says of a run's torque interface: how its `u` became `u_motor`."""
-    if model.interface == "fri":
-        return (
-            "behind KUKA's FRI torque interface (the robot added its gravity model of the "
-            f"{model.inertials} inertials to `u`: `u_motor` is the sum)"
-        )
-    return "on a plain torque interface (`u_motor` is `u`)"
-
-
-def card(
-    counts: dict[str, int],
-    chosen: Sequence[ChosenRun],
-    selection: Selection,
-    split: Split = DEFAULT_SPLIT,
-    split_seed: int = 0,
-) -> str:
-    """The dataset's README.md: what it holds, every column and its unit, how it was made."""
-    joint_columns = "\n".join(
-        f"  - `{signal}_A1..A7` ({unit}): {description}"
-        for signal, (unit, description) in JOINT_SIGNALS.items()
-    )
-    chosen_text = (
-        "every Pareto-front controller"
-        if selection == "front"
-        else "the knee (the front member `analytic export` takes: the least worse objective, both "
-        "on a log scale between the front's ideal and nadir)"
-    )
-    runs = "\n".join(
-        f"- `{run.name}`: run_id `{run.run_id}`, {interface_text(run.model)}" for run in chosen
-    )
-    fractions = ",".join(f"{value:g}" for value in split)
-    if counts["linked"] + counts["copied"] == 0:
-        logs = "the rerun's own, none a tuning run's"
-    elif counts["copied"] == 0:
-        logs = "hard links to the runs' own logs (the same inode, no second copy)"
-    elif counts["linked"] == 0:
-        logs = "copies of the runs' logs (the file system refused hard links)"
-    else:
-        logs = (
-            f"{counts['linked']} hard links to the runs' own logs and {counts['copied']} copies "
-            "(where the file system refused a link)"
-        )
-    rerun = (
-        f" The {counts['rerun']} rerun episodes' logs were written for this dataset."
-        if counts["rerun"]
-        else ""
-    )
-    variants = counts.get("rerun_plants", 0)
-    rerun_line = (
-        f", and each of them run once more on the {counts['rerun_trajectories']} trajectories of "
-        "the rerun (`source` rerun)"
-        + (
-            f", on its run's plant and on {variants} variants of it drawn from the plant's "
-            "uncertainty ranges (models/uncertainty.toml; the `model` column says which)"
-            if variants
-            else ""
-        )
-        if counts["rerun"]
-        else ""
-    )
-    caution = " Do not edit a log in place: a hard-linked one changes in its run too." * bool(
-        counts["linked"]
-    )
-    left_out = counts.get("infeasible_left_out", 0)
-    limits = (
-        f" {left_out} episodes of controllers that break their run's safety limits were left "
-        "out (`analytic dataset --infeasible` keeps them)."
-        if left_out
-        else ""
-    )
-    rough_out = counts.get("rough_left_out", 0)
-    if rough_out:
-        limits += (
-            f" {rough_out} episodes that chatter or diverged were left out (`--include-rough` "
-            "keeps them)."
-        )
-    elif counts.get("rough", 0):
-        limits += (
-            f" {counts['rough']} episodes chatter or diverged, kept by `--include-rough`: their "
-            "`calm` is false; score a model on the calm ones."
-        )
-    command = f"analytic dataset ... --select {selection} --split {fractions}"
-    command += f" --split-seed {split_seed}" + (" --rerun FILE" if counts["rerun"] else "")
-    command += f" --plants {variants}" * bool(variants)
-    command += " --include-rough" * bool(counts.get("rough", 0))
-    opening = _paragraph(
-        "Torque, position and velocity episodes of a simulated KUKA LBR iiwa 14 (MuJoCo, "
-        "elastic joints unless the `model` column says otherwise) under PD controllers tuned by "
-        f"NSGA-II for tracking accuracy and torque smoothness: {chosen_text} of each run below, "
-        f"on each trajectory it was tuned on{rerun_line}."
-    )
-    summary = _paragraph(
-        f"{counted(counts['episodes'], 'episode')}, {counts['ticks']:,} ticks at 500 Hz (control "
-        f"period {CONTROL_PERIOD} s), {counted(counts['controllers'], 'controller')} from "
-        f"{counted(counts['runs'], 'run')}, on "
-        f"{counted(counts['trajectories'], 'trajectory')}. Dataset version "
-        f"{DATASET_VERSION}.{limits}"
-    )
-    on_variants = counts.get("on_variants", 0)
-    variant_text = (
-        "\n\n"
-        + _paragraph(
-            f"One plant per part: the {on_variants} episodes on a plant other than their run's "
-            "own (a robust run's tuning variants, the rerun's `--plants`) are in "
-            "`train_variants`, `validation_variants` and `test_variants`, by the same "
-            "trajectories. `train`, `validation` and `test` hold the runs' own plants: the same "
-            "motion asks for other torques on another plant, a spread no model without the "
-            "plant among its inputs can learn. Train on the variants too to learn across plants; "
-            "`test_variants` measures what a model of one plant misses on the others."
-        )
-        if on_variants
-        else ""
-    )
-    return f"""# gainfarm dynamics dataset
-
-{opening}
-
-{summary}
-
-{runs}
-
-## Split
-
-By trajectory, never by tick: every tick of every episode of one `trajectory_id` is in the same
-part, so a model is tested on motions it never saw. Fractions {fractions} (train, validation,
-test) of the trajectories, ordered by the SHA-256 of `<split seed>:<trajectory_id>` (split seed
-{split_seed}), each part with a positive fraction given at least one: {counts["train"]} train,
-{counts["validation"]} validation, {counts["test"]} test trajectories.{variant_text}
-
-## Files
-
-- `ticks.parquet`: one row per 2 ms control tick. `episode_id`, `trajectory` (its kind),
-  `trajectory_id`, `split`, `t` (s since the episode started), and per joint:
-{joint_columns}
-
-  and `ee_x..z`, `ee_des_x..z` (flange position and its desired value, m, base frame).
-  Row `k` of an episode is tick `k` of its MCAP log: the state sensed at tick `k` and the command
-  `u` then applied until tick `k + 1`. `qdd` is computed within each episode, `(qd[k+1] - qd[k]) /
-  {CONTROL_PERIOD}`: the acceleration produced while row `k`'s `u` was applied, so it pairs with
-  `u` exactly; it is NaN on each episode's last tick (never a difference across two episodes).
-  `qdd_sg` is the acceleration at tick `k` from a Savitzky-Golay fit of `q` (order {SG_ORDER},
-  {SG_WINDOW} ticks centred on `k`, within the episode): the difference's noise gives even the
-  plant's own model a test nMSE near 0.09 on the realistic plant, this fit near 0.001. Learn and
-  score on `qdd_sg`. Motor side (`theta`, `theta_d`) and torque sensors (`tau`) are as the sensors
-  report them, noise included on the realistic plant; `u` is the controller's command as the robot
-  took it (after the plant's delay and saturation), and `u_motor` the torque the motors exerted:
-  behind KUKA's FRI torque interface, `u` plus the robot's own gravity model at the angles it
-  measured (the fed-back side's `theta` or `q`), saturated; on a plain torque interface, `u`. A
-  model of the arm's dynamics predicts `u_motor`. Each run above says its interface; the `model`
-  column of `episodes.parquet` says which plant: interface, friction, delay, sensors, feedback
-  side.
-- `episodes.parquet`: one row per episode. `episode_id` (`<first 8 hex digits of the
-  run_id>-<job id>`, with `-rerun-` for reruns), `run` (the run directory's name, or `rerun`),
-  `run_id` (the controller's run, from its run.json), `source` (`tuning` or `rerun`),
-  `trajectory_id`, `kp_A1..A7` (N·m/rad), `kd_A1..A7` (N·m·s/rad), `f_acc` (mean end-effector
-  error, m), `f_t` (mean squared torque change per tick, (N·m)²), `diverged`, `ticks`,
-  `trajectory`, `duration` (s), `trajectory_spec` and `model` (JSON), `gravity_compensation`,
-  `feedforward` (the learned model's SHA-256, or empty),
-  `candidate_f_acc`, `candidate_f_t` (the controller's objectives over its run's trajectory set),
-  the safety measures `torque_step`, `saturated_fraction`, `speed`, `chatter`, `lag` (rad),
-  `within_limits`, `calm` (ran to its end, chatter within {CALM_CHATTER:g}), `split`.
-- `trajectories.parquet`: one row per distinct trajectory. `trajectory_id` (the first
-  {TRAJECTORY_ID_DIGITS} hex digits of the SHA-256 of `spec`), `kind`, `seed`, `center_x..z` (m),
-  `size` (m), `duration` (s), `twist` (rad), `turns`, `waypoints`, `harmonics`, `spec` (the
-  TrajectorySpec as canonical JSON: sorted keys, no spaces), `split`, `episodes`.
-- `episodes/<episode_id>.mcap`: the original logs (ROS 2 CDR: `/joint_states`,
-  `/joint_commands`, `/motor_states`, `/joint_reference`, `/ee/actual`, `/ee/desired`, and in
-  recent logs, for ROS 2 tools such as Foxglove, `/tf` and `/robot_description`: the arm's links
-  at 50 Hz and its URDF; the channel contract is in gainfarm's schemas/README.md), each with its
-  full spec in the `gainfarm.episode` metadata record. They are {logs}.{rerun}{caution}
-
-Every Parquet column carries its unit (`unit`: rad, rad/s, rad/s^2, N*m, m, s, or empty for ids
-and counts) and a `description` in its field metadata; each table's schema metadata holds the
-`control_period` (s), the `dataset_version`, the `split` and the `split_seed`.
-
-Made with:
-
-    {command}
-"""
