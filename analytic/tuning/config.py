@@ -6,11 +6,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from gainfarm import plugins
 from gainfarm.analytic.tuning import defaults
-from gainfarm.analytic.tuning.evolution import (
-    REFERENCE_POINT,
-    STEADY_STATE,
-    steady_state_refusal,
-)
+from gainfarm.analytic.tuning.defaults import REFERENCE_POINT, STEADY_STATE, steady_state_refusal
 from gainfarm.analytic.tuning.termination import (
     CONVERGENCE_TOLERANCE,
     CONVERGENCE_WINDOW,

@@ -49,26 +49,21 @@ from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
 from pymoo.util.ref_dirs import get_reference_directions
 
 from gainfarm import plugins
-from gainfarm.analytic.tuning.defaults import OBJECTIVE_SCALINGS
+from gainfarm.analytic.tuning.defaults import (
+    F_T_FLOOR,
+    OBJECTIVE_SCALINGS,
+    REFERENCE_POINT,
+    STEADY_STATE,
+    steady_state_refusal,
+)
 from gainfarm.analytic.tuning.search_space import SearchSpace
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.objectives import NO_EPISODE
 
-# The hypervolume is taken in a normalised objective space, the same for every run so that runs
-# compare: f_acc linearly, 0 → 0 and REFERENCE_POINT[0] → 1; f_t logarithmically, F_T_FLOOR → 0
-# and REFERENCE_POINT[1] → 1 (torque smoothness spans decades: a step from 100 to 10 (N·m)² is
-# worth as much as one from 1 to 0.1). The reference point is (1, 1) there: a controller worse
-# than 20 cm mean error or 10^4 (N·m)² mean squared torque step adds nothing. (The paper
-# normalises by the worst values among the controllers tested; a fixed point keeps the figure
-# comparable across runs and monotone within one.)
-REFERENCE_POINT = (0.2, 1e4)  # f_acc in m, f_t in (N·m)²
-F_T_FLOOR = 1e-2  # (N·m)²: smoother than this counts as perfectly smooth
-
+# The hypervolume's box (REFERENCE_POINT, F_T_FLOOR) and the steady-state algorithms
+# (STEADY_STATE) are defaults.py's: a RunConfig reads them without loading pymoo.
 # The built-in optimisers, the default first; plugins.names(plugins.ALGORITHMS) adds the plug-ins.
 ALGORITHMS: tuple[str, ...] = plugins.builtin_names(plugins.ALGORITHMS)
-# The algorithms with a steady-state variant (ask_one/tell_one): NSGA-II's (mu + 1) and TPE's
-# (one trial at a time, as Optuna runs it).
-STEADY_STATE = ("nsga2", "tpe")
 
 
 @dataclass(frozen=True)
@@ -435,15 +430,6 @@ def agemoea2(pop_size: int, seed: int, space: SearchSpace) -> Any:
     except Exception:  # pymoo raises a bare Exception when numba is missing
         raise ValueError("algorithm agemoea2 needs numba: pip install numba") from None
     return _set_up(AGEMOEA2(pop_size=pop_size), seed, space)
-
-
-def steady_state_refusal(algorithm: str) -> str:
-    """Why a steady-state run of `algorithm` is refused, in one line naming the way out."""
-    which = " or ".join(STEADY_STATE)
-    return (
-        f"steady state (asynchronous, --async) is {which}'s only, not {algorithm}'s: "
-        f"choose algorithm {which}, or drop --async to run {algorithm} generationally"
-    )
 
 
 class Evolution:
