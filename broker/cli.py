@@ -94,7 +94,7 @@ def start(
     from gainfarm.schemas.security import participants
 
     setup_logging("broker", log_level)
-    identity = options.identity(tls, "broker")
+    identity = values.identity(tls, "broker")
     if identity is not None:
         # The access policy is fixed when the router opens: say whom it lets in.
         allowed = participants(identity.directory)
@@ -166,7 +166,7 @@ def status(
     role, _, name = who.partition(".")
     if role not in ROLES:
         raise CliError(f"--as: {who!r} is not broker, analytic[.NAME] or worker[.NAME]")
-    identity = options.identity(tls, cast("Role", role), name or None, name_option="--as")
+    identity = values.identity(tls, cast("Role", role), name or None, name_option="--as")
     try:
         session = open_session("client", connect=connect, identity=identity)
     except (ValueError, ConnectionError) as error:

@@ -119,15 +119,15 @@ def episode(
     from gainfarm.worker.reference import InfeasibleReference
 
     gains, controller = _file_gains(gains_file) if gains_file is not None else (None, None)
-    (path,) = options.trajectories([trajectory], duration, trajectory_seed, center, size)
-    model = options.with_load(options.model_spec(plant, joints), payload, payload_com, plant)
+    (path,) = values.trajectories([trajectory], duration, trajectory_seed, center, size)
+    model = values.with_load(values.model_spec(plant, joints), payload, payload_com, plant)
     if as_tuned:
         if payload is not None:
             raise CliError("--payload: --as-tuned runs the controller on its own plant")
         path, model = _as_tuned(controller, gains_file)
     elif controller is not None:
         _warn_if_not_as_tuned(controller, gains_file, path, model)
-    learned = options.feedforward_model(feedforward)
+    learned = values.feedforward_model(feedforward)
     if learned is not None and gravity_compensation:
         raise CliError(
             "--feedforward and --gravity-compensation exclude each other: "
@@ -220,7 +220,7 @@ def start(
 
     setup_logging("worker", log_level)
     # On a secure farm the router lets a worker lease only under its certificate's name.
-    identity = options.identity(tls, "worker", name, name_option="--name")
+    identity = values.identity(tls, "worker", name, name_option="--name")
     if identity is not None:
         name = identity.name
     name = name or re.sub(r"[^A-Za-z0-9_.\-]", "-", f"{socket.gethostname()}-{os.getpid()}")

@@ -94,14 +94,14 @@ def batch(
         raise CliError("say where the farm is: --connect ENDPOINT or --local")
     identity = check_farm(connect, local, tls, participant)
     candidates = _candidates(gains_file)
-    model = options.with_load(options.model_spec(plant, joints), payload, payload_com, plant)
+    model = values.with_load(values.model_spec(plant, joints), payload, payload_com, plant)
     # Episodes that saturate every tick are refused, as `worker episode` refuses them.
     refuse_saturating(candidates, model, gains_file)
     if gains_file is not None:
         warn_far_outside_search("analytic", candidates, gains_file)
-    trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
+    trajectories = values.trajectories(kinds, duration, trajectory_seed, center, size)
     followable(trajectories)
-    learned = options.feedforward_model(feedforward)
+    learned = values.feedforward_model(feedforward)
     models = {digest(learned[0]): learned[0]} if learned is not None else {}
     jobs = batch_jobs(candidates, trajectories, model, *models)
     run_dir = run_dir or Path("runs") / time.strftime("batch-%Y%m%d-%H%M%S")

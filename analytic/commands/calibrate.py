@@ -59,7 +59,7 @@ def calibrate(
     from gainfarm.edges.files import write_atomically
 
     # The arm as it recorded: a twin's own payload stays untold (no `plant` given), as it was.
-    nominal = options.with_load(options.model_spec(plant), payload, payload_com)
+    nominal = values.with_load(values.model_spec(plant), payload, payload_com)
     prior = _prior_ranges(plant)
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
@@ -95,7 +95,7 @@ def _prior_ranges(plant: str) -> "dict[str, Range] | None":
     if plant in PLANTS:
         return None
     try:
-        return ranges_of(options.plant_file(plant).uncertainty) or None
+        return ranges_of(values.plant_file(plant).uncertainty) or None
     except BadUncertainty as error:
         raise CliError(f"--plant: {plant!r}: uncertainty: {error}") from None
 

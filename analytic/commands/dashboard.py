@@ -52,7 +52,7 @@ def dashboard(
             raise CliError(f"RUNS: {str(root)!r}: {why}")
     if tls is not None and not connect:
         raise CliError("--tls needs --connect: the farm to watch")
-    identity = options.identity(tls, "analytic", participant)
+    identity = values.identity(tls, "analytic", participant)
     session = None
     if connect:
         try:

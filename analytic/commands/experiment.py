@@ -194,7 +194,7 @@ def _run(
 
     options.check_load(payload, payload_com)
     identity = check_farm(connect, local, tls, participant)
-    limits = options.limits_from(limits_file)
+    limits = values.limits_from(limits_file)
     values: dict[str, object] = {}
     for option in spec.options:
         text = given[option.parameter]
@@ -210,7 +210,7 @@ def _run(
             trajectories=(
                 TrajectorySpec() if duration is None else TrajectorySpec(duration=duration),
             ),
-            model=options.with_load(options.model_spec(plant), payload, payload_com, plant),
+            model=values.with_load(values.model_spec(plant), payload, payload_com, plant),
             limits=limits,
             generations=generations,
             evaluations=evaluations,

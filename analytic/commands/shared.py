@@ -150,7 +150,7 @@ def uncertainty(help: str) -> Callable[[F], F]:
 
 def _uncertainty(plant_file: "PlantFile", nominal: "ModelSpec") -> dict:
     """The plant file's ranges for `nominal`: once its calibrated payload is the told load (no
-    --payload given: options.with_load), that load's error instead of the untold payload's."""
+    --payload given: values.with_load), that load's error instead of the untold payload's."""
     told = plant_file.told()
     if (nominal.load, nominal.payload) == (told.plant.load, told.plant.payload):
         return told.uncertainty
@@ -193,7 +193,7 @@ def plants_from(
         table = None
         if plant is not None and plant not in PLANTS:
             try:
-                table = ranges_of(_uncertainty(options.plant_file(plant), nominal)) or None
+                table = ranges_of(_uncertainty(values.plant_file(plant), nominal)) or None
             except BadUncertainty as error:
                 raise CliError(f"--plant: {plant!r}: uncertainty: {error}") from None
         try:
@@ -241,7 +241,7 @@ def check_farm(
         raise CliError("--tls needs --connect: a local farm is this user's alone, without TLS")
     if participant is not None and tls is None:
         raise CliError("--as needs --tls: a participant is a secure farm's identity")
-    return options.identity(tls, "analytic", participant)
+    return values.identity(tls, "analytic", participant)
 
 
 def study_name(directory: Path, identity: "TlsIdentity | None") -> str:

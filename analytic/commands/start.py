@@ -186,11 +186,11 @@ def start(
         from gainfarm.analytic.tuning.records import CONFIG_JSON
         from gainfarm.analytic.tuning.run import RunBusy
 
-        limits = options.limits_from(limits_file, min_damping)
-        trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
-        learned = options.feedforward_model(feedforward)
+        limits = values.limits_from(limits_file, min_damping)
+        trajectories = values.trajectories(kinds, duration, trajectory_seed, center, size)
+        learned = values.feedforward_model(feedforward)
         model_file = learned[0] if learned is not None else None
-        model = options.with_load(options.model_spec(plant, joints), payload, payload_com, plant)
+        model = values.with_load(values.model_spec(plant, joints), payload, payload_com, plant)
         variants = plants_from(plants, uncertainty_file, model, seed, plant=plant, designed=True)
         held_out = plants_from(
             check_plants, uncertainty_file, model, seed, held_out=True, plant=plant

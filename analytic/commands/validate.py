@@ -87,7 +87,7 @@ def validate(
         raise CliError(f"TWIN: cannot read {str(twin)!r}: {error.strerror}") from None
     except BadPlantFile as error:
         raise CliError(f"TWIN: {str(twin)!r}: {error}") from None
-    nominal_plant = options.model_spec(nominal, option="--nominal")
+    nominal_plant = values.model_spec(nominal, option="--nominal")
     topics = Topics(joint_states, commands, motor_states)
     try:
         candidates = [item for path in played for item in read_played(path)]

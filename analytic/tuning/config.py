@@ -74,6 +74,14 @@ class RunConfig(BaseModel):
         "`trajectories` (schemas.objectives.balancing_weights: each trajectory counts alike at "
         "the default gains); None: the plain means",
     )
+    balance: bool = Field(
+        defaults.BALANCE,
+        exclude_if=lambda balance: balance == defaults.BALANCE,  # a config.json as it was
+        description="a new run given no `objective_weights` (generic) or `plant_scales` "
+        "(robust) has them found first, by the default gains' scores simulated in the calling "
+        "process (analytic.compose.balanced), so that each trajectory and plant counts alike; "
+        "False: the plain means and worsts",
+    )
     plant_scales: tuple[tuple[PositiveFinite, PositiveFinite], ...] | None = Field(
         None,
         exclude_if=lambda scales: scales is None,  # a config.json as it was without them
