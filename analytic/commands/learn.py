@@ -2,10 +2,10 @@
 
 import inspect
 from pathlib import Path
+from typing import Any
 
 import click
 
-from gainfarm.cli.app import CliError
 from gainfarm.cli.options import Later, LazyChoice
 
 
@@ -52,27 +52,13 @@ def _default(parameter: str) -> object:
 @click.option(
     "--seed", type=click.IntRange(min=0), default=Later(lambda: _default("seed")), show_default=True
 )
-def learn(dataset_dir: Path, out: Path, target: str, kind: str, seed: int) -> None:
+def learn(**given: Any) -> None:
     """Learn the arm's dynamics from a dataset's train split; score on its test split.
 
     Writes OUT/model.npz (what --feedforward takes), scores.json (nMSE and RMSE per joint),
     report.md and prediction.png.
     """
-    from gainfarm.analytic.data.learning import LearnError, OutUnwritable
-    from gainfarm.analytic.data.learning import learn as learn_model
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.analytic.commands.work.learn import learn as work
 
-    try:
-        scores = learn_model(dataset_dir, out, target, kind, seed)
-    except OutUnwritable as error:
-        raise CliError(f"--out: {error}") from None
-    except LearnError as error:
-        raise CliError(str(error)) from None
-    nmse = " ".join(f"{joint} {value:.3f}" for joint, value in scores["nmse"].items())
-    calm = scores["calm"]
-    calm_text = f", calm {calm['nmse_mean']:.4f}" if calm and calm["rows"] < scores["rows"] else ""
-    click.echo(
-        f"{out}: {kind} {target} model, test nMSE {scores['nmse_mean']:.4f}{calm_text} "
-        f"(mean over A1-A6; the plant's own dynamics {scores['floor']['nmse_mean']:.4f}, the "
-        f"rigid prior {scores['prior']['nmse_mean']:.3f}, the mean "
-        f"{scores['mean_predictor_nmse']:.2f}) · {nmse}"
-    )
+    work(**given)

@@ -1,10 +1,10 @@
 """`analytic replay`: an episode log as a video."""
 
 from pathlib import Path
+from typing import Any
 
 import click
 
-from gainfarm.cli.app import CliError
 from gainfarm.cli.options import Later
 
 
@@ -38,19 +38,10 @@ def _default(name: str) -> int:
     show_default=True,
     help="pixels, even",
 )
-def replay(log: Path, out: Path, fps: int, width: int, height: int) -> None:
+def replay(**given: Any) -> None:
     """Render an episode log as a video: the arm (MuJoCo, offscreen), the reference path (green)
     and the path the flange took (magenta)."""
-    from gainfarm.analytic.view.replay import ReplayError
-    from gainfarm.analytic.view.replay import replay as replay_episode
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.analytic.commands.work.replay import replay as work
 
-    # As `analytic evaluate` says it: a directory is not a missing file.
-    if log.is_dir():
-        raise CliError(f"LOG: {str(log)!r} is a directory, not an episode log (an MCAP file)")
-    if not log.is_file():
-        raise CliError(f"LOG: {str(log)!r}: no such file")
-    try:
-        frames = replay_episode(log, out, fps, width, height)
-    except ReplayError as error:
-        raise CliError(str(error)) from None
-    click.echo(f"{out}: {frames} frames, {width}x{height} at {fps} fps")
+    work(**given)
