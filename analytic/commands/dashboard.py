@@ -6,12 +6,11 @@ from typing import Any
 import click
 
 from gainfarm.cli import options
+from gainfarm.cli.app import CliError
 
-
-def _port() -> int:
-    from gainfarm.analytic.view.dashboard import DASHBOARD_PORT
-
-    return DASHBOARD_PORT
+# Held here, not imported, so that parsing and --help load nothing heavy: tests/analytic/commands/
+# test_held_defaults.py keeps each equal to its source's.
+PORT = 5006  # analytic.view.dashboard.DASHBOARD_PORT
 
 
 @click.command()
@@ -26,7 +25,7 @@ def _port() -> int:
 @click.option(
     "--port",
     type=click.IntRange(min=1, max=65535),
-    default=options.Later(_port),
+    default=PORT,
     show_default=True,
     help="the page's port, on 127.0.0.1",
 )
@@ -35,6 +34,8 @@ def dashboard(**given: Any) -> None:
     and hypervolume curve, the farm's workers, queue and throughput. RUNS are run directories,
     or directories holding runs (an experiment's, runs/), whose new runs join the page as they
     start  [default: runs]. Until Ctrl-C."""
+    if given["tls"] is not None and not given["connect"]:  # before the work's imports (Bokeh)
+        raise CliError("--tls needs --connect: the farm to watch")
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.dashboard import dashboard as work
 

@@ -5,13 +5,9 @@ from typing import Any
 
 import click
 
-from gainfarm.cli.options import LazyChoice
-
-
-def _formats() -> tuple[str, ...]:
-    from gainfarm.analytic.view.export import FORMATS
-
-    return FORMATS
+# Held here, not imported, so that parsing and --help load nothing heavy: tests/analytic/commands/
+# test_held_defaults.py keeps each equal to its source's.
+FORMATS = ("json", "yaml", "ros2_control")  # analytic.view.export.FORMATS
 
 
 @click.command()
@@ -28,7 +24,7 @@ def _formats() -> tuple[str, ...]:
 @click.option(
     "--format",
     "fmt",
-    type=LazyChoice(_formats),
+    type=click.Choice(FORMATS),
     default="json",
     show_default=True,
     help="json: what `analytic batch --gains` and `worker episode --gains` read; yaml: the "

@@ -1,31 +1,16 @@
 """`analytic learn`: a model of the arm's dynamics, learned from a dataset."""
 
-import inspect
 from pathlib import Path
 from typing import Any
 
 import click
 
-from gainfarm.cli.options import Later, LazyChoice
-
-
-def _targets() -> tuple[str, ...]:
-    from gainfarm.models.dynamics import TARGETS
-
-    return TARGETS
-
-
-def _kinds() -> tuple[str, ...]:
-    from gainfarm.models.dynamics import KINDS
-
-    return KINDS
-
-
-def _default(parameter: str) -> object:
-    """The default of `learn`'s `parameter`: the library's, said once."""
-    from gainfarm.analytic.data.learning import learn
-
-    return inspect.signature(learn).parameters[parameter].default
+# Held here, not imported, so that parsing and --help load nothing heavy: tests/analytic/commands/
+# test_held_defaults.py keeps each equal to its source's.
+# models.dynamics's TARGETS and KINDS; analytic.data.learning.learn's defaults
+TARGETS = ("inverse", "forward")
+KINDS = ("rigid", "linear", "mlp", "residual", "plant")
+TARGET, KIND, SEED = "inverse", "residual", 0
 
 
 @click.command()
@@ -35,23 +20,21 @@ def _default(parameter: str) -> object:
 )
 @click.option(
     "--target",
-    type=LazyChoice(_targets),
-    default=Later(lambda: _default("target")),
+    type=click.Choice(TARGETS),
+    default=TARGET,
     show_default=True,
     help="inverse: torque u from (q, q̇, q̈); forward: q̈ from (q, q̇, u)",
 )
 @click.option(
     "--kind",
-    type=LazyChoice(_kinds),
-    default=Later(lambda: _default("kind")),
+    type=click.Choice(KINDS),
+    default=KIND,
     show_default=True,
     help="rigid: the rigid-body physics prior, untrained; linear: its parameters identified "
     "by least squares; mlp: a network; residual: the prior plus a network of what it misses; "
     "plant: the simulated plant's own dynamics (payload and friction too), the anchor",
 )
-@click.option(
-    "--seed", type=click.IntRange(min=0), default=Later(lambda: _default("seed")), show_default=True
-)
+@click.option("--seed", type=click.IntRange(min=0), default=SEED, show_default=True)
 def learn(**given: Any) -> None:
     """Learn the arm's dynamics from a dataset's train split; score on its test split.
 

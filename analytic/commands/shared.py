@@ -136,6 +136,18 @@ def uncertainty(help: str) -> Callable[[F], F]:
     )
 
 
+def farm_rules(given: dict) -> None:
+    """The farm options' rules (farm_options), checked before a command imports its work: one
+    line naming the option that breaks one."""
+    connect, local, tls = given["connect"], given["local"], given["tls"]
+    if connect and local:
+        raise CliError("--connect and --local exclude each other")
+    if tls is not None and not connect:
+        raise CliError("--tls needs --connect: a local farm is this user's alone, without TLS")
+    if given["participant"] is not None and tls is None:
+        raise CliError("--as needs --tls: a participant is a secure farm's identity")
+
+
 def farm_problem(connect: tuple[str, ...], error: Exception) -> str:
     """Why the farm cannot be had, in one line naming the option that chose it."""
     return f"{'--connect' if connect else 'local farm'}: {error}"

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
+from gainfarm.analytic.commands.shared import farm_rules
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.cli import values
 from gainfarm.cli.app import CliError
@@ -101,12 +102,7 @@ def check_farm(
     connect: tuple[str, ...], local: bool, tls: Path | None, participant: str | None
 ) -> TlsIdentity | None:
     """The analytic identity to connect with, if the farm is secure."""
-    if connect and local:
-        raise CliError("--connect and --local exclude each other")
-    if tls is not None and not connect:
-        raise CliError("--tls needs --connect: a local farm is this user's alone, without TLS")
-    if participant is not None and tls is None:
-        raise CliError("--as needs --tls: a participant is a secure farm's identity")
+    farm_rules({"connect": connect, "local": local, "tls": tls, "participant": participant})
     return values.identity(tls, "analytic", participant)
 
 

@@ -4,27 +4,30 @@ from pathlib import Path
 
 import click
 
-from gainfarm.analytic.view.export import BadMember, BadRun
-from gainfarm.analytic.view.export import controller as exported_controller
-from gainfarm.analytic.view.export import render as render_controller
+from gainfarm.analytic.tuning.records import CONFIG_JSON
 from gainfarm.cli.app import CliError
 from gainfarm.edges.files import write_atomically
 
 
 def export(run_dir: Path, member: str, fmt: str, out: Path | None) -> None:
     """`analytic export` with its options as parsed (analytic/commands/export.py)."""
+    if not (run_dir / CONFIG_JSON).is_file():
+        raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG_JSON})")
+    if out is not None and not out.parent.is_dir():
+        raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
+    # start-up: the run's records load (pymoo, MuJoCo) once the options are checked
+    from gainfarm.analytic.view import export as exporting
+
     try:
-        chosen = exported_controller(run_dir, member)
-    except BadRun as error:
+        chosen = exporting.controller(run_dir, member)
+    except exporting.BadRun as error:
         raise CliError(str(error)) from None
-    except BadMember as error:
+    except exporting.BadMember as error:
         raise CliError(f"--member: {error}") from None
-    content = render_controller(chosen, fmt)
+    content = exporting.render(chosen, fmt)
     if out is None:
         click.echo(content.decode(), nl=False)
         return
-    if not out.parent.is_dir():
-        raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
     try:
         write_atomically(out, content)
     except OSError as error:

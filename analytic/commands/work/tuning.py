@@ -21,6 +21,7 @@ from gainfarm.analytic.compose import (
     Watch,
     check_followable,
     claim,
+    complete,
     make_run,
     new_directory,
     new_study_name,
@@ -30,6 +31,7 @@ from gainfarm.analytic.evaluators.evaluator import Evaluator
 from gainfarm.analytic.evaluators.farm import FarmUnavailable
 from gainfarm.analytic.evaluators.local import LocalFarm
 from gainfarm.analytic.tuning.check import CheckPlan, advice_of, read_check
+from gainfarm.analytic.tuning.checkpoint import CheckpointRefused
 from gainfarm.analytic.tuning.records import REPORT_MD
 from gainfarm.analytic.tuning.run import RunBusy, RunProgress, TuningRun
 from gainfarm.analytic.view.export import describe_pick, picks
@@ -43,6 +45,7 @@ from gainfarm.models.dynamics import digest
 from gainfarm.schemas.limits import tally
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.trajectory import TrajectorySpec
+from gainfarm.schemas.wire import one_line
 
 
 def study_name(directory: Path, identity: TlsIdentity | None) -> str:
@@ -137,6 +140,34 @@ def start_run(fields: dict, out: Path | None, model_file: bytes | None, where: F
         raise CliError(f"{start_option(error.part)}: {error}{also}") from None
     except RunBusy as error:
         raise CliError(f"--out: {error}") from None
+
+
+def resume_run(run_dir: Path, where: Farm) -> None:
+    """`analytic resume`'s run, its options checked: the run in `run_dir` opened and run on
+    `where` with its progress shown; one line if it cannot be opened or has finished."""
+    try:
+        run = TuningRun.open(run_dir)
+    except (RunBusy, CheckpointRefused) as error:
+        raise CliError(str(error)) from None
+    except OSError as error:  # its lock or run.json cannot be written, or a file read
+        at = f"{str(error.filename)!r}: " if error.filename else ""
+        raise CliError(
+            f"{str(run_dir)!r}: cannot open the run: {at}{error.strerror or error}"
+        ) from None
+    except ValueError as error:
+        raise CliError(f"{str(run_dir)!r}: unreadable run ({one_line(error)})") from None
+    if complete(run):  # else what a Ctrl-C after the evolution left is done now
+        run.close()
+        raise CliError(f"{str(run_dir)!r} has finished: {run.state.stopped}")
+
+    def go(watch: Watch, on_check: Callable[[CheckPlan], None]) -> TuningRun:
+        tune_run(run, where, watch=watch, on_check=on_check)
+        return run
+
+    try:
+        run_with_progress(go, run_dir, where.connect)
+    except CannotStart as error:  # its feed-forward model file is missing, or another
+        raise CliError(str(error)) from None
 
 
 def run_with_progress(
