@@ -57,10 +57,11 @@ def model_spec(plant: str, joints: str | None = None, option: str = "--plant") -
     if plant in PLANTS:
         spec = PLANTS[plant]
         return spec if joints is None else spec.model_copy(update={"joints": joints})
-    # start-up: MuJoCo (models.iiwa14) loads only for a plant file, whose springs it checks
+    spec = plant_file(plant, option).plant
+    # start-up: MuJoCo (models.iiwa14) loads only for a readable plant file, whose springs it
+    # checks
     from gainfarm.models.iiwa14 import check_substeps
 
-    spec = plant_file(plant, option).plant
     spec = spec if joints is None else spec.model_copy(update={"joints": joints})
     try:  # here, not in the middle of a run: a file's springs its physics step cannot hold
         check_substeps(spec)
