@@ -143,7 +143,7 @@ def test_the_twins_uncertainty_is_what_robust_tuning_draws(calibrated: dict) -> 
 
 
 def test_robust_tuning_on_the_twin_draws_from_its_uncertainty(calibrated: dict) -> None:
-    from gainfarm.analytic.commands.shared import plants_from
+    from gainfarm.analytic.commands.work.common import plants_from
 
     twin_path = str(calibrated["twin"])
     twin = read_plant_file(calibrated["twin"].read_bytes()).plant

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from gainfarm.analytic.calibration.twin import write_text
-from gainfarm.analytic.commands.shared import plants_from
+from gainfarm.analytic.commands.work.common import plants_from
 from gainfarm.cli import options, values
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.plant_file import PlantFile
