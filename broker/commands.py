@@ -18,14 +18,9 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
-from gainfarm.broker.certs import revoke as revoke_identity
-from gainfarm.broker.certs import write_dev_credentials
-from gainfarm.broker.service import Broker
-from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.cli import interrupts, values
 from gainfarm.cli.app import CliError, setup_logging
 from gainfarm.cli.words import counted
-from gainfarm.edges.transport import open_session
 from gainfarm.schemas.security import PARTICIPANT_RULE, ROLES, is_participant_name, participants
 from gainfarm.schemas.wire import BadMessage
 
@@ -58,6 +53,9 @@ def start(
         log.info("secure profile: %s may use the farm", names)
         if not allowed:
             log.warning("no participant certificates in %s: only the broker may do anything", tls)
+    # start-up: Zenoh loads once the options are checked
+    from gainfarm.broker.service import Broker
+
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
@@ -91,6 +89,9 @@ def status(
     if role not in ROLES:
         raise CliError(f"--as: {who!r} is not broker, analytic[.NAME] or worker[.NAME]")
     identity = values.identity(tls, cast("Role", role), name or None, name_option="--as")
+    # start-up: Zenoh loads once the options are checked
+    from gainfarm.edges.transport import open_session
+
     try:
         session = open_session("client", connect=connect, identity=identity)
     except (ValueError, ConnectionError) as error:
@@ -109,6 +110,9 @@ def status(
 
 
 def _look(session: "zenoh.Session") -> "BrokerStatus":
+    # start-up: Zenoh, as in `status`
+    from gainfarm.broker.status import BrokerUnavailable, query_status
+
     try:
         return query_status(session, timeout=5.0)
     except (BrokerUnavailable, BadMessage) as error:
@@ -207,6 +211,9 @@ def certs(
             raise CliError(f"--host: {host!r} is neither a host name nor an IP address")
     if directory.exists() and not directory.is_dir():
         raise CliError(f"DIR: {str(directory)!r} is a file, not a directory")
+    # start-up: cryptography loads once the options are checked
+    from gainfarm.broker.certs import write_dev_credentials
+
     try:
         issued = write_dev_credentials(directory, hosts, days, if_missing, analytics, workers)
     except FileExistsError as error:
@@ -244,6 +251,9 @@ def _is_host(host: str) -> bool:
 
 
 def _revoke(directory: Path, revoke: tuple[str, ...]) -> None:
+    # start-up: cryptography, as in `certs`
+    from gainfarm.broker.certs import revoke as revoke_identity
+
     for who in revoke:
         try:
             identity = revoke_identity(directory, who)

@@ -11,8 +11,6 @@ import click
 from gainfarm.cli import options
 from gainfarm.cli.app import program_group, run_app
 
-
-
 # Held here, not imported, so that parsing and --help load nothing heavy (Zenoh, cryptography,
 # pydantic): tests/cli/test_held_defaults.py keeps each equal to its source's.
 # schemas.gains.DEFAULT_GAINS's kp and kd, as --kp and --kd take them

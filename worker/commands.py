@@ -2,6 +2,7 @@
 imports this module when a command runs: its imports here are the work's)."""
 
 import contextlib
+import hashlib
 import importlib
 import logging
 import math
@@ -24,8 +25,6 @@ from gainfarm.cli.gains import refuse_saturating, warn_far_outside_search
 from gainfarm.cli.scores import show_scores
 from gainfarm.cli.words import counted
 from gainfarm.edges.files import write_atomically
-from gainfarm.models.dynamics import digest
-from gainfarm.models.urdf import description
 from gainfarm.schemas.controller import BadGains, read_controller, read_gains
 from gainfarm.schemas.documents import BadDocument, read_bounded
 from gainfarm.schemas.episode import EpisodeSpec
@@ -34,11 +33,6 @@ from gainfarm.schemas.mcap_episode import episode_bytes
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import N_JOINTS, PLANTS
 from gainfarm.schemas.wire import NAME_PATTERN, NAME_RULE, describe
-from gainfarm.worker.episode import run_episode
-from gainfarm.worker.feedforward import ModelCache
-from gainfarm.worker.ik import UnreachablePath
-from gainfarm.worker.reference import InfeasibleReference
-from gainfarm.worker.service import CobotWorker, NameTaken
 
 if TYPE_CHECKING:
     from gainfarm.schemas.controller import Controller
@@ -95,7 +89,7 @@ def episode(
             trajectory=path,
             model=model,
             gravity_compensation=gravity_compensation,
-            feedforward=digest(learned[0]) if learned is not None else None,
+            feedforward=hashlib.sha256(learned[0]).hexdigest() if learned else None,
         )
     except ValidationError as error:
         raise CliError(describe(error)) from None
@@ -103,6 +97,13 @@ def episode(
     warn_far_outside_search("worker", [spec.gains], gains_file)
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
+    # start-up: MuJoCo loads once the options are checked (but --feedforward's and a plant
+    # file's, which need it)
+    from gainfarm.models.urdf import description
+    from gainfarm.worker.episode import run_episode
+    from gainfarm.worker.ik import UnreachablePath
+    from gainfarm.worker.reference import InfeasibleReference
+
     try:
         log = run_episode(spec, learned[1] if learned is not None else None)
     except UnreachablePath as error:
@@ -134,6 +135,9 @@ def start(
     name = name or re.sub(r"[^A-Za-z0-9_.\-]", "-", f"{socket.gethostname()}-{os.getpid()}")
     if not re.fullmatch(NAME_PATTERN, name):
         raise CliError(f"--name: {name!r} is not {NAME_RULE}")
+    # start-up: Zenoh and MuJoCo load once the options are checked
+    from gainfarm.worker.service import CobotWorker, ModelCache, NameTaken
+
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())

@@ -89,7 +89,8 @@ def trajectory_kinds() -> tuple[str, ...]:
 
 # What --help shows and parsing falls back to, held here so that neither loads the contract
 # (pydantic and NumPy, several times `import click`): TrajectorySpec()'s fields, the plants by
-# name, ModelSpec's joints and RunConfig().model's name. tests/cli/test_options.py keeps each
+# name, ModelSpec's joints and RunConfig().model's name. tests/cli/test_held_defaults.py keeps
+# each
 # equal to the contract's.
 TRAJECTORY_KIND = "spiral"
 DURATION = 5.0

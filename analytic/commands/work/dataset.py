@@ -1,9 +1,9 @@
 """`analytic dataset` once it runs: what its function in analytic/commands/dataset.py does."""
 
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -23,14 +23,6 @@ from gainfarm.analytic.data.dataset import (
 )
 from gainfarm.analytic.data.dataset import build as build_dataset
 from gainfarm.analytic.data.dataset import excitations as excitation_trajectories
-from gainfarm.analytic.data.learning import BENCHMARK, LearnError
-from gainfarm.analytic.data.release import (
-    BadRelease,
-    MissingExtra,
-    build_release,
-    check_learn_extra,
-    check_name,
-)
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.tuning.records import CONFIG_JSON
 from gainfarm.cli.app import CliError, parse_numbers
@@ -89,37 +81,9 @@ def dataset(
         for trajectory in excitation_trajectories(excitations)
         if canonical_json(trajectory) not in known
     ]
-    if release_format != "gainfarm" and release_name is None:
-        raise CliError(
-            f"--format {release_format} needs --release NAME: only a release is exported"
-        )
-    if baselines_text is not None and release_name is None:
-        raise CliError("--baselines needs --release NAME: only a release scores baselines")
-    kinds = None
-    if baselines_text is not None:
-        kinds = tuple(kind.strip() for kind in baselines_text.split(",") if kind.strip())
-        unknown = [kind for kind in kinds if kind not in BENCHMARK]
-        if unknown or not kinds or len(set(kinds)) < len(kinds):
-            raise CliError(
-                f"--baselines: expected distinct kinds among {', '.join(BENCHMARK)}, got "
-                f"{baselines_text!r}"
-            )
-    # A release's modules (the learning's, matplotlib's) load only for a release.
-    release_errors: tuple[type[Exception], ...] = ()
-    if release_name is not None:
-        release_errors = (BadRelease, LearnError)
-        try:
-            check_name(release_name)
-        except BadRelease as error:
-            raise CliError(f"--release: {error}") from None
-        if split[2] <= 0:
-            raise CliError(
-                "--split: a release is scored on its test split: give it a positive fraction"
-            )
-        try:
-            check_learn_extra()
-        except MissingExtra as error:
-            raise CliError(f"--release: {error}") from None
+    kinds, release_errors, build_release = _release(
+        release_name, release_format, baselines_text, split
+    )
 
     @contextlib.contextmanager
     def rerun_farm(directory: Path) -> Iterator["Evaluator"]:
@@ -146,10 +110,10 @@ def dataset(
     }
     record: dict[str, object] = {}
     try:
-        if release_name is None:
+        if build_release is None:
             counts = build_dataset(list(run_dirs), out, **options)  # type: ignore[arg-type]
         else:
-            counts, record = build_release(
+            counts, record = build_release(  # type: ignore[misc]
                 list(run_dirs),
                 out,
                 release_name,
@@ -170,6 +134,52 @@ def dataset(
         raise CliError(farm_problem(connect, error)) from None
     except OSError as error:
         raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
+    _say(out, counts, record)
+
+
+def _release(
+    name: str | None, release_format: str, baselines_text: str | None, split: tuple[float, ...]
+) -> tuple[tuple[str, ...] | None, tuple[type[Exception], ...], Callable[..., Any] | None]:
+    """A release's options checked (--release, --format, --baselines, the test split): the
+    baselines' kinds, the errors building it may raise, and what builds it (None without
+    --release)."""
+    if release_format != "gainfarm" and name is None:
+        raise CliError(
+            f"--format {release_format} needs --release NAME: only a release is exported"
+        )
+    if baselines_text is not None and name is None:
+        raise CliError("--baselines needs --release NAME: only a release scores baselines")
+    if name is None:
+        return None, (), None
+    # start-up: a release's modules (the learning's, matplotlib's) load only for a release
+    from gainfarm.analytic.data import learning, release
+
+    kinds = None
+    if baselines_text is not None:
+        kinds = tuple(kind.strip() for kind in baselines_text.split(",") if kind.strip())
+        unknown = [kind for kind in kinds if kind not in learning.BENCHMARK]
+        if unknown or not kinds or len(set(kinds)) < len(kinds):
+            raise CliError(
+                f"--baselines: expected distinct kinds among {', '.join(learning.BENCHMARK)}, "
+                f"got {baselines_text!r}"
+            )
+    try:
+        release.check_name(name)
+    except release.BadRelease as error:
+        raise CliError(f"--release: {error}") from None
+    if split[2] <= 0:
+        raise CliError(
+            "--split: a release is scored on its test split: give it a positive fraction"
+        )
+    try:
+        release.check_learn_extra()
+    except release.MissingExtra as error:
+        raise CliError(f"--release: {error}") from None
+    return kinds, (release.BadRelease, learning.LearnError), release.build_release
+
+
+def _say(out: Path, counts: dict, record: dict[str, object]) -> None:
+    """What the dataset (and its release) holds, in a line each."""
     rerun = (
         f", {counts['rerun']} of them rerun in {counts['rerun_seconds']} s"
         if counts["rerun"]

@@ -10,10 +10,7 @@ from gainfarm.analytic.evaluators.farm import DEFAULT_DEADLINE
 from gainfarm.analytic.view import replay as replaying
 from gainfarm.analytic.view.dashboard import DASHBOARD_PORT
 from gainfarm.analytic.view.export import FORMATS
-from gainfarm.cli import options
 from gainfarm.models.dynamics import KINDS, TARGETS
-from gainfarm.schemas.robot import PLANTS, ModelSpec
-from gainfarm.schemas.trajectory import TrajectorySpec
 
 
 def test_the_commands_held_defaults_are_their_sources() -> None:
@@ -23,25 +20,13 @@ def test_the_commands_held_defaults_are_their_sources() -> None:
     assert export.FORMATS == FORMATS
     assert (learn.TARGETS, learn.KINDS) == (TARGETS, KINDS)
     defaults = inspect.signature(learn_dynamics).parameters
-    assert (learn.TARGET, learn.KIND, learn.SEED) == tuple(
-        defaults[name].default for name in ("target", "kind", "seed")
+    assert tuple(defaults[name].default for name in ("target", "kind", "seed")) == (
+        learn.TARGET,
+        learn.KIND,
+        learn.SEED,
     )
     assert (replay.FPS, replay.WIDTH, replay.HEIGHT) == (
         replaying.DEFAULT_FPS,
         replaying.DEFAULT_WIDTH,
         replaying.DEFAULT_HEIGHT,
     )
-
-
-def test_the_shared_options_held_defaults_are_the_contract_s() -> None:
-    trajectory = TrajectorySpec()
-    assert (options.TRAJECTORY_KIND, options.DURATION, options.TRAJECTORY_SEED) == (
-        trajectory.kind,
-        trajectory.duration,
-        trajectory.seed,
-    )
-    assert (options.CENTER, options.SIZE) == (trajectory.center, trajectory.size)
-    assert options.PLANTS == tuple(PLANTS)
-    assert PLANTS[options.PLANT] == ModelSpec()
-    assert options.JOINTS == tuple(ModelSpec.model_fields["joints"].annotation.__args__)
-    assert options.JOINT == ModelSpec().joints
