@@ -5,7 +5,7 @@ from typing import Any
 
 import click
 
-from gainfarm.analytic.commands.shared import farm_options, farm_rules
+from gainfarm.analytic.commands.shared import farm_options, prechecked
 from gainfarm.cli import options
 
 # Held here, not imported, so that parsing and --help load nothing heavy: tests/analytic/commands/
@@ -45,7 +45,7 @@ DEADLINE = 600.0  # s: analytic.evaluators.farm.DEFAULT_DEADLINE
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object per evaluation")
 def batch(**given: Any) -> None:
     """Evaluate candidate gains on trajectories through the farm; keep and score every episode."""
-    farm_rules(given)  # before the work's imports: they load MuJoCo, Zenoh and pymoo
+    prechecked(given)  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.batch import batch as work
 

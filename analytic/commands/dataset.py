@@ -5,7 +5,7 @@ from typing import Any
 
 import click
 
-from gainfarm.analytic.commands.shared import farm_options, farm_rules
+from gainfarm.analytic.commands.shared import farm_options, prechecked
 
 # Held here, not imported, so that parsing and --help load nothing heavy: tests/analytic/commands/
 # test_held_defaults.py keeps each equal to its source's.
@@ -97,7 +97,7 @@ SPLIT = (0.6, 0.2, 0.2)  # analytic.data.dataset.DEFAULT_SPLIT
 @farm_options
 def dataset(**given: Any) -> None:
     """Gather tuned controllers' episodes into a dataset: MCAP logs, Parquet tables, a card."""
-    farm_rules(given)  # before the work's imports: they load MuJoCo, Zenoh and pymoo
+    prechecked(given)  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.dataset import dataset as work
 

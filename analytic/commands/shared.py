@@ -11,7 +11,7 @@ import click
 from gainfarm import plugins
 from gainfarm.analytic.tuning import defaults
 from gainfarm.cli import options
-from gainfarm.cli.app import CliError
+from gainfarm.cli.app import CliError, parse_numbers
 
 F = TypeVar("F", bound=Callable[..., object])
 
@@ -134,6 +134,34 @@ def uncertainty(help: str) -> Callable[[F], F]:
         metavar="FILE",
         help=help,
     )
+
+
+# The file options a command may take, each checked readable before the contract loads.
+FILES = {
+    "limits_file": "--limits",
+    "uncertainty_file": "--uncertainty",
+    "gains_file": "--gains",
+}
+
+
+def prechecked(given: dict) -> None:
+    """What a parse or a stat can refuse of a command's options, refused before its work is
+    imported (the contract's pydantic and NumPy, then MuJoCo, Zenoh, pymoo): the farm options'
+    rules, --center's three numbers, a file option's file that cannot be opened. The same
+    line the work would say; what only the contract can judge (a limit's value), it judges."""
+    if "connect" in given and "local" in given:
+        farm_rules(given)
+    if isinstance(given.get("center"), str):
+        parse_numbers("--center", given["center"], 3)
+    for name, option in FILES.items():
+        path = given.get(name)
+        if path is None:
+            continue
+        try:
+            with open(path, "rb"):
+                pass
+        except OSError as error:
+            raise CliError(f"{option}: cannot read {str(path)!r}: {error.strerror}") from None
 
 
 def farm_rules(given: dict) -> None:

@@ -9,6 +9,7 @@ from gainfarm.analytic.commands.shared import (
     algorithm_names,
     farm_options,
     pop_option,
+    prechecked,
     robustness,
     termination_options,
 )
@@ -129,6 +130,7 @@ def start(**given: Any) -> None:
     Stops after --generations, after --evaluations, or (by default) when the hypervolume has
     stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
     """
+    prechecked(given)  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.start import start as work
 

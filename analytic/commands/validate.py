@@ -5,7 +5,7 @@ from typing import Any
 
 import click
 
-from gainfarm.analytic.commands.shared import bag_topics, farm_options, farm_rules
+from gainfarm.analytic.commands.shared import bag_topics, farm_options, prechecked
 from gainfarm.cli import options
 
 REPORT = "validation.json"
@@ -36,7 +36,7 @@ def validate(**given: Any) -> None:
     --nominal plant on the farm: per joint, the simulation error of q and of the joint torque
     on each, and each episode's f_acc and f_t as the twin predicts them against the log's.
     LOGS are gainfarm episode logs, or a robot's ROS 2 bags of what --played names."""
-    farm_rules(given)  # before the work's imports: they load MuJoCo, Zenoh and pymoo
+    prechecked(given)  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.validate import validate as work
 
