@@ -21,8 +21,8 @@ __all__ = sorted(WHERE)
 if TYPE_CHECKING:
     from gainfarm import CannotStart as CannotStart
     from gainfarm import DatasetSplit as DatasetSplit
-    from gainfarm import Farm as Farm
     from gainfarm import FarmClient as FarmClient
+    from gainfarm import FarmOptions as FarmOptions
     from gainfarm import FarmUnavailable as FarmUnavailable
     from gainfarm import InProcessEvaluator as InProcessEvaluator
     from gainfarm import RunConfig as RunConfig

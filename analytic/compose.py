@@ -96,13 +96,13 @@ def _needs_evaluator(run: TuningRun) -> bool:
 
 
 @dataclass(frozen=True)
-class Farm:
-    """Where a run's episodes run when `tune` is given no evaluator object: a farm. Its broker
-    at `connect` (a secure farm's: with the analytic participant `identity`); else a local farm
-    of `workers` processes (None: one per core) started for the call, or `local` if given: one
-    its caller started early, so that its processes start while this one imports and checks the
-    run (`tune` stops it when done with it). `models`: the feed-forward model files the config
-    may name, by SHA-256 (as InProcessEvaluator takes them)."""
+class FarmOptions:
+    """Where a run's episodes run when `tune` is given no evaluator object: a farm, its options.
+    Its broker at `connect` (a secure farm's: with the analytic participant `identity`); else a
+    local farm of `workers` processes (None: one per core) started for the call, or `local` if
+    given: one its caller started early, so that its processes start while this one imports and
+    checks the run (`tune` stops it when done with it). `models`: the feed-forward model files
+    the config may name, by SHA-256 (as InProcessEvaluator takes them)."""
 
     connect: Sequence[str] = ()
     workers: int | None = None
@@ -114,18 +114,19 @@ class Farm:
 def tune(
     config: RunConfig | None = None,
     out: Path | str | None = None,
-    evaluator: Evaluator | Farm | None = None,
+    evaluator: Evaluator | FarmOptions | None = None,
 ) -> TuningRun:
     """Tune the PD gains as `config` says (the defaults: `analytic start`'s) and return the
     finished run; its front is `run.front()`, its files are in `run.directory`. In the shape of
     pymoo's `minimize(problem, algorithm, termination)`: what decides the outcome is `config`
     (RunConfig, balancing included), where the episodes run is `evaluator`.
 
-    The episodes run on `evaluator` (an InProcessEvaluator, say), or on the farm a `Farm` says;
-    None: a local farm of one worker process per core, started for this call. The feed-forward
-    model file `config.feedforward` names comes with the evaluator (its `models`). `out`
-    (default runs/TIME) is the run directory: new or empty, or one that already holds a run of
-    the same configuration, which is resumed (or returned as it is, if finished).
+    The episodes run on `evaluator` (an InProcessEvaluator, say), or on the farm `FarmOptions`
+    say; None: a local farm of one worker process per core, started for this call. The
+    feed-forward model file `config.feedforward` names comes with the evaluator (its
+    `models`). `out` (default runs/TIME) is the run directory: new or empty, or one that
+    already holds a run of the same configuration, which is resumed (or returned as it is, if
+    finished).
 
     A new run is checked before anything is written (CannotStart: a trajectory the arm cannot
     follow, nothing to balance by, `out` taken); if the farm cannot be had (FarmUnavailable) or
@@ -135,7 +136,7 @@ def tune(
     to write it again. RunBusy if another process is running it.
     """
     config = config or RunConfig()
-    where = evaluator if evaluator is not None else Farm()
+    where = evaluator if evaluator is not None else FarmOptions()
     models: Mapping[str, bytes] = getattr(where, "models", {})
     feedforward = models.get(config.feedforward) if config.feedforward else None
     run, forget = make_run(config, out, feedforward)
@@ -166,7 +167,7 @@ def make_run(
 
 def tune_run(
     run: TuningRun,
-    evaluator: Evaluator | Farm | None = None,
+    evaluator: Evaluator | FarmOptions | None = None,
     *,
     on_progress: Callable[[RunProgress], None] = lambda _: None,
     watch: Watch | None = None,
@@ -174,7 +175,7 @@ def tune_run(
     on_check: Callable[[CheckPlan], None] = lambda _: None,
 ) -> str:
     """Run `run` (open, so holding its lock) to its end on `evaluator` (an evaluator, or the
-    `Farm` to use; None: a local farm), evaluate the default gains beside it (baseline.json),
+    `FarmOptions` to use; None: a local farm), evaluate the default gains beside it (baseline.json),
     check the controllers it names on held-out plants (check.json, if its config holds any;
     `on_check` told as it starts), draw its figures and report.md, and close it; return why it
     stopped. A run whose evolution has finished does only what is left of that (what a Ctrl-C
@@ -194,7 +195,7 @@ def tune_run(
                 return run.state.stopped or ""
             if not run.finished or _needs_evaluator(run):
                 chosen_farm = _evaluator(
-                    run, evaluator if evaluator is not None else Farm(), stopping
+                    run, evaluator if evaluator is not None else FarmOptions(), stopping
                 )
                 with chosen_farm as chosen:
                     begun = True
@@ -336,13 +337,13 @@ def _load_figures() -> None:
 
 @contextlib.contextmanager
 def _evaluator(
-    run: TuningRun, where: Evaluator | Farm, stopping: contextlib.ExitStack
+    run: TuningRun, where: Evaluator | FarmOptions, stopping: contextlib.ExitStack
 ) -> Iterator[Evaluator]:
     """The evaluator `where` is, or else the client of the farm it says (FarmUnavailable if
     the farm cannot be had; what goes wrong later in the block is not relabelled). A local farm
     (`where.local`, or one started here) begins to stop as the block ends, and `stopping` waits
     for it."""
-    if not isinstance(where, Farm):
+    if not isinstance(where, FarmOptions):
         yield where
         return
     connect, workers, identity, farm = where.connect, where.workers, where.identity, where.local

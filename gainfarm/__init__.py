@@ -14,7 +14,7 @@ three command lines share).
 The public face, one list for `gainfarm` and `gainfarm.analytic` (which re-exports this one):
 a run's configuration, `tune` to do a run in one call (in the shape
 of pymoo's `minimize`) and the run itself, the evaluators that run its episodes (this process,
-the farm's client, a `Farm` to start or reach) with the local farm, `read_run` for a run
+the farm's client, a `FarmOptions` to start or reach) with the local farm, `read_run` for a run
 directory, and `load_dataset` to read a dataset's split for learning. Each name loads on first
 use, so that `import gainfarm` costs nothing until one is needed, and `RunConfig` loads no
 optimiser, simulator or network library.
@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 WHERE = {
     "RunConfig": "gainfarm.analytic.tuning.config",
     "tune": "gainfarm.analytic.compose",
-    "Farm": "gainfarm.analytic.compose",
+    "FarmOptions": "gainfarm.analytic.compose",
     "CannotStart": "gainfarm.analytic.compose",
     "TuningInterrupted": "gainfarm.analytic.compose",
     "TuningRun": "gainfarm.analytic.tuning.run",
@@ -44,8 +44,8 @@ WHERE = {
 __all__ = [
     "CannotStart",
     "DatasetSplit",
-    "Farm",
     "FarmClient",
+    "FarmOptions",
     "FarmUnavailable",
     "InProcessEvaluator",
     "RunConfig",
@@ -59,7 +59,7 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
-    from gainfarm.analytic.compose import CannotStart, Farm, TuningInterrupted, tune
+    from gainfarm.analytic.compose import CannotStart, FarmOptions, TuningInterrupted, tune
     from gainfarm.analytic.data.loader import DatasetSplit, TickDataset, load_dataset
     from gainfarm.analytic.evaluators.farm import FarmClient, FarmUnavailable
     from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator

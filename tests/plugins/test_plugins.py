@@ -20,7 +20,7 @@ from pydantic import ValidationError
 
 from gainfarm import plugins
 from gainfarm.analytic.cli import main as analytic_main
-from gainfarm.analytic.compose import Farm, tune
+from gainfarm.analytic.compose import FarmOptions, tune
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.evaluators.local import spawn_worker, stop_workers
@@ -250,7 +250,7 @@ def test_tuning_on_a_local_farm_gives_the_in_process_front(
 ) -> None:
     config = RunConfig(**WITH_ALL_THREE)
     here = tune(config, tmp_path / "here", evaluator=InProcessEvaluator()).front()
-    farmed = tune(config, tmp_path / "farm", Farm(workers=1)).front()
+    farmed = tune(config, tmp_path / "farm", FarmOptions(workers=1)).front()
     assert [(m.gains, m.objectives) for m in farmed] == [(m.gains, m.objectives) for m in here]
 
 
@@ -260,7 +260,7 @@ def test_a_worker_without_the_plugin_refuses_and_the_run_says_so(
 ) -> None:
     monkeypatch.delenv("PYTHONPATH", raising=False)  # the worker processes lack the plug-ins
     with pytest.raises(plugins.PluginError) as raised:
-        tune(RunConfig(**WITH_ALL_THREE), tmp_path / "run", Farm(workers=1))
+        tune(RunConfig(**WITH_ALL_THREE), tmp_path / "run", FarmOptions(workers=1))
     message = str(raised.value)
     assert "\n" not in message
     assert "refused job" in message and re.search(r"worker local-0-[0-9a-f]+ refused", message)

@@ -23,4 +23,4 @@ def resume(
     # start-up: MuJoCo, Zenoh, pymoo and rich load once the options are checked
     from gainfarm.analytic.commands.work import tuning
 
-    tuning.resume_run(run_dir, tuning.Farm(connect, workers, identity))
+    tuning.resume_run(run_dir, tuning.FarmOptions(connect, workers, identity))

@@ -91,7 +91,7 @@ def start(
         fields["check_plants"] = plants_from(
             check_plants, uncertainty_file, model, seed, held_out=True, plant=plant
         )
-        where = tuning.Farm(connect, workers, identity, farm)
+        where = tuning.FarmOptions(connect, workers, identity, farm)
         tuning.start_run(fields, out, learned[0] if learned else None, where)
 
 

@@ -16,7 +16,7 @@ from gainfarm.analytic.commands.work.common import make_config
 from gainfarm.analytic.compose import (
     STAGES,
     CannotStart,
-    Farm,
+    FarmOptions,
     TuningInterrupted,
     Watch,
     check_followable,
@@ -119,7 +119,7 @@ def followable(trajectories: Iterable[TrajectorySpec], option: str = "--duration
         raise CliError(f"{start_option(error.part, option)}: {error}") from None
 
 
-def start_run(fields: dict, out: Path | None, model_file: bytes | None, where: Farm) -> None:
+def start_run(fields: dict, out: Path | None, model_file: bytes | None, where: FarmOptions) -> None:
     """`analytic start`'s run, its options checked: the RunConfig of `fields` (with the SHA-256
     of `model_file`, the --feedforward model, if given), made in `out` (runs/TIME by default)
     as `tune` makes it and run on `where` with its progress shown."""
@@ -142,7 +142,7 @@ def start_run(fields: dict, out: Path | None, model_file: bytes | None, where: F
         raise CliError(f"--out: {error}") from None
 
 
-def resume_run(run_dir: Path, where: Farm) -> None:
+def resume_run(run_dir: Path, where: FarmOptions) -> None:
     """`analytic resume`'s run, its options checked: the run in `run_dir` opened and run on
     `where` with its progress shown; one line if it cannot be opened or has finished."""
     try:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from gainfarm.analytic import Farm, InProcessEvaluator, RunConfig, read_run, tune
+from gainfarm.analytic import FarmOptions, InProcessEvaluator, RunConfig, read_run, tune
 from gainfarm.analytic.compose import CannotStart, balanced
 from gainfarm.analytic.evaluators.farm import FarmUnavailable
 from gainfarm.analytic.evaluators.local import free_port
@@ -110,7 +110,7 @@ def test_tune_claims_its_directory_and_leaves_nothing_if_the_farm_cannot_be_had(
         tune(
             CONFIG,
             tmp_path / "runs" / "first",
-            Farm(connect=[f"tcp/127.0.0.1:{free_port()}"]),
+            FarmOptions(connect=[f"tcp/127.0.0.1:{free_port()}"]),
         )
     assert sorted(path.name for path in tmp_path.iterdir()) == ["mine"]  # runs/ too
 
