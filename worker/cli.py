@@ -3,19 +3,29 @@
 # Light at the top (click and the shared options): MuJoCo, Zenoh and pydantic load inside the
 # command that runs, so that `worker --help` and a refused option cost little more than click.
 
+import math
 from pathlib import Path
 from typing import Any
 
 import click
 
 from gainfarm.cli import options
-from gainfarm.cli.app import program_group, run_app
+from gainfarm.cli.app import CliError, parse_numbers, program_group, run_app
 
 # Held here, not imported, so that parsing and --help load nothing heavy (Zenoh, cryptography,
 # pydantic): tests/cli/test_held_defaults.py keeps each equal to its source's.
+JOINTS = 7  # schemas.robot.N_JOINTS
 # schemas.gains.DEFAULT_GAINS's kp and kd, as --kp and --kd take them
 KP = "2000,2000,1200,1200,400,200,100"
 KD = "20,20,15,15,4,2,1"
+
+
+def gains(option: str, text: str) -> tuple[float, ...]:
+    """--kp's or --kd's gains, one per joint, finite and non-negative; or one line naming it."""
+    values = parse_numbers(option, text, JOINTS)
+    if not all(math.isfinite(v) and v >= 0 for v in values):
+        raise CliError(f"{option}: gains must be finite and non-negative, got {text!r}")
+    return values
 
 
 @program_group(__doc__)
@@ -67,6 +77,11 @@ def app() -> None:
 @click.option("--json", "as_json", is_flag=True, help="print the scores as one JSON object")
 def episode(**given: Any) -> None:
     """Simulate one PD episode on the iiwa 14, write its MCAP log and print its scores."""
+    # What a parse can refuse, refused before the work's imports (the contract, MuJoCo).
+    if given["gains_file"] is None:
+        gains("--kp", given["kp"])
+        gains("--kd", given["kd"])
+    parse_numbers("--center", given["center"], 3)
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.worker.commands import episode as work
 

@@ -5,7 +5,6 @@ import contextlib
 import hashlib
 import importlib
 import logging
-import math
 import os
 import re
 import signal
@@ -20,7 +19,7 @@ from click.core import ParameterSource
 from pydantic import ValidationError
 
 from gainfarm.cli import values
-from gainfarm.cli.app import CliError, parse_numbers, setup_logging
+from gainfarm.cli.app import CliError, setup_logging
 from gainfarm.cli.gains import refuse_saturating, warn_far_outside_search
 from gainfarm.cli.scores import show_scores
 from gainfarm.cli.words import counted
@@ -31,7 +30,7 @@ from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import episode_bytes
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import N_JOINTS, PLANTS
+from gainfarm.schemas.robot import PLANTS
 from gainfarm.schemas.wire import NAME_PATTERN, NAME_RULE, describe
 
 if TYPE_CHECKING:
@@ -85,7 +84,7 @@ def episode(
         )
     try:
         spec = EpisodeSpec(
-            gains=gains or PDGains(kp=_gains("--kp", kp), kd=_gains("--kd", kd)),
+            gains=gains or PDGains(kp=gains("--kp", kp), kd=gains("--kd", kd)),
             trajectory=path,
             model=model,
             gravity_compensation=gravity_compensation,
@@ -350,10 +349,3 @@ def _plant_named(model: "ModelSpec", joints: bool = False) -> str:
         "a custom plant",
     )
     return f"{name} with {model.joints} joints" if joints else name
-
-
-def _gains(option: str, text: str) -> tuple[float, ...]:
-    values = parse_numbers(option, text, N_JOINTS)
-    if not all(math.isfinite(v) and v >= 0 for v in values):
-        raise CliError(f"{option}: gains must be finite and non-negative, got {text!r}")
-    return values

@@ -5,6 +5,8 @@ from typing import Any
 
 import click
 
+from gainfarm.analytic.commands.shared import prechecked
+
 # Held here, not imported, so that parsing and --help load nothing heavy: tests/analytic/commands/
 # test_held_defaults.py keeps each equal to its source's.
 FORMATS = ("json", "yaml", "ros2_control")  # analytic.view.export.FORMATS
@@ -37,6 +39,7 @@ FORMATS = ("json", "yaml", "ros2_control")  # analytic.view.export.FORMATS
 def export(**given: Any) -> None:
     """Write a run's controller: one front member's gains, with its joints, units, scores and
     the run it came from."""
+    prechecked(given)  # before the work's imports: the contract, MuJoCo, pymoo
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.export import export as work
 

@@ -136,6 +136,7 @@ def uncertainty(help: str) -> Callable[[F], F]:
     )
 
 
+RUN_FILE = "config.json"  # what says a run is in a directory (tuning.records.CONFIG_JSON)
 # The file options a command may take, each checked readable before the contract loads.
 FILES = {
     "limits_file": "--limits",
@@ -153,6 +154,9 @@ def prechecked(given: dict) -> None:
         farm_rules(given)
     if isinstance(given.get("center"), str):
         parse_numbers("--center", given["center"], 3)
+    for run_dir in given.get("run_dirs", (given["run_dir"],) if given.get("run_dir") else ()):
+        if not (run_dir / RUN_FILE).is_file():
+            raise CliError(f"{str(run_dir)!r} holds no run (no {RUN_FILE})")
     for name, option in FILES.items():
         path = given.get(name)
         if path is None:

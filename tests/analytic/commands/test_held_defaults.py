@@ -3,10 +3,11 @@ nothing heavy, are their sources' (a change there fails here, not silently in --
 
 import inspect
 
-from gainfarm.analytic.commands import batch, dashboard, dataset, export, learn, replay
+from gainfarm.analytic.commands import batch, dashboard, dataset, export, learn, replay, shared
 from gainfarm.analytic.data.dataset import DEFAULT_SPLIT
 from gainfarm.analytic.data.learning import learn as learn_dynamics
 from gainfarm.analytic.evaluators.farm import DEFAULT_DEADLINE
+from gainfarm.analytic.tuning.records import CONFIG_JSON
 from gainfarm.analytic.view import replay as replaying
 from gainfarm.analytic.view.dashboard import DASHBOARD_PORT
 from gainfarm.analytic.view.export import FORMATS
@@ -14,6 +15,7 @@ from gainfarm.models.dynamics import KINDS, TARGETS
 
 
 def test_the_commands_held_defaults_are_their_sources() -> None:
+    assert shared.RUN_FILE == CONFIG_JSON
     assert batch.DEADLINE == DEFAULT_DEADLINE
     assert dashboard.PORT == DASHBOARD_PORT
     assert dataset.SPLIT == DEFAULT_SPLIT
