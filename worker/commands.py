@@ -32,6 +32,7 @@ from gainfarm.schemas.mcap_episode import episode_bytes
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import PLANTS
 from gainfarm.schemas.wire import NAME_PATTERN, NAME_RULE, describe
+from gainfarm.worker.cli import gains as gains_option
 
 if TYPE_CHECKING:
     from gainfarm.schemas.controller import Controller
@@ -84,7 +85,7 @@ def episode(
         )
     try:
         spec = EpisodeSpec(
-            gains=gains or PDGains(kp=gains("--kp", kp), kd=gains("--kd", kd)),
+            gains=gains or PDGains(kp=gains_option("--kp", kp), kd=gains_option("--kd", kd)),
             trajectory=path,
             model=model,
             gravity_compensation=gravity_compensation,
