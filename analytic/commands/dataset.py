@@ -97,7 +97,7 @@ SPLIT = (0.6, 0.2, 0.2)  # analytic.data.dataset.DEFAULT_SPLIT
 @farm_options
 def dataset(**given: Any) -> None:
     """Gather tuned controllers' episodes into a dataset: MCAP logs, Parquet tables, a card."""
-    prechecked(given)  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
+    prechecked(given, "run_dirs")  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.dataset import dataset as work
 

@@ -39,7 +39,7 @@ FORMATS = ("json", "yaml", "ros2_control")  # analytic.view.export.FORMATS
 def export(**given: Any) -> None:
     """Write a run's controller: one front member's gains, with its joints, units, scores and
     the run it came from."""
-    prechecked(given)  # before the work's imports: the contract, MuJoCo, pymoo
+    prechecked(given, "run_dir")  # before the work's imports: the contract, MuJoCo, pymoo
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.export import export as work
 

@@ -14,7 +14,7 @@ from gainfarm.analytic.commands.shared import farm_options, prechecked
 def resume(**given: Any) -> None:
     """Continue a stopped run from its last checkpoint; or finish one whose evolution had
     ended (its front's validation, the held-out check, the figures and report.md)."""
-    prechecked(given)  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
+    prechecked(given, "run_dir")  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.resume import resume as work
 

@@ -145,16 +145,18 @@ FILES = {
 }
 
 
-def prechecked(given: dict) -> None:
+def prechecked(given: dict, runs: str | None = None) -> None:
     """What a parse or a stat can refuse of a command's options, refused before its work is
     imported (the contract's pydantic and NumPy, then MuJoCo, Zenoh, pymoo): the farm options'
-    rules, --center's three numbers, a file option's file that cannot be opened. The same
+    rules, --center's three numbers, a file option's file that cannot be opened, a run
+    directory (parameter `runs`: one, or a tuple of them) that holds no run. The same
     line the work would say; what only the contract can judge (a limit's value), it judges."""
     if "connect" in given and "local" in given:
         farm_rules(given)
     if isinstance(given.get("center"), str):
         parse_numbers("--center", given["center"], 3)
-    for run_dir in given.get("run_dirs", (given["run_dir"],) if given.get("run_dir") else ()):
+    named = given[runs] if runs is not None else ()
+    for run_dir in named if isinstance(named, tuple) else (named,):
         if not (run_dir / RUN_FILE).is_file():
             raise CliError(f"{str(run_dir)!r} holds no run (no {RUN_FILE})")
     for name, option in FILES.items():
