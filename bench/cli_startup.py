@@ -17,6 +17,7 @@ import resource
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -26,6 +27,7 @@ from common import print_table
 BIN = Path(sys.executable).parent
 ANCHOR = "python -c 'import click'"
 MISSING = "/nonexistent/gainfarm"
+BAD_LIMITS = Path(tempfile.gettempdir()) / "gainfarm-cli-startup-limits.json"
 # What is run, the exit status it must end with, and its target as a ratio to the anchor.
 COMMANDS: dict[str, tuple[list[str], int, float | None]] = {
     ANCHOR: ([sys.executable, "-c", "import click"], 0, None),
@@ -54,7 +56,18 @@ COMMANDS: dict[str, tuple[list[str], int, float | None]] = {
         3.0,
     ),
     "worker episode --kp 1": ([str(BIN / "worker"), "episode", "--kp", "1"], 2, 3.0),
-    "broker start --days": ([str(BIN / "broker"), "certs", MISSING, "--days", "0"], 2, 3.0),
+    "broker certs DIR --host BAD": (
+        [str(BIN / "broker"), "certs", MISSING, "--host", "a!b"],
+        2,
+        3.0,
+    ),
+    # A value only the contract can judge (a limit out of its range): pydantic and NumPy load
+    # to refuse it, no target.
+    "analytic start --limits (a bad value)": (
+        [str(BIN / "analytic"), "start", "--limits", str(BAD_LIMITS)],
+        2,
+        None,
+    ),
 }
 # The library's face, its target the median wall time in seconds.
 IMPORTS: dict[str, tuple[list[str], float]] = {
@@ -85,6 +98,7 @@ def measure(command: list[str], status: int) -> tuple[float, float]:
 @click.command()
 @click.option("--repetitions", type=click.IntRange(min=1), default=9, show_default=True)
 def main(repetitions: int) -> None:
+    BAD_LIMITS.write_text('{"torque_step": -1}')
     runs = {name: (command, status) for name, (command, status, _) in COMMANDS.items()}
     runs |= {name: (command, 0) for name, (command, _) in IMPORTS.items()}
     for command, status in runs.values():  # warm-up: files cached, .pyc written

@@ -100,15 +100,14 @@ def episode(
     # start-up: MuJoCo loads once the options are checked (but --feedforward's and a plant
     # file's, which need it)
     from gainfarm.models.urdf import description
+    from gainfarm.worker import ik, reference
     from gainfarm.worker.episode import run_episode
-    from gainfarm.worker.ik import UnreachablePath
-    from gainfarm.worker.reference import InfeasibleReference
 
     try:
         log = run_episode(spec, learned[1] if learned is not None else None)
-    except UnreachablePath as error:
+    except ik.UnreachablePath as error:
         raise CliError(f"{'--as-tuned' if as_tuned else '--center/--size'}: {error}") from None
-    except InfeasibleReference as error:
+    except reference.InfeasibleReference as error:
         raise CliError(f"{'--as-tuned' if as_tuned else '--duration'}: {error}") from None
     try:
         write_atomically(out, episode_bytes(log, description()))
