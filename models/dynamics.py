@@ -309,7 +309,7 @@ def pinocchio_model(spec: ModelSpec) -> "pinocchio.Model":
 def _pinocchio() -> Any:
     """The pinocchio module, imported here only: a worker without it runs every other kind."""
     try:
-        import pinocchio
+        import pinocchio  # optional extra: learn (a worker without it runs every other kind)
     except ImportError:
         raise ImportError(
             "a linear dynamics model needs Pinocchio: pip install 'gainfarm[learn]'"
