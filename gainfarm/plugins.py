@@ -3,7 +3,8 @@
 Three groups, each a namespace of names (docs/plugins.md says what each provides):
 
     gainfarm.algorithms     an optimiser: factory(pop_size, seed, space) -> ask and tell object
-    gainfarm.trajectories   a trajectory kind: path(spec, u) -> the flange's offsets, m
+    gainfarm.trajectories   a trajectory kind: a Kind (worker/trajectories/), or a path
+                            function path(spec, u) -> the flange's offsets, m
     gainfarm.objectives     an objective: objective(log) -> float, lower is better
 
 A plug-in enters a group by a Python entry point of the distribution that holds it, as pytest's

@@ -1,12 +1,25 @@
 """Every built-in trajectory kind passes the conformance kit a plug-in's author runs
 (gainfarm.testing.trajectories): the project's own kinds are checked as a third party's are.
-Seeds other than 0 too, as the spiral and the pyramid are turned by theirs."""
+Seeds other than 0 too, as the spiral and the pyramid are turned by theirs. And a third party's
+joint-space kind, the form of the fourier kind, passes it too."""
 
+import math
+from collections.abc import Iterator
+
+import numpy as np
 import pytest
 
 from gainfarm import plugins
+from gainfarm.schemas.robot import ACCELERATION_LIMITS, SPEED_LIMITS
 from gainfarm.schemas.trajectory import TrajectorySpec
-from gainfarm.testing.trajectories import TrajectoryChecks
+from gainfarm.testing.trajectories import (
+    TrajectoryChecks,
+    check_a_spec_too_fast_is_refused_naming_the_shortest_duration,
+    check_the_arm_rests_at_both_ends,
+)
+from gainfarm.worker.ik import READY_POSTURE
+from gainfarm.worker.reference import InfeasibleReference
+from gainfarm.worker.trajectories import Kind, minimum_jerk_derivatives
 
 SENSIBLE = [
     TrajectorySpec(kind=kind, duration=3.0, seed=seed)
@@ -19,3 +32,61 @@ class TestEveryBuiltInKind(TrajectoryChecks):
     @pytest.fixture(name="spec", params=SENSIBLE, ids=lambda spec: f"{spec.kind}-{spec.seed}")
     def _spec(self, request: pytest.FixtureRequest) -> TrajectorySpec:
         return request.param
+
+
+# A third party's joint-space kind, in one process: A1 swings by SWING rad and back to rest on a
+# minimum-jerk law, whose speed and acceleration peaks are 1.875 and 10/√3 times SWING/T and
+# SWING/T²: its shortest feasible duration follows.
+SWING = 1.0  # rad
+
+
+def swing(spec: TrajectorySpec, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    phi, rate, acceleration = minimum_jerk_derivatives(np.clip(t / spec.duration, 0.0, 1.0))
+    q = np.tile(READY_POSTURE, (len(t), 1))
+    qd, qdd = np.zeros_like(q), np.zeros_like(q)
+    q[:, 0] += SWING * phi
+    qd[:, 0] = SWING * rate / spec.duration
+    qdd[:, 0] = SWING * acceleration / spec.duration**2
+    return q, qd, qdd
+
+
+def swing_shortest(spec: TrajectorySpec) -> float:
+    return max(
+        1.875 * SWING / SPEED_LIMITS[0],
+        math.sqrt(10 / math.sqrt(3) * SWING / ACCELERATION_LIMITS[0]),
+    )
+
+
+class TestAJointSpaceKindOfAThirdParty(TrajectoryChecks):
+    spec = TrajectorySpec(kind="swing", duration=3.0)
+
+    @pytest.fixture(autouse=True)
+    def _registered(self) -> Iterator[None]:
+        plugins.register(plugins.TRAJECTORIES, "swing", Kind(joints=swing, shortest=swing_shortest))
+        yield
+        plugins.unregister(plugins.TRAJECTORIES, "swing")
+
+
+def test_the_kit_fails_a_kind_that_lies_about_its_shortest_duration_or_does_not_rest() -> None:
+    """The checks can fail: a kind claiming any duration will do, and one that stops moving
+    only after its last tick, are each caught by the check they break."""
+
+    def restless(spec: TrajectorySpec, t: np.ndarray) -> tuple[np.ndarray, ...]:
+        q, qd, qdd = swing(spec, t * 0.9)  # still moving at the end
+        return q, qd * 0.9, qdd * 0.81
+
+    kinds = {
+        "boaster": Kind(joints=swing, shortest=lambda spec: 0.1),
+        "restless": Kind(joints=restless, shortest=swing_shortest),
+    }
+    checks = {
+        "boaster": check_a_spec_too_fast_is_refused_naming_the_shortest_duration,
+        "restless": check_the_arm_rests_at_both_ends,
+    }
+    for name, kind in kinds.items():
+        plugins.register(plugins.TRAJECTORIES, name, kind)
+        try:
+            with pytest.raises((AssertionError, InfeasibleReference)):
+                checks[name](TrajectorySpec(kind=name, duration=3.0))
+        finally:
+            plugins.unregister(plugins.TRAJECTORIES, name)

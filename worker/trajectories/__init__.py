@@ -115,6 +115,17 @@ def kind_of(spec: TrajectorySpec) -> Kind:
     return kind
 
 
+def label(spec: TrajectorySpec) -> str:
+    """A trajectory's short name in reports: its kind and seed ("random 3"); a Cartesian path
+    moved off the default centre says where it is instead of seed 0 ("spiral at (0.5, 0.1,
+    0.4) m"). PluginError as `kind_of`."""
+    default = TrajectorySpec.model_fields["center"].default
+    if kind_of(spec).path is None or tuple(spec.center) == tuple(default):
+        return f"{spec.kind} {spec.seed}"
+    at = "at ({:g}, {:g}, {:g}) m".format(*spec.center)
+    return f"{spec.kind} {spec.seed} {at}" if spec.seed else f"{spec.kind} {at}"
+
+
 # --- Cartesian paths ------------------------------------------------------------------------
 
 
