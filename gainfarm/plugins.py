@@ -45,12 +45,14 @@ NAME_RULE = "a lower-case letter, then up to 31 lower-case letters, digits, '_' 
 GROUPS = (ALGORITHMS, TRAJECTORIES, OBJECTIVES, EXPERIMENTS, ROBOTS)
 # The distribution whose entry points are the built-ins.
 DISTRIBUTION = "gainfarm"
-# The order command lines list a group's built-ins in: these first (each group's default
-# leading), then the others by name (an installation's metadata keeps no order of its own).
-FIRST: dict[str, tuple[str, ...]] = {
-    ALGORITHMS: ("nsga2",),
+# The order command lines and experiments list a group's built-ins in, the default first (an
+# installation's metadata keeps none of its own): names only, their entry points say where each
+# is. A built-in missing here is listed after these, by name; one here that the metadata lacks
+# is an installation older than this source (`_unknown` says so).
+ORDER: dict[str, tuple[str, ...]] = {
+    ALGORITHMS: ("nsga2", "nsga3", "smsemoa", "moead", "agemoea2", "tpe", "random"),
     TRAJECTORIES: ("spiral", "random", "pyramid", "fourier"),
-    OBJECTIVES: ("f_acc", "f_t"),  # the paper's pair
+    OBJECTIVES: ("f_acc", "f_t", "f_t_joint"),  # the paper's pair first
     EXPERIMENTS: (),
     ROBOTS: (),
 }
@@ -142,7 +144,7 @@ def load_plugins(group: str, wanted: Iterable[str]) -> dict[str, Any]:
 
 
 def _unknown(group: str, name: str) -> PluginError:
-    missing = [each for each in FIRST[group] if each not in _scan()[0][group]]
+    missing = [each for each in ORDER[group] if each not in _scan()[0][group]]
     if missing:  # gainfarm's own are not all there: its metadata is older than its source
         return PluginError(
             f"{group}: no plug-in named {name!r} here, and gainfarm's installed metadata lacks "
@@ -160,8 +162,8 @@ def _check_group(group: str) -> None:
 
 
 def _scan() -> tuple[_Points, _Points]:
-    """Every group's entry points by name: gainfarm's own (the built-ins, in FIRST's order then
-    by name) and the other distributions'. All groups are read in one scan of every
+    """Every group's entry points by name: gainfarm's own (the built-ins, in ORDER then by
+    name) and the other distributions'. All groups are read in one scan of every
     distribution's metadata (tens of ms: too much for each job of a worker), again only when
     sys.path changed. Two distributions giving one name: the first on sys.path wins, as an
     import would; gainfarm's own always does."""
@@ -180,7 +182,7 @@ def _scan() -> tuple[_Points, _Points]:
                 ours = point.dist is not None and point.dist.name == DISTRIBUTION
                 (builtin if ours else installed)[each].setdefault(point.name, point)
         for each in GROUPS:
-            order = {name: index for index, name in enumerate(FIRST[each])}
+            order = {name: index for index, name in enumerate(ORDER[each])}
             ranked = sorted(builtin[each], key=lambda name: (order.get(name, len(order)), name))
             builtin[each] = {name: builtin[each][name] for name in ranked}
             for name in builtin[each]:
