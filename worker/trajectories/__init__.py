@@ -1,17 +1,18 @@
 """System layer, part 1: what the arm is asked to do, before any kinematics: the trajectory
 kinds, one module each (spiral, random, pyramid, fourier), through one protocol, `Kind`.
 
-Pure NumPy/SciPy. A Cartesian kind is a geometric path: the flange's position p(s) and
-orientation R(s) as functions of the path's progress s in [0, 1] (its arc-length fraction), with
-the points where the arm comes to rest (`rest_points`). worker/reference.py turns it into a joint
-path by inverse kinematics and times each rest-to-rest piece with the minimum-jerk law within
-the robot's limits. A joint-space kind (the fourier kind) gives the joint motion directly in time.
+Pure NumPy/SciPy here (the fourier kind's module uses MuJoCo's kinematics). A Cartesian kind
+is a geometric path: the flange's position p(s) and orientation R(s) as functions of the path's
+progress s in [0, 1] (its arc-length fraction), with the points where the arm comes to rest
+(`rest_points`). worker/reference.py turns it into a joint path by inverse kinematics and times
+each rest-to-rest piece with the minimum-jerk law within the robot's limits. A joint-space kind
+(the fourier kind) gives the joint motion directly in time.
 
 Every kind, built-in or not, is a name of the gainfarm.trajectories plug-in group, found by
 `kind_of` (gainfarm.plugins.load): a `Kind`, or the simple form a third party may give, a
-`Path` function (Kind(path=it)). A worker without
-the kind refuses the job (worker/job.py). Nothing here or in worker/reference.py branches on a
-kind's name: what a kind does is what its hooks say.
+`Path` function (Kind(path=it)). A worker without the kind refuses the job (worker/job.py).
+Nothing here or in worker/reference.py branches on a kind's name: what a kind does is what its
+hooks say.
 """
 
 from collections.abc import Callable
