@@ -53,8 +53,16 @@ ORDER: dict[str, tuple[str, ...]] = {
     ALGORITHMS: ("nsga2", "nsga3", "smsemoa", "moead", "agemoea2", "tpe", "random"),
     TRAJECTORIES: ("spiral", "random", "pyramid", "fourier"),
     OBJECTIVES: ("f_acc", "f_t", "f_t_joint"),  # the paper's pair first
-    EXPERIMENTS: (),
-    ROBOTS: (),
+    EXPERIMENTS: (
+        "popsize",
+        "generic-vs-specific",
+        "speed",
+        "algorithms",
+        "dataset-value",
+        "sensitivity",
+        "feedforward",
+    ),
+    ROBOTS: ("iiwa14",),
 }
 
 

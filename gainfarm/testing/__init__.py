@@ -1,5 +1,6 @@
 """The conformance kit: pytest-ready checks a plug-in's author runs on what it adds to gainfarm
-(docs/plugins.md, "Checking your plug-in"), and gainfarm runs on its own built-ins.
+(docs/plugins.md, "Checking your plug-in"), and gainfarm runs on its own built-ins. They need
+pytest (gainfarm's `test` extra); nothing of gainfarm imports them.
 
     algorithms      an optimiser (gainfarm.algorithms): determinism, ask and tell's shape and
                     bounds, a checkpoint's round trip that continues identically
