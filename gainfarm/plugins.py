@@ -183,12 +183,14 @@ def _scan() -> tuple[_Points, _Points]:
         every = entry_points()  # one scan; .select works on Python 3.11's result and 3.12's
         builtin: _Points = {each: {} for each in GROUPS}
         installed: _Points = {each: {} for each in GROUPS}
+        ours: dict[int, bool] = {}  # by distribution: its name is parsed from its metadata
         for each in GROUPS:
             for point in every.select(group=each):
                 if not re.fullmatch(NAME_PATTERN, point.name):
                     continue  # no job or option could name it
-                ours = point.dist is not None and point.dist.name == DISTRIBUTION
-                (builtin if ours else installed)[each].setdefault(point.name, point)
+                if id(point.dist) not in ours:
+                    ours[id(point.dist)] = getattr(point.dist, "name", None) == DISTRIBUTION
+                (builtin if ours[id(point.dist)] else installed)[each].setdefault(point.name, point)
         for each in GROUPS:
             order = {name: index for index, name in enumerate(ORDER[each])}
             ranked = sorted(builtin[each], key=lambda name: (order.get(name, len(order)), name))
