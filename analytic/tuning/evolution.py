@@ -7,7 +7,7 @@ and the objectives only, never on which result arrived first.
 
 The optimiser is NSGA-II by default; ALGORITHMS lists the other built-in ones, all generational (a
 whole population asked, then told): pymoo's NSGA-III, SMS-EMOA, MOEA/D and AGE-MOEA-II; "tpe",
-Optuna's multi-objective TPE through Optuna's ask and tell (OptunaTPE); and "random", uniform
+Optuna's multi-objective TPE through Optuna's ask and tell; and "random", uniform
 random sampling of the search space, a population a generation, the baseline any optimiser must
 beat. NSGA-II and TPE also run in a steady state (STEADY_STATE: one candidate asked as another
 is told). Each is a factory in a module of its own (analytic/tuning/algorithms/), registered in
