@@ -1,11 +1,15 @@
-"""Plug-ins: optimisers, trajectory kinds and objectives added without editing gainfarm.
+"""Plug-ins: optimisers, trajectory kinds, objectives, experiments and robots, gainfarm's own
+built-ins and those added without editing gainfarm, through the same seams.
 
-Three groups, each a namespace of names (docs/plugins.md says what each provides):
+Five groups, each a namespace of names (docs/plugins.md says what each provides):
 
     gainfarm.algorithms     an optimiser: factory(pop_size, seed, space) -> ask and tell object
     gainfarm.trajectories   a trajectory kind: a Kind (worker/trajectories/), or a path
                             function path(spec, u) -> the flange's offsets, m
     gainfarm.objectives     an objective: objective(log) -> float, lower is better
+    gainfarm.experiments    an experiment `analytic experiment NAME` runs
+    gainfarm.robots         an arm: its model builder, limits, default gains, gravity model,
+                            workspace
 
 A plug-in enters a group by a Python entry point of the distribution that holds it, as pytest's
 plug-ins do (its pyproject.toml: `[project.entry-points."gainfarm.objectives"]` then
