@@ -14,7 +14,7 @@ when it is built.
   feasible duration is Σ T_i*; a shorter request raises InfeasibleReference naming it.
 - Joint-space kinds (fourier: a per-joint finite Fourier series scaled into the limits,
   always feasible): the kind's own motion, checked against the limits; a kind's shortest
-  feasible duration is its own to say (`Kind.shortest`).
+  feasible duration is its own to say (`Kind.shortest_duration`).
 
 The same trajectory is simulated thousands of times with different gains, so this runs once per
 spec and the result is cached in the worker process.
@@ -96,7 +96,7 @@ def reference_for(spec: TrajectorySpec) -> Reference:
     model = compile_model(_KINEMATIC_MODEL)
     t = sample_times(spec)
     kind = kind_of(spec)
-    if kind.joints is not None:
+    if kind.joint_motion is not None:
         q, qd, qdd = _joint_motion(spec, kind, t)
         ee, _ = _flange(model, q)
     else:
@@ -141,7 +141,7 @@ def shortest_duration(spec: TrajectorySpec) -> float:
     duration).
     """
     kind = kind_of(spec)
-    if kind.joints is not None:
+    if kind.joint_motion is not None:
         return round_up(_declared_shortest(spec, kind))
     return round_up(sum(segment.shortest for segment in _segments(_path_of(spec))))
 
@@ -296,9 +296,9 @@ def _joint_motion(
     """The kind's q, qd, qdd at the ticks `t`, checked: a plug-in's is a stranger's code, and
     the motion must be one the arm can follow (InfeasibleReference naming the kind's shortest
     duration if it is too fast)."""
-    if kind.joints is None:
+    if kind.joint_motion is None:
         raise ValueError(f"trajectory kind {spec.kind!r} has no joint motion")
-    motion = tuple(np.asarray(part, dtype=float) for part in kind.joints(spec, t))
+    motion = tuple(np.asarray(part, dtype=float) for part in kind.joint_motion(spec, t))
     if len(motion) != 3 or any(
         part.shape != (len(t), N_JOINTS) or not np.all(np.isfinite(part)) for part in motion
     ):
@@ -323,11 +323,11 @@ def _joint_motion(
 
 def _declared_shortest(spec: TrajectorySpec, kind: Kind) -> float:
     """A joint-space kind's shortest feasible duration, as it declares it."""
-    if kind.shortest is None:
+    if kind.shortest_duration is None:
         raise ValueError(
             f"trajectory kind {spec.kind!r}: a joint motion without its shortest duration"
         )
-    return float(kind.shortest(spec))
+    return float(kind.shortest_duration(spec))
 
 
 # --- Both -----------------------------------------------------------------------------------

@@ -62,7 +62,8 @@ class TestAJointSpaceKindOfAThirdParty(TrajectoryChecks):
 
     @pytest.fixture(autouse=True)
     def _registered(self) -> Iterator[None]:
-        plugins.register(plugins.TRAJECTORIES, "swing", Kind(joints=swing, shortest=swing_shortest))
+        kind = Kind(joint_motion=swing, shortest_duration=swing_shortest)
+        plugins.register(plugins.TRAJECTORIES, "swing", kind)
         yield
         plugins.unregister(plugins.TRAJECTORIES, "swing")
 
@@ -76,8 +77,8 @@ def test_the_kit_fails_a_kind_that_lies_about_its_shortest_duration_or_does_not_
         return q, qd * 0.9, qdd * 0.81
 
     kinds = {
-        "boaster": Kind(joints=swing, shortest=lambda spec: 0.1),
-        "restless": Kind(joints=restless, shortest=swing_shortest),
+        "boaster": Kind(joint_motion=swing, shortest_duration=lambda spec: 0.1),
+        "restless": Kind(joint_motion=restless, shortest_duration=swing_shortest),
     }
     checks = {
         "boaster": check_a_spec_too_fast_is_refused_naming_the_shortest_duration,

@@ -28,7 +28,7 @@ def test_the_kinds_are_the_three_paths_and_the_fourier_excitation():
     assert set(TrajectoryKind) == {*CARTESIAN_KINDS, TrajectoryKind.fourier}
     for kind in CARTESIAN_KINDS:
         assert kind_of(TrajectorySpec(kind=kind)).path is not None
-    assert kind_of(TrajectorySpec(kind="fourier")).joints is not None
+    assert kind_of(TrajectorySpec(kind="fourier")).joint_motion is not None
     with pytest.raises(ValueError, match="joint space"):
         path_points(TrajectorySpec(kind="fourier"), S)
 
@@ -37,7 +37,7 @@ def test_the_kinds_are_the_three_paths_and_the_fourier_excitation():
     ("made", "why"),
     [
         (Kind(), "neither"),
-        (Kind(path=lambda spec, u: u, joints=lambda spec, t: (t, t, t)), "either"),
+        (Kind(path=lambda spec, u: u, joint_motion=lambda spec, t: (t, t, t)), "either"),
         (3, "int"),
     ],
 )

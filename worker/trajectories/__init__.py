@@ -68,14 +68,14 @@ class Path(Protocol):
     def __call__(self, spec: TrajectorySpec, u: np.ndarray) -> np.ndarray: ...
 
 
-# A joint-space motion: q, qd, qdd (len(t), joints) in rad, rad/s, rad/s² at the times t (s).
+# A joint-space motion: q, qd, qdd (len(t), 7) in rad, rad/s, rad/s² at the times t (s).
 JointMotion = Callable[[TrajectorySpec, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
 @dataclass(frozen=True)
 class Kind:
     """A trajectory kind, as the worker takes it: either a Cartesian `path` or a joint-space
-    `joints` motion, each with its optional hooks. A plug-in's entry point may name one of these,
+    `joint_motion`, each with its optional hooks. A plug-in's entry point may name one of these,
     or a bare `Path` function (Kind(path=it)).
 
     - `path(spec, u)`: a Cartesian path as `Path` says: the flange's offsets from the centre.
@@ -84,18 +84,18 @@ class Kind:
     - `rests(spec)`: the progress values, increasing from 0 to 1, at which the arm comes to rest
       (the pyramid's corners); between two of them it moves along one rest-to-rest minimum-jerk
       segment. Without it: the two ends.
-    - `joints(spec, t)`: a joint-space motion (the fourier kind): q, qd, qdd at the tick times
+    - `joint_motion(spec, t)`: a joint-space motion (the fourier kind): q, qd, qdd at the tick times
       `t`, starting and ending at rest; the worker checks it against the robot's ranges and
       limits and computes the flange's path from it.
-    - `shortest(spec)`: a joint-space kind's shortest feasible duration, s, which the worker
-      names when it refuses a spec as too fast (a Cartesian kind's it measures itself).
+    - `shortest_duration(spec)`: a joint-space kind's shortest feasible duration, s, which the
+      worker names when it refuses a spec as too fast (a Cartesian kind's it measures itself).
     """
 
     path: Path | None = None
     by_arc_length: bool = False
     rests: Callable[[TrajectorySpec], np.ndarray] | None = None
-    joints: JointMotion | None = None
-    shortest: Callable[[TrajectorySpec], float] | None = None
+    joint_motion: JointMotion | None = None
+    shortest_duration: Callable[[TrajectorySpec], float] | None = None
 
 
 def kind_of(spec: TrajectorySpec) -> Kind:
@@ -108,7 +108,7 @@ def kind_of(spec: TrajectorySpec) -> Kind:
         kind = Kind(path=found)
     else:
         kind = None
-    if kind is None or (kind.path is None) == (kind.joints is None):
+    if kind is None or (kind.path is None) == (kind.joint_motion is None):
         raise plugins.PluginError(
             f"{plugins.TRAJECTORIES}: {spec.kind!r} is a {type(found).__name__}, not a path "
             "function nor a Kind with either a path or a joint motion"

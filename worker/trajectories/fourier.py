@@ -122,4 +122,4 @@ def shortest(spec: TrajectorySpec) -> float:
     return MIN_DURATION
 
 
-KIND = Kind(joints=motion, shortest=shortest)
+KIND = Kind(joint_motion=motion, shortest_duration=shortest)
