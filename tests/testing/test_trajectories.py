@@ -18,8 +18,13 @@ from gainfarm.testing.trajectories import (
     check_the_arm_rests_at_both_ends,
 )
 from gainfarm.worker.ik import READY_POSTURE
-from gainfarm.worker.reference import InfeasibleReference
-from gainfarm.worker.trajectories import Kind, minimum_jerk_derivatives
+from gainfarm.worker.reference import InfeasibleReference, shortest_duration
+from gainfarm.worker.trajectories import (
+    Kind,
+    cumulative_length,
+    minimum_jerk_derivatives,
+    rest_points,
+)
 
 SENSIBLE = [
     TrajectorySpec(kind=kind, duration=3.0, seed=seed)
@@ -91,3 +96,33 @@ def test_the_kit_fails_a_kind_that_lies_about_its_shortest_duration_or_does_not_
                 checks[name](TrajectorySpec(kind=name, duration=3.0))
         finally:
             plugins.unregister(plugins.TRAJECTORIES, name)
+
+
+# docs/plugins.md's square, verbatim: a third party's Cartesian kind that rests at its corners.
+CORNERS = np.array([[1, 1, 0], [-1, 1, 0], [-1, -1, 0], [1, -1, 0], [1, 1, 0]], dtype=float)
+
+
+def edges(spec: TrajectorySpec, s: np.ndarray) -> np.ndarray:
+    points = spec.size * CORNERS
+    arc = cumulative_length(points)
+    return np.column_stack([np.interp(s * arc[-1], arc, points[:, i]) for i in range(3)])
+
+
+def corners(spec: TrajectorySpec) -> np.ndarray:
+    arc = cumulative_length(CORNERS)
+    return arc / arc[-1]
+
+
+class TestTheDocsSquareOfAThirdParty(TrajectoryChecks):
+    spec = TrajectorySpec(kind="square", duration=3.0)
+
+    @pytest.fixture(autouse=True)
+    def _registered(self) -> Iterator[None]:
+        kind = Kind(path=edges, by_arc_length=True, rests=corners)
+        plugins.register(plugins.TRAJECTORIES, "square", kind)
+        yield
+        plugins.unregister(plugins.TRAJECTORIES, "square")
+
+    def test_it_rests_at_its_corners(self, spec: TrajectorySpec) -> None:
+        np.testing.assert_allclose(rest_points(spec), [0.0, 0.25, 0.5, 0.75, 1.0])
+        assert shortest_duration(spec) == 2.8  # as docs/plugins.md says
