@@ -26,6 +26,7 @@ from gainfarm.worker.episode import Prepared, compensation, simulate_all
 from gainfarm.worker.feedforward import ModelUnavailable
 from gainfarm.worker.ik import UnreachablePath
 from gainfarm.worker.reference import InfeasibleReference, reference_for
+from gainfarm.worker.trajectories import kind_of
 
 REASON_LIMIT = 2000  # characters: Result.reason's bound
 
@@ -145,7 +146,7 @@ def _outcome(log: EpisodeLog, simulate_s: float = 0.0) -> Outcome:
 def objectives_of(spec: EpisodeSpec) -> dict[str, Objective]:
     """The plug-in objectives the spec names, by name, once its trajectory kind is known to be
     here too. PluginError, naming the first plug-in this process lacks or cannot load."""
-    plugins.load(plugins.TRAJECTORIES, spec.trajectory.kind)
+    kind_of(spec.trajectory)  # a kind that cannot be had, or is of no form the worker takes
     return plugins.load_plugins(plugins.OBJECTIVES, spec.objectives)
 
 

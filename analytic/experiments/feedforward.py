@@ -75,6 +75,7 @@ from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.objectives import NO_EPISODE, objectives
 from gainfarm.schemas.trajectory import TrajectorySpec
+from gainfarm.worker.trajectories import label
 
 CONDITIONS = ("pd", "pd+true", "ff", "ff+true")
 NAMES = {
@@ -423,9 +424,7 @@ def run(
 
 
 def _path_text(path: TrajectorySpec) -> str:
-    if path.kind == "spiral":
-        return "spiral at ({:g}, {:g}, {:g}) m".format(*path.center)
-    return f"{path.kind} {path.seed}"
+    return label(path)  # the kind's own rule: no branch on a kind's name here
 
 
 def report(
