@@ -75,7 +75,7 @@ BUILTIN: dict[str, dict[str, str]] = {
         "feedforward": "gainfarm.analytic.experiments.feedforward:EXPERIMENT",
     },
     # An arm: its model builder, limits, default gains, the robot's gravity model, its workspace.
-    ROBOTS: {},
+    ROBOTS: {"iiwa14": "gainfarm.models.iiwa14:ROBOT"},
 }
 GROUPS = tuple(BUILTIN)
 
