@@ -111,6 +111,7 @@ class Robot(Protocol):
 
     def gravity_spec(self, spec: "ModelSpec") -> "ModelSpec": ...
 
+
 # --- Elastic joints: assumptions (no authoritative public table exists) --------------------------
 
 # Stiffness presets spanning the plausible range, N·m/rad. "soft" is the first wave's value (and
