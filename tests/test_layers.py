@@ -6,7 +6,8 @@
     edges              Zenoh sessions, asking the broker, files (gainfarm/edges/): schemas, models
     cli                what the command lines share (gainfarm/cli/): all of the above
     worker, broker     the layers below, never analytic nor each other
-    analytic           everything; inside it, floors one way down:
+    testing            the conformance kits (gainfarm/testing/): everything above, for tests
+    analytic           everything (but the kits); inside it, floors one way down:
                        commands -> experiments -> calibration -> data -> compose -> view -> tuning
                        -> evaluators (compose: the module analytic/compose.py, `tune`)
 
@@ -33,6 +34,7 @@ WHERE = {
     "worker": "worker",
     "broker": "broker",
     "analytic": "analytic",
+    "testing": "gainfarm/testing",
 }
 LAYERS = tuple(WHERE)
 MAY_IMPORT = {
@@ -43,7 +45,8 @@ MAY_IMPORT = {
     "cli": {"schemas", "models", "plugins", "edges"},
     "worker": {"schemas", "models", "plugins", "edges", "cli"},
     "broker": {"schemas", "models", "plugins", "edges", "cli"},
-    "analytic": set(LAYERS),
+    "analytic": set(LAYERS) - {"testing"},
+    "testing": set(LAYERS) - {"testing"},
 }
 FACE = "gainfarm/__init__.py"  # the public face: `import gainfarm`, `from gainfarm import tune`
 CONTRACT_MAY_NOT = {"click", "rich", "zenoh"}
