@@ -236,7 +236,7 @@ def test_bad_input_is_one_line_and_writes_nothing(calibrated: dict, tmp_path: Pa
     not_a_log.write_text("hello")
     out = tmp_path / "twin.toml"
     cases = {
-        ("--plant", "robot 'ur5e'"): [*logs, "--plant", str(other), "--out", str(out)],
+        ("--plant", "no plug-in named 'ur5e'"): [*logs, "--plant", str(other), "--out", str(out)],
         ("notes.mcap", "not"): [str(not_a_log), "--out", str(out)],
         ("missing.mcap", "no such file"): [str(tmp_path / "missing.mcap"), "--out", str(out)],
         ("--out", "does not exist"): [*logs, "--out", str(tmp_path / "no" / "twin.toml")],
@@ -255,7 +255,7 @@ def test_bad_input_is_one_line_and_writes_nothing(calibrated: dict, tmp_path: Pa
     ):
         done = analytic("validate", *arguments, "--out", str(tmp_path / "v"), cwd=tmp_path)
         assert done.returncode != 0 and len(done.stderr.splitlines()) == 1, done.stderr
-        assert says in done.stderr and "robot 'ur5e'" in done.stderr, done.stderr
+        assert says in done.stderr and "no plug-in named 'ur5e'" in done.stderr, done.stderr
     assert not (tmp_path / "v").exists()
 
 
