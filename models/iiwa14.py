@@ -32,7 +32,7 @@ from gainfarm.schemas.robot import (
     POSITION_LIMITS,
     SPEED_LIMITS,
     TORQUE_LIMITS,
-    Limits,
+    JointLimits,
     LoadData,
     ModelSpec,
     Workspace,
@@ -302,7 +302,7 @@ class Iiwa14:
 
     name = "iiwa14"
     joint_names = JOINT_NAMES
-    limits = Limits(
+    limits = JointLimits(
         torque=TORQUE_LIMITS,
         speed=SPEED_LIMITS,
         position=POSITION_LIMITS,

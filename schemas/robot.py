@@ -47,7 +47,7 @@ ACCELERATION_LIMITS = (8.57, 8.57, 8.74, 11.36, 12.23, 15.72, 15.72)
 
 
 @dataclass(frozen=True)
-class Limits:
+class JointLimits:
     """A robot's published limits, one number per joint, in its joints' order. Positions are
     symmetric about zero (each joint turns ±position)."""
 
@@ -100,7 +100,7 @@ class Robot(Protocol):
 
     name: str  # its plug-in name, ROBOT_PATTERN's form
     joint_names: tuple[str, ...]  # the hinges the motors turn, base to flange: the joint count
-    limits: Limits
+    limits: JointLimits
     default_gains: "PDGains"  # a sensible first controller, and the search space's centre
     workspace: Workspace
     flange: str  # the MuJoCo site at the flange's centre, which every trajectory moves
