@@ -48,7 +48,7 @@ import numpy as np
 from numpy.lib import format as npy_format
 from pydantic import ValidationError
 
-from gainfarm.models.iiwa14 import build_spec, compile_model
+from gainfarm.models.robots import build_spec, compile_model
 from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, Friction, ModelSpec
 
 if TYPE_CHECKING:

@@ -1,12 +1,12 @@
 """Imports run one way, down the layers (docs/architecture.md), bottom to top:
 
     schemas            the contract: imports nothing of the project, no CLI library, no Zenoh
-    models             the robot: may import schemas
     plugins            the registry of plug-ins (gainfarm/plugins.py): the standard library only
+    models             the robots: may import schemas, and plugins (a plant's robot is one)
     edges              Zenoh sessions, asking the broker, files (gainfarm/edges/): schemas, models
     cli                what the command lines share (gainfarm/cli/): all of the above
     worker, broker     the layers below, never analytic nor each other
-    analytic           everything; inside it, floors one way down:
+    analytic           everything (but the kits); inside it, floors one way down:
                        commands -> experiments -> calibration -> data -> compose -> view -> tuning
                        -> evaluators (compose: the module analytic/compose.py, `tune`)
     testing            the conformance kit for plug-ins (gainfarm/testing/): everything; nothing
@@ -28,8 +28,8 @@ ROOT = Path(__file__).parents[1]
 # Each layer's source, bottom to top: a folder, or one module.
 WHERE = {
     "schemas": "schemas",
-    "models": "models",
     "plugins": "gainfarm/plugins.py",
+    "models": "models",
     "edges": "gainfarm/edges",
     "cli": "gainfarm/cli",
     "worker": "worker",
@@ -40,8 +40,8 @@ WHERE = {
 LAYERS = tuple(WHERE)
 MAY_IMPORT = {
     "schemas": set(),
-    "models": {"schemas"},
     "plugins": set(),
+    "models": {"schemas", "plugins"},
     "edges": {"schemas", "models"},
     "cli": {"schemas", "models", "plugins", "edges"},
     "worker": {"schemas", "models", "plugins", "edges", "cli"},

@@ -15,6 +15,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 from gainfarm import plugins
+from gainfarm.models import robot_of
 from gainfarm.models.dynamics import DynamicsModel
 from gainfarm.models.urdf import description
 from gainfarm.schemas.episode import EpisodeSpec, Scores
@@ -144,8 +145,10 @@ def _outcome(log: EpisodeLog, simulate_s: float = 0.0) -> Outcome:
 
 
 def objectives_of(spec: EpisodeSpec) -> dict[str, Objective]:
-    """The plug-in objectives the spec names, by name, once its trajectory kind is known to be
-    here too. PluginError, naming the first plug-in this process lacks or cannot load."""
+    """The plug-in objectives the spec names, by name, once its robot and trajectory kind are
+    known to be here too. PluginError, naming the first plug-in this process lacks or cannot
+    load."""
+    robot_of(spec.model)
     kind_of(spec.trajectory)  # a kind that cannot be had, or is of no form the worker takes
     return plugins.load_plugins(plugins.OBJECTIVES, spec.objectives)
 

@@ -29,15 +29,8 @@ import mujoco
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from gainfarm.models import FLANGE, compile_model
-from gainfarm.schemas.robot import (
-    ACCELERATION_LIMITS,
-    JOINT_NAMES,
-    N_JOINTS,
-    POSITION_LIMITS,
-    SPEED_LIMITS,
-    ModelSpec,
-)
+from gainfarm.models import compile_model, robot_of
+from gainfarm.schemas.robot import ModelSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.ik import (
     ORIENTATION_TOLERANCE,
@@ -58,10 +51,13 @@ from gainfarm.worker.trajectories import (
 )
 
 # Kinematics do not depend on the elastic-joint parameters or inertials: the rigid chain serves all.
+# The default robot's (a reference is of it until the plant's robot is passed: issue 49).
 _KINEMATIC_MODEL = ModelSpec(joints="rigid", substeps=1)
-_POSITION = np.array(POSITION_LIMITS)
-_SPEED = np.array(SPEED_LIMITS)
-_ACCELERATION = np.array(ACCELERATION_LIMITS)
+_ROBOT = robot_of(_KINEMATIC_MODEL)
+JOINT_NAMES, N_JOINTS, FLANGE = _ROBOT.joint_names, len(_ROBOT.joint_names), _ROBOT.flange
+_POSITION = np.array(_ROBOT.limits.position)
+_SPEED = np.array(_ROBOT.limits.speed)
+_ACCELERATION = np.array(_ROBOT.limits.acceleration)
 
 PATH_SAMPLES = 1000  # IK solutions along a whole Cartesian path (shared by segment length)
 MIN_SEGMENT_SAMPLES = 100  # and at least this many per rest-to-rest segment

@@ -164,6 +164,12 @@ class RunConfig(BaseModel):
             plugins.check_name(plugins.OBJECTIVES, name)
         return names
 
+    @field_validator("model")
+    @classmethod
+    def _a_robot_here(cls, plant: ModelSpec) -> ModelSpec:
+        plugins.check_name(plugins.ROBOTS, plant.robot)
+        return plant
+
     @field_validator("trajectories")
     @classmethod
     def _kinds_here(cls, trajectories: tuple[TrajectorySpec, ...]) -> tuple[TrajectorySpec, ...]:

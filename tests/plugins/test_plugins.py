@@ -130,7 +130,7 @@ def test_every_built_in_loads_from_its_own_module() -> None:
     assert plugins.load(plugins.ALGORITHMS, "random") is random.UniformRandom
     assert plugins.load(plugins.TRAJECTORIES, "spiral") is spiral.KIND
     assert plugins.load(plugins.OBJECTIVES, "f_t") is objectives.f_t
-    for group in set(plugins.GROUPS) - {plugins.ROBOTS}:  # the robots' come with their helper
+    for group in plugins.GROUPS:
         for name in plugins.builtin_names(group):
             module = plugins._scan()[0][group][name].module
             assert plugins.load(group, name) is not None and module.startswith("gainfarm.")
