@@ -51,23 +51,23 @@ from typing import Any
 import numpy as np
 
 from gainfarm.analytic.experiments import statistics as stats
-from gainfarm.analytic.experiments.base import (
-    Experiment,
-    ExperimentSpec,
+from gainfarm.analytic.experiments.classical import classical_baseline
+from gainfarm.analytic.experiments.normalisation import (
     Normalisation,
-    Option,
     Point,
-    attainment_panel,
-    experiment_setup,
     front_points,
     is_penalty,
+    non_dominated,
+)
+from gainfarm.analytic.experiments.registry import ExperimentSpec, Option, numbers
+from gainfarm.analytic.experiments.report import (
+    attainment_panel,
+    experiment_setup,
     markdown_table,
     median_attainment,
-    non_dominated,
-    numbers,
     write_experiment_report,
 )
-from gainfarm.analytic.experiments.classical import classical_baseline
+from gainfarm.analytic.experiments.runner import Experiment
 from gainfarm.analytic.experiments.statistics import holm_adjusted
 from gainfarm.analytic.tuning import defaults
 from gainfarm.analytic.tuning.config import RunConfig
@@ -270,11 +270,9 @@ def attainment_difference(
 ) -> tuple[float, float]:
     """Where the median runs of two conditions differ (`a`, `b`: one front per repetition): the
     share of the experiment's box the median attainment surface of `a` dominates and that of `b`
-    does not, and the other way round (NaN without moocore). Two numbers, not one: fronts that
+    does not, and the other way round. Two numbers, not one: fronts that
     cross each win a region, which a difference of hypervolumes would net out."""
     surface_a, surface_b = median_attainment(a), median_attainment(b)
-    if surface_a is None or surface_b is None:
-        return math.nan, math.nan
     both = normalisation.hypervolume([*surface_a, *surface_b])
     return both - normalisation.hypervolume(surface_b), both - normalisation.hypervolume(surface_a)
 
@@ -493,7 +491,7 @@ def run(
         },
         budgets=fixed,
     )
-    verdict = _verdict(
+    findings = _findings(
         reference,
         reps,
         hypervolume,
@@ -552,7 +550,7 @@ def run(
         title="Optimisers compared on one budget",
         setup=setup,
         table=table(summaries, baselines, fixed),
-        verdict=verdict,
+        findings=findings,
         figures=[FIGURE],
     )
 
@@ -587,7 +585,7 @@ def _scores(
     return normalisation.hypervolume(kept), min((p[0] for p in kept), default=math.nan)
 
 
-def _verdict(
+def _findings(
     reference: Condition,
     reps: int,
     hv: Mapping[tuple[Condition, int | str], stats.Comparison],
@@ -600,7 +598,7 @@ def _verdict(
     baselines: dict[str, tuple[float, float]],
     reference_median: float,
 ) -> str:
-    """The report's verdict; `hv` and `acc` Holm-adjusted (holm_adjusted), `hv` keyed by
+    """The report's findings; `hv` and `acc` Holm-adjusted (holm_adjusted), `hv` keyed by
     (condition, budget), FINAL for the run's own budget."""
     ref = condition_text(reference.algorithm, reference.scaling)
     others = list(acc)

@@ -19,9 +19,9 @@ episodes, with the Savitzky-Golay acceleration `qdd_sg`.
     OUT/results.csv            one row per rep × condition × model (and the two baselines)
     OUT/comparisons.csv        one row per paired comparison
     OUT/dataset-value.png      nMSE per condition, one panel per model
-    OUT/report.md              setup, table, comparisons, verdict, limitations
+    OUT/report.md              setup, table, comparisons, findings, limitations
 
-The pure parts (pools, subsampling, scoring, statistics, the verdict) are functions of plain
+The pure parts (pools, subsampling, scoring, statistics, the findings) are functions of plain
 data; `run` is the only one that runs anything.
 """
 
@@ -42,14 +42,9 @@ from scipy import stats
 from gainfarm.analytic.data.dataset import is_calm, select, tick_columns
 from gainfarm.analytic.data.learning import MEAN_JOINTS, Rows, identify, train_network
 from gainfarm.analytic.evaluators.batch import EVALUATIONS, batch_jobs, run_batch
-from gainfarm.analytic.experiments.base import (
-    ALL_KINDS,
-    Experiment,
-    ExperimentSpec,
-    Option,
-    at_least,
-    markdown_table,
-)
+from gainfarm.analytic.experiments.registry import ExperimentSpec, Option, at_least
+from gainfarm.analytic.experiments.report import markdown_table
+from gainfarm.analytic.experiments.runner import ALL_KINDS, Experiment
 from gainfarm.analytic.experiments.statistics import holm
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import RunRecord, results_csv
@@ -362,7 +357,7 @@ class Conclusion:
     text: str
 
 
-def verdict(
+def findings(
     nmse: Mapping[tuple[str, str], Sequence[float]],
     comparisons: Sequence[PairedTTest],
     models: Sequence[str] = MODELS,
@@ -376,12 +371,12 @@ def verdict(
     model = best_model(nmse, models)
     reps = len(nmse[(model, "default")])
     mine = {(c.condition, c.against): c for c in comparisons if c.model == model}
-    findings = {condition: mine[(condition, "default")].finding for condition in TUNED}
+    outcomes = {condition: mine[(condition, "default")].finding for condition in TUNED}
     ranked = sorted(TUNED, key=lambda c: mean_nmse(nmse, model, c))
     best, second = ranked[0], ranked[1]
     head = paired(model, best, second, nmse[(model, best)], nmse[(model, second)])
-    better = [c for c in TUNED if findings[c] == "better"]
-    worse = [c for c in TUNED if findings[c] == "worse"]
+    better = [c for c in TUNED if outcomes[c] == "better"]
+    worse = [c for c in TUNED if outcomes[c] == "worse"]
     default = mean_nmse(nmse, model, "default")
 
     def newton_metres(condition: str) -> str:
@@ -454,7 +449,7 @@ def verdict(
         f"{newton_metres(best)}), ahead of {second} ({mean_nmse(nmse, model, second):.4f}"
         f"{newton_metres(second)}) {ahead}."
     )
-    return Conclusion(model, findings, best, second, head, " ".join(lines))
+    return Conclusion(model, outcomes, best, second, head, " ".join(lines))
 
 
 def _listed(names: Sequence[str]) -> str:
@@ -631,7 +626,7 @@ def run(
     test_count: int = DEFAULT_TEST_TRAJECTORIES,
     ticks: int | None = None,
 ) -> Conclusion:
-    """Run the experiment (module docstring) and write its files; return the verdict."""
+    """Run the experiment (module docstring) and write its files; return its findings."""
     duration = base.trajectories[0].duration
     plant = base.model
     test, accepted = test_pool(experiment, duration, test_count, plant)
@@ -674,7 +669,7 @@ def run(
                     f"({seconds:.1f} s)"
                 )
     comparisons = compare(nmse)
-    found = verdict(nmse, comparisons, rmse=rmse, floor=floor)
+    found = findings(nmse, comparisons, rmse=rmse, floor=floor)
     # The best selection against its runner-up, for the record: one test, so p_holm = p.
     written = [c.row() for c in comparisons] + [found.selection_test.row()]
     write_atomically(experiment.out / "results.csv", results_csv(rows))
@@ -743,7 +738,7 @@ def run(
         means={"nmse_mean": spread(nmse), "rmse_mean": spread(rmse)},
         baselines={"rigid prior": reference, "true model (floor)": floor},
         comparisons=[*comparisons, found.selection_test],
-        verdict=found.text,
+        findings=found.text,
         limitations=limitations,
         figure=FIGURE,
     )
@@ -820,12 +815,12 @@ def write_report(
     means: Mapping[str, dict[tuple[str, str], tuple[float, float]]],
     baselines: Mapping[str, Mapping[str, float]],
     comparisons: Sequence[PairedTTest],
-    verdict: str,
+    findings: str,
     limitations: Sequence[str],
     figure: str,
 ) -> None:
     """The dataset-value experiment's report.md: question, setup, a table per measure (`means`:
-    a MEASURES column → (model, condition) → (mean, sd)), verdict, comparisons, limitations,
+    a MEASURES column → (model, condition) → (mean, sd)), findings, comparisons, limitations,
     figure."""
     tables = []
     for key, values in means.items():
@@ -850,9 +845,9 @@ def write_report(
         *[f"- {line}" for line in setup],
         "",
         *tables,
-        "## Verdict",
+        "## Findings",
         "",
-        verdict,
+        findings,
         "",
         "## Paired comparisons",
         "",

@@ -46,18 +46,10 @@ from typing import Any
 from gainfarm.analytic.evaluators.batch import EVALUATIONS, batch_jobs, run_batch
 from gainfarm.analytic.experiments import dataset_value as data
 from gainfarm.analytic.experiments import statistics as stats
-from gainfarm.analytic.experiments.base import (
-    Experiment,
-    ExperimentSpec,
-    Option,
-    Point,
-    at_least,
-    attainment_panel,
-    experiment_setup,
-    is_penalty,
-    markdown_table,
-    serving,
-)
+from gainfarm.analytic.experiments.normalisation import Point, is_penalty
+from gainfarm.analytic.experiments.registry import ExperimentSpec, Option, at_least
+from gainfarm.analytic.experiments.report import attainment_panel, experiment_setup, markdown_table
+from gainfarm.analytic.experiments.runner import Experiment, serving
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.plants import variants
 from gainfarm.analytic.tuning.records import RunRecord, results_csv
@@ -159,7 +151,7 @@ class Claim:
     higher_is_better: bool
 
     @property
-    def verdict(self) -> str:
+    def decision(self) -> str:
         adjusted = stats.Comparison(**{**self.result.__dict__, "p_value": self.p_holm})
         return stats.decide(adjusted, NAMES[self.a], NAMES[self.b], self.higher_is_better)
 
@@ -179,7 +171,7 @@ def claims(values: Mapping[tuple[str, str], Sequence[float]]) -> list[Claim]:
     ]
 
 
-def verdict(found: Sequence[Claim], reps: int) -> str:
+def findings(found: Sequence[Claim], reps: int) -> str:
     """The answer in plain words, from the error at the budget (effect sizes in mm)."""
     on_error = {(c.a, c.b): c for c in found if c.metric == "error_at_budget_mm"}
     lines = []
@@ -193,7 +185,7 @@ def verdict(found: Sequence[Claim], reps: int) -> str:
         )
         lines.append(
             f"- {question[:1].upper() + question[1:]} Median error at the budget "
-            f"{r.median_a:.3f} mm against {r.median_b:.3f} mm{interval}: {claim.verdict}."
+            f"{r.median_a:.3f} mm against {r.median_b:.3f} mm{interval}: {claim.decision}."
         )
     if not any(stats.decidable(c.result) for c in found):
         lines.append(
@@ -518,9 +510,9 @@ def report(
         "",
         *table,
         "",
-        "## Verdict",
+        "## Findings",
         "",
-        verdict(found, reps),
+        findings(found, reps),
         "",
         "## Claims",
         "",

@@ -12,7 +12,8 @@ from scipy import stats
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.experiments import algorithms
 from gainfarm.analytic.experiments import statistics as analytic_stats
-from gainfarm.analytic.experiments.base import Experiment, Normalisation, non_dominated
+from gainfarm.analytic.experiments.normalisation import Normalisation, non_dominated
+from gainfarm.analytic.experiments.runner import Experiment
 from gainfarm.analytic.experiments.statistics import holm
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import HistoryRow, read_run

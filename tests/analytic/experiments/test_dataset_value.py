@@ -12,7 +12,7 @@ import pytest
 
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.experiments import dataset_value as dv
-from gainfarm.analytic.experiments.base import Experiment
+from gainfarm.analytic.experiments.runner import Experiment
 from gainfarm.analytic.experiments.statistics import holm
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
@@ -129,7 +129,7 @@ def test_comparisons_report_and_figure(finished: tuple[Path, dv.Conclusion]) -> 
     assert comparisons[-1]["p_holm"] == comparisons[-1]["p"]
     report = (out / "report.md").read_text()
     assert found.text in report and "## Limitations" in report
-    assert report.index("## Question") < report.index("## Design") < report.index("## Verdict")
+    assert report.index("## Question") < report.index("## Design") < report.index("## Findings")
     assert "## Test RMSE (N·m)" in report and "| (true model (floor), untrained) |" in report
     assert "the floor" in found.text and "N·m" in found.text
     assert "the paper's claim" in found.text and "The most useful selection is" in found.text
@@ -205,12 +205,12 @@ def test_a_clear_difference_is_significant_with_the_right_sign() -> None:
     comparisons = dv.compare(nmse)
     against_default = [c for c in comparisons if c.against == "default"]
     assert all(c.p_holm < 0.05 and c.mean_difference < 0 and c.d_z < 0 for c in against_default)
-    found = dv.verdict(nmse, comparisons)
+    found = dv.findings(nmse, comparisons)
     assert set(found.against_default.values()) == {"better"}
     assert "claim of a richer database holds here" in found.text
     assert found.best_selection == "specific-front"  # the lowest centre
     # The other way round: the tuned data worse, and said so.
-    worse = dv.verdict(nmse2 := synthetic(tuned=0.4, default=0.1, reps=6), dv.compare(nmse2))
+    worse = dv.findings(nmse2 := synthetic(tuned=0.4, default=0.1, reps=6), dv.compare(nmse2))
     assert set(worse.against_default.values()) == {"worse"}
     assert "contradicted" in worse.text
 
@@ -222,7 +222,7 @@ def test_identical_numbers_cannot_decide() -> None:
             nmse[(model, condition)] = list(nmse[(model, "default")])
     comparisons = dv.compare(nmse)
     assert all(c.p == 1.0 and c.d_z == 0.0 for c in comparisons if c.against == "default")
-    found = dv.verdict(nmse, comparisons)
+    found = dv.findings(nmse, comparisons)
     assert set(found.against_default.values()) == {"cannot decide"}
     assert "cannot decide" in found.text
 
@@ -231,7 +231,7 @@ def test_fewer_than_three_repetitions_cannot_decide() -> None:
     nmse = synthetic(tuned=0.1, default=0.9, reps=2)
     comparisons = dv.compare(nmse)
     assert all(math.isnan(c.p) and c.finding == "cannot decide" for c in comparisons)
-    found = dv.verdict(nmse, comparisons)
+    found = dv.findings(nmse, comparisons)
     assert "cannot decide" in found.text and "2 repetitions" in found.text
 
 
