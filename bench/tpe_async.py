@@ -25,7 +25,7 @@ import click
 from common import print_table
 
 from gainfarm.analytic.experiments import normalisation as normalised
-from gainfarm.analytic.experiments.algorithms import feasible, hypervolume_curve
+from gainfarm.analytic.experiments.algorithms_measures import feasible, hypervolume_curve
 from gainfarm.analytic.experiments.normalisation import Normalisation
 from gainfarm.analytic.tuning.evolution import hypervolume
 from gainfarm.analytic.tuning.records import RunRecord, read_run

@@ -55,14 +55,7 @@ from gainfarm.analytic.tuning.plants import variants
 from gainfarm.analytic.tuning.records import RunRecord, results_csv
 from gainfarm.analytic.view.figures import new_figure, save_png
 from gainfarm.edges.files import write_atomically
-from gainfarm.models.dynamics import (
-    KINDS,
-    digest,
-    from_bytes,
-    rigid_prior,
-    to_bytes,
-    true_model,
-)
+from gainfarm.models.dynamics import KINDS, digest, from_bytes, rigid_prior, to_bytes, true_model
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.objectives import NO_EPISODE, objectives

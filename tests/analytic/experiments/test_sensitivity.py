@@ -8,8 +8,8 @@ import pytest
 
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.experiments import sensitivity as sens
-from gainfarm.analytic.experiments.algorithms import holm_adjusted
 from gainfarm.analytic.experiments.runner import Experiment
+from gainfarm.analytic.experiments.statistics import holm_adjusted
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import BASELINE_JSON, read_baseline
 from gainfarm.schemas import TrajectorySpec
