@@ -45,6 +45,7 @@ from typing import Any
 
 from gainfarm.analytic.evaluators.batch import EVALUATIONS, batch_jobs, run_batch
 from gainfarm.analytic.experiments import dataset_value as data
+from gainfarm.analytic.experiments import dataset_value_measures as dv_measures
 from gainfarm.analytic.experiments import statistics as stats
 from gainfarm.analytic.experiments.normalisation import Point, is_penalty
 from gainfarm.analytic.experiments.registry import ExperimentSpec, Option, at_least
@@ -85,7 +86,7 @@ FIGURE = "feedforward.png"
 
 
 def trained_on(duration: float) -> tuple[TrajectorySpec, ...]:
-    return data.training_trajectories(duration)
+    return dv_measures.training_trajectories(duration)
 
 
 def excitations(count: int, duration: float) -> list[TrajectorySpec]:
@@ -262,9 +263,9 @@ def learned_model(
     front = data.front_logs(record, experiment.out / "runs" / f"pd-{rep}", "front")
     gains = [member.gains for member in record.front]
     rerun = data.simulate(experiment, f"data-{rep}", batch_jobs(gains, paths, base.model))
-    rows = data.pool_rows(front | {f"data-{rep}/{job}": log for job, log in rerun.items()})
-    train, validation = data.subsample(rows, min(len(rows), TRAIN_ROWS), rep)
-    model = data.fit_model(learner, base.model, train, validation, rep)
+    rows = dv_measures.pool_rows(front | {f"data-{rep}/{job}": log for job, log in rerun.items()})
+    train, validation = dv_measures.subsample(rows, min(len(rows), TRAIN_ROWS), rep)
+    model = dv_measures.fit_model(learner, base.model, train, validation, rep)
     raw = to_bytes(model)
     write_atomically(path, raw)
     experiment.on_progress(f"rep {rep}: {learner} model learnt from {len(train):,} ticks")
@@ -324,14 +325,14 @@ def run(
         }
     )
     calm = data.simulate(experiment, "calm", batch_jobs([DEFAULT_GAINS], paths, plant))
-    calm_rows = data.pool_rows(calm)
-    budget = statistics.fmean(data.objectives(log).f_t for log in calm.values())
+    calm_rows = dv_measures.pool_rows(calm)
+    budget = statistics.fmean(dv_measures.objectives(log).f_t for log in calm.values())
     nmse = {
-        "rigid prior": data.score(rigid_prior(plant), calm_rows)["nmse_mean"],
-        "true model": data.score(true_model(plant), calm_rows)["nmse_mean"],
+        "rigid prior": dv_measures.score(rigid_prior(plant), calm_rows)["nmse_mean"],
+        "true model": dv_measures.score(true_model(plant), calm_rows)["nmse_mean"],
     }
     learned_nmse = [
-        data.score(from_bytes(learned[rep]), calm_rows)["nmse_mean"] for rep in range(reps)
+        dv_measures.score(from_bytes(learned[rep]), calm_rows)["nmse_mean"] for rep in range(reps)
     ]
     points: dict[tuple[int, str], list[Point]] = {}
     for rep in range(reps):
