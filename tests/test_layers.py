@@ -9,6 +9,8 @@
     analytic           everything; inside it, floors one way down:
                        commands -> experiments -> calibration -> data -> compose -> view -> tuning
                        -> evaluators (compose: the module analytic/compose.py, `tune`)
+    testing            the conformance kit for plug-ins (gainfarm/testing/): everything; nothing
+                       of the package imports it
 
 `gainfarm/__init__.py` names only `gainfarm.analytic`, and loads it lazily. Read from the source
 with ast, so an import inside a function counts too, and so does `import_module("...")`.
@@ -33,6 +35,7 @@ WHERE = {
     "worker": "worker",
     "broker": "broker",
     "analytic": "analytic",
+    "testing": "gainfarm/testing",
 }
 LAYERS = tuple(WHERE)
 MAY_IMPORT = {
@@ -43,7 +46,8 @@ MAY_IMPORT = {
     "cli": {"schemas", "models", "plugins", "edges"},
     "worker": {"schemas", "models", "plugins", "edges", "cli"},
     "broker": {"schemas", "models", "plugins", "edges", "cli"},
-    "analytic": set(LAYERS),
+    "analytic": set(LAYERS) - {"testing"},
+    "testing": set(LAYERS),
 }
 FACE = "gainfarm/__init__.py"  # the public face: `import gainfarm`, `from gainfarm import tune`
 CONTRACT_MAY_NOT = {"click", "rich", "zenoh"}
