@@ -13,6 +13,7 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -36,6 +37,7 @@ from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.trajectory import KIND_PATTERN, TrajectorySpec
 from gainfarm.schemas.wire import JobStatus
+from gainfarm.testing.experiments import ExperimentChecks
 from gainfarm.worker.episode import run_episode
 from gainfarm.worker.job import simulate
 from tests.helpers import wait_for
@@ -400,3 +402,17 @@ def test_scores_pickled_before_objectives_could_be_chosen_read_back() -> None:
     old = Scores.__new__(Scores)
     old.__setstate__(state)
     assert old == scores and old.objectives == (0.01, 3.0)
+
+
+# --- an experiment ----------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.usefixtures("installed")
+class TestTheFixturesExperimentPassesTheKit(ExperimentChecks):
+    """A third party's experiment (gainfarm_fixture.seeds, its entry point in the fixture's
+    pyproject.toml) through the kit its author runs: real episodes, in this process."""
+
+    experiment = "seeds"
+    options: ClassVar[dict[str, str]] = {"--runs": "2"}
+    bad_options: ClassVar[dict[str, str]] = {"--runs": "0"}
