@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import click
 
+from gainfarm import plugins
 from gainfarm.analytic.commands.shared import (
     check_farm,
     config_problem,
@@ -28,7 +29,7 @@ from gainfarm.cli import interrupts, options
 from gainfarm.cli.app import CliError
 
 if TYPE_CHECKING:
-    from gainfarm.analytic.experiments.base import ExperimentSpec
+    from gainfarm.analytic.experiments.registry import ExperimentSpec
 
 # Without a terminal, an experiment's progress is a plain line this often at most: its runs go
 # on side by side, each a line per evaluation.
@@ -105,17 +106,16 @@ def _flags(name: str) -> set[str]:
 
 
 def _names() -> list[str]:
-    from gainfarm.analytic.experiments import names
-
-    return names()
+    return sorted(plugins.names(plugins.EXPERIMENTS))
 
 
 def _spec(name: str) -> "ExperimentSpec":
-    from gainfarm.analytic.experiments import UnknownExperiment, load
+    # start-up: keeps the experiments' declarations (pydantic, numpy) off analytic --help
+    from gainfarm.analytic.experiments.registry import load
 
     try:
         return load(name)
-    except UnknownExperiment as error:
+    except plugins.PluginError as error:
         raise CliError(f"NAME: {error}") from None
 
 
@@ -186,7 +186,7 @@ def _run(
     from rich.console import Console
 
     from gainfarm.analytic.evaluators.farm import FarmClient
-    from gainfarm.analytic.experiments.base import Experiment
+    from gainfarm.analytic.experiments.runner import Experiment
     from gainfarm.analytic.tuning.config import RunConfig
     from gainfarm.analytic.tuning.run import RunBusy
     from gainfarm.analytic.view.progress import Display

@@ -14,6 +14,7 @@ import sys
 import tomllib
 from collections.abc import Iterator
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -38,6 +39,7 @@ from gainfarm.schemas.objectives import score
 from gainfarm.schemas.trajectory import KIND_PATTERN, TrajectorySpec
 from gainfarm.schemas.wire import JobStatus
 from gainfarm.testing.algorithms import AlgorithmChecks
+from gainfarm.testing.experiments import ExperimentChecks
 from gainfarm.testing.trajectories import TrajectoryChecks
 from gainfarm.worker.episode import run_episode
 from gainfarm.worker.job import simulate
@@ -465,3 +467,17 @@ def test_scores_pickled_before_objectives_could_be_chosen_read_back() -> None:
     old = Scores.__new__(Scores)
     old.__setstate__(state)
     assert old == scores and old.objectives == (0.01, 3.0)
+
+
+# --- an experiment ----------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.usefixtures("installed")
+class TestTheFixturesExperimentPassesTheKit(ExperimentChecks):
+    """A third party's experiment (gainfarm_fixture.seeds, its entry point in the fixture's
+    pyproject.toml) through the kit its author runs: real episodes, in this process."""
+
+    experiment = "seeds"
+    options: ClassVar[dict[str, str]] = {"--runs": "2"}
+    bad_options: ClassVar[dict[str, str]] = {"--runs": "0"}
