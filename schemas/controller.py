@@ -14,6 +14,7 @@ joint, and what is wrong with it.
 import json
 from typing import Any, Literal
 
+import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from gainfarm.schemas.documents import BadDocument, load_json, load_yaml, quoted
@@ -231,8 +232,6 @@ def _document(raw: bytes) -> Any:
             raise BadGains(
                 f"not JSON ({error.msg} at line {error.lineno} column {error.colno}); {_EXPECTED}"
             ) from None
-    import yaml  # only for a file that is not JSON
-
     try:
         document = load_yaml(text)
     except BadDocument as error:

@@ -11,12 +11,13 @@ from typing import TYPE_CHECKING
 
 import click
 
+from gainfarm import plugins
 from gainfarm.analytic.commands.shared import farm_options, pop_option, termination_options
 from gainfarm.cli import options
 from gainfarm.cli.app import CliError
 
 if TYPE_CHECKING:
-    from gainfarm.analytic.experiments.base import ExperimentSpec
+    from gainfarm.analytic.experiments.registry import ExperimentSpec
 
 
 def _shared_options(duration: float | None) -> list[click.Parameter]:
@@ -89,19 +90,16 @@ def _flags(name: str) -> set[str]:
 
 
 def _names() -> list[str]:
-    # start-up: the experiments' registry reads the entry points when a name is looked up
-    from gainfarm.analytic.experiments import names
-
-    return names()
+    return sorted(plugins.names(plugins.EXPERIMENTS))
 
 
 def _spec(name: str) -> "ExperimentSpec":
-    # start-up: as in `_names`; loading the one experiment named
-    from gainfarm.analytic.experiments import UnknownExperiment, load
+    # start-up: keeps the experiments' declarations (pydantic, numpy) off analytic --help
+    from gainfarm.analytic.experiments.registry import load
 
     try:
         return load(name)
-    except UnknownExperiment as error:
+    except plugins.PluginError as error:
         raise CliError(f"NAME: {error}") from None
 
 

@@ -89,6 +89,15 @@ from gainfarm.cli import options
     "nearly all of it)",
 )
 @click.option(
+    "--objective",
+    "objective_names",
+    multiple=True,
+    metavar="NAME",
+    help="an objective, by name (repeat: two, in order; the first is drawn across, the second "
+    "up): f_acc, f_t, f_t_joint or an installed plug-in's (gainfarm.objectives); replaces "
+    "--torque-measure  [default: f_acc and --torque-measure's]",
+)
+@click.option(
     "--objective-scaling",
     type=click.Choice(defaults.OBJECTIVE_SCALINGS),
     default=defaults.OBJECTIVE_SCALING,

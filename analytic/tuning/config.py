@@ -6,7 +6,8 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from gainfarm import plugins
 from gainfarm.analytic.tuning import defaults
-from gainfarm.analytic.tuning.defaults import REFERENCE_POINT, STEADY_STATE, steady_state_refusal
+from gainfarm.analytic.tuning.algorithms import STEADY_STATE, steady_state_refusal
+from gainfarm.analytic.tuning.defaults import REFERENCE_POINT
 from gainfarm.analytic.tuning.termination import (
     CONVERGENCE_TOLERANCE,
     CONVERGENCE_WINDOW,
@@ -167,6 +168,12 @@ class RunConfig(BaseModel):
         for name in names:
             plugins.check_name(plugins.OBJECTIVES, name)
         return names
+
+    @field_validator("model")
+    @classmethod
+    def _a_robot_here(cls, plant: ModelSpec) -> ModelSpec:
+        plugins.check_name(plugins.ROBOTS, plant.robot)
+        return plant
 
     @field_validator("trajectories")
     @classmethod

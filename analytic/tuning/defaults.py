@@ -11,9 +11,6 @@ SEED = 0
 GENERATIONS_MIN = 1
 EVALUATIONS_MIN = 1
 ALGORITHM = "nsga2"
-# The algorithms with a steady-state variant (ask_one/tell_one): NSGA-II's (mu + 1) and TPE's
-# (one trial at a time, as Optuna runs it).
-STEADY_STATE = ("nsga2", "tpe")
 # The hypervolume is taken in a normalised objective space, the same for every run so that runs
 # compare: f_acc linearly, 0 → 0 and REFERENCE_POINT[0] → 1; f_t logarithmically, F_T_FLOOR → 0
 # and REFERENCE_POINT[1] → 1 (torque smoothness spans decades: a step from 100 to 10 (N·m)² is
@@ -52,12 +49,3 @@ Keep = Literal["all", "front"]
 KEEPS: tuple[Keep, ...] = ("all", "front")
 # The workers keep the logs and the front's are fetched: 179 MB against 1.84 GB for one run.
 KEEP: Keep = "front"
-
-
-def steady_state_refusal(algorithm: str) -> str:
-    """Why a steady-state run of `algorithm` is refused, in one line naming the way out."""
-    which = " or ".join(STEADY_STATE)
-    return (
-        f"steady state (asynchronous, --async) is {which}'s only, not {algorithm}'s: "
-        f"choose algorithm {which}, or drop --async to run {algorithm} generationally"
-    )

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 from pydantic import ValidationError
 
+from gainfarm import plugins
 from gainfarm.cli.app import CliError, parse_numbers
 from gainfarm.cli.options import check_load
 from gainfarm.schemas.documents import BadDocument, load_json, read_bounded
@@ -98,9 +99,11 @@ def plant_file(plant: str, option: str = "--plant") -> "PlantFile":
     except BadDocument as error:
         raise CliError(f"{option}: {plant!r}: {error}") from None
     try:
-        return read_plant_file(raw)
-    except BadPlantFile as error:
+        read = read_plant_file(raw)
+        plugins.check_name(plugins.ROBOTS, read.plant.robot)  # a twin of an arm not here
+    except (BadPlantFile, plugins.PluginError) as error:
         raise CliError(f"{option}: {plant!r}: {error}") from None
+    return read
 
 
 def feedforward_model(path: Path | None) -> tuple[bytes, "DynamicsModel"] | None:

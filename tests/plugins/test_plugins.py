@@ -11,8 +11,10 @@ import re
 import shutil
 import subprocess
 import sys
+import tomllib
 from collections.abc import Iterator
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -36,10 +38,14 @@ from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.trajectory import KIND_PATTERN, TrajectorySpec
 from gainfarm.schemas.wire import JobStatus
+from gainfarm.testing.algorithms import AlgorithmChecks
+from gainfarm.testing.experiments import ExperimentChecks
+from gainfarm.testing.trajectories import TrajectoryChecks
 from gainfarm.worker.episode import run_episode
 from gainfarm.worker.job import simulate
 from tests.helpers import wait_for
 
+ROOT = Path(__file__).parents[2]
 FIXTURE = Path(__file__).with_name("fixture")
 # A circle the arm follows in 1 s (0.9 s at least: worker.reference.shortest_duration).
 CIRCLE = TrajectorySpec(kind="circle", duration=1.0, size=0.02, twist=0.0)
@@ -103,21 +109,49 @@ def test_each_group_lists_its_built_ins_first_the_default_leading() -> None:
     assert plugins.builtin_names(plugins.TRAJECTORIES) == ("spiral", "random", "pyramid", "fourier")
     assert plugins.builtin_names(plugins.OBJECTIVES) == ("f_acc", "f_t", "f_t_joint")
     for group in plugins.GROUPS:
-        assert plugins.names(group)[: len(plugins.BUILTIN[group])] == plugins.builtin_names(group)
+        builtin = plugins.builtin_names(group)
+        assert builtin[: len(plugins.ORDER[group])] == plugins.ORDER[group]
+        assert plugins.names(group)[: len(builtin)] == builtin
 
 
-def test_every_built_in_loads_and_is_what_gainfarm_runs() -> None:
-    from gainfarm.analytic.tuning import evolution
+def test_the_built_ins_are_gainfarms_own_entry_points_as_pyproject_declares_them() -> None:
+    """They are read from the installation's metadata: one older than pyproject.toml (an
+    editable install made before a built-in was added) fails here, asking for a reinstall."""
+    declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["entry-points"]
+    for group in plugins.GROUPS:
+        installed = {name: point.value for name, point in plugins._scan()[0][group].items()}
+        assert installed == declared.get(group, {}), f"{group}: reinstall (pip install -e .)"
+
+
+def test_every_built_in_loads_from_its_own_module() -> None:
+    from gainfarm.analytic.tuning.algorithms import nsga2, random
     from gainfarm.schemas import objectives
-    from gainfarm.worker import trajectories
+    from gainfarm.worker.trajectories import spiral
 
-    assert plugins.load(plugins.ALGORITHMS, "nsga2") is evolution.nsga2
-    assert plugins.load(plugins.ALGORITHMS, "random") is evolution.UniformRandom
-    assert plugins.load(plugins.TRAJECTORIES, "spiral") is trajectories.spiral
+    assert plugins.load(plugins.ALGORITHMS, "nsga2") is nsga2.nsga2
+    assert plugins.load(plugins.ALGORITHMS, "random") is random.UniformRandom
+    assert plugins.load(plugins.TRAJECTORIES, "spiral") is spiral.KIND
     assert plugins.load(plugins.OBJECTIVES, "f_t") is objectives.f_t
     for group in plugins.GROUPS:
         for name in plugins.builtin_names(group):
-            assert plugins.load(group, name) is not None
+            module = plugins._scan()[0][group][name].module
+            assert plugins.load(group, name) is not None and module.startswith("gainfarm.")
+
+
+def test_a_stale_installation_is_told_to_reinstall_gainfarm(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A built-in this source lists first that the installation's metadata lacks, as an editable
+    install made before it was added would: the error says why, in one line."""
+    order = {**plugins.ORDER, plugins.ALGORITHMS: ("nsga2", "cmaes")}
+    monkeypatch.setattr(plugins, "ORDER", order)
+    monkeypatch.setattr(plugins, "_found", None)
+    assert "cmaes" not in plugins.builtin_names(plugins.ALGORITHMS)
+    with pytest.raises(plugins.PluginError) as raised:
+        plugins.load(plugins.ALGORITHMS, "cmaes")
+    message = str(raised.value)
+    assert "\n" not in message and "lacks its own cmaes" in message
+    assert "reinstall gainfarm" in message
 
 
 def test_the_plugin_name_rule_is_the_contracts() -> None:
@@ -126,9 +160,19 @@ def test_the_plugin_name_rule_is_the_contracts() -> None:
 
 def test_importing_the_registry_loads_nothing_of_the_project_nor_the_metadata() -> None:
     code = (
-        "import sys, gainfarm.plugins as p; p.builtin_names(p.ALGORITHMS); "
+        "import sys, gainfarm.plugins as p; "
         "print(sorted(m for m in sys.modules if m.startswith('gainfarm') or "
         "m == 'importlib.metadata'))"
+    )
+    shown = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert shown.stdout.strip() == "['gainfarm', 'gainfarm.plugins']"
+
+
+def test_listing_every_groups_names_imports_no_plugin() -> None:
+    """The built-ins' names come from gainfarm's metadata: no module of theirs is imported."""
+    code = (
+        "import sys, gainfarm.plugins as p; [p.names(g) for g in p.GROUPS]; "
+        "print(sorted(m for m in sys.modules if m.startswith('gainfarm')))"
     )
     shown = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert shown.stdout.strip() == "['gainfarm', 'gainfarm.plugins']"
@@ -197,6 +241,14 @@ def test_installed_plugins_are_listed_without_being_imported(installed: Path) ->
     assert plugins.load(plugins.TRAJECTORIES, "circle").__module__ == "gainfarm_fixture"
 
 
+def test_a_third_partys_entry_point_with_a_built_ins_name_is_ignored(installed: Path) -> None:
+    """The fixture declares its circle as "spiral" too: gainfarm's spiral is the one there is."""
+    from gainfarm.worker.trajectories import spiral
+
+    assert plugins.names(plugins.TRAJECTORIES).count("spiral") == 1
+    assert plugins.load(plugins.TRAJECTORIES, "spiral") is spiral.KIND
+
+
 def test_an_entry_point_that_fails_to_load_says_which_and_why(installed: Path) -> None:
     with pytest.raises(plugins.PluginError) as raised:
         plugins.load(plugins.OBJECTIVES, "broken")
@@ -230,6 +282,21 @@ def test_a_plugin_optimiser_resumes_from_its_checkpoint_exactly(
     for algorithm in (None, "nsga2"):
         with pytest.raises(CheckpointRefused, match=r"gainfarm_fixture\.HillClimb"):
             decode(encode(resumed, identity), path, identity, algorithm)
+
+
+@pytest.mark.usefixtures("installed")
+class TestTheFixturesOptimiserPassesTheKit(AlgorithmChecks):
+    """A third party's optimiser, one module and one entry point, passes the checks gainfarm's
+    own pass (gainfarm.testing.algorithms)."""
+
+    algorithm = "hill_climb"
+
+
+@pytest.mark.usefixtures("installed")
+class TestTheFixturesTrajectoryKindPassesTheKit(TrajectoryChecks):
+    """Its trajectory kind, the simple form (a path function), likewise."""
+
+    spec = CIRCLE
 
 
 def test_tuning_in_process_with_all_three(installed: Path, tmp_path: Path) -> None:
@@ -400,3 +467,17 @@ def test_scores_pickled_before_objectives_could_be_chosen_read_back() -> None:
     old = Scores.__new__(Scores)
     old.__setstate__(state)
     assert old == scores and old.objectives == (0.01, 3.0)
+
+
+# --- an experiment ----------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.usefixtures("installed")
+class TestTheFixturesExperimentPassesTheKit(ExperimentChecks):
+    """A third party's experiment (gainfarm_fixture.seeds, its entry point in the fixture's
+    pyproject.toml) through the kit its author runs: real episodes, in this process."""
+
+    experiment = "seeds"
+    options: ClassVar[dict[str, str]] = {"--runs": "2"}
+    bad_options: ClassVar[dict[str, str]] = {"--runs": "0"}

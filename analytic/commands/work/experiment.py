@@ -11,7 +11,8 @@ from gainfarm.analytic.commands.shared import farm_problem, refuse_under_a_file,
 from gainfarm.analytic.commands.work.common import check_farm, config_problem
 from gainfarm.analytic.commands.work.tuning import followable, own_farm, study_name
 from gainfarm.analytic.evaluators.farm import FarmClient
-from gainfarm.analytic.experiments.base import Experiment, ExperimentSpec
+from gainfarm.analytic.experiments.registry import ExperimentSpec
+from gainfarm.analytic.experiments.runner import Experiment
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.run import RunBusy
 from gainfarm.analytic.view.progress import Display

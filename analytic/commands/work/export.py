@@ -34,6 +34,6 @@ def export(run_dir: Path, member: str, fmt: str, out: Path | None) -> None:
         raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror or error}") from None
     click.echo(
         f"{out}: {chosen.member.selected} of {run_dir} (front.csv row {chosen.member.row}: "
-        f"{chosen.member.f_acc * 1000:.3f} mm, f_t {chosen.member.f_t:.4g} (N·m)²), {fmt}",
+        f"{exporting.member_text(chosen.member, name_first=False)}), {fmt}",
         err=True,
     )

@@ -6,6 +6,7 @@ import contextlib
 from collections.abc import Iterator
 from pathlib import Path
 
+from gainfarm import plugins
 from gainfarm.analytic.commands.work.common import check_farm, make_config, plants_from
 from gainfarm.analytic.evaluators.local import LocalFarm
 from gainfarm.analytic.tuning import defaults
@@ -46,6 +47,7 @@ def start(
     algorithm: str,
     first_population: str,
     torque_measure: str,
+    objective_names: tuple[str, ...],
     objective_scaling: str,
     replicate: bool,
     spot_checks: float | None,
@@ -53,6 +55,7 @@ def start(
 ) -> None:
     """`analytic start` with its options as parsed (analytic/commands/start.py)."""
     options.check_load(payload, payload_com)
+    objectives = _objectives(objective_names, torque_measure)
     identity = check_farm(connect, local, tls, participant)
     limits = values.limits_from(limits_file, min_damping)
     trajectories = values.trajectories(kinds, duration, trajectory_seed, center, size)
@@ -71,7 +74,7 @@ def start(
         "keep": keep,
         "asynchronous": asynchronous,
         "algorithm": algorithm,
-        "objectives": ("f_acc", defaults.TORQUE_MEASURES[torque_measure]),
+        "objectives": objectives,
         "from_defaults": first_population == "defaults",
         "objective_scaling": objective_scaling,
         "replicate": replicate,
@@ -93,6 +96,23 @@ def start(
         )
         where = tuning.FarmOptions(connect, workers, identity, farm)
         tuning.start_run(fields, out, learned[0] if learned else None, where)
+
+
+def _objectives(names: tuple[str, ...], torque_measure: str) -> tuple[str, str]:
+    """The run's objectives: the two --objective names, checked here before anything heavy is
+    imported, or f_acc and the --torque-measure's."""
+    if not names:
+        return ("f_acc", defaults.TORQUE_MEASURES[torque_measure])
+    if len(names) != 2:
+        raise CliError(f"--objective: name two objectives, in order (given {len(names)})")
+    if names[0] == names[1]:
+        raise CliError(f"--objective: {names[0]!r} twice; name two different ones")
+    try:
+        for name in names:
+            plugins.check_name(plugins.OBJECTIVES, name)
+    except plugins.PluginError as error:
+        raise CliError(f"--objective: {error}") from None
+    return (names[0], names[1])
 
 
 @contextlib.contextmanager

@@ -24,7 +24,6 @@ from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.plant_file import BadPlantFile, read_plant_file
 from gainfarm.schemas.robot import JOINT_NAMES
 from gainfarm.schemas.wire import BadMessage
 
@@ -53,12 +52,7 @@ def validate(
 ) -> None:
     """`analytic validate` with its options as parsed (analytic/commands/validate.py)."""
     identity = check_farm(connect, local, tls, participant)
-    try:
-        twin_plant = read_plant_file(twin.read_bytes()).plant
-    except OSError as error:
-        raise CliError(f"TWIN: cannot read {str(twin)!r}: {error.strerror}") from None
-    except BadPlantFile as error:
-        raise CliError(f"TWIN: {str(twin)!r}: {error}") from None
+    twin_plant = values.plant_file(str(twin), option="TWIN").plant  # of a robot here, too
     nominal_plant = values.model_spec(nominal, option="--nominal")
     topics = Topics(joint_states, commands, motor_states)
     try:

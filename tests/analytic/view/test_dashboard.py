@@ -160,8 +160,8 @@ def test_the_page_follows_a_run_and_its_farm_live(tmp_path: Path, browser) -> No
     # Every run's curve on the chart that compares them: this one, with all its generations.
     assert last["overlay"] == [str(run)] and last["overlay_points"] == [len(history)], last
     # The default gains on the front's plot, and the recommended member if the run names one.
-    verdict = (run / "report.md").read_text().splitlines()[2]
-    recommends = verdict.startswith("**Use front.csv row")
+    advice = (run / "report.md").read_text().splitlines()[2]
+    recommends = advice.startswith("**Use front.csv row")
     assert last["baseline"] == 1 and last["recommended"] == int(recommends), last
     assert last["farm_points"] > seen[0]["farm_points"]  # the farm's series grew too
     assert max(max(state["jobs_per_s"], default=0) for state in seen) > 0
