@@ -4,13 +4,27 @@ development credentials for a secure farm (`certs`)."""
 # Light at the top (click and the shared options): Zenoh, rich and the certificates' cryptography
 # load inside the command that runs, so that `broker --help` costs little more than click.
 
+import ipaddress
+import re
 from pathlib import Path
 from typing import Any
 
 import click
 
 from gainfarm.cli import options
-from gainfarm.cli.app import program_group, run_app
+from gainfarm.cli.app import CliError, program_group, run_app
+
+_HOST_LABEL = r"[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?"
+_HOST_NAME = re.compile(rf"(?=.{{1,253}}$){_HOST_LABEL}(?:\.{_HOST_LABEL})*\.?")
+
+
+def is_host(host: str) -> bool:
+    """Whether `host` can stand in a certificate's subject alternative names."""
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return _HOST_NAME.fullmatch(host) is not None
+    return True
 
 
 @program_group(__doc__)
@@ -158,6 +172,10 @@ def certs(**given: Any) -> None:
     """Make development credentials for a secure farm: a CA, the broker's certificate and key,
     and one per participant, whose common name is ROLE.NAME (analytic.alice, worker.cobot-3).
     Run again on the same DIR, it adds the participants named, signed by the same CA."""
+    for host in given["hosts"]:  # before the work's imports: the contract, cryptography
+        if not is_host(host):
+            # Else written into the broker's certificate, and every TLS client refused later.
+            raise CliError(f"--host: {host!r} is neither a host name nor an IP address")
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.broker.commands import certs as work
 

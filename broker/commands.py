@@ -1,9 +1,7 @@
 """What `broker`'s commands do once they run, one function each (the command line, broker/cli.py,
 imports this module when a command runs: its imports here are the work's)."""
 
-import ipaddress
 import logging
-import re
 import signal
 import threading
 import time
@@ -18,6 +16,7 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from gainfarm.broker.cli import is_host
 from gainfarm.cli import interrupts, values
 from gainfarm.cli.app import CliError, setup_logging
 from gainfarm.cli.words import counted
@@ -206,7 +205,7 @@ def certs(
             if not is_participant_name(name):
                 raise CliError(f"{option}: {name!r} is not a participant name: {PARTICIPANT_RULE}")
     for host in hosts:
-        if not _is_host(host):
+        if not is_host(host):
             # Else written into the broker's certificate, and every TLS client refused later.
             raise CliError(f"--host: {host!r} is neither a host name nor an IP address")
     if directory.exists() and not directory.is_dir():
@@ -235,21 +234,6 @@ def certs(
 
 # A DNS name: dot-separated labels of letters, digits and inner hyphens, 253 characters at most;
 # underscores too, as container service names have them (TLS clients accept them).
-_HOST_LABEL = r"[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?"
-
-
-_HOST_NAME = re.compile(rf"(?=.{{1,253}}$){_HOST_LABEL}(?:\.{_HOST_LABEL})*\.?")
-
-
-def _is_host(host: str) -> bool:
-    """Whether `host` can stand in a certificate's subject alternative names."""
-    try:
-        ipaddress.ip_address(host)
-    except ValueError:
-        return _HOST_NAME.fullmatch(host) is not None
-    return True
-
-
 def _revoke(directory: Path, revoke: tuple[str, ...]) -> None:
     # start-up: cryptography, as in `certs`
     from gainfarm.broker.certs import revoke as revoke_identity

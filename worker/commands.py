@@ -98,7 +98,7 @@ def episode(
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
     # start-up: MuJoCo loads once the options are checked (but --feedforward's and a plant
-    # file's, which need it)
+    # file's, which need it): the simulation, its IK and references, the log's URDF
     from gainfarm.models.urdf import description
     from gainfarm.worker import ik, reference
     from gainfarm.worker.episode import run_episode
