@@ -97,8 +97,9 @@ def episode(
     warn_far_outside_search("worker", [spec.gains], gains_file)
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
-    # start-up: MuJoCo loads once the options are checked (but --feedforward's and a plant
-    # file's, which need it): the simulation, its IK and references, the log's URDF
+    # The simulation, its IK and references, the log's URDF (but --feedforward's and a plant
+    # file's, which need MuJoCo, are checked by now):
+    # start-up: MuJoCo loads once the options are checked
     from gainfarm.models.urdf import description
     from gainfarm.worker import ik, reference
     from gainfarm.worker.episode import run_episode
