@@ -60,10 +60,10 @@ BUILTIN: dict[str, dict[str, str]] = {
         "fourier": "gainfarm.worker.trajectories:fourier_coefficients",
     },
     OBJECTIVES: {
-        "f_acc": "gainfarm.schemas.objectives:f_acc",
-        "f_t": "gainfarm.schemas.objectives:f_t",
-        # f_t with each joint's change weighed by its torque limit (schemas/objectives.py)
-        "f_t_joint": "gainfarm.schemas.objectives:f_t_joint",
+        "f_acc": "gainfarm.schemas.objectives.accuracy:f_acc",
+        "f_t": "gainfarm.schemas.objectives.torque_change:f_t",
+        # f_t with each joint's change weighed by its torque limit
+        "f_t_joint": "gainfarm.schemas.objectives.joint_torque_change:f_t_joint",
     },
     EXPERIMENTS: {
         "popsize": "gainfarm.analytic.experiments.popsize:EXPERIMENT",
