@@ -45,8 +45,7 @@ def test_equal_fronts_give_byte_identical_csvs_whatever_the_order_and_number_typ
         FrontMember(
             kp=np.array(m.kp),
             kd=np.array(m.kd),
-            f_acc=np.float64(m.f_acc),
-            f_t=m.f_t,
+            objectives=(np.float64(m.f_acc), m.f_t),
             diverged=m.diverged,
         )
         for m in reversed(SAMPLE_FRONT)
@@ -57,7 +56,9 @@ def test_equal_fronts_give_byte_identical_csvs_whatever_the_order_and_number_typ
         HistoryRow(
             np.int64(r.generation),
             r.evaluations,
-            *map(np.float64, (r.hypervolume, r.best_f_acc, r.best_f_t, r.wall_seconds)),
+            np.float64(r.hypervolume),
+            tuple(map(np.float64, r.best)),
+            np.float64(r.wall_seconds),
         )
         for r in SAMPLE_HISTORY
     ]
@@ -65,14 +66,14 @@ def test_equal_fronts_give_byte_identical_csvs_whatever_the_order_and_number_typ
 
 
 def test_ties_in_both_objectives_are_ordered_by_the_gains() -> None:
-    a = FrontMember(kp=KP, kd=KD, f_acc=0.01, f_t=1.0)
-    b = FrontMember(kp=tuple(k + 1 for k in KP), kd=KD, f_acc=0.01, f_t=1.0)
+    a = FrontMember(kp=KP, kd=KD, objectives=(0.01, 1.0))
+    b = FrontMember(kp=tuple(k + 1 for k in KP), kd=KD, objectives=(0.01, 1.0))
     assert front_csv([a, b]) == front_csv([b, a])
 
 
 def test_a_member_needs_seven_gains_of_each_kind() -> None:
     with pytest.raises(ValueError, match="kd needs 7"):
-        FrontMember(kp=KP, kd=KD[:6], f_acc=0.01, f_t=1.0)
+        FrontMember(kp=KP, kd=KD[:6], objectives=(0.01, 1.0))
 
 
 def test_reading_a_csv_of_another_format_is_refused(tmp_path: Path) -> None:
@@ -96,13 +97,13 @@ def test_a_diverged_flag_other_than_true_or_false_is_refused(tmp_path: Path) -> 
     with pytest.raises(ValueError, match="diverged must be true or false, got 'yes'"):
         read_front(tmp_path / "front.csv")
     with pytest.raises(ValueError, match="diverged must be true or false"):
-        FrontMember(kp=KP, kd=KD, f_acc=0.01, f_t=1.0, diverged="false")  # type: ignore[arg-type]
+        FrontMember(kp=KP, kd=KD, objectives=(0.01, 1.0), diverged="false")  # type: ignore[arg-type]
 
 
 def test_front_json_round_trips_with_each_members_logs(tmp_path: Path) -> None:
     front = [
         FrontMember(
-            m.kp, m.kd, m.f_acc, m.f_t, logs=(f"episodes/c{i}-t0.mcap",), diverged=m.diverged
+            m.kp, m.kd, m.objectives, logs=(f"episodes/c{i}-t0.mcap",), diverged=m.diverged
         )
         for i, m in enumerate(SAMPLE_FRONT)
     ]
