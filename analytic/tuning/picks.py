@@ -63,7 +63,7 @@ def _finished(front: Sequence[FrontMember]) -> list[int]:
     return [
         i
         for i, m in enumerate(front)
-        if not m.diverged and np.isfinite(m.f_acc) and np.isfinite(m.f_t)
+        if not m.diverged and np.all(np.isfinite(m.objectives))
     ]
 
 
@@ -182,6 +182,6 @@ def picks(
     return [
         *first,
         pick_at(front, "knee", knee_index(front)),
-        pick_at(front, "accurate", rows[0]),  # sorted by f_acc, then f_t
-        pick_at(front, "smooth", min(rows, key=lambda i: (front[i].f_t, i))),
+        pick_at(front, "accurate", rows[0]),  # sorted by the first objective, then the second
+        pick_at(front, "smooth", min(rows, key=lambda i: (front[i].objectives[1], i))),
     ]
