@@ -6,6 +6,8 @@
     edges              Zenoh sessions, asking the broker, files (gainfarm/edges/): schemas, models
     cli                what the command lines share (gainfarm/cli/): all of the above
     worker, broker     the layers below, never analytic nor each other
+    testing            the conformance kits (gainfarm/testing/): the layers below and the worker,
+                       which simulates their episodes; never analytic
     analytic           everything; inside it, floors one way down:
                        commands -> experiments -> calibration -> data -> compose -> view -> tuning
                        -> evaluators (compose: the module analytic/compose.py, `tune`)
@@ -32,6 +34,7 @@ WHERE = {
     "cli": "gainfarm/cli",
     "worker": "worker",
     "broker": "broker",
+    "testing": "gainfarm/testing",
     "analytic": "analytic",
 }
 LAYERS = tuple(WHERE)
@@ -43,6 +46,7 @@ MAY_IMPORT = {
     "cli": {"schemas", "models", "plugins", "edges"},
     "worker": {"schemas", "models", "plugins", "edges", "cli"},
     "broker": {"schemas", "models", "plugins", "edges", "cli"},
+    "testing": {"schemas", "models", "plugins", "edges", "cli", "worker"},
     "analytic": set(LAYERS),
 }
 FACE = "gainfarm/__init__.py"  # the public face: `import gainfarm`, `from gainfarm import tune`
