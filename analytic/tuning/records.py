@@ -117,6 +117,15 @@ class HistoryRow:
         if len(self.best) != len(self.names):
             raise ValueError(f"{len(self.best)} best values for objectives {self.names}")
 
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """A checkpoint from before objectives were named pickled `best_f_acc` and `best_f_t`:
+        the run's first and second objectives' best."""
+        state = dict(state)
+        if "best_f_acc" in state:
+            state["best"] = (state.pop("best_f_acc"), state.pop("best_f_t"))
+            state.setdefault("names", DEFAULT_OBJECTIVES)
+        self.__dict__.update(state)
+
     # The best of the paper's two by name, where the run has them (AttributeError where not).
     @property
     def best_f_acc(self) -> float:

@@ -1,6 +1,7 @@
 """A run's records: CSVs and JSON that read back exactly, a run read from its plain files."""
 
 import json
+import pickle
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -271,3 +272,14 @@ def test_a_run_whose_plugin_is_not_installed_here_still_reads(tmp_path: Path) ->
     assert read == front and read[0].named == {"f_acc": 0.01, "jerk": 3.5}
     (jerk,) = declarations(("jerk",))
     assert (jerk.unit, jerk.direction) == ("", "minimise") and "not installed" in jerk.description
+
+
+def test_a_history_row_pickled_before_objectives_were_named_reads_back() -> None:
+    row = SAMPLE_HISTORY[0]
+    state = dict(row.__dict__)
+    state["best_f_acc"], state["best_f_t"] = state.pop("best")
+    del state["names"]
+    old = HistoryRow.__new__(HistoryRow)
+    old.__setstate__(state)
+    assert old == row and (old.best_f_acc, old.best_f_t) == row.best
+    assert pickle.loads(pickle.dumps(row)) == row
