@@ -43,7 +43,12 @@ import zenoh
 
 from gainfarm.analytic.tuning.check import CHECK_JSON, advice_of, read_check
 from gainfarm.analytic.tuning.config import RunConfig
-from gainfarm.analytic.tuning.declared import axis_label, declarations, value_text
+from gainfarm.analytic.tuning.declared import (
+    axis_label,
+    column_title,
+    declarations,
+    value_text,
+)
 from gainfarm.analytic.tuning.evolution import F_T_FLOOR, REFERENCE_POINT, normalise
 from gainfarm.analytic.tuning.picks import Pick, picks
 from gainfarm.analytic.tuning.records import (
@@ -68,6 +73,7 @@ from gainfarm.analytic.view.members import (
     COLUMNS,
     EMPTY_SERIES,
     GAINS,
+    SCORES,
     episode,
     export_links,
     robustness_text,
@@ -147,6 +153,7 @@ class RunView:
     normalised: dict[str, list[float]] = field(default_factory=lambda: {"x": [], "y": []})
     # The front's axes: the run's first two objectives, named with their units.
     axes: tuple[str, str] = PAPER_AXES
+    titles: tuple[str, str] = ("f_acc (mm)", "f_t ((N·m)²)")  # the table's objective columns
 
 
 # A run's lock state not read yet: the functions below read it themselves (Watch.runs reads it
@@ -228,6 +235,7 @@ def run_view(directory: Path, held: "bool | None" = UNREAD) -> RunView:
         _recommendation(named, baseline, state, record.config, check),
         {"x": x, "y": y},
         axes_of(record.config.objectives),
+        tuple(column_title(o) for o in declarations(record.config.objectives[:2])),
     )
 
 
@@ -781,6 +789,9 @@ def page(watch: Watch) -> Callable:
             self.shown = (self.choice.value, version)
             self.recommendation.text = html.escape(view.recommendation)
             self.members.data = view.table
+            titles = dict(zip(SCORES, view.titles, strict=True))  # the run's objectives
+            for item in self.table.columns:
+                item.title = titles.get(item.field, item.title)
             # As tall as its rows, up to TABLE_ROWS_SHOWN (then it scrolls): no blank below.
             shown = min(max(len(view.members), 1), TABLE_ROWS_SHOWN)
             self.table.height = (shown + 1) * TABLE_ROW_PX + TABLE_ROW_PX // 2
