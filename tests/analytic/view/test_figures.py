@@ -115,7 +115,8 @@ def test_the_view_is_the_front_and_what_lies_outside_it_is_counted() -> None:
     # A front from 4 to 80 mm and f_t 0.006 to 50; chattering and soft candidates far off.
     errors = np.geomspace(0.004, 0.08, 30)
     front = [
-        FrontMember(kp=KP, kd=KD, objectives=(float(e), float(50 * (0.004 / e) ** 3))) for e in errors
+        FrontMember(kp=KP, kd=KD, objectives=(float(e), float(50 * (0.004 / e) ** 3)))
+        for e in errors
     ]
     front.append(FrontMember(kp=KP, kd=KD, objectives=(0.001, 1e7), diverged=True))  # a penalty
     outliers = [(0.3, 1e5), (0.25, 3e4), (0.006, 8e4), (0.5, 0.01)]

@@ -294,7 +294,9 @@ def test_the_first_line_when_the_defaults_diverged_or_were_not_scored() -> None:
 
 
 def test_the_members_that_dominate_the_defaults_are_listed_the_first_ten_and_a_count() -> None:
-    front = [FrontMember(kp=KP, kd=KD, objectives=(0.001 * (n + 1), 1.0 / (n + 1))) for n in range(25)]
+    front = [
+        FrontMember(kp=KP, kd=KD, objectives=(0.001 * (n + 1), 1.0 / (n + 1))) for n in range(25)
+    ]
     # Rows 3-22 dominate (20 of them): f_acc at most 22 mm, f_t at most 1/3.
     baseline = Baseline(DEFAULT_GAINS, objectives=(0.0225, 0.34), diverged=False)
     lines = controllers_section(picks(front, baseline), baseline, "RUN", front)
