@@ -28,18 +28,15 @@ the same bytes instead, which every zstd decoder verifies (see CHUNK_CRC).
 
 import io
 import json
-import struct
 import threading
 import zlib
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 from functools import cache, lru_cache
 from pathlib import Path
 
 import numpy as np
 import zstandard
 from mcap.data_stream import ReadDataStream, RecordBuilder
-from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Channel as ChannelRecord
 from mcap.records import (
@@ -59,7 +56,6 @@ from mcap.stream_reader import StreamReader
 from mcap.summary import Summary
 from mcap.writer import MCAP0_MAGIC
 from pydantic import ValidationError
-from rosbags.typesys import Stores, get_typestore
 
 from gainfarm.schemas.documents import BadDocument, read_bounded
 from gainfarm.schemas.episode import EpisodeMetadata
@@ -71,261 +67,34 @@ from gainfarm.schemas.episode_log import (
     TF_EVERY,
     TF_MESSAGE,
     TF_TOPIC,
-    Channel,
     EpisodeLog,
-    Frame,
     RobotDescription,
 )
-from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS
-from gainfarm.schemas.wire import MAX_EPISODE_BYTES
-
-NANOSECONDS = 1_000_000_000
-CHUNK_SIZE = 4 * 1024 * 1024  # uncompressed bytes of messages per chunk, at most (~7.5 s of ticks)
-
-# Chunks are compressed with zstd at a negative ("fast") level: compression is most of the cost of
-# writing, and the payloads are mostly float64 noise that no setting shrinks (zstd keeps the
-# numbers as they are and removes the template's bytes around them). Measured on the 2.8 MB chunk
-# of a 5 s episode's ticks (with the frame checksum): level 3 (the mcap Writer's default) 8.4 ms
-# -> 1058 kB, level 1 4.5 ms -> 1081 kB, -1 3.6 ms -> 1119 kB, -4 2.7 ms -> 1173 kB, -10 2.3 ms
-# -> 1244 kB, -12 2.2 ms -> 1454 kB (the ratio collapses below -10); zstd's other parameters
-# (window, hash table, minimum match) trade size for time along the same line, and lz4 is not a
-# declared dependency. -10 is the fastest setting that still compresses well; it costs 15% more
-# disk than level 1. No worker threads: the cores step episodes. It is most of a log's cost (~3
-# ms of CPU for a 5 s episode, against ~40 ms for the episode in a batch: bench/encode_bench.py).
-ZSTD_LEVEL = -10
-
-# A chunk's records are checked by the zstd frame's checksum (XXH64 of the uncompressed bytes,
-# verified by every zstd decoder: this reader, the mcap library's, any other tool's), not by the
-# Chunk record's CRC-32, which is written as 0 ("not computed", MCAP spec, Chunk; readers skip it,
-# validating CRCs or not). Either catches a number corrupted on disk, which nothing else would
-# (zstd stores the numbers as raw literals, and any number fits the template); the checksum costs
-# 0.2 ms per 5 s episode where zlib.crc32 cost 0.65 ms, a fifth of writing the log. In transit the
-# farm checks a log by its SHA-256 digest anyway (worker.job.Outcome.digest). Logs written with a
-# CRC (before this) are still checked by it.
-CHUNK_CRC = 0
-
-# The Message record's header: opcode, record length, then these (MCAP spec, "Message").
-_MESSAGE_HEADER = [
-    ("opcode", "u1"),
-    ("length", "<u8"),
-    ("channel_id", "<u2"),
-    ("sequence", "<u4"),
-    ("log_time", "<u8"),
-    ("publish_time", "<u8"),
-]
-_RECORD_PREFIX = 1 + 8  # opcode and record length, before every record's content
-_FOOTER_LENGTH = 8 + 8 + 4  # a Footer's content: summary start, summary offset start, CRC
-# What a reader takes in besides the messages, bounded far above what episode_bytes writes (5.1
-# kB of summary, 0.9 kB of metadata, 4.5 kB of Schema and Channel records in the first chunk), so
-# that no length or count a file states makes the reader allocate in proportion to it.
-_MAX_SUMMARY_BYTES = 1024 * 1024  # the summary section and its summary offsets
-_MAX_METADATA_BYTES = 1024 * 1024  # the Metadata record
-_MAX_DEFINITION_BYTES = 1024 * 1024  # the records before the messages, in all chunks together
-# The channels made for ROS 2 tools follow CHANNELS' ids 1..6; they share one chunk of their own,
-# the file's first, which the reader skips.
-_TF_ID = len(CHANNELS) + 1
-_DESCRIPTION_ID = len(CHANNELS) + 2
-_DERIVED_IDS = frozenset({_TF_ID, _DESCRIPTION_ID})
-_SCHEMA_ENCODING = "ros2msg"
-_MESSAGE_ENCODING = "cdr"
-_PROFILE = "ros2"
-# The writer and its log layout's version, in the Header's free-form library field (readers
-# ignore it; a person or a tool telling logs apart reads it). 1 (written as plain "gainfarm"):
-# chunks carried their CRC-32. 2: a chunk's CRC is 0 and its zstd frame carries zstd's checksum
-# (CHUNK_CRC): the same messages, other bytes, so a log's digest differs from version 1's.
-_LIBRARY = "gainfarm episode log 2"
-_UNREADABLE = (
-    OSError,
-    McapError,
-    EOFError,
-    ValueError,
-    struct.error,
-    OverflowError,  # an offset or length past what io.BytesIO can seek or read
-    zstandard.ZstdError,
-    RuntimeError,  # lz4.frame's errors
-    ImportError,  # lz4 is optional
+from gainfarm.schemas.mcap_layout import (
+    CHUNK_CRC,
+    CHUNK_SIZE,
+    DERIVED_IDS,
+    DESCRIPTION_ID,
+    FOOTER_LENGTH,
+    LIBRARY,
+    MAX_DEFINITION_BYTES,
+    MAX_METADATA_BYTES,
+    MAX_SUMMARY_BYTES,
+    MESSAGE_ENCODING,
+    NANOSECONDS,
+    PROFILE,
+    RECORD_PREFIX,
+    SCHEMA_ENCODING,
+    TF_ID,
+    UNREADABLE,
+    ZSTD_LEVEL,
+    NotAnEpisodeLog,
+    schema_text,
+    tf_layout,
+    tick_layout,
+    typestore,
 )
-
-
-class NotAnEpisodeLog(ValueError):
-    """The file is not a readable gainfarm episode log."""
-
-
-@dataclass(frozen=True)
-class _Layout:
-    """Where the variable parts sit in a channel's fixed-size CDR message."""
-
-    template: np.ndarray  # (size,) uint8: one encoded message
-    stamp: int  # byte offset of header.stamp (int32 sec, uint32 nanosec)
-    fields: dict[str, tuple[int, int]]  # message field -> (byte offset, number of float64s)
-
-    @property
-    def size(self) -> int:
-        return len(self.template)
-
-    def dtype(self) -> np.dtype:
-        """The message as a structured dtype: the stamp and the numbers are named fields, the
-        bytes in between (CDR header, frame_id, joint names, sequence lengths) are gaps."""
-        names = ["stamp", *self.fields]
-        formats = [("<u4", (2,)), *(("<f8", (count,)) for _, count in self.fields.values())]
-        offsets = [self.stamp, *(offset for offset, _ in self.fields.values())]
-        return np.dtype(
-            {"names": names, "formats": formats, "offsets": offsets, "itemsize": self.size}
-        )
-
-
-@dataclass(frozen=True)
-class _TickLayout:
-    """The Message records of one tick, one per channel in CHANNELS order."""
-
-    dtype: np.dtype  # one field per topic, each a Message record with its CDR data as a subfield
-    template: np.ndarray  # (size,) uint8: the records of tick 0 at time 0
-    constant: np.ndarray  # (size,) uint8: 0xFF where every tick has the template's byte, else 0
-
-    @property
-    def size(self) -> int:
-        return self.dtype.itemsize
-
-    @property
-    def word(self) -> np.dtype:
-        """The widest unsigned integer that tiles a tick, to compare ticks a word at a time."""
-        return np.dtype(f"<u{next(w for w in (8, 4, 2, 1) if self.size % w == 0)}")
-
-    def record_offset(self, topic: str) -> int:
-        return self.dtype.fields[topic][1]
-
-
-@cache
-def _typestore():
-    return get_typestore(Stores.ROS2_HUMBLE)
-
-
-@cache
-def schema_text(message_type: str) -> str:
-    """The ros2msg schema text (with its dependencies) MCAP stores for `message_type`."""
-    text, _ = _typestore().generate_msgdef(message_type, ros_version=2)
-    return text
-
-
-@cache
-def _layout(channel: Channel) -> _Layout:
-    """Encode one message with recognisable sentinel numbers and find where they landed."""
-    store = _typestore()
-    types = store.types
-    stamp = types["builtin_interfaces/msg/Time"](sec=0x5EC0_5EC0, nanosec=0x0A0B_0C0D)
-    header = types["std_msgs/msg/Header"](stamp=stamp, frame_id=channel.frame_id)
-    sentinels = {
-        field: 7.25e9 + 1000.0 * i + np.arange(N_JOINTS if field != "point" else 3)
-        for i, (field, _) in enumerate(channel.fields)
-    }
-    if channel.message_type.endswith("JointState"):
-        empty = np.zeros(0)
-        arrays = {f: sentinels.get(f, empty) for f in ("position", "velocity", "effort")}
-        message = types[channel.message_type](header=header, name=list(JOINT_NAMES), **arrays)
-    else:
-        x, y, z = sentinels["point"]
-        point = types["geometry_msgs/msg/Point"](x=x, y=y, z=z)
-        message = types[channel.message_type](header=header, point=point)
-    encoded = bytes(store.serialize_cdr(message, channel.message_type))
-    offsets = {
-        field: (encoded.index(values.astype("<f8").tobytes()), len(values))
-        for field, values in sentinels.items()
-    }
-    stamp_offset = encoded.index(np.array([0x5EC0_5EC0, 0x0A0B_0C0D], "<u4").tobytes())
-    # The sentinels were only there to be found: the template carries zeros in their place.
-    template = bytearray(encoded)
-    for offset, count in [(stamp_offset, 1), *offsets.values()]:
-        template[offset : offset + 8 * count] = bytes(8 * count)
-    return _Layout(np.frombuffer(bytes(template), np.uint8), stamp_offset, offsets)
-
-
-@cache
-def _tick_layout() -> _TickLayout:
-    """Lay out one tick's Message records; the mcap library writes the template's records."""
-    dtype = np.dtype(
-        [
-            (channel.topic, [*_MESSAGE_HEADER, ("data", _layout(channel).dtype())])
-            for channel in CHANNELS
-        ]
-    )
-    builder = RecordBuilder()
-    for channel_id, channel in enumerate(CHANNELS, start=1):
-        data = _layout(channel).template.tobytes()
-        Message(channel_id=channel_id, log_time=0, data=data, publish_time=0, sequence=0).write(
-            builder
-        )
-    template = np.frombuffer(builder.end(), np.uint8)
-    if len(template) != dtype.itemsize:
-        raise AssertionError("the tick dtype does not match the records the mcap library writes")
-    return _TickLayout(dtype, template, _constant_bytes(dtype))
-
-
-def _constant_bytes(dtype: np.dtype) -> np.ndarray:
-    """Mark the bytes of a tick that episode_bytes copies from the template unchanged: all but
-    the sequence numbers, times, stamps and numbers (so opcodes, record lengths, channel ids, CDR
-    headers, frame ids, joint names, array lengths and padding)."""
-    variable = np.zeros(dtype.itemsize, bool)
-    for record, record_offset in dtype.fields.values():
-        for name in ("sequence", "log_time", "publish_time"):
-            field, offset = record.fields[name]
-            start = record_offset + offset
-            variable[start : start + field.itemsize] = True
-        data, data_offset = record.fields["data"]
-        for field, offset in data.fields.values():
-            start = record_offset + data_offset + offset
-            variable[start : start + field.itemsize] = True
-    return np.where(variable, 0, 0xFF).astype(np.uint8)
-
-
-@cache
-def _tf_layout(frames: tuple[Frame, ...]) -> tuple[np.ndarray, np.dtype]:
-    """One /tf Message record at time 0 (the frames' names and translations in place, stamps and
-    rotations zero) and its dtype, whose data names each transform's stamp and rotation."""
-    store = _typestore()
-    types = store.types
-    sentinels = 7.25e9 + 1000.0 * np.arange(len(frames))[:, None] + np.arange(4)
-    transforms = []
-    for i, transform in enumerate(frames):
-        stamp = types["builtin_interfaces/msg/Time"](sec=0x5EC0_0000 + i, nanosec=0x0A0B_0C0D)
-        x, y, z = transform.translation
-        qx, qy, qz, qw = sentinels[i]
-        transforms.append(
-            types["geometry_msgs/msg/TransformStamped"](
-                header=types["std_msgs/msg/Header"](stamp=stamp, frame_id=transform.parent),
-                child_frame_id=transform.child,
-                transform=types["geometry_msgs/msg/Transform"](
-                    translation=types["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
-                    rotation=types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
-                ),
-            )
-        )
-    encoded = bytearray(store.serialize_cdr(types[TF_MESSAGE](transforms=transforms), TF_MESSAGE))
-    names, formats, offsets = [], [], []
-    for i in range(len(frames)):
-        stamp = np.array([0x5EC0_0000 + i, 0x0A0B_0C0D], "<u4").tobytes()
-        rotation = sentinels[i].astype("<f8").tobytes()
-        for name, value, form in (
-            ("stamp", stamp, ("<u4", (2,))),
-            ("rotation", rotation, ("<f8", (4,))),
-        ):
-            offset = encoded.index(value)
-            encoded[offset : offset + len(value)] = bytes(len(value))  # found: now zero
-            names.append(f"{name}{i}")
-            formats.append(form)
-            offsets.append(offset)
-    data = np.dtype(
-        {"names": names, "formats": formats, "offsets": offsets, "itemsize": len(encoded)}
-    )
-    builder = RecordBuilder()
-    Message(channel_id=_TF_ID, log_time=0, data=bytes(encoded), publish_time=0, sequence=0).write(
-        builder
-    )
-    template = np.frombuffer(builder.end(), np.uint8)
-    dtype = np.dtype([*_MESSAGE_HEADER, ("data", data)])
-    if len(template) != dtype.itemsize:
-        raise AssertionError("the /tf dtype does not match the record the mcap library writes")
-    return template, dtype
-
+from gainfarm.schemas.wire import MAX_EPISODE_BYTES
 
 # --- writing ----------------------------------------------------------------------------------
 
@@ -341,12 +110,12 @@ def episode_bytes(log: EpisodeLog, robot: RobotDescription) -> bytes:
     right after the Header (the Writer puts it wherever its chunk buffer stands), so that a
     reader streaming the file knows what it is before the data arrives.
     """
-    layout = _tick_layout()
+    layout = tick_layout()
     log_times = np.round(log.t * NANOSECONDS).astype(np.uint64)
     schemas, channels = _definitions()
     out = RecordBuilder()
     out.write(MCAP0_MAGIC)
-    Header(profile=_PROFILE, library=_LIBRARY).write(out)
+    Header(profile=PROFILE, library=LIBRARY).write(out)
     metadata_index = _write_metadata(out, log.metadata)
     compressor = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_checksum=True)
     _check_columns(log)  # first: no byte is written of a malformed log
@@ -399,14 +168,14 @@ def _definitions() -> tuple[tuple[Schema, ...], tuple[ChannelRecord, ...]]:
             schemas[message_type] = Schema(
                 id=len(schemas) + 1,
                 data=schema_text(message_type).encode(),
-                encoding=_SCHEMA_ENCODING,
+                encoding=SCHEMA_ENCODING,
                 name=message_type,
             )
         channels.append(
             ChannelRecord(
                 id=channel_id,
                 topic=topic,
-                message_encoding=_MESSAGE_ENCODING,
+                message_encoding=MESSAGE_ENCODING,
                 metadata={"offered_qos_profiles": _offered_qos(durability)},
                 schema_id=schemas[message_type].id,
             )
@@ -457,7 +226,7 @@ def _metadata_record(metadata: EpisodeMetadata) -> dict[str, str]:
 
 def _check_columns(log: EpisodeLog) -> None:
     """Each column must be one row per tick of the numbers its message field holds."""
-    fields = _tick_layout().dtype
+    fields = tick_layout().dtype
     for channel in CHANNELS:
         data = fields[channel.topic]["data"]
         for field, attribute in channel.fields:
@@ -488,7 +257,7 @@ _TICKS = _Ticks()
 def _records(log: EpisodeLog, log_times: np.ndarray, part: slice) -> np.ndarray:
     """The Message records of the ticks `part` as one structured array: template copies,
     filled in. (Valid until this thread's next call: they are to be compressed at once.)"""
-    layout = _tick_layout()
+    layout = tick_layout()
     count = part.stop - part.start
     if _TICKS.ticks is None or len(_TICKS.ticks) < count:  # at most a chunk's, per thread
         _TICKS.ticks = np.tile(layout.template, count).view(layout.dtype)
@@ -525,7 +294,7 @@ def _derived_messages(
     ticks and at the last), and each channel's (id, log times, offsets from `offset` on)."""
     first = _description_record(robot.urdf, int(log_times[0]))
     ticks = np.unique(np.append(np.arange(0, log.ticks, TF_EVERY), log.ticks - 1))
-    template, dtype = _tf_layout(tuple(robot.frames))
+    template, dtype = tf_layout(tuple(robot.frames))
     rotations = np.asarray(robot.rotations(log.q[ticks]))
     if rotations.shape != (len(ticks), len(robot.frames), 4):
         raise ValueError(
@@ -543,8 +312,8 @@ def _derived_messages(
         records["data"][f"rotation{i}"] = quaternions
     tf_offsets = offset + len(first) + dtype.itemsize * np.arange(len(ticks), dtype=np.uint64)
     indexes = [
-        (_TF_ID, times, tf_offsets),
-        (_DESCRIPTION_ID, log_times[:1], np.array([offset], np.uint64)),
+        (TF_ID, times, tf_offsets),
+        (DESCRIPTION_ID, log_times[:1], np.array([offset], np.uint64)),
     ]
     return first + records.tobytes(), indexes
 
@@ -553,10 +322,10 @@ def _derived_messages(
 def _description_record(urdf: str, log_time: int) -> bytes:
     """The /robot_description Message record: the same in every log of a robot (its first tick
     is at time 0), so serialised once per process, not once per log."""
-    store = _typestore()
+    store = typestore()
     builder = RecordBuilder()
     Message(
-        channel_id=_DESCRIPTION_ID,
+        channel_id=DESCRIPTION_ID,
         log_time=log_time,
         data=bytes(store.serialize_cdr(store.types[STRING](data=urdf), STRING)),
         publish_time=log_time,
@@ -704,7 +473,7 @@ def check_chunks(path: Path, bound: int = MAX_EPISODE_BYTES) -> None:
                     left -= len(_decompress(f"{where}: a chunk", record, left))
     except NotAnEpisodeLog:
         raise
-    except _UNREADABLE as error:
+    except UNREADABLE as error:
         reason = " ".join(str(error).split())[:300] or type(error).__name__
         raise NotAnEpisodeLog(f"{where}: unreadable MCAP ({reason})") from None
 
@@ -730,7 +499,7 @@ def decode_episode(content: bytes, source: str = "episode log") -> EpisodeLog:
         return _assemble(path, metadata, _read_messages(path, content, summary, bound))
     except NotAnEpisodeLog:
         raise
-    except _UNREADABLE as error:
+    except UNREADABLE as error:
         reason = " ".join(str(error).split())[:300] or type(error).__name__
         raise NotAnEpisodeLog(f"{path}: not a readable MCAP file ({reason})") from None
     except Exception as error:  # anything else the bytes provoke is still not an episode log
@@ -743,7 +512,7 @@ def _record_span(path: str, content: bytes, offset: int, opcode: Opcode, limit: 
     than `limit`, whatever length the record states."""
     name = opcode.name.lower()
     data_end = len(content) - len(MCAP0_MAGIC)
-    start = offset + _RECORD_PREFIX
+    start = offset + RECORD_PREFIX
     if start > data_end or content[offset] != opcode:
         raise NotAnEpisodeLog(f"{path}: no {name} record at offset {offset}")
     length = int.from_bytes(content[offset + 1 : start], "little")
@@ -769,19 +538,19 @@ def _read_summary(path: str, content: bytes) -> Summary:
     get_summary and iter_metadata decompress any Chunk record they meet (to the size the chunk
     claims) and read records from a stream over the whole file."""
     data_end = len(content) - len(MCAP0_MAGIC)
-    footer_offset = data_end - _RECORD_PREFIX - _FOOTER_LENGTH
+    footer_offset = data_end - RECORD_PREFIX - FOOTER_LENGTH
     if footer_offset < len(MCAP0_MAGIC):
         raise NotAnEpisodeLog(f"{path}: truncated MCAP file (too short for a footer)")
-    footer = Footer.read(_record(path, content, footer_offset, Opcode.FOOTER, _FOOTER_LENGTH))
+    footer = Footer.read(_record(path, content, footer_offset, Opcode.FOOTER, FOOTER_LENGTH))
     start = footer.summary_start
     if start == 0:
         raise NotAnEpisodeLog(f"{path}: MCAP file without a summary section")
     if not len(MCAP0_MAGIC) <= start <= footer_offset:
         raise NotAnEpisodeLog(f"{path}: its footer points outside the file for its summary")
-    if footer_offset - start > _MAX_SUMMARY_BYTES:
+    if footer_offset - start > MAX_SUMMARY_BYTES:
         raise NotAnEpisodeLog(
             f"{path}: a summary section of {footer_offset - start} bytes, over this reader's "
-            f"limit of {_MAX_SUMMARY_BYTES}"
+            f"limit of {MAX_SUMMARY_BYTES}"
         )
     # As in Writer.finish: the CRC covers the summary section and the footer up to the CRC.
     if footer.summary_crc not in (0, zlib.crc32(content[start : data_end - 4])):
@@ -789,7 +558,7 @@ def _read_summary(path: str, content: bytes) -> Summary:
     summary = Summary()
     stream = io.BytesIO(content[start:])  # the summary, the footer and the closing magic
     reader = StreamReader(
-        stream, skip_magic=True, emit_chunks=True, record_size_limit=_MAX_SUMMARY_BYTES
+        stream, skip_magic=True, emit_chunks=True, record_size_limit=MAX_SUMMARY_BYTES
     )
     for record in reader.records:  # up to and including the footer
         if isinstance(record, Schema):
@@ -809,7 +578,7 @@ def _read_metadata(path: str, content: bytes, summary: Summary) -> EpisodeMetada
     for index in summary.metadata_indexes:
         if index.name != METADATA_NAME:
             continue
-        stream = _record(path, content, index.offset, Opcode.METADATA, _MAX_METADATA_BYTES)
+        stream = _record(path, content, index.offset, Opcode.METADATA, MAX_METADATA_BYTES)
         record = Metadata.read(stream)
         if record.name != METADATA_NAME:
             continue
@@ -831,12 +600,12 @@ def _check_channels(path: str, summary: Summary) -> None:
             record is None
             or schema is None
             or record.topic != channel.topic
-            or record.message_encoding != _MESSAGE_ENCODING
+            or record.message_encoding != MESSAGE_ENCODING
             or schema.name != channel.message_type
         ):
             raise NotAnEpisodeLog(
                 f"{path}: channel {channel_id} is not {channel.topic} "
-                f"({_MESSAGE_ENCODING} {channel.message_type}): not an episode log"
+                f"({MESSAGE_ENCODING} {channel.message_type}): not an episode log"
             )
 
 
@@ -848,7 +617,7 @@ def _decompression_bound(path: str, metadata: EpisodeMetadata) -> int:
     ticks, planned = metadata.ticks_run, metadata.spec.trajectory.ticks
     if ticks > planned:
         raise NotAnEpisodeLog(f"{path}: {ticks} ticks run, more than the {planned} of its path")
-    return min(ticks * _tick_layout().size + _MAX_DEFINITION_BYTES, MAX_EPISODE_BYTES)
+    return min(ticks * tick_layout().size + MAX_DEFINITION_BYTES, MAX_EPISODE_BYTES)
 
 
 def _read_messages(path: str, content: bytes, summary: Summary, bound: int) -> bytes:
@@ -858,7 +627,7 @@ def _read_messages(path: str, content: bytes, summary: Summary, bound: int) -> b
     parts = []
     for index in sorted(summary.chunk_indexes, key=lambda index: index.chunk_start_offset):
         channels = index.message_index_offsets
-        if channels and _DERIVED_IDS.issuperset(channels):
+        if channels and DERIVED_IDS.issuperset(channels):
             continue  # /tf and /robot_description: made from the columns for other tools
         records = _chunk_records(path, content, index.chunk_start_offset, bound)
         bound -= len(records)
@@ -919,14 +688,14 @@ def _messages(records: bytes) -> memoryview:
     (a view, not a copy: the chunks are joined next)."""
     position = 0
     while position < len(records) and records[position] != Opcode.MESSAGE:
-        length = int.from_bytes(records[position + 1 : position + _RECORD_PREFIX], "little")
-        position += _RECORD_PREFIX + length
+        length = int.from_bytes(records[position + 1 : position + RECORD_PREFIX], "little")
+        position += RECORD_PREFIX + length
     return memoryview(records)[position:]
 
 
 def _assemble(path: str, metadata: EpisodeMetadata, messages: bytes) -> EpisodeLog:
     """View the Message records as ticks, check them against the template, slice out columns."""
-    layout = _tick_layout()
+    layout = tick_layout()
     ticks = metadata.ticks_run
     if len(messages) != ticks * layout.size:
         raise NotAnEpisodeLog(
