@@ -60,11 +60,7 @@ class Pick:
 
 def _finished(front: Sequence[FrontMember]) -> list[int]:
     """The members with finite scores that did not diverge: measured, not a penalty."""
-    return [
-        i
-        for i, m in enumerate(front)
-        if not m.diverged and np.all(np.isfinite(m.objectives))
-    ]
+    return [i for i, m in enumerate(front) if not m.diverged and np.all(np.isfinite(m.objectives))]
 
 
 def _measured(front: Sequence[FrontMember]) -> list[int]:

@@ -61,7 +61,8 @@ def test_the_error_at_a_level_reads_the_front_there_not_its_most_accurate_member
 
 def member(f_acc: float, f_t: float, scale: float) -> FrontMember:
     return FrontMember(
-        kp=[k * scale for k in DEFAULT_GAINS.kp], kd=DEFAULT_GAINS.kd, objectives=(f_acc, f_t))
+        kp=[k * scale for k in DEFAULT_GAINS.kp], kd=DEFAULT_GAINS.kd, objectives=(f_acc, f_t)
+    )
 
 
 def test_the_recommended_controller_is_the_runs_pick_not_its_most_accurate(tmp_path: Path) -> None:
