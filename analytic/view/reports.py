@@ -93,6 +93,7 @@ def run_setup(config: RunConfig) -> list[str]:
         + f", {config.objectives[1]} "
         + " / ".join(f"{w:.2f}" for _, w in weights)
     )
+    first = declarations(config.objectives)[0]  # the reference point is in its unit
     robust = ""
     if config.plants:
         robust = (
@@ -103,7 +104,8 @@ def run_setup(config: RunConfig) -> list[str]:
         f"{controller} on {trajectories}{averaged}",
         f"{_search(config)}, population {config.pop}, seed {config.seed}",
         f"{plant_text(config.model)}{robust}; reference point "
-        f"{config.objectives[0]} {config.reference_point[0]} m, "
+        f"{config.objectives[0]} {config.reference_point[0]} {first.unit}".rstrip()
+        + ", "
         f"{config.objectives[1]} {config.reference_point[1]}",
     ]
 
