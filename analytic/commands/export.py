@@ -41,7 +41,7 @@ def _formats() -> tuple[str, ...]:
 def export(run_dir: Path, member: str, fmt: str, out: Path | None) -> None:
     """Write a run's controller: one front member's gains, with its joints, units, scores and
     the run it came from."""
-    from gainfarm.analytic.view.export import BadMember, BadRun
+    from gainfarm.analytic.view.export import BadMember, BadRun, member_text
     from gainfarm.analytic.view.export import controller as exported_controller
     from gainfarm.analytic.view.export import render as render_controller
     from gainfarm.edges.files import write_atomically
@@ -64,6 +64,6 @@ def export(run_dir: Path, member: str, fmt: str, out: Path | None) -> None:
         raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror or error}") from None
     click.echo(
         f"{out}: {chosen.member.selected} of {run_dir} (front.csv row {chosen.member.row}: "
-        f"{chosen.member.f_acc * 1000:.3f} mm, f_t {chosen.member.f_t:.4g} (N·m)²), {fmt}",
+        f"{member_text(chosen.member, name_first=False)}), {fmt}",
         err=True,
     )

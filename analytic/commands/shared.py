@@ -488,7 +488,7 @@ def run_with_progress(
         return
     if first.name == "closest" and advice_of(record) is not None:
         click.echo("controller to use: the default gains; no member held against them", err=True)
-        click.echo(f"on the held-out check; closest: {describe_pick(first)}", err=True)
+        click.echo(f"closest on the check: {describe_pick(first)}", err=True)
     elif first.name == "closest":
         click.echo("controller to use: none, no member beats the default gains", err=True)
         click.echo(f"closest to them: {describe_pick(first)}", err=True)

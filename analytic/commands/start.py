@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import click
 
+from gainfarm import plugins
 from gainfarm.analytic.commands.shared import (
     algorithm_names,
     check_farm,
@@ -99,6 +100,15 @@ if TYPE_CHECKING:
     "nearly all of it)",
 )
 @click.option(
+    "--objective",
+    "objective_names",
+    multiple=True,
+    metavar="NAME",
+    help="an objective, by name (repeat: two, in order; the first is drawn across, the second "
+    "up): f_acc, f_t, f_t_joint or an installed plug-in's (gainfarm.objectives); replaces "
+    "--torque-measure  [default: f_acc and --torque-measure's]",
+)
+@click.option(
     "--objective-scaling",
     type=click.Choice(defaults.OBJECTIVE_SCALINGS),
     default=defaults.OBJECTIVE_SCALING,
@@ -165,6 +175,7 @@ def start(
     algorithm: str,
     first_population: str,
     torque_measure: str,
+    objective_names: tuple[str, ...],
     objective_scaling: str,
     replicate: bool,
     spot_checks: float | None,
@@ -177,6 +188,7 @@ def start(
     stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
     """
     options.check_load(payload, payload_com)
+    objectives = _objectives(objective_names, torque_measure)
     identity = check_farm(connect, local, tls, participant)
     with _farm(connect, workers) as farm:
         from pydantic import ValidationError
@@ -210,7 +222,7 @@ def start(
                 keep=keep,
                 asynchronous=asynchronous,
                 algorithm=algorithm,
-                objectives=("f_acc", defaults.TORQUE_MEASURES[torque_measure]),
+                objectives=objectives,
                 from_defaults=first_population == "defaults",
                 objective_scaling=objective_scaling,
                 replicate=replicate,
@@ -244,6 +256,23 @@ def start(
             raise CliError(f"{start_option(error.part)}: {error}{also}") from None
         except RunBusy as error:
             raise CliError(f"--out: {error}") from None
+
+
+def _objectives(names: tuple[str, ...], torque_measure: str) -> tuple[str, str]:
+    """The run's objectives: the two --objective names, checked here before anything heavy is
+    imported, or f_acc and the --torque-measure's."""
+    if not names:
+        return ("f_acc", defaults.TORQUE_MEASURES[torque_measure])
+    if len(names) != 2:
+        raise CliError(f"--objective: name two objectives, in order (given {len(names)})")
+    if names[0] == names[1]:
+        raise CliError(f"--objective: {names[0]!r} twice; name two different ones")
+    try:
+        for name in names:
+            plugins.check_name(plugins.OBJECTIVES, name)
+    except plugins.PluginError as error:
+        raise CliError(f"--objective: {error}") from None
+    return (names[0], names[1])
 
 
 @contextlib.contextmanager

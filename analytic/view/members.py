@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.declared import declarations, shown_unit
 from gainfarm.analytic.tuning.picks import Pick
 from gainfarm.analytic.tuning.records import EPISODES, FEEDFORWARD, FrontMember, sorted_front
 from gainfarm.analytic.tuning.run import slot_of
@@ -56,8 +57,11 @@ def table(
     columns: dict[str, list] = {name: [] for name in COLUMNS}
     for row, member in enumerate(members, start=1):
         columns["row"].append(row)
-        columns["f_acc_mm"].append(member.f_acc * 1000.0)
-        columns["f_t"].append(member.f_t)
+        # The run's first two objectives, in their own sense and shown unit (f_acc in mm); the
+        # columns keep the paper's keys, the dashboard's titles name the run's objectives.
+        first, second = declarations(member.names[:2])
+        columns["f_acc_mm"].append(member.named[first.name] * shown_unit(first)[1])
+        columns["f_t"].append(member.named[second.name] * shown_unit(second)[1])
         for name, gain in zip(GAINS, member.kp + member.kd, strict=True):
             columns[name].append(gain)
         measured = member.measures + (math.nan,) * (len(MEASURED) - len(member.measures))
