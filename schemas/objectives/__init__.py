@@ -168,8 +168,8 @@ def chatter(log: EpisodeLog) -> float:
     torque limit (at most 2: a detrended command stays within twice its limit)."""
     if log.ticks < 2:
         return 0.0
-    # Imported here, not at the top: scipy.signal takes two seconds to import, and the broker
-    # and every client import this module for its constants, never scoring an episode.
+    # start-up: scipy.signal takes two seconds to import, and the broker and every client
+    # import this module for its constants, never scoring an episode
     from scipy import signal
 
     meta = log.metadata
