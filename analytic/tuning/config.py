@@ -59,9 +59,10 @@ class RunConfig(BaseModel):
     )
     objectives: tuple[str, str] = Field(
         DEFAULT_OBJECTIVES,
-        description="the two objectives minimised, names of the gainfarm.objectives plug-in "
-        "group: the paper's f_acc and f_t, or a plug-in's in place of either, installed here and "
-        "on the workers; the records' f_acc and f_t columns hold the first and the second",
+        description="the two objectives, by name, in the gainfarm.objectives plug-in group: the "
+        "paper's f_acc and f_t, or f_t_joint or a plug-in's in place of either, installed here "
+        "and on the workers; each declares its unit and direction (a maximised one is told the "
+        "optimiser negated), and the records' columns, figures and reports are named after them",
     )
     objective_scaling: defaults.ObjectiveScaling = Field(
         defaults.OBJECTIVE_SCALING,

@@ -57,6 +57,7 @@ from gainfarm.analytic.evaluators.replication import (
 )
 from gainfarm.analytic.tuning.checkpoint import CheckpointRefused, decode, encode
 from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.declared import declarations, maximised
 from gainfarm.analytic.tuning.evolution import Candidate, Evolution, hypervolume
 from gainfarm.analytic.tuning.records import (
     BASELINE_JSON,
@@ -78,6 +79,7 @@ from gainfarm.analytic.tuning.records import (
     RunIdentity,
     ValidationRecord,
     baseline_json,
+    best_of,
     evaluated_csv,
     front_csv,
     front_json,
@@ -103,7 +105,7 @@ from gainfarm.schemas.documents import read_bounded
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import MEASURES, before_lag, measures
-from gainfarm.schemas.objectives import objectives
+from gainfarm.schemas.objectives import no_episode, objectives
 
 log = logging.getLogger("gainfarm.analytic")
 
@@ -352,7 +354,7 @@ class TuningRun:
 
     def front(self) -> list[FrontMember]:
         """The best front found so far, most accurate first, each member with its kept logs."""
-        return sorted_front(_rows(self.state))
+        return sorted_front(_rows(self.state, self.config.objectives))
 
     def run(
         self,
@@ -460,11 +462,11 @@ class TuningRun:
         rulings = self._referee_baseline(evaluator, found)
         self.replay_without_caught(evaluator)
         scores = [found[job_id].scores if job_id in found else None for job_id in jobs]
-        f_acc, f_t = self._objectives(scores)
         baseline = Baseline(
             gains=DEFAULT_GAINS,
-            f_acc=f_acc,
-            f_t=f_t,
+            objectives=self._objectives(scores),
+            names=self.config.objectives,
+            maximised=maximised(self.config.objectives),
             diverged=any(s is None or s.diverged for s in scores),
             episodes=tuple(
                 {
@@ -981,8 +983,7 @@ class TuningRun:
         return dataclasses.replace(
             row,
             hypervolume=hypervolume(points, self.config.reference_point),
-            best_f_acc=min((f_acc for f_acc, _ in points), default=math.nan),
-            best_f_t=min((f_t for _, f_t in points), default=math.nan),
+            best=best_of(points, self.config.objectives),
         )
 
     # --- bookkeeping -------------------------------------------------------------------------
@@ -1011,6 +1012,7 @@ class TuningRun:
             1 + len(config.plants),
             config.aggregate,
             config.plant_scales,
+            no_episode(declarations(config.objectives)),
         )
 
     def _specs(self, jobs: dict[PDGains, list[str]]) -> dict[str, EpisodeSpec]:
@@ -1068,10 +1070,9 @@ class TuningRun:
                 hypervolume=hypervolume(
                     [member.objectives for member in front], self.config.reference_point
                 ),
-                # NaN while no candidate is feasible: the front is empty.
-                best_f_acc=min((member.objectives[0] for member in front), default=math.nan),
-                best_f_t=min((member.objectives[1] for member in front), default=math.nan),
+                best=best_of([member.objectives for member in front], self.config.objectives),
                 wall_seconds=state.wall_seconds,
+                names=self.config.objectives,
             )
         )
         if self.config.keep == "front":
@@ -1135,15 +1136,18 @@ class TuningRun:
         between history.csv and the checkpoint leaves the plain files a generation ahead: a
         resume runs that generation again, to the same, deterministic, result.)"""
         self.check_open()
-        rows = _rows(self.state)
+        names = self.config.objectives
+        rows = _rows(self.state, names)
         write_atomically(
             self.directory / EVALUATED_CSV,
-            evaluated_csv(self.state.evaluated, self.state.measured, self.config.limits),
+            evaluated_csv(
+                self.state.evaluated, self.state.measured, self.config.limits, declarations(names)
+            ),
         )
         write_atomically(self.directory / FRONT_JSON, front_json(rows, self.validation()))
         write_atomically(self.directory / PROVENANCE_CSV, provenance_csv(rows))
-        write_atomically(self.directory / FRONT_CSV, front_csv(rows))
-        write_atomically(self.directory / HISTORY_CSV, history_csv(self.state.history))
+        write_atomically(self.directory / FRONT_CSV, front_csv(rows, names))
+        write_atomically(self.directory / HISTORY_CSV, history_csv(self.state.history, names))
 
 
 def _evolution(config: RunConfig) -> Evolution:
@@ -1159,14 +1163,16 @@ def _evolution(config: RunConfig) -> Evolution:
     )
 
 
-def _rows(state: RunState) -> list[FrontMember]:
-    """The front as the record keeps it: gains, objectives, whether an episode diverged, and the
-    logs kept of each member."""
+def _rows(state: RunState, names: tuple[str, ...]) -> list[FrontMember]:
+    """The front as the record keeps it: gains, objectives (named `names`), whether an episode
+    diverged, and the logs kept of each member."""
     return [
         FrontMember(
             member.gains.kp,
             member.gains.kd,
-            *member.objectives,
+            member.objectives,
+            names=names,
+            maximised=maximised(names),
             logs=tuple(f"{EPISODES}/{job}.mcap" for job in state.episodes.get(member.gains, [])),
             diverged=any(
                 ran.scores is not None and ran.scores.diverged

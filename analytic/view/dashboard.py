@@ -48,6 +48,12 @@ import zenoh
 
 from gainfarm.analytic.tuning.check import CHECK_JSON, advice_of, read_check
 from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.declared import (
+    axis_label,
+    column_title,
+    declarations,
+    value_text,
+)
 from gainfarm.analytic.tuning.evolution import REFERENCE_POINT, normalise
 from gainfarm.analytic.tuning.picks import Pick, picks
 from gainfarm.analytic.tuning.records import (
@@ -60,6 +66,7 @@ from gainfarm.analytic.tuning.records import (
     REPORT_MD,
     Baseline,
     FrontMember,
+    HistoryRow,
     read_baseline,
     read_run,
     sorted_front,
@@ -78,6 +85,7 @@ from gainfarm.analytic.view.run_report import advice_text
 from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.cli.words import counted
 from gainfarm.edges.files import lock_held
+from gainfarm.schemas.episode import DEFAULT_OBJECTIVES
 from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR
 from gainfarm.schemas.wire import BadMessage, BrokerStatus
 
@@ -91,6 +99,23 @@ SEARCH_DEPTH = 3  # a watched directory's runs: itself, its runs, an experiment'
 
 
 # --- what the page shows, read from files and the broker -----------------------------------
+
+
+def axes_of(names: Sequence[str]) -> tuple[str, str]:
+    """The front's axes' labels: a run's first two objectives, named with their units."""
+    first, second = declarations(names[:2])
+    return axis_label(first), axis_label(second)
+
+
+PAPER_AXES = axes_of(DEFAULT_OBJECTIVES)
+
+
+def best_text(last: HistoryRow) -> str:
+    """The best of the run's first objective so far: "error 12.34 mm" for the paper's f_acc."""
+    first = declarations(last.names[:1])[0]
+    if first.name == "f_acc":
+        return f"error {last.best[0] * 1000:.2f} mm"
+    return f"{first.name} {value_text(first, last.best[0])}"
 
 
 @dataclass(frozen=True)
@@ -120,6 +145,9 @@ class RunView:
     table: dict[str, list] = field(default_factory=lambda: {name: [] for name in COLUMNS})
     recommendation: str = ""
     normalised: dict[str, list[float]] = field(default_factory=lambda: {"x": [], "y": []})
+    # The front's axes: the run's first two objectives, named with their units.
+    axes: tuple[str, str] = PAPER_AXES
+    titles: tuple[str, str] = ("f_acc (mm)", "f_t ((N·m)²)")  # the table's objective columns
 
 
 # A run's lock state not read yet: the functions below read it themselves (Watch.runs reads it
@@ -148,7 +176,7 @@ def run_view(directory: Path, held: "bool | None" = UNREAD) -> RunView:
     measured = [point for point in record.evaluated if _measured(point)]
     line = (
         f"{title}: generation {last.generation}, {counted(last.evaluations, 'evaluation')}, "
-        f"hypervolume {last.hypervolume:.4g}, best error {last.best_f_acc * 1000:.2f} mm, "
+        f"hypervolume {last.hypervolume:.4g}, best {best_text(last)}, "
         f"front {len(record.front)}; {duration_text(record.wall_seconds)} of tuning"
     )
     if state == "running":  # the time left as the terminal says it, budget or convergence
@@ -159,7 +187,7 @@ def run_view(directory: Path, held: "bool | None" = UNREAD) -> RunView:
                 generation=last.generation,
                 evaluations=last.evaluations,
                 hypervolume=last.hypervolume,
-                best_f_acc=last.best_f_acc,
+                best_f_acc=last.best[0],
                 elapsed=record.wall_seconds,
                 ended=True,
                 budget=config.budget,
@@ -188,7 +216,7 @@ def run_view(directory: Path, held: "bool | None" = UNREAD) -> RunView:
             "evaluations": [float(row.evaluations) for row in record.history],
             "hypervolume": [row.hypervolume for row in record.history],
         },
-        _points(sorted((m.f_acc, m.f_t) for m in record.front if _measured((m.f_acc, m.f_t)))),
+        _points(sorted(m.objectives for m in record.front if _measured(m.objectives))),
         _points(measured),
         _points([baseline.objectives] if baseline and _measured(baseline.objectives) else []),
         _points([chosen["recommended"].objectives] if "recommended" in chosen else []),
@@ -200,6 +228,8 @@ def run_view(directory: Path, held: "bool | None" = UNREAD) -> RunView:
         table(record.front, named, record.config, check),
         _recommendation(named, baseline, state, record.config, check),
         {"x": x, "y": y},
+        axes_of(record.config.objectives),
+        tuple(column_title(o) for o in declarations(record.config.objectives[:2])),
     )
 
 

@@ -24,11 +24,12 @@ from bokeh.plotting import figure
 
 from gainfarm.analytic.tuning.evolution import F_T_FLOOR, REFERENCE_POINT
 from gainfarm.analytic.tuning.records import FrontMember
-from gainfarm.analytic.view.dashboard import RunView
+from gainfarm.analytic.view.dashboard import PAPER_AXES, RunView
 from gainfarm.analytic.view.members import (
     COLUMNS,
     EMPTY_SERIES,
     GAINS,
+    SCORES,
     episode,
     export_links,
     series,
@@ -87,8 +88,8 @@ class RunPanel:
         self.closest = ColumnDataSource({"f_acc_mm": [], "f_t": []}, name=f"closest:{key}")
         self.pareto = pareto = figure(
             title="front over every evaluated point",
-            x_axis_label="f_acc: mean end-effector error (mm)",
-            y_axis_label="f_t: mean squared torque step ((N·m)²)",
+            x_axis_label=PAPER_AXES[0],
+            y_axis_label=PAPER_AXES[1],
             y_axis_type="log",
             x_range=Range1d(0, 1),
             y_range=Range1d(1e-2, 1e4),
@@ -139,6 +140,7 @@ class RunPanel:
                 self.pareto.y_range.update(start=y_low, end=y_high)
             outside = f" ({view.outside} outside the view)" if view.outside else ""
             self.pareto.title.text = f"front over every evaluated point{outside}"
+            self.pareto.xaxis.axis_label, self.pareto.yaxis.axis_label = view.axes
             self.closest.data = view.closest
             for item, points in zip(
                 self.marks, (view.recommended, view.closest, view.baseline), strict=True
@@ -330,6 +332,9 @@ class Inspector:
         self.shown = (self.choice.value, version)
         self.recommendation.text = html.escape(view.recommendation)
         self.members.data = view.table
+        titles = dict(zip(SCORES, view.titles, strict=True))  # the run's objectives
+        for item in self.table.columns:
+            item.title = titles.get(item.field, item.title)
         # As tall as its rows, up to TABLE_ROWS_SHOWN (then it scrolls): no blank below.
         shown = min(max(len(view.members), 1), TABLE_ROWS_SHOWN)
         self.table.height = (shown + 1) * TABLE_ROW_PX + TABLE_ROW_PX // 2

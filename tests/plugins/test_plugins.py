@@ -29,8 +29,9 @@ from gainfarm.analytic.evaluators.local import spawn_worker, stop_workers
 from gainfarm.analytic.tuning.checkpoint import CheckpointRefused, decode, encode
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import Evolution
-from gainfarm.analytic.tuning.records import RunIdentity
+from gainfarm.analytic.tuning.records import RunIdentity, read_run
 from gainfarm.analytic.tuning.run import TuningRun
+from gainfarm.analytic.view.figures import pareto_figure
 from gainfarm.broker.service import Broker
 from gainfarm.cli import interrupts
 from gainfarm.schemas.episode import EpisodeSpec, Scores
@@ -40,6 +41,7 @@ from gainfarm.schemas.trajectory import KIND_PATTERN, TrajectorySpec
 from gainfarm.schemas.wire import JobStatus
 from gainfarm.testing.algorithms import AlgorithmChecks
 from gainfarm.testing.experiments import ExperimentChecks
+from gainfarm.testing.objectives import check_objective
 from gainfarm.testing.trajectories import TrajectoryChecks
 from gainfarm.worker.episode import run_episode
 from gainfarm.worker.job import simulate
@@ -306,9 +308,34 @@ def test_tuning_in_process_with_all_three(installed: Path, tmp_path: Path) -> No
     # The second objective is the plug-in's, computed on the episode's log: the peak torque.
     member = front[0]
     log = run_episode(EpisodeSpec(gains=member.gains, trajectory=CIRCLE))
-    assert member.f_t == float(np.max(np.abs(log.u))) != 0.0
+    assert member.named["peak_torque"] == float(np.max(np.abs(log.u))) != 0.0
     config = (tmp_path / "run" / "config.json").read_text()
     assert '"hill_climb"' in config and '"peak_torque"' in config and '"circle"' in config
+    # Its name and unit travel from its declaration to every file, figure and report the run
+    # writes: nothing calls it f_t, nor a torque change.
+    directory = tmp_path / "run"
+    front_csv = (directory / "front.csv").read_text()
+    assert front_csv.splitlines()[0].endswith(",f_acc,peak_torque,diverged")
+    assert (directory / "evaluated.csv").read_text().startswith("f_acc,peak_torque,torque_step,")
+    assert ",best_f_acc,best_peak_torque," in (directory / "history.csv").read_text()
+    assert '"peak_torque": ' in (directory / "front.json").read_text()
+    report = (directory / "report.md").read_text()
+    assert "| f_acc (mm) | peak_torque (N·m) |" in report
+    assert "peak_torque is the largest torque commanded on any joint, in N·m" in report
+    assert f"peak_torque {front[0].named['peak_torque']:.4g} N·m" in report
+    for written in (front_csv, (directory / "evaluated.csv").read_text(), report):
+        assert "f_t" not in written and "torque change" not in written
+    figure = pareto_figure(front, run.state.evaluated, names=run.config.objectives)
+    assert figure.axes[0].get_ylabel() == "peak_torque: largest torque commanded on any joint (N·m)"
+    # Read back as it was written, by name, with no knowledge of the run but its files.
+    record = read_run(directory)
+    assert [m.named for m in record.front] == [m.named for m in front]
+    assert record.evaluated == run.state.evaluated
+
+
+def test_the_fixtures_objective_passes_the_conformance_kit(installed: Path) -> None:
+    declared = check_objective(plugins.load(plugins.OBJECTIVES, "peak_torque"), "peak_torque")
+    assert (declared.unit, declared.direction) == ("N·m", "minimise")
 
 
 @pytest.mark.slow

@@ -237,7 +237,7 @@ def test_the_hypervolume_curve_grows_with_the_points_and_ignores_penalties() -> 
 
 def test_the_rule_stops_where_the_run_would_have() -> None:
     history = [
-        HistoryRow(g, 10 * g, hv, 0.01, 1.0, 0.0)
+        HistoryRow(g, 10 * g, hv, (0.01, 1.0), 0.0)
         for g, hv in enumerate([0.5, 0.6, 0.7, 0.701, 0.702, 0.703, 0.8], start=1)
     ]
     assert algorithms_measures.rule_stop(history, Termination(tolerance=0.005, window=2)) == 50
