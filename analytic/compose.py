@@ -34,8 +34,6 @@ from gainfarm.schemas.objectives import balancing_weights, plant_scales
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import NAME_PATTERN, describe
-from gainfarm.worker.ik import UnreachablePath
-from gainfarm.worker.reference import InfeasibleReference, reference_for
 
 OWNER = re.compile(r"[A-Za-z0-9_-]{1,32}")  # a participant name of the secure profile
 STUDY_RANDOM_HEX = 8
@@ -386,12 +384,15 @@ def new_directory() -> Path:
 def check_followable(trajectories: Iterable[TrajectorySpec]) -> None:
     """CannotStart, in one line, for a trajectory the iiwa cannot follow (out of reach, or too
     fast for its limits), before any job is sent: every episode of it would fail."""
+    # start-up: SciPy's interpolation loads when a new run is checked, not with `tune`
+    from gainfarm.worker import ik, reference
+
     for trajectory in trajectories:
         try:
-            reference_for(trajectory)
-        except InfeasibleReference as error:
+            reference.reference_for(trajectory)
+        except reference.InfeasibleReference as error:
             raise CannotStart(str(error), "duration") from None
-        except UnreachablePath as error:
+        except ik.UnreachablePath as error:
             raise CannotStart(str(error), "placement") from None
 
 
