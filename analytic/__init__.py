@@ -6,54 +6,38 @@
     for member in run.front():
         print(member.f_acc, member.f_t, member.kp, member.kd)
 
-The public surface: a run's configuration and the run itself, `tune` to do it in one call, the
-evaluators that run its episodes (the farm's client, this process) with the local farm,
-`read_run` for a run directory, and `load_dataset` to read a dataset's split for learning
-(`DatasetSplit`, `TickDataset`). The rest (evolution, records, figures, reports, experiments,
-the dataset) is importable by module. Names load on first use, so that importing one module of
-the package does not load Zenoh, pymoo and matplotlib with it.
+Its public names are gainfarm's, one list (gainfarm/__init__.py's `WHERE`), each loaded on first
+use, so that importing one module of the package does not load Zenoh, pymoo and matplotlib with
+it. The rest (evolution, records, figures, reports, experiments, the dataset) is importable by
+module.
 """
 
-from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
-_WHERE = {
-    "RunConfig": "gainfarm.analytic.tuning.config",
-    "TuningRun": "gainfarm.analytic.tuning.run",
-    "tune": "gainfarm.analytic.compose",
-    "FarmClient": "gainfarm.analytic.evaluators.farm",
-    "InProcessEvaluator": "gainfarm.analytic.evaluators.inprocess",
-    "local_farm": "gainfarm.analytic.evaluators.local",
-    "read_run": "gainfarm.analytic.tuning.records",
-    "load_dataset": "gainfarm.analytic.data.loader",
-    "DatasetSplit": "gainfarm.analytic.data.loader",
-    "TickDataset": "gainfarm.analytic.data.loader",
-}
-__all__ = [
-    "DatasetSplit",
-    "FarmClient",
-    "InProcessEvaluator",
-    "RunConfig",
-    "TickDataset",
-    "TuningRun",
-    "load_dataset",
-    "local_farm",
-    "read_run",
-    "tune",
-]
+from gainfarm import WHERE, load
+
+__all__ = sorted(WHERE)
 
 if TYPE_CHECKING:
-    from gainfarm.analytic.compose import tune
-    from gainfarm.analytic.data.loader import DatasetSplit, TickDataset, load_dataset
-    from gainfarm.analytic.evaluators.farm import FarmClient
-    from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
-    from gainfarm.analytic.evaluators.local import local_farm
-    from gainfarm.analytic.tuning.config import RunConfig
-    from gainfarm.analytic.tuning.records import read_run
-    from gainfarm.analytic.tuning.run import TuningRun
+    from gainfarm import CannotStart as CannotStart
+    from gainfarm import DatasetSplit as DatasetSplit
+    from gainfarm import FarmClient as FarmClient
+    from gainfarm import FarmOptions as FarmOptions
+    from gainfarm import FarmUnavailable as FarmUnavailable
+    from gainfarm import InProcessEvaluator as InProcessEvaluator
+    from gainfarm import RunConfig as RunConfig
+    from gainfarm import TickDataset as TickDataset
+    from gainfarm import TuningInterrupted as TuningInterrupted
+    from gainfarm import TuningRun as TuningRun
+    from gainfarm import load_dataset as load_dataset
+    from gainfarm import local_farm as local_farm
+    from gainfarm import read_run as read_run
+    from gainfarm import tune as tune
 
 
 def __getattr__(name: str) -> Any:
-    if name not in _WHERE:
-        raise AttributeError(f"module 'gainfarm.analytic' has no attribute {name!r}")
-    return getattr(import_module(_WHERE[name]), name)
+    return load(name, "gainfarm.analytic")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

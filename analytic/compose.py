@@ -13,21 +13,24 @@ import secrets
 import shutil
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from pydantic import ValidationError
 
 from gainfarm.analytic.evaluators.evaluator import Evaluator
 from gainfarm.analytic.evaluators.farm import FarmClient, FarmUnavailable
+from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.evaluators.local import LocalFarm, farm_endpoints
-from gainfarm.analytic.tuning import defaults
 from gainfarm.analytic.tuning.check import CheckPlan, read_check, run_check
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import CONFIG_JSON, REPORT_MD
 from gainfarm.analytic.tuning.run import RunProgress, TuningRun
 from gainfarm.cli import interrupts
+from gainfarm.schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas.objectives import balancing_weights, plant_scales
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import NAME_PATTERN, describe
@@ -90,36 +93,38 @@ def _needs_evaluator(run: TuningRun) -> bool:
     return run.validation_pending() or run.baseline() is None or _check_missing(run)
 
 
+@dataclass(frozen=True)
+class FarmOptions:
+    """Where a run's episodes run when `tune` is given no evaluator object: a farm, its options.
+    Its broker at `connect` (a secure farm's: with the analytic participant `identity`); else a
+    local farm of `workers` processes (None: one per core) started for the call, or `local` if
+    given: one its caller started early, so that its processes start while this one imports and
+    checks the run (`tune` stops it when done with it). `models`: the feed-forward model files
+    the config may name, by SHA-256 (as InProcessEvaluator takes them)."""
+
+    connect: Sequence[str] = ()
+    workers: int | None = None
+    identity: TlsIdentity | None = None
+    local: LocalFarm | None = None
+    models: Mapping[str, bytes] = field(default_factory=dict)
+
+
 def tune(
     config: RunConfig | None = None,
     out: Path | str | None = None,
-    *,
-    evaluator: Evaluator | None = None,
-    connect: Sequence[str] = (),
-    workers: int | None = None,
-    farm: LocalFarm | None = None,
-    identity: TlsIdentity | None = None,
-    feedforward: bytes | None = None,
-    balance: bool = defaults.BALANCE,
-    on_progress: Callable[[RunProgress], None] = lambda _: None,
-    watch: Watch | None = None,
-    on_check: Callable[[CheckPlan], None] = lambda _: None,
+    evaluator: Evaluator | FarmOptions | None = None,
 ) -> TuningRun:
     """Tune the PD gains as `config` says (the defaults: `analytic start`'s) and return the
-    finished run; its front is `run.front()`, its files are in `run.directory`.
+    finished run; its front is `run.front()`, its files are in `run.directory`. In the shape of
+    pymoo's `minimize(problem, algorithm, termination)`: what decides the outcome is `config`
+    (RunConfig, balancing included), where the episodes run is `evaluator`.
 
-    The episodes run on `evaluator` if one is given (an InProcessEvaluator, say); else on the
-    farm whose broker is at `connect`; else on a local farm of `workers` processes (None: one per
-    core) started for this call, or `farm` if given: a local farm its caller started early, so
-    that its processes start while this one imports and checks the run (`tune` stops it when
-    done with it). `out` (default runs/TIME) is the run directory: new or empty, or
-    one that already holds a run of the same configuration, which is resumed (or returned as it
-    is, if finished).
-    `feedforward`: the model file `config.feedforward` names. With `balance`, a new generic run
-    (several trajectories, no `objective_weights`) weighs each trajectory's objectives so that
-    all count alike at the default gains (`balanced`). `watch`: see `Watch`; else `on_progress`
-    is called after every evaluation. `on_check` is told what the held-out check will run
-    as it starts.
+    The episodes run on `evaluator` (an InProcessEvaluator, say), or on the farm `FarmOptions`
+    say; None: a local farm of one worker process per core, started for this call. The
+    feed-forward model file `config.feedforward` names comes with the evaluator (its
+    `models`). `out` (default runs/TIME) is the run directory: new or empty, or one that
+    already holds a run of the same configuration, which is resumed (or returned as it is, if
+    finished).
 
     A new run is checked before anything is written (CannotStart: a trajectory the arm cannot
     follow, nothing to balance by, `out` taken); if the farm cannot be had (FarmUnavailable) or
@@ -129,54 +134,53 @@ def tune(
     to write it again. RunBusy if another process is running it.
     """
     config = config or RunConfig()
+    where = evaluator if evaluator is not None else FarmOptions()
+    models: Mapping[str, bytes] = getattr(where, "models", {})
+    feedforward = models.get(config.feedforward) if config.feedforward else None
+    run, forget = make_run(config, out, feedforward)
+    tune_run(run, where, forget=forget)
+    return run
+
+
+def make_run(
+    config: RunConfig, out: Path | str | None = None, feedforward: bytes | None = None
+) -> tuple[TuningRun, Callable[[], None] | None]:
+    """The run `tune` goes on with, open: the one in `out` if it holds a run of `config`
+    (resumed; ValueError if of another), else a new one, checked and balanced first (see
+    `tune`), with what removes it again if nothing of it runs (`tune_run`'s `forget`; None for
+    a run that was there). `feedforward`: the model file `config.feedforward` names."""
     directory = Path(out) if out is not None else new_directory()
-    forget = None
     if (directory / CONFIG_JSON).exists():
         run = TuningRun.open(directory)
-        if run.config not in (config, _balance_of(config, run.config, balance)):
+        if run.config not in (config, _balance_of(config, run.config)):
             run.close()
             raise ValueError(f"{directory} holds a run of another configuration")
-    else:
-        check_followable(config.trajectories)
-        if balance and _unbalanced(config):
-            config = balanced(config, feedforward)
-        forget = claim(directory)
-        run = _create(directory, config, feedforward, forget)
-    tune_run(
-        run,
-        evaluator=evaluator,
-        connect=connect,
-        workers=workers,
-        farm=farm,
-        identity=identity,
-        on_progress=on_progress,
-        watch=watch,
-        forget=forget,
-        on_check=on_check,
-    )
-    return run
+        return run, None
+    check_followable(config.trajectories)
+    if config.balance and _unbalanced(config):
+        config = balanced(config, feedforward)
+    forget = claim(directory)
+    return _create(directory, config, feedforward, forget), forget
 
 
 def tune_run(
     run: TuningRun,
+    evaluator: Evaluator | FarmOptions | None = None,
     *,
-    evaluator: Evaluator | None = None,
-    connect: Sequence[str] = (),
-    workers: int | None = None,
-    farm: LocalFarm | None = None,
-    identity: TlsIdentity | None = None,
     on_progress: Callable[[RunProgress], None] = lambda _: None,
     watch: Watch | None = None,
     forget: Callable[[], None] | None = None,
     on_check: Callable[[CheckPlan], None] = lambda _: None,
 ) -> str:
-    """Run `run` (open, so holding its lock) to its end on `evaluator`, or on the farm `tune`
-    says, evaluate the default gains beside it (baseline.json), check the controllers it names
-    on held-out plants (check.json, if its config holds any; `on_check` told as it starts),
-    draw its figures and report.md, and close it; return why it stopped. A run whose evolution
-    has finished does only what is left of that (what a Ctrl-C after the evolution left).
-    `forget`, for a run just made: what removes it if nothing of it runs (the farm cannot be
-    had, Ctrl-C or any failure before a job is sent). A Ctrl-C leaves as TuningInterrupted."""
+    """Run `run` (open, so holding its lock) to its end on `evaluator` (an evaluator, or the
+    `FarmOptions` to use; None: a local farm), evaluate the default gains beside it (baseline.json),
+    check the controllers it names on held-out plants (check.json, if its config holds any;
+    `on_check` told as it starts), draw its figures and report.md, and close it; return why it
+    stopped. A run whose evolution has finished does only what is left of that (what a Ctrl-C
+    after the evolution left). `watch`: see `Watch`; else `on_progress` is called after every
+    evaluation. `forget`, for a run just made: what removes it if nothing of it runs (the farm
+    cannot be had, Ctrl-C or any failure before a job is sent). A Ctrl-C leaves as
+    TuningInterrupted."""
     begun = False
     stage = "evolution"
     try:
@@ -188,7 +192,9 @@ def tune_run(
             if complete(run):
                 return run.state.stopped or ""
             if not run.finished or _needs_evaluator(run):
-                chosen_farm = _evaluator(run, evaluator, connect, workers, farm, identity, stopping)
+                chosen_farm = _evaluator(
+                    run, evaluator if evaluator is not None else FarmOptions(), stopping
+                )
                 with chosen_farm as chosen:
                     begun = True
                     shown = watch(chosen) if watch else contextlib.nullcontext(on_progress)
@@ -255,10 +261,10 @@ def _unbalanced(config: RunConfig) -> bool:
     return trajectories or bool(config.plants and config.plant_scales is None)
 
 
-def _balance_of(config: RunConfig, found: RunConfig, balance: bool) -> RunConfig | None:
+def _balance_of(config: RunConfig, found: RunConfig) -> RunConfig | None:
     """`config` with the weights and scales a balanced run in its directory found, if `tune`
     would have balanced it: what it is resumed as."""
-    if not balance or not _unbalanced(config):
+    if not config.balance or not _unbalanced(config):
         return None
     update = {}
     if len(config.trajectories) > 1 and config.objective_weights is None:
@@ -284,6 +290,7 @@ class _Figures:
 
     def _draw(self, run: TuningRun) -> None:
         try:
+            # start-up: matplotlib (half a second) loads once the run's first results are in
             from gainfarm.analytic.view.run_report import draw_figures
 
             draw_figures(run)
@@ -296,6 +303,7 @@ class _Figures:
 
     def finish(self, run: TuningRun) -> None:
         """The report: the figures drawn (here, if they were not begun), then report.md."""
+        # start-up: matplotlib, as in `_draw`
         from gainfarm.analytic.view.run_report import write_run_report
 
         self.wait()
@@ -327,20 +335,16 @@ def _load_figures() -> None:
 
 @contextlib.contextmanager
 def _evaluator(
-    run: TuningRun,
-    evaluator: Evaluator | None,
-    connect: Sequence[str],
-    workers: int | None,
-    farm: LocalFarm | None,
-    identity: TlsIdentity | None,
-    stopping: contextlib.ExitStack,
+    run: TuningRun, where: Evaluator | FarmOptions, stopping: contextlib.ExitStack
 ) -> Iterator[Evaluator]:
-    """`evaluator`, or else the farm's client (FarmUnavailable if the farm cannot be had; what
-    goes wrong later in the block is not relabelled). A local farm (`farm`, or one started
-    here) begins to stop as the block ends, and `stopping` waits for it."""
-    if evaluator is not None:
-        yield evaluator
+    """The evaluator `where` is, or else the client of the farm it says (FarmUnavailable if
+    the farm cannot be had; what goes wrong later in the block is not relabelled). A local farm
+    (`where.local`, or one started here) begins to stop as the block ends, and `stopping` waits
+    for it."""
+    if not isinstance(where, FarmOptions):
+        yield where
         return
+    connect, workers, identity, farm = where.connect, where.workers, where.identity, where.local
     try:
         models = run.models()
     except ValueError as error:  # its feed-forward model file is missing or another
@@ -380,16 +384,15 @@ def new_directory() -> Path:
 def check_followable(trajectories: Iterable[TrajectorySpec]) -> None:
     """CannotStart, in one line, for a trajectory the iiwa cannot follow (out of reach, or too
     fast for its limits), before any job is sent: every episode of it would fail."""
-    # MuJoCo loads only when a run is checked.
-    from gainfarm.worker.ik import UnreachablePath
-    from gainfarm.worker.reference import InfeasibleReference, reference_for
+    # start-up: SciPy's interpolation loads when a new run is checked, not with `tune`
+    from gainfarm.worker import ik, reference
 
     for trajectory in trajectories:
         try:
-            reference_for(trajectory)
-        except InfeasibleReference as error:
+            reference.reference_for(trajectory)
+        except reference.InfeasibleReference as error:
             raise CannotStart(str(error), "duration") from None
-        except UnreachablePath as error:
+        except ik.UnreachablePath as error:
             raise CannotStart(str(error), "placement") from None
 
 
@@ -400,10 +403,6 @@ def balanced(config: RunConfig, feedforward: bytes | None = None) -> RunConfig:
     (schemas.objectives.plant_scales), each unless `config` gives them. CannotStart if the
     default gains do not finish a trajectory of a generic run on the nominal plant (a plant
     they do not finish is left unscaled)."""
-    from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
-    from gainfarm.schemas.gains import DEFAULT_GAINS
-    from gainfarm.schemas.objectives import balancing_weights, plant_scales
-
     plants = 1 + len(config.plants)
     pairs = [(t, p) for t in range(len(config.trajectories)) for p in range(plants)]
     models = {config.feedforward: feedforward} if config.feedforward and feedforward else {}

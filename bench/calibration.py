@@ -128,7 +128,9 @@ def tuned(plant: str, name: str, evaluations: int, cwd: Path) -> tuple[Path, flo
     run_dir = cwd / f"run-{name}"
     analytic(
         "start", "--plant", plant, "--pop", "20", "--evaluations", str(evaluations),
-        "--check-plants", "0", "--local", "--out", str(run_dir), cwd=cwd,
+        "--check-plants", "0", "--local", "--out", str(run_dir),
+        # the paper's f_t, which the hidden arm's episode is scored by too (worker episode's)
+        "--torque-measure", "raw", cwd=cwd,
     )  # fmt: skip
     controller = cwd / f"{name}.json"
     for member in ("recommended", "knee"):  # a short run may not beat the default gains

@@ -36,8 +36,8 @@ from common import SPAWN, broker_process, loopback_endpoint
 from surrogate import read_surrogate_log, surrogate
 
 from gainfarm.analytic.evaluators.farm import FarmClient
-from gainfarm.analytic.experiments import load as load_experiment
-from gainfarm.analytic.experiments.base import Experiment
+from gainfarm.analytic.experiments.registry import load as load_experiment
+from gainfarm.analytic.experiments.runner import Experiment
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.edges.transport import open_session

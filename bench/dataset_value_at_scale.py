@@ -29,7 +29,7 @@ from scipy import stats
 from gainfarm.analytic.data import learning
 from gainfarm.analytic.data.dataset import local_rerun_farm
 from gainfarm.analytic.evaluators.batch import batch_jobs, run_batch
-from gainfarm.analytic.experiments import dataset_value as dv
+from gainfarm.analytic.experiments import dataset_value_measures as dvm
 from gainfarm.analytic.experiments.statistics import holm
 from gainfarm.models.dynamics import true_model
 from gainfarm.schemas.gains import DEFAULT_GAINS
@@ -56,7 +56,7 @@ def default_gains_rows(
     logs = {e.job_id: Path(e.log) for e in done if e.log is not None}
     if len(logs) != len(jobs):
         sys.exit(f"{len(jobs) - len(logs)} of the default gains' episodes did not run")
-    return dv.pool_rows(logs)
+    return dvm.pool_rows(logs)
 
 
 @click.command(help=__doc__.split("\n\n")[0])
@@ -83,17 +83,17 @@ def main(release: Path, workers: int, seeds: int, kinds: str) -> None:
     )
     floor = true_model(plant)
     for test, rows in tests.items():
-        print(f"floor on the {test} test: nMSE {dv.score(floor, rows)['nmse_mean']:.5f}")
+        print(f"floor on the {test} test: nMSE {dvm.score(floor, rows)['nmse_mean']:.5f}")
     print("| model | learned from | test | nMSE mean ± sd over seeds | RMSE A1-A6 (N·m) |")
     print("|---|---|---|---|---|")
     found: dict[tuple[str, str, str], list[float]] = {}
     for kind in kinds.split(","):
         for seed in range(seeds):
             for name, pool in pools.items():
-                train, validation = dv.subsample(pool, ticks, seed)
-                model = dv.fit_model(kind, plant, train, validation, seed)
+                train, validation = dvm.subsample(pool, ticks, seed)
+                model = dvm.fit_model(kind, plant, train, validation, seed)
                 for test, rows in tests.items():
-                    scored = dv.score(model, rows)
+                    scored = dvm.score(model, rows)
                     found.setdefault((kind, name, test), []).append(scored["nmse_mean"])
                     found.setdefault((kind, name, f"{test}-rmse"), []).append(scored["rmse_mean"])
         for test in tests:

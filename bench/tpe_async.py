@@ -24,9 +24,9 @@ from pathlib import Path
 import click
 from common import print_table
 
-from gainfarm.analytic.experiments import base
-from gainfarm.analytic.experiments.algorithms import feasible, hypervolume_curve
-from gainfarm.analytic.experiments.base import Normalisation
+from gainfarm.analytic.experiments import normalisation as normalised
+from gainfarm.analytic.experiments.algorithms_measures import feasible, hypervolume_curve
+from gainfarm.analytic.experiments.normalisation import Normalisation
 from gainfarm.analytic.tuning.evolution import hypervolume
 from gainfarm.analytic.tuning.records import RunRecord, read_run
 
@@ -84,17 +84,17 @@ def main(evaluations: int, seeds: int, workers: int, modes: str, out: Path) -> N
             values = ", ".join(f"{value:.4f}" for value in curve(runs[mode][-1], at))
             print(f"{mode}, seed {seed}: hypervolume at {at}: {values}", flush=True)
     # The experiment's measure too: every run's feasible front pooled into one normalised space
-    # (analytic.experiments.base.Normalisation), where the fixed box's 0.96-0.99 spread out.
+    # (analytic.experiments.normalisation), where the fixed box's 0.96-0.99 spread out.
     normalisation = Normalisation.of(
         [[m.objectives for m in run.front] for mode in chosen for run in runs[mode]]
     )
     fixed = {mode: [curve(run, at) for run in runs[mode]] for mode in chosen}
     pooled = {mode: [curve(run, at, normalisation) for run in runs[mode]] for mode in chosen}
-    # The experiments floor f_t at 10⁻² (N·m)² (base.F_T_FLOOR), inside the FRI plant's fronts:
-    # the same measure without the floor, so that the smooth end below it counts too.
-    floor, base.F_T_FLOOR = base.F_T_FLOOR, 1e-12
+    # The experiments floor f_t at 10⁻² (N·m)² (normalisation.F_T_FLOOR), inside the FRI plant's
+    # fronts: the same measure without the floor, so that the smooth end below it counts too.
+    floor, normalised.F_T_FLOOR = normalised.F_T_FLOOR, 1e-12
     unfloored = {mode: [curve(run, at, normalisation) for run in runs[mode]] for mode in chosen}
-    base.F_T_FLOOR = floor
+    normalised.F_T_FLOOR = floor
     best = {
         mode: statistics.median(min(m.objectives[0] for m in r.front) * 1000 for r in runs[mode])
         for mode in chosen

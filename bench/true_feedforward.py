@@ -25,9 +25,9 @@ from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import PLANTS
-from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.episode import compensation, simulate, true_compensation
 from gainfarm.worker.reference import Reference, reference_for
+from gainfarm.worker.trajectories import label
 
 FIRST_SEED = 4242
 CENTRES = ((0.5, 0.1, 0.4), (0.6, -0.1, 0.3))  # moved from the default (0.55, 0, 0.35) m
@@ -67,12 +67,6 @@ def row_cost(kind: str, plant: str) -> float:
         model.inverse(q, qd, qdd)
         best = min(best, time.perf_counter() - started)
     return best / len(q) * 1e6
-
-
-def label(path: TrajectorySpec) -> str:
-    if path.kind == "spiral":
-        return "spiral at ({:g}, {:g}, {:g})".format(*path.center)
-    return f"{path.kind} {path.seed}"
 
 
 @click.command(help=__doc__.split("\n\n")[0])

@@ -4,28 +4,27 @@ development credentials for a secure farm (`certs`)."""
 # Light at the top (click and the shared options): Zenoh, rich and the certificates' cryptography
 # load inside the command that runs, so that `broker --help` costs little more than click.
 
-import logging
+import ipaddress
 import re
-import signal
-import threading
-import time
-from contextlib import nullcontext
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any
 
 import click
 
-from gainfarm.cli import interrupts, options
-from gainfarm.cli.app import CliError, program_group, run_app, setup_logging
+from gainfarm.cli import options
+from gainfarm.cli.app import CliError, program_group, run_app
 
-if TYPE_CHECKING:
-    import zenoh
-    from rich.console import Group
+_HOST_LABEL = r"[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?"
+_HOST_NAME = re.compile(rf"(?=.{{1,253}}$){_HOST_LABEL}(?:\.{_HOST_LABEL})*\.?")
 
-    from gainfarm.schemas.security import Role
-    from gainfarm.schemas.wire import BrokerStatus
 
-log = logging.getLogger("gainfarm.broker")
+def is_host(host: str) -> bool:
+    """Whether `host` can stand in a certificate's subject alternative names."""
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return _HOST_NAME.fullmatch(host) is not None
+    return True
 
 
 @program_group(__doc__)
@@ -33,18 +32,19 @@ def app() -> None:
     pass
 
 
-def _default(module: str, name: str) -> Any:
-    """A default the broker's own modules define, loaded when it is needed."""
-    from importlib import import_module
-
-    return getattr(import_module(f"gainfarm.broker.{module}"), name)
+# Held here, not imported, so that parsing and --help load nothing heavy (Zenoh, cryptography,
+# pydantic): tests/cli/test_held_defaults.py keeps each equal to its source's.
+LISTEN = "tcp/0.0.0.0:7447"  # broker.service.DEFAULT_LISTEN
+MAX_QUEUED, MAX_QUEUED_PER_STUDY = 100_000, 20_000  # broker.queue's DEFAULT_MAX_QUEUED...
+# broker.certs's DEFAULT_ANALYTICS, DEFAULT_WORKERS and DEFAULT_HOSTS
+ANALYTICS, WORKERS, HOSTS = ("dev",), ("cobot-1",), ("localhost", "127.0.0.1")
 
 
 @app.command()
 @click.option(
     "--listen",
     multiple=True,
-    default=options.Later(lambda: [_default("service", "DEFAULT_LISTEN")]),
+    default=[LISTEN],
     show_default=True,
     help="Zenoh endpoint to listen on (repeat for several)",
 )
@@ -63,14 +63,14 @@ def _default(module: str, name: str) -> Any:
 @click.option(
     "--max-queued",
     type=click.IntRange(min=1),
-    default=options.Later(lambda: _default("queue", "DEFAULT_MAX_QUEUED")),
+    default=MAX_QUEUED,
     show_default=True,
     help="jobs queued in all studies together; more are deferred (submitted again later)",
 )
 @click.option(
     "--max-queued-per-study",
     type=click.IntRange(min=1),
-    default=options.Later(lambda: _default("queue", "DEFAULT_MAX_QUEUED_PER_STUDY")),
+    default=MAX_QUEUED_PER_STUDY,
     show_default=True,
     help="jobs queued in one study; more are deferred",
 )
@@ -80,46 +80,12 @@ def _default(module: str, name: str) -> Any:
     help="jobs per second a study may submit (bursts of 10 s worth)  [default: no limit]",
 )
 @options.log_level()
-def start(
-    listen: tuple[str, ...],
-    lease_seconds: float,
-    tls: Path | None,
-    max_queued: int,
-    max_queued_per_study: int,
-    submit_rate: float | None,
-    log_level: str,
-) -> None:
+def start(**given: Any) -> None:
     """Route the farm and schedule its jobs until SIGTERM or Ctrl-C."""
-    from gainfarm.broker.service import Broker
-    from gainfarm.schemas.security import participants
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.broker.commands import start as work
 
-    setup_logging("broker", log_level)
-    identity = options.identity(tls, "broker")
-    if identity is not None:
-        # The access policy is fixed when the router opens: say whom it lets in.
-        allowed = participants(identity.directory)
-        names = ", ".join(participant.common_name for participant in allowed) or "nobody"
-        log.info("secure profile: %s may use the farm", names)
-        if not allowed:
-            log.warning("no participant certificates in %s: only the broker may do anything", tls)
-    stop = threading.Event()
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(signum, lambda *_: stop.set())
-    try:
-        broker = Broker(
-            listen,
-            lease_seconds=lease_seconds,
-            identity=identity,
-            max_queued=max_queued,
-            max_queued_per_study=max_queued_per_study,
-            submit_rate=submit_rate,
-        )
-    except (ValueError, ConnectionError) as error:
-        raise CliError(f"--listen: {error}") from None
-    with broker:
-        while not stop.wait(1.0):
-            pass
-    log.info("broker stopped after %d jobs", broker.queue.jobs_done)
+    work(**given)
 
 
 @app.command()
@@ -149,126 +115,12 @@ def start(
     show_default=True,
     help="with --watch: seconds between looks",
 )
-def status(
-    connect: tuple[str, ...],
-    tls: Path | None,
-    who: str,
-    as_json: bool,
-    watch: bool,
-    interval: float,
-) -> None:
+def status(**given: Any) -> None:
     """Show the farm: workers, queue depth per study, throughput."""
-    from rich.console import Console
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.broker.commands import status as work
 
-    from gainfarm.edges.transport import open_session
-    from gainfarm.schemas.security import ROLES
-
-    role, _, name = who.partition(".")
-    if role not in ROLES:
-        raise CliError(f"--as: {who!r} is not broker, analytic[.NAME] or worker[.NAME]")
-    identity = options.identity(tls, cast("Role", role), name or None, name_option="--as")
-    try:
-        session = open_session("client", connect=connect, identity=identity)
-    except (ValueError, ConnectionError) as error:
-        raise CliError(f"--connect: {error}") from None
-    try:
-        farm = _look(session)
-        if not watch:
-            if as_json:
-                click.echo(farm.model_dump_json())
-            else:
-                Console().print(status_view(farm))
-            return
-        _watch(session, farm, as_json, interval)
-    finally:
-        session.close()
-
-
-def _look(session: "zenoh.Session") -> "BrokerStatus":
-    from gainfarm.broker.status import BrokerUnavailable, query_status
-    from gainfarm.schemas.wire import BadMessage
-
-    try:
-        return query_status(session, timeout=5.0)
-    except (BrokerUnavailable, BadMessage) as error:
-        raise CliError(f"--connect: {error}") from None
-
-
-def _watch(session: "zenoh.Session", farm: "BrokerStatus", as_json: bool, interval: float) -> None:
-    """`broker status --watch`: until Ctrl-C. A broker that stops answering is said so, and
-    asked again at the next look."""
-    from rich.console import Console
-    from rich.live import Live
-    from rich.text import Text
-
-    console = Console()
-    redrawn = console.is_terminal and not as_json
-    screen = Live(status_view(farm), console=console, auto_refresh=False) if redrawn else None
-    with screen or nullcontext():
-        shown: BrokerStatus | str = farm
-        while True:
-            if screen is None:
-                if isinstance(shown, str):
-                    click.echo(shown, err=True)
-                else:
-                    click.echo(shown.model_dump_json() if as_json else summary(shown))
-            time.sleep(interval)
-            interrupts.check()
-            try:
-                shown = _look(session)
-            except CliError as error:
-                shown = error.format_message()
-            if screen is not None:
-                screen.update(
-                    Text(shown) if isinstance(shown, str) else status_view(shown), refresh=True
-                )
-
-
-def summary(farm: "BrokerStatus") -> str:
-    """The farm in one line."""
-    from gainfarm.cli.words import counted
-
-    return (
-        f"up {farm.uptime_s:.0f} s · {counted(farm.worker_count, 'worker')} ({farm.busy} busy) · "
-        f"{counted(farm.study_count, 'study')} · "
-        f"{farm.queued} queued · {counted(farm.jobs_done, 'job')} done · "
-        f"{farm.jobs_per_s:.1f} jobs/s over the last minute · "
-        f"{farm.requeued} requeued · {farm.rejected} rejected"
-    )
-
-
-def status_view(farm: "BrokerStatus") -> "Group":
-    """The farm as a person reads it: the summary line, its studies and its workers."""
-    from rich.console import Group
-    from rich.table import Table
-    from rich.text import Text
-
-    studies = Table(
-        "study",
-        "queued",
-        "running",
-        "done",
-        title=_listed("studies", farm.studies, farm.study_count),
-    )
-    for study in farm.studies:
-        studies.add_row(study.name, str(study.queued), str(study.leased), str(study.done))
-    workers = Table(
-        "worker",
-        "state",
-        "job",
-        "jobs done",
-        title=_listed("workers", farm.workers, farm.worker_count),
-    )
-    for worker in farm.workers:
-        state = "busy" if worker.busy else "idle"
-        workers.add_row(worker.name, state, worker.job, str(worker.jobs_done))
-    studies.title_justify = workers.title_justify = "left"
-    return Group(Text(summary(farm)), studies, workers)
-
-
-def _listed(what: str, listed: list, total: int) -> str:
-    """A table's title: the status lists the first few of many (it must stay a small message)."""
-    return what if len(listed) == total else f"{what} (the first {len(listed)} of {total})"
+    work(**given)
 
 
 @app.command(short_help="Make development credentials for a secure farm.")
@@ -278,30 +130,22 @@ def _listed(what: str, listed: list, total: int) -> str:
     "analytics",
     multiple=True,
     metavar="NAME",
-    cls=options.LaterHelp,
-    later_help=lambda: (
-        "issue an analytic participant's identity (its studies are named NAME.*); "
-        "repeat for several  [default with a new CA: "
-        f"{', '.join(_default('certs', 'DEFAULT_ANALYTICS'))}]"
-    ),
+    help="issue an analytic participant's identity (its studies are named NAME.*); "
+    f"repeat for several  [default with a new CA: {', '.join(ANALYTICS)}]",
 )
 @click.option(
     "--worker",
     "workers",
     multiple=True,
     metavar="NAME",
-    cls=options.LaterHelp,
-    later_help=lambda: (
-        "issue a worker's identity (it serves as `worker start --name NAME`); "
-        "repeat for several  [default with a new CA: "
-        f"{', '.join(_default('certs', 'DEFAULT_WORKERS'))}]"
-    ),
+    help="issue a worker's identity (it serves as `worker start --name NAME`); "
+    f"repeat for several  [default with a new CA: {', '.join(WORKERS)}]",
 )
 @click.option(
     "--host",
     "hosts",
     multiple=True,
-    default=options.Later(lambda: _default("certs", "DEFAULT_HOSTS")),
+    default=list(HOSTS),
     show_default=True,
     help="a name or address clients dial the broker by (repeat for several)",
 )
@@ -324,94 +168,27 @@ def _listed(what: str, listed: list, total: int) -> str:
     help="revoke an identity (worker.cobot-3, or a name only one participant has): it is "
     "denied everything once the broker restarts, and its name is never issued again",
 )
-def certs(
-    directory: Path,
-    analytics: tuple[str, ...],
-    workers: tuple[str, ...],
-    hosts: tuple[str, ...],
-    days: int,
-    if_missing: bool,
-    revoke: tuple[str, ...],
-) -> None:
+def certs(**given: Any) -> None:
     """Make development credentials for a secure farm: a CA, the broker's certificate and key,
     and one per participant, whose common name is ROLE.NAME (analytic.alice, worker.cobot-3).
     Run again on the same DIR, it adds the participants named, signed by the same CA."""
-    from gainfarm.broker.certs import write_dev_credentials
-    from gainfarm.schemas.security import PARTICIPANT_RULE, is_participant_name
-
-    if revoke:
-        if analytics or workers:
-            raise CliError("--revoke: revoke and issue in separate runs")
-        _revoke(directory, revoke)
-        return
-    for option, names in (("--analytic", analytics), ("--worker", workers)):
-        for name in names:
-            if not is_participant_name(name):
-                raise CliError(f"{option}: {name!r} is not a participant name: {PARTICIPANT_RULE}")
-    for host in hosts:
-        if not _is_host(host):
+    for host in given["hosts"]:  # before the work's imports: the contract, cryptography
+        if not is_host(host):
             # Else written into the broker's certificate, and every TLS client refused later.
             raise CliError(f"--host: {host!r} is neither a host name nor an IP address")
-    if directory.exists() and not directory.is_dir():
-        raise CliError(f"DIR: {str(directory)!r} is a file, not a directory")
-    try:
-        issued = write_dev_credentials(directory, hosts, days, if_missing, analytics, workers)
-    except FileExistsError as error:
-        raise CliError(str(error)) from None
-    except OSError as error:
-        raise CliError(f"DIR: cannot write {str(directory)!r}: {error.strerror}") from None
-    except ValueError as error:
-        raise CliError(str(error)) from None
-    made = sorted({path.stem for path in issued.written} - {"ca"})
-    if made:
-        click.echo(
-            f"wrote {len(issued.written)} files to {directory}/ ({', '.join(made)}); every host "
-            "needs ca.pem and its own NAME.pem and NAME.key, and the broker's host also needs "
-            "every participant's .pem"
-        )
-    else:
-        click.echo(f"{directory}/ already holds those credentials; kept them")
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.broker.commands import certs as work
 
-
-# A DNS name: dot-separated labels of letters, digits and inner hyphens, 253 characters at most;
-# underscores too, as container service names have them (TLS clients accept them).
-_HOST_LABEL = r"[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?"
-_HOST_NAME = re.compile(rf"(?=.{{1,253}}$){_HOST_LABEL}(?:\.{_HOST_LABEL})*\.?")
-
-
-def _is_host(host: str) -> bool:
-    """Whether `host` can stand in a certificate's subject alternative names."""
-    import ipaddress
-
-    try:
-        ipaddress.ip_address(host)
-    except ValueError:
-        return _HOST_NAME.fullmatch(host) is not None
-    return True
-
-
-def _revoke(directory: Path, revoke: tuple[str, ...]) -> None:
-    from gainfarm.broker.certs import revoke as revoke_identity
-
-    for who in revoke:
-        try:
-            identity = revoke_identity(directory, who)
-        except ValueError as error:
-            raise CliError(f"--revoke: {error}") from None
-        except OSError as error:
-            raise CliError(f"cannot write {str(directory)!r}: {error.strerror}") from None
-        click.echo(
-            f"revoked {identity.common_name}; restart the broker to lock it out "
-            "(delete its .pem there too if the broker keeps its credentials elsewhere)"
-        )
+    work(**given)
 
 
 @app.command()
-def version() -> None:
+def version(**given: Any) -> None:
     """Print the gainfarm version."""
-    from importlib.metadata import version as package_version
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.broker.commands import version as work
 
-    click.echo(package_version("gainfarm"))
+    work(**given)
 
 
 def main() -> None:

@@ -1,29 +1,36 @@
-"""Plug-ins: optimisers, trajectory kinds and objectives added without editing gainfarm.
+"""Plug-ins: optimisers, trajectory kinds, objectives, experiments and robots, gainfarm's own
+built-ins and those added without editing gainfarm, through the same seams.
 
-Three groups, each a namespace of names (docs/plugins.md says what each provides):
+Five groups, each a namespace of names (docs/plugins.md says what each provides):
 
     gainfarm.algorithms     an optimiser: factory(pop_size, seed, space) -> ask and tell object
-    gainfarm.trajectories   a trajectory kind: path(spec, u) -> the flange's offsets, m
+    gainfarm.trajectories   a trajectory kind: a Kind (worker/trajectories/), or a path
+                            function path(spec, u) -> the flange's offsets, m
     gainfarm.objectives     an objective: objective(log) -> float, lower is better
+    gainfarm.experiments    an experiment `analytic experiment NAME` runs
+    gainfarm.robots         an arm: its model builder, limits, default gains, gravity model,
+                            workspace
 
 A plug-in enters a group by a Python entry point of the distribution that holds it, as pytest's
 plug-ins do (its pyproject.toml: `[project.entry-points."gainfarm.objectives"]` then
 `peak_torque = "mypkg.objectives:peak_torque"`), or in one process by `register`.
 
-The built-in ones are listed here, statically, as references loaded on first use: they are part
-of gainfarm, so they are there whatever the state of the installation's metadata (an editable
-install made before one was added, a source tree on PYTHONPATH), and their names are reserved:
-`register` refuses one, and an entry point that takes one is ignored.
+The built-in ones enter the same way: gainfarm's own pyproject.toml declares each in its group,
+one module each, and they are read from gainfarm's installed metadata with everyone else's. Their
+names are reserved for gainfarm's own distribution: `register` refuses one, and another
+distribution's entry point that takes one is ignored. (An installation's metadata is written when
+it is installed: a built-in added to pyproject.toml since needs `pip install -e .` again, and
+`PluginError` says so.)
 
 Cheap to import (the standard library only, nothing of the project, no plug-in), because command
 lines whose start-up is measured import it: `names` reads the installed distributions' metadata
-without importing any plug-in; `load` imports the one asked for.
+(once a process, again only when sys.path changes) without importing any plug-in; `load`
+imports the one asked for.
 """
 
 import re
 import sys
 from collections.abc import Iterable
-from importlib import import_module
 from typing import Any
 
 ALGORITHMS = "gainfarm.algorithms"
@@ -39,45 +46,28 @@ ROBOTS = "gainfarm.robots"
 NAME_PATTERN = r"^[a-z][a-z0-9_-]{0,31}$"
 NAME_RULE = "a lower-case letter, then up to 31 lower-case letters, digits, '_' or '-'"
 
-# Each group's built-ins, in the order command lines list them (the default first).
-BUILTIN: dict[str, dict[str, str]] = {
-    ALGORITHMS: {
-        "nsga2": "gainfarm.analytic.tuning.evolution:nsga2",
-        "nsga3": "gainfarm.analytic.tuning.evolution:nsga3",
-        "smsemoa": "gainfarm.analytic.tuning.evolution:smsemoa",
-        "moead": "gainfarm.analytic.tuning.evolution:moead",
-        "agemoea2": "gainfarm.analytic.tuning.evolution:agemoea2",
-        "tpe": "gainfarm.analytic.tuning.evolution:OptunaTPE",
-        "random": "gainfarm.analytic.tuning.evolution:UniformRandom",
-    },
-    # The spiral's and the random kind's paths are of a plug-in's form (worker.trajectories.Path);
-    # the worker builds the pyramid (it rests at its corners) and the fourier kind (a joint-space
-    # motion) by their own rules.
-    TRAJECTORIES: {
-        "spiral": "gainfarm.worker.trajectories:spiral",
-        "random": "gainfarm.worker.trajectories:random_path",
-        "pyramid": "gainfarm.worker.trajectories:pyramid",
-        "fourier": "gainfarm.worker.trajectories:fourier_coefficients",
-    },
-    OBJECTIVES: {
-        "f_acc": "gainfarm.schemas.objectives:f_acc",
-        "f_t": "gainfarm.schemas.objectives:f_t",
-        # f_t with each joint's change weighed by its torque limit (schemas/objectives.py)
-        "f_t_joint": "gainfarm.schemas.objectives:f_t_joint",
-    },
-    EXPERIMENTS: {
-        "popsize": "gainfarm.analytic.experiments.popsize:EXPERIMENT",
-        "generic-vs-specific": "gainfarm.analytic.experiments.generic_vs_specific:EXPERIMENT",
-        "speed": "gainfarm.analytic.experiments.speed:EXPERIMENT",
-        "algorithms": "gainfarm.analytic.experiments.algorithms:EXPERIMENT",
-        "dataset-value": "gainfarm.analytic.experiments.dataset_value:EXPERIMENT",
-        "sensitivity": "gainfarm.analytic.experiments.sensitivity:EXPERIMENT",
-        "feedforward": "gainfarm.analytic.experiments.feedforward:EXPERIMENT",
-    },
-    # An arm: its model builder, limits, default gains, the robot's gravity model, its workspace.
-    ROBOTS: {},
+GROUPS = (ALGORITHMS, TRAJECTORIES, OBJECTIVES, EXPERIMENTS, ROBOTS)
+# The distribution whose entry points are the built-ins.
+DISTRIBUTION = "gainfarm"
+# The order command lines and experiments list a group's built-ins in, the default first (an
+# installation's metadata keeps none of its own): names only, their entry points say where each
+# is. A built-in missing here is listed after these, by name; one here that the metadata lacks
+# is an installation older than this source (`_unknown` says so).
+ORDER: dict[str, tuple[str, ...]] = {
+    ALGORITHMS: ("nsga2", "nsga3", "smsemoa", "moead", "agemoea2", "tpe", "random"),
+    TRAJECTORIES: ("spiral", "random", "pyramid", "fourier"),
+    OBJECTIVES: ("f_acc", "f_t", "f_t_joint"),  # the paper's pair first
+    EXPERIMENTS: (
+        "popsize",
+        "generic-vs-specific",
+        "speed",
+        "algorithms",
+        "dataset-value",
+        "sensitivity",
+        "feedforward",
+    ),
+    ROBOTS: ("iiwa14",),
 }
-GROUPS = tuple(BUILTIN)
 
 
 class PluginError(ValueError):
@@ -87,7 +77,9 @@ class PluginError(ValueError):
 
 _registered: dict[str, dict[str, Any]] = {group: {} for group in GROUPS}
 _loaded: dict[tuple[str, str], Any] = {}  # entry points loaded once: a worker loads per job
-_found: tuple[tuple[str, ...], dict[str, dict[str, Any]]] | None = None  # (sys.path, by group)
+_Points = dict[str, dict[str, Any]]  # entry points by group, then by name
+# sys.path when last scanned, and gainfarm's entry points and the others' then (_scan)
+_found: tuple[tuple[str, ...], tuple[_Points, _Points]] | None = None
 
 
 def register(group: str, name: str, plugin: Any) -> None:
@@ -96,7 +88,7 @@ def register(group: str, name: str, plugin: Any) -> None:
     _check_group(group)
     if not isinstance(name, str) or not re.fullmatch(NAME_PATTERN, name):
         raise ValueError(f"{group}: plug-in name {name!r}: {NAME_RULE}")
-    if name in BUILTIN[group]:
+    if name in _scan()[0][group]:
         raise ValueError(f"{group}: {name!r} is a built-in name; choose another")
     _registered[group][name] = plugin
 
@@ -108,25 +100,27 @@ def unregister(group: str, name: str) -> None:
 
 
 def builtin_names(group: str) -> tuple[str, ...]:
-    """The built-in names of `group`, the default first: free, no metadata read."""
+    """The built-in names of `group` (gainfarm's own entry points), the default first. Reads the
+    installation's metadata (once a process), imports nothing."""
     _check_group(group)
-    return tuple(BUILTIN[group])
+    return tuple(_scan()[0][group])
 
 
 def names(group: str) -> tuple[str, ...]:
     """Every name `group` has here: the built-ins (the default first), then the plug-ins,
     registered or installed, sorted. Imports no plug-in."""
     _check_group(group)
-    builtin = BUILTIN[group]
-    others = (set(_registered[group]) | set(_entry_points(group))) - set(builtin)
-    return (*builtin, *sorted(others))
+    builtin, installed = _scan()
+    others = (set(_registered[group]) | set(installed[group])) - set(builtin[group])
+    return (*builtin[group], *sorted(others))
 
 
 def check_name(group: str, name: str) -> str:
-    """`name`, if `group` has it here (a built-in costs nothing: no metadata read, no import);
-    PluginError naming what the group has if not."""
+    """`name`, if `group` has it here (no import); PluginError naming what the group has if
+    not."""
     _check_group(group)
-    if name in BUILTIN[group] or name in _registered[group] or name in _entry_points(group):
+    builtin, installed = _scan()
+    if name in builtin[group] or name in _registered[group] or name in installed[group]:
         return name
     raise _unknown(group, name)
 
@@ -135,14 +129,12 @@ def load(group: str, name: str) -> Any:
     """The plug-in named `name` in `group`: a built-in, one `register`ed in this process, or an
     installed entry point's object. PluginError if there is none, or it fails to load."""
     _check_group(group)
-    if name in BUILTIN[group]:
-        module, _, attribute = BUILTIN[group][name].partition(":")
-        return getattr(import_module(module), attribute)
-    if name in _registered[group]:
+    builtin, installed = _scan()
+    if name in _registered[group] and name not in builtin[group]:
         return _registered[group][name]
     if (group, name) in _loaded:
         return _loaded[(group, name)]
-    point = _entry_points(group).get(name)
+    point = builtin[group].get(name) or installed[group].get(name)
     if point is None:
         raise _unknown(group, name)
     try:
@@ -159,10 +151,17 @@ def load(group: str, name: str) -> Any:
 def load_plugins(group: str, wanted: Iterable[str]) -> dict[str, Any]:
     """The plug-ins among the names `wanted` (the built-ins left out), loaded, by name: what a
     job names that its worker must have. PluginError naming the first that cannot be had."""
-    return {name: load(group, name) for name in wanted if name not in BUILTIN[group]}
+    builtin = _scan()[0][group]
+    return {name: load(group, name) for name in wanted if name not in builtin}
 
 
 def _unknown(group: str, name: str) -> PluginError:
+    missing = [each for each in ORDER[group] if each not in _scan()[0][group]]
+    if missing:  # gainfarm's own are not all there: its metadata is older than its source
+        return PluginError(
+            f"{group}: no plug-in named {name!r} here, and gainfarm's installed metadata lacks "
+            f"its own {', '.join(missing)}: reinstall gainfarm (pip install -e . in a checkout)"
+        )
     return PluginError(
         f"{group}: no plug-in named {name!r} here (there are {', '.join(names(group))}); "
         "install the distribution that provides it"
@@ -170,25 +169,37 @@ def _unknown(group: str, name: str) -> PluginError:
 
 
 def _check_group(group: str) -> None:
-    if group not in BUILTIN:
+    if group not in GROUPS:
         raise ValueError(f"no plug-in group {group!r}: one of {', '.join(GROUPS)}")
 
 
-def _entry_points(group: str) -> dict[str, Any]:
-    """The group's installed entry points by name. All three groups are read in one scan of every
+def _scan() -> tuple[_Points, _Points]:
+    """Every group's entry points by name: gainfarm's own (the built-ins, in ORDER then by
+    name) and the other distributions'. All groups are read in one scan of every
     distribution's metadata (tens of ms: too much for each job of a worker), again only when
-    sys.path changed. Two distributions giving one name: the first on sys.path wins, as an import
-    would."""
+    sys.path changed. Two distributions giving one name: the first on sys.path wins, as an
+    import would; gainfarm's own always does."""
     global _found
     path = tuple(sys.path)
     if _found is None or _found[0] != path:
-        from importlib.metadata import entry_points  # tens of ms: only when a plug-in is looked up
+        from importlib.metadata import entry_points  # start-up: tens of ms, on first look-up
 
         every = entry_points()  # one scan; .select works on Python 3.11's result and 3.12's
-        points: dict[str, dict[str, Any]] = {each: {} for each in GROUPS}
+        builtin: _Points = {each: {} for each in GROUPS}
+        installed: _Points = {each: {} for each in GROUPS}
+        ours: dict[int, bool] = {}  # by distribution: its name is parsed from its metadata
         for each in GROUPS:
             for point in every.select(group=each):
-                if re.fullmatch(NAME_PATTERN, point.name):  # else no job or option could name it
-                    points[each].setdefault(point.name, point)
-        _found = (path, points)
-    return _found[1][group]
+                if not re.fullmatch(NAME_PATTERN, point.name):
+                    continue  # no job or option could name it
+                if id(point.dist) not in ours:
+                    ours[id(point.dist)] = getattr(point.dist, "name", None) == DISTRIBUTION
+                (builtin if ours[id(point.dist)] else installed)[each].setdefault(point.name, point)
+        for each in GROUPS:
+            order = {name: index for index, name in enumerate(ORDER[each])}
+            ranked = sorted(builtin[each], key=lambda name: (order.get(name, len(order)), name))
+            builtin[each] = {name: builtin[each][name] for name in ranked}
+            for name in builtin[each]:
+                installed[each].pop(name, None)  # a built-in's name is gainfarm's
+        _found = (path, (builtin, installed))
+    return _found[1]

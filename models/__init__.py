@@ -1,4 +1,10 @@
-"""Robot models: the rigid iiwa 14 MJCF and the elastic-joint variant generated from it."""
+"""Robot models: the arms of the gainfarm.robots plug-in group, and the lookup from a plant to
+its robot (`robot_of`). The iiwa 14 (models/iiwa14.py: the rigid MJCF and the elastic-joint
+variant generated from it) is the built-in one.
+
+`compile_model` and `build_spec` build the robot the plant names; the other names are the iiwa
+14's, kept here for the code that still assumes its 7 joints (docs/robot.md).
+"""
 
 from gainfarm.models.iiwa14 import (
     CAD_INERTIALS,
@@ -7,14 +13,13 @@ from gainfarm.models.iiwa14 import (
     READY_POSTURE,
     RIGID_MJCF,
     UPRIGHT_POSTURE,
-    build_spec,
     check_substeps,
-    compile_model,
     effective_inertias,
     elastic_modes,
     min_substeps,
     step_ratios,
 )
+from gainfarm.models.robots import build_spec, compile_model, robot_of
 
 __all__ = [
     "CAD_INERTIALS",
@@ -29,5 +34,6 @@ __all__ = [
     "effective_inertias",
     "elastic_modes",
     "min_substeps",
+    "robot_of",
     "step_ratios",
 ]

@@ -48,7 +48,7 @@ import numpy as np
 from numpy.lib import format as npy_format
 from pydantic import ValidationError
 
-from gainfarm.models.iiwa14 import build_spec, compile_model
+from gainfarm.models.robots import build_spec, compile_model
 from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, Friction, ModelSpec
 
 if TYPE_CHECKING:
@@ -309,7 +309,7 @@ def pinocchio_model(spec: ModelSpec) -> "pinocchio.Model":
 def _pinocchio() -> Any:
     """The pinocchio module, imported here only: a worker without it runs every other kind."""
     try:
-        import pinocchio
+        import pinocchio  # optional extra: learn (a worker without it runs every other kind)
     except ImportError:
         raise ImportError(
             "a linear dynamics model needs Pinocchio: pip install 'gainfarm[learn]'"

@@ -13,6 +13,9 @@ default) and `CAD_INERTIALS` into the "cad" one. Viscous
 friction, when the spec has friction, is the motor hinge's damping. `compile_model` refuses a spec
 whose joint springs MuJoCo cannot integrate stably and accurately at its physics step
 (`check_substeps`). Sources and assumptions for every number: models/README.md.
+
+`ROBOT` is the iiwa 14 as the gainfarm.robots plug-in group declares an arm (schemas.robot.Robot):
+its limits, default gains, gravity model and workspace; the built-in robot, and the default.
 """
 
 import logging
@@ -22,7 +25,18 @@ from importlib.resources import files
 import mujoco
 import numpy as np
 
-from gainfarm.schemas.robot import JOINT_NAMES, LoadData, ModelSpec
+from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
+from gainfarm.schemas.robot import (
+    ACCELERATION_LIMITS,
+    JOINT_NAMES,
+    POSITION_LIMITS,
+    SPEED_LIMITS,
+    TORQUE_LIMITS,
+    JointLimits,
+    LoadData,
+    ModelSpec,
+    Workspace,
+)
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 
 log = logging.getLogger("gainfarm.models")
@@ -251,3 +265,64 @@ def elastic_modes(spec: ModelSpec, posture: tuple[float, ...] = READY_POSTURE) -
 
 def _log_warning(message: str) -> None:
     log.debug("MuJoCo: %s", message)
+
+
+def gravity_spec(spec: ModelSpec) -> ModelSpec:
+    """The rigid arm whose gravity the robot's model of `spec` computes, as KUKA's controller
+    adds it in FRI torque mode: its inertial set and the load it is told (KUKA's load data), no
+    more (rotor inertia, springs and friction exert no gravity torque; the untold payload and the
+    links' and load's true masses it never knows)."""
+    return ModelSpec(
+        robot=spec.robot,
+        joints="rigid",
+        inertials=spec.inertials,
+        friction=None,
+        substeps=1,
+        interface="torque",
+        load=None if spec.load is None else spec.load.told,
+    )
+
+
+# The ready posture (the flange pointing down over the default centre) is the one the inverse
+# kinematics starts from. The box of trajectory centres: x 0.5-0.65 m, y ±0.15 m, z 0.3-0.45 m,
+# around the default centre (0.55, 0, 0.35) m, where a default 8 cm spiral around any point is
+# reached with the tool pointing down from the ready posture (gainfarm.testing.robots checks its
+# corners); nearer the base and lower, A4 runs out of range (at x 0.45, z 0.25: by 2-6 mm).
+WORKSPACE = Workspace(
+    home=READY_POSTURE,
+    center=(0.55, 0.0, 0.35),
+    low=(0.5, -0.15, 0.3),
+    high=(0.65, 0.15, 0.45),
+)
+
+
+class Iiwa14:
+    """The KUKA LBR iiwa 14 R820 (schemas.robot.Robot): the data sheet's limits, the default
+    gains, the MJCF of models/iiwa14.xml with rigid or elastic joints, FRI's gravity model."""
+
+    name = "iiwa14"
+    joint_names = JOINT_NAMES
+    limits = JointLimits(
+        torque=TORQUE_LIMITS,
+        speed=SPEED_LIMITS,
+        position=POSITION_LIMITS,
+        acceleration=ACCELERATION_LIMITS,
+    )
+    default_gains: PDGains = DEFAULT_GAINS
+    workspace = WORKSPACE
+    flange = FLANGE
+
+    def build(self, spec: ModelSpec) -> mujoco.MjModel:
+        return compile_model(spec)
+
+    def describe(self, spec: ModelSpec) -> mujoco.MjSpec:
+        return build_spec(spec)
+
+    def gravity_spec(self, spec: ModelSpec) -> ModelSpec:
+        return gravity_spec(spec)
+
+    def __repr__(self) -> str:
+        return "<robot iiwa14>"
+
+
+ROBOT = Iiwa14()

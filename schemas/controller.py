@@ -14,6 +14,7 @@ joint, and what is wrong with it.
 import json
 from typing import Any, Literal
 
+import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from gainfarm.schemas.documents import BadDocument, load_json, load_yaml, quoted
@@ -61,6 +62,16 @@ class HeldOut(BaseModel):
     worst_ratio: float | None = Field(None, exclude_if=lambda value: value is None)
 
 
+class ObjectiveValue(BaseModel):
+    """One of the run's objectives for the member: its value in its own sense, and what it is."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    value: float
+    unit: str = Field(description="as the objective declares it; empty when not declared")
+    direction: str = Field(description="minimise or maximise")
+
+
 class Member(BaseModel):
     """Which front member the gains are, and how it scored in its run."""
 
@@ -71,8 +82,21 @@ class Member(BaseModel):
         ge=1, description="its row in the run's front.csv (1 is the first after the header)"
     )
     rule: str = Field(description="how it was chosen")
-    f_acc: float = Field(description="mean end-effector error over the run's trajectories, m")
-    f_t: float = Field(description="mean squared torque change per tick, (N·m)²")
+    f_acc: float | None = Field(
+        None,
+        exclude_if=lambda value: value is None,
+        description="mean end-effector error over the run's trajectories, m (if an objective)",
+    )
+    f_t: float | None = Field(
+        None,
+        exclude_if=lambda value: value is None,
+        description="mean squared torque change per tick, (N·m)² (if an objective)",
+    )
+    objectives: dict[str, ObjectiveValue] | None = Field(
+        None,
+        exclude_if=lambda value: value is None,  # the paper's pair: f_acc and f_t say it all
+        description="the run's objectives by name, when they are not the paper's f_acc and f_t",
+    )
     diverged: bool = Field(description="an episode was stopped early: the scores are a penalty")
     sharing: int = Field(1, ge=1, description="front members with exactly these scores")
     measures: dict[str, float] | None = Field(
@@ -231,8 +255,6 @@ def _document(raw: bytes) -> Any:
             raise BadGains(
                 f"not JSON ({error.msg} at line {error.lineno} column {error.colno}); {_EXPECTED}"
             ) from None
-    import yaml  # only for a file that is not JSON
-
     try:
         document = load_yaml(text)
     except BadDocument as error:

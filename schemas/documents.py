@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 MAX_DEPTH = 32  # no file a person writes for gainfarm nests deeper than 5 levels
 MAX_TEXT_BYTES = 1 << 20  # a gains, limits, plant or uncertainty file is a few kB
@@ -152,8 +153,6 @@ def load_yaml(text: str) -> Any:
 
 
 def _bounded_loader() -> type:
-    import yaml
-
     class BoundedLoader(yaml.SafeLoader):
         """The safe loader, refusing aliases and nesting deeper than MAX_DEPTH as it composes
         the document's nodes (the composer is where PyYAML recurses)."""

@@ -8,7 +8,7 @@ from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.robot import ModelSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, KIND_PATTERN, TrajectorySpec
 
-# The paper's two objectives, computed from the log by schemas/objectives.py. An episode may name
+# The paper's two objectives, computed from the log by schemas/objectives/. An episode may name
 # others, of the gainfarm.objectives plug-in group (a name of the same form as a trajectory
 # kind's): its worker computes them, or refuses the job if it lacks the plug-in.
 DEFAULT_OBJECTIVES = ("f_acc", "f_t")

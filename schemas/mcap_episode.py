@@ -670,7 +670,7 @@ def _decompress(where: str, chunk: Chunk, bound: int) -> bytes:
         with zstandard.ZstdDecompressor().stream_reader(chunk.data) as reader:
             data = reader.read(size + 1)
     elif chunk.compression == "lz4":
-        import lz4.frame  # optional, as in the mcap library: episode_bytes uses zstd
+        import lz4.frame  # optional extra: lz4, as in the mcap library (we write zstd)
 
         data = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=size + 1)
     elif chunk.compression == "":

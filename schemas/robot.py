@@ -1,13 +1,32 @@
-"""The robot a job runs on: its published limits, and the simulated plant (ModelSpec).
+"""The robot a job runs on: what a robot declares (`Robot`), the iiwa 14's published limits, and
+the simulated plant (ModelSpec), which names its robot.
+
+A robot is a plug-in of the group gainfarm.robots (docs/plugins.md): a module's `ROBOT`, of the
+`Robot` form below, found by the plant's `robot` name (`gainfarm.models.robot_of`). The iiwa 14,
+models/iiwa14.py, is the built-in one and the default. The module-level numbers here (JOINT_NAMES,
+N_JOINTS, the limits) are the iiwa 14's, which its ROBOT declares: the code that reads them still
+assumes its 7 joints (docs/robot.md lists it).
 
 Every physical number here has a source or is labelled an assumption; models/README.md gives the
 sources and the reasons behind each assumption.
 """
 
 import math
-from typing import Annotated, Any, Literal, Self
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Protocol, Self, runtime_checkable
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+if TYPE_CHECKING:  # the contract names MuJoCo's types and the gains in hints only
+    import mujoco
+
+    from gainfarm.schemas.gains import PDGains
+
+# A robot's name is a name of the gainfarm.robots plug-in group: gainfarm.plugins.NAME_PATTERN's
+# form (the contract imports nothing of the project; a test keeps the two equal). The contract
+# checks the form only; who runs or tunes on a plant checks the name is installed.
+ROBOT_PATTERN = r"^[a-z][a-z0-9_-]{0,31}$"
+DEFAULT_ROBOT = "iiwa14"
 
 N_JOINTS = 7
 JOINT_NAMES = tuple(f"A{i}" for i in range(1, N_JOINTS + 1))
@@ -22,6 +41,76 @@ POSITION_LIMITS = (2.96706, 2.0944, 2.96706, 2.0944, 2.96706, 2.0944, 3.05433)
 SPEED_LIMITS = tuple(math.radians(v) for v in (85.0, 85.0, 100.0, 75.0, 130.0, 135.0, 135.0))
 # Acceleration, rad/s² (as published with drake's iiwa model, from a 2019 thesis).
 ACCELERATION_LIMITS = (8.57, 8.57, 8.74, 11.36, 12.23, 15.72, 15.72)
+
+
+# --- What a robot declares (a gainfarm.robots plug-in) -------------------------------------------
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """A robot's published limits, one number per joint, in its joints' order. Positions are
+    symmetric about zero (each joint turns ±position)."""
+
+    torque: tuple[float, ...]  # N·m: the motors' saturation
+    speed: tuple[float, ...]  # rad/s
+    position: tuple[float, ...]  # rad
+    acceleration: tuple[float, ...]  # rad/s²
+
+
+@dataclass(frozen=True)
+class Workspace:
+    """Where a robot works: the posture it starts from and rests in (`home`: the inverse
+    kinematics' seed, the fourier kind's centre), and the box of the base frame in which a
+    Cartesian trajectory's centre may lie (`low` to `high`, m) with the flange pointing down,
+    every point of it reachable; `center` is the default trajectory's centre, inside it."""
+
+    home: tuple[float, ...]  # rad, one per joint
+    center: tuple[float, float, float]  # m
+    low: tuple[float, float, float]  # m
+    high: tuple[float, float, float]  # m
+
+    def __post_init__(self) -> None:
+        if not all(a <= c <= b for a, c, b in zip(self.low, self.center, self.high, strict=True)):
+            raise ValueError(f"workspace: centre {self.center} outside {self.low}..{self.high}")
+
+    def contains(self, point: tuple[float, float, float]) -> bool:
+        """Whether a trajectory may be centred on `point`."""
+        return all(a <= c <= b for a, c, b in zip(self.low, point, self.high, strict=True))
+
+    def corners(self) -> tuple[tuple[float, float, float], ...]:
+        """The box's 8 corners: with its centre, the points a conformance check reaches."""
+        return tuple(
+            (x, y, z)
+            for x in (self.low[0], self.high[0])
+            for y in (self.low[1], self.high[1])
+            for z in (self.low[2], self.high[2])
+        )
+
+
+@runtime_checkable
+class Robot(Protocol):
+    """A robot arm, as a gainfarm.robots plug-in declares it (its module's `ROBOT`): everything
+    the worker and the analytic side read of one arm. gainfarm.testing.robots checks one.
+
+    `build` compiles the plant a ModelSpec describes, with rigid or flexible joints as it says
+    (cached: a worker runs thousands of episodes on one); `describe` is the same model not yet
+    compiled (to export, or to put several arms in one model). The robot's own gravity model,
+    what its controller adds to the command under `interface = "fri"`, is the gravity of the
+    plant `gravity_spec(spec)` describes: what the robot believes of the arm `spec` is."""
+
+    name: str  # its plug-in name, ROBOT_PATTERN's form
+    joint_names: tuple[str, ...]  # the hinges the motors turn, base to flange: the joint count
+    limits: JointLimits
+    default_gains: "PDGains"  # a sensible first controller, and the search space's centre
+    workspace: Workspace
+    flange: str  # the MuJoCo site at the flange's centre, which every trajectory moves
+
+    def build(self, spec: "ModelSpec") -> "mujoco.MjModel": ...
+
+    def describe(self, spec: "ModelSpec") -> "mujoco.MjSpec": ...
+
+    def gravity_spec(self, spec: "ModelSpec") -> "ModelSpec": ...
+
 
 # --- Elastic joints: assumptions (no authoritative public table exists) --------------------------
 
@@ -158,7 +247,12 @@ class ModelSpec(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    robot: Literal["iiwa14"] = "iiwa14"
+    robot: str = Field(
+        DEFAULT_ROBOT,
+        pattern=ROBOT_PATTERN,
+        description="the arm: a gainfarm.robots plug-in's name, installed where the plant runs "
+        "(iiwa14, the built-in one); its limits, gains, gravity model and workspace are its own",
+    )
     joints: Literal["flexible", "rigid"] = "flexible"
     inertials: Literal["menagerie", "open", "cad"] = Field(
         "menagerie",

@@ -14,8 +14,8 @@ MAX_TWIST = 1.5  # rad: A7 turns ±175°, and it also absorbs A1's swing about t
 Coordinate = Annotated[float, Field(allow_inf_nan=False)]
 
 # A kind is a name of the gainfarm.trajectories plug-in group: the built-in ones below, or a
-# plug-in's (a Cartesian path, worker/trajectories.py's Path). The contract checks the name's
-# form only; a worker without the plug-in refuses the job, naming it. The pattern is
+# plug-in's (worker/trajectories/: a Kind, or a Cartesian path function). The contract checks
+# the name's form only; a worker without the plug-in refuses the job, naming it. The pattern is
 # gainfarm.plugins.NAME_PATTERN's (the contract imports nothing of the project; a test keeps
 # the two equal): a name becomes part of job ids and file names.
 KIND_PATTERN = r"^[a-z][a-z0-9_-]{0,31}$"

@@ -26,6 +26,9 @@ from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.objectives import LAG_CAP, SPEED_CAP
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 
+# 11: a plant names its robot (ModelSpec.robot), a gainfarm.robots plug-in's name of its form, no
+# longer only "iiwa14": a worker that lacks the robot a job names refuses it (JobStatus.refused);
+# a job on the iiwa 14 has the same JSON as in 10.
 # 10: big bytes (an episode log, a model) move only in parts of at most PART_BYTES: a log or
 # model query names its part (`?part=N`) and the reply carries it with a Part attachment; a
 # Result's sample never carries its log (the study fetches it in parts from its worker, which keeps
@@ -41,7 +44,7 @@ from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 # lease request; 4: results carry the worker's scores, and the log only when the job asks to keep
 # it (the worker keeps the others, to be fetched); 3: results handed in to the broker and
 # confirmed by it; 2: Job.spec
-PROTOCOL_VERSION = 10
+PROTOCOL_VERSION = 11
 
 # Names become key-expression chunks, so they may not contain '/', '*', '$', '?' or '#'.
 NAME_PATTERN = r"^[A-Za-z0-9_.\-]{1,64}$"
@@ -81,12 +84,12 @@ class BadMessage(ValueError):
 class WireMessage(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    protocol: Literal[10] = PROTOCOL_VERSION
+    protocol: Literal[11] = PROTOCOL_VERSION
 
     @field_validator("protocol", mode="before")
     @classmethod
     def _an_integer(cls, version: object) -> object:
-        # Literal[10] would take 10.0 (and JSON true is 1 to Python): a version is an integer.
+        # Literal[11] would take 11.0 (and JSON true is 1 to Python): a version is an integer.
         if type(version) is not int:
             raise ValueError(_not_an_integer(version))
         return version

@@ -323,7 +323,7 @@ def ends_with_closing_lines(lines: list[str], run_dir: Path) -> int:
     it, or that none beats the default gains (none held on the held-out check: keep them), the
     closest and where to read more. Returns how many closing lines there are."""
     verdict = (run_dir / "report.md").read_text(encoding="utf-8").splitlines()[2]
-    scores = r"\(([\d.]+) mm, f_t (\S+) \(N·m\)²\)"
+    scores = r"\(([\d.]+) mm, (f_t\w*) (\S+) \(N·m\)²\)"  # f_t or f_t_joint, by name
     if checked := re.match(r"\*\*Use front\.csv row (\d+)\*\*: on ", verdict):
         row, used = checked.group(1), True
         expected = [
@@ -331,25 +331,25 @@ def ends_with_closing_lines(lines: list[str], run_dir: Path) -> int:
             f"its gains: analytic export {run_dir.name}",
         ]
     elif used := re.match(rf"\*\*Use front\.csv row (\d+)\*\* {scores}", verdict):
-        row, error, smoothness = used.groups()
+        row, error, torque, smoothness = used.groups()
         expected = [
-            f"controller to use: row {row} of front.csv: {error} mm, f_t {smoothness} (N·m)²",
+            f"controller to use: row {row} of front.csv: {error} mm, {torque} {smoothness} (N·m)²",
             f"its gains: analytic export {run_dir.name}",
         ]
     elif verdict.startswith("**Keep the default gains**"):
         row, used = None, False
         expected = [
             "controller to use: the default gains; no member held against them",
-            "on the held-out check; closest: row ",
+            "closest on the check: row ",
             f"what to do: {run_dir.name}/report.md",
         ]
     else:
         closest = re.search(rf"Closest to dominating them: row (\d+) {scores}", verdict)
         assert verdict.startswith("**No member of the front dominates") and closest, verdict
-        row, error, smoothness = closest.groups()
+        row, error, torque, smoothness = closest.groups()
         expected = [
             "controller to use: none, no member beats the default gains",
-            f"closest to them: row {row} of front.csv: {error} mm, f_t {smoothness} (N·m)²",
+            f"closest to them: row {row} of front.csv: {error} mm, {torque} {smoothness} (N·m)²",
             f"what to do: {run_dir.name}/report.md",
         ]
     held_out = held_out_closing(run_dir, None if row is None else int(row))

@@ -86,6 +86,10 @@ def test_a_folder_of_clashing_names_breaks_nothing(tmp_path: Path) -> None:
 def test_the_face_is_the_analytic_layers() -> None:
     from gainfarm import analytic
 
+    assert analytic.__all__ == gainfarm.__all__  # one export list
+    assert {"RunConfig", "tune", "read_run", "InProcessEvaluator", "local_farm"} <= set(
+        gainfarm.__all__
+    )
     assert {name: getattr(gainfarm, name) for name in gainfarm.__all__} == {
         name: getattr(analytic, name) for name in gainfarm.__all__
     }

@@ -1,14 +1,16 @@
 """Imports run one way, down the layers (docs/architecture.md), bottom to top:
 
     schemas            the contract: imports nothing of the project, no CLI library, no Zenoh
-    models             the robot: may import schemas
     plugins            the registry of plug-ins (gainfarm/plugins.py): the standard library only
+    models             the robots: may import schemas, and plugins (a plant's robot is one)
     edges              Zenoh sessions, asking the broker, files (gainfarm/edges/): schemas, models
     cli                what the command lines share (gainfarm/cli/): all of the above
     worker, broker     the layers below, never analytic nor each other
-    analytic           everything; inside it, floors one way down:
+    analytic           everything (but the kits); inside it, floors one way down:
                        commands -> experiments -> calibration -> data -> compose -> view -> tuning
                        -> evaluators (compose: the module analytic/compose.py, `tune`)
+    testing            the conformance kit for plug-ins (gainfarm/testing/): everything; nothing
+                       of the package imports it
 
 `gainfarm/__init__.py` names only `gainfarm.analytic`, and loads it lazily. Read from the source
 with ast, so an import inside a function counts too, and so does `import_module("...")`.
@@ -26,24 +28,26 @@ ROOT = Path(__file__).parents[1]
 # Each layer's source, bottom to top: a folder, or one module.
 WHERE = {
     "schemas": "schemas",
-    "models": "models",
     "plugins": "gainfarm/plugins.py",
+    "models": "models",
     "edges": "gainfarm/edges",
     "cli": "gainfarm/cli",
     "worker": "worker",
     "broker": "broker",
     "analytic": "analytic",
+    "testing": "gainfarm/testing",
 }
 LAYERS = tuple(WHERE)
 MAY_IMPORT = {
     "schemas": set(),
-    "models": {"schemas"},
     "plugins": set(),
+    "models": {"schemas", "plugins"},
     "edges": {"schemas", "models"},
     "cli": {"schemas", "models", "plugins", "edges"},
     "worker": {"schemas", "models", "plugins", "edges", "cli"},
     "broker": {"schemas", "models", "plugins", "edges", "cli"},
-    "analytic": set(LAYERS),
+    "analytic": set(LAYERS) - {"testing"},
+    "testing": set(LAYERS),
 }
 FACE = "gainfarm/__init__.py"  # the public face: `import gainfarm`, `from gainfarm import tune`
 CONTRACT_MAY_NOT = {"click", "rich", "zenoh"}

@@ -3,36 +3,29 @@
 # Light at the top (click and the shared options): MuJoCo, Zenoh and pydantic load inside the
 # command that runs, so that `worker --help` and a refused option cost little more than click.
 
-import contextlib
-import importlib
-import logging
 import math
-import os
-import re
-import signal
-import socket
-import sys
-import threading
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import click
-from click.core import ParameterSource
 
 from gainfarm.cli import options
-from gainfarm.cli.app import CliError, parse_numbers, program_group, run_app, setup_logging
+from gainfarm.cli.app import CliError, parse_numbers, program_group, run_app
 
-if TYPE_CHECKING:
-    from gainfarm.schemas.controller import Controller
-    from gainfarm.schemas.gains import PDGains
-    from gainfarm.schemas.robot import ModelSpec
-    from gainfarm.schemas.trajectory import TrajectorySpec
+# Held here, not imported, so that parsing and --help load nothing heavy (Zenoh, cryptography,
+# pydantic): tests/cli/test_held_defaults.py keeps each equal to its source's.
+JOINTS = 7  # schemas.robot.N_JOINTS
+# schemas.gains.DEFAULT_GAINS's kp and kd, as --kp and --kd take them
+KP = "2000,2000,1200,1200,400,200,100"
+KD = "20,20,15,15,4,2,1"
 
 
-def _default_gains(which: str) -> str:
-    from gainfarm.schemas.gains import DEFAULT_GAINS
-
-    return ",".join(f"{gain:g}" for gain in getattr(DEFAULT_GAINS, which))
+def gains(option: str, text: str) -> tuple[float, ...]:
+    """--kp's or --kd's gains, one per joint, finite and non-negative; or one line naming it."""
+    values = parse_numbers(option, text, JOINTS)
+    if not all(math.isfinite(v) and v >= 0 for v in values):
+        raise CliError(f"{option}: gains must be finite and non-negative, got {text!r}")
+    return values
 
 
 @program_group(__doc__)
@@ -52,13 +45,13 @@ def app() -> None:
 @options.duration()
 @click.option(
     "--kp",
-    default=options.Later(lambda: _default_gains("kp")),
+    default=KP,
     show_default=True,
     help="7 gains A1..A7, N·m/rad",
 )
 @click.option(
     "--kd",
-    default=options.Later(lambda: _default_gains("kd")),
+    default=KD,
     show_default=True,
     help="7 gains A1..A7, N·m·s/rad",
 )
@@ -82,89 +75,17 @@ def app() -> None:
     "first trajectory, its plant) instead of the options'",
 )
 @click.option("--json", "as_json", is_flag=True, help="print the scores as one JSON object")
-def episode(
-    out: Path,
-    trajectory: str,
-    duration: float,
-    kp: str,
-    kd: str,
-    gains_file: Path | None,
-    joints: str,
-    plant: str,
-    payload: float | None,
-    payload_com: tuple[float, ...] | None,
-    trajectory_seed: int,
-    center: str,
-    size: float,
-    gravity_compensation: bool,
-    feedforward: Path | None,
-    as_tuned: bool,
-    as_json: bool,
-) -> None:
+def episode(**given: Any) -> None:
     """Simulate one PD episode on the iiwa 14, write its MCAP log and print its scores."""
-    from pydantic import ValidationError
+    # What a parse can refuse, refused before the work's imports (the contract, MuJoCo).
+    if given["gains_file"] is None:
+        gains("--kp", given["kp"])
+        gains("--kd", given["kd"])
+    parse_numbers("--center", given["center"], 3)
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.worker.commands import episode as work
 
-    from gainfarm.cli.gains import refuse_saturating, warn_far_outside_search
-    from gainfarm.cli.scores import show_scores
-    from gainfarm.edges.files import write_atomically
-    from gainfarm.models.dynamics import digest
-    from gainfarm.models.urdf import description
-    from gainfarm.schemas.episode import EpisodeSpec
-    from gainfarm.schemas.gains import PDGains
-    from gainfarm.schemas.mcap_episode import episode_bytes
-    from gainfarm.schemas.objectives import score
-    from gainfarm.schemas.wire import describe
-    from gainfarm.worker.episode import run_episode
-    from gainfarm.worker.ik import UnreachablePath
-    from gainfarm.worker.reference import InfeasibleReference
-
-    gains, controller = _file_gains(gains_file) if gains_file is not None else (None, None)
-    (path,) = options.trajectories([trajectory], duration, trajectory_seed, center, size)
-    model = options.with_load(options.model_spec(plant, joints), payload, payload_com, plant)
-    if as_tuned:
-        if payload is not None:
-            raise CliError("--payload: --as-tuned runs the controller on its own plant")
-        path, model = _as_tuned(controller, gains_file)
-    elif controller is not None:
-        _warn_if_not_as_tuned(controller, gains_file, path, model)
-    learned = options.feedforward_model(feedforward)
-    if learned is not None and gravity_compensation:
-        raise CliError(
-            "--feedforward and --gravity-compensation exclude each other: "
-            "an inverse-dynamics model already holds the arm against gravity"
-        )
-    if gravity_compensation and model.interface == "fri":
-        on = "the plant --as-tuned runs" if as_tuned else _plant_named(model)
-        raise CliError(
-            f"--gravity-compensation: {on} already adds the robot's own gravity compensation "
-            "(KUKA's FRI torque mode); with --plant plain or --plant ideal the PD's torque is "
-            "the whole motor torque, and this flag adds it"
-        )
-    try:
-        spec = EpisodeSpec(
-            gains=gains or PDGains(kp=_gains("--kp", kp), kd=_gains("--kd", kd)),
-            trajectory=path,
-            model=model,
-            gravity_compensation=gravity_compensation,
-            feedforward=digest(learned[0]) if learned is not None else None,
-        )
-    except ValidationError as error:
-        raise CliError(describe(error)) from None
-    refuse_saturating([spec.gains], spec.model, gains_file)
-    warn_far_outside_search("worker", [spec.gains], gains_file)
-    if not out.parent.is_dir():
-        raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
-    try:
-        log = run_episode(spec, learned[1] if learned is not None else None)
-    except UnreachablePath as error:
-        raise CliError(f"{'--as-tuned' if as_tuned else '--center/--size'}: {error}") from None
-    except InfeasibleReference as error:
-        raise CliError(f"{'--as-tuned' if as_tuned else '--duration'}: {error}") from None
-    try:
-        write_atomically(out, episode_bytes(log, description()))
-    except OSError as error:
-        raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
-    show_scores(score(log), out, as_json)
+    work(**given)
 
 
 @app.command(short_help="Serve a farm: run its jobs while free.")
@@ -198,15 +119,7 @@ def episode(
     "process may use]",
 )
 @options.log_level()
-def start(
-    connect: tuple[str, ...],
-    name: str | None,
-    tls: Path | None,
-    model_cache: Path | None,
-    log_memory: int,
-    threads: int | None,
-    log_level: str,
-) -> None:
+def start(**given: Any) -> None:
     """Serve a farm: ask the broker for jobs while free, run them, return their results.
 
     A job's episode log goes with its result if the job asks for it; else the worker keeps it
@@ -214,242 +127,10 @@ def start(
 
     SIGTERM or Ctrl-C: the job in progress is finished and returned, then the worker exits.
     """
-    from gainfarm.schemas.wire import NAME_PATTERN, NAME_RULE
-    from gainfarm.worker.feedforward import ModelCache
-    from gainfarm.worker.service import CobotWorker, NameTaken
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.worker.commands import start as work
 
-    setup_logging("worker", log_level)
-    # On a secure farm the router lets a worker lease only under its certificate's name.
-    identity = options.identity(tls, "worker", name, name_option="--name")
-    if identity is not None:
-        name = identity.name
-    name = name or re.sub(r"[^A-Za-z0-9_.\-]", "-", f"{socket.gethostname()}-{os.getpid()}")
-    if not re.fullmatch(NAME_PATTERN, name):
-        raise CliError(f"--name: {name!r} is not {NAME_RULE}")
-    stop = threading.Event()
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(signum, lambda *_: stop.set())
-    log = logging.getLogger("gainfarm.worker")
-    from gainfarm.cli.words import counted
-
-    models = ModelCache(model_cache)  # one for the process: a reconnect keeps what it fetched
-    tries = 0
-    while not stop.is_set():
-        try:
-            cobot = CobotWorker(
-                connect,
-                name,
-                identity,
-                models,
-                log_memory * 2**20,
-                threads=threads or cores(),
-                on_idle=warm_up,
-            )
-        except NameTaken as error:
-            raise CliError(str(error)) from None
-        except ValueError as error:  # the name is checked above: what is left is an endpoint
-            raise CliError(f"--connect: {error}") from None
-        except ConnectionError as error:
-            cobot = None
-            why = str(error)
-        if cobot is not None and not cobot.broker_serves():
-            # Its router listens a moment before the broker serves on it: a request for work
-            # then would go unanswered, and be asked again only a second later.
-            cobot.close()
-            cobot, why = None, f"no broker serves on {', '.join(connect)} yet"
-        if cobot is None:
-            # A farm's workers often start before its broker (a local farm starts them all at
-            # once): tried again at once and said only if it lasts.
-            pause = retry_pause(tries)
-            tries += 1
-            if tries == QUIET_TRIES:
-                log.warning("%s; retrying every second", why)
-            stop.wait(pause)
-            continue
-        tries = 0
-        with cobot:
-            log.info(
-                "worker %s serving %s on %s",
-                name,
-                ", ".join(connect),
-                counted(cobot.threads, "thread"),
-            )
-            done = cobot.serve_until(stop)
-        log.info("worker %s stopped after %d jobs", name, done)
-
-
-# Connecting again: at first every RETRY_FIRST s, doubling up to RETRY_SECONDS; the first
-# QUIET_TRIES failures (about a second) are not said: a broker started beside the worker listens
-# within that.
-RETRY_FIRST = 0.05
-RETRY_SECONDS = 1.0
-QUIET_TRIES = 5
-
-
-def retry_pause(tries: int) -> float:
-    """How long to wait before connecting again, after `tries` failures in a row."""
-    return min(RETRY_SECONDS, RETRY_FIRST * 2**tries)
-
-
-def warm_up() -> None:
-    """Load, on a thread of its own while the worker waits for work, what scoring a job loads
-    on first use: scipy.signal (schemas.objectives.chatter), about a second of the first job's
-    time otherwise. Only once idle: while a local farm starts, the analytic process's own start
-    needs the cores. A job that needs it before it is loaded waits for this import (Python's
-    import lock) rather than doing it twice; if it fails here, the job's says why."""
-    if "scipy.signal" not in sys.modules:
-        threading.Thread(target=_load_scoring, name="warm-up", daemon=True).start()
-
-
-def _load_scoring() -> None:
-    with contextlib.suppress(Exception):
-        importlib.import_module("scipy.signal")
-
-
-def cores() -> int:
-    """The cores this process may run on (its CPU affinity, as a container's --cpuset sets)."""
-    return len(os.sched_getaffinity(0))
-
-
-def _file_gains(path: Path) -> "tuple[PDGains, Controller | None]":
-    """--gains: the one controller in the file (and the file as a Controller, if it is an
-    exported one); --kp and --kd may not be given beside it."""
-    from gainfarm.schemas.controller import BadGains, read_controller, read_gains
-    from gainfarm.schemas.documents import BadDocument, read_bounded
-
-    context = click.get_current_context()
-    given = [
-        f"--{name}"
-        for name in ("kp", "kd")
-        if context.get_parameter_source(name) is ParameterSource.COMMANDLINE
-    ]
-    if given:
-        raise CliError(f"--gains and {' and '.join(given)} exclude each other: give one of them")
-    try:
-        raw = read_bounded(path)
-    except OSError as error:
-        raise CliError(f"--gains: cannot read {str(path)!r}: {error.strerror}") from None
-    except BadDocument as error:
-        raise CliError(f"--gains: {str(path)!r}: {error}") from None
-    try:
-        candidates = read_gains(raw)
-    except BadGains as error:
-        raise CliError(f"--gains: {str(path)!r}: {error}") from None
-    if len(candidates) != 1:
-        raise CliError(
-            f"--gains: {str(path)!r} holds {len(candidates)} candidates and an episode runs one; "
-            "`analytic export RUN --member ...` writes one (`analytic batch --gains` runs many)"
-        )
-    return candidates[0], read_controller(raw)
-
-
-# The options that choose the episode's trajectory and plant: what --as-tuned takes from the file.
-_CHOSEN = ("trajectory", "duration", "trajectory_seed", "center", "size", "plant", "joints")
-
-
-def _as_tuned(
-    controller: "Controller | None", path: Path | None
-) -> "tuple[TrajectorySpec, ModelSpec]":
-    """--as-tuned: the trajectory and plant the controller file says it was tuned on."""
-    if controller is None:
-        raise CliError(
-            "--as-tuned needs --gains with a controller from `analytic export` (it says what the "
-            "gains were tuned on)"
-        )
-    context = click.get_current_context()
-    for name in _CHOSEN:
-        if context.get_parameter_source(name) is ParameterSource.COMMANDLINE:
-            flag = "--" + name.replace("_", "-")
-            raise CliError(f"--as-tuned and {flag} exclude each other: the file says which")
-    return controller.source.trajectories[0], controller.source.model
-
-
-def _warn_if_not_as_tuned(
-    controller: "Controller", path: Path | None, trajectory: "TrajectorySpec", model: "ModelSpec"
-) -> None:
-    """One line on stderr if the episode is not what the controller was tuned on, naming both
-    sides (the trajectories by what tells them apart, the plants by name and joints): its scores
-    then say how it carries over, not what its run found."""
-    source = controller.source
-    differs = []
-    if trajectory not in source.trajectories:
-        # What tells them apart: the fields in which the run's trajectory differs from the
-        # nearest one tuned on, said of every trajectory.
-        fields = min(
-            (_differing(trajectory, tuned) for tuned in source.trajectories),
-            key=len,
-            default=[],
-        )
-        tuned = " and ".join(_described(t, fields) for t in source.trajectories)
-        differs.append(f"tuned on {tuned}, run on {_described(trajectory, fields)}")
-    if model != source.model:
-        joints = model.joints != source.model.joints
-        was, now = _plant_named(source.model, joints), _plant_named(model, joints)
-        if was == now:  # two custom plants, with the same joints
-            now = "another custom plant"
-        differs.append(f"tuned on {was}, run on {now}")
-    if differs:
-        click.echo(
-            f"worker: warning: --gains {str(path)!r}: {'; '.join(differs)} (--as-tuned runs "
-            "it as tuned)",
-            err=True,
-        )
-
-
-# A trajectory's fields, as _described says them, in that order (kind and duration always).
-_SAID = ("seed", "center", "size", "turns", "waypoints", "twist", "harmonics")
-
-
-def _differing(trajectory: "TrajectorySpec", other: "TrajectorySpec") -> list[str]:
-    return [
-        name
-        for name in ("kind", "duration", *_SAID)
-        if getattr(trajectory, name) != getattr(other, name)
-    ]
-
-
-def _described(trajectory: "TrajectorySpec", fields: "list[str] | None" = None) -> str:
-    """'the 3 s spiral', with the `fields` that tell it from another ('the 3 s spiral (size
-    0.1 m, centre 0.5,0,0.4 m)'); a seed other than 0 is always said."""
-    fields = fields or []
-    said = []
-    for name in _SAID:
-        value = getattr(trajectory, name)
-        if name not in fields and not (name == "seed" and value):
-            continue
-        if name == "center":
-            said.append(f"centre {','.join(f'{v:g}' for v in value)} m")
-        elif name in ("size", "twist"):
-            said.append(f"{name} {value:g} {'m' if name == 'size' else 'rad'}")
-        else:
-            said.append(f"{name} {value:g}")
-    detail = f" ({', '.join(said)})" if said else ""
-    return f"the {trajectory.duration:g} s {trajectory.kind}{detail}"
-
-
-def _plant_named(model: "ModelSpec", joints: bool = False) -> str:
-    """'the realistic plant' (a named plant with any joints), or 'a custom plant'; with `joints`,
-    which joints it has: 'the realistic plant with rigid joints'."""
-    from gainfarm.schemas.robot import PLANTS
-
-    name = next(
-        (
-            f"the {name} plant"
-            for name, spec in PLANTS.items()
-            if spec.model_copy(update={"joints": model.joints}) == model
-        ),
-        "a custom plant",
-    )
-    return f"{name} with {model.joints} joints" if joints else name
-
-
-def _gains(option: str, text: str) -> tuple[float, ...]:
-    from gainfarm.schemas.robot import N_JOINTS
-
-    values = parse_numbers(option, text, N_JOINTS)
-    if not all(math.isfinite(v) and v >= 0 for v in values):
-        raise CliError(f"{option}: gains must be finite and non-negative, got {text!r}")
-    return values
+    work(**given)
 
 
 def main() -> None:

@@ -21,7 +21,7 @@ import numpy as np
 from gainfarm.models.dynamics import DynamicsModel, friction_torque, plant_spec, true_model
 from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
-from gainfarm.schemas.robot import JOINT_NAMES, LoadData, ModelSpec
+from gainfarm.schemas.robot import DEFAULT_ROBOT, JOINT_NAMES, LoadData, ModelSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.worker.control import PDController
 from gainfarm.worker.plant import Plant, RobotGravity
@@ -58,10 +58,12 @@ def compensation(
             raise MissingModel(f"feed-forward model {spec.feedforward[:12]} was not given")
         torque = model.inverse(reference.q, reference.qd, reference.qdd)
         if spec.model.interface == "fri":  # g_robot(q_des), computed once per trajectory
-            torque = torque - gravity_for(spec.trajectory, spec.model.inertials, spec.model.load)
+            torque = torque - gravity_for(
+                spec.trajectory, spec.model.inertials, spec.model.load, spec.model.robot
+            )
         return torque
     if spec.gravity_compensation:
-        return gravity_for(spec.trajectory, spec.model.inertials, spec.model.load)
+        return gravity_for(spec.trajectory, spec.model.inertials, spec.model.load, spec.model.robot)
     return None
 
 
@@ -94,7 +96,7 @@ def true_compensation(
         torque += np.asarray(spec.gains.kp) * bend + np.asarray(spec.gains.kd) * rate
         motor_angles = reference.q + bend
     if plant.interface == "fri":
-        torque -= gravity_torques(motor_angles, plant.inertials, plant.load)
+        torque -= gravity_torques(motor_angles, plant.inertials, plant.load, plant.robot)
     ahead = plant.delay if delay else 0
     return np.vstack([torque[ahead:], np.repeat(torque[-1:], ahead, axis=0)])
 
@@ -230,18 +232,24 @@ def motor_torque(log: EpisodeLog) -> np.ndarray:
 
 @lru_cache(maxsize=64)
 def gravity_for(
-    trajectory: TrajectorySpec, inertials: str, load: LoadData | None = None
+    trajectory: TrajectorySpec,
+    inertials: str,
+    load: LoadData | None = None,
+    robot: str = DEFAULT_ROBOT,
 ) -> np.ndarray:
     """The gravity feed-forward of `trajectory`'s reference, computed once per worker."""
-    torques = gravity_torques(reference_for(trajectory).q, inertials, load)
+    torques = gravity_torques(reference_for(trajectory).q, inertials, load, robot)
     torques.flags.writeable = False
     return torques
 
 
-def gravity_torques(q: np.ndarray, inertials: str, load: LoadData | None = None) -> np.ndarray:
-    """(n, 7) N·m holding link angles `q` against gravity. The controller's gravity model is the
-    plant's own inertial set (as KUKA's controller knows its robot) and the load it is told."""
-    return RobotGravity(ModelSpec(inertials=inertials, load=load)).at(q)
+def gravity_torques(
+    q: np.ndarray, inertials: str, load: LoadData | None = None, robot: str = DEFAULT_ROBOT
+) -> np.ndarray:
+    """(n, joints) N·m holding link angles `q` against gravity. The controller's gravity model is
+    the robot's own (`RobotGravity`: for the iiwa 14, the plant's own inertial set, as KUKA's
+    controller knows its robot, and the load it is told)."""
+    return RobotGravity(ModelSpec(robot=robot, inertials=inertials, load=load)).at(q)
 
 
 @dataclass(frozen=True)

@@ -11,10 +11,12 @@ speeds and accelerations) need.
 import mujoco
 import numpy as np
 
-from gainfarm.schemas.robot import POSITION_LIMITS
+from gainfarm.models import robot_of
 
-# A ready posture with the flange pointing down over the workspace centre (0.55, 0, 0.40).
-READY_POSTURE = np.array([0.0, 0.5, 0.0, -1.6, 0.0, 1.0, 0.0])
+# The default robot's (the iiwa 14's) home: the ready posture, the flange pointing down over the
+# workspace centre. A reference is of the default robot's until the plant's is passed (issue 49).
+_ROBOT = robot_of()
+READY_POSTURE = np.array(_ROBOT.workspace.home)
 DAMPING = 1e-2  # λ of the damped pseudo-inverse: only matters near singular postures
 POSTURE_GAIN = 1.0  # the full step to the self-motion's point nearest the posture, per iteration
 MAX_STEP = 0.2  # rad per iteration: keeps the first, far-from-posture solve on its branch
@@ -27,7 +29,7 @@ ORIENTATION_TOLERANCE = 1e-3  # rad
 RANGE_MARGIN = 0.05  # rad kept clear of each joint's mechanical limit
 MAX_ITERATIONS = 50
 FIRST_SAMPLE_ITERATIONS = 500
-_A1_RANGE = POSITION_LIMITS[0]
+_A1_RANGE = _ROBOT.limits.position[0]
 
 
 class UnreachablePath(ValueError):

@@ -15,6 +15,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 from gainfarm import plugins
+from gainfarm.models import robot_of
 from gainfarm.models.dynamics import DynamicsModel
 from gainfarm.models.urdf import description
 from gainfarm.schemas.episode import EpisodeSpec, Scores
@@ -26,6 +27,7 @@ from gainfarm.worker.episode import Prepared, compensation, simulate_all
 from gainfarm.worker.feedforward import ModelUnavailable
 from gainfarm.worker.ik import UnreachablePath
 from gainfarm.worker.reference import InfeasibleReference, reference_for
+from gainfarm.worker.trajectories import kind_of
 
 REASON_LIMIT = 2000  # characters: Result.reason's bound
 
@@ -143,9 +145,11 @@ def _outcome(log: EpisodeLog, simulate_s: float = 0.0) -> Outcome:
 
 
 def objectives_of(spec: EpisodeSpec) -> dict[str, Objective]:
-    """The plug-in objectives the spec names, by name, once its trajectory kind is known to be
-    here too. PluginError, naming the first plug-in this process lacks or cannot load."""
-    plugins.load(plugins.TRAJECTORIES, spec.trajectory.kind)
+    """The plug-in objectives the spec names, by name, once its robot and trajectory kind are
+    known to be here too. PluginError, naming the first plug-in this process lacks or cannot
+    load."""
+    robot_of(spec.model)
+    kind_of(spec.trajectory)  # a kind that cannot be had, or is of no form the worker takes
     return plugins.load_plugins(plugins.OBJECTIVES, spec.objectives)
 
 

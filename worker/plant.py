@@ -12,24 +12,25 @@ from functools import lru_cache
 import mujoco
 import numpy as np
 
-from gainfarm.models import FLANGE, build_spec, compile_model
-from gainfarm.schemas.robot import JOINT_NAMES, LoadData, ModelSpec
+from gainfarm.models import robot_of
+from gainfarm.schemas.robot import LoadData, ModelSpec
 
 
 class Plant:
-    """One simulated iiwa 14 (rigid or elastic joints) with its state.
+    """One simulated arm, the robot `spec` names (rigid or elastic joints), with its state.
 
-    `link_map` and `motor_map` are (7, nq) matrices with q = link_map @ qpos and
+    `link_map` and `motor_map` are (joints, nq) matrices with q = link_map @ qpos and
     θ = motor_map @ qpos (the same for velocities: nq = nv, every joint is a hinge). For rigid
     joints the motor is geared rigidly to the link, so the two maps are equal.
     """
 
     def __init__(self, spec: ModelSpec) -> None:
         self.spec = spec
-        self.model = compile_model(spec)
+        self.robot = robot_of(spec)
+        self.model = self.robot.build(spec)
         self.data = mujoco.MjData(self.model)
         self.substeps = spec.substeps
-        self.link_map = _link_map(self.model)
+        self.link_map = _link_map(self.model, self.robot.joint_names)
         driven = self.model.actuator_trnid[:, 0]  # the hinge each motor turns, A1..A7
         self.motor_map = np.zeros_like(self.link_map)
         self.motor_map[np.arange(len(driven)), self.model.jnt_qposadr[driven]] = 1.0
@@ -42,7 +43,7 @@ class Plant:
         # qfrc_applied[motor_dof_slice] is a view of the motors' generalised forces, A1..A7
         self.motor_dof_slice = slice(int(dofs[0]), int(dofs[-1]) + 1, stride)
         self._driven_qpos = self.model.jnt_qposadr[driven]
-        self.flange = self.model.site(FLANGE).id
+        self.flange = self.model.site(self.robot.flange).id
 
     @property
     def elastic(self) -> bool:
@@ -69,19 +70,20 @@ class Plant:
         return stiffness * deflection + damping * rate
 
 
-def _link_map(model: mujoco.MjModel) -> np.ndarray:
+def _link_map(model: mujoco.MjModel, joint_names: tuple[str, ...]) -> np.ndarray:
     """Sum every hinge of link i (its one hinge, or motor + spring) into joint i's angle."""
-    link_map = np.zeros((len(JOINT_NAMES), model.nq))
+    link_map = np.zeros((len(joint_names), model.nq))
     for j in range(model.njnt):
-        joint_index = JOINT_NAMES.index(model.joint(j).name.split("_")[0])
+        joint_index = joint_names.index(model.joint(j).name.split("_")[0])
         link_map[joint_index, model.jnt_qposadr[j]] = 1.0
     return link_map
 
 
 class RobotGravity:
     """The robot's own model of the arm's gravity, as KUKA's controller adds it in FRI torque
-    mode: the rigid arm of the plant's named inertial set (`ModelSpec.inertials`, which need not
-    be the simulated plant's true masses), evaluated at measured link angles.
+    mode: the rigid arm its robot declares it knows (`Robot.gravity_spec`: for the iiwa 14, the
+    plant's named inertial set, which need not be the simulated plant's true masses), evaluated
+    at measured link angles.
 
     Write the angles into `angles` (a view of the model's qpos), then `torque(out)` puts the
     torque holding them against gravity into `out`: three calls into MuJoCo (kinematics, centres
@@ -89,7 +91,8 @@ class RobotGravity:
     """
 
     def __init__(self, spec: ModelSpec) -> None:
-        self.model = compile_model(gravity_spec(spec))
+        robot = robot_of(spec)
+        self.model = robot.build(robot.gravity_spec(spec))
         self.data = mujoco.MjData(self.model)
         self.angles = self.data.qpos
 
@@ -100,7 +103,7 @@ class RobotGravity:
         mujoco.mj_rne(self.model, self.data, 0, out)
 
     def at(self, angles: np.ndarray) -> np.ndarray:
-        """(n, 7) N·m holding each row of link angles `angles` against gravity."""
+        """(n, joints) N·m holding each row of link angles `angles` against gravity."""
         torques = np.empty_like(angles, dtype=float)
         for row, torque in zip(angles, torques, strict=True):
             self.angles[:] = row
@@ -119,12 +122,13 @@ class ArmsGravity:
 
     def __init__(self, specs: Sequence[ModelSpec]) -> None:
         # Keyed by what the robot's model knows of each arm (cheaper than a gravity_spec each:
-        # a stack makes one per block of episodes).
-        self.model = _arms(tuple((spec.inertials, _told(spec)) for spec in specs))
+        # a stack makes one per block of episodes). A stack's arms are of one robot.
+        self.model = _arms(tuple((spec.robot, spec.inertials, _told(spec)) for spec in specs))
         self.data = mujoco.MjData(self.model)
-        self.angles = self.data.qpos.reshape(len(specs), len(JOINT_NAMES))
+        joints = len(robot_of(specs[0]).joint_names)
+        self.angles = self.data.qpos.reshape(len(specs), joints)
         self._out = np.zeros(self.model.nv)
-        self.torque = self._out.reshape(len(specs), len(JOINT_NAMES))
+        self.torque = self._out.reshape(len(specs), joints)
 
     def compute(self) -> None:
         mujoco.mj_kinematics(self.model, self.data)
@@ -133,12 +137,13 @@ class ArmsGravity:
 
 
 @lru_cache(maxsize=16)
-def _arms(arms: tuple[tuple[str, LoadData | None], ...]) -> mujoco.MjModel:
-    """One rigid arm per (inertial set, told load) given, in order, their joints' angles one
-    after another: each the robot's model of its arm (gravity_spec). Only the bodies' inertials
-    count: shapes, sites and motors are left out of all but the first (whose options the model
-    keeps: attaching an arm with other options would warn)."""
-    whole, *others = (build_spec(gravity_spec(_known(*arm))) for arm in arms)
+def _arms(arms: tuple[tuple[str, str, LoadData | None], ...]) -> mujoco.MjModel:
+    """One rigid arm per (robot, inertial set, told load) given, in order, their joints' angles
+    one after another: each the robot's model of its arm (gravity_spec). Only the bodies'
+    inertials count: shapes, sites and motors are left out of all but the first (whose options
+    the model keeps: attaching an arm with other options would warn)."""
+    known = [_known(*arm) for arm in arms]
+    whole, *others = (robot_of(spec).describe(gravity_spec(spec)) for spec in known)
     for index, arm in enumerate(others, start=1):
         for part in [*arm.geoms, *arm.sites, *arm.actuators]:
             arm.delete(part)
@@ -150,20 +155,11 @@ def _told(spec: ModelSpec) -> LoadData | None:
     return None if spec.load is None else spec.load.told
 
 
-def _known(inertials: str, load: LoadData | None) -> ModelSpec:
-    return ModelSpec(inertials=inertials, load=load)  # type: ignore[arg-type]
+def _known(robot: str, inertials: str, load: LoadData | None) -> ModelSpec:
+    return ModelSpec(robot=robot, inertials=inertials, load=load)  # type: ignore[arg-type]
 
 
 def gravity_spec(spec: ModelSpec) -> ModelSpec:
-    """The rigid arm whose gravity the robot's model of `spec` computes: its inertial set and
-    the load it is told (KUKA's load data), no more (rotor inertia, springs and friction exert
-    no gravity torque; the untold payload and the links' and load's true masses it never
-    knows)."""
-    return ModelSpec(
-        joints="rigid",
-        inertials=spec.inertials,
-        friction=None,
-        substeps=1,
-        interface="torque",
-        load=_told(spec),
-    )
+    """The rigid arm whose gravity the robot's model of `spec` computes, as its robot declares it
+    (for the iiwa 14: its inertial set and the load it is told, models.iiwa14.gravity_spec)."""
+    return robot_of(spec).gravity_spec(spec)

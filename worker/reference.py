@@ -4,15 +4,17 @@ Every reference is one a real iiwa 14 can follow: it stays inside the data sheet
 and speed limits (KUKA) and the published acceleration limits (drake's iiwa model), checked here
 when it is built.
 
-- Cartesian kinds: the flange's path and orientation (worker/trajectories.py) are solved by
+- Cartesian kinds: the flange's path and orientation (worker/trajectories/) are solved by
   inverse kinematics (worker/ik.py) on a fine grid of the path's progress, and the joint path
   q(σ) of each rest-to-rest segment is a C² cubic spline through those solutions. Each segment
   is timed by the minimum-jerk law σ = φ(t/T_i), so joint speed scales as 1/T_i and acceleration
   as 1/T_i²: a segment's shortest feasible time is T_i* = T·max(speed ratio, √acceleration
   ratio), exactly. The requested duration is shared among the segments in proportion to T_i*
-  (the pyramid's edges; the other kinds have one segment), so the shortest feasible duration is
-  Σ T_i*; a shorter request raises InfeasibleReference naming it.
-- Fourier: a per-joint finite Fourier series scaled into the limits, always feasible.
+  (a kind's rests, such as the pyramid's corners, cut its path into segments), so the shortest
+  feasible duration is Σ T_i*; a shorter request raises InfeasibleReference naming it.
+- Joint-space kinds (fourier: a per-joint finite Fourier series scaled into the limits,
+  always feasible): the kind's own motion, checked against the limits; a kind's shortest
+  feasible duration is its own to say (`Kind.shortest_duration`).
 
 The same trajectory is simulated thousands of times with different gains, so this runs once per
 spec and the result is cached in the worker process.
@@ -27,27 +29,19 @@ import mujoco
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from gainfarm.models import FLANGE, compile_model
-from gainfarm.schemas.robot import (
-    ACCELERATION_LIMITS,
-    JOINT_NAMES,
-    N_JOINTS,
-    POSITION_LIMITS,
-    SPEED_LIMITS,
-    ModelSpec,
-)
-from gainfarm.schemas.trajectory import MIN_DURATION, TrajectoryKind, TrajectorySpec
+from gainfarm.models import compile_model, robot_of
+from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.ik import (
     ORIENTATION_TOLERANCE,
     REACH_TOLERANCE,
-    READY_POSTURE,
     UnreachablePath,
     ready_posture,
     solve_path,
 )
 from gainfarm.worker.trajectories import (
-    fourier_coefficients,
-    fourier_series,
+    Kind,
+    kind_of,
     minimum_jerk_derivatives,
     path_points,
     rest_points,
@@ -57,10 +51,13 @@ from gainfarm.worker.trajectories import (
 )
 
 # Kinematics do not depend on the elastic-joint parameters or inertials: the rigid chain serves all.
+# The default robot's (a reference is of it until the plant's robot is passed: issue 49).
 _KINEMATIC_MODEL = ModelSpec(joints="rigid", substeps=1)
-_POSITION = np.array(POSITION_LIMITS)
-_SPEED = np.array(SPEED_LIMITS)
-_ACCELERATION = np.array(ACCELERATION_LIMITS)
+_ROBOT = robot_of(_KINEMATIC_MODEL)
+JOINT_NAMES, N_JOINTS, FLANGE = _ROBOT.joint_names, len(_ROBOT.joint_names), _ROBOT.flange
+_POSITION = np.array(_ROBOT.limits.position)
+_SPEED = np.array(_ROBOT.limits.speed)
+_ACCELERATION = np.array(_ROBOT.limits.acceleration)
 
 PATH_SAMPLES = 1000  # IK solutions along a whole Cartesian path (shared by segment length)
 MIN_SEGMENT_SAMPLES = 100  # and at least this many per rest-to-rest segment
@@ -68,14 +65,6 @@ MIN_SEGMENT_SAMPLES = 100  # and at least this many per rest-to-rest segment
 # finer than the control ticks of any duration up to 20 s, so no tick sees a higher peak.
 LIMIT_SAMPLES = 10001
 LIMIT_TOLERANCE = 1e-9  # relative: a duration exactly at the limit is feasible
-# Fourier excitation: the share of each joint's speed and acceleration limit it may use, its
-# largest excursion from the ready posture, its clearance from the joint ranges, and the lowest
-# height the flange may reach (the robot stands on the floor, z = 0).
-FOURIER_SHARE = 0.85
-FOURIER_SPAN = 1.0  # rad
-FOURIER_RANGE_MARGIN = 0.1  # rad
-FOURIER_FLOOR = 0.1  # m
-_FOURIER_SHRINK = 0.9  # per try, until the flange clears the floor
 
 
 class InfeasibleReference(ValueError):
@@ -102,8 +91,9 @@ def reference_for(spec: TrajectorySpec) -> Reference:
     """
     model = compile_model(_KINEMATIC_MODEL)
     t = sample_times(spec)
-    if spec.kind == TrajectoryKind.fourier:
-        q, qd, qdd = _fourier(spec, model, t)
+    kind = kind_of(spec)
+    if kind.joint_motion is not None:
+        q, qd, qdd = _joint_motion(spec, kind, t)
         ee, _ = _flange(model, q)
     else:
         q, qd, qdd, s = _cartesian(spec, t)
@@ -142,11 +132,13 @@ class _Segment:
 def shortest_duration(spec: TrajectorySpec) -> float:
     """The shortest duration, rounded up to 0.1 s, at which `spec`'s motion is feasible.
 
-    Cartesian kinds: Σ T_i* of its segments (which needs the inverse kinematics, cached); the
-    fourier kind scales itself into the limits at any duration.
+    Cartesian kinds: Σ T_i* of its segments (which needs the inverse kinematics, cached); a
+    joint-space kind says its own (the fourier kind scales itself into the limits at any
+    duration).
     """
-    if spec.kind == TrajectoryKind.fourier:
-        return MIN_DURATION
+    kind = kind_of(spec)
+    if kind.joint_motion is not None:
+        return round_up(_declared_shortest(spec, kind))
     return round_up(sum(segment.shortest for segment in _segments(_path_of(spec))))
 
 
@@ -291,52 +283,47 @@ def _check_pose(
         )
 
 
-# --- Fourier excitation ---------------------------------------------------------------------
+# --- Joint-space kinds ------------------------------------------------------------------------
 
 
-def _fourier(
-    spec: TrajectorySpec, model: mujoco.MjModel, t: np.ndarray
+def _joint_motion(
+    spec: TrajectorySpec, kind: Kind, t: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """q, qd, qdd at `t`: the seeded series, each joint scaled to its binding limit.
-
-    One period per episode (base frequency 1/duration). Each joint's amplitude is the largest
-    that keeps it within FOURIER_SHARE of its speed and acceleration limits, FOURIER_SPAN of the
-    ready posture and FOURIER_RANGE_MARGIN inside its range; then all joints shrink together
-    until the flange stays FOURIER_FLOOR above the floor.
-    """
-    a, b = fourier_coefficients(spec, N_JOINTS)
-    x, dx, ddx = fourier_series(a, b, np.linspace(0.0, 1.0, LIMIT_SAMPLES))
-    room_up = np.minimum(FOURIER_SPAN, _POSITION - FOURIER_RANGE_MARGIN - READY_POSTURE)
-    room_down = np.minimum(FOURIER_SPAN, _POSITION - FOURIER_RANGE_MARGIN + READY_POSTURE)
-    tiny = np.finfo(float).tiny
-    duration = spec.duration
-    scale = np.min(
-        [
-            room_up / np.maximum(x.max(axis=0), tiny),
-            room_down / np.maximum(-x.min(axis=0), tiny),
-            FOURIER_SHARE * _SPEED * duration / np.maximum(np.abs(dx).max(axis=0), tiny),
-            FOURIER_SHARE * _ACCELERATION * duration**2 / np.maximum(np.abs(ddx).max(axis=0), tiny),
-        ],
-        axis=0,
-    )
-    x, dx, ddx = fourier_series(a, b, np.clip(t / duration, 0.0, 1.0))
-    data = mujoco.MjData(model)
-    site = model.site(FLANGE).id
-    while True:
-        q = READY_POSTURE + x * scale
-        if _lowest(model, data, site, q) >= FOURIER_FLOOR:
-            break
-        scale = scale * _FOURIER_SHRINK
-    return q, dx * (scale / duration), ddx * (scale / duration**2)
+    """The kind's q, qd, qdd at the ticks `t`, checked: a plug-in's is a stranger's code, and
+    the motion must be one the arm can follow (InfeasibleReference naming the kind's shortest
+    duration if it is too fast)."""
+    if kind.joint_motion is None:
+        raise ValueError(f"trajectory kind {spec.kind!r} has no joint motion")
+    motion = tuple(np.asarray(part, dtype=float) for part in kind.joint_motion(spec, t))
+    if len(motion) != 3 or any(
+        part.shape != (len(t), N_JOINTS) or not np.all(np.isfinite(part)) for part in motion
+    ):
+        raise ValueError(
+            f"trajectory kind {spec.kind!r}: its joint motion is not q, qd, qdd of "
+            f"({len(t)}, {N_JOINTS}) finite values"
+        )
+    q, qd, qdd = motion
+    speed = np.abs(qd).max(axis=0) / _SPEED
+    acceleration = np.abs(qdd).max(axis=0) / _ACCELERATION
+    binding = np.maximum(speed, acceleration)
+    joint = int(np.argmax(binding))
+    if binding[joint] > 1.0 + LIMIT_TOLERANCE:
+        which = "speed" if speed[joint] >= acceleration[joint] else "acceleration"
+        raise InfeasibleReference(
+            f"the {spec.duration:g} s {spec.kind} is too fast for the iiwa 14: "
+            f"{JOINT_NAMES[joint]} would need {binding[joint]:.2f}x its {which} limit; "
+            f"the shortest feasible duration is {round_up(_declared_shortest(spec, kind)):.1f} s"
+        )
+    return q, qd, qdd
 
 
-def _lowest(model: mujoco.MjModel, data: mujoco.MjData, site: int, q: np.ndarray) -> float:
-    lowest = math.inf
-    for qk in q:
-        data.qpos[:] = qk
-        mujoco.mj_kinematics(model, data)
-        lowest = min(lowest, float(data.site_xpos[site, 2]))
-    return lowest
+def _declared_shortest(spec: TrajectorySpec, kind: Kind) -> float:
+    """A joint-space kind's shortest feasible duration, as it declares it."""
+    if kind.shortest_duration is None:
+        raise ValueError(
+            f"trajectory kind {spec.kind!r}: a joint motion without its shortest duration"
+        )
+    return float(kind.shortest_duration(spec))
 
 
 # --- Both -----------------------------------------------------------------------------------

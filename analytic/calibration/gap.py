@@ -21,6 +21,7 @@ from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.robot import TORQUE_LIMITS, ModelSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
+from gainfarm.worker.reference import flange_positions, reference_for
 
 
 @dataclass(frozen=True)
@@ -124,8 +125,6 @@ def read_played(path: Path) -> list[Played]:
 def played_by(recording: Recording, played: Sequence[Played]) -> Played:
     """Which of `played` the recording's angles follow (the nearest reference, RMS); BadLog if
     none within FOLLOWS."""
-    from gainfarm.worker.reference import reference_for
-
     if not played:
         raise BadLog(
             f"{recording.name!r}: a robot's bag names no controller: say what was played "
@@ -150,8 +149,6 @@ def as_episode(recording: Recording, played: Played, nominal: ModelSpec) -> Epis
     arm's (the flange by the arm's kinematics from its angles), scored as any episode is. The
     commanded torque stands for the applied one: the objectives of torque change do not see the
     delay between them."""
-    from gainfarm.worker.reference import flange_positions, reference_for
-
     reference = reference_for(played.trajectory)
     n = min(len(reference.q), recording.ticks)
     spec = EpisodeSpec(gains=played.gains, trajectory=played.trajectory, model=nominal)

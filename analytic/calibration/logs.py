@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
+from rosbags.highlevel import AnyReader
 
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import PDGains
@@ -24,7 +25,6 @@ from gainfarm.schemas.robot import JOINT_NAMES, SPEED_LIMITS
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, CONTROL_PERIOD_NS, TrajectorySpec
 
 if TYPE_CHECKING:
-    from rosbags.highlevel import AnyReader
     from rosbags.interfaces import Connection
 
 
@@ -197,8 +197,6 @@ def read_bag(path: Path, topics: Topics = Topics()) -> Recording:
     logged, motor states, each `sensor_msgs/JointState` at the plant's 500 Hz (a bag at an
     integer multiple of it, 1 kHz say, is taken every k-th message); BadLog in one line naming
     the file and what is missing or wrong."""
-    from rosbags.highlevel import AnyReader
-
     name = str(path)
     _check_bounds(Path(path))
     try:

@@ -1,33 +1,16 @@
 """`analytic batch`: fixed candidates' episodes on the farm, every one kept and scored."""
 
-import json
-import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import click
 
-from gainfarm.analytic.commands.shared import (
-    check_farm,
-    claimed,
-    farm,
-    farm_options,
-    farm_problem,
-    followable,
-    study_name,
-)
+from gainfarm.analytic.commands.shared import farm_options, prechecked
 from gainfarm.cli import options
-from gainfarm.cli.app import CliError
 
-if TYPE_CHECKING:
-    from gainfarm.analytic.evaluators.evaluator import EpisodeResult
-    from gainfarm.schemas.gains import PDGains
-
-
-def _deadline() -> float:
-    from gainfarm.analytic.evaluators.farm import DEFAULT_DEADLINE
-
-    return DEFAULT_DEADLINE
+# Held here, not imported, so that parsing and --help load nothing heavy: tests/analytic/commands/
+# test_held_defaults.py keeps each equal to its source's.
+DEADLINE = 600.0  # s: analytic.evaluators.farm.DEFAULT_DEADLINE
 
 
 @click.command()
@@ -55,161 +38,15 @@ def _deadline() -> float:
 @click.option(
     "--deadline",
     type=click.FloatRange(min=1),
-    default=options.Later(_deadline),
+    default=DEADLINE,
     show_default=True,
     help="seconds before an unanswered job is resubmitted",
 )
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object per evaluation")
-def batch(
-    connect: tuple[str, ...],
-    tls: Path | None,
-    participant: str | None,
-    local: bool,
-    workers: int | None,
-    gains_file: Path | None,
-    kinds: tuple[str, ...],
-    duration: float,
-    trajectory_seed: int,
-    center: str,
-    size: float,
-    joints: str,
-    plant: str,
-    payload: float | None,
-    payload_com: tuple[float, ...] | None,
-    feedforward: Path | None,
-    run_dir: Path | None,
-    deadline: float,
-    as_json: bool,
-) -> None:
+def batch(**given: Any) -> None:
     """Evaluate candidate gains on trajectories through the farm; keep and score every episode."""
-    from gainfarm.analytic.evaluators.batch import EVALUATIONS, batch_jobs, run_batch
-    from gainfarm.analytic.evaluators.farm import FarmClient
-    from gainfarm.analytic.view.progress import Display
-    from gainfarm.cli import interrupts
-    from gainfarm.cli.gains import refuse_saturating, warn_far_outside_search
-    from gainfarm.models.dynamics import digest
-    from gainfarm.schemas.wire import BadMessage
+    prechecked(given)  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.analytic.commands.work.batch import batch as work
 
-    if not connect and not local:  # batch has no default farm
-        raise CliError("say where the farm is: --connect ENDPOINT or --local")
-    identity = check_farm(connect, local, tls, participant)
-    candidates = _candidates(gains_file)
-    model = options.with_load(options.model_spec(plant, joints), payload, payload_com, plant)
-    # Episodes that saturate every tick are refused, as `worker episode` refuses them.
-    refuse_saturating(candidates, model, gains_file)
-    if gains_file is not None:
-        warn_far_outside_search("analytic", candidates, gains_file)
-    trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
-    followable(trajectories)
-    learned = options.feedforward_model(feedforward)
-    models = {digest(learned[0]): learned[0]} if learned is not None else {}
-    jobs = batch_jobs(candidates, trajectories, model, *models)
-    run_dir = run_dir or Path("runs") / time.strftime("batch-%Y%m%d-%H%M%S")
-    if (run_dir / EVALUATIONS).exists():
-        raise CliError(f"--run-dir: {str(run_dir)!r} already holds a batch; choose another")
-    with claimed(run_dir, "--run-dir") as keep, farm(connect, workers) as endpoints:
-        try:
-            client = FarmClient(
-                endpoints,
-                study_name(run_dir, identity),
-                run_dir,
-                deadline=deadline,
-                identity=identity,
-                models=models,
-            )
-        except (ValueError, ConnectionError) as error:
-            raise CliError(farm_problem(connect, error)) from None
-        keep()  # once the farm answers, the episodes are the batch's: kept, even if stopped
-        with client, Display(enabled=not as_json) as display:
-            done = 0
-
-            def report(evaluation: "EpisodeResult") -> None:
-                nonlocal done
-                interrupts.check()
-                done += 1
-                display.show(f"{done} of {len(jobs)} evaluated")
-                if done * 10 // len(jobs) != (done - 1) * 10 // len(jobs):  # every tenth
-                    display.log(f"{done} of {len(jobs)} evaluated")
-                if as_json:
-                    click.echo(json.dumps(_summary(evaluation)))
-
-            try:
-                evaluations = run_batch(client, jobs, run_dir, report)
-            except BadMessage as error:
-                raise CliError(str(error)) from None
-    if not as_json:
-        _print_evaluations(evaluations, run_dir, EVALUATIONS)
-
-
-def _candidates(path: Path | None) -> list["PDGains"]:
-    """--gains' candidates: an exported controller or a list of gains, JSON or YAML
-    (schemas.controller.read_gains), or every member of a run's front.csv."""
-    from gainfarm.analytic.tuning.records import FRONT_FIELDS, read_front
-    from gainfarm.schemas.controller import BadGains, read_gains
-    from gainfarm.schemas.documents import BadDocument, read_bounded
-    from gainfarm.schemas.gains import DEFAULT_GAINS
-
-    if path is None:
-        return [DEFAULT_GAINS]
-    try:
-        raw = read_bounded(path)
-    except OSError as error:
-        raise CliError(f"--gains: cannot read {str(path)!r}: {error.strerror}") from None
-    except BadDocument as error:
-        raise CliError(f"--gains: {str(path)!r}: {error}") from None
-    if raw.startswith(FRONT_FIELDS[0].encode() + b","):  # a CSV whose header is front.csv's
-        try:
-            front = read_front(path)
-        except ValueError as error:
-            # The reader's message starts with the path: named once, quoted as ours are.
-            reason = str(error).removeprefix(f"{path}: ")
-            raise CliError(f"--gains: {str(path)!r}: {reason}") from None
-        if not front:
-            raise CliError(f"--gains: {str(path)!r} is a front.csv with no members")
-        return [member.gains for member in front]
-    try:
-        return read_gains(raw)
-    except BadGains as error:
-        raise CliError(f"--gains: {str(path)!r}: {error}") from None
-
-
-def _summary(evaluation: "EpisodeResult") -> dict[str, object]:
-    scores = evaluation.scores.model_dump() if evaluation.scores else {}
-    episode = str(evaluation.log) if evaluation.log else None
-    return {
-        "job_id": evaluation.job_id,
-        "status": evaluation.status.value,
-        **scores,
-        "reason": evaluation.reason,
-        "episode": episode,
-    }
-
-
-def _print_evaluations(evaluations: list["EpisodeResult"], run_dir: Path, name: str) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
-    from gainfarm.cli.scores import DIVERGED_TEXT, print_title
-
-    table = Table(
-        "job",
-        "status",
-        "f_acc (mm)",
-        "f_t ((N·m)²)",
-        "worker",
-    )
-    for evaluation in evaluations:
-        scores = evaluation.scores
-        table.add_row(
-            evaluation.job_id,
-            evaluation.status
-            if not evaluation.reason
-            else f"{evaluation.status}: {evaluation.reason}",
-            f"{scores.f_acc * 1000:.3f}" if scores else "",
-            f"{scores.f_t:.4g}" if scores else "",
-            evaluation.worker,
-        )
-    print_title(Console(), f"{run_dir}/{name}")
-    Console().print(table)
-    if any(evaluation.scores and evaluation.scores.diverged for evaluation in evaluations):
-        Console().print(DIVERGED_TEXT, highlight=False)
+    work(**given)

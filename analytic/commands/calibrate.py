@@ -1,16 +1,12 @@
 """`analytic calibrate`: fit a twin of an arm to its logged episodes, as a plant file."""
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import click
 
 from gainfarm.analytic.commands.shared import bag_topics
 from gainfarm.cli import options
-from gainfarm.cli.app import CliError
-
-if TYPE_CHECKING:
-    from gainfarm.analytic.tuning.plants import Range
 
 
 @click.command()
@@ -33,119 +29,14 @@ if TYPE_CHECKING:
 )
 @bag_topics
 @click.option("--json", "as_json", is_flag=True, help="print the fit as one JSON object")
-def calibrate(
-    logs: tuple[Path, ...],
-    out: Path,
-    plant: str,
-    payload: float | None,
-    payload_com: tuple[float, ...] | None,
-    seed: int,
-    joint_states: str,
-    commands: str,
-    motor_states: str,
-    as_json: bool,
-) -> None:
+def calibrate(**given: Any) -> None:
     """Fit a twin of an arm to LOGS, its recorded episodes (`analytic excite` says what to
     record): gainfarm episode logs, or ROS 2 bags (directories, MCAP or SQLite files) of
     sensor_msgs/JointState at 500 Hz. It fits the delay, rotor inertias, friction, joint
     stiffness and damping, and the links' masses with a payload, each with its uncertainty; the
     twin is --plant's plant (the robot's own model, the controller's settings, and every number
     the logs cannot tell) with them; --payload: the load the arm was told as it recorded them."""
-    import json
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.analytic.commands.work.calibrate import calibrate as work
 
-    from gainfarm.analytic.calibration.identify import identify
-    from gainfarm.analytic.calibration.logs import BadLog, Topics, read_recording
-    from gainfarm.analytic.calibration.twin import twin_file, write_text
-    from gainfarm.edges.files import write_atomically
-
-    # The arm as it recorded: a twin's own payload stays untold (no `plant` given), as it was.
-    nominal = options.with_load(options.model_spec(plant), payload, payload_com)
-    prior = _prior_ranges(plant)
-    if not out.parent.is_dir():
-        raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
-    topics = Topics(joint_states, commands, motor_states)
-    recordings = []
-    for path in logs:
-        try:
-            recordings.append(read_recording(path, topics))
-        except BadLog as error:
-            raise CliError(str(error)) from None
-    if nominal.joints != "flexible":
-        raise CliError("--plant: calibration fits elastic joints; this plant's are rigid")
-    try:
-        fit = identify(recordings, nominal, seed)
-        twin = twin_file(fit, nominal, logs, prior)
-    except ValueError as error:
-        raise CliError(str(error)) from None
-    try:
-        write_atomically(out, write_text(twin).encode())
-    except OSError as error:
-        raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
-    if as_json:
-        click.echo(json.dumps({"twin": str(out), **twin.calibration}))
-        return
-    _show(twin.calibration, out)
-
-
-def _prior_ranges(plant: str) -> "dict[str, Range] | None":
-    """--plant's own uncertainty, if it is a plant file that has one (a twin calibrated again)."""
-    from gainfarm.analytic.tuning.plants import BadUncertainty, ranges_of
-    from gainfarm.schemas.robot import PLANTS
-
-    if plant in PLANTS:
-        return None
-    try:
-        return ranges_of(options.plant_file(plant).uncertainty) or None
-    except BadUncertainty as error:
-        raise CliError(f"--plant: {plant!r}: uncertainty: {error}") from None
-
-
-def _show(calibration: dict, out: Path) -> None:
-    """The fit per joint, each number with its spread, the untold ones marked."""
-    from rich.console import Console
-    from rich.table import Table
-
-    from gainfarm.schemas.robot import JOINT_NAMES
-
-    columns = (
-        ("rotor_inertia", "B kg·m²"),
-        ("stiffness", "K N·m/rad"),
-        ("spring_damping", "D N·m·s/rad"),
-        ("coulomb", "F_c N·m"),
-        ("viscous", "F_v N·m·s/rad"),
-        ("mass_scale", "mass scale"),
-    )
-    table = Table(
-        "joint",
-        *(label for _, label in columns),
-        title=f"{out}: fitted on {calibration['episodes']} episodes (± one bootstrap deviation; "
-        "dim: not told by the logs)",
-    )
-    for joint, name in enumerate(JOINT_NAMES):
-        cells = []
-        for key, _ in columns:
-            entry = calibration[key]
-            fit, spread = entry["fit"][joint], entry["spread"][joint]
-            if entry["told"][joint]:
-                cells.append(f"{fit:.4g} ±{spread / abs(fit):.1%}")
-            else:
-                cells.append(f"[dim]{fit:.4g}[/dim]")
-        table.add_row(name, *cells)
-    console = Console(stderr=False)
-    console.print(table)
-    delay, smoothing = calibration["delay"], calibration["smoothing"]
-    payload = calibration["payload"]
-    told = f"±{smoothing['spread']:.1%}" if smoothing["told"] else "untold, the nominal kept"
-    console.print(
-        f"delay {delay['ticks']} ticks ({delay['support']:.0%} of bootstrap resamples); "
-        f"friction smoothing {smoothing['fit']:.3g} rad/s ({told}); "
-        f"payload {payload['fit'][0]:.3g} kg"
-    )
-    seen = set()
-    for name, _ in (*columns, ("payload", "")):
-        why = calibration[name]["why"]
-        if why and why not in seen:
-            seen.add(why)
-            console.print(f"untold, {name}: {why}")
-    for note in calibration["notes"]:
-        console.print(f"note: {note}")
+    work(**given)

@@ -11,28 +11,13 @@ from typing import TYPE_CHECKING
 
 import click
 
-from gainfarm.analytic.commands.shared import (
-    check_farm,
-    config_problem,
-    farm_options,
-    farm_problem,
-    followable,
-    own_farm,
-    pop_option,
-    refuse_under_a_file,
-    study_name,
-    termination_options,
-    unwritable,
-)
-from gainfarm.cli import interrupts, options
+from gainfarm import plugins
+from gainfarm.analytic.commands.shared import farm_options, pop_option, termination_options
+from gainfarm.cli import options
 from gainfarm.cli.app import CliError
 
 if TYPE_CHECKING:
-    from gainfarm.analytic.experiments.base import ExperimentSpec
-
-# Without a terminal, an experiment's progress is a plain line this often at most: its runs go
-# on side by side, each a line per evaluation.
-EXPERIMENT_LOG_SECONDS = 10.0
+    from gainfarm.analytic.experiments.registry import ExperimentSpec
 
 
 def _shared_options(duration: float | None) -> list[click.Parameter]:
@@ -105,17 +90,16 @@ def _flags(name: str) -> set[str]:
 
 
 def _names() -> list[str]:
-    from gainfarm.analytic.experiments import names
-
-    return names()
+    return sorted(plugins.names(plugins.EXPERIMENTS))
 
 
 def _spec(name: str) -> "ExperimentSpec":
-    from gainfarm.analytic.experiments import UnknownExperiment, load
+    # start-up: keeps the experiments' declarations (pydantic, numpy) off analytic --help
+    from gainfarm.analytic.experiments.registry import load
 
     try:
         return load(name)
-    except UnknownExperiment as error:
+    except plugins.PluginError as error:
         raise CliError(f"NAME: {error}") from None
 
 
@@ -161,112 +145,8 @@ def experiment() -> None:
     experiment directory (--out) that exists is resumed."""
 
 
-def _run(
-    spec: "ExperimentSpec",
-    reps: int,
-    pop: int,
-    plant: str,
-    generations: int | None,
-    evaluations: int | None,
-    connect: tuple[str, ...],
-    tls: Path | None,
-    participant: str | None,
-    local: bool,
-    workers: int | None,
-    parallel_runs: int | None,
-    out: Path,
-    duration: float | None = None,
-    limits_file: Path | None = None,
-    payload: float | None = None,
-    payload_com: tuple[float, ...] | None = None,
-    **given: str | None,
-) -> None:
-    """Check everything the experiment needs before anything runs, then run it on the farm."""
-    from pydantic import ValidationError
-    from rich.console import Console
+def _run(spec: "ExperimentSpec", **given: object) -> None:
+    # start-up: the work loads when the experiment runs, not to parse it or show its --help
+    from gainfarm.analytic.commands.work.experiment import run
 
-    from gainfarm.analytic.evaluators.farm import FarmClient
-    from gainfarm.analytic.experiments.base import Experiment
-    from gainfarm.analytic.tuning.config import RunConfig
-    from gainfarm.analytic.tuning.run import RunBusy
-    from gainfarm.analytic.view.progress import Display
-    from gainfarm.schemas.trajectory import TrajectorySpec
-
-    options.check_load(payload, payload_com)
-    identity = check_farm(connect, local, tls, participant)
-    limits = options.limits_from(limits_file)
-    values: dict[str, object] = {}
-    for option in spec.options:
-        text = given[option.parameter]
-        if text is None:  # not given and no default: the experiment's own
-            continue
-        try:
-            values[option.parameter] = option.parse(text)
-        except ValueError as error:
-            raise CliError(f"{option.flag}: {error}") from None
-    try:
-        base = RunConfig(
-            pop=pop,
-            trajectories=(
-                TrajectorySpec() if duration is None else TrajectorySpec(duration=duration),
-            ),
-            model=options.with_load(options.model_spec(plant), payload, payload_com, plant),
-            limits=limits,
-            generations=generations,
-            evaluations=evaluations,
-            keep="front",
-        )
-        base = spec.prepare(base, values)
-        trajectories = list(spec.trajectories(base, values))
-    except ValidationError as error:
-        raise CliError(config_problem(error)) from None
-    except ValueError as error:
-        raise CliError(str(error)) from None
-    followable(trajectories, spec.trajectory_option)
-    refuse_under_a_file(out, "--out")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise CliError(f"--out: cannot create {str(out)!r}: {error.strerror}") from None
-    console = Console(stderr=True)
-
-    def progress(text: str) -> None:
-        """A run's step (called from the runs' threads): the place a Ctrl-C stops them."""
-        interrupts.check()
-        display.show(text)
-        display.every(text, EXPERIMENT_LOG_SECONDS)
-
-    try:
-        with (
-            own_farm(connect, workers) as (endpoints, own_workers),
-            Display(console, hushed=interrupts.INTERRUPTED.is_set) as display,
-        ):
-            display.show(spec.name)
-            experiment = Experiment(
-                out,
-                # The experiment's own names for its runs are neither unique nor short enough
-                # for farm studies. Experiments keep their fronts' logs alone: fetched from the
-                # workers.
-                lambda _name, directory: FarmClient(
-                    endpoints,
-                    study_name(directory, identity),
-                    directory,
-                    identity=identity,
-                    keep_logs=False,
-                    trusted=not connect,  # a local farm of this process's own workers
-                    own_workers=own_workers,  # ... and none other
-                ),
-                progress,
-                parallel=parallel_runs,
-            )
-            try:
-                spec.run(experiment, base, reps, **values)
-            except (ValueError, RunBusy) as error:
-                raise CliError(str(error)) from None
-    except OSError as error:
-        if isinstance(error, ConnectionError):
-            raise CliError(farm_problem(connect, error)) from None
-        raise unwritable(error, "run the same command again to go on") from None
-    except KeyboardInterrupt:
-        interrupts.stop("analytic", "stopped; run the same command again to go on")
-    click.echo(f"{spec.name}: report, figures and results.csv in {out}/", err=True)
+    run(spec, **given)  # type: ignore[arg-type]

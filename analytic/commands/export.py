@@ -1,17 +1,15 @@
 """`analytic export`: a run's controller, out of the run."""
 
 from pathlib import Path
+from typing import Any
 
 import click
 
-from gainfarm.cli.app import CliError
-from gainfarm.cli.options import LazyChoice
+from gainfarm.analytic.commands.shared import prechecked
 
-
-def _formats() -> tuple[str, ...]:
-    from gainfarm.analytic.view.export import FORMATS
-
-    return FORMATS
+# Held here, not imported, so that parsing and --help load nothing heavy: tests/analytic/commands/
+# test_held_defaults.py keeps each equal to its source's.
+FORMATS = ("json", "yaml", "ros2_control")  # analytic.view.export.FORMATS
 
 
 @click.command()
@@ -28,7 +26,7 @@ def _formats() -> tuple[str, ...]:
 @click.option(
     "--format",
     "fmt",
-    type=LazyChoice(_formats),
+    type=click.Choice(FORMATS),
     default="json",
     show_default=True,
     help="json: what `analytic batch --gains` and `worker episode --gains` read; yaml: the "
@@ -38,32 +36,11 @@ def _formats() -> tuple[str, ...]:
 @click.option(
     "--out", type=click.Path(path_type=Path), help="file to write  [default: standard output]"
 )
-def export(run_dir: Path, member: str, fmt: str, out: Path | None) -> None:
+def export(**given: Any) -> None:
     """Write a run's controller: one front member's gains, with its joints, units, scores and
     the run it came from."""
-    from gainfarm.analytic.view.export import BadMember, BadRun
-    from gainfarm.analytic.view.export import controller as exported_controller
-    from gainfarm.analytic.view.export import render as render_controller
-    from gainfarm.edges.files import write_atomically
+    prechecked(given, "run_dir")  # before the work's imports: the contract, MuJoCo, pymoo
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.analytic.commands.work.export import export as work
 
-    try:
-        chosen = exported_controller(run_dir, member)
-    except BadRun as error:
-        raise CliError(str(error)) from None
-    except BadMember as error:
-        raise CliError(f"--member: {error}") from None
-    content = render_controller(chosen, fmt)
-    if out is None:
-        click.echo(content.decode(), nl=False)
-        return
-    if not out.parent.is_dir():
-        raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
-    try:
-        write_atomically(out, content)
-    except OSError as error:
-        raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror or error}") from None
-    click.echo(
-        f"{out}: {chosen.member.selected} of {run_dir} (front.csv row {chosen.member.row}: "
-        f"{chosen.member.f_acc * 1000:.3f} mm, f_t {chosen.member.f_t:.4g} (N·m)²), {fmt}",
-        err=True,
-    )
+    work(**given)

@@ -1,31 +1,16 @@
 """`analytic learn`: a model of the arm's dynamics, learned from a dataset."""
 
-import inspect
 from pathlib import Path
+from typing import Any
 
 import click
 
-from gainfarm.cli.app import CliError
-from gainfarm.cli.options import Later, LazyChoice
-
-
-def _targets() -> tuple[str, ...]:
-    from gainfarm.models.dynamics import TARGETS
-
-    return TARGETS
-
-
-def _kinds() -> tuple[str, ...]:
-    from gainfarm.models.dynamics import KINDS
-
-    return KINDS
-
-
-def _default(parameter: str) -> object:
-    """The default of `learn`'s `parameter`: the library's, said once."""
-    from gainfarm.analytic.data.learning import learn
-
-    return inspect.signature(learn).parameters[parameter].default
+# Held here, not imported, so that parsing and --help load nothing heavy: tests/analytic/commands/
+# test_held_defaults.py keeps each equal to its source's.
+# models.dynamics's TARGETS and KINDS; analytic.data.learning.learn's defaults
+TARGETS = ("inverse", "forward")
+KINDS = ("rigid", "linear", "mlp", "residual", "plant")
+TARGET, KIND, SEED = "inverse", "residual", 0
 
 
 @click.command()
@@ -35,44 +20,28 @@ def _default(parameter: str) -> object:
 )
 @click.option(
     "--target",
-    type=LazyChoice(_targets),
-    default=Later(lambda: _default("target")),
+    type=click.Choice(TARGETS),
+    default=TARGET,
     show_default=True,
     help="inverse: torque u from (q, q̇, q̈); forward: q̈ from (q, q̇, u)",
 )
 @click.option(
     "--kind",
-    type=LazyChoice(_kinds),
-    default=Later(lambda: _default("kind")),
+    type=click.Choice(KINDS),
+    default=KIND,
     show_default=True,
     help="rigid: the rigid-body physics prior, untrained; linear: its parameters identified "
     "by least squares; mlp: a network; residual: the prior plus a network of what it misses; "
     "plant: the simulated plant's own dynamics (payload and friction too), the anchor",
 )
-@click.option(
-    "--seed", type=click.IntRange(min=0), default=Later(lambda: _default("seed")), show_default=True
-)
-def learn(dataset_dir: Path, out: Path, target: str, kind: str, seed: int) -> None:
+@click.option("--seed", type=click.IntRange(min=0), default=SEED, show_default=True)
+def learn(**given: Any) -> None:
     """Learn the arm's dynamics from a dataset's train split; score on its test split.
 
     Writes OUT/model.npz (what --feedforward takes), scores.json (nMSE and RMSE per joint),
     report.md and prediction.png.
     """
-    from gainfarm.analytic.data.learning import LearnError, OutUnwritable
-    from gainfarm.analytic.data.learning import learn as learn_model
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.analytic.commands.work.learn import learn as work
 
-    try:
-        scores = learn_model(dataset_dir, out, target, kind, seed)
-    except OutUnwritable as error:
-        raise CliError(f"--out: {error}") from None
-    except LearnError as error:
-        raise CliError(str(error)) from None
-    nmse = " ".join(f"{joint} {value:.3f}" for joint, value in scores["nmse"].items())
-    calm = scores["calm"]
-    calm_text = f", calm {calm['nmse_mean']:.4f}" if calm and calm["rows"] < scores["rows"] else ""
-    click.echo(
-        f"{out}: {kind} {target} model, test nMSE {scores['nmse_mean']:.4f}{calm_text} "
-        f"(mean over A1-A6; the plant's own dynamics {scores['floor']['nmse_mean']:.4f}, the "
-        f"rigid prior {scores['prior']['nmse_mean']:.3f}, the mean "
-        f"{scores['mean_predictor_nmse']:.2f}) · {nmse}"
-    )
+    work(**given)

@@ -1,71 +1,21 @@
 """`analytic resume`: a stopped run, on from its last checkpoint."""
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import click
 
-from gainfarm.analytic.commands.shared import check_farm, farm_options, run_with_progress
-from gainfarm.cli.app import CliError
-
-if TYPE_CHECKING:
-    from collections.abc import Callable
-
-    from gainfarm.analytic.compose import Watch
-    from gainfarm.analytic.tuning.check import CheckPlan
-    from gainfarm.analytic.tuning.run import TuningRun
+from gainfarm.analytic.commands.shared import farm_options, prechecked
 
 
 @click.command()
 @click.argument("run_dir", type=click.Path(path_type=Path))
 @farm_options
-def resume(
-    run_dir: Path,
-    connect: tuple[str, ...],
-    tls: Path | None,
-    participant: str | None,
-    local: bool,
-    workers: int | None,
-) -> None:
+def resume(**given: Any) -> None:
     """Continue a stopped run from its last checkpoint; or finish one whose evolution had
     ended (its front's validation, the held-out check, the figures and report.md)."""
-    from gainfarm.analytic.compose import CannotStart, complete, tune_run
-    from gainfarm.analytic.tuning.checkpoint import CheckpointRefused
-    from gainfarm.analytic.tuning.records import CONFIG_JSON
-    from gainfarm.analytic.tuning.run import RunBusy, TuningRun
+    prechecked(given, "run_dir")  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.analytic.commands.work.resume import resume as work
 
-    identity = check_farm(connect, local, tls, participant)
-    if not (run_dir / CONFIG_JSON).is_file():
-        raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG_JSON})")
-    try:
-        run = TuningRun.open(run_dir)
-    except (RunBusy, CheckpointRefused) as error:
-        raise CliError(str(error)) from None
-    except OSError as error:  # its lock or run.json cannot be written, or a file read
-        where = f"{str(error.filename)!r}: " if error.filename else ""
-        raise CliError(
-            f"{str(run_dir)!r}: cannot open the run: {where}{error.strerror or error}"
-        ) from None
-    except ValueError as error:
-        from gainfarm.schemas.wire import one_line
-
-        raise CliError(f"{str(run_dir)!r}: unreadable run ({one_line(error)})") from None
-    if complete(run):  # else what a Ctrl-C after the evolution left is done now
-        run.close()
-        raise CliError(f"{str(run_dir)!r} has finished: {run.state.stopped}")
-
-    def go(watch: "Watch", on_check: "Callable[[CheckPlan], None]") -> "TuningRun":
-        tune_run(
-            run,
-            connect=connect,
-            workers=workers,
-            identity=identity,
-            watch=watch,
-            on_check=on_check,
-        )
-        return run
-
-    try:
-        run_with_progress(go, run_dir, connect)
-    except CannotStart as error:  # its feed-forward model file is missing, or another
-        raise CliError(str(error)) from None
+    work(**given)

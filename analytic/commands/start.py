@@ -1,30 +1,20 @@
 """`analytic start`: a tuning run, as `tune` makes it, with its progress on the terminal."""
 
-import contextlib
-from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import click
 
 from gainfarm.analytic.commands.shared import (
     algorithm_names,
-    check_farm,
-    config_problem,
     farm_options,
-    plants_from,
     pop_option,
+    prechecked,
     robustness,
-    run_with_progress,
-    start_option,
     termination_options,
 )
 from gainfarm.analytic.tuning import defaults
 from gainfarm.cli import options
-from gainfarm.cli.app import CliError
-
-if TYPE_CHECKING:
-    from gainfarm.analytic.evaluators.local import LocalFarm
 
 
 @click.command()
@@ -99,6 +89,15 @@ if TYPE_CHECKING:
     "nearly all of it)",
 )
 @click.option(
+    "--objective",
+    "objective_names",
+    multiple=True,
+    metavar="NAME",
+    help="an objective, by name (repeat: two, in order; the first is drawn across, the second "
+    "up): f_acc, f_t, f_t_joint or an installed plug-in's (gainfarm.objectives); replaces "
+    "--torque-measure  [default: f_acc and --torque-measure's]",
+)
+@click.option(
     "--objective-scaling",
     type=click.Choice(defaults.OBJECTIVE_SCALINGS),
     default=defaults.OBJECTIVE_SCALING,
@@ -133,135 +132,15 @@ if TYPE_CHECKING:
     "trajectory and plant), rather than the plain means and worsts, which the roughest "
     "trajectory and the worst plant would dominate",
 )
-def start(
-    pop: int,
-    kinds: tuple[str, ...],
-    duration: float,
-    trajectory_seed: int,
-    center: str,
-    size: float,
-    seed: int,
-    generations: int | None,
-    evaluations: int | None,
-    joints: str,
-    plant: str,
-    payload: float | None,
-    payload_com: tuple[float, ...] | None,
-    feedforward: Path | None,
-    limits_file: Path | None,
-    min_damping: float | None,
-    plants: int,
-    aggregate: str,
-    check_plants: int,
-    uncertainty_file: Path | None,
-    connect: tuple[str, ...],
-    tls: Path | None,
-    participant: str | None,
-    local: bool,
-    workers: int | None,
-    out: Path | None,
-    keep: str,
-    asynchronous: bool,
-    algorithm: str,
-    first_population: str,
-    torque_measure: str,
-    objective_scaling: str,
-    replicate: bool,
-    spot_checks: float | None,
-    balance: bool,
-) -> None:
+def start(**given: Any) -> None:
     """Tune the 14 PD gains with NSGA-II (or --algorithm) on the farm: maximise accuracy,
     minimise torque steps.
 
     Stops after --generations, after --evaluations, or (by default) when the hypervolume has
     stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
     """
-    options.check_load(payload, payload_com)
-    identity = check_farm(connect, local, tls, participant)
-    with _farm(connect, workers) as farm:
-        from pydantic import ValidationError
+    prechecked(given)  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.analytic.commands.work.start import start as work
 
-        from gainfarm.analytic import compose
-        from gainfarm.analytic.tuning.config import RunConfig
-        from gainfarm.analytic.tuning.records import CONFIG_JSON
-        from gainfarm.analytic.tuning.run import RunBusy
-
-        limits = options.limits_from(limits_file, min_damping)
-        trajectories = options.trajectories(kinds, duration, trajectory_seed, center, size)
-        learned = options.feedforward_model(feedforward)
-        model_file = learned[0] if learned is not None else None
-        model = options.with_load(options.model_spec(plant, joints), payload, payload_com, plant)
-        variants = plants_from(plants, uncertainty_file, model, seed, plant=plant, designed=True)
-        held_out = plants_from(
-            check_plants, uncertainty_file, model, seed, held_out=True, plant=plant
-        )
-        try:
-            config = RunConfig(
-                pop=pop,
-                seed=seed,
-                trajectories=trajectories,
-                model=model,
-                plants=variants,
-                check_plants=held_out,
-                aggregate=aggregate,
-                limits=limits,
-                generations=generations,
-                evaluations=evaluations,
-                keep=keep,
-                asynchronous=asynchronous,
-                algorithm=algorithm,
-                objectives=("f_acc", defaults.TORQUE_MEASURES[torque_measure]),
-                from_defaults=first_population == "defaults",
-                objective_scaling=objective_scaling,
-                replicate=replicate,
-                spot_checks=spot_checks,
-                feedforward=_digest(model_file) if model_file is not None else None,
-            )
-        except ValidationError as error:
-            raise CliError(config_problem(error)) from None
-        out = out or compose.new_directory()
-        if (out / CONFIG_JSON).exists():  # `tune` would resume it: a start does not
-            raise CliError(f"--out: {str(out)!r} already holds a run; resume it or choose another")
-        try:
-            run_with_progress(
-                lambda watch, on_check: compose.tune(
-                    config,
-                    out,
-                    connect=connect,
-                    workers=workers,
-                    farm=farm,
-                    identity=identity,
-                    feedforward=model_file,
-                    balance=balance,
-                    watch=watch,
-                    on_check=on_check,
-                ),
-                out,
-                connect,
-            )
-        except compose.CannotStart as error:
-            also = "; give --no-balance" if error.part == "balance" else ""
-            raise CliError(f"{start_option(error.part)}: {error}{also}") from None
-        except RunBusy as error:
-            raise CliError(f"--out: {error}") from None
-
-
-@contextlib.contextmanager
-def _farm(connect: tuple[str, ...], workers: int | None) -> "Iterator[LocalFarm | None]":
-    """Without --connect, a local farm started before anything else is imported or checked:
-    its processes start while this one does that (a second or two), so it serves by the time
-    the first jobs are ready. `tune` stops it when done with it; this block, if `tune` never
-    used it (a refused option, a run directory taken)."""
-    if connect:
-        yield None
-        return
-    from gainfarm.analytic.evaluators.local import LocalFarm
-
-    with LocalFarm(workers) as farm:
-        yield farm
-
-
-def _digest(model_file: bytes) -> str:
-    from gainfarm.models.dynamics import digest
-
-    return digest(model_file)
+    work(**given)

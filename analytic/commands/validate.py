@@ -1,28 +1,12 @@
 """`analytic validate`: an arm's logged episodes replayed on a twin and on the nominal plant."""
 
-import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import click
 
-from gainfarm.analytic.commands.shared import (
-    bag_topics,
-    check_farm,
-    claimed,
-    farm,
-    farm_options,
-    farm_problem,
-    study_name,
-)
+from gainfarm.analytic.commands.shared import bag_topics, farm_options, prechecked
 from gainfarm.cli import options
-from gainfarm.cli.app import CliError
-
-if TYPE_CHECKING:
-    from gainfarm.analytic.calibration.gap import Played
-    from gainfarm.analytic.calibration.logs import Topics
-    from gainfarm.schemas.episode_log import EpisodeLog
-    from gainfarm.schemas.robot import ModelSpec
 
 REPORT = "validation.json"
 
@@ -47,170 +31,13 @@ REPORT = "validation.json"
 )
 @bag_topics
 @click.option("--json", "as_json", is_flag=True, help="print the report as one JSON object")
-def validate(
-    twin: Path,
-    logs: tuple[Path, ...],
-    connect: tuple[str, ...],
-    tls: Path | None,
-    participant: str | None,
-    local: bool,
-    workers: int | None,
-    nominal: str,
-    out: Path | None,
-    played: tuple[Path, ...],
-    joint_states: str,
-    commands: str,
-    motor_states: str,
-    as_json: bool,
-) -> None:
+def validate(**given: Any) -> None:
     """Replay LOGS, an arm's episodes (held out of the calibration), through TWIN and the
     --nominal plant on the farm: per joint, the simulation error of q and of the joint torque
     on each, and each episode's f_acc and f_t as the twin predicts them against the log's.
     LOGS are gainfarm episode logs, or a robot's ROS 2 bags of what --played names."""
-    import json
+    prechecked(given)  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
+    # start-up: the work loads when the command runs, not to parse it or show its --help
+    from gainfarm.analytic.commands.work.validate import validate as work
 
-    from gainfarm.analytic.calibration.gap import gap, pooled, read_played
-    from gainfarm.analytic.calibration.logs import BadLog, Topics
-    from gainfarm.analytic.evaluators.batch import run_batch
-    from gainfarm.analytic.evaluators.farm import FarmClient
-    from gainfarm.edges.files import write_atomically
-    from gainfarm.schemas.episode import EpisodeSpec
-    from gainfarm.schemas.mcap_episode import read_episode
-    from gainfarm.schemas.objectives import score
-    from gainfarm.schemas.plant_file import BadPlantFile, read_plant_file
-    from gainfarm.schemas.wire import BadMessage
-
-    identity = check_farm(connect, local, tls, participant)
-    try:
-        twin_plant = read_plant_file(twin.read_bytes()).plant
-    except OSError as error:
-        raise CliError(f"TWIN: cannot read {str(twin)!r}: {error.strerror}") from None
-    except BadPlantFile as error:
-        raise CliError(f"TWIN: {str(twin)!r}: {error}") from None
-    nominal_plant = options.model_spec(nominal, option="--nominal")
-    topics = Topics(joint_states, commands, motor_states)
-    try:
-        candidates = [item for path in played for item in read_played(path)]
-        logged = [_logged(path, topics, candidates, nominal_plant) for path in logs]
-    except BadLog as error:
-        raise CliError(str(error)) from None
-    jobs = {}
-    for index, log in enumerate(logged):
-        for name, plant in (("twin", twin_plant), ("nominal", nominal_plant)):
-            spec = log.metadata.spec
-            jobs[f"e{index:02d}-{name}"] = EpisodeSpec(
-                gains=spec.gains,
-                trajectory=spec.trajectory,
-                model=plant,
-                gravity_compensation=spec.gravity_compensation and plant.interface == "torque",
-                objectives=spec.objectives,
-            )
-    out = out or Path("runs") / time.strftime("validate-%Y%m%d-%H%M%S")
-    if (out / REPORT).exists():
-        raise CliError(f"--out: {str(out)!r} already holds a validation; choose another")
-    with claimed(out, "--out"), farm(connect, workers) as endpoints:
-        try:
-            client = FarmClient(endpoints, study_name(out, identity), out, identity=identity)
-        except (ValueError, ConnectionError) as error:
-            raise CliError(farm_problem(connect, error)) from None
-        with client:
-            try:
-                results = {r.job_id: r for r in run_batch(client, jobs, out)}
-            except BadMessage as error:
-                raise CliError(str(error)) from None
-    report = {"twin": str(twin), "nominal": nominal, "episodes": []}
-    gaps: dict[str, list] = {"twin": [], "nominal": []}
-    for index, (path, log) in enumerate(zip(logs, logged, strict=True)):
-        entry = {"log": str(path)}
-        logged_scores = score(log)
-        for name in ("twin", "nominal"):
-            result = results.get(f"e{index:02d}-{name}")
-            if result is None or result.log is None or result.scores is None:
-                reason = result.reason if result is not None else "no result"
-                raise CliError(f"{str(path)!r}: its replay on the {name} failed: {reason}")
-            one = gap(log, logged_scores, read_episode(result.log), result.scores)
-            gaps[name].append(one)
-            entry[name] = {
-                "q_rms": one.q.tolist(),
-                "torque_rms": one.torque.tolist(),
-                "f_acc": one.f_acc,
-                "f_t": one.f_t,
-            }
-        entry["logged"] = {"f_acc": logged_scores.f_acc, "f_t": logged_scores.f_t}
-        report["episodes"].append(entry)
-    summary = {}
-    for name in ("twin", "nominal"):
-        summary[name] = {
-            "q_rms": pooled(gaps[name], "q").tolist(),
-            "torque_rms": pooled(gaps[name], "torque").tolist(),
-        }
-    twin_q, nominal_q = (float(pooled(gaps[n], "q").mean()) for n in ("twin", "nominal"))
-    summary["q_ratio"] = twin_q / nominal_q if nominal_q > 0 else float("nan")
-    report["summary"] = summary
-    write_atomically(out / REPORT, json.dumps(report, indent=1).encode())
-    if as_json:
-        click.echo(json.dumps(report))
-        return
-    _show(report, out)
-
-
-def _logged(
-    path: Path, topics: "Topics", played: "list[Played]", nominal: "ModelSpec"
-) -> "EpisodeLog":
-    """LOG as an episode log: a gainfarm one as it is, a robot's bag as an episode of what it
-    played; BadLog in one line."""
-    from gainfarm.analytic.calibration.gap import as_episode, played_by
-    from gainfarm.analytic.calibration.logs import BadLog, read_log
-    from gainfarm.schemas.episode_log import EpisodeLog
-
-    log = read_log(path, topics)
-    if not isinstance(log, EpisodeLog):  # a robot's bag
-        return as_episode(log, played_by(log, played), nominal)
-    if log.metadata.spec.feedforward is not None:
-        raise BadLog(
-            f"{str(path)!r}: its controller adds a feed-forward model; validate replays PD "
-            "controllers"
-        )
-    return log
-
-
-def _show(report: dict, out: Path) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
-    from gainfarm.schemas.robot import JOINT_NAMES
-
-    summary = report["summary"]
-    table = Table(
-        "joint",
-        "q twin (mrad)",
-        "q nominal (mrad)",
-        "ratio",
-        "τ twin (N·m)",
-        "τ nominal (N·m)",
-        title=f"simulation error of {len(report['episodes'])} logged episodes (RMS)",
-    )
-    for j, name in enumerate(JOINT_NAMES):
-        twin_q, nominal_q = summary["twin"]["q_rms"][j], summary["nominal"]["q_rms"][j]
-        table.add_row(
-            name,
-            f"{twin_q * 1e3:.3g}",
-            f"{nominal_q * 1e3:.3g}",
-            f"{twin_q / nominal_q:.2f}" if nominal_q > 0 else "-",
-            f"{summary['twin']['torque_rms'][j]:.3g}",
-            f"{summary['nominal']['torque_rms'][j]:.3g}",
-        )
-    console = Console()
-    console.print(table)
-    episodes = Table(
-        "log", "f_acc logged (mm)", "twin (mm)", "nominal (mm)", title="the objectives predicted"
-    )
-    for entry in report["episodes"]:
-        episodes.add_row(
-            Path(entry["log"]).name,
-            f"{entry['logged']['f_acc'] * 1e3:.3g}",
-            f"{entry['twin']['f_acc'] * 1e3:.3g}",
-            f"{entry['nominal']['f_acc'] * 1e3:.3g}",
-        )
-    console.print(episodes)
-    console.print(f"q error, twin against nominal: {summary['q_ratio']:.3g}x; {out / REPORT}")
+    work(**given)

@@ -1,6 +1,6 @@
 """The baselines a dynamics researcher expects beside the rigid prior, identification and the
 networks: a Gaussian process, and a model with history. For the benchmark table
-(`learning.benchmark`, a release's card) only: each predicts from a split's rows (the history
+(`benchmark` here, a release's card) only: each predicts from a split's rows (the history
 model needs each tick's predecessors in its episode), not from one (q, q̇, q̈), so no model file
 holds them and no worker runs them as a feed-forward.
 
@@ -17,13 +17,29 @@ payload), as the residual network does, so they are compared on the same footing
   spring's lag behind the motor or a friction's hysteresis would leave to learn.
 """
 
+import time
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from gainfarm.analytic.data.learning import LearnError, Rows, fit_network
+from gainfarm.analytic.data.learning import (
+    BENCHMARK,
+    LearnError,
+    Rows,
+    fit,
+    fit_network,
+    floor_model,
+    no_rows,
+    plants,
+    read_split,
+    read_splits,
+    rigid_prior,
+    score_rows,
+)
+from gainfarm.analytic.data.loader import VARIANTS
 from gainfarm.models.dynamics import DynamicsModel, Network
 
 GP_POINTS = 3000
@@ -69,7 +85,7 @@ class History:
 
 def fit_gp(prior: DynamicsModel, train: Rows, seed: int) -> GaussianProcess:
     """A Gaussian process of the prior's residual on GP_POINTS random training rows."""
-    try:  # optional: gainfarm[learn]
+    try:  # optional extra: learn
         from sklearn.exceptions import ConvergenceWarning
         from sklearn.gaussian_process import GaussianProcessRegressor
         from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
@@ -125,3 +141,36 @@ def history_inputs(rows: Rows) -> np.ndarray:
         earlier = np.maximum(index - lag, first)
         columns += [rows.qd[earlier], rows.qdd[earlier]]
     return np.hstack(columns)
+
+
+def benchmark(
+    dataset_dir: Path, seed: int = 0, kinds: tuple[str, ...] = BENCHMARK
+) -> dict[str, dict[str, Any]]:
+    """Every model of `kinds` (inverse dynamics) fitted on the dataset's train split and scored
+    on its test split (`score_rows`: all and calm), with its fit's seconds, and under "variants"
+    on test_variants if the dataset has it: the baseline table of a release. The splits are
+    read once. Raises LearnError, one line."""
+    splits = read_splits(dataset_dir)
+    test = splits["test"]
+    if not len(test):
+        raise LearnError(no_rows(dataset_dir, "test"))
+    train = splits["train"] if len(splits["train"]) else test
+    variants = read_split(dataset_dir, "test" + VARIANTS)
+    prior = rigid_prior(plants(dataset_dir)[0])
+    table = {}
+    for kind in kinds:
+        started = time.perf_counter()
+        model: Any
+        if kind == "plant":  # each episode's own plant: the floor of a dataset of variants too
+            model = floor_model(dataset_dir)
+        elif kind == "gp":
+            model = fit_gp(prior, splits["train"], seed)
+        elif kind == "history":
+            model = fit_history(prior, splits["train"], splits["validation"], seed)
+        else:
+            model = fit(dataset_dir, "inverse", kind, seed, splits)  # type: ignore[arg-type]
+        seconds = time.perf_counter() - started
+        table[kind] = score_rows(model, test, train) | {"fit_seconds": round(seconds, 3)}
+        if len(variants):  # the same model on the other plants: what it cannot know
+            table[kind]["variants"] = score_rows(model, variants, train)
+    return table

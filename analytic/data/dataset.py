@@ -373,8 +373,9 @@ def episode_row(source: EpisodeSource, log: EpisodeLog) -> dict[str, object]:
         "model": spec.model.model_dump_json(),
         "gravity_compensation": spec.gravity_compensation,
         "feedforward": spec.feedforward or "",
-        "candidate_f_acc": source.member.f_acc,
-        "candidate_f_t": source.member.f_t,
+        # NaN where the run did not tune on it (a run on f_t_joint has no candidate f_t)
+        "candidate_f_acc": source.member.named.get("f_acc", math.nan),
+        "candidate_f_t": source.member.named.get("f_t", math.nan),
     }
     row |= {name: float(getattr(scores, name)) for name in MEASURES}
     row["calm"] = is_calm(float(scores.chatter), bool(scores.diverged))

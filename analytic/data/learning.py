@@ -28,6 +28,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from scipy.optimize import minimize
 
 from gainfarm.analytic.data.loader import EPISODES, SPLITS, TICKS, VARIANTS
 from gainfarm.analytic.view.figures import DPI, save_png
@@ -397,8 +398,6 @@ def identify(spec: ModelSpec, rows: Rows) -> tuple[np.ndarray, int, dict[str, An
         value = step @ (scaled_gram @ step) - 2 * scaled_moment @ step + ridge * step @ step
         return float(value), jacobian.T @ (2 * pull * scale)
 
-    from scipy.optimize import minimize
-
     flaws = inconsistencies(free)
     if flaws:
         theta = consistent_coordinates(nearest_consistent(free))
@@ -456,7 +455,7 @@ def fit_network(
         chosen_on = "validation"
     else:
         xv, yv, chosen_on = xs, ys, "train (the dataset has no validation split)"
-    try:  # optional: gainfarm[learn]
+    try:  # optional extra: learn
         from sklearn.neural_network import MLPRegressor
         from threadpoolctl import threadpool_limits
     except ImportError:
@@ -542,7 +541,7 @@ def score(model: DynamicsModel, dataset_dir: Path, split: str = "test") -> dict[
     training split's mean, the baseline (about 1)."""
     rows = read_split(dataset_dir, split)
     if not len(rows):
-        raise LearnError(_no_rows(dataset_dir, split))
+        raise LearnError(no_rows(dataset_dir, split))
     train = read_split(dataset_dir, "train")
     return score_rows(model, rows, train if len(train) else rows) | {"split": split}
 
@@ -607,7 +606,7 @@ def learn(
     splits = read_splits(dataset_dir)
     test = splits["test"]
     if not len(test):
-        raise LearnError(_no_rows(dataset_dir, "test"))
+        raise LearnError(no_rows(dataset_dir, "test"))
     started = time.perf_counter()
     model = fit(dataset_dir, target, kind, seed, splits)
     seconds = time.perf_counter() - started
@@ -651,41 +650,6 @@ def learn(
 # The baselines of a benchmark table, in its order: the two untrained anchors (the floor, the
 # prior), then what a dynamics researcher trains beside them.
 BENCHMARK: tuple[str, ...] = ("plant", "rigid", "linear", "mlp", "residual", "gp", "history")
-
-
-def benchmark(
-    dataset_dir: Path, seed: int = 0, kinds: tuple[str, ...] = BENCHMARK
-) -> dict[str, dict[str, Any]]:
-    """Every model of `kinds` (inverse dynamics) fitted on the dataset's train split and scored
-    on its test split (`score_rows`: all and calm), with its fit's seconds, and under "variants"
-    on test_variants if the dataset has it: the baseline table of a release. The splits are
-    read once. Raises LearnError, one line."""
-    splits = read_splits(dataset_dir)
-    test = splits["test"]
-    if not len(test):
-        raise LearnError(_no_rows(dataset_dir, "test"))
-    train = splits["train"] if len(splits["train"]) else test
-    variants = read_split(dataset_dir, "test" + VARIANTS)
-    from gainfarm.analytic.data.baselines import fit_gp, fit_history
-
-    prior = rigid_prior(plants(dataset_dir)[0])
-    table = {}
-    for kind in kinds:
-        started = time.perf_counter()
-        model: Any
-        if kind == "plant":  # each episode's own plant: the floor of a dataset of variants too
-            model = floor_model(dataset_dir)
-        elif kind == "gp":
-            model = fit_gp(prior, splits["train"], seed)
-        elif kind == "history":
-            model = fit_history(prior, splits["train"], splits["validation"], seed)
-        else:
-            model = fit(dataset_dir, "inverse", kind, seed, splits)  # type: ignore[arg-type]
-        seconds = time.perf_counter() - started
-        table[kind] = score_rows(model, test, train) | {"fit_seconds": round(seconds, 3)}
-        if len(variants):  # the same model on the other plants: what it cannot know
-            table[kind]["variants"] = score_rows(model, variants, train)
-    return table
 
 
 def plot_prediction(path: Path, model: DynamicsModel, rows: Rows) -> None:
@@ -884,7 +848,7 @@ def _episode_count(rows: Rows) -> tuple[int, int]:
     return len(set(rows.episode_id)), len(rows)
 
 
-def _no_rows(dataset_dir: Path, split: str) -> str:
+def no_rows(dataset_dir: Path, split: str) -> str:
     if split == "test":
         return (
             "the dataset has no test split: build it with --split (analytic dataset) "

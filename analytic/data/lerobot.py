@@ -24,7 +24,7 @@ import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -34,9 +34,6 @@ from gainfarm.analytic.data.loader import ALL_SPLITS
 from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.robot import JOINT_NAMES
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
-
-if TYPE_CHECKING:
-    from gainfarm.analytic.data.release import LerobotLayout
 
 CODEBASE_VERSION = "v3.0"
 ROBOT_TYPE = "kuka_iiwa14"
@@ -65,6 +62,18 @@ INDEX_FEATURES = {
     "index": "int64",
     "task_index": "int64",
 }
+
+
+@dataclass(frozen=True)
+class LerobotLayout:
+    """How the LeRobot copy is cut into files: LeRobot's own defaults unless a test asks for
+    small files to see its chunks."""
+
+    chunks_size: int = 1000  # files per chunk directory (LeRobot's DEFAULT_CHUNK_SIZE)
+    file_frames: int | None = None  # frames per data file at most; None: LeRobot's 100 MB
+
+
+DEFAULT_LAYOUT = LerobotLayout()
 
 
 def feature_names(feature: str) -> list[str]:
@@ -234,7 +243,7 @@ def _frames(
     return pa.table(columns), values
 
 
-def export(dataset: Path, out: Path, layout: "LerobotLayout") -> list[str]:
+def export(dataset: Path, out: Path, layout: LerobotLayout) -> list[str]:
     """Write the dataset at `dataset` in LeRobot's v3.0 layout into `out` (made here, inside
     the release's staging directory); return the files written, relative to `out`."""
     dataset, out = Path(dataset), Path(out)

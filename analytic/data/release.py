@@ -8,7 +8,7 @@ staging directory before it is renamed into place (so the release appears whole 
                     splits (train, validation, test, test_calm) by episode and trajectory with
                     their ticks, the control rate, the robot type, the plants
     stats.json      per-column normalisation statistics of ticks.parquet over TRAIN only
-    baselines.json  learning.benchmark: every baseline model fitted on train, scored on test
+    baselines.json  baselines.benchmark: every baseline model fitted on train, scored on test
     lerobot/        with --format lerobot: the same ticks in LeRobot's v3.0 layout (lerobot.py)
 
 and a release section and the baselines' table in the card (README.md).
@@ -28,7 +28,6 @@ import math
 import re
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
@@ -36,13 +35,17 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from gainfarm.analytic.data import baselines, learning, lerobot
 from gainfarm.analytic.data.dataset import (
     DATASET_VERSION,
     build,
     check_split,
     interface_text,
 )
+from gainfarm.analytic.data.learning import PUBLISHED_RMSE
+from gainfarm.analytic.data.lerobot import DEFAULT_LAYOUT, LerobotLayout
 from gainfarm.analytic.data.loader import ALL_SPLITS, VARIANTS
+from gainfarm.analytic.view.export import plant_name
 from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.robot import ModelSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
@@ -76,15 +79,6 @@ class BadRelease(ValueError):
 
 class MissingExtra(BadRelease):
     """The learn extra, which the baselines need, is not installed."""
-
-
-@dataclass(frozen=True)
-class LerobotLayout:
-    """How the LeRobot copy is cut into files: LeRobot's own defaults unless a test asks for
-    small files to see its chunks."""
-
-    chunks_size: int = 1000  # files per chunk directory (LeRobot's DEFAULT_CHUNK_SIZE)
-    file_frames: int | None = None  # frames per data file at most; None: LeRobot's 100 MB
 
 
 def check_name(name: str) -> str:
@@ -202,9 +196,6 @@ def release_plants(directory: Path) -> list[dict[str, Any]]:
     """The distinct plants of the episodes (`learning.plants`): the runs' own ("nominal", in
     train, validation and test) first, then the variants (in the *_variants splits), each with
     its number of episodes there."""
-    from gainfarm.analytic.data.learning import plants
-    from gainfarm.analytic.view.export import plant_name
-
     table = pq.read_table(Path(directory) / EPISODES, columns=["model", "split"])
     pairs = zip(table["split"].to_pylist(), table["model"].to_pylist(), strict=True)
     episodes = [(s.endswith(VARIANTS), ModelSpec.model_validate_json(text)) for s, text in pairs]
@@ -216,7 +207,7 @@ def release_plants(directory: Path) -> list[dict[str, Any]]:
             "model": plant.model_dump(mode="json"),
         }
         for variant in (False, True)
-        for plant in plants(directory, variants=variant)
+        for plant in learning.plants(directory, variants=variant)
     ]
 
 
@@ -263,14 +254,12 @@ def write_release(
     kinds: Sequence[str] | None = None,
     seed: int = 0,
     format: Format = "gainfarm",
-    layout: LerobotLayout = LerobotLayout(),
+    layout: LerobotLayout = DEFAULT_LAYOUT,
 ) -> dict[str, Any]:
     """Make the built dataset at `staging` a release: write release.json, stats.json,
     baselines.json, the card's release sections and, with format lerobot, lerobot/. Returns
     release.json's content. Raises learning.LearnError if the baselines cannot be fitted (no
     test split), one line."""
-    from gainfarm.analytic.data import learning
-
     staging = Path(staging)
     check_name(name)
     # Hashed first: the data files are final once the dataset is built.
@@ -278,15 +267,13 @@ def write_release(
     stats = train_stats(staging)
     write_json(staging / STATS_JSON, stats)
     chosen = tuple(kinds) if kinds is not None else learning.BENCHMARK
-    baselines = learning.benchmark(staging, seed=seed, kinds=chosen)
-    write_json(staging / BASELINES_JSON, _json_safe(baselines))
+    table = baselines.benchmark(staging, seed=seed, kinds=chosen)
+    write_json(staging / BASELINES_JSON, _json_safe(table))
     splits = split_members(staging)
     plants = release_plants(staging)
     exported: list[dict[str, Any]] = []
     if format == "lerobot":
-        from gainfarm.analytic.data.lerobot import export
-
-        written = export(staging, staging / LEROBOT_DIR, layout)
+        written = lerobot.export(staging, staging / LEROBOT_DIR, layout)
         exported = file_hashes(staging, [f"{LEROBOT_DIR}/{path}" for path in written])
     record = {
         "name": name,
@@ -305,14 +292,14 @@ def write_release(
             "file": BASELINES_JSON,
             "seed": seed,
             "kinds": list(chosen),
-            "fit_seconds": round(sum(entry["fit_seconds"] for entry in baselines.values()), 1),
+            "fit_seconds": round(sum(entry["fit_seconds"] for entry in table.values()), 1),
         },
         "formats": ["gainfarm", *(["lerobot"] if format == "lerobot" else [])],
         "exports": exported,
     }
     write_json(staging / RELEASE_JSON, record)
     card = (staging / CARD).read_text(encoding="utf-8")
-    text = card.rstrip("\n") + "\n\n" + release_card(record) + "\n" + baselines_card(baselines)
+    text = card.rstrip("\n") + "\n\n" + release_card(record) + "\n" + baselines_card(table)
     write_atomically(staging / CARD, text.encode())
     return record
 
@@ -402,10 +389,8 @@ listed by episode and trajectory in `release.json`:
 """
 
 
-def baselines_card(baselines: dict[str, dict[str, Any]]) -> str:
+def baselines_card(table: dict[str, dict[str, Any]]) -> str:
     """The card's table of every baseline on the frozen test split, all and calm episodes."""
-    from gainfarm.analytic.data.learning import PUBLISHED_RMSE
-
     labels = {
         "plant": "plant's own dynamics (the floor)",
         "rigid": "rigid prior (untrained)",
@@ -420,11 +405,11 @@ def baselines_card(baselines: dict[str, dict[str, Any]]) -> str:
         "by chance: only the sensors' noise separates it from the data.",
         "",
     ]
-    variants = any("variants" in scores for scores in baselines.values())
+    variants = any("variants" in scores for scores in table.values())
     header = "| model | nMSE all | nMSE calm | RMSE A1-A4 all (N·m) | RMSE A1-A4 calm (N·m) |"
     header += " nMSE test_variants |" * variants
     lines += [f"{header} fit (s) |", "|---|---|---|---|---|" + "---|" * variants + "---|"]
-    for kind, scores in baselines.items():
+    for kind, scores in table.items():
         calm = scores.get("calm") or {}
         shift = f" {_shown((scores.get('variants') or {}).get('nmse_mean'), '.3g')} |" * variants
         lines.append(
@@ -439,9 +424,9 @@ def baselines_card(baselines: dict[str, dict[str, Any]]) -> str:
             "trajectories' episodes on the other plants; the floor there is each episode's own "
             "plant, what a model that is not told the plant cannot reach.",
         ]
-    learned = {kind: s for kind, s in baselines.items() if kind not in labels}
+    learned = {kind: s for kind, s in table.items() if kind not in labels}
     best = min(learned.items(), key=lambda item: item[1]["rmse_a1_a4"], default=None)
-    floor = baselines.get("plant")
+    floor = table.get("plant")
     said = []
     if best is not None:
         said.append(f"the best learned model's here ({best[0]}) is {best[1]['rmse_a1_a4']:.3g} N·m")
@@ -477,7 +462,7 @@ def build_release(
     kinds: Sequence[str] | None = None,
     seed: int = 0,
     format: Format = "gainfarm",
-    layout: LerobotLayout = LerobotLayout(),
+    layout: LerobotLayout = DEFAULT_LAYOUT,
     **build_options: Any,
 ) -> tuple[dict[str, int], dict[str, Any]]:
     """`dataset.build` with its staged directory made a release (`write_release`) before it is

@@ -105,7 +105,7 @@ class InProcessEvaluator:
                 fetched[job_id] = Fetched(None, None, None, "not kept here")
                 continue
             else:
-                from gainfarm.worker.job import simulate  # MuJoCo loads only to simulate
+                from gainfarm.worker.job import simulate  # start-up: MuJoCo, only to simulate
 
                 content = simulate(want.spec, self._model).content
             try:
@@ -118,7 +118,7 @@ class InProcessEvaluator:
         return fetched
 
     def _model(self, wanted: str) -> "DynamicsModel":
-        # As MuJoCo: loaded only when an episode is simulated.
+        # start-up: as MuJoCo, loaded only when an episode is simulated
         from gainfarm.models.dynamics import feedforward_from_bytes
         from gainfarm.worker.feedforward import ModelUnavailable
 
@@ -134,9 +134,7 @@ class InProcessEvaluator:
             return EpisodeResult(
                 **common, status=status, scores=scores, log=None, reason="", timings=None
             )
-        from gainfarm.worker.job import (
-            simulate,  # MuJoCo is loaded only when an episode is simulated
-        )
+        from gainfarm.worker.job import simulate  # start-up: MuJoCo, only to simulate
 
         outcome = simulate(spec, self._model)
         if outcome.status == JobStatus.refused:  # this process lacks a plug-in the job names

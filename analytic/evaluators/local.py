@@ -133,6 +133,7 @@ def _await(
     a run's first jobs wait in the broker's queue for the workers to join, each asking for one
     job at first (a worker's first batch is one job per thread), so none takes a whole batch
     while the others idle."""
+    # start-up: Zenoh, only once a local farm is started (not by `import gainfarm`'s tune)
     from gainfarm.broker.status import query_status
     from gainfarm.edges.transport import open_session
     from gainfarm.schemas.wire import BadMessage

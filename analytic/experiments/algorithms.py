@@ -12,8 +12,9 @@ chosen (TORQUE_MEASURES: the paper's f_t, or f_t_joint, each joint weighed by it
 classical rule's controllers (analytic.classical) with the default gains, evaluated once on the
 same spiral: a no-GA baseline, one deterministic set, so reported, not tested.
 
-Every number is taken in one normalisation of the experiment (base.Normalisation), from
-every run's front, penalty points left out (the baselines are measured in it, not part of it):
+Every number is taken in one normalisation of the experiment (analytic.experiments.normalisation),
+from every run's front, penalty points left out (the baselines are measured in it, not part of it;
+analytic.experiments.algorithms_measures measures, analytic.experiments.algorithms_report writes):
 
 - hypervolume: of the run's front (front.json, RunRecord.front), the non-dominated set of every
   feasible point it evaluated, as validation by replication left them (evaluated.csv carries the
@@ -41,112 +42,59 @@ stats.csv (with p_holm), normalisation.json, algorithms.png and report.md.
 """
 
 import functools
-import math
 import statistics
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from gainfarm.analytic.experiments import statistics as stats
-from gainfarm.analytic.experiments.base import (
-    Experiment,
-    ExperimentSpec,
-    Normalisation,
-    Option,
-    Point,
-    attainment_panel,
-    experiment_setup,
-    front_points,
-    is_penalty,
-    markdown_table,
-    median_attainment,
-    non_dominated,
-    numbers,
-    write_experiment_report,
+from gainfarm.analytic.experiments.algorithms_measures import (
+    FINAL,
+    SPACE,
+    TARGET,
+    TARGET_TEXT,
+    TORQUE_MEASURES,
+    Condition,
+    RunMeasure,
+    against_reference,
+    attainment_difference,
+    check_rule,
+    checkpoints,
+    evaluations_to,
+    first_front,
+    measure,
+    measured,
+    scores_in,
+    summary,
+)
+from gainfarm.analytic.experiments.algorithms_report import (
+    Plan,
+    figure,
+    findings,
+    setup_lines,
+    table,
 )
 from gainfarm.analytic.experiments.classical import classical_baseline
+from gainfarm.analytic.experiments.normalisation import Point, front_points
+from gainfarm.analytic.experiments.registry import ExperimentSpec, Option, numbers
+from gainfarm.analytic.experiments.report import write_experiment_report
+from gainfarm.analytic.experiments.runner import Experiment
 from gainfarm.analytic.experiments.statistics import holm_adjusted
 from gainfarm.analytic.tuning import defaults
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import ALGORITHMS, OBJECTIVE_SCALINGS, optimiser
-from gainfarm.analytic.tuning.records import HistoryRow, RunRecord
+from gainfarm.analytic.tuning.records import RunRecord
 from gainfarm.analytic.tuning.search_space import SearchSpace
 from gainfarm.analytic.tuning.termination import Termination
-from gainfarm.analytic.view.figures import new_figure, save_png
-from gainfarm.analytic.view.reports import ALGORITHM_NAMES
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 
 NAME = "algorithms"
-FINAL = "final"  # the budget's own comparison, beside the fixed budgets'
 DEFAULT_BUDGET = 600  # evaluations per run: 20 generations of the default population of 30
 # Where else each run's hypervolume is compared: how fast a method gets there matters as much as
 # where it ends (random search ends close to NSGA-II on the default problem).
 FIXED_BUDGETS = (100, 300)
-# What f_t the runs minimise: the paper's Eq. 1 (raw squared torque changes, summed over joints,
-# which A1 and A2 dominate) or each joint's change weighed by its torque limit
-# (schemas.objectives.f_t_joint).
-TORQUE_MEASURES = defaults.TORQUE_MEASURES
-TORQUE_TEXT = {
-    "raw": "f_t (the paper's Eq. 1: raw squared torque changes summed over the joints)",
-    "per-joint": "f_t_joint (each joint's squared torque change weighed by its torque limit, "
-    "schemas.objectives)",
-}
-# The algorithms run in a steady state, told each result as it returns: TPE is sequential by
-# design (each trial sampled from every one told), so a generation of 30 asked at once under the
-# constant liar wastes it. The others run generationally, as the paper's NSGA-II does.
-STEADY = ("tpe",)
-TARGET = 0.99  # of the reference condition's median final hypervolume
-TARGET_TEXT = "99 %"
 FIGURE = "algorithms.png"
-SPACE = "all runs"  # the one problem: normalisation.json's key
-
-
-@dataclass(frozen=True)
-class Condition:
-    """One optimiser told one kind of objectives."""
-
-    algorithm: str
-    scaling: str
-
-    @property
-    def name(self) -> str:
-        """As its runs' directories and stats.csv name it: 'nsga2-raw'."""
-        return f"{self.algorithm}-{self.scaling}"
-
-    @property
-    def asynchronous(self) -> bool:
-        """Whether its runs are steady-state (STEADY)."""
-        return self.algorithm in STEADY
-
-
-@dataclass(frozen=True)
-class RunMeasure:
-    """One run's numbers in the experiment's normalisation (see the module's docstring)."""
-
-    evaluations: int
-    hypervolume: float
-    best_f_acc: float  # m
-    curve: list[float]  # hypervolume of the first k evaluations, at each checkpoint
-    stopped_by_rule_at: int | None  # None: the rule would not have stopped it within the budget
-    hv_at_rule_stop: float | None
-
-
-@dataclass(frozen=True)
-class ConditionSummary:
-    """A condition of the experiment over its repetitions, as its table shows it."""
-
-    algorithm: str
-    scaling: str
-    runs: int
-    median_hypervolume: float
-    hypervolume_quartiles: tuple[float, float]
-    median_best_f_acc: float  # m
-    median_evaluations_to_target: float  # inf when fewer than half of the runs reach it
-    reached_target: int  # runs that reach it
-    median_at_budgets: tuple[float, ...] = ()  # median hypervolume at each fixed budget
 
 
 # --- checks, before any run ------------------------------------------------------------------
@@ -168,141 +116,6 @@ def check_runnable(algorithms: Sequence[str], pop: int) -> None:
     tpe without optuna) stops the experiment before the others' runs, not hours into it."""
     for algorithm in algorithms:
         optimiser(algorithm, pop, 0, SearchSpace())
-
-
-# --- measures: pure functions of a run's records -----------------------------------------------
-
-
-def measured(points: Sequence[Point], penalised: frozenset[Point] | set[Point]) -> list[Point]:
-    """`points` without penalties: what a controller really did."""
-    return [point for point in points if not is_penalty(point, penalised)]
-
-
-def feasible(record: RunRecord) -> list[bool]:
-    """Whether each evaluated point of the run kept its safety limits (all, in a run from
-    before them): only those can be on a front."""
-    if len(record.measured) != len(record.evaluated):
-        return [True] * len(record.evaluated)
-    return [not record.config.limits.violated(values) for values in record.measured]
-
-
-def first_front(
-    record: RunRecord, k: int, penalised: frozenset[Point] | set[Point] = frozenset()
-) -> list[Point]:
-    """The feasible, measured front of the run's first `k` evaluations."""
-    kept = feasible(record)[:k]
-    points = [p for p, ok in zip(record.evaluated[:k], kept, strict=True) if ok]
-    return non_dominated(measured(points, penalised)) if points else []
-
-
-def checkpoints(pop: int, budget: int) -> list[int]:
-    """Where a run's progress is measured: after every `pop` evaluations (a generation), and at
-    the budget."""
-    return [*range(pop, budget, pop), budget]
-
-
-def hypervolume_curve(
-    evaluated: Sequence[Point],
-    at: Sequence[int],
-    normalisation: Normalisation,
-    penalised: frozenset[Point] | set[Point] = frozenset(),
-    kept: Sequence[bool] | None = None,
-) -> list[float]:
-    """The hypervolume of the non-dominated set of the first k points of `evaluated`, for each k
-    of `at` (ascending), kept as a running front so that each point is sorted in once; `kept`:
-    which points count (the feasible ones), all if None."""
-    front: list[Point] = []
-    done = 0
-    curve = []
-    for k in at:
-        new = [
-            p
-            for index, p in enumerate(evaluated[done:k], start=done)
-            if kept is None or kept[index]
-        ]
-        front = non_dominated(front + measured(new, penalised))
-        done = max(done, k)
-        curve.append(normalisation.hypervolume(front))
-    return curve
-
-
-def rule_stop(history: Sequence[HistoryRow], rule: Termination) -> int | None:
-    """The evaluations after which `rule` would have stopped the run, judging each generation's
-    hypervolume as the run itself does; None if it would have gone on past its history."""
-    hypervolumes = [row.hypervolume for row in history]
-    for generation, row in enumerate(history, start=1):
-        if rule.reason(hypervolumes[:generation], row.evaluations) is not None:
-            return row.evaluations
-    return None
-
-
-def evaluations_to(curve: Sequence[float], at: Sequence[int], target: float) -> int | None:
-    """The first checkpoint whose hypervolume reaches `target`; None if none does."""
-    return next((k for k, value in zip(at, curve, strict=True) if value >= target), None)
-
-
-def measure(
-    record: RunRecord,
-    normalisation: Normalisation,
-    at: Sequence[int],
-    rule: Termination,
-    penalised: frozenset[Point] | set[Point] = frozenset(),
-) -> RunMeasure:
-    front = measured(front_points(record), penalised)
-    stop = rule_stop(record.history, rule)
-    kept = feasible(record)
-    return RunMeasure(
-        evaluations=record.evaluations,
-        hypervolume=normalisation.hypervolume(front),
-        best_f_acc=min((f_acc for f_acc, _ in front), default=math.nan),
-        curve=hypervolume_curve(record.evaluated, at, normalisation, penalised, kept),
-        stopped_by_rule_at=stop,
-        hv_at_rule_stop=(
-            None
-            if stop is None
-            else hypervolume_curve(record.evaluated, [stop], normalisation, penalised, kept)[0]
-        ),
-    )
-
-
-def attainment_difference(
-    a: Sequence[Sequence[Point]], b: Sequence[Sequence[Point]], normalisation: Normalisation
-) -> tuple[float, float]:
-    """Where the median runs of two conditions differ (`a`, `b`: one front per repetition): the
-    share of the experiment's box the median attainment surface of `a` dominates and that of `b`
-    does not, and the other way round (NaN without moocore). Two numbers, not one: fronts that
-    cross each win a region, which a difference of hypervolumes would net out."""
-    surface_a, surface_b = median_attainment(a), median_attainment(b)
-    if surface_a is None or surface_b is None:
-        return math.nan, math.nan
-    both = normalisation.hypervolume([*surface_a, *surface_b])
-    return both - normalisation.hypervolume(surface_b), both - normalisation.hypervolume(surface_a)
-
-
-def summary(
-    condition: Condition,
-    runs: Sequence[RunMeasure],
-    to_target: Sequence[int | None],
-    at_budgets: Sequence[Sequence[float]] = (),
-) -> ConditionSummary:
-    """`condition`'s runs as the report's table shows them (`at_budgets`: each fixed budget's
-    hypervolumes, a value per run); a run that never reaches the target counts as needing more
-    than any budget."""
-    hypervolumes = [run.hypervolume for run in runs]
-    low, high = np.percentile(hypervolumes, [25, 75])
-    return ConditionSummary(
-        algorithm=condition.algorithm,
-        scaling=condition.scaling,
-        runs=len(runs),
-        median_hypervolume=statistics.median(hypervolumes),
-        hypervolume_quartiles=(float(low), float(high)),
-        median_best_f_acc=float(np.median([run.best_f_acc for run in runs])),
-        median_evaluations_to_target=statistics.median(
-            math.inf if k is None else k for k in to_target
-        ),
-        reached_target=sum(k is not None for k in to_target),
-        median_at_budgets=tuple(statistics.median(values) for values in at_budgets),
-    )
 
 
 # --- the experiment ----------------------------------------------------------------------------
@@ -346,25 +159,7 @@ def run(
     base = base.model_copy(update={"objectives": ("f_acc", TORQUE_MEASURES[torque_measure])})
     fixed = sorted({b for b in budgets if 0 < b < budget})
     conditions = [Condition(a, s) for a in algorithms for s in scalings]
-    names = {
-        (condition, rep): f"{condition.name}-rep{rep}"
-        for condition in conditions
-        for rep in range(reps)
-    }
-    tuned = experiment.tune_many(
-        {
-            name: base.model_copy(
-                update={
-                    "algorithm": condition.algorithm,
-                    "objective_scaling": condition.scaling,
-                    "asynchronous": condition.asynchronous,
-                    "seed": rep,
-                }
-            )
-            for (condition, rep), name in names.items()
-        }
-    )
-    records = {key: tuned[name] for key, name in names.items()}
+    records = tune_conditions(experiment, base, conditions, reps)
     classical_gains, classical, default = baseline_points(experiment, base)
     penalised = experiment.penalised
     # The tuned runs alone set the experiment's space: a stiff classical controller, a little more
@@ -392,25 +187,7 @@ def run(
     def at_budget(condition: Condition, b: int) -> list[float]:
         return [r.curve[at.index(b)] for r in of(condition)]
 
-    experiment.write_results(
-        [
-            {
-                "algorithm": condition.algorithm,
-                "scaling": condition.scaling,
-                "rep": rep,
-                "seed": rep,
-                "evaluations": run.evaluations,
-                "hypervolume": run.hypervolume,
-                **{f"hv_at_{b}": run.curve[at.index(b)] for b in fixed},
-                "best_f_acc_mm": run.best_f_acc * 1000,
-                "evaluations_to_99": to_target[(condition, rep)],
-                "stopped_by_rule_at": run.stopped_by_rule_at,
-                "hv_at_rule_stop": run.hv_at_rule_stop,
-            }
-            for (condition, rep), run in runs.items()
-        ]
-    )
-
+    experiment.write_results(result_rows(runs, at, fixed, to_target))
     others = conditions[1:]
 
     def against(values: Callable[[Condition], list[float]], c: Condition) -> stats.Comparison:
@@ -431,26 +208,8 @@ def run(
     hypervolume, accuracy = holm_adjusted(raw_hv), holm_adjusted(raw_acc)
     first_algorithm = [r for c in conditions if c.algorithm == reference.algorithm for r in of(c)]
     rule_check = check_rule(first_algorithm)
-    rule_comparison = f"{reference.algorithm}: at the budget vs at the convergence rule's stop"
-
-    def row(
-        c: Condition, metric: str, raw: stats.Comparison, adjusted: stats.Comparison
-    ) -> stats.StatsRow:
-        return stats.StatsRow(NAME, f"{c.name} vs {reference.name}", metric, raw, adjusted.p_value)
-
     experiment.write_stats(
-        [row(c, "hypervolume", raw_hv[(c, FINAL)], hypervolume[(c, FINAL)]) for c in others]
-        + [row(c, "best_f_acc_mm", raw_acc[c], accuracy[c]) for c in others]
-        + [
-            row(c, f"hypervolume_at_{b}", raw_hv[(c, b)], hypervolume[(c, b)])
-            for b in fixed
-            for c in others
-        ]
-        + (
-            [stats.StatsRow(NAME, rule_comparison, "hypervolume", rule_check, rule_check.p_value)]
-            if rule_check
-            else []
-        )
+        stats_rows(reference, others, fixed, (raw_hv, hypervolume), (raw_acc, accuracy), rule_check)
     )
     summaries = [
         summary(
@@ -460,8 +219,8 @@ def run(
     ]
     classical_name = f"classical rule ({len(classical_gains)} controllers)"
     baselines = {
-        classical_name: _scores(classical, normalisation, penalised),
-        "default gains": _scores([default], normalisation, penalised),
+        classical_name: scores_in(classical, normalisation, penalised),
+        "default gains": scores_in([default], normalisation, penalised),
     }
     fronts = {
         c: [measured(front_points(records[(c, r)]), penalised) for r in range(reps)]
@@ -493,7 +252,7 @@ def run(
         },
         budgets=fixed,
     )
-    verdict = _verdict(
+    stated = findings(
         reference,
         reps,
         hypervolume,
@@ -506,307 +265,106 @@ def run(
         baselines,
         summaries[0].median_hypervolume,
     )
-    setup = experiment_setup(base, reps, {SPACE: (normalisation.ideal, normalisation.nadir)})
-    trajectory = base.trajectories[0]
-    steady = [a for a in algorithms if a in STEADY]
-    told = (
-        f"; {', '.join(steady)} in a steady state, asked one candidate as each result returns "
-        "and told each at once (two in flight per worker), the others generationally"
-        if steady
-        else ""
-    )
-    setup += [
-        f"{len(conditions)} conditions: algorithms {', '.join(algorithms)} told "
-        f"{' or '.join(scalings)} objectives, each run on the {trajectory.kind} of "
-        f"{trajectory.duration:g} s, stopped at the first generation at or past {budget} "
-        f"evaluations{told}",
-        f"objectives: f_acc and {TORQUE_TEXT[torque_measure]} (`--torque-measure "
-        f"{torque_measure}`); f_t on a log scale in every hypervolume, a choice of this project's "
-        "(the paper normalises linearly)",
-        "hypervolume: of each run's front (the non-dominated set of every feasible point it "
-        "evaluated)"
-        + (
-            f", and of the feasible front of its first {', '.join(map(str, fixed))} evaluations "
-            "(in the order told)"
-            if fixed
-            else ""
-        )
-        + f"; evaluations to {TARGET_TEXT}: the first multiple of the population (or the "
-        "budget) at which the non-dominated set of the run's first evaluations reaches "
-        f"{TARGET_TEXT} of {reference.name}'s median final hypervolume ({target:.4f})",
-        f"every condition against {reference.name}: Mann-Whitney U between algorithms (they "
-        "share at most a first population), Wilcoxon signed-rank, paired by seed, for the same "
-        "algorithm told other objectives (the same first population, the same operators); "
-        f"Holm's adjustment over the {len(hypervolume)} hypervolume comparisons (every "
-        f"condition at every budget) and over the {len(accuracy)} best-error ones (`p_holm` "
-        "in `stats.csv`)",
-        "attainment differences: the share of the box the median attainment surface of one "
-        "condition dominates and the other's does not, each way (descriptive: one number per "
-        "pair of conditions, no test)",
-        f"no-GA baseline: the per-joint rule Kp = ω² M_ii, Kd = 2ζω M_ii (analytic.classical), "
-        f"{len(classical_gains)} controllers, and the default gains, evaluated once on the same "
-        "trajectory",
-    ]
     write_experiment_report(
         experiment.out / "report.md",
         title="Optimisers compared on one budget",
-        setup=setup,
+        setup=setup_lines(
+            base,
+            reps,
+            normalisation,
+            Plan(algorithms, scalings, budget, fixed, torque_measure),
+            target,
+            (len(hypervolume), len(accuracy)),
+            len(classical_gains),
+        ),
         table=table(summaries, baselines, fixed),
-        verdict=verdict,
+        findings=stated,
         figures=[FIGURE],
     )
 
 
-def check_rule(runs: Sequence[RunMeasure]) -> stats.Comparison | None:
-    """The hypervolume at the full budget against that at the convergence rule's stop, paired
-    by run, over the runs the rule would have stopped within the budget (None if none)."""
-    pairs = [(r.hypervolume, r.hv_at_rule_stop) for r in runs if r.hv_at_rule_stop is not None]
-    if not pairs:
-        return None
-    return stats.compare([full for full, _ in pairs], [stop for _, stop in pairs], paired=True)
+def tune_conditions(
+    experiment: Experiment, base: RunConfig, conditions: Sequence[Condition], reps: int
+) -> dict[tuple[Condition, int], RunRecord]:
+    """Every condition's `reps` runs (seed = rep), tuned at once: by (condition, rep)."""
+    names = {
+        (condition, rep): f"{condition.name}-rep{rep}"
+        for condition in conditions
+        for rep in range(reps)
+    }
+    tuned = experiment.tune_many(
+        {
+            name: base.model_copy(
+                update={
+                    "algorithm": condition.algorithm,
+                    "objective_scaling": condition.scaling,
+                    "asynchronous": condition.asynchronous,
+                    "seed": rep,
+                }
+            )
+            for (condition, rep), name in names.items()
+        }
+    )
+    return {key: tuned[name] for key, name in names.items()}
 
 
-def against_reference(
-    values: Sequence[float], reference: Sequence[float], same_algorithm: bool
-) -> stats.Comparison:
-    """A condition against the reference. Paired only for the same algorithm told other
-    objectives: the same seed then starts it from the very same initial population with the
-    very same operators (the scaling changes only what the optimiser is told of each point),
-    so repetition r of each is a matched pair. Across algorithms a seed shares at most the
-    first population (pymoo's samplers and "random" draw it alike from the seed, tpe does not)
-    and nothing after it, so their repetitions are taken as independent: Mann-Whitney, which
-    is conservative should they in fact be positively correlated."""
-    return stats.compare(values, reference, paired=same_algorithm)
-
-
-def _scores(
-    points: Sequence[Point], normalisation: Normalisation, penalised: frozenset[Point] | set[Point]
-) -> tuple[float, float]:
-    """A baseline's hypervolume and best f_acc (m; NaN if it never finished an episode)."""
-    kept = measured(points, penalised)
-    return normalisation.hypervolume(kept), min((p[0] for p in kept), default=math.nan)
-
-
-def _verdict(
-    reference: Condition,
-    reps: int,
-    hv: Mapping[tuple[Condition, int | str], stats.Comparison],
-    acc: Mapping[Condition, stats.Comparison],
+def result_rows(
+    runs: Mapping[tuple[Condition, int], RunMeasure],
+    at: Sequence[int],
     fixed: Sequence[int],
-    attainment: Mapping[tuple[Condition, int | str], tuple[float, float]],
-    rule: Termination,
-    first_algorithm: Sequence[RunMeasure],
+    to_target: Mapping[tuple[Condition, int], int | None],
+) -> list[dict[str, object]]:
+    """results.csv: a row per run."""
+    return [
+        {
+            "algorithm": condition.algorithm,
+            "scaling": condition.scaling,
+            "rep": rep,
+            "seed": rep,
+            "evaluations": run.evaluations,
+            "hypervolume": run.hypervolume,
+            **{f"hv_at_{b}": run.curve[at.index(b)] for b in fixed},
+            "best_f_acc_mm": run.best_f_acc * 1000,
+            "evaluations_to_99": to_target[(condition, rep)],
+            "stopped_by_rule_at": run.stopped_by_rule_at,
+            "hv_at_rule_stop": run.hv_at_rule_stop,
+        }
+        for (condition, rep), run in runs.items()
+    ]
+
+
+def stats_rows(
+    reference: Condition,
+    others: Sequence[Condition],
+    fixed: Sequence[int],
+    hypervolume: tuple[Mapping[Any, stats.Comparison], Mapping[Any, stats.Comparison]],
+    accuracy: tuple[Mapping[Any, stats.Comparison], Mapping[Any, stats.Comparison]],
     rule_check: stats.Comparison | None,
-    baselines: dict[str, tuple[float, float]],
-    reference_median: float,
-) -> str:
-    """The report's verdict; `hv` and `acc` Holm-adjusted (holm_adjusted), `hv` keyed by
-    (condition, budget), FINAL for the run's own budget."""
-    ref = condition_text(reference.algorithm, reference.scaling)
-    others = list(acc)
-    family = len(others)
-    final = {c: hv[(c, FINAL)] for c in others}
-    undecidable = [c for c, r in final.items() if not stats.decidable(r)]
-    if not others:
-        finding = "One condition only: nothing to compare."
-    elif len(undecidable) == family:
-        finding = (
-            f"With {reps} repetitions per condition and {len(hv)} hypervolume comparisons, no "
-            f"test can reach a Holm-adjusted p < {stats.ALPHA:g} whatever the data: cannot "
-            f"decide whether any condition beats {ref}; more repetitions are needed."
-        )
-    else:
-        better = [c.name for c, r in final.items() if stats.better(r) == "a"]
-        worse = [c.name for c, r in final.items() if stats.better(r) == "b"]
-        finding = (
-            f"By final hypervolume, {len(better)} of {family} conditions beat {ref} "
-            f"significantly ({', '.join(better) or 'none'}) and {len(worse)} fall short of it "
-            f"({', '.join(worse) or 'none'})."
-        )
-        if undecidable:
-            finding += (
-                f" {len(undecidable)} comparisons ({', '.join(c.name for c in undecidable)}) "
-                f"cannot be decided with {reps} repetitions whatever the data; more repetitions "
-                "are needed."
-            )
-    budgets = [*fixed, FINAL]
-    lines = [
-        finding,
-        "",
-        f"Each condition against {ref} (two-sided, alpha {stats.ALPHA:g}; the p-values below "
-        f"are Holm-adjusted over the {len(hv)} hypervolume comparisons, every condition at every "
-        f"budget, and over the {family} best-error ones):",
-    ]
-    for c in others:
-        name = condition_text(c.algorithm, c.scaling)
-        lines += [
-            f"- {name}, hypervolume: " + stats.decide(hv[(c, FINAL)], name, ref),
-            *(
-                f"- {name}, hypervolume after {b} evaluations: "
-                + stats.decide(hv[(c, b)], name, ref)
-                for b in fixed
-            ),
-            f"- {name}, best error: " + stats.decide(acc[c], name, ref, higher_is_better=False),
-        ]
-    if others:
-        lines += [
-            "",
-            "Attainment differences (descriptive): the share of the box the median run of one "
-            "condition attains and the other's does not"
-            + (f", after {', '.join(map(str, fixed))} evaluations and at the end" if fixed else "")
-            + ":",
-        ]
-        for c in others:
-            shares = "; ".join(
-                f"{'at the end' if b == FINAL else f'after {b}'}: "
-                f"{attainment[(c, b)][0]:.4f} only {reference.name}, "
-                f"{attainment[(c, b)][1]:.4f} only {c.name}"
-                for b in budgets
-            )
-            lines.append(f"- {c.name} against {reference.name}: {shares}")
-    lines += ["", "No-GA baselines, one deterministic set each (reported, not tested):"]
-    lines += [
-        f"- {name}: hypervolume {value:.4f} (the median {ref} run: {reference_median:.4f}), best "
-        f"error {best * 1000:.3f} mm"
-        for name, (value, best) in baselines.items()
-    ]
-    stops = [r.stopped_by_rule_at for r in first_algorithm if r.stopped_by_rule_at is not None]
-    rule_text = f"The convergence rule ({rule.rule}, on each run's own hypervolume) "
-    if rule_check is None:
-        lines += [
-            "",
-            rule_text + f"would have stopped none of the {reference.algorithm} runs "
-            "within the budget: nothing to check.",
-        ]
-    else:
-        still = stats.better(rule_check) == "a"
-        conclusion = (
-            "the rule stops while the experiment's measure still climbs significantly"
-            if still
-            else "no significant climb after the rule's stop"
-            if stats.decidable(rule_check)
-            else "whether the measure still climbs after the rule's stop cannot be decided"
-        )
-        lines += [
-            "",
-            rule_text + f"would have stopped {len(stops)} of {len(first_algorithm)} "
-            f"{reference.algorithm} runs within the budget, after a median of "
-            f"{statistics.median(stops):.0f} evaluations, at a median hypervolume of "
-            f"{rule_check.median_b:.4f} against {rule_check.median_a:.4f} at the full budget: "
-            + stats.decide(rule_check, "the full budget", "the rule's stop")
-            + f". So {conclusion}.",
-        ]
-    return "\n".join(lines)
+) -> list[stats.StatsRow]:
+    """stats.csv: each condition against `reference` (`hypervolume` and `accuracy`: the raw
+    comparisons and the Holm-adjusted ones), and the rule's check."""
+    (raw_hv, adjusted_hv), (raw_acc, adjusted_acc) = hypervolume, accuracy
+    rule_comparison = f"{reference.algorithm}: at the budget vs at the convergence rule's stop"
 
+    def row(
+        c: Condition, metric: str, raw: stats.Comparison, adjusted: stats.Comparison
+    ) -> stats.StatsRow:
+        return stats.StatsRow(NAME, f"{c.name} vs {reference.name}", metric, raw, adjusted.p_value)
 
-def condition_text(algorithm: str, scaling: str) -> str:
-    """An optimiser and what it is told, as a reader says it: 'NSGA-II, log f_t'."""
-    told = "log f_t" if scaling == "log" else scaling
-    return f"{ALGORITHM_NAMES.get(algorithm, algorithm)}, {told}"
-
-
-def table(
-    summaries: Sequence[ConditionSummary],
-    baselines: dict[str, tuple[float, float]],
-    fixed: Sequence[int] = (),
-) -> list[str]:
-    """One row per condition, then one per no-GA baseline (`baselines`: its name → its
-    hypervolume and best f_acc in m, one deterministic set each, so no spread); a column of
-    median hypervolumes per fixed budget (`fixed`)."""
-    rows = []
-    for s in summaries:
-        low, high = s.hypervolume_quartiles
-        reached = (
-            "not reached"
-            if math.isinf(s.median_evaluations_to_target)
-            else f"{s.median_evaluations_to_target:.0f}"
-        )
-        rows.append(
-            [
-                condition_text(s.algorithm, s.scaling),
-                s.runs,
-                f"{s.median_hypervolume:.4f}",
-                f"{low:.4f}-{high:.4f}",
-                *(f"{value:.4f}" for value in s.median_at_budgets),
-                f"{s.median_best_f_acc * 1000:.3f}",
-                f"{reached} ({s.reached_target} of {s.runs} runs reach it)",
-            ]
-        )
-    rows += [
-        [
-            f"{name}, no GA",
-            "–",
-            f"{hypervolume:.4f}",
-            "–",
-            *("–" for _ in fixed),
-            f"{best_f_acc * 1000:.3f}",
-            "–",
+    return (
+        [row(c, "hypervolume", raw_hv[(c, FINAL)], adjusted_hv[(c, FINAL)]) for c in others]
+        + [row(c, "best_f_acc_mm", raw_acc[c], adjusted_acc[c]) for c in others]
+        + [
+            row(c, f"hypervolume_at_{b}", raw_hv[(c, b)], adjusted_hv[(c, b)])
+            for b in fixed
+            for c in others
         ]
-        for name, (hypervolume, best_f_acc) in baselines.items()
-    ]
-    return markdown_table(
-        [
-            "condition",
-            "runs",
-            "median hypervolume",
-            "interquartile range",
-            *(f"median hypervolume after {b}" for b in fixed),
-            "median best error (mm)",
-            "median evaluations to 99 %",
-        ],
-        rows,
+        + (
+            [stats.StatsRow(NAME, rule_comparison, "hypervolume", rule_check, rule_check.p_value)]
+            if rule_check
+            else []
+        )
     )
-
-
-def figure(
-    path: Path,
-    fronts: dict[str, list[list[Point]]],
-    curves: dict[str, tuple[Sequence[int], Sequence[float]]],
-    baselines: dict[str, Sequence[Point]] | None = None,
-    levels: dict[str, float] | None = None,
-    budgets: Sequence[int] = (),
-) -> None:
-    """The optimiser comparison. Left: each condition's median attainment surface (`fronts`:
-    one front per repetition), with the no-GA baselines' points on top (`baselines`: the
-    classical rule's controllers, the default gains). Right: each condition's median
-    hypervolume against evaluations spent (`curves`: evaluations, hypervolumes), with
-    `levels` (the classical rule's hypervolume, the target a run must reach) as lines, and the
-    fixed `budgets` the runs are compared at as vertical ones."""
-    canvas = new_figure((13, 5))
-    left, right = canvas.subplots(1, 2)
-    attainment_panel(left, fronts, "median attainment per condition")
-    drawn = False
-    for (label, points), marker in zip((baselines or {}).items(), "xs^dv", strict=False):
-        kept = [p for p in points if math.isfinite(p[0]) and math.isfinite(p[1]) and p[0] < 1.0]
-        if kept:
-            drawn = True
-            left.scatter(
-                [p[0] * 1000 for p in kept],
-                [max(p[1], 1e-12) for p in kept],
-                marker=marker,
-                color="black",
-                s=24,
-                label=label,
-                zorder=3,
-            )
-    if drawn:
-        left.set_yscale("log")
-        left.legend(fontsize=7)
-    for label, (evaluations, hypervolumes) in curves.items():
-        right.plot(list(evaluations), list(hypervolumes), marker=".", label=label)
-    for budget in budgets:  # where the runs are compared besides the end
-        right.axvline(budget, color="0.8", linewidth=0.8)
-    for (label, level), style in zip((levels or {}).items(), ("--", ":", "-."), strict=False):
-        right.axhline(level, color="0.4", linestyle=style, linewidth=1, label=label)
-    right.set(
-        xlabel="evaluations",
-        ylabel="median hypervolume (experiment normalised)",
-        title="hypervolume against evaluations",
-    )
-    right.grid(True, alpha=0.3)
-    if curves or levels:
-        right.legend(fontsize=7)
-    save_png(canvas, path)
 
 
 def _names(allowed: Sequence[str], what: str) -> Callable[[str], list[str]]:

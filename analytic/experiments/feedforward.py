@@ -45,36 +45,23 @@ from typing import Any
 
 from gainfarm.analytic.evaluators.batch import EVALUATIONS, batch_jobs, run_batch
 from gainfarm.analytic.experiments import dataset_value as data
+from gainfarm.analytic.experiments import dataset_value_measures as dv_measures
 from gainfarm.analytic.experiments import statistics as stats
-from gainfarm.analytic.experiments.base import (
-    Experiment,
-    ExperimentSpec,
-    Option,
-    Point,
-    at_least,
-    attainment_panel,
-    experiment_setup,
-    is_penalty,
-    markdown_table,
-    serving,
-)
+from gainfarm.analytic.experiments.normalisation import Point, is_penalty
+from gainfarm.analytic.experiments.registry import ExperimentSpec, Option, at_least
+from gainfarm.analytic.experiments.report import attainment_panel, experiment_setup, markdown_table
+from gainfarm.analytic.experiments.runner import Experiment, serving
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.plants import variants
 from gainfarm.analytic.tuning.records import RunRecord, results_csv
 from gainfarm.analytic.view.figures import new_figure, save_png
 from gainfarm.edges.files import write_atomically
-from gainfarm.models.dynamics import (
-    KINDS,
-    digest,
-    from_bytes,
-    rigid_prior,
-    to_bytes,
-    true_model,
-)
+from gainfarm.models.dynamics import KINDS, digest, from_bytes, rigid_prior, to_bytes, true_model
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.objectives import NO_EPISODE, objectives
 from gainfarm.schemas.trajectory import TrajectorySpec
+from gainfarm.worker.trajectories import label
 
 CONDITIONS = ("pd", "pd+true", "ff", "ff+true")
 NAMES = {
@@ -100,7 +87,7 @@ FIGURE = "feedforward.png"
 
 
 def trained_on(duration: float) -> tuple[TrajectorySpec, ...]:
-    return data.training_trajectories(duration)
+    return dv_measures.training_trajectories(duration)
 
 
 def excitations(count: int, duration: float) -> list[TrajectorySpec]:
@@ -159,7 +146,7 @@ class Claim:
     higher_is_better: bool
 
     @property
-    def verdict(self) -> str:
+    def decision(self) -> str:
         adjusted = stats.Comparison(**{**self.result.__dict__, "p_value": self.p_holm})
         return stats.decide(adjusted, NAMES[self.a], NAMES[self.b], self.higher_is_better)
 
@@ -179,7 +166,7 @@ def claims(values: Mapping[tuple[str, str], Sequence[float]]) -> list[Claim]:
     ]
 
 
-def verdict(found: Sequence[Claim], reps: int) -> str:
+def findings(found: Sequence[Claim], reps: int) -> str:
     """The answer in plain words, from the error at the budget (effect sizes in mm)."""
     on_error = {(c.a, c.b): c for c in found if c.metric == "error_at_budget_mm"}
     lines = []
@@ -193,7 +180,7 @@ def verdict(found: Sequence[Claim], reps: int) -> str:
         )
         lines.append(
             f"- {question[:1].upper() + question[1:]} Median error at the budget "
-            f"{r.median_a:.3f} mm against {r.median_b:.3f} mm{interval}: {claim.verdict}."
+            f"{r.median_a:.3f} mm against {r.median_b:.3f} mm{interval}: {claim.decision}."
         )
     if not any(stats.decidable(c.result) for c in found):
         lines.append(
@@ -277,9 +264,9 @@ def learned_model(
     front = data.front_logs(record, experiment.out / "runs" / f"pd-{rep}", "front")
     gains = [member.gains for member in record.front]
     rerun = data.simulate(experiment, f"data-{rep}", batch_jobs(gains, paths, base.model))
-    rows = data.pool_rows(front | {f"data-{rep}/{job}": log for job, log in rerun.items()})
-    train, validation = data.subsample(rows, min(len(rows), TRAIN_ROWS), rep)
-    model = data.fit_model(learner, base.model, train, validation, rep)
+    rows = dv_measures.pool_rows(front | {f"data-{rep}/{job}": log for job, log in rerun.items()})
+    train, validation = dv_measures.subsample(rows, min(len(rows), TRAIN_ROWS), rep)
+    model = dv_measures.fit_model(learner, base.model, train, validation, rep)
     raw = to_bytes(model)
     write_atomically(path, raw)
     experiment.on_progress(f"rep {rep}: {learner} model learnt from {len(train):,} ticks")
@@ -339,14 +326,14 @@ def run(
         }
     )
     calm = data.simulate(experiment, "calm", batch_jobs([DEFAULT_GAINS], paths, plant))
-    calm_rows = data.pool_rows(calm)
-    budget = statistics.fmean(data.objectives(log).f_t for log in calm.values())
+    calm_rows = dv_measures.pool_rows(calm)
+    budget = statistics.fmean(dv_measures.objectives(log).f_t for log in calm.values())
     nmse = {
-        "rigid prior": data.score(rigid_prior(plant), calm_rows)["nmse_mean"],
-        "true model": data.score(true_model(plant), calm_rows)["nmse_mean"],
+        "rigid prior": dv_measures.score(rigid_prior(plant), calm_rows)["nmse_mean"],
+        "true model": dv_measures.score(true_model(plant), calm_rows)["nmse_mean"],
     }
     learned_nmse = [
-        data.score(from_bytes(learned[rep]), calm_rows)["nmse_mean"] for rep in range(reps)
+        dv_measures.score(from_bytes(learned[rep]), calm_rows)["nmse_mean"] for rep in range(reps)
     ]
     points: dict[tuple[int, str], list[Point]] = {}
     for rep in range(reps):
@@ -423,9 +410,7 @@ def run(
 
 
 def _path_text(path: TrajectorySpec) -> str:
-    if path.kind == "spiral":
-        return "spiral at ({:g}, {:g}, {:g}) m".format(*path.center)
-    return f"{path.kind} {path.seed}"
+    return label(path)  # the kind's own rule: no branch on a kind's name here
 
 
 def report(
@@ -518,9 +503,9 @@ def report(
         "",
         *table,
         "",
-        "## Verdict",
+        "## Findings",
         "",
-        verdict(found, reps),
+        findings(found, reps),
         "",
         "## Claims",
         "",

@@ -35,21 +35,21 @@ from pathlib import Path
 
 from gainfarm.analytic.experiments import measures
 from gainfarm.analytic.experiments import statistics as stats
-from gainfarm.analytic.experiments.base import (
-    ALL_KINDS,
-    Experiment,
-    ExperimentSpec,
+from gainfarm.analytic.experiments.normalisation import (
     Normalisation,
-    Option,
     Point,
-    attainment_panel,
     dominated_count,
-    experiment_setup,
     front_points,
     is_penalty,
+)
+from gainfarm.analytic.experiments.registry import ExperimentSpec, Option
+from gainfarm.analytic.experiments.report import (
+    attainment_panel,
+    experiment_setup,
     markdown_table,
     write_experiment_report,
 )
+from gainfarm.analytic.experiments.runner import ALL_KINDS, Experiment
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.view.figures import new_figure, save_png
 from gainfarm.edges.files import write_atomically
@@ -397,11 +397,11 @@ def report(
     sections = []
     for design in designs:
         sections += ["", f"## {QUESTIONS[design]}", ""]
-        sections += design_verdict(design, kinds, rows, adjusted, effects, reps)
+        sections += design_findings(design, kinds, rows, adjusted, effects, reps)
     runs = {r["run"]: r["recommended"] for r in rows}
     closest = sum(pick == "closest" for pick in runs.values())
     diverged = len({(r["run"], r["test_trajectory"]) for r in rows if r["recommended_penalty"]})
-    verdict = "\n".join(
+    findings = "\n".join(
         [
             ("Two questions, one design each" if len(designs) > 1 else "One design")
             + f", {len(claims)} claims in all: the hypervolume and "
@@ -412,7 +412,7 @@ def report(
             *sections,
             "",
             "The effects in physical units are estimates beside the claims, not tests (no "
-            "p-value; no verdict rests on them, so Holm does not count them; their 95 % "
+            "p-value; no finding rests on them, so Holm does not count them; their 95 % "
             "bootstrap CIs are not adjusted): specific against generic, the same repetition's "
             "two runs. The error at one torque smoothness is each front's best error among its "
             "members at least that smooth on the test trajectory, interpolated along the front "
@@ -483,12 +483,12 @@ def report(
                 for kind in kinds
             }
         ),
-        verdict=verdict,
+        findings=findings,
         figures=[FIGURE],
     )
 
 
-def design_verdict(
+def design_findings(
     design: str,
     kinds: Sequence[str],
     rows: Sequence[Mapping[str, object]],
@@ -496,7 +496,7 @@ def design_verdict(
     effects: Mapping[tuple[str, str, str], stats.Comparison],
     reps: int,
 ) -> list[str]:
-    """One design's section of the verdict: its headline, then a line per test trajectory."""
+    """One design's section of the findings: its headline, then a line per test trajectory."""
 
     def count(metric: str, winner: str) -> int:
         return sum(stats.better(adjusted[(design, k, metric)]) == winner for k in kinds)

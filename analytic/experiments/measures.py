@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy import stats
 
-from gainfarm.analytic.experiments.base import Point, is_penalty, non_dominated
+from gainfarm.analytic.experiments.normalisation import Point, is_penalty, non_dominated
 from gainfarm.analytic.experiments.statistics import CONFIDENCE, RESAMPLES, Comparison
 from gainfarm.analytic.tuning.picks import Pick, picks
 from gainfarm.analytic.tuning.records import BASELINE_JSON, RunRecord, read_baseline

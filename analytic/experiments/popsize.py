@@ -17,18 +17,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from gainfarm.analytic.experiments import statistics as stats
-from gainfarm.analytic.experiments.base import (
-    Experiment,
-    ExperimentSpec,
-    Option,
-    Point,
-    attainment_panel,
-    front_points,
-    levels_off,
-    markdown_table,
-    numbers,
-    step_comparisons,
-)
+from gainfarm.analytic.experiments.findings import levels_off, step_comparisons
 from gainfarm.analytic.experiments.measures import (
     difference,
     error_at,
@@ -36,6 +25,10 @@ from gainfarm.analytic.experiments.measures import (
     shown,
     smoothness_level,
 )
+from gainfarm.analytic.experiments.normalisation import Point, front_points
+from gainfarm.analytic.experiments.registry import ExperimentSpec, Option, numbers
+from gainfarm.analytic.experiments.report import attainment_panel, markdown_table
+from gainfarm.analytic.experiments.runner import Experiment
 from gainfarm.analytic.tuning import defaults
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.view.figures import new_figure, save_png
@@ -121,7 +114,7 @@ def run(experiment: Experiment, base: RunConfig, reps: int, sizes: Sequence[int]
         base,
         reps,
         table(values, level),
-        verdict(
+        findings(
             compared["hypervolume"],
             reps,
             {metric: steps for metric, steps in compared.items() if metric != "hypervolume"},
@@ -138,7 +131,7 @@ def finite(values: Sequence[float]) -> list[float]:
     return [v for v in values if math.isfinite(v)]
 
 
-def verdict(
+def findings(
     compared: Mapping[tuple[int, int], stats.Comparison],
     reps: int,
     practical: Mapping[str, Mapping[tuple[int, int], stats.Comparison]] | None = None,

@@ -32,17 +32,15 @@ from typing import Any
 from pydantic import ValidationError
 
 from gainfarm.analytic.experiments import statistics as stats
-from gainfarm.analytic.experiments.base import (
-    Experiment,
-    ExperimentSpec,
-    Option,
-    Point,
+from gainfarm.analytic.experiments.normalisation import Point, front_points
+from gainfarm.analytic.experiments.registry import ExperimentSpec, Option
+from gainfarm.analytic.experiments.report import (
     attainment_panel,
     experiment_setup,
-    front_points,
     markdown_table,
     write_experiment_report,
 )
+from gainfarm.analytic.experiments.runner import Experiment
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.picks import dominates, picks
 from gainfarm.analytic.tuning.plants import ranges
@@ -264,7 +262,7 @@ def run(
             f"{len(compared)} comparisons (one family; stats.csv holds the unadjusted p-values)",
         ],
         table=[*table(configs, outcomes, transfers, reps), "", f"![{FIGURE}]({FIGURE})"],
-        verdict=verdict(found, adjusted, reps),
+        findings=findings(found, adjusted, reps),
         figures=[],
     )
 
@@ -354,15 +352,15 @@ def comparisons(
 
 @dataclass(frozen=True)
 class Finding:
-    """What one moved plant does to the findings: the shifts of the medians, the tests' verdict
-    (`verdict`: survives, shifts or cannot decide), and the nominal controller there."""
+    """What one moved plant does to the findings: the shifts of the medians, the tests' decision
+    (`decision`: survives, shifts or cannot decide), and the nominal controller there."""
 
     setting: Setting
     error_mm: float  # Δ median recommended error, moved − nominal
     f_t_ratio: float  # median recommended f_t, moved / nominal
     hypervolume: float  # Δ median hypervolume
     holds: int  # reps where the nominal's controller dominates the default gains here
-    verdict: str
+    decision: str
 
 
 def finding(
@@ -398,7 +396,7 @@ def finding(
         hypervolume=statistics.median(here["hypervolume"])
         - statistics.median(nominal["hypervolume"]),
         holds=sum(transfers[(key, rep)].holds for rep in range(reps)),
-        verdict=said,
+        decision=said,
     )
 
 
@@ -444,12 +442,12 @@ def table(
     )
 
 
-def verdict(
+def findings(
     found: Sequence[Finding],
     adjusted: Mapping[tuple[Setting, str], stats.Comparison],
     reps: int,
 ) -> str:
-    """Each comparison's verdict, then the table of which conclusions survive."""
+    """Each comparison's decision, then the table of which conclusions survive."""
     if not found:
         return "No parameter moved: nothing to compare."
     lines = [
@@ -477,12 +475,12 @@ def verdict(
         )
     groups = {
         "the recommended controller's error or the front's hypervolume shifts significantly "
-        "under": [f.setting.label for f in found if f.verdict.startswith("shifts")],
+        "under": [f.setting.label for f in found if f.decision.startswith("shifts")],
         "neither shifts significantly under": [
-            f.setting.label for f in found if f.verdict.startswith("survives")
+            f.setting.label for f in found if f.decision.startswith("survives")
         ],
         f"{repetitions(reps)} cannot decide under": [
-            f.setting.label for f in found if f.verdict.startswith("cannot")
+            f.setting.label for f in found if f.decision.startswith("cannot")
         ],
     }
     summary = (
@@ -502,7 +500,7 @@ def verdict(
             "recommended f_t (× nominal)",
             "Δ hypervolume",
             "nominal's controller beats the defaults here",
-            "verdict",
+            "decision",
         ],
         (
             [
@@ -512,7 +510,7 @@ def verdict(
                 f"{f.f_t_ratio:.3g}",
                 f"{f.hypervolume:+.4f}",
                 f"{f.holds}/{reps}",
-                f.verdict,
+                f.decision,
             ]
             for f in found
         ),

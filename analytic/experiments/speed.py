@@ -22,18 +22,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from gainfarm.analytic.experiments import statistics as stats
-from gainfarm.analytic.experiments.base import (
-    Experiment,
-    ExperimentSpec,
-    Option,
-    Point,
-    attainment_panel,
-    front_points,
-    levels_off,
-    markdown_table,
-    numbers,
-    step_comparisons,
-)
+from gainfarm.analytic.experiments.findings import levels_off, step_comparisons
 from gainfarm.analytic.experiments.measures import (
     difference,
     error_at,
@@ -43,6 +32,10 @@ from gainfarm.analytic.experiments.measures import (
     shown,
     smoothness_level,
 )
+from gainfarm.analytic.experiments.normalisation import Point, front_points
+from gainfarm.analytic.experiments.registry import ExperimentSpec, Option, numbers
+from gainfarm.analytic.experiments.report import attainment_panel, markdown_table
+from gainfarm.analytic.experiments.runner import Experiment
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import RunRecord
 from gainfarm.analytic.view.figures import new_figure, save_png
@@ -167,7 +160,7 @@ def run(
         base,
         reps,
         table(durations, measured, level),
-        verdict(durations, measured, level, falls, transfers, reps, closest),
+        findings(durations, measured, level, falls, transfers, reps, closest),
         [FIGURE],
         {f"on {u:g} s": n for u, n in normalisations.items()},
         durations=durations,
@@ -185,7 +178,7 @@ def interval_columns(name: str, values: Sequence[float]) -> dict[str, float]:
     return {f"median_{name}": median, f"{name}_ci_low": low, f"{name}_ci_high": high}
 
 
-def verdict(
+def findings(
     durations: Sequence[float],
     measured: Mapping[str, Mapping[Pair, list[float]]],
     level: float,
@@ -194,7 +187,7 @@ def verdict(
     reps: int,
     closest: int = 0,
 ) -> str:
-    """The report's verdict: how the error on its own spiral moves with the duration, at one
+    """The report's findings: how the error on its own spiral moves with the duration, at one
     smoothness and for the recommended controller, and what moving a controller to another
     speed costs; every family of tests Holm-adjusted."""
     ordered = sorted(durations)

@@ -1,5 +1,5 @@
-"""Two samples compared the way the experiments' verdicts need: a test, an effect size, a
-confidence interval, and a verdict in plain words that says when the data cannot decide.
+"""Two samples compared the way the experiments' findings need: a test, an effect size, a
+confidence interval, and a decision in plain words that says when the data cannot decide.
 
 Pure (numpy, scipy), no files: `stats_csv` returns the text of an experiment's stats.csv.
 
@@ -175,7 +175,7 @@ def decide(
     higher_is_better: bool = True,
     alpha: float = ALPHA,
 ) -> str:
-    """The comparison's verdict in plain words: which is better, or why it cannot be decided."""
+    """The comparison's decision in plain words: which is better, or why it cannot be decided."""
     c = comparison
     numbers = f"{c.test} p = {c.p_value:.3g}, A12 = {c.a12:.2f}"
     if not decidable(c, alpha):

@@ -12,6 +12,7 @@ from gainfarm.analytic.evaluators.evaluator import EpisodeResult, Evaluator
 from gainfarm.analytic.evaluators.replication import LIE_SHARE, Ran, caught_probability
 from gainfarm.analytic.tuning.checkpoint import encode
 from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.declared import declarations, maximised
 from gainfarm.analytic.tuning.evolution import Candidate, hypervolume
 from gainfarm.analytic.tuning.front import FrontEpisodes
 from gainfarm.analytic.tuning.jobs import candidate_objectives
@@ -28,6 +29,7 @@ from gainfarm.analytic.tuning.records import (
     HistoryRow,
     RunIdentity,
     ValidationRecord,
+    best_of,
     evaluated_csv,
     front_csv,
     front_json,
@@ -157,10 +159,9 @@ class Books:
                 hypervolume=hypervolume(
                     [member.objectives for member in front], self.config.reference_point
                 ),
-                # NaN while no candidate is feasible: the front is empty.
-                best_f_acc=min((member.objectives[0] for member in front), default=math.nan),
-                best_f_t=min((member.objectives[1] for member in front), default=math.nan),
+                best=best_of([member.objectives for member in front], self.config.objectives),
                 wall_seconds=state.wall_seconds,
+                names=self.config.objectives,
             )
         )
         if self.config.keep == "front":
@@ -204,8 +205,7 @@ class Books:
         return dataclasses.replace(
             row,
             hypervolume=hypervolume(points, self.config.reference_point),
-            best_f_acc=min((f_acc for f_acc, _ in points), default=math.nan),
-            best_f_t=min((f_t for _, f_t in points), default=math.nan),
+            best=best_of(points, self.config.objectives),
         )
 
     # --- the files ---------------------------------------------------------------------------
@@ -228,15 +228,18 @@ class Books:
         between history.csv and the checkpoint leaves the plain files a generation ahead: a
         resume runs that generation again, to the same, deterministic, result.)"""
         self.check_open()
-        rows = front_rows(self.state)
+        names = self.config.objectives
+        rows = front_rows(self.state, names)
         write_atomically(
             self.directory / EVALUATED_CSV,
-            evaluated_csv(self.state.evaluated, self.state.measured, self.config.limits),
+            evaluated_csv(
+                self.state.evaluated, self.state.measured, self.config.limits, declarations(names)
+            ),
         )
         write_atomically(self.directory / FRONT_JSON, front_json(rows, self.validation()))
         write_atomically(self.directory / PROVENANCE_CSV, provenance_csv(rows))
-        write_atomically(self.directory / FRONT_CSV, front_csv(rows))
-        write_atomically(self.directory / HISTORY_CSV, history_csv(self.state.history))
+        write_atomically(self.directory / FRONT_CSV, front_csv(rows, names))
+        write_atomically(self.directory / HISTORY_CSV, history_csv(self.state.history, names))
 
     def validation(self) -> ValidationRecord:
         """What validation found over the run, as its records say it."""
@@ -275,14 +278,16 @@ class Books:
         )
 
 
-def front_rows(state: RunState) -> list[FrontMember]:
-    """The front as the record keeps it: gains, objectives, whether an episode diverged, and the
-    logs kept of each member."""
+def front_rows(state: RunState, names: tuple[str, ...]) -> list[FrontMember]:
+    """The front as the record keeps it: gains, objectives (named `names`), whether an episode
+    diverged, and the logs kept of each member."""
     return [
         FrontMember(
             member.gains.kp,
             member.gains.kd,
-            *member.objectives,
+            member.objectives,
+            names=names,
+            maximised=maximised(names),
             logs=tuple(f"{EPISODES}/{job}.mcap" for job in state.episodes.get(member.gains, [])),
             diverged=any(
                 ran.scores is not None and ran.scores.diverged

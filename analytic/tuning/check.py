@@ -422,7 +422,7 @@ def _margins(config: RunConfig, gains: PDGains) -> dict:
     least over its trajectories: its tracking modes' damping at the plant's delay and at the
     largest delay any plant of the run has (the uncertainty range's top, where reviewers found
     tuned members unstable), and its delay margin in ticks. About an episode's cost each."""
-    from gainfarm.worker.stability import margins  # MuJoCo: loaded only by a check
+    from gainfarm.worker.stability import margins  # start-up: MuJoCo, only for a check
 
     top = max(plant.delay for plant in (config.model, *config.plants, *config.check_plants))
     found = [

@@ -53,15 +53,16 @@ ALLOWED: frozenset[tuple[str, str]] = frozenset(
         ("gainfarm.analytic.tuning.records", "HistoryRow"),
         ("gainfarm.analytic.tuning.records", "FrontMember"),
         ("gainfarm.analytic.tuning.evolution", "Evolution"),
-        ("gainfarm.analytic.tuning.evolution", "GainProblem"),
         ("gainfarm.analytic.tuning.evolution", "FromTheDefaults"),
-        ("gainfarm.analytic.tuning.evolution", "UniformRandom"),
+        # the built-in optimisers' own (analytic/tuning/algorithms/, one module each)
+        ("gainfarm.analytic.tuning.algorithms.common", "GainProblem"),
+        ("gainfarm.analytic.tuning.algorithms.random", "UniformRandom"),
         # --algorithm tpe. Not one of Optuna's classes: Study can be called with a storage URL
         # (a database on disk or the network), so the wrapper pickles plain data only (the points
         # and objectives told) and replays them into a new study when it is loaded.
-        ("gainfarm.analytic.tuning.evolution", "OptunaTPE"),
-        ("gainfarm.analytic.tuning.evolution", "_by_cv_and_domination"),
-        ("gainfarm.analytic.tuning.evolution", "_by_cv_then_random"),
+        ("gainfarm.analytic.tuning.algorithms.tpe", "OptunaTPE"),
+        ("gainfarm.analytic.tuning.algorithms.smsemoa", "_by_cv_and_domination"),
+        ("gainfarm.analytic.tuning.algorithms.nsga3", "_by_cv_then_random"),
         ("gainfarm.analytic.tuning.search_space", "SearchSpace"),
         ("gainfarm.schemas.gains", "PDGains"),
         # numpy arrays, scalars and the random generator (numpy 2 names, then numpy 1's)
@@ -232,7 +233,8 @@ class _Header(pickle.Unpickler):
 
 class _Unpickler(pickle.Unpickler):
     """Resolves the globals in ALLOWED (and those of the run's plug-in optimiser) and nothing
-    else. Checkpoints written before a class moved name it where it was: before the run's row
+    else. Checkpoints written before a class moved name it where it was: before the built-in
+    optimisers had a module each (analytic.tuning.evolution), before the run's row
     types moved to the records (analytic.figures), and before the project went under one import
     name, `gainfarm`, with analytic/ by role (analytic.run, schemas.gains, ...). MOVED maps those
     old places to today's, and only for the classes ALLOWED holds."""
@@ -240,6 +242,13 @@ class _Unpickler(pickle.Unpickler):
     MOVED: ClassVar[dict[tuple[str, str], str]] = {
         ("analytic.figures", "HistoryRow"): "gainfarm.analytic.tuning.records",
         ("analytic.figures", "FrontMember"): "gainfarm.analytic.tuning.records",
+        # Before the built-in optimisers had a module each, evolution.py held them all.
+        **{
+            (old, name): module
+            for module, name in ALLOWED
+            if module.startswith("gainfarm.analytic.tuning.algorithms.")
+            for old in ("gainfarm.analytic.tuning.evolution", "analytic.evolution")
+        },
         **{
             (
                 module.removeprefix("gainfarm.")

@@ -6,11 +6,8 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from gainfarm import plugins
 from gainfarm.analytic.tuning import defaults
-from gainfarm.analytic.tuning.evolution import (
-    REFERENCE_POINT,
-    STEADY_STATE,
-    steady_state_refusal,
-)
+from gainfarm.analytic.tuning.algorithms import STEADY_STATE, steady_state_refusal
+from gainfarm.analytic.tuning.defaults import REFERENCE_POINT
 from gainfarm.analytic.tuning.termination import (
     CONVERGENCE_TOLERANCE,
     CONVERGENCE_WINDOW,
@@ -62,9 +59,10 @@ class RunConfig(BaseModel):
     )
     objectives: tuple[str, str] = Field(
         DEFAULT_OBJECTIVES,
-        description="the two objectives minimised, names of the gainfarm.objectives plug-in "
-        "group: the paper's f_acc and f_t, or a plug-in's in place of either, installed here and "
-        "on the workers; the records' f_acc and f_t columns hold the first and the second",
+        description="the two objectives, by name, in the gainfarm.objectives plug-in group: the "
+        "paper's f_acc and f_t, or f_t_joint or a plug-in's in place of either, installed here "
+        "and on the workers; each declares its unit and direction (a maximised one is told the "
+        "optimiser negated), and the records' columns, figures and reports are named after them",
     )
     objective_scaling: defaults.ObjectiveScaling = Field(
         defaults.OBJECTIVE_SCALING,
@@ -77,6 +75,14 @@ class RunConfig(BaseModel):
         "weighted per trajectory by these (f_acc weight, f_t weight) pairs, in the order of "
         "`trajectories` (schemas.objectives.balancing_weights: each trajectory counts alike at "
         "the default gains); None: the plain means",
+    )
+    balance: bool = Field(
+        defaults.BALANCE,
+        exclude_if=lambda balance: balance == defaults.BALANCE,  # a config.json as it was
+        description="a new run given no `objective_weights` (generic) or `plant_scales` "
+        "(robust) has them found first, by the default gains' scores simulated in the calling "
+        "process (analytic.compose.balanced), so that each trajectory and plant counts alike; "
+        "False: the plain means and worsts",
     )
     plant_scales: tuple[tuple[PositiveFinite, PositiveFinite], ...] | None = Field(
         None,
@@ -163,6 +169,12 @@ class RunConfig(BaseModel):
         for name in names:
             plugins.check_name(plugins.OBJECTIVES, name)
         return names
+
+    @field_validator("model")
+    @classmethod
+    def _a_robot_here(cls, plant: ModelSpec) -> ModelSpec:
+        plugins.check_name(plugins.ROBOTS, plant.robot)
+        return plant
 
     @field_validator("trajectories")
     @classmethod

@@ -1,6 +1,6 @@
 """What a run allows and defaults to, in plain Python: the one source `RunConfig` and the command
 line both read. It imports nothing but `typing`, so that `analytic start` can refuse `--pop 0`
-before pydantic, NumPy or pymoo load."""
+before pydantic, NumPy or pymoo load, and `from gainfarm import RunConfig` loads no optimiser."""
 
 from typing import Literal
 
@@ -11,6 +11,15 @@ SEED = 0
 GENERATIONS_MIN = 1
 EVALUATIONS_MIN = 1
 ALGORITHM = "nsga2"
+# The hypervolume is taken in a normalised objective space, the same for every run so that runs
+# compare: f_acc linearly, 0 → 0 and REFERENCE_POINT[0] → 1; f_t logarithmically, F_T_FLOOR → 0
+# and REFERENCE_POINT[1] → 1 (torque smoothness spans decades: a step from 100 to 10 (N·m)² is
+# worth as much as one from 1 to 0.1). The reference point is (1, 1) there: a controller worse
+# than 20 cm mean error or 10^4 (N·m)² mean squared torque step adds nothing. (The paper
+# normalises by the worst values among the controllers tested; a fixed point keeps the figure
+# comparable across runs and monotone within one.)
+REFERENCE_POINT = (0.2, 1e4)  # f_acc in m, f_t in (N·m)²
+F_T_FLOOR = 1e-2  # (N·m)²: smoother than this counts as perfectly smooth
 # What the optimiser is told: the raw objectives, or the normalised ones the hypervolume is taken
 # on (f_t on a log scale).
 ObjectiveScaling = Literal["raw", "log"]

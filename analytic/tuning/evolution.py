@@ -7,11 +7,12 @@ and the objectives only, never on which result arrived first.
 
 The optimiser is NSGA-II by default; ALGORITHMS lists the other built-in ones, all generational (a
 whole population asked, then told): pymoo's NSGA-III, SMS-EMOA, MOEA/D and AGE-MOEA-II; "tpe",
-Optuna's multi-objective TPE through Optuna's ask and tell (OptunaTPE); and "random", uniform
+Optuna's multi-objective TPE through Optuna's ask and tell; and "random", uniform
 random sampling of the search space, a population a generation, the baseline any optimiser must
 beat. NSGA-II and TPE also run in a steady state (STEADY_STATE: one candidate asked as another
-is told). Each is a factory in the gainfarm.algorithms group of gainfarm.plugins, where a plug-in
-adds its own (`optimiser`: what a factory takes and what it returns).
+is told). Each is a factory in a module of its own (analytic/tuning/algorithms/), registered in
+the gainfarm.algorithms group of gainfarm.plugins by an entry point, as a plug-in adds its own
+(`optimiser`: what a factory takes and what it returns).
 
 Whatever the optimiser, the front is this module's archive of every non-dominated point told, in
 raw units. The optimiser itself may be told the objectives as the hypervolume sees them
@@ -29,46 +30,30 @@ worse than any episode's (NO_EPISODE, times 1 + the violation); random sampling 
 """
 
 import sys
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
-from pymoo.algorithms.moo.nsga2 import NSGA2
-from pymoo.algorithms.moo.nsga3 import NSGA3, comp_by_cv_then_random
-from pymoo.algorithms.moo.sms import SMSEMOA, cv_and_dom_tournament
 from pymoo.core.individual import calc_cv
 from pymoo.core.population import Population
 from pymoo.core.problem import Problem
-from pymoo.core.termination import NoTermination
 from pymoo.indicators.hv import HV
 from pymoo.operators.sampling.rnd import FloatRandomSampling
-from pymoo.operators.selection.tournament import TournamentSelection
 from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
-from pymoo.util.ref_dirs import get_reference_directions
 
 from gainfarm import plugins
-from gainfarm.analytic.tuning.defaults import OBJECTIVE_SCALINGS
+from gainfarm.analytic.tuning.algorithms import STEADY_STATE, steady_state_refusal
+from gainfarm.analytic.tuning.defaults import F_T_FLOOR, OBJECTIVE_SCALINGS, REFERENCE_POINT
 from gainfarm.analytic.tuning.search_space import SearchSpace
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.objectives import NO_EPISODE
 
-# The hypervolume is taken in a normalised objective space, the same for every run so that runs
-# compare: f_acc linearly, 0 → 0 and REFERENCE_POINT[0] → 1; f_t logarithmically, F_T_FLOOR → 0
-# and REFERENCE_POINT[1] → 1 (torque smoothness spans decades: a step from 100 to 10 (N·m)² is
-# worth as much as one from 1 to 0.1). The reference point is (1, 1) there: a controller worse
-# than 20 cm mean error or 10^4 (N·m)² mean squared torque step adds nothing. (The paper
-# normalises by the worst values among the controllers tested; a fixed point keeps the figure
-# comparable across runs and monotone within one.)
-REFERENCE_POINT = (0.2, 1e4)  # f_acc in m, f_t in (N·m)²
-F_T_FLOOR = 1e-2  # (N·m)²: smoother than this counts as perfectly smooth
+# The hypervolume's box (REFERENCE_POINT, F_T_FLOOR) is defaults.py's: a RunConfig reads it
+# without loading pymoo.
 
 # The built-in optimisers, the default first; plugins.names(plugins.ALGORITHMS) adds the plug-ins.
 ALGORITHMS: tuple[str, ...] = plugins.builtin_names(plugins.ALGORITHMS)
-# The algorithms with a steady-state variant (ask_one/tell_one): NSGA-II's (mu + 1) and TPE's
-# (one trial at a time, as Optuna runs it).
-STEADY_STATE = ("nsga2", "tpe")
 
 
 @dataclass(frozen=True)
@@ -77,267 +62,14 @@ class Candidate:
     objectives: tuple[float, float]  # f_acc, f_t: means over the trajectory set
 
 
-class GainProblem(Problem):
-    """The decision space for pymoo; evaluation happens outside, through ask and tell."""
-
-    def __init__(self, space: SearchSpace):
-        super().__init__(n_var=len(space.lower), n_obj=2, xl=space.lower, xu=space.upper)
-
-
-class UniformRandom:
-    """The "random" algorithm: `pop_size` points drawn uniformly from the decision space every
-    generation, whatever came before (ask and tell as pymoo's algorithms have them)."""
-
-    def __init__(self, pop_size: int, seed: int, space: SearchSpace):
-        self.pop_size = pop_size
-        self.lower, self.upper = space.lower, space.upper
-        self.random_state = np.random.default_rng(seed)
-        self.pop = None  # no population: nothing for Evolution.correct to correct
-
-    def ask(self) -> Population:
-        shape = (self.pop_size, len(self.lower))
-        return Population.new(X=self.random_state.uniform(self.lower, self.upper, shape))
-
-    def tell(self, infills: Population) -> None:
-        pass
-
-
-class OptunaTPE:
-    """The "tpe" algorithm: Optuna's multi-objective TPE (optuna.samplers.TPESampler) through
-    Optuna's ask and tell, each decision variable a float between its bounds (already log10 of a
-    gain: the search space is log-scaled). The first `pop_size` trials are uniform random (TPE's
-    startup trials); every later one is sampled from Parzen estimators of the trials told:
-    multivariate (the gains act together: a joint's damping is Kd against Kp), with the constant
-    liar, Optuna's way with trials asked before others are told: a trial still running counts as
-    a bad one, so that those in flight spread out rather than pile onto one mode.
-
-    Generational, it asks `pop_size` trials at a time and is told them together: a generation of
-    30 is then sampled from what the previous ones taught, none of it from the others in it.
-    In a steady state (`steady_state`: the run's --async) it asks one trial at a time after the
-    first generation and is told each as it returns, in any order: only the trials in flight (two
-    per worker) are guessed by the liar, so TPE learns from every result as Optuna's own loop
-    does (the way it is meant to run: one trial at a time).
-
-    Deterministic and picklable without any of Optuna's objects: each ask is made of a fresh
-    sampler seeded by (seed, asks made), so that the sampler carries no random state from one ask
-    to the next (its other state, the search space, is derived from the trials). What is pickled
-    is plain data: the seed, the asks made, every trial's point in trial number order, the
-    objectives each told trial was told (None for a trial Optuna failed) and its constraint
-    values; unpickling replays them into a new in-memory study (optuna.trial.create_trial,
-    study.add_trials), which then asks exactly what the uninterrupted one would have. A trial
-    asked and not yet told is replayed running (a generation is told after a resume), except in a
-    steady state, whose candidates in flight a resumed run drops and asks anew: there it is
-    replayed failed, which TPE leaves out, so no trial runs forever under the liar.
-    """
-
-    def __init__(
-        self, pop_size: int, seed: int, space: SearchSpace, steady_state: bool = False
-    ) -> None:
-        self.pop_size = pop_size
-        self.seed = seed
-        self.steady_state = steady_state
-        self.lower, self.upper = space.lower, space.upper
-        self.names = tuple(f"log10_kp{j + 1}" for j in range(len(space.kp_low))) + tuple(
-            f"log10_kd{j + 1}" for j in range(len(space.kd_low))
-        )
-        self.generations = 0  # asks made: a generation each, or one trial in a steady state
-        self._points: list[list[float]] = []  # every trial's point, by trial number
-        # The objectives each told trial was told (None: Optuna failed it), by trial number;
-        # a trial asked and not in here is in flight.
-        self._values: dict[int, list[float] | None] = {}
-        self.pop = None  # no population: nothing for Evolution.correct to correct
-        # Told constraints (Evolution sets `constrained`): each told trial's values, by number.
-        self.constrained = False
-        self._told_g: dict[int, list[float]] = {}
-        self._live: dict[int, Any] = {}  # the Trials asked in this process, to be told
-        self._study = self._new_study()
-
-    def __getstate__(self) -> dict:
-        state = {k: v for k, v in self.__dict__.items() if k not in ("_study", "_live")}
-        if self.steady_state:  # in flight now, dropped by a resumed run: failed to it
-            state["_values"] = {n: self._values.get(n) for n in range(len(self._points))}
-        return state
-
-    def __setstate__(self, state: dict) -> None:
-        """Checkpoints from before constraints told none; from before a steady state kept the
-        trials told (in trial number order: they were told in the order asked) apart from the
-        trials asked."""
-        state = {"constrained": False, "_told_g": {}, "steady_state": False, **state}
-        if "_told" in state:
-            told, asked = state.pop("_told"), state.pop("_asked")
-            state["_points"] = [x for x, _ in told] + list(asked)
-            state["_values"] = {number: values for number, (_, values) in enumerate(told)}
-        self.__dict__.update({**state, "_live": {}})
-        self._study = self._new_study()
-
-    @property
-    def pending(self) -> list[int]:
-        """The numbers of the trials asked and not yet told, in the order asked."""
-        return [n for n in range(len(self._points)) if n not in self._values]
-
-    def _new_study(self) -> Any:
-        """The study, with every trial told and asked so far replayed into it, in order."""
-        optuna = _optuna()
-        state = optuna.trial.TrialState
-        distributions = {
-            name: optuna.distributions.FloatDistribution(float(low), float(high))
-            for name, low, high in zip(self.names, self.lower, self.upper, strict=True)
-        }
-
-        def replayed(number: int) -> tuple[Any, list[float] | None]:
-            if number not in self._values:
-                return state.RUNNING, None
-            values = self._values[number]
-            return (state.COMPLETE if values is not None else state.FAIL), values
-
-        trials = []
-        for number, x in enumerate(self._points):
-            trial_state, values = replayed(number)
-            trials.append(
-                optuna.trial.create_trial(
-                    state=trial_state,
-                    params=dict(zip(self.names, x, strict=True)),
-                    distributions=distributions,
-                    values=values,
-                    # What the constraints_func would have recorded had the trial been told here.
-                    system_attrs={CONSTRAINTS_KEY: self._told_g[number]}
-                    if number in self._told_g
-                    else None,
-                )
-            )
-        study = optuna.create_study(directions=["minimize", "minimize"])
-        study.add_trials(trials)
-        return study
-
-    def _sampler(self, optuna: Any) -> Any:
-        """This ask's sampler: seeded by (seed, asks made), nothing carried over."""
-        seed = int(np.random.SeedSequence([self.seed, self.generations]).generate_state(1)[0])
-        with warnings.catch_warnings():  # Optuna 4 calls both options experimental; 5 does not
-            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-            return optuna.samplers.TPESampler(
-                seed=seed,
-                n_startup_trials=self.pop_size,
-                multivariate=True,
-                constant_liar=True,
-                # Optuna 5 reads a trial's constraints itself (Trial.set_constraint); 4 through
-                # the constraints_func, which 5 deprecates.
-                constraints_func=_trial_constraints
-                if self.constrained and not _sets_constraints(optuna)
-                else None,
-            )
-
-    def ask(self) -> Population:
-        """A generation of trials; in a steady state, one after the first generation."""
-        one = self.steady_state and self.generations > 0
-        if self.pending and not self.steady_state:
-            raise RuntimeError("ask() follows the tell() of the trials asked last")
-        optuna = _optuna()
-        self._study.sampler = self._sampler(optuna)
-        asked = []
-        for _ in range(1 if one else self.pop_size):
-            trial = self._study.ask()
-            self._live[trial.number] = trial
-            asked.append(
-                [
-                    trial.suggest_float(name, float(low), float(high))
-                    for name, low, high in zip(self.names, self.lower, self.upper, strict=True)
-                ]
-            )
-        self._points += asked
-        self.generations += 1
-        return Population.new(X=np.array(asked, dtype=float))
-
-    def tell(self, infills: Population) -> None:
-        """The objectives (F) of trials asked: generationally, every one asked last, in the
-        order asked; in a steady state, any of those in flight."""
-        pending = self.pending
-        x = infills.get("X").reshape(-1, len(self.names))
-        if self.steady_state:
-            numbers = [self._in_flight(row, pending) for row in x]
-        elif len(x) == len(pending) and np.array_equal(
-            x, np.array([self._points[n] for n in pending], dtype=float)
-        ):
-            numbers = pending
-        else:
-            raise ValueError("tell() takes the trials asked last, in the order asked")
-        complete = _optuna().trial.TrialState.COMPLETE
-        constraints = infills.get("G") if self.constrained else None
-        replay = False
-        for index, (number, f) in enumerate(zip(numbers, infills.get("F"), strict=True)):
-            values = [float(value) for value in f]
-            trial = self._live.pop(number, None)
-            if constraints is not None:
-                self._told_g[number] = [float(g) for g in constraints[index]]
-                if trial is None:  # asked before a resume: replayed with its constraints below
-                    replay = True
-                elif _sets_constraints(_optuna()):
-                    for key, g in enumerate(self._told_g[number]):
-                        trial.set_constraint(str(key), g)  # the keys the replay's list gives
-                else:  # read by the sampler's constraints_func as the trial is told
-                    trial.set_user_attr(CONSTRAINTS_KEY, self._told_g[number])
-            told = self._study.tell(trial if trial is not None else number, values)  # NaN: fails
-            self._values[number] = values if told.state == complete else None
-        if replay:
-            self._study = self._new_study()
-
-    def _in_flight(self, x: np.ndarray, pending: list[int]) -> int:
-        """The number of the trial in flight asked at `x`; ValueError if none is."""
-        for number in pending:
-            if np.array_equal(x, self._points[number]):
-                pending.remove(number)  # told once
-                return number
-        raise ValueError("tell() takes trials asked and not yet told")
-
-
-# Optuna's own key for a trial's constraint values, as a list (Optuna 5 reads it too).
-CONSTRAINTS_KEY = "constraints"
-
-
-def _sets_constraints(optuna: Any) -> bool:
-    """Whether this Optuna keeps a trial's constraints itself (5 does; 4 needs a function)."""
-    return hasattr(optuna.trial.Trial, "set_constraint")
-
-
-def _trial_constraints(trial: Any) -> list[float]:
-    """TPE's constraints_func: the values tell() attached to the trial (≤ 0 met)."""
-    return trial.user_attrs[CONSTRAINTS_KEY]
-
-
-def _optuna() -> Any:
-    """Optuna, quiet (it logs every trial at INFO); a ValueError if it is not installed."""
-    try:
-        import optuna
-    except ImportError:
-        raise ValueError(
-            "algorithm tpe needs optuna: pip install optuna (gainfarm's moea extra)"
-        ) from None
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
-    return optuna
-
-
-def _by_cv_then_random(pop: Population, P: np.ndarray, **kwargs: Any) -> np.ndarray:
-    """NSGA-III's tournament: pymoo's own function is wrapped by a decorator that pickle cannot
-    name (a checkpoint holds the algorithm), so the algorithm holds this, which calls it."""
-    return comp_by_cv_then_random(pop, P, **kwargs)
-
-
-def _by_cv_and_domination(pop: Population, P: np.ndarray, **kwargs: Any) -> np.ndarray:
-    """SMS-EMOA's tournament, for the same reason."""
-    return cv_and_dom_tournament(pop, P, **kwargs)
-
-
-def reference_directions(pop_size: int) -> np.ndarray:
-    """NSGA-III's and MOEA/D's reference directions: pop_size evenly spread on the 2-objective
-    simplex (Das and Dennis, pop_size - 1 partitions), so that the population is the config's."""
-    return get_reference_directions("das-dennis", 2, n_partitions=pop_size - 1)
-
-
 class Optimiser(Protocol):
     """What the evolution step asks and tells, as pymoo's algorithms have it (any pymoo
     algorithm set up on GainProblem(space) is one). The decision variables are the search
     space's (log10 of each gain, SearchSpace.lower to .upper); the two objectives are minimised.
     It may also hold `pop`, the population it keeps (a pymoo Population, or None): objectives
-    that replication finds false are corrected there too (Evolution.correct)."""
+    that replication finds false are corrected there too (Evolution.correct); and one that is
+    not set up on a pymoo problem may say whether it ranks constraints itself,
+    `rank_constraints(count) -> bool` (else it is told an infeasible point as the worst)."""
 
     def ask(self) -> Population:
         """The next candidates (X set), a generation of them."""
@@ -361,25 +93,19 @@ def optimiser(
     """
     if steady_state and algorithm not in STEADY_STATE:
         raise ValueError(steady_state_refusal(algorithm))
-    if steady_state and algorithm == "tpe":
-        return OptunaTPE(pop_size=pop_size, seed=seed, space=space, steady_state=True)
-    if steady_state:
-        return nsga2(pop_size=pop_size, seed=seed, space=space, steady_state=True)
-    made = plugins.load(plugins.ALGORITHMS, algorithm)(pop_size=pop_size, seed=seed, space=space)
+    factory = plugins.load(plugins.ALGORITHMS, algorithm)
+    made = factory(
+        pop_size=pop_size,
+        seed=seed,
+        space=space,
+        **({"steady_state": True} if steady_state else {}),
+    )
     if not (callable(getattr(made, "ask", None)) and callable(getattr(made, "tell", None))):
         raise plugins.PluginError(
             f"{plugins.ALGORITHMS}: {algorithm!r} made a {type(made).__name__}, which has no "
             "ask() and tell()"
         )
     return made
-
-
-def _set_up(method: Any, seed: int, space: SearchSpace) -> Any:
-    # The run terminates itself (analytic.termination): pymoo's default criteria, updated on
-    # every tell, were a quarter of a steady-state run's CPU, and decide nothing that is asked.
-    method.termination = NoTermination()
-    method.setup(GainProblem(space), seed=seed, verbose=False)
-    return method
 
 
 class FromTheDefaults(FloatRandomSampling):
@@ -392,58 +118,6 @@ class FromTheDefaults(FloatRandomSampling):
         x = super()._do(problem, n_samples, *args, **kwargs)
         x[0] = np.clip(np.log10(DEFAULT_GAINS.kp + DEFAULT_GAINS.kd), problem.xl, problem.xu)
         return x
-
-
-def nsga2(pop_size: int, seed: int, space: SearchSpace, steady_state: bool = False) -> NSGA2:
-    """pymoo's NSGA-II; steady state (mu + 1) asks one offspring at a time."""
-    method = NSGA2(
-        pop_size=pop_size, n_offsprings=1 if steady_state else None, eliminate_duplicates=True
-    )
-    return _set_up(method, seed, space)
-
-
-def nsga3(pop_size: int, seed: int, space: SearchSpace) -> NSGA3:
-    """pymoo's NSGA-III on reference_directions(pop_size)."""
-    method = NSGA3(
-        ref_dirs=reference_directions(pop_size),
-        pop_size=pop_size,
-        selection=TournamentSelection(func_comp=_by_cv_then_random),
-    )
-    return _set_up(method, seed, space)
-
-
-def smsemoa(pop_size: int, seed: int, space: SearchSpace) -> SMSEMOA:
-    """pymoo's SMS-EMOA, generational: pop offspring, then the least contributors go."""
-    method = SMSEMOA(
-        pop_size=pop_size, selection=TournamentSelection(func_comp=_by_cv_and_domination)
-    )
-    return _set_up(method, seed, space)
-
-
-def moead(pop_size: int, seed: int, space: SearchSpace) -> Any:
-    """pymoo's MOEA/D, the parallel variant: a whole generation asked at once."""
-    # Loaded here: its module brings scipy.spatial, a third of a second of every run's start.
-    from pymoo.algorithms.moo.moead import ParallelMOEAD
-
-    return _set_up(ParallelMOEAD(ref_dirs=reference_directions(pop_size)), seed, space)
-
-
-def agemoea2(pop_size: int, seed: int, space: SearchSpace) -> Any:
-    """pymoo's AGE-MOEA-II (it compiles with numba: a ValueError without it)."""
-    try:
-        from pymoo.algorithms.moo.age2 import AGEMOEA2
-    except Exception:  # pymoo raises a bare Exception when numba is missing
-        raise ValueError("algorithm agemoea2 needs numba: pip install numba") from None
-    return _set_up(AGEMOEA2(pop_size=pop_size), seed, space)
-
-
-def steady_state_refusal(algorithm: str) -> str:
-    """Why a steady-state run of `algorithm` is refused, in one line naming the way out."""
-    which = " or ".join(STEADY_STATE)
-    return (
-        f"steady state (asynchronous, --async) is {which}'s only, not {algorithm}'s: "
-        f"choose algorithm {which}, or drop --async to run {algorithm} generationally"
-    )
 
 
 class Evolution:
@@ -673,11 +347,9 @@ def _declare(algorithm: Any, constraints: int) -> bool:
     (it is then told an infeasible point as the worst: Evolution._set)."""
     if not constraints:
         return False
-    if isinstance(algorithm, OptunaTPE):
-        algorithm.constrained = True
-        return True
-    if isinstance(algorithm, UniformRandom):
-        return True  # it asks the same whatever it is told
+    rank = getattr(algorithm, "rank_constraints", None)
+    if callable(rank):  # one that is not pymoo's says whether it ranks them (Optimiser)
+        return bool(rank(constraints))
     problem = getattr(algorithm, "problem", None)
     if isinstance(problem, Problem) and not _is_moead(algorithm):
         # pymoo's survival splits by feasibility when the problem has constraints, and its

@@ -5,9 +5,10 @@ Pure: functions of the run's config."""
 from collections.abc import Sequence
 
 from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.declared import declarations
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.objectives import objectives
+from gainfarm.schemas.objectives import no_episode, objectives
 
 
 def job_ids(config: RunConfig, candidate: str) -> list[str]:
@@ -47,6 +48,7 @@ def candidate_objectives(config: RunConfig, scores: Sequence[Scores | None]) -> 
         1 + len(config.plants),
         config.aggregate,
         config.plant_scales,
+        no_episode(declarations(config.objectives)),
     )
 
 

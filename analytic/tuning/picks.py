@@ -60,11 +60,7 @@ class Pick:
 
 def _finished(front: Sequence[FrontMember]) -> list[int]:
     """The members with finite scores that did not diverge: measured, not a penalty."""
-    return [
-        i
-        for i, m in enumerate(front)
-        if not m.diverged and np.isfinite(m.f_acc) and np.isfinite(m.f_t)
-    ]
+    return [i for i, m in enumerate(front) if not m.diverged and np.all(np.isfinite(m.objectives))]
 
 
 def _measured(front: Sequence[FrontMember]) -> list[int]:
@@ -182,6 +178,6 @@ def picks(
     return [
         *first,
         pick_at(front, "knee", knee_index(front)),
-        pick_at(front, "accurate", rows[0]),  # sorted by f_acc, then f_t
-        pick_at(front, "smooth", min(rows, key=lambda i: (front[i].f_t, i))),
+        pick_at(front, "accurate", rows[0]),  # sorted by the first objective, then the second
+        pick_at(front, "smooth", min(rows, key=lambda i: (front[i].objectives[1], i))),
     ]

@@ -38,10 +38,15 @@ from pathlib import Path
 from typing import Any
 
 from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.declared import declarations
+from gainfarm.analytic.tuning.declared import maximised as maximised_among
 from gainfarm.schemas.documents import load_json, read_bounded
+from gainfarm.schemas.episode import DEFAULT_OBJECTIVES
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.limits import BEFORE_LAG, DAMPING, MEASURED, Limits, named
+from gainfarm.schemas.objectives import Objective
 from gainfarm.schemas.robot import N_JOINTS
+from gainfarm.schemas.trajectory import KIND_PATTERN
 
 # The names a run directory uses; the report links to the figures by these relative names.
 PARETO_PNG = "pareto.png"
@@ -59,39 +64,45 @@ FEEDFORWARD = "feedforward.npz"  # the learned model a run's episodes add to the
 LOCK = "run.lock"
 EPISODES = "episodes"
 
-HISTORY_FIELDS = (
-    "generation",
-    "evaluations",
-    "hypervolume",
-    "best_f_acc",
-    "best_f_t",
-    "wall_seconds",
-)
-FRONT_FIELDS = (
+# The columns of the run's objectives are named after them (RunConfig.objectives): f_acc and f_t
+# in the paper's run, so its files read as they did before objectives could be chosen. Each
+# holds the objective in its own sense (a maximised one as it is, not as the optimiser is told).
+HISTORY_LEAD = ("generation", "evaluations", "hypervolume")
+GAINS_FIELDS = (
     *(f"kp{joint}" for joint in range(1, N_JOINTS + 1)),
     *(f"kd{joint}" for joint in range(1, N_JOINTS + 1)),
-    "f_acc",
-    "f_t",
-    "diverged",
 )
-# front.csv before the `diverged` column: read as members none of whose episodes diverged.
-LEGACY_FRONT_FIELDS = FRONT_FIELDS[:-1]
+
+
+def history_fields(names: Sequence[str] = DEFAULT_OBJECTIVES) -> tuple[str, ...]:
+    """history.csv's header: the best of each objective is `best_<name>`."""
+    return (*HISTORY_LEAD, *(f"best_{name}" for name in names), "wall_seconds")
+
+
+def front_fields(names: Sequence[str] = DEFAULT_OBJECTIVES) -> tuple[str, ...]:
+    """front.csv's header (before the `diverged` column, a front.csv was read as members none
+    of whose episodes diverged)."""
+    return (*GAINS_FIELDS, *names, "diverged")
+
+
+HISTORY_FIELDS = history_fields()
+FRONT_FIELDS = front_fields()
 
 
 @dataclass(frozen=True)
 class HistoryRow:
     """One generation of a run, one line of history.csv.
 
-    `evaluations` and `wall_seconds` are cumulative since the start of the run; `best_f_acc` (m)
-    and `best_f_t` ((N·m)²) are the best value of each objective found so far.
+    `evaluations` and `wall_seconds` are cumulative since the start of the run; `best` is the
+    best value of each of the run's objectives (`names`) found so far, in its own sense and unit.
     """
 
     generation: int
     evaluations: int
     hypervolume: float
-    best_f_acc: float
-    best_f_t: float
+    best: tuple[float, ...]
     wall_seconds: float
+    names: tuple[str, ...] = DEFAULT_OBJECTIVES
 
     def __post_init__(self) -> None:
         # Normalise numpy scalars to Python numbers: repr(np.float64(1.0)) is "np.float64(1.0)",
@@ -99,8 +110,35 @@ class HistoryRow:
         # operator.index refuses a float generation rather than silently truncating it.
         object.__setattr__(self, "generation", operator.index(self.generation))
         object.__setattr__(self, "evaluations", operator.index(self.evaluations))
-        for name in ("hypervolume", "best_f_acc", "best_f_t", "wall_seconds"):
+        for name in ("hypervolume", "wall_seconds"):
             object.__setattr__(self, name, float(getattr(self, name)))
+        object.__setattr__(self, "best", tuple(float(value) for value in self.best))
+        object.__setattr__(self, "names", tuple(self.names))
+        if len(self.best) != len(self.names):
+            raise ValueError(f"{len(self.best)} best values for objectives {self.names}")
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """A checkpoint from before objectives were named pickled `best_f_acc` and `best_f_t`:
+        the run's first and second objectives' best."""
+        state = dict(state)
+        if "best_f_acc" in state:
+            state["best"] = (state.pop("best_f_acc"), state.pop("best_f_t"))
+            state.setdefault("names", DEFAULT_OBJECTIVES)
+        self.__dict__.update(state)
+
+    # The best of the paper's two by name, where the run has them (AttributeError where not).
+    @property
+    def best_f_acc(self) -> float:
+        return self._best("f_acc")
+
+    @property
+    def best_f_t(self) -> float:
+        return self._best("f_t")
+
+    def _best(self, name: str) -> float:
+        if name not in self.names:
+            raise AttributeError(f"the run's objectives are {', '.join(self.names)}, not {name}")
+        return self.best[self.names.index(name)]
 
 
 @dataclass(frozen=True)
@@ -149,11 +187,14 @@ class ValidationRecord:
 
 @dataclass(frozen=True)
 class FrontMember:
-    """One non-dominated controller, one line of front.csv: its 14 gains and its two scores.
+    """One non-dominated controller, one line of front.csv: its 14 gains and its objectives.
 
-    f_acc is in metres, f_t in (N·m)². `diverged`: an episode of the member was stopped early,
-    so its objectives carry the divergence penalty (schemas.objectives) and measure no
-    tracking; an experiment leaves such points out of its normalisation (analytic.experiments).
+    `objectives` are as the optimiser was told them (a maximised one negated), in the order of
+    `names`, the run's (RunConfig.objectives); `named` gives them by name, each in its own sense
+    and unit (the paper's f_acc in metres, f_t in (N·m)²). `diverged`: an episode of the member
+    was stopped early, so its objectives carry the divergence penalty (schemas.objectives) and
+    measure no tracking; an experiment leaves such points out of its normalisation
+    (analytic.experiments).
     Gains may be given as any sequence (a numpy row, say); they are stored as tuples of Python
     floats so members compare and hash by value. `logs` are the member's kept episode logs,
     relative to the run directory, one per trajectory whose episode ran (front.json holds them,
@@ -162,8 +203,7 @@ class FrontMember:
 
     kp: tuple[float, ...]
     kd: tuple[float, ...]
-    f_acc: float
-    f_t: float
+    objectives: tuple[float, ...]
     logs: tuple[str, ...] = field(default=(), compare=False)
     diverged: bool = False
     episodes: tuple[EpisodeCheck, ...] = field(default=(), compare=False)  # their provenance
@@ -171,6 +211,8 @@ class FrontMember:
     # damping ratio last (front.json holds them; empty for a run from before the limits, without
     # the damping for one from before it): the front holds only those within the run's limits.
     measures: tuple[float, ...] = field(default=(), compare=False)
+    names: tuple[str, ...] = DEFAULT_OBJECTIVES
+    maximised: tuple[str, ...] = field(default=(), compare=False)  # those of `names` that are
 
     def __post_init__(self) -> None:
         for name in ("kp", "kd"):
@@ -178,8 +220,7 @@ class FrontMember:
             if len(gains) != N_JOINTS:
                 raise ValueError(f"{name} needs {N_JOINTS} gains, got {len(gains)}")
             object.__setattr__(self, name, gains)
-        object.__setattr__(self, "f_acc", float(self.f_acc))
-        object.__setattr__(self, "f_t", float(self.f_t))
+        _set_objectives(self)
         if not isinstance(self.diverged, bool):
             raise ValueError(f"diverged must be true or false, got {self.diverged!r}")
         object.__setattr__(self, "logs", tuple(str(path) for path in self.logs))
@@ -190,8 +231,61 @@ class FrontMember:
         return PDGains(kp=self.kp, kd=self.kd)
 
     @property
-    def objectives(self) -> tuple[float, float]:
-        return (self.f_acc, self.f_t)
+    def named(self) -> dict[str, float]:
+        """Its objectives by name, each in its own sense: `member.named["f_acc"]`."""
+        return _named(self)
+
+    # The paper's two by name, where the run has them (AttributeError where it has not).
+    @property
+    def f_acc(self) -> float:
+        return _by_name(self, "f_acc")
+
+    @property
+    def f_t(self) -> float:
+        return _by_name(self, "f_t")
+
+
+def _set_objectives(point: Any) -> None:
+    """A front member's or baseline's objectives and names, checked and made plain floats."""
+    object.__setattr__(point, "objectives", tuple(float(value) for value in point.objectives))
+    object.__setattr__(point, "names", tuple(point.names))
+    object.__setattr__(point, "maximised", tuple(point.maximised))
+    if len(point.objectives) != len(point.names):
+        raise ValueError(f"{len(point.objectives)} objective values for {point.names}")
+    if not set(point.maximised) <= set(point.names):
+        raise ValueError(f"maximised {point.maximised} are not among the objectives {point.names}")
+
+
+def _named(point: Any) -> dict[str, float]:
+    return {
+        name: -value if name in point.maximised else value
+        for name, value in zip(point.names, point.objectives, strict=True)
+    }
+
+
+def _by_name(point: Any, name: str) -> float:
+    found = _named(point)
+    if name not in found:
+        raise AttributeError(f"the run's objectives are {', '.join(point.names)}, not {name}")
+    return found[name]
+
+
+def _told(names: Sequence[str], values: Sequence[float]) -> tuple[float, ...]:
+    """Values in their own sense (a file's) as the optimiser is told them: the objectives'
+    declarations say which are maximised."""
+    return tuple(
+        objective.minimised(float(value))
+        for objective, value in zip(declarations(names), values, strict=True)
+    )
+
+
+def best_of(points: Sequence[Sequence[float]], names: Sequence[str]) -> tuple[float, ...]:
+    """The best of each objective over `points` (as told), in its own sense: a HistoryRow's
+    `best` (NaN while there is no point: no candidate feasible yet)."""
+    return tuple(
+        objective.minimised(min((point[index] for point in points), default=math.nan))
+        for index, objective in enumerate(declarations(names))
+    )
 
 
 def _exact(value: float) -> str:
@@ -205,8 +299,9 @@ def _nan_last(value: float) -> tuple[bool, float]:
 
 
 def _front_order(member: FrontMember) -> tuple:
-    """f_acc, then f_t, then the gains: a total order, so equal fronts give equal files."""
-    return (_nan_last(member.f_acc), _nan_last(member.f_t), member.kp, member.kd)
+    """The first objective, then the second, then the gains: a total order, so equal fronts
+    give equal files."""
+    return (*map(_nan_last, member.objectives), member.kp, member.kd)
 
 
 def sorted_front(front: Iterable[FrontMember]) -> list[FrontMember]:
@@ -222,17 +317,18 @@ def _csv_bytes(header: Sequence[str], rows: Iterable[Sequence[str]]) -> bytes:
     return buffer.getvalue().encode("utf-8")
 
 
-def history_csv(history: Sequence[HistoryRow]) -> bytes:
-    """history.csv's content, rows in the order given (the order the generations ran)."""
+def history_csv(history: Sequence[HistoryRow], names: Sequence[str] | None = None) -> bytes:
+    """history.csv's content, rows in the order given (the order the generations ran); `names`:
+    the run's objectives, if there is no row to say them."""
+    names = names or (history[0].names if history else DEFAULT_OBJECTIVES)
     return _csv_bytes(
-        HISTORY_FIELDS,
+        history_fields(names),
         (
             (
                 str(row.generation),
                 str(row.evaluations),
                 _exact(row.hypervolume),
-                _exact(row.best_f_acc),
-                _exact(row.best_f_t),
+                *map(_exact, row.best),
                 _exact(row.wall_seconds),
             )
             for row in history
@@ -240,16 +336,17 @@ def history_csv(history: Sequence[HistoryRow]) -> bytes:
     )
 
 
-def front_csv(front: Sequence[FrontMember]) -> bytes:
-    """front.csv's content, sorted by f_acc then f_t so equal fronts give byte-identical files."""
+def front_csv(front: Sequence[FrontMember], names: Sequence[str] | None = None) -> bytes:
+    """front.csv's content, sorted by the first objective then the second so equal fronts give
+    byte-identical files; `names`: the run's objectives, if there is no member to say them."""
+    names = names or (front[0].names if front else DEFAULT_OBJECTIVES)
     return _csv_bytes(
-        FRONT_FIELDS,
+        front_fields(names),
         (
             (
                 *map(_exact, member.kp),
                 *map(_exact, member.kd),
-                _exact(member.f_acc),
-                _exact(member.f_t),
+                *map(_exact, member.named.values()),
                 str(member.diverged).lower(),
             )
             for member in sorted_front(front)
@@ -270,6 +367,30 @@ def _read_rows(path: Path, fields: Sequence[str], *legacy: Sequence[str]) -> lis
         return list(reader)
 
 
+def _objective_columns(
+    path: Path, lead: Sequence[str], trails: Sequence[Sequence[str]], prefix: str = ""
+) -> tuple[str, ...]:
+    """The objectives a CSV's header names, between its `lead` columns and one of its `trails`
+    (the longest that fits), each `prefix` + a name: the paper's if the header is of no such
+    form (then `_read_rows` refuses it, naming what it expected)."""
+    with Path(path).open(newline="", encoding="utf-8") as stream:
+        header = next(csv.reader(stream), [])
+    if tuple(header[: len(lead)]) != tuple(lead):
+        return DEFAULT_OBJECTIVES
+    for trail in sorted(trails, key=len, reverse=True):
+        middle = header[len(lead) : len(header) - len(trail)]
+        if tuple(header[len(header) - len(trail) :]) == tuple(trail) and len(middle) == len(
+            DEFAULT_OBJECTIVES
+        ):
+            names = tuple(column.removeprefix(prefix) for column in middle)
+            if all(
+                column.startswith(prefix) and re.fullmatch(KIND_PATTERN, name)
+                for column, name in zip(middle, names, strict=True)
+            ):
+                return names
+    return DEFAULT_OBJECTIVES
+
+
 def _flag(text: str, path: Path) -> bool:
     if text not in ("true", "false"):
         raise ValueError(f"{path}: diverged must be true or false, got {text!r}")
@@ -278,73 +399,104 @@ def _flag(text: str, path: Path) -> bool:
 
 def read_history(path: Path) -> list[HistoryRow]:
     """history.csv as written by `history_csv`, in file order."""
+    names = _objective_columns(path, HISTORY_LEAD, [("wall_seconds",)], prefix="best_")
     return [
         HistoryRow(
             generation=int(row["generation"]),
             evaluations=int(row["evaluations"]),
             hypervolume=float(row["hypervolume"]),
-            best_f_acc=float(row["best_f_acc"]),
-            best_f_t=float(row["best_f_t"]),
+            best=tuple(float(row[f"best_{name}"]) for name in names),
             wall_seconds=float(row["wall_seconds"]),
+            names=names,
         )
-        for row in _read_rows(path, HISTORY_FIELDS)
+        for row in _read_rows(path, history_fields(names))
     ]
 
 
 def read_front(path: Path) -> list[FrontMember]:
-    """front.csv as written by `front_csv`, in file order (already sorted by f_acc)."""
+    """front.csv as written by `front_csv`, in file order (already sorted by the first
+    objective); its objectives are the header's."""
+    names = _objective_columns(path, GAINS_FIELDS, [("diverged",), ()])
+    maximised = maximised_among(names)
     return [
         FrontMember(
             kp=tuple(float(row[f"kp{joint}"]) for joint in range(1, N_JOINTS + 1)),
             kd=tuple(float(row[f"kd{joint}"]) for joint in range(1, N_JOINTS + 1)),
-            f_acc=float(row["f_acc"]),
-            f_t=float(row["f_t"]),
+            objectives=_told(names, [row[name] for name in names]),
             diverged=_flag(row.get("diverged", "false"), path),
+            names=names,
+            maximised=maximised,
         )
-        for row in _read_rows(path, FRONT_FIELDS, LEGACY_FRONT_FIELDS)
+        for row in _read_rows(path, front_fields(names), front_fields(names)[:-1])
     ]
 
 
-EVALUATED_FIELDS = ("f_acc", "f_t", *MEASURED, "feasible")
-LEGACY_EVALUATED_FIELDS = (
-    EVALUATED_FIELDS[:2],  # before the limits: the objectives alone
-    ("f_acc", "f_t", *BEFORE_LAG, "feasible"),  # before the damping margin
-    ("f_acc", "f_t", *BEFORE_LAG, DAMPING, "feasible"),  # before the lag
+# evaluated.csv's columns after the objectives', and those of the versions before.
+EVALUATED_TRAILS = (
+    (*MEASURED, "feasible"),
+    (),  # before the limits: the objectives alone
+    (*BEFORE_LAG, "feasible"),  # before the damping margin
+    (*BEFORE_LAG, DAMPING, "feasible"),  # before the lag
 )
 
 
+def evaluated_fields(names: Sequence[str] = DEFAULT_OBJECTIVES) -> tuple[str, ...]:
+    """evaluated.csv's header: the objectives, the safety measures, whether they are within the
+    limits."""
+    return (*names, *EVALUATED_TRAILS[0])
+
+
+EVALUATED_FIELDS = evaluated_fields()
+
+
 def evaluated_csv(
-    points: Sequence[tuple[float, float]],
+    points: Sequence[tuple[float, ...]],
     measured: Sequence[Sequence[float]],
     limits: Limits,
+    objectives: Sequence[Objective] | None = None,
 ) -> bytes:
-    """evaluated.csv's content: each candidate's (f_acc, f_t), its safety measures and whether
-    they are within `limits`, in the order told."""
+    """evaluated.csv's content: each candidate's objectives as told (`points`), written in their
+    own sense under their names (`objectives`: the run's declarations, the paper's by default),
+    its safety measures and whether they are within `limits`, in the order told."""
+    objectives = objectives or declarations()
     return _csv_bytes(
-        EVALUATED_FIELDS,
+        evaluated_fields([objective.name for objective in objectives]),
         (
             (
-                _exact(a),
-                _exact(t),
+                *(
+                    _exact(objective.minimised(value))
+                    for objective, value in zip(objectives, point, strict=True)
+                ),
                 *map(_exact, values),
                 str(not limits.violated(values)).lower(),
             )
-            for (a, t), values in zip(points, measured, strict=True)
+            for point, values in zip(points, measured, strict=True)
         ),
     )
 
 
-def read_evaluated(path: Path) -> list[tuple[float, float]]:
-    """evaluated.csv's objectives, in the order told."""
-    rows = _read_rows(path, EVALUATED_FIELDS, *LEGACY_EVALUATED_FIELDS)
-    return [(float(row["f_acc"]), float(row["f_t"])) for row in rows]
+def _evaluated_rows(path: Path) -> tuple[tuple[str, ...], list[dict[str, str]]]:
+    names = _objective_columns(path, (), EVALUATED_TRAILS)
+    legacy = [(*names, *trail) for trail in EVALUATED_TRAILS[1:]]
+    return names, _read_rows(path, evaluated_fields(names), *legacy)
+
+
+def read_evaluated(path: Path) -> list[tuple[float, ...]]:
+    """evaluated.csv's objectives as the optimiser was told them, in the order told."""
+    names, rows = _evaluated_rows(path)
+    return [_told(names, [row[name] for name in names]) for row in rows]
+
+
+def evaluated_names(path: Path) -> tuple[str, ...]:
+    """The objectives evaluated.csv's header names."""
+    return _objective_columns(path, (), EVALUATED_TRAILS)
 
 
 def read_measured(path: Path) -> list[tuple[float, ...]]:
     """evaluated.csv's safety measures, in MEASURED's order, in the order told (none in a run
     from before them; without the damping in one from before it, the lag 0.0 in one from before
     it: schemas.limits.named)."""
-    rows = _read_rows(path, EVALUATED_FIELDS, *LEGACY_EVALUATED_FIELDS)
+    _, rows = _evaluated_rows(path)
     return [named(row) for row in rows if "feasible" in row]
 
 
@@ -355,8 +507,7 @@ def front_json(front: Sequence[FrontMember], validation: ValidationRecord | None
         {
             "kp": list(member.kp),
             "kd": list(member.kd),
-            "f_acc": member.f_acc,
-            "f_t": member.f_t,
+            **member.named,
             "diverged": member.diverged,
             "logs": list(member.logs),
             "episodes": [dataclasses.asdict(episode) for episode in member.episodes],
@@ -366,6 +517,9 @@ def front_json(front: Sequence[FrontMember], validation: ValidationRecord | None
         for member in sorted_front(front)
     ]
     content: dict[str, object] = {"members": members}
+    names = front[0].names if front else DEFAULT_OBJECTIVES
+    if names != DEFAULT_OBJECTIVES:  # the paper's run's front.json as it was without it
+        content["objectives"] = list(names)
     if validation is not None:
         content["validation"] = dataclasses.asdict(validation)
     return json.dumps(content, indent=1).encode()
@@ -384,14 +538,19 @@ def read_record(path: Path) -> Any:
 def read_front_json(path: Path) -> list[FrontMember]:
     """front.json as written by `front_json`; ValueError if it is not one."""
     try:
-        members = read_record(path)["members"]
+        record = read_record(path)
+        names = tuple(record.get("objectives", DEFAULT_OBJECTIVES))
+        maximised = maximised_among(names)
         return [
             FrontMember(
-                **{k: v for k, v in member.items() if k not in ("episodes", "measures")},
+                **{k: v for k, v in member.items() if k not in ("episodes", "measures", *names)},
+                objectives=_told(names, [member[name] for name in names]),
                 episodes=tuple(EpisodeCheck(**episode) for episode in member.get("episodes", ())),
                 measures=named(member.get("measures", {})),
+                names=names,
+                maximised=maximised,
             )
-            for member in members
+            for member in record["members"]
         ]
     except (KeyError, TypeError, AttributeError, json.JSONDecodeError) as error:
         raise ValueError(f"{path}: not a front.json ({error})") from None
@@ -426,14 +585,27 @@ class Baseline:
     status and scores, for the record (no part in comparisons)."""
 
     gains: PDGains
-    f_acc: float
-    f_t: float
+    objectives: tuple[float, ...]  # as told, in the order of `names` (FrontMember's)
     diverged: bool
     episodes: tuple[dict, ...] = field(default=(), compare=False)
+    names: tuple[str, ...] = DEFAULT_OBJECTIVES
+    maximised: tuple[str, ...] = field(default=(), compare=False)
+
+    def __post_init__(self) -> None:
+        _set_objectives(self)
 
     @property
-    def objectives(self) -> tuple[float, float]:
-        return (self.f_acc, self.f_t)
+    def named(self) -> dict[str, float]:
+        """Its objectives by name, each in its own sense."""
+        return _named(self)
+
+    @property
+    def f_acc(self) -> float:
+        return _by_name(self, "f_acc")
+
+    @property
+    def f_t(self) -> float:
+        return _by_name(self, "f_t")
 
 
 def baseline_json(baseline: Baseline) -> bytes:
@@ -441,10 +613,11 @@ def baseline_json(baseline: Baseline) -> bytes:
     return json.dumps(
         {
             "gains": baseline.gains.model_dump(),
-            "f_acc": baseline.f_acc,
-            "f_t": baseline.f_t,
+            **baseline.named,
             "diverged": baseline.diverged,
             "episodes": list(baseline.episodes),
+            # the paper's run's baseline.json as it was without it
+            **({} if baseline.names == DEFAULT_OBJECTIVES else {"objectives": baseline.names}),
         },
         indent=1,
     ).encode()
@@ -454,12 +627,14 @@ def read_baseline(path: Path) -> Baseline:
     """baseline.json as written by `baseline_json`; ValueError naming it if it is not one."""
     try:
         fields = read_record(path)
+        names = tuple(fields.get("objectives", DEFAULT_OBJECTIVES))
         return Baseline(
             gains=PDGains.model_validate(fields["gains"]),
-            f_acc=float(fields["f_acc"]),
-            f_t=float(fields["f_t"]),
+            objectives=_told(names, [float(fields[name]) for name in names]),
             diverged=bool(fields["diverged"]),
             episodes=tuple(fields.get("episodes", ())),
+            names=names,
+            maximised=maximised_among(names),
         )
     except (KeyError, TypeError, ValueError, UnicodeDecodeError) as error:
         raise ValueError(f"{path}: not a baseline.json ({error})") from None
@@ -517,7 +692,7 @@ class RunRecord:
     config: RunConfig
     history: list[HistoryRow] = field(default_factory=list)
     front: list[FrontMember] = field(default_factory=list)
-    evaluated: list[tuple[float, float]] = field(default_factory=list)
+    evaluated: list[tuple[float, ...]] = field(default_factory=list)  # as told, in config's order
     # The safety measures of each evaluated candidate (empty: a run from before the limits).
     measured: list[tuple[float, ...]] = field(default_factory=list)
 

@@ -43,6 +43,7 @@ from gainfarm.analytic.evaluators.replication import Ledger
 from gainfarm.analytic.tuning.books import CHECKPOINT, RECORD_SECONDS, Books, front_rows
 from gainfarm.analytic.tuning.checkpoint import CheckpointRefused, decode
 from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.declared import maximised
 from gainfarm.analytic.tuning.evolution import Evolution
 from gainfarm.analytic.tuning.front import FrontEpisodes
 from gainfarm.analytic.tuning.generational import Generational
@@ -236,7 +237,7 @@ class TuningRun:
 
     def front(self) -> list[FrontMember]:
         """The best front found so far, most accurate first, each member with its kept logs."""
-        return sorted_front(front_rows(self.state))
+        return sorted_front(front_rows(self.state, self.config.objectives))
 
     def run(
         self,
@@ -298,11 +299,11 @@ class TuningRun:
         rulings = self._refereeing.referee_baseline(evaluator, found)
         self.replay_without_caught(evaluator)
         scores = [found[job_id].scores if job_id in found else None for job_id in jobs]
-        f_acc, f_t = candidate_objectives(self.config, scores)
         baseline = Baseline(
             gains=DEFAULT_GAINS,
-            f_acc=f_acc,
-            f_t=f_t,
+            objectives=candidate_objectives(self.config, scores),
+            names=self.config.objectives,
+            maximised=maximised(self.config.objectives),
             diverged=any(s is None or s.diverged for s in scores),
             episodes=tuple(
                 {

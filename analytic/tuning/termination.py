@@ -18,7 +18,10 @@ elitist archive only gains, so a paired test finds the later value higher after 
 rule's standard is that what is left is no more than what another seed would change.
 """
 
+import warnings
 from dataclasses import dataclass
+
+import numpy as np
 
 from gainfarm.cli.words import counted
 
@@ -66,9 +69,7 @@ def expected_generations(termination: Termination, hypervolumes: list[float]) ->
     """The generation at which `termination`'s convergence rule is expected to stop a run whose
     generations so far had `hypervolumes`; None for a run with a budget (whose end is known),
     too few generations, no growth to fit, or a fit that does not converge."""
-    import warnings
-
-    import numpy as np
+    # start-up: SciPy stays off `from gainfarm import RunConfig`, which reads the termination
     from scipy.optimize import OptimizeWarning, curve_fit
 
     if termination.generations is not None or termination.evaluations is not None:

@@ -21,6 +21,7 @@ from pydantic import ValidationError
 
 from gainfarm.analytic.tuning.check import advice_in, read_check
 from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.declared import declarations, point_text
 from gainfarm.analytic.tuning.picks import Advice, Pick, pick_at, picks
 from gainfarm.analytic.tuning.records import (
     BASELINE_JSON,
@@ -40,8 +41,16 @@ from gainfarm.analytic.tuning.records import (
     sorted_front,
 )
 from gainfarm.cli.words import counted
-from gainfarm.schemas.controller import Assumptions, Controller, HeldOut, Member, Source
+from gainfarm.schemas.controller import (
+    Assumptions,
+    Controller,
+    HeldOut,
+    Member,
+    ObjectiveValue,
+    Source,
+)
 from gainfarm.schemas.documents import read_bounded
+from gainfarm.schemas.episode import DEFAULT_OBJECTIVES
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.limits import MEASURED
 from gainfarm.schemas.robot import PLANTS, ModelSpec
@@ -107,7 +116,7 @@ def pick(
             )
         raise BadMember(
             "recommended (the default): no member of the front dominates the default gains "
-            f"({baseline.f_acc * 1000:.3f} mm, f_t {baseline.f_t:.4g} (N·m)²), so none is "
+            f"({point_text(baseline)}), so none is "
             f"recommended (closest: row {named['closest'].row}, report.md); keep the default "
             f"gains, run longer, or name one: {others}"
         )
@@ -174,8 +183,9 @@ def controller(directory: Path, which: str = "recommended") -> Controller:
             selected=chosen.name if chosen.name != "row" else f"row {chosen.row}",
             row=chosen.row,
             rule=RULES[chosen.name],
-            f_acc=member.f_acc,
-            f_t=member.f_t,
+            f_acc=member.named.get("f_acc"),
+            f_t=member.named.get("f_t"),
+            objectives=_objective_values(member),
             diverged=member.diverged,
             sharing=chosen.sharing,
             measures=dict(zip(MEASURED, measured, strict=False)) if measured else None,
@@ -286,8 +296,7 @@ def ros2_control(controller: Controller) -> str:
         "# effort interface by joint_trajectory_controller (its PID with i = 0 is a PD).",
         f"# Run {source.run_id or '(no run id)'} ({source.directory}), front.csv row "
         f"{member.row}{picked}.",
-        f"# Tuned on {trajectories}, {source.plant} plant: f_acc {member.f_acc * 1000:.3f} mm, "
-        f"f_t {member.f_t:.4g} (N·m)²{diverged}.",
+        f"# Tuned on {trajectories}, {source.plant} plant: {member_text(member)}{diverged}.",
         "# p in N·m/rad, d in N·m·s/rad; the episodes ran the law at "
         f"{round(1 / controller.control_period)} Hz, as update_rate does here.",
     ]
@@ -330,7 +339,28 @@ def describe_pick(chosen: Pick) -> str:
     member = chosen.member
     shared = f", one of {chosen.sharing} members with these scores" if chosen.sharing > 1 else ""
     diverged = " (diverged: a penalty, not a measurement)" if member.diverged else ""
-    return (
-        f"row {chosen.row} of front.csv: {member.f_acc * 1000:.3f} mm, "
-        f"f_t {member.f_t:.4g} (N·m)²{shared}{diverged}"
+    return f"row {chosen.row} of front.csv: {point_text(member)}{shared}{diverged}"
+
+
+def _objective_values(member: FrontMember) -> dict[str, ObjectiveValue] | None:
+    """The export's `objectives`: the run's by name, unless they are the paper's pair (whose
+    f_acc and f_t fields say it, as the export did before objectives could be chosen)."""
+    if member.names == DEFAULT_OBJECTIVES:
+        return None
+    named = member.named
+    return {
+        o.name: ObjectiveValue(value=named[o.name], unit=o.unit, direction=o.direction)
+        for o in declarations(member.names)
+    }
+
+
+def member_text(member: Member, name_first: bool = True) -> str:
+    """An exported member's objectives as a person reads them: "f_acc 12.345 mm, f_t 0.1234
+    (N·m)²" (the paper's; without "f_acc " unless `name_first`), or each objective named."""
+    if member.objectives is None:
+        first = "f_acc " if name_first else ""
+        return f"{first}{(member.f_acc or 0.0) * 1000:.3f} mm, f_t {member.f_t:.4g} (N·m)²"
+    return ", ".join(
+        f"{name} {found.value:.4g} {found.unit}".strip()
+        for name, found in member.objectives.items()
     )

@@ -21,14 +21,18 @@ from pathlib import Path
 import numpy as np
 
 from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.declared import declarations, shown_unit
 from gainfarm.analytic.tuning.picks import Pick
 from gainfarm.analytic.tuning.records import EPISODES, FEEDFORWARD, FrontMember, sorted_front
 from gainfarm.analytic.tuning.run import slot_of
+from gainfarm.analytic.view.export import FORMATS, BadMember, BadRun, controller, render
 from gainfarm.cli.words import counted
-from gainfarm.schemas.documents import quoted
+from gainfarm.models.dynamics import MAX_FILE_BYTES, feedforward_from_bytes
+from gainfarm.schemas.documents import quoted, read_bounded
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.limits import MEASURED
+from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, decode_episode, read_episode
 from gainfarm.schemas.robot import JOINT_NAMES
 
 # The table's columns, in its order: the row, the picks it is, its scores, its gains, its safety
@@ -56,8 +60,11 @@ def table(
     columns: dict[str, list] = {name: [] for name in COLUMNS}
     for row, member in enumerate(members, start=1):
         columns["row"].append(row)
-        columns["f_acc_mm"].append(member.f_acc * 1000.0)
-        columns["f_t"].append(member.f_t)
+        # The run's first two objectives, in their own sense and shown unit (f_acc in mm); the
+        # columns keep the paper's keys, the dashboard's titles name the run's objectives.
+        first, second = declarations(member.names[:2])
+        columns["f_acc_mm"].append(member.named[first.name] * shown_unit(first)[1])
+        columns["f_t"].append(member.named[second.name] * shown_unit(second)[1])
         for name, gain in zip(GAINS, member.kp + member.kd, strict=True):
             columns[name].append(gain)
         measured = member.measures + (math.nan,) * (len(MEASURED) - len(member.measures))
@@ -136,7 +143,6 @@ def robustness_text(chosen: Sequence[Pick], check: dict | None, asked: int) -> s
 def export_links(directory: Path, row: int) -> str:
     """HTML: each of `analytic export`'s files of the member at `row`, as a link that saves it
     (the bytes are the command's own: analytic.view.export), or why it cannot be exported."""
-    from gainfarm.analytic.view.export import FORMATS, BadMember, BadRun, controller, render
 
     try:
         chosen = controller(directory, str(row))
@@ -193,7 +199,6 @@ def episode(
 ) -> tuple[EpisodeLog | None, str]:
     """The member's episode at `slot` and where it came from: its log in the run directory, or
     else simulated again here; (None, why) if neither can be had."""
-    from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
 
     kept = {}
     for log in member.logs:
@@ -244,8 +249,7 @@ BUSY = "busy simulating another episode (one at a time): pick it again in a mome
 
 def _simulated(directory: Path, spec: EpisodeSpec) -> tuple[EpisodeLog | None, str]:
     """The episode of `spec` simulated here, or (None, why not)."""
-    from gainfarm.schemas.mcap_episode import decode_episode
-    from gainfarm.worker.job import simulate  # MuJoCo loads only to simulate
+    from gainfarm.worker.job import simulate  # start-up: MuJoCo, only to simulate
 
     try:
         outcome = simulate(spec, lambda _digest: _feedforward(directory))
@@ -258,8 +262,6 @@ def _simulated(directory: Path, spec: EpisodeSpec) -> tuple[EpisodeLog | None, s
 
 
 def _feedforward(directory: Path):  # -> gainfarm.models.dynamics.DynamicsModel
-    from gainfarm.models.dynamics import MAX_FILE_BYTES, feedforward_from_bytes
-    from gainfarm.schemas.documents import read_bounded
 
     return feedforward_from_bytes(read_bounded(directory / FEEDFORWARD, MAX_FILE_BYTES))
 

@@ -175,7 +175,7 @@ def render(log: EpisodeLog, ticks: np.ndarray, width: int, height: int) -> list[
 def encode(frames: list[np.ndarray], fps: int, width: int, height: int) -> bytes:
     """The frames as an H.264 MP4, in memory."""
     try:
-        import av  # the `render` extra
+        import av  # optional extra: render
     except ImportError:
         raise ReplayError("encoding the video needs PyAV: pip install 'gainfarm[render]'") from None
     buffer = io.BytesIO()

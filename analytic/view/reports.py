@@ -10,6 +10,14 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.declared import (
+    column_title,
+    declarations,
+    number_text,
+    point_text,
+    shown_unit,
+    value_text,
+)
 from gainfarm.analytic.tuning.picks import dominating, shortfall
 from gainfarm.analytic.tuning.records import (
     FRONT_CSV,
@@ -27,6 +35,7 @@ from gainfarm.analytic.view.export import Pick, plant_name, point_groups
 from gainfarm.cli.words import counted
 from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.controller import UNITS
+from gainfarm.schemas.episode import DEFAULT_OBJECTIVES
 from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR
 from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
 
@@ -79,11 +88,12 @@ def run_setup(config: RunConfig) -> list[str]:
     averaged = (
         ""
         if weights is None
-        else "; objectives averaged with weights f_acc "
+        else f"; objectives averaged with weights {config.objectives[0]} "
         + " / ".join(f"{w:.2f}" for w, _ in weights)
-        + ", f_t "
+        + f", {config.objectives[1]} "
         + " / ".join(f"{w:.2f}" for _, w in weights)
     )
+    first = declarations(config.objectives)[0]  # the reference point is in its unit
     robust = ""
     if config.plants:
         robust = (
@@ -94,7 +104,9 @@ def run_setup(config: RunConfig) -> list[str]:
         f"{controller} on {trajectories}{averaged}",
         f"{_search(config)}, population {config.pop}, seed {config.seed}",
         f"{plant_text(config.model)}{robust}; reference point "
-        f"f_acc {config.reference_point[0]} m, f_t {config.reference_point[1]}",
+        f"{config.objectives[0]} {config.reference_point[0]} {first.unit}".rstrip()
+        + ", "
+        f"{config.objectives[1]} {config.reference_point[1]}",
     ]
 
 
@@ -130,29 +142,65 @@ UNITS_LINE = (
     f"{JOINT_NAMES[0]}..{JOINT_NAMES[-1]}; f_acc is the mean end-effector error (front.csv: m; "
     "here: mm), f_t the mean squared torque change per 2 ms tick in (N·m)²."
 )
-DIVERGED_NOTE = (
-    "*diverged*: an episode of the member was stopped early; every tick it did not run is "
-    f"charged {DIVERGED_TICK_ERROR:g} m of error and the largest possible torque change, so its "
-    "f_acc and f_t are a penalty, not a measurement (its mean error can exceed the largest error "
-    "measured)."
-)
 
 
-def shown(member: FrontMember) -> tuple[str, str, bool]:
+def units_line(names: Sequence[str] = DEFAULT_OBJECTIVES) -> str:
+    """What the report's numbers are: the paper's UNITS_LINE, or each objective's declaration."""
+    if tuple(names) == DEFAULT_OBJECTIVES:
+        return UNITS_LINE
+    said = "; ".join(
+        f"{o.name} is the {o.description}, in {o.unit}"
+        + (f" (here: {shown_unit(o)[0]})" if shown_unit(o)[0] != o.unit else "")
+        if o.unit
+        else f"{o.name}: {o.description}"
+        for o in declarations(names)
+    )
+    return (
+        f"Units: kp in {UNITS['kp']} and kd in {UNITS['kd']}, one per joint "
+        f"{JOINT_NAMES[0]}..{JOINT_NAMES[-1]}; {said}."
+    )
+
+
+def diverged_note(names: Sequence[str] = DEFAULT_OBJECTIVES) -> str:
+    """What *diverged* means, naming the run's objectives."""
+    return (
+        "*diverged*: an episode of the member was stopped early; every tick it did not run is "
+        f"charged {DIVERGED_TICK_ERROR:g} m of error and the largest possible torque change, so "
+        f"its {' and '.join(names)} are a penalty, not a measurement (its mean error can exceed "
+        "the largest error measured)."
+    )
+
+
+DIVERGED_NOTE = diverged_note()
+
+
+def shown(member: FrontMember) -> tuple[str, ...]:
     """A member's scores as the report shows them: members alike here share a line."""
-    return (f"{member.f_acc * 1000:.3f}", f"{member.f_t:.4g}", member.diverged)
+    return (*_numbers(member), str(member.diverged))
 
 
-def _error(member: FrontMember | Baseline) -> str:
-    """f_acc in mm, marked when it is a divergence penalty."""
-    return f"{member.f_acc * 1000:.3f}" + (" *diverged*" if member.diverged else "")
+def _numbers(point: FrontMember | Baseline) -> list[str]:
+    named = point.named
+    return [number_text(o, named[o.name]) for o in declarations(tuple(named))]
+
+
+def _cells(point: FrontMember | Baseline) -> str:
+    """Its objectives as a table's cells, the first marked when they are a divergence penalty."""
+    numbers = _numbers(point)
+    numbers[0] += " *diverged*" if point.diverged else ""
+    return " | ".join(numbers)
+
+
+def _titles(names: Sequence[str]) -> str:
+    """The objectives' columns' titles: "f_acc (mm) | f_t ((N·m)²)"."""
+    return " | ".join(column_title(o) for o in declarations(names))
 
 
 def front_table_row(rank: int, member: FrontMember, count: int = 1) -> str:
     """One line of the report's front table (public so a test or a caller can find it): the
     member at front.csv row `rank`, and how many members from there on share its scores."""
     rows = f"{count} (rows {rank}-{rank + count - 1})" if count > 1 else "1"
-    return f"| {rank} | {_error(member)} | {member.f_t:.4g} | {rows} | {gains_text(member)} |"
+    return f"| {rank} | {_cells(member)} | {rows} | {gains_text(member)} |"
 
 
 PICK_NAMES = {
@@ -165,8 +213,8 @@ PICK_NAMES = {
 DOMINATING_SHOWN = 10  # the members listed as dominating the defaults; the rest are counted
 
 
-def _scores(objectives: tuple[float, float]) -> str:
-    return f"{objectives[0] * 1000:.3f} mm, f_t {objectives[1]:.4g} (N·m)²"
+def _scores(point: FrontMember | Baseline) -> str:
+    return point_text(point)
 
 
 def recommendation_text(picks: Sequence[Pick], baseline: Baseline | None) -> str:
@@ -177,23 +225,23 @@ def recommendation_text(picks: Sequence[Pick], baseline: Baseline | None) -> str
     member = first.member
     if first.name == "recommended" and baseline is not None and baseline.diverged:
         return (
-            f"**Use front.csv row {first.row}** ({_scores(member.objectives)}): the default "
+            f"**Use front.csv row {first.row}** ({_scores(member)}): the default "
             "gains diverged on the run's trajectories, so every member that finished its "
             "episodes beats them, and this is the knee among those."
         )
     if first.name == "recommended" and baseline is not None:
         return (
-            f"**Use front.csv row {first.row}** ({_scores(member.objectives)}): it dominates "
-            f"the default gains ({_scores(baseline.objectives)}) on the run's trajectories, as "
+            f"**Use front.csv row {first.row}** ({_scores(member)}): it dominates "
+            f"the default gains ({_scores(baseline)}) on the run's trajectories, as "
             "accurate and as smooth and better in one, and is the knee among the members that do."
         )
     if first.name == "closest" and baseline is not None:
         return (
             "**No member of the front dominates the default gains** "
-            f"({_scores(baseline.objectives)}) on the run's trajectories, so none is "
+            f"({_scores(baseline)}) on the run's trajectories, so none is "
             "recommended: keep the default gains, or run longer (more evaluations, a larger "
             f"population). Closest to dominating them: row {first.row} "
-            f"({_scores(member.objectives)}), whose worse objective is "
+            f"({_scores(member)}), whose worse objective is "
             f"{10 ** shortfall(member, baseline):#.3g} times the defaults' (the least of any "
             "member)."
         )
@@ -220,12 +268,9 @@ def dominating_text(
     lines = [
         f"{len(rows)} of the front's {counted(len(members), 'member')} {whom}:",
         "",
-        "| front.csv row | f_acc (mm) | f_t ((N·m)²) |",
+        f"| front.csv row | {_titles(members[0].names)} |",
         "|---:|---:|---:|",
-        *(
-            f"| {i + 1} | {_error(members[i])} | {members[i].f_t:.4g} |"
-            for i in rows[:DOMINATING_SHOWN]
-        ),
+        *(f"| {i + 1} | {_cells(members[i])} |" for i in rows[:DOMINATING_SHOWN]),
     ]
     if rest := rows[DOMINATING_SHOWN:]:
         lines += ["", f"and {len(rest)} more, between rows {rest[0] + 1} and {rest[-1] + 1}."]
@@ -252,8 +297,9 @@ def controllers_section(
     lines = ["## The controller to use", ""]
     if not picks:
         return [*lines, "No front yet.", ""]
+    names = picks[0].member.names
     lines += [
-        f"| | front.csv row | f_acc (mm) | f_t ((N·m)²) | kp ({UNITS['kp']}) "
+        f"| | front.csv row | {_titles(names)} | kp ({UNITS['kp']}) "
         f"{JOINT_NAMES[0]}..{JOINT_NAMES[-1]} | kd ({UNITS['kd']}) |",
         "|---|---:|---:|---:|---|---|",
     ]
@@ -261,13 +307,13 @@ def controllers_section(
         member = chosen.member
         shared = f" ({chosen.sharing} members share it)" if chosen.sharing > 1 else ""
         lines.append(
-            f"| {PICK_NAMES[chosen.name]} | {chosen.row}{shared} | {_error(member)} | "
-            f"{member.f_t:.4g} | {' '.join(f'{g:.4g}' for g in member.kp)} | "
+            f"| {PICK_NAMES[chosen.name]} | {chosen.row}{shared} | {_cells(member)} | "
+            f"{' '.join(f'{g:.4g}' for g in member.kp)} | "
             f"{' '.join(f'{g:.4g}' for g in member.kd)} |"
         )
     if baseline is not None:
         lines.append(
-            f"| default gains (not tuned) | – | {_error(baseline)} | {baseline.f_t:.4g} | "
+            f"| default gains (not tuned) | – | {_cells(baseline)} | "
             f"{' '.join(f'{g:.4g}' for g in baseline.gains.kp)} | "
             f"{' '.join(f'{g:.4g}' for g in baseline.gains.kd)} |"
         )
@@ -297,7 +343,7 @@ def controllers_section(
         "configuration; `--member knee|accurate|smooth|N` another member (N: its front.csv "
         "row).",
         "",
-        UNITS_LINE,
+        units_line(names),
         "",
     ]
     return lines
@@ -338,7 +384,11 @@ def report_markdown(
             f"- generations: {len(history)}",
             f"- evaluations: {last.evaluations}",
             f"- final hypervolume: {last.hypervolume:.6g}",
-            f"- best f_acc: {last.best_f_acc * 1000:.3f} mm; best f_t: {last.best_f_t:.4g} (N·m)²",
+            "- "
+            + "; ".join(
+                f"best {o.name}: {value_text(o, best)}"
+                for o, best in zip(declarations(last.names), last.best, strict=True)
+            ),
             f"- wall time: {_duration(last.wall_seconds)}",
         ]
     else:
@@ -361,14 +411,14 @@ def report_markdown(
             "Members whose scores agree to the precision shown share one line (the first one's "
             "gains are shown; front.csv lists each, at full precision).",
             "",
-            "| # (front.csv row) | f_acc (mm) | f_t ((N·m)²) | members | gains: kp "
+            f"| # (front.csv row) | {_titles(members[0].names)} | members | gains: kp "
             f"({UNITS['kp']}) / kd ({UNITS['kd']}), {JOINT_NAMES[0]}..{JOINT_NAMES[-1]} |",
             "|---:|---:|---:|---:|---|",
             *(front_table_row(row, members[row - 1], count) for row, count in groups),
         ]
         if any(member.diverged for member in members):
-            lines += ["", DIVERGED_NOTE]
-        lines += ["", UNITS_LINE]
+            lines += ["", diverged_note(members[0].names)]
+        lines += ["", units_line(members[0].names)]
     else:
         lines.append("No members yet.")
     if validation is not None:

@@ -14,6 +14,7 @@ from gainfarm.analytic.tuning.check import (
     advice_of,
     read_check,
 )
+from gainfarm.analytic.tuning.declared import column_title, declarations, shown_unit
 from gainfarm.analytic.tuning.evolution import hypervolume
 from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import HYPERVOLUME_PNG, PARETO_PNG, REPORT_MD, FrontMember
@@ -22,6 +23,7 @@ from gainfarm.analytic.view.figures import plot_hypervolume, plot_pareto
 from gainfarm.analytic.view.reports import run_setup, run_title, write_report
 from gainfarm.cli.words import counted
 from gainfarm.edges.files import write_atomically
+from gainfarm.schemas.episode import DEFAULT_OBJECTIVES
 from gainfarm.schemas.limits import DAMPING, MEASURED, MEASURES, UNITS, Limits, tally
 
 
@@ -83,6 +85,7 @@ def draw_figures(run: TuningRun) -> None:
         picks=chosen,
         baseline=baseline,
         infeasible=len(run.state.evaluated) - len(within),
+        names=run.config.objectives,
     )
     level = None
     if baseline is not None and not baseline.diverged:
@@ -128,6 +131,7 @@ def damping_section(front: Sequence[FrontMember], limits: Limits) -> list[str]:
     """report.md's section on each front member's damping margin (worker.stability): the least
     damping ratio of its closed loop over the poses of all its episodes."""
     damping = MEASURED.index(DAMPING)
+    objectives = declarations(front[0].names if front else DEFAULT_OBJECTIVES)
     checked = (
         "not a constraint of this run (`--min-damping` makes it one)"
         if limits.min_damping is None
@@ -140,13 +144,17 @@ def damping_section(front: Sequence[FrontMember], limits: Limits) -> list[str]:
         "each of its references, the least over their modes (≤ 0: unstable there; "
         f"docs/limits.md). It is {checked}.",
         "",
-        "| # | f_acc (mm) | f_t ((N·m)²) | least damping ratio |",
+        f"| # | {' | '.join(column_title(o) for o in objectives)} | least damping ratio |",
         "|---|---|---|---|",
     ]
     for row, member in enumerate(front, start=1):  # front.csv's rows, as every table
         least = member.measures[damping] if len(member.measures) > damping else None
         shown = "not measured" if least is None else f"{least:.4f}"
-        lines.append(f"| {row} | {member.f_acc * 1e3:.2f} | {member.f_t:.4g} | {shown} |")
+        values = " | ".join(
+            f"{member.named[o.name] * shown_unit(o)[1]:{'.2f' if o.unit == 'm' else '.4g'}}"
+            for o in objectives
+        )
+        lines.append(f"| {row} | {values} | {shown} |")
     return [*lines, ""]
 
 

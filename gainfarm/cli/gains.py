@@ -3,25 +3,20 @@ that would saturate every tick are refused, gains far outside the search space a
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import click
 
 from gainfarm.cli.app import CliError
-
-if TYPE_CHECKING:
-    from gainfarm.schemas.gains import PDGains
-    from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.gains import PDGains, outside_search, saturating
+from gainfarm.schemas.robot import ModelSpec
 
 
 def refuse_saturating(
-    candidates: Sequence["PDGains"], model: "ModelSpec", path: Path | None = None
+    candidates: Sequence[PDGains], model: ModelSpec, path: Path | None = None
 ) -> None:
     """One line for the first candidate with a gain that saturates its motor on one encoder
     count of `model`: every tick of its episodes would saturate. It names --gains and the file
     (and the candidate, if the file holds several), or the option --kp or --kd without a file."""
-    from gainfarm.schemas.gains import saturating
-
     for number, gains in enumerate(candidates, start=1):
         found = saturating(gains, model)
         if found is None:
@@ -36,14 +31,12 @@ def refuse_saturating(
 
 
 def warn_far_outside_search(
-    program: str, candidates: Sequence["PDGains"], path: Path | None = None
+    program: str, candidates: Sequence[PDGains], path: Path | None = None
 ) -> None:
     """One line on stderr for the first candidate with gains orders of magnitude outside what
     the farm searches: its episodes run (a user may mean them), but such gains are more often a
     slip of units or of an exponent. It names --gains and the file (and the candidate, if the
     file holds several), or the option --kp or --kd without a file."""
-    from gainfarm.schemas.gains import outside_search
-
     for number, gains in enumerate(candidates, start=1):
         found = outside_search(gains)
         if found is None:

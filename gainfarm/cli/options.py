@@ -7,23 +7,17 @@ come from where they are defined (the contract, schemas/), but only when they ar
 value of another option refused, at the cost of `import click`.
 """
 
-import functools
-import typing
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
+from gainfarm import plugins
 from gainfarm.cli.app import CliError, parse_numbers
 
 if TYPE_CHECKING:
-    from gainfarm.models.dynamics import DynamicsModel
-    from gainfarm.schemas.limits import Limits
-    from gainfarm.schemas.plant_file import PlantFile
-    from gainfarm.schemas.robot import ModelSpec
-    from gainfarm.schemas.security import Role, TlsIdentity
-    from gainfarm.schemas.trajectory import TrajectorySpec
+    from gainfarm.schemas.security import Role
 
 F = TypeVar("F", bound=Callable[..., object])
 
@@ -90,28 +84,33 @@ def stack(*options: Callable[[F], F]) -> Callable[[F], F]:
 
 def trajectory_kinds() -> tuple[str, ...]:
     """The built-in kinds and the installed plug-ins' (their metadata read, none imported)."""
-    from gainfarm import plugins
-
     return plugins.names(plugins.TRAJECTORIES)
 
 
-@functools.cache
-def _trajectory() -> "TrajectorySpec":
-    """The default trajectory: where every trajectory option's default comes from."""
-    from gainfarm.schemas.trajectory import TrajectorySpec
-
-    return TrajectorySpec()
+# What --help shows and parsing falls back to, held here so that neither loads the contract
+# (pydantic and NumPy, several times `import click`): TrajectorySpec()'s fields, the plants by
+# name, ModelSpec's joints and RunConfig().model's name. tests/cli/test_held_defaults.py keeps
+# each
+# equal to the contract's.
+TRAJECTORY_KIND = "spiral"
+DURATION = 5.0
+TRAJECTORY_SEED = 0
+CENTER = (0.55, 0.0, 0.35)
+SIZE = 0.08
+PLANTS = ("realistic", "plain", "ideal")
+PLANT = "realistic"
+JOINTS = ("flexible", "rigid")
+JOINT = "flexible"
 
 
 def trajectory(multiple: bool = False, help: str = "end-effector path") -> Callable[[F], F]:
     """--trajectory: one kind (parameter `trajectory`), or several (parameter `kinds`)."""
-    kind = Later(lambda: str(_trajectory().kind))
     return click.option(
         "--trajectory",
         "kinds" if multiple else "trajectory",
         multiple=multiple,
         type=LazyChoice(trajectory_kinds),
-        default=Later(lambda: [kind()]) if multiple else kind,
+        default=[TRAJECTORY_KIND] if multiple else TRAJECTORY_KIND,
         show_default=True,
         help=help,
     )
@@ -122,7 +121,7 @@ def duration(help: str = "seconds") -> Callable[[F], F]:
     return click.option(
         "--duration",
         type=float,
-        default=Later(lambda: _trajectory().duration),
+        default=DURATION,
         show_default=True,
         help=help,
     )
@@ -135,77 +134,28 @@ def placement() -> Callable[[F], F]:
         click.option(
             "--trajectory-seed",
             type=click.IntRange(min=0),
-            default=Later(lambda: _trajectory().seed),
+            default=TRAJECTORY_SEED,
             show_default=True,
             help="which path of its kind: the random kind's waypoints, the fourier kind's "
             "coefficients, the spiral's and the pyramid's turn about the centre (0: unturned)",
         ),
         click.option(
             "--center",
-            default=Later(lambda: ",".join(f"{v:g}" for v in _trajectory().center)),
+            default=",".join(f"{v:g}" for v in CENTER),
             show_default=True,
             help="x,y,z of the path's centre in the base frame, m (not fourier)",
         ),
         click.option(
             "--size",
             type=float,
-            default=Later(lambda: _trajectory().size),
+            default=SIZE,
             show_default=True,
             help="the path's half-width, m (not fourier)",
         ),
     )
 
 
-_FIELD_OPTIONS = {
-    "kind": "--trajectory",
-    "duration": "--duration",
-    "seed": "--trajectory-seed",
-    "center": "--center",
-    "size": "--size",
-}
-
-
-def trajectories(
-    kinds: typing.Iterable[str], duration: float, seed: int, center: str, size: float
-) -> tuple["TrajectorySpec", ...]:
-    """The trajectories the options describe; a bad value is one line naming its option."""
-    from pydantic import ValidationError
-
-    from gainfarm.schemas.trajectory import TrajectorySpec
-    from gainfarm.schemas.wire import describe
-
-    point = parse_numbers("--center", center, 3)
-    try:
-        return tuple(
-            TrajectorySpec(kind=kind, duration=duration, seed=seed, center=point, size=size)
-            for kind in kinds
-        )
-    except ValidationError as error:
-        field = str(error.errors()[0]["loc"][0]) if error.errors()[0]["loc"] else ""
-        option = _FIELD_OPTIONS.get(field, f"--{field}" if field else "--trajectory")
-        raise CliError(f"{option}: {describe(error).split(': ', 1)[-1]}") from None
-
-
 # --- the simulated robot ------------------------------------------------------------------------
-
-
-def _joint_kinds() -> tuple[str, ...]:
-    from gainfarm.schemas.robot import ModelSpec
-
-    return typing.get_args(ModelSpec.model_fields["joints"].annotation)
-
-
-def _plants() -> tuple[str, ...]:
-    from gainfarm.schemas.robot import PLANTS
-
-    return tuple(PLANTS)
-
-
-def _default_plant() -> str:
-    """The plant a run's configuration has by default (RunConfig().model), by name."""
-    from gainfarm.schemas.robot import PLANTS, ModelSpec
-
-    return next(name for name, spec in PLANTS.items() if spec == ModelSpec())
 
 
 def joints(
@@ -215,17 +165,11 @@ def joints(
     is the learned model's, `analytic learn --kind`)."""
     return click.option(
         "--joints",
-        type=LazyChoice(_joint_kinds),
-        default=Later(_joint_default),
+        type=click.Choice(JOINTS),
+        default=JOINT,
         show_default=True,
         help=help,
     )
-
-
-def _joint_default() -> str:
-    from gainfarm.schemas.robot import ModelSpec
-
-    return ModelSpec().joints
 
 
 class PlantChoice(LazyChoice):
@@ -252,8 +196,8 @@ def plant(flag: str = "--plant", help: str | None = None) -> Callable[[F], F]:
     """--plant: the realistic plant (the default), another named one, or a plant file."""
     return click.option(
         flag,
-        type=PlantChoice(_plants),
-        default=Later(_default_plant),
+        type=PlantChoice(lambda: PLANTS),
+        default=PLANT,
         show_default=True,
         help=help
         or "realistic: behind KUKA's FRI torque interface (the robot adds gravity "
@@ -262,25 +206,6 @@ def plant(flag: str = "--plant", help: str | None = None) -> Callable[[F], F]:
         "compensation (the paper's plain PD); ideal: the paper's idealised plant; FILE: a plant "
         "file, such as the twin `analytic calibrate` writes",
     )
-
-
-def model_spec(plant: str, joints: str | None = None, option: str = "--plant") -> "ModelSpec":
-    """The ModelSpec of `--plant` (a name or a plant file; `option` names the option that gave
-    it), with `--joints` if the command has that option."""
-    from gainfarm.schemas.robot import PLANTS
-
-    if plant in PLANTS:
-        spec = PLANTS[plant]
-        return spec if joints is None else spec.model_copy(update={"joints": joints})
-    from gainfarm.models.iiwa14 import check_substeps
-
-    spec = plant_file(plant, option).plant
-    spec = spec if joints is None else spec.model_copy(update={"joints": joints})
-    try:  # here, not in the middle of a run: a file's springs its physics step cannot hold
-        check_substeps(spec)
-    except ValueError as error:
-        raise CliError(f"{option}: {plant!r}: {error}") from None
-    return spec
 
 
 # Held here, not imported: parsing loads no schema (checked against schemas.robot in the tests).
@@ -340,76 +265,11 @@ def check_load(payload: float | None, payload_com: tuple[float, ...] | None) -> 
         raise CliError("--payload-com: give the load's mass with --payload")
 
 
-def with_load(
-    spec: "ModelSpec",
-    payload: float | None,
-    payload_com: tuple[float, ...] | None,
-    plant: str | None = None,
-) -> "ModelSpec":
-    """`spec` (--plant `plant`'s) told of the load --payload and --payload-com give (--payload
-    0: told of none); without --payload, a plant file's calibrated payload (PlantFile.told),
-    else as it is."""
-    check_load(payload, payload_com)
-    if payload is None:
-        if plant is None or plant in _plants():
-            return spec
-        told = plant_file(plant).told().plant
-        return spec.model_copy(update={"payload": told.payload, "load": told.load})
-    from gainfarm.schemas.robot import LoadData
-
-    told = LoadData(mass=payload, com=payload_com or (0.0, 0.0, 0.0)) if payload > 0 else None
-    return spec.model_copy(update={"load": told})
-
-
-def plant_file(plant: str, option: str = "--plant") -> "PlantFile":
-    """--plant FILE's contents, or one line naming the option and what is wrong."""
-    from gainfarm.schemas.documents import BadDocument, read_bounded
-    from gainfarm.schemas.plant_file import MAX_FILE_BYTES, BadPlantFile, read_plant_file
-
-    try:
-        raw = read_bounded(Path(plant), MAX_FILE_BYTES)
-    except OSError as error:
-        raise CliError(f"{option}: cannot read {plant!r}: {error.strerror}") from None
-    except BadDocument as error:
-        raise CliError(f"{option}: {plant!r}: {error}") from None
-    try:
-        return read_plant_file(raw)
-    except BadPlantFile as error:
-        raise CliError(f"{option}: {plant!r}: {error}") from None
-
-
 def feedforward(
     help: str = "add a learned inverse-dynamics model's torque for the reference "
     "to the PD (a directory from `analytic learn`, or its model.npz)",
 ) -> Callable[[F], F]:
     return click.option("--feedforward", type=click.Path(path_type=Path), help=help)
-
-
-def feedforward_model(path: Path | None) -> tuple[bytes, "DynamicsModel"] | None:
-    """--feedforward's model file as bytes (jobs name it by their SHA-256) and decoded; it must
-    be an inverse-dynamics model of the seven joints."""
-    if path is None:
-        return None
-    from gainfarm.models.dynamics import (
-        MAX_FILE_BYTES,
-        MODEL_FILE,
-        BadDynamicsModel,
-        feedforward_from_bytes,
-    )
-    from gainfarm.schemas.documents import BadDocument, read_bounded
-
-    file = path / MODEL_FILE if path.is_dir() else path
-    try:
-        raw = read_bounded(file, MAX_FILE_BYTES)
-    except OSError as error:
-        raise CliError(f"--feedforward: cannot read {str(file)!r}: {error.strerror}") from None
-    except BadDocument as error:
-        raise CliError(f"--feedforward: {str(file)!r}: {error}") from None
-    try:
-        model = feedforward_from_bytes(raw)
-    except BadDynamicsModel as error:
-        raise CliError(f"--feedforward: {str(file)!r}: {error}") from None
-    return raw, model
 
 
 # --- the safety limits ---------------------------------------------------------------------------
@@ -434,48 +294,6 @@ def min_damping() -> Callable[[F], F]:
         "a least damping ratio of at least Z (-1 to 1; 0: stable; see docs/limits.md)  "
         "[default: -0.1; a --limits file's min_damping null: not checked]",
     )
-
-
-def limits_from(path: Path | None, damping: float | None = None) -> "Limits":
-    """--limits FILE's limits (the defaults without one), with --min-damping's bound if given,
-    or one line naming the option."""
-    from pydantic import ValidationError
-
-    from gainfarm.schemas.wire import describe
-
-    limits = _limits_file(path)
-    if damping is None:
-        return limits
-    try:
-        return type(limits).model_validate({**limits.model_dump(), "min_damping": damping})
-    except ValidationError as error:
-        raise CliError(f"--min-damping: {describe(error)}") from None
-
-
-def _limits_file(path: Path | None) -> "Limits":
-    from pydantic import ValidationError
-
-    from gainfarm.schemas.documents import BadDocument, load_json, read_bounded
-    from gainfarm.schemas.limits import Limits
-    from gainfarm.schemas.wire import describe
-
-    if path is None:
-        return Limits()
-    try:
-        fields = load_json(read_bounded(path))
-    except OSError as error:
-        raise CliError(f"--limits: cannot read {str(path)!r}: {error.strerror}") from None
-    except BadDocument as error:
-        raise CliError(f"--limits: {str(path)!r}: {error}") from None
-    except ValueError as error:  # JSONDecodeError, UnicodeDecodeError
-        raise CliError(f"--limits: {str(path)!r} is not JSON ({error})") from None
-    if not isinstance(fields, dict):
-        raise CliError(f"--limits: {str(path)!r} is not a JSON object of limits")
-    try:
-        return Limits.model_validate(fields)
-    except ValidationError as error:
-        said = describe(error, known=Limits.model_fields, noun="limit")
-        raise CliError(f"--limits: {str(path)!r}: {said}") from None
 
 
 # --- the farm -------------------------------------------------------------------------------------
@@ -503,25 +321,6 @@ def participant(role: "Role") -> Callable[[F], F]:
         help=f"with --tls: the {role} identity to use, by name  "
         f"[default: the only {role} identity in the directory]",
     )
-
-
-def identity(
-    directory: Path | None, role: "Role", name: str | None = None, name_option: str = "--as"
-) -> "TlsIdentity | None":
-    """The identity in a --tls directory (None without one): participant `name`'s, or without a
-    name the directory's only identity of `role`. One line otherwise, naming `name_option` when
-    the name is what is wrong (not there, or needed to choose among several) and --tls when a
-    file is missing."""
-    if directory is None:  # not a secure farm: nothing to load
-        return None
-    from gainfarm.schemas.security import UnknownIdentity, load_identity
-
-    try:
-        return load_identity(directory, role, name)
-    except UnknownIdentity as error:
-        raise CliError(f"{name_option}: {error}") from None
-    except ValueError as error:
-        raise CliError(f"--tls: {error}") from None
 
 
 def log_level() -> Callable[[F], F]:

@@ -173,7 +173,7 @@ def test_the_compose_farm_runs_its_tuning_profiles_for_real(tmp_path: Path) -> N
             rescored = objectives(
                 scores, config.objective_weights, plants, config.aggregate, config.plant_scales
             )
-            assert rescored == (member.f_acc, member.f_t), f"{run}: {member.logs}"
+            assert rescored == member.objectives, f"{run}: {member.logs}"
             for log in member.logs:
                 with (kept / run / log).open("rb") as file:
                     summary = make_reader(file).get_summary()

@@ -11,8 +11,10 @@ import re
 import shutil
 import subprocess
 import sys
+import tomllib
 from collections.abc import Iterator
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -20,15 +22,16 @@ from pydantic import ValidationError
 
 from gainfarm import plugins
 from gainfarm.analytic.cli import main as analytic_main
-from gainfarm.analytic.compose import tune
+from gainfarm.analytic.compose import FarmOptions, tune
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.evaluators.local import spawn_worker, stop_workers
 from gainfarm.analytic.tuning.checkpoint import CheckpointRefused, decode, encode
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import Evolution
-from gainfarm.analytic.tuning.records import RunIdentity
+from gainfarm.analytic.tuning.records import RunIdentity, read_run
 from gainfarm.analytic.tuning.run import TuningRun
+from gainfarm.analytic.view.figures import pareto_figure
 from gainfarm.broker.service import Broker
 from gainfarm.cli import interrupts
 from gainfarm.schemas.episode import EpisodeSpec, Scores
@@ -36,10 +39,15 @@ from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.trajectory import KIND_PATTERN, TrajectorySpec
 from gainfarm.schemas.wire import JobStatus
+from gainfarm.testing.algorithms import AlgorithmChecks
+from gainfarm.testing.experiments import ExperimentChecks
+from gainfarm.testing.objectives import check_objective
+from gainfarm.testing.trajectories import TrajectoryChecks
 from gainfarm.worker.episode import run_episode
 from gainfarm.worker.job import simulate
 from tests.helpers import wait_for
 
+ROOT = Path(__file__).parents[2]
 FIXTURE = Path(__file__).with_name("fixture")
 # A circle the arm follows in 1 s (0.9 s at least: worker.reference.shortest_duration).
 CIRCLE = TrajectorySpec(kind="circle", duration=1.0, size=0.02, twist=0.0)
@@ -103,21 +111,49 @@ def test_each_group_lists_its_built_ins_first_the_default_leading() -> None:
     assert plugins.builtin_names(plugins.TRAJECTORIES) == ("spiral", "random", "pyramid", "fourier")
     assert plugins.builtin_names(plugins.OBJECTIVES) == ("f_acc", "f_t", "f_t_joint")
     for group in plugins.GROUPS:
-        assert plugins.names(group)[: len(plugins.BUILTIN[group])] == plugins.builtin_names(group)
+        builtin = plugins.builtin_names(group)
+        assert builtin[: len(plugins.ORDER[group])] == plugins.ORDER[group]
+        assert plugins.names(group)[: len(builtin)] == builtin
 
 
-def test_every_built_in_loads_and_is_what_gainfarm_runs() -> None:
-    from gainfarm.analytic.tuning import evolution
+def test_the_built_ins_are_gainfarms_own_entry_points_as_pyproject_declares_them() -> None:
+    """They are read from the installation's metadata: one older than pyproject.toml (an
+    editable install made before a built-in was added) fails here, asking for a reinstall."""
+    declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["entry-points"]
+    for group in plugins.GROUPS:
+        installed = {name: point.value for name, point in plugins._scan()[0][group].items()}
+        assert installed == declared.get(group, {}), f"{group}: reinstall (pip install -e .)"
+
+
+def test_every_built_in_loads_from_its_own_module() -> None:
+    from gainfarm.analytic.tuning.algorithms import nsga2, random
     from gainfarm.schemas import objectives
-    from gainfarm.worker import trajectories
+    from gainfarm.worker.trajectories import spiral
 
-    assert plugins.load(plugins.ALGORITHMS, "nsga2") is evolution.nsga2
-    assert plugins.load(plugins.ALGORITHMS, "random") is evolution.UniformRandom
-    assert plugins.load(plugins.TRAJECTORIES, "spiral") is trajectories.spiral
+    assert plugins.load(plugins.ALGORITHMS, "nsga2") is nsga2.nsga2
+    assert plugins.load(plugins.ALGORITHMS, "random") is random.UniformRandom
+    assert plugins.load(plugins.TRAJECTORIES, "spiral") is spiral.KIND
     assert plugins.load(plugins.OBJECTIVES, "f_t") is objectives.f_t
     for group in plugins.GROUPS:
         for name in plugins.builtin_names(group):
-            assert plugins.load(group, name) is not None
+            module = plugins._scan()[0][group][name].module
+            assert plugins.load(group, name) is not None and module.startswith("gainfarm.")
+
+
+def test_a_stale_installation_is_told_to_reinstall_gainfarm(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A built-in this source lists first that the installation's metadata lacks, as an editable
+    install made before it was added would: the error says why, in one line."""
+    order = {**plugins.ORDER, plugins.ALGORITHMS: ("nsga2", "cmaes")}
+    monkeypatch.setattr(plugins, "ORDER", order)
+    monkeypatch.setattr(plugins, "_found", None)
+    assert "cmaes" not in plugins.builtin_names(plugins.ALGORITHMS)
+    with pytest.raises(plugins.PluginError) as raised:
+        plugins.load(plugins.ALGORITHMS, "cmaes")
+    message = str(raised.value)
+    assert "\n" not in message and "lacks its own cmaes" in message
+    assert "reinstall gainfarm" in message
 
 
 def test_the_plugin_name_rule_is_the_contracts() -> None:
@@ -126,9 +162,19 @@ def test_the_plugin_name_rule_is_the_contracts() -> None:
 
 def test_importing_the_registry_loads_nothing_of_the_project_nor_the_metadata() -> None:
     code = (
-        "import sys, gainfarm.plugins as p; p.builtin_names(p.ALGORITHMS); "
+        "import sys, gainfarm.plugins as p; "
         "print(sorted(m for m in sys.modules if m.startswith('gainfarm') or "
         "m == 'importlib.metadata'))"
+    )
+    shown = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert shown.stdout.strip() == "['gainfarm', 'gainfarm.plugins']"
+
+
+def test_listing_every_groups_names_imports_no_plugin() -> None:
+    """The built-ins' names come from gainfarm's metadata: no module of theirs is imported."""
+    code = (
+        "import sys, gainfarm.plugins as p; [p.names(g) for g in p.GROUPS]; "
+        "print(sorted(m for m in sys.modules if m.startswith('gainfarm')))"
     )
     shown = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert shown.stdout.strip() == "['gainfarm', 'gainfarm.plugins']"
@@ -197,6 +243,14 @@ def test_installed_plugins_are_listed_without_being_imported(installed: Path) ->
     assert plugins.load(plugins.TRAJECTORIES, "circle").__module__ == "gainfarm_fixture"
 
 
+def test_a_third_partys_entry_point_with_a_built_ins_name_is_ignored(installed: Path) -> None:
+    """The fixture declares its circle as "spiral" too: gainfarm's spiral is the one there is."""
+    from gainfarm.worker.trajectories import spiral
+
+    assert plugins.names(plugins.TRAJECTORIES).count("spiral") == 1
+    assert plugins.load(plugins.TRAJECTORIES, "spiral") is spiral.KIND
+
+
 def test_an_entry_point_that_fails_to_load_says_which_and_why(installed: Path) -> None:
     with pytest.raises(plugins.PluginError) as raised:
         plugins.load(plugins.OBJECTIVES, "broken")
@@ -232,6 +286,21 @@ def test_a_plugin_optimiser_resumes_from_its_checkpoint_exactly(
             decode(encode(resumed, identity), path, identity, algorithm)
 
 
+@pytest.mark.usefixtures("installed")
+class TestTheFixturesOptimiserPassesTheKit(AlgorithmChecks):
+    """A third party's optimiser, one module and one entry point, passes the checks gainfarm's
+    own pass (gainfarm.testing.algorithms)."""
+
+    algorithm = "hill_climb"
+
+
+@pytest.mark.usefixtures("installed")
+class TestTheFixturesTrajectoryKindPassesTheKit(TrajectoryChecks):
+    """Its trajectory kind, the simple form (a path function), likewise."""
+
+    spec = CIRCLE
+
+
 def test_tuning_in_process_with_all_three(installed: Path, tmp_path: Path) -> None:
     run = tune(RunConfig(**WITH_ALL_THREE), tmp_path / "run", evaluator=InProcessEvaluator())
     front = run.front()
@@ -239,9 +308,34 @@ def test_tuning_in_process_with_all_three(installed: Path, tmp_path: Path) -> No
     # The second objective is the plug-in's, computed on the episode's log: the peak torque.
     member = front[0]
     log = run_episode(EpisodeSpec(gains=member.gains, trajectory=CIRCLE))
-    assert member.f_t == float(np.max(np.abs(log.u))) != 0.0
+    assert member.named["peak_torque"] == float(np.max(np.abs(log.u))) != 0.0
     config = (tmp_path / "run" / "config.json").read_text()
     assert '"hill_climb"' in config and '"peak_torque"' in config and '"circle"' in config
+    # Its name and unit travel from its declaration to every file, figure and report the run
+    # writes: nothing calls it f_t, nor a torque change.
+    directory = tmp_path / "run"
+    front_csv = (directory / "front.csv").read_text()
+    assert front_csv.splitlines()[0].endswith(",f_acc,peak_torque,diverged")
+    assert (directory / "evaluated.csv").read_text().startswith("f_acc,peak_torque,torque_step,")
+    assert ",best_f_acc,best_peak_torque," in (directory / "history.csv").read_text()
+    assert '"peak_torque": ' in (directory / "front.json").read_text()
+    report = (directory / "report.md").read_text()
+    assert "| f_acc (mm) | peak_torque (N·m) |" in report
+    assert "peak_torque is the largest torque commanded on any joint, in N·m" in report
+    assert f"peak_torque {front[0].named['peak_torque']:.4g} N·m" in report
+    for written in (front_csv, (directory / "evaluated.csv").read_text(), report):
+        assert "f_t" not in written and "torque change" not in written
+    figure = pareto_figure(front, run.state.evaluated, names=run.config.objectives)
+    assert figure.axes[0].get_ylabel() == "peak_torque: largest torque commanded on any joint (N·m)"
+    # Read back as it was written, by name, with no knowledge of the run but its files.
+    record = read_run(directory)
+    assert [m.named for m in record.front] == [m.named for m in front]
+    assert record.evaluated == run.state.evaluated
+
+
+def test_the_fixtures_objective_passes_the_conformance_kit(installed: Path) -> None:
+    declared = check_objective(plugins.load(plugins.OBJECTIVES, "peak_torque"), "peak_torque")
+    assert (declared.unit, declared.direction) == ("N·m", "minimise")
 
 
 @pytest.mark.slow
@@ -250,7 +344,7 @@ def test_tuning_on_a_local_farm_gives_the_in_process_front(
 ) -> None:
     config = RunConfig(**WITH_ALL_THREE)
     here = tune(config, tmp_path / "here", evaluator=InProcessEvaluator()).front()
-    farmed = tune(config, tmp_path / "farm", workers=1).front()
+    farmed = tune(config, tmp_path / "farm", FarmOptions(workers=1)).front()
     assert [(m.gains, m.objectives) for m in farmed] == [(m.gains, m.objectives) for m in here]
 
 
@@ -260,7 +354,7 @@ def test_a_worker_without_the_plugin_refuses_and_the_run_says_so(
 ) -> None:
     monkeypatch.delenv("PYTHONPATH", raising=False)  # the worker processes lack the plug-ins
     with pytest.raises(plugins.PluginError) as raised:
-        tune(RunConfig(**WITH_ALL_THREE), tmp_path / "run", workers=1)
+        tune(RunConfig(**WITH_ALL_THREE), tmp_path / "run", FarmOptions(workers=1))
     message = str(raised.value)
     assert "\n" not in message
     assert "refused job" in message and re.search(r"worker local-0-[0-9a-f]+ refused", message)
@@ -400,3 +494,17 @@ def test_scores_pickled_before_objectives_could_be_chosen_read_back() -> None:
     old = Scores.__new__(Scores)
     old.__setstate__(state)
     assert old == scores and old.objectives == (0.01, 3.0)
+
+
+# --- an experiment ----------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.usefixtures("installed")
+class TestTheFixturesExperimentPassesTheKit(ExperimentChecks):
+    """A third party's experiment (gainfarm_fixture.seeds, its entry point in the fixture's
+    pyproject.toml) through the kit its author runs: real episodes, in this process."""
+
+    experiment = "seeds"
+    options: ClassVar[dict[str, str]] = {"--runs": "2"}
+    bad_options: ClassVar[dict[str, str]] = {"--runs": "0"}

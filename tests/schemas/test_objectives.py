@@ -3,18 +3,23 @@ import dataclasses
 import numpy as np
 import pytest
 
+from gainfarm import plugins
 from gainfarm.schemas.episode import Scores
 from gainfarm.schemas.objectives import (
     DIVERGED_TICK_ERROR,
+    MAXIMISE,
     NO_EPISODE,
+    Objective,
     balancing_weights,
     f_t_joint,
     joint_weights,
+    no_episode,
     objectives,
     plant_scales,
     score,
 )
 from gainfarm.schemas.robot import TORQUE_LIMITS
+from gainfarm.testing.objectives import ObjectiveTests
 from tests.helpers import crafted_log
 
 
@@ -111,3 +116,38 @@ def test_plant_scales_make_every_plant_count_alike_at_the_reference():
 def test_balancing_needs_a_positive_finite_reference(reference):
     with pytest.raises(ValueError, match="finite, positive"):
         balancing_weights(reference)
+
+
+# --- the built-ins through the conformance kit a plug-in's author runs ------------------------
+
+
+class TestFAcc(ObjectiveTests):
+    objective = plugins.load(plugins.OBJECTIVES, "f_acc")
+    name = "f_acc"
+
+
+class TestFT(ObjectiveTests):
+    objective = plugins.load(plugins.OBJECTIVES, "f_t")
+    name = "f_t"
+
+
+class TestFTJoint(ObjectiveTests):
+    objective = plugins.load(plugins.OBJECTIVES, "f_t_joint")
+    name = "f_t_joint"
+
+
+def test_the_papers_no_episode_scores_are_its_objectives_declarations() -> None:
+    declared = [plugins.load(plugins.OBJECTIVES, name) for name in ("f_acc", "f_t")]
+    assert no_episode(declared) == NO_EPISODE == (10.0, 1e12)
+    assert [o.label for o in declared] == ["f_acc (m)", "f_t ((N·m)²)"]
+
+
+def test_a_maximised_plugin_is_told_negated_and_an_episode_missing_scores_the_runs_worst() -> None:
+    log = crafted_log()
+    most = Objective("most", "N·m", MAXIMISE, "largest torque", -1.0, lambda log: 40.0)
+    named = log.metadata.spec.model_copy(update={"objectives": ("f_acc", "most")})
+    metadata = log.metadata.model_copy(update={"spec": named})
+    scores = score(dataclasses.replace(log, metadata=metadata), {"most": most})
+    assert scores.objectives == (scores.f_acc, -40.0)
+    run = no_episode([plugins.load(plugins.OBJECTIVES, "f_acc"), most])
+    assert objectives([scores, None], no_episode=run) == run == (10.0, 1.0)

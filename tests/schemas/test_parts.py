@@ -35,6 +35,6 @@ def test_a_query_names_its_part_in_digits() -> None:
 
 
 def test_a_part_header_that_is_no_part_header_is_refused() -> None:
-    for raw in (None, b"", b"{}", b'{"protocol": 10, "total": -1, "part": 0}', b"x" * 2000):
+    for raw in (None, b"", b"{}", b'{"protocol": 11, "total": -1, "part": 0}', b"x" * 2000):
         with pytest.raises(BadMessage):
             check_part(raw, 0, 0, None, MAX_EPISODE_BYTES)

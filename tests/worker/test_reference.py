@@ -16,13 +16,13 @@ from gainfarm.worker.ik import (
     UnreachablePath,
 )
 from gainfarm.worker.reference import (
-    FOURIER_FLOOR,
     InfeasibleReference,
     path_progress,
     reference_for,
     shortest_duration,
 )
 from gainfarm.worker.trajectories import path_points, rest_points, tool_yaw, twist_angle
+from gainfarm.worker.trajectories.fourier import FOURIER_FLOOR
 
 POSITION = np.array(POSITION_LIMITS)
 SPEED = np.array(SPEED_LIMITS)

@@ -248,7 +248,7 @@ def test_a_worker_whose_router_has_no_broker_yet_waits_and_says_so() -> None:
 
 
 def test_a_worker_tries_to_connect_again_at_once_then_every_second() -> None:
-    from gainfarm.worker.cli import QUIET_TRIES, RETRY_SECONDS, retry_pause
+    from gainfarm.worker.commands import QUIET_TRIES, RETRY_SECONDS, retry_pause
 
     pauses = [retry_pause(tries) for tries in range(10)]
     assert pauses[0] <= 0.1 and pauses == sorted(pauses) and pauses[-1] == RETRY_SECONDS

@@ -149,3 +149,12 @@ def test_a_batch_times_each_episode_by_its_share(threads: int) -> None:
     assert all(
         outcome.timings.simulate_s > 0 and outcome.timings.encode_s > 0 for outcome in outcomes
     )
+
+
+def test_a_job_on_a_robot_not_here_is_refused_naming_it() -> None:
+    elsewhere = short_spec(duration=0.5).model_copy(
+        update={"model": REALISTIC_PLANT.model_copy(update={"robot": "panda"})}
+    )
+    (outcome,) = simulate_batch([elsewhere])
+    assert outcome.status.value == "refused"
+    assert "gainfarm.robots: no plug-in named 'panda' here" in outcome.reason

@@ -3,29 +3,54 @@ import pytest
 
 from gainfarm.schemas import TrajectoryKind, TrajectorySpec
 from gainfarm.worker.trajectories import (
-    CARTESIAN_KINDS,
-    RANDOM_MIN_TURN_RADIUS,
     TOOL_DOWN,
-    fourier_coefficients,
-    fourier_series,
+    Kind,
+    kind_of,
     minimum_jerk,
     minimum_jerk_derivatives,
     path_points,
-    pyramid,
     rest_points,
     seed_turn,
-    spiral,
     tool_rotations,
     twist_angle,
 )
+from gainfarm.worker.trajectories.fourier import fourier_coefficients, fourier_series
+from gainfarm.worker.trajectories.pyramid import pyramid
+from gainfarm.worker.trajectories.random import RANDOM_MIN_TURN_RADIUS
+from gainfarm.worker.trajectories.spiral import spiral
+
+CARTESIAN_KINDS = (TrajectoryKind.spiral, TrajectoryKind.random, TrajectoryKind.pyramid)
 
 S = np.linspace(0.0, 1.0, 4001)
 
 
 def test_the_kinds_are_the_three_paths_and_the_fourier_excitation():
     assert set(TrajectoryKind) == {*CARTESIAN_KINDS, TrajectoryKind.fourier}
+    for kind in CARTESIAN_KINDS:
+        assert kind_of(TrajectorySpec(kind=kind)).path is not None
+    assert kind_of(TrajectorySpec(kind="fourier")).joint_motion is not None
     with pytest.raises(ValueError, match="joint space"):
         path_points(TrajectorySpec(kind="fourier"), S)
+
+
+@pytest.mark.parametrize(
+    ("made", "why"),
+    [
+        (Kind(), "neither"),
+        (Kind(path=lambda spec, u: u, joint_motion=lambda spec, t: (t, t, t)), "either"),
+        (3, "int"),
+    ],
+)
+def test_a_kind_of_no_form_the_worker_takes_is_refused_naming_it(made: object, why: str):
+    from gainfarm import plugins
+
+    plugins.register(plugins.TRAJECTORIES, "shapeless", made)
+    try:
+        with pytest.raises(plugins.PluginError, match="'shapeless'") as raised:
+            kind_of(TrajectorySpec(kind="shapeless"))
+        assert "\n" not in str(raised.value)
+    finally:
+        plugins.unregister(plugins.TRAJECTORIES, "shapeless")
 
 
 @pytest.mark.parametrize("kind", CARTESIAN_KINDS)

@@ -19,6 +19,8 @@ import pytest
 from bench.calibration import hidden_arm, write_plant
 from gainfarm.analytic.calibration.logs import Recording, read_recording
 from gainfarm.analytic.tuning.plants import ranges, ranges_of, variants
+from gainfarm.cli.app import CliError
+from gainfarm.cli.values import plant_file
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.plant_file import BadPlantFile, read_plant_file
 from gainfarm.schemas.robot import ModelSpec
@@ -143,7 +145,7 @@ def test_the_twins_uncertainty_is_what_robust_tuning_draws(calibrated: dict) -> 
 
 
 def test_robust_tuning_on_the_twin_draws_from_its_uncertainty(calibrated: dict) -> None:
-    from gainfarm.analytic.commands.shared import plants_from
+    from gainfarm.analytic.commands.work.common import plants_from
 
     twin_path = str(calibrated["twin"])
     twin = read_plant_file(calibrated["twin"].read_bytes()).plant
@@ -234,7 +236,7 @@ def test_bad_input_is_one_line_and_writes_nothing(calibrated: dict, tmp_path: Pa
     not_a_log.write_text("hello")
     out = tmp_path / "twin.toml"
     cases = {
-        ("--plant", "robot 'ur5e'"): [*logs, "--plant", str(other), "--out", str(out)],
+        ("--plant", "no plug-in named 'ur5e'"): [*logs, "--plant", str(other), "--out", str(out)],
         ("notes.mcap", "not"): [str(not_a_log), "--out", str(out)],
         ("missing.mcap", "no such file"): [str(tmp_path / "missing.mcap"), "--out", str(out)],
         ("--out", "does not exist"): [*logs, "--out", str(tmp_path / "no" / "twin.toml")],
@@ -253,7 +255,7 @@ def test_bad_input_is_one_line_and_writes_nothing(calibrated: dict, tmp_path: Pa
     ):
         done = analytic("validate", *arguments, "--out", str(tmp_path / "v"), cwd=tmp_path)
         assert done.returncode != 0 and len(done.stderr.splitlines()) == 1, done.stderr
-        assert says in done.stderr and "robot 'ur5e'" in done.stderr, done.stderr
+        assert says in done.stderr and "no plug-in named 'ur5e'" in done.stderr, done.stderr
     assert not (tmp_path / "v").exists()
 
 
@@ -279,9 +281,14 @@ def test_what_is_neither_a_log_nor_a_bag_is_one_line_naming_it(tmp_path: Path) -
     assert not (tmp_path / "twin.toml").exists()
 
 
-def test_a_plant_file_from_another_robot_is_refused_in_one_line() -> None:
-    with pytest.raises(BadPlantFile, match="robot 'ur5e'; this farm simulates 'iiwa14'"):
-        read_plant_file(b'[plant]\nrobot = "ur5e"\n')
+def test_a_plant_file_from_another_robot_is_refused_in_one_line(tmp_path: Path) -> None:
+    # The contract reads it (a robot is a plug-in); a command line here has no such robot.
+    assert read_plant_file(b'[plant]\nrobot = "ur5e"\n').plant.robot == "ur5e"
+    (tmp_path / "ur5e.toml").write_text('[plant]\nrobot = "ur5e"\n')
+    with pytest.raises(CliError, match=r"ur5e\.toml': gainfarm\.robots: no plug-in named 'ur5e'"):
+        plant_file(str(tmp_path / "ur5e.toml"))
+    with pytest.raises(BadPlantFile, match=r"plant\.robot: must match"):
+        read_plant_file(b'[plant]\nrobot = "UR5e"\n')
     with pytest.raises(BadPlantFile, match="not TOML"):
         read_plant_file(b"[plant\n")
     with pytest.raises(BadPlantFile, match=r"plant\.delay"):

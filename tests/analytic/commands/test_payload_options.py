@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 
 from gainfarm.analytic.calibration.twin import write_text
-from gainfarm.analytic.commands.shared import plants_from
-from gainfarm.cli import options
+from gainfarm.analytic.commands.work.common import plants_from
+from gainfarm.cli import options, values
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.plant_file import PlantFile
 from gainfarm.schemas.robot import MAX_LOAD_OFFSET, RATED_PAYLOAD, LoadData, ModelSpec
@@ -94,31 +94,31 @@ def twin(path: Path, payload: float, load: LoadData | None = None) -> Path:
 
 def test_a_twins_calibrated_payload_is_the_load_the_robot_is_told(tmp_path: Path) -> None:
     file = str(twin(tmp_path / "twin.toml", 2.0))
-    nominal = options.with_load(options.model_spec(file), None, None, file)
+    nominal = values.with_load(values.model_spec(file), None, None, file)
     assert nominal.load == LoadData(mass=2.0) and nominal.payload == 0.0
     # Its variants draw the fit's range as the told load's error, nothing untold.
     for plant in plants_from(16, None, nominal, 1, plant=file):
         assert plant.payload == 0.0 and plant.load is not None and plant.load.mass == 2.0
         assert 0.75 <= plant.load.mass_scale <= 1.25  # (2 ± 0.5) / 2
     # --payload tells another load: the file's payload stays untold, its range as it was.
-    other = options.with_load(options.model_spec(file), 1.0, None, file)
+    other = values.with_load(values.model_spec(file), 1.0, None, file)
     assert other.load == LoadData(mass=1.0) and other.payload == 2.0
     assert all(1.5 <= p.payload <= 2.5 for p in plants_from(8, None, other, 1, plant=file))
     # A plant file no calibration weighed keeps its payload untold.
     plain = tmp_path / "plain.toml"
     plain.write_text(write_text(PlantFile(plant=ModelSpec(payload=2.0))))
-    kept = options.with_load(options.model_spec(str(plain)), None, None, str(plain))
+    kept = values.with_load(values.model_spec(str(plain)), None, None, str(plain))
     assert kept == ModelSpec(payload=2.0)
     # Nor does one whose fit cannot tell its payload from none (its range reaches 0).
     light = str(twin(tmp_path / "light.toml", 0.3))
-    assert options.with_load(options.model_spec(light), None, None, light) == ModelSpec(payload=0.3)
+    assert values.with_load(values.model_spec(light), None, None, light) == ModelSpec(payload=0.3)
 
 
 def test_a_twins_payload_joins_the_load_its_arm_was_told_of(tmp_path: Path) -> None:
     # Calibrated on an arm told of 4 kg 10 cm out: the 1 kg more the logs found at the flange's
     # centre is told with it, one load at their common centre (all gravity reads).
     file = str(twin(tmp_path / "twin.toml", 1.0, LoadData(mass=4.0, com=(0.0, 0.0, 0.1))))
-    nominal = options.with_load(options.model_spec(file), None, None, file)
+    nominal = values.with_load(values.model_spec(file), None, None, file)
     assert nominal.payload == 0.0 and nominal.load is not None
     assert nominal.load.mass == 5.0 and nominal.load.com == pytest.approx((0.0, 0.0, 0.08))
     for plant in plants_from(16, None, nominal, 1, plant=file):

@@ -375,7 +375,7 @@ def test_the_history_inputs_are_earlier_ticks_of_the_same_episode():
 
 @pytest.mark.slow
 def test_the_benchmark_scores_every_baseline_beside_the_floor(fri):
-    table = learning.benchmark(fri, kinds=("plant", "rigid", "gp", "history"))
+    table = baselines.benchmark(fri, kinds=("plant", "rigid", "gp", "history"))
     assert list(table) == ["plant", "rigid", "gp", "history"]
     floor, prior = table["plant"]["nmse_mean"], table["rigid"]["nmse_mean"]
     for kind in ("gp", "history"):  # each learns some of what the prior leaves out
@@ -423,8 +423,8 @@ def test_a_model_learns_one_plant_and_is_scored_on_the_variants_apart(fri, tmp_p
     assert learning.plants(both) == [REALISTIC_PLANT]
     assert learning.plants(both, variants=True) == [HEAVY]
     assert set(learning.read_split(both, "train").episode_id) == {"fourier-0"}
-    table = learning.benchmark(both, kinds=("plant", "rigid"))
-    alone = learning.benchmark(nominal, kinds=("plant", "rigid"))
+    table = baselines.benchmark(both, kinds=("plant", "rigid"))
+    alone = baselines.benchmark(nominal, kinds=("plant", "rigid"))
     for kind in ("plant", "rigid"):  # the test split as if the variants were not there
         assert table[kind]["nmse_mean"] == alone[kind]["nmse_mean"]
         assert table[kind]["variants"]["rows"] == table[kind]["rows"]
@@ -444,7 +444,7 @@ def test_the_floor_of_a_dataset_of_plants_is_each_episodes_own(fri, tmp_path):
     nominal = write_dataset(tmp_path / "nominal", REALISTIC_PLANT, splits)
     variant = write_dataset(tmp_path / "variant", HEAVY, splits)
     mixed = merged(tmp_path / "mixed", nominal, variant)
-    floor = learning.benchmark(mixed, kinds=("plant",))["plant"]
+    floor = baselines.benchmark(mixed, kinds=("plant",))["plant"]
     alone = [
         score(true_model(plant), d)["nmse_mean"]
         for plant, d in ((REALISTIC_PLANT, nominal), (HEAVY, variant))

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from gainfarm.analytic.compose import tune
+from gainfarm.analytic.compose import FarmOptions, tune
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.evaluators.local import LocalFarm, stop_workers
@@ -109,7 +109,9 @@ def test_a_forger_of_this_user_on_a_local_farm_is_refused_and_the_front_is_the_c
         with FarmClient([endpoint], "watch", tmp_path / "watch") as watching:
             wait_for(lambda: watching.capacity == 2, 60, "the forger to join")
         with caplog.at_level(logging.WARNING, logger="gainfarm.analytic"):
-            tuning = tune(CONFIG, tmp_path / "run", farm=farm)  # as `analytic start` runs it
+            tuning = tune(
+                CONFIG, tmp_path / "run", FarmOptions(local=farm)
+            )  # as `analytic start` runs it
     finally:
         farm.stop()
         if forger is not None:

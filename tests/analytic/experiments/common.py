@@ -6,7 +6,7 @@ from pathlib import Path
 
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
-from gainfarm.analytic.experiments.base import EvaluatorFactory
+from gainfarm.analytic.experiments.runner import EvaluatorFactory
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.schemas import TrajectorySpec
 from tests.analytic.toy import toy_scores

@@ -10,9 +10,10 @@ import pytest
 from scipy import stats
 
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
-from gainfarm.analytic.experiments import algorithms
+from gainfarm.analytic.experiments import algorithms, algorithms_measures
 from gainfarm.analytic.experiments import statistics as analytic_stats
-from gainfarm.analytic.experiments.base import Experiment, Normalisation, non_dominated
+from gainfarm.analytic.experiments.normalisation import Normalisation, non_dominated
+from gainfarm.analytic.experiments.runner import Experiment
 from gainfarm.analytic.experiments.statistics import holm
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import HistoryRow, read_run
@@ -126,7 +127,7 @@ def test_a_row_per_run_each_on_the_same_budget(out: Path) -> None:
 def test_the_hypervolume_is_that_of_every_evaluated_point_in_the_experiments_space(
     out: Path,
 ) -> None:
-    space = json.loads((out / "normalisation.json").read_text())[algorithms.SPACE]
+    space = json.loads((out / "normalisation.json").read_text())[algorithms_measures.SPACE]
     normalisation = Normalisation(tuple(space["ideal"]), tuple(space["nadir"]))
     for r in rows(out / "results.csv"):
         run = read_run(out / "runs" / f"{r['algorithm']}-{r['scaling']}-rep{r['rep']}")
@@ -210,7 +211,7 @@ def test_the_normalisation_leaves_penalty_points_out(tmp_path: Path) -> None:
     # A run's own front holds one too, flagged diverged in its front.csv.
     [front] = [read_run(path).front for path in (tmp_path / "runs").iterdir()]
     assert PENALTY in [m.objectives for m in front if m.diverged]
-    space = json.loads((tmp_path / "normalisation.json").read_text())[algorithms.SPACE]
+    space = json.loads((tmp_path / "normalisation.json").read_text())[algorithms_measures.SPACE]
     assert space["nadir"][0] < PENALTY[0] and space["ideal"][1] > PENALTY[1]
     assert all(0 <= float(r["hypervolume"]) <= 1 for r in rows(tmp_path / "results.csv"))
 
@@ -219,28 +220,28 @@ def test_the_normalisation_leaves_penalty_points_out(tmp_path: Path) -> None:
 
 
 def test_checkpoints_are_every_generation_and_the_budget() -> None:
-    assert algorithms.checkpoints(30, 600) == list(range(30, 601, 30))
-    assert algorithms.checkpoints(4, 10) == [4, 8, 10]
+    assert algorithms_measures.checkpoints(30, 600) == list(range(30, 601, 30))
+    assert algorithms_measures.checkpoints(4, 10) == [4, 8, 10]
 
 
 def test_the_hypervolume_curve_grows_with_the_points_and_ignores_penalties() -> None:
     normalisation = Normalisation(ideal=(0.1, 1.0), nadir=(0.3, 10.0))
     diverged = (0.2, 2.0)  # inside the box: it would add to the hypervolume if it counted
     points = [(0.3, 10.0), NO_EPISODE, (0.1, 10.0), diverged, (0.3, 1.0)]
-    curve = algorithms.hypervolume_curve(points, [1, 3, 4, 5], normalisation, {diverged})
+    curve = algorithms_measures.hypervolume_curve(points, [1, 3, 4, 5], normalisation, {diverged})
     assert curve[0] < curve[1] == curve[2] < curve[3] <= 1
     assert curve[3] == normalisation.hypervolume([(0.1, 10.0), (0.3, 1.0)])
-    assert algorithms.evaluations_to(curve, [1, 3, 4, 5], curve[1]) == 3
-    assert algorithms.evaluations_to(curve, [1, 3, 4, 5], 2.0) is None
+    assert algorithms_measures.evaluations_to(curve, [1, 3, 4, 5], curve[1]) == 3
+    assert algorithms_measures.evaluations_to(curve, [1, 3, 4, 5], 2.0) is None
 
 
 def test_the_rule_stops_where_the_run_would_have() -> None:
     history = [
-        HistoryRow(g, 10 * g, hv, 0.01, 1.0, 0.0)
+        HistoryRow(g, 10 * g, hv, (0.01, 1.0), 0.0)
         for g, hv in enumerate([0.5, 0.6, 0.7, 0.701, 0.702, 0.703, 0.8], start=1)
     ]
-    assert algorithms.rule_stop(history, Termination(tolerance=0.005, window=2)) == 50
-    assert algorithms.rule_stop(history, Termination(tolerance=0.005, window=5)) is None
+    assert algorithms_measures.rule_stop(history, Termination(tolerance=0.005, window=2)) == 50
+    assert algorithms_measures.rule_stop(history, Termination(tolerance=0.005, window=5)) is None
 
 
 @pytest.mark.parametrize(
@@ -266,22 +267,22 @@ def test_holm_adjusts_the_family_and_the_smallest_p_it_can_reach() -> None:
     five_against_five = [[0.1 * i + j for j in range(5)] for i in range(1, 8)]
     reference = [0.0] * 5
     family = {
-        algorithms.Condition(f"a{i}", "raw"): analytic_stats.compare(values, reference)
+        algorithms_measures.Condition(f"a{i}", "raw"): analytic_stats.compare(values, reference)
         for i, values in enumerate(five_against_five)
     }
     for size, decidable in ((3, True), (7, False)):
         chosen = dict(list(family.items())[:size])
-        adjusted = algorithms.holm_adjusted(chosen)
+        adjusted = analytic_stats.holm_adjusted(chosen)
         assert [r.p_value for r in adjusted.values()] == holm([r.p_value for r in chosen.values()])
         # Mann-Whitney 5 against 5 reaches 2/252 alone: 3 of them can still decide, 7 cannot.
         assert all(analytic_stats.decidable(r) == decidable for r in adjusted.values())
 
 
 def test_the_rule_check_needs_a_run_the_rule_stopped() -> None:
-    never = algorithms.RunMeasure(24, 0.5, 0.01, [0.4, 0.5], None, None)
-    stopped = algorithms.RunMeasure(24, 0.5, 0.01, [0.4, 0.5], 12, 0.4)
-    assert algorithms.check_rule([never]) is None
-    check = algorithms.check_rule([never, stopped])
+    never = algorithms_measures.RunMeasure(24, 0.5, 0.01, [0.4, 0.5], None, None)
+    stopped = algorithms_measures.RunMeasure(24, 0.5, 0.01, [0.4, 0.5], 12, 0.4)
+    assert algorithms_measures.check_rule([never]) is None
+    check = algorithms_measures.check_rule([never, stopped])
     assert check is not None and check.paired and (check.n_a, check.median_b) == (1, 0.4)
 
 
@@ -312,7 +313,7 @@ def test_the_algorithms_experiment_refuses_bad_options_in_one_line_before_anythi
 
 
 def test_each_run_is_compared_at_the_fixed_budgets_below_its_own(out: Path) -> None:
-    space = json.loads((out / "normalisation.json").read_text())[algorithms.SPACE]
+    space = json.loads((out / "normalisation.json").read_text())[algorithms_measures.SPACE]
     normalisation = Normalisation(tuple(space["ideal"]), tuple(space["nadir"]))
     for r in rows(out / "results.csv"):
         run = read_run(out / "runs" / f"{r['algorithm']}-{r['scaling']}-rep{r['rep']}")
@@ -350,7 +351,9 @@ def test_holm_adjusts_every_hypervolume_claim_as_one_family(out: Path) -> None:
 def test_the_hypervolume_curve_counts_feasible_points_only() -> None:
     normalisation = Normalisation(ideal=(0.1, 1.0), nadir=(0.3, 10.0))
     points = [(0.3, 10.0), (0.1, 1.0), (0.2, 5.0)]
-    curve = algorithms.hypervolume_curve(points, [2, 3], normalisation, kept=[True, False, True])
+    curve = algorithms_measures.hypervolume_curve(
+        points, [2, 3], normalisation, kept=[True, False, True]
+    )
     assert curve == [
         normalisation.hypervolume([(0.3, 10.0)]),
         normalisation.hypervolume([(0.3, 10.0), (0.2, 5.0)]),
@@ -361,12 +364,15 @@ def test_attainment_differences_count_each_sides_own_region() -> None:
     normalisation = Normalisation(ideal=(0.0, 1.0), nadir=(0.5, 100.0))
     accurate = [[(0.05, 100.0)], [(0.05, 100.0)]]  # each repetition's front
     smooth = [[(0.5, 1.0)], [(0.5, 1.0)]]
-    only_a, only_b = algorithms.attainment_difference(accurate, smooth, normalisation)
+    only_a, only_b = algorithms_measures.attainment_difference(accurate, smooth, normalisation)
     both = normalisation.hypervolume([(0.05, 100.0), (0.5, 1.0)])
     assert only_a == pytest.approx(both - normalisation.hypervolume([(0.5, 1.0)]))
     assert only_b == pytest.approx(both - normalisation.hypervolume([(0.05, 100.0)]))
     assert only_a > 0 and only_b > 0  # the fronts cross: each attains a region of its own
-    assert algorithms.attainment_difference(accurate, accurate, normalisation) == (0.0, 0.0)
+    assert algorithms_measures.attainment_difference(accurate, accurate, normalisation) == (
+        0.0,
+        0.0,
+    )
 
 
 def test_tpe_runs_told_one_result_at_a_time_the_others_generationally(tmp_path: Path) -> None:

@@ -1,5 +1,5 @@
 """What every experiment shares: the runner (runs at once, resumed, shared between processes,
-stopped), the normalised space, the "levels off" verdict, the report's frame, the registry and
+stopped), the normalised space, the "levels off" finding, the report's frame, the registry and
 the command that runs an experiment by name."""
 
 import os
@@ -13,19 +13,18 @@ from pathlib import Path
 
 import pytest
 
-from gainfarm.analytic import experiments
+from gainfarm import plugins
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
-from gainfarm.analytic.experiments import base, generic_vs_specific, popsize, speed
+from gainfarm.analytic.experiments import findings, generic_vs_specific, popsize, registry, speed
 from gainfarm.analytic.experiments import statistics as stats
-from gainfarm.analytic.experiments.base import (
-    EvaluatorFactory,
-    Experiment,
+from gainfarm.analytic.experiments.normalisation import (
     Normalisation,
     dominated_count,
-    experiment_setup,
     is_penalty,
     non_dominated,
 )
+from gainfarm.analytic.experiments.report import experiment_setup
+from gainfarm.analytic.experiments.runner import EvaluatorFactory, Experiment
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import read_front
 from gainfarm.schemas import EpisodeSpec, Scores, TrajectorySpec
@@ -99,9 +98,9 @@ def test_dominance_counts() -> None:
 def test_a_measure_levels_off_after_its_last_significant_gain_unless_that_is_the_last_step() -> (
     None
 ):
-    assert base.level_from([20, 30], [10, 20, 30, 50, 80]) == 30
-    assert base.level_from([], [10, 20, 30]) == 10
-    assert base.level_from([20, 80], [10, 20, 30, 50, 80]) is None  # still rising
+    assert findings.level_from([20, 30], [10, 20, 30, 50, 80]) == 30
+    assert findings.level_from([], [10, 20, 30]) == 10
+    assert findings.level_from([20, 80], [10, 20, 30, 50, 80]) is None  # still rising
 
 
 def test_non_dominated() -> None:
@@ -242,31 +241,31 @@ HIGH = [1.0, 1.1, 1.2, 1.3, 1.4]
 LOW = [0.0, 0.1, 0.2, 0.3, 0.4]
 
 
-def test_one_levels_off_verdict_for_a_measure_that_rises_and_one_that_falls() -> None:
+def test_one_levels_off_finding_for_a_measure_that_rises_and_one_that_falls() -> None:
     gain, none = stats.compare(HIGH, LOW), stats.compare(HIGH, HIGH)
-    rising = base.levels_off({(10, 20): gain, (20, 30): gain}, 5, "the hypervolume", "size")
+    rising = findings.levels_off({(10, 20): gain, (20, 30): gain}, 5, "the hypervolume", "size")
     assert rising.rising and rising.level is None
     assert rising.text.startswith("The hypervolume still gains significantly at the last size")
-    levels = base.levels_off({(10, 20): gain, (20, 30): none}, 5, "the hypervolume", "size")
+    levels = findings.levels_off({(10, 20): gain, (20, 30): none}, 5, "the hypervolume", "size")
     assert (levels.level, levels.rising) == (20, False)
     assert levels.text.startswith("The hypervolume levels off from size 20 (no significant")
-    flat = base.levels_off({(10, 20): none}, 5, "the hypervolume", "size")
+    flat = findings.levels_off({(10, 20): none}, 5, "the hypervolume", "size")
     assert flat.level == 10 and "no significant gain between consecutive sizes" in flat.text
     # Lower is better: an error that falls gains; shown with its unit.
     falls = stats.compare(LOW, HIGH)
-    error = base.levels_off(
+    error = findings.levels_off(
         {(3.0, 4.0): falls, (4.0, 5.0): none}, 5, "accuracy", "duration", "{:g} s".format, False
     )
     assert error.text.startswith("Accuracy levels off from duration 4 s")
-    assert base.levels_off({}, 5, "accuracy", "duration").text == (
+    assert findings.levels_off({}, 5, "accuracy", "duration").text == (
         "One duration only: nothing to compare."
     )
-    undecided = base.levels_off({(3.0, 4.0): stats.compare([1, 2], [0, 1])}, 2, "accuracy", "s")
+    undecided = findings.levels_off({(3.0, 4.0): stats.compare([1, 2], [0, 1])}, 2, "accuracy", "s")
     assert undecided.level is None and "cannot decide whether or where accuracy" in undecided.text
 
 
 def test_the_steps_compare_each_setting_with_the_next_smaller() -> None:
-    steps = base.step_comparisons({30: HIGH, 10: LOW, 20: LOW})
+    steps = findings.step_comparisons({30: HIGH, 10: LOW, 20: LOW})
     assert list(steps) == [(10, 20), (20, 30)]
     assert steps[(20, 30)] == stats.compare(HIGH, LOW)
 
@@ -288,14 +287,48 @@ def test_an_experiment_states_the_populations_and_durations_its_runs_used() -> N
 
 
 def test_the_registry_finds_every_built_in_experiment_by_its_command_line_name() -> None:
-    found = experiments.names()
-    assert set(found) >= {"popsize", "generic-vs-specific", "speed", "algorithms", "dataset-value"}
+    found = registry.names()
+    assert found[:7] == (
+        "popsize",
+        "generic-vs-specific",
+        "speed",
+        "algorithms",
+        "dataset-value",
+        "sensitivity",
+        "feedforward",
+    )
     for name in found:
-        spec = experiments.load(name)
+        spec = registry.load(name)
         assert spec.name == name and callable(spec.run) and spec.summary
-    assert experiments.load("popsize") is popsize.EXPERIMENT
-    with pytest.raises(experiments.UnknownExperiment, match="'nope' is not one of algorithms, "):
-        experiments.load("nope")
+    assert registry.load("popsize") is popsize.EXPERIMENT
+    with pytest.raises(plugins.PluginError) as unknown:
+        registry.load("nope")
+    assert str(unknown.value) == (
+        f"gainfarm.experiments: no plug-in named 'nope' here (there are {', '.join(found)}); "
+        "install the distribution that provides it"
+    )
+
+
+def test_an_experiment_registered_follows_the_rules_of_every_plug_in_group() -> None:
+    """The name rule, the built-in names reserved, and a declaration that is no ExperimentSpec
+    of its own name refused in one line."""
+    with pytest.raises(ValueError, match="plug-in name 'Toy': a lower-case letter"):
+        plugins.register(registry.GROUP, "Toy", popsize.EXPERIMENT)
+    with pytest.raises(ValueError, match="'speed' is a built-in name; choose another"):
+        plugins.register(registry.GROUP, "speed", popsize.EXPERIMENT)
+    try:
+        plugins.register(registry.GROUP, "not-a-spec", popsize.run)
+        plugins.register(registry.GROUP, "renamed", popsize.EXPERIMENT)
+        assert {"not-a-spec", "renamed"} <= set(registry.names())
+        for name in ("not-a-spec", "renamed"):
+            with pytest.raises(plugins.PluginError) as refused:
+                registry.load(name)
+            assert str(refused.value) == (
+                f"gainfarm.experiments: plug-in {name!r} is no ExperimentSpec named {name!r}"
+            )
+    finally:
+        plugins.unregister(registry.GROUP, "not-a-spec")
+        plugins.unregister(registry.GROUP, "renamed")
 
 
 @pytest.mark.parametrize(
@@ -304,7 +337,7 @@ def test_the_registry_finds_every_built_in_experiment_by_its_command_line_name()
         (["speed", "--sizes", "4,6"], "--sizes: an option of popsize, not of speed"),
         (["popsize", "--ticks", "20"], "--ticks: an option of dataset-value, not of popsize"),
         (["speed", "--duration", "4"], "--duration: an option of algorithms, dataset-value, "),
-        (["nope"], "NAME: 'nope' is not one of algorithms, dataset-value, "),
+        (["nope"], "NAME: gainfarm.experiments: no plug-in named 'nope' here (there are popsize, "),
         (["popsize", "--sizes", "4,x"], "--sizes: expected comma-separated numbers, got '4,x'"),
         (["popsize", "--sizes", "4,2"], "--sizes: 2 is not a population size (4-1000)"),
         # A trajectory the iiwa cannot follow: refused before any job is sent.
@@ -339,7 +372,7 @@ def test_an_experiment_out_that_is_or_is_under_a_file_is_one_line_naming_it(
 TOY_EXPERIMENT = '''
 """A plug-in experiment: one module, declared in its distribution's entry points."""
 
-from gainfarm.analytic.experiments.base import ExperimentSpec, Option, numbers
+from gainfarm.analytic.experiments.registry import ExperimentSpec, Option, numbers
 
 
 def run(experiment, base, reps, gains=(1.0,)):
@@ -370,7 +403,7 @@ def test_an_installed_distribution_adds_an_experiment_with_no_edit_to_the_comman
         "Metadata-Version: 2.1\nName: toy-experiment\nVersion: 0.1\n"
     )
     (plugin / "toy_experiment-0.1.dist-info" / "entry_points.txt").write_text(
-        f"[{experiments.GROUP}]\ntoy = toy_experiment:EXPERIMENT\n"
+        f"[{registry.GROUP}]\ntoy = toy_experiment:EXPERIMENT\n"
     )
     (plugin / "toy_experiment.py").write_text(TOY_EXPERIMENT)
 

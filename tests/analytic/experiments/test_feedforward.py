@@ -8,7 +8,7 @@ import pytest
 
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.experiments import feedforward as ff
-from gainfarm.analytic.experiments.base import Experiment
+from gainfarm.analytic.experiments.runner import Experiment
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.schemas import TrajectorySpec
 from gainfarm.schemas.robot import REALISTIC_PLANT
@@ -50,7 +50,7 @@ def test_the_experiment_compares_the_learned_feedforward_with_both_baselines(
     assert all(c.p_holm >= c.result.p_value for c in found)
     assert len(stats_rows(tmp_path)) == 6
     report = (tmp_path / "report.md").read_text()
-    for heading in ("**Question.**", "**Design.**", "## Verdict", "## Claims", "calm episodes"):
+    for heading in ("**Question.**", "**Design.**", "## Findings", "## Claims", "calm episodes"):
         assert heading in report
     assert "the data cannot decide" in report
     assert (tmp_path / ff.FIGURE).read_bytes().startswith(PNG)

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from gainfarm.analytic.experiments import generic_vs_specific, measures
-from gainfarm.analytic.experiments.base import ALL_KINDS, Experiment
+from gainfarm.analytic.experiments.runner import ALL_KINDS, Experiment
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import BASELINE_JSON, read_baseline, read_run
@@ -116,7 +116,7 @@ def test_both_designs_hold_each_trajectory_out_in_turn_and_the_count_is_preregis
     found = stats_rows(tmp_path)
     claims = [r for r in found if r["metric"] in CLAIMS]
     assert len(claims) == 12 and {r["metric"] for r in found} == CLAIMS | EFFECTS
-    # Effect sizes are estimates, not tests: no p-value to pick a verdict from.
+    # Effect sizes are estimates, not tests: no p-value to pick a finding from.
     assert all(r["p_value"] == "nan" for r in found if r["metric"] in EFFECTS)
     assert set(json.loads((tmp_path / "normalisation.json").read_text())) == {
         "on spiral",

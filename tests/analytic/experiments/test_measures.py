@@ -61,7 +61,7 @@ def test_the_error_at_a_level_reads_the_front_there_not_its_most_accurate_member
 
 def member(f_acc: float, f_t: float, scale: float) -> FrontMember:
     return FrontMember(
-        kp=[k * scale for k in DEFAULT_GAINS.kp], kd=DEFAULT_GAINS.kd, f_acc=f_acc, f_t=f_t
+        kp=[k * scale for k in DEFAULT_GAINS.kp], kd=DEFAULT_GAINS.kd, objectives=(f_acc, f_t)
     )
 
 
@@ -71,12 +71,12 @@ def test_the_recommended_controller_is_the_runs_pick_not_its_most_accurate(tmp_p
     # Without baseline.json (a run stopped before it scored the defaults): the knee.
     assert recommended(record).name == "knee"
     # The defaults at 3 mm and f_t 2: two members dominate them, the knee of those is chosen.
-    baseline = Baseline(gains=DEFAULT_GAINS, f_acc=0.003, f_t=2.0, diverged=False)
+    baseline = Baseline(gains=DEFAULT_GAINS, objectives=(0.003, 2.0), diverged=False)
     (tmp_path / BASELINE_JSON).write_bytes(baseline_json(baseline))
     chosen = recommended(record)
     assert chosen.name == "recommended" and chosen.member.objectives == (0.002, 1.0)
     # Defaults no member dominates: the closest to dominating them.
-    better = Baseline(gains=DEFAULT_GAINS, f_acc=0.0019, f_t=0.9, diverged=False)
+    better = Baseline(gains=DEFAULT_GAINS, objectives=(0.0019, 0.9), diverged=False)
     (tmp_path / BASELINE_JSON).write_bytes(baseline_json(better))
     assert recommended(record).name == "closest"
     assert recommended(RunRecord(tmp_path, RunConfig())) is None

@@ -8,8 +8,9 @@ import pytest
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.experiments import popsize
 from gainfarm.analytic.experiments import statistics as stats
-from gainfarm.analytic.experiments.base import Experiment, front_points
 from gainfarm.analytic.experiments.measures import error_at, recommended
+from gainfarm.analytic.experiments.normalisation import front_points
+from gainfarm.analytic.experiments.runner import Experiment
 from gainfarm.analytic.tuning.records import read_run
 from tests.analytic.experiments.common import (
     BASE,
@@ -92,13 +93,13 @@ def test_an_experiment_runs_on_any_evaluator_and_resumes_without_rerunning(
     assert {p: p.stat().st_mtime_ns for p in tmp_path.glob("runs/*/checkpoint.pkl")} == checkpoints
 
 
-def test_the_verdict_places_the_level_against_the_papers_population_near_30() -> None:
+def test_the_findings_place_the_level_against_the_papers_population_near_30() -> None:
     clear = stats.compare([1.0, 1.1, 1.2, 1.3, 1.4], [0.0, 0.1, 0.2, 0.3, 0.4])
     none = stats.compare([1.0, 1.1, 1.2, 1.3, 1.4], [1.0, 1.1, 1.2, 1.3, 1.4])
-    levels = popsize.verdict({(10, 30): clear, (30, 50): none}, reps=5)
+    levels = popsize.findings({(10, 30): clear, (30, 50): none}, reps=5)
     assert levels.startswith("The hypervolume levels off from population size 30 ")
     assert "this holds here." in levels
-    rising = popsize.verdict({(10, 30): none, (30, 50): clear}, reps=5)
+    rising = popsize.findings({(10, 30): none, (30, 50): clear}, reps=5)
     assert "does not level off within these population sizes" in rising
     assert "weigh the gains above" in rising
     assert "- pop 50 against pop 30: pop 50 is better than pop 30" in rising
@@ -111,7 +112,7 @@ def test_the_consecutive_steps_are_one_family_holm_adjusted() -> None:
     assert stats.significant(alone)
     steps = {(10, 20): alone, (20, 30): alone}
     error = stats.compare([v / 10 for v in high], [v / 10 + 0.3 for v in high])
-    said = popsize.verdict(steps, reps=8, practical={"error_at_level_mm": {(10, 20): error}})
+    said = popsize.findings(steps, reps=8, practical={"error_at_level_mm": {(10, 20): error}})
     assert "shows no significant gain between consecutive population sizes" in said
     assert (
         "- pop 20 against pop 10: cannot decide between pop 20 and pop 10: no significant " in said

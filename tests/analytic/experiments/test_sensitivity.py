@@ -1,5 +1,5 @@
 """The sensitivity experiment: end to end at toy size on real MuJoCo episodes (in-process), its
-moved plants, its verdicts on made-up samples, and its refusals."""
+moved plants, its findings on made-up samples, and its refusals."""
 
 import json
 from pathlib import Path
@@ -8,8 +8,8 @@ import pytest
 
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.experiments import sensitivity as sens
-from gainfarm.analytic.experiments.algorithms import holm_adjusted
-from gainfarm.analytic.experiments.base import Experiment
+from gainfarm.analytic.experiments.runner import Experiment
+from gainfarm.analytic.experiments.statistics import holm_adjusted
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import BASELINE_JSON, read_baseline
 from gainfarm.schemas import TrajectorySpec
@@ -90,13 +90,13 @@ def test_a_shift_the_data_show_is_one_and_an_equal_plant_survives() -> None:
     adjusted = holm_adjusted(sens.comparisons([rotor, delay], outcomes, transfers, reps))
     found = [sens.finding(s, outcomes, transfers, adjusted, reps) for s in (rotor, delay)]
 
-    assert found[0].verdict == "survives: no significant shift"
+    assert found[0].decision == "survives: no significant shift"
     assert (found[0].error_mm, found[0].hypervolume, found[0].holds) == (0, 0, reps)
-    assert found[1].verdict == "shifts: error higher, hypervolume lower"
+    assert found[1].decision == "shifts: error higher, hypervolume lower"
     assert found[1].error_mm == pytest.approx(1.0)
     assert found[1].hypervolume == pytest.approx(-0.2)
     assert found[1].holds == 0
-    text = sens.verdict(found, adjusted, reps)
+    text = sens.findings(found, adjusted, reps)
     assert "hypervolume lower" in text
     assert "delay 2 ticks is worse than nominal" not in text  # lower is better: named right
     assert "- delay 2 ticks, recommended error: nominal is better than delay 2 ticks" in text

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from gainfarm.analytic.experiments import speed
-from gainfarm.analytic.experiments.base import Experiment, front_points
 from gainfarm.analytic.experiments.measures import error_at, recommended
+from gainfarm.analytic.experiments.normalisation import front_points
+from gainfarm.analytic.experiments.runner import Experiment
 from gainfarm.analytic.tuning.records import read_run
 from tests.analytic.experiments.common import (
     BASE,

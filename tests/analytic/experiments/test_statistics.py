@@ -1,4 +1,4 @@
-"""The statistics behind the experiments' verdicts: the numbers scipy gives, and plain words
+"""The statistics behind the experiments' findings: the numbers scipy gives, and plain words
 that refuse to decide what the data cannot."""
 
 import csv

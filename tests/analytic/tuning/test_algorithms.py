@@ -1,6 +1,7 @@
 """The optimisers behind `analytic start --algorithm`, the objective scaling the optimiser is told,
 and the classical (no-GA) baseline. Tuning runs on the toy problem (tests.analytic.toy)."""
 
+import importlib
 import importlib.util
 import json
 import sys
@@ -12,6 +13,7 @@ from pydantic import ValidationError
 
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
 from gainfarm.analytic.experiments.classical import classical_gains, joint_inertias, rule
+from gainfarm.analytic.tuning import evolution
 from gainfarm.analytic.tuning.checkpoint import ALLOWED, decode, encode
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import ALGORITHMS, Evolution, normalise
@@ -41,6 +43,10 @@ EVERY = [
     )
     for name in ALGORITHMS
 ]
+
+
+# The algorithms whose checkpoints name a class of their own module (the others' are pymoo's).
+MOVED_CLASSES = ("nsga3", "smsemoa", "tpe", "random")
 
 
 def toy_objectives(config: RunConfig, gains) -> tuple[float, float]:
@@ -286,6 +292,28 @@ def test_tpe_resumes_from_plain_data_asking_what_it_would_have(tmp_path: Path) -
     assert resumed.front() == whole.front()
     assert resumed.ask() == whole.ask()
     assert all("optuna" not in module for module, _ in ALLOWED)
+
+
+@pytest.mark.parametrize("algorithm", [p for p in EVERY if p.values[0] in MOVED_CLASSES])
+def test_a_checkpoint_from_before_the_optimisers_had_a_module_each_resumes(
+    algorithm: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Such a checkpoint names their classes in analytic/tuning/evolution.py, where they were:
+    read where they are now (checkpoint._Unpickler.MOVED), it asks what it would have."""
+    whole = Evolution(6, seed=5, algorithm=algorithm)
+    whole.tell([toy_objectives(TINY, gains) for gains in whole.ask()])
+    # Pickled as the code before wrote it: each of their globals where it was.
+    for module, name in ALLOWED:
+        if module.startswith("gainfarm.analytic.tuning.algorithms."):
+            moved = getattr(importlib.import_module(module), name)
+            monkeypatch.setattr(moved, "__module__", evolution.__name__)
+            monkeypatch.setattr(evolution, name, moved, raising=False)
+    identity = RunIdentity.new()
+    old = encode(whole, identity)
+    monkeypatch.undo()
+    assert b"tuning.algorithms" not in old
+    resumed = decode(old, tmp_path / "checkpoint.pkl", identity, algorithm)
+    assert resumed.ask() == whole.ask() and resumed.front() == whole.front()
 
 
 # --- TPE in a steady state: told one result at a time ------------------------------------------

@@ -106,12 +106,12 @@ def test_a_member_may_break_a_limit_only_where_the_default_gains_break_it_too() 
 
 def _front_member(row: int, f_acc: float, f_t: float) -> FrontMember:
     gains = tuple(float(row + joint) for joint in range(7))
-    return FrontMember(kp=gains, kd=gains, f_acc=f_acc, f_t=f_t)
+    return FrontMember(kp=gains, kd=gains, objectives=(f_acc, f_t))
 
 
 def test_the_checks_advice_decides_the_recommended_member() -> None:
     front = [_front_member(1, 1e-3, 0.3), _front_member(2, 2e-3, 0.2), _front_member(3, 3e-3, 0.1)]
-    baseline = Baseline(gains=DEFAULT_GAINS, f_acc=4e-3, f_t=0.4, diverged=False)
+    baseline = Baseline(gains=DEFAULT_GAINS, objectives=(4e-3, 0.4), diverged=False)
     unchecked = picks(front, baseline)[0]
     assert unchecked.name == "recommended" and unchecked.row == 2  # the knee: it dominates
     advised = picks(front, baseline, Advice(front[2].gains))[0]
@@ -136,8 +136,8 @@ def test_a_member_that_is_the_default_gains_is_no_candidate_to_replace_them() ->
 
     space = SearchSpace()  # NSGA-II's first sample, through the decision space and back
     defaults = space.gains(np.log10(np.array(DEFAULT_GAINS.kp + DEFAULT_GAINS.kd)))
-    baseline = Baseline(gains=DEFAULT_GAINS, f_acc=2e-3, f_t=0.1, diverged=False)
-    them = FrontMember(kp=defaults.kp, kd=defaults.kd, f_acc=2e-3, f_t=0.1)
+    baseline = Baseline(gains=DEFAULT_GAINS, objectives=(2e-3, 0.1), diverged=False)
+    them = FrontMember(kp=defaults.kp, kd=defaults.kd, objectives=(2e-3, 0.1))
     other = _front_member(1, 1e-3, 0.3)
     assert _candidates([other, them], baseline) == []  # the closest is them: none is left
     better = _front_member(2, 1.5e-3, 0.09)

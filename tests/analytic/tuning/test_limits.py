@@ -17,7 +17,7 @@ from gainfarm.analytic.tuning.records import REPORT_MD, read_front_json, read_ru
 from gainfarm.analytic.tuning.run import CHECKPOINT, TuningRun
 from gainfarm.analytic.view.export import BadRun, controller
 from gainfarm.analytic.view.run_report import write_run_report
-from gainfarm.cli.options import limits_from
+from gainfarm.cli.values import limits_from
 from gainfarm.schemas import EpisodeSpec, Scores, TrajectorySpec
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import MEASURED, MEASURES, Limits, measures, tally

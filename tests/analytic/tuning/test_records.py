@@ -1,16 +1,21 @@
 """A run's records: CSVs and JSON that read back exactly, a run read from its plain files."""
 
 import json
+import pickle
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from gainfarm import plugins
+from gainfarm.analytic.tuning.declared import declarations
 from gainfarm.analytic.tuning.records import (
     FRONT_FIELDS,
     HISTORY_FIELDS,
     FrontMember,
     HistoryRow,
+    best_of,
     evaluated_csv,
     front_csv,
     front_json,
@@ -24,6 +29,7 @@ from gainfarm.analytic.tuning.records import (
     sorted_front,
 )
 from gainfarm.schemas.limits import NOT_DAMPED, NOT_MEASURED, Limits
+from gainfarm.schemas.objectives import MAXIMISE, Objective
 from tests.analytic.samples import KD, KP, SAMPLE_FRONT, SAMPLE_HISTORY
 
 
@@ -45,8 +51,7 @@ def test_equal_fronts_give_byte_identical_csvs_whatever_the_order_and_number_typ
         FrontMember(
             kp=np.array(m.kp),
             kd=np.array(m.kd),
-            f_acc=np.float64(m.f_acc),
-            f_t=m.f_t,
+            objectives=(np.float64(m.f_acc), m.f_t),
             diverged=m.diverged,
         )
         for m in reversed(SAMPLE_FRONT)
@@ -57,7 +62,9 @@ def test_equal_fronts_give_byte_identical_csvs_whatever_the_order_and_number_typ
         HistoryRow(
             np.int64(r.generation),
             r.evaluations,
-            *map(np.float64, (r.hypervolume, r.best_f_acc, r.best_f_t, r.wall_seconds)),
+            np.float64(r.hypervolume),
+            tuple(map(np.float64, r.best)),
+            np.float64(r.wall_seconds),
         )
         for r in SAMPLE_HISTORY
     ]
@@ -65,14 +72,14 @@ def test_equal_fronts_give_byte_identical_csvs_whatever_the_order_and_number_typ
 
 
 def test_ties_in_both_objectives_are_ordered_by_the_gains() -> None:
-    a = FrontMember(kp=KP, kd=KD, f_acc=0.01, f_t=1.0)
-    b = FrontMember(kp=tuple(k + 1 for k in KP), kd=KD, f_acc=0.01, f_t=1.0)
+    a = FrontMember(kp=KP, kd=KD, objectives=(0.01, 1.0))
+    b = FrontMember(kp=tuple(k + 1 for k in KP), kd=KD, objectives=(0.01, 1.0))
     assert front_csv([a, b]) == front_csv([b, a])
 
 
 def test_a_member_needs_seven_gains_of_each_kind() -> None:
     with pytest.raises(ValueError, match="kd needs 7"):
-        FrontMember(kp=KP, kd=KD[:6], f_acc=0.01, f_t=1.0)
+        FrontMember(kp=KP, kd=KD[:6], objectives=(0.01, 1.0))
 
 
 def test_reading_a_csv_of_another_format_is_refused(tmp_path: Path) -> None:
@@ -96,14 +103,12 @@ def test_a_diverged_flag_other_than_true_or_false_is_refused(tmp_path: Path) -> 
     with pytest.raises(ValueError, match="diverged must be true or false, got 'yes'"):
         read_front(tmp_path / "front.csv")
     with pytest.raises(ValueError, match="diverged must be true or false"):
-        FrontMember(kp=KP, kd=KD, f_acc=0.01, f_t=1.0, diverged="false")  # type: ignore[arg-type]
+        FrontMember(kp=KP, kd=KD, objectives=(0.01, 1.0), diverged="false")  # type: ignore[arg-type]
 
 
 def test_front_json_round_trips_with_each_members_logs(tmp_path: Path) -> None:
     front = [
-        FrontMember(
-            m.kp, m.kd, m.f_acc, m.f_t, logs=(f"episodes/c{i}-t0.mcap",), diverged=m.diverged
-        )
+        FrontMember(m.kp, m.kd, m.objectives, logs=(f"episodes/c{i}-t0.mcap",), diverged=m.diverged)
         for i, m in enumerate(SAMPLE_FRONT)
     ]
     (tmp_path / "front.json").write_bytes(front_json(front))
@@ -200,3 +205,81 @@ def test_results_csv_keeps_the_rows_columns_in_order() -> None:
         "4,0,0.5",
         "6,1,0.25",
     ]
+
+
+# --- objectives by name ------------------------------------------------------------------------
+
+COMPLETION = Objective(
+    name="completion",
+    unit="1",
+    direction=MAXIMISE,
+    description="share of the planned ticks run",
+    no_episode=-1.0,
+    function=lambda log: log.ticks / log.metadata.ticks_planned,
+)
+
+
+@pytest.fixture
+def completion() -> Iterator[Objective]:
+    plugins.register(plugins.OBJECTIVES, "completion", COMPLETION)
+    yield COMPLETION
+    plugins.unregister(plugins.OBJECTIVES, "completion")
+
+
+def test_a_run_of_other_objectives_names_its_columns_and_writes_a_maximised_one_as_it_is(
+    tmp_path: Path, completion: Objective
+) -> None:
+    names = ("f_acc", "completion")
+    # As the optimiser was told them: the maximised share negated.
+    front = [
+        FrontMember(kp=KP, kd=KD, objectives=(0.01, -0.9), names=names, maximised=("completion",)),
+        FrontMember(
+            kp=KP, kd=KD[::-1], objectives=(0.02, -1.0), names=names, maximised=("completion",)
+        ),
+    ]
+    assert front[0].named == {"f_acc": 0.01, "completion": 0.9}
+    with pytest.raises(AttributeError, match="objectives are f_acc, completion, not f_t"):
+        front[0].f_t  # noqa: B018
+    text = front_csv(front).decode()
+    assert text.splitlines()[0].endswith(",f_acc,completion,diverged")
+    assert text.splitlines()[1].endswith(",0.01,0.9,false")  # in its own sense
+    (tmp_path / "front.csv").write_text(text)
+    assert read_front(tmp_path / "front.csv") == front
+    (tmp_path / "front.json").write_bytes(front_json(front))
+    assert read_front_json(tmp_path / "front.json") == front
+    limits = Limits()
+    measured = [(0.1, 0.0, 0.1, 0.0, 0.01, NOT_DAMPED)] * 2
+    (tmp_path / "evaluated.csv").write_bytes(
+        evaluated_csv([(0.01, -0.9), (0.5, -0.2)], measured, limits, declarations(names))
+    )
+    assert (tmp_path / "evaluated.csv").read_text().startswith("f_acc,completion,torque_step,")
+    assert read_evaluated(tmp_path / "evaluated.csv") == [(0.01, -0.9), (0.5, -0.2)]
+    history = [HistoryRow(1, 4, 0.3, best_of([(0.01, -0.9), (0.5, -0.2)], names), 1.0, names)]
+    assert history[0].best == (0.01, 0.9)  # the most completed, as it is
+    (tmp_path / "history.csv").write_bytes(history_csv(history))
+    assert (
+        "generation,evaluations,hypervolume,best_f_acc,best_completion,wall_seconds"
+        in (tmp_path / "history.csv").read_text()
+    )
+    assert read_history(tmp_path / "history.csv") == history
+
+
+def test_a_run_whose_plugin_is_not_installed_here_still_reads(tmp_path: Path) -> None:
+    names = ("f_acc", "jerk")
+    front = [FrontMember(kp=KP, kd=KD, objectives=(0.01, 3.5), names=names)]
+    (tmp_path / "front.csv").write_bytes(front_csv(front))
+    read = read_front(tmp_path / "front.csv")
+    assert read == front and read[0].named == {"f_acc": 0.01, "jerk": 3.5}
+    (jerk,) = declarations(("jerk",))
+    assert (jerk.unit, jerk.direction) == ("", "minimise") and "not installed" in jerk.description
+
+
+def test_a_history_row_pickled_before_objectives_were_named_reads_back() -> None:
+    row = SAMPLE_HISTORY[0]
+    state = dict(row.__dict__)
+    state["best_f_acc"], state["best_f_t"] = state.pop("best")
+    del state["names"]
+    old = HistoryRow.__new__(HistoryRow)
+    old.__setstate__(state)
+    assert old == row and (old.best_f_acc, old.best_f_t) == row.best
+    assert pickle.loads(pickle.dumps(row)) == row

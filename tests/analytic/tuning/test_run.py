@@ -162,7 +162,7 @@ def test_tune_on_a_local_farm_started_early_stops_it_and_finds_the_same_front(
     # `analytic start` starts its farm before its imports and checks, and hands it to `tune`,
     # which stops it as the report is drawn and waits for it before returning.
     with LocalFarm(workers=2) as farm:
-        run = compose.tune(TINY, tmp_path / "run", farm=farm)
+        run = compose.tune(TINY, tmp_path / "run", compose.FarmOptions(local=farm))
         assert all(process.poll() == 0 for process in [farm.broker, *farm.workers])
     assert_same_outcome(run, calm)
     assert (run.directory / "report.md").is_file() and (run.directory / "pareto.png").is_file()

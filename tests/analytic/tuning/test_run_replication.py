@@ -10,7 +10,7 @@ import pytest
 
 from gainfarm.analytic.evaluators.evaluator import EpisodeResult, EpisodeStatus, Fetched, Wanted
 from gainfarm.analytic.evaluators.replication import Ledger, sized_rate, validate
-from gainfarm.analytic.experiments.base import non_dominated
+from gainfarm.analytic.experiments.normalisation import non_dominated
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.evolution import hypervolume
 from gainfarm.analytic.tuning.records import read_evaluated, read_validation

@@ -7,11 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from gainfarm.analytic import InProcessEvaluator, RunConfig, read_run, tune
+from gainfarm.analytic import FarmOptions, InProcessEvaluator, RunConfig, read_run, tune
 from gainfarm.analytic.compose import CannotStart, balanced
 from gainfarm.analytic.evaluators.farm import FarmUnavailable
 from gainfarm.analytic.evaluators.local import free_port
-from gainfarm.cli import options
+from gainfarm.cli import values
 from gainfarm.schemas import TrajectorySpec
 from tests.analytic.toy import toy_scores
 
@@ -71,7 +71,9 @@ def test_tune_balances_a_generic_run_by_the_default_gains_real_episodes(tmp_path
     assert weights == balanced(generic).objective_weights  # deterministic: the same episodes
     # Asked again as it was asked, the run is found, not refused as another configuration.
     assert tune(generic, tmp_path / "run").config == run.config
-    plain = tune(generic, tmp_path / "plain", evaluator=evaluator(), balance=False)
+    plain = tune(
+        generic.model_copy(update={"balance": False}), tmp_path / "plain", evaluator=evaluator()
+    )
     assert plain.config.objective_weights is None
 
 
@@ -105,7 +107,11 @@ def test_tune_claims_its_directory_and_leaves_nothing_if_the_farm_cannot_be_had(
         tune(CONFIG, mine, evaluator=evaluator())
     assert refused.value.part == "out" and [p.name for p in mine.iterdir()] == ["notes.txt"]
     with pytest.raises(FarmUnavailable):
-        tune(CONFIG, tmp_path / "runs" / "first", connect=[f"tcp/127.0.0.1:{free_port()}"])
+        tune(
+            CONFIG,
+            tmp_path / "runs" / "first",
+            FarmOptions(connect=[f"tcp/127.0.0.1:{free_port()}"]),
+        )
     assert sorted(path.name for path in tmp_path.iterdir()) == ["mine"]  # runs/ too
 
 
@@ -123,5 +129,5 @@ def test_a_run_s_defaults_are_analytic_start_s() -> None:
     assert given["kinds"] == (trajectory.kind,) and given["duration"] == trajectory.duration
     assert given["trajectory_seed"] == trajectory.seed and given["size"] == trajectory.size
     assert given["center"] == ",".join(f"{value:g}" for value in trajectory.center)
-    assert options.model_spec(given["plant"], given["joints"]) == config.model
+    assert values.model_spec(given["plant"], given["joints"]) == config.model
     assert given["balance"] is True and given["generations"] is given["evaluations"] is None

@@ -160,8 +160,8 @@ def test_the_page_follows_a_run_and_its_farm_live(tmp_path: Path, browser) -> No
     # Every run's curve on the chart that compares them: this one, with all its generations.
     assert last["overlay"] == [str(run)] and last["overlay_points"] == [len(history)], last
     # The default gains on the front's plot, and the recommended member if the run names one.
-    verdict = (run / "report.md").read_text().splitlines()[2]
-    recommends = verdict.startswith("**Use front.csv row")
+    advice = (run / "report.md").read_text().splitlines()[2]
+    recommends = advice.startswith("**Use front.csv row")
     assert last["baseline"] == 1 and last["recommended"] == int(recommends), last
     assert last["farm_points"] > seen[0]["farm_points"]  # the farm's series grew too
     assert max(max(state["jobs_per_s"], default=0) for state in seen) > 0
@@ -381,10 +381,10 @@ def test_runs_compare_and_a_member_is_inspected_exported_and_its_episode_plotted
         assert re.search(HELD_OUT_SAID, state["recommendation"]), state["recommendation"]
         assert "of the 64 asked: the check&#x27;s budget" in state["recommendation"]
         assert state["first_row"] == "1"  # by row: the most accurate first
-        header = "f_t ((N·m)²)"
+        header = f"{front[0].names[1]} ((N·m)²)"  # the run's second objective, by name
         js(browser, "findAll(document, '.slick-header-column').find("
            "(c) => c.textContent.trim() === arguments[0]).click();", header)  # fmt: skip
-        smoothest = min(range(len(front)), key=lambda k: (front[k].f_t, k)) + 1
+        smoothest = min(range(len(front)), key=lambda k: (front[k].objectives[1], k)) + 1
         until(browser, lambda s: s["first_row"] == str(smoothest))
         row = len(front)  # the least accurate: not one of the picks necessarily
         js(browser, "named('members').selected.indices = [arguments[0]];", row - 1)

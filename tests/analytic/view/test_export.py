@@ -47,8 +47,7 @@ def front_of(*points: tuple[float, float], diverged: tuple[int, ...] = ()) -> li
         FrontMember(
             kp=tuple(k * (1 + n / 10) for k in KP),
             kd=KD,
-            f_acc=f_acc,
-            f_t=f_t,
+            objectives=(f_acc, f_t),
             diverged=n in diverged,
         )
         for n, (f_acc, f_t) in enumerate(points)
@@ -60,7 +59,7 @@ def named(front: list[FrontMember], baseline: Baseline | None = None) -> dict[st
 
 
 def defaults_at(f_acc: float, f_t: float, diverged: bool = False) -> Baseline:
-    return Baseline(DEFAULT_GAINS, f_acc=f_acc, f_t=f_t, diverged=diverged)
+    return Baseline(DEFAULT_GAINS, objectives=(f_acc, f_t), diverged=diverged)
 
 
 # --- the picks ---------------------------------------------------------------------------------
@@ -276,7 +275,7 @@ def test_the_default_export_is_the_recommended_member_beside_the_run_s_default_g
     assert "dominate the default gains" in exported.member.rule
     assert controller(hand_made, "knee").member.row == 3
     # A baseline.json of other gains (the defaults have changed since) compares nothing.
-    other = Baseline(WEAK_GAINS, f_acc=0.007, f_t=3.0, diverged=False)
+    other = Baseline(WEAK_GAINS, objectives=(0.007, 3.0), diverged=False)
     (hand_made / "baseline.json").write_bytes(baseline_json(other))
     with pytest.raises(BadMember, match=r"the run has no baseline\.json"):
         controller(hand_made)

@@ -56,7 +56,7 @@ def test_figures_survive_no_data_one_generation_and_unloggable_values(tmp_path: 
     plot_pareto(tmp_path / "empty.png", [])
     plot_hypervolume(tmp_path / "none.png", [])
     plot_hypervolume(tmp_path / "one.png", SAMPLE_HISTORY[:1])
-    odd = [FrontMember(kp=KP, kd=KD, f_acc=0.01, f_t=0.0)]
+    odd = [FrontMember(kp=KP, kd=KD, objectives=(0.01, 0.0))]
     plot_pareto(tmp_path / "odd.png", odd, [(0.02, -1.0), (float("nan"), 1.0), (0.03, np.inf)])
     plot_pareto(tmp_path / "zero.png", odd, [(0.02, 0.0)])  # nothing positive: linear axis
     for name in ("empty", "none", "one", "odd", "zero"):
@@ -93,7 +93,7 @@ def marks(figure: object) -> dict[str, tuple[float, float]]:
 
 def test_the_pareto_figure_marks_the_picks_and_the_default_gains(tmp_path: Path) -> None:
     front = [m for m in SAMPLE_FRONT if not m.diverged]
-    baseline = Baseline(DEFAULT_GAINS, f_acc=0.02, f_t=0.05, diverged=False)
+    baseline = Baseline(DEFAULT_GAINS, objectives=(0.02, 0.05), diverged=False)
     chosen = picks(front, baseline)
     assert [p.name for p in chosen] == ["closest", "knee", "accurate", "smooth"]
     figure = pareto_figure(front, [], "spiral 5 s", chosen, baseline)
@@ -115,12 +115,13 @@ def test_the_view_is_the_front_and_what_lies_outside_it_is_counted() -> None:
     # A front from 4 to 80 mm and f_t 0.006 to 50; chattering and soft candidates far off.
     errors = np.geomspace(0.004, 0.08, 30)
     front = [
-        FrontMember(kp=KP, kd=KD, f_acc=float(e), f_t=float(50 * (0.004 / e) ** 3)) for e in errors
+        FrontMember(kp=KP, kd=KD, objectives=(float(e), float(50 * (0.004 / e) ** 3)))
+        for e in errors
     ]
-    front.append(FrontMember(kp=KP, kd=KD, f_acc=0.001, f_t=1e7, diverged=True))  # a penalty
+    front.append(FrontMember(kp=KP, kd=KD, objectives=(0.001, 1e7), diverged=True))  # a penalty
     outliers = [(0.3, 1e5), (0.25, 3e4), (0.006, 8e4), (0.5, 0.01)]
     evaluated = [m.objectives for m in front] + [(0.02, 1.0), (0.05, 0.5)] + outliers
-    baseline = Baseline(DEFAULT_GAINS, f_acc=0.0143, f_t=2.0, diverged=False)
+    baseline = Baseline(DEFAULT_GAINS, objectives=(0.0143, 2.0), diverged=False)
     figure = pareto_figure(front, evaluated, "", picks(front, baseline), baseline)
     [axes] = figure.axes
     (x_low, x_high), (y_low, y_high) = axes.get_xlim(), axes.get_ylim()
@@ -149,7 +150,7 @@ def test_the_legend_counts_the_candidates_left_out_for_breaking_a_limit() -> Non
 
 def test_picks_of_one_member_are_told_apart_and_labelled_once() -> None:
     front = [m for m in SAMPLE_FRONT if not m.diverged]
-    baseline = Baseline(DEFAULT_GAINS, f_acc=0.05, f_t=1.0, diverged=False)
+    baseline = Baseline(DEFAULT_GAINS, objectives=(0.05, 1.0), diverged=False)
     chosen = picks(front, baseline)  # both members dominate: the knee, row 1, is recommended
     assert [(p.name, p.row) for p in chosen] == [
         ("recommended", 1),
@@ -173,7 +174,7 @@ def test_picks_of_one_member_are_told_apart_and_labelled_once() -> None:
 
 
 def test_default_gains_that_diverged_are_named_not_drawn() -> None:
-    fell = Baseline(DEFAULT_GAINS, f_acc=10.0, f_t=1e12, diverged=True)
+    fell = Baseline(DEFAULT_GAINS, objectives=(10.0, 1e12), diverged=True)
     figure = pareto_figure(SAMPLE_FRONT, [], "", picks(SAMPLE_FRONT), fell)
     assert "default gains" not in marks(figure)
     notes = [text.get_text() for text in figure.axes[0].texts]

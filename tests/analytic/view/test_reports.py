@@ -191,12 +191,12 @@ def test_a_report_names_the_plant_it_was_simulated_on():
 
 def test_the_report_names_the_controller_to_use_beside_the_default_gains(tmp_path: Path) -> None:
     front = [
-        FrontMember(kp=KP, kd=KD, f_acc=0.005, f_t=2.0),
-        FrontMember(kp=KP, kd=tuple(k * 2 for k in KD), f_acc=0.01, f_t=0.3),
-        FrontMember(kp=KP, kd=tuple(k * 3 for k in KD), f_acc=0.01, f_t=0.3),  # the same point
-        FrontMember(kp=tuple(k / 2 for k in KP), kd=KD, f_acc=0.05, f_t=0.01),
+        FrontMember(kp=KP, kd=KD, objectives=(0.005, 2.0)),
+        FrontMember(kp=KP, kd=tuple(k * 2 for k in KD), objectives=(0.01, 0.3)),
+        FrontMember(kp=KP, kd=tuple(k * 3 for k in KD), objectives=(0.01, 0.3)),  # the same point
+        FrontMember(kp=tuple(k / 2 for k in KP), kd=KD, objectives=(0.05, 0.01)),
     ]
-    baseline = Baseline(DEFAULT_GAINS, f_acc=0.02, f_t=0.5, diverged=False)
+    baseline = Baseline(DEFAULT_GAINS, objectives=(0.02, 0.5), diverged=False)
     write_report(
         tmp_path / "report.md",
         title="t",
@@ -250,11 +250,11 @@ def test_a_run_whose_front_never_dominates_the_defaults_says_so_in_its_first_lin
 ) -> None:
     # The knee (row 2) is 30 % less accurate than the defaults; row 1 is 5 times rougher.
     front = [
-        FrontMember(kp=KP, kd=KD, f_acc=0.010, f_t=2.5),
-        FrontMember(kp=KP, kd=tuple(k * 2 for k in KD), f_acc=0.0186, f_t=0.3),
-        FrontMember(kp=tuple(k / 2 for k in KP), kd=KD, f_acc=0.05, f_t=0.01),
+        FrontMember(kp=KP, kd=KD, objectives=(0.010, 2.5)),
+        FrontMember(kp=KP, kd=tuple(k * 2 for k in KD), objectives=(0.0186, 0.3)),
+        FrontMember(kp=tuple(k / 2 for k in KP), kd=KD, objectives=(0.05, 0.01)),
     ]
-    baseline = Baseline(DEFAULT_GAINS, f_acc=0.0143, f_t=0.5, diverged=False)
+    baseline = Baseline(DEFAULT_GAINS, objectives=(0.0143, 0.5), diverged=False)
     write_report(
         tmp_path / "report.md",
         title="t",
@@ -280,10 +280,10 @@ def test_a_run_whose_front_never_dominates_the_defaults_says_so_in_its_first_lin
 
 def test_the_first_line_when_the_defaults_diverged_or_were_not_scored() -> None:
     front = [
-        FrontMember(kp=KP, kd=KD, f_acc=0.002, f_t=4e4, diverged=True),
-        FrontMember(kp=KP, kd=KD, f_acc=0.03, f_t=0.6),
+        FrontMember(kp=KP, kd=KD, objectives=(0.002, 4e4), diverged=True),
+        FrontMember(kp=KP, kd=KD, objectives=(0.03, 0.6)),
     ]
-    fell = Baseline(DEFAULT_GAINS, f_acc=10.0, f_t=1e12, diverged=True)
+    fell = Baseline(DEFAULT_GAINS, objectives=(10.0, 1e12), diverged=True)
     assert recommendation_text(picks(front, fell), fell).startswith(
         "**Use front.csv row 2** (30.000 mm, f_t 0.6 (N·m)²): the default gains diverged"
     )
@@ -294,9 +294,11 @@ def test_the_first_line_when_the_defaults_diverged_or_were_not_scored() -> None:
 
 
 def test_the_members_that_dominate_the_defaults_are_listed_the_first_ten_and_a_count() -> None:
-    front = [FrontMember(kp=KP, kd=KD, f_acc=0.001 * (n + 1), f_t=1.0 / (n + 1)) for n in range(25)]
+    front = [
+        FrontMember(kp=KP, kd=KD, objectives=(0.001 * (n + 1), 1.0 / (n + 1))) for n in range(25)
+    ]
     # Rows 3-22 dominate (20 of them): f_acc at most 22 mm, f_t at most 1/3.
-    baseline = Baseline(DEFAULT_GAINS, f_acc=0.0225, f_t=0.34, diverged=False)
+    baseline = Baseline(DEFAULT_GAINS, objectives=(0.0225, 0.34), diverged=False)
     lines = controllers_section(picks(front, baseline), baseline, "RUN", front)
     assert "20 of the front's 25 members dominate the default gains:" in lines
     listed = [line for line in lines if re.match(r"\| \d+ \| [\d.]+ \| ", line)]
@@ -304,7 +306,7 @@ def test_the_members_that_dominate_the_defaults_are_listed_the_first_ten_and_a_c
     assert len(listed) == DOMINATING_SHOWN
     assert "and 10 more, between rows 13 and 22." in lines
     # The knee of the whole front, row 5, is one of them; with defaults it loses to, it says so.
-    stricter = Baseline(DEFAULT_GAINS, f_acc=0.003, f_t=1.0, diverged=False)
+    stricter = Baseline(DEFAULT_GAINS, objectives=(0.003, 1.0), diverged=False)
     lines = controllers_section(picks(front, stricter), stricter, "RUN", front)
     assert any(line.startswith("The knee of the whole front (row 5) is not one") for line in lines)
 

@@ -1,30 +1,16 @@
-"""The two objectives of the paper, and a few diagnostics, computed from an episode log alone;
+"""The objectives of the paper, and a few diagnostics, computed from an episode log alone;
 and a candidate's objectives over its trajectory set.
 
 They live in the contract because every package must agree on them: a worker prints the scores of
 the episode it ran (`worker episode`) exactly as the analytic side scores the same log.
 
-f_acc = (1/T) Σ_i ||ee_i − ee_des_i||           mean Cartesian error, m
-f_t   = (1/T) Σ_i ||u_i − u_(i−1)||²            mean squared torque change per tick, (N·m)²
-
-u is the torque command as applied (/joint_commands), not the joint torque sensors' reading.
-
-f_t sums the joints' raw squared changes, so the big joints (A1, A2: 320 N·m limits against the
-wrist's 40) dominate it. f_t_joint, an objective a run may name instead (EpisodeSpec.objectives),
-weighs each joint's change by its own limit:
-
-f_t_joint = (1/T) Σ_i Σ_j (τ_ref / τmax_j)² (u_ij − u_(i−1)j)²     (N·m)², τ_ref = max_j τmax_j
-
-Each joint's change is taken as a share of its limit and counted in the largest joint's N·m
-(A1's 320): the same share of its limit on every joint counts alike, and the weights, all at
-least 1, keep f_t_joint ≥ f_t, so the hypervolume's f_t floor and reference point serve it as
-they serve f_t (weights averaging 1 would put a smooth FRI controller's f_t_joint below the floor).
-
-T is the number of ticks the episode was planned to run. u_0, the torque before the first tick,
-is taken equal to the first applied torque: the robot was already holding it, so starting does
-not count as a change. A diverged episode is scored as if every tick it did not run had the
-worst error and the worst torque change, so it is never preferred to one that finished, and the
-later it diverged the less it is penalised.
+Each objective is an `Objective` (declaration.py): a scoring function of the log and what it is,
+its name, unit, direction and a line for reports. The built-ins are declared a module each, as a
+third party's would be: f_acc (accuracy.py, the mean Cartesian error, m), f_t (torque_change.py,
+the mean squared torque change per tick, (N·m)²) and f_t_joint (joint_torque_change.py, f_t with
+each joint weighed by its torque limit). A diverged episode is scored as if every tick it did
+not run had the worst error and the worst torque change, so it is never preferred to one that
+finished, and the later it diverged the less it is penalised.
 
 And the safety measures schemas.limits bounds, from the ticks run (a diverged episode's too):
 
@@ -41,23 +27,47 @@ integrated above it: absolute, not a share of the command's power, since a smoot
 tiny command would make any share of sensor noise look large.
 
 An episode may name other objectives (EpisodeSpec.objectives): a plug-in's, of the
-gainfarm.objectives group, is a function of the decoded log like `f_acc` and `f_t` here. The
-contract loads no plug-in: `score` is given the functions of the ones its log names.
+gainfarm.objectives group, declared as the built-ins are (or a bare function of the decoded
+log). The contract loads no plug-in: `score` is given the ones its log names.
 """
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
 from gainfarm.schemas.episode import DEFAULT_OBJECTIVES, Scores
 from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.objectives.accuracy import DIVERGED_TICK_ERROR, f_acc
+from gainfarm.schemas.objectives.declaration import (
+    MAXIMISE,
+    MINIMISE,
+    Objective,
+    declared,
+    unknown,
+)
+from gainfarm.schemas.objectives.joint_torque_change import f_t_joint, joint_weights
+from gainfarm.schemas.objectives.torque_change import f_t
 from gainfarm.schemas.robot import SPEED_LIMITS
 
-# An objective: the decoded log in, a finite number out, lower is better.
-Objective = Callable[[EpisodeLog], float]
+__all__ = [
+    "DIVERGED_TICK_ERROR",
+    "MAXIMISE",
+    "MINIMISE",
+    "NO_EPISODE",
+    "Objective",
+    "declared",
+    "f_acc",
+    "f_t",
+    "f_t_joint",
+    "joint_weights",
+    "no_episode",
+    "objectives",
+    "score",
+    "unknown",
+]
 
-DIVERGED_TICK_ERROR = 1.0  # m: more than any real tracking error (the arm's reach is 0.82 m)
 SATURATION_TOLERANCE = 1e-9  # N·m: a torque this close to its limit is saturated
 
 # Hz: torque above this is chatter, not control. The arm's lowest elastic modes at the ready
@@ -77,46 +87,13 @@ LAG_CAP = 2 * math.pi
 # The objectives of a candidate with no episode to score (its path out of reach, or lost): worse
 # than any diverged episode, so NSGA-II ranks it last and moves on. A plug-in objective in either
 # place must stay below its value there (docs/plugins.md).
-NO_EPISODE = (10.0, 1e12)
+NO_EPISODE = (f_acc.no_episode, f_t.no_episode)
 
 
-def f_acc(log: EpisodeLog) -> float:
-    """Mean Cartesian error over the ticks planned, m; a tick not run counts as
-    DIVERGED_TICK_ERROR."""
-    meta = log.metadata
-    errors = np.linalg.norm(log.ee - log.ee_des, axis=1)
-    missing = meta.ticks_planned - log.ticks
-    return (float(errors.sum()) + missing * DIVERGED_TICK_ERROR) / meta.ticks_planned
-
-
-def f_t(log: EpisodeLog) -> float:
-    """Mean squared torque change per tick planned, (N·m)²; a tick not run counts as a swing from
-    one torque limit to the other on every joint."""
-    meta = log.metadata
-    limits = np.asarray(meta.torque_limits)
-    worst_change = float(np.sum((2.0 * limits) ** 2))
-    changes = float(np.sum(np.diff(log.u, axis=0) ** 2))
-    missing = meta.ticks_planned - log.ticks
-    return (changes + missing * worst_change) / meta.ticks_planned
-
-
-def joint_weights(limits: Sequence[float]) -> np.ndarray:
-    """f_t_joint's weights (τ_ref / τmax_j)², one per joint, τ_ref the largest limit: 1 for the
-    strongest joint, more for each weaker one."""
-    limits = np.asarray(limits, dtype=float)
-    return (limits.max() / limits) ** 2
-
-
-def f_t_joint(log: EpisodeLog) -> float:
-    """f_t with each joint's squared change weighed by joint_weights (see the module's docstring);
-    a tick not run counts as every joint's swing from one limit to the other, as in f_t."""
-    meta = log.metadata
-    limits = np.asarray(meta.torque_limits)
-    weights = joint_weights(limits)
-    worst_change = float(np.sum(weights * (2.0 * limits) ** 2))
-    changes = float(np.sum(weights * np.diff(log.u, axis=0) ** 2))
-    missing = meta.ticks_planned - log.ticks
-    return (changes + missing * worst_change) / meta.ticks_planned
+def no_episode(declarations: Sequence[Objective]) -> tuple[float, ...]:
+    """The objectives, as the optimiser is told them, of a candidate with no episode, in a run
+    whose objectives are `declarations`: each one's no-episode score (the paper's: NO_EPISODE)."""
+    return tuple(objective.told_no_episode for objective in declarations)
 
 
 # The built-in objectives an episode may name besides the paper's two (gainfarm.plugins lists
@@ -124,9 +101,10 @@ def f_t_joint(log: EpisodeLog) -> float:
 OTHER_OBJECTIVES: dict[str, Objective] = {"f_t_joint": f_t_joint}
 
 
-def score(log: EpisodeLog, plugins: Mapping[str, Objective] | None = None) -> Scores:
+def score(log: EpisodeLog, plugins: Mapping[str, Any] | None = None) -> Scores:
     """The episode's scores. If its spec names objectives other than f_acc and f_t, `plugins`
-    gives the function of each (gainfarm.plugins.load); ValueError naming one it lacks."""
+    gives each plug-in's (gainfarm.plugins.load: an Objective or a bare function); ValueError
+    naming one it lacks. The values are as the optimiser is told them (a maximised one negated)."""
     meta = log.metadata
     limits = np.asarray(meta.torque_limits)
     errors = np.linalg.norm(log.ee - log.ee_des, axis=1)
@@ -136,11 +114,7 @@ def score(log: EpisodeLog, plugins: Mapping[str, Objective] | None = None) -> Sc
     values = None
     if names != DEFAULT_OBJECTIVES:
         first, second = (
-            built_in[name]
-            if name in built_in
-            else OTHER_OBJECTIVES[name](log)
-            if name in OTHER_OBJECTIVES
-            else _plugin_value(name, log, plugins or {})
+            built_in[name] if name in built_in else _value(name, log, plugins or {})
             for name in names
         )
         values = (first, second)
@@ -194,8 +168,8 @@ def chatter(log: EpisodeLog) -> float:
     torque limit (at most 2: a detrended command stays within twice its limit)."""
     if log.ticks < 2:
         return 0.0
-    # Imported here, not at the top: scipy.signal takes two seconds to import, and the broker
-    # and every client import this module for its constants, never scoring an episode.
+    # start-up: scipy.signal takes two seconds to import, and the broker and every client
+    # import this module for its constants, never scoring an episode
     from scipy import signal
 
     meta = log.metadata
@@ -207,10 +181,15 @@ def chatter(log: EpisodeLog) -> float:
     return float(np.max(np.sqrt(power) / np.asarray(meta.torque_limits)))
 
 
-def _plugin_value(name: str, log: EpisodeLog, plugins: Mapping[str, Objective]) -> float:
+def _value(name: str, log: EpisodeLog, plugins: Mapping[str, Any]) -> float:
+    """The objective `name` of `log`, as the optimiser is told it: a built-in's, or a plug-in's
+    from `plugins`."""
+    if name in OTHER_OBJECTIVES:
+        return OTHER_OBJECTIVES[name](log)
     if name not in plugins:
         raise ValueError(f"objective {name!r}: a plug-in, and its function was not given")
-    return float(plugins[name](log))
+    objective = declared(plugins[name], name)
+    return objective.minimised(objective(log))
 
 
 # How a candidate's episodes on the plant variants of one trajectory (the nominal plant first)
@@ -226,6 +205,7 @@ def objectives(
     plants: int = 1,
     aggregate: str = "mean",
     scales: Sequence[tuple[float, float]] | None = None,
+    no_episode: tuple[float, float] = NO_EPISODE,
 ) -> tuple[float, float]:
     """A candidate's objectives over its trajectories: the means of each episode's two
     (Scores.objectives: f_acc and f_t, unless the run named others; the generic controller's;
@@ -235,24 +215,26 @@ def objectives(
     With `plants` > 1, `scores` are each trajectory's episodes on that many plants in turn (the
     nominal first), and each trajectory's objectives are first their `aggregate` (AGGREGATES),
     objective by objective, of the episodes' objectives times `scales`, one (first, second)
-    pair per episode, if given (see `plant_scales`)."""
+    pair per episode, if given (see `plant_scales`). A candidate with an episode missing scores
+    `no_episode`: the run's objectives' (`no_episode(declarations)`), the paper's by default."""
     if not scores or any(score is None for score in scores):
-        return NO_EPISODE
-    acc = np.array([score.objectives[0] for score in scores])
-    t = np.array([score.objectives[1] for score in scores])
+        return no_episode
+    first = np.array([score.objectives[0] for score in scores])
+    second = np.array([score.objectives[1] for score in scores])
     if scales is not None:
         factors = np.asarray(scales, dtype=float).reshape(-1, 2)
-        if len(factors) != len(acc):
-            raise ValueError(f"{len(factors)} plant scales for {len(acc)} episodes")
-        acc, t = acc * factors[:, 0], t * factors[:, 1]
+        if len(factors) != len(first):
+            raise ValueError(f"{len(factors)} plant scales for {len(first)} episodes")
+        first, second = first * factors[:, 0], second * factors[:, 1]
     if plants > 1:
-        acc, t = _over_plants(acc, plants, aggregate), _over_plants(t, plants, aggregate)
+        first = _over_plants(first, plants, aggregate)
+        second = _over_plants(second, plants, aggregate)
     if weights is None:
-        return float(np.mean(acc)), float(np.mean(t))
+        return float(np.mean(first)), float(np.mean(second))
     w = np.asarray(weights, dtype=float).reshape(-1, 2)
-    if len(w) != len(acc):
-        raise ValueError(f"{len(w)} objective weights for {len(acc)} trajectories")
-    return float(acc @ w[:, 0] / w[:, 0].sum()), float(t @ w[:, 1] / w[:, 1].sum())
+    if len(w) != len(first):
+        raise ValueError(f"{len(w)} objective weights for {len(first)} trajectories")
+    return float(first @ w[:, 0] / w[:, 0].sum()), float(second @ w[:, 1] / w[:, 1].sum())
 
 
 def _over_plants(values: np.ndarray, plants: int, aggregate: str) -> np.ndarray:

@@ -1,0 +1,123 @@
+"""What the `analytic` commands that take a run's or a farm's options make of them: the plant
+variants, the farm's identity, a RunConfig's complaint naming its option. Loaded when a command
+runs (pydantic and the contract), before anything heavier: a bad option is refused before
+MuJoCo, Zenoh, pymoo or matplotlib load."""
+
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from gainfarm.analytic.commands.shared import farm_rules
+from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.cli import values
+from gainfarm.cli.app import CliError
+from gainfarm.schemas.documents import BadDocument, read_bounded
+from gainfarm.schemas.plant_file import PlantFile
+from gainfarm.schemas.robot import PLANTS, ModelSpec
+from gainfarm.schemas.security import TlsIdentity
+from gainfarm.schemas.wire import describe, one_line
+
+
+def _uncertainty(plant_file: PlantFile, nominal: ModelSpec) -> dict:
+    """The plant file's ranges for `nominal`: once its calibrated payload is the told load (no
+    --payload given: values.with_load), that load's error instead of the untold payload's."""
+    told = plant_file.told()
+    if (nominal.load, nominal.payload) == (told.plant.load, told.plant.payload):
+        return told.uncertainty
+    return plant_file.uncertainty
+
+
+def plants_from(
+    count: int,
+    path: Path | None,
+    nominal: ModelSpec,
+    seed: int,
+    held_out: bool = False,
+    plant: str | None = None,
+    designed: bool = False,
+) -> tuple[ModelSpec, ...]:
+    """--plants K variants of `nominal` (`held_out`: --check-plants M of them, on the seed's
+    other stream; `designed`: robust tuning's, the corners first), drawn from --uncertainty
+    FILE's ranges, else from those of the plant file --plant names (a calibrated twin's), else
+    the shipped ones; or one line naming the option."""
+    # start-up: MuJoCo (a variant's physics step) loads once the cheaper options are checked
+    from gainfarm.analytic.tuning.plants import (
+        HELD_OUT,
+        TUNING,
+        BadUncertainty,
+        design,
+        ranges,
+        ranges_of,
+        variants,
+    )
+
+    stream = HELD_OUT if held_out else TUNING
+
+    def drawn(table: "dict | None") -> tuple[ModelSpec, ...]:
+        if designed:
+            return design(nominal, count, seed, table)
+        return variants(nominal, count, seed, table, stream)
+
+    if path is None:
+        table = None
+        if plant is not None and plant not in PLANTS:
+            try:
+                table = ranges_of(_uncertainty(values.plant_file(plant), nominal)) or None
+            except BadUncertainty as error:
+                raise CliError(f"--plant: {plant!r}: uncertainty: {error}") from None
+        try:
+            return drawn(table)
+        except ValueError as error:
+            raise CliError(
+                f"--plant: {plant!r}: a variant is no plant ({one_line(error)})"
+            ) from None
+    try:
+        text = read_bounded(path).decode()
+    except OSError as error:
+        raise CliError(f"--uncertainty: cannot read {str(path)!r}: {error.strerror}") from None
+    except BadDocument as error:
+        raise CliError(f"--uncertainty: {str(path)!r}: {error}") from None
+    except UnicodeDecodeError:
+        raise CliError(f"--uncertainty: {str(path)!r} is not text") from None
+    try:
+        table = ranges(text)
+    except BadUncertainty as error:
+        raise CliError(f"--uncertainty: {str(path)!r}: {error}") from None
+    if not table:
+        # An empty file (or one with no table) would draw every variant equal to the nominal
+        # plant: robust tuning that is not, without a word.
+        raise CliError(
+            f"--uncertainty: {str(path)!r} holds no ranges (a table per parameter, as in the "
+            "shipped models/uncertainty.toml)"
+        )
+    try:
+        return drawn(table)
+    except ValueError as error:  # a range that takes the plant out of what it may be
+        raise CliError(
+            f"--uncertainty: {str(path)!r}: a variant is no plant ({one_line(error)})"
+        ) from None
+
+
+def check_farm(
+    connect: tuple[str, ...], local: bool, tls: Path | None, participant: str | None
+) -> TlsIdentity | None:
+    """The analytic identity to connect with, if the farm is secure."""
+    farm_rules({"connect": connect, "local": local, "tls": tls, "participant": participant})
+    return values.identity(tls, "analytic", participant)
+
+
+def config_problem(error: ValidationError) -> str:
+    """A RunConfig's complaint in one line, naming the option when it is one field's."""
+    text = describe(error)
+    field, _, rest = text.partition(": ")
+    if rest and field in ("algorithm", "objective_scaling", "pop", "seed", "keep"):
+        return f"--{field.replace('_', '-')}: {rest}"
+    return text.replace("generations and evaluations", "--generations and --evaluations")
+
+
+def make_config(fields: dict) -> RunConfig:
+    """The RunConfig of `fields` (a command's options), or one line naming the option."""
+    try:
+        return RunConfig(**fields)
+    except ValidationError as error:
+        raise CliError(config_problem(error)) from None
