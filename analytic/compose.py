@@ -408,7 +408,7 @@ def balanced(config: RunConfig, feedforward: bytes | None = None) -> RunConfig:
     models = {config.feedforward: feedforward} if config.feedforward and feedforward else {}
     with InProcessEvaluator(models=models) as evaluator:
         evaluator.submit({f"t{t}-p{p}": config.episode_spec(DEFAULT_GAINS, t, p) for t, p in pairs})
-        found = {evaluation.job_id: evaluation.scores for evaluation in evaluator.results()}
+        found = {result.job_id: result.scores for result in evaluator.results()}
     update = {}
     if len(config.trajectories) > 1 and config.objective_weights is None:
         reference = []

@@ -34,7 +34,7 @@ from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import Limits, measures
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.episode import run_episode
 from gainfarm.worker.job import simulate_batch
@@ -45,7 +45,7 @@ PATHS = {
     "fourier 6 s": TrajectorySpec(kind="fourier", duration=6.0),
     "pyramid 4 s": TrajectorySpec(kind="pyramid", duration=4.0),
 }
-NOMINAL = ModelSpec()
+NOMINAL = PlantSpec()
 CHANGES = {
     "payload 2 kg": {"payload": 2.0},
     "delay 2": {"delay": 2},
@@ -62,7 +62,7 @@ CHANGES = {
 }
 
 
-def _plant(update: dict) -> ModelSpec:
+def _plant(update: dict) -> PlantSpec:
     from gainfarm.models import min_substeps
 
     plant = NOMINAL.model_copy(update=update)
@@ -117,7 +117,7 @@ def _design_worst(gains: PDGains, config: RunConfig) -> float:
 
 def _cases(gains: PDGains, config: RunConfig) -> dict[str, tuple]:
     specs = [
-        EpisodeSpec(gains=g, trajectory=t, model=m, objectives=config.objectives)
+        EpisodeSpec(gains=g, trajectory=t, plant=m, objectives=config.objectives)
         for (t, m) in CASES.values()
         for g in (gains, DEFAULT_GAINS)
     ]

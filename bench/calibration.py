@@ -29,19 +29,19 @@ import tomli_w
 
 from gainfarm.models import min_substeps
 from gainfarm.schemas.plant_file import PlantFile, read_plant_file
-from gainfarm.schemas.robot import Friction, ModelSpec, Sensors
+from gainfarm.schemas.robot import Friction, PlantSpec, Sensors
 
 N = 7
 HELD_OUT = (100, 101)
 
 
-def hidden_arm(seed: int) -> ModelSpec:
+def hidden_arm(seed: int) -> PlantSpec:
     """An arm unlike any the project assumes: its numbers off by more than their shipped ranges
     allow (a side drawn at random where either side keeps the excitation's gains stable), its
     delay a tick beyond the range. Heavier rotors only: drake's notes put the real ones near ten
     times the nominal, and lighter ones make the gains ring (the arm would not be excited)."""
     rng = np.random.default_rng(seed)
-    nominal = ModelSpec()
+    nominal = PlantSpec()
 
     def beyond(values: tuple[float, ...], low: float, high: float) -> tuple[float, ...]:
         n = len(values)
@@ -68,11 +68,11 @@ def hidden_arm(seed: int) -> ModelSpec:
             "sensors": Sensors(seed=int(rng.integers(2**32))),
         }
     )
-    arm = ModelSpec.model_validate(arm.model_dump())
+    arm = PlantSpec.model_validate(arm.model_dump())
     return arm.model_copy(update={"substeps": max(arm.substeps, min_substeps(arm))})
 
 
-def write_plant(path: Path, plant: ModelSpec) -> Path:
+def write_plant(path: Path, plant: PlantSpec) -> Path:
     path.write_text(tomli_w.dumps(PlantFile(plant=plant).model_dump(mode="json")))
     return path
 

@@ -281,7 +281,7 @@ def simulated_campaign(
     base = RunConfig(
         pop=30,
         trajectories=(TrajectorySpec(duration=5.0),),
-        model=PLANTS[plant],
+        plant=PLANTS[plant],
         keep="front",
         generations=generations,
     )

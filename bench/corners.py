@@ -22,7 +22,7 @@ from gainfarm.analytic.tuning.plants import CORNERS, corner, ranges
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import Limits, measures
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.job import simulate_batch
 
@@ -37,10 +37,10 @@ def controllers(runs: tuple[Path, ...], every: int) -> dict[str, PDGains]:
     return found
 
 
-def screen(plants: dict[str, ModelSpec], gains: dict[str, PDGains], trajectory: TrajectorySpec):
+def screen(plants: dict[str, PlantSpec], gains: dict[str, PDGains], trajectory: TrajectorySpec):
     names = list(plants)
     specs = [
-        EpisodeSpec(gains=g, trajectory=trajectory, model=plants[p])
+        EpisodeSpec(gains=g, trajectory=trajectory, plant=plants[p])
         for g in gains.values()
         for p in names
     ]
@@ -71,7 +71,7 @@ def screen(plants: dict[str, ModelSpec], gains: dict[str, PDGains], trajectory: 
 def main(runs: tuple[Path, ...], every: int, trajectory: str, duration: float) -> None:
     gains = controllers(runs, every)
     path = TrajectorySpec(kind=trajectory, duration=duration)
-    nominal = ModelSpec()
+    nominal = PlantSpec()
     plants = {"nominal": nominal}
     for name in ranges():
         plants[f"{name} low"] = corner(nominal, {name: "low"})

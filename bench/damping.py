@@ -50,7 +50,7 @@ def main(repeats: int, poses: int) -> None:
     print("plant      controller           damping   chatter  step    f_acc mm  diverged")
     for plant in ("realistic", "ideal"):
         for name, gains in CONTROLLERS.items():
-            spec = EpisodeSpec(gains=gains, trajectory=path, model=PLANTS[plant])
+            spec = EpisodeSpec(gains=gains, trajectory=path, plant=PLANTS[plant])
             s = score(run_episode(spec))
             print(
                 f"{plant:10s} {name:20s} {least_damping(spec, poses=poses):+.4f}  "

@@ -33,7 +33,7 @@ from gainfarm.analytic.experiments import dataset_value_measures as dvm
 from gainfarm.analytic.experiments.statistics import holm
 from gainfarm.models.dynamics import true_model
 from gainfarm.schemas.gains import DEFAULT_GAINS
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 
 
@@ -47,7 +47,7 @@ def trajectories(release: Path, split: str) -> list[TrajectorySpec]:
 
 
 def default_gains_rows(
-    plant: ModelSpec, specs: list[TrajectorySpec], directory: Path, workers: int
+    plant: PlantSpec, specs: list[TrajectorySpec], directory: Path, workers: int
 ) -> learning.Rows:
     """The default gains on every trajectory of `specs`, on `plant`: their calm rows."""
     jobs = batch_jobs([DEFAULT_GAINS], specs, plant)

@@ -61,7 +61,7 @@ def main(quick: bool, repeats: int, duration: float, batch: int) -> None:
         repeats, duration, batch = 3, 1.0, 2
     kind = "fourier" if duration < 3 else "spiral"  # a Cartesian path needs some 3 s
     trajectory = TrajectorySpec(kind=kind, duration=duration)
-    spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=trajectory, model=REALISTIC_PLANT)
+    spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=trajectory, plant=REALISTIC_PLANT)
     reference_for(trajectory)  # the IK runs once per trajectory: not per-episode cost
     episodes = prepared(candidates(spec, batch))
     log = run_episode(spec)

@@ -66,7 +66,7 @@ def recorded_physics(spec: EpisodeSpec) -> tuple[EpisodeLog, np.ndarray]:
 def physics(spec: EpisodeSpec) -> Callable[[], None]:
     """The episode's physics replayed in C; checked to retrace the episode first."""
     log, drives = recorded_physics(spec)
-    plant = Plant(spec.model)
+    plant = Plant(spec.plant)
     plant.reset(reference_for(spec.trajectory).q[0])
     signature = mujoco.mjtState.mjSTATE_FULLPHYSICS
     initial = np.empty(mujoco.mj_stateSize(plant.model, signature))
@@ -144,8 +144,8 @@ def main(quick: bool, repeats: int, duration: float, batches: str) -> None:
         repeats, duration, sizes = 2, 1.0, [1, 8]
     kind = "fourier" if duration < 3 else "spiral"  # a Cartesian path needs some 3 s
     trajectory = TrajectorySpec(kind=kind, duration=duration)
-    realistic = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=trajectory, model=REALISTIC_PLANT)
-    ideal = realistic.model_copy(update={"model": IDEAL_PLANT})
+    realistic = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=trajectory, plant=REALISTIC_PLANT)
+    ideal = realistic.model_copy(update={"plant": IDEAL_PLANT})
     reference_for(trajectory)  # the IK runs once per trajectory: not per-episode cost
     cores = len(os.sched_getaffinity(0))
     largest = max(sizes)
@@ -185,7 +185,7 @@ def main(quick: bool, repeats: int, duration: float, batches: str) -> None:
     fastest = {name: min(values) for name, values in times.items()}
     median = {name: statistics.median(values) for name, values in times.items()}
     anchor, middle = fastest["physics (replayed in C)"], median["physics (replayed in C)"]
-    plant = realistic.model
+    plant = realistic.plant
     print(
         f"{duration:g} s {kind} episode, {trajectory.ticks} ticks, {plant.joints} joints, "
         f"{plant.substeps} physics steps per tick; CPU time per episode (the threaded case: "

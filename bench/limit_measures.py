@@ -17,7 +17,7 @@ With `--variants N` it measures instead what the speed, damping and lag limits m
 46): the default gains, smooth ones (all gains 0.3 times, stiffness 3 times), the defaults with
 A7's gains a hundredth (the wrist lag the issue found on fronts), and chattering ones, on the
 default 5 s spiral, a fourier and a pyramid path, each on the realistic plant and on
-`variants(ModelSpec(), N, seed)` (analytic/tuning/plants.py, a robust run's): each episode's
+`variants(PlantSpec(), N, seed)` (analytic/tuning/plants.py, a robust run's): each episode's
 reference's peak speed and measured peak speed (shares of the data sheet's), least damping ratio
 and each joint's RMS lag, then each controller's worst over its episodes. With `--runs R` as well,
 the default gains' worst speed and lag per path and least damping and largest chatter on each of
@@ -35,7 +35,7 @@ from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import Limits, measures
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import PLANTS, SPEED_LIMITS, ModelSpec
+from gainfarm.schemas.robot import PLANTS, SPEED_LIMITS, PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.episode import run_episode
 from gainfarm.worker.reference import shortest_duration
@@ -74,8 +74,8 @@ def robust(seed: int, count: int) -> None:
         "top 3x/5x": scaled(3, 5),
     }
     paths = PATHS
-    plants = {"nominal": ModelSpec()} | {
-        f"variant {n}": plant for n, plant in enumerate(variants(ModelSpec(), count, seed))
+    plants = {"nominal": PlantSpec()} | {
+        f"variant {n}": plant for n, plant in enumerate(variants(PlantSpec(), count, seed))
     }
     limit = np.asarray(SPEED_LIMITS)
     print("controller  path     plant       ref spd  speed  damping  lag per joint, mrad RMS")
@@ -83,7 +83,7 @@ def robust(seed: int, count: int) -> None:
         worst = {"ref": 0.0, "speed": 0.0, "damping": 1.0, "lag": np.zeros(7)}
         for path_name, path in paths.items():
             for plant_name, plant in plants.items():
-                log = run_episode(EpisodeSpec(gains=gains, trajectory=path, model=plant))
+                log = run_episode(EpisodeSpec(gains=gains, trajectory=path, plant=plant))
                 s = score(log)
                 ref = float(np.max(np.abs(log.qd_des) / limit))
                 lag = np.sqrt(np.mean((log.q - log.q_des) ** 2, axis=0)) * 1000
@@ -110,10 +110,10 @@ def runs(count: int, runs: int) -> None:
         lag: dict[str, float] = {}
         speed: dict[str, float] = {}
         damping, chatter = 1.0, 0.0
-        for plant in variants(ModelSpec(), count, seed):
+        for plant in variants(PlantSpec(), count, seed):
             for name, path in paths.items():
                 s = score(
-                    run_episode(EpisodeSpec(gains=DEFAULT_GAINS, trajectory=path, model=plant))
+                    run_episode(EpisodeSpec(gains=DEFAULT_GAINS, trajectory=path, plant=plant))
                 )
                 lag[name] = max(lag.get(name, 0.0), s.lag)
                 speed[name] = max(speed.get(name, 0.0), s.speed)
@@ -138,7 +138,7 @@ def fast(count: int) -> None:
         "soft 0.3x": scaled(0.3, 0.3),
         "stiff 3x": scaled(3, 1),
     }
-    plants = (ModelSpec(), *variants(ModelSpec(), count, 0))
+    plants = (PlantSpec(), *variants(PlantSpec(), count, 0))
     limit = np.asarray(SPEED_LIMITS)
     paths = [
         TrajectorySpec(kind=kind, duration=shortest_duration(TrajectorySpec(kind=kind)))
@@ -148,7 +148,7 @@ def fast(count: int) -> None:
         for name, gains in controllers.items():
             speeds = []
             for plant in plants:
-                log = run_episode(EpisodeSpec(gains=gains, trajectory=path, model=plant))
+                log = run_episode(EpisodeSpec(gains=gains, trajectory=path, plant=plant))
                 speeds.append(score(log).speed)
             ref = float(np.max(np.abs(log.qd_des) / limit))
             print(
@@ -202,7 +202,7 @@ def main(seed: int, count: int, plants: int, run_count: int, at_rated: bool) -> 
     for plant, model in (("realistic", PLANTS["realistic"]), ("ideal", PLANTS["ideal"])):
         for path_name, path in paths.items():
             for name, gains in controllers.items():
-                log = run_episode(EpisodeSpec(gains=gains, trajectory=path, model=model))
+                log = run_episode(EpisodeSpec(gains=gains, trajectory=path, plant=model))
                 s = score(log)
                 broken = ",".join(limits.violated(measures([s]))) or "-"
                 print(

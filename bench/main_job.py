@@ -156,7 +156,7 @@ def candidates(out: Path) -> tuple[RunConfig, list[PDGains]]:
 def physics_seconds(config: RunConfig, repeats: int = 5) -> float:
     """CPU s of one episode's physics in one C call (the module's docstring), the fastest of
     `repeats`."""
-    spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=config.trajectories[0], model=config.model)
+    spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=config.trajectories[0], plant=config.plant)
     replay = physics(spec)  # checked to retrace the episode
     fastest = float("inf")
     for _ in range(repeats):
@@ -182,7 +182,7 @@ def evaluate(config: RunConfig, gains: PDGains) -> tuple[float, float]:
         spec = EpisodeSpec(
             gains=gains,
             trajectory=trajectory,
-            model=config.model,
+            plant=config.plant,
             feedforward=config.feedforward,
             objectives=config.objectives,
         )

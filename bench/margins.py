@@ -3,7 +3,7 @@ what they cost against an episode. docs/limits.md quotes these numbers.
 
     python bench/margins.py [--repeats 5] [--split]
 
-Each controller runs the default 5 s spiral on the realistic plant (ModelSpec()): its least
+Each controller runs the default 5 s spiral on the realistic plant (PlantSpec()): its least
 damping (what the log carries), its tracking and elastic modes' least damping with their
 frequencies, its tracking damping with the command 2 ticks late (the top of models/
 uncertainty.toml's `delay` range; the nominal is 1) and its delay margin in extra ticks. Then
@@ -30,7 +30,7 @@ import numpy as np
 from gainfarm.analytic.tuning.search_space import SearchSpace
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
-from gainfarm.schemas.robot import IDEAL_PLANT, ModelSpec
+from gainfarm.schemas.robot import IDEAL_PLANT, PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.control import PDController
 from gainfarm.worker.episode import run_episode
@@ -115,12 +115,12 @@ def cost(repeats: int) -> None:
 
 def split() -> None:
     """How clear-cut the modes that make the margins are, per plant (the module's docstring)."""
-    rotor = ModelSpec(rotor_inertia=tuple(10 * r for r in ModelSpec().rotor_inertia))
+    rotor = PlantSpec(rotor_inertia=tuple(10 * r for r in PlantSpec().rotor_inertia))
     plants = {
-        "realistic": ModelSpec(),
+        "realistic": PlantSpec(),
         "ideal": IDEAL_PLANT,
         "rotor 10x": rotor,
-        "rigid": ModelSpec(joints="rigid"),
+        "rigid": PlantSpec(joints="rigid"),
     }
     paths = {"spiral": TrajectorySpec(), "fourier": TrajectorySpec(kind="fourier", duration=2.0)}
     print(

@@ -19,7 +19,7 @@ import pyarrow.parquet as pq
 
 from gainfarm.analytic.data import learning
 from gainfarm.models.dynamics import DynamicsModel, true_model
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 
 
 def main(dataset: Path) -> None:
@@ -30,7 +30,7 @@ def main(dataset: Path) -> None:
     table = pq.read_table(dataset / "episodes.parquet", columns=["episode_id", "model"]).to_pydict()
     counts = Counter(table["model"])
     text, _ = counts.most_common(1)[0]
-    plant = ModelSpec.model_validate_json(text)
+    plant = PlantSpec.model_validate_json(text)
     mine = [e for e, m in zip(table["episode_id"], table["model"], strict=True) if m == text]
     train, test = (
         splits[name].take(np.isin(splits[name].episode_id, mine)) for name in ("train", "test")

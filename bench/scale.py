@@ -276,10 +276,10 @@ def scale(
             yielded: list[float] = []
             bytes_at: dict[str, int] = {}
             while time.monotonic() < end:
-                for evaluation in client.results(timeout=0.2):
+                for result in client.results(timeout=0.2):
                     yielded.append(time.monotonic())
-                    if evaluation.log is not None:  # --send-logs: minutes of logs fill a disk
-                        evaluation.log.unlink()
+                    if result.log is not None:  # --send-logs: minutes of logs fill a disk
+                        result.log.unlink()
                     if len(yielded) % 16 == 0:
                         top_up()
                     if "start" not in bytes_at and time.monotonic() >= start:
@@ -345,10 +345,10 @@ def ingest(
             cpu = resource.getrusage(resource.RUSAGE_SELF)
             started = time.perf_counter()
             taken = 0
-            for evaluation in client.results():
+            for result in client.results():
                 taken += 1
-                if evaluation.log is not None:
-                    evaluation.log.unlink()
+                if result.log is not None:
+                    result.log.unlink()
             elapsed = time.perf_counter() - started
             after = resource.getrusage(resource.RUSAGE_SELF)
         finally:

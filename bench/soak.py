@@ -506,40 +506,40 @@ def main(
 
             def fetch_due(everything: bool = False) -> None:
                 while to_fetch and (everything or to_fetch[0][0] <= time.monotonic()):
-                    _, evaluation = to_fetch.popleft()
-                    assert evaluation.digest is not None
-                    wanted = Wanted(evaluation.spec, evaluation.digest, (evaluation.worker,))
-                    got = farm.fetch({evaluation.job_id: wanted})[evaluation.job_id]
-                    if got.log is None or got.digest != evaluation.digest:
+                    _, result = to_fetch.popleft()
+                    assert result.digest is not None
+                    wanted = Wanted(result.spec, result.digest, (result.worker,))
+                    got = farm.fetch({result.job_id: wanted})[result.job_id]
+                    if got.log is None or got.digest != result.digest:
                         ledger.fetches["failed"] += 1
                         ledger.lost_reasons.append(
-                            f"{evaluation.job_id}: log not fetched ({got.reason or got.digest})"
+                            f"{result.job_id}: log not fetched ({got.reason or got.digest})"
                         )
-                    elif got.source == evaluation.worker:
+                    elif got.source == result.worker:
                         ledger.fetches["from its worker"] += 1
                     else:
                         ledger.fetches["simulated again"] += 1
                     if got.log is not None:
                         got.log.unlink(missing_ok=True)
 
-            def take(evaluation: EpisodeResult) -> None:
-                ledger.record(evaluation)
+            def take(result: EpisodeResult) -> None:
+                ledger.record(result)
                 if (
                     replicate_every
-                    and evaluation.digest is not None
+                    and result.digest is not None
                     and ledger.completed % replicate_every == 0
                 ):
                     # The referee runs it again in this process; its log must be the worker's.
-                    replication.validate(farm, [evaluation], replicas, referee=referee)
-                if evaluation.log is not None:
-                    evaluation.log.unlink(missing_ok=True)  # hours of logs would fill the disk
+                    replication.validate(farm, [result], replicas, referee=referee)
+                if result.log is not None:
+                    result.log.unlink(missing_ok=True)  # hours of logs would fill the disk
                 if (
                     fetch_every
-                    and evaluation.digest is not None
-                    and evaluation.scores is not None
+                    and result.digest is not None
+                    and result.scores is not None
                     and ledger.completed % fetch_every == 0
                 ):
-                    to_fetch.append((time.monotonic() + churn_seconds, evaluation))
+                    to_fetch.append((time.monotonic() + churn_seconds, result))
 
             def top_up() -> None:
                 want = pending - farm.pending
@@ -552,8 +552,8 @@ def main(
             last_result = time.monotonic()
             top_up()
             while time.monotonic() < end:
-                for evaluation in farm.results(timeout=0.2):
-                    take(evaluation)
+                for result in farm.results(timeout=0.2):
+                    take(result)
                     last_result = time.monotonic()
                     if farm.pending <= pending // 2:
                         top_up()
@@ -581,8 +581,8 @@ def main(
             echo(started, f"draining {farm.pending} pending jobs")
             pool.reap()
             drained = time.monotonic()
-            for evaluation in farm.results(timeout=deadline * attempts + 30):
-                take(evaluation)
+            for result in farm.results(timeout=deadline * attempts + 30):
+                take(result)
             fetch_due(everything=True)
             echo(started, f"drained in {time.monotonic() - drained:.1f} s")
             finished = time.monotonic()

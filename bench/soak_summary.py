@@ -161,16 +161,16 @@ class SoakLedger:
         self.seen.extend(bytes(count))
         return ids
 
-    def record(self, evaluation: EpisodeResult) -> None:
-        index = int(evaluation.job_id.removeprefix("j"))
+    def record(self, result: EpisodeResult) -> None:
+        index = int(result.job_id.removeprefix("j"))
         if self.seen[index]:
             self.evaluated_twice += 1
         self.seen[index] = min(self.seen[index] + 1, 255)
-        self.statuses[evaluation.status] += 1
-        if evaluation.attempts > 1:
-            self.retried.append(f"{evaluation.job_id} (from {evaluation.worker or '-'})")
-        if evaluation.status == EpisodeStatus.lost:
-            self.lost_reasons.append(f"{evaluation.job_id}: {evaluation.reason}")
+        self.statuses[result.status] += 1
+        if result.attempts > 1:
+            self.retried.append(f"{result.job_id} (from {result.worker or '-'})")
+        if result.status == EpisodeStatus.lost:
+            self.lost_reasons.append(f"{result.job_id}: {result.reason}")
 
     @property
     def completed(self) -> int:

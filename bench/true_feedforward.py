@@ -39,7 +39,7 @@ def with_model(kind: str) -> Added:
     """The worker's own feed-forward (`compensation`) of the nominal prior or the true model."""
 
     def added(spec: EpisodeSpec, reference: Reference) -> np.ndarray | None:
-        model = (rigid_prior if kind == "rigid" else true_model)(spec.model)
+        model = (rigid_prior if kind == "rigid" else true_model)(spec.plant)
         return compensation(spec.model_copy(update={"feedforward": "0" * 64}), reference, model)
 
     return added
@@ -79,7 +79,7 @@ def main(plant: str, paths: int, duration: float) -> None:
     errors: dict[str, list[float]] = {name: [] for name in CONDITIONS}
     for path in trajectories:
         reference = reference_for(path)
-        spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=path, model=PLANTS[plant])
+        spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=path, plant=PLANTS[plant])
         for name, added in CONDITIONS.items():
             scores = score(simulate(spec, reference, added(spec, reference)))
             errors[name].append(scores.f_acc * 1000)

@@ -19,7 +19,7 @@ from gainfarm.models.iiwa14 import (
     elastic_modes,
     min_substeps,
 )
-from gainfarm.schemas.robot import STIFFNESS_PRESETS, ModelSpec
+from gainfarm.schemas.robot import STIFFNESS_PRESETS, PlantSpec
 
 INERTIALS = ("menagerie", "open", "cad")
 
@@ -28,7 +28,7 @@ def print_modes() -> None:
     """Per preset and inertial set: modes at the ready and upright postures, substeps needed."""
     for preset, stiffness in STIFFNESS_PRESETS.items():
         for inertials in INERTIALS:
-            spec = ModelSpec(inertials=inertials, stiffness=stiffness)
+            spec = PlantSpec(inertials=inertials, stiffness=stiffness)
             ready = _join(elastic_modes(spec, READY_POSTURE), "{:.0f}")
             upright = _join(elastic_modes(spec, UPRIGHT_POSTURE), "{:.0f}")
             damping = np.asarray(spec.spring_damping)
@@ -44,13 +44,13 @@ def print_inertia() -> None:
     """Link-side mass-matrix diagonal (no rotor inertia) per inertial set, and how much of the
     CAD set's change Menagerie's re-oriented axes make on their own (with the open masses)."""
     rigid = {"joints": "rigid", "rotor_inertia": (0.0,) * 7}
-    open_axes_only = build_spec(ModelSpec(inertials="open", **rigid))
+    open_axes_only = build_spec(PlantSpec(inertials="open", **rigid))
     for body, (_, orientation) in CAD_INERTIALS.items():
         if orientation is not None:
             open_axes_only.body(body).iquat = orientation
     models = {
-        "open": build_spec(ModelSpec(inertials="open", **rigid)).compile(),
-        "cad": build_spec(ModelSpec(inertials="cad", **rigid)).compile(),
+        "open": build_spec(PlantSpec(inertials="open", **rigid)).compile(),
+        "cad": build_spec(PlantSpec(inertials="cad", **rigid)).compile(),
         "open masses, Menagerie's axes": open_axes_only.compile(),
     }
     for posture, q in (("q = 0", UPRIGHT_POSTURE), ("ready", READY_POSTURE)):
@@ -83,10 +83,10 @@ if __name__ == "__main__":
         print_inertia()
     else:
         joints = args[0] if args else "flexible"
-        inertials = args[1] if len(args) > 1 else ModelSpec().inertials
+        inertials = args[1] if len(args) > 1 else PlantSpec().inertials
         if joints not in ("flexible", "rigid") or inertials not in INERTIALS or len(args) > 2:
             sys.exit(
                 "usage: python -m gainfarm.models [flexible|rigid] [menagerie|cad|open] | modes "
                 "| inertia"
             )
-        print(build_spec(ModelSpec(joints=joints, inertials=inertials)).to_xml())
+        print(build_spec(PlantSpec(joints=joints, inertials=inertials)).to_xml())

@@ -49,7 +49,7 @@ from numpy.lib import format as npy_format
 from pydantic import ValidationError
 
 from gainfarm.models.robots import build_spec, compile_model
-from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, Friction, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, Friction, PlantSpec
 
 if TYPE_CHECKING:
     import pinocchio  # for annotations only; imported at run time by _pinocchio()
@@ -124,7 +124,7 @@ class DynamicsModel:
 
     kind: Kind
     target: Target
-    spec: ModelSpec
+    spec: PlantSpec
     parameters: np.ndarray | None = None  # linear: π, (LINEAR_PARAMETERS,)
     network: Network | None = None  # mlp, residual
     about: dict[str, Any] = field(default_factory=dict)
@@ -165,12 +165,12 @@ class DynamicsModel:
         return prior + self.network(np.hstack([q, qd, third]))
 
 
-def rigid_spec(plant: ModelSpec) -> ModelSpec:
+def rigid_spec(plant: PlantSpec) -> PlantSpec:
     """The rigid arm of `plant` that a physics prior uses: its inertial set, rotor inertias (as
     armature) and the load the robot is told (known, as the set is), rigid joints, no friction.
     Fields that play no part (sensors, delay, springs,
     physics step) are left at their defaults, so plants differing only there share one prior."""
-    return ModelSpec(
+    return PlantSpec(
         joints="rigid",
         inertials=plant.inertials,
         rotor_inertia=plant.rotor_inertia,
@@ -180,18 +180,18 @@ def rigid_spec(plant: ModelSpec) -> ModelSpec:
     )
 
 
-def rigid_prior(spec: ModelSpec, target: Target = "inverse") -> DynamicsModel:
+def rigid_prior(spec: PlantSpec, target: Target = "inverse") -> DynamicsModel:
     """The rigid-body physics of `spec`'s arm (`rigid_spec`) as a model; no training."""
     return DynamicsModel(kind="rigid", target=target, spec=rigid_spec(spec))
 
 
-def plant_spec(plant: ModelSpec) -> ModelSpec:
+def plant_spec(plant: PlantSpec) -> PlantSpec:
     """What of `plant` its true dynamics depend on: the inertial set, the true link masses
     (`mass_scale`), the payload and the load as truly held, the rotor inertias and the friction,
     on rigid joints. Springs are left out: at the reference the link and motor move alike, and
     what a spring's deflection does is the controller's to compensate, not the model's
     (bench/true_feedforward.py)."""
-    return ModelSpec(
+    return PlantSpec(
         joints="rigid",
         inertials=plant.inertials,
         rotor_inertia=plant.rotor_inertia,
@@ -203,7 +203,7 @@ def plant_spec(plant: ModelSpec) -> ModelSpec:
     )
 
 
-def true_model(plant: ModelSpec, target: Target = "inverse") -> DynamicsModel:
+def true_model(plant: PlantSpec, target: Target = "inverse") -> DynamicsModel:
     """The simulated `plant`'s own dynamics as a model (kind "plant"): computed torque with
     the very arm, payload and friction the simulator runs; no training."""
     return DynamicsModel(kind="plant", target=target, spec=plant_spec(plant))
@@ -219,7 +219,7 @@ def friction_torque(friction: Friction | None, velocity: np.ndarray) -> np.ndarr
 
 
 def plant_dynamics(
-    spec: ModelSpec, target: Target, q: np.ndarray, qd: np.ndarray, third: np.ndarray
+    spec: PlantSpec, target: Target, q: np.ndarray, qd: np.ndarray, third: np.ndarray
 ) -> np.ndarray:
     """The plant kind's prediction: inverse, the true arm's torque plus the friction the
     motors must overcome at q̇; forward, the acceleration of what is left of u once friction
@@ -234,7 +234,7 @@ def plant_dynamics(
 # --- physics: MuJoCo's rigid arm ---------------------------------------------------------------
 
 
-def rigid_inverse(spec: ModelSpec, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+def rigid_inverse(spec: PlantSpec, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
     """(n, 7) generalised forces of MuJoCo's inverse dynamics (mj_inverse) of `spec`'s rigid arm.
 
     One MjData per call, so concurrent calls share nothing (its cost, some 50 µs, is nothing
@@ -242,7 +242,7 @@ def rigid_inverse(spec: ModelSpec, q: np.ndarray, qd: np.ndarray, qdd: np.ndarra
     return _mj_inverse(compile_model(rigid_spec(spec)), q, qd, qdd)
 
 
-def rigid_forward(spec: ModelSpec, q: np.ndarray, qd: np.ndarray, u: np.ndarray) -> np.ndarray:
+def rigid_forward(spec: PlantSpec, q: np.ndarray, qd: np.ndarray, u: np.ndarray) -> np.ndarray:
     """(n, 7) accelerations of `spec`'s rigid arm (mj_forward) with torques u on its joints.
 
     u goes in as applied joint forces, not as the motors' controls: a log's u is already the
@@ -290,7 +290,7 @@ def _mj_forward(model: mujoco.MjModel, q: np.ndarray, qd: np.ndarray, u: np.ndar
 
 
 @lru_cache(maxsize=4)
-def pinocchio_model(spec: ModelSpec) -> "pinocchio.Model":
+def pinocchio_model(spec: PlantSpec) -> "pinocchio.Model":
     """Pinocchio's model of `spec`'s rigid arm, parsed from the MJCF that MuJoCo's model is
     compiled from (one source: the two cannot drift apart; tests/models/test_dynamics.py checks
     their gravity torques and mass matrices agree). Its joints are A1..A7 in order."""
@@ -317,7 +317,7 @@ def _pinocchio() -> Any:
     return pinocchio
 
 
-def physical_parameters(spec: ModelSpec) -> np.ndarray:
+def physical_parameters(spec: PlantSpec) -> np.ndarray:
     """π of `spec`'s rigid arm as documented (models/README.md): its links' inertials, its rotor
     inertias, no friction. What identification starts from (analytic/learning.py)."""
     model = pinocchio_model(spec)
@@ -416,7 +416,7 @@ def from_consistent(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return parameters, jacobian
 
 
-def regressor(spec: ModelSpec, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+def regressor(spec: PlantSpec, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
     """(n, 7, LINEAR_PARAMETERS) Y with τ = Y·π: Pinocchio's joint torque regressor of the links,
     then diagonal columns q̈ (rotor inertia), q̇ (viscous), tanh(q̇ / 0.05) (Coulomb-like)."""
     pinocchio = _pinocchio()
@@ -435,7 +435,7 @@ def regressor(spec: ModelSpec, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -
 
 
 def linear_torque(
-    spec: ModelSpec, parameters: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
+    spec: PlantSpec, parameters: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
 ) -> np.ndarray:
     """(n, 7) Y(q, q̇, q̈)·π, row by row (the whole (n, 7, 91) Y of a long reference is not kept)."""
     pinocchio = _pinocchio()
@@ -504,7 +504,7 @@ def _from_bytes(raw: bytes) -> DynamicsModel:
     header = _header(arrays.pop("header", None))
     kind, target = header["kind"], header["target"]
     try:
-        spec = ModelSpec.model_validate(header["spec"])
+        spec = PlantSpec.model_validate(header["spec"])
     except ValidationError as error:
         first = error.errors()[0]
         where = ".".join(str(part) for part in first["loc"]) or "spec"

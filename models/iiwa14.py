@@ -34,7 +34,7 @@ from gainfarm.schemas.robot import (
     TORQUE_LIMITS,
     JointLimits,
     LoadData,
-    ModelSpec,
+    PlantSpec,
     Workspace,
 )
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
@@ -82,7 +82,7 @@ MENAGERIE_AXES = {
 PAYLOAD_RADIUS = 0.05  # m: a payload is a solid sphere this big at the flange (assumption)
 
 
-def build_spec(spec: ModelSpec) -> mujoco.MjSpec:
+def build_spec(spec: PlantSpec) -> mujoco.MjSpec:
     """The MuJoCo model description for `spec`, not yet compiled (export it with .to_xml())."""
     mj = mujoco.MjSpec.from_string(RIGID_MJCF.read_text())
     mj.option.timestep = CONTROL_PERIOD / spec.substeps
@@ -160,7 +160,7 @@ def _add_load(mj: mujoco.MjSpec, load: LoadData) -> None:
 
 
 @lru_cache(maxsize=16)
-def compile_model(spec: ModelSpec) -> mujoco.MjModel:
+def compile_model(spec: PlantSpec) -> mujoco.MjModel:
     """Compiled model for `spec`; cached, because a worker runs thousands of episodes on one.
 
     Raises ValueError if the spec's physics step is too long for its joint springs."""
@@ -174,7 +174,7 @@ def compile_model(spec: ModelSpec) -> mujoco.MjModel:
     return model
 
 
-def check_substeps(spec: ModelSpec, model: mujoco.MjModel | None = None) -> None:
+def check_substeps(spec: PlantSpec, model: mujoco.MjModel | None = None) -> None:
     """Raise ValueError, in one line, if `spec.substeps` is too few for its joint springs."""
     if spec.joints != "flexible":
         return
@@ -189,7 +189,7 @@ def check_substeps(spec: ModelSpec, model: mujoco.MjModel | None = None) -> None
     )
 
 
-def min_substeps(spec: ModelSpec, model: mujoco.MjModel | None = None) -> int:
+def min_substeps(spec: PlantSpec, model: mujoco.MjModel | None = None) -> int:
     """The fewest physics steps per control tick that integrate `spec`'s joint springs well
     (every joint's step ratio at most MAX_STEP_RATIO); 1 for rigid joints."""
     if spec.joints != "flexible":
@@ -208,19 +208,19 @@ def min_substeps(spec: ModelSpec, model: mujoco.MjModel | None = None) -> int:
     return substeps
 
 
-def step_ratios(spec: ModelSpec, model: mujoco.MjModel | None = None) -> np.ndarray:
+def step_ratios(spec: PlantSpec, model: mujoco.MjModel | None = None) -> np.ndarray:
     """Per joint, K dt² / (4 m + 2 D dt) at `spec`'s physics step dt: MuJoCo's integration of the
     joint's spring is stable below 1; `compile_model` wants every one at most MAX_STEP_RATIO.
     m is the spring's effective inertia (`effective_inertias`)."""
     return _step_ratios(spec, effective_inertias(spec, model), CONTROL_PERIOD / spec.substeps)
 
 
-def _step_ratios(spec: ModelSpec, inertia: np.ndarray, dt: float) -> np.ndarray:
+def _step_ratios(spec: PlantSpec, inertia: np.ndarray, dt: float) -> np.ndarray:
     stiffness, damping = np.asarray(spec.stiffness), np.asarray(spec.spring_damping)
     return stiffness * dt**2 / (4 * inertia + 2 * damping * dt)
 
 
-def effective_inertias(spec: ModelSpec, model: mujoco.MjModel | None = None) -> np.ndarray:
+def effective_inertias(spec: PlantSpec, model: mujoco.MjModel | None = None) -> np.ndarray:
     """Per joint, the inertia its spring turns, kg·m²: the link side's against the rotor's,
     I B / (I + B), from the mass matrix with every other joint held; the smaller of its values
     at READY_POSTURE and UPRIGHT_POSTURE. `model` is `spec`'s compiled flexible model, if at hand.
@@ -246,7 +246,7 @@ def effective_inertias(spec: ModelSpec, model: mujoco.MjModel | None = None) -> 
     return inertia
 
 
-def elastic_modes(spec: ModelSpec, posture: tuple[float, ...] = READY_POSTURE) -> np.ndarray:
+def elastic_modes(spec: PlantSpec, posture: tuple[float, ...] = READY_POSTURE) -> np.ndarray:
     """The 7 undamped elastic modes of `spec`'s flexible plant linearised at `posture`, Hz,
     ascending: the generalized eigenproblem of the spring stiffness against the mass matrix."""
     model = build_spec(spec.model_copy(update={"joints": "flexible"})).compile()
@@ -267,12 +267,12 @@ def _log_warning(message: str) -> None:
     log.debug("MuJoCo: %s", message)
 
 
-def gravity_spec(spec: ModelSpec) -> ModelSpec:
+def gravity_spec(spec: PlantSpec) -> PlantSpec:
     """The rigid arm whose gravity the robot's model of `spec` computes, as KUKA's controller
     adds it in FRI torque mode: its inertial set and the load it is told (KUKA's load data), no
     more (rotor inertia, springs and friction exert no gravity torque; the untold payload and the
     links' and load's true masses it never knows)."""
-    return ModelSpec(
+    return PlantSpec(
         robot=spec.robot,
         joints="rigid",
         inertials=spec.inertials,
@@ -312,13 +312,13 @@ class Iiwa14:
     workspace = WORKSPACE
     flange = FLANGE
 
-    def build(self, spec: ModelSpec) -> mujoco.MjModel:
+    def build(self, spec: PlantSpec) -> mujoco.MjModel:
         return compile_model(spec)
 
-    def describe(self, spec: ModelSpec) -> mujoco.MjSpec:
+    def describe(self, spec: PlantSpec) -> mujoco.MjSpec:
         return build_spec(spec)
 
-    def gravity_spec(self, spec: ModelSpec) -> ModelSpec:
+    def gravity_spec(self, spec: PlantSpec) -> PlantSpec:
         return gravity_spec(spec)
 
     def __repr__(self) -> str:

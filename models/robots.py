@@ -1,6 +1,6 @@
 """The one lookup from a plant to its robot: every use of an arm's facts goes through here.
 
-A plant (ModelSpec) names its robot (`spec.robot`); the robot is the gainfarm.robots plug-in of
+A plant (PlantSpec) names its robot (`spec.robot`); the robot is the gainfarm.robots plug-in of
 that name (gainfarm.plugins): the built-in iiwa 14 (models/iiwa14.py's ROBOT) or a third party's,
 installed by an entry point. `compile_model` and `build_spec` are the named robot's, so the
 worker, the referee and the analytic side build whichever arm the plant names.
@@ -9,10 +9,10 @@ worker, the referee and the analytic side build whichever arm the plant names.
 import mujoco
 
 from gainfarm import plugins
-from gainfarm.schemas.robot import DEFAULT_ROBOT, ModelSpec, Robot
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec, Robot
 
 
-def robot_of(spec: ModelSpec | str = DEFAULT_ROBOT) -> Robot:
+def robot_of(spec: PlantSpec | str = DEFAULT_ROBOT) -> Robot:
     """The robot plant `spec` names (or the one named so). PluginError, in one line naming what
     the group has, if this installation has none of that name or it is not a Robot."""
     name = spec if isinstance(spec, str) else spec.robot
@@ -33,12 +33,12 @@ def robot_of(spec: ModelSpec | str = DEFAULT_ROBOT) -> Robot:
 _conforming: dict[int, Robot] = {}
 
 
-def compile_model(spec: ModelSpec) -> mujoco.MjModel:
+def compile_model(spec: PlantSpec) -> mujoco.MjModel:
     """The compiled plant `spec` describes, built by its robot (cached by the robot)."""
     return robot_of(spec).build(spec)
 
 
-def build_spec(spec: ModelSpec) -> mujoco.MjSpec:
+def build_spec(spec: PlantSpec) -> mujoco.MjSpec:
     """The plant `spec` describes as its robot writes it, not yet compiled."""
     return robot_of(spec).describe(spec)
 

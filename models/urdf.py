@@ -8,7 +8,7 @@ shapes the MJCF has as URDF primitives: a capsule is a cylinder between two sphe
 
 The description is for drawing the arm and for its kinematics: links, the seven hinges A1..A7
 (named as the joint states name them) with their limits, the flange, and each link's shapes.
-It has no inertials: those depend on the plant an episode ran (`ModelSpec`), not on the arm.
+It has no inertials: those depend on the plant an episode ran (`PlantSpec`), not on the arm.
 
 Every number is written rounded to 12 decimals (a picometre, a picoradian), so that the text, and
 with it every episode log's SHA-256, is the same on every machine whatever the last bit of a

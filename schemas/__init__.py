@@ -3,7 +3,7 @@
 from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec, Scores
 from gainfarm.schemas.episode_log import CHANNELS, EpisodeLog
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, TORQUE_LIMITS, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, TORQUE_LIMITS, PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectoryKind, TrajectorySpec
 
 __all__ = [
@@ -15,8 +15,8 @@ __all__ = [
     "EpisodeLog",
     "EpisodeMetadata",
     "EpisodeSpec",
-    "ModelSpec",
     "PDGains",
+    "PlantSpec",
     "Scores",
     "TrajectoryKind",
     "TrajectorySpec",

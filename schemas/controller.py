@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from gainfarm.schemas.documents import BadDocument, load_json, load_yaml, quoted
 from gainfarm.schemas.gains import PDGains, PerJointGains
 from gainfarm.schemas.limits import Limits
-from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.schemas.wire import describe
 
@@ -120,7 +120,7 @@ class Source(BaseModel):
     front_sha256: str = Field(description="SHA-256 of the front.csv the member is a row of")
     trajectories: tuple[TrajectorySpec, ...]
     plant: str = Field(description="realistic, ideal, or custom (see model)")
-    model: ModelSpec
+    model: PlantSpec
     feedforward: str | None = Field(
         None, description="SHA-256 of the learned model the gains were tuned on top of, if any"
     )
@@ -143,9 +143,9 @@ class Assumptions(BaseModel):
     update_rate_hz: int = Field(gt=0, description="how often the law runs")
 
     @classmethod
-    def of(cls, model: ModelSpec, control_period: float = CONTROL_PERIOD) -> "Assumptions":
+    def of(cls, plant: PlantSpec, control_period: float = CONTROL_PERIOD) -> "Assumptions":
         """The assumptions of gains tuned on `model`."""
-        fri = model.interface == "fri"
+        fri = plant.interface == "fri"
         return cls(
             joints="A1..A7 are the LBR iiwa 14's axes from base to flange: map them to your "
             "robot's joint names (lbr_iiwa_joint_1..7, say), in that order",
@@ -159,7 +159,7 @@ class Assumptions(BaseModel):
             feedback=(
                 "the motor-side joint angle, as the iiwa's encoders report it, and its velocity "
                 "as the mean of the last differences of that angle"
-                if model.feedback == "motor"
+                if plant.feedback == "motor"
                 else "the link-side joint angle and its velocity"
             ),
             update_rate_hz=round(1 / control_period),

@@ -2,10 +2,10 @@
 
 from typing import Annotated, Any, Self
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field, model_validator
 
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, KIND_PATTERN, TrajectorySpec
 
 # The paper's two objectives, computed from the log by schemas/objectives/. An episode may name
@@ -22,7 +22,11 @@ class EpisodeSpec(BaseModel):
 
     gains: PDGains
     trajectory: TrajectorySpec = TrajectorySpec()
-    model: ModelSpec = ModelSpec()
+    plant: PlantSpec = Field(
+        default_factory=PlantSpec,
+        # "model" in files written before the plant had its own word (docs/architecture.md)
+        validation_alias=AliasChoices("plant", "model"),
+    )
     gravity_compensation: bool = Field(
         False,
         description="add g(q_des) feed-forward, on a plant whose interface does not compensate "
@@ -52,7 +56,7 @@ class EpisodeSpec(BaseModel):
                 "feedforward and gravity_compensation exclude each other: "
                 "an inverse-dynamics model already holds the arm against gravity"
             )
-        if self.gravity_compensation and self.model.interface == "fri":
+        if self.gravity_compensation and self.plant.interface == "fri":
             raise ValueError(
                 "gravity_compensation on a plant with interface fri: the robot already adds "
                 "its own gravity compensation (a plant with interface torque does not)"

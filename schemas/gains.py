@@ -5,7 +5,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, TORQUE_LIMITS, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, TORQUE_LIMITS, PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 
 Gain = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -44,12 +44,12 @@ _UNITS = {"kp": "N·m/rad", "kd": "N·m·s/rad"}
 HUGE = 1e7
 
 
-def saturating(gains: PDGains, model: ModelSpec) -> tuple[str, str, float] | None:
+def saturating(gains: PDGains, plant: PlantSpec) -> tuple[str, str, float] | None:
     """("kp" or "kd", joint, gain) of the first gain that saturates its motor on one count of the
     plant's encoder (an angle of one count, or a velocity of one count over the velocity window):
     with it every tick saturates; None if none does. Exact sensors: a count of the default."""
-    resolution = model.sensors.resolution or ModelSpec().sensors.resolution
-    speed = resolution / (model.sensors.velocity_window * CONTROL_PERIOD)
+    resolution = plant.sensors.resolution or PlantSpec().sensors.resolution
+    speed = resolution / (plant.sensors.velocity_window * CONTROL_PERIOD)
     for which, values, unit in (("kp", gains.kp, resolution), ("kd", gains.kd, speed)):
         for joint, gain, limit in zip(JOINT_NAMES, values, TORQUE_LIMITS, strict=True):
             if gain * unit >= limit:

@@ -3,7 +3,7 @@
 `analytic calibrate` writes one (TOML): the simulated plant it fitted to an arm's logs, how sure
 it is of each number (its uncertainty, in the form of models/uncertainty.toml: robust tuning
 draws its variants from it) and where the numbers came from. `--plant FILE` runs on it, on
-`worker episode` as on the analytic commands; jobs carry the plant itself (a ModelSpec is every
+`worker episode` as on the analytic commands; jobs carry the plant itself (a PlantSpec is every
 number the simulation needs), so a worker needs no copy of the file. It lives in the contract
 because the worker reads it and never imports the analytic layer; the uncertainty table is
 checked by the analytic layer, which draws from it.
@@ -15,7 +15,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from gainfarm.schemas.documents import BadDocument, load_toml
-from gainfarm.schemas.robot import RATED_PAYLOAD, LoadData, ModelSpec
+from gainfarm.schemas.robot import RATED_PAYLOAD, LoadData, PlantSpec
 from gainfarm.schemas.wire import describe
 
 FORMAT = "gainfarm-plant/1"
@@ -28,7 +28,7 @@ class PlantFile(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     format: str = Field(FORMAT, pattern=r"^gainfarm-plant/1$")
-    plant: ModelSpec
+    plant: PlantSpec
     uncertainty: dict[str, dict[str, Any]] = Field(
         default_factory=dict,
         description="how far each calibrated number may be off: ranges in the form of "

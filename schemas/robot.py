@@ -1,5 +1,5 @@
 """The robot a job runs on: what a robot declares (`Robot`), the iiwa 14's published limits, and
-the simulated plant (ModelSpec), which names its robot.
+the simulated plant (PlantSpec), which names its robot.
 
 A robot is a plug-in of the group gainfarm.robots (docs/plugins.md): a module's `ROBOT`, of the
 `Robot` form below, found by the plant's `robot` name (`gainfarm.models.robot_of`). The iiwa 14,
@@ -92,7 +92,7 @@ class Robot(Protocol):
     """A robot arm, as a gainfarm.robots plug-in declares it (its module's `ROBOT`): everything
     the worker and the analytic side read of one arm. gainfarm.testing.robots checks one.
 
-    `build` compiles the plant a ModelSpec describes, with rigid or flexible joints as it says
+    `build` compiles the plant a PlantSpec describes, with rigid or flexible joints as it says
     (cached: a worker runs thousands of episodes on one); `describe` is the same model not yet
     compiled (to export, or to put several arms in one model). The robot's own gravity model,
     what its controller adds to the command under `interface = "fri"`, is the gravity of the
@@ -105,11 +105,11 @@ class Robot(Protocol):
     workspace: Workspace
     flange: str  # the MuJoCo site at the flange's centre, which every trajectory moves
 
-    def build(self, spec: "ModelSpec") -> "mujoco.MjModel": ...
+    def build(self, spec: "PlantSpec") -> "mujoco.MjModel": ...
 
-    def describe(self, spec: "ModelSpec") -> "mujoco.MjSpec": ...
+    def describe(self, spec: "PlantSpec") -> "mujoco.MjSpec": ...
 
-    def gravity_spec(self, spec: "ModelSpec") -> "ModelSpec": ...
+    def gravity_spec(self, spec: "PlantSpec") -> "PlantSpec": ...
 
 
 # --- Elastic joints: assumptions (no authoritative public table exists) --------------------------
@@ -142,7 +142,7 @@ def _per_joint(low: float, high: float, strict: bool = False) -> Any:
     return Annotated[tuple[number, ...], Field(min_length=N_JOINTS, max_length=N_JOINTS)]
 
 
-# 100 times the stiffest harmonic drive of the catalogues above (no ModelSpec's substeps can
+# 100 times the stiffest harmonic drive of the catalogues above (no PlantSpec's substeps can
 # integrate more than about 5e5 in any case), and alike far beyond every other number.
 Stiffness = _per_joint(0, 1e7, strict=True)
 SpringDamping = _per_joint(0, 1e5)
@@ -236,7 +236,7 @@ class LoadData(BaseModel):
         return self if self.mass_scale == 1.0 else self.model_copy(update={"mass_scale": 1.0})
 
 
-class ModelSpec(BaseModel):
+class PlantSpec(BaseModel):
     """Which simulated robot runs an episode. Values are explicit so that logs record them.
 
     The default is the most realistic plant the published numbers support, behind the robot's
@@ -327,10 +327,10 @@ class ModelSpec(BaseModel):
         )
 
 
-# What every dump of a ModelSpec held before the torque interface was a choice.
-_EARLIER_FIELDS = frozenset(ModelSpec.model_fields) - {"interface", "payload", "mass_scale", "load"}
+# What every dump of a PlantSpec held before the torque interface was a choice.
+_EARLIER_FIELDS = frozenset(PlantSpec.model_fields) - {"interface", "payload", "mass_scale", "load"}
 
-IDEAL_PLANT = ModelSpec(
+IDEAL_PLANT = PlantSpec(
     inertials="open",
     stiffness=STIFFNESS_PRESETS["soft"],
     friction=None,
@@ -339,7 +339,7 @@ IDEAL_PLANT = ModelSpec(
     feedback="link",
     interface="torque",
 )
-REALISTIC_PLANT = ModelSpec()
+REALISTIC_PLANT = PlantSpec()
 # The realistic plant without the robot's gravity compensation: the paper's plain PD on it.
-PLAIN_PLANT = ModelSpec(interface="torque")
+PLAIN_PLANT = PlantSpec(interface="torque")
 PLANTS = {"realistic": REALISTIC_PLANT, "plain": PLAIN_PLANT, "ideal": IDEAL_PLANT}

@@ -26,7 +26,7 @@ from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.objectives import LAG_CAP, SPEED_CAP
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 
-# 11: a plant names its robot (ModelSpec.robot), a gainfarm.robots plug-in's name of its form, no
+# 11: a plant names its robot (PlantSpec.robot), a gainfarm.robots plug-in's name of its form, no
 # longer only "iiwa14": a worker that lacks the robot a job names refuses it (JobStatus.refused);
 # a job on the iiwa 14 has the same JSON as in 10.
 # 10: big bytes (an episode log, a model) move only in parts of at most PART_BYTES: a log or

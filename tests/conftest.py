@@ -26,7 +26,7 @@ def tracking_log() -> EpisodeLog:
 def diverged_log() -> EpisodeLog:
     """Gains far too soft to hold the arm up without the robot's gravity compensation (a plain
     torque interface): it falls and the episode is stopped early."""
-    spec = EpisodeSpec(gains=WEAK_GAINS, trajectory=TrajectorySpec(duration=3.0), model=PLAIN_PLANT)
+    spec = EpisodeSpec(gains=WEAK_GAINS, trajectory=TrajectorySpec(duration=3.0), plant=PLAIN_PLANT)
     return run_episode(spec)
 
 

@@ -23,7 +23,7 @@ from gainfarm.models.urdf import description
 from gainfarm.schemas import EpisodeMetadata, EpisodeSpec, PDGains, TrajectorySpec, keys
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.mcap_episode import episode_bytes
-from gainfarm.schemas.robot import TORQUE_LIMITS, Friction, ModelSpec, Sensors
+from gainfarm.schemas.robot import TORQUE_LIMITS, Friction, PlantSpec, Sensors
 from gainfarm.schemas.wire import (
     Job,
     JobStatus,
@@ -78,7 +78,7 @@ def maximal_job(number: int = 0) -> Job:
             twist=tiny,
             harmonics=10,
         ),
-        model=ModelSpec(
+        plant=PlantSpec(
             inertials="open",
             stiffness=seven,
             spring_damping=seven,

@@ -17,7 +17,7 @@ import pyarrow.parquet as pq
 from gainfarm.analytic.data.dataset import smoothed_acceleration
 from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec
 from gainfarm.schemas.episode_log import EpisodeLog
-from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 from gainfarm.worker.episode import motor_torque, run_episode
 
@@ -38,14 +38,14 @@ SPLITS: tuple[tuple[int, str], ...] = (
 
 
 @lru_cache(maxsize=8)
-def episode(plant: ModelSpec, seed: int, duration: float) -> EpisodeLog:
+def episode(plant: PlantSpec, seed: int, duration: float) -> EpisodeLog:
     """A fourier excitation tracked with CALM_GAINS and gravity compensation on `plant` (a
     feed-forward, or the robot's own behind FRI); cached, as several tests write datasets from
     the same episodes."""
     spec = EpisodeSpec(
         gains=CALM_GAINS,
         trajectory=TrajectorySpec(kind="fourier", seed=seed, duration=duration),
-        model=plant,
+        plant=plant,
         gravity_compensation=plant.interface == "torque",
     )
     log = run_episode(spec)
@@ -55,7 +55,7 @@ def episode(plant: ModelSpec, seed: int, duration: float) -> EpisodeLog:
 
 def write_dataset(
     path: Path,
-    plant: ModelSpec,
+    plant: PlantSpec,
     splits: Sequence[tuple[int, str]] = SPLITS,
     duration: float = 2.0,
     motor_column: bool = True,

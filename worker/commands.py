@@ -37,7 +37,7 @@ from gainfarm.worker.cli import gains as gains_option
 if TYPE_CHECKING:
     from gainfarm.schemas.controller import Controller
     from gainfarm.schemas.gains import PDGains
-    from gainfarm.schemas.robot import ModelSpec
+    from gainfarm.schemas.robot import PlantSpec
     from gainfarm.schemas.trajectory import TrajectorySpec
 
 
@@ -87,13 +87,13 @@ def episode(
         spec = EpisodeSpec(
             gains=gains or PDGains(kp=gains_option("--kp", kp), kd=gains_option("--kd", kd)),
             trajectory=path,
-            model=model,
+            plant=model,
             gravity_compensation=gravity_compensation,
             feedforward=hashlib.sha256(learned[0]).hexdigest() if learned else None,
         )
     except ValidationError as error:
         raise CliError(describe(error)) from None
-    refuse_saturating([spec.gains], spec.model, gains_file)
+    refuse_saturating([spec.gains], spec.plant, gains_file)
     warn_far_outside_search("worker", [spec.gains], gains_file)
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
@@ -260,7 +260,7 @@ _CHOSEN = ("trajectory", "duration", "trajectory_seed", "center", "size", "plant
 
 def _as_tuned(
     controller: "Controller | None", path: Path | None
-) -> "tuple[TrajectorySpec, ModelSpec]":
+) -> "tuple[TrajectorySpec, PlantSpec]":
     """--as-tuned: the trajectory and plant the controller file says it was tuned on."""
     if controller is None:
         raise CliError(
@@ -276,7 +276,7 @@ def _as_tuned(
 
 
 def _warn_if_not_as_tuned(
-    controller: "Controller", path: Path | None, trajectory: "TrajectorySpec", model: "ModelSpec"
+    controller: "Controller", path: Path | None, trajectory: "TrajectorySpec", plant: "PlantSpec"
 ) -> None:
     """One line on stderr if the episode is not what the controller was tuned on, naming both
     sides (the trajectories by what tells them apart, the plants by name and joints): its scores
@@ -293,9 +293,9 @@ def _warn_if_not_as_tuned(
         )
         tuned = " and ".join(_described(t, fields) for t in source.trajectories)
         differs.append(f"tuned on {tuned}, run on {_described(trajectory, fields)}")
-    if model != source.model:
-        joints = model.joints != source.model.joints
-        was, now = _plant_named(source.model, joints), _plant_named(model, joints)
+    if plant != source.plant:
+        joints = plant.joints != source.plant.joints
+        was, now = _plant_named(source.plant, joints), _plant_named(plant, joints)
         if was == now:  # two custom plants, with the same joints
             now = "another custom plant"
         differs.append(f"tuned on {was}, run on {now}")
@@ -338,15 +338,15 @@ def _described(trajectory: "TrajectorySpec", fields: "list[str] | None" = None) 
     return f"the {trajectory.duration:g} s {trajectory.kind}{detail}"
 
 
-def _plant_named(model: "ModelSpec", joints: bool = False) -> str:
+def _plant_named(plant: "PlantSpec", joints: bool = False) -> str:
     """'the realistic plant' (a named plant with any joints), or 'a custom plant'; with `joints`,
     which joints it has: 'the realistic plant with rigid joints'."""
     name = next(
         (
             f"the {name} plant"
             for name, spec in PLANTS.items()
-            if spec.model_copy(update={"joints": model.joints}) == model
+            if spec.model_copy(update={"joints": plant.joints}) == plant
         ),
         "a custom plant",
     )
-    return f"{name} with {model.joints} joints" if joints else name
+    return f"{name} with {plant.joints} joints" if joints else name

@@ -21,7 +21,7 @@ import numpy as np
 from gainfarm.models.dynamics import DynamicsModel, friction_torque, plant_spec, true_model
 from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
-from gainfarm.schemas.robot import DEFAULT_ROBOT, JOINT_NAMES, LoadData, ModelSpec
+from gainfarm.schemas.robot import DEFAULT_ROBOT, JOINT_NAMES, LoadData, PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.worker.control import PDController
 from gainfarm.worker.plant import Plant, RobotGravity
@@ -57,13 +57,13 @@ def compensation(
         if model is None:
             raise MissingModel(f"feed-forward model {spec.feedforward[:12]} was not given")
         torque = model.inverse(reference.q, reference.qd, reference.qdd)
-        if spec.model.interface == "fri":  # g_robot(q_des), computed once per trajectory
+        if spec.plant.interface == "fri":  # g_robot(q_des), computed once per trajectory
             torque = torque - gravity_for(
-                spec.trajectory, spec.model.inertials, spec.model.load, spec.model.robot
+                spec.trajectory, spec.plant.inertials, spec.plant.load, spec.plant.robot
             )
         return torque
     if spec.gravity_compensation:
-        return gravity_for(spec.trajectory, spec.model.inertials, spec.model.load, spec.model.robot)
+        return gravity_for(spec.trajectory, spec.plant.inertials, spec.plant.load, spec.plant.robot)
     return None
 
 
@@ -73,7 +73,7 @@ def true_compensation(
     """`compensation` with the plant's own model (models.dynamics.true_model) of the spec's
     plant, and optionally what that model cannot say, for `simulate`:
 
-    - `delay`: the torque the reference needs `spec.model.delay` ticks ahead, when the command
+    - `delay`: the torque the reference needs `spec.plant.delay` ticks ahead, when the command
       acts (the last tick's held at the end);
     - `deflection`: on elastic joints fed back from the motor side, the PD steers the motor
       angle θ, and the link lags it by the spring's deflection τ_link / K (τ_link the torque the
@@ -83,7 +83,7 @@ def true_compensation(
 
     Neither is a model file's to say (they need the gains, the tick and the springs), so the
     farm's jobs run the plain true model; bench/true_feedforward.py measures both."""
-    model, plant = true_model(spec.model), spec.model
+    model, plant = true_model(spec.plant), spec.plant
     torque = model.inverse(reference.q, reference.qd, reference.qdd)
     motor_angles = reference.q
     if deflection and plant.joints == "flexible" and plant.feedback == "motor":
@@ -133,19 +133,19 @@ def simulate_all(
 
 def _setup(spec: EpisodeSpec, reference: Reference, added: np.ndarray | None) -> Stepped:
     """The episode's plant at rest where the reference starts, its controller as matrices."""
-    plant = Plant(spec.model)
+    plant = Plant(spec.plant)
     controller = PDController.from_gains(spec.gains, plant.torque_limits)
     feedforward = controller.reference_term(
         reference.q, reference.qd, 0.0 if added is None else added
     )
     plant.reset(reference.q[0])
-    if _exact(spec.model):
+    if _exact(spec.plant):
         kp_state, kd_state = controller.state_gains(plant.feedback_map)
         gains = np.hstack([kp_state, kd_state])  # Kp q + Kd q̇ = gains @ (qpos, qvel)
         return Stepped(plant, reference, gains, feedforward)
     sensing = _Sensing.of(plant, controller)
-    friction = spec.model.friction
-    fri = spec.model.interface == "fri"
+    friction = spec.plant.friction
+    fri = spec.plant.interface == "fri"
     return Stepped(
         plant,
         reference,
@@ -158,7 +158,7 @@ def _setup(spec: EpisodeSpec, reference: Reference, added: np.ndarray | None) ->
         slip=sensing.slip,
         opposing=None if friction is None else -np.asarray(friction.coulomb),
         fri=fri,
-        unit=1.0 if spec.model.sensors.exact else sensing.encoders.count,
+        unit=1.0 if spec.plant.sensors.exact else sensing.encoders.count,
     )
 
 
@@ -172,18 +172,18 @@ def _log(spec: EpisodeSpec, run: Stepped) -> EpisodeLog:
         applied = np.clip(run.command[:ticks_run], -plant.torque_limits, plant.torque_limits)
         readings = _exact_readings(plant, state, applied, applied)
     else:
-        delay = np.maximum(np.arange(ticks_run) - spec.model.delay, 0)
+        delay = np.maximum(np.arange(ticks_run) - spec.plant.delay, 0)
         applied = np.clip(run.command[delay], -plant.torque_limits, plant.torque_limits)
         motor = applied  # what the motors exert: the command, and the robot's gravity model's
         if run.fri:
             motor = np.clip(
                 applied + run.compensation[:ticks_run], -plant.torque_limits, plant.torque_limits
             )
-        if spec.model.sensors.exact:
+        if spec.plant.sensors.exact:
             readings = _exact_readings(plant, state, applied, motor)
         else:
             counts = run.measured[: run.window + ticks_run, : len(JOINT_NAMES)]
-            encoders = Encoders(spec.model.sensors)
+            encoders = Encoders(spec.plant.sensors)
             readings = _sensed_readings(plant, encoders, state, counts, applied, motor)
     metadata = EpisodeMetadata(
         spec=spec,
@@ -206,14 +206,14 @@ def _log(spec: EpisodeSpec, run: Stepped) -> EpisodeLog:
     )
 
 
-def _exact(model: ModelSpec) -> bool:
+def _exact(plant: PlantSpec) -> bool:
     """Whether the first wave's lean loop runs the episode: exact sensors, no delay, no friction,
     the command the motor torque (the ideal plant, whichever side it feeds back from)."""
     return (
-        model.sensors.exact
-        and model.delay == 0
-        and model.friction is None
-        and model.interface == "torque"
+        plant.sensors.exact
+        and plant.delay == 0
+        and plant.friction is None
+        and plant.interface == "torque"
     )
 
 
@@ -222,7 +222,7 @@ def motor_torque(log: EpisodeLog) -> np.ndarray:
     the robot's gravity model at the angles the robot measured (the fed-back side's, as logged:
     the loop's very numbers), clamped to the torque limits as the robot does; on a plain torque
     interface, `u` itself. What a model of the arm's dynamics predicts."""
-    model = log.metadata.spec.model
+    model = log.metadata.spec.plant
     if model.interface != "fri":
         return log.u
     measured = log.theta if model.feedback == "motor" else log.q
@@ -249,7 +249,7 @@ def gravity_torques(
     """(n, joints) N·m holding link angles `q` against gravity. The controller's gravity model is
     the robot's own (`RobotGravity`: for the iiwa 14, the plant's own inertial set, as KUKA's
     controller knows its robot, and the load it is told)."""
-    return RobotGravity(ModelSpec(robot=robot, inertials=inertials, load=load)).at(q)
+    return RobotGravity(PlantSpec(robot=robot, inertials=inertials, load=load)).at(q)
 
 
 @dataclass(frozen=True)

@@ -148,7 +148,7 @@ def objectives_of(spec: EpisodeSpec) -> dict[str, Objective]:
     """The plug-in objectives the spec names, by name, once its robot and trajectory kind are
     known to be here too. PluginError, naming the first plug-in this process lacks or cannot
     load."""
-    robot_of(spec.model)
+    robot_of(spec.plant)
     kind_of(spec.trajectory)  # a kind that cannot be had, or is of no form the worker takes
     return plugins.load_plugins(plugins.OBJECTIVES, spec.objectives)
 

@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 
 from gainfarm.models import robot_of
-from gainfarm.schemas.robot import LoadData, ModelSpec
+from gainfarm.schemas.robot import LoadData, PlantSpec
 
 
 class Plant:
@@ -24,7 +24,7 @@ class Plant:
     joints the motor is geared rigidly to the link, so the two maps are equal.
     """
 
-    def __init__(self, spec: ModelSpec) -> None:
+    def __init__(self, spec: PlantSpec) -> None:
         self.spec = spec
         self.robot = robot_of(spec)
         self.model = self.robot.build(spec)
@@ -90,7 +90,7 @@ class RobotGravity:
     of mass, Newton-Euler with zero velocity), some 5 µs, the tick loop's per world.
     """
 
-    def __init__(self, spec: ModelSpec) -> None:
+    def __init__(self, spec: PlantSpec) -> None:
         robot = robot_of(spec)
         self.model = robot.build(robot.gravity_spec(spec))
         self.data = mujoco.MjData(self.model)
@@ -120,7 +120,7 @@ class ArmsGravity:
 
     Write each arm's angles into its row of `angles`, `compute()`, read its row of `torque`."""
 
-    def __init__(self, specs: Sequence[ModelSpec]) -> None:
+    def __init__(self, specs: Sequence[PlantSpec]) -> None:
         # Keyed by what the robot's model knows of each arm (cheaper than a gravity_spec each:
         # a stack makes one per block of episodes). A stack's arms are of one robot.
         self.model = _arms(tuple((spec.robot, spec.inertials, _told(spec)) for spec in specs))
@@ -151,15 +151,15 @@ def _arms(arms: tuple[tuple[str, str, LoadData | None], ...]) -> mujoco.MjModel:
     return whole.compile()
 
 
-def _told(spec: ModelSpec) -> LoadData | None:
+def _told(spec: PlantSpec) -> LoadData | None:
     return None if spec.load is None else spec.load.told
 
 
-def _known(robot: str, inertials: str, load: LoadData | None) -> ModelSpec:
-    return ModelSpec(robot=robot, inertials=inertials, load=load)  # type: ignore[arg-type]
+def _known(robot: str, inertials: str, load: LoadData | None) -> PlantSpec:
+    return PlantSpec(robot=robot, inertials=inertials, load=load)  # type: ignore[arg-type]
 
 
-def gravity_spec(spec: ModelSpec) -> ModelSpec:
+def gravity_spec(spec: PlantSpec) -> PlantSpec:
     """The rigid arm whose gravity the robot's model of `spec` computes, as its robot declares it
     (for the iiwa 14: its inertial set and the load it is told, models.iiwa14.gravity_spec)."""
     return robot_of(spec).gravity_spec(spec)

@@ -30,7 +30,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from gainfarm.models import compile_model, robot_of
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.ik import (
     ORIENTATION_TOLERANCE,
@@ -52,7 +52,7 @@ from gainfarm.worker.trajectories import (
 
 # Kinematics do not depend on the elastic-joint parameters or inertials: the rigid chain serves all.
 # The default robot's (a reference is of it until the plant's robot is passed: issue 49).
-_KINEMATIC_MODEL = ModelSpec(joints="rigid", substeps=1)
+_KINEMATIC_MODEL = PlantSpec(joints="rigid", substeps=1)
 _ROBOT = robot_of(_KINEMATIC_MODEL)
 JOINT_NAMES, N_JOINTS, FLANGE = _ROBOT.joint_names, len(_ROBOT.joint_names), _ROBOT.flange
 _POSITION = np.array(_ROBOT.limits.position)

@@ -71,7 +71,7 @@ import mujoco
 import numpy as np
 
 from gainfarm.schemas.episode import EpisodeSpec
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 from gainfarm.worker.control import PDController
 from gainfarm.worker.plant import Plant, RobotGravity
@@ -96,12 +96,12 @@ def least_damping(
     reference: ≤ 0 if the loop is unstable at one of them. Rounded to 1e-6 (a margin needs no
     more), so that hosts whose linear algebra differs in the last bits log the same number."""
     reference = reference_for(spec.trajectory) if reference is None else reference
-    plant, gravity = _scratch(spec.model, threading.get_ident())
+    plant, gravity = _scratch(spec.plant, threading.get_ident())
     loop = ClosedLoop(plant, PDController.from_gains(spec.gains, plant.torque_limits), gravity)
     least = 1.0
     for tick in _pose_ticks(reference, poses):
         pose = (reference.q[tick], reference.qd[tick], reference.qdd[tick])
-        matrix = loop.closed(_linearised(spec.model, *(part.tobytes() for part in pose)))
+        matrix = loop.closed(_linearised(spec.plant, *(part.tobytes() for part in pose)))
         if not np.isfinite(matrix).all():  # gains beyond what the physics can differentiate
             return -1.0
         least = min(least, float(damping_ratios(np.linalg.eigvals(matrix)).min()))
@@ -162,7 +162,7 @@ def margins(
     `poses` poses least_damping uses. Pure: the plant's linearisations are cached per (plant,
     pose), so every delay, and least_damping, shares them."""
     reference = reference_for(spec.trajectory) if reference is None else reference
-    nominal = spec.model.delay
+    nominal = spec.plant.delay
     delay = nominal if delay is None else delay
     if delay < 0:
         raise ValueError(f"delay {delay}: a command cannot act before it is made")
@@ -213,13 +213,13 @@ def _least_modes(
 ) -> tuple[Least, Least]:
     """The least damped (tracking, elastic) modes over the poses at `ticks`, the command `delay`
     ticks late, each rounded as least_damping rounds (hosts agree on them)."""
-    plant, gravity = _scratch(spec.model, threading.get_ident())
+    plant, gravity = _scratch(spec.plant, threading.get_ident())
     controller = PDController.from_gains(spec.gains, plant.torque_limits)
     loop = ClosedLoop(plant, controller, gravity, delay=delay)
     least: list[Least] = [None, None]
     for tick in ticks:
         pose = (reference.q[tick], reference.qd[tick], reference.qdd[tick])
-        matrix = loop.closed(_linearised(spec.model, *(part.tobytes() for part in pose)))
+        matrix = loop.closed(_linearised(spec.plant, *(part.tobytes() for part in pose)))
         if not np.isfinite(matrix).all():  # as least_damping: gains beyond the physics
             failed = (-1.0, float("nan"))
             return failed, (failed if plant.elastic else None)
@@ -258,11 +258,11 @@ def tracking_modes(plant: Plant, vectors: np.ndarray) -> np.ndarray:
 
 
 @lru_cache(maxsize=256)
-def _linearised(model: ModelSpec, q: bytes, qd: bytes, qdd: bytes) -> "Linearised":
+def _linearised(spec: PlantSpec, q: bytes, qd: bytes, qdd: bytes) -> "Linearised":
     """The plant's part of the loop at the pose whose reference is (q, qd, qdd), as bytes: it
     does not depend on the gains, so every candidate on a path shares it, and only the PD law
     is the episode's to add (the differentiation is half the margin's cost, bench/damping.py)."""
-    plant, gravity = _scratch(model, threading.get_ident())
+    plant, gravity = _scratch(spec, threading.get_ident())
     state = pose_state(plant, *(np.frombuffer(part) for part in (q, qd, qdd)))
     linearised = linearise(plant, gravity, *state)
     for part in (linearised.a, linearised.b, linearised.gravity, linearised.friction):
@@ -272,10 +272,10 @@ def _linearised(model: ModelSpec, q: bytes, qd: bytes, qdd: bytes) -> "Linearise
 
 
 @lru_cache(maxsize=32)
-def _scratch(model: ModelSpec, thread: int) -> tuple[Plant, RobotGravity | None]:
+def _scratch(plant: PlantSpec, thread: int) -> tuple[Plant, RobotGravity | None]:
     """A plant of `model` (and the robot's gravity model, behind FRI) for one thread's
     linearisations: their MjData are scratch space, and making them costs as much as two poses."""
-    return Plant(model), RobotGravity(model) if model.interface == "fri" else None
+    return Plant(plant), RobotGravity(plant) if plant.interface == "fri" else None
 
 
 def damping_ratios(z: np.ndarray) -> np.ndarray:
@@ -466,9 +466,9 @@ def _gravity_slope(gravity: RobotGravity, angles: np.ndarray) -> np.ndarray:
 
 
 @lru_cache(maxsize=64)
-def _checked(model: ModelSpec) -> None:
+def _checked(plant: PlantSpec) -> None:
     """_check_actuators, once per plant (it costs a sixth of a margin)."""
-    _check_actuators(Plant(model))
+    _check_actuators(Plant(plant))
 
 
 def _check_actuators(plant: Plant) -> None:

@@ -38,7 +38,7 @@ from gainfarm.schemas.robot import (
     JOINT_NAMES,
     POSITION_LIMITS,
     SPEED_LIMITS,
-    ModelSpec,
+    PlantSpec,
 )
 from gainfarm.schemas.trajectory import (
     CONTROL_PERIOD,
@@ -164,15 +164,15 @@ def check_stable(
     gains: PDGains,
     trajectory: TrajectorySpec,
     reference: Reference,
-    variants: Sequence[ModelSpec],
+    variants: Sequence[PlantSpec],
     ranges: str,
 ) -> float:
     """The least damping of `gains`' closed loop along the reference over the nominal plant
     and `variants` (drawn from `ranges`, named so); Unsafe naming the plant if it is ≤ 0."""
     least = 1.0
-    for number, plant in enumerate((ModelSpec(), *variants)):
+    for number, plant in enumerate((PlantSpec(), *variants)):
         damping = least_damping(
-            EpisodeSpec(gains=gains, trajectory=trajectory, model=plant), reference
+            EpisodeSpec(gains=gains, trajectory=trajectory, plant=plant), reference
         )
         if damping <= 0:
             where = f"{name(index)} (seed {trajectory.seed})"
@@ -195,7 +195,7 @@ def check_stable(
 def excitation(
     index: int,
     trajectory: TrajectorySpec,
-    variants: Sequence[ModelSpec],
+    variants: Sequence[PlantSpec],
     ranges: str,
     gains: PDGains = GAINS,
 ) -> Excitation:
@@ -397,7 +397,7 @@ def readme(excitations: Sequence[Excitation], command: str, ranges: str) -> str:
         kp=", ".join(f"{gain:g}" for gain in gains.kp),
         kd=", ".join(f"{gain:g}" for gain in gains.kd),
         start=start,
-        window=ModelSpec().sensors.velocity_window,
+        window=PlantSpec().sensors.velocity_window,
         min_span=f"{MIN_SPAN:g}",
         span=f"{min(float(e.span.min()) for e in excitations):.2f}",
         variants=worst.plants - 1,

@@ -19,7 +19,7 @@ from gainfarm.schemas.documents import BadDocument, load_json, read_bounded
 from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec, Scores
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.robot import TORQUE_LIMITS, ModelSpec
+from gainfarm.schemas.robot import TORQUE_LIMITS, PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.worker.reference import flange_positions, reference_for
 
@@ -144,14 +144,14 @@ def played_by(recording: Recording, played: Sequence[Played]) -> Played:
     return played[best]
 
 
-def as_episode(recording: Recording, played: Played, nominal: ModelSpec) -> EpisodeLog:
+def as_episode(recording: Recording, played: Played, nominal: PlantSpec) -> EpisodeLog:
     """The bag as an episode log of what was played: its reference and flange path beside the
     arm's (the flange by the arm's kinematics from its angles), scored as any episode is. The
     commanded torque stands for the applied one: the objectives of torque change do not see the
     delay between them."""
     reference = reference_for(played.trajectory)
     n = min(len(reference.q), recording.ticks)
-    spec = EpisodeSpec(gains=played.gains, trajectory=played.trajectory, model=nominal)
+    spec = EpisodeSpec(gains=played.gains, trajectory=played.trajectory, plant=nominal)
     theta = recording.theta if recording.theta is not None else recording.q
     theta_d = recording.theta_d if recording.theta_d is not None else recording.qd
     return EpisodeLog(

@@ -35,7 +35,7 @@ from scipy.signal import savgol_filter
 
 from gainfarm.analytic.calibration.logs import Recording
 from gainfarm.models import compile_model, min_substeps
-from gainfarm.schemas.robot import JOINT_NAMES, TORQUE_LIMITS, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, TORQUE_LIMITS, PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 from gainfarm.worker.plant import RobotGravity
 
@@ -88,7 +88,7 @@ class Fit:
     ticks: int
     notes: list[str] = field(default_factory=list)
 
-    def plant(self, nominal: ModelSpec) -> ModelSpec:
+    def plant(self, nominal: PlantSpec) -> PlantSpec:
         """`nominal` with the numbers the logs told (its controller's settings kept)."""
         friction = nominal.friction
         if friction is not None:
@@ -110,7 +110,7 @@ class Fit:
                 "payload": float(self.payload.value[0]),
             }
         )
-        twin = ModelSpec.model_validate(twin.model_dump())  # every rule of a plant checked
+        twin = PlantSpec.model_validate(twin.model_dump())  # every rule of a plant checked
         return twin.model_copy(update={"substeps": max(twin.substeps, min_substeps(twin))})
 
 
@@ -119,7 +119,7 @@ def _tuple(estimate: Estimate) -> tuple[float, ...]:
 
 
 def identify(
-    recordings: Sequence[Recording], nominal: ModelSpec, seed: int = 0, resamples: int = BOOTSTRAP
+    recordings: Sequence[Recording], nominal: PlantSpec, seed: int = 0, resamples: int = BOOTSTRAP
 ) -> Fit:
     """Fit the plant's numbers to `recordings`; `nominal` gives the robot's own model (its
     gravity compensation), the friction's smoothing and every number the logs cannot tell."""
@@ -155,7 +155,7 @@ def identify(
 class _Signals:
     """One recording's filtered signals over the ticks the fit uses."""
 
-    def __init__(self, recording: Recording, nominal: ModelSpec):
+    def __init__(self, recording: Recording, nominal: PlantSpec):
         period = CONTROL_PERIOD
         self.recording = recording
         self.kept = slice(SKIP_START, recording.ticks - SKIP_END)
@@ -208,7 +208,7 @@ def _solve(sums: np.ndarray) -> tuple[np.ndarray, float, float]:
 
 
 def _motor_side(
-    signals: Sequence[_Signals], weights: np.ndarray, nominal: ModelSpec
+    signals: Sequence[_Signals], weights: np.ndarray, nominal: PlantSpec
 ) -> tuple[int, float, "Smoothing", tuple[Estimate, Estimate, Estimate]]:
     """The delay, the Coulomb friction's smoothing, and per joint B, F_v, F_c.
 
@@ -324,7 +324,7 @@ def _smoothing(
 
 
 def _spring(
-    signals: Sequence[_Signals], weights: np.ndarray, nominal: ModelSpec
+    signals: Sequence[_Signals], weights: np.ndarray, nominal: PlantSpec
 ) -> tuple[Estimate, Estimate]:
     """Per joint K and D, from the deflection the two sides' angles show."""
     if any(s.estimated_motor for s in signals):
@@ -343,7 +343,7 @@ def _spring(
 
 
 def _link_side(
-    signals: Sequence[_Signals], weights: np.ndarray, nominal: ModelSpec
+    signals: Sequence[_Signals], weights: np.ndarray, nominal: PlantSpec
 ) -> tuple[Estimate, Estimate]:
     """The links' mass scales and a payload, bounded positive, from the link-side torques."""
     base = nominal.model_copy(
@@ -410,7 +410,7 @@ def _unit(i: int) -> tuple[float, ...]:
     return tuple(2.0 if k == i else 1.0 for k in range(N))
 
 
-def _inverse(spec: ModelSpec, s: _Signals) -> np.ndarray:
+def _inverse(spec: PlantSpec, s: _Signals) -> np.ndarray:
     """(n, 7) joint torques of the rigid arm `spec` along the recording's link motion."""
     model = compile_model(spec)
     data = mujoco.MjData(model)
@@ -423,10 +423,10 @@ def _inverse(spec: ModelSpec, s: _Signals) -> np.ndarray:
 
 
 def _estimates(
-    sums: np.ndarray, weights: np.ndarray, names: tuple[str, ...], nominal: ModelSpec
+    sums: np.ndarray, weights: np.ndarray, names: tuple[str, ...], nominal: PlantSpec
 ) -> tuple[Estimate, ...]:
     """Per joint least squares of summed normal equations `sums` (episodes, joints, p+1, p+1),
-    with a bootstrap over episodes; one Estimate per parameter, named as ModelSpec's fields."""
+    with a bootstrap over episodes; one Estimate per parameter, named as PlantSpec's fields."""
     p = len(names)
     fits, spreads, explained = np.empty((N, p)), np.empty((N, p)), np.empty(N)
     signal = np.empty((N, p))
@@ -455,7 +455,7 @@ def _estimates(
     return tuple(out)
 
 
-def _nominal(nominal: ModelSpec, name: str) -> tuple[float, ...]:
+def _nominal(nominal: PlantSpec, name: str) -> tuple[float, ...]:
     if name in ("viscous", "coulomb"):
         friction = nominal.friction
         return tuple(getattr(friction, name)) if friction is not None else (0.0,) * N

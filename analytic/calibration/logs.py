@@ -163,7 +163,7 @@ def _from_episode(path: Path, log: EpisodeLog) -> Recording:
     if log.ticks < MIN_TICKS:
         raise BadLog(f"{str(path)!r}: {log.ticks} ticks, fewer than the {MIN_TICKS} a fit needs")
     # The controller's side and interface are its settings, known to the user: not the plant's.
-    side = spec.model.feedback
+    side = spec.plant.feedback
     angle, rate = (log.theta, log.theta_d) if side == "motor" else (log.q, log.qd)
     kp, kd = np.asarray(spec.gains.kp), np.asarray(spec.gains.kd)
     sent = kp * (log.q_des - angle) + kd * (log.qd_des - rate)

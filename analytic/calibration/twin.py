@@ -19,7 +19,7 @@ import tomli_w
 from gainfarm.analytic.calibration.identify import FLOOR, SPREAD, Estimate, Fit
 from gainfarm.analytic.tuning.plants import Range, ranges
 from gainfarm.schemas.plant_file import PlantFile
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 
 # The ranges a calibration replaces where it tells the numbers: each is the Fit's estimate of
 # the same name.
@@ -27,7 +27,7 @@ CALIBRATED = ("rotor_inertia", "stiffness", "spring_damping", "coulomb", "viscou
 
 
 def twin_file(
-    fit: Fit, nominal: ModelSpec, logs: Sequence[Path], prior: dict[str, Range] | None = None
+    fit: Fit, nominal: PlantSpec, logs: Sequence[Path], prior: dict[str, Range] | None = None
 ) -> PlantFile:
     """The plant file of `fit` on `nominal`, naming the logs it came from; where the logs tell
     nothing, the ranges are `prior`'s (a twin's own, calibrated again), else the shipped ones."""
@@ -125,7 +125,7 @@ def _delay_range(fit: Fit) -> dict[str, Any]:
 
 
 def _per_joint(bound: float | Sequence[float]) -> np.ndarray:
-    return np.broadcast_to(np.asarray(bound, dtype=float), (len(ModelSpec().stiffness),))
+    return np.broadcast_to(np.asarray(bound, dtype=float), (len(PlantSpec().stiffness),))
 
 
 def _summary(estimate: Estimate) -> dict[str, Any]:

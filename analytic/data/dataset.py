@@ -99,7 +99,7 @@ from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.limits import MEASURES
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.schemas.wire import describe
 from gainfarm.worker.episode import motor_torque
@@ -341,8 +341,8 @@ def smoothed_acceleration(q: np.ndarray, period: float) -> np.ndarray:
     return savgol_filter(q, SG_WINDOW, SG_ORDER, deriv=2, delta=period, axis=0, mode="interp")
 
 
-def plant_of(episode: Episode) -> ModelSpec:
-    return ModelSpec.model_validate_json(str(episode.row["model"]))
+def plant_of(episode: Episode) -> PlantSpec:
+    return PlantSpec.model_validate_json(str(episode.row["model"]))
 
 
 def is_calm(chatter: float, diverged: bool) -> bool:
@@ -370,7 +370,7 @@ def episode_row(source: EpisodeSource, log: EpisodeLog) -> dict[str, object]:
         "trajectory": spec.trajectory.kind,
         "duration": spec.trajectory.duration,
         "trajectory_spec": spec.trajectory.model_dump_json(),
-        "model": spec.model.model_dump_json(),
+        "model": spec.plant.model_dump_json(),
         "gravity_compensation": spec.gravity_compensation,
         "feedforward": spec.feedforward or "",
         # NaN where the run did not tune on it (a run on f_t_joint has no candidate f_t)
@@ -443,7 +443,7 @@ def local_rerun_farm(run_dir: Path, workers: int | None = None) -> Iterator[Eval
 Owner = tuple[ChosenRun, FrontMember, str]  # a rerun job's run, controller and episode id
 
 
-def plant_variants(nominal: ModelSpec, count: int, seed: int) -> tuple[ModelSpec, ...]:
+def plant_variants(nominal: PlantSpec, count: int, seed: int) -> tuple[PlantSpec, ...]:
     """`count` plants around `nominal`, drawn from the shipped uncertainty ranges
     (models/uncertainty.toml) on the held-out stream: never the plants a robust run tuned on."""
     if count == 0:
@@ -469,7 +469,7 @@ def rerun_jobs(
         gains = [member.gains for member in run.members]
         # batch_jobs orders its jobs candidate by candidate, trajectory by trajectory.
         members = [member for member in run.members for _ in trajectories]
-        models = (run.model, *plant_variants(run.model, plants, seed))
+        models = (run.plant, *plant_variants(run.plant, plants, seed))
         for index, model in enumerate(models):
             variant = f"p{index}-" if index else ""
             specs = batch_jobs(gains, trajectories, model)
@@ -497,22 +497,22 @@ def rerun(
         evaluations = {e.job_id: e for e in run_batch(evaluator, jobs, batch_dir)}
     episodes = []
     for job_id in jobs:
-        evaluation = evaluations.get(job_id)
+        result = evaluations.get(job_id)
         if (
-            evaluation is None
-            or evaluation.log is None
-            or evaluation.status
+            result is None
+            or result.log is None
+            or result.status
             not in (
                 EpisodeStatus.ok,
                 EpisodeStatus.diverged,
             )
         ):
-            status = evaluation.status.value if evaluation else "lost"
-            reason = f": {evaluation.reason}" if evaluation and evaluation.reason else ""
+            status = result.status.value if result else "lost"
+            reason = f": {result.reason}" if result and result.reason else ""
             raise RerunFailed(f"rerun episode {job_id} {status}{reason}; nothing was written")
         run, member, episode_id = owners[job_id]
         path = staging / "episodes" / f"{episode_id}.mcap"
-        os.replace(evaluation.log, path)
+        os.replace(result.log, path)
         episodes.append(
             read_source(EpisodeSource(episode_id, RERUN, run.run_id, path, member, RERUN))
         )
@@ -595,7 +595,7 @@ def build(
             )
         trajectories = {trajectory_id(e.trajectory): e.trajectory for e in episodes}
         splits = assign_splits(list(trajectories), fractions, split_seed)
-        own = {run.run_id: run.model for run in chosen}
+        own = {run.run_id: run.plant for run in chosen}
         parts = {
             e.source.episode_id: splits[trajectory_id(e.trajectory)]
             + VARIANTS * (plant_of(e) != own[e.source.run_id])

@@ -15,7 +15,7 @@ from gainfarm.analytic.data.dataset_columns import (
 from gainfarm.analytic.data.dataset_runs import ChosenRun, Selection
 from gainfarm.analytic.data.dataset_split import DEFAULT_SPLIT, Split
 from gainfarm.cli.words import counted
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 
 
@@ -24,12 +24,12 @@ def _paragraph(text: str) -> str:
     return textwrap.fill(text, width=96, break_long_words=False, break_on_hyphens=False)
 
 
-def interface_text(model: ModelSpec) -> str:
+def interface_text(plant: PlantSpec) -> str:
     """What the card says of a run's torque interface: how its `u` became `u_motor`."""
-    if model.interface == "fri":
+    if plant.interface == "fri":
         return (
             "behind KUKA's FRI torque interface (the robot added its gravity model of the "
-            f"{model.inertials} inertials to `u`: `u_motor` is the sum)"
+            f"{plant.inertials} inertials to `u`: `u_motor` is the sum)"
         )
     return "on a plain torque interface (`u_motor` is `u`)"
 
@@ -53,7 +53,7 @@ def card(
         "on a log scale between the front's ideal and nadir)"
     )
     runs = "\n".join(
-        f"- `{run.name}`: run_id `{run.run_id}`, {interface_text(run.model)}" for run in chosen
+        f"- `{run.name}`: run_id `{run.run_id}`, {interface_text(run.plant)}" for run in chosen
     )
     fractions = ",".join(f"{value:g}" for value in split)
     logs, rerun, caution = _logs_text(counts)

@@ -80,7 +80,7 @@ COLUMNS = {
     "ticks": ("", "ticks in the episode"),
     "duration": ("s", "the trajectory's duration"),
     "trajectory_spec": ("", "the TrajectorySpec, JSON"),
-    "model": ("", "the plant: ModelSpec, JSON"),
+    "model": ("", "the plant: PlantSpec, JSON"),
     "gravity_compensation": ("", "g(q_des) feed-forward was on"),
     "feedforward": ("", "SHA-256 of the learned inverse-dynamics feed-forward, if any"),
     "candidate_f_acc": ("m", "the controller's f_acc over its run's trajectory set"),

@@ -19,7 +19,7 @@ from gainfarm.analytic.tuning.records import (
 )
 from gainfarm.analytic.tuning.run import RunBusy, TuningRun, upgrade
 from gainfarm.schemas.limits import Limits
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.wire import one_line
 
 Selection = Literal["front", "knee"]
@@ -40,7 +40,7 @@ class ChosenRun:
     directory: Path
     name: str
     run_id: str
-    model: ModelSpec
+    plant: PlantSpec
     members: list[FrontMember]
     feedforward: str | None = None  # the learned model its episodes add to the PD, if any
     # The safety limits its config checks every episode against.
@@ -91,7 +91,7 @@ def choose(run_dirs: Sequence[Path], selection: Selection) -> list[ChosenRun]:
                 Path(run_dir),
                 name,
                 run_id,
-                run.config.model,
+                run.config.plant,
                 members,
                 run.config.feedforward,
                 run.config.limits,

@@ -54,7 +54,7 @@ from gainfarm.models.dynamics import (
     to_bytes,
     true_model,
 )
-from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, PlantSpec
 
 # The whole motor torque a model of the arm learns (dataset version 3); a dataset from before it
 # has only u, the motor torque of its episodes, all on a plain torque interface.
@@ -237,7 +237,7 @@ class Floor:
     """The floor of a dataset: each episode's rows predicted by its own plant's dynamics
     (`true_model`), so a dataset of several plants (`analytic dataset --plants`) has one too."""
 
-    plant_of: dict[str, ModelSpec]  # episode id → its plant
+    plant_of: dict[str, PlantSpec]  # episode id → its plant
     target: Target = "inverse"
     kind: str = "plant"
 
@@ -255,7 +255,7 @@ def floor_model(dataset_dir: Path, target: Target = "inverse") -> Floor:
     try:
         table = pq.read_table(Path(dataset_dir) / EPISODES, columns=["episode_id", "model"])
         texts = dict(zip(table["episode_id"].to_pylist(), table["model"].to_pylist(), strict=True))
-        specs = {text: ModelSpec.model_validate_json(text) for text in set(texts.values())}
+        specs = {text: PlantSpec.model_validate_json(text) for text in set(texts.values())}
     except (OSError, pa.ArrowException, ValueError, KeyError) as error:
         raise LearnError(
             f"{str(dataset_dir)!r}: unreadable {EPISODES}: {_one_line(error)}"
@@ -263,7 +263,7 @@ def floor_model(dataset_dir: Path, target: Target = "inverse") -> Floor:
     return Floor({str(episode): specs[text] for episode, text in texts.items()}, target)
 
 
-def plants(dataset_dir: Path, variants: bool = False) -> list[ModelSpec]:
+def plants(dataset_dir: Path, variants: bool = False) -> list[PlantSpec]:
     """The distinct plants of the dataset's episodes in train, validation and test (the runs'
     own), in order of first appearance; with `variants`, those of the *_variants splits (none
     in a dataset without them)."""
@@ -279,10 +279,10 @@ def plants(dataset_dir: Path, variants: bool = False) -> list[ModelSpec]:
         ) from None
     if parts is not None:
         texts = [t for t, p in zip(texts, parts, strict=True) if p.endswith(VARIANTS) == variants]
-    found: list[ModelSpec] = []
+    found: list[PlantSpec] = []
     try:
         for text in texts:
-            plant = ModelSpec.model_validate_json(text)
+            plant = PlantSpec.model_validate_json(text)
             if plant not in found:
                 found.append(plant)
     except ValueError as error:
@@ -353,7 +353,7 @@ def fit(
     )
 
 
-def identify(spec: ModelSpec, rows: Rows) -> tuple[np.ndarray, int, dict[str, Any]]:
+def identify(spec: PlantSpec, rows: Rows) -> tuple[np.ndarray, int, dict[str, Any]]:
     """π of the linear model, physically consistent; how many directions of it the data
     determine; and what the consistency cost.
 
@@ -682,7 +682,7 @@ def report(
     dataset_dir: Path,
     model: DynamicsModel,
     scores: dict[str, Any],
-    found: list[ModelSpec],
+    found: list[PlantSpec],
     counts: dict[str, tuple[int, int]],
 ) -> str:
     """The model directory's report.md."""
@@ -725,7 +725,7 @@ def report(
     return "\n".join(lines)
 
 
-def _torque_text(dataset_dir: Path, found: list[ModelSpec]) -> str:
+def _torque_text(dataset_dir: Path, found: list[PlantSpec]) -> str:
     """Which torque the model predicts (or takes, if forward): the motors' whole torque."""
     if motor_torque_column(dataset_dir) == COMMAND:
         return "`u`, the motors' whole torque (a dataset from before `u_motor`, plain torque)"

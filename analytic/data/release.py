@@ -47,7 +47,7 @@ from gainfarm.analytic.data.lerobot import DEFAULT_LAYOUT, LerobotLayout
 from gainfarm.analytic.data.loader import ALL_SPLITS, VARIANTS
 from gainfarm.analytic.view.export import plant_name
 from gainfarm.edges.files import write_atomically
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 
 RELEASE_JSON, STATS_JSON, BASELINES_JSON, CARD = (
@@ -198,7 +198,7 @@ def release_plants(directory: Path) -> list[dict[str, Any]]:
     its number of episodes there."""
     table = pq.read_table(Path(directory) / EPISODES, columns=["model", "split"])
     pairs = zip(table["split"].to_pylist(), table["model"].to_pylist(), strict=True)
-    episodes = [(s.endswith(VARIANTS), ModelSpec.model_validate_json(text)) for s, text in pairs]
+    episodes = [(s.endswith(VARIANTS), PlantSpec.model_validate_json(text)) for s, text in pairs]
     return [
         {
             "role": "variant" if variant else "nominal",
@@ -315,36 +315,36 @@ def _json_safe(value: Any) -> Any:
     return value
 
 
-def plant_description(model: ModelSpec) -> str:
-    """What a plant simulates, in the card's words, from its ModelSpec."""
-    sensors = model.sensors
+def plant_description(plant: PlantSpec) -> str:
+    """What a plant simulates, in the card's words, from its PlantSpec."""
+    sensors = plant.sensors
     parts = [
         "elastic joints (a spring between each motor and its link)"
-        if model.joints == "flexible"
+        if plant.joints == "flexible"
         else "rigid joints",
-        "motor-side friction (viscous and Coulomb-like)" if model.friction else "no friction",
+        "motor-side friction (viscous and Coulomb-like)" if plant.friction else "no friction",
         "exact sensors"
         if sensors.exact
         else f"sensor noise ({sensors.noise:.2g} rad on the angles, quantised to "
         f"{sensors.resolution:.2g} rad; {sensors.torque_noise:g} N·m on the torque sensors)",
-        f"a command delay of {model.delay} tick{'s' * (model.delay != 1)}",
-        f"{model.feedback}-side feedback",
-        f"{model.inertials} inertials",
+        f"a command delay of {plant.delay} tick{'s' * (plant.delay != 1)}",
+        f"{plant.feedback}-side feedback",
+        f"{plant.inertials} inertials",
     ]
-    if model.load is not None:
-        parts.append(f"a {model.load.mass:g} kg load the robot is told of")
-    if model.payload:
-        parts.append(f"a {model.payload:g} kg payload")
-    if any(scale != 1 for scale in model.mass_scale):
-        parts.append("link masses scaled (" + ", ".join(f"{s:g}" for s in model.mass_scale) + ")")
-    return ", ".join(parts) + "; " + interface_text(model)
+    if plant.load is not None:
+        parts.append(f"a {plant.load.mass:g} kg load the robot is told of")
+    if plant.payload:
+        parts.append(f"a {plant.payload:g} kg payload")
+    if any(scale != 1 for scale in plant.mass_scale):
+        parts.append("link masses scaled (" + ", ".join(f"{s:g}" for s in plant.mass_scale) + ")")
+    return ", ".join(parts) + "; " + interface_text(plant)
 
 
 def release_card(record: dict[str, Any]) -> str:
     """The card's section on the release: its identity, the robot, the plants, the splits."""
     plants = "\n".join(
         f"- {plant['role']} ({plant['name']} plant, {plant['episodes']} episodes): "
-        + plant_description(ModelSpec.model_validate(plant["model"]))
+        + plant_description(PlantSpec.model_validate(plant["model"]))
         for plant in record["plants"]
     )
     splits = "\n".join(

@@ -14,7 +14,7 @@ from gainfarm.analytic.evaluators.evaluator import EpisodeResult, Evaluator, Wan
 from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 
 EVALUATIONS = "evaluations.json"
@@ -23,14 +23,14 @@ EVALUATIONS = "evaluations.json"
 def batch_jobs(
     candidates: Sequence[PDGains],
     trajectories: Sequence[TrajectorySpec],
-    model: ModelSpec,
+    plant: PlantSpec,
     feedforward: str | None = None,
 ) -> dict[str, EpisodeSpec]:
     """Job id → spec, one per pair; ids say which candidate on which trajectory. `feedforward`:
     the SHA-256 of the learned model every episode adds to its PD, if any."""
     return {
         f"c{index:03d}-{number}-{trajectory.kind}": EpisodeSpec(
-            gains=gains, trajectory=trajectory, model=model, feedforward=feedforward
+            gains=gains, trajectory=trajectory, plant=plant, feedforward=feedforward
         )
         for index, gains in enumerate(candidates)
         for number, trajectory in enumerate(trajectories)
@@ -49,13 +49,13 @@ def run_batch(
     workers)."""
     evaluator.submit(jobs)
     evaluations = {}
-    for evaluation in evaluator.results():
-        evaluations[evaluation.job_id] = evaluation
-        on_evaluation(evaluation)
+    for result in evaluator.results():
+        evaluations[result.job_id] = result
+        on_evaluation(result)
     elsewhere = {
-        job_id: Wanted(evaluation.spec, evaluation.digest, (evaluation.worker,))
-        for job_id, evaluation in evaluations.items()
-        if evaluation.log is None and evaluation.scores is not None and evaluation.digest
+        job_id: Wanted(result.spec, result.digest, (result.worker,))
+        for job_id, result in evaluations.items()
+        if result.log is None and result.scores is not None and result.digest
     }
     for job_id, got in evaluator.fetch(elsewhere).items() if elsewhere else ():
         evaluations[job_id] = dataclasses.replace(
@@ -65,19 +65,19 @@ def run_batch(
             reason=evaluations[job_id].reason or got.reason,
         )
     ordered = [evaluations[job_id] for job_id in jobs if job_id in evaluations]
-    records = [evaluation_record(evaluation, run_dir) for evaluation in ordered]
+    records = [evaluation_record(result, run_dir) for result in ordered]
     write_atomically(run_dir / EVALUATIONS, json.dumps(records, indent=1).encode())
     return ordered
 
 
-def evaluation_record(evaluation: EpisodeResult, run_dir: Path) -> dict[str, object]:
+def evaluation_record(result: EpisodeResult, run_dir: Path) -> dict[str, object]:
     return {
-        "job_id": evaluation.job_id,
-        "status": evaluation.status.value,
-        "reason": evaluation.reason,
-        "scores": evaluation.scores.model_dump() if evaluation.scores else None,
-        "episode": str(evaluation.log.relative_to(run_dir)) if evaluation.log else None,
-        "spec": evaluation.spec.model_dump(mode="json"),
-        "worker": evaluation.worker,
-        "attempts": evaluation.attempts,
+        "job_id": result.job_id,
+        "status": result.status.value,
+        "reason": result.reason,
+        "scores": result.scores.model_dump() if result.scores else None,
+        "episode": str(result.log.relative_to(run_dir)) if result.log else None,
+        "spec": result.spec.model_dump(mode="json"),
+        "worker": result.worker,
+        "attempts": result.attempts,
     }

@@ -380,32 +380,32 @@ class FarmClient:
         self.submit({rerun: again[job_id].spec for rerun, job_id in reruns.items()})
         found: dict[str, EpisodeResult] = {}
         others: list[EpisodeResult] = []
-        for evaluation in self.results():
-            if evaluation.job_id in reruns:
-                found[evaluation.job_id] = evaluation
+        for result in self.results():
+            if result.job_id in reruns:
+                found[result.job_id] = result
                 if len(found) == len(reruns):
                     break
             else:
-                others.append(evaluation)  # handed out later, as if it had come after
+                others.append(result)  # handed out later, as if it had come after
         self._jobs.ready.extendleft(reversed(others))
         fetched = {}
         for rerun, job_id in reruns.items():
-            evaluation = found.get(rerun)
-            if evaluation is None or evaluation.digest is None:
-                why = evaluation.reason if evaluation else "not simulated again"
+            result = found.get(rerun)
+            if result is None or result.digest is None:
+                why = result.reason if result else "not simulated again"
                 fetched[job_id] = Fetched(None, None, None, why or "not simulated again")
                 continue
-            if evaluation.digest != again[job_id].digest:
+            if result.digest != again[job_id].digest:
                 log.warning("%s simulated again is not the log its worker had made", job_id)
             path = self.log_dir / f"{job_id}.mcap"
-            if evaluation.log is not None:  # fetched with its result, checked and scored
-                evaluation.log.replace(path)
-                scores = evaluation.scores
+            if result.log is not None:  # fetched with its result, checked and scored
+                result.log.replace(path)
+                scores = result.scores
             else:
-                scores = self._logs.rerun_log(job_id, evaluation, again[job_id].spec, path)
+                scores = self._logs.rerun_log(job_id, result, again[job_id].spec, path)
                 if scores is None:
-                    why = f"simulated again on {evaluation.worker}, but its log was not had"
+                    why = f"simulated again on {result.worker}, but its log was not had"
                     fetched[job_id] = Fetched(None, None, None, why)
                     continue
-            fetched[job_id] = Fetched(path, scores, evaluation.digest, source=evaluation.worker)
+            fetched[job_id] = Fetched(path, scores, result.digest, source=result.worker)
         return fetched

@@ -103,25 +103,25 @@ class Logs:
         return fetched, again
 
     def rerun_log(
-        self, job_id: str, evaluation: EpisodeResult, spec: EpisodeSpec, path: Path
+        self, job_id: str, result: EpisodeResult, spec: EpisodeSpec, path: Path
     ) -> Scores | None:
         """The log of a job run again, from the worker that ran it (by its digest), kept at
         `path` and scored here; None if it cannot be had. A worker whose log does not score as
         it claimed is distrusted."""
-        assert evaluation.digest is not None
-        want = Wanted(spec, evaluation.digest, (evaluation.worker,))
+        assert result.digest is not None
+        want = Wanted(spec, result.digest, (result.worker,))
         content, _ = self.fetch_log(want)
         if content is None:
-            log.warning("%s simulated again: %s no longer has its log", job_id, evaluation.worker)
+            log.warning("%s simulated again: %s no longer has its log", job_id, result.worker)
             return None
         try:
             scores = self.read_log(content, spec, path, f"log of {job_id} simulated again")
         except NotAnEpisodeLog as error:
             log.warning("%s simulated again: %s", job_id, error)
             return None
-        if scores != evaluation.scores:
-            self.workers.distrusted.add(evaluation.worker)
+        if scores != result.scores:
+            self.workers.distrusted.add(result.worker)
             log.warning(
-                "%s simulated again: %s claimed scores its log has not", job_id, evaluation.worker
+                "%s simulated again: %s claimed scores its log has not", job_id, result.worker
             )
         return scores

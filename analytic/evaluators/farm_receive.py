@@ -96,9 +96,9 @@ class Receiver:
             self.arrived.setdefault(job_id, []).append(arrival)
             return
         self.inbox.release([arrival])
-        evaluation = self.receive(arrival)
-        if evaluation is not None:
-            self.jobs.ready.append(evaluation)
+        result = self.receive(arrival)
+        if result is not None:
+            self.jobs.ready.append(result)
 
     def confirm(self) -> None:
         """Ask the broker which of the arrived results it took; each job's confirmed one is
@@ -142,9 +142,9 @@ class Receiver:
             )
             for arrival in batch:
                 if arrival.result.job_id in self.jobs.pending:
-                    evaluation = self.receive(arrival, logs)
-                    if evaluation is not None:
-                        self.jobs.ready.append(evaluation)
+                    result = self.receive(arrival, logs)
+                    if result is not None:
+                        self.jobs.ready.append(result)
 
     def _confirmed(self, job_ids: list[str], unanswered: str) -> ConfirmReply | None:
         """The broker's word on which results it took for `job_ids`; None if it did not answer
@@ -202,9 +202,9 @@ class Receiver:
         full): the broker's record stands in for it (`_from_record`)."""
         for accepted in self.inbox.overdue(TAKEN_PATIENCE):
             if accepted.job_id in self.jobs.pending:
-                evaluation = self._from_record(accepted)
-                if evaluation is not None:
-                    self.jobs.ready.append(evaluation)
+                result = self._from_record(accepted)
+                if result is not None:
+                    self.jobs.ready.append(result)
 
     def _from_record(self, accepted: Accepted) -> EpisodeResult | None:
         """The evaluation of a job whose result the broker took but which never came here: the

@@ -55,8 +55,8 @@ class Ran:
     scores: Scores | None
 
     @classmethod
-    def of(cls, evaluation: EpisodeResult) -> "Ran":
-        return cls(evaluation.job_id, evaluation.worker, evaluation.digest, evaluation.scores)
+    def of(cls, result: EpisodeResult) -> "Ran":
+        return cls(result.job_id, result.worker, result.digest, result.scores)
 
 
 class Check(StrEnum):
@@ -146,10 +146,10 @@ def caught_probability(rate: float, episodes: float, share: float = LIE_SHARE) -
     return -math.expm1(share * episodes * math.log1p(-rate))
 
 
-def claims_failure(evaluation: EpisodeResult) -> bool:
+def claims_failure(result: EpisodeResult) -> bool:
     """Whether `evaluation` is a worker's word that the episode failed (not this process's
     verdict on a result it could not use, which names no worker): the referee runs it too."""
-    return evaluation.status == EpisodeStatus.failed and bool(evaluation.worker)
+    return result.status == EpisodeStatus.failed and bool(result.worker)
 
 
 def validate(
@@ -208,8 +208,8 @@ def validate(
     return validation
 
 
-def _ran(evaluation: EpisodeResult) -> bool:
-    return evaluation.digest is not None
+def _ran(result: EpisodeResult) -> bool:
+    return result.digest is not None
 
 
 def _settle_failure(

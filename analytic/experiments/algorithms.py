@@ -126,7 +126,7 @@ def baseline_points(
 ) -> tuple[list[PDGains], list[Point], Point]:
     """The classical rule's controllers for the base plant, and their points and the default
     gains' on the base trajectory, simulated once (one cross-evaluation, "baselines")."""
-    classical = classical_baseline(base.model)
+    classical = classical_baseline(base.plant)
     points = experiment.evaluate_gains(
         "baselines", [*classical.gains, DEFAULT_GAINS], base.trajectories[0], base
     )

@@ -24,7 +24,7 @@ from gainfarm.analytic.tuning.search_space import SearchSpace
 from gainfarm.models.dynamics import rigid_spec
 from gainfarm.models.iiwa14 import READY_POSTURE, compile_model
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.robot import N_JOINTS, ModelSpec
+from gainfarm.schemas.robot import N_JOINTS, PlantSpec
 
 OMEGAS = (5.0, 10.0, 15.0, 20.0, 30.0, 40.0, 60.0, 80.0)  # rad/s: the default gains' are 29-60
 DAMPINGS = (0.7, 1.0)
@@ -40,11 +40,11 @@ class ClassicalGains:
 
 
 def joint_inertias(
-    plant: ModelSpec | None = None, posture: Sequence[float] = READY_POSTURE
+    plant: PlantSpec | None = None, posture: Sequence[float] = READY_POSTURE
 ) -> np.ndarray:
     """M_ii, kg·m², per joint: the diagonal of the mass matrix of `plant`'s rigid arm
     (models.dynamics.rigid_spec: rotor inertias as armature) at `posture`."""
-    model = compile_model(rigid_spec(plant or ModelSpec()))
+    model = compile_model(rigid_spec(plant or PlantSpec()))
     data = mujoco.MjData(model)
     data.qpos[:N_JOINTS] = posture
     mujoco.mj_forward(model, data)
@@ -81,7 +81,7 @@ def classical_gains(
 
 
 def classical_baseline(
-    plant: ModelSpec | None = None,
+    plant: PlantSpec | None = None,
     omegas: Sequence[float] = OMEGAS,
     dampings: Sequence[float] = DAMPINGS,
     space: SearchSpace | None = None,

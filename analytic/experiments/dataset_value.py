@@ -80,7 +80,7 @@ from gainfarm.edges.files import write_atomically
 from gainfarm.models.dynamics import rigid_prior, true_model
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 
 SIMULATED = "simulated"
@@ -147,7 +147,7 @@ def batch_logs(
     name: str,
     gains: Sequence[PDGains],
     trajectories: Sequence[TrajectorySpec],
-    plant: ModelSpec,
+    plant: PlantSpec,
 ) -> dict[str, Path]:
     """Episode id → log of every controller on every trajectory, simulated (or reused)."""
     logs = simulate(experiment, name, batch_jobs(gains, trajectories, plant))
@@ -177,7 +177,7 @@ def all_pools(
     repetition at once, then every batch of episodes they call for at once (as wide as the
     farm; `Experiment.parallel` bounds it), each reused if done before."""
     trajectories = training_trajectories(base.trajectories[0].duration)
-    plant = base.model
+    plant = base.plant
     records = experiment.tune_many(tuning_plan(base, reps))
 
     def batch(name: str, gains: Sequence[PDGains], on: Sequence[TrajectorySpec]) -> Callable:
@@ -224,7 +224,7 @@ def pools_of_rep(
 
 
 def test_pool(
-    experiment: Experiment, duration: float, count: int, plant: ModelSpec
+    experiment: Experiment, duration: float, count: int, plant: PlantSpec
 ) -> tuple[Rows, list[int]]:
     """The test rows: the default gains and TEST_RANDOM_CONTROLLERS smooth random controllers
     (`smooth_controllers` among TEST_DRAWS draws of seed TEST_SEED) on `count` held-out
@@ -259,7 +259,7 @@ def run(
 ) -> Conclusion:
     """Run the experiment (module docstring) and write its files; return its findings."""
     duration = base.trajectories[0].duration
-    plant = base.model
+    plant = base.plant
     test, accepted = test_pool(experiment, duration, test_count, plant)
     test_digest = rows_digest(test)
     reference = score(rigid_prior(plant, "inverse"), test)

@@ -25,7 +25,7 @@ from gainfarm.schemas.episode import Scores
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import score as score_episode
-from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, PlantSpec
 from gainfarm.schemas.trajectory import TrajectoryKind, TrajectorySpec
 
 # The conditions: where a pool's episodes come from. The first five are tuned selections.
@@ -167,7 +167,7 @@ def rows_digest(rows: Rows) -> str:
 
 
 def fit_model(
-    kind: str, plant: ModelSpec, train: Rows, validation: Rows, seed: int
+    kind: str, plant: PlantSpec, train: Rows, validation: Rows, seed: int
 ) -> DynamicsModel:
     """An inverse-dynamics model of `kind` from in-memory rows, built as analytic.learning.fit
     builds it from a dataset directory (the linear model uses the train rows only, as there)."""

@@ -235,7 +235,7 @@ def held_out_points(
 ) -> list[Point]:
     """Each controller's mean (f_acc, f_t) over `paths`, with `model` as its feed-forward."""
     wanted = digest(model) if model is not None else None
-    jobs = batch_jobs(gains, paths, base.model, wanted)
+    jobs = batch_jobs(gains, paths, base.plant, wanted)
     found = scored(experiment, name, jobs, {wanted: model} if model is not None else {})
     ids, per = list(jobs), len(paths)
     points = []
@@ -263,10 +263,10 @@ def learned_model(
         return path.read_bytes()
     front = data.front_logs(record, experiment.out / "runs" / f"pd-{rep}", "front")
     gains = [member.gains for member in record.front]
-    rerun = data.simulate(experiment, f"data-{rep}", batch_jobs(gains, paths, base.model))
+    rerun = data.simulate(experiment, f"data-{rep}", batch_jobs(gains, paths, base.plant))
     rows = dv_measures.pool_rows(front | {f"data-{rep}/{job}": log for job, log in rerun.items()})
     train, validation = dv_measures.subsample(rows, min(len(rows), TRAIN_ROWS), rep)
-    model = dv_measures.fit_model(learner, base.model, train, validation, rep)
+    model = dv_measures.fit_model(learner, base.plant, train, validation, rep)
     raw = to_bytes(model)
     write_atomically(path, raw)
     experiment.on_progress(f"rep {rep}: {learner} model learnt from {len(train):,} ticks")
@@ -278,7 +278,7 @@ def run_config(base: RunConfig, duration: float, rep: int, plants: int) -> RunCo
         update={
             "seed": rep,
             "trajectories": trained_on(duration),
-            "plants": variants(base.model, plants, rep) if plants else (),
+            "plants": variants(base.plant, plants, rep) if plants else (),
         }
     )
 
@@ -295,7 +295,7 @@ def run(
 ) -> list[Claim]:
     """Run the experiment (module docstring) and write its files; return the claims tested."""
     duration = base.trajectories[0].duration
-    plant = base.model
+    plant = base.plant
     paths = held_out_paths(held_out, held_out_duration)
     true_raw = to_bytes(true_model(plant))
     (experiment.out / "models").mkdir(parents=True, exist_ok=True)

@@ -44,7 +44,7 @@ def experiment_setup(
     )
     return [
         f"{reps} repetitions (seeds 0..{reps - 1}); runs of {population}, {duration}, "
-        f"{base.termination_text}, {plant_text(base.model)}",
+        f"{base.termination_text}, {plant_text(base.plant)}",
         "hypervolume normalised between the ideal and the nadir of the pooled non-dominated "
         f"front of each problem (penalty points left out; f_t on a log scale): {spaces} "
         "(`normalisation.json`)",

@@ -205,7 +205,7 @@ class Experiment:
                     f"m{index:03d}": EpisodeSpec(
                         gains=each,
                         trajectory=trajectory,
-                        model=config.model,
+                        plant=config.plant,
                         objectives=config.objectives,
                     )
                     for index, each in enumerate(gains)

@@ -48,7 +48,7 @@ from gainfarm.analytic.tuning.records import BASELINE_JSON, RunRecord, read_base
 from gainfarm.analytic.view.figures import new_figure, save_png
 from gainfarm.models import min_substeps
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.wire import describe
 
 NAME = "sensitivity"
@@ -64,7 +64,7 @@ class Parameter:
 
     name: str  # as --parameters names it
     what: str  # as the report names it
-    field: str  # ModelSpec's field, dotted into a sub-model
+    field: str  # PlantSpec's field, dotted into a sub-model
     settings: tuple[float, ...]
     uncertainty: str  # its entry in models/uncertainty.toml
     absolute: bool = False
@@ -109,7 +109,7 @@ def settings_of(names: Sequence[str]) -> list[Setting]:
     return [Setting(PARAMETERS[n], value) for n in names for value in PARAMETERS[n].settings]
 
 
-def moved(plant: ModelSpec, setting: Setting) -> ModelSpec:
+def moved(plant: PlantSpec, setting: Setting) -> PlantSpec:
     """`plant` with `setting`'s parameter moved, and the physics steps its springs need;
     ValueError (one line) if the plant has no such number or the result is no plant."""
     parameter = setting.parameter
@@ -126,7 +126,7 @@ def moved(plant: ModelSpec, setting: Setting) -> ModelSpec:
     else:
         holder[name] = tuple(v * setting.value for v in current)
     try:
-        result = ModelSpec.model_validate(values)
+        result = PlantSpec.model_validate(values)
     except ValidationError as error:
         raise ValueError(describe(error)) from None
     needed = min_substeps(result)
@@ -137,7 +137,7 @@ def moved_config(base: RunConfig, setting: Setting) -> RunConfig:
     """`base` on the moved plant: the nominal plant, and robust tuning's variants alike."""
     return base.model_copy(
         update={
-            "model": moved(base.model, setting),
+            "model": moved(base.plant, setting),
             "plants": tuple(moved(p, setting) for p in base.plants),
             "check_plants": tuple(moved(p, setting) for p in base.check_plants),
         }

@@ -106,9 +106,9 @@ class Books:
 
     # --- each candidate ------------------------------------------------------------------------
 
-    def account(self, evaluation: EpisodeResult) -> None:
-        if evaluation.timings is not None:
-            timings = evaluation.timings
+    def account(self, result: EpisodeResult) -> None:
+        if result.timings is not None:
+            timings = result.timings
             self.state.busy_seconds += timings.simulate_s + timings.encode_s
 
     def record(self, gains: PDGains, job_ids: list[str], results: dict[str, EpisodeResult]) -> None:

@@ -56,7 +56,7 @@ from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import measures
 from gainfarm.schemas.objectives import objectives
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 
 CHECK_JSON = "check.json"
 # The check's episodes are at most this share of the run's own, so a short run is not made
@@ -177,7 +177,7 @@ class _Check:
     """The check's rounds so far: each controller's episodes (`results`, by job id) and
     summaries (`checked`), refereed as `_refereed` says before a candidate is judged."""
 
-    def __init__(self, run: TuningRun, evaluator: Evaluator, plants: Sequence[ModelSpec]):
+    def __init__(self, run: TuningRun, evaluator: Evaluator, plants: Sequence[PlantSpec]):
         self.run, self.evaluator, self.plants = run, evaluator, plants
         self.referee = run.referee_for(evaluator)
         self.results: dict[str, EpisodeResult] = {}
@@ -285,23 +285,23 @@ def _round(
     run: TuningRun,
     evaluator: Evaluator,
     chosen: Sequence[PDGains],
-    plants: Sequence[ModelSpec],
+    plants: Sequence[PlantSpec],
     offset: int,
 ) -> dict[str, EpisodeResult]:
     """Run `chosen` controllers on the nominal plant and `plants`, every trajectory."""
     specs = {}
     for index, gains in enumerate(chosen, start=offset):
         for number, trajectory in enumerate(run.config.trajectories):
-            for plant, model in enumerate((run.config.model, *plants)):
+            for plant, model in enumerate((run.config.plant, *plants)):
                 specs[_job_id(run, index, number, plant)] = EpisodeSpec(
                     gains=gains,
                     trajectory=trajectory,
-                    model=model,
+                    plant=model,
                     feedforward=run.config.feedforward,
                     objectives=run.config.objectives,
                 )
     evaluator.submit(specs)
-    return {evaluation.job_id: evaluation for evaluation in evaluator.results()}
+    return {result.job_id: result for result in evaluator.results()}
 
 
 def _summary(
@@ -424,7 +424,7 @@ def _margins(config: RunConfig, gains: PDGains) -> dict:
     tuned members unstable), and its delay margin in ticks. About an episode's cost each."""
     from gainfarm.worker.stability import margins  # start-up: MuJoCo, only for a check
 
-    top = max(plant.delay for plant in (config.model, *config.plants, *config.check_plants))
+    top = max(plant.delay for plant in (config.plant, *config.plants, *config.check_plants))
     found = [
         margins(config.episode_spec(gains, number), delay=top)
         for number in range(len(config.trajectories))

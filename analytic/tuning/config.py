@@ -2,7 +2,7 @@
 
 from typing import Annotated, Literal, Self
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from gainfarm import plugins
 from gainfarm.analytic.tuning import defaults
@@ -17,7 +17,7 @@ from gainfarm.cli.words import counted
 from gainfarm.schemas.episode import DEFAULT_OBJECTIVES, EpisodeSpec
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.limits import Limits
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 
 PositiveFinite = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -33,7 +33,11 @@ class RunConfig(BaseModel):
     )
     seed: int = Field(defaults.SEED, ge=0)
     trajectories: tuple[TrajectorySpec, ...] = Field((TrajectorySpec(),), min_length=1)
-    model: ModelSpec = ModelSpec()
+    plant: PlantSpec = Field(
+        default_factory=PlantSpec,
+        # "model" in files written before the plant had its own word (docs/architecture.md)
+        validation_alias=AliasChoices("plant", "model"),
+    )
     generations: int | None = Field(None, ge=defaults.GENERATIONS_MIN)
     evaluations: int | None = Field(None, ge=defaults.EVALUATIONS_MIN)
     tolerance: float = Field(CONVERGENCE_TOLERANCE, gt=0)
@@ -92,14 +96,14 @@ class RunConfig(BaseModel):
         "aggregated over the plants (schemas.objectives.plant_scales: each plant counts alike at "
         "the default gains); None: as they are",
     )
-    plants: tuple[ModelSpec, ...] = Field(
+    plants: tuple[PlantSpec, ...] = Field(
         (),
         max_length=64,
         description="robust tuning: plant variants every candidate is scored on besides the "
         "nominal `model`, the same for every candidate (analytic.tuning.plants draws them from "
         "the uncertainty ranges); none: the nominal plant alone",
     )
-    check_plants: tuple[ModelSpec, ...] = Field(
+    check_plants: tuple[PlantSpec, ...] = Field(
         (),
         max_length=256,
         description="the held-out check: plants drawn like `plants` on another stream of the "
@@ -170,9 +174,9 @@ class RunConfig(BaseModel):
             plugins.check_name(plugins.OBJECTIVES, name)
         return names
 
-    @field_validator("model")
+    @field_validator("plant")
     @classmethod
-    def _a_robot_here(cls, plant: ModelSpec) -> ModelSpec:
+    def _a_robot_here(cls, plant: PlantSpec) -> PlantSpec:
         plugins.check_name(plugins.ROBOTS, plant.robot)
         return plant
 
@@ -214,7 +218,7 @@ class RunConfig(BaseModel):
         return EpisodeSpec(
             gains=gains,
             trajectory=self.trajectories[trajectory],
-            model=self.model if plant == 0 else self.plants[plant - 1],
+            plant=self.plant if plant == 0 else self.plants[plant - 1],
             feedforward=self.feedforward,
             objectives=self.objectives,
         )

@@ -103,13 +103,9 @@ class FrontEpisodes:
         """A member's logs validation left here (the referee's, where the worker's is not
         here) are kept, as fetched ones are: nothing to fetch."""
         kept = self.state.episodes.setdefault(gains, [])
-        for evaluation in standing:
-            if (
-                evaluation is not None
-                and evaluation.log is not None
-                and evaluation.job_id not in kept
-            ):
-                kept.append(evaluation.job_id)
+        for result in standing:
+            if result is not None and result.log is not None and result.job_id not in kept:
+                kept.append(result.job_id)
 
     def drop_stale_logs(self, gains: PDGains, standing: tuple[Ran, ...]) -> None:
         """Validation outvoted some of a member's episodes: a log kept here that is not the

@@ -54,14 +54,12 @@ class Generational:
         if asked:
             evaluator.submit(asked)
         try:
-            for evaluation in evaluator.results() if asked else ():
-                results[evaluation.job_id] = evaluation
-                books.account(evaluation)
+            for result in evaluator.results() if asked else ():
+                results[result.job_id] = result
+                books.account(result)
                 # As it arrives, while the farm runs the rest; and before anything is told, so
                 # a lie caught now has steered nothing yet.
-                caught = self.refereeing.check_arrivals(
-                    evaluator, referee, results, evaluation.job_id
-                )
+                caught = self.refereeing.check_arrivals(evaluator, referee, results, result.job_id)
                 if caught and rewinds.nobody_left(evaluator):  # the generation cannot finish
                     return
                 on_progress(books.progress(len(results) // len(jobs[candidates[0]]), started))

@@ -3,7 +3,7 @@
 The ranges are data, models/uncertainty.toml (each with its source or labelled an assumption),
 or a file of the same form (`--uncertainty FILE`). `variants` draws K plants from them once, from
 the run's seed, so every candidate meets the same K (common random numbers: a difference between
-two candidates is theirs, not the draw's). Pure: numbers in, ModelSpecs out.
+two candidates is theirs, not the draw's). Pure: numbers in, PlantSpecs out.
 """
 
 import tomllib
@@ -16,11 +16,11 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from gainfarm.models import min_substeps
 from gainfarm.schemas.documents import QUOTED, BadDocument, load_toml
-from gainfarm.schemas.robot import N_JOINTS, ModelSpec
+from gainfarm.schemas.robot import N_JOINTS, PlantSpec
 from gainfarm.schemas.wire import describe
 
 UNCERTAINTY = files("gainfarm.models").joinpath("uncertainty.toml")
-# The fields a range may move, and whether ModelSpec holds one value per joint there.
+# The fields a range may move, and whether PlantSpec holds one value per joint there.
 # `load.mass_scale` is the error of the load data the robot is told (schemas.robot.LoadData).
 FIELDS = {
     "mass_scale": True,
@@ -112,12 +112,12 @@ TUNING, HELD_OUT = 0, 1  # the streams of a seed: the variants tuned on, those c
 
 
 def variants(
-    nominal: ModelSpec,
+    nominal: PlantSpec,
     count: int,
     seed: int,
     uncertainty: dict[str, Range] | None = None,
     stream: int = TUNING,
-) -> tuple[ModelSpec, ...]:
+) -> tuple[PlantSpec, ...]:
     """`count` plants drawn around `nominal` from `uncertainty` (default: the shipped ranges),
     deterministic in `seed` and `stream` (TUNING, HELD_OUT: never the same plants). Each has its
     own sensor noise seed and the physics steps its springs need (at least the nominal's)."""
@@ -129,7 +129,7 @@ def variants(
         for item in table.values():
             _apply(values, item, rng)
         values["sensors"]["seed"] = int(rng.integers(2**63))
-        drawn.append(stepped(ModelSpec.model_validate(values)))
+        drawn.append(stepped(PlantSpec.model_validate(values)))
     return tuple(drawn)
 
 
@@ -162,7 +162,7 @@ def _move(values: dict, item: Range, draw: np.ndarray) -> None:
     current = holder[name]
     if isinstance(current, Sequence) and not isinstance(current, str):
         base = np.asarray(current, dtype=float)
-        with np.errstate(over="ignore"):  # an overflow is inf, which ModelSpec refuses
+        with np.errstate(over="ignore"):  # an overflow is inf, which PlantSpec refuses
             moved = draw * (1.0 if item.absolute else base)
         holder[name] = tuple(float(v) for v in np.broadcast_to(moved, base.shape))
     else:
@@ -174,8 +174,8 @@ End = Literal["low", "high"]
 
 
 def corner(
-    nominal: ModelSpec, ends: dict[str, End], uncertainty: dict[str, Range] | None = None
-) -> ModelSpec:
+    nominal: PlantSpec, ends: dict[str, End], uncertainty: dict[str, Range] | None = None
+) -> PlantSpec:
     """`nominal` with each range `ends` names (a key of `uncertainty`, default the shipped
     ranges) at its low or high end, every joint alike; the others nominal. KeyError for a range
     the table has not."""
@@ -186,18 +186,18 @@ def corner(
         size = N_JOINTS if item.per_joint else 1
         bound = np.asarray(getattr(item, end), dtype=float)
         _move(values, item, np.broadcast_to(bound, (size,)) if bound.ndim == 0 else bound)
-    plant = ModelSpec.model_validate(values)
+    plant = PlantSpec.model_validate(values)
     return stepped(plant)
 
 
-def stepped(plant: ModelSpec) -> ModelSpec:
+def stepped(plant: PlantSpec) -> PlantSpec:
     """`plant` with the physics steps its springs need (at least its own), validated: a spring
-    too stiff for ModelSpec's most steps per tick is refused (ValidationError, naming
+    too stiff for PlantSpec's most steps per tick is refused (ValidationError, naming
     substeps), never simulated in millions of steps."""
     needed = min_substeps(plant)
     if needed <= plant.substeps:
         return plant
-    return ModelSpec.model_validate({**plant.model_dump(), "substeps": needed})
+    return PlantSpec.model_validate({**plant.model_dump(), "substeps": needed})
 
 
 # The designed plants robust tuning scores every candidate on first (`design`): two opposite
@@ -241,8 +241,8 @@ CORNERS: dict[str, dict[str, End]] = {
 
 
 def design(
-    nominal: ModelSpec, count: int, seed: int, uncertainty: dict[str, Range] | None = None
-) -> tuple[ModelSpec, ...]:
+    nominal: PlantSpec, count: int, seed: int, uncertainty: dict[str, Range] | None = None
+) -> tuple[PlantSpec, ...]:
     """The `count` plants robust tuning scores every candidate on besides `nominal`: the
     CORNERS first (as many as `count` allows; a range `uncertainty` lacks stays nominal there),
     then random draws (`variants`, TUNING stream). Each has its own sensor noise seed, drawn from

@@ -124,14 +124,14 @@ class Refereeing:
         """`check_arrivals`' work for one kind of check: True if it caught a worker lying."""
         validation = validate(evaluator, drawn, self.state.ledger, referee=referee, check=check)
         self._note_checks(check, validation, {e.job_id: e.worker for e in drawn})
-        for evaluation in drawn:
-            job_id = evaluation.job_id
+        for result in drawn:
+            job_id = result.job_id
             if job_id in validation.standing:
                 results[job_id] = validation.standing[job_id]
             else:  # unsettled: it fails, as a front member the referee cannot run does
                 reason = "the referee could not run it again"
                 results[job_id] = dataclasses.replace(
-                    evaluation, status=EpisodeStatus.failed, scores=None, digest=None, reason=reason
+                    result, status=EpisodeStatus.failed, scores=None, digest=None, reason=reason
                 )
         return Ruling.contradicted in validation.rulings.values()
 
@@ -173,9 +173,9 @@ class Refereeing:
         told to keep, whoever made them. Their records keep the rulings and the scores."""
         if self.config.keep != "front":
             return
-        for evaluation in evaluations:
-            if evaluation.log is not None:
-                evaluation.log.unlink(missing_ok=True)
+        for result in evaluations:
+            if result.log is not None:
+                result.log.unlink(missing_ok=True)
 
     # --- the front, before the run reports it --------------------------------------------------
 

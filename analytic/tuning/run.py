@@ -295,7 +295,7 @@ class TuningRun:
         jobs = job_ids(self.config, "baseline")
         specs = {job_id: episode_spec(self.config, DEFAULT_GAINS, job_id) for job_id in jobs}
         evaluator.submit(specs)
-        found = {evaluation.job_id: evaluation for evaluation in evaluator.results()}
+        found = {result.job_id: result for result in evaluator.results()}
         rulings = self._refereeing.referee_baseline(evaluator, found)
         self.replay_without_caught(evaluator)
         scores = [found[job_id].scores if job_id in found else None for job_id in jobs]

@@ -80,10 +80,10 @@ class SteadyState:
 
         try:
             top_up()
-            for evaluation in evaluator.results():
-                name = evaluation.job_id.rsplit("-t", 1)[0]
-                results[evaluation.job_id] = evaluation
-                books.account(evaluation)
+            for result in evaluator.results():
+                name = result.job_id.rsplit("-t", 1)[0]
+                results[result.job_id] = result
+                books.account(result)
                 handle, gains, ids = in_flight[name]
                 if not all(job_id in results for job_id in ids):
                     continue

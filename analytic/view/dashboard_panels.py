@@ -379,7 +379,7 @@ class Inspector:
         found, where = episode(self.run, view.config, member, slot)
         row_number = view.members.index(member) + 1
         said = f"row {row_number}, {slot.label()}: {where}."
-        if view.config.model.interface == "fri":  # what the dashed torques hold
+        if view.config.plant.interface == "fri":  # what the dashed torques hold
             said += (
                 " Its measured torques hold the gravity torque the robot's own "
                 "compensation adds under the command (FRI torque mode)."

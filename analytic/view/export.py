@@ -53,7 +53,7 @@ from gainfarm.schemas.documents import read_bounded
 from gainfarm.schemas.episode import DEFAULT_OBJECTIVES
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.limits import MEASURED
-from gainfarm.schemas.robot import PLANTS, ModelSpec
+from gainfarm.schemas.robot import PLANTS, PlantSpec
 from gainfarm.schemas.wire import one_line
 
 MEMBERS = ("recommended", "knee", "accurate", "smooth")
@@ -80,10 +80,10 @@ class BadMember(ValueError):
     """A --member that names no member of the front."""
 
 
-def plant_name(model: ModelSpec) -> str:
-    """realistic or ideal if the model is that plant (whatever its joints), else custom."""
-    for name, plant in PLANTS.items():
-        if model == plant.model_copy(update={"joints": model.joints}):
+def plant_name(plant: PlantSpec) -> str:
+    """realistic or ideal if `plant` is that plant (whatever its joints), else custom."""
+    for name, named in PLANTS.items():
+        if plant == named.model_copy(update={"joints": plant.joints}):
             return name
     return "custom"
 
@@ -192,15 +192,15 @@ def controller(directory: Path, which: str = "recommended") -> Controller:
             held_out=_held_out(directory, member),
         ),
         limits=config.limits if measured else None,
-        assumes=Assumptions.of(config.model),
+        assumes=Assumptions.of(config.plant),
         source=Source(
             run_id=identity.run_id if identity is not None else "",
             directory=str(directory),
             config_sha256=hashlib.sha256(config_bytes).hexdigest(),
             front_sha256=hashlib.sha256(front_bytes).hexdigest(),
             trajectories=config.trajectories,
-            plant=plant_name(config.model),
-            model=config.model,
+            plant=plant_name(config.plant),
+            model=config.plant,
             feedforward=config.feedforward,
             objective_weights=config.objective_weights,
             population=config.pop,

@@ -37,7 +37,7 @@ from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.controller import UNITS
 from gainfarm.schemas.episode import DEFAULT_OBJECTIVES
 from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR
-from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, PlantSpec
 
 ALGORITHM_NAMES = {
     "nsga2": "NSGA-II",
@@ -71,7 +71,7 @@ def run_title(config: RunConfig) -> str:
     """A run's figures' title: what it was tuned on (trajectories and their duration, plant,
     population), then how."""
     return (
-        f"{config.mode} controller on {trajectories_text(config)}, {plant_text(config.model)}, "
+        f"{config.mode} controller on {trajectories_text(config)}, {plant_text(config.plant)}, "
         f"population {config.pop}\n{_search(config)}, seed {config.seed}"
     )
 
@@ -103,7 +103,7 @@ def run_setup(config: RunConfig) -> list[str]:
     return [
         f"{controller} on {trajectories}{averaged}",
         f"{_search(config)}, population {config.pop}, seed {config.seed}",
-        f"{plant_text(config.model)}{robust}; reference point "
+        f"{plant_text(config.plant)}{robust}; reference point "
         f"{config.objectives[0]} {config.reference_point[0]} {first.unit}".rstrip()
         + ", "
         f"{config.objectives[1]} {config.reference_point[1]}",
@@ -528,9 +528,9 @@ def validation_section(validation: ValidationRecord, members: Sequence[FrontMemb
     return lines[:-1] if lines[-1] == "" else lines
 
 
-def plant_text(model: ModelSpec) -> str:
+def plant_text(plant: PlantSpec) -> str:
     """Which plant a run simulated: a named one, or a custom one, and its joints."""
-    name = plant_name(model)
+    name = plant_name(plant)
     if name == "custom":
-        return f"custom plant (see config.json), {model.joints} joints"
-    return f"{name} plant, {model.joints} joints"
+        return f"custom plant (see config.json), {plant.joints} joints"
+    return f"{name} plant, {plant.joints} joints"

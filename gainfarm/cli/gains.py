@@ -8,17 +8,17 @@ import click
 
 from gainfarm.cli.app import CliError
 from gainfarm.schemas.gains import PDGains, outside_search, saturating
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 
 
 def refuse_saturating(
-    candidates: Sequence[PDGains], model: ModelSpec, path: Path | None = None
+    candidates: Sequence[PDGains], plant: PlantSpec, path: Path | None = None
 ) -> None:
     """One line for the first candidate with a gain that saturates its motor on one encoder
     count of `model`: every tick of its episodes would saturate. It names --gains and the file
     (and the candidate, if the file holds several), or the option --kp or --kd without a file."""
     for number, gains in enumerate(candidates, start=1):
-        found = saturating(gains, model)
+        found = saturating(gains, plant)
         if found is None:
             continue
         which, joint, gain = found

@@ -89,7 +89,7 @@ def trajectory_kinds() -> tuple[str, ...]:
 
 # What --help shows and parsing falls back to, held here so that neither loads the contract
 # (pydantic and NumPy, several times `import click`): TrajectorySpec()'s fields, the plants by
-# name, ModelSpec's joints and RunConfig().model's name. tests/cli/test_held_defaults.py keeps
+# name, PlantSpec's joints and RunConfig().model's name. tests/cli/test_held_defaults.py keeps
 # each
 # equal to the contract's.
 TRAJECTORY_KIND = "spiral"
@@ -161,7 +161,7 @@ def placement() -> Callable[[F], F]:
 def joints(
     help: str | None = "the arm's joints: flexible (a spring between motor and link) or rigid",
 ) -> Callable[[F], F]:
-    """--joints: the joints of the simulated arm, as ModelSpec names them (not --model: that word
+    """--joints: the joints of the simulated arm, as PlantSpec names them (not --model: that word
     is the learned model's, `analytic learn --kind`)."""
     return click.option(
         "--joints",

@@ -19,7 +19,7 @@ from gainfarm.cli.options import check_load
 from gainfarm.schemas.documents import BadDocument, load_json, read_bounded
 from gainfarm.schemas.limits import Limits
 from gainfarm.schemas.plant_file import MAX_FILE_BYTES, BadPlantFile, PlantFile, read_plant_file
-from gainfarm.schemas.robot import PLANTS, LoadData, ModelSpec
+from gainfarm.schemas.robot import PLANTS, LoadData, PlantSpec
 from gainfarm.schemas.security import Role, TlsIdentity, UnknownIdentity, load_identity
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import describe
@@ -52,8 +52,8 @@ def trajectories(
         raise CliError(f"{option}: {describe(error).split(': ', 1)[-1]}") from None
 
 
-def model_spec(plant: str, joints: str | None = None, option: str = "--plant") -> "ModelSpec":
-    """The ModelSpec of `--plant` (a name or a plant file; `option` names the option that gave
+def model_spec(plant: str, joints: str | None = None, option: str = "--plant") -> "PlantSpec":
+    """The PlantSpec of `--plant` (a name or a plant file; `option` names the option that gave
     it), with `--joints` if the command has that option."""
     if plant in PLANTS:
         spec = PLANTS[plant]
@@ -72,11 +72,11 @@ def model_spec(plant: str, joints: str | None = None, option: str = "--plant") -
 
 
 def with_load(
-    spec: "ModelSpec",
+    spec: "PlantSpec",
     payload: float | None,
     payload_com: tuple[float, ...] | None,
     plant: str | None = None,
-) -> "ModelSpec":
+) -> "PlantSpec":
     """`spec` (--plant `plant`'s) told of the load --payload and --payload-com give (--payload
     0: told of none); without --payload, a plant file's calibrated payload (PlantFile.told),
     else as it is."""

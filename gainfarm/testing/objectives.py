@@ -59,7 +59,7 @@ def finished_log() -> EpisodeLog:
 def diverged_log() -> EpisodeLog:
     """A real episode stopped early: the arm fell (soft gains, no gravity compensation)."""
     spec = EpisodeSpec(
-        gains=FALLING, trajectory=TrajectorySpec(duration=SECONDS), model=PLAIN_PLANT
+        gains=FALLING, trajectory=TrajectorySpec(duration=SECONDS), plant=PLAIN_PLANT
     )
     log = run_episode(spec)
     assert log.metadata.diverged, "the kit's falling episode did not diverge: report it"

@@ -27,7 +27,7 @@ import numpy as np
 
 from gainfarm import plugins
 from gainfarm.schemas.episode import EpisodeSpec
-from gainfarm.schemas.robot import REALISTIC_PLANT, ModelSpec, Robot
+from gainfarm.schemas.robot import REALISTIC_PLANT, PlantSpec, Robot
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.worker.episode import simulate
 from gainfarm.worker.ik import UnreachablePath, solve_path
@@ -115,7 +115,7 @@ def check_holds_still(robot: Robot) -> None:
             spec = EpisodeSpec(
                 gains=robot.default_gains,
                 trajectory=TrajectorySpec(kind="fourier", duration=HOLD_SECONDS),
-                model=REALISTIC_PLANT.model_copy(update={"robot": robot.name, "joints": kind}),
+                plant=REALISTIC_PLANT.model_copy(update={"robot": robot.name, "joints": kind}),
             )
             log = simulate(spec, standing(robot, spec), None)
             assert not log.metadata.diverged, f"{kind}: diverged ({log.metadata.divergence})"
@@ -214,10 +214,10 @@ class RobotChecks:
         check_workspace(robot)
 
 
-def nominal(robot: Robot, joints: str) -> ModelSpec:
+def nominal(robot: Robot, joints: str) -> PlantSpec:
     """The robot's nominal plant with `joints`, nothing else of a variant: no friction, exact
     sensors, the motor torque commanded."""
-    return ModelSpec(
+    return PlantSpec(
         robot=robot.name,
         joints=joints,  # type: ignore[arg-type]
         friction=None,

@@ -5,7 +5,7 @@ from gainfarm.broker import certs, queue, service
 from gainfarm.broker import cli as broker_cli
 from gainfarm.cli import options
 from gainfarm.schemas.gains import DEFAULT_GAINS
-from gainfarm.schemas.robot import N_JOINTS, PLANTS, ModelSpec
+from gainfarm.schemas.robot import N_JOINTS, PLANTS, PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker import cli as worker_cli
 
@@ -19,9 +19,9 @@ def test_the_shared_options_held_defaults_are_the_contract_s() -> None:
     ) == (options.TRAJECTORY_KIND, options.DURATION, options.TRAJECTORY_SEED)
     assert (trajectory.center, trajectory.size) == (options.CENTER, options.SIZE)
     assert tuple(PLANTS) == options.PLANTS
-    assert PLANTS[options.PLANT] == ModelSpec()
-    assert tuple(ModelSpec.model_fields["joints"].annotation.__args__) == options.JOINTS
-    assert ModelSpec().joints == options.JOINT
+    assert PLANTS[options.PLANT] == PlantSpec()
+    assert tuple(PlantSpec.model_fields["joints"].annotation.__args__) == options.JOINTS
+    assert PlantSpec().joints == options.JOINT
 
 
 def test_the_worker_s_and_broker_s_held_defaults_are_their_sources() -> None:

@@ -23,7 +23,7 @@ from gainfarm.models.dynamics import MAX_FILE_BYTES as MAX_MODEL_BYTES
 from gainfarm.schemas.documents import MAX_DEPTH, MAX_TEXT_BYTES
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.plant_file import PlantFile
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from tests.schemas.test_hostile_decoding import BOMB_BYTES, written, zstd_bomb
 
 BIN = Path(sys.executable).parent
@@ -45,14 +45,14 @@ def laughs() -> str:
 
 def plant_toml(**plant: object) -> str:
     """A plant file of the default plant, with `plant`'s fields replaced (any value at all)."""
-    table = json.loads(PlantFile(plant=ModelSpec()).model_dump_json(exclude_none=True))
+    table = json.loads(PlantFile(plant=PlantSpec()).model_dump_json(exclude_none=True))
     table["plant"].update(plant)
     return tomli_w.dumps(table)
 
 
 def stiff_plant() -> str:
     # tomli_w writes 1e308 as it is: the file a person would write.
-    return plant_toml(stiffness=[1e308, *ModelSpec().stiffness[1:]])
+    return plant_toml(stiffness=[1e308, *PlantSpec().stiffness[1:]])
 
 
 @dataclass(frozen=True)

@@ -39,7 +39,7 @@ from gainfarm.schemas.robot import (
     IDEAL_PLANT,
     POSITION_LIMITS,
     REALISTIC_PLANT,
-    ModelSpec,
+    PlantSpec,
     Sensors,
 )
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
@@ -67,7 +67,7 @@ def _nmse(predicted: np.ndarray, measured: np.ndarray) -> np.ndarray:
     return ((predicted - measured) ** 2).mean(axis=0) / measured.var(axis=0)
 
 
-def _dataset_rows(plant: ModelSpec) -> tuple[np.ndarray, ...]:
+def _dataset_rows(plant: PlantSpec) -> tuple[np.ndarray, ...]:
     """(q, q̇, q̈, u) of a 2 s episode on `plant`, q̈ as the dataset defines it."""
     log = episode(plant, 0, 2.0)
     qdd = np.diff(log.qd, axis=0) / CONTROL_PERIOD
@@ -139,7 +139,7 @@ def test_the_true_model_keeps_what_the_plants_dynamics_depend_on_and_nothing_els
 def test_pinocchio_parses_the_same_arm_as_mujoco(inertials):
     import pinocchio
 
-    spec = rigid_spec(ModelSpec(inertials=inertials))
+    spec = rigid_spec(PlantSpec(inertials=inertials))
     pin_model = pinocchio_model(spec)
     pin_data = pin_model.createData()
     mj_model = compile_model(spec)

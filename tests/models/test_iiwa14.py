@@ -16,7 +16,7 @@ from gainfarm.models import (
     min_substeps,
     step_ratios,
 )
-from gainfarm.schemas import TORQUE_LIMITS, ModelSpec
+from gainfarm.schemas import TORQUE_LIMITS, PlantSpec
 from gainfarm.schemas.robot import IDEAL_PLANT, STIFFNESS_PRESETS, Friction
 
 HOME = np.array([0.0, 0.785398, 0.0, -1.5708, 0.0, 0.0, 0.0])
@@ -41,7 +41,7 @@ def _hinges(model: mujoco.MjModel, suffix: str) -> np.ndarray:
 
 
 def test_open_inertials_match_the_published_numbers():
-    model = compile_model(ModelSpec(joints="rigid", inertials="open"))
+    model = compile_model(PlantSpec(joints="rigid", inertials="open"))
     data = mujoco.MjData(model)
     assert (model.nq, model.nu) == (7, 7)
     # Total mass of the seven links and the base, from the open descriptions' table.
@@ -59,7 +59,7 @@ def test_open_inertials_compile_to_the_hand_written_file_unchanged():
     # The ideal plant must reproduce the first wave's episodes: its links are the XML's, bit for
     # bit, and without friction its motor hinges carry no damping.
     written = mujoco.MjModel.from_xml_string(RIGID_MJCF.read_text())
-    for spec in (IDEAL_PLANT, ModelSpec(joints="rigid", inertials="open", friction=None)):
+    for spec in (IDEAL_PLANT, PlantSpec(joints="rigid", inertials="open", friction=None)):
         model = compile_model(spec)
         for field in ("body_mass", "body_ipos", "body_iquat", "body_inertia", "body_pos"):
             np.testing.assert_array_equal(getattr(model, field), getattr(written, field))
@@ -67,8 +67,8 @@ def test_open_inertials_compile_to_the_hand_written_file_unchanged():
 
 
 def test_cad_inertials_carry_the_cad_masses_and_menageries_axes():
-    open_ = compile_model(ModelSpec(joints="rigid", inertials="open"))
-    cad = compile_model(ModelSpec(joints="rigid", inertials="cad"))
+    open_ = compile_model(PlantSpec(joints="rigid", inertials="open"))
+    cad = compile_model(PlantSpec(joints="rigid", inertials="cad"))
     masses = [cad.body(link).mass[0] for link in LINKS]
     np.testing.assert_allclose(masses, CAD_LINK_MASSES)
     assert cad.body_mass.sum() == pytest.approx(22.67, abs=0.01)  # with the 5 kg base
@@ -95,23 +95,23 @@ def test_cad_inertials_carry_the_cad_masses_and_menageries_axes():
 
 def test_viscous_friction_lands_as_motor_hinge_damping():
     friction = Friction(viscous=(0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1))
-    spec = ModelSpec(friction=friction)
+    spec = PlantSpec(friction=friction)
     flexible = compile_model(spec)
     motor_damping = flexible.dof_damping[_hinges(flexible, "_motor")]
     np.testing.assert_array_equal(motor_damping, friction.viscous)
     np.testing.assert_array_equal(
         flexible.dof_damping[_hinges(flexible, "_spring")], spec.spring_damping
     )
-    rigid = compile_model(ModelSpec(joints="rigid", friction=friction))
+    rigid = compile_model(PlantSpec(joints="rigid", friction=friction))
     np.testing.assert_array_equal(rigid.dof_damping, friction.viscous)
     # Never as frictionloss: it costs half again the physics time; the tick loop applies Coulomb.
     assert not flexible.dof_frictionloss.any()
-    assert not compile_model(ModelSpec(friction=None)).dof_damping[0::2].any()
+    assert not compile_model(PlantSpec(friction=None)).dof_damping[0::2].any()
 
 
 def test_flexible_variant_is_generated_from_the_same_chain():
-    spec = ModelSpec(stiffness=(1234.0,) * 7)
-    rigid = compile_model(ModelSpec(joints="rigid"))
+    spec = PlantSpec(stiffness=(1234.0,) * 7)
+    rigid = compile_model(PlantSpec(joints="rigid"))
     flexible = compile_model(spec)
     assert flexible.nq == 14
     names = [flexible.joint(j).name for j in range(flexible.njnt)]
@@ -127,14 +127,14 @@ def test_flexible_variant_is_generated_from_the_same_chain():
 
 
 def test_control_period_is_split_into_the_requested_substeps():
-    assert compile_model(ModelSpec(substeps=4)).opt.timestep == pytest.approx(0.0005)
+    assert compile_model(PlantSpec(substeps=4)).opt.timestep == pytest.approx(0.0005)
 
 
 def test_exported_mjcf_compiles_to_the_same_model():
-    xml = build_spec(ModelSpec()).to_xml()
+    xml = build_spec(PlantSpec()).to_xml()
     reloaded = mujoco.MjModel.from_xml_string(xml)
     assert reloaded.nq == 14
-    model = compile_model(ModelSpec())
+    model = compile_model(PlantSpec())
     # MJCF carries 6 significant digits: the CAD set's scaled inertias round in the last one.
     for field in ("jnt_stiffness", "dof_damping", "body_mass", "body_inertia", "body_iquat"):
         np.testing.assert_allclose(getattr(reloaded, field), getattr(model, field), rtol=1e-5)
@@ -148,13 +148,13 @@ def test_elastic_modes_of_the_first_waves_plant():
     assert modes[4] == pytest.approx(60, abs=1)
     assert modes[-1] == pytest.approx(229, abs=1)
     # The CAD set's lighter wrist puts A7's mode near 446 Hz.
-    assert elastic_modes(ModelSpec(inertials="cad"))[-1] == pytest.approx(446, abs=1)
+    assert elastic_modes(PlantSpec(inertials="cad"))[-1] == pytest.approx(446, abs=1)
 
 
 @pytest.mark.parametrize(("preset", "inertials"), sorted(PRESET_SUBSTEPS))
 def test_each_preset_holds_the_arm_still_at_its_documented_substeps(preset, inertials):
     substeps = PRESET_SUBSTEPS[preset, inertials]
-    spec = ModelSpec(inertials=inertials, stiffness=STIFFNESS_PRESETS[preset], substeps=substeps)
+    spec = PlantSpec(inertials=inertials, stiffness=STIFFNESS_PRESETS[preset], substeps=substeps)
     assert min_substeps(spec) == substeps
     compile_model(spec)  # the guard accepts it
     for posture in (READY_POSTURE, UPRIGHT_POSTURE):
@@ -163,7 +163,7 @@ def test_each_preset_holds_the_arm_still_at_its_documented_substeps(preset, iner
         assert speed < 5e-3  # rad/s, every hinge: the springs wound up and settled
 
 
-def _hold(spec: ModelSpec, posture: np.ndarray, seconds: float = 2.0) -> tuple[float, float]:
+def _hold(spec: PlantSpec, posture: np.ndarray, seconds: float = 2.0) -> tuple[float, float]:
     """Start with the springs relaxed at `posture` and hold it for `seconds` with the motors'
     gravity-holding torque and a PD on the motor angle that keeps the springs wound up."""
     model = build_spec(spec).compile()
@@ -183,20 +183,20 @@ def _hold(spec: ModelSpec, posture: np.ndarray, seconds: float = 2.0) -> tuple[f
 
 
 def test_too_few_substeps_for_the_springs_are_refused_in_one_clear_line():
-    stiff = ModelSpec(inertials="cad", stiffness=STIFFNESS_PRESETS["stiff"], substeps=1)
+    stiff = PlantSpec(inertials="cad", stiffness=STIFFNESS_PRESETS["stiff"], substeps=1)
     with pytest.raises(ValueError, match=r"^substeps=1 is too few .*A7.* needs substeps >= 7$"):
         compile_model(stiff)
     # What the guard prevents: the same plant, compiled around it, diverges at once.
     error, _ = _hold(stiff, np.array(READY_POSTURE), seconds=0.2)
     assert not np.isfinite(error)
     # Undamped springs need a short step: ω·dt ≤ 1 for the CAD wrist's 446 Hz.
-    undamped = ModelSpec(inertials="cad", spring_damping=(0.0,) * 7)
+    undamped = PlantSpec(inertials="cad", spring_damping=(0.0,) * 7)
     with pytest.raises(ValueError, match=r"needs substeps >= 6$"):
         compile_model(undamped)
     assert step_ratios(undamped.model_copy(update={"substeps": 6})).max() <= 0.25
     # Rigid joints have no springs to integrate: any step will do.
-    compile_model(ModelSpec(joints="rigid", substeps=1))
-    compile_model(ModelSpec())  # the default plant
+    compile_model(PlantSpec(joints="rigid", substeps=1))
+    compile_model(PlantSpec())  # the default plant
 
 
 def test_an_unstable_simulation_leaves_no_log_file_and_prints_nothing(tmp_path):
@@ -204,8 +204,8 @@ def test_an_unstable_simulation_leaves_no_log_file_and_prints_nothing(tmp_path):
     script = (
         "import mujoco\n"
         "from gainfarm.models import compile_model\n"
-        "from gainfarm.schemas.robot import ModelSpec\n"
-        "model = compile_model(ModelSpec())\n"
+        "from gainfarm.schemas.robot import PlantSpec\n"
+        "model = compile_model(PlantSpec())\n"
         "data = mujoco.MjData(model)\n"
         "data.qpos[:] = 1e20\n"
         "mujoco.mj_step(model, data)\n"

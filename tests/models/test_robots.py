@@ -12,7 +12,7 @@ from gainfarm.schemas.robot import (
     JOINT_NAMES,
     ROBOT_PATTERN,
     TORQUE_LIMITS,
-    ModelSpec,
+    PlantSpec,
     Robot,
     Workspace,
 )
@@ -26,9 +26,9 @@ class TestTheIiwa14PassesTheKit(RobotChecks):
 
 
 def test_the_plant_s_robot_is_the_iiwa14_by_default_and_found_by_its_name() -> None:
-    assert ModelSpec().robot == DEFAULT_ROBOT == "iiwa14"
+    assert PlantSpec().robot == DEFAULT_ROBOT == "iiwa14"
     assert plugins.builtin_names(plugins.ROBOTS) == ("iiwa14",)
-    assert robot_of(ModelSpec()) is robot_of("iiwa14") is iiwa14.ROBOT
+    assert robot_of(PlantSpec()) is robot_of("iiwa14") is iiwa14.ROBOT
     assert isinstance(iiwa14.ROBOT, Robot)
 
 
@@ -40,14 +40,14 @@ def test_the_iiwa14_declares_the_facts_the_code_reads() -> None:
 
 
 def test_the_models_builders_are_the_named_robot_s() -> None:
-    spec = ModelSpec(joints="rigid", substeps=1)
+    spec = PlantSpec(joints="rigid", substeps=1)
     assert compile_model(spec) is iiwa14.compile_model(spec)  # the robot's cache, not a copy
     assert build_spec(spec).to_xml() == iiwa14.build_spec(spec).to_xml()
 
 
 def test_a_robot_not_here_is_refused_in_one_line_naming_what_there_is() -> None:
     with pytest.raises(plugins.PluginError) as refused:
-        compile_model(ModelSpec(robot="panda"))
+        compile_model(PlantSpec(robot="panda"))
     assert str(refused.value) == (
         "gainfarm.robots: no plug-in named 'panda' here (there are iiwa14); "
         "install the distribution that provides it"
@@ -65,13 +65,13 @@ def test_a_plug_in_that_is_not_a_robot_is_refused_naming_what_it_lacks() -> None
 
 def test_the_contract_checks_a_robot_name_s_form_only() -> None:
     assert ROBOT_PATTERN == plugins.NAME_PATTERN
-    assert ModelSpec(robot="ur5e").robot == "ur5e"  # may be installed on the workers
+    assert PlantSpec(robot="ur5e").robot == "ur5e"  # may be installed on the workers
     for bad in ("UR5e", "", "a/b", "x" * 33, 7):
         with pytest.raises(ValidationError, match="robot"):
-            ModelSpec(robot=bad)
+            PlantSpec(robot=bad)
 
 
 def test_a_run_on_a_robot_not_here_is_refused_naming_it() -> None:
     with pytest.raises(ValidationError, match="no plug-in named 'panda' here"):
-        RunConfig(model=ModelSpec(robot="panda"))
+        RunConfig(plant=PlantSpec(robot="panda"))
     assert RunConfig().model.robot == "iiwa14"

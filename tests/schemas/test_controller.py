@@ -14,7 +14,7 @@ from gainfarm.schemas.controller import (
     read_gains,
 )
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 
 GAINS = DEFAULT_GAINS.model_dump()
@@ -35,7 +35,7 @@ def exported(gains: PDGains) -> dict:
                 front_sha256="1" * 64,
                 trajectories=(TrajectorySpec(),),
                 plant="realistic",
-                model=ModelSpec(),
+                model=PlantSpec(),
                 population=30,
                 algorithm="nsga2",
                 seed=0,

@@ -36,7 +36,7 @@ PATH = TrajectorySpec(kind="fourier", duration=1.5)
 
 
 def scored(gains: PDGains, plant: str) -> Scores:
-    return score(run_episode(EpisodeSpec(gains=gains, trajectory=PATH, model=PLANTS[plant])))
+    return score(run_episode(EpisodeSpec(gains=gains, trajectory=PATH, plant=PLANTS[plant])))
 
 
 @pytest.mark.parametrize("plant", ["ideal", "realistic"])

@@ -3,7 +3,7 @@ import math
 import pytest
 from pydantic import ValidationError
 
-from gainfarm.schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
+from gainfarm.schemas import EpisodeSpec, PDGains, PlantSpec, TrajectorySpec
 from gainfarm.schemas.wire import describe
 
 SEVEN = (1.0,) * 7
@@ -47,16 +47,16 @@ def test_ticks_cover_both_ends_of_the_duration():
 
 
 def test_model_spec_records_explicit_elastic_parameters():
-    spec = ModelSpec()
+    spec = PlantSpec()
     assert spec.joints == "flexible"
     assert len(spec.stiffness) == len(spec.spring_damping) == len(spec.rotor_inertia) == 7
     with pytest.raises(ValidationError):
-        ModelSpec(substeps=0)
+        PlantSpec(substeps=0)
     with pytest.raises(ValidationError):
-        ModelSpec(stiffness=(0.0,) * 7)
+        PlantSpec(stiffness=(0.0,) * 7)
     with pytest.raises(ValidationError, match="rotor_inertia must be positive"):
-        ModelSpec(rotor_inertia=(0.4, 0.4, 0.3, 0.3, 0.1, 0.1, 0.0))
-    assert ModelSpec(joints="rigid", rotor_inertia=(0.0,) * 7).joints == "rigid"
+        PlantSpec(rotor_inertia=(0.4, 0.4, 0.3, 0.3, 0.1, 0.1, 0.0))
+    assert PlantSpec(joints="rigid", rotor_inertia=(0.0,) * 7).joints == "rigid"
 
 
 def test_the_named_plants_differ_only_where_they_say():
@@ -91,15 +91,15 @@ def test_a_told_load_is_left_out_of_the_json_of_every_spec_told_of_none():
 
     for plant in PLANTS.values():  # the JSON of every spec from before: no key added
         assert "load" not in json.loads(plant.model_dump_json())
-    loaded = ModelSpec(load=LoadData(mass=5.0, com=(0.0, 0.0, 0.1)))
-    again = ModelSpec.model_validate_json(loaded.model_dump_json())
+    loaded = PlantSpec(load=LoadData(mass=5.0, com=(0.0, 0.0, 0.1)))
+    again = PlantSpec.model_validate_json(loaded.model_dump_json())
     assert again == loaded and hash(again) == hash(loaded)
     # A spec written before the interface was a choice (every field then, none added since)
     # still reads as the plain torque interface it ran on.
-    earlier = json.loads(ModelSpec().model_dump_json())
+    earlier = json.loads(PlantSpec().model_dump_json())
     for added in ("interface", "payload", "mass_scale"):
         del earlier[added]
-    assert ModelSpec.model_validate(earlier).interface == "torque"
+    assert PlantSpec.model_validate(earlier).interface == "torque"
 
 
 @pytest.mark.parametrize(

@@ -14,7 +14,7 @@ from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR, LAG_CAP, score
-from gainfarm.schemas.robot import IDEAL_PLANT, PLAIN_PLANT, ModelSpec
+from gainfarm.schemas.robot import IDEAL_PLANT, PLAIN_PLANT, PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import (
     MAX_CONFIRM_JOBS,
@@ -303,7 +303,7 @@ def test_the_flange_never_strays_as_far_from_its_reference_as_the_bound() -> Non
     """Every position of the flange is within the links' offsets, added up, of the shoulder (A2,
     which stays put as A1 turns): no two of them, the arm's and its reference's, are farther
     apart than twice that."""
-    model = compile_model(ModelSpec())
+    model = compile_model(PlantSpec())
     data = mujoco.MjData(model)
     site, shoulder = model.site(FLANGE), model.body("link2").id
     reach, body = float(np.linalg.norm(site.pos)), int(site.bodyid[0])
@@ -330,8 +330,8 @@ def test_no_episode_scores_beyond_the_wires_bounds(diverged_log: EpisodeLog) -> 
     aggressive = PDGains(kp=(1e6,) * 7, kd=(1e4,) * 7)
     logs = [
         diverged_log,
-        run_episode(EpisodeSpec(gains=zero, trajectory=short, model=PLAIN_PLANT)),
-        run_episode(EpisodeSpec(gains=aggressive, trajectory=short, model=IDEAL_PLANT)),
+        run_episode(EpisodeSpec(gains=zero, trajectory=short, plant=PLAIN_PLANT)),
+        run_episode(EpisodeSpec(gains=aggressive, trajectory=short, plant=IDEAL_PLANT)),
     ]
     assert logs[0].metadata.diverged and logs[1].metadata.diverged
     assert score(logs[2]).saturated_fraction > 0.5, score(logs[2])

@@ -10,7 +10,7 @@ import pytest
 from gainfarm import plugins
 from gainfarm.models import iiwa14
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.testing import robots as kit
 
 
@@ -28,13 +28,13 @@ class Broken:
         for key, value in changes.items():
             setattr(self, key, value)
 
-    def build(self, spec: ModelSpec) -> Any:
+    def build(self, spec: PlantSpec) -> Any:
         return iiwa14.compile_model(spec)
 
-    def describe(self, spec: ModelSpec) -> Any:
+    def describe(self, spec: PlantSpec) -> Any:
         return iiwa14.build_spec(spec)
 
-    def gravity_spec(self, spec: ModelSpec) -> ModelSpec:
+    def gravity_spec(self, spec: PlantSpec) -> PlantSpec:
         known = iiwa14.gravity_spec(spec)
         if self.gravity_inertials is None:
             return known

@@ -307,9 +307,9 @@ def test_an_exported_yaml_controller_runs_as_its_json_does(tmp_path):
                     "--trajectory", "fourier", "--duration", "0.5", "--json",
                     "--run-dir", str(tmp_path / f"batch-{form}"))  # fmt: skip
         assert batch.returncode == 0, batch.stderr
-        (evaluation,) = [json.loads(line) for line in batch.stdout.splitlines()]
-        assert evaluation["f_acc"] == scores[form]["f_acc"]
-        assert evaluation["f_t"] == scores[form]["f_t"]
+        (result,) = [json.loads(line) for line in batch.stdout.splitlines()]
+        assert result["f_acc"] == scores[form]["f_acc"]
+        assert result["f_t"] == scores[form]["f_t"]
     assert {**scores["yaml"], "log": ""} == {**scores["json"], "log": ""}
     member = json.loads((tmp_path / "c.json").read_text())["member"]
     assert (scores["yaml"]["f_acc"], scores["yaml"]["f_t"]) == (member["f_acc"], member["f_t"])

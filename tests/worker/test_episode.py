@@ -4,7 +4,7 @@ import pytest
 
 from gainfarm.models import compile_model
 from gainfarm.models.urdf import description
-from gainfarm.schemas import EpisodeSpec, ModelSpec, PDGains, TrajectorySpec
+from gainfarm.schemas import EpisodeSpec, PDGains, PlantSpec, TrajectorySpec
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.mcap_episode import decode_episode, episode_bytes
 from gainfarm.schemas.objectives import score
@@ -31,7 +31,7 @@ LIMP = PDGains(kp=(0,) * 7, kd=(0,) * 7)
 
 
 def test_without_torque_the_arm_falls_under_gravity():
-    log = run_episode(EpisodeSpec(gains=LIMP, trajectory=SHORT, model=PLAIN_PLANT))
+    log = run_episode(EpisodeSpec(gains=LIMP, trajectory=SHORT, plant=PLAIN_PLANT))
     assert np.all(log.u == 0)
     assert log.ee[min(100, log.ticks - 1), 2] < log.ee[0, 2] - 0.05  # dropped 5 cm in 0.2 s
     assert log.metadata.diverged  # and it keeps falling until it leaves the joint range
@@ -42,12 +42,12 @@ def test_behind_fri_the_robots_own_gravity_model_holds_the_arm_up():
     # (the reference moves on without it: the error grows, but nothing falls).
     still = TrajectorySpec(kind="fourier", duration=1.0)
     log = run_episode(EpisodeSpec(gains=LIMP, trajectory=still))
-    assert log.metadata.spec.model.interface == "fri" and not log.metadata.diverged
+    assert log.metadata.spec.plant.interface == "fri" and not log.metadata.diverged
     assert np.all(log.u == 0)
     assert np.abs(log.ee - log.ee[0]).max() < 1e-3  # not a millimetre of sag in 1 s
     assert np.abs(log.ee_des - log.ee_des[0]).max() > 0.01  # while the reference moved
     # A payload the robot's model does not know: the arm sags under it, as a real one would.
-    loaded = run_episode(EpisodeSpec(gains=LIMP, trajectory=still, model=ModelSpec(payload=2.0)))
+    loaded = run_episode(EpisodeSpec(gains=LIMP, trajectory=still, plant=PlantSpec(payload=2.0)))
     assert loaded.ee[-1, 2] < log.ee[-1, 2] - 0.05
 
 
@@ -55,8 +55,8 @@ def test_the_robot_adds_its_own_models_gravity_not_the_plants():
     # No gains: a rigid arm's joint torque sensors read what the motors exert, the robot's
     # gravity model at the measured angles, which holds the arm whose masses it knows.
     still = TrajectorySpec(kind="fourier", duration=0.5)
-    rigid = ModelSpec(joints="rigid", substeps=1, delay=0, friction=None)
-    log = run_episode(EpisodeSpec(gains=LIMP, trajectory=still, model=rigid))
+    rigid = PlantSpec(joints="rigid", substeps=1, delay=0, friction=None)
+    log = run_episode(EpisodeSpec(gains=LIMP, trajectory=still, plant=rigid))
     np.testing.assert_allclose(log.tau[-1], gravity_torques(log.q[-1:], "menagerie")[0], atol=0.5)
     assert abs(log.tau[-1, 1]) > 30  # A2 holds tens of N·m
     assert np.abs(log.ee - log.ee[0]).max() < 1e-6  # and holds it: rigid, no delay, exact
@@ -72,12 +72,12 @@ def test_the_robot_adds_its_own_models_gravity_not_the_plants():
     ],
     ids=["realistic", "link side, payload", "ideal behind FRI", "plain torque"],
 )
-def test_the_log_gives_the_torque_the_motors_exerted_bit_for_bit(plant: ModelSpec, tmp_path):
+def test_the_log_gives_the_torque_the_motors_exerted_bit_for_bit(plant: PlantSpec, tmp_path):
     # What a dataset's u_motor is made of: the logged command and the logged fed-back angles
     # through the robot's gravity model give the loop's own compensation, number for number,
     # alone and in a stack, after the MCAP round trip.
     spec = EpisodeSpec(
-        gains=TRACKING_GAINS, trajectory=TrajectorySpec(kind="fourier", duration=0.6), model=plant
+        gains=TRACKING_GAINS, trajectory=TrajectorySpec(kind="fourier", duration=0.6), plant=plant
     )
     reference = reference_for(spec.trajectory)
     alone, *stack = (_setup(spec, reference, None) for _ in range(3))
@@ -107,7 +107,7 @@ def test_high_gains_track_far_better_than_low_gains():
 
 def test_applied_torques_obey_the_pd_law_and_never_exceed_the_limits():
     aggressive = PDGains(kp=(8000,) * 7, kd=(50, 50, 50, 50, 10, 5, 2))
-    log = run_episode(EpisodeSpec(gains=aggressive, trajectory=SHORT, model=IDEAL_PLANT))
+    log = run_episode(EpisodeSpec(gains=aggressive, trajectory=SHORT, plant=IDEAL_PLANT))
     limits = np.array(log.metadata.torque_limits)
     assert np.all(np.abs(log.u) <= limits)
     assert np.any(np.abs(log.u) == limits)  # these gains do saturate
@@ -121,7 +121,7 @@ def test_the_realistic_pd_acts_on_measured_motor_angles_one_tick_late(tracking_l
     # The default plant: the PD sees the motor encoders' angles and their differenced velocity,
     # and its command acts one tick later (the first command holds until then).
     spec = tracking_log.metadata.spec
-    assert spec.model.feedback == "motor" and spec.model.delay == 1
+    assert spec.plant.feedback == "motor" and spec.plant.delay == 1
     law = PDController.from_gains(spec.gains, np.array(tracking_log.metadata.torque_limits))
     computed = law.torque(
         tracking_log.theta, tracking_log.theta_d, tracking_log.q_des, tracking_log.qd_des
@@ -142,14 +142,14 @@ def test_episode_starts_at_rest_on_the_reference(tracking_log):
 def test_gravity_compensation_improves_tracking():
     # On a plain torque interface, as a feed-forward; behind FRI, as the robot does it.
     plain = score(
-        run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT, model=PLAIN_PLANT))
+        run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT, plant=PLAIN_PLANT))
     )
     compensated = score(
         run_episode(
             EpisodeSpec(
                 gains=TRACKING_GAINS,
                 trajectory=SHORT,
-                model=PLAIN_PLANT,
+                plant=PLAIN_PLANT,
                 gravity_compensation=True,
             )
         )
@@ -175,12 +175,12 @@ def test_flexible_joints_deflect_under_load_and_rigid_ones_cannot():
     expected = -gravity / np.array(spec.stiffness)
     np.testing.assert_allclose(deflection[1], expected[1], rtol=0.1)
     assert abs(deflection[1]) > 1e-3
-    assert Plant(ModelSpec(joints="rigid")).model.nq == 7
+    assert Plant(PlantSpec(joints="rigid")).model.nq == 7
 
 
 def test_flexible_and_rigid_robots_behave_differently_under_the_same_gains():
     rigid = run_episode(
-        EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT, model=ModelSpec(joints="rigid"))
+        EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT, plant=PlantSpec(joints="rigid"))
     )
     flexible = run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT))
     assert np.abs(rigid.q - flexible.q).max() > 1e-4
@@ -204,8 +204,8 @@ def test_same_spec_gives_the_same_episode(tracking_log):
 
 def test_logged_flange_positions_are_the_kinematics_of_the_logged_joint_angles():
     # The flange is logged mid-tick (after the first physics step); it must still be this tick's.
-    log = run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT, model=IDEAL_PLANT))
-    model = compile_model(ModelSpec(joints="rigid"))
+    log = run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT, plant=IDEAL_PLANT))
+    model = compile_model(PlantSpec(joints="rigid"))
     data = mujoco.MjData(model)
     for k in (0, 1, 500, log.ticks - 1):
         data.qpos[:] = log.q[k]
@@ -219,7 +219,7 @@ def test_gravity_feedforward_holds_the_reference_posture():
     gravity = gravity_for(spec, "cad")
     # A2 carries most of the arm: tens of N·m, as at the home posture.
     assert 20 < abs(gravity[0, 1]) < 80
-    model = compile_model(ModelSpec(joints="rigid", inertials="cad"))
+    model = compile_model(PlantSpec(joints="rigid", inertials="cad"))
     data = mujoco.MjData(model)
     data.qpos[:] = reference.q[1000]
     mujoco.mj_forward(model, data)

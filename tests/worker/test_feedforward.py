@@ -46,7 +46,7 @@ def rigid_model_bytes() -> bytes:
 
 def test_a_perfect_model_cuts_the_tracking_error_by_a_large_factor_at_the_same_gains() -> None:
     raw = rigid_model_bytes()
-    plain = EpisodeSpec(gains=SOFT_GAINS, trajectory=TRAJECTORY, model=RIGID_IDEAL)
+    plain = EpisodeSpec(gains=SOFT_GAINS, trajectory=TRAJECTORY, plant=RIGID_IDEAL)
     learned = plain.model_copy(update={"feedforward": digest(raw)})
     without = score(run_episode(plain))
     log = run_episode(learned, rigid_prior(RIGID_IDEAL))
@@ -64,13 +64,13 @@ def test_behind_fri_the_feedforward_leaves_gravity_to_the_robot() -> None:
     name = digest(to_bytes(model))
     errors = {}
     for plant in (REALISTIC_PLANT, PLAIN_PLANT):
-        spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=TRAJECTORY, model=plant)
+        spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=TRAJECTORY, plant=plant)
         errors[plant.interface, "pd"] = score(run_episode(spec)).f_acc
         added = spec.model_copy(update={"feedforward": name})
         errors[plant.interface, "model"] = score(run_episode(added, model)).f_acc
     reference = reference_for(TRAJECTORY)
     whole = model.inverse(reference.q, reference.qd, reference.qdd)
-    fri = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=TRAJECTORY, model=REALISTIC_PLANT)
+    fri = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=TRAJECTORY, plant=REALISTIC_PLANT)
     errors["fri", "gravity twice"] = score(episode.simulate(fri, reference, whole)).f_acc
     added = episode.compensation(fri.model_copy(update={"feedforward": name}), reference, model)
     np.testing.assert_array_equal(added, whole - RobotGravity(REALISTIC_PLANT).at(reference.q))
@@ -85,7 +85,7 @@ def test_the_true_model_is_the_anchor_and_its_compensations_reach_below_a_millim
     # plant's own model through its file as a worker gets it, and that model with the spring's
     # deflection and the tick of delay compensated (bench/true_feedforward.py measures more).
     trajectory = TrajectorySpec(kind="fourier", duration=2.0, seed=4242)
-    spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=trajectory, model=REALISTIC_PLANT)
+    spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=trajectory, plant=REALISTIC_PLANT)
     errors = {"pd": score(run_episode(spec)).f_acc}
     for name, model in (("rigid", rigid_prior(REALISTIC_PLANT)), ("true", None)):
         raw = to_bytes(model or true_model(REALISTIC_PLANT))
@@ -108,7 +108,7 @@ def test_the_true_model_is_the_anchor_and_its_compensations_reach_below_a_millim
 
 def test_a_spec_naming_a_model_needs_the_model() -> None:
     spec = EpisodeSpec(
-        gains=SOFT_GAINS, trajectory=TRAJECTORY, model=RIGID_IDEAL, feedforward="ab" * 32
+        gains=SOFT_GAINS, trajectory=TRAJECTORY, plant=RIGID_IDEAL, feedforward="ab" * 32
     )
     with pytest.raises(MissingModel):
         run_episode(spec)
@@ -202,7 +202,7 @@ def test_the_model_reaches_a_worker_that_never_had_the_file(
     raw = rigid_model_bytes()
     wanted = digest(raw)
     spec = EpisodeSpec(
-        gains=SOFT_GAINS, trajectory=TRAJECTORY, model=RIGID_IDEAL, feedforward=wanted
+        gains=SOFT_GAINS, trajectory=TRAJECTORY, plant=RIGID_IDEAL, feedforward=wanted
     )
     decoy = to_bytes(
         rigid_prior(IDEAL_PLANT.model_copy(update={"joints": "rigid", "inertials": "cad"}))
@@ -223,8 +223,8 @@ def test_the_model_reaches_a_worker_that_never_had_the_file(
                     ),
                 }
             )
-            evaluations = {evaluation.job_id: evaluation for evaluation in farm.results(timeout=60)}
-    assert {evaluation.status.value for evaluation in evaluations.values()} == {"ok"}
+            evaluations = {result.job_id: result for result in farm.results(timeout=60)}
+    assert {result.status.value for result in evaluations.values()} == {"ok"}
     assert (cache / "gainfarm" / "models" / f"{wanted}.npz").read_bytes() == raw
     log = read_episode(evaluations["a"].log)
     assert log.metadata.spec.feedforward == wanted
@@ -275,12 +275,12 @@ def test_in_process_evaluation_uses_the_given_model(tmp_path: Path) -> None:
 
     raw = rigid_model_bytes()
     spec = EpisodeSpec(
-        gains=SOFT_GAINS, trajectory=TRAJECTORY, model=RIGID_IDEAL, feedforward=digest(raw)
+        gains=SOFT_GAINS, trajectory=TRAJECTORY, plant=RIGID_IDEAL, feedforward=digest(raw)
     )
     with InProcessEvaluator(tmp_path, models={digest(raw): raw}) as evaluator:
         evaluator.submit({"a": spec})
-        (evaluation,) = list(evaluator.results())
-    assert evaluation.status.value == "ok"
+        (result,) = list(evaluator.results())
+    assert result.status.value == "ok"
     np.testing.assert_equal(
-        read_episode(evaluation.log).u, run_episode(spec, rigid_prior(RIGID_IDEAL)).u
+        read_episode(result.log).u, run_episode(spec, rigid_prior(RIGID_IDEAL)).u
     )

@@ -21,14 +21,14 @@ FEEDFORWARD = to_bytes(rigid_prior(RIGID_IDEAL))
 EPISODES = {
     "tracked": (short_spec(), None),
     "diverged": (
-        EpisodeSpec(gains=WEAK_GAINS, trajectory=TrajectorySpec(duration=3.0), model=PLAIN_PLANT),
+        EpisodeSpec(gains=WEAK_GAINS, trajectory=TrajectorySpec(duration=3.0), plant=PLAIN_PLANT),
         None,
     ),
     "feed-forward": (
         EpisodeSpec(
             gains=SOFT_GAINS,
             trajectory=TrajectorySpec(kind="fourier", duration=0.5, seed=4),
-            model=RIGID_IDEAL,
+            plant=RIGID_IDEAL,
             feedforward=digest(FEEDFORWARD),
         ),
         lambda _: rigid_prior(RIGID_IDEAL),

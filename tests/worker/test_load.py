@@ -5,7 +5,7 @@ import mujoco
 import numpy as np
 
 from gainfarm.models import compile_model
-from gainfarm.schemas import EpisodeSpec, ModelSpec, TrajectorySpec
+from gainfarm.schemas import EpisodeSpec, PlantSpec, TrajectorySpec
 from gainfarm.schemas.robot import JOINT_NAMES, LoadData
 from gainfarm.worker.episode import run_episode
 from gainfarm.worker.plant import ArmsGravity, RobotGravity, gravity_spec
@@ -15,7 +15,7 @@ TOLD = LoadData(mass=5.0, com=(0.03, -0.02, 0.08))
 ANGLES = np.random.default_rng(7).uniform(-1.5, 1.5, (20, 7))
 
 
-def plant_gravity(spec: ModelSpec, angles: np.ndarray) -> np.ndarray:
+def plant_gravity(spec: PlantSpec, angles: np.ndarray) -> np.ndarray:
     """(n, 7) N·m gravity puts on the links of `spec`'s simulated plant at link angles `angles`
     (the springs' side of elastic joints: the torque the robot must hold)."""
     model = compile_model(spec)
@@ -32,19 +32,19 @@ def plant_gravity(spec: ModelSpec, angles: np.ndarray) -> np.ndarray:
 
 
 def test_a_told_load_is_what_the_robots_gravity_model_holds_up() -> None:
-    told = ModelSpec(load=TOLD)
+    told = PlantSpec(load=TOLD)
     np.testing.assert_allclose(
         RobotGravity(told).at(ANGLES), plant_gravity(told, ANGLES), atol=1e-9
     )
     # The same load untold (an undeclared payload, the sphere at the flange's centre), or told
     # but heavier than told: the robot's model holds up the bare arm, or the told mass, only.
-    load_torque = plant_gravity(told, ANGLES) - plant_gravity(ModelSpec(), ANGLES)
+    load_torque = plant_gravity(told, ANGLES) - plant_gravity(PlantSpec(), ANGLES)
     assert np.abs(load_torque).max() > 20  # 5 kg on a long arm: tens of N·m at A2
-    untold = ModelSpec(payload=5.0)
+    untold = PlantSpec(payload=5.0)
     np.testing.assert_array_equal(
-        RobotGravity(untold).at(ANGLES), RobotGravity(ModelSpec()).at(ANGLES)
+        RobotGravity(untold).at(ANGLES), RobotGravity(PlantSpec()).at(ANGLES)
     )
-    heavier = ModelSpec(load=TOLD.model_copy(update={"mass_scale": 1.2}))
+    heavier = PlantSpec(load=TOLD.model_copy(update={"mass_scale": 1.2}))
     assert gravity_spec(heavier) == gravity_spec(told)
     missing = plant_gravity(heavier, ANGLES) - RobotGravity(heavier).at(ANGLES)
     np.testing.assert_allclose(missing, 0.2 * load_torque, atol=1e-6)
@@ -52,10 +52,10 @@ def test_a_told_load_is_what_the_robots_gravity_model_holds_up() -> None:
 
 def test_many_arms_gravity_gives_a_loaded_arm_the_bits_its_own_model_gives() -> None:
     specs = [
-        ModelSpec(load=TOLD),
-        ModelSpec(),
-        ModelSpec(inertials="cad", load=LoadData(mass=2.0)),
-        ModelSpec(load=TOLD.model_copy(update={"mass_scale": 0.9})),  # told alike: the same
+        PlantSpec(load=TOLD),
+        PlantSpec(),
+        PlantSpec(inertials="cad", load=LoadData(mass=2.0)),
+        PlantSpec(load=TOLD.model_copy(update={"mass_scale": 0.9})),  # told alike: the same
     ]
     arms = ArmsGravity(specs)
     for tick in np.random.default_rng(3).uniform(-2.0, 2.0, (30, len(specs), 7)):
@@ -73,13 +73,13 @@ def test_a_told_load_tracks_far_better_than_the_same_load_untold() -> None:
     # Soft gains, so that the robot's gravity model, not the PD's stiffness, holds the load.
     path = TrajectorySpec(kind="fourier", duration=2.0)
     plants = {
-        "told": ModelSpec(load=LoadData(mass=5.0)),
-        "untold": ModelSpec(payload=5.0),  # the same sphere at the flange's centre
-        "bare": ModelSpec(),
+        "told": PlantSpec(load=LoadData(mass=5.0)),
+        "untold": PlantSpec(payload=5.0),  # the same sphere at the flange's centre
+        "bare": PlantSpec(),
     }
     error = {}
     for name, plant in plants.items():
-        log = run_episode(EpisodeSpec(gains=SOFT_GAINS, trajectory=path, model=plant))
+        log = run_episode(EpisodeSpec(gains=SOFT_GAINS, trajectory=path, plant=plant))
         assert not log.metadata.diverged
         error[name] = np.sqrt(np.mean(np.sum((log.ee - log.ee_des) ** 2, axis=1)))  # RMS, m
     assert error["told"] < 0.5 * error["untold"], error
@@ -88,7 +88,7 @@ def test_a_told_load_tracks_far_better_than_the_same_load_untold() -> None:
 
 
 def test_the_load_is_centred_where_the_robot_was_told_in_the_flange_frame() -> None:
-    model = compile_model(ModelSpec(load=TOLD))
+    model = compile_model(PlantSpec(load=TOLD))
     data = mujoco.MjData(model)
     for row in ANGLES[:5]:
         data.qpos[[model.joint(f"{name}_motor").qposadr[0] for name in JOINT_NAMES]] = row
@@ -102,12 +102,12 @@ def test_the_load_is_centred_where_the_robot_was_told_in_the_flange_frame() -> N
 def test_an_untold_payload_is_centred_on_the_flange_as_documented() -> None:
     # models/README.md: a sphere centred on the flange, where the told load's default centre is
     # and where a calibration fits a payload (it sat 4.5 cm further out before).
-    model = compile_model(ModelSpec(payload=2.0))
+    model = compile_model(PlantSpec(payload=2.0))
     data = mujoco.MjData(model)
     data.qpos[[model.joint(f"{name}_motor").qposadr[0] for name in JOINT_NAMES]] = ANGLES[0]
     mujoco.mj_forward(model, data)
     flange = data.site_xpos[model.site("flange").id]
     np.testing.assert_allclose(data.xipos[model.body("payload").id], flange, atol=1e-12)
-    told = compile_model(ModelSpec(load=LoadData(mass=2.0)))
+    told = compile_model(PlantSpec(load=LoadData(mass=2.0)))
     assert np.array_equal(told.body("load").pos, model.body("payload").pos)
     assert np.array_equal(told.body("load").ipos, model.body("payload").ipos)

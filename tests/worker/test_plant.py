@@ -2,13 +2,13 @@
 
 import numpy as np
 
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.worker.plant import ArmsGravity, RobotGravity
 
 
 def test_many_arms_gravity_gives_each_arm_the_bits_its_own_model_gives() -> None:
     # Arms of every inertial set side by side, one of them twice, at angles across their range.
-    specs = [ModelSpec(inertials=name) for name in ("open", "menagerie", "cad", "open")]
+    specs = [PlantSpec(inertials=name) for name in ("open", "menagerie", "cad", "open")]
     angles = np.random.default_rng(3).uniform(-2.0, 2.0, (50, len(specs), 7))
     arms = ArmsGravity(specs)
     for tick in angles:
@@ -21,7 +21,7 @@ def test_many_arms_gravity_gives_each_arm_the_bits_its_own_model_gives() -> None
 
 
 def test_many_arms_gravity_is_one_model_of_rigid_arms_without_shapes() -> None:
-    arms = ArmsGravity([ModelSpec()] * 5)
+    arms = ArmsGravity([PlantSpec()] * 5)
     assert arms.model.nq == arms.model.nv == 5 * 7
     assert arms.model.nu == 7  # the first arm's motors; the others' are left out
-    assert arms.model.ngeom == ArmsGravity([ModelSpec()]).model.ngeom  # likewise its shapes
+    assert arms.model.ngeom == ArmsGravity([PlantSpec()]).model.ngeom  # likewise its shapes

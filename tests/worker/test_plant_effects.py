@@ -11,7 +11,7 @@ import pytest
 from gainfarm.models import compile_model
 from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT, Friction, ModelSpec, Sensors
+from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT, Friction, PlantSpec, Sensors
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 from gainfarm.worker.episode import gravity_torques, run_episode, simulate
 from gainfarm.worker.reference import Reference
@@ -47,7 +47,7 @@ def test_the_ideal_plant_reproduces_the_first_waves_episodes_exactly():
         )
         spec = EpisodeSpec(
             gains=PDGains(**old["gains"]),
-            model=model,
+            plant=model,
             gravity_compensation=old["gravity_compensation"],
         )
         q = arrays[f"q{i}"]
@@ -71,13 +71,13 @@ def test_coulomb_friction_adds_its_level_to_the_torque_that_moves_a_joint_steadi
         ("with", Friction(viscous=(0.0,) * 7, coulomb=coulomb)),
     ):
         model = EXACT_RIGID.model_copy(update={"friction": friction})
-        log = simulate(EpisodeSpec(gains=stiff, model=model), reference, None)
+        log = simulate(EpisodeSpec(gains=stiff, plant=model), reference, None)
         torques[name] = log.u[500:, 0].mean()  # after the start-up transient
     assert torques["with"] - torques["without"] == pytest.approx(6.0, rel=0.02)
 
 
 def test_viscous_friction_lands_on_the_motor_hinge():
-    model = compile_model(ModelSpec(friction=Friction(viscous=(0.7,) * 7)))
+    model = compile_model(PlantSpec(friction=Friction(viscous=(0.7,) * 7)))
     motors = [model.joint(f"A{i}_motor").id for i in range(1, 8)]
     np.testing.assert_allclose(model.dof_damping[model.jnt_dofadr[motors]], 0.7)
 
@@ -93,7 +93,7 @@ def test_a_delayed_command_shifts_the_response_by_the_delay(delay):
     runs = {}
     for d in (0, delay):
         model = EXACT_RIGID.model_copy(update={"delay": d})
-        spec = EpisodeSpec(gains=PDGains(kp=(0,) * 7, kd=(0,) * 7), model=model)
+        spec = EpisodeSpec(gains=PDGains(kp=(0,) * 7, kd=(0,) * 7), plant=model)
         runs[d] = simulate(
             spec.model_copy(update={"gravity_compensation": True}), reference, gravity
         )
@@ -105,7 +105,7 @@ def test_a_delayed_command_shifts_the_response_by_the_delay(delay):
 def test_sensor_noise_is_reproducible_from_the_seed_and_differs_between_seeds():
     def run(seed: int):
         model = REALISTIC_PLANT.model_copy(update={"sensors": Sensors(seed=seed)})
-        return run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT, model=model))
+        return run_episode(EpisodeSpec(gains=TRACKING_GAINS, trajectory=SHORT, plant=model))
 
     first, again, other = run(0), run(0), run(1)
     for name in ("q", "qd", "tau", "u", "theta", "theta_d"):
@@ -115,7 +115,7 @@ def test_sensor_noise_is_reproducible_from_the_seed_and_differs_between_seeds():
 
 
 def test_encoders_report_whole_counts_and_velocity_from_their_differences(tracking_log):
-    sensors = tracking_log.metadata.spec.model.sensors
+    sensors = tracking_log.metadata.spec.plant.sensors
     encoders = Encoders(sensors)
     for angles, velocities in (
         (tracking_log.q, tracking_log.qd),
@@ -132,11 +132,11 @@ def test_the_torque_sensors_read_the_spring_torque_with_their_noise(tracking_log
     spec = tracking_log.metadata.spec
     clean = run_episode(
         spec.model_copy(
-            update={"model": spec.model.model_copy(update={"sensors": Sensors(torque_noise=0.0)})}
+            update={"plant": spec.plant.model_copy(update={"sensors": Sensors(torque_noise=0.0)})}
         )
     )
     noise = tracking_log.tau - clean.tau
-    assert noise.std() == pytest.approx(spec.model.sensors.torque_noise, rel=0.05)
+    assert noise.std() == pytest.approx(spec.plant.sensors.torque_noise, rel=0.05)
     # Holding the arm up, A2's spring carries tens of N·m; the command differs from it
     assert np.abs(clean.tau[:, 1]).mean() > 20
     assert np.abs(tracking_log.u - tracking_log.tau).max() > 1.0
@@ -146,11 +146,11 @@ def test_on_the_ideal_elastic_plant_the_log_explains_its_own_torque_command():
     # u = ID(q, q̇, q̈) + B θ̈: rigid inverse dynamics of the logged link state (without the
     # rotor inertia) plus the rotor inertia times the logged motor acceleration.
     spec = EpisodeSpec(
-        gains=TRACKING_GAINS, trajectory=TrajectorySpec(duration=3.0), model=IDEAL_PLANT
+        gains=TRACKING_GAINS, trajectory=TrajectorySpec(duration=3.0), plant=IDEAL_PLANT
     )
     log = run_episode(spec)
     links = compile_model(
-        ModelSpec(joints="rigid", inertials="open", friction=None, rotor_inertia=(0.0,) * 7)
+        PlantSpec(joints="rigid", inertials="open", friction=None, rotor_inertia=(0.0,) * 7)
     )
     data = mujoco.MjData(links)
     qdd = np.diff(log.qd, axis=0) / CONTROL_PERIOD
@@ -159,7 +159,7 @@ def test_on_the_ideal_elastic_plant_the_log_explains_its_own_torque_command():
     for k in range(len(qdd)):
         data.qpos[:], data.qvel[:], data.qacc[:] = log.q[k], log.qd[k], qdd[k]
         mujoco.mj_inverse(links, data)
-        explained[k] = data.qfrc_inverse + np.array(spec.model.rotor_inertia) * thetadd[k]
+        explained[k] = data.qfrc_inverse + np.array(spec.plant.rotor_inertia) * thetadd[k]
     u = log.u[:-1]
     nmse = ((explained - u) ** 2).mean(axis=0) / u.var(axis=0)
     assert nmse.max() < 1e-5, nmse

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gainfarm.models import FLANGE, compile_model
-from gainfarm.schemas import CONTROL_PERIOD, ModelSpec, TrajectoryKind, TrajectorySpec
+from gainfarm.schemas import CONTROL_PERIOD, PlantSpec, TrajectoryKind, TrajectorySpec
 from gainfarm.schemas.robot import ACCELERATION_LIMITS, POSITION_LIMITS, SPEED_LIMITS
 from gainfarm.worker import reference as reference_module
 from gainfarm.worker.ik import (
@@ -42,7 +42,7 @@ CASES = [
 
 def flange_poses(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The flange's positions (n, 3) and orientations (n, 3, 3) at q, by MuJoCo's kinematics."""
-    model = compile_model(ModelSpec(joints="rigid"))
+    model = compile_model(PlantSpec(joints="rigid"))
     data = mujoco.MjData(model)
     positions, rotations = np.empty((len(q), 3)), np.empty((len(q), 3, 3))
     for k, qk in enumerate(q):

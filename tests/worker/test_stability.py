@@ -13,7 +13,7 @@ from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import Limits
 from gainfarm.schemas.mcap_episode import decode_episode, episode_bytes
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import IDEAL_PLANT, ModelSpec, Sensors
+from gainfarm.schemas.robot import IDEAL_PLANT, PlantSpec, Sensors
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import WireScores
 from gainfarm.worker.control import PDController
@@ -69,30 +69,30 @@ EXACT_COUNTS = Sensors(resolution=0, noise=0)  # no quantisation: the loop is sm
 
 
 @pytest.mark.parametrize(
-    "model",
+    "plant",
     [
-        ModelSpec(sensors=EXACT_COUNTS),  # FRI, elastic, window 3, delay 1, friction
-        ModelSpec(sensors=EXACT_COUNTS, interface="torque"),
-        ModelSpec(
+        PlantSpec(sensors=EXACT_COUNTS),  # FRI, elastic, window 3, delay 1, friction
+        PlantSpec(sensors=EXACT_COUNTS, interface="torque"),
+        PlantSpec(
             joints="rigid", delay=2, sensors=Sensors(resolution=0, noise=0, velocity_window=2)
         ),
         IDEAL_PLANT,  # the exact loop: no window, no delay
     ],
     ids=["realistic", "plain", "rigid-delay-2", "ideal"],
 )
-def test_the_linear_model_predicts_the_tick_loop(model: ModelSpec) -> None:
+def test_the_linear_model_predicts_the_tick_loop(plant: PlantSpec) -> None:
     """A small perturbation of the state at tick 0, carried through ten ticks of the linearised
     loop (each tick's matrix at the unperturbed episode's state), lands where the simulator's
     own tick loop takes it: every register (window, delay) and term (FRI gravity, friction)
     of the linear model is the loop's."""
     spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=PATH.model_copy(update={"duration": 0.5}))
-    spec = spec.model_copy(update={"model": model})
+    spec = spec.model_copy(update={"plant": plant})
     nominal = _run(spec)
     plant = nominal.plant
     nx = plant.model.nq + plant.model.nv
     offset = np.random.default_rng(1).standard_normal(nx) * 1e-6
     perturbed = _run(spec, offset)
-    loop = ClosedLoop(Plant(model), PDController.from_gains(spec.gains, plant.torque_limits))
+    loop = ClosedLoop(Plant(plant), PDController.from_gains(spec.gains, plant.torque_limits))
     z = np.zeros(loop.size)
     z[:nx] = offset
     if loop.delay:  # the robot holds the first command until the delay has passed
@@ -162,7 +162,7 @@ UNDER_DAMPED = PDGains(
     kd=tuple(k * f for k, f in zip(DEFAULT_GAINS.kd, (0.1, 0.1, 1, 1, 1, 1, 1), strict=True)),
 )
 TOP_DELAY = 2  # ticks: the top of models/uncertainty.toml's `delay` range (the nominal is 1)
-ROTOR_10X = ModelSpec(rotor_inertia=tuple(10 * r for r in ModelSpec().rotor_inertia))
+ROTOR_10X = PlantSpec(rotor_inertia=tuple(10 * r for r in PlantSpec().rotor_inertia))
 
 
 def test_the_default_gains_track_with_damping_to_spare_two_ticks_late() -> None:
@@ -174,7 +174,7 @@ def test_the_default_gains_track_with_damping_to_spare_two_ticks_late() -> None:
     assert min(found.tracking, found.elastic) == pytest.approx(found.least, abs=2e-6)
     assert found.tracking > 0 and found.tracking_at > 0
     assert found.tracking_at < found.tracking  # a tick more delay takes some damping
-    assert found.delay == TOP_DELAY and found.delay_margin >= TOP_DELAY - spec.model.delay
+    assert found.delay == TOP_DELAY and found.delay_margin >= TOP_DELAY - spec.plant.delay
     # The least damped mode is a spring's, fast; the controller's own are slower and better damped.
     assert found.elastic < found.tracking and found.tracking_hz < found.elastic_hz
 
@@ -192,7 +192,7 @@ def test_an_under_damped_controller_loses_its_tracking_modes_two_ticks_late() ->
 
 def _late(spec: EpisodeSpec, extra: int) -> float:
     """The tracking damping of `spec`'s loop `extra` ticks later than its plant's delay."""
-    return margins(spec, delay=spec.model.delay + extra).tracking_at
+    return margins(spec, delay=spec.plant.delay + extra).tracking_at
 
 
 @pytest.mark.parametrize(
@@ -213,7 +213,7 @@ def test_the_delay_margin_is_the_last_delay_the_tracking_modes_take(gains: PDGai
 def test_a_delay_margin_past_the_search_reads_as_its_cap() -> None:
     """Heavy rotors (ten times the nominal inertia) and three times the default Kd: the slow
     tracking modes shrug off delay, stable still at the search's last tick."""
-    spec = EpisodeSpec(gains=scaled(1, 3), trajectory=PATH, model=ROTOR_10X)
+    spec = EpisodeSpec(gains=scaled(1, 3), trajectory=PATH, plant=ROTOR_10X)
     found = margins(spec)
     assert found.delay_margin == MAX_EXTRA_DELAY and found.capped
     assert _late(spec, MAX_EXTRA_DELAY) > 0
@@ -223,7 +223,7 @@ def test_a_delay_asked_of_margins_is_the_plant_with_that_delay() -> None:
     """The delay lives in the loop's delay line alone: the plant linearised with its own
     delay of 2 ticks gives the same loop as the nominal plant's linearisation 2 ticks late."""
     spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=PATH)
-    late = spec.model_copy(update={"model": spec.model.model_copy(update={"delay": TOP_DELAY})})
+    late = spec.model_copy(update={"plant": spec.plant.model_copy(update={"delay": TOP_DELAY})})
     asked, own = margins(spec, delay=TOP_DELAY), margins(late)
     assert (asked.tracking_at, asked.tracking_at_hz) == (own.tracking, own.tracking_hz)
     assert own.least == least_damping(late)
@@ -238,12 +238,12 @@ def test_the_split_follows_the_plant_not_a_frequency() -> None:
     tracking mode on the realistic plant two ticks late: no one frequency splits the two kinds
     on every plant."""
     found: dict[str, Margins] = {}
-    for name, model in {"realistic": ModelSpec(), "ideal": IDEAL_PLANT, "rotor": ROTOR_10X}.items():
-        found[name] = margins(EpisodeSpec(gains=DEFAULT_GAINS, trajectory=PATH, model=model))
+    for name, model in {"realistic": PlantSpec(), "ideal": IDEAL_PLANT, "rotor": ROTOR_10X}.items():
+        found[name] = margins(EpisodeSpec(gains=DEFAULT_GAINS, trajectory=PATH, plant=model))
         assert found[name].elastic_hz is not None, name
         assert found[name].tracking_hz < found[name].elastic_hz, name
     rigid = margins(
-        EpisodeSpec(gains=DEFAULT_GAINS, trajectory=PATH, model=ModelSpec(joints="rigid"))
+        EpisodeSpec(gains=DEFAULT_GAINS, trajectory=PATH, plant=PlantSpec(joints="rigid"))
     )
     assert rigid.elastic is None and rigid.elastic_hz is None
     assert rigid.tracking == pytest.approx(rigid.least, abs=2e-6)

@@ -51,7 +51,7 @@ def _episodes() -> list[EpisodeSpec]:
             spec = short_spec(duration=duration, gains=gains, seed=index)
             compensated = index % 2 == 0 and plant.interface == "torque"
             specs.append(
-                spec.model_copy(update={"model": plant, "gravity_compensation": compensated})
+                spec.model_copy(update={"plant": plant, "gravity_compensation": compensated})
             )
     return specs
 
@@ -94,7 +94,7 @@ def test_plant_variants_of_one_layout_and_other_physics_steps_each_log_their_own
     prepared = []
     for index, plant in enumerate(plants):
         spec = short_spec(duration=0.5, gains=TRACKING_GAINS, seed=index)
-        spec = spec.model_copy(update={"model": plant})
+        spec = spec.model_copy(update={"plant": plant})
         reference = reference_for(spec.trajectory)
         prepared.append((spec, reference, compensation(spec, reference)))
     alone = [_digest(simulate_all([episode])[0]) for episode in prepared]
@@ -127,7 +127,7 @@ def test_a_batch_of_jobs_gives_each_the_outcome_it_has_alone() -> None:
     good = short_spec(duration=0.5)
     too_fast = EpisodeSpec(gains=TRACKING_GAINS, trajectory=TrajectorySpec(duration=0.5))
     unknown = good.model_copy(update={"objectives": ("no-such-objective",)})
-    falls = short_spec(duration=0.6, gains=LIMP).model_copy(update={"model": PLAIN_PLANT})
+    falls = short_spec(duration=0.6, gains=LIMP).model_copy(update={"plant": PLAIN_PLANT})
     batch = [good, too_fast, unknown, falls]
     together = simulate_batch(batch, threads=2)
     for spec, outcome in zip(batch, together, strict=True):
@@ -153,7 +153,7 @@ def test_a_batch_times_each_episode_by_its_share(threads: int) -> None:
 
 def test_a_job_on_a_robot_not_here_is_refused_naming_it() -> None:
     elsewhere = short_spec(duration=0.5).model_copy(
-        update={"model": REALISTIC_PLANT.model_copy(update={"robot": "panda"})}
+        update={"plant": REALISTIC_PLANT.model_copy(update={"robot": "panda"})}
     )
     (outcome,) = simulate_batch([elsewhere])
     assert outcome.status.value == "refused"

@@ -13,7 +13,7 @@ from gainfarm.schemas.robot import (
     N_JOINTS,
     POSITION_LIMITS,
     SPEED_LIMITS,
-    ModelSpec,
+    PlantSpec,
 )
 from gainfarm.schemas.trajectory import MIN_DURATION, TrajectorySpec
 from gainfarm.worker.ik import READY_POSTURE
@@ -30,7 +30,7 @@ _FOURIER_SHRINK = 0.9  # per try, until the flange clears the floor
 # Samples of the episode's fraction at which the series' peaks are found (as
 # worker.reference.LIMIT_SAMPLES: finer than the control ticks of any duration up to 20 s).
 _PEAK_SAMPLES = 10001
-_KINEMATIC_MODEL = ModelSpec(joints="rigid", substeps=1)  # kinematics only: the rigid chain
+_KINEMATIC_MODEL = PlantSpec(joints="rigid", substeps=1)  # kinematics only: the rigid chain
 _POSITION = np.array(POSITION_LIMITS)
 _SPEED = np.array(SPEED_LIMITS)
 _ACCELERATION = np.array(ACCELERATION_LIMITS)

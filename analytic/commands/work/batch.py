@@ -86,7 +86,7 @@ def batch(
         with client, Display(enabled=not as_json) as display:
             done = 0
 
-            def report(evaluation: "EpisodeResult") -> None:
+            def report(result: "EpisodeResult") -> None:
                 nonlocal done
                 interrupts.check()
                 done += 1
@@ -94,7 +94,7 @@ def batch(
                 if done * 10 // len(jobs) != (done - 1) * 10 // len(jobs):  # every tenth
                     display.log(f"{done} of {len(jobs)} evaluated")
                 if as_json:
-                    click.echo(json.dumps(_summary(evaluation)))
+                    click.echo(json.dumps(_summary(result)))
 
             try:
                 evaluations = run_batch(client, jobs, run_dir, report)
@@ -131,14 +131,14 @@ def _candidates(path: Path | None) -> list["PDGains"]:
         raise CliError(f"--gains: {str(path)!r}: {error}") from None
 
 
-def _summary(evaluation: "EpisodeResult") -> dict[str, object]:
-    scores = evaluation.scores.model_dump() if evaluation.scores else {}
-    episode = str(evaluation.log) if evaluation.log else None
+def _summary(result: "EpisodeResult") -> dict[str, object]:
+    scores = result.scores.model_dump() if result.scores else {}
+    episode = str(result.log) if result.log else None
     return {
-        "job_id": evaluation.job_id,
-        "status": evaluation.status.value,
+        "job_id": result.job_id,
+        "status": result.status.value,
         **scores,
-        "reason": evaluation.reason,
+        "reason": result.reason,
         "episode": episode,
     }
 
@@ -151,18 +151,16 @@ def _print_evaluations(evaluations: list["EpisodeResult"], run_dir: Path, name: 
         "f_t ((N·m)²)",
         "worker",
     )
-    for evaluation in evaluations:
-        scores = evaluation.scores
+    for result in evaluations:
+        scores = result.scores
         table.add_row(
-            evaluation.job_id,
-            evaluation.status
-            if not evaluation.reason
-            else f"{evaluation.status}: {evaluation.reason}",
+            result.job_id,
+            result.status if not result.reason else f"{result.status}: {result.reason}",
             f"{scores.f_acc * 1000:.3f}" if scores else "",
             f"{scores.f_t:.4g}" if scores else "",
-            evaluation.worker,
+            result.worker,
         )
     print_title(Console(), f"{run_dir}/{name}")
     Console().print(table)
-    if any(evaluation.scores and evaluation.scores.diverged for evaluation in evaluations):
+    if any(result.scores and result.scores.diverged for result in evaluations):
         Console().print(DIVERGED_TEXT, highlight=False)

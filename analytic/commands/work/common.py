@@ -13,12 +13,12 @@ from gainfarm.cli import values
 from gainfarm.cli.app import CliError
 from gainfarm.schemas.documents import BadDocument, read_bounded
 from gainfarm.schemas.plant_file import PlantFile
-from gainfarm.schemas.robot import PLANTS, ModelSpec
+from gainfarm.schemas.robot import PLANTS, PlantSpec
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.wire import describe, one_line
 
 
-def _uncertainty(plant_file: PlantFile, nominal: ModelSpec) -> dict:
+def _uncertainty(plant_file: PlantFile, nominal: PlantSpec) -> dict:
     """The plant file's ranges for `nominal`: once its calibrated payload is the told load (no
     --payload given: values.with_load), that load's error instead of the untold payload's."""
     told = plant_file.told()
@@ -30,12 +30,12 @@ def _uncertainty(plant_file: PlantFile, nominal: ModelSpec) -> dict:
 def plants_from(
     count: int,
     path: Path | None,
-    nominal: ModelSpec,
+    nominal: PlantSpec,
     seed: int,
     held_out: bool = False,
     plant: str | None = None,
     designed: bool = False,
-) -> tuple[ModelSpec, ...]:
+) -> tuple[PlantSpec, ...]:
     """--plants K variants of `nominal` (`held_out`: --check-plants M of them, on the seed's
     other stream; `designed`: robust tuning's, the corners first), drawn from --uncertainty
     FILE's ranges, else from those of the plant file --plant names (a calibrated twin's), else
@@ -53,7 +53,7 @@ def plants_from(
 
     stream = HELD_OUT if held_out else TUNING
 
-    def drawn(table: "dict | None") -> tuple[ModelSpec, ...]:
+    def drawn(table: "dict | None") -> tuple[PlantSpec, ...]:
         if designed:
             return design(nominal, count, seed, table)
         return variants(nominal, count, seed, table, stream)

@@ -12,7 +12,7 @@ from gainfarm.analytic.calibration import excitation as ex
 from gainfarm.analytic.commands.work.common import plants_from
 from gainfarm.cli.app import CliError
 from gainfarm.edges.files import staging_directory, write_atomically
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import MAX_DURATION, MIN_DURATION
 
 SHIPPED_RANGES = "the shipped models/uncertainty.toml"
@@ -54,7 +54,7 @@ def excite(
             except ValidationError as error:  # the bounds are checked above: their backstop
                 raise CliError(f"--duration: {error.errors()[0]['msg']}") from None
             # Each excitation meets plants of its own (its seed's): more of the ranges covered.
-            variants = plants_from(ex.VARIANTS, uncertainty_file, ModelSpec(), trajectory.seed)
+            variants = plants_from(ex.VARIANTS, uncertainty_file, PlantSpec(), trajectory.seed)
             try:
                 item = ex.excitation(index, trajectory, variants, ranges)
             except ex.Unsafe as error:

@@ -65,7 +65,7 @@ def run(
             trajectories=(
                 TrajectorySpec() if duration is None else TrajectorySpec(duration=duration),
             ),
-            model=with_load(model_spec(plant), payload, payload_com, plant),
+            plant=with_load(model_spec(plant), payload, payload_com, plant),
             limits=limits,
             generations=generations,
             evaluations=evaluations,

@@ -31,7 +31,7 @@ if TYPE_CHECKING:
     from gainfarm.analytic.calibration.gap import Played
     from gainfarm.analytic.calibration.logs import Topics
     from gainfarm.schemas.episode_log import EpisodeLog
-    from gainfarm.schemas.robot import ModelSpec
+    from gainfarm.schemas.robot import PlantSpec
 
 
 def validate(
@@ -67,7 +67,7 @@ def validate(
             jobs[f"e{index:02d}-{name}"] = EpisodeSpec(
                 gains=spec.gains,
                 trajectory=spec.trajectory,
-                model=plant,
+                plant=plant,
                 gravity_compensation=spec.gravity_compensation and plant.interface == "torque",
                 objectives=spec.objectives,
             )
@@ -121,7 +121,7 @@ def validate(
 
 
 def _logged(
-    path: Path, topics: "Topics", played: "list[Played]", nominal: "ModelSpec"
+    path: Path, topics: "Topics", played: "list[Played]", nominal: "PlantSpec"
 ) -> "EpisodeLog":
     """LOG as an episode log: a gainfarm one as it is, a robot's bag as an episode of what it
     played; BadLog in one line."""

@@ -23,7 +23,7 @@ from gainfarm.cli.app import CliError
 from gainfarm.cli.values import plant_file
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.plant_file import BadPlantFile, read_plant_file
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from tests.helpers import analytic, crafted_log, write_log
 
 N = 7
@@ -92,7 +92,7 @@ def calibrated(tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 
 def test_the_twin_recovers_the_hidden_arm(calibrated: dict) -> None:
-    arm: ModelSpec = calibrated["arm"]
+    arm: PlantSpec = calibrated["arm"]
     twin = read_plant_file(calibrated["twin"].read_bytes())
     plant = twin.plant
     assert arm.friction is not None and plant.friction is not None
@@ -119,7 +119,7 @@ def test_the_twin_recovers_the_hidden_arm(calibrated: dict) -> None:
     stiffness = twin.calibration["stiffness"]
     assert stiffness["told"] == [True] * 6 + [False]
     assert "cannot tell stiffness" in stiffness["why"]
-    assert plant.stiffness[6] == ModelSpec().stiffness[6]
+    assert plant.stiffness[6] == PlantSpec().stiffness[6]
     # The controller's settings are the nominal's, never the log's.
     assert (plant.interface, plant.feedback, plant.inertials) == ("fri", "motor", "menagerie")
     assert [log["name"] for log in twin.calibration["logs"]] == [p.name for p in calibrated["logs"]]
@@ -222,7 +222,7 @@ def test_a_worker_runs_an_episode_on_the_twin(calibrated: dict, tmp_path: Path) 
     # The twin's calibrated payload is the load the robot is told as the file runs (told: the
     # plant holds what the file's does, the robot's gravity model carries the payload).
     twin = read_plant_file(calibrated["twin"].read_bytes())
-    ran = read_episode(tmp_path / "ep.mcap").metadata.spec.model
+    ran = read_episode(tmp_path / "ep.mcap").metadata.spec.plant
     assert ran == twin.told().plant
     assert ran.payload == 0.0 and ran.load is not None
     assert ran.load.mass == pytest.approx(twin.plant.payload)
@@ -293,7 +293,7 @@ def test_a_plant_file_from_another_robot_is_refused_in_one_line(tmp_path: Path) 
         read_plant_file(b"[plant\n")
     with pytest.raises(BadPlantFile, match=r"plant\.delay"):
         read_plant_file(b"[plant]\ndelay = -1\n")
-    assert read_plant_file(b"[plant]\n").plant == ModelSpec()
+    assert read_plant_file(b"[plant]\n").plant == PlantSpec()
 
 
 # --- a robot's ROS 2 bags ------------------------------------------------------------------------
@@ -453,7 +453,7 @@ def test_batch_and_experiment_take_the_twin(calibrated: dict, tmp_path: Path) ->
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     (episode,) = [json.loads(line) for line in done.stdout.splitlines()]
-    plant = read_episode(tmp_path / "batch" / episode["episode"]).metadata.spec.model
+    plant = read_episode(tmp_path / "batch" / episode["episode"]).metadata.spec.plant
     # As the twin file runs: its calibrated payload the load the robot is told (PlantFile.told).
     assert plant == read_plant_file(calibrated["twin"].read_bytes()).told().plant
     # An experiment reads it as it parses its options: a bad one is refused before anything runs.

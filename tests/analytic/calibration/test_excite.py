@@ -18,7 +18,7 @@ from gainfarm.schemas.robot import (
     JOINT_NAMES,
     POSITION_LIMITS,
     SPEED_LIMITS,
-    ModelSpec,
+    PlantSpec,
 )
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.worker.reference import Reference, reference_for
@@ -274,7 +274,7 @@ def test_the_factory_gains_would_be_refused_where_the_excitation_gains_pass():
     shipped ranges the factory gains' loop is unstable, the excitation gains' is not."""
     trajectory = ex.trajectory(DURATION, 0)
     reference = reference_for(trajectory)
-    plants = variants(ModelSpec(), ex.VARIANTS, 0)
+    plants = variants(PlantSpec(), ex.VARIANTS, 0)
     with pytest.raises(ex.Unsafe) as refused:
         ex.check_stable(0, DEFAULT_GAINS, trajectory, reference, plants, "the shipped ranges")
     assert refused.value.option == "--uncertainty"

@@ -11,7 +11,7 @@ from gainfarm.analytic.commands.work.common import plants_from
 from gainfarm.cli import options, values
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.plant_file import PlantFile
-from gainfarm.schemas.robot import MAX_LOAD_OFFSET, RATED_PAYLOAD, LoadData, ModelSpec
+from gainfarm.schemas.robot import MAX_LOAD_OFFSET, RATED_PAYLOAD, LoadData, PlantSpec
 from tests.helpers import analytic
 
 WORKER = [sys.executable, "-m", "gainfarm.worker", "episode"]
@@ -65,18 +65,18 @@ def test_an_episode_runs_on_the_load_it_was_told(tmp_path: Path) -> None:
     command = [*WORKER, *SHORT, "--payload", "5", "--payload-com", "0,0.01,0.1"]
     done = subprocess.run([*command, "--out", str(tmp_path / "ep.mcap")], capture_output=True)
     assert done.returncode == 0, done.stderr
-    model = read_episode(tmp_path / "ep.mcap").metadata.spec.model
-    assert model == ModelSpec(load=LoadData(mass=5.0, com=(0.0, 0.01, 0.1)))
+    model = read_episode(tmp_path / "ep.mcap").metadata.spec.plant
+    assert model == PlantSpec(load=LoadData(mass=5.0, com=(0.0, 0.01, 0.1)))
     # --payload 0: told of none, the very spec (and JSON) of no option at all.
     done = subprocess.run([*WORKER, *SHORT, "--payload", "0", "--out", str(tmp_path / "0.mcap")])
     assert done.returncode == 0
-    assert read_episode(tmp_path / "0.mcap").metadata.spec.model == ModelSpec()
+    assert read_episode(tmp_path / "0.mcap").metadata.spec.plant == PlantSpec()
 
 
 def twin(path: Path, payload: float, load: LoadData | None = None) -> Path:
     """A calibrated plant file whose fit found `payload` kg at the flange, ±0.5 kg (not below 0),
     on a plant told of `load`."""
-    plant = ModelSpec(payload=payload, load=load)
+    plant = PlantSpec(payload=payload, load=load)
     fitted = {
         "field": "payload",
         "absolute": True,
@@ -106,12 +106,12 @@ def test_a_twins_calibrated_payload_is_the_load_the_robot_is_told(tmp_path: Path
     assert all(1.5 <= p.payload <= 2.5 for p in plants_from(8, None, other, 1, plant=file))
     # A plant file no calibration weighed keeps its payload untold.
     plain = tmp_path / "plain.toml"
-    plain.write_text(write_text(PlantFile(plant=ModelSpec(payload=2.0))))
+    plain.write_text(write_text(PlantFile(plant=PlantSpec(payload=2.0))))
     kept = values.with_load(values.model_spec(str(plain)), None, None, str(plain))
-    assert kept == ModelSpec(payload=2.0)
+    assert kept == PlantSpec(payload=2.0)
     # Nor does one whose fit cannot tell its payload from none (its range reaches 0).
     light = str(twin(tmp_path / "light.toml", 0.3))
-    assert values.with_load(values.model_spec(light), None, None, light) == ModelSpec(payload=0.3)
+    assert values.with_load(values.model_spec(light), None, None, light) == PlantSpec(payload=0.3)
 
 
 def test_a_twins_payload_joins_the_load_its_arm_was_told_of(tmp_path: Path) -> None:

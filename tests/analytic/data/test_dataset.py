@@ -44,7 +44,7 @@ from gainfarm.cli import interrupts
 from gainfarm.schemas import TrajectorySpec
 from gainfarm.schemas.limits import Limits
 from gainfarm.schemas.mcap_episode import read_episode
-from gainfarm.schemas.robot import JOINT_NAMES, PLAIN_PLANT, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, PLAIN_PLANT, PlantSpec
 from gainfarm.worker.episode import motor_torque
 from tests.helpers import write_log
 
@@ -72,7 +72,7 @@ TWIN = RunConfig(
     seed=5,
     trajectories=(SPIRAL,),
     generations=1,
-    model=PLAIN_PLANT,
+    plant=PLAIN_PLANT,
     limits=LIMITS_OF_THE_FIXTURES,
 )
 RERUN = [
@@ -152,7 +152,7 @@ def assert_ticks_are_the_logs(dataset: Path) -> int:
         # loop's own numbers: tests/worker/test_episode.py), on a torque interface the command.
         u_motor = np.array([ticks[f"u_motor_{joint}"] for joint in JOINT_NAMES]).T[rows]
         np.testing.assert_array_equal(u_motor, motor_torque(log))
-        fri = log.metadata.spec.model.interface == "fri"
+        fri = log.metadata.spec.plant.interface == "fri"
         assert fri == (np.abs(u_motor - log.u)[:, 1].min() > 10), fri  # A2 holds the arm up
         for index, axis in enumerate("xyz"):
             np.testing.assert_array_equal(np.array(ticks[f"ee_{axis}"])[rows], log.ee[:, index])
@@ -634,9 +634,9 @@ def test_excitations_on_plant_variants_through_the_cli(
     assert len(reruns) == 3  # one excitation on three plants
     ids = sorted(episodes["episode_id"][i] for i in reruns)
     assert sum("-rerun-p1-" in i for i in ids) == sum("-rerun-p2-" in i for i in ids) == 1
-    nominal = read_run(run_dir).config.model
+    nominal = read_run(run_dir).config.plant
     variants = dataset_module.plant_variants(nominal, 2, 0)
-    models = {ModelSpec.model_validate_json(episodes["model"][i]) for i in reruns}
+    models = {PlantSpec.model_validate_json(episodes["model"][i]) for i in reruns}
     assert models == {nominal, *variants} and len(models) == 3
     excitation = dataset_module.excitations(1)[0]
     assert trajectory_id(excitation) in trajectories["trajectory_id"]
@@ -646,7 +646,7 @@ def test_excitations_on_plant_variants_through_the_cli(
     part = dict(zip(trajectories["trajectory_id"], trajectories["split"], strict=True))
     split_of = {}
     for i in range(len(episodes["episode_id"])):
-        variant = ModelSpec.model_validate_json(episodes["model"][i]) != nominal
+        variant = PlantSpec.model_validate_json(episodes["model"][i]) != nominal
         split_of[episodes["episode_id"][i]] = part[episodes["trajectory_id"][i]] + "_variants" * (
             variant
         )

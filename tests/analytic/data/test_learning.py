@@ -142,7 +142,7 @@ def test_a_model_learned_behind_fri_is_the_feedforward_there(realistic, fri):
     held_out = TrajectorySpec(kind="fourier", seed=9, duration=2.0)
     errors = {}
     for plant in (REALISTIC_PLANT, PLAIN_PLANT):
-        spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=held_out, model=plant)
+        spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=held_out, plant=plant)
         errors[plant.interface, "pd"] = score_episode(run_episode(spec)).f_acc
         for source, model in learned.items():
             added = spec.model_copy(update={"feedforward": digest(to_bytes(model))})

@@ -29,7 +29,7 @@ from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import PLAIN_PLANT, ModelSpec
+from gainfarm.schemas.robot import PLAIN_PLANT, PlantSpec
 from gainfarm.schemas.wire import MAX_EPISODE_BYTES, PART_BYTES, Part
 from gainfarm.worker.job import simulate
 from tests.helpers import (
@@ -53,18 +53,18 @@ def test_several_workers_share_a_batch_and_every_episode_is_kept_and_scored(
         farm.submit(specs)
         evaluations = list(farm.results(timeout=120))
         workers = {worker.name: worker.jobs_done for worker in farm.status().workers}
-    assert sorted(evaluation.job_id for evaluation in evaluations) == sorted(specs)
+    assert sorted(result.job_id for result in evaluations) == sorted(specs)
     assert [re.sub(r"-[0-9a-f]{8}$", "", name) for name in sorted(workers)] == [
         "local-0",
         "local-1",
     ]
     assert all(workers.values())
-    for evaluation in evaluations:
-        assert evaluation.status == "ok" and evaluation.attempts == 1
-        assert evaluation.log == tmp_path / "episodes" / f"{evaluation.job_id}.mcap"
-        log = read_episode(evaluation.log)
-        assert log.metadata.spec == specs[evaluation.job_id]
-        assert score(log) == evaluation.scores
+    for result in evaluations:
+        assert result.status == "ok" and result.attempts == 1
+        assert result.log == tmp_path / "episodes" / f"{result.job_id}.mcap"
+        log = read_episode(result.log)
+        assert log.metadata.spec == specs[result.job_id]
+        assert score(log) == result.scores
     assert not list((tmp_path / "episodes").glob(".*"))  # no temporary files left behind
 
 
@@ -86,8 +86,8 @@ def test_a_local_farm_takes_jobs_as_soon_as_its_broker_serves(tmp_path: Path) ->
             farm.submit(specs)
             evaluations = list(farm.results(timeout=120))
         local.stop(wait=False)
-    assert sorted(evaluation.job_id for evaluation in evaluations) == sorted(specs)
-    assert all(evaluation.status == "ok" for evaluation in evaluations)
+    assert sorted(result.job_id for result in evaluations) == sorted(specs)
+    assert all(result.status == "ok" for result in evaluations)
     assert all(process.poll() == 0 for process in [local.broker, *local.workers])
 
 
@@ -103,11 +103,11 @@ def test_a_batch_keeps_every_log_even_when_the_workers_keep_them(tmp_path: Path)
         evaluations = run_batch(farm, specs, tmp_path)
     assert [e.job_id for e in evaluations] == list(specs)
     records = json.loads((tmp_path / "evaluations.json").read_text())
-    for evaluation, record in zip(evaluations, records, strict=True):
-        assert evaluation.log == tmp_path / "episodes" / f"{evaluation.job_id}.mcap"
-        assert record["episode"] == f"episodes/{evaluation.job_id}.mcap"
-        assert hashlib.sha256(evaluation.log.read_bytes()).hexdigest() == evaluation.digest
-        assert score(read_episode(evaluation.log)) == evaluation.scores
+    for result, record in zip(evaluations, records, strict=True):
+        assert result.log == tmp_path / "episodes" / f"{result.job_id}.mcap"
+        assert record["episode"] == f"episodes/{result.job_id}.mcap"
+        assert hashlib.sha256(result.log.read_bytes()).hexdigest() == result.digest
+        assert score(read_episode(result.log)) == result.scores
 
 
 @pytest.mark.slow
@@ -123,14 +123,14 @@ def test_a_farm_of_its_own_workers_keeps_a_fetched_log_with_the_scores_claimed(
             directory = tmp_path / str(trusted)
             with FarmClient([endpoint], "s", directory, keep_logs=False, trusted=trusted) as farm:
                 farm.submit({"j": spec})
-                (evaluation,) = farm.results(timeout=60)
-                assert evaluation.scores is not None and evaluation.digest is not None
-                claimed = evaluation.scores.model_copy(update={"f_acc": 1.0})
-                want = Wanted(spec, evaluation.digest, (evaluation.worker,), claimed)
+                (result,) = farm.results(timeout=60)
+                assert result.scores is not None and result.digest is not None
+                claimed = result.scores.model_copy(update={"f_acc": 1.0})
+                want = Wanted(spec, result.digest, (result.worker,), claimed)
                 got = farm.fetch({"j": want})["j"]
             assert got.log == directory / "episodes" / "j.mcap"
-            assert hashlib.sha256(got.log.read_bytes()).hexdigest() == evaluation.digest
-            assert got.scores == (claimed if trusted else evaluation.scores)
+            assert hashlib.sha256(got.log.read_bytes()).hexdigest() == result.digest
+            assert got.scores == (claimed if trusted else result.scores)
 
 
 @pytest.mark.slow
@@ -151,9 +151,9 @@ def test_a_worker_killed_mid_job_loses_no_evaluation_and_none_is_counted_twice(
             assert farm.duplicates == 0
     finally:
         stop_workers(workers)
-    assert sorted(evaluation.job_id for evaluation in evaluations) == sorted(specs)
-    assert all(evaluation.status == "ok" for evaluation in evaluations)
-    assert {evaluation.worker for evaluation in evaluations} >= {"survivor"}
+    assert sorted(result.job_id for result in evaluations) == sorted(specs)
+    assert all(result.status == "ok" for result in evaluations)
+    assert {result.worker for result in evaluations} >= {"survivor"}
     assert broker.queue.requeued >= 1
     assert broker.queue.jobs_done == len(specs)
 
@@ -222,10 +222,10 @@ def test_a_job_the_broker_lost_is_resubmitted_at_its_deadline(
         # ... so only the client's resubmission brings the job to the worker.
         worker = spawn_worker(broker.endpoints[0], "w")
         try:
-            [evaluation] = list(farm.results(timeout=60))
+            [result] = list(farm.results(timeout=60))
         finally:
             stop_workers([worker])
-    assert evaluation.status == "ok" and evaluation.attempts == 2
+    assert result.status == "ok" and result.attempts == 2
 
 
 @pytest.mark.slow
@@ -238,10 +238,10 @@ def test_a_job_still_queued_at_its_deadline_is_not_another_attempt(
         assert list(farm.results(timeout=3.5)) == []  # overdue thrice, but the broker has it
         worker = spawn_worker(broker.endpoints[0], "w")
         try:
-            [evaluation] = list(farm.results(timeout=60))
+            [result] = list(farm.results(timeout=60))
         finally:
             stop_workers([worker])
-    assert evaluation.status == "ok" and evaluation.attempts == 1
+    assert result.status == "ok" and result.attempts == 1
 
 
 def test_a_job_without_a_result_after_every_attempt_is_reported_lost(
@@ -251,9 +251,9 @@ def test_a_job_without_a_result_after_every_attempt_is_reported_lost(
         farm.submit({"j": short_spec()})
         broker.queue.close_study("s")
         broker.queue.open_study("s")
-        [evaluation] = list(farm.results(timeout=10))
-    assert evaluation.status == "lost" and evaluation.reason == "no result after 1 attempts"
-    assert evaluation.scores is None and evaluation.log is None
+        [result] = list(farm.results(timeout=10))
+    assert result.status == "lost" and result.reason == "no result after 1 attempts"
+    assert result.scores is None and result.log is None
 
 
 @pytest.mark.slow
@@ -275,7 +275,7 @@ def test_bad_results_on_the_studys_key_are_ignored_or_reported(
         session.put(keys.result("s", "j1"), b"", attachment=forged.to_bytes())
         worker = spawn_worker(broker.endpoints[0], "w")
         try:
-            evaluations = {evaluation.job_id: evaluation for evaluation in farm.results(60)}
+            evaluations = {result.job_id: result for result in farm.results(60)}
         finally:
             stop_workers([worker])
         # Garbage and no attachment, and a result that carries a log (none does); a job never
@@ -303,9 +303,9 @@ def test_an_unusable_log_on_the_last_attempt_fails_the_job_with_the_reason(
         assert hand_in(session, truncated).accepted
         _served = serve_log(session, "s", "broken", b"hello")
         session.put(keys.result("s", "j"), b"", attachment=truncated.to_bytes())
-        [evaluation] = list(farm.results(timeout=10))
-    assert evaluation.status == "failed" and evaluation.worker == ""
-    assert evaluation.reason == "unusable episode log: 5 bytes, not the 10 sent (attempt 1)"
+        [result] = list(farm.results(timeout=10))
+    assert result.status == "failed" and result.worker == ""
+    assert result.reason == "unusable episode log: 5 bytes, not the 10 sent (attempt 1)"
     assert not (tmp_path / "episodes" / "j.mcap").exists()
 
 
@@ -317,13 +317,13 @@ def test_a_diverged_episode_is_an_evaluation_with_penalised_scores(
     worker = spawn_worker(broker.endpoints[0], "w")
     try:
         with FarmClient(broker.endpoints, "s", tmp_path) as farm:
-            falls = short_spec(duration=2.0, gains=weak).model_copy(update={"model": PLAIN_PLANT})
+            falls = short_spec(duration=2.0, gains=weak).model_copy(update={"plant": PLAIN_PLANT})
             farm.submit({"falls": falls})
-            [evaluation] = list(farm.results(timeout=60))
+            [result] = list(farm.results(timeout=60))
     finally:
         stop_workers([worker])
-    assert evaluation.status == "diverged" and evaluation.scores.diverged
-    assert evaluation.reason and evaluation.log.is_file()
+    assert result.status == "diverged" and result.scores.diverged
+    assert result.reason and result.log.is_file()
 
 
 def test_a_study_can_be_open_in_one_process_only(broker: Broker, tmp_path: Path) -> None:
@@ -412,18 +412,18 @@ def test_a_model_handed_to_an_open_client_is_served_to_the_workers(
 ) -> None:
     # An experiment hands a run's model to a client it has already opened
     # (analytic.experiments.base.serving): the workers must still be able to fetch it.
-    raw = to_bytes(rigid_prior(ModelSpec()))
+    raw = to_bytes(rigid_prior(PlantSpec()))
     spec = EpisodeSpec.model_validate({**short_spec().model_dump(), "feedforward": digest(raw)})
     worker = spawn_worker(broker.endpoints[0], "w")
     try:
         with FarmClient(broker.endpoints, "s", tmp_path) as farm:
             farm.models[digest(raw)] = raw
             farm.submit({"j": spec})
-            [evaluation] = list(farm.results(timeout=120))
+            [result] = list(farm.results(timeout=120))
     finally:
         stop_workers([worker])
-    assert evaluation.status == "ok", evaluation.reason
-    assert read_episode(evaluation.log).metadata.spec.feedforward == digest(raw)
+    assert result.status == "ok", result.reason
+    assert read_episode(result.log).metadata.spec.feedforward == digest(raw)
 
 
 @pytest.mark.slow
@@ -448,7 +448,7 @@ def test_a_result_from_a_worker_the_local_farm_did_not_start_is_refused_and_runs
                 session.put(keys.result("s", job_id), b"", attachment=result.to_bytes())
         worker = spawn_worker(broker.endpoints[0], "mine")
         try:
-            evaluations = {evaluation.job_id: evaluation for evaluation in farm.results(120)}
+            evaluations = {outcome.job_id: outcome for outcome in farm.results(120)}
         finally:
             stop_workers([worker])
         assert farm.strangers == {"putter", "silent"}
@@ -501,13 +501,13 @@ def test_a_log_of_several_parts_comes_whole_and_lying_holders_are_skipped(
     try:
         with FarmClient(broker.endpoints, "s", tmp_path) as farm:
             farm.submit({"long": spec})
-            [evaluation] = list(farm.results(timeout=120))
-            assert evaluation.log is not None and evaluation.log.read_bytes() == calm.content
-            evaluation.log.unlink()
+            [result] = list(farm.results(timeout=120))
+            assert result.log is not None and result.log.read_bytes() == calm.content
+            result.log.unlink()
             holders = (*liars, "w")
             fetched = farm.fetch({"long": Wanted(spec, calm.digest, holders)})["long"]
     finally:
         stop_workers([worker])
     assert asked == list(liars)
     assert fetched.source == "w" and fetched.log.read_bytes() == calm.content
-    assert fetched.scores == evaluation.scores
+    assert fetched.scores == result.scores

@@ -196,11 +196,11 @@ def test_forged_results_over_the_budget_are_dropped_and_a_dropped_result_comes_a
         try:
             wait_for(lambda: farm.dropped == 2, timeout=60, what="the honest result, dropped")
             assert broker.queue.jobs_done == 1
-            [evaluation] = list(farm.results(timeout=60))
+            [result] = list(farm.results(timeout=60))
         finally:
             stop_workers([worker])
-        assert evaluation.status == "ok" and evaluation.worker == "w" and evaluation.attempts == 1
-        assert read_episode(evaluation.log).metadata.spec == short_spec()
+        assert result.status == "ok" and result.worker == "w" and result.attempts == 1
+        assert read_episode(result.log).metadata.spec == short_spec()
         assert broker.queue.jobs_done == 2  # it ran again
         assert farm.unconfirmed == 1 and farm.held_bytes == 0
         assert farm.peak_held_bytes <= len(first) + 10

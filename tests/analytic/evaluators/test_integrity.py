@@ -46,10 +46,10 @@ def test_a_well_made_result_from_anyone_but_the_lease_holder_is_not_counted(
             stop_workers([worker])
         assert farm.unconfirmed == 3
     assert sorted(e.job_id for e in evaluations) == sorted(specs)
-    for evaluation in evaluations:
-        assert evaluation.status == "ok" and evaluation.attempts == 1
-        assert evaluation.scores is not None and evaluation.scores.f_acc > 0
-        assert evaluation.scores.f_acc != score_of(perfect_log(evaluation.spec)).f_acc
+    for result in evaluations:
+        assert result.status == "ok" and result.attempts == 1
+        assert result.scores is not None and result.scores.f_acc > 0
+        assert result.scores.f_acc != score_of(perfect_log(result.spec)).f_acc
 
 
 def score_of(content: bytes) -> Scores:
@@ -94,11 +94,11 @@ def test_answers_from_anyone_but_the_broker_are_ignored(
     try:
         with FarmClient(broker.endpoints, "s", tmp_path) as farm:
             farm.submit({"j": short_spec()})
-            [evaluation] = list(farm.results(60))
+            [result] = list(farm.results(60))
     finally:
         stop_workers([worker])
         impostor.undeclare()
-    assert evaluation.status == "ok" and evaluation.worker == "w"
+    assert result.status == "ok" and result.worker == "w"
 
 
 @pytest.mark.slow
@@ -117,7 +117,7 @@ def test_a_result_message_built_to_crash_its_decoder_leaves_the_client_serving(
                 keys.result("s", "y"), b"", attachment=b'{"a":' * 100_000, congestion_control=block
             )
             farm.submit({"j": short_spec()})
-            [evaluation] = list(farm.results(60))
+            [result] = list(farm.results(60))
             # The worker's result may overtake the junk (another publisher): each is counted
             # as it is read, on Zenoh's thread.
             deadline = time.monotonic() + 30
@@ -126,7 +126,7 @@ def test_a_result_message_built_to_crash_its_decoder_leaves_the_client_serving(
             assert farm.ignored == 2
     finally:
         stop_workers([worker])
-    assert evaluation.status == "ok"
+    assert result.status == "ok"
 
 
 @pytest.mark.slow
@@ -162,10 +162,10 @@ def test_a_broker_that_comes_back_gets_the_pending_jobs_again(tmp_path: Path) ->
         with Broker([f"tcp/127.0.0.1:{port}"]) as second:
             worker = spawn_worker(second.endpoints[0], "w")
             try:
-                [evaluation] = list(farm.results(timeout=60))
+                [result] = list(farm.results(timeout=60))
             finally:
                 stop_workers([worker])
-    assert evaluation.status == "ok" and evaluation.attempts == 1
+    assert result.status == "ok" and result.attempts == 1
     assert farm.waiting is None
 
 

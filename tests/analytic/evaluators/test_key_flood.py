@@ -51,7 +51,7 @@ def test_big_queries_on_the_model_key_are_dropped_and_the_model_still_served(
     assert PART_BYTES < len(raw) <= 2 * PART_BYTES
     trajectory = TrajectorySpec(kind="fourier", duration=0.5, seed=4)
     spec = EpisodeSpec(
-        gains=SOFT_GAINS, trajectory=trajectory, model=RIGID_IDEAL, feedforward=digest(raw)
+        gains=SOFT_GAINS, trajectory=trajectory, plant=RIGID_IDEAL, feedforward=digest(raw)
     )
     calm = simulate(spec, lambda _: model)
     endpoint = f"tcp/127.0.0.1:{free_port()}"

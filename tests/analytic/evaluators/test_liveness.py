@@ -79,12 +79,12 @@ def test_a_result_the_broker_took_but_that_never_came_is_its_record(
         farm.submit({"j1": short_spec()})
         run_silently(session, "j1")
 
-        [evaluation] = list(farm.results(timeout=10))  # the deadline is 600 s
+        [result] = list(farm.results(timeout=10))  # the deadline is 600 s
 
-        assert (evaluation.job_id, evaluation.worker, evaluation.digest) == ("j1", "quiet", DIGEST)
-        assert evaluation.status == "ok" and evaluation.attempts == 1
-        assert evaluation.scores == Scores.model_validate(HAND_MADE_SCORES.model_dump())
-        assert evaluation.log is None  # left with its worker: `fetch` asks it, or runs it again
+        assert (result.job_id, result.worker, result.digest) == ("j1", "quiet", DIGEST)
+        assert result.status == "ok" and result.attempts == 1
+        assert result.scores == Scores.model_validate(HAND_MADE_SCORES.model_dump())
+        assert result.log is None  # left with its worker: `fetch` asks it, or runs it again
         assert farm.unheard == 1 and farm.unheard_from == {"quiet"}
 
         # The silent worker gets none of the study's jobs from now on; the other does.
@@ -101,8 +101,8 @@ def test_the_last_worker_is_not_left_out_for_a_result_that_did_not_come(
     with FarmClient(broker.endpoints, "s", tmp_path, keep_logs=False) as farm:
         farm.submit({"j1": short_spec()})
         run_silently(session, "j1")
-        [evaluation] = list(farm.results(timeout=10))
-        assert evaluation.worker == "quiet" and farm.unheard_from == frozenset()
+        [result] = list(farm.results(timeout=10))
+        assert result.worker == "quiet" and farm.unheard_from == frozenset()
 
 
 def test_a_job_that_wanted_its_log_runs_again_elsewhere_when_its_result_never_comes(
@@ -122,9 +122,9 @@ def test_a_job_that_wanted_its_log_runs_again_elsewhere_when_its_result_never_co
         assert hand_in(session, result).accepted
         _served = serve_log(session, "s", "other", content)
         session.put(keys.result("s", "j"), b"", attachment=result.to_bytes())
-        [evaluation] = list(farm.results(timeout=10))
-    assert (evaluation.worker, evaluation.attempts) == ("other", 2)
-    assert evaluation.log == tmp_path / "episodes" / "j.mcap" and evaluation.log.is_file()
+        [outcome] = list(farm.results(timeout=10))
+    assert (outcome.worker, outcome.attempts) == ("other", 2)
+    assert outcome.log == tmp_path / "episodes" / "j.mcap" and outcome.log.is_file()
 
 
 def test_a_result_on_its_way_when_the_broker_is_asked_is_still_the_job_s(
@@ -143,9 +143,9 @@ def test_a_result_on_its_way_when_the_broker_is_asked_is_still_the_job_s(
             assert list(farm.results(timeout=0.2)) == []
         _served = serve_log(session, "s", "slow", content)
         session.put(keys.result("s", "j"), b"", attachment=result.to_bytes())
-        [evaluation] = list(farm.results(timeout=10))
-        assert (evaluation.worker, evaluation.attempts) == ("slow", 1)
-        assert evaluation.log is not None and evaluation.log.is_file()
+        [outcome] = list(farm.results(timeout=10))
+        assert (outcome.worker, outcome.attempts) == ("slow", 1)
+        assert outcome.log is not None and outcome.log.is_file()
         assert farm.unheard == 0 and farm.unheard_from == frozenset()
 
 

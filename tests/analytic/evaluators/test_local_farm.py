@@ -84,8 +84,8 @@ def test_another_user_cannot_reach_a_local_farm_its_own_workers_serve(tmp_path: 
         # Meanwhile the farm's own workers work.
         with FarmClient([endpoint], "s", tmp_path, own_workers=farm.names) as client:
             client.submit({"j": short_spec(duration=0.3)})
-            (evaluation,) = client.results(timeout=120)
-        assert evaluation.status == "ok" and evaluation.worker in farm.names
+            (result,) = client.results(timeout=120)
+        assert result.status == "ok" and result.worker in farm.names
     assert not directory.exists()  # its socket goes with the farm
 
 

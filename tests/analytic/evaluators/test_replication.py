@@ -178,9 +178,9 @@ def test_a_log_run_again_is_fetched_from_the_worker_that_ran_it_or_the_fetch_fai
         serving = threading.Thread(target=worker.serve, args=(threading.Event(), 2))
         serving.start()
         farm.submit({"j": short_spec()})
-        [evaluation] = list(farm.results(60))
-        assert evaluation.log is None and evaluation.worker == "forgetful"
-        wanted = Wanted(evaluation.spec, evaluation.digest, ("forgetful",))
+        [result] = list(farm.results(60))
+        assert result.log is None and result.worker == "forgetful"
+        wanted = Wanted(result.spec, result.digest, ("forgetful",))
         fetched = farm.fetch({"j": wanted})["j"]
         serving.join(60)
     assert not serving.is_alive() and worker.jobs_done == 2  # the job, then its rerun

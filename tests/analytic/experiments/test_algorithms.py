@@ -402,11 +402,11 @@ def test_the_per_joint_torque_measure_is_what_every_run_and_baseline_minimises(
     run = read_run(tmp_path / "runs" / "random-raw-rep0")
     assert run.config.objectives == ("f_acc", "f_t_joint")
     member = run.front[0]
-    log = run_episode(EpisodeSpec(gains=member.gains, trajectory=trajectory, model=base.model))
+    log = run_episode(EpisodeSpec(gains=member.gains, trajectory=trajectory, plant=base.plant))
     assert member.objectives == pytest.approx((f_acc(log), f_t_joint(log)))
     assert f_t_joint(log) != pytest.approx(f_t(log))
     # The baselines are scored alike: the default gains' point is per-joint too.
     [default] = experiment.evaluate_gains("again", [DEFAULT_GAINS], trajectory, run.config)
-    log = run_episode(EpisodeSpec(gains=DEFAULT_GAINS, trajectory=trajectory, model=base.model))
+    log = run_episode(EpisodeSpec(gains=DEFAULT_GAINS, trajectory=trajectory, plant=base.plant))
     assert default == pytest.approx((f_acc(log), f_t_joint(log)))
     assert "`--torque-measure per-joint`" in (tmp_path / "report.md").read_text()

@@ -150,7 +150,7 @@ def test_a_second_invocation_reuses_the_runs_and_episodes(
     checkpoints = {p: p.stat().st_mtime_ns for p in out.glob("runs/*/checkpoint.pkl")}
     again = Experiment(out, refuse)  # any simulation at all fails the test
     pools = dv.all_pools(again, BASE, REPS)[1]
-    test, _ = dv.test_pool(again, 3.0, TESTS, BASE.model)
+    test, _ = dv.test_pool(again, 3.0, TESTS, BASE.plant)
     assert {p: p.stat().st_mtime_ns for p in out.glob("runs/*/checkpoint.pkl")} == checkpoints
     assert all(path.is_file() for pool in pools.values() for path in pool.values())
     assert dvm.rows_digest(test) == rows(out / "results.csv")[0]["test_digest"]

@@ -14,7 +14,7 @@ from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import BASELINE_JSON, read_baseline
 from gainfarm.schemas import TrajectorySpec
 from gainfarm.schemas.gains import DEFAULT_GAINS
-from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT, ModelSpec
+from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT, PlantSpec
 from tests.analytic.experiments.common import PNG, refusal, rows, stats_rows
 
 # Toy size: the shortest trajectory the arm can follow at speed, one generation of four.
@@ -38,14 +38,14 @@ def test_two_parameters_moved_tuned_again_and_judged_against_the_nominal(tmp_pat
     assert {r["pick"] for r in results} <= {"recommended", "closest"}
     # Each run tuned on its moved plant, and nothing else moved.
     models = {
-        plant: ModelSpec.model_validate(
+        plant: PlantSpec.model_validate(
             json.loads((tmp_path / "runs" / f"{plant}-rep0" / "config.json").read_text())["model"]
         )
         for plant in plants
     }
-    assert models["nominal"] == BASE.model
-    assert models["rotor-x5"] == BASE.model.model_copy(
-        update={"rotor_inertia": tuple(5 * b for b in BASE.model.rotor_inertia)}
+    assert models["nominal"] == BASE.plant
+    assert models["rotor-x5"] == BASE.plant.model_copy(
+        update={"rotor_inertia": tuple(5 * b for b in BASE.plant.rotor_inertia)}
     )
     assert [models[p].delay for p in plants[2:]] == [2, 3]
     # The default gains run on each moved plant track otherwise than on the nominal one: the
@@ -130,7 +130,7 @@ def test_parameters_are_named_once_each_and_fit_the_plant() -> None:
     ):
         with pytest.raises(ValueError, match=says):
             sens.parameter_names(text)
-    ideal = RunConfig(model=IDEAL_PLANT)
+    ideal = RunConfig(plant=IDEAL_PLANT)
     with pytest.raises(ValueError, match=r"^--parameters: coulomb: the plant has no friction"):
         sens.prepare(ideal, {"parameters": ["rotor", "coulomb"]})
     assert sens.prepare(ideal, {"parameters": ["delay"]}) == ideal

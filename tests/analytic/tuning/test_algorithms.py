@@ -22,7 +22,7 @@ from gainfarm.analytic.tuning.run import RunProgress, TuningRun
 from gainfarm.analytic.tuning.search_space import SearchSpace
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.objectives import objectives
-from gainfarm.schemas.robot import ModelSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.wire import describe
 from tests.analytic.toy import toy_scores
 from tests.analytic.tuning.test_run_in_process import Interrupt, Shuffled, tune
@@ -52,7 +52,7 @@ MOVED_CLASSES = ("nsga3", "smsemoa", "tpe", "random")
 def toy_objectives(config: RunConfig, gains) -> tuple[float, float]:
     """What the toy evaluator finds for `gains`: the raw objectives a run must record."""
     specs = [
-        EpisodeSpec(gains=gains, trajectory=t, model=config.model) for t in config.trajectories
+        EpisodeSpec(gains=gains, trajectory=t, plant=config.plant) for t in config.trajectories
     ]
     return objectives([toy_scores(spec) for spec in specs])
 
@@ -239,9 +239,9 @@ def test_the_classical_rule_clips_to_the_search_space() -> None:
 
 
 def test_the_joint_inertias_include_the_rotors() -> None:
-    without = ModelSpec(joints="rigid", rotor_inertia=(0.0,) * 7)
+    without = PlantSpec(joints="rigid", rotor_inertia=(0.0,) * 7)
     rotors = (0.4, 0.4, 0.3, 0.3, 0.1, 0.1, 0.1)
-    with_rotors = ModelSpec(joints="rigid", rotor_inertia=rotors)
+    with_rotors = PlantSpec(joints="rigid", rotor_inertia=rotors)
     bare, full = joint_inertias(without), joint_inertias(with_rotors)
     assert np.all(bare > 0) and bare.shape == (7,)
     np.testing.assert_allclose(full - bare, rotors, atol=1e-12)

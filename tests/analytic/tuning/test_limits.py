@@ -81,7 +81,7 @@ def real() -> dict[str, Scores]:
     }
     path = TrajectorySpec(kind="fourier", duration=1.5)
     return {
-        name: score(run_episode(EpisodeSpec(gains=g, trajectory=path, model=IDEAL_PLANT)))
+        name: score(run_episode(EpisodeSpec(gains=g, trajectory=path, plant=IDEAL_PLANT)))
         for name, g in gains.items()
     }
 

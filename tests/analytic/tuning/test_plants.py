@@ -159,9 +159,9 @@ def test_every_candidate_meets_the_same_variants(tmp_path: Path) -> None:
         logs = sorted((tmp_path / "run" / "episodes").glob("*.mcap"))
         assert len(logs) == 8 * 3  # 8 candidates, each on the nominal plant and 2 variants
         for log in logs:
-            plant = read_episode(log).metadata.spec.model
+            plant = read_episode(log).metadata.spec.plant
             variant = log.stem.rpartition("-p")[2] if "-p" in log.stem else "0"
-            assert plant == ([config.model, *config.plants])[int(variant)], log.name
+            assert plant == ([config.plant, *config.plants])[int(variant)], log.name
     saved = (tmp_path / "run" / "config.json").read_bytes()
     assert RunConfig.model_validate_json(saved).plants == config.plants  # and resumes with them
 

@@ -187,9 +187,9 @@ class Growing(InProcessEvaluator):
         self.in_flight.append(self.pending)
 
     def results(self, timeout: float | None = None) -> Iterator[EpisodeResult]:
-        for evaluation in super().results(timeout):
+        for result in super().results(timeout):
             self.done += 1
-            yield evaluation
+            yield result
 
 
 def test_a_steady_state_run_keeps_more_candidates_in_flight_when_the_farm_grows(

@@ -129,5 +129,5 @@ def test_a_run_s_defaults_are_analytic_start_s() -> None:
     assert given["kinds"] == (trajectory.kind,) and given["duration"] == trajectory.duration
     assert given["trajectory_seed"] == trajectory.seed and given["size"] == trajectory.size
     assert given["center"] == ",".join(f"{value:g}" for value in trajectory.center)
-    assert values.model_spec(given["plant"], given["joints"]) == config.model
+    assert values.model_spec(given["plant"], given["joints"]) == config.plant
     assert given["balance"] is True and given["generations"] is given["evaluations"] is None

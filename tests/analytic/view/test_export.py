@@ -33,7 +33,7 @@ from gainfarm.analytic.view.export import (
 from gainfarm.models.iiwa14 import RIGID_MJCF
 from gainfarm.schemas.controller import FORMAT, UNITS, Assumptions, Controller, read_gains
 from gainfarm.schemas.gains import DEFAULT_GAINS
-from gainfarm.schemas.robot import JOINT_NAMES, ModelSpec
+from gainfarm.schemas.robot import JOINT_NAMES, PlantSpec
 from tests.analytic.samples import KD, KP
 from tests.helpers import WEAK_GAINS, analytic, ends_with_closing_lines
 
@@ -251,7 +251,7 @@ def test_the_files_say_what_running_the_gains_assumes(hand_made: Path) -> None:
     assert "map them to your robot's joint names" in assumes.joints
     assert "FRI torque mode adds its gravity model" in assumes.gravity_compensation  # realistic
     assert assumes.feedback.startswith("the motor-side joint angle")
-    plain = Assumptions.of(ModelSpec(interface="torque", feedback="link"))
+    plain = Assumptions.of(PlantSpec(interface="torque", feedback="link"))
     assert plain.gravity_compensation.startswith("none: u is the whole motor torque")
     assert plain.feedback == "the link-side joint angle and its velocity"
     # The ros2_control file says the same in its comments, each fact on lines of its own.
@@ -366,8 +366,8 @@ def test_the_exported_knee_runs_again_to_the_scores_its_run_recorded(run_dir: Pa
         "batch", "--local", "--gains", "knee.json", *SHORT, "--run-dir", "b", "--json", cwd=here
     )
     assert batch.returncode == 0, batch.stderr
-    [evaluation] = [json.loads(line) for line in batch.stdout.splitlines()]
-    assert (evaluation["f_acc"], evaluation["f_t"]) == member.objectives  # deterministic
+    [result] = [json.loads(line) for line in batch.stdout.splitlines()]
+    assert (result["f_acc"], result["f_t"]) == member.objectives  # deterministic
 
     episode = worker(
         "episode", "--gains", "knee.json", *SHORT, "--out", "knee.mcap", "--json", cwd=here

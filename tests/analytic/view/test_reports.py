@@ -322,7 +322,7 @@ def test_a_runs_title_says_what_it_was_tuned_on() -> None:
     )
     mixed = RunConfig(
         trajectories=(TrajectorySpec(duration=3.0), TrajectorySpec(kind="random", duration=4.0)),
-        model=PLANTS["ideal"],
+        plant=PLANTS["ideal"],
     )
     assert "on spiral 3 s, random 4 s, ideal plant, flexible joints, population 30" in run_title(
         mixed
