@@ -4,7 +4,7 @@
 
     run = tune(RunConfig(pop=8, generations=3), out="runs/first")
     for member in run.front():
-        print(member.f_acc, member.f_t, member.kp, member.kd)
+        print(member.named, member.kp, member.kd)  # {"f_acc": ..., "f_t": ...}: its objectives
 
 Its public names are gainfarm's, one list (gainfarm/__init__.py's `WHERE`), each loaded on first
 use, so that importing one module of the package does not load Zenoh, pymoo and matplotlib with

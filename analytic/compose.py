@@ -230,7 +230,7 @@ def tune_run(
 
 # The option that gave each part of a config that a command may have made without validating it
 # (a plant variant with the physics steps it needs, a plant told of a load).
-_PARTS = {"plants": "uncertainty", "check_plants": "uncertainty", "model": "plant"}
+_PARTS = {"plants": "uncertainty", "check_plants": "uncertainty", "plant": "plant"}
 
 
 def _create(

@@ -4,7 +4,7 @@
 
     run = gainfarm.tune(gainfarm.RunConfig(pop=8, generations=3), out="runs/first")
     for member in run.front():
-        print(member.f_acc, member.f_t, member.kp, member.kd)
+        print(member.named, member.kp, member.kd)  # {"f_acc": ..., "f_t": ...}: its objectives
 
 One import name over the paper's layers: `gainfarm.analytic` (tuning, evaluators, experiments,
 data, view), `gainfarm.worker` (the cobot), `gainfarm.broker` (the router and its lease queue),

@@ -293,9 +293,9 @@ def _warn_if_not_as_tuned(
         )
         tuned = " and ".join(_described(t, fields) for t in source.trajectories)
         differs.append(f"tuned on {tuned}, run on {_described(trajectory, fields)}")
-    if plant != source.plant:
-        joints = plant.joints != source.plant.joints
-        was, now = _plant_named(source.plant, joints), _plant_named(plant, joints)
+    if plant != source.model:
+        joints = plant.joints != source.model.joints
+        was, now = _plant_named(source.model, joints), _plant_named(plant, joints)
         if was == now:  # two custom plants, with the same joints
             now = "another custom plant"
         differs.append(f"tuned on {was}, run on {now}")

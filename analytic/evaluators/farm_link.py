@@ -66,7 +66,7 @@ class StudyLink:
         if token_held(self.session, token_key):
             raise FarmUnavailable(f"study {self.study!r} is already open in another process")
         # Declared whatever `models` holds now: an experiment adds a run's model to a client
-        # it has made (analytic.experiments.base.serving), and the workers must find it.
+        # it has made (analytic.experiments.runner.serving), and the workers must find it.
         self._model_server = self.session.declare_queryable(
             keys.model(self.study, "*"), self._on_model_query
         )

@@ -137,7 +137,7 @@ def moved_config(base: RunConfig, setting: Setting) -> RunConfig:
     """`base` on the moved plant: the nominal plant, and robust tuning's variants alike."""
     return base.model_copy(
         update={
-            "model": moved(base.plant, setting),
+            "plant": moved(base.plant, setting),
             "plants": tuple(moved(p, setting) for p in base.plants),
             "check_plants": tuple(moved(p, setting) for p in base.check_plants),
         }

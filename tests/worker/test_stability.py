@@ -69,7 +69,7 @@ EXACT_COUNTS = Sensors(resolution=0, noise=0)  # no quantisation: the loop is sm
 
 
 @pytest.mark.parametrize(
-    "plant",
+    "plant_spec",
     [
         PlantSpec(sensors=EXACT_COUNTS),  # FRI, elastic, window 3, delay 1, friction
         PlantSpec(sensors=EXACT_COUNTS, interface="torque"),
@@ -80,19 +80,19 @@ EXACT_COUNTS = Sensors(resolution=0, noise=0)  # no quantisation: the loop is sm
     ],
     ids=["realistic", "plain", "rigid-delay-2", "ideal"],
 )
-def test_the_linear_model_predicts_the_tick_loop(plant: PlantSpec) -> None:
+def test_the_linear_model_predicts_the_tick_loop(plant_spec: PlantSpec) -> None:
     """A small perturbation of the state at tick 0, carried through ten ticks of the linearised
     loop (each tick's matrix at the unperturbed episode's state), lands where the simulator's
     own tick loop takes it: every register (window, delay) and term (FRI gravity, friction)
     of the linear model is the loop's."""
     spec = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=PATH.model_copy(update={"duration": 0.5}))
-    spec = spec.model_copy(update={"plant": plant})
+    spec = spec.model_copy(update={"plant": plant_spec})
     nominal = _run(spec)
     plant = nominal.plant
     nx = plant.model.nq + plant.model.nv
     offset = np.random.default_rng(1).standard_normal(nx) * 1e-6
     perturbed = _run(spec, offset)
-    loop = ClosedLoop(Plant(plant), PDController.from_gains(spec.gains, plant.torque_limits))
+    loop = ClosedLoop(Plant(plant_spec), PDController.from_gains(spec.gains, plant.torque_limits))
     z = np.zeros(loop.size)
     z[:nx] = offset
     if loop.delay:  # the robot holds the first command until the delay has passed

@@ -59,14 +59,14 @@ def start(
     identity = check_farm(connect, local, tls, participant)
     limits = values.limits_from(limits_file, min_damping)
     trajectories = values.trajectories(kinds, duration, trajectory_seed, center, size)
-    model = values.with_load(values.model_spec(plant, joints), payload, payload_com, plant)
+    nominal = values.with_load(values.model_spec(plant, joints), payload, payload_com, plant)
     if out is not None and (out / CONFIG_JSON).exists():  # `tune` would resume it: a start does not
         raise CliError(f"--out: {str(out)!r} already holds a run; resume it or choose another")
     fields = {
         "pop": pop,
         "seed": seed,
         "trajectories": trajectories,
-        "model": model,
+        "plant": nominal,
         "aggregate": aggregate,
         "limits": limits,
         "generations": generations,
@@ -89,10 +89,10 @@ def start(
         from gainfarm.analytic.commands.work import tuning
 
         fields["plants"] = plants_from(
-            plants, uncertainty_file, model, seed, plant=plant, designed=True
+            plants, uncertainty_file, nominal, seed, plant=plant, designed=True
         )
         fields["check_plants"] = plants_from(
-            check_plants, uncertainty_file, model, seed, held_out=True, plant=plant
+            check_plants, uncertainty_file, nominal, seed, held_out=True, plant=plant
         )
         where = tuning.FarmOptions(connect, workers, identity, farm)
         tuning.start_run(fields, out, learned[0] if learned else None, where)

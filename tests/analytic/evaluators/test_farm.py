@@ -411,7 +411,7 @@ def test_a_model_handed_to_an_open_client_is_served_to_the_workers(
     broker: Broker, tmp_path: Path
 ) -> None:
     # An experiment hands a run's model to a client it has already opened
-    # (analytic.experiments.base.serving): the workers must still be able to fetch it.
+    # (analytic.experiments.runner.serving): the workers must still be able to fetch it.
     raw = to_bytes(rigid_prior(PlantSpec()))
     spec = EpisodeSpec.model_validate({**short_spec().model_dump(), "feedforward": digest(raw)})
     worker = spawn_worker(broker.endpoints[0], "w")

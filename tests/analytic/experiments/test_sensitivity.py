@@ -39,7 +39,7 @@ def test_two_parameters_moved_tuned_again_and_judged_against_the_nominal(tmp_pat
     # Each run tuned on its moved plant, and nothing else moved.
     models = {
         plant: PlantSpec.model_validate(
-            json.loads((tmp_path / "runs" / f"{plant}-rep0" / "config.json").read_text())["model"]
+            json.loads((tmp_path / "runs" / f"{plant}-rep0" / "config.json").read_text())["plant"]
         )
         for plant in plants
     }
