@@ -3,6 +3,7 @@ by the referee as it arrives, then every candidate told in the order asked (so a
 is deterministic given what it is told, and a rewind retraces it)."""
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from gainfarm.analytic.evaluators.evaluator import EpisodeResult, Evaluator
 from gainfarm.analytic.tuning.books import Books
@@ -13,22 +14,19 @@ from gainfarm.analytic.tuning.rewinds import Rewinds
 from gainfarm.analytic.tuning.state import RunProgress, RunState
 
 
-class Generational:
-    """A run's generations, one `step` each."""
+@dataclass
+class Loop:
+    """What a run's loop variant works with: the run's parts, shared with `TuningRun`."""
 
-    def __init__(
-        self,
-        config: RunConfig,
-        state: RunState,
-        books: Books,
-        rewinds: Rewinds,
-        refereeing: Refereeing,
-    ):
-        self.config = config
-        self.state = state
-        self.books = books
-        self.rewinds = rewinds
-        self.refereeing = refereeing
+    config: RunConfig
+    state: RunState
+    books: Books
+    rewinds: Rewinds
+    refereeing: Refereeing
+
+
+class Generational(Loop):
+    """A run's generations, one `step` each."""
 
     def step(
         self,

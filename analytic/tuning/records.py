@@ -185,8 +185,40 @@ class ValidationRecord:
     unchecked: str = ""
 
 
+class NamedObjectives:
+    """A point's objectives by name (a front member's, the default gains'): `objectives` as the
+    optimiser saw them, `names` and `maximised` the run's."""
+
+    objectives: tuple[float, ...]
+    names: tuple[str, ...]
+    maximised: tuple[str, ...]
+
+    @property
+    def named(self) -> dict[str, float]:
+        """Its objectives by name, each in its own sense: `member.named["f_acc"]`."""
+        return {
+            name: -value if name in self.maximised else value
+            for name, value in zip(self.names, self.objectives, strict=True)
+        }
+
+    # The paper's two by name, where the run has them (AttributeError where it has not).
+    @property
+    def f_acc(self) -> float:
+        return self._by_name("f_acc")
+
+    @property
+    def f_t(self) -> float:
+        return self._by_name("f_t")
+
+    def _by_name(self, name: str) -> float:
+        found = self.named
+        if name not in found:
+            raise AttributeError(f"the run's objectives are {', '.join(self.names)}, not {name}")
+        return found[name]
+
+
 @dataclass(frozen=True)
-class FrontMember:
+class FrontMember(NamedObjectives):
     """One non-dominated controller, one line of front.csv: its 14 gains and its objectives.
 
     `objectives` are as the optimiser was told them (a maximised one negated), in the order of
@@ -230,20 +262,6 @@ class FrontMember:
     def gains(self) -> PDGains:
         return PDGains(kp=self.kp, kd=self.kd)
 
-    @property
-    def named(self) -> dict[str, float]:
-        """Its objectives by name, each in its own sense: `member.named["f_acc"]`."""
-        return _named(self)
-
-    # The paper's two by name, where the run has them (AttributeError where it has not).
-    @property
-    def f_acc(self) -> float:
-        return _by_name(self, "f_acc")
-
-    @property
-    def f_t(self) -> float:
-        return _by_name(self, "f_t")
-
 
 def _set_objectives(point: Any) -> None:
     """A front member's or baseline's objectives and names, checked and made plain floats."""
@@ -254,20 +272,6 @@ def _set_objectives(point: Any) -> None:
         raise ValueError(f"{len(point.objectives)} objective values for {point.names}")
     if not set(point.maximised) <= set(point.names):
         raise ValueError(f"maximised {point.maximised} are not among the objectives {point.names}")
-
-
-def _named(point: Any) -> dict[str, float]:
-    return {
-        name: -value if name in point.maximised else value
-        for name, value in zip(point.names, point.objectives, strict=True)
-    }
-
-
-def _by_name(point: Any, name: str) -> float:
-    found = _named(point)
-    if name not in found:
-        raise AttributeError(f"the run's objectives are {', '.join(point.names)}, not {name}")
-    return found[name]
 
 
 def _told(names: Sequence[str], values: Sequence[float]) -> tuple[float, ...]:
@@ -578,7 +582,7 @@ def provenance_csv(front: Sequence[FrontMember]) -> bytes:
 
 
 @dataclass(frozen=True)
-class Baseline:
+class Baseline(NamedObjectives):
     """The default gains' objectives on a run's trajectories, as the run's candidates are
     scored (the same weights), one line of baseline.json. `diverged`: an episode was stopped
     early or could not run, so the point is a penalty. `episodes`: each trajectory's job id,
@@ -593,19 +597,6 @@ class Baseline:
 
     def __post_init__(self) -> None:
         _set_objectives(self)
-
-    @property
-    def named(self) -> dict[str, float]:
-        """Its objectives by name, each in its own sense."""
-        return _named(self)
-
-    @property
-    def f_acc(self) -> float:
-        return _by_name(self, "f_acc")
-
-    @property
-    def f_t(self) -> float:
-        return _by_name(self, "f_t")
 
 
 def baseline_json(baseline: Baseline) -> bytes:

@@ -10,12 +10,9 @@ from collections.abc import Callable
 from pymoo.core.population import Population
 
 from gainfarm.analytic.evaluators.evaluator import EpisodeResult, Evaluator
-from gainfarm.analytic.tuning.books import Books
-from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.analytic.tuning.generational import Loop
 from gainfarm.analytic.tuning.jobs import job_ids, specs
-from gainfarm.analytic.tuning.referee import Refereeing
-from gainfarm.analytic.tuning.rewinds import Rewinds
-from gainfarm.analytic.tuning.state import RunProgress, RunState
+from gainfarm.analytic.tuning.state import RunProgress
 from gainfarm.schemas.gains import PDGains
 
 # A steady-state run asks the farm how many workers it has this often: a broker status query
@@ -23,22 +20,8 @@ from gainfarm.schemas.gains import PDGains
 CAPACITY_SECONDS = 2.0
 
 
-class SteadyState:
+class SteadyState(Loop):
     """A steady-state run after its first generation, one `step` until it stops."""
-
-    def __init__(
-        self,
-        config: RunConfig,
-        state: RunState,
-        books: Books,
-        rewinds: Rewinds,
-        refereeing: Refereeing,
-    ):
-        self.config = config
-        self.state = state
-        self.books = books
-        self.rewinds = rewinds
-        self.refereeing = refereeing
 
     def step(
         self,
