@@ -60,7 +60,7 @@ def test_a_plant_leaves_its_per_joint_numbers_to_its_robot_and_resolve_writes_th
     )
     with pytest.raises(PlantError, match=r"^stiffness: 6 numbers for iiwa14's 7 joints \(A1, "):
         resolve(PlantSpec(stiffness=(1e4,) * 6))
-    with pytest.raises(PlantError, match="^inertials: iiwa14 has no set 'urdf'"):
+    with pytest.raises(PlantError, match=r"^inertials: iiwa14 has no set 'urdf'"):
         resolve(PlantSpec(inertials="urdf"))
     with pytest.raises(ValidationError):
         PlantSpec(substeps=0)
