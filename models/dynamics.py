@@ -1,7 +1,7 @@
-"""Models of the iiwa 14's joint dynamics as data, and their evaluation: the worker's feed-forward.
+"""Models of an arm's joint dynamics as data, and their evaluation: the worker's feed-forward.
 
-A `DynamicsModel` maps one joint-space state and a third signal to another, in bulk ((n, 7)
-arrays, a whole reference at once):
+A `DynamicsModel` maps one joint-space state and a third signal to another, in bulk ((n, N)
+arrays for an arm of N joints, a whole reference at once):
 - target "inverse": (q, q̇, q̈) → the motor torque u that produces them, N·m;
 - target "forward": (q, q̇, u) → the link acceleration q̈ it produces, rad/s².
 u is the motors' whole torque (a dataset's u_motor): behind KUKA's FRI, the command and the
@@ -24,8 +24,11 @@ Kinds:
   can run like a learned one. Its spec is the plant's dynamic part (`plant_spec`), not the
   nominal arm the other kinds start from, so a learned model's prior never sees the truth.
 
-A model file is an uncompressed .npz: a JSON header (a uint8 array) and float64 arrays, no pickle,
-so hostile bytes can be refused but never run (`from_bytes`). Jobs name a model by the SHA-256 of
+A model is of one arm: its spec names the robot (a gainfarm.robots plug-in), whose joints give
+the arrays' widths, and the file records it. A model of one arm is refused for another, in one
+line (`check_robot`; `predict` refuses signals of another joint count). A model file is an
+uncompressed .npz: a JSON header (a uint8 array) and float64 arrays, no pickle, so hostile bytes
+can be refused but never run (`from_bytes`). Jobs name a model by the SHA-256 of
 its file (`digest`); `to_bytes` is deterministic, so one model always has one digest. Training is
 analytic/learning.py's. Pinocchio is imported only where a linear model is built or evaluated: a
 worker that never runs one needs no Pinocchio.
@@ -48,8 +51,9 @@ import numpy as np
 from numpy.lib import format as npy_format
 from pydantic import ValidationError
 
-from gainfarm.models.robots import build_spec, compile_model, resolve
-from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, Friction, PlantSpec
+from gainfarm.models.robots import PlantError, build_spec, compile_model, resolve, robot_of
+from gainfarm.plugins import PluginError
+from gainfarm.schemas.robot import Friction, PlantSpec
 
 if TYPE_CHECKING:
     import pinocchio  # for annotations only; imported at run time by _pinocchio()
@@ -63,14 +67,15 @@ ACTIVATIONS: tuple[str, ...] = get_args(Activation)
 
 FORMAT = "gainfarm.dynamics"
 VERSION = 1
-INPUTS = 3 * N_JOINTS  # (q, q̇, q̈) or (q, q̇, u)
+SIGNALS = 3  # a model's inputs per joint: (q, q̇, q̈) or (q, q̇, u)
 # Per link, Pinocchio's dynamic parameters: m, m·c (3), inertia about the joint frame's origin (6).
 LINK_PARAMETERS = 10
-# π's blocks, in order: links' inertials, rotor inertias, viscous and Coulomb-like friction.
-LINEAR_PARAMETERS = (LINK_PARAMETERS + 3) * N_JOINTS
+# π's blocks, in order: links' inertials, rotor inertias, viscous and Coulomb-like friction:
+# this many numbers per joint.
+JOINT_PARAMETERS = LINK_PARAMETERS + 3
 # rad/s: the plant's friction model (schemas.robot.Friction) smooths its Coulomb part so.
 COULOMB_SMOOTHING = 0.05
-# A file larger than this is not a model of seven joints (a (128,128,128) network is 0.3 MB);
+# A file larger than this is not a model of an arm (a (128,128,128) network is 0.3 MB);
 # checked before anything is decompressed or allocated.
 MAX_FILE_BYTES = 64 * 2**20
 MODEL_FILE = "model.npz"  # the model's file in a directory `analytic learn --out` writes
@@ -85,20 +90,34 @@ class WrongTarget(ValueError):
     """An inverse model asked for accelerations, or a forward one for torques."""
 
 
+class WrongRobot(BadDynamicsModel):
+    """A model of one arm met a plant of another: refused, in one line naming both."""
+
+
+def joint_names(spec: PlantSpec) -> tuple[str, ...]:
+    """The joints of `spec`'s robot, base to flange: a model's arrays have one column each."""
+    return robot_of(spec).joint_names
+
+
+def linear_parameters(joints: int) -> int:
+    """How many numbers π of the linear kind has for an arm of `joints` joints."""
+    return JOINT_PARAMETERS * joints
+
+
 @dataclass(frozen=True, eq=False)
 class Network:
     """A fully connected network on standardised signals: h_{i+1} = act(h_i W_i + b_i), the
     last layer linear.
 
-    `input_mean`/`input_scale` standardise the 21 inputs, `output_mean`/`output_scale` undo the
-    standardisation of the 7 outputs."""
+    `input_mean`/`input_scale` standardise the 3 × N inputs, `output_mean`/`output_scale` undo
+    the standardisation of the N outputs (N the arm's joints)."""
 
-    weights: tuple[np.ndarray, ...]  # (21, h1), (h1, h2), ..., (hL, 7)
-    biases: tuple[np.ndarray, ...]  # (h1,), ..., (7,)
-    input_mean: np.ndarray  # (21,)
-    input_scale: np.ndarray  # (21,), positive
-    output_mean: np.ndarray  # (7,)
-    output_scale: np.ndarray  # (7,), positive
+    weights: tuple[np.ndarray, ...]  # (3N, h1), (h1, h2), ..., (hL, N)
+    biases: tuple[np.ndarray, ...]  # (h1,), ..., (N,)
+    input_mean: np.ndarray  # (3N,)
+    input_scale: np.ndarray  # (3N,), positive
+    output_mean: np.ndarray  # (N,)
+    output_scale: np.ndarray  # (N,), positive
     activation: Activation = "relu"
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
@@ -125,15 +144,25 @@ class DynamicsModel:
     kind: Kind
     target: Target
     spec: PlantSpec
-    parameters: np.ndarray | None = None  # linear: π, (LINEAR_PARAMETERS,)
+    parameters: np.ndarray | None = None  # linear: π, (linear_parameters(N),)
     network: Network | None = None  # mlp, residual
     about: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         _check(self)
 
+    @property
+    def robot(self) -> str:
+        """The arm this model is of (its spec's robot)."""
+        return self.spec.robot
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """Its arm's joints: one column each of every array it takes and gives."""
+        return joint_names(self.spec)
+
     def inverse(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-        """(n, 7) motor torques, N·m, that move the arm with (q, q̇, q̈), each (n, 7)."""
+        """(n, N) motor torques, N·m, that move the arm with (q, q̇, q̈), each (n, N)."""
         if self.target != "inverse":
             raise WrongTarget(
                 "this is a forward-dynamics model: it gives q̈ from (q, q̇, u); call .forward"
@@ -141,7 +170,7 @@ class DynamicsModel:
         return self.predict(q, qd, qdd)
 
     def forward(self, q: np.ndarray, qd: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """(n, 7) link accelerations, rad/s², that motor torques u cause at (q, q̇), each (n, 7)."""
+        """(n, N) link accelerations, rad/s², that motor torques u cause at (q, q̇), each (n, N)."""
         if self.target != "forward":
             raise WrongTarget(
                 "this is an inverse-dynamics model: it gives u from (q, q̇, q̈); call .inverse"
@@ -151,7 +180,7 @@ class DynamicsModel:
     def predict(self, q: np.ndarray, qd: np.ndarray, third: np.ndarray) -> np.ndarray:
         """The model's own target from (q, q̇, q̈) if inverse, (q, q̇, u) if forward."""
         third_name = "qdd" if self.target == "inverse" else "u"
-        q, qd, third = _rows(q=q, qd=qd, **{third_name: third})
+        q, qd, third = _rows(self, q=q, qd=qd, **{third_name: third})
         if self.kind == "linear":
             return linear_torque(self.spec, self.parameters, q, qd, third)  # type: ignore[arg-type]
         if self.kind == "plant":
@@ -163,6 +192,19 @@ class DynamicsModel:
         if self.network is None:
             return prior  # type: ignore[return-value]
         return prior + self.network(np.hstack([q, qd, third]))
+
+
+def check_robot(model: DynamicsModel, plant: PlantSpec | str) -> DynamicsModel:
+    """`model`, if it is of the arm `plant` is (or is named): else WrongRobot, one line. Where a
+    model meets a plant (a feed-forward, a comparison), a model of another arm, even one of as
+    many joints, would compute torques for links the plant does not have."""
+    robot = plant if isinstance(plant, str) else plant.robot
+    if model.robot != robot:
+        raise WrongRobot(
+            f"a dynamics model of {model.robot} ({len(model.joint_names)} joints) cannot drive "
+            f"{robot}: learn one on {robot}'s data (analytic learn)"
+        )
+    return model
 
 
 def rigid_spec(plant: PlantSpec) -> PlantSpec:
@@ -240,7 +282,7 @@ def plant_dynamics(
 
 
 def rigid_inverse(spec: PlantSpec, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-    """(n, 7) generalised forces of MuJoCo's inverse dynamics (mj_inverse) of `spec`'s rigid arm.
+    """(n, N) generalised forces of MuJoCo's inverse dynamics (mj_inverse) of `spec`'s rigid arm.
 
     One MjData per call, so concurrent calls share nothing (its cost, some 50 µs, is nothing
     beside the rows'); a row costs a few µs."""
@@ -248,7 +290,7 @@ def rigid_inverse(spec: PlantSpec, q: np.ndarray, qd: np.ndarray, qdd: np.ndarra
 
 
 def rigid_forward(spec: PlantSpec, q: np.ndarray, qd: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """(n, 7) accelerations of `spec`'s rigid arm (mj_forward) with torques u on its joints.
+    """(n, N) accelerations of `spec`'s rigid arm (mj_forward) with torques u on its joints.
 
     u goes in as applied joint forces, not as the motors' controls: a log's u is already the
     clamped torque, and the motors would clamp it again."""
@@ -298,16 +340,18 @@ def _mj_forward(model: mujoco.MjModel, q: np.ndarray, qd: np.ndarray, u: np.ndar
 def pinocchio_model(spec: PlantSpec) -> "pinocchio.Model":
     """Pinocchio's model of `spec`'s rigid arm, parsed from the MJCF that MuJoCo's model is
     compiled from (one source: the two cannot drift apart; tests/models/test_dynamics.py checks
-    their gravity torques and mass matrices agree). Its joints are A1..A7 in order."""
+    their gravity torques and mass matrices agree). Its joints are the robot's, in order."""
     pinocchio = _pinocchio()
-    xml = build_spec(rigid_spec(spec)).to_xml()
+    rigid = rigid_spec(spec)
+    xml = build_spec(rigid).to_xml()
     # Pinocchio's MJCF parser reads files only.
     with tempfile.TemporaryDirectory() as directory:
-        path = Path(directory) / "iiwa14.xml"
+        path = Path(directory) / f"{rigid.robot}.xml"
         path.write_text(xml)
         model = pinocchio.buildModelFromMJCF(str(path))
-    if tuple(model.names)[1:] != JOINT_NAMES or model.nv != N_JOINTS:
-        raise AssertionError(f"Pinocchio parsed joints {list(model.names)}, not A1..A7")
+    joints = joint_names(rigid)
+    if tuple(model.names)[1:] != joints or model.nv != len(joints):
+        raise AssertionError(f"Pinocchio parsed joints {list(model.names)}, not {joints}")
     return model
 
 
@@ -327,21 +371,32 @@ def physical_parameters(spec: PlantSpec) -> np.ndarray:
     inertias, no friction. What identification starts from (analytic/learning.py)."""
     spec = resolve(spec)
     model = pinocchio_model(spec)
-    links = [model.inertias[j].toDynamicParameters() for j in range(1, N_JOINTS + 1)]
-    friction = np.zeros(2 * N_JOINTS)
+    joints = model.nv
+    links = [model.inertias[j].toDynamicParameters() for j in range(1, joints + 1)]
+    friction = np.zeros(2 * joints)
     return np.concatenate([*links, np.asarray(spec.rotor_inertia), friction])
 
 
-def inconsistencies(parameters: np.ndarray) -> list[str]:
+def _joints_of(parameters: np.ndarray) -> int:
+    """The joint count π is of (JOINT_PARAMETERS numbers a joint)."""
+    joints, rest = divmod(len(parameters), JOINT_PARAMETERS)
+    if rest or not joints:
+        raise ValueError(f"{len(parameters)} parameters are no arm's ({JOINT_PARAMETERS} a joint)")
+    return joints
+
+
+def inconsistencies(parameters: np.ndarray, names: tuple[str, ...] | None = None) -> list[str]:
     """What makes identified π no physical arm: a link whose pseudo-inertia is not positive
     definite (a mass at most zero, or second moments no body has: Wensing et al., RA-L 2018, the
     condition Pinocchio's PseudoInertia states), whose rotational inertia about its centre of
     mass breaks the triangle inequality, or a negative rotor inertia, viscous or Coulomb term.
-    Empty if π is physically consistent."""
+    Empty if π is physically consistent. `names` are the joints' (J1, J2, ... if not given)."""
     pinocchio = _pinocchio()
     found = []
-    links = LINK_PARAMETERS * N_JOINTS
-    for index, joint in enumerate(JOINT_NAMES):
+    count = _joints_of(parameters)
+    names = names or tuple(f"J{i}" for i in range(1, count + 1))
+    links = LINK_PARAMETERS * count
+    for index, joint in enumerate(names):
         link = np.asarray(parameters[index * LINK_PARAMETERS : (index + 1) * LINK_PARAMETERS])
         if link[0] <= 0:
             found.append(f"link {joint}: mass {link[0]:.3g} kg")
@@ -356,10 +411,11 @@ def inconsistencies(parameters: np.ndarray) -> list[str]:
                 "kg·m² break the triangle inequality"
             )
     names = ("rotor inertia", "viscous friction", "Coulomb friction")
-    for name, values in zip(names, parameters[links:].reshape(3, N_JOINTS), strict=True):
-        for joint, value in zip(JOINT_NAMES, values, strict=True):
+    terms = ("rotor inertia", "viscous friction", "Coulomb friction")
+    for term, values in zip(terms, parameters[links:].reshape(3, count), strict=True):
+        for joint, value in zip(names, values, strict=True):
             if value < 0:
-                found.append(f"{joint}: {name} {value:.3g}")
+                found.append(f"{joint}: {term} {value:.3g}")
     return found
 
 
@@ -368,11 +424,12 @@ def consistent_coordinates(parameters: np.ndarray) -> np.ndarray:
     friction and rotor inertia positive): each link's log-Cholesky parameters (Rucker and
     Wensing, RA-L 2022: the pseudo-inertia J = U Uᵀ, U upper triangular with a positive
     diagonal, as Pinocchio's LogCholeskyParameters), then softplus⁻¹ of the rest."""
-    links = LINK_PARAMETERS * N_JOINTS
+    count = _joints_of(parameters)
+    links = LINK_PARAMETERS * count
     theta = []
     exchange = np.eye(4)[::-1]
     pinocchio = _pinocchio()
-    for index in range(N_JOINTS):
+    for index in range(count):
         link = parameters[index * LINK_PARAMETERS : (index + 1) * LINK_PARAMETERS]
         pseudo = pinocchio.PseudoInertia.FromDynamicParameters(np.asarray(link)).toMatrix()
         # The upper-triangular factor: the lower Cholesky factor of J with rows and columns
@@ -391,9 +448,10 @@ def nearest_consistent(parameters: np.ndarray, floor: float = 1e-3) -> np.ndarra
     eigenvalues raised to at least `floor` times its largest, friction and rotor inertia to at
     least `floor`. A start for a constrained fit, not a fit."""
     pinocchio = _pinocchio()
-    links = LINK_PARAMETERS * N_JOINTS
+    count = _joints_of(parameters)
+    links = LINK_PARAMETERS * count
     result = np.array(parameters, dtype=float)
-    for index in range(N_JOINTS):
+    for index in range(count):
         part = slice(index * LINK_PARAMETERS, (index + 1) * LINK_PARAMETERS)
         pseudo = pinocchio.PseudoInertia.FromDynamicParameters(result[part]).toMatrix()
         values, vectors = np.linalg.eigh(pseudo)
@@ -408,10 +466,11 @@ def from_consistent(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """π and its Jacobian dπ/dθ for coordinates θ (`consistent_coordinates`): every θ gives a
     physically consistent arm."""
     pinocchio = _pinocchio()
-    links = LINK_PARAMETERS * N_JOINTS
-    parameters = np.empty(LINEAR_PARAMETERS)
-    jacobian = np.zeros((LINEAR_PARAMETERS, LINEAR_PARAMETERS))
-    for index in range(N_JOINTS):
+    count = _joints_of(theta)
+    links = LINK_PARAMETERS * count
+    parameters = np.empty(len(theta))
+    jacobian = np.zeros((len(theta), len(theta)))
+    for index in range(count):
         part = slice(index * LINK_PARAMETERS, (index + 1) * LINK_PARAMETERS)
         coordinates = pinocchio.LogCholeskyParameters(np.asarray(theta[part], dtype=float))
         parameters[part] = coordinates.toDynamicParameters()
@@ -423,33 +482,34 @@ def from_consistent(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def regressor(spec: PlantSpec, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-    """(n, 7, LINEAR_PARAMETERS) Y with τ = Y·π: Pinocchio's joint torque regressor of the links,
-    then diagonal columns q̈ (rotor inertia), q̇ (viscous), tanh(q̇ / 0.05) (Coulomb-like)."""
+    """(n, N, 13·N) Y with τ = Y·π: Pinocchio's joint torque regressor of the links, then
+    diagonal columns q̈ (rotor inertia), q̇ (viscous), tanh(q̇ / 0.05) (Coulomb-like)."""
     pinocchio = _pinocchio()
     model = pinocchio_model(spec)
     data = model.createData()
-    n = len(q)
-    links = LINK_PARAMETERS * N_JOINTS
-    y = np.zeros((n, N_JOINTS, LINEAR_PARAMETERS))
+    n, joints = len(q), model.nv
+    links = LINK_PARAMETERS * joints
+    y = np.zeros((n, joints, linear_parameters(joints)))
     torque_regressor = pinocchio.computeJointTorqueRegressor
     for k in range(n):
         y[k, :, :links] = torque_regressor(model, data, q[k], qd[k], qdd[k])
-    diagonal = np.arange(N_JOINTS)
+    diagonal = np.arange(joints)
     for block, signal in enumerate((qdd, qd, np.tanh(qd / COULOMB_SMOOTHING))):
-        y[:, diagonal, links + block * N_JOINTS + diagonal] = signal
+        y[:, diagonal, links + block * joints + diagonal] = signal
     return y
 
 
 def linear_torque(
     spec: PlantSpec, parameters: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
 ) -> np.ndarray:
-    """(n, 7) Y(q, q̇, q̈)·π, row by row (the whole (n, 7, 91) Y of a long reference is not kept)."""
+    """(n, N) Y(q, q̇, q̈)·π, row by row (the whole (n, N, 13·N) Y of a long reference is not
+    kept)."""
     pinocchio = _pinocchio()
     model = pinocchio_model(spec)
     data = model.createData()
-    links = LINK_PARAMETERS * N_JOINTS
+    links = LINK_PARAMETERS * model.nv
     inertial = parameters[:links]
-    rotor, viscous, coulomb = parameters[links:].reshape(3, N_JOINTS)
+    rotor, viscous, coulomb = parameters[links:].reshape(3, model.nv)
     torque = rotor * qdd + viscous * qd + coulomb * np.tanh(qd / COULOMB_SMOOTHING)
     torque_regressor = pinocchio.computeJointTorqueRegressor
     for k in range(len(q)):
@@ -544,16 +604,17 @@ def _from_bytes(raw: bytes) -> DynamicsModel:
     )
 
 
-def feedforward_from_bytes(raw: bytes) -> DynamicsModel:
+def feedforward_from_bytes(raw: bytes, robot: str | None = None) -> DynamicsModel:
     """`from_bytes`, for a feed-forward: the model must be an inverse-dynamics one (a torque for
-    the reference), else BadDynamicsModel, one line."""
+    the reference) and, if `robot` is given, of that arm (`check_robot`), else BadDynamicsModel,
+    one line."""
     model = from_bytes(raw)
     if model.target != "inverse":
         raise BadDynamicsModel(
             f"a {model.target}-dynamics model; a feed-forward needs an inverse-dynamics one "
             "(analytic learn --target inverse)"
         )
-    return model
+    return model if robot is None else check_robot(model, robot)
 
 
 def digest(raw: bytes) -> str:
@@ -561,16 +622,18 @@ def digest(raw: bytes) -> str:
     return sha256(raw).hexdigest()
 
 
-def load(path: Path) -> DynamicsModel:
-    """The model in the file at `path`; BadDynamicsModel, one line, if it is missing or bad."""
+def load(path: Path, robot: str | None = None) -> DynamicsModel:
+    """The model in the file at `path`; BadDynamicsModel, one line, if it is missing or bad, or
+    (`robot` given) of another arm (WrongRobot)."""
     try:
         raw = Path(path).read_bytes()
     except OSError as error:
         raise BadDynamicsModel(f"{str(path)!r}: cannot read: {error.strerror}") from None
     try:
-        return from_bytes(raw)
+        model = from_bytes(raw)
+        return model if robot is None else check_robot(model, robot)
     except BadDynamicsModel as error:
-        raise BadDynamicsModel(f"{str(path)!r}: {error}") from None
+        raise type(error)(f"{str(path)!r}: {error}") from None
 
 
 def _arrays(model: DynamicsModel) -> dict[str, np.ndarray]:
@@ -699,6 +762,11 @@ def _check(model: DynamicsModel) -> None:
         raise BadDynamicsModel(f"unknown kind {model.kind!r}: one of {', '.join(KINDS)}")
     if model.target not in TARGETS:
         raise BadDynamicsModel(f"unknown target {model.target!r}: one of {', '.join(TARGETS)}")
+    try:
+        joints = len(joint_names(model.spec))
+        resolve(model.spec)
+    except (PluginError, PlantError) as error:
+        raise BadDynamicsModel(f"the model's arm: {_one_line(error)}") from None
     if model.kind == "plant" and model.spec != plant_spec(model.spec):
         raise BadDynamicsModel("a plant model's spec must be the plant's dynamics (plant_spec)")
     if model.kind != "plant" and model.spec != rigid_spec(model.spec):
@@ -708,35 +776,36 @@ def _check(model: DynamicsModel) -> None:
     if (model.parameters is not None) != (model.kind == "linear"):
         raise BadDynamicsModel(f"a {model.kind} model has parameters only if linear")
     if model.parameters is not None:
-        _check_array("parameters", model.parameters, (LINEAR_PARAMETERS,))
+        _check_array("parameters", model.parameters, (linear_parameters(joints),))
     if (model.network is not None) != (model.kind in ("mlp", "residual")):
         raise BadDynamicsModel(f"a {model.kind} model has a network only if mlp or residual")
     if model.network is not None:
-        _check_network(model.network)
+        _check_network(model.network, joints)
     try:
         json.dumps(model.about, allow_nan=False)
     except (TypeError, ValueError):
         raise BadDynamicsModel("the model's 'about' is not plain JSON") from None
 
 
-def _check_network(net: Network) -> None:
+def _check_network(net: Network, joints: int) -> None:
+    """A network of its arm's `joints`: SIGNALS × joints inputs, one output a joint."""
     if net.activation not in ACTIVATIONS:
         raise BadDynamicsModel(f"unknown activation {net.activation!r}")
     if not net.weights or len(net.weights) != len(net.biases):
         raise BadDynamicsModel("a network needs as many bias vectors as weight matrices, >= 1")
-    width = INPUTS
+    inputs = width = SIGNALS * joints
     for i, (weights, biases) in enumerate(zip(net.weights, net.biases, strict=True)):
         last = i == len(net.weights) - 1
         _check_array(f"layer{i}_weights", weights, getattr(weights, "shape", ()))
-        if weights.ndim != 2 or weights.shape[0] != width or (last and weights.shape[1] != 7):
-            want = f"({width}, {N_JOINTS if last else 'any'})"
+        if weights.ndim != 2 or weights.shape[0] != width or (last and weights.shape[1] != joints):
+            want = f"({width}, {joints if last else 'any'})"
             raise BadDynamicsModel(f"layer{i}_weights has shape {weights.shape}, not {want}")
         _check_array(f"layer{i}_biases", biases, (weights.shape[1],))
         width = weights.shape[1]
-    _check_array("input_mean", net.input_mean, (INPUTS,))
-    _check_array("input_scale", net.input_scale, (INPUTS,), positive=True)
-    _check_array("output_mean", net.output_mean, (N_JOINTS,))
-    _check_array("output_scale", net.output_scale, (N_JOINTS,), positive=True)
+    _check_array("input_mean", net.input_mean, (inputs,))
+    _check_array("input_scale", net.input_scale, (inputs,), positive=True)
+    _check_array("output_mean", net.output_mean, (joints,))
+    _check_array("output_scale", net.output_scale, (joints,), positive=True)
 
 
 def _check_array(name: str, array: object, shape: tuple[int, ...], positive: bool = False) -> None:
@@ -751,13 +820,22 @@ def _check_array(name: str, array: object, shape: tuple[int, ...], positive: boo
         raise BadDynamicsModel(f"{name} must be positive")
 
 
-def _rows(**signals: np.ndarray) -> list[np.ndarray]:
-    """The signals as float64 (n, 7) arrays of one n; ValueError naming the first that is not."""
+def _rows(model: DynamicsModel, **signals: np.ndarray) -> list[np.ndarray]:
+    """The signals as float64 (n, N) arrays of one n, N the model's arm's joints; ValueError
+    naming the first that is not (WrongRobot if it is another joint count: another arm's)."""
+    joints = len(model.joint_names)
     arrays = [np.asarray(value, dtype=np.float64) for value in signals.values()]
     n = len(arrays[0]) if arrays[0].ndim else -1
     for name, array in zip(signals, arrays, strict=True):
-        if array.ndim != 2 or array.shape != (n, N_JOINTS):
-            raise ValueError(f"{name} has shape {array.shape}; every input must be (n, 7), one n")
+        if array.ndim == 2 and array.shape[1] != joints:
+            raise WrongRobot(
+                f"a dynamics model of {model.robot} ({joints} joints) was given {name} of "
+                f"{array.shape[1]} joints: another arm's"
+            )
+        if array.ndim != 2 or array.shape != (n, joints):
+            raise ValueError(
+                f"{name} has shape {array.shape}; every input must be (n, {joints}), one n"
+            )
     return arrays
 
 

@@ -19,10 +19,11 @@ from numpy.lib import format as npy_format
 
 from gainfarm.models import compile_model, resolve
 from gainfarm.models.dynamics import (
-    LINEAR_PARAMETERS,
+    linear_parameters,
     BadDynamicsModel,
     DynamicsModel,
     Network,
+    WrongRobot,
     WrongTarget,
     digest,
     from_bytes,
@@ -193,7 +194,7 @@ def _network(seed: int, hidden: tuple[int, ...] = (16, 16)) -> Network:
 def _models() -> dict[str, DynamicsModel]:
     spec = rigid_spec(REALISTIC_PLANT)
     rng = np.random.default_rng(3)
-    parameters = physical_parameters(spec) + 0.01 * rng.normal(size=LINEAR_PARAMETERS)
+    parameters = physical_parameters(spec) + 0.01 * rng.normal(size=linear_parameters(7))
     return {
         "rigid inverse": rigid_prior(spec),
         "rigid forward": rigid_prior(spec, "forward"),
@@ -247,9 +248,9 @@ def test_a_model_answers_only_its_own_target():
     assert MODELS["mlp forward"].forward(q, qd, third).shape == (3, 7)
 
 
-def test_inputs_must_be_rows_of_seven_joints():
+def test_inputs_must_be_rows_of_the_arms_joints():
     q, qd, qdd = _inputs(3)
-    with pytest.raises(ValueError, match=r"qdd has shape \(3, 6\)"):
+    with pytest.raises(WrongRobot, match=r"model of iiwa14 \(7 joints\) was given qdd of 6"):
         MODELS["rigid inverse"].inverse(q, qd, qdd[:, :6])
     with pytest.raises(ValueError, match=r"qd has shape \(2, 7\)"):
         MODELS["mlp"].inverse(q, qd[:2], qdd)
@@ -325,7 +326,7 @@ BAD = {
         "must be the plant's dynamics",
     ),
     "plant with parameters": (
-        _with_array(PLANT_BYTES, "parameters", np.zeros(LINEAR_PARAMETERS)),
+        _with_array(PLANT_BYTES, "parameters", np.zeros(linear_parameters(7))),
         "unexpected ['parameters']",
     ),
     "missing layer": (_with_header(MLP_BYTES, layers=4), "missing"),
@@ -344,12 +345,12 @@ BAD = {
     "NaN weights": (_with_array(MLP_BYTES, "layer0_weights", NAN_WEIGHTS), "NaN"),
     "zero scale": (_with_array(MLP_BYTES, "output_scale", np.zeros(7)), "positive"),
     "integer parameters": (
-        _with_array(LINEAR_BYTES, "parameters", np.zeros(LINEAR_PARAMETERS, dtype=np.int64)),
+        _with_array(LINEAR_BYTES, "parameters", np.zeros(linear_parameters(7), dtype=np.int64)),
         "not a float64 array",
     ),
     "short parameters": (_with_array(LINEAR_BYTES, "parameters", np.zeros(10)), "shape (10,)"),
     "parameters on a network": (
-        _with_array(MLP_BYTES, "parameters", np.zeros(LINEAR_PARAMETERS)),
+        _with_array(MLP_BYTES, "parameters", np.zeros(linear_parameters(7))),
         "unexpected ['parameters']",
     ),
 }
