@@ -1,11 +1,19 @@
 """The dataset's columns: every column of its three tables with its unit and description (kept
 in each Parquet field's metadata), the per-tick signals by joint and axis, the acceleration fit
-and calm threshold they document, and the format's version."""
+and calm threshold they document, and the format's version.
+
+A dataset is of one arm: its per-joint columns are named by that arm's joints (`q_A1` for the
+iiwa 14, `q_shoulder_pan_joint` for the UR5e), as many as it has, and every table's Parquet
+metadata names the robot (`robot`) and its joints (`joint_names`, JSON). A dataset from before
+them is the iiwa 14's (`ROBOT_BEFORE`)."""
+
+import json
+from collections.abc import Sequence
 
 import pyarrow as pa
 
 from gainfarm.schemas.limits import Limits
-from gainfarm.schemas.robot import JOINT_NAMES
+from gainfarm.schemas.robot import DEFAULT_ROBOT, JOINT_NAMES
 
 # 2: run-id episode ids, trajectories.parquet, qdd, split, units; 3: u_motor; 4: qdd_sg, calm;
 # 5: the *_variants splits
@@ -25,8 +33,13 @@ SG_ORDER = 3
 # limit's 2 % of the torque limit. The smooth controllers measured put at most 0.8 % there, the
 # chattering ones 50 % to 99 % (schemas.limits).
 CALM_CHATTER = Limits().chatter
+# The arm of a dataset whose metadata names none (written before any other arm could be): the
+# iiwa 14, with its joints A1..A7.
+ROBOT_BEFORE, JOINTS_BEFORE = DEFAULT_ROBOT, JOINT_NAMES
+ROBOT_KEY, JOINTS_KEY = "robot", "joint_names"  # the Parquet schema metadata naming the arm
 
-# Per-tick signals: name → (unit, what it is). Joint signals get _A1.._A7, Cartesian _x.._z.
+# Per-tick signals: name → (unit, what it is). Joint signals get _<joint> (_A1.._A7 on the iiwa
+# 14), Cartesian _x.._z.
 JOINT_SIGNALS = {
     "q": ("rad", "link-side joint position, as the encoders measured it"),
     "qd": ("rad/s", "link-side joint velocity, as measured"),
@@ -105,29 +118,41 @@ COLUMNS = {
     "spec": ("", "the TrajectorySpec, canonical JSON (sorted keys): what trajectory_id hashes"),
     "episodes": ("", "episodes of this trajectory in the dataset"),
 }
-for _joint in JOINT_NAMES:
-    COLUMNS[f"kp_{_joint}"] = ("N*m/rad", "proportional gain")
-    COLUMNS[f"kd_{_joint}"] = ("N*m*s/rad", "derivative gain")
+GAINS = {"kp": ("N*m/rad", "proportional gain"), "kd": ("N*m*s/rad", "derivative gain")}
 
 
-def column_unit(name: str) -> tuple[str, str]:
-    """A column's (unit, description); KeyError for a column nobody documented."""
+def column_unit(name: str, joints: Sequence[str] = JOINTS_BEFORE) -> tuple[str, str]:
+    """A column's (unit, description), `joints` the dataset's arm's; KeyError for a column
+    nobody documented. A joint's name may hold underscores (shoulder_pan_joint): the signal is
+    the prefix that leaves a joint's name."""
     if name in COLUMNS:
         return COLUMNS[name]
+    for joint in joints:
+        signal = name.removesuffix(f"_{joint}")
+        if signal != name and signal in JOINT_SIGNALS:
+            return JOINT_SIGNALS[signal]
+        if signal != name and signal in GAINS:
+            return GAINS[signal]
     signal, _, part = name.rpartition("_")
-    if part in JOINT_NAMES and signal in JOINT_SIGNALS:
-        return JOINT_SIGNALS[signal]
     if part in AXES and signal in CARTESIAN_SIGNALS:
         return CARTESIAN_SIGNALS[signal]
     raise KeyError(f"column {name!r} has no unit")
 
 
-def with_units(table: pa.Table, metadata: dict[str, str]) -> pa.Table:
+def arm_metadata(robot: str, joints: Sequence[str]) -> dict[str, str]:
+    """The schema metadata naming a dataset's arm (ROBOT_KEY, JOINTS_KEY)."""
+    return {ROBOT_KEY: robot, JOINTS_KEY: json.dumps(list(joints))}
+
+
+def with_units(
+    table: pa.Table, metadata: dict[str, str], joints: Sequence[str] = JOINTS_BEFORE
+) -> pa.Table:
     """`table` with every field's unit and description in its metadata, and `metadata` (the
-    control period, the dataset's version, ...) in the schema's: Parquet keeps both."""
+    control period, the dataset's version, its arm: `arm_metadata`...) in the schema's: Parquet
+    keeps both. `joints` are the arm's, which name its per-joint columns."""
     fields = []
     for field in table.schema:
-        unit, description = column_unit(field.name)
+        unit, description = column_unit(field.name, joints)
         fields.append(field.with_metadata({"unit": unit, "description": description}))
     schema = pa.schema(fields, metadata=metadata)
     return pa.Table.from_arrays(table.columns, schema=schema)

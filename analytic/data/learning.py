@@ -30,7 +30,19 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from scipy.optimize import minimize
 
-from gainfarm.analytic.data.loader import EPISODES, SPLITS, TICKS, VARIANTS
+from gainfarm.analytic.data.dataset_columns import JOINTS_BEFORE
+from gainfarm.analytic.data.learning_report import (
+    MEAN_JOINTS as MEAN_JOINTS,  # where the experiments import it from
+)
+from gainfarm.analytic.data.learning_report import (
+    PUBLISHED_JOINTS,
+    anchors_table,
+    mean_joints,
+    scores_table,
+    span,
+    what,
+)
+from gainfarm.analytic.data.loader import EPISODES, SPLITS, TICKS, VARIANTS, dataset_arm
 from gainfarm.analytic.view.figures import DPI, save_png
 from gainfarm.analytic.view.reports import plant_text
 from gainfarm.edges.files import staging_directory, write_atomically
@@ -46,6 +58,7 @@ from gainfarm.models.dynamics import (
     digest,
     from_consistent,
     inconsistencies,
+    joint_names,
     nearest_consistent,
     physical_parameters,
     regressor,
@@ -54,7 +67,7 @@ from gainfarm.models.dynamics import (
     to_bytes,
     true_model,
 )
-from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, PlantSpec
+from gainfarm.schemas.robot import PlantSpec
 
 # The whole motor torque a model of the arm learns (dataset version 3); a dataset from before it
 # has only u, the motor torque of its episodes, all on a plain torque interface.
@@ -63,19 +76,10 @@ MOTOR_TORQUE, COMMAND = "u_motor", "u"
 # version 4), whose noise leaves the true model nMSE 0.001 where the difference's leaves 0.09
 # (analytic.data.dataset.SG_WINDOW); a dataset from before it has only the difference.
 ACCELERATION, DIFFERENCED = "qdd_sg", "qdd"
+UNITS = {"inverse": "N·m", "forward": "rad/s²"}
 SCORES_FILE = "scores.json"
 REPORT_FILE = "report.md"
 PLOT_FILE = "prediction.png"
-
-# The joints a mean nMSE averages. A7 turns only the flange disc: its torque varies by well under
-# a N·m, so its nMSE measures noise and friction, not dynamics; the issue's convention leaves it
-# out (nmse_mean_all keeps it).
-MEAN_JOINTS = JOINT_NAMES[:6]
-UNITS = {"inverse": "N·m", "forward": "rad/s²"}
-# The one RMSE published for a learned model of a real iiwa 14, 0.14 N·m (Çallar and Böttger,
-# RA-L 2022), is for the four heavy joints: the report puts the mean of A1-A4's RMSE beside it.
-PUBLISHED_JOINTS = JOINT_NAMES[:4]
-PUBLISHED_RMSE = 0.14
 
 # The network and its training. Epochs are counted, not timed, so a seed gives one model on any
 # machine; ROW_PASSES bounds the work: 16 epochs of a 1.1-million-row train split. On such a
@@ -98,7 +102,7 @@ MIN_EPOCHS = 8
 ROW_PASSES = 18_000_000  # epochs × training rows, at most
 PATIENCE = 10  # epochs without a better validation loss before stopping
 
-# Identification: rows regressed at a time (the regressor is 7 × 91 floats a row), and the
+# Identification: rows regressed at a time (the regressor is 7 × 91 floats a row on the iiwa), the
 # smallest singular value kept, relative to the largest, of the column-scaled regressor (as
 # numpy's lstsq rcond): directions the data do not excite stay at the documented arm's values.
 REGRESSOR_CHUNK = 4000
@@ -117,7 +121,8 @@ class OutUnwritable(LearnError):
 
 @dataclass(frozen=True)
 class Rows:
-    """The ticks of one split with a finite acceleration, as (n, 7) arrays (n,) identifiers."""
+    """The ticks of one split with a finite acceleration, as (n, N) arrays (N the arm's joints,
+    `joints`) and (n,) identifiers."""
 
     episode_id: np.ndarray  # (n,) str
     t: np.ndarray  # (n,) s since the episode started
@@ -126,19 +131,24 @@ class Rows:
     qdd: np.ndarray  # rad/s²: the dataset's qdd_sg (Savitzky-Golay), or qdd before it
     u: np.ndarray  # N·m, the motors' whole torque as applied (the dataset's u_motor)
     calm: np.ndarray  # (n,) bool: the tick's episode is calm (every one, before the flag)
+    joints: tuple[str, ...] = JOINTS_BEFORE  # the arm's joints, the arrays' columns
 
     def __len__(self) -> int:
         return len(self.t)
 
     def take(self, index: np.ndarray) -> "Rows":
-        """The rows at `index` (positions or a mask), every field alike."""
-        return Rows(**{f.name: getattr(self, f.name)[index] for f in dataclasses.fields(self)})
+        """The rows at `index` (positions or a mask), every array alike."""
+        arrays = {name: getattr(self, name)[index] for name in _ARRAYS}
+        return Rows(**arrays, joints=self.joints)
 
     @staticmethod
     def concatenate(parts: "Sequence[Rows]") -> "Rows":
-        """`parts`' rows one after the other, every field alike."""
-        names = [field.name for field in dataclasses.fields(Rows)]
-        return Rows(**{n: np.concatenate([getattr(part, n) for part in parts]) for n in names})
+        """`parts`' rows one after the other, every array alike: of one arm."""
+        joints = {part.joints for part in parts}
+        if len(joints) > 1:
+            raise LearnError(f"rows of {len(joints)} arms' joints cannot be put together")
+        arrays = {n: np.concatenate([getattr(part, n) for part in parts]) for n in _ARRAYS}
+        return Rows(**arrays, joints=parts[0].joints)
 
     def inputs(self, target: Target) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q, q̇, q̈) for an inverse model, (q, q̇, u) for a forward one."""
@@ -149,6 +159,19 @@ class Rows:
         return self.u if target == "inverse" else self.qdd
 
 
+_ARRAYS = tuple(field.name for field in dataclasses.fields(Rows) if field.name != "joints")
+
+
+def arm(dataset_dir: Path) -> tuple[str, tuple[str, ...]]:
+    """The dataset's robot and its joints (loader.dataset_arm); LearnError, one line."""
+    try:
+        return dataset_arm(Path(dataset_dir))
+    except FileNotFoundError:
+        raise LearnError(f"{str(dataset_dir)!r} holds no dataset (no {TICKS})") from None
+    except (OSError, pa.ArrowException, ValueError) as error:
+        raise LearnError(f"{str(dataset_dir)!r}: unreadable {TICKS}: {_one_line(error)}") from None
+
+
 def read_split(dataset_dir: Path, split: str) -> Rows:
     """The rows of `split` ("train", "validation", "test"), last ticks (no q̈) dropped; `u` is
     the motors' whole torque (`u_motor`, or `u` in a dataset from before it).
@@ -156,8 +179,9 @@ def read_split(dataset_dir: Path, split: str) -> Rows:
     Raises LearnError, one line, if the dataset is missing or lacks the columns."""
     torque = motor_torque_column(dataset_dir)
     acceleration = acceleration_column(dataset_dir)
+    _, joints = arm(dataset_dir)
     signals = {"q": "q", "qd": "qd", "qdd": acceleration, "u": torque}  # Rows' → the column's
-    columns = ["episode_id", "t"] + [f"{c}_{j}" for c in signals.values() for j in JOINT_NAMES]
+    columns = ["episode_id", "t"] + [f"{c}_{j}" for c in signals.values() for j in joints]
     try:
         table = pq.read_table(
             Path(dataset_dir) / TICKS, columns=columns, filters=[("split", "==", split)]
@@ -167,9 +191,9 @@ def read_split(dataset_dir: Path, split: str) -> Rows:
     except (OSError, pa.ArrowException, ValueError, KeyError) as error:
         raise LearnError(f"{str(dataset_dir)!r}: unreadable {TICKS}: {_one_line(error)}") from None
     arrays = {
-        s: np.column_stack([table[f"{c}_{j}"].to_numpy() for j in JOINT_NAMES]).astype(float)
+        s: np.column_stack([table[f"{c}_{j}"].to_numpy() for j in joints]).astype(float)
         if table.num_rows
-        else np.empty((0, N_JOINTS))
+        else np.empty((0, len(joints)))
         for s, c in signals.items()
     }
     finite = np.isfinite(np.hstack(list(arrays.values()))).all(axis=1)
@@ -180,13 +204,15 @@ def read_split(dataset_dir: Path, split: str) -> Rows:
         t=table["t"].to_numpy()[finite].astype(float),
         calm=~np.isin(episode_id, list(rough)) if rough else np.ones(len(episode_id), bool),
         **{s: arrays[s][finite] for s in signals},
+        joints=joints,
     )
 
 
 def acceleration_column(dataset_dir: Path) -> str:
     """The acceleration a model learns from: `qdd_sg` (dataset version 4), or `qdd` before it."""
     names = _tick_names(dataset_dir)
-    return ACCELERATION if f"{ACCELERATION}_{JOINT_NAMES[0]}" in names else DIFFERENCED
+    first = arm(dataset_dir)[1][0]
+    return ACCELERATION if f"{ACCELERATION}_{first}" in names else DIFFERENCED
 
 
 def rough_episodes(dataset_dir: Path) -> set[str]:
@@ -221,7 +247,7 @@ def motor_torque_column(dataset_dir: Path) -> str:
     which was the motor torque only if every episode commanded it (a plain torque interface;
     behind FRI the robot adds its gravity model to u). LearnError, one line, if it was not."""
     names = _tick_names(dataset_dir)
-    if f"{MOTOR_TORQUE}_{JOINT_NAMES[0]}" in names:
+    if f"{MOTOR_TORQUE}_{arm(dataset_dir)[1][0]}" in names:
         return MOTOR_TORQUE
     if any(plant.interface == "fri" for plant in plants(dataset_dir)):
         raise LearnError(
@@ -339,7 +365,7 @@ def fit(
         except ImportError as error:  # Pinocchio is optional: gainfarm[learn]
             raise LearnError(str(error)) from None
         about["identified_rank"] = rank
-        about["inconsistencies"] = inconsistencies(parameters)
+        about["inconsistencies"] = inconsistencies(parameters, joint_names(prior.spec))
         about |= notes
         return DynamicsModel(
             kind=kind, target=target, spec=prior.spec, parameters=parameters, about=about
@@ -398,7 +424,7 @@ def identify(spec: PlantSpec, rows: Rows) -> tuple[np.ndarray, int, dict[str, An
         value = step @ (scaled_gram @ step) - 2 * scaled_moment @ step + ridge * step @ step
         return float(value), jacobian.T @ (2 * pull * scale)
 
-    flaws = inconsistencies(free)
+    flaws = inconsistencies(free, joint_names(spec))
     if flaws:
         theta = consistent_coordinates(nearest_consistent(free))
         solution = minimize(
@@ -536,9 +562,10 @@ def _standardisation(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def score(model: DynamicsModel, dataset_dir: Path, split: str = "test") -> dict[str, Any]:
     """How well `model` predicts its target on `split`, on all its rows and on its calm
     episodes' ("calm", the same keys): per joint nMSE (MSE over the variance of the measured
-    target) and RMSE; the nMSE's mean over A1..A6 ("nmse_mean") and A1..A7, the RMSE's over
-    A1..A4 ("rmse_a1_a4", the joints published figures give); and the nMSE of predicting the
-    training split's mean, the baseline (about 1)."""
+    target) and RMSE; the nMSE's mean over all joints but the flange's (A1..A6 on the iiwa 14:
+    "nmse_mean") and over all, the RMSE's over the first four (A1..A4, "rmse_a1_a4", the joints
+    published figures give); and the nMSE of predicting the training split's mean, the baseline
+    (about 1)."""
     rows = read_split(dataset_dir, split)
     if not len(rows):
         raise LearnError(no_rows(dataset_dir, split))
@@ -555,8 +582,13 @@ def score_rows(model: Any, rows: Rows, train: Rows) -> dict[str, Any]:
     else:
         predicted = model.predict(*rows.inputs(model.target))
     baseline = train.output(model.target).mean(axis=0)
-    everything = _errors(measured, predicted, baseline)
-    calm = _errors(measured[rows.calm], predicted[rows.calm], baseline) if rows.calm.any() else None
+    joints = rows.joints
+    everything = _errors(measured, predicted, baseline, joints)
+    calm = (
+        _errors(measured[rows.calm], predicted[rows.calm], baseline, joints)
+        if rows.calm.any()
+        else None
+    )
     return {
         "kind": model.kind,
         "target": model.target,
@@ -566,20 +598,23 @@ def score_rows(model: Any, rows: Rows, train: Rows) -> dict[str, Any]:
     }
 
 
-def _errors(measured: np.ndarray, predicted: np.ndarray, baseline: np.ndarray) -> dict[str, Any]:
+def _errors(
+    measured: np.ndarray, predicted: np.ndarray, baseline: np.ndarray, joints: Sequence[str]
+) -> dict[str, Any]:
     variance = measured.var(axis=0)
     mse = ((predicted - measured) ** 2).mean(axis=0)
-    nmse = _per_joint(mse / variance)
+    nmse = _per_joint(mse / variance, joints)
     baseline_nmse = ((measured - baseline) ** 2).mean(axis=0) / variance
+    averaged = mean_joints(joints)
     return {
         "rows": len(measured),
         "nmse": nmse,
-        "rmse": _per_joint(np.sqrt(mse)),
-        "variance": _per_joint(variance),
-        "nmse_mean": float(np.mean([nmse[j] for j in MEAN_JOINTS])),
+        "rmse": _per_joint(np.sqrt(mse), joints),
+        "variance": _per_joint(variance, joints),
+        "nmse_mean": float(np.mean([nmse[j] for j in averaged])),
         "nmse_mean_all": float(np.mean(list(nmse.values()))),
-        "rmse_a1_a4": float(np.mean(np.sqrt(mse[: len(PUBLISHED_JOINTS)]))),
-        "mean_predictor_nmse": float(np.mean(baseline_nmse[: len(MEAN_JOINTS)])),
+        "rmse_a1_a4": float(np.mean(np.sqrt(mse[:PUBLISHED_JOINTS]))),
+        "mean_predictor_nmse": float(np.mean(baseline_nmse[: len(averaged)])),
     }
 
 
@@ -663,17 +698,19 @@ def plot_prediction(path: Path, model: DynamicsModel, rows: Rows) -> None:
     FigureCanvasAgg(figure)  # Agg explicitly, as analytic/figures.py: no backend, no display
     panels = figure.subplots(4, 2, sharex=True).ravel()
     quantity = "motor torque" if model.target == "inverse" else "q̈"
-    for index, (axes, joint) in enumerate(zip(panels, JOINT_NAMES, strict=False)):
+    for index, (axes, joint) in enumerate(zip(panels, rows.joints, strict=False)):
         axes.plot(t, measured[:, index], color="black", linewidth=0.8, label="measured")
         axes.plot(t, predicted[:, index], color="tab:orange", linewidth=0.8, label="predicted")
         axes.set_title(joint, fontsize=9)
         axes.set_ylabel(f"{quantity} ({UNITS[model.target]})", fontsize=8)
         axes.grid(True, alpha=0.3)
     panels[0].legend(loc="upper right", fontsize=8)
-    panels[-2].set_xlabel("t (s)")
-    panels[-1].axis("off")
-    panels[-3].xaxis.set_tick_params(labelbottom=True)  # the right column's lowest panel
-    panels[-3].set_xlabel("t (s)")
+    used = min(len(rows.joints), len(panels))
+    for axes in panels[used:]:
+        axes.axis("off")
+    for axes in panels[max(used - 2, 0) : used]:  # each column's lowest panel in use
+        axes.xaxis.set_tick_params(labelbottom=True)
+        axes.set_xlabel("t (s)")
     figure.suptitle(f"{model.kind} {model.target} model on test episode {episode}", fontsize=10)
     save_png(figure, path)
 
@@ -709,12 +746,16 @@ def report(
             f"- not learned from: the *_variants splits' episodes, on {len(others)} other plants "
             "(one plant per split, docs/dataset.md)"
         )
-    lines += ["", _what(model), "", *_anchors_table(scores), "", *_scores_table(scores), ""]
+    joints = tuple(scores["nmse"])
+    robot = plant.robot
+    lines += ["", what(model), "", *anchors_table(scores, robot), "", *scores_table(scores), ""]
     lines += [
         "nMSE is the test split's mean squared error over the variance of the measured "
         f"{'torque' if model.target == 'inverse' else 'acceleration'}, per joint; the mean "
-        "is over A1-A6, as A7's torque barely varies (its nMSE measures noise and friction); "
-        f"with A7 it is {scores['nmse_mean_all']:.4f}. Predicting the training mean scores "
+        f"is over {span(mean_joints(joints))}, as {joints[-1]}'s torque barely varies (it "
+        "turns only the flange: its nMSE measures noise and friction); "
+        f"with {joints[-1]} it is {scores['nmse_mean_all']:.4f}. Predicting the training mean "
+        "scores "
         f"{scores['mean_predictor_nmse']:.3f}. Calm: the test episodes that ran to their end "
         "without chatter (the dataset's `calm`), what a controller that keeps its limits makes. "
         f"The acceleration is the dataset's `{scores.get('acceleration', ACCELERATION)}`.",
@@ -734,114 +775,8 @@ def _torque_text(dataset_dir: Path, found: list[PlantSpec]) -> str:
     return "`u_motor`, the motors' whole torque (`u`: a plain torque interface)"
 
 
-def _what(model: DynamicsModel) -> str:
-    about = model.about
-    if model.kind == "rigid":
-        return "The rigid-body physics of the plant's arm (MuJoCo), no friction: not trained."
-    if model.kind == "plant":
-        return (
-            "The simulated plant's own dynamics (its true arm, payload and friction): not "
-            "trained, the anchor no learned model can beat; only noise separates it from the data."
-        )
-    if model.kind == "linear":
-        flaws = about.get("inconsistencies", [])
-        before = about.get("unconstrained_flaws", [])
-        if flaws:
-            consistency = (
-                f"The identified parameters are **not physically consistent** ({len(flaws)} "
-                f"flaws: {'; '.join(flaws[:3])}{'; ...' if len(flaws) > 3 else ''})."
-            )
-        elif before:
-            consistency = (
-                "The parameters are physically consistent by construction (every link's "
-                "pseudo-inertia positive definite, friction and rotor inertia positive): plain "
-                f"least squares left {len(before)} flaws ({'; '.join(before[:2])}; ...), and "
-                "fitting over consistent arms only gave up "
-                f"{100 * about.get('consistency_cost', 0.0):.3f} % of the torque variance it "
-                "explained."
-            )
-        else:
-            consistency = (
-                "Plain least squares gave physically consistent parameters (every link's "
-                "pseudo-inertia positive definite, friction and rotor inertia non-negative)."
-            )
-        return (
-            "Linear in 91 parameters (Pinocchio's regressor, rotor inertia, viscous and "
-            f"Coulomb-like friction per joint); {about['identified_rank']} directions identified "
-            f"from the train split, the rest kept at the documented arm's values. {consistency}"
-        )
-    on = "the rigid physics' residual" if model.kind == "residual" else "the target"
-    return (
-        f"A {'×'.join(str(h) for h in about['hidden_layers'])} ReLU network on {on}, trained "
-        f"{about['epochs_run']} epochs on the train split; epoch {about['best_epoch']} kept, "
-        f"chosen on {about['chosen_on']}."
-    )
-
-
-def _anchors_table(scores: dict[str, Any]) -> list[str]:
-    """The model beside the true model's floor and the rigid prior, on all and calm episodes."""
-    unit = scores["unit"]
-    rmse = f"RMSE A1-A4 ({unit})"
-    lines = [
-        f"| model, test split | nMSE all | nMSE calm | {rmse} all | {rmse} calm |",
-        "|---|---|---|---|---|",
-    ]
-    named = [
-        (f"**{scores['kind']}** (this model)", scores),
-        ("plant's own dynamics (the floor)", scores["floor"]),
-        ("rigid prior (untrained)", scores["prior"]),
-    ]
-    for name, entry in named:
-        calm = entry["calm"] or {}
-        lines.append(
-            f"| {name} | {entry['nmse_mean']:.4f} | {_shown(calm.get('nmse_mean'), '.4f')} | "
-            f"{entry['rmse_a1_a4']:.3g} | {_shown(calm.get('rmse_a1_a4'), '.3g')} |"
-        )
-    floor = scores["floor"]["nmse_mean"]
-    ratio = scores["nmse_mean"] / floor if floor > 0 else math.inf
-    lines += [
-        "",
-        f"This model's nMSE is {ratio:.1f} times the floor's"
-        + (
-            f"; its RMSE over A1-A4 is {scores['rmse_a1_a4']:.3g} {unit}, beside the "
-            f"{PUBLISHED_RMSE} N·m published for a model learned on a real iiwa 14 (Çallar and "
-            "Böttger, RA-L 2022): a simulated plant with its noise, not that robot."
-            if scores["target"] == "inverse"
-            else "."
-        ),
-    ]
-    return lines
-
-
-def _shown(value: float | None, spec: str) -> str:
-    return "–" if value is None else format(value, spec)
-
-
-def _scores_table(scores: dict[str, Any]) -> list[str]:
-    unit = scores["unit"]
-    calm = scores["calm"] or {}
-    floor = scores["floor"]
-    lines = [
-        f"| joint | nMSE all | nMSE calm | floor's nMSE | RMSE all ({unit}) | RMSE calm ({unit}) "
-        f"| variance (({unit})²) |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for joint in JOINT_NAMES:
-        lines.append(
-            f"| {joint} | {scores['nmse'][joint]:.4f} | "
-            f"{_shown(calm.get('nmse', {}).get(joint), '.4f')} | {floor['nmse'][joint]:.4f} | "
-            f"{scores['rmse'][joint]:.4g} | {_shown(calm.get('rmse', {}).get(joint), '.4g')} | "
-            f"{scores['variance'][joint]:.4g} |"
-        )
-    lines.append(
-        f"| mean A1-A6 | {scores['nmse_mean']:.4f} | {_shown(calm.get('nmse_mean'), '.4f')} | "
-        f"{floor['nmse_mean']:.4f} | | | |"
-    )
-    return lines
-
-
-def _per_joint(values: np.ndarray) -> dict[str, float]:
-    return {joint: float(value) for joint, value in zip(JOINT_NAMES, values, strict=True)}
+def _per_joint(values: np.ndarray, joints: Sequence[str]) -> dict[str, float]:
+    return {joint: float(value) for joint, value in zip(joints, values, strict=True)}
 
 
 def _episode_count(rows: Rows) -> tuple[int, int]:

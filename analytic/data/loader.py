@@ -3,7 +3,9 @@
     from gainfarm.analytic import load_dataset
 
     train = load_dataset("datasets/generic", "train")
-    x, y = train.inputs(normalised=True), train.targets(normalised=True)  # (n, 21), (n, 7)
+    x, y = train.inputs(normalised=True), train.targets(normalised=True)  # (n, 3N), (n, N)
+
+N is the dataset's arm's joint count (7 for the iiwa 14, 6 for the UR5e: `train.joint_names`).
 
 Works on any directory `analytic dataset` wrote, a release or not; a release's stats.json gives
 the normalisation, computed over its train split only, so nothing of validation or test leaks
@@ -25,7 +27,12 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS
+from gainfarm.analytic.data.dataset_columns import (
+    JOINTS_BEFORE,
+    JOINTS_KEY,
+    ROBOT_BEFORE,
+    ROBOT_KEY,
+)
 
 TICKS, EPISODES, STATS_JSON = "ticks.parquet", "episodes.parquet", "stats.json"
 # A dataset's parts (the `split` column), for every module that writes or reads one. An episode
@@ -39,7 +46,8 @@ VARIANTS = "_variants"
 VARIANT_SPLITS = tuple(f"{split}{VARIANTS}" for split in SPLITS)
 ALL_SPLITS = SPLITS + VARIANT_SPLITS
 LOADER_SPLITS = (*SPLITS, "test_calm", *VARIANT_SPLITS)
-# DatasetSplit's arrays → their column in ticks.parquet (the joint's suffix _A1.._A7 added). The
+# DatasetSplit's arrays → their column in ticks.parquet (the joint's suffix _A1.._A7 added, the
+# arm's joints'). The
 # acceleration and the motor torque are what a model of the arm learns (analytic.data.learning):
 # a dataset from before them (version 3, 2) has only the difference and the command.
 SIGNALS = {
@@ -60,9 +68,12 @@ TARGETS = ("u",)
 @dataclass(frozen=True)
 class DatasetSplit:
     """The ticks of one split, in ticks.parquet's order, every row (NaN where the table has
-    NaN: `qdd` in an episode shorter than the Savitzky-Golay window). Joint arrays are (n, 7)."""
+    NaN: `qdd` in an episode shorter than the Savitzky-Golay window). Joint arrays are (n, N),
+    one column per joint of the dataset's arm (`joint_names`)."""
 
     split: str
+    robot: str  # the arm (a gainfarm.robots name)
+    joint_names: tuple[str, ...]  # its joints: the joint arrays' columns
     columns: dict[str, str]  # each signal → the ticks.parquet column prefix it was read from
     episode_id: np.ndarray  # (n,) str
     t: np.ndarray  # (n,) s since the episode started
@@ -82,11 +93,11 @@ class DatasetSplit:
         return len(self.t)
 
     def inputs(self, normalised: bool = False) -> np.ndarray:
-        """(n, 21): q, q̇, q̈ side by side, the inputs of an inverse-dynamics model."""
+        """(n, 3N): q, q̇, q̈ side by side, the inputs of an inverse-dynamics model."""
         return self._joined(INPUTS, normalised)
 
     def targets(self, normalised: bool = False) -> np.ndarray:
-        """(n, 7): u, the motors' torque, what an inverse-dynamics model predicts."""
+        """(n, N): u, the motors' torque, what an inverse-dynamics model predicts."""
         return self._joined(TARGETS, normalised)
 
     def _joined(self, signals: tuple[str, ...], normalised: bool) -> np.ndarray:
@@ -104,7 +115,7 @@ class DatasetSplit:
                 "normalised needs stats.json, which only a release has (analytic dataset "
                 "--release NAME)"
             )
-        names = [f"{self.columns[s]}_{joint}" for s in signals for joint in JOINT_NAMES]
+        names = [f"{self.columns[s]}_{joint}" for s in signals for joint in self.joint_names]
         missing = [name for name in names if name not in self.stats]
         if missing:
             raise ValueError(f"stats.json has no statistics of {missing[0]!r}")
@@ -119,7 +130,7 @@ def _number(value: float | None) -> float:
 
 class TickDataset:
     """A map-style dataset of one split for inverse dynamics: item i is (inputs, target) of
-    the i-th row whose inputs and target are all finite, as float32 arrays of 21 and 7. Any
+    the i-th row whose inputs and target are all finite, as float32 arrays of 3N and N. Any
     loader that takes `__len__` and `__getitem__` takes it, PyTorch's DataLoader included
     (torch is not imported here: see the module's docstring)."""
 
@@ -147,14 +158,15 @@ def load_dataset(path: str | Path, split: str = "train") -> DatasetSplit:
     path = Path(path)
     if not (path / TICKS).is_file():
         raise FileNotFoundError(f"{str(path)!r} holds no dataset (no {TICKS})")
+    robot, joints = dataset_arm(path)
     names = set(pq.read_schema(path / TICKS).names)
     columns = {}
     for signal, candidates in SIGNALS.items():
-        found = [c for c in candidates if f"{c}_{JOINT_NAMES[0]}" in names]
+        found = [c for c in candidates if f"{c}_{joints[0]}" in names]
         if not found:
             raise ValueError(f"{str(path)!r}: {TICKS} has no {candidates[0]} columns")
         columns[signal] = found[0]
-    wanted = ["episode_id", "t"] + [f"{c}_{j}" for c in columns.values() for j in JOINT_NAMES]
+    wanted = ["episode_id", "t"] + [f"{c}_{j}" for c in columns.values() for j in joints]
     part = "test" if split == "test_calm" else split
     table = pq.read_table(path / TICKS, columns=wanted, filters=[("split", "==", part)])
     episode_id = table["episode_id"].to_numpy(zero_copy_only=False).astype(str)
@@ -166,17 +178,19 @@ def load_dataset(path: str | Path, split: str = "train") -> DatasetSplit:
         )
         episode_id, calm = episode_id[calm], calm[calm]
     arrays = {
-        signal: np.column_stack(
-            [table[f"{column}_{joint}"].to_numpy() for joint in JOINT_NAMES]
-        ).astype(float)
+        signal: np.column_stack([table[f"{column}_{joint}"].to_numpy() for joint in joints]).astype(
+            float
+        )
         if table.num_rows
-        else np.empty((0, N_JOINTS))
+        else np.empty((0, len(joints)))
         for signal, column in columns.items()
     }
     stats_path = path / STATS_JSON
     stats = json.loads(stats_path.read_text(encoding="utf-8")) if stats_path.is_file() else None
     return DatasetSplit(
         split=split,
+        robot=robot,
+        joint_names=joints,
         columns=columns,
         episode_id=episode_id,
         t=table["t"].to_numpy().astype(float),
@@ -184,6 +198,24 @@ def load_dataset(path: str | Path, split: str = "train") -> DatasetSplit:
         stats=stats,
         **arrays,
     )
+
+
+def dataset_arm(path: str | Path) -> tuple[str, tuple[str, ...]]:
+    """The robot a dataset is of and its joints, from ticks.parquet's schema metadata; a dataset
+    from before it named them is the iiwa 14's. ValueError, one line, if they are malformed."""
+    metadata = pq.read_schema(Path(path) / TICKS).metadata or {}
+    if JOINTS_KEY.encode() not in metadata:
+        return ROBOT_BEFORE, JOINTS_BEFORE
+    robot = metadata.get(ROBOT_KEY.encode(), b"").decode()
+    try:
+        joints = json.loads(metadata[JOINTS_KEY.encode()])
+    except ValueError:
+        joints = None
+    if not robot or not isinstance(joints, list) or not all(isinstance(j, str) for j in joints):
+        raise ValueError(f"{str(path)!r}: {TICKS} names its arm's joints malformed")
+    if not joints:
+        raise ValueError(f"{str(path)!r}: {TICKS} names an arm of no joints")
+    return robot, tuple(joints)
 
 
 def _rough_episodes(path: Path) -> set[str]:

@@ -42,7 +42,7 @@ from gainfarm.analytic.data.dataset import (
     check_split,
     interface_text,
 )
-from gainfarm.analytic.data.learning import PUBLISHED_RMSE
+from gainfarm.analytic.data.learning_report import PUBLISHED_RMSE
 from gainfarm.analytic.data.lerobot import DEFAULT_LAYOUT, LerobotLayout
 from gainfarm.analytic.data.loader import ALL_SPLITS, VARIANTS
 from gainfarm.analytic.view.export import plant_name
