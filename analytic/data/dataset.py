@@ -23,6 +23,10 @@ left out unless `include_rough` asks for it. Each episode's row carries its meas
 they are within the limits and whether it is calm: data a rigid-body model cannot explain (a
 chattering elastic joint) would otherwise dominate every score learned on it.
 
+A dataset is of one arm, the runs' robot (runs of two arms are refused): its per-joint columns
+are named by that arm's joints, and every table's metadata names the robot and its joints
+(dataset_columns.arm_metadata).
+
 The directory appears whole or not at all: it is built beside its destination and renamed.
 
 This module builds it; its parts are modules of their own: the runs and controllers it takes
@@ -59,9 +63,11 @@ from gainfarm.analytic.data.dataset_columns import (
     DATASET_VERSION,
     JOINT_SIGNALS,
     LOGGED_JOINT_SIGNALS,
+    ROBOT_BEFORE,
     SG_ORDER,
     SG_WINDOW,
     TRAJECTORY_ID_DIGITS,
+    arm_metadata,
     column_unit,
     with_units,
 )
@@ -92,6 +98,7 @@ from gainfarm.analytic.tuning.records import (
     FrontMember,
 )
 from gainfarm.edges.files import staging_directory, write_atomically
+from gainfarm.models import robot_of
 from gainfarm.plugins import OBJECTIVES, load_plugins
 from gainfarm.schemas.documents import quoted
 from gainfarm.schemas.episode import EpisodeSpec
@@ -99,7 +106,7 @@ from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.limits import MEASURES
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import JOINT_NAMES, PlantSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.schemas.wire import describe
 from gainfarm.worker.episode import motor_torque
@@ -132,6 +139,7 @@ __all__ = [
     "DuplicateEpisodes",
     "Episode",
     "EpisodeSource",
+    "MixedArms",
     "NoEpisodes",
     "RerunFailed",
     "RerunFarm",
@@ -188,6 +196,10 @@ class BadRerun(ValueError):
 
 class RerunFailed(ValueError):
     """A rerun episode did not run: the dataset would be missing it."""
+
+
+class MixedArms(ValueError):
+    """Runs of two arms: a dataset's columns are one arm's joints."""
 
 
 # Given the directory a rerun's batch writes into, a context giving the evaluator to run it on.
@@ -279,9 +291,11 @@ def excitations(count: int, duration: float = EXCITATION_DURATION) -> list[Traje
     return [TrajectorySpec(kind="fourier", seed=seed, duration=duration) for seed in range(count)]
 
 
-def check_rerun(trajectories: Sequence[TrajectorySpec], followable: bool = True) -> None:
+def check_rerun(
+    trajectories: Sequence[TrajectorySpec], followable: bool = True, robot: str = ROBOT_BEFORE
+) -> None:
     """A non-empty list without repeats (a repeat would be the same episode twice), and, with
-    `followable`, only trajectories the iiwa can follow (every episode of another would fail)."""
+    `followable`, only trajectories `robot` can follow (every episode of another would fail)."""
     if not trajectories:
         raise BadRerun("the list of trajectories is empty")
     first: dict[str, int] = {}
@@ -293,14 +307,15 @@ def check_rerun(trajectories: Sequence[TrajectorySpec], followable: bool = True)
         return
     for number, trajectory in enumerate(trajectories, start=1):
         try:
-            reference_for(trajectory)
+            reference_for(trajectory, robot)
         except (InfeasibleReference, UnreachablePath) as error:
             what = f"{trajectory.kind}, {trajectory.duration:g} s"
             raise BadRerun(f"trajectory {number} ({what}): {error}") from None
 
 
 def tick_columns(episode_id: str, log: EpisodeLog) -> dict[str, np.ndarray]:
-    """The ticks of one episode as flat, named columns (t, q_A1 ... ee_des_z), the split aside.
+    """The ticks of one episode as flat, named columns (t, q_A1 ... ee_des_z: its arm's joints),
+    the split aside.
 
     qdd is differenced within the episode, forward: row k's u acts from tick k to k + 1, so
     (qd[k+1] - qd[k]) / period is the acceleration it produced. The last tick has no next one:
@@ -323,7 +338,7 @@ def tick_columns(episode_id: str, log: EpisodeLog) -> dict[str, np.ndarray]:
         "u_motor": motor_torque(log),
     }
     for signal in JOINT_SIGNALS:
-        for index, joint in enumerate(JOINT_NAMES):
+        for index, joint in enumerate(joints_of(log)):
             columns[f"{signal}_{joint}"] = signals[signal][:, index]
     for signal in CARTESIAN_SIGNALS:
         values = getattr(log, signal)
@@ -332,8 +347,24 @@ def tick_columns(episode_id: str, log: EpisodeLog) -> dict[str, np.ndarray]:
     return columns
 
 
+def joints_of(log: EpisodeLog) -> tuple[str, ...]:
+    """The joints of the arm an episode ran on: its columns' names."""
+    return robot_of(log.metadata.spec.plant).joint_names
+
+
+def arm_of(chosen: Sequence[ChosenRun]) -> str:
+    """The one robot of the chosen runs; MixedArms, one line, if they are of two."""
+    robots = list(dict.fromkeys(run.plant.robot for run in chosen))
+    if len(robots) > 1:
+        raise MixedArms(
+            f"the runs are of {len(robots)} arms ({', '.join(robots)}): a dataset is of one arm "
+            "(its columns are its joints); build one per arm"
+        )
+    return robots[0] if robots else ROBOT_BEFORE
+
+
 def smoothed_acceleration(q: np.ndarray, period: float) -> np.ndarray:
-    """q̈ of one episode's (n, 7) angles: the Savitzky-Golay fit's second derivative (SG_WINDOW,
+    """q̈ of one episode's (n, N) angles: the Savitzky-Golay fit's second derivative (SG_WINDOW,
     SG_ORDER), the window's edges fitted by one polynomial ("interp"); NaN if the episode is
     shorter than the window."""
     if len(q) < SG_WINDOW:
@@ -360,8 +391,9 @@ def episode_row(source: EpisodeSource, log: EpisodeLog) -> dict[str, object]:
         "source": source.source,
         "trajectory_id": trajectory_id(spec.trajectory),
     }
-    row |= {f"kp_{joint}": gain for joint, gain in zip(JOINT_NAMES, spec.gains.kp, strict=True)}
-    row |= {f"kd_{joint}": gain for joint, gain in zip(JOINT_NAMES, spec.gains.kd, strict=True)}
+    joints = joints_of(log)
+    row |= {f"kp_{joint}": gain for joint, gain in zip(joints, spec.gains.kp, strict=True)}
+    row |= {f"kd_{joint}": gain for joint, gain in zip(joints, spec.gains.kd, strict=True)}
     row |= {
         "f_acc": scores.f_acc,
         "f_t": scores.f_t,
@@ -548,9 +580,11 @@ def build(
         raise FileExistsError(f"{out} already exists")
     fractions = check_split(split)
     chosen = choose(run_dirs, selection)
+    robot = arm_of(chosen)
+    joints = robot_of(robot).joint_names
     found = sources(chosen)
     if rerun_trajectories:
-        check_rerun(rerun_trajectories)
+        check_rerun(rerun_trajectories, robot=robot)
         learned = [run.name for run in chosen if run.feedforward is not None]
         if learned:  # run without its model, its controller would make other data: refuse
             raise BadRerun(
@@ -607,7 +641,7 @@ def build(
             "control_period_unit": "s",
             "split": ",".join(repr(value) for value in fractions),
             "split_seed": str(split_seed),
-        }
+        } | arm_metadata(robot, joints)
         ticks = pa.concat_tables(
             episode.ticks.add_column(
                 episode.ticks.schema.get_field_index("t"),
@@ -617,13 +651,13 @@ def build(
             for episode in episodes
         )
         pq.write_table(
-            with_units(ticks, metadata | {"table": "ticks"}),
+            with_units(ticks, metadata | {"table": "ticks"}, joints),
             staging / "ticks.parquet",
             compression="zstd",
         )
         rows = [episode.row | {"split": parts[episode.source.episode_id]} for episode in episodes]
         pq.write_table(
-            with_units(pa.Table.from_pylist(rows), metadata | {"table": "episodes"}),
+            with_units(pa.Table.from_pylist(rows), metadata | {"table": "episodes"}, joints),
             staging / "episodes.parquet",
         )
         per_trajectory = Counter(str(row["trajectory_id"]) for row in rows)
@@ -632,7 +666,9 @@ def build(
             for tid, trajectory in sorted(trajectories.items())
         ]
         pq.write_table(
-            with_units(pa.Table.from_pylist(trajectory_rows), metadata | {"table": "trajectories"}),
+            with_units(
+                pa.Table.from_pylist(trajectory_rows), metadata | {"table": "trajectories"}, joints
+            ),
             staging / "trajectories.parquet",
         )
         counts = {

@@ -4,6 +4,7 @@ come from, how it was split and what was left out, and the command that made it.
 import textwrap
 from collections.abc import Sequence
 
+from gainfarm.analytic.data.arm import joint_range, title
 from gainfarm.analytic.data.dataset_columns import (
     CALM_CHATTER,
     DATASET_VERSION,
@@ -15,6 +16,7 @@ from gainfarm.analytic.data.dataset_columns import (
 from gainfarm.analytic.data.dataset_runs import ChosenRun, Selection
 from gainfarm.analytic.data.dataset_split import DEFAULT_SPLIT, Split
 from gainfarm.cli.words import counted
+from gainfarm.models import robot_of
 from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 
@@ -28,10 +30,17 @@ def interface_text(plant: PlantSpec) -> str:
     """What the card says of a run's torque interface: how its `u` became `u_motor`."""
     if plant.interface == "fri":
         return (
-            "behind KUKA's FRI torque interface (the robot added its gravity model of the "
+            f"behind {_interface_name(plant)} (the robot added its gravity model of the "
             f"{plant.inertials} inertials to `u`: `u_motor` is the sum)"
         )
     return "on a plain torque interface (`u_motor` is `u`)"
+
+
+def _interface_name(plant: PlantSpec) -> str:
+    """The torque interface that adds the robot's gravity model, by its maker's name."""
+    if plant.robot == "iiwa14":  # the words of every card before other arms
+        return "KUKA's FRI torque interface"
+    return f"{robot_of(plant).torque_interface.name} (gravity added as FRI does)"
 
 
 def card(
@@ -42,8 +51,11 @@ def card(
     split_seed: int = 0,
 ) -> str:
     """The dataset's README.md: what it holds, every column and its unit, how it was made."""
+    robot = chosen[0].plant.robot if chosen else "iiwa14"
+    joints = robot_of(robot).joint_names
+    suffixes = joint_range(joints)
     joint_columns = "\n".join(
-        f"  - `{signal}_A1..A7` ({unit}): {description}"
+        f"  - `{signal}_{suffixes}` ({unit}): {description}"
         for signal, (unit, description) in JOINT_SIGNALS.items()
     )
     chosen_text = (
@@ -60,7 +72,8 @@ def card(
     limits = _left_out_text(counts)
     command = _command(counts, selection, fractions, split_seed)
     opening = _paragraph(
-        "Torque, position and velocity episodes of a simulated KUKA LBR iiwa 14 (MuJoCo, "
+        f"Torque, position and velocity episodes of a simulated {title(robot)} "
+        f"({len(joints)} joints; MuJoCo, "
         "elastic joints unless the `model` column says otherwise) under PD controllers tuned by "
         f"NSGA-II for tracking accuracy and torque smoothness: {chosen_text} of each run below, "
         f"on each trajectory it was tuned on{_rerun_line(counts)}."
@@ -114,8 +127,8 @@ test) of the trajectories, ordered by the SHA-256 of `<split seed>:<trajectory_i
 - `episodes.parquet`: one row per episode. `episode_id` (`<first 8 hex digits of the
   run_id>-<job id>`, with `-rerun-` for reruns), `run` (the run directory's name, or `rerun`),
   `run_id` (the controller's run, from its run.json), `source` (`tuning` or `rerun`),
-  `trajectory_id`, `kp_A1..A7` (N·m/rad), `kd_A1..A7` (N·m·s/rad), `f_acc` (mean end-effector
-  error, m), `f_t` (mean squared torque change per tick, (N·m)²), `diverged`, `ticks`,
+  `trajectory_id`, `kp_{suffixes}` (N·m/rad), `kd_{suffixes}` (N·m·s/rad), `f_acc` (mean
+  end-effector error, m), `f_t` (mean squared torque change per tick, (N·m)²), `diverged`, `ticks`,
   `trajectory`, `duration` (s), `trajectory_spec` and `model` (JSON), `gravity_compensation`,
   `feedforward` (the learned model's SHA-256, or empty),
   `candidate_f_acc`, `candidate_f_t` (the controller's objectives over its run's trajectory set),
@@ -133,7 +146,8 @@ test) of the trajectories, ordered by the SHA-256 of `<split seed>:<trajectory_i
 
 Every Parquet column carries its unit (`unit`: rad, rad/s, rad/s^2, N*m, m, s, or empty for ids
 and counts) and a `description` in its field metadata; each table's schema metadata holds the
-`control_period` (s), the `dataset_version`, the `split` and the `split_seed`.
+`control_period` (s), the `dataset_version`, the `split` and the `split_seed`, the `robot`
+(`{robot}`) and its `joint_names` (JSON).
 
 Made with:
 

@@ -30,13 +30,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from gainfarm.analytic.data.loader import ALL_SPLITS
+from gainfarm.analytic.data.arm import robot_type
+from gainfarm.analytic.data.loader import ALL_SPLITS, dataset_arm
 from gainfarm.edges.files import write_atomically
-from gainfarm.schemas.robot import JOINT_NAMES
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 
 CODEBASE_VERSION = "v3.0"
-ROBOT_TYPE = "kuka_iiwa14"
 FPS = round(1 / CONTROL_PERIOD)
 CHUNK_FILE = "chunk-{chunk_index:03d}/file-{file_index:03d}"
 DATA_PATH = "data/" + CHUNK_FILE + ".parquet"
@@ -45,7 +44,8 @@ INFO_PATH, STATS_PATH, TASKS_PATH = "meta/info.json", "meta/stats.json", "meta/t
 DATA_FILE_SIZE_IN_MB = 100  # LeRobot's default cap on a data file
 VIDEO_FILE_SIZE_IN_MB = 200  # info.json carries it (LeRobot checks it is positive); no videos
 TASK = "track the reference trajectory with a tuned PD controller"
-# Each feature → the ticks.parquet signals it stacks, per joint (q_A1..A7, then qd_A1..A7).
+# Each feature → the ticks.parquet signals it stacks, per joint of the arm (q_A1..A7, then
+# qd_A1..A7 on the iiwa 14).
 FEATURES: dict[str, tuple[str, ...]] = {
     "observation.state": ("q", "qd"),
     "observation.acceleration": ("qdd_sg",),
@@ -76,17 +76,18 @@ class LerobotLayout:
 DEFAULT_LAYOUT = LerobotLayout()
 
 
-def feature_names(feature: str) -> list[str]:
-    return [f"{signal}_{joint}" for signal in FEATURES[feature] for joint in JOINT_NAMES]
+def feature_names(feature: str, joints: Sequence[str]) -> list[str]:
+    """The ticks.parquet columns `feature` stacks, for an arm of `joints`."""
+    return [f"{signal}_{joint}" for signal in FEATURES[feature] for joint in joints]
 
 
-def features() -> dict[str, dict[str, Any]]:
-    """info.json's features: each with its dtype, shape and names."""
+def features(joints: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """info.json's features, for an arm of `joints`: each with its dtype, shape and names."""
     found: dict[str, dict[str, Any]] = {
         name: {
             "dtype": "float32",
-            "shape": [len(feature_names(name))],
-            "names": feature_names(name),
+            "shape": [len(feature_names(name, joints))],
+            "names": feature_names(name, joints),
         }
         for name in FEATURES
     }
@@ -95,9 +96,9 @@ def features() -> dict[str, dict[str, Any]]:
     return found
 
 
-def frame_bytes() -> int:
+def frame_bytes(joints: Sequence[str]) -> int:
     """A frame's size uncompressed: what the files' frame budget is reckoned from."""
-    return 4 * sum(len(feature_names(name)) for name in FEATURES) + 4 + 8 * 4
+    return 4 * sum(len(feature_names(name, joints)) for name in FEATURES) + 4 + 8 * 4
 
 
 @dataclass
@@ -197,10 +198,12 @@ def _episodes(dataset: Path) -> list[dict[str, Any]]:
     return sorted(rows, key=lambda row: order[row["split"]])  # stable: the dataset's order within
 
 
-def _split_ticks(dataset: Path, split: str) -> Iterator[tuple[str, pa.Table]]:
+def _split_ticks(
+    dataset: Path, split: str, joints: Sequence[str]
+) -> Iterator[tuple[str, pa.Table]]:
     """Each episode of `split` with its ticks (the columns the features take, and t)."""
     columns = ["episode_id", "t"] + [
-        name for feature in FEATURES for name in feature_names(feature)
+        name for feature in FEATURES for name in feature_names(feature, joints)
     ]
     table = pq.read_table(
         dataset / "ticks.parquet", columns=columns, filters=[("split", "==", split)]
@@ -216,7 +219,7 @@ def _split_ticks(dataset: Path, split: str) -> Iterator[tuple[str, pa.Table]]:
 
 
 def _frames(
-    ticks: pa.Table, episode_index: int, first: int
+    ticks: pa.Table, episode_index: int, first: int, joints: Sequence[str]
 ) -> tuple[pa.Table, dict[str, np.ndarray]]:
     """An episode's frames, and each feature's float32 values (for the stats)."""
     n = ticks.num_rows
@@ -224,7 +227,7 @@ def _frames(
     columns: dict[str, pa.Array] = {}
     for feature in FEATURES:
         stacked = np.column_stack(
-            [ticks[name].to_numpy() for name in feature_names(feature)]
+            [ticks[name].to_numpy() for name in feature_names(feature, joints)]
         ).astype(np.float32)
         values[feature] = stacked
         columns[feature] = pa.FixedSizeListArray.from_arrays(
@@ -247,24 +250,25 @@ def export(dataset: Path, out: Path, layout: LerobotLayout) -> list[str]:
     """Write the dataset at `dataset` in LeRobot's v3.0 layout into `out` (made here, inside
     the release's staging directory); return the files written, relative to `out`."""
     dataset, out = Path(dataset), Path(out)
+    robot, joints = dataset_arm(dataset)
     out.mkdir()
-    file_frames = layout.file_frames or DATA_FILE_SIZE_IN_MB * 2**20 // frame_bytes()
+    file_frames = layout.file_frames or DATA_FILE_SIZE_IN_MB * 2**20 // frame_bytes(joints)
     writer = Writer(out, max(1, file_frames), layout.chunks_size)
-    moments = {name: Moments.empty(spec["shape"][0]) for name, spec in features().items()}
+    moments = {name: Moments.empty(spec["shape"][0]) for name, spec in features(joints).items()}
     rows = _episodes(dataset)
     by_id = {row["episode_id"]: row for row in rows}
     index_of = {row["episode_id"]: index for index, row in enumerate(rows)}
     episode_rows: list[dict[str, Any]] = []
     first = 0
     for split in ALL_SPLITS:
-        for episode_id, ticks in _split_ticks(dataset, split):
+        for episode_id, ticks in _split_ticks(dataset, split, joints):
             episode_index = index_of[episode_id]
             if episode_index != len(episode_rows):  # the builder writes both in one order
                 raise ValueError(
                     f"episode {episode_id!r}: ticks.parquet and episodes.parquet differ"
                 )
             chunk_index, file_index = writer.place(ticks.num_rows)
-            frames, values = _frames(ticks, episode_index, first)
+            frames, values = _frames(ticks, episode_index, first, joints)
             writer.add(frames)
             if split == "train":  # normalisation from train only, as the release's stats.json
                 for name, array in values.items():
@@ -296,7 +300,7 @@ def export(dataset: Path, out: Path, layout: LerobotLayout) -> list[str]:
     write_tasks(out / TASKS_PATH)
     info = {
         "codebase_version": CODEBASE_VERSION,
-        "robot_type": ROBOT_TYPE,
+        "robot_type": robot_type(robot),
         "total_episodes": len(episode_rows),
         "total_frames": first,
         "total_tasks": 1,
@@ -307,7 +311,7 @@ def export(dataset: Path, out: Path, layout: LerobotLayout) -> list[str]:
         "splits": splits(episode_rows),
         "data_path": DATA_PATH,
         "video_path": None,
-        "features": features(),
+        "features": features(joints),
     }
     write_atomically(out / INFO_PATH, (json.dumps(info, indent=4) + "\n").encode())
     stats = {name: moment.as_json() for name, moment in moments.items()}

@@ -36,15 +36,23 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from gainfarm.analytic.data import baselines, learning, lerobot
+from gainfarm.analytic.data.arm import robot_type, title
 from gainfarm.analytic.data.dataset import (
     DATASET_VERSION,
     build,
     check_split,
     interface_text,
 )
-from gainfarm.analytic.data.learning_report import PUBLISHED_RMSE
+from gainfarm.analytic.data.dataset_columns import JOINTS_BEFORE, ROBOT_BEFORE
+from gainfarm.analytic.data.learning_report import (
+    PUBLISHED_JOINTS,
+    PUBLISHED_RMSE,
+    PUBLISHED_ROBOT,
+    mean_joints,
+    span,
+)
 from gainfarm.analytic.data.lerobot import DEFAULT_LAYOUT, LerobotLayout
-from gainfarm.analytic.data.loader import ALL_SPLITS, VARIANTS
+from gainfarm.analytic.data.loader import ALL_SPLITS, VARIANTS, dataset_arm
 from gainfarm.analytic.view.export import plant_name
 from gainfarm.edges.files import write_atomically
 from gainfarm.schemas.robot import PlantSpec
@@ -60,7 +68,6 @@ TICKS, EPISODES = "ticks.parquet", "episodes.parquet"
 LEROBOT_DIR = "lerobot"
 RELEASE_FORMAT = "1"  # of release.json itself
 RELEASE_SPLITS = (*ALL_SPLITS, "test_calm")
-ROBOT_TYPE = "kuka_iiwa14"
 CONTROL_RATE = round(1 / CONTROL_PERIOD)  # Hz: 500
 # Short and safe as a directory name, a file name and a URL path segment: no leading dot (a
 # hidden file, or ".."), no separators, no spaces.
@@ -271,6 +278,7 @@ def write_release(
     write_json(staging / BASELINES_JSON, _json_safe(table))
     splits = split_members(staging)
     plants = release_plants(staging)
+    robot, joints = dataset_arm(staging)
     exported: list[dict[str, Any]] = []
     if format == "lerobot":
         written = lerobot.export(staging, staging / LEROBOT_DIR, layout)
@@ -279,7 +287,9 @@ def write_release(
         "name": name,
         "release_format": RELEASE_FORMAT,
         "dataset_version": DATASET_VERSION,
-        "robot_type": ROBOT_TYPE,
+        "robot": robot,
+        "robot_type": robot_type(robot),
+        "joint_names": list(joints),
         "control_rate_hz": CONTROL_RATE,
         "control_period_s": CONTROL_PERIOD,
         "content_hash": content_hash(files),
@@ -299,7 +309,13 @@ def write_release(
     }
     write_json(staging / RELEASE_JSON, record)
     card = (staging / CARD).read_text(encoding="utf-8")
-    text = card.rstrip("\n") + "\n\n" + release_card(record) + "\n" + baselines_card(table)
+    text = (
+        card.rstrip("\n")
+        + "\n\n"
+        + release_card(record)
+        + "\n"
+        + baselines_card(table, robot, joints)
+    )
     write_atomically(staging / CARD, text.encode())
     return record
 
@@ -342,6 +358,7 @@ def plant_description(plant: PlantSpec) -> str:
 
 def release_card(record: dict[str, Any]) -> str:
     """The card's section on the release: its identity, the robot, the plants, the splits."""
+    arm = title(record.get("robot", ROBOT_BEFORE))  # a release from before names no robot
     plants = "\n".join(
         f"- {plant['role']} ({plant['name']} plant, {plant['episodes']} episodes): "
         + plant_description(PlantSpec.model_validate(plant["model"]))
@@ -367,7 +384,7 @@ A frozen release: dataset version {record["dataset_version"]}, content hash
 
 recomputes in this directory; `release.json` lists every file's SHA-256.
 
-Robot type `{record["robot_type"]}`, a simulated KUKA LBR iiwa 14 in MuJoCo, controlled at
+Robot type `{record["robot_type"]}`, a simulated {arm} in MuJoCo, controlled at
 {record["control_rate_hz"]} Hz (period {record["control_period_s"]} s).
 
 The plants (`model` in `episodes.parquet`; the nominal ones are the runs' own, in train,
@@ -389,8 +406,14 @@ listed by episode and trajectory in `release.json`:
 """
 
 
-def baselines_card(table: dict[str, dict[str, Any]]) -> str:
-    """The card's table of every baseline on the frozen test split, all and calm episodes."""
+def baselines_card(
+    table: dict[str, dict[str, Any]],
+    robot: str = ROBOT_BEFORE,
+    joints: Sequence[str] = JOINTS_BEFORE,
+) -> str:
+    """The card's table of every baseline on the frozen test split, all and calm episodes, of
+    `robot`'s dataset (its `joints`)."""
+    averaged, first = span(mean_joints(joints)), span(joints[:PUBLISHED_JOINTS])
     labels = {
         "plant": "plant's own dynamics (the floor)",
         "rigid": "rigid prior (untrained)",
@@ -399,14 +422,14 @@ def baselines_card(table: dict[str, dict[str, Any]]) -> str:
         "## Baselines",
         "",
         "Inverse dynamics (q, q̇, `qdd_sg` → `u_motor`), each model fitted on the train split and "
-        "scored on the frozen test split: nMSE is the mean over A1-A6 of the MSE over the "
-        "measured torque's variance; RMSE is the mean over A1-A4, in N·m; calm: the test "
+        f"scored on the frozen test split: nMSE is the mean over {averaged} of the MSE over the "
+        f"measured torque's variance; RMSE is the mean over {first}, in N·m; calm: the test "
         "episodes whose `calm` is true. No learned model can beat the plant's own dynamics but "
         "by chance: only the sensors' noise separates it from the data.",
         "",
     ]
     variants = any("variants" in scores for scores in table.values())
-    header = "| model | nMSE all | nMSE calm | RMSE A1-A4 all (N·m) | RMSE A1-A4 calm (N·m) |"
+    header = f"| model | nMSE all | nMSE calm | RMSE {first} all (N·m) | RMSE {first} calm (N·m) |"
     header += " nMSE test_variants |" * variants
     lines += [f"{header} fit (s) |", "|---|---|---|---|---|" + "---|" * variants + "---|"]
     for kind, scores in table.items():
@@ -432,7 +455,8 @@ def baselines_card(table: dict[str, dict[str, Any]]) -> str:
         said.append(f"the best learned model's here ({best[0]}) is {best[1]['rmse_a1_a4']:.3g} N·m")
     if floor is not None:
         said.append(f"the floor's {floor['rmse_a1_a4']:.3g} N·m")
-    placed = "RMSE over A1-A4: " + " and ".join(said) + ". Set them" if said else "Set these RMSEs"
+    placed = f"RMSE over {first}: " + " and ".join(said) + ". Set them"
+    placed = placed if said else "Set these RMSEs"
     lines.append("")
     if best is not None and floor is not None and floor["nmse_mean"] > 0:
         ratio = best[1]["nmse_mean"] / floor["nmse_mean"]
@@ -441,12 +465,15 @@ def baselines_card(table: dict[str, dict[str, Any]]) -> str:
             f"({best[1]['nmse_mean']:.3g} against {floor['nmse_mean']:.3g}).",
             "",
         ]
-    lines += [
-        f"{placed[0].upper()}{placed[1:]} beside the {PUBLISHED_RMSE} N·m published for a model "
-        "learned on a real iiwa 14 (Çallar and Böttger, RA-L 2022): this is a simulated plant "
-        "with its noise, not that robot.",
-        "",
-    ]
+    if robot == PUBLISHED_ROBOT:  # the one published figure is of the iiwa 14
+        lines += [
+            f"{placed[0].upper()}{placed[1:]} beside the {PUBLISHED_RMSE} N·m published for a "
+            "model learned on a real iiwa 14 (Çallar and Böttger, RA-L 2022): this is a "
+            "simulated plant with its noise, not that robot.",
+            "",
+        ]
+    elif said:
+        lines += [f"{placed.removesuffix('. Set them')}.", ""]
     return "\n".join(lines)
 
 
