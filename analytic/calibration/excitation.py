@@ -1,15 +1,16 @@
 """Excitation references to record on a real arm, checked safe before anyone plays them.
 
-A twin is calibrated from episodes of the real iiwa 14 (`analytic calibrate`); `analytic excite`
-writes what the robot side plays to record them: fourier excitations (the identification
-standard, worker/reference.py: every joint moves, rest to rest, within the published limits)
-and the PD gains to track them with. Pure: numbers in; the checks, the files' bytes and the
+A twin is calibrated from episodes of the real arm (`analytic calibrate`; any gainfarm.robots
+arm, the iiwa 14 by default); `analytic excite` writes what the robot side plays to record them:
+fourier excitations (the identification standard, worker/reference.py: every joint moves, rest
+to rest, within the arm's published limits, about its home posture) and the PD gains to track
+them with. Pure: numbers in; the checks, the files' bytes and the
 README's text out. The command writes them.
 
 What is checked for each excitation, before anything is written:
 
 - its sampled reference stays within the data sheet's joint ranges, speeds and accelerations
-  (POSITION_LIMITS, SPEED_LIMITS, ACCELERATION_LIMITS), and starts and ends at rest: the fourier
+  (the robot's `limits`), and starts and ends at rest: the fourier
   kind is built that way, checked here anyway, since a real arm will follow it;
 - it moves every joint by MIN_SPAN at least: a short fourier reference shrinks into the
   acceleration limits until it excites nothing;
@@ -30,16 +31,12 @@ import numpy as np
 from mcap.writer import Writer
 from rosbags.typesys import Stores, get_typestore
 
+from gainfarm.analytic.data.arm import title
+from gainfarm.models import plant_preset, robot_of
 from gainfarm.schemas.episode import EpisodeSpec
-from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
+from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import schema_text
-from gainfarm.schemas.robot import (
-    ACCELERATION_LIMITS,
-    JOINT_NAMES,
-    POSITION_LIMITS,
-    SPEED_LIMITS,
-    PlantSpec,
-)
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec
 from gainfarm.schemas.trajectory import (
     CONTROL_PERIOD,
     CONTROL_PERIOD_NS,
@@ -59,7 +56,9 @@ MIN_SPAN = 0.05
 VARIANTS = 8
 # At rest: |q̇| and |q̈| at the reference's ends, rad/s and rad/s² (the series gives 1e-15).
 REST = 1e-6
-# The gains to record with: the factory gains (DEFAULT_GAINS) scaled down together. The factory
+# The gains to record with: the factory gains (the robot's default_gains) scaled down together,
+# measured on the iiwa 14 (its DEFAULT_GAINS; another arm's default gains follow the same rule
+# by torque class, and each excitation is checked stable on its own arm's plants). The factory
 # gains themselves are not stable on every plant the shipped ranges allow: on the 10 s fourier
 # excitations of seeds 0-99, each on the nominal plant and its 8 variants (900 loops), their
 # least damping is ≤ 0 on 161, mostly variants with a two-tick delay or heavy rotors (an
@@ -70,10 +69,18 @@ REST = 1e-6
 # 6-19 mm instead of 2-7 (seeds 0-1, three plants): calibration fits what the arm did, not
 # what it was asked to do.
 GAIN_SCALE = 0.3
-GAINS = PDGains(
-    kp=tuple(round(GAIN_SCALE * gain, 9) for gain in DEFAULT_GAINS.kp),
-    kd=tuple(round(GAIN_SCALE * gain, 9) for gain in DEFAULT_GAINS.kd),
-)
+
+
+def gains_for(robot: str = DEFAULT_ROBOT) -> PDGains:
+    """The gains to record `robot`'s excitations with: its default gains × GAIN_SCALE."""
+    factory = robot_of(robot).default_gains
+    return PDGains(
+        kp=tuple(round(GAIN_SCALE * gain, 9) for gain in factory.kp),
+        kd=tuple(round(GAIN_SCALE * gain, 9) for gain in factory.kd),
+    )
+
+
+GAINS = gains_for()  # the iiwa 14's
 
 TOPIC = "/joint_trajectory"
 MESSAGE_TYPE = "trajectory_msgs/msg/JointTrajectory"
@@ -99,6 +106,7 @@ class Excitation:
     gains: PDGains  # the controller it was checked with
     damping: float  # least damping ratio over the nominal plant and the variants
     plants: int  # how many plants that is over
+    robot: str = DEFAULT_ROBOT  # the arm it is for
 
     @property
     def name(self) -> str:
@@ -106,7 +114,7 @@ class Excitation:
 
     @property
     def span(self) -> np.ndarray:
-        """(7,) each joint's peak-to-peak motion, rad."""
+        """(N,) each joint's peak-to-peak motion, rad."""
         return np.ptp(self.reference.q, axis=0)
 
 
@@ -121,14 +129,19 @@ def trajectory(duration: float, seed: int) -> TrajectorySpec:
     return TrajectorySpec(kind=TrajectoryKind.fourier.value, duration=duration, seed=seed)
 
 
-def check_limits(index: int, trajectory: TrajectorySpec, reference: Reference) -> None:
-    """Unsafe, naming the joint and the limit, if the sampled reference leaves the robot's
+def check_limits(
+    index: int, trajectory: TrajectorySpec, reference: Reference, robot: str = DEFAULT_ROBOT
+) -> None:
+    """Unsafe, naming the joint and the limit, if the sampled reference leaves `robot`'s
     published limits or does not start and end at rest."""
     where = f"{name(index)} (seed {trajectory.seed})"
+    arm = robot_of(robot)
+    if reference.q.shape[1] != len(arm.joint_names):
+        raise Unsafe("--robot", f"{where} moves {reference.q.shape[1]} joints, not {robot}'s")
     for values, limits, what, unit in (
-        (reference.q, POSITION_LIMITS, "joint range", "rad"),
-        (reference.qd, SPEED_LIMITS, "speed limit", "rad/s"),
-        (reference.qdd, ACCELERATION_LIMITS, "acceleration limit", "rad/s²"),
+        (reference.q, arm.limits.position, "joint range", "rad"),
+        (reference.qd, arm.limits.speed, "speed limit", "rad/s"),
+        (reference.qdd, arm.limits.acceleration, "acceleration limit", "rad/s²"),
     ):
         peak = np.abs(values).max(axis=0)
         over = peak / np.asarray(limits)
@@ -136,7 +149,7 @@ def check_limits(index: int, trajectory: TrajectorySpec, reference: Reference) -
         if not over[joint] <= 1.0:  # a NaN is refused too (argmax finds the first)
             raise Unsafe(
                 "--seed",
-                f"{where} leaves the iiwa 14's published limits: {JOINT_NAMES[joint]} reaches "
+                f"{where} leaves {robot}'s published limits: {arm.joint_names[joint]} reaches "
                 f"{peak[joint]:.3f} {unit}, beyond its {what} of ±{limits[joint]:.3f} {unit}",
             )
     for tick, end in ((0, "start"), (-1, "end")):
@@ -145,14 +158,17 @@ def check_limits(index: int, trajectory: TrajectorySpec, reference: Reference) -
             raise Unsafe("--seed", f"{where} does not {end} at rest (|q̇|, |q̈| up to {moving:.3g})")
 
 
-def check_span(index: int, trajectory: TrajectorySpec, reference: Reference) -> None:
+def check_span(
+    index: int, trajectory: TrajectorySpec, reference: Reference, robot: str = DEFAULT_ROBOT
+) -> None:
     """Unsafe, naming --duration and the joint, if a joint moves less than MIN_SPAN."""
     span = np.ptp(reference.q, axis=0)
     joint = int(np.argmin(span))
     if span[joint] < MIN_SPAN:
         raise Unsafe(
             "--duration",
-            f"{trajectory.duration:g} s is too short to excite {JOINT_NAMES[joint]}: "
+            f"{trajectory.duration:g} s is too short to excite "
+            f"{robot_of(robot).joint_names[joint]}: "
             f"{name(index)} (seed {trajectory.seed}) moves it {span[joint]:.3f} rad peak to peak, "
             f"less than {MIN_SPAN:g} rad (a fourier reference shrinks into the acceleration limits "
             "as it gets shorter); give a longer --duration",
@@ -166,11 +182,13 @@ def check_stable(
     reference: Reference,
     variants: Sequence[PlantSpec],
     ranges: str,
+    robot: str = DEFAULT_ROBOT,
 ) -> float:
-    """The least damping of `gains`' closed loop along the reference over the nominal plant
-    and `variants` (drawn from `ranges`, named so); Unsafe naming the plant if it is ≤ 0."""
+    """The least damping of `gains`' closed loop along the reference over `robot`'s nominal
+    plant and `variants` (drawn from `ranges`, named so); Unsafe naming the plant if it is
+    ≤ 0."""
     least = 1.0
-    for number, plant in enumerate((PlantSpec(), *variants)):
+    for number, plant in enumerate((nominal(robot), *variants)):
         damping = least_damping(
             EpisodeSpec(gains=gains, trajectory=trajectory, plant=plant), reference
         )
@@ -192,39 +210,49 @@ def check_stable(
     return least
 
 
+def nominal(robot: str = DEFAULT_ROBOT) -> PlantSpec:
+    """The realistic plant of `robot`: the arm as documented, which the variants surround."""
+    return plant_preset("realistic", robot)
+
+
 def excitation(
     index: int,
     trajectory: TrajectorySpec,
     variants: Sequence[PlantSpec],
     ranges: str,
-    gains: PDGains = GAINS,
+    gains: PDGains | None = None,
+    robot: str = DEFAULT_ROBOT,
 ) -> Excitation:
-    """Excitation `index` of `trajectory`, every check passed (Unsafe otherwise)."""
+    """Excitation `index` of `trajectory` on `robot`, every check passed (Unsafe otherwise);
+    `gains` by default `gains_for(robot)`."""
+    gains = gains_for(robot) if gains is None else gains
     try:
-        reference = reference_for(trajectory)
+        reference = reference_for(trajectory, robot)
     except (UnreachablePath, InfeasibleReference) as error:  # its own guarantee of the ranges
         raise Unsafe("--seed", f"{name(index)} (seed {trajectory.seed}): {error}") from None
-    check_limits(index, trajectory, reference)
-    check_span(index, trajectory, reference)
-    damping = check_stable(index, gains, trajectory, reference, variants, ranges)
-    return Excitation(index, trajectory, reference, gains, damping, 1 + len(variants))
+    check_limits(index, trajectory, reference, robot)
+    check_span(index, trajectory, reference, robot)
+    damping = check_stable(index, gains, trajectory, reference, variants, ranges, robot)
+    return Excitation(index, trajectory, reference, gains, damping, 1 + len(variants), robot)
 
 
 # --- the files ----------------------------------------------------------------------------------
 
 
 def gains_json(gains: PDGains = GAINS) -> bytes:
-    """controller.json: {"kp": [7], "kd": [7]}, as `worker episode --gains` reads it."""
+    """controller.json: {"kp": [N], "kd": [N]}, as `worker episode --gains` reads it."""
     return (json.dumps(gains.model_dump(mode="json")) + "\n").encode()
 
 
 def document(excitation: Excitation) -> dict[str, object]:
-    """excitation-NN.json's object: what it is, then the reference, one 7-list per tick."""
+    """excitation-NN.json's object: what it is, then the reference, one N-list per tick."""
     reference = excitation.reference
+    robot = robot_of(excitation.robot)
     return {
         "trajectory": excitation.trajectory.model_dump(mode="json"),
         "control_period": CONTROL_PERIOD,
-        "joint_names": list(JOINT_NAMES),
+        "robot": robot.name,
+        "joint_names": list(robot.joint_names),
         "gains": excitation.gains.model_dump(mode="json"),
         "t": reference.t.tolist(),
         "positions": reference.q.tolist(),
@@ -266,7 +294,8 @@ def trajectory_mcap(excitation: Excitation) -> bytes:
     header = types["std_msgs/msg/Header"](
         stamp=types["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""
     )
-    message = types[MESSAGE_TYPE](header=header, joint_names=list(JOINT_NAMES), points=points)
+    joints = list(robot_of(excitation.robot).joint_names)
+    message = types[MESSAGE_TYPE](header=header, joint_names=joints, points=points)
     data = bytes(store.serialize_cdr(message, MESSAGE_TYPE))
     out = io.BytesIO()
     writer = Writer(out)
@@ -281,6 +310,7 @@ def trajectory_mcap(excitation: Excitation) -> bytes:
         {
             "trajectory": excitation.trajectory.model_dump_json(),
             "control_period": repr(CONTROL_PERIOD),
+            "robot": excitation.robot,
         },
     )
     writer.finish()
@@ -288,7 +318,7 @@ def trajectory_mcap(excitation: Excitation) -> bytes:
 
 
 README = Template("""\
-# Excitation episodes for calibrating a twin of your iiwa 14
+# Excitation episodes for calibrating a twin of your $arm
 
 Written by `$command`: $count fourier excitations of $duration s each, to play and record on
 the real arm. `analytic calibrate` then fits a simulation twin to the recordings.
@@ -296,13 +326,14 @@ the real arm. `analytic calibrate` then fits a simulation twin to the recordings
 ## The files
 
 - `excitation-NN.json` (NN = 00 to $last): one reference at 500 Hz (every 2 ms), for joints
-  A1..A7: `t` (s), and one 7-list per tick of `positions` (rad), `velocities` (rad/s) and
+  $joints: `t` (s), and one $count_joints-list per tick of `positions` (rad), `velocities`
+  (rad/s) and
   `accelerations` (rad/s²); `trajectory` is the fourier trajectory it samples (seed $first + NN),
   `gains` the controller's.
 - `excitation-NN.mcap`: the same reference as one ROS 2 `trajectory_msgs/msg/JointTrajectory`
   message on `/joint_trajectory`, a point per tick, `time_from_start` its time.
 - `controller.json`: the PD gains to play them with$which: Kp $kp N·m/rad,
-  Kd $kd N·m·s/rad (A1..A7).
+  Kd $kd N·m·s/rad ($joints).
 
 ## What to record
 
@@ -310,24 +341,22 @@ For each excitation:
 
 1. Bring the arm to the reference's first point ($start) and let it come to rest.
 2. Run the PD law at 500 Hz, u = Kp (q_des − q) + Kd (q̇_des − q̇) per joint, on the measured
-   joint angles q (FRI reports no velocity: q̇ is the mean of the last $window differences of q
-   over 2 ms, as in the simulation), in KUKA FRI torque mode: the robot adds its own gravity
-   compensation, u is the torque commanded on top of it.
+   joint angles q (q̇ is the mean of the last $window differences of q over 2 ms, as in the
+   simulation), in $interface.
 3. Play the reference from its first point to its last, one point per tick: it starts and ends
    at rest.
-4. Record at 500 Hz, in a ROS 2 bag or an MCAP file (one per excitation), joints named A1..A7,
-   as `sensor_msgs/JointState` messages:
+4. Record at 500 Hz, in a ROS 2 bag or an MCAP file (one per excitation), joints named
+   $joints, as `sensor_msgs/JointState` messages:
    - `/joint_states`: position (rad), velocity (rad/s) and effort, the measured joint torque
      (N·m);
-   - `/joint_commands`: effort, the commanded torque u: what the controller sent, on top of the
-     robot's gravity compensation (N·m);
+   - `/joint_commands`: effort, the commanded torque u: what the controller sent$on_top (N·m);
    - `/motor_states`: position, the motor-side angles (rad), if the arm reports them.
 
-Then: `analytic calibrate LOG... --out TWIN`, the recordings as LOG.
+Then: `analytic calibrate LOG... --robot $robot --out TWIN`, the recordings as LOG.
 
 ## What was checked
 
-Each reference stays within the iiwa 14's published joint ranges, speeds and accelerations,
+Each reference stays within the $arm's published joint ranges, speeds and accelerations,
 starts and ends at rest, and moves every joint by $min_span rad at least ($span rad here). The
 controller's closed loop, linearised at poses along each reference, is stable on the nominal
 simulated plant and on $variants plants per excitation drawn from $ranges: its least damping
@@ -381,23 +410,38 @@ def readme(excitations: Sequence[Excitation], command: str, ranges: str) -> str:
     """README.md: what the files are, how to record them, what was checked (the numbers)."""
     first, worst = excitations[0], min(excitations, key=lambda e: e.damping)
     gains = first.gains
+    arm = robot_of(first.robot)
+    joints = _joint_list(arm.joint_names)
     starts = {tuple(e.reference.q[0].round(4)) for e in excitations}
     start = (
-        "`positions[0]`, A1..A7 at " + ", ".join(f"{angle:g}" for angle in starts.pop()) + " rad"
+        f"`positions[0]`, {joints} at " + ", ".join(f"{angle:g}" for angle in starts.pop()) + " rad"
         if len(starts) == 1
         else "each excitation's `positions[0]`"
     )
+    interface = arm.torque_interface
     text = README.substitute(
+        arm=title(arm.name),
+        robot=arm.name,
+        joints=joints,
+        count_joints=len(arm.joint_names),
+        interface=(
+            f"{interface.name}: the robot adds its own gravity compensation, u is the torque "
+            "commanded on top of it"
+            if interface.adds_gravity
+            else f"{interface.name}: u is the whole torque commanded (the robot adds no gravity "
+            "compensation of its own)"
+        ),
+        on_top=", on top of the robot's gravity compensation" * interface.adds_gravity,
         command=command,
         count=len(excitations),
         duration=f"{first.trajectory.duration:g}",
         last=name(excitations[-1].index).removeprefix("excitation-"),
         first=first.trajectory.seed,
-        which=f", the factory gains × {GAIN_SCALE:g}" if gains == GAINS else "",
+        which=f", the factory gains × {GAIN_SCALE:g}" if gains == gains_for(arm.name) else "",
         kp=", ".join(f"{gain:g}" for gain in gains.kp),
         kd=", ".join(f"{gain:g}" for gain in gains.kd),
         start=start,
-        window=PlantSpec().sensors.velocity_window,
+        window=nominal(arm.name).sensors.velocity_window,
         min_span=f"{MIN_SPAN:g}",
         span=f"{min(float(e.span.min()) for e in excitations):.2f}",
         variants=worst.plants - 1,
@@ -406,3 +450,10 @@ def readme(excitations: Sequence[Excitation], command: str, ranges: str) -> str:
         where=f"{worst.name}",
     )
     return wrapped(text)
+
+
+def _joint_list(joints: Sequence[str]) -> str:
+    """The joints as the README names them: A1..A7, or each of them."""
+    if all(joint == f"A{i}" for i, joint in enumerate(joints, start=1)):
+        return f"{joints[0]}..{joints[-1]}"
+    return ", ".join(joints)

@@ -14,12 +14,13 @@ import numpy as np
 from pydantic import ValidationError
 
 from gainfarm.analytic.calibration.logs import BadLog, Recording
+from gainfarm.models import robot_of
 from gainfarm.schemas.controller import Controller
 from gainfarm.schemas.documents import BadDocument, load_json, read_bounded
 from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec, Scores
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.robot import TORQUE_LIMITS, PlantSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.worker.reference import flange_positions, reference_for
 
@@ -28,8 +29,8 @@ from gainfarm.worker.reference import flange_positions, reference_for
 class Gap:
     """One logged episode against its replay on one plant."""
 
-    q: np.ndarray  # (7,) RMS of q error, rad
-    torque: np.ndarray  # (7,) RMS of joint torque error, N·m
+    q: np.ndarray  # (N,) RMS of q error per joint, rad
+    torque: np.ndarray  # (N,) RMS of joint torque error, N·m
     f_acc: float  # the replay's (the plant's prediction), m
     f_t: float  # (N·m)²
     logged_f_acc: float  # the arm's
@@ -132,7 +133,7 @@ def played_by(recording: Recording, played: Sequence[Played]) -> Played:
         )
     distances = []
     for item in played:
-        reference = reference_for(item.trajectory)
+        reference = reference_for(item.trajectory, recording.robot)
         n = min(len(reference.q), recording.ticks)
         distances.append(float(np.sqrt(np.mean((recording.q[:n] - reference.q[:n]) ** 2))))
     best = int(np.argmin(distances))
@@ -149,7 +150,8 @@ def as_episode(recording: Recording, played: Played, nominal: PlantSpec) -> Epis
     arm's (the flange by the arm's kinematics from its angles), scored as any episode is. The
     commanded torque stands for the applied one: the objectives of torque change do not see the
     delay between them."""
-    reference = reference_for(played.trajectory)
+    reference = reference_for(played.trajectory, nominal.robot)
+    arm = robot_of(nominal)
     n = min(len(reference.q), recording.ticks)
     spec = EpisodeSpec(gains=played.gains, trajectory=played.trajectory, plant=nominal)
     theta = recording.theta if recording.theta is not None else recording.q
@@ -164,13 +166,15 @@ def as_episode(recording: Recording, played: Played, nominal: PlantSpec) -> Epis
         theta_d=theta_d[:n],
         q_des=np.asarray(reference.q[:n]),
         qd_des=np.asarray(reference.qd[:n]),
-        ee=flange_positions(recording.q[:n]),
+        ee=flange_positions(recording.q[:n], nominal.robot),
         ee_des=np.asarray(reference.ee[:n]),
         metadata=EpisodeMetadata(
             spec=spec,
             ticks_planned=len(reference.q),
             ticks_run=n,
-            torque_limits=TORQUE_LIMITS,
+            torque_limits=arm.limits.torque,
+            joint_names=arm.joint_names,
+            speed_limits=arm.limits.speed,
             diverged=False,
             versions={"recorded": recording.name},
         ),

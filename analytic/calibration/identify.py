@@ -1,7 +1,8 @@
 """What an arm's logs tell of its plant: linear least squares on the elastic joint's equations.
 
-The plant is Spong's elastic joint behind the robot's torque interface (models/iiwa14.py). Per
-joint, with θ the motor angle, q the link angle and τ_J the torque sensor's reading:
+The plant is Spong's elastic joint behind the robot's torque interface (models/iiwa14.py), of
+any arm (the nominal plant names it: its joints, torque limits and rated payload). Per joint,
+with θ the motor angle, q the link angle and τ_J the torque sensor's reading:
 
     motor side:  B θ̈ + F_v θ̇ + F_c tanh(θ̇_measured / s) = τ_command(t − delay) + g_robot − τ_J
     spring:      τ_J = K (θ − q) + D (θ̇ − q̇)
@@ -34,12 +35,11 @@ from scipy.optimize import lsq_linear
 from scipy.signal import savgol_filter
 
 from gainfarm.analytic.calibration.logs import Recording
-from gainfarm.models import compile_model, min_substeps
-from gainfarm.schemas.robot import JOINT_NAMES, TORQUE_LIMITS, PlantSpec
+from gainfarm.models import compile_model, min_substeps, resolve, robot_of
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 from gainfarm.worker.plant import RobotGravity
 
-N = len(JOINT_NAMES)
 WINDOW, ORDER = 41, 3  # Savitzky-Golay: 82 ms, cubic; passes the excitation, not the springs' ring
 # Ticks left out: at the start the arm settles from rest with its springs relaxed (a transient
 # of the simulation's start, not of the arm), at both ends the filter's edge.
@@ -122,7 +122,15 @@ def identify(
     recordings: Sequence[Recording], nominal: PlantSpec, seed: int = 0, resamples: int = BOOTSTRAP
 ) -> Fit:
     """Fit the plant's numbers to `recordings`; `nominal` gives the robot's own model (its
-    gravity compensation), the friction's smoothing and every number the logs cannot tell."""
+    gravity compensation), the friction's smoothing and every number the logs cannot tell; its
+    robot is the arm the recordings are of."""
+    nominal = resolve(nominal)  # every per-joint number written out: the robot's own
+    joints = len(robot_of(nominal).joint_names)
+    for recording in recordings:
+        if recording.q.shape[1] != joints:
+            raise ValueError(
+                f"{recording.name}: {recording.q.shape[1]} joints, {nominal.robot} has {joints}"
+            )
     rng = np.random.default_rng([seed, 0x63616C6962])  # "calib": its own stream
     weights = rng.multinomial(len(recordings), [1 / len(recordings)] * len(recordings), resamples)
     signals = [_Signals(recording, nominal) for recording in recordings]
@@ -215,7 +223,8 @@ def _motor_side(
     Linear in B, F_v and F_c for a given delay and smoothing; each of those two is the one whose
     least squares leave the least residual (a profile): the delay at the nominal smoothing, the
     smoothing at that delay, the delay again at the smoothing found."""
-    limits = np.asarray(TORQUE_LIMITS)
+    limits = np.asarray(robot_of(nominal).limits.torque)
+    n = len(limits)
     fri = nominal.interface == "fri"
     gravity = RobotGravity(nominal) if fri else None
     # What does not depend on the delay or the smoothing, per episode.
@@ -235,11 +244,11 @@ def _motor_side(
 
     def sums(delays: Sequence[int], smoothing: float) -> np.ndarray:
         """[delay, episode, joint] normal equations of B, F_v, F_c at `smoothing`."""
-        out = np.empty((len(delays), len(signals), N, 4, 4))
+        out = np.empty((len(delays), len(signals), n, 4, 4))
         for e, s in enumerate(signals):
             coulomb = s.smooth(np.tanh(rates[e] / smoothing))
             for i, d in enumerate(delays):
-                for j in range(N):
+                for j in range(n):
                     rows = np.column_stack(
                         [inertial[e][0][:, j], inertial[e][1][:, j], coulomb[:, j]]
                     )
@@ -263,9 +272,11 @@ def _motor_side(
 def _least_residual(sums: np.ndarray, w: np.ndarray) -> int:
     """Which of sums' first axis (candidates) leaves the least residual, each joint's relative
     to its best (no joint's torque scale outweighs another's), with episodes weighted `w`."""
+    joints = sums.shape[2]
     residuals = np.array(
-        [[_solve(np.tensordot(w, sums[c, :, j], 1))[1] for j in range(N)] for c in range(len(sums))]
-    )
+        [[_solve(np.tensordot(w, sums[c, :, j], 1))[1] for j in range(joints)]
+         for c in range(len(sums))]
+    )  # fmt: skip
     return int((residuals / residuals.min(axis=0)).sum(axis=1).argmin())
 
 
@@ -293,8 +304,9 @@ def _smoothing(
     neighbours in the logarithm; bootstrapped over episodes."""
 
     def totals(per_episode: np.ndarray, w: np.ndarray) -> np.ndarray:
+        joints = per_episode.shape[2]
         residuals = np.array(
-            [[_solve(np.tensordot(w, per_episode[g, :, j], 1))[1] for j in range(N)]
+            [[_solve(np.tensordot(w, per_episode[g, :, j], 1))[1] for j in range(joints)]
              for g in range(len(per_episode))]
         )  # fmt: skip
         return (residuals / residuals.min(axis=0)).sum(axis=1)
@@ -332,12 +344,13 @@ def _spring(
             _untold(nominal.stiffness, "no motor-side angles in the logs"),
             _untold(nominal.spring_damping, "no motor-side angles in the logs"),
         )
-    sums = np.empty((len(signals), N, 3, 3))
+    n = len(nominal.rotor_inertia)  # type: ignore[arg-type]
+    sums = np.empty((len(signals), n, 3, 3))
     for e, s in enumerate(signals):
         deflection = s.smooth(s.deflection)
         rate = s.smooth(s.theta_d - s.qd)
         target = s.smooth(s.recording.tau)
-        for j in range(N):
+        for j in range(n):
             sums[e, j] = _normal(np.column_stack([deflection[:, j], rate[:, j]]), target[:, j])
     return _estimates(sums, weights, ("stiffness", "spring_damping"), nominal)  # type: ignore[return-value]
 
@@ -346,6 +359,7 @@ def _link_side(
     signals: Sequence[_Signals], weights: np.ndarray, nominal: PlantSpec
 ) -> tuple[Estimate, Estimate]:
     """The links' mass scales and a payload, bounded positive, from the link-side torques."""
+    N = len(nominal.rotor_inertia)  # type: ignore[arg-type]  # the joints, N as in the docstring
     base = nominal.model_copy(
         update={
             "joints": "rigid",
@@ -359,7 +373,7 @@ def _link_side(
     )
     # The inverse dynamics is linear in each link's scale and in the payload's mass: each
     # column is the torque one more unit of it adds.
-    variants = [base.model_copy(update={"mass_scale": _unit(i)}) for i in range(N)]
+    variants = [base.model_copy(update={"mass_scale": _unit(i, N)}) for i in range(N)]
     variants.append(base.model_copy(update={"payload": 1.0}))
     p = N + 1
     sums = np.zeros((len(signals), N, p + 1, p + 1))
@@ -373,10 +387,10 @@ def _link_side(
     # One arm for every joint's equation: the joints' sums stacked.
     total = sums.sum(axis=1)  # (episodes, p + 1, p + 1)
     # Unknowns: each scale's change from 1 (a link at least 5 % of its model's mass, at most
-    # 20 times it) and the payload (at most the data sheet's rated 14 kg).
+    # 20 times it) and the payload (at most the data sheet's rated payload: 14 kg, the iiwa 14's).
     shift = np.r_[np.ones(N), 0.0]
     lower = np.r_[np.full(N, 0.05), 0.0] - shift
-    upper = np.r_[np.full(N, 20.0), 14.0] - shift
+    upper = np.r_[np.full(N, 20.0), robot_of(nominal).rated_payload] - shift
 
     # The distal links' gravity torques look alike, so their masses trade against each other
     # and the payload: their combination fits the torques to a few hundredths of a N·m while
@@ -406,12 +420,12 @@ def _link_side(
     )
 
 
-def _unit(i: int) -> tuple[float, ...]:
-    return tuple(2.0 if k == i else 1.0 for k in range(N))
+def _unit(i: int, joints: int) -> tuple[float, ...]:
+    return tuple(2.0 if k == i else 1.0 for k in range(joints))
 
 
 def _inverse(spec: PlantSpec, s: _Signals) -> np.ndarray:
-    """(n, 7) joint torques of the rigid arm `spec` along the recording's link motion."""
+    """(n, N) joint torques of the rigid arm `spec` along the recording's link motion."""
     model = compile_model(spec)
     data = mujoco.MjData(model)
     out = np.empty_like(s.q)
@@ -427,10 +441,10 @@ def _estimates(
 ) -> tuple[Estimate, ...]:
     """Per joint least squares of summed normal equations `sums` (episodes, joints, p+1, p+1),
     with a bootstrap over episodes; one Estimate per parameter, named as PlantSpec's fields."""
-    p = len(names)
-    fits, spreads, explained = np.empty((N, p)), np.empty((N, p)), np.empty(N)
-    signal = np.empty((N, p))
-    for j in range(N):
+    p, joints = len(names), sums.shape[1]
+    fits, spreads, explained = np.empty((joints, p)), np.empty((joints, p)), np.empty(joints)
+    signal = np.empty((joints, p))
+    for j in range(joints):
         summed = sums[:, j].sum(axis=0)
         x, residual, total = _solve(summed)
         boot = np.array([_solve(np.tensordot(w, sums[:, j], 1))[0] for w in weights])
@@ -458,7 +472,8 @@ def _estimates(
 def _nominal(nominal: PlantSpec, name: str) -> tuple[float, ...]:
     if name in ("viscous", "coulomb"):
         friction = nominal.friction
-        return tuple(getattr(friction, name)) if friction is not None else (0.0,) * N
+        joints = len(nominal.rotor_inertia)  # type: ignore[arg-type]
+        return tuple(getattr(friction, name)) if friction is not None else (0.0,) * joints
     return tuple(getattr(nominal, name))
 
 

@@ -7,6 +7,9 @@ names the controller that ran (its gains, its reference, the side it fed back, t
 what a user of a real arm knows too. The plant's numbers in that metadata are never read: a
 hidden arm's log must not tell calibration the answer.
 
+A recording is of one arm (`robot`, the iiwa 14 by default): a bag's joints are read in that
+arm's order, and an episode log of another arm is refused.
+
 One thing differs: gainfarm logs the command as the motors applied it (after the delay), a real
 arm's client logs what it sent. The PD law and the logged measurements give back what was sent.
 """
@@ -18,10 +21,11 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 from rosbags.highlevel import AnyReader
 
+from gainfarm.models import robot_of
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, check_chunks, read_episode
-from gainfarm.schemas.robot import JOINT_NAMES, SPEED_LIMITS
+from gainfarm.schemas.robot import DEFAULT_ROBOT
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, CONTROL_PERIOD_NS, TrajectorySpec
 
 if TYPE_CHECKING:
@@ -43,7 +47,8 @@ class UnreadableBag(BadLog):
 
 @dataclass(frozen=True)
 class Recording:
-    """One episode of an arm, every array (n, 7) at the 500 Hz control rate, SI units."""
+    """One episode of an arm, every array (n, N) at the 500 Hz control rate, SI units (N the
+    arm's joints)."""
 
     name: str
     q: np.ndarray  # measured link-side angles
@@ -56,6 +61,7 @@ class Recording:
     # What ran, if known: replaying the episode through a plant needs both.
     gains: PDGains | None = None
     trajectory: TrajectorySpec | None = None
+    robot: str = DEFAULT_ROBOT  # the arm it is of
 
     @property
     def ticks(self) -> int:
@@ -78,16 +84,18 @@ class Topics:
     motor_states: str = "/motor_states"  # position, velocity of the motors; optional
 
 
-def read_recording(path: Path, topics: Topics = Topics()) -> Recording:
-    """One episode: a gainfarm episode log, or else a ROS 2 bag (a directory, or an MCAP or
-    SQLite file) a robot recorded; BadLog in one line naming the file."""
-    log = read_log(path, topics)
-    return _from_episode(Path(path), log) if isinstance(log, EpisodeLog) else log
+def read_recording(path: Path, topics: Topics = Topics(), robot: str = DEFAULT_ROBOT) -> Recording:
+    """One episode of `robot`: a gainfarm episode log, or else a ROS 2 bag (a directory, or an
+    MCAP or SQLite file) a robot recorded; BadLog in one line naming the file."""
+    log = read_log(path, topics, robot)
+    return _from_episode(Path(path), log, robot) if isinstance(log, EpisodeLog) else log
 
 
-def read_log(path: Path, topics: Topics = Topics()) -> "EpisodeLog | Recording":
-    """The file as it is: a gainfarm episode log, or else a robot's ROS 2 bag's recording,
-    each read once; BadLog in one line naming the file."""
+def read_log(
+    path: Path, topics: Topics = Topics(), robot: str = DEFAULT_ROBOT
+) -> "EpisodeLog | Recording":
+    """The file as it is: a gainfarm episode log, or else a robot's ROS 2 bag's recording (of
+    `robot`'s joints), each read once; BadLog in one line naming the file."""
     path = Path(path)
     name = str(path)
     if not path.exists():
@@ -106,7 +114,7 @@ def read_log(path: Path, topics: Topics = Topics()) -> "EpisodeLog | Recording":
             if not _rosbag(path):
                 raise BadLog(f"{name!r}: {reason}") from None
         try:
-            return read_bag(path, topics)
+            return read_bag(path, topics, robot)
         except UnreadableBag as error:
             # An MCAP file that is neither: a truncated episode log as likely as a broken bag,
             # so both readers' reasons.
@@ -114,7 +122,7 @@ def read_log(path: Path, topics: Topics = Topics()) -> "EpisodeLog | Recording":
                 f"{name!r}: neither an episode log ({reason}) nor a ROS 2 bag rosbags can read "
                 f"({error.reason})"
             ) from None
-    return read_bag(path, topics)
+    return read_bag(path, topics, robot)
 
 
 def _check_bounds(path: Path) -> None:
@@ -146,8 +154,13 @@ def _rosbag(path: Path) -> bool:
     return head.startswith(b"\x89MCAP") or head.startswith(b"SQLite format 3")
 
 
-def _from_episode(path: Path, log: EpisodeLog) -> Recording:
+def _from_episode(path: Path, log: EpisodeLog, robot: str = DEFAULT_ROBOT) -> Recording:
     spec = log.metadata.spec
+    if spec.plant.robot != robot:  # the arm's name is the user's to know, not the plant's numbers
+        raise BadLog(
+            f"{str(path)!r}: an episode of {spec.plant.robot}, not of {robot} (--robot names "
+            "the arm the logs are of)"
+        )
     if log.metadata.diverged:
         raise BadLog(f"{str(path)!r}: the episode diverged ({log.metadata.divergence})")
     if log.metadata.control_period != CONTROL_PERIOD:
@@ -179,6 +192,7 @@ def _from_episode(path: Path, log: EpisodeLog) -> Recording:
         fed_back=side,
         gains=spec.gains,
         trajectory=spec.trajectory,
+        robot=robot,
     )
 
 
@@ -192,12 +206,13 @@ JUMP = 3.0
 JOINT_STATE = "sensor_msgs/msg/JointState"
 
 
-def read_bag(path: Path, topics: Topics = Topics()) -> Recording:
+def read_bag(path: Path, topics: Topics = Topics(), robot: str = DEFAULT_ROBOT) -> Recording:
     """One episode a robot recorded as a ROS 2 bag: its joint states, commanded torques and, if
     logged, motor states, each `sensor_msgs/JointState` at the plant's 500 Hz (a bag at an
     integer multiple of it, 1 kHz say, is taken every k-th message); BadLog in one line naming
-    the file and what is missing or wrong."""
+    the file and what is missing or wrong. Its joints are `robot`'s, named so or in its order."""
     name = str(path)
+    joints = robot_of(robot).joint_names
     _check_bounds(Path(path))
     try:
         with AnyReader([Path(path)]) as reader:
@@ -215,7 +230,9 @@ def read_bag(path: Path, topics: Topics = Topics()) -> Recording:
                     raise BadLog(
                         f"{name!r}: {topic} holds {found[topic].msgtype}, not {JOINT_STATE}"
                     )
-            columns = {role: _joint_states(reader, found[topic]) for role, topic in wanted.items()}
+            columns = {
+                role: _joint_states(reader, found[topic], joints) for role, topic in wanted.items()
+            }
     except BadLog:
         raise
     except Exception as error:  # rosbags' errors have no common base: any is the file's fault
@@ -234,7 +251,7 @@ def read_bag(path: Path, topics: Topics = Topics()) -> Recording:
     step = _step(name, topics.joint_states, states.stamps)
     ticks = _ticks(name, topics.joint_states, states.stamps, step)
     q = states.position[ticks]
-    _no_jumps(name, topics.joint_states, q, states.stamps[ticks])
+    _no_jumps(name, topics.joint_states, q, states.stamps[ticks], robot)
     command = _aligned(name, topics.commands, commands, states.stamps[ticks]).effort
     motor = columns.get("motor_states")
     theta = theta_d = None
@@ -262,6 +279,7 @@ def read_bag(path: Path, topics: Topics = Topics()) -> Recording:
         theta=theta,
         theta_d=theta_d,
         fed_back="motor" if theta is not None else "link",
+        robot=robot,
     )
 
 
@@ -275,25 +293,30 @@ _ROLES = {
 @dataclass(frozen=True)
 class _States:
     stamps: np.ndarray  # (n,) int64 ns
-    position: np.ndarray  # (n, 7)
+    position: np.ndarray  # (n, N)
     velocity: np.ndarray | None
     effort: np.ndarray | None
 
 
-def _joint_states(reader: "AnyReader", connection: "Connection") -> _States:
-    """Every message of one JointState topic, its joints in A1..A7 order if so named, else in
-    the order the messages list them (seven of them)."""
+def _joint_states(
+    reader: "AnyReader", connection: "Connection", joints: tuple[str, ...]
+) -> _States:
+    """Every message of one JointState topic, its joints in the arm's order (`joints`) if so
+    named, else in the order the messages list them (as many as the arm has)."""
     stamps, rows = [], {"position": [], "velocity": [], "effort": []}
     order = None
     for _, time, raw in reader.messages(connections=[connection]):
         message = reader.deserialize(raw, connection.msgtype)
         if order is None:
             names = list(message.name)
-            if len(names) != len(JOINT_NAMES):
-                raise BadLog(f"{connection.topic} names {len(names)} joints, the iiwa has 7")
+            if len(names) != len(joints):
+                raise BadLog(
+                    f"{connection.topic} names {len(names)} joints, the arm has {len(joints)} "
+                    f"({', '.join(joints)}): --robot names the arm"
+                )
             order = (
-                [names.index(joint) for joint in JOINT_NAMES]
-                if set(names) == set(JOINT_NAMES)
+                [names.index(joint) for joint in joints]
+                if set(names) == set(joints)
                 else list(range(len(names)))
             )
         stamp = message.header.stamp
@@ -341,18 +364,21 @@ def _ticks(name: str, topic: str, stamps: np.ndarray, step: int) -> np.ndarray:
     return np.arange(0, len(stamps), step)
 
 
-def _no_jumps(name: str, topic: str, q: np.ndarray, stamps: np.ndarray) -> None:
+def _no_jumps(
+    name: str, topic: str, q: np.ndarray, stamps: np.ndarray, robot: str = DEFAULT_ROBOT
+) -> None:
     if not np.isfinite(q).all():
         raise BadLog(f"{name!r}: {topic} has positions that are not numbers")
-    bound = JUMP * np.asarray(SPEED_LIMITS) * CONTROL_PERIOD
+    arm = robot_of(robot)
+    bound = JUMP * np.asarray(arm.limits.speed) * CONTROL_PERIOD
     moves = np.abs(np.diff(q, axis=0)) > bound
     if moves.any():
         tick, joint = np.argwhere(moves)[0]
         size = abs(q[tick + 1, joint] - q[tick, joint])
         at = (stamps[tick + 1] - stamps[0]) / 1e9
         raise BadLog(
-            f"{name!r}: {topic} jumps {size:.3g} rad in {JOINT_NAMES[joint]} at t = {at:.3f} s, "
-            f"more than {JUMP:g} times its speed limit allows in a tick"
+            f"{name!r}: {topic} jumps {size:.3g} rad in {arm.joint_names[joint]} at "
+            f"t = {at:.3f} s, more than {JUMP:g} times its speed limit allows in a tick"
         )
 
 

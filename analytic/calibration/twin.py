@@ -5,6 +5,9 @@ tuning on the twin (`analytic start --plant TWIN --plants K`) draws its variants
 calibration could not pin down rather than from the project's assumptions: a number the logs
 told spans SPREAD bootstrap standard deviations each way (at least FLOOR), per joint; one they
 could not tell keeps the shipped range and its source.
+
+A twin is of one arm: its plant names the robot (and its calibration record says it again), and
+it stands for no other (`for_robot`: refused in one line).
 """
 
 import hashlib
@@ -18,32 +21,57 @@ import tomli_w
 
 from gainfarm.analytic.calibration.identify import FLOOR, SPREAD, Estimate, Fit
 from gainfarm.analytic.tuning.plants import Range, ranges
+from gainfarm.models import robot_of
 from gainfarm.schemas.plant_file import PlantFile
-from gainfarm.schemas.robot import PlantSpec
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec
 
 # The ranges a calibration replaces where it tells the numbers: each is the Fit's estimate of
 # the same name.
 CALIBRATED = ("rotor_inertia", "stiffness", "spring_damping", "coulomb", "viscous")
 
 
+class OtherArm(ValueError):
+    """A twin (a plant file) of one arm given for another: the message is one line."""
+
+
+def for_robot(plant: PlantSpec, robot: str, option: str = "--plant") -> PlantSpec:
+    """`plant` (a twin's, a plant file's) if it is of `robot`; else OtherArm, one line naming
+    `option`: a twin's numbers are one arm's joints, links and motors, no other's."""
+    if plant.robot != robot:
+        raise OtherArm(
+            f"{option}: a twin of {plant.robot} cannot stand for {robot} (calibrate {robot}'s "
+            f"own logs: analytic calibrate --robot {robot})"
+        )
+    return plant
+
+
+def shipped_ranges(robot: str) -> dict[str, Range]:
+    """The uncertainty ranges `robot` ships (the iiwa 14's: models/uncertainty.toml)."""
+    return ranges() if robot == DEFAULT_ROBOT else ranges(robot_of(robot).uncertainty.read_text())
+
+
 def twin_file(
     fit: Fit, nominal: PlantSpec, logs: Sequence[Path], prior: dict[str, Range] | None = None
 ) -> PlantFile:
     """The plant file of `fit` on `nominal`, naming the logs it came from; where the logs tell
-    nothing, the ranges are `prior`'s (a twin's own, calibrated again), else the shipped ones."""
+    nothing, the ranges are `prior`'s (a twin's own, calibrated again), else the ones `nominal`'s
+    robot ships."""
     uncertainty: dict[str, dict[str, Any]] = {}
-    for name, entry in (prior or ranges()).items():
+    arm = robot_of(nominal)
+    joints = len(arm.joint_names)
+    for name, entry in (prior or shipped_ranges(nominal.robot)).items():
         estimate = getattr(fit, name) if name in CALIBRATED else None
         if estimate is None or not estimate.told.any():
             if name == "payload":  # the shipped range is absolute: around no payload
-                uncertainty[name] = _payload_range(fit.payload)
+                uncertainty[name] = _payload_range(fit.payload, arm.rated_payload)
             elif name == "delay":
                 uncertainty[name] = _delay_range(fit)
             else:
                 uncertainty[name] = entry.model_dump(mode="json")
             continue
-        uncertainty[name] = _calibrated_range(entry.model_dump(mode="json"), estimate)
+        uncertainty[name] = _calibrated_range(entry.model_dump(mode="json"), estimate, joints)
     calibration = {
+        "robot": nominal.robot,
         "logs": [{"name": Path(log).name, "sha256": _digest(log)} for log in logs],
         "episodes": fit.episodes,
         "ticks": fit.ticks,
@@ -75,13 +103,15 @@ def write_text(plant_file: PlantFile) -> str:
     return tomli_w.dumps(plant_file.model_dump(mode="json"))
 
 
-def _calibrated_range(shipped: dict[str, Any], estimate: Estimate) -> dict[str, Any]:
+def _calibrated_range(
+    shipped: dict[str, Any], estimate: Estimate, joints: int
+) -> dict[str, Any]:
     """Per joint, SPREAD bootstrap deviations each way (at least FLOOR) where told, the shipped
     factors where not."""
     relative = estimate.spread / np.maximum(np.abs(estimate.value), 1e-12)
     half = np.maximum(SPREAD * relative, math.log1p(FLOOR))
-    low = np.where(estimate.told, np.exp(-half), _per_joint(shipped["low"]))
-    high = np.where(estimate.told, np.exp(half), _per_joint(shipped["high"]))
+    low = np.where(estimate.told, np.exp(-half), _per_joint(shipped["low"], joints))
+    high = np.where(estimate.told, np.exp(half), _per_joint(shipped["high"], joints))
     return {
         "field": shipped["field"],
         "per_joint": True,
@@ -93,7 +123,7 @@ def _calibrated_range(shipped: dict[str, Any], estimate: Estimate) -> dict[str, 
     }
 
 
-def _payload_range(payload: Estimate) -> dict[str, Any]:
+def _payload_range(payload: Estimate, rated: float) -> dict[str, Any]:
     """The fitted payload's range, absolute: the file keeps the payload untold, as on the arm the
     logs came from (validate replays them); a run on the file tells it (PlantFile.told), this
     range then the told load's error."""
@@ -104,7 +134,7 @@ def _payload_range(payload: Estimate) -> dict[str, Any]:
         "absolute": True,
         "draw": "uniform",
         "low": round(max(value - half, 0.0), 6),
-        "high": round(min(value + half, 14.0), 6),
+        "high": round(min(value + half, rated), 6),
         "why": f"calibrated: the fitted payload, {SPREAD:g} bootstrap standard deviations or "
         "0.5 kg each way (it trades against the last links' masses)",
     }
@@ -124,8 +154,8 @@ def _delay_range(fit: Fit) -> dict[str, Any]:
     }
 
 
-def _per_joint(bound: float | Sequence[float]) -> np.ndarray:
-    return np.broadcast_to(np.asarray(bound, dtype=float), (len(PlantSpec().stiffness),))
+def _per_joint(bound: float | Sequence[float], joints: int) -> np.ndarray:
+    return np.broadcast_to(np.asarray(bound, dtype=float), (joints,))
 
 
 def _summary(estimate: Estimate) -> dict[str, Any]:

@@ -19,6 +19,7 @@ from gainfarm.cli import options
     help="where to write the twin (a plant file: `--plant TWIN` runs on it)",
 )
 @options.plant()
+@options.robot("the arm the logs are of (a --plant FILE's own arm if not given)")
 @options.load()
 @click.option(
     "--seed",
@@ -35,8 +36,14 @@ def calibrate(**given: Any) -> None:
     sensor_msgs/JointState at 500 Hz. It fits the delay, rotor inertias, friction, joint
     stiffness and damping, and the links' masses with a payload, each with its uncertainty; the
     twin is --plant's plant (the robot's own model, the controller's settings, and every number
-    the logs cannot tell) with them; --payload: the load the arm was told as it recorded them."""
+    the logs cannot tell) with them; --payload: the load the arm was told as it recorded them.
+    The twin is of --robot's arm, and stands for no other."""
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.calibrate import calibrate as work
 
+    # Not given, --robot defers to a twin's own arm (--plant FILE); given, a twin of another
+    # arm is refused.
+    source = click.get_current_context().get_parameter_source("robot")
+    if source is not click.core.ParameterSource.COMMANDLINE:
+        given["robot"] = None
     work(**given)

@@ -6,6 +6,7 @@ from typing import Any
 import click
 
 from gainfarm.analytic.commands.shared import uncertainty
+from gainfarm.cli.options import robot
 
 # Light: the defaults and bounds click checks before anything heavy loads.
 DURATION = 10.0  # s: every joint moves 0.19 rad at least (seeds 0-99; 0.20 at 3 s)
@@ -47,14 +48,15 @@ MAX_COUNT = 100  # two digits in the files' names
 )
 @uncertainty(
     "the plant ranges the gains must be stable on, a TOML file in the form of the shipped "
-    "models/uncertainty.toml  [default: that file]"
+    "models/uncertainty.toml  [default: the robot's shipped ranges]"
 )
+@robot("the arm to record")
 def excite(**given: Any) -> None:
     """Write safe excitation references to record on a real arm, for `analytic calibrate`.
 
     Each is a fourier trajectory (every joint moves, rest to rest) at 500 Hz as JSON and as a
     ROS 2 JointTrajectory in MCAP, with the PD gains to play it with and a README saying what to
-    record. Refused, with nothing written, unless every reference stays within the iiwa 14's
+    record. Refused, with nothing written, unless every reference stays within the arm's
     published limits and moves every joint, and the gains are stable on the nominal plant and on
     plants drawn from the uncertainty ranges.
     """

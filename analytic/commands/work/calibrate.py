@@ -10,12 +10,13 @@ from rich.table import Table
 
 from gainfarm.analytic.calibration.identify import identify
 from gainfarm.analytic.calibration.logs import BadLog, Topics, read_recording
-from gainfarm.analytic.calibration.twin import twin_file, write_text
+from gainfarm.analytic.calibration.twin import OtherArm, for_robot, twin_file, write_text
 from gainfarm.analytic.tuning.plants import BadUncertainty, ranges_of
 from gainfarm.cli import values
 from gainfarm.cli.app import CliError
 from gainfarm.edges.files import write_atomically
-from gainfarm.schemas.robot import JOINT_NAMES, PLANTS
+from gainfarm.models import plant_preset, robot_of
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PLANTS, PlantSpec
 
 if TYPE_CHECKING:
     from gainfarm.analytic.tuning.plants import Range
@@ -32,10 +33,12 @@ def calibrate(
     commands: str,
     motor_states: str,
     as_json: bool,
+    robot: str | None = DEFAULT_ROBOT,
 ) -> None:
-    """`analytic calibrate` with its options as parsed (analytic/commands/calibrate.py)."""
+    """`analytic calibrate` with its options as parsed (analytic/commands/calibrate.py); `robot`
+    None: --robot not given (a plant file's arm, else the iiwa 14)."""
     # The arm as it recorded: a twin's own payload stays untold (no `plant` given), as it was.
-    nominal = values.with_load(values.model_spec(plant), payload, payload_com)
+    nominal = values.with_load(_nominal(plant, robot), payload, payload_com)
     prior = _prior_ranges(plant)
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
@@ -43,7 +46,7 @@ def calibrate(
     recordings = []
     for path in logs:
         try:
-            recordings.append(read_recording(path, topics))
+            recordings.append(read_recording(path, topics, nominal.robot))
         except BadLog as error:
             raise CliError(str(error)) from None
     if nominal.joints != "flexible":
@@ -60,7 +63,19 @@ def calibrate(
     if as_json:
         click.echo(json.dumps({"twin": str(out), **twin.calibration}))
         return
-    _show(twin.calibration, out)
+    _show(twin.calibration, out, robot_of(nominal).joint_names)
+
+
+def _nominal(plant: str, robot: str | None) -> PlantSpec:
+    """--plant's plant on --robot: a preset of the arm, or a plant file (a twin) of it, one of
+    another arm refused; without --robot, a plant file's own arm (a preset's: the iiwa 14)."""
+    if plant in PLANTS:
+        return plant_preset(plant, robot or DEFAULT_ROBOT)
+    spec = values.model_spec(plant)
+    try:
+        return spec if robot is None else for_robot(spec, robot)
+    except OtherArm as error:
+        raise CliError(str(error)) from None
 
 
 def _prior_ranges(plant: str) -> "dict[str, Range] | None":
@@ -73,7 +88,7 @@ def _prior_ranges(plant: str) -> "dict[str, Range] | None":
         raise CliError(f"--plant: {plant!r}: uncertainty: {error}") from None
 
 
-def _show(calibration: dict, out: Path) -> None:
+def _show(calibration: dict, out: Path, joints: tuple[str, ...]) -> None:
     """The fit per joint, each number with its spread, the untold ones marked."""
     columns = (
         ("rotor_inertia", "B kg·m²"),
@@ -89,7 +104,7 @@ def _show(calibration: dict, out: Path) -> None:
         title=f"{out}: fitted on {calibration['episodes']} episodes (± one bootstrap deviation; "
         "dim: not told by the logs)",
     )
-    for joint, name in enumerate(JOINT_NAMES):
+    for joint, name in enumerate(joints):
         cells = []
         for key, _ in columns:
             entry = calibration[key]

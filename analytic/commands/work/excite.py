@@ -12,14 +12,19 @@ from gainfarm.analytic.calibration import excitation as ex
 from gainfarm.analytic.commands.work.common import plants_from
 from gainfarm.cli.app import CliError
 from gainfarm.edges.files import staging_directory, write_atomically
-from gainfarm.schemas.robot import PlantSpec
+from gainfarm.schemas.robot import DEFAULT_ROBOT
 from gainfarm.schemas.trajectory import MAX_DURATION, MIN_DURATION
 
 SHIPPED_RANGES = "the shipped models/uncertainty.toml"
 
 
 def excite(
-    out: Path, duration: float, count: int, seed: int, uncertainty_file: Path | None
+    out: Path,
+    duration: float,
+    count: int,
+    seed: int,
+    uncertainty_file: Path | None,
+    robot: str = DEFAULT_ROBOT,
 ) -> None:
     """`analytic excite` with its options as parsed (analytic/commands/excite.py)."""
     # The options first, cheapest first: nothing is computed for a command that will be refused.
@@ -33,9 +38,12 @@ def excite(
         raise CliError(f"--out: {str(out)!r} already exists and is not an empty directory")
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
-    ranges = SHIPPED_RANGES if uncertainty_file is None else repr(str(uncertainty_file))
+    shipped = SHIPPED_RANGES if robot == DEFAULT_ROBOT else f"{robot}'s shipped ranges"
+    ranges = shipped if uncertainty_file is None else repr(str(uncertainty_file))
 
     command = f"analytic excite --duration {duration:g} --count {count} --seed {seed}"
+    if robot != DEFAULT_ROBOT:
+        command += f" --robot {robot}"
     if uncertainty_file is not None:
         command += f" --uncertainty {uncertainty_file}"
 
@@ -54,9 +62,10 @@ def excite(
             except ValidationError as error:  # the bounds are checked above: their backstop
                 raise CliError(f"--duration: {error.errors()[0]['msg']}") from None
             # Each excitation meets plants of its own (its seed's): more of the ranges covered.
-            variants = plants_from(ex.VARIANTS, uncertainty_file, PlantSpec(), trajectory.seed)
+            nominal = ex.nominal(robot)
+            variants = plants_from(ex.VARIANTS, uncertainty_file, nominal, trajectory.seed)
             try:
-                item = ex.excitation(index, trajectory, variants, ranges)
+                item = ex.excitation(index, trajectory, variants, ranges, robot=robot)
             except ex.Unsafe as error:
                 raise CliError(f"{error.option}: {error}") from None
             for file_name, content in (
@@ -67,7 +76,7 @@ def excite(
                 written += len(content)
             excitations.append(item)
         for file_name, content in (
-            ("controller.json", ex.gains_json()),
+            ("controller.json", ex.gains_json(ex.gains_for(robot))),
             ("README.md", ex.readme(excitations, command, ranges).encode()),
         ):
             write_atomically(staging / file_name, content)
@@ -86,7 +95,7 @@ def excite(
         f"excitation-NN.json and .mcap, controller.json, README.md ({megabytes:.1f} MB)"
     )
     click.echo(
-        f"{out}: within the iiwa 14's limits, every joint moving {ex.MIN_SPAN:g} rad at least; "
+        f"{out}: within {robot}'s limits, every joint moving {ex.MIN_SPAN:g} rad at least; "
         f"the gains stable on {worst.plants} plants each (the nominal and {ex.VARIANTS} drawn from "
         f"{ranges}): least damping {worst.damping:+.3f} ({worst.name})"
     )
