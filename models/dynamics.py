@@ -410,7 +410,6 @@ def inconsistencies(parameters: np.ndarray, names: tuple[str, ...] | None = None
                 f"link {joint}: principal moments {', '.join(f'{m:.3g}' for m in moments)} "
                 "kg·m² break the triangle inequality"
             )
-    names = ("rotor inertia", "viscous friction", "Coulomb friction")
     terms = ("rotor inertia", "viscous friction", "Coulomb friction")
     for term, values in zip(terms, parameters[links:].reshape(3, count), strict=True):
         for joint, value in zip(names, values, strict=True):

@@ -15,9 +15,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from gainfarm.analytic.data.dataset import smoothed_acceleration
+from gainfarm.analytic.data.dataset_columns import arm_metadata
+from gainfarm.models import robot_of
 from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec
 from gainfarm.schemas.episode_log import EpisodeLog
-from gainfarm.schemas.robot import JOINT_NAMES, PlantSpec
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 from gainfarm.worker.episode import motor_torque, run_episode
 
@@ -26,6 +28,12 @@ from gainfarm.worker.episode import motor_torque, run_episode
 # TRACKING_GAINS make its elastic joints chatter (1,700 rad/s², torques at their limits) on most
 # seeds: data no rigid-body model explains.
 CALM_GAINS = PDGains(kp=(1000, 1000, 600, 600, 200, 100, 50), kd=(30, 30, 20, 20, 5, 2.5, 1))
+# Another arm's: its default gains, which its module sets by the iiwa's rule.
+
+
+def calm_gains(robot: str) -> PDGains:
+    """The gains `episode` tracks with on `robot`: CALM_GAINS on the iiwa 14, else its own."""
+    return CALM_GAINS if robot == DEFAULT_ROBOT else robot_of(robot).default_gains
 SIGNALS = ("q", "qd", "u", "tau", "theta", "theta_d", "q_des", "qd_des")
 
 # (seed, split) per episode: enough variety for a network to beat the mean, and fast to simulate.
@@ -43,7 +51,7 @@ def episode(plant: PlantSpec, seed: int, duration: float) -> EpisodeLog:
     feed-forward, or the robot's own behind FRI); cached, as several tests write datasets from
     the same episodes."""
     spec = EpisodeSpec(
-        gains=CALM_GAINS,
+        gains=calm_gains(plant.robot),
         trajectory=TrajectorySpec(kind="fourier", seed=seed, duration=duration),
         plant=plant,
         gravity_compensation=plant.interface == "torque",
@@ -65,7 +73,10 @@ def write_dataset(
     """Write a dataset directory at `path` with one episode per (seed, split); return `path`.
     Without `motor_column`, as a dataset from before u_motor; without `smoothed`, as one from
     before qdd_sg and the calm flag. The episodes of the seeds in `rough` are flagged not calm
-    (whatever they are: the flag's meaning is the builder's, tested in test_dataset.py)."""
+    (whatever they are: the flag's meaning is the builder's, tested in test_dataset.py). An
+    iiwa 14's is as a dataset from before other arms (no arm in its metadata); another arm's
+    columns are its joints and its metadata names it, as the builder writes them."""
+    joints = robot_of(plant).joint_names
     path.mkdir(parents=True)
     ticks, rows = [], []
     for seed, split in splits:
@@ -84,11 +95,14 @@ def write_dataset(
         signals += [("u_motor", motor_torque(log))] * motor_column
         signals += [("qdd_sg", smoothed_acceleration(log.q, CONTROL_PERIOD))] * smoothed
         for signal, values in signals:
-            for index, joint in enumerate(JOINT_NAMES):
+            for index, joint in enumerate(joints):
                 columns[f"{signal}_{joint}"] = values[:, index]
         ticks.append(pa.table(columns))
         row = {"episode_id": episode_id, "split": split, "model": plant.model_dump_json()}
         rows.append(row | ({"calm": seed not in rough} if smoothed else {}))
-    pq.write_table(pa.concat_tables(ticks), path / "ticks.parquet")
+    table = pa.concat_tables(ticks)
+    if plant.robot != DEFAULT_ROBOT:
+        table = table.replace_schema_metadata(arm_metadata(plant.robot, joints))
+    pq.write_table(table, path / "ticks.parquet")
     pq.write_table(pa.Table.from_pylist(rows), path / "episodes.parquet")
     return path

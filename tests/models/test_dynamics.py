@@ -17,16 +17,19 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.lib import format as npy_format
 
-from gainfarm.models import compile_model, resolve
+from gainfarm.models import compile_model, plant_preset, resolve, robot_of
 from gainfarm.models.dynamics import (
-    linear_parameters,
     BadDynamicsModel,
     DynamicsModel,
     Network,
     WrongRobot,
     WrongTarget,
+    check_robot,
     digest,
+    feedforward_from_bytes,
     from_bytes,
+    inconsistencies,
+    linear_parameters,
     load,
     physical_parameters,
     pinocchio_model,
@@ -61,6 +64,14 @@ LOADED = REALISTIC_PLANT.model_copy(
         "interface": "torque",
         "substeps": 1,
     }
+)
+
+
+# The UR5e (6 joints): every check above of an arm of any joint count, on it.
+UR5E = plant_preset("realistic", "ur5e")
+UR5E_JOINTS = robot_of("ur5e").joint_names
+UR5E_LOADED = LOADED.model_copy(
+    update={"robot": "ur5e", "inertials": UR5E.inertials, "payload": 2.0, "mass_scale": (1.1,) * 6}
 )
 
 
@@ -174,19 +185,110 @@ def test_the_linear_model_at_the_documented_parameters_is_the_rigid_prior():
     )
 
 
+def test_the_true_model_is_the_ur5e_plants_own_dynamics():
+    # The anchor on a 6-joint arm: computed torque with the UR5e's own links, payload and
+    # friction, against its episode's logged motor torque.
+    q, qd, qdd, u = _dataset_rows(UR5E_LOADED)
+    assert q.shape[1] == 6
+    true = _nmse(true_model(UR5E_LOADED).inverse(q, qd, qdd), u)
+    assert true.max() < 1e-4, true
+    assert _nmse(rigid_prior(UR5E_LOADED).inverse(q, qd, qdd), u).max() > 10 * true.max()
+    assert true_model(UR5E_LOADED).joint_names == UR5E_JOINTS
+
+
+def test_pinocchio_parses_the_ur5e_as_mujoco():
+    import pinocchio
+
+    spec = rigid_spec(UR5E)
+    pin_model = pinocchio_model(spec)
+    assert tuple(pin_model.names)[1:] == UR5E_JOINTS
+    pin_data = pin_model.createData()
+    mj_model = compile_model(spec)
+    mj_data = mujoco.MjData(mj_model)
+    rng = np.random.default_rng(1)
+    mass_matrix = np.zeros((6, 6))
+    for _ in range(10):
+        q = rng.uniform(-1, 1, 6) * np.array(robot_of("ur5e").limits.position)
+        mj_data.qpos[:], mj_data.qvel[:] = q, 0.0
+        mujoco.mj_forward(mj_model, mj_data)
+        gravity = pinocchio.computeGeneralizedGravity(pin_model, pin_data, q)
+        np.testing.assert_allclose(gravity, mj_data.qfrc_bias, rtol=1e-6, atol=1e-6)
+        mujoco.mj_fullM(mj_model, mj_data, mass_matrix)
+        pin_mass = pinocchio.crba(pin_model, pin_data, q)
+        pin_mass = np.triu(pin_mass) + np.triu(pin_mass, 1).T
+        np.testing.assert_allclose(pin_mass, mass_matrix, rtol=1e-6, atol=1e-6)
+    assert abs(mass_matrix).max() > 0.1
+
+
+def test_the_linear_model_of_the_ur5e_at_its_documented_parameters_is_its_rigid_prior():
+    spec = rigid_spec(UR5E)
+    parameters = physical_parameters(spec)
+    assert parameters.shape == (linear_parameters(6),) == (78,)
+    assert inconsistencies(parameters, UR5E_JOINTS) == []
+    assert inconsistencies(-parameters, UR5E_JOINTS)[0] == "link shoulder_pan_joint: mass -3.7 kg"
+    linear = DynamicsModel("linear", "inverse", spec, parameters=parameters)
+    rng = np.random.default_rng(2)
+    q, qd, qdd = rng.uniform(-1, 1, (30, 6)), rng.normal(size=(30, 6)), rng.normal(size=(30, 6))
+    np.testing.assert_allclose(
+        linear.inverse(q, qd, qdd), rigid_prior(spec).inverse(q, qd, qdd), rtol=1e-6, atol=1e-5
+    )
+
+
 # --- the model file ---------------------------------------------------------------------------
 
 
-def _network(seed: int, hidden: tuple[int, ...] = (16, 16)) -> Network:
+def test_a_ur5e_network_takes_18_inputs_and_its_file_names_the_arm(tmp_path):
+    spec = rigid_spec(UR5E)
+    model = DynamicsModel("residual", "inverse", spec, network=_network(9, joints=6))
+    raw = to_bytes(model)
+    again = from_bytes(raw)
+    assert again.robot == "ur5e" and again.joint_names == UR5E_JOINTS
+    assert again.network is not None and again.network.weights[0].shape == (18, 16)
+    rng = np.random.default_rng(10)
+    q, qd, qdd = (rng.normal(size=(5, 6)) for _ in range(3))
+    torque = again.inverse(q, qd, qdd)
+    assert torque.shape == (5, 6)
+    np.testing.assert_array_equal(torque, model.inverse(q, qd, qdd))
+    # A network of the iiwa's widths is no model of the UR5e.
+    with pytest.raises(BadDynamicsModel, match=r"layer0_weights has shape \(21, 16\), not \(18"):
+        DynamicsModel("mlp", "inverse", spec, network=_network(4))
+
+
+def test_a_model_of_one_arm_is_refused_for_another_in_one_line(tmp_path):
+    ur5e = true_model(UR5E)
+    raw = to_bytes(ur5e)
+    assert feedforward_from_bytes(raw, "ur5e").robot == "ur5e"
+    assert check_robot(ur5e, UR5E) is ur5e
+    with pytest.raises(WrongRobot, match=r"^a dynamics model of ur5e \(6 joints\) cannot drive "):
+        feedforward_from_bytes(raw, "iiwa14")
+    (tmp_path / "model.npz").write_bytes(raw)
+    with pytest.raises(WrongRobot) as refused:
+        load(tmp_path / "model.npz", robot="iiwa14")
+    assert str(refused.value).startswith(repr(str(tmp_path / "model.npz")))
+    assert "\n" not in str(refused.value)
+    # As many joints is not the same arm: the Panda's model is refused for the iiwa 14.
+    panda = true_model(plant_preset("realistic", "panda"))
+    with pytest.raises(WrongRobot, match=r"model of panda .* cannot drive iiwa14"):
+        check_robot(panda, REALISTIC_PLANT)
+    # And the iiwa's model, given a UR5e's reference (where a worker would feed it one), too.
+    q, qd, qdd = (np.zeros((3, 6)) for _ in range(3))
+    with pytest.raises(WrongRobot, match=r"model of iiwa14 \(7 joints\) was given q of 6"):
+        MODELS["plant"].inverse(q, qd, qdd)
+
+
+# --- the model file: the iiwa 14's -------------------------------------------------------------
+
+
+def _network(seed: int, hidden: tuple[int, ...] = (16, 16), joints: int = 7) -> Network:
     rng = np.random.default_rng(seed)
-    widths = (21, *hidden, 7)
+    widths = (3 * joints, *hidden, joints)
     return Network(
         weights=tuple(rng.normal(size=(a, b)) / np.sqrt(a) for a, b in itertools.pairwise(widths)),
         biases=tuple(rng.normal(size=b) for b in widths[1:]),
-        input_mean=rng.normal(size=21),
-        input_scale=rng.uniform(0.5, 2.0, 21),
-        output_mean=rng.normal(size=7),
-        output_scale=rng.uniform(0.5, 2.0, 7),
+        input_mean=rng.normal(size=3 * joints),
+        input_scale=rng.uniform(0.5, 2.0, 3 * joints),
+        output_mean=rng.normal(size=joints),
+        output_scale=rng.uniform(0.5, 2.0, joints),
         activation="relu",
     )
 
@@ -290,6 +392,14 @@ def _with_array(raw: bytes, name: str, value: np.ndarray | None) -> bytes:
     else:
         arrays[name] = value
     return _npz(arrays)
+
+
+def test_a_model_file_of_an_arm_not_here_is_refused_in_one_line():
+    model = MODELS["rigid inverse"]
+    spec = json.loads(model.spec.model_dump_json()) | {"robot": "nosucharm"}
+    with pytest.raises(BadDynamicsModel, match=r"^the model's arm: .*nosucharm") as refused:
+        from_bytes(_with_header(to_bytes(model), spec=spec))
+    assert "\n" not in str(refused.value)
 
 
 MLP_BYTES = to_bytes(MODELS["mlp"])
