@@ -1,8 +1,9 @@
 """Calibration's targets on hidden arms, measured through the commands a user runs.
 
-Run from bench/: `python calibration.py [--arms 3] [--excitations 10] [--duration 10]
-[--evaluations 600]`. For each hidden arm (a plant drawn here outside the shipped uncertainty
-ranges, `hidden_arm`; it stands in for a real robot through `worker episode --plant HIDDEN`):
+Run from bench/: `python calibration.py [--robot iiwa14] [--arms 3] [--excitations 10]
+[--duration 10] [--evaluations 600]`. For each hidden arm of the robot (a plant drawn here
+outside its shipped uncertainty ranges, `hidden_arm`; it stands in for a real robot through
+`worker episode --plant HIDDEN`):
 
 1. `analytic excite` writes the excitations; each is recorded on the hidden arm
    (`worker episode`), and two held-out ones (seeds 100 and 101) besides;
@@ -27,21 +28,22 @@ from pathlib import Path
 import numpy as np
 import tomli_w
 
-from gainfarm.models import min_substeps
+from gainfarm.analytic.calibration.identify import fewest_substeps
+from gainfarm.models import plant_preset, resolve, robot_of
 from gainfarm.schemas.plant_file import PlantFile, read_plant_file
-from gainfarm.schemas.robot import Friction, PlantSpec, Sensors
+from gainfarm.schemas.robot import DEFAULT_ROBOT, Friction, PlantSpec, Sensors
 
-N = 7
 HELD_OUT = (100, 101)
 
 
-def hidden_arm(seed: int) -> PlantSpec:
+def hidden_arm(seed: int, robot: str = DEFAULT_ROBOT) -> PlantSpec:
     """An arm unlike any the project assumes: its numbers off by more than their shipped ranges
     allow (a side drawn at random where either side keeps the excitation's gains stable), its
     delay a tick beyond the range. Heavier rotors only: drake's notes put the real ones near ten
     times the nominal, and lighter ones make the gains ring (the arm would not be excited)."""
     rng = np.random.default_rng(seed)
-    nominal = PlantSpec()
+    nominal = resolve(plant_preset("realistic", robot))  # the robot's own numbers written out
+    N = len(nominal.rotor_inertia)  # type: ignore[arg-type]  # the joints
 
     def beyond(values: tuple[float, ...], low: float, high: float) -> tuple[float, ...]:
         n = len(values)
@@ -64,12 +66,13 @@ def hidden_arm(seed: int) -> PlantSpec:
             ),
             "delay": 3,
             "mass_scale": tuple(float(v) for v in rng.uniform(0.8, 1.2, N)),
-            "payload": float(rng.uniform(3.0, 4.0)),
+            # A tool of some 20-30 % of the rated payload: 3 to 4 kg on the iiwa 14.
+            "payload": float(rng.uniform(3.0, 4.0)) * robot_of(robot).rated_payload / 14.0,
             "sensors": Sensors(seed=int(rng.integers(2**32))),
         }
     )
     arm = PlantSpec.model_validate(arm.model_dump())
-    return arm.model_copy(update={"substeps": max(arm.substeps, min_substeps(arm))})
+    return arm.model_copy(update={"substeps": max(arm.substeps, fewest_substeps(arm))})
 
 
 def write_plant(path: Path, plant: PlantSpec) -> Path:
@@ -146,13 +149,13 @@ def tuned(plant: str, name: str, evaluations: int, cwd: Path) -> tuple[Path, flo
 
 
 def one_arm(seed: int, options: argparse.Namespace, cwd: Path) -> dict:
-    arm = hidden_arm(seed)
+    arm = hidden_arm(seed, options.robot)
     hidden = write_plant(cwd / "hidden.toml", arm)
     duration = f"{options.duration:g}"
     excite = cwd / "excite"
     analytic(
         "excite", "--out", str(excite), "--count", str(options.excitations),
-        "--duration", duration, cwd=cwd,
+        "--duration", duration, "--robot", options.robot, cwd=cwd,
     )  # fmt: skip
     seeds = tuple(
         json.loads(path.read_text())["trajectory"]["seed"]
@@ -162,7 +165,10 @@ def one_arm(seed: int, options: argparse.Namespace, cwd: Path) -> dict:
     logs = record(cwd, hidden, gains, seeds, duration)
     held = record(cwd, hidden, gains, HELD_OUT, duration)
     begun = time.perf_counter()
-    analytic("calibrate", *map(str, logs), "--out", str(cwd / "twin.toml"), "--json", cwd=cwd)
+    analytic(
+        "calibrate", *map(str, logs), "--robot", options.robot, "--out", str(cwd / "twin.toml"),
+        "--json", cwd=cwd,
+    )  # fmt: skip
     seconds = time.perf_counter() - begun
     twin = read_plant_file((cwd / "twin.toml").read_bytes())
     plant, told = twin.plant, twin.calibration
@@ -182,7 +188,12 @@ def one_arm(seed: int, options: argparse.Namespace, cwd: Path) -> dict:
         analytic("validate", str(cwd / "twin.toml"), *map(str, held), *validation, cwd=cwd)
     )
     gaps = {}
-    for name, plant_option in (("twin", str(cwd / "twin.toml")), ("nominal", "realistic")):
+    # The nominal plant: the realistic preset (another arm's as a plant file, which names it).
+    nominal = "realistic"
+    if options.robot != DEFAULT_ROBOT:
+        preset = plant_preset("realistic", options.robot)
+        nominal = str(write_plant(cwd / "nominal.toml", preset))
+    for name, plant_option in (("twin", str(cwd / "twin.toml")), ("nominal", nominal)):
         controller, predicted, predicted_t = tuned(plant_option, name, options.evaluations, cwd)
         actual, actual_t = on_hidden(controller, hidden, cwd)
         gaps[name] = (predicted, actual, abs(actual - predicted) / predicted, predicted_t, actual_t)
@@ -199,6 +210,7 @@ def one_arm(seed: int, options: argparse.Namespace, cwd: Path) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robot", default=DEFAULT_ROBOT, help="the arm (a gainfarm.robots name)")
     parser.add_argument("--arms", type=int, default=3)
     parser.add_argument("--excitations", type=int, default=10)
     parser.add_argument("--duration", type=float, default=10.0)
@@ -209,7 +221,7 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as scratch:
             result = one_arm(seed, options, Path(scratch))
         results.append(result)
-        print(f"hidden arm {seed}:")
+        print(f"hidden {options.robot} arm {seed}:")
         print(
             f"  calibrate on {options.excitations} x {options.duration:g} s: "
             f"{result['seconds']:.1f} s"

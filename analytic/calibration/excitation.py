@@ -32,7 +32,7 @@ from mcap.writer import Writer
 from rosbags.typesys import Stores, get_typestore
 
 from gainfarm.analytic.data.arm import title
-from gainfarm.models import plant_preset, robot_of
+from gainfarm.models import plant_preset, resolve, robot_of
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import schema_text
@@ -211,8 +211,9 @@ def check_stable(
 
 
 def nominal(robot: str = DEFAULT_ROBOT) -> PlantSpec:
-    """The realistic plant of `robot`: the arm as documented, which the variants surround."""
-    return plant_preset("realistic", robot)
+    """The realistic plant of `robot`: the arm as documented, which the variants surround,
+    every per-joint number written out (the ranges scale them)."""
+    return resolve(plant_preset("realistic", robot))
 
 
 def excitation(
@@ -352,7 +353,7 @@ For each excitation:
    - `/joint_commands`: effort, the commanded torque u: what the controller sent$on_top (N·m);
    - `/motor_states`: position, the motor-side angles (rad), if the arm reports them.
 
-Then: `analytic calibrate LOG... --robot $robot --out TWIN`, the recordings as LOG.
+Then: `analytic calibrate LOG...$robot_option --out TWIN`, the recordings as LOG.
 
 ## What was checked
 
@@ -421,7 +422,7 @@ def readme(excitations: Sequence[Excitation], command: str, ranges: str) -> str:
     interface = arm.torque_interface
     text = README.substitute(
         arm=title(arm.name),
-        robot=arm.name,
+        robot_option=f" --robot {arm.name}" * (arm.name != DEFAULT_ROBOT),
         joints=joints,
         count_joints=len(arm.joint_names),
         interface=(

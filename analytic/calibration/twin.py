@@ -103,9 +103,7 @@ def write_text(plant_file: PlantFile) -> str:
     return tomli_w.dumps(plant_file.model_dump(mode="json"))
 
 
-def _calibrated_range(
-    shipped: dict[str, Any], estimate: Estimate, joints: int
-) -> dict[str, Any]:
+def _calibrated_range(shipped: dict[str, Any], estimate: Estimate, joints: int) -> dict[str, Any]:
     """Per joint, SPREAD bootstrap deviations each way (at least FLOOR) where told, the shipped
     factors where not."""
     relative = estimate.spread / np.maximum(np.abs(estimate.value), 1e-12)

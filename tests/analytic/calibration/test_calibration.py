@@ -18,9 +18,11 @@ import pytest
 
 from bench.calibration import hidden_arm, write_plant
 from gainfarm.analytic.calibration.logs import Recording, read_recording
+from gainfarm.analytic.calibration.twin import OtherArm, for_robot
 from gainfarm.analytic.tuning.plants import ranges, ranges_of, variants
 from gainfarm.cli.app import CliError
 from gainfarm.cli.values import plant_file
+from gainfarm.models import resolve
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.plant_file import BadPlantFile, read_plant_file
 from gainfarm.schemas.robot import PlantSpec
@@ -119,7 +121,7 @@ def test_the_twin_recovers_the_hidden_arm(calibrated: dict) -> None:
     stiffness = twin.calibration["stiffness"]
     assert stiffness["told"] == [True] * 6 + [False]
     assert "cannot tell stiffness" in stiffness["why"]
-    assert plant.stiffness[6] == PlantSpec().stiffness[6]
+    assert plant.stiffness[6] == resolve(PlantSpec()).stiffness[6]
     # The controller's settings are the nominal's, never the log's.
     assert (plant.interface, plant.feedback, plant.inertials) == ("fri", "motor", "menagerie")
     assert [log["name"] for log in twin.calibration["logs"]] == [p.name for p in calibrated["logs"]]
@@ -463,3 +465,89 @@ def test_batch_and_experiment_take_the_twin(calibrated: dict, tmp_path: Path) ->
     assert done.returncode == 2 and len(done.stderr.splitlines()) == 1, done.stderr
     assert "--plant" in done.stderr and "plant.delay" in done.stderr, done.stderr
     assert not (tmp_path / "x").exists()
+
+
+# --- another arm: the UR5e (6 joints) ------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def ur5e_calibrated(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """A hidden UR5e: excited (`analytic excite --robot ur5e`), its excitations played on it by
+    `worker episode` (the plant file names the arm), and calibrated (`--robot ur5e`)."""
+    directory = tmp_path_factory.mktemp("ur5e")
+    arm = hidden_arm(2027, "ur5e")
+    hidden = write_plant(directory / "hidden.toml", arm)
+    excite = directory / "excite"
+    done = analytic(
+        "excite", "--robot", "ur5e", "--out", str(excite), "--count", "4",
+        "--duration", DURATION, cwd=directory,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    logs = record(directory, hidden, tuple(range(4)), excite / "controller.json")
+    twin = directory / "twin.toml"
+    done = analytic(
+        "calibrate", *map(str, logs), "--robot", "ur5e", "--out", str(twin), "--json",
+        cwd=directory,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    return {"arm": arm, "twin": twin, "logs": logs, "directory": directory}
+
+
+@pytest.mark.slow
+def test_the_ur5e_is_calibrated_over_its_six_joints(ur5e_calibrated: dict) -> None:
+    arm: PlantSpec = ur5e_calibrated["arm"]
+    twin = read_plant_file(ur5e_calibrated["twin"].read_bytes())
+    assert twin.plant.robot == "ur5e" and twin.calibration["robot"] == "ur5e"
+    assert twin.plant.delay == arm.delay
+    told = np.array(twin.calibration["rotor_inertia"]["told"])
+    assert len(told) == 6 and told.sum() >= 3, told
+    ratio = np.asarray(twin.plant.rotor_inertia) / np.asarray(arm.rotor_inertia)
+    assert np.all(np.abs(ratio[told] - 1) < 0.15), ratio
+    for name in ("stiffness", "spring_damping", "mass_scale"):
+        assert len(twin.calibration[name]["fit"]) == 6, name
+    # Its ranges are per joint of the UR5e where calibrated, and its payload within its rating.
+    assert len(twin.uncertainty["rotor_inertia"]["low"]) == 6
+    assert twin.uncertainty["payload"]["high"] <= 5.0
+
+
+@pytest.mark.slow
+def test_a_ur5e_twin_or_its_logs_are_refused_for_the_iiwa(
+    ur5e_calibrated: dict, tmp_path: Path
+) -> None:
+    logs = [str(p) for p in ur5e_calibrated["logs"][:2]]
+    out = tmp_path / "twin.toml"
+    for arguments, says in (
+        (["--plant", str(ur5e_calibrated["twin"]), "--robot", "iiwa14"], "a twin of ur5e cannot"),
+        (["--robot", "iiwa14"], "an episode of ur5e, not of iiwa14"),
+        ([], "an episode of ur5e, not of iiwa14"),  # no --robot: the iiwa 14's presets
+    ):
+        done = analytic("calibrate", *logs, *arguments, "--out", str(out), cwd=tmp_path)
+        assert done.returncode != 0
+        assert len(done.stderr.splitlines()) == 1 and says in done.stderr, done.stderr
+    assert not out.exists()
+    # A twin calibrated again names its own arm: no --robot needed.
+    done = analytic(
+        "calibrate", *logs, "--plant", str(ur5e_calibrated["twin"]), "--out", str(out),
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert read_plant_file(out.read_bytes()).plant.robot == "ur5e"
+
+
+def test_a_twin_of_the_iiwa_is_refused_for_the_ur5e_in_one_line(tmp_path: Path) -> None:
+    iiwa_twin = write_plant(tmp_path / "iiwa-twin.toml", hidden_arm(2026))
+    log = tmp_path / "any.mcap"
+    log.write_bytes(b"")  # never read: the twin is refused first
+    done = analytic(
+        "calibrate", str(log), "--plant", str(iiwa_twin), "--robot", "ur5e",
+        "--out", str(tmp_path / "twin.toml"), cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode != 0
+    assert done.stderr == (
+        "analytic: error: --plant: a twin of iiwa14 cannot stand for ur5e (calibrate ur5e's "
+        "own logs: analytic calibrate --robot ur5e)\n"
+    )
+    assert not (tmp_path / "twin.toml").exists()
+    assert for_robot(read_plant_file(iiwa_twin.read_bytes()).plant, "iiwa14").robot == "iiwa14"
+    with pytest.raises(OtherArm, match=r"^--plant: a twin of iiwa14 cannot stand for ur5e"):
+        for_robot(read_plant_file(iiwa_twin.read_bytes()).plant, "ur5e")

@@ -12,6 +12,7 @@ import pytest
 
 from gainfarm.analytic.calibration import excitation as ex
 from gainfarm.analytic.tuning.plants import variants
+from gainfarm.models import robot_of
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.robot import (
     ACCELERATION_LIMITS,
@@ -319,3 +320,54 @@ def test_a_reference_that_does_not_start_at_rest_is_refused():
     qd[0, 2] = 0.01
     with pytest.raises(ex.Unsafe, match="does not start at rest"):
         ex.check_limits(0, trajectory, _altered(reference, qd=qd))
+
+
+# --- another arm: the UR5e (6 joints) --------------------------------------------------------
+
+
+def test_the_ur5e_is_excited_within_its_own_limits_with_its_own_gains(tmp_path):
+    from rosbags.highlevel import AnyReader
+
+    ur5e = robot_of("ur5e")
+    out = tmp_path / "EXCITE"
+    args = ["--duration", f"{DURATION:g}", "--count", "1", "--seed", str(SEED)]
+    result = run(ANALYTIC, "excite", "--robot", "ur5e", "--out", str(out), *args, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert "within ur5e's limits" in result.stdout
+    (document,) = [json.loads((out / "excitation-00.json").read_text())]
+    assert document["robot"] == "ur5e"
+    assert document["joint_names"] == list(ur5e.joint_names)
+    reference = reference_for(TrajectorySpec(kind="fourier", duration=DURATION, seed=SEED), "ur5e")
+    q, qd, qdd = (np.array(document[k]) for k in ("positions", "velocities", "accelerations"))
+    assert q.shape == (TICKS, 6) and np.array_equal(q, reference.q)
+    assert (np.abs(q) <= ur5e.limits.position).all()
+    assert (np.abs(qd) <= ur5e.limits.speed).all()
+    assert (np.abs(qdd) <= ur5e.limits.acceleration).all()
+    assert np.ptp(q, axis=0).min() >= ex.MIN_SPAN
+    # Its own factory gains, scaled as the iiwa's are.
+    controller = json.loads((out / "controller.json").read_text())
+    assert np.allclose(np.array(controller["kp"]) / ur5e.default_gains.kp, ex.GAIN_SCALE)
+    assert len(controller["kd"]) == 6
+    with AnyReader([out / "excitation-00.mcap"]) as reader:
+        (connection,) = reader.connections
+        ((_, _, raw),) = list(reader.messages())
+        message = reader.deserialize(raw, connection.msgtype)
+    assert message.joint_names == list(ur5e.joint_names)
+    readme = (out / "README.md").read_text()
+    assert "Universal Robots UR5e" in readme and "shoulder_pan_joint" in readme
+    assert "analytic calibrate LOG... --robot ur5e --out TWIN" in readme
+    assert ur5e.torque_interface.name in readme
+    assert "A1..A7" not in readme and "iiwa" not in readme
+
+
+def test_a_reference_beyond_the_ur5es_limits_is_refused_naming_its_joint():
+    trajectory = TrajectorySpec(kind="fourier", duration=DURATION, seed=0)
+    reference = reference_for(trajectory, "ur5e")
+    ex.check_limits(0, trajectory, reference, "ur5e")  # the real one passes
+    qd = np.array(reference.qd)
+    qd[len(qd) // 2, 0] = 1.01 * robot_of("ur5e").limits.speed[0]
+    with pytest.raises(ex.Unsafe, match="leaves ur5e's published limits: shoulder_pan_joint "):
+        ex.check_limits(0, trajectory, _altered(reference, qd=qd), "ur5e")
+    # The iiwa's reference is no UR5e's: seven joints for six.
+    with pytest.raises(ex.Unsafe, match="moves 7 joints, not ur5e's"):
+        ex.check_limits(0, trajectory, reference_for(trajectory), "ur5e")
