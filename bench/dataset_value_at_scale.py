@@ -31,8 +31,8 @@ from gainfarm.analytic.data.dataset import local_rerun_farm
 from gainfarm.analytic.evaluators.batch import batch_jobs, run_batch
 from gainfarm.analytic.experiments import dataset_value_measures as dvm
 from gainfarm.analytic.experiments.statistics import holm
+from gainfarm.models import robot_of
 from gainfarm.models.dynamics import true_model
-from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 
@@ -49,8 +49,9 @@ def trajectories(release: Path, split: str) -> list[TrajectorySpec]:
 def default_gains_rows(
     plant: PlantSpec, specs: list[TrajectorySpec], directory: Path, workers: int
 ) -> learning.Rows:
-    """The default gains on every trajectory of `specs`, on `plant`: their calm rows."""
-    jobs = batch_jobs([DEFAULT_GAINS], specs, plant)
+    """The default gains (`plant`'s robot's) on every trajectory of `specs`, on `plant`: their
+    calm rows."""
+    jobs = batch_jobs([robot_of(plant).default_gains], specs, plant)
     with local_rerun_farm(directory, workers) as farm:
         done = run_batch(farm, jobs, directory)
     logs = {e.job_id: Path(e.log) for e in done if e.log is not None}
@@ -84,7 +85,9 @@ def main(release: Path, workers: int, seeds: int, kinds: str) -> None:
     floor = true_model(plant)
     for test, rows in tests.items():
         print(f"floor on the {test} test: nMSE {dvm.score(floor, rows)['nmse_mean']:.5f}")
-    print("| model | learned from | test | nMSE mean ± sd over seeds | RMSE A1-A6 (N·m) |")
+    joints = learning.mean_joints(tests["tuned"].joints)
+    span = f"{joints[0]}-{joints[-1]}"
+    print(f"| model | learned from | test | nMSE mean ± sd over seeds | RMSE {span} (N·m) |")
     print("|---|---|---|---|---|")
     found: dict[tuple[str, str, str], list[float]] = {}
     for kind in kinds.split(","):

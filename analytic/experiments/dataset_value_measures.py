@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from gainfarm.analytic.data.dataset import is_calm, tick_columns
-from gainfarm.analytic.data.learning import MEAN_JOINTS, Rows, identify, train_network
+from gainfarm.analytic.data.dataset import is_calm, joints_of, tick_columns
+from gainfarm.analytic.data.learning import Rows, identify, mean_joints, train_network
 from gainfarm.analytic.experiments.runner import ALL_KINDS
 from gainfarm.analytic.experiments.statistics import holm
 from gainfarm.analytic.tuning.search_space import SearchSpace
@@ -25,7 +25,7 @@ from gainfarm.schemas.episode import Scores
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import score as score_episode
-from gainfarm.schemas.robot import JOINT_NAMES, PlantSpec
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.trajectory import TrajectoryKind, TrajectorySpec
 
 # The conditions: where a pool's episodes come from. The first five are tuned selections.
@@ -115,8 +115,9 @@ def episode_rows(path: Path, episode_id: str) -> Rows:
     whole torque, the dataset's u_motor: what the models learn (analytic.learning.read_split)."""
     log = read_episode(path)
     columns = tick_columns(episode_id, log)
+    joints = joints_of(log)
     signals = {
-        signal: np.column_stack([columns[f"{column}_{joint}"] for joint in JOINT_NAMES])
+        signal: np.column_stack([columns[f"{column}_{joint}"] for joint in joints])
         for signal, column in (("q", "q"), ("qd", "qd"), ("qdd", "qdd_sg"), ("u", "u_motor"))
     }
     finite = np.isfinite(np.hstack(list(signals.values()))).all(axis=1)
@@ -127,6 +128,7 @@ def episode_rows(path: Path, episode_id: str) -> Rows:
         t=np.asarray(columns["t"], dtype=float)[finite],
         calm=np.full(int(finite.sum()), calm),
         **{signal: values[finite].astype(float) for signal, values in signals.items()},
+        joints=joints,
     )
 
 
@@ -194,19 +196,20 @@ def fit_model(
 
 def score(model: DynamicsModel, test: Rows) -> dict[str, float]:
     """nMSE (MSE over the variance of the test torque) and RMSE (N·m) per joint, and the mean
-    of each over A1..A6 (analytic.learning's convention: A7's torque barely varies)."""
+    of each over A1..A6 (analytic.learning's convention: the flange's joint, A7, barely varies;
+    any arm's joints but its last)."""
     error = model.inverse(test.q, test.qd, test.qdd) - test.u
     mse = (error**2).mean(axis=0)
     nmse = mse / test.u.var(axis=0)
-    mean = [JOINT_NAMES.index(j) for j in MEAN_JOINTS]
+    joints = test.joints
+    mean = [joints.index(j) for j in mean_joints(joints)]
     row = {
         "nmse_mean": float(np.mean(nmse[mean])),
         "rmse_mean": float(np.mean(np.sqrt(mse[mean]))),
     }
-    row |= {f"nmse_{joint}": float(value) for joint, value in zip(JOINT_NAMES, nmse, strict=True)}
+    row |= {f"nmse_{joint}": float(value) for joint, value in zip(joints, nmse, strict=True)}
     row |= {
-        f"rmse_{joint}": float(value)
-        for joint, value in zip(JOINT_NAMES, np.sqrt(mse), strict=True)
+        f"rmse_{joint}": float(value) for joint, value in zip(joints, np.sqrt(mse), strict=True)
     }
     return row
 

@@ -26,6 +26,7 @@ from gainfarm.models import resolve
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.plant_file import BadPlantFile, read_plant_file
 from gainfarm.schemas.robot import PlantSpec
+from tests.analytic.calibration.test_excite import ur5e_ranges
 from tests.helpers import analytic, crafted_log, write_log
 
 N = 7
@@ -480,7 +481,8 @@ def ur5e_calibrated(tmp_path_factory: pytest.TempPathFactory) -> dict:
     excite = directory / "excite"
     done = analytic(
         "excite", "--robot", "ur5e", "--out", str(excite), "--count", "4",
-        "--duration", DURATION, cwd=directory,
+        "--duration", DURATION, "--uncertainty", str(ur5e_ranges(directory / "ranges.toml")),
+        cwd=directory,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     logs = record(directory, hidden, tuple(range(4)), excite / "controller.json")

@@ -41,6 +41,7 @@ from gainfarm.analytic.tuning.records import RUN_JSON, read_identity, read_run
 from gainfarm.analytic.tuning.run import TuningRun
 from gainfarm.analytic.view.export import controller
 from gainfarm.cli import interrupts
+from gainfarm.models import robot_of
 from gainfarm.schemas import TrajectorySpec
 from gainfarm.schemas.limits import Limits
 from gainfarm.schemas.mcap_episode import read_episode
@@ -80,6 +81,15 @@ RERUN = [
     TrajectorySpec(kind="pyramid", duration=3.0, seed=0, center=(0.5, 0.1, 0.4)),
     TrajectorySpec(kind="fourier", duration=3.0, seed=2),
 ]
+# A UR5e's run (6 joints), on three short excitations: one trajectory a part.
+UR5E_RUN = RunConfig(
+    pop=4,
+    seed=3,
+    trajectories=tuple(TrajectorySpec(kind="fourier", duration=2.0, seed=k) for k in range(3)),
+    generations=1,
+    plant=PlantSpec(robot="ur5e"),
+    limits=LIMITS_OF_THE_FIXTURES,
+)
 ANALYTIC = [sys.executable, "-m", "gainfarm.analytic", "dataset"]
 SIGNALS = ("q", "qd", "tau", "u", "theta", "theta_d", "q_des", "qd_des")
 ARRAYS = ("t", *SIGNALS, "ee", "ee_des")
@@ -106,6 +116,11 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory, endpoint: str) -> Path:
 @pytest.fixture(scope="module")
 def twin_dir(tmp_path_factory: pytest.TempPathFactory, endpoint: str) -> Path:
     return tune(tmp_path_factory.mktemp("elsewhere") / "generic", TWIN, endpoint)
+
+
+@pytest.fixture(scope="module")
+def ur5e_dir(tmp_path_factory: pytest.TempPathFactory, endpoint: str) -> Path:
+    return tune(tmp_path_factory.mktemp("ur5e") / "ur5e", UR5E_RUN, endpoint)
 
 
 def farm_at(endpoint: str) -> RerunFarm:
@@ -138,22 +153,24 @@ def assert_ticks_are_the_logs(dataset: Path) -> int:
     split_of = dict(zip(trajectories["trajectory_id"], trajectories["split"], strict=True))
     for path in logs:
         log = read_episode(path)
+        joints = robot_of(log.metadata.spec.plant).joint_names  # the columns' names
         rows = episode_ids == path.stem
         assert rows.sum() == log.ticks
         np.testing.assert_array_equal(np.array(ticks["t"])[rows], log.t)
-        qdd = np.array([ticks[f"qdd_{joint}"] for joint in JOINT_NAMES]).T[rows]
+        qdd = np.array([ticks[f"qdd_{joint}"] for joint in joints]).T[rows]
         np.testing.assert_array_equal(qdd[:-1], np.diff(log.qd, axis=0) / 0.002)
         assert np.isnan(qdd[-1]).all()  # the last tick: no next one, never the next episode's
-        for index, joint in enumerate(JOINT_NAMES):
+        for index, joint in enumerate(joints):
             for signal in SIGNALS:
                 values = np.array(ticks[f"{signal}_{joint}"])[rows]
                 np.testing.assert_array_equal(values, getattr(log, signal)[:, index])
         # The motors' whole torque: behind FRI the command and the robot's gravity model (the
         # loop's own numbers: tests/worker/test_episode.py), on a torque interface the command.
-        u_motor = np.array([ticks[f"u_motor_{joint}"] for joint in JOINT_NAMES]).T[rows]
+        u_motor = np.array([ticks[f"u_motor_{joint}"] for joint in joints]).T[rows]
         np.testing.assert_array_equal(u_motor, motor_torque(log))
         fri = log.metadata.spec.plant.interface == "fri"
-        assert fri == (np.abs(u_motor - log.u)[:, 1].min() > 10), fri  # A2 holds the arm up
+        # A2 (the UR5e's shoulder lift) holds the arm up.
+        assert fri == (np.abs(u_motor - log.u)[:, 1].min() > 10), fri
         for index, axis in enumerate("xyz"):
             np.testing.assert_array_equal(np.array(ticks[f"ee_{axis}"])[rows], log.ee[:, index])
             np.testing.assert_array_equal(
@@ -164,7 +181,7 @@ def assert_ticks_are_the_logs(dataset: Path) -> int:
         assert set(np.array(ticks["split"])[rows]) == {split_of[tid]}
         row = episodes["episode_id"].index(path.stem)
         assert episodes["trajectory_id"][row] == tid and episodes["split"][row] == split_of[tid]
-        assert episodes["kp_A1"][row] == log.metadata.spec.gains.kp[0]
+        assert episodes[f"kp_{joints[0]}"][row] == log.metadata.spec.gains.kp[0]
         assert episodes["ticks"][row] == log.ticks
     return len(logs)
 
@@ -667,3 +684,41 @@ def test_plants_without_a_rerun_is_one_line(run_dir: Path, tmp_path: Path) -> No
     )
     assert result.returncode != 0 and not (tmp_path / "d").exists()
     assert result.stderr.strip().count("\n") == 0 and "--plants" in result.stderr
+
+
+# --- another arm: the UR5e (6 joints) ------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_a_ur5e_dataset_is_its_episodes_under_its_joints_names(
+    ur5e_dir: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "ur5e"
+    # A toy run's front, kept whatever it does: the columns are what is tested.
+    counts = build([ur5e_dir], out, infeasible=True, include_rough=True)
+    assert assert_ticks_are_the_logs(out) == counts["episodes"] >= 3
+    joints = robot_of("ur5e").joint_names
+    schema = pq.read_schema(out / "ticks.parquet")
+    angles = [name for name in schema.names if name.startswith("q_") and "_des_" not in name]
+    assert angles == [f"q_{joint}" for joint in joints]
+    assert not any(name.endswith("_A1") for name in schema.names)
+    assert schema.field("tau_wrist_3_joint").metadata[b"unit"] == b"N*m"
+    assert schema.field("qd_des_shoulder_lift_joint").metadata[b"unit"] == b"rad/s"
+    for table in ("ticks", "episodes", "trajectories"):
+        metadata = pq.read_schema(out / f"{table}.parquet").metadata
+        assert metadata[b"robot"] == b"ur5e"
+        assert json.loads(metadata[b"joint_names"]) == list(joints)
+    names = pq.read_schema(out / "episodes.parquet").names
+    assert "kp_shoulder_pan_joint" in names and "kd_wrist_3_joint" in names
+    assert "kp_A1" not in names
+    card = (out / "README.md").read_text()
+    assert "simulated Universal Robots UR5e (6 joints;" in card
+    assert "`q_{shoulder_pan_joint,shoulder_lift_joint," in card and "iiwa" not in card
+    assert "UR direct torque control (gravity added as FRI does)" in card
+
+
+@pytest.mark.slow
+def test_runs_of_two_arms_make_no_dataset(run_dir: Path, ur5e_dir: Path, tmp_path: Path) -> None:
+    with pytest.raises(dataset_module.MixedArms, match=r"of 2 arms \(iiwa14, ur5e\)"):
+        build([run_dir, ur5e_dir], tmp_path / "both")
+    assert not (tmp_path / "both").exists() and list(tmp_path.iterdir()) == []

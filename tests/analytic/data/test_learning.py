@@ -14,7 +14,10 @@ import pytest
 
 from gainfarm.analytic.data import baselines, learning
 from gainfarm.analytic.data.learning import LearnError, fit, learn, read_split, score
+from gainfarm.analytic.data.loader import load_dataset
+from gainfarm.models import plant_preset, robot_of
 from gainfarm.models.dynamics import (
+    BadDynamicsModel,
     digest,
     from_bytes,
     inconsistencies,
@@ -455,3 +458,54 @@ def test_the_floor_of_a_dataset_of_plants_is_each_episodes_own(fri, tmp_path):
         alone,
         first,
     )
+
+
+# --- another arm: the UR5e (6 joints) ------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def ur5e(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The same splits' fourier episodes on the realistic UR5e: columns named by its joints, its
+    metadata naming it, as the builder writes them."""
+    plant = plant_preset("realistic", "ur5e")
+    return write_dataset(tmp_path_factory.mktemp("data") / "ur5e", plant)
+
+
+def test_a_ur5e_dataset_reads_as_six_joints(ur5e, realistic):
+    joints = robot_of("ur5e").joint_names
+    train = read_split(ur5e, "train")
+    assert train.joints == joints and train.q.shape == train.u.shape == (6 * 1001, 6)
+    split = load_dataset(ur5e, "train")
+    assert (split.robot, split.joint_names) == ("ur5e", joints)
+    assert split.inputs().shape == (6 * 1001, 18) and split.targets().shape == (6 * 1001, 6)
+    # A dataset that names no arm is the iiwa 14's, as every one before other arms was.
+    assert load_dataset(realistic, "test").joint_names == JOINT_NAMES
+
+
+def test_the_true_model_is_the_floor_of_ur5e_data_and_a_network_takes_18_inputs(ur5e, tmp_path):
+    floor = score(fit(ur5e, "inverse", "plant"), ur5e)
+    prior = score(fit(ur5e, "inverse", "rigid"), ur5e)
+    assert set(floor["nmse"]) == set(robot_of("ur5e").joint_names)
+    assert floor["nmse_mean"] < 0.05 and floor["nmse_mean"] < prior["nmse_mean"], (floor, prior)
+    out = tmp_path / "model"
+    scores = learn(ur5e, out, kind="mlp")
+    model = from_bytes((out / "model.npz").read_bytes())
+    assert model.robot == "ur5e" and model.network is not None
+    assert model.network.weights[0].shape[0] == 18 and model.network.weights[-1].shape[1] == 6
+    # Its mean leaves out the flange's joint, as the iiwa's leaves out A7.
+    mean = np.mean([scores["nmse"][j] for j in robot_of("ur5e").joint_names[:5]])
+    assert scores["nmse_mean"] == pytest.approx(mean)
+    assert scores["nmse_mean"] < 0.5 and scores["floor"]["nmse_mean"] < scores["nmse_mean"]
+    report = (out / "report.md").read_text()
+    assert "| wrist_3_joint |" in report and "shoulder_pan_joint-wrist_2_joint" in report
+    assert "real iiwa 14" not in report  # the published figure is the iiwa's alone
+    # A model of the UR5e is refused where it would drive the iiwa 14.
+    with pytest.raises(BadDynamicsModel, match=r"model of ur5e .* cannot drive iiwa14"):
+        load(out / "model.npz", robot="iiwa14")
+
+
+def test_a_ur5e_linear_model_identifies_78_parameters(ur5e):
+    model = fit(ur5e, "inverse", "linear")
+    assert model.parameters is not None and model.parameters.shape == (78,)
+    assert model.about["inconsistencies"] == []  # consistent by construction
+    assert score(model, ur5e)["nmse_mean"] < 0.2

@@ -27,9 +27,10 @@ from gainfarm.analytic.data.release import (
     verify,
 )
 from gainfarm.analytic.evaluators.local import local_farm
+from gainfarm.models import robot_of
 from gainfarm.schemas.robot import JOINT_NAMES
 from gainfarm.schemas.trajectory import TrajectorySpec
-from tests.analytic.data.test_dataset import CONFIG, farm_at, tune
+from tests.analytic.data.test_dataset import CONFIG, UR5E_RUN, farm_at, tune
 from tests.helpers import analytic
 
 NAME = "iiwa14-sim_0.1"
@@ -480,3 +481,43 @@ def test_the_release_command_writes_the_release_the_library_does(
     written = json.loads((tmp_path / "cli" / "release.json").read_text())
     assert written["content_hash"] == record["content_hash"]
     assert written["baselines"]["kinds"] == list(KINDS)
+
+
+# --- another arm: the UR5e (6 joints) ------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def ur5e_dir(tmp_path_factory: pytest.TempPathFactory, endpoint: str) -> Path:
+    return tune(tmp_path_factory.mktemp("ur5e") / "ur5e", UR5E_RUN, endpoint)
+
+
+@pytest.mark.slow
+def test_a_ur5e_release_and_its_lerobot_copy_name_the_arm(ur5e_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "ur5e-sim_0.1"
+    _, record = build_release(
+        [ur5e_dir], out, "ur5e-sim_0.1", kinds=("plant", "rigid"), format="lerobot",
+        layout=LAYOUT, infeasible=True, include_rough=True,
+    )  # fmt: skip
+    joints = list(robot_of("ur5e").joint_names)
+    release = json.loads((out / "release.json").read_text())
+    assert release == record
+    assert (record["robot"], record["robot_type"]) == ("ur5e", "universal_robots_ur5e")
+    assert record["joint_names"] == joints
+    read = read_lerobot(out / "lerobot")
+    info = read["info"]
+    assert info["robot_type"] == "universal_robots_ur5e"
+    state = info["features"]["observation.state"]
+    assert state["shape"] == [12] and state["names"][:6] == [f"q_{j}" for j in joints]
+    assert info["features"]["action"]["names"] == [f"u_motor_{j}" for j in joints]
+    columns = ticks(out)
+    row = read["episodes"][0]
+    mine = columns["episode_id"] == row["episode_id"]
+    stored = np.array(read["frames"][row["episode_index"]]["action"].to_pylist(), np.float32)
+    expected = np.column_stack([columns[f"u_motor_{j}"][mine] for j in joints]).astype(np.float32)
+    np.testing.assert_array_equal(stored, expected)
+    card = (out / "README.md").read_text()
+    assert "Robot type `universal_robots_ur5e`, a simulated Universal Robots UR5e" in card
+    assert "RMSE shoulder_pan_joint-wrist_1_joint all (N·m)" in card
+    assert "real iiwa 14" not in card
+    split = load_dataset(out, "train")
+    assert split.joint_names == tuple(joints) and split.inputs(normalised=True).shape[1] == 18
