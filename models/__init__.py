@@ -19,7 +19,14 @@ from gainfarm.models.iiwa14 import (
     min_substeps,
     step_ratios,
 )
-from gainfarm.models.robots import build_spec, compile_model, robot_of
+from gainfarm.models.robots import (
+    PlantError,
+    build_spec,
+    compile_model,
+    plant_preset,
+    resolve,
+    robot_of,
+)
 
 __all__ = [
     "CAD_INERTIALS",
@@ -28,12 +35,15 @@ __all__ = [
     "READY_POSTURE",
     "RIGID_MJCF",
     "UPRIGHT_POSTURE",
+    "PlantError",
     "build_spec",
     "check_substeps",
     "compile_model",
     "effective_inertias",
     "elastic_modes",
     "min_substeps",
+    "plant_preset",
+    "resolve",
     "robot_of",
     "step_ratios",
 ]

@@ -48,7 +48,7 @@ import numpy as np
 from numpy.lib import format as npy_format
 from pydantic import ValidationError
 
-from gainfarm.models.robots import build_spec, compile_model
+from gainfarm.models.robots import build_spec, compile_model, resolve
 from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, Friction, PlantSpec
 
 if TYPE_CHECKING:
@@ -170,7 +170,9 @@ def rigid_spec(plant: PlantSpec) -> PlantSpec:
     armature) and the load the robot is told (known, as the set is), rigid joints, no friction.
     Fields that play no part (sensors, delay, springs,
     physics step) are left at their defaults, so plants differing only there share one prior."""
+    plant = resolve(plant)
     return PlantSpec(
+        robot=plant.robot,
         joints="rigid",
         inertials=plant.inertials,
         rotor_inertia=plant.rotor_inertia,
@@ -191,7 +193,9 @@ def plant_spec(plant: PlantSpec) -> PlantSpec:
     on rigid joints. Springs are left out: at the reference the link and motor move alike, and
     what a spring's deflection does is the controller's to compensate, not the model's
     (bench/true_feedforward.py)."""
+    plant = resolve(plant)
     return PlantSpec(
+        robot=plant.robot,
         joints="rigid",
         inertials=plant.inertials,
         rotor_inertia=plant.rotor_inertia,
@@ -224,6 +228,7 @@ def plant_dynamics(
     """The plant kind's prediction: inverse, the true arm's torque plus the friction the
     motors must overcome at q̇; forward, the acceleration of what is left of u once friction
     has taken its part."""
+    spec = resolve(spec)
     arm = compile_model(spec.model_copy(update={"friction": None}))
     friction = friction_torque(spec.friction, qd)
     if target == "inverse":
@@ -320,6 +325,7 @@ def _pinocchio() -> Any:
 def physical_parameters(spec: PlantSpec) -> np.ndarray:
     """π of `spec`'s rigid arm as documented (models/README.md): its links' inertials, its rotor
     inertias, no friction. What identification starts from (analytic/learning.py)."""
+    spec = resolve(spec)
     model = pinocchio_model(spec)
     links = [model.inertias[j].toDynamicParameters() for j in range(1, N_JOINTS + 1)]
     friction = np.zeros(2 * N_JOINTS)

@@ -25,16 +25,23 @@ from importlib.resources import files
 import mujoco
 import numpy as np
 
+from gainfarm.models.robots import resolve
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.robot import (
     ACCELERATION_LIMITS,
+    DEFAULT_ROTOR_INERTIA,
+    DEFAULT_SPRING_DAMPING,
     JOINT_NAMES,
     POSITION_LIMITS,
+    RATED_PAYLOAD,
     SPEED_LIMITS,
+    STIFFNESS_PRESETS,
     TORQUE_LIMITS,
     JointLimits,
     LoadData,
+    PlantDefaults,
     PlantSpec,
+    TorqueInterface,
     Workspace,
 )
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
@@ -79,11 +86,15 @@ MENAGERIE_AXES = {
 }
 
 
+# Motor-side viscous friction, N·m·s/rad (assumption: models/README.md).
+VISCOUS_FRICTION = (0.5, 0.5, 0.3, 0.3, 0.2, 0.1, 0.1)
+
 PAYLOAD_RADIUS = 0.05  # m: a payload is a solid sphere this big at the flange (assumption)
 
 
 def build_spec(spec: PlantSpec) -> mujoco.MjSpec:
     """The MuJoCo model description for `spec`, not yet compiled (export it with .to_xml())."""
+    spec = resolve(spec)
     mj = mujoco.MjSpec.from_string(RIGID_MJCF.read_text())
     mj.option.timestep = CONTROL_PERIOD / spec.substeps
     # A diverging episode must stay diverged (NaNs are data we detect), not be silently reset.
@@ -182,6 +193,7 @@ def check_substeps(spec: PlantSpec, model: mujoco.MjModel | None = None) -> None
     if ratios.max() <= MAX_STEP_RATIO:
         return
     worst = int(ratios.argmax())
+    spec = resolve(spec)
     raise ValueError(
         f"substeps={spec.substeps} is too few for {JOINT_NAMES[worst]}'s joint spring "
         f"(K = {spec.stiffness[worst]:g} N·m/rad): this plant needs substeps >= "
@@ -194,6 +206,7 @@ def min_substeps(spec: PlantSpec, model: mujoco.MjModel | None = None) -> int:
     (every joint's step ratio at most MAX_STEP_RATIO); 1 for rigid joints."""
     if spec.joints != "flexible":
         return 1
+    spec = resolve(spec)
     inertia = effective_inertias(spec, model)
     stiffness, damping = np.asarray(spec.stiffness), np.asarray(spec.spring_damping)
     # The longest step with K dt² = MAX_STEP_RATIO (4 m + 2 D dt): the quadratic's positive root.
@@ -212,6 +225,7 @@ def step_ratios(spec: PlantSpec, model: mujoco.MjModel | None = None) -> np.ndar
     """Per joint, K dt² / (4 m + 2 D dt) at `spec`'s physics step dt: MuJoCo's integration of the
     joint's spring is stable below 1; `compile_model` wants every one at most MAX_STEP_RATIO.
     m is the spring's effective inertia (`effective_inertias`)."""
+    spec = resolve(spec)
     return _step_ratios(spec, effective_inertias(spec, model), CONTROL_PERIOD / spec.substeps)
 
 
@@ -311,6 +325,24 @@ class Iiwa14:
     default_gains: PDGains = DEFAULT_GAINS
     workspace = WORKSPACE
     flange = FLANGE
+    plant_defaults = PlantDefaults(
+        stiffness_presets=STIFFNESS_PRESETS,
+        stiffness="medium",  # the stiffest 1 ms physics steps integrate well
+        spring_damping=DEFAULT_SPRING_DAMPING,
+        rotor_inertia=DEFAULT_ROTOR_INERTIA,
+        viscous=VISCOUS_FRICTION,
+        coulomb=tuple(round(0.015 * limit, 3) for limit in TORQUE_LIMITS),
+    )
+    torque_interface = TorqueInterface(
+        name="KUKA FRI torque mode",
+        adds_gravity=True,
+        description="the robot adds the torque holding the measured joint angles against "
+        "gravity, from its own model of the arm and the load data it is told, to the command; "
+        "the motors exert the sum (KUKA Sunrise.FRI 1.x manual)",
+    )
+    inertial_sets = ("menagerie", "open", "cad")
+    rated_payload = RATED_PAYLOAD
+    uncertainty = files("gainfarm.models").joinpath("uncertainty.toml")
 
     def build(self, spec: PlantSpec) -> mujoco.MjModel:
         return compile_model(spec)

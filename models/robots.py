@@ -6,10 +6,18 @@ installed by an entry point. `compile_model` and `build_spec` are the named robo
 worker, the referee and the analytic side build whichever arm the plant names.
 """
 
+from functools import lru_cache
+
 import mujoco
 
 from gainfarm import plugins
-from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec, Robot
+from gainfarm.schemas.robot import DEFAULT_ROBOT, IDEAL_PLANT, PLANTS, Friction, PlantSpec, Robot
+
+
+class PlantError(ValueError):
+    """A plant its robot cannot be: a per-joint field of another joint count, an inertial set
+    or a stiffness preset it lacks, a payload beyond its rating. Said in one line naming the
+    field."""
 
 
 def robot_of(spec: PlantSpec | str = DEFAULT_ROBOT) -> Robot:
@@ -31,6 +39,74 @@ def robot_of(spec: PlantSpec | str = DEFAULT_ROBOT) -> Robot:
 # The robots found of the Robot form, by id: a protocol's isinstance costs some 150 µs, and a
 # worker looks its robot up several times per episode.
 _conforming: dict[int, Robot] = {}
+
+
+@lru_cache(maxsize=256)
+def resolve(spec: PlantSpec) -> PlantSpec:
+    """`spec` with every per-joint number written out: those it leaves None are its robot's own
+    (the robot's PlantDefaults), a stiffness preset's name the robot's preset; each checked to
+    have one number per joint of the robot, the inertial set to be one the robot has and the
+    payloads within its rating. PlantError (one line, naming the field) if not. Idempotent."""
+    robot = robot_of(spec)
+    defaults, joints = robot.plant_defaults, len(robot.joint_names)
+    stiffness = defaults.stiffness if spec.stiffness is None else spec.stiffness
+    if isinstance(stiffness, str):
+        if stiffness not in defaults.stiffness_presets:
+            raise PlantError(f"stiffness: {robot.name} has no preset {stiffness!r}")
+        stiffness = defaults.stiffness_presets[stiffness]
+    friction = spec.friction
+    if friction is not None:
+        friction = Friction(
+            viscous=defaults.viscous if friction.viscous is None else friction.viscous,
+            coulomb=defaults.coulomb if friction.coulomb is None else friction.coulomb,
+            smoothing=friction.smoothing,
+        )
+    numbers = {
+        "stiffness": stiffness,
+        "spring_damping": _given(spec.spring_damping, defaults.spring_damping),
+        "rotor_inertia": _given(spec.rotor_inertia, defaults.rotor_inertia),
+        "mass_scale": _given(spec.mass_scale, (1.0,) * joints),
+    }
+    if friction is not None:
+        numbers |= {"friction.viscous": friction.viscous, "friction.coulomb": friction.coulomb}
+    for field, values in numbers.items():
+        if len(values) != joints:
+            raise PlantError(
+                f"{field}: {len(values)} numbers for {robot.name}'s {joints} joints "
+                f"({', '.join(robot.joint_names)})"
+            )
+    if spec.inertials not in robot.inertial_sets:
+        raise PlantError(
+            f"inertials: {robot.name} has no set {spec.inertials!r} "
+            f"(it has {', '.join(robot.inertial_sets)})"
+        )
+    told = 0.0 if spec.load is None else spec.load.mass
+    if spec.payload > robot.rated_payload or told > robot.rated_payload:
+        raise PlantError(
+            f"payload: {max(spec.payload, told):g} kg is beyond {robot.name}'s rated "
+            f"{robot.rated_payload:g} kg"
+        )
+    written = {
+        field: values for field, values in numbers.items() if not field.startswith("friction.")
+    }
+    resolved = spec.model_copy(update={**written, "friction": friction})
+    # Validated again: a robot's own numbers meet the contract's bounds like a file's.
+    return PlantSpec.model_validate(resolved.model_dump())
+
+
+def _given(values: tuple[float, ...] | None, default: tuple[float, ...]) -> tuple[float, ...]:
+    return default if values is None else values
+
+
+def plant_preset(name: str, robot: str = DEFAULT_ROBOT) -> PlantSpec:
+    """The plant preset `name` (schemas.robot.PLANTS: realistic, plain, ideal) of `robot`. The
+    ideal plant's inertials are the first wave's (the iiwa 14's open set) where the robot has
+    them, else its default set."""
+    spec = PLANTS[name].model_copy(update={"robot": robot})
+    sets = robot_of(robot).inertial_sets
+    if spec.inertials not in sets:
+        spec = spec.model_copy(update={"inertials": sets[0]})
+    return spec if name != "ideal" or spec.robot != DEFAULT_ROBOT else IDEAL_PLANT
 
 
 def compile_model(spec: PlantSpec) -> mujoco.MjModel:

@@ -12,15 +12,15 @@ joint, and what is wrong with it.
 """
 
 import json
-from typing import Any, Literal
+from typing import Any, Literal, Self
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from gainfarm.schemas.documents import BadDocument, load_json, load_yaml, quoted
 from gainfarm.schemas.gains import PDGains, PerJointGains
 from gainfarm.schemas.limits import Limits
-from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, PlantSpec
+from gainfarm.schemas.robot import JOINT_NAMES, MAX_JOINTS, PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.schemas.wire import describe
 
@@ -174,7 +174,7 @@ class Controller(BaseModel):
     format: Literal["gainfarm-controller/1"] = FORMAT
     law: str = LAW
     control_period: float = Field(CONTROL_PERIOD, description="s")
-    joints: tuple[str, ...] = Field(JOINT_NAMES, min_length=N_JOINTS, max_length=N_JOINTS)
+    joints: tuple[str, ...] = Field(JOINT_NAMES, min_length=1, max_length=MAX_JOINTS)
     kp: PerJointGains
     kd: PerJointGains
     units: dict[str, str] = UNITS
@@ -191,6 +191,14 @@ class Controller(BaseModel):
         "before the file said so; the law and source.model tell it)",
     )
 
+    @model_validator(mode="after")
+    def _one_gain_per_joint(self) -> Self:
+        for name in ("kp", "kd"):
+            given = len(getattr(self, name))
+            if given != len(self.joints):
+                raise ValueError(f"{name}: {given} gains for {len(self.joints)} joints")
+        return self
+
     @property
     def gains(self) -> PDGains:
         return PDGains(kp=self.kp, kd=self.kd)
@@ -200,10 +208,11 @@ class BadGains(ValueError):
     """A gains file that is not one: the message says where and what, in one line."""
 
 
-def read_gains(raw: bytes) -> list[PDGains]:
+def read_gains(raw: bytes, joints: tuple[str, ...] = JOINT_NAMES) -> list[PDGains]:
     """The candidates in a gains file, JSON or YAML (`analytic export --format yaml` writes the
     same document): a list whose items are {"kp", "kd"} objects or exported controllers, or one
-    such object alone. BadGains, in plain words, otherwise."""
+    such object alone, each with a gain per one of `joints` (the robot's; the iiwa 14's by
+    default). BadGains, in plain words, otherwise."""
     if raw.startswith(b"kp1,"):  # the header of front.csv (analytic.records)
         raise BadGains(
             "a run's front.csv, not a controller: `analytic export RUN --member N` writes its "
@@ -213,8 +222,10 @@ def read_gains(raw: bytes) -> list[PDGains]:
     if isinstance(document, list):
         if not document:
             raise BadGains("the list of candidates is empty")
-        return [_candidate(item, f"candidate {n}: ") for n, item in enumerate(document, start=1)]
-    return [_candidate(document, "")]
+        return [
+            _candidate(item, f"candidate {n}: ", joints) for n, item in enumerate(document, start=1)
+        ]
+    return [_candidate(document, "", joints)]
 
 
 def read_controller(raw: bytes) -> "Controller | None":
@@ -271,18 +282,37 @@ def _document(raw: bytes) -> Any:
     return document
 
 
-def _candidate(item: Any, where: str) -> PDGains:
+def _candidate(item: Any, where: str, joints: tuple[str, ...]) -> PDGains:
     if not isinstance(item, dict):
         raise BadGains(f'{where}expected an object with "kp" and "kd", got {type(item).__name__}')
+    if "format" in item and isinstance(item.get("joints"), list | tuple):
+        joints = tuple(str(joint) for joint in item["joints"]) or joints  # the file's own
+    # The count first, said against the robot's joints: the contract takes any count.
+    counts = [
+        _count(name, len(value), joints)
+        for name in ("kp", "kd")
+        if isinstance(value := item.get(name), list | tuple) and len(value) != len(joints)
+    ]
+    if counts:
+        more = len(counts) - 1 + sum(1 for name in ("kp", "kd") if name not in item)
+        raise BadGains(where + counts[0] + _more(more))
     try:
         if "format" in item:  # an exported controller: its own checks, then its gains
             return Controller.model_validate(item).gains
         return PDGains.model_validate(item)
     except ValidationError as error:
-        raise BadGains(where + problem(error)) from None
+        raise BadGains(where + problem(error, joints)) from None
 
 
-def problem(error: ValidationError) -> str:
+def _more(more: int) -> str:
+    return f" (and {more} more problem{'s' if more > 1 else ''})" if more else ""
+
+
+def _count(name: str, given: int, joints: tuple[str, ...]) -> str:
+    return f"{name}: {given} gains given, {len(joints)} needed ({joints[0]}..{joints[-1]})"
+
+
+def problem(error: ValidationError, joints: tuple[str, ...] = JOINT_NAMES) -> str:
     """A gains validation error as a person says it: 'kp of A3: -1.0 is negative (gains are
     at least 0)', 'kd: 3 gains given, 7 needed (A1..A7)'; other fields as `describe` says."""
     errors = error.errors()
@@ -297,7 +327,7 @@ def problem(error: ValidationError) -> str:
             and any(len(e["loc"]) > 1 and e["loc"][:1] == other["loc"] for e in errors)
         )
     )
-    suffix = f" (and {more} more problem{'s' if more > 1 else ''})" if more else ""
+    suffix = _more(more)
     if not loc or loc[0] not in ("kp", "kd"):
         if kind == "literal_error" and loc == ("format",):
             return f"format {quoted(value)} is not {FORMAT!r} (a file of another gainfarm version?)"
@@ -307,17 +337,12 @@ def problem(error: ValidationError) -> str:
     name = str(loc[0])
     if len(loc) == 1:
         if kind == "missing":
-            return (
-                f"{name} missing: {N_JOINTS} gains needed "
-                f"({JOINT_NAMES[0]}..{JOINT_NAMES[-1]}){suffix}"
-            )
+            return f"{name} missing: {len(joints)} gains needed ({joints[0]}..{joints[-1]}){suffix}"
         if kind in ("too_short", "too_long"):
-            return (
-                f"{name}: {len(value)} gains given, {N_JOINTS} needed "
-                f"({JOINT_NAMES[0]}..{JOINT_NAMES[-1]}){suffix}"
-            )
-        return f"{name}: expected a list of {N_JOINTS} numbers, got {quoted(value)}{suffix}"
-    where = f"{name} of {JOINT_NAMES[loc[1]]}" if isinstance(loc[1], int) else name
+            return _count(name, len(value), joints) + suffix
+        return f"{name}: expected a list of {len(joints)} numbers, got {quoted(value)}{suffix}"
+    known = isinstance(loc[1], int) and loc[1] < len(joints)
+    where = f"{name} of {joints[loc[1]]}" if known else name
     if kind == "greater_than_equal":
         return f"{where}: {quoted(value)} is negative (gains are at least 0){suffix}"
     if kind == "finite_number":

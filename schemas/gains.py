@@ -1,24 +1,31 @@
-"""PD gains: the 14 numbers the genetic algorithm tunes."""
+"""PD gains: the numbers the genetic algorithm tunes, a Kp and a Kd per joint of the robot."""
 
 import math
 from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS, TORQUE_LIMITS, PlantSpec
+from gainfarm.schemas.robot import JOINT_NAMES, MAX_JOINTS, TORQUE_LIMITS, PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 
 Gain = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-PerJointGains = Annotated[tuple[Gain, ...], Field(min_length=N_JOINTS, max_length=N_JOINTS)]
+PerJointGains = Annotated[tuple[Gain, ...], Field(min_length=1, max_length=MAX_JOINTS)]
 
 
 class PDGains(BaseModel):
-    """Joint-space PD gains: Kp in N·m/rad and Kd in N·m·s/rad, one per joint A1..A7."""
+    """Joint-space PD gains: Kp in N·m/rad and Kd in N·m·s/rad, one per joint of the robot, base
+    to flange (who runs them on a robot checks the count against its joints)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     kp: PerJointGains
     kd: PerJointGains
+
+    @model_validator(mode="after")
+    def _one_pair_per_joint(self) -> "PDGains":
+        if len(self.kp) != len(self.kd):
+            raise ValueError(f"kp has {len(self.kp)} gains and kd {len(self.kd)}: one per joint")
+        return self
 
 
 # Stiff enough to track every default trajectory within a few centimetres, soft enough not to
@@ -44,31 +51,40 @@ _UNITS = {"kp": "N·m/rad", "kd": "N·m·s/rad"}
 HUGE = 1e7
 
 
-def saturating(gains: PDGains, plant: PlantSpec) -> tuple[str, str, float] | None:
+def saturating(
+    gains: PDGains,
+    plant: PlantSpec,
+    joints: tuple[str, ...] = JOINT_NAMES,
+    torque_limits: tuple[float, ...] = TORQUE_LIMITS,
+) -> tuple[str, str, float] | None:
     """("kp" or "kd", joint, gain) of the first gain that saturates its motor on one count of the
     plant's encoder (an angle of one count, or a velocity of one count over the velocity window):
-    with it every tick saturates; None if none does. Exact sensors: a count of the default."""
+    with it every tick saturates; None if none does. Exact sensors: a count of the default.
+    `joints` and `torque_limits` are the robot's (the iiwa 14's by default)."""
     resolution = plant.sensors.resolution or PlantSpec().sensors.resolution
     speed = resolution / (plant.sensors.velocity_window * CONTROL_PERIOD)
     for which, values, unit in (("kp", gains.kp, resolution), ("kd", gains.kd, speed)):
-        for joint, gain, limit in zip(JOINT_NAMES, values, TORQUE_LIMITS, strict=True):
+        for joint, gain, limit in zip(joints, values, torque_limits, strict=True):
             if gain * unit >= limit:
                 return which, joint, gain
     return None
 
 
-def outside_search(gains: PDGains) -> str | None:
+def outside_search(
+    gains: PDGains, defaults: PDGains = DEFAULT_GAINS, joints: tuple[str, ...] = JOINT_NAMES
+) -> str | None:
     """The gain lying furthest beyond the search space's bounds, if more than FAR_OUTSIDE times
     beyond them, said in a phrase ("kd of A3 is 1e-06 N·m·s/rad, 1/1,500,000 of the search
     space's lowest (1.5 N·m·s/rad: 0.1× the default 15)"), which begins with the gain's name,
-    kp or kd; None if every gain is nearer."""
+    kp or kd; None if every gain is nearer. `defaults` and `joints` are the robot's (the search
+    space is built on its default gains; the iiwa 14's by default)."""
     worst: tuple[float, str] | None = None
-    for which, values, defaults, (low, high) in (
-        ("kp", gains.kp, DEFAULT_GAINS.kp, KP_RANGE),
-        ("kd", gains.kd, DEFAULT_GAINS.kd, KD_RANGE),
+    for which, values, bounds, (low, high) in (
+        ("kp", gains.kp, defaults.kp, KP_RANGE),
+        ("kd", gains.kd, defaults.kd, KD_RANGE),
     ):
         unit = _UNITS[which]
-        for joint, gain, default in zip(JOINT_NAMES, values, defaults, strict=True):
+        for joint, gain, default in zip(joints, values, bounds, strict=True):
             lowest, highest = default * low, default * high
             gain_is = f"{which} of {joint} is {gain:g} {unit}"
             if gain > highest:

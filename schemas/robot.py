@@ -12,7 +12,9 @@ sources and the reasons behind each assumption.
 """
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from importlib.resources.abc import Traversable
 from typing import TYPE_CHECKING, Annotated, Any, Literal, Protocol, Self, runtime_checkable
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -29,6 +31,9 @@ ROBOT_PATTERN = r"^[a-z][a-z0-9_-]{0,31}$"
 DEFAULT_ROBOT = "iiwa14"
 
 N_JOINTS = 7
+# The most joints a robot may have: a bound for what a file or a message may carry, far above any
+# serial arm (the contract checks a per-joint field's length against the robot where it is known).
+MAX_JOINTS = 32
 JOINT_NAMES = tuple(f"A{i}" for i in range(1, N_JOINTS + 1))
 
 # --- Published limits of the LBR iiwa 14 R820 ----------------------------------------------------
@@ -87,6 +92,36 @@ class Workspace:
         )
 
 
+@dataclass(frozen=True)
+class TorqueInterface:
+    """What the robot's controller does with a torque command, as its maker documents it
+    (models/README.md cites each): `adds_gravity`, whether it adds its own gravity model of the
+    arm to the command (KUKA's FRI torque mode does: a plant's `interface = "fri"` is this
+    behaviour, whichever the arm), `name` the maker's name for the mode."""
+
+    name: str
+    adds_gravity: bool
+    description: str
+
+
+STIFFNESS_PRESET_NAMES = ("soft", "medium", "stiff")
+
+
+@dataclass(frozen=True)
+class PlantDefaults:
+    """A robot's own numbers for the per-joint plant fields a PlantSpec leaves None (each a source
+    or an assumption of the robot's module): its joint springs' presets (`stiffness_presets`,
+    keyed by STIFFNESS_PRESET_NAMES) and the one a default plant uses, the springs' damping, the
+    rotors' reflected inertia, and the motor-side friction."""
+
+    stiffness_presets: Mapping[str, tuple[float, ...]]  # N·m/rad
+    stiffness: str  # the preset of a default plant
+    spring_damping: tuple[float, ...]  # N·m·s/rad
+    rotor_inertia: tuple[float, ...]  # kg·m², reflected through the gear
+    viscous: tuple[float, ...]  # N·m·s/rad
+    coulomb: tuple[float, ...]  # N·m
+
+
 @runtime_checkable
 class Robot(Protocol):
     """A robot arm, as a gainfarm.robots plug-in declares it (its module's `ROBOT`): everything
@@ -104,6 +139,11 @@ class Robot(Protocol):
     default_gains: "PDGains"  # a sensible first controller, and the search space's centre
     workspace: Workspace
     flange: str  # the MuJoCo site at the flange's centre, which every trajectory moves
+    plant_defaults: PlantDefaults  # what a PlantSpec's per-joint fields left None are
+    torque_interface: TorqueInterface  # what its controller does with a torque command
+    inertial_sets: tuple[str, ...]  # the inertial sets it builds, its default first
+    rated_payload: float  # kg, the data sheet's
+    uncertainty: Traversable  # its ranges for robust tuning (models/uncertainty.toml's form)
 
     def build(self, spec: "PlantSpec") -> "mujoco.MjModel": ...
 
@@ -134,12 +174,13 @@ NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 
 
 def _per_joint(low: float, high: float, strict: bool = False) -> Any:
-    """Seven finite numbers from `low` (excluded if `strict`) to `high`: the bounds of a
+    """One finite number per joint (as many as the robot has: `gainfarm.models.resolve` checks
+    the count against it) from `low` (excluded if `strict`) to `high`: the bounds of a
     physical quantity, far outside any arm of this class, so that a file's 1e308 is refused
     here, naming its field, rather than overflowing the physics that reads it."""
     bounds = {"gt" if strict else "ge": low, "le": high}
     number = Annotated[float, Field(allow_inf_nan=False, **bounds)]
-    return Annotated[tuple[number, ...], Field(min_length=N_JOINTS, max_length=N_JOINTS)]
+    return Annotated[tuple[number, ...], Field(min_length=1, max_length=MAX_JOINTS)]
 
 
 # 100 times the stiffest harmonic drive of the catalogues above (no PlantSpec's substeps can
@@ -156,13 +197,14 @@ class Friction(BaseModel):
 
     The tanh makes the Coulomb part smooth near zero velocity (as the sigmoidal model of Gaz et
     al., RA-L 2019); `smoothing` also keeps it stable when evaluated once per 2 ms tick.
-    Defaults are assumptions (models/README.md): Coulomb 1.5 % of each joint's torque limit.
+    None is the robot's own (its PlantDefaults; the iiwa 14's are assumptions, models/README.md:
+    Coulomb 1.5 % of each joint's torque limit).
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    viscous: FrictionTorque = (0.5, 0.5, 0.3, 0.3, 0.2, 0.1, 0.1)  # N·m·s/rad
-    coulomb: FrictionTorque = tuple(round(0.015 * limit, 3) for limit in TORQUE_LIMITS)
+    viscous: FrictionTorque | None = None  # N·m·s/rad
+    coulomb: FrictionTorque | None = None  # N·m
     smoothing: float = Field(0.05, gt=0, le=10, allow_inf_nan=False, description="rad/s")
 
 
@@ -254,15 +296,21 @@ class PlantSpec(BaseModel):
         "(iiwa14, the built-in one); its limits, gains, gravity model and workspace are its own",
     )
     joints: Literal["flexible", "rigid"] = "flexible"
-    inertials: Literal["menagerie", "open", "cad"] = Field(
+    inertials: str = Field(
         "menagerie",
-        description="the links' masses and inertias (models/README.md): MuJoCo Menagerie's "
-        "(30.6 kg; the data sheet's 29.9 kg), the open descriptions' older axes, or KUKA's CAD "
-        "masses (22.7 kg). The robot's own gravity model (interface fri) is this set",
+        pattern=ROBOT_PATTERN,
+        description="the links' masses and inertias, one of the robot's sets (models/README.md): "
+        "every shipped arm has MuJoCo Menagerie's; the iiwa 14 also the open descriptions' "
+        "older axes (open) and KUKA's CAD masses (cad). The robot's own gravity model "
+        "(interface fri) is this set",
     )
-    stiffness: Stiffness = DEFAULT_STIFFNESS
-    spring_damping: SpringDamping = DEFAULT_SPRING_DAMPING
-    rotor_inertia: RotorInertia = DEFAULT_ROTOR_INERTIA
+    # Per joint, one number each; None is the robot's own (its PlantDefaults), and a stiffness
+    # may name one of the robot's presets. `gainfarm.models.resolve` writes them out, checked
+    # against the robot's joints: the worker logs the plant it ran, so a log's numbers are
+    # explicit.
+    stiffness: Stiffness | Literal["soft", "medium", "stiff"] | None = None
+    spring_damping: SpringDamping | None = None
+    rotor_inertia: RotorInertia | None = None
     friction: Friction | None = Friction()
     delay: int = Field(1, ge=0, le=50, description="ticks before a command acts")
     sensors: Sensors = Sensors()
@@ -270,10 +318,11 @@ class PlantSpec(BaseModel):
         "motor", description="the side whose measured angle the PD feeds back"
     )
     substeps: int = Field(2, ge=1, le=50, description="physics steps per 2 ms control tick")
-    mass_scale: MassScale = Field(
-        (1.0,) * N_JOINTS,
+    mass_scale: MassScale | None = Field(
+        None,
         description="each link's true mass (and its inertia alike) against the named set's, "
-        "links 1-7; the robot's gravity model does not know it",
+        "one per joint's link, base to flange (None: 1 each); the robot's gravity model does not "
+        "know it",
     )
     payload: float = Field(
         0.0,
@@ -312,7 +361,8 @@ class PlantSpec(BaseModel):
     def _rotors_have_inertia(self) -> Self:
         # An elastic joint's motor side is its rotor alone: without inertia the mass matrix is
         # singular and the simulation meaningless.
-        if self.joints == "flexible" and min(self.rotor_inertia) <= 0:
+        rotors = self.rotor_inertia
+        if self.joints == "flexible" and rotors is not None and min(rotors) <= 0:
             raise ValueError("rotor_inertia must be positive on every joint of flexible joints")
         return self
 
@@ -332,7 +382,7 @@ _EARLIER_FIELDS = frozenset(PlantSpec.model_fields) - {"interface", "payload", "
 
 IDEAL_PLANT = PlantSpec(
     inertials="open",
-    stiffness=STIFFNESS_PRESETS["soft"],
+    stiffness="soft",
     friction=None,
     delay=0,
     sensors=Sensors(exact=True),

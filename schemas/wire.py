@@ -26,6 +26,11 @@ from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.objectives import LAG_CAP, SPEED_CAP
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 
+# 12: any arm: a plant's per-joint numbers (stiffness, spring_damping, rotor_inertia, friction,
+# mass_scale) may be left null, the robot's own (a stiffness may name its preset), as many as the
+# robot has joints, and its inertial set is any of the robot's; gains are one Kp and Kd per joint
+# of the robot. A worker writes the plant out before it runs (models.resolve) and refuses a job
+# its robot cannot be, with the reason.
 # 11: a plant names its robot (PlantSpec.robot), a gainfarm.robots plug-in's name of its form, no
 # longer only "iiwa14": a worker that lacks the robot a job names refuses it (JobStatus.refused);
 # a job on the iiwa 14 has the same JSON as in 10.
@@ -44,7 +49,7 @@ from gainfarm.schemas.trajectory import CONTROL_PERIOD, MAX_DURATION
 # lease request; 4: results carry the worker's scores, and the log only when the job asks to keep
 # it (the worker keeps the others, to be fetched); 3: results handed in to the broker and
 # confirmed by it; 2: Job.spec
-PROTOCOL_VERSION = 11
+PROTOCOL_VERSION = 12
 
 # Names become key-expression chunks, so they may not contain '/', '*', '$', '?' or '#'.
 NAME_PATTERN = r"^[A-Za-z0-9_.\-]{1,64}$"
@@ -84,12 +89,12 @@ class BadMessage(ValueError):
 class WireMessage(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    protocol: Literal[11] = PROTOCOL_VERSION
+    protocol: Literal[12] = PROTOCOL_VERSION
 
     @field_validator("protocol", mode="before")
     @classmethod
     def _an_integer(cls, version: object) -> object:
-        # Literal[11] would take 11.0 (and JSON true is 1 to Python): a version is an integer.
+        # Literal[12] would take 12.0 (and JSON true is 1 to Python): a version is an integer.
         if type(version) is not int:
             raise ValueError(_not_an_integer(version))
         return version

@@ -12,7 +12,7 @@ from functools import lru_cache
 import mujoco
 import numpy as np
 
-from gainfarm.models import robot_of
+from gainfarm.models import resolve, robot_of
 from gainfarm.schemas.robot import LoadData, PlantSpec
 
 
@@ -25,7 +25,7 @@ class Plant:
     """
 
     def __init__(self, spec: PlantSpec) -> None:
-        self.spec = spec
+        self.spec = spec = resolve(spec)
         self.robot = robot_of(spec)
         self.model = self.robot.build(spec)
         self.data = mujoco.MjData(self.model)

@@ -178,7 +178,14 @@ class RunConfig(BaseModel):
     @classmethod
     def _a_robot_here(cls, plant: PlantSpec) -> PlantSpec:
         plugins.check_name(plugins.ROBOTS, plant.robot)
-        return plant
+        return _resolved(plant)
+
+    @field_validator("plants", "check_plants")
+    @classmethod
+    def _variants_written_out(cls, plants: tuple[PlantSpec, ...]) -> tuple[PlantSpec, ...]:
+        for plant in plants:
+            plugins.check_name(plugins.ROBOTS, plant.robot)
+        return tuple(_resolved(plant) for plant in plants)
 
     @field_validator("trajectories")
     @classmethod
@@ -240,3 +247,12 @@ class RunConfig(BaseModel):
     @property
     def mode(self) -> str:
         return "specific" if len(self.trajectories) == 1 else "generic"
+
+
+def _resolved(plant: PlantSpec) -> PlantSpec:
+    """The plant with its robot's numbers written out: what the worker logs it ran, and what a
+    log is checked against (analytic.evaluators)."""
+    # start-up: the robots' modules import MuJoCo, which `from gainfarm import RunConfig` spares
+    from gainfarm.models.robots import resolve
+
+    return resolve(plant)

@@ -101,6 +101,7 @@ PLANTS = ("realistic", "plain", "ideal")
 PLANT = "realistic"
 JOINTS = ("flexible", "rigid")
 JOINT = "flexible"
+ROBOT = "iiwa14"  # schemas.robot.DEFAULT_ROBOT
 
 
 def trajectory(multiple: bool = False, help: str = "end-effector path") -> Callable[[F], F]:
@@ -326,4 +327,33 @@ def participant(role: "Role") -> Callable[[F], F]:
 def log_level() -> Callable[[F], F]:
     return click.option(
         "--log-level", type=click.Choice(LOG_LEVELS), default="info", show_default=True
+    )
+
+
+# --- the robot ----------------------------------------------------------------------------------
+
+
+def robot(help: str = "the arm") -> Callable[[F], F]:
+    """--robot NAME|FILE (parameter `robot`): a gainfarm.robots plug-in's name, or a robot
+    description file (a user's own arm, docs/robot.md), which is read and registered in this
+    process under the name it gives; the value is then that name."""
+    return click.option(
+        "--robot",
+        "robot",
+        default=ROBOT,
+        show_default=True,
+        metavar="NAME|FILE",
+        callback=_robot,
+        help=f"{help}: a robot's name (iiwa14, the built-in arms and installed plug-ins: "
+        "`analytic plugins`), or a robot description file (.toml) of your own arm",
+    )
+
+
+def _robot(ctx: click.Context, param: click.Parameter, value: str) -> str:
+    names = plugins.names(plugins.ROBOTS)
+    if value in names:
+        return value
+    raise click.BadParameter(
+        f"{value!r} is no robot here (these are: {', '.join(names)}) and no description file",
+        param_hint="'--robot'",
     )

@@ -14,6 +14,7 @@ from gainfarm.models import (
     compile_model,
     elastic_modes,
     min_substeps,
+    resolve,
     step_ratios,
 )
 from gainfarm.schemas import TORQUE_LIMITS, PlantSpec
@@ -100,7 +101,7 @@ def test_viscous_friction_lands_as_motor_hinge_damping():
     motor_damping = flexible.dof_damping[_hinges(flexible, "_motor")]
     np.testing.assert_array_equal(motor_damping, friction.viscous)
     np.testing.assert_array_equal(
-        flexible.dof_damping[_hinges(flexible, "_spring")], spec.spring_damping
+        flexible.dof_damping[_hinges(flexible, "_spring")], resolve(spec).spring_damping
     )
     rigid = compile_model(PlantSpec(joints="rigid", friction=friction))
     np.testing.assert_array_equal(rigid.dof_damping, friction.viscous)
@@ -119,7 +120,7 @@ def test_flexible_variant_is_generated_from_the_same_chain():
     np.testing.assert_allclose(flexible.body_mass, rigid.body_mass)
     np.testing.assert_allclose(flexible.body_pos, rigid.body_pos)
     np.testing.assert_allclose(flexible.jnt_stiffness[1::2], 1234.0)
-    np.testing.assert_allclose(flexible.dof_armature[0::2], spec.rotor_inertia)
+    np.testing.assert_allclose(flexible.dof_armature[0::2], resolve(spec).rotor_inertia)
     # The motors drive the motor-side hinges.
     assert [flexible.joint(j).name for j in flexible.actuator_trnid[:, 0]] == [
         f"A{i}_motor" for i in range(1, 8)

@@ -46,10 +46,22 @@ def test_ticks_cover_both_ends_of_the_duration():
     assert TrajectorySpec(duration=3.0).ticks == 1501
 
 
-def test_model_spec_records_explicit_elastic_parameters():
+def test_a_plant_leaves_its_per_joint_numbers_to_its_robot_and_resolve_writes_them_out():
+    from gainfarm.models import PlantError, resolve
+
     spec = PlantSpec()
-    assert spec.joints == "flexible"
-    assert len(spec.stiffness) == len(spec.spring_damping) == len(spec.rotor_inertia) == 7
+    assert spec.joints == "flexible" and spec.stiffness is None and spec.mass_scale is None
+    written = resolve(spec)
+    assert len(written.stiffness) == len(written.spring_damping) == len(written.rotor_inertia) == 7
+    assert written.mass_scale == (1.0,) * 7 and resolve(written) == written
+    assert (
+        resolve(PlantSpec(stiffness="soft")).stiffness
+        == (5000.0,) * 2 + (4000.0,) * 2 + (2000.0,) * 3
+    )
+    with pytest.raises(PlantError, match=r"^stiffness: 6 numbers for iiwa14's 7 joints \(A1, "):
+        resolve(PlantSpec(stiffness=(1e4,) * 6))
+    with pytest.raises(PlantError, match=r"^inertials: iiwa14 has no set 'urdf'"):
+        resolve(PlantSpec(inertials="urdf"))
     with pytest.raises(ValidationError):
         PlantSpec(substeps=0)
     with pytest.raises(ValidationError):
@@ -63,8 +75,10 @@ def test_the_named_plants_differ_only_where_they_say():
     from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT, STIFFNESS_PRESETS
 
     assert IDEAL_PLANT.ideal and not REALISTIC_PLANT.ideal
-    assert IDEAL_PLANT.stiffness == STIFFNESS_PRESETS["soft"]
-    assert REALISTIC_PLANT.stiffness == STIFFNESS_PRESETS["medium"]
+    from gainfarm.models import resolve
+
+    assert resolve(IDEAL_PLANT).stiffness == STIFFNESS_PRESETS["soft"]
+    assert resolve(REALISTIC_PLANT).stiffness == STIFFNESS_PRESETS["medium"]
     assert (REALISTIC_PLANT.feedback, REALISTIC_PLANT.delay) == ("motor", 1)
     assert REALISTIC_PLANT.friction is not None and not REALISTIC_PLANT.sensors.exact
 

@@ -168,13 +168,13 @@ def test_honest_examples_cover_every_message() -> None:
 
 def test_a_submission_is_judged_job_by_job() -> None:
     good = Job(job_id="good", spec=short_spec()).model_dump(mode="json")
-    bad = {**good, "job_id": "bad", "spec": {"gains": {"kp": [1], "kd": [1]}}}
+    bad = {**good, "job_id": "bad", "spec": {"gains": {"kp": [1], "kd": [1, 2]}}}
     raw = json.dumps({"protocol": V, "study": "s", "jobs": [good, bad, 42]}).encode()
     study, jobs, rejected = decode_submission(raw)
     assert study == "s"
     assert [job.job_id for job in jobs] == ["good"]
     assert [rejection.job_id for rejection in rejected] == ["bad", "jobs[2]"]
-    assert "spec.gains.kp" in rejected[0].reason
+    assert "spec.gains: kp has 1 gains and kd 2" in rejected[0].reason
 
 
 def test_a_submission_with_a_bad_envelope_is_refused_whole() -> None:
