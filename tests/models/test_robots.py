@@ -73,6 +73,6 @@ def test_the_contract_checks_a_robot_name_s_form_only() -> None:
 
 
 def test_a_run_on_a_robot_not_here_is_refused_naming_it() -> None:
-    with pytest.raises(ValidationError, match="no plug-in named 'panda' here"):
-        RunConfig(plant=PlantSpec(robot="panda"))
+    with pytest.raises(ValidationError, match="no plug-in named 'xarm7' here"):
+        RunConfig(plant=PlantSpec(robot="xarm7"))
     assert RunConfig().plant.robot == "iiwa14"
