@@ -22,7 +22,7 @@ import click
 import numpy as np
 
 from gainfarm.analytic.experiments.feedforward import held_out_paths
-from gainfarm.models import plant_preset, robot_of
+from gainfarm.models import plant_preset, resolve, robot_of
 from gainfarm.models.dynamics import rigid_prior, true_model
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.objectives import score
@@ -93,7 +93,8 @@ def main(plant: str, robot: str, paths: int, duration: float) -> None:
     started = time.perf_counter()
     trajectories = held_out_paths(paths, duration, FIRST_SEED, centres(robot))
     errors: dict[str, list[float]] = {name: [] for name in CONDITIONS}
-    gains, nominal = robot_of(robot).default_gains, plant_preset(plant, robot)
+    # Written out: true_compensation reads the springs of the plant as given.
+    gains, nominal = robot_of(robot).default_gains, resolve(plant_preset(plant, robot))
     for path in trajectories:
         reference = reference_for(path, robot)
         spec = EpisodeSpec(gains=gains, trajectory=path, plant=nominal)

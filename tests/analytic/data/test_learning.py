@@ -394,10 +394,12 @@ def test_identified_parameters_that_are_no_arm_are_named():
     broken[10] = -1.0  # A2's mass
     broken[20 + 4] = 50.0  # A3's Ixx·… far above the others: no body has such moments
     broken[-1] = -0.5  # A7's Coulomb friction
-    found = inconsistencies(broken)
+    found = inconsistencies(broken, JOINT_NAMES)
     assert found[0].startswith("link A2: mass -1")
     assert any(text.startswith("link A3:") for text in found)
     assert found[-1] == "A7: Coulomb friction -0.5"
+    # Unnamed, the joints are counted: an arm of any joints.
+    assert inconsistencies(broken)[0].startswith("link J2: mass -1")
 
 
 HEAVY = REALISTIC_PLANT.model_copy(update={"payload": 3.0, "mass_scale": (1.1,) * 7})
