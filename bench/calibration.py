@@ -28,8 +28,7 @@ from pathlib import Path
 import numpy as np
 import tomli_w
 
-from gainfarm.analytic.calibration.identify import fewest_substeps
-from gainfarm.models import plant_preset, resolve, robot_of
+from gainfarm.models import min_substeps, plant_preset, resolve, robot_of
 from gainfarm.schemas.plant_file import PlantFile, read_plant_file
 from gainfarm.schemas.robot import DEFAULT_ROBOT, Friction, PlantSpec, Sensors
 
@@ -72,7 +71,7 @@ def hidden_arm(seed: int, robot: str = DEFAULT_ROBOT) -> PlantSpec:
         }
     )
     arm = PlantSpec.model_validate(arm.model_dump())
-    return arm.model_copy(update={"substeps": max(arm.substeps, fewest_substeps(arm))})
+    return arm.model_copy(update={"substeps": max(arm.substeps, min_substeps(arm))})
 
 
 def write_plant(path: Path, plant: PlantSpec) -> Path:

@@ -36,7 +36,7 @@ from gainfarm.models import plant_preset, resolve, robot_of
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import schema_text
-from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec, Robot
 from gainfarm.schemas.trajectory import (
     CONTROL_PERIOD,
     CONTROL_PERIOD_NS,
@@ -138,8 +138,8 @@ def check_limits(
     arm = robot_of(robot)
     if reference.q.shape[1] != len(arm.joint_names):
         raise Unsafe("--robot", f"{where} moves {reference.q.shape[1]} joints, not {robot}'s")
+    _check_range(where, reference.q, arm)
     for values, limits, what, unit in (
-        (reference.q, arm.limits.position, "joint range", "rad"),
         (reference.qd, arm.limits.speed, "speed limit", "rad/s"),
         (reference.qdd, arm.limits.acceleration, "acceleration limit", "rad/s²"),
     ):
@@ -156,6 +156,25 @@ def check_limits(
         moving = max(np.abs(reference.qd[tick]).max(), np.abs(reference.qdd[tick]).max())
         if moving > REST:
             raise Unsafe("--seed", f"{where} does not {end} at rest (|q̇|, |q̈| up to {moving:.3g})")
+
+
+def _check_range(where: str, q: np.ndarray, arm: Robot) -> None:
+    """Unsafe, naming the joint, if an angle leaves its joint's range (`limits.ranges`: ±its
+    position limit, or its lowest and highest angle where they are not symmetric)."""
+    lowest, highest = np.asarray(arm.limits.ranges, dtype=float).T
+    below, above = lowest - q.min(axis=0), q.max(axis=0) - highest
+    beyond = np.maximum(below, above)
+    beyond = np.where(np.isnan(q).any(axis=0), np.inf, beyond)  # a NaN is refused too
+    joint = int(np.argmax(beyond))
+    if beyond[joint] > 0:
+        low, high = arm.limits.ranges[joint]
+        reached = q[:, joint][np.argmax(np.abs(q[:, joint] - (low + high) / 2))]
+        range_text = f"±{high:.3f}" if low == -high else f"{low:.3f} to {high:.3f}"
+        raise Unsafe(
+            "--seed",
+            f"{where} leaves {arm.name}'s published limits: {arm.joint_names[joint]} reaches "
+            f"{reached:.3f} rad, beyond its joint range of {range_text} rad",
+        )
 
 
 def check_span(

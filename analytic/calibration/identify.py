@@ -111,15 +111,7 @@ class Fit:
             }
         )
         twin = PlantSpec.model_validate(twin.model_dump())  # every rule of a plant checked
-        return twin.model_copy(update={"substeps": max(twin.substeps, fewest_substeps(twin))})
-
-
-def fewest_substeps(spec: PlantSpec) -> int:
-    """The fewest physics steps per tick `spec`'s springs need: its robot says, where it can (an
-    arm built from an MJCF, models/mjcf_arm.py), else the iiwa 14's rule (models/iiwa14.py)."""
-    robot = robot_of(spec)
-    own = getattr(robot, "min_substeps", None)  # not (yet) in the Robot protocol
-    return int(own(spec)) if callable(own) else min_substeps(spec)
+        return twin.model_copy(update={"substeps": max(twin.substeps, min_substeps(twin))})
 
 
 def _tuple(estimate: Estimate) -> tuple[float, ...]:
