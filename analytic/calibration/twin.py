@@ -99,8 +99,22 @@ _ESTIMATES = (
 
 
 def write_text(plant_file: PlantFile) -> str:
-    """The plant file as TOML, read back by schemas.plant_file.read_plant_file."""
-    return tomli_w.dumps(plant_file.model_dump(mode="json"))
+    """The plant file as TOML, read back by schemas.plant_file.read_plant_file. A per-joint
+    field the plant leaves None (the robot's own numbers) is left out: TOML has no None, and a
+    field left out reads back None (a twin's are all written: the fit's or the nominal's)."""
+    table = plant_file.model_dump(mode="json")
+    plant = table["plant"]
+    for field in _PER_JOINT:
+        if plant.get(field, 0) is None:
+            del plant[field]
+    friction = plant.get("friction")
+    if isinstance(friction, dict):  # None, no friction at all, is not the robot's own: kept
+        table["plant"]["friction"] = {k: v for k, v in friction.items() if v is not None}
+    return tomli_w.dumps(table)
+
+
+# A plant's fields that None leaves to its robot (schemas.robot.PlantSpec).
+_PER_JOINT = ("stiffness", "spring_damping", "rotor_inertia", "mass_scale")
 
 
 def _calibrated_range(shipped: dict[str, Any], estimate: Estimate, joints: int) -> dict[str, Any]:

@@ -54,6 +54,8 @@ from gainfarm.models.dynamics import (
     Kind,
     Network,
     Target,
+    WrongRobot,
+    check_robot,
     consistent_coordinates,
     digest,
     from_consistent,
@@ -565,7 +567,11 @@ def score(model: DynamicsModel, dataset_dir: Path, split: str = "test") -> dict[
     target) and RMSE; the nMSE's mean over all joints but the flange's (A1..A6 on the iiwa 14:
     "nmse_mean") and over all, the RMSE's over the first four (A1..A4, "rmse_a1_a4", the joints
     published figures give); and the nMSE of predicting the training split's mean, the baseline
-    (about 1)."""
+    (about 1). LearnError, one line, if `model` is of another arm than the dataset."""
+    try:  # even of as many joints, another arm's model computes torques for other links
+        check_robot(model, arm(dataset_dir)[0])
+    except WrongRobot as error:
+        raise LearnError(f"{str(dataset_dir)!r}: {error}") from None
     rows = read_split(dataset_dir, split)
     if not len(rows):
         raise LearnError(no_rows(dataset_dir, split))

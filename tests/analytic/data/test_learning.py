@@ -511,3 +511,13 @@ def test_a_ur5e_linear_model_identifies_78_parameters(ur5e):
     assert model.parameters is not None and model.parameters.shape == (78,)
     assert model.about["inconsistencies"] == []  # consistent by construction
     assert score(model, ur5e)["nmse_mean"] < 0.2
+
+
+def test_a_model_of_another_arm_is_not_scored_on_a_dataset(ur5e, realistic):
+    iiwa = fit(realistic, "inverse", "rigid")
+    with pytest.raises(LearnError, match=r"model of iiwa14 \(7 joints\) cannot drive ur5e"):
+        score(iiwa, ur5e)
+    # As many joints is not the same arm: the Panda's prior on the iiwa's data.
+    panda = rigid_prior(plant_preset("realistic", "panda"))
+    with pytest.raises(LearnError, match=r"model of panda .* cannot drive iiwa14"):
+        score(panda, realistic)
