@@ -55,7 +55,7 @@ SEVEN = "1,1,1,1,1,1,1"
 @pytest.mark.parametrize(
     ("args", "says"),
     [
-        (["--kp", "1,2,3"], "expected 7 numbers"),
+        (["--kp", "1,2,3"], "--kp: 3 gains for iiwa14's 7 joints"),
         (["--center", "1,2"], "expected 3 numbers"),
         (["--size", "-0.1"], "size"),
         (["--kd", "1,1,1,1,1,1,nan"], "finite and non-negative"),
@@ -106,12 +106,12 @@ def test_unreachable_path_is_a_clear_error(tmp_path):
         (
             ["--gravity-compensation"],
             "--gravity-compensation: the realistic plant already adds the robot's own gravity "
-            "compensation (KUKA's FRI torque mode); with --plant plain or --plant ideal the PD's "
+            "compensation (KUKA FRI torque mode); with --plant plain or --plant ideal the PD's "
             "torque is the whole motor torque, and this flag adds it",
         ),
         (
             ["--trajectory", "spiral", "--duration", "1"],
-            "--duration: the 1 s spiral is too fast for the iiwa 14: A7 would need 2.55x its "
+            "--duration: the 1 s spiral is too fast for iiwa14: A7 would need 2.55x its "
             "speed limit; the shortest feasible duration is 2.6 s",
         ),
     ],
