@@ -66,7 +66,7 @@ def ready_posture(yaw: float = 0.0, robot: str = DEFAULT_ROBOT) -> np.ndarray:
     is left at home (the inverse kinematics then finds its own way).
     """
     posture = home(robot)
-    sign, heading, reach = _facing(robot)
+    sign, heading, reach = facing(robot)
     if sign == 0.0:
         return posture
     turn = math.remainder(yaw - heading, 2.0 * math.pi)  # the shorter way round
@@ -75,7 +75,7 @@ def ready_posture(yaw: float = 0.0, robot: str = DEFAULT_ROBOT) -> np.ndarray:
 
 
 @cache
-def _facing(robot: str) -> tuple[float, float, float]:
+def facing(robot: str) -> tuple[float, float, float]:
     """(the sign of the first joint's axis against the vertical, or 0 if it is not vertical;
     the flange's heading at home about that axis, rad; how far the first joint may turn, rad)."""
     model = kinematic_model(robot)

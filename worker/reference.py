@@ -37,6 +37,7 @@ from gainfarm.worker.ik import (
     ORIENTATION_TOLERANCE,
     REACH_TOLERANCE,
     UnreachablePath,
+    facing,
     kinematic_model,
     ready_posture,
     solve_path,
@@ -136,6 +137,14 @@ def reference_for(spec: TrajectorySpec, robot: str = DEFAULT_ROBOT) -> Reference
     for array in (t, ee, q, qd, qdd):
         array.flags.writeable = False
     return reference
+
+
+def forget_robots() -> None:
+    """Forget every robot's references and kinematics this process cached: for a robot
+    registered under a name another held before (gainfarm.testing.robots registers one for its
+    checks), whose references are its own."""
+    for cached in (arm_of, reference_for, _segments, facing):
+        cached.cache_clear()
 
 
 # --- Cartesian kinds ------------------------------------------------------------------------
