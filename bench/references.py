@@ -1,17 +1,19 @@
 """Each shipped arm's default references against its data sheet: the peak joint speed and
 acceleration of every trajectory kind, as a share of the arm's own limits.
 
-    python bench/references.py [--robots iiwa14,ur5e,...] [--duration 5]
+    python bench/references.py [--robots iiwa14,ur5e,...] [--duration S]
 
 For every installed arm (`--robots`) and every built-in kind (spiral, random, pyramid, fourier),
-the kind's default spec (TrajectorySpec's defaults: a 5 s path of seed 0) placed in the arm's
-workspace (centred on its `workspace.center`; the fourier kind moves about its home), the
-reference the worker builds for it (worker.reference.reference_for): per joint, its largest
-|q̇| over the speed limit and |q̈| over the acceleration limit; the table gives the largest of
-each over the joints, which joint it is, and the kind's shortest feasible duration on that arm.
-Issue 49's target: every share at most 0.9 (the fourier kind scales itself to 0.85; a Cartesian
-kind's shares are its shortest feasible duration over the duration asked, to the first and
-second power, since the worker times its segments by their shortest times).
+the kind's default spec (TrajectorySpec's defaults, seed 0) placed in the arm's workspace
+(centred on its `workspace.center`; the fourier kind moves about its home) at its default
+duration on that arm (worker.reference.default_duration: 5 s, or longer where the arm needs it;
+`--duration` for another), the reference the worker builds for it (reference_for): per joint,
+its largest |q̇| over the speed limit and |q̈| over the acceleration limit; the table gives the
+largest of each over the joints, which joint it is, the duration, and the kind's shortest
+feasible duration on that arm. Issue 49's target: every share at most 0.9 (the fourier kind
+scales itself to 0.85; a Cartesian kind's shares are at most its shortest feasible duration over
+the duration, to the first and second power, since the worker times its segments by their
+shortest times).
 """
 
 import time
@@ -23,15 +25,21 @@ from common import print_table
 from gainfarm import plugins
 from gainfarm.models import robot_of
 from gainfarm.schemas.trajectory import TrajectoryKind, TrajectorySpec
-from gainfarm.worker.reference import arm_of, reference_for, shortest_duration
+from gainfarm.worker.reference import (
+    DEFAULT_SHARE,
+    arm_of,
+    default_duration,
+    reference_for,
+    shortest_duration,
+)
 
-TARGET = 0.9  # issue 49: a default reference within 90 % of the data sheet's speed, acceleration
 
-
-def default_spec(robot: str, kind: str, duration: float) -> TrajectorySpec:
-    """The kind's default spec on the arm: centred on its workspace centre."""
-    center = robot_of(robot).workspace.center
-    return TrajectorySpec(kind=kind, duration=duration, center=center)
+def default_spec(robot: str, kind: str, duration: float | None) -> TrajectorySpec:
+    """The kind's default spec on the arm: centred on its workspace centre, its default duration
+    there (or `duration`)."""
+    spec = TrajectorySpec(kind=kind, center=robot_of(robot).workspace.center)
+    chosen = default_duration(spec, robot) if duration is None else duration
+    return spec.model_copy(update={"duration": chosen})
 
 
 def peaks(robot: str, spec: TrajectorySpec) -> tuple[float, str, float, str]:
@@ -49,11 +57,9 @@ def peaks(robot: str, spec: TrajectorySpec) -> tuple[float, str, float, str]:
 @click.option(
     "--duration",
     type=click.FloatRange(min=0.1, max=120),
-    default=TrajectorySpec.model_fields["duration"].default,
-    show_default=True,
-    help="s, every kind's",
+    help="s, every kind's  [default: each kind's default duration on each arm]",
 )
-def main(robots: str | None, duration: float) -> None:
+def main(robots: str | None, duration: float | None) -> None:
     names = plugins.names(plugins.ROBOTS) if robots is None else tuple(robots.split(","))
     rows, worst = [], 0.0
     began = time.perf_counter()
@@ -70,21 +76,23 @@ def main(robots: str | None, duration: float) -> None:
                 (
                     robot,
                     kind.value,
+                    f"{spec.duration:g}",
                     f"{speed:.2f} ({fast})",
                     f"{acceleration:.2f} ({hard})",
                     f"{shortest_duration(spec, robot):.1f}",
                 )
             )
     print(
-        f"default references ({duration:g} s, seed 0, each arm's workspace centre): peak share "
-        "of the data sheet's limit, over the joints (the joint)\n"
+        "default references (seed 0, each arm's workspace centre): peak share of the data "
+        "sheet's limit, over the joints (the joint)\n"
     )
     print_table(
-        ("arm", "kind", "speed / limit", "acceleration / limit", "shortest feasible s"),
-        "llrrr",
+        ("arm", "kind", "duration s", "speed / limit", "acceleration / limit", "shortest s"),
+        "llrrrr",
         rows,
     )
-    print(f"\nlargest share: {worst:.2f} (target <= {TARGET}); {time.perf_counter() - began:.0f} s")
+    took = time.perf_counter() - began
+    print(f"\nlargest share: {worst:.2f} (target <= {DEFAULT_SHARE:g}); {took:.0f} s")
 
 
 if __name__ == "__main__":

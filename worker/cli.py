@@ -77,7 +77,9 @@ def app() -> None:
 @click.option("--json", "as_json", is_flag=True, help="print the scores as one JSON object")
 def episode(**given: Any) -> None:
     """Simulate one PD episode on the arm --robot names (the iiwa 14 by default), write its MCAP
-    log and print its scores. --center defaults to the robot's workspace centre."""
+    log and print its scores. --center defaults to the robot's workspace centre, --duration to
+    the kind's default on the robot: 5 s, or longer on an arm that needs it to stay within 90 %
+    of its speed and acceleration limits (the Kinova Gen3's spiral and pyramid: 5.5 s)."""
     # What a parse can refuse, refused before the work's imports (the contract, MuJoCo).
     for option in ("kp", "kd"):
         if given[option] is not None:

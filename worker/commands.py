@@ -127,6 +127,12 @@ def episode(
     from gainfarm.worker.job import drawing
 
     try:
+        if not as_tuned and not _given("duration"):  # the robot's default for the kind
+            trajectory = spec.trajectory
+            chosen = reference.default_duration(trajectory, spec.plant.robot)
+            spec = spec.model_copy(
+                update={"trajectory": trajectory.model_copy(update={"duration": chosen})}
+            )
         log = run_episode(spec, learned[1] if learned is not None else None)
     except ik.UnreachablePath as error:
         raise CliError(f"{'--as-tuned' if as_tuned else '--center/--size'}: {error}") from None

@@ -60,6 +60,10 @@ MIN_SEGMENT_SAMPLES = 100  # and at least this many per rest-to-rest segment
 # finer than the control ticks of any duration up to 20 s, so no tick sees a higher peak.
 LIMIT_SAMPLES = 10001
 LIMIT_TOLERANCE = 1e-9  # relative: a duration exactly at the limit is feasible
+# Issue 49: a default reference uses at most this share of any joint's data-sheet speed and
+# acceleration, on every arm (`default_duration`), leaving a controller room to catch up.
+DEFAULT_SHARE = 0.9
+DEFAULT_STEP = 0.5  # s: a longer default duration is a multiple of this
 
 
 class InfeasibleReference(ValueError):
@@ -173,6 +177,22 @@ def shortest_duration(spec: TrajectorySpec, robot: str = DEFAULT_ROBOT) -> float
     if kind.joint_motion is not None:
         return round_up(_declared_shortest(spec, kind))
     return round_up(sum(segment.shortest for segment in _segments(_path_of(spec), robot)))
+
+
+def default_duration(spec: TrajectorySpec, robot: str = DEFAULT_ROBOT) -> float:
+    """The duration `spec`'s motion runs by default on `robot` (its own duration ignored):
+    TrajectorySpec's default (5 s), or, on an arm that needs longer to follow it within
+    DEFAULT_SHARE of its speed and acceleration limits, the shortest multiple of DEFAULT_STEP
+    that does (the Kinova Gen3's slow wrist: its default spiral and pyramid take 5.5 s). A
+    Cartesian reference's peak share is its shortest feasible duration over its duration (each
+    segment is timed by its own shortest time: speed the ratio, acceleration its square), so
+    that duration keeps every joint within the share; the fourier kind scales itself to 0.85 at
+    any duration."""
+    standard = float(TrajectorySpec.model_fields["duration"].default)
+    need = shortest_duration(spec, robot) / DEFAULT_SHARE
+    if need <= standard:
+        return standard
+    return math.ceil(need / DEFAULT_STEP - 1e-9) * DEFAULT_STEP
 
 
 def path_progress(spec: TrajectorySpec, robot: str = DEFAULT_ROBOT) -> np.ndarray:

@@ -35,14 +35,21 @@ from gainfarm.schemas.robot import (
     Robot,
     TorqueInterface,
 )
-from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectoryKind, TrajectorySpec
+from gainfarm.schemas.trajectory import (
+    CONTROL_PERIOD,
+    MAX_DURATION,
+    TrajectoryKind,
+    TrajectorySpec,
+)
 from gainfarm.worker.episode import simulate
 from gainfarm.worker.ik import UnreachablePath, solve_path
 from gainfarm.worker.plant import Plant, RobotGravity
 from gainfarm.worker.reference import (
+    DEFAULT_SHARE,
     InfeasibleReference,
     Reference,
     arm_of,
+    default_duration,
     forget_robots,
     reference_for,
 )
@@ -62,10 +69,6 @@ HOLD_TOLERANCE = 0.005  # rad
 GRAVITY_TOLERANCE = 1e-6  # N·m, plus the same relative to the torque
 GRAVITY_POSTURES = 5  # seeded postures within each joint's range, besides home and zero
 PATH_SAMPLES = 60  # inverse-kinematics samples along each workspace point's path
-# Issue 49: every kind's default reference (5 s, at the workspace centre) uses at most this share
-# of each joint's data-sheet speed and acceleration (the fourier kind scales itself to 0.85; a
-# Cartesian kind's share is its shortest feasible duration over 5 s, and its square).
-REFERENCE_SHARE = 0.9
 
 
 def check_name(robot: Robot) -> None:
@@ -236,21 +239,28 @@ def check_workspace(robot: Robot) -> None:
 
 def check_references(robot: Robot) -> None:
     """Every built-in kind's default reference on the robot (TrajectorySpec's defaults, centred
-    on the workspace centre) is built by the worker, stays within the joints' ranges and uses at
-    most REFERENCE_SHARE of each joint's speed and acceleration limit."""
+    on the workspace centre, at the kind's default duration on the robot: 5 s, or longer where
+    the arm needs it, within the spec's bounds) is built by the worker, stays within the joints'
+    ranges and uses at most DEFAULT_SHARE (0.9) of each joint's speed and acceleration limit."""
     with findable(robot):
         arm = arm_of(robot.name)
         try:
             for kind in TrajectoryKind:
                 spec = TrajectorySpec(kind=kind.value, center=robot.workspace.center)
                 try:
+                    duration = default_duration(spec, robot.name)
+                    assert duration <= MAX_DURATION, (
+                        f"the default {kind.value}: {duration:g} s to stay within "
+                        f"{DEFAULT_SHARE:g} of the limits, beyond {MAX_DURATION:g} s"
+                    )
+                    spec = spec.model_copy(update={"duration": duration})
                     reference = reference_for(spec, robot.name)
                 except (UnreachablePath, InfeasibleReference) as error:
                     raise AssertionError(f"the default {kind.value}: {error}") from None
                 for values, limits, what, bound in (
                     (reference.q, arm.position, "range", 1.0),
-                    (reference.qd, arm.speed, "speed limit", REFERENCE_SHARE),
-                    (reference.qdd, arm.acceleration, "acceleration limit", REFERENCE_SHARE),
+                    (reference.qd, arm.speed, "speed limit", DEFAULT_SHARE),
+                    (reference.qdd, arm.acceleration, "acceleration limit", DEFAULT_SHARE),
                 ):
                     share = np.abs(values).max(axis=0) / limits
                     joint = int(share.argmax())
