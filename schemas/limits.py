@@ -84,9 +84,10 @@ class Limits(BaseModel):
     torque_step: Limit | None = Field(
         0.1,
         # Assumption: KUKA publishes no torque rate; the same share serves every arm. A tenth of
-        # the joint's limit in 2 ms (on the iiwa 14: 32 N·m on A1, 4 on A7) is 11 times the default gains' largest step and 6 times that of the smooth controllers
-        # measured (bench/limit_measures.py); the chattering ones step by 0.44 to 2 (a real arm's
-        # safety stop would trip).
+        # the joint's limit in 2 ms (on the iiwa 14: 32 N·m on A1, 4 on A7) is 11 times the
+        # default gains' largest step and 6 times that of the smooth controllers measured
+        # (bench/limit_measures.py); the chattering ones step by 0.44 to 2 (a real arm's safety
+        # stop would trip).
         description="largest torque change in one tick, share of the joint's torque limit "
         "(assumption: KUKA publishes no torque rate)",
     )
