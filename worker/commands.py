@@ -185,8 +185,10 @@ def _check_plant(spec: "PlantSpec", plant: str) -> None:
     try:
         resolved = resolve(spec)
     except PlantError as error:
-        option = "--payload" if str(error).startswith("payload") else "--plant"
-        raise CliError(f"{option}: {error}") from None
+        field, said = str(error).split(": ", 1)
+        if field == "payload":  # the told load's, or a plant file's untold payload
+            raise CliError(f"--payload: {said}") from None
+        raise CliError(f"--plant: {error}") from None
     try:
         robot_of(spec).build(resolved)
     except ValueError as error:
