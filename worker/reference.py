@@ -74,11 +74,13 @@ class InfeasibleReference(ValueError):
 class Arm:
     """What a reference needs of its robot: its rigid chain (kinematics do not depend on the
     elastic joints' numbers nor on the inertials: the rigid chain serves every plant), its
-    flange, its joints' names and limits as arrays."""
+    flange, its joints' names and limits as arrays. A joint's range is its hinge's in the built
+    model (the robot puts its data sheet's there; a range need not be symmetric: the Panda's)."""
 
     robot: Robot
     model: mujoco.MjModel
-    position: np.ndarray  # rad, each joint's range ±
+    low: np.ndarray  # rad, each joint's lowest angle
+    high: np.ndarray  # rad, each joint's highest angle
     speed: np.ndarray  # rad/s
     acceleration: np.ndarray  # rad/s²
 
@@ -98,12 +100,13 @@ class Arm:
 def arm_of(robot: str = DEFAULT_ROBOT) -> Arm:
     """The robot named so, as references need it (once per process)."""
     found = robot_of(robot)
+    model = kinematic_model(robot)
     limits = found.limits
-    position, speed, acceleration = (
-        np.array(values, dtype=float)
-        for values in (limits.position, limits.speed, limits.acceleration)
+    speed, acceleration = (
+        np.array(values, dtype=float) for values in (limits.speed, limits.acceleration)
     )
-    return Arm(found, kinematic_model(robot), position, speed, acceleration)
+    ranges = model.jnt_range.copy()
+    return Arm(found, model, ranges[:, 0], ranges[:, 1], speed, acceleration)
 
 
 @dataclass(frozen=True)
@@ -135,7 +138,7 @@ def reference_for(spec: TrajectorySpec, robot: str = DEFAULT_ROBOT) -> Reference
         ee = path_points(spec, s)
         reached, rotations = _flange(arm, q)
         _check_pose(spec, s, ee, reached, rotations)
-    if np.any(np.abs(q) > arm.position):  # the IK keeps clear of the ranges; the guarantee
+    if np.any((q < arm.low) | (q > arm.high)):  # the IK keeps clear of the ranges; the guarantee
         raise UnreachablePath(f"the {spec.kind} leaves the joint ranges")
     reference = Reference(t, ee, q, qd, qdd)
     for array in (t, ee, q, qd, qdd):

@@ -257,8 +257,12 @@ def check_references(robot: Robot) -> None:
                     reference = reference_for(spec, robot.name)
                 except (UnreachablePath, InfeasibleReference) as error:
                     raise AssertionError(f"the default {kind.value}: {error}") from None
+                outside = (reference.q < arm.low) | (reference.q > arm.high)
+                assert not outside.any(), (
+                    f"the default {kind.value}: {arm.joint(int(outside.any(axis=0).argmax()))} "
+                    "leaves its range"
+                )
                 for values, limits, what, bound in (
-                    (reference.q, arm.position, "range", 1.0),
                     (reference.qd, arm.speed, "speed limit", DEFAULT_SHARE),
                     (reference.qdd, arm.acceleration, "acceleration limit", DEFAULT_SHARE),
                 ):

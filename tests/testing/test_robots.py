@@ -72,12 +72,21 @@ FAULTS = [
         "no-such-ranges.toml",
     ),
     (
-        # A robot whose speed limits are 0.55 of the iiwa's: its default spiral and pyramid (at
-        # 0.51 and 0.55 of the iiwa's, A7) need 0.93-0.94 of its own, still feasible in 5 s but
-        # past the 0.9 share.
+        # A robot fifty times slower than the iiwa: its default spiral (2.6 s on the iiwa, 128 s
+        # on it) would take 142 s to stay within 0.9 of its speed limits, beyond any
+        # trajectory's 120.
         kit.check_references,
-        {"limits": dataclasses.replace(LIMITS, speed=tuple(0.55 * v for v in LIMITS.speed))},
-        "of its speed limit (at most 0.9)",
+        {"limits": dataclasses.replace(LIMITS, speed=tuple(0.02 * v for v in LIMITS.speed))},
+        "the default spiral: 142 s to stay within 0.9 of the limits, beyond 120 s",
+    ),
+    (
+        kit.check_references,
+        {
+            "workspace": dataclasses.replace(
+                iiwa14.WORKSPACE, center=(1.2, 0.0, 0.35), high=(1.2, 0.15, 0.45)
+            )
+        },
+        "the default spiral: the path is unreachable",
     ),
     (kit.check_name, {"name": "Broken Arm"}, "robot name 'Broken Arm'"),
     (kit.check_limits, {"limits": dataclasses.replace(LIMITS, speed=LIMITS.speed[:6])}, "speed"),

@@ -75,14 +75,15 @@ def motion(
     """
     home = np.array(robot.workspace.home, dtype=float)
     limits = robot.limits
-    position, speed, acceleration = (
-        np.array(values, dtype=float)
-        for values in (limits.position, limits.speed, limits.acceleration)
+    speed, acceleration = (
+        np.array(values, dtype=float) for values in (limits.speed, limits.acceleration)
     )
+    model = kinematic_model(robot.name)
+    low, high = model.jnt_range[:, 0], model.jnt_range[:, 1]  # its hinges' (need not be ±)
     a, b = fourier_coefficients(spec, len(robot.joint_names))
     x, dx, ddx = fourier_series(a, b, np.linspace(0.0, 1.0, _PEAK_SAMPLES))
-    room_up = np.minimum(FOURIER_SPAN, position - FOURIER_RANGE_MARGIN - home)
-    room_down = np.minimum(FOURIER_SPAN, position - FOURIER_RANGE_MARGIN + home)
+    room_up = np.minimum(FOURIER_SPAN, high - FOURIER_RANGE_MARGIN - home)
+    room_down = np.minimum(FOURIER_SPAN, -low - FOURIER_RANGE_MARGIN + home)
     tiny = np.finfo(float).tiny
     duration = spec.duration
     scale = np.min(
@@ -95,7 +96,6 @@ def motion(
         axis=0,
     )
     x, dx, ddx = fourier_series(a, b, np.clip(t / duration, 0.0, 1.0))
-    model = kinematic_model(robot.name)
     data = mujoco.MjData(model)
     site = model.site(robot.flange).id
     while True:
