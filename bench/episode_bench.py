@@ -2,7 +2,7 @@
 physics, alone and in batches; and of scoring a log from its bytes.
 
     python bench/episode_bench.py [--quick] [--repeats 5] [--duration 5] [--batches 1,8,32,128]
-                                  [--robots iiwa14,ur5e,...]
+                                  [--robots iiwa14,ur5e,...] [--arms-only]
 
 The anchor is the physics the episode ran: its per-step `ctrl` and `qfrc_applied` (the motors'
 commands, their friction), recorded as the episode stepped, replayed through MuJoCo's own
@@ -154,11 +154,17 @@ def _batches(text: str) -> list[int]:
     "--robots",
     help="the arms of the per-arm table, comma-separated  [default: every installed one]",
 )
-def main(quick: bool, repeats: int, duration: float, batches: str, robots: str | None) -> None:
+@click.option("--arms-only", is_flag=True, help="the per-arm table alone")
+def main(
+    quick: bool, repeats: int, duration: float, batches: str, robots: str | None, arms_only: bool
+) -> None:
     sizes = _batches(batches)
     arms = _robots(robots)
     if quick:
         repeats, duration, sizes = 2, 1.0, [1, 8]
+    if arms_only:
+        per_arm(arms, repeats, duration, max((size for size in sizes if size <= 32), default=1))
+        return
     kind = "fourier" if duration < 3 else "spiral"  # a Cartesian path needs some 3 s
     trajectory = TrajectorySpec(kind=kind, duration=duration)
     realistic = EpisodeSpec(gains=DEFAULT_GAINS, trajectory=trajectory, plant=REALISTIC_PLANT)
