@@ -10,13 +10,13 @@ dtype: a chunk's whole record stream is one array. Reading does the reverse: a c
 are viewed through the same dtype, checked byte for byte against the template, and the numbers
 are sliced out as columns.
 
-For ROS 2 tools to show the arm, the file's first chunk holds the arm's URDF on
-/robot_description and its links' transforms on /tf (every TF_EVERY ticks), made from the logged
-joint angles the same way (one template /tf message, its stamps and rotations filled in by
-NumPy). The writer is given both as a RobotDescription (the iiwa's: models/urdf.py), so the
-contract needs no robot model. They add nothing the columns lack, so the reader skips that chunk
-unread: logs written before it existed read as before, the scores never depend on it, and
-reading needs no description.
+For ROS 2 tools to show the arm, the file's first chunk holds the arm's URDF on /robot_description
+and its links' transforms on /tf (every TF_EVERY ticks), made from the logged joint angles the same
+way (one template /tf message, its stamps and rotations filled in by NumPy). The writer is given
+both as a RobotDescription (the iiwa's: models/urdf.py; None for an arm with no description: its log
+has neither), so the contract needs no robot model. They add nothing the columns lack, so the reader
+skips that chunk unread: logs written before it existed read as before, the scores never depend on
+it, and reading needs no description.
 
 The records around the messages (Header, Metadata, Chunk, MessageIndex, DataEnd, the summary
 section and the Footer) are written with the mcap library's record classes, with the contents its
