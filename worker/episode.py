@@ -84,7 +84,7 @@ def true_compensation(
 
     Neither is a model file's to say (they need the gains, the tick and the springs), so the
     farm's jobs run the plain true model; bench/true_feedforward.py measures both."""
-    model, plant = true_model(spec.plant), spec.plant
+    model, plant = true_model(spec.plant), resolve(spec.plant)
     torque = model.inverse(reference.q, reference.qd, reference.qdd)
     motor_angles = reference.q
     if deflection and plant.joints == "flexible" and plant.feedback == "motor":
@@ -152,7 +152,7 @@ def _setup(spec: EpisodeSpec, reference: Reference, added: np.ndarray | None) ->
         gains = np.hstack([kp_state, kd_state])  # Kp q + Kd q̇ = gains @ (qpos, qvel)
         return Stepped(plant, reference, gains, feedforward)
     sensing = _Sensing.of(plant, controller)
-    friction = spec.plant.friction
+    friction = plant.spec.friction  # the resolved plant's: the robot's own unless the spec says
     fri = spec.plant.interface == "fri"
     return Stepped(
         plant,

@@ -18,7 +18,7 @@ from gainfarm.analytic.evaluators.local import free_port, spawn_worker
 from gainfarm.broker.service import Broker
 from gainfarm.edges.parts import fetch_parts
 from gainfarm.edges.transport import open_session
-from gainfarm.models import plant_preset, robot_of
+from gainfarm.models import plant_preset, resolve, robot_of
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec, keys
 from gainfarm.schemas.mcap_episode import decode_episode
 from gainfarm.schemas.objectives import score
@@ -618,7 +618,10 @@ def test_a_log_not_sent_is_kept_and_served_to_its_study_alone(
         log = fetch_log(session, keys.log("s", "w", sent.digest))
         assert sent.job_id == "sent" and payload == b""
         assert log is not None and hashlib.sha256(log).hexdigest() == sent.digest
-        assert decode_episode(log).metadata.spec == short_spec(seed=2)
+        ran = short_spec(seed=2)  # as the worker logs it: its plant written out
+        assert decode_episode(log).metadata.spec == ran.model_copy(
+            update={"plant": resolve(ran.plant)}
+        )
         assert sent.scores is not None
         assert sent.scores.model_dump() == score(decode_episode(log)).model_dump()
         assert len(worker.logs) == 2 and worker.logs.bytes == len(content) + len(log)
