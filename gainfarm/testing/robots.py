@@ -81,7 +81,8 @@ def check_name(robot: Robot) -> None:
 
 def check_limits(robot: Robot) -> None:
     """Every limit positive and finite, one per joint; default gains and home one per joint;
-    home within the position limits."""
+    home within each joint's range (`limits.ranges`: ±position, or its own lowest and highest
+    angles)."""
     joints = len(robot.joint_names)
     assert joints >= 1 and len(set(robot.joint_names)) == joints, "joint names: distinct, some"
     for which in ("torque", "speed", "position", "acceleration"):
@@ -93,10 +94,12 @@ def check_limits(robot: Robot) -> None:
         assert len(gains) == joints, f"default {which}: {len(gains)} gains for {joints} joints"
     home = robot.workspace.home
     assert len(home) == joints, f"workspace home: {len(home)} angles for {joints} joints"
+    ranges = robot.limits.ranges
+    assert len(ranges) == joints, f"position ranges: {len(ranges)} for {joints} joints"
     outside = [
         name
-        for name, angle, limit in zip(robot.joint_names, home, robot.limits.position, strict=True)
-        if abs(angle) > limit
+        for name, angle, (low, high) in zip(robot.joint_names, home, ranges, strict=True)
+        if not low <= angle <= high
     ]
     assert not outside, f"workspace home: {', '.join(outside)} beyond the position limit"
 
@@ -162,7 +165,7 @@ def check_builds(robot: Robot) -> None:
                 plant.torque_limits, robot.limits.torque, err_msg=f"{kind}: motors' ctrlrange"
             )
             np.testing.assert_allclose(
-                plant.joint_range[:, 1], robot.limits.position, err_msg=f"{kind}: hinges' range"
+                plant.joint_range, robot.limits.ranges, err_msg=f"{kind}: hinges' range"
             )
             model.site(robot.flange)  # KeyError if the flange is missing
 
