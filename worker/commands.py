@@ -69,6 +69,8 @@ def episode(
 
     model = values.model_spec(plant, joints) if plant not in PLANTS else None
     robot = _robot_of_plant(robot, model, plant)
+    if as_tuned and gains_file is not None and not _given("robot"):
+        robot = _tuned_robot(gains_file, robot)  # the controller's own arm, as the file says
     arm = robot_of(robot)
     gains, controller = (
         _file_gains(gains_file, arm.joint_names) if gains_file is not None else (None, None)
@@ -193,6 +195,16 @@ def _check_plant(spec: "PlantSpec", plant: str) -> None:
         robot_of(spec).build(resolved)
     except ValueError as error:
         raise CliError(f"--plant: {plant!r}: {error}") from None
+
+
+def _tuned_robot(path: Path, robot: str) -> str:
+    """The arm an exported controller was tuned on (its source plant's robot), or `robot` if
+    the file is not one (its reading, later, says what is wrong)."""
+    try:
+        controller = read_controller(read_bounded(path))
+    except (OSError, BadDocument):
+        return robot
+    return robot if controller is None else controller.source.model.robot
 
 
 def _option_gains(
