@@ -128,12 +128,12 @@ def test_a_worker_process_serves_jobs_and_a_failing_job_does_not_stop_it(
     ran, sent = results["near"]
     assert ran.status == JobStatus.ok and ran.worker == "cobot-1" and sent == b""
     assert content is not None and ran.episode_bytes == len(content)
-    assert decode_episode(content).metadata.spec == short_spec()
+    assert decode_episode(content).metadata.spec == as_logged(short_spec())
     assert ran.scores is not None
     assert ran.scores.model_dump() == score(decode_episode(content)).model_dump()
     assert kept.status == JobStatus.ok and empty == b""
     assert fetched is not None and hashlib.sha256(fetched).hexdigest() == kept.digest
-    assert decode_episode(fetched).metadata.spec == short_spec(seed=1)
+    assert decode_episode(fetched).metadata.spec == as_logged(short_spec(seed=1))
     assert broker.queue.jobs_done == 3
 
 
@@ -179,6 +179,11 @@ def test_a_worker_serves_a_six_joint_arm_and_refuses_an_arm_it_lacks(
     log = decode_episode(content)
     assert log.metadata.joint_names == ur5e.joint_names and log.q.shape[1] == 6
     assert ran.scores is not None and ran.scores.model_dump() == score(log).model_dump()
+
+
+def as_logged(spec: EpisodeSpec) -> EpisodeSpec:
+    """`spec` as its worker logs it: its plant's numbers written out (models.resolve)."""
+    return spec.model_copy(update={"plant": resolve(spec.plant)})
 
 
 def _zenoh_shared_memory() -> list[str]:
@@ -618,10 +623,7 @@ def test_a_log_not_sent_is_kept_and_served_to_its_study_alone(
         log = fetch_log(session, keys.log("s", "w", sent.digest))
         assert sent.job_id == "sent" and payload == b""
         assert log is not None and hashlib.sha256(log).hexdigest() == sent.digest
-        ran = short_spec(seed=2)  # as the worker logs it: its plant written out
-        assert decode_episode(log).metadata.spec == ran.model_copy(
-            update={"plant": resolve(ran.plant)}
-        )
+        assert decode_episode(log).metadata.spec == as_logged(short_spec(seed=2))
         assert sent.scores is not None
         assert sent.scores.model_dump() == score(decode_episode(log)).model_dump()
         assert len(worker.logs) == 2 and worker.logs.bytes == len(content) + len(log)
