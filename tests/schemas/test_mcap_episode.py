@@ -1,6 +1,7 @@
 """Episode logs on disk: exact round trips, readable by an independent ROS 2 decoder, with the
 arm's description and transforms for ROS 2 tools, which the writer is given."""
 
+import dataclasses
 import io
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -389,3 +390,13 @@ def test_a_log_whose_names_or_limits_miscount_its_joints_is_refused(ur5e_log):
     iiwa_names = ur5e_log.metadata.model_dump() | {"joint_names": JOINT_NAMES}
     with pytest.raises(ValueError, match="torque_limits: one per joint"):
         type(ur5e_log.metadata).model_validate(iiwa_names)
+
+
+def test_columns_that_are_not_one_per_named_joint_are_refused_before_any_byte(
+    tracking_log, ur5e_log
+):
+    # The iiwa's seven columns under the UR5e's six names: the writer refuses, as the reader
+    # refuses messages of another layout than the names its metadata gives.
+    misnamed = dataclasses.replace(tracking_log, metadata=ur5e_log.metadata)
+    with pytest.raises(ValueError, match=r"not \(\d+, 6\): one row of /joint_states"):
+        episode_bytes(misnamed, None)
