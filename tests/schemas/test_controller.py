@@ -86,8 +86,8 @@ def test_non_finite_gains_and_files_that_are_neither_json_nor_yaml_are_refused()
     with pytest.raises(BadGains, match=r"kp of A1: inf is not finite"):
         read_gains(b'{"kp": [1e999, 1, 1, 1, 1, 1, 1], "kd": [1, 1, 1, 1, 1, 1, 1]}')
     expected = (
-        'expected a controller from `analytic export` or a list of {"kp": [7 numbers], '
-        '"kd": [7 numbers]}'
+        'expected a controller from `analytic export` or a list of {"kp": [a number per '
+        'joint], "kd": [a number per joint]}'
     )
     for raw, says in (
         (b'{"kp": [1,', f"not JSON (Expecting value at line 1 column 11); {expected}"),

@@ -396,7 +396,7 @@ def test_runs_compare_and_a_member_is_inspected_exported_and_its_episode_plotted
         assert state["episode"] == (
             f"row {row}, trajectory 1 (0.5 s fourier) on the nominal plant: its log, "
             f"{members[row - 1].logs[0]}. Its measured torques hold the gravity torque the "
-            "robot&#x27;s own compensation adds under the command (FRI torque mode)."
+            "robot&#x27;s own compensation adds under the command (KUKA FRI torque mode)."
         )
         assert state["ticks"] == kept.ticks
         assert np.allclose(state["error_mm"], np.linalg.norm(kept.ee - kept.ee_des, axis=1) * 1e3)

@@ -181,12 +181,12 @@ def test_a_failed_report_write_leaves_the_old_file_whole(
 def test_a_report_names_the_plant_it_was_simulated_on():
     from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
 
-    assert plant_text(REALISTIC_PLANT) == "realistic plant, flexible joints"
+    assert plant_text(REALISTIC_PLANT) == "iiwa14, realistic plant, flexible joints"
     assert plant_text(IDEAL_PLANT.model_copy(update={"joints": "rigid"})) == (
-        "ideal plant, rigid joints"
+        "iiwa14, ideal plant, rigid joints"
     )
     custom = REALISTIC_PLANT.model_copy(update={"delay": 3})
-    assert plant_text(custom).startswith("custom plant")
+    assert plant_text(custom).startswith("iiwa14, custom plant")
 
 
 def test_the_report_names_the_controller_to_use_beside_the_default_gains(tmp_path: Path) -> None:
@@ -317,15 +317,16 @@ def test_a_runs_title_says_what_it_was_tuned_on() -> None:
         trajectories=(TrajectorySpec(duration=3.0), TrajectorySpec(kind="pyramid", duration=3.0)),
     )
     assert run_title(generic).startswith(
-        "generic controller on spiral, pyramid 3 s, realistic plant, flexible joints, "
+        "generic controller on spiral, pyramid 3 s, iiwa14, realistic plant, flexible joints, "
         "population 16\n"
     )
     mixed = RunConfig(
         trajectories=(TrajectorySpec(duration=3.0), TrajectorySpec(kind="random", duration=4.0)),
         plant=PLANTS["ideal"],
     )
-    assert "on spiral 3 s, random 4 s, ideal plant, flexible joints, population 30" in run_title(
-        mixed
+    assert (
+        "on spiral 3 s, random 4 s, iiwa14, ideal plant, flexible joints, population 30"
+        in run_title(mixed)
     )
 
 
