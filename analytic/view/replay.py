@@ -56,6 +56,7 @@ FLANGE_RGBA = (1.0, 1.0, 1.0, 1.0)  # where the flange is, in the close-up: whit
 # meshes are not vendored) are drawn in the iiwa's orange: grey on the grey floor is hard to see.
 DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)
 ARM_RGBA = (0.9, 0.45, 0.1, 1.0)
+BONE_RADIUS = 0.035  # m: a link without a shape of its own, drawn as a bone (`_bones`)
 
 
 class ReplayError(ValueError):
@@ -230,6 +231,7 @@ def _scene_model(robot: str, width: int, height: int) -> mujoco.MjModel:
     for geom in spec.geoms:
         if tuple(geom.rgba) == DEFAULT_RGBA and not geom.material:
             geom.rgba = ARM_RGBA
+    _bones(spec.worldbody)
     spec.visual.global_.offwidth, spec.visual.global_.offheight = width, height
     spec.add_texture(
         name="sky",
@@ -262,6 +264,36 @@ def _scene_model(robot: str, width: int, height: int) -> mujoco.MjModel:
     spec.visual.quality.offsamples = 0
     model = spec.compile()
     return model
+
+
+def _bones(parent: mujoco.MjsBody) -> None:
+    """A link its model gives no shape (a model vendored without its meshes, as Menagerie's
+    Gen3) drawn as a bone: a capsule from its origin to each of its links', a ball if it has
+    none; so that every arm shows, whatever its file draws. Visual only: contacts are off."""
+    for body in parent.bodies:
+        if not body.geoms:
+            ends = [np.asarray(child.pos, dtype=float) for child in body.bodies]
+            for end in ends:
+                if np.linalg.norm(end) > BONE_RADIUS:
+                    body.add_geom(
+                        type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+                        fromto=[0.0, 0.0, 0.0, *end],
+                        size=[BONE_RADIUS, 0.0, 0.0],
+                        rgba=ARM_RGBA,
+                        contype=0,
+                        conaffinity=0,
+                        density=0.0,
+                    )
+            if not body.geoms:
+                body.add_geom(
+                    type=mujoco.mjtGeom.mjGEOM_SPHERE,
+                    size=[BONE_RADIUS, 0.0, 0.0],
+                    rgba=ARM_RGBA,
+                    contype=0,
+                    conaffinity=0,
+                    density=0.0,
+                )
+        _bones(body)
 
 
 def _gl_context(width: int, height: int) -> object:
