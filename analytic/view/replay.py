@@ -232,6 +232,8 @@ def _scene_model(robot: str, width: int, height: int) -> mujoco.MjModel:
         if tuple(geom.rgba) == DEFAULT_RGBA and not geom.material:
             geom.rgba = ARM_RGBA
     _bones(spec.worldbody)
+    if not spec.lights:  # lit as the iiwa's model is (Menagerie's files leave their lights out)
+        spec.worldbody.add_light(pos=[0.0, 0.0, 3.0], dir=[0.0, 0.0, -1.0])
     spec.visual.global_.offwidth, spec.visual.global_.offheight = width, height
     spec.add_texture(
         name="sky",
