@@ -71,6 +71,21 @@ def mujoco_poses(arm: str, model, data, q: np.ndarray) -> dict[str, tuple[np.nda
     return poses
 
 
+def base_of(arm: str, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+    """Where MuJoCo puts the arm's base, the URDF's root: its position and rotation matrix."""
+    base = data.body(FRAMES[arm][0])
+    return base.xpos.copy(), base.xmat.reshape(3, 3).copy()
+
+
+def in_base_frame(
+    arm: str, poses: dict[str, tuple[np.ndarray, np.ndarray]]
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """`poses` seen from the arm's base, the URDF's root (where the base stands in the world,
+    the UR5e's turned a quarter about z, is /tf's world→base, not the URDF's)."""
+    origin, turn = poses[FRAMES[arm][0]]
+    return {name: (turn.T @ (p - origin), turn.T @ r) for name, (p, r) in poses.items()}
+
+
 def test_each_arm_s_urdf_names_its_own_joints_and_limits() -> None:
     iiwa, ur5e = (pin.buildModelFromXML(urdf(arm)) for arm in ARMS)
     assert iiwa.name == "iiwa14" and list(iiwa.names)[1:] == list(JOINT_NAMES)
@@ -78,7 +93,7 @@ def test_each_arm_s_urdf_names_its_own_joints_and_limits() -> None:
     np.testing.assert_allclose(ur5e.effortLimit, (150, 150, 150, 28, 28, 28), atol=1e-12)
     np.testing.assert_allclose(ur5e.velocityLimit, [np.pi] * 6, atol=1e-11)  # 180 °/s
     np.testing.assert_allclose(iiwa.upperPositionLimit, POSITION_LIMITS, atol=1e-12)
-    assert urdf() == urdf("iiwa14") and description() is description("iiwa14")
+    assert urdf() == urdf("iiwa14") == description().urdf  # the default arm's
 
 
 @pytest.mark.parametrize("arm", ARMS)
@@ -95,7 +110,8 @@ def test_pinocchio_reads_the_urdf_as_the_arm_mujoco_simulates(arm: str) -> None:
     data = model.createData()
     for q in postures(arm):
         pin.framesForwardKinematics(model, data, q)
-        for name, (position, rotation) in mujoco_poses(arm, mj_model, mj_data, q).items():
+        poses = in_base_frame(arm, mujoco_poses(arm, mj_model, mj_data, q))
+        for name, (position, rotation) in poses.items():
             placement = data.oMf[model.getFrameId(name)]
             np.testing.assert_allclose(placement.translation, position, atol=1e-10, err_msg=name)
             np.testing.assert_allclose(placement.rotation, rotation, atol=1e-10, err_msg=name)
@@ -114,6 +130,7 @@ def test_the_urdf_shapes_are_mujocos_geoms(arm: str) -> None:
     mj_model, mj_data = simulated(arm)
     q = postures(arm)[-1]
     mujoco_poses(arm, mj_model, mj_data, q)  # MuJoCo's geoms at q
+    origin, turn = base_of(arm, mj_data)
     data, geometry_data = model.createData(), geometry.createData()
     pin.updateGeometryPlacements(model, data, geometry, geometry_data, q)
     shapes = {
@@ -125,18 +142,18 @@ def test_the_urdf_shapes_are_mujocos_geoms(arm: str) -> None:
         first = int(mj_model.body(body).geomadr[0])
         for geom in range(first, first + int(mj_model.body(body).geomnum[0])):
             kind = mujoco.mjtGeom(mj_model.geom_type[geom])
-            placed = mj_data.geom(geom)
+            centre = turn.T @ (mj_data.geom_xpos[geom] - origin)  # in the base frame
+            axis = turn.T @ mj_data.geom_xmat[geom].reshape(3, 3)[:, 2]
             radius, half = mj_model.geom_size[geom][:2]
-            axis = placed.xmat.reshape(3, 3)[:, 2]
             cylinder, placement = shapes[f"{body}_{visual}"]
             assert cylinder.geometry.radius == pytest.approx(radius)
             assert cylinder.geometry.halfLength == pytest.approx(half)
-            np.testing.assert_allclose(placement.translation, placed.xpos, atol=1e-10)
+            np.testing.assert_allclose(placement.translation, centre, atol=1e-10)
             np.testing.assert_allclose(placement.rotation[:, 2], axis, atol=1e-10)
             if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
                 ends = [shapes[f"{body}_{visual + k}"] for k in (1, 2)]
                 centres = sorted(tuple(p.translation) for _, p in ends)
-                expected = sorted(tuple(placed.xpos + s * half * axis) for s in (-1, 1))
+                expected = sorted(tuple(centre + s * half * axis) for s in (-1, 1))
                 np.testing.assert_allclose(centres, expected, atol=1e-10, err_msg=body)
                 assert all(sphere.geometry.radius == pytest.approx(radius) for sphere, _ in ends)
             visual += VISUALS[kind]
@@ -192,10 +209,10 @@ def test_a_shape_urdf_has_no_primitive_for_is_drawn_as_its_bounding_box(tmp_path
     try:
         model = pin.buildModelFromXML(urdf("shaped"))
         geometry = pin.buildGeomFromUrdfString(model, urdf("shaped"), pin.GeometryType.VISUAL)
-        mj_model, mj_data = arm.build(PlantSpec(robot="shaped", joints="rigid")), None
+        mj_model = arm.build(PlantSpec(robot="shaped", joints="rigid"))
         mj_data = mujoco.MjData(mj_model)
         q = postures("ur5e")[-1]
-        mujoco_poses("shaped", mj_model, mj_data, q)
+        mujoco_poses("ur5e", mj_model, mj_data, q)
         data, geometry_data = model.createData(), geometry.createData()
         pin.updateGeometryPlacements(model, data, geometry, geometry_data, q)
         boxes = {
@@ -208,12 +225,15 @@ def test_a_shape_urdf_has_no_primitive_for_is_drawn_as_its_bounding_box(tmp_path
         box, placement = boxes["forearm_link_2"]
         vertices = mj_model.mesh_vert[: mj_model.mesh_vertnum[0]]  # in the mesh's own frame
         placed = mj_data.geom_xpos[geom] + vertices @ mj_data.geom_xmat[geom].reshape(3, 3).T
+        origin, turn = base_of("ur5e", mj_data)
+        placed = (placed - origin) @ turn  # in the base frame, the URDF's root
         inside = (placed - placement.translation) @ placement.rotation  # in the box's frame
         assert np.all(np.abs(inside) <= box.halfSide + 1e-9)
         assert np.allclose(np.abs(inside).max(axis=0), box.halfSide)  # and tight: the bounds
         ellipsoid = next(g for g in range(mj_model.ngeom) if mj_model.geom_type[g] == 4)
         box, placement = boxes["wrist_3_link_0"]
         np.testing.assert_allclose(box.halfSide, mj_model.geom_size[ellipsoid], atol=1e-12)
-        np.testing.assert_allclose(placement.translation, mj_data.geom_xpos[ellipsoid], atol=1e-10)
+        centre = turn.T @ (mj_data.geom_xpos[ellipsoid] - origin)
+        np.testing.assert_allclose(placement.translation, centre, atol=1e-10)
     finally:
         plugins.unregister(plugins.ROBOTS, "shaped")
