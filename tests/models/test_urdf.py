@@ -220,9 +220,9 @@ def test_a_shape_urdf_has_no_primitive_for_is_drawn_as_its_bounding_box(tmp_path
             for i, obj in enumerate(geometry.geometryObjects)
             if isinstance(obj.geometry, pin.hppfcl.Box)
         }
-        assert set(boxes) == {"forearm_link_2", "wrist_3_link_0"}  # after the elbow's capsule
+        assert set(boxes) == {"forearm_link_3", "wrist_3_link_0"}  # after a capsule: 0-2
         geom = next(g for g in range(mj_model.ngeom) if mj_model.geom_type[g] == 7)  # the mesh
-        box, placement = boxes["forearm_link_2"]
+        box, placement = boxes["forearm_link_3"]
         vertices = mj_model.mesh_vert[: mj_model.mesh_vertnum[0]]  # in the mesh's own frame
         placed = mj_data.geom_xpos[geom] + vertices @ mj_data.geom_xmat[geom].reshape(3, 3).T
         origin, turn = base_of("ur5e", mj_data)
