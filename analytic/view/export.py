@@ -329,9 +329,14 @@ def ros2_control(controller: Controller) -> str:
     diverged = " (diverged: the scores are a penalty)" if member.diverged else ""
     # A member chosen by its row is "row N" already: the row is said once.
     picked = "" if member.selected == f"row {member.row}" else f": {member.selected}"
-    header = [
-        f"# ros2_control parameters: {source.model.robot}'s joint PD gains tuned by gainfarm, run",
-        "# on the effort interface by joint_trajectory_controller (its PID with i = 0 is a PD).",
+    header = textwrap.wrap(
+        f"ros2_control parameters: {source.model.robot}'s joint PD gains tuned by gainfarm, run "
+        "on the effort interface by joint_trajectory_controller (its PID with i = 0 is a PD).",
+        100,
+        initial_indent="# ",
+        subsequent_indent="# ",
+    )
+    header += [
         f"# Run {source.run_id or '(no run id)'} ({source.directory}), front.csv row "
         f"{member.row}{picked}.",
         f"# Tuned on {trajectories}, {source.plant} plant: {member_text(member)}{diverged}.",
