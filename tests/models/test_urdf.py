@@ -2,12 +2,15 @@
 joints (the iiwa 14's 7, the UR5e's 6): parsed by a real URDF parser (Pinocchio's, urdfdom),
 their kinematics and shapes match MuJoCo's at several postures."""
 
+import dataclasses
+
 import mujoco
 import numpy as np
 import pinocchio as pin
 import pytest
 from scipy.spatial.transform import Rotation
 
+from gainfarm import plugins
 from gainfarm.models import RIGID_MJCF, robot_of
 from gainfarm.models.urdf import WORLD, description, rotations, tree, urdf
 from gainfarm.schemas.robot import JOINT_NAMES, POSITION_LIMITS, PlantSpec
@@ -189,10 +192,6 @@ def test_the_tf_rotations_chain_to_mujocos_poses(arm: str) -> None:
 def test_a_shape_urdf_has_no_primitive_for_is_drawn_as_its_bounding_box(tmp_path) -> None:
     """A user's arm may draw a link with a mesh or an ellipsoid: the URDF draws each as the box
     MuJoCo bounds it by, placed where MuJoCo places the shape, so that every vertex is in it."""
-    import dataclasses
-
-    from gainfarm import plugins
-
     text = robot_of("ur5e").mjcf.read_text()
     mesh = '<mesh name="wedge" vertex="0 0 0  0.1 0 0  0 0.05 0  0 0 0.2  0.1 0.05 0.2"/>'
     text = text.replace("<worldbody>", f"<asset>{mesh}</asset>\n  <worldbody>", 1)
