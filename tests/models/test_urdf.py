@@ -16,6 +16,9 @@ from gainfarm.models.urdf import WORLD, description, rotations, tree, urdf
 from gainfarm.schemas.robot import JOINT_NAMES, POSITION_LIMITS, PlantSpec
 
 ARMS = ("iiwa14", "ur5e")
+# The Panda besides, for its kinematics: a fixed body after its last link (Menagerie's
+# `attachment`, the hand's mount), and no shapes to draw (its meshes are not vendored).
+KINEMATIC = (*ARMS, "panda")
 FRAMES = {
     "iiwa14": ["base", *(f"link{i}" for i in range(1, 8)), "flange"],
     # Menagerie's UR5e: ur_description's links, and the flange gainfarm adds (its tool0).
@@ -29,6 +32,7 @@ FRAMES = {
         "wrist_3_link",
         "flange",
     ],
+    "panda": [*(f"link{i}" for i in range(8)), "attachment", "flange"],
 }
 UR5E_JOINTS = (
     "shoulder_pan_joint",
@@ -99,7 +103,7 @@ def test_each_arm_s_urdf_names_its_own_joints_and_limits() -> None:
     assert urdf() == urdf("iiwa14") == description().urdf  # the default arm's
 
 
-@pytest.mark.parametrize("arm", ARMS)
+@pytest.mark.parametrize("arm", KINEMATIC)
 def test_pinocchio_reads_the_urdf_as_the_arm_mujoco_simulates(arm: str) -> None:
     model, robot = pin.buildModelFromXML(urdf(arm)), robot_of(arm)
     mj_model, mj_data = simulated(arm)
@@ -164,14 +168,15 @@ def test_the_urdf_shapes_are_mujocos_geoms(arm: str) -> None:
     assert len(geometry.geometryObjects) == drawn > 0
 
 
-@pytest.mark.parametrize("arm", ARMS)
+@pytest.mark.parametrize("arm", KINEMATIC)
 def test_the_tf_rotations_chain_to_mujocos_poses(arm: str) -> None:
     """What /tf carries (the tree's fixed translations, these rotations), composed from the
     world out, is where MuJoCo puts every body and the flange."""
     transforms = tree(arm)
     joints = len(robot_of(arm).joint_names)
     assert [t.child for t in transforms] == FRAMES[arm] and transforms[0].parent == WORLD
-    assert [t.joint for t in transforms] == [None, *range(joints), None]
+    hinged = [t.joint for t in transforms if t.joint is not None]
+    assert hinged == list(range(joints)) and transforms[-1].joint is None
     mj_model, mj_data = simulated(arm)
     rows = postures(arm)
     quaternions = rotations(np.array(rows), arm)
