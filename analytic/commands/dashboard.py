@@ -30,7 +30,7 @@ PORT = 5006  # analytic.view.dashboard.DASHBOARD_PORT
     show_default=True,
     help="the page's port, on 127.0.0.1",
 )
-@robot_read("the runs shown")
+@robot_read("the runs", help="the arm whose runs to show", default="every arm's")
 def dashboard(**given: Any) -> None:
     """Watch tuning runs and their farm live, in a web page on this machine: each run's front
     and hypervolume curve, the farm's workers, queue and throughput. RUNS are run directories,

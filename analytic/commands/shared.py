@@ -219,16 +219,16 @@ def algorithm_names() -> tuple[str, ...]:
     return plugins.names(plugins.ALGORITHMS)
 
 
-def robot_read(what: str) -> Callable[[F], F]:
+def robot_read(what: str, help: str | None = None, default: str | None = None) -> Callable[[F], F]:
     """--robot NAME|FILE (options.robot) on a command that reads the arm from its input
     (`what`: "the run", "the log", "the twin"): left out, the arm is the input's, and the
     parameter is None; given, the input must be of that arm (a FILE registers one's own arm,
-    so that its input can be read at all)."""
+    so that its input can be read at all). `help` and `default` say it otherwise."""
 
     def decorate(command: F) -> F:
-        command = options.robot(help=f"the arm {what} is of")(command)
+        command = options.robot(help=help or f"the arm {what} is of")(command)
         option = command.__click_params__[-1]  # type: ignore[attr-defined]  # click's list
-        option.show_default = f"{what}'s"
+        option.show_default = default or f"{what}'s"
         named = option.callback
 
         def given(ctx: click.Context, param: click.Parameter, value: str) -> str | None:
