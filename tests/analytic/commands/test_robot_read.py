@@ -3,11 +3,14 @@
 command says so in one line naming --robot, exits 2 and writes nothing. Real subprocesses."""
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 import yaml
 
+from gainfarm.analytic.commands.work import validate as validating
 from gainfarm.analytic.tuning.records import FrontMember, front_csv
 from gainfarm.schemas.episode_log import EpisodeLog
 from tests.analytic.samples import KD, KP
@@ -112,3 +115,46 @@ def test_a_ur5e_run_exports_its_own_joints_and_torque_interface(tmp_path: Path) 
     refused = analytic("export", "run", "--member", "1", "--robot", "iiwa14", cwd=tmp_path)
     assert refused.returncode == 2
     assert refused.stderr == "analytic: error: --robot: 'run' is a run of ur5e, not of iiwa14\n"
+
+
+@pytest.mark.slow
+def test_validate_refuses_a_log_of_another_arm_than_its_twin(tmp_path: Path) -> None:
+    """A UR5e's episode (6 joints, `worker episode --robot ur5e`) is not a held-out log of an
+    iiwa twin: one line naming it, before any farm starts."""
+    episode = tmp_path / "ur5e.mcap"
+    one_second = ("--trajectory", "fourier", "--duration", "1", "--out", str(episode))
+    made = subprocess.run(
+        [sys.executable, "-m", "gainfarm.worker", "episode", "--robot", "ur5e", *one_second],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert made.returncode == 0, made.stderr
+    twin = tmp_path / "twin.toml"
+    twin.write_text('[plant]\nrobot = "iiwa14"\n')
+    done = analytic("validate", str(twin), str(episode), "--local", "--out", "v", cwd=tmp_path)
+    assert done.returncode == 2
+    assert done.stderr == (
+        f"analytic: error: {str(episode)!r} is an episode of ur5e, not of the twin's iiwa14\n"
+    )
+    assert not (tmp_path / "v").exists()
+
+
+def test_validate_s_table_names_the_arm_s_joints(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The simulation error per joint, as `analytic validate` prints it: a row per joint of the
+    twin's arm, by its name."""
+    errors = [0.001 * (k + 1) for k in range(6)]
+    side = {"q_rms": errors, "torque_rms": errors}
+    report = {
+        "episodes": [
+            {"log": "a.mcap", **{n: {"f_acc": 0.002} for n in ("logged", "twin", "nominal")}}
+        ],
+        "summary": {"twin": side, "nominal": side, "q_ratio": 1.0},
+    }
+    monkeypatch.setenv("COLUMNS", "200")  # a row a line: rich reads the width from it
+    validating._show(report, Path("v"), tuple(UR5E_JOINTS))
+    shown = capsys.readouterr().out
+    rows = [line.split("│")[1].strip() for line in shown.splitlines() if line.count("│") == 7]
+    assert rows == UR5E_JOINTS
