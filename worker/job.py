@@ -24,7 +24,6 @@ from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.episode_log import EpisodeLog, RobotDescription
 from gainfarm.schemas.mcap_episode import episode_bytes
 from gainfarm.schemas.objectives import Objective, score
-from gainfarm.schemas.robot import DEFAULT_ROBOT
 from gainfarm.schemas.wire import JobStatus, Lease, Result, Timings, WireScores
 from gainfarm.worker.episode import Prepared, compensation, simulate_all
 from gainfarm.worker.feedforward import ModelUnavailable
@@ -118,10 +117,10 @@ def refused(spec: EpisodeSpec) -> str | None:
     return None
 
 
-def drawing(robot: str) -> RobotDescription | None:
-    """What draws the arm in its log for ROS tools (/robot_description and /tf): models/urdf.py
-    describes the iiwa 14; another arm's log carries its columns without a drawing."""
-    return description() if robot == DEFAULT_ROBOT else None
+def drawing(robot: str) -> RobotDescription:
+    """What draws the arm in its log for ROS tools (/robot_description and /tf): its URDF and
+    frames, from its own model (models/urdf.py)."""
+    return description(robot)
 
 
 def _model(spec: EpisodeSpec, model: Callable[[str], DynamicsModel] | None) -> DynamicsModel | None:

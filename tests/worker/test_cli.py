@@ -75,11 +75,18 @@ def test_a_six_joint_episode_on_the_ur5e_logs_its_joints(tmp_path):
     assert simulated.returncode == 0, simulated.stderr
     worker_scores = json.loads(simulated.stdout)
     assert worker_scores["diverged"] is False and worker_scores["ticks"] == 2501
-    names = {}
+    names, urdf, frames = {}, "", set()
     for message in read_ros2_messages(str(out)):
         if message.channel.topic not in names:
             names[message.channel.topic] = list(getattr(message.ros_msg, "name", []))
+        if message.channel.topic == "/robot_description":
+            urdf = message.ros_msg.data
+        if message.channel.topic == "/tf":
+            frames |= {t.child_frame_id for t in message.ros_msg.transforms}
     assert names["/joint_states"] == names["/joint_commands"] == UR5E_JOINTS
+    # The log draws the UR5e for ROS tools: its own URDF and every link's frame on /tf.
+    assert urdf.startswith("<?xml") and all(f'joint name="{j}"' in urdf for j in UR5E_JOINTS)
+    assert "flange" in frames and "wrist_3_link" in frames
     log = read_episode(out)
     assert log.q.shape == (2501, 6) and list(log.metadata.joint_names) == UR5E_JOINTS
     assert log.metadata.spec.plant.robot == "ur5e"
