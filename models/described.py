@@ -7,11 +7,13 @@ in this process under the name it gives (gainfarm.plugins), `source_of` tells wh
 came from, so that a process starting workers can hand them `--robot FILE`.
 
 What of the model is kept: the bodies, their inertials, the named hinges and the collision geoms
-(a URDF's visuals MuJoCo drops, as it does by default, and its fixed joints it fuses); the model's
-actuators, sensors, tendons, equality constraints, contact pairs and keyframes go (the arm is
-driven by torque motors models/mjcf_arm.py adds, and touches nothing), and so do its other joints
-(a gripper's fingers, a free base), the bodies they moved welded where they stand. A URDF's
-<limit effort velocity> MuJoCo does not read: the description's limits are the arm's.
+(a URDF's visuals MuJoCo drops, as it does by default, and its fixed joints it fuses), written
+out by MuJoCo with 6 significant digits (at most 5 µm in a metre, 5 mg in a kilogram). The
+model's actuators, sensors, tendons, equality constraints, contact pairs and keyframes go (the
+arm is driven by torque motors models/mjcf_arm.py adds, and touches nothing), and so do its other
+joints (a gripper's fingers, a free base), the bodies they moved welded where they stand. A
+URDF's <limit> becomes the hinge's range and actuator force range, and its velocity is not read:
+the description's limits are the arm's.
 
 Checks, each refused in one line naming the field (BadRobotFile): the file's form
 (schemas/robot_file.py); here, the model file readable and compiling, the joints there, hinges,
@@ -188,6 +190,10 @@ def _prepared(path: Path, described: RobotFile) -> Text:
     except ValueError as error:  # MuJoCo's parser: its first line says where
         raise BadRobotFile(f"model: {_first_line(error)}") from None
     hinges = _hinges(spec, described.joints)
+    for hinge in hinges:
+        # A URDF's <limit effort> becomes the hinge's actuator force range: the description's
+        # torque limit is the arm's (its motors' ctrlrange), not clipped again by the file's.
+        hinge.actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE
     _weld_others(spec, set(described.joints))
     for part in [*spec.actuators, *spec.sensors, *spec.tendons, *spec.equalities, *spec.keys]:
         spec.delete(part)
