@@ -149,6 +149,13 @@ def source_of(name: str) -> Path | None:
     return _sources.get(name)
 
 
+def forget(name: str) -> None:
+    """Unregister the robot `register_file` registered as `name` (nothing if it did not)."""
+    if _sources.pop(name, None) is not None:
+        plugins.unregister(plugins.ROBOTS, name)
+        resolve.cache_clear()
+
+
 def _read(path: Path) -> RobotFile:
     try:
         raw = read_bounded(path, MAX_FILE_BYTES)
