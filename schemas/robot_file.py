@@ -43,7 +43,7 @@ def _numbers(low: float, high: float, strict: bool = True) -> object:
 
 Torques = _numbers(0, 1e5)  # N·m
 Speeds = _numbers(0, 100)  # rad/s
-Positions = _numbers(0, 2 * math.pi)  # rad, each joint turning ±position
+Positions = _numbers(0, 10)  # rad, each joint turning ±position (10: 170 would be degrees)
 Accelerations = _numbers(0, 1e4)  # rad/s²
 Stiffnesses = _numbers(0, 1e7)  # N·m/rad: schemas.robot's Stiffness bound
 Dampings = _numbers(0, 1e5, strict=False)  # N·m·s/rad

@@ -428,6 +428,26 @@ def test_a_meshed_model_builds_from_anywhere(
     assert robot.build(PlantSpec(robot=robot.name)).nmesh == 1
 
 
+# --- the documented example ----------------------------------------------------------------------
+
+ROOT = Path(__file__).parents[2]
+EXAMPLE = ROOT / "docs/examples/my_arm.toml"
+
+
+def test_the_documented_example_describes_an_arm_that_passes_the_kit() -> None:
+    robot = robot_of(register_file(EXAMPLE))
+    assert robot.name == "my_arm" and len(robot.joint_names) == 6
+    assert robot.plant_defaults.rotor_inertia == (0.1,) * 6  # given, the rest by the rule
+    check_robot(robot)
+
+
+def test_docs_robot_md_shows_the_example_whole() -> None:
+    doc = (ROOT / "docs/robot.md").read_text()
+    section = doc[doc.index("### Your own arm") :]
+    block = section[section.index("```toml\n") + len("```toml\n") :]
+    assert block[: block.index("```")] == EXAMPLE.read_text()
+
+
 # --- registered in the process --------------------------------------------------------------------
 
 
