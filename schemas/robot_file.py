@@ -66,7 +66,7 @@ class _Table(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
 
-class Flange(_Table):
+class FlangeTable(_Table):
     """The flange: a site of the model, or a body of it with the flange's offset in its frame
     (`pos`, m; `quat`, w x y z), z out of the flange, away from the arm."""
 
@@ -87,7 +87,7 @@ class Flange(_Table):
             raise ValueError("flange.quat: a rotation (w x y z) of non-zero length")
 
 
-class Limits(_Table):
+class LimitsTable(_Table):
     """The data sheet's limits, one per joint: model files carry none of them reliably."""
 
     torque: Torques  # type: ignore[valid-type]
@@ -96,7 +96,7 @@ class Limits(_Table):
     acceleration: Accelerations  # type: ignore[valid-type]
 
 
-class Interface(_Table):
+class InterfaceTable(_Table):
     """What the robot's controller does with a torque command (schemas.robot.TorqueInterface)."""
 
     name: Name
@@ -165,10 +165,10 @@ class RobotFile(_Table):
     joints: tuple[Name, ...] = Field(
         min_length=1, max_length=MAX_JOINTS, description="the hinges, base to flange"
     )
-    flange: Flange
-    limits: Limits
+    flange: FlangeTable
+    limits: LimitsTable
     default_gains: PDGains
-    torque_interface: Interface
+    torque_interface: InterfaceTable
     workspace: WorkspaceTable
     rated_payload: float = Field(gt=0, le=1000, allow_inf_nan=False, description="kg")
     plant: PlantTable
@@ -204,7 +204,7 @@ class RobotFile(_Table):
                 )
 
     def _per_joint(self) -> dict[str, tuple[float, ...]]:
-        limits = {f"limits.{f}": getattr(self.limits, f) for f in Limits.model_fields}
+        limits = {f"limits.{f}": getattr(self.limits, f) for f in LimitsTable.model_fields}
         gains = {f"default_gains.{f}": getattr(self.default_gains, f) for f in ("kp", "kd")}
         return {**limits, **gains, "workspace.home": self.workspace.home, **self.plant.per_joint()}
 
