@@ -59,6 +59,9 @@ Point = tuple[
     Annotated[float, Field(allow_inf_nan=False, ge=-100, le=100)],
 ]  # m
 Name = Annotated[str, Field(min_length=1, max_length=100)]
+# A joint's name as an episode log carries it (its JointState messages name the joints): a ROS
+# name's characters, as schemas/episode.py's JointName allows.
+JointName = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_/]{0,63}$")]
 Text = Annotated[str, Field(min_length=1, max_length=2000)]
 
 
@@ -162,7 +165,7 @@ class RobotFile(_Table):
 
     name: str = Field(pattern=ROBOT_PATTERN, description="the robot's plug-in name")
     model: Name = Field(description="an MJCF (.xml) or URDF (.urdf), relative to this file")
-    joints: tuple[Name, ...] = Field(
+    joints: tuple[JointName, ...] = Field(
         min_length=1, max_length=MAX_JOINTS, description="the hinges, base to flange"
     )
     flange: FlangeTable

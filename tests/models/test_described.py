@@ -5,6 +5,8 @@ found by its name, on the command line as in the process."""
 
 import math
 import re
+import subprocess
+import sys
 from collections.abc import Iterator
 from importlib.resources import files
 from pathlib import Path
@@ -26,6 +28,7 @@ from gainfarm.models import described, robot_of, ur5e
 from gainfarm.models.described import register_file, robot_from_file, source_of
 from gainfarm.models.iiwa14 import RIGID_MJCF, VISCOUS_FRICTION
 from gainfarm.models.urdf import urdf
+from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.robot import (
     DEFAULT_ROTOR_INERTIA,
     STIFFNESS_PRESETS,
@@ -34,6 +37,7 @@ from gainfarm.schemas.robot import (
 )
 from gainfarm.schemas.robot_file import BadRobotFile
 from gainfarm.testing.robots import check_robot
+from tests.helpers import analytic
 
 # The UR5e's joints under other names: the arm is "ours", not the shipped one.
 RENAMED = {
@@ -510,3 +514,74 @@ def test_the_rule_s_numbers_are_finite_and_positive(tmp_path: Path) -> None:
     ]
     assert all(math.isfinite(v) and v > 0 for v in numbers)
     assert np.all(np.diff(defaults.stiffness_presets["soft"]) <= 0)  # big joints the stiffest
+
+
+# --- the command lines, as a user runs them -------------------------------------------------------
+
+WORKER = [sys.executable, "-c", "from gainfarm.worker.cli import main; main()"]
+
+
+def worker(*arguments: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [*WORKER, *arguments], cwd=cwd, capture_output=True, text=True, timeout=300
+    )
+
+
+@pytest.mark.slow
+def test_worker_episode_runs_a_described_arm_and_logs_its_joint_names(tmp_path: Path) -> None:
+    write_arm6(tmp_path)
+    ran = worker(
+        *("episode", "--robot", "my_arm.toml", "--duration", "1", "--out", "ep.mcap", "--json"),
+        cwd=tmp_path,
+    )
+    assert ran.returncode == 0, ran.stderr
+    log = read_episode(tmp_path / "ep.mcap")
+    assert log.metadata.joint_names == tuple(JOINTS)
+    assert log.metadata.spec.plant.robot == "my_arm"
+    assert log.metadata.spec.gains == ur5e.DEFAULT_GAINS  # the description's default gains
+    assert log.q.shape[1] == 6 and not log.metadata.diverged
+
+
+def test_worker_episode_refuses_a_bad_description_in_one_line_and_writes_nothing(
+    tmp_path: Path,
+) -> None:
+    home = [-1.57, -1.57, 3.5, -1.57, -1.57, 0.0]
+    workspace = ur5e_description()["workspace"] | {"home": home}
+    write_arm6(tmp_path, workspace=workspace)
+    ran = worker("episode", "--robot", "my_arm.toml", "--out", "ep.mcap", cwd=tmp_path)
+    assert ran.returncode == 2
+    assert ran.stderr == (
+        "Error: --robot: my_arm.toml: workspace.home: elbow at 3.5 rad is beyond its position "
+        "limit ±3.14159 rad\n"
+    )
+    assert not (tmp_path / "ep.mcap").exists()
+
+
+@pytest.mark.slow
+def test_analytic_start_tunes_a_described_arm_on_a_local_farm(tmp_path: Path) -> None:
+    """The local farm's workers are handed the description (source_of) and run its jobs."""
+    write_arm6(tmp_path)
+    run = analytic(
+        "start",
+        *("--robot", "my_arm.toml", "--pop", "4", "--generations", "1"),
+        *("--trajectory", "fourier", "--duration", "0.5", "--check-plants", "2"),
+        *("--workers", "1", "--out", "run"),
+        cwd=tmp_path,
+    )
+    assert run.returncode == 0, run.stderr
+    config = (tmp_path / "run/config.json").read_text()
+    assert '"robot":"my_arm"' in config.replace(" ", "")
+    logs = sorted((tmp_path / "run").rglob("*.mcap"))
+    assert logs, "no episode logs"
+    assert read_episode(logs[0]).metadata.joint_names == tuple(JOINTS)
+
+
+def test_analytic_start_refuses_a_bad_description_in_one_line(tmp_path: Path) -> None:
+    write_arm6(tmp_path, joints=JOINTS[:5])
+    run = analytic("start", "--robot", "my_arm.toml", "--out", "run", cwd=tmp_path)
+    assert run.returncode == 2
+    assert run.stderr.strip().splitlines() == [
+        "Error: --robot: my_arm.toml: limits.torque: 6 numbers for the 5 joints (base_turn, "
+        "shoulder, elbow, wrist_a, wrist_b)"
+    ]
+    assert not (tmp_path / "run").exists()

@@ -247,6 +247,13 @@ def test_joints_named_twice_or_as_a_flexible_joint_s_hinges_are_refused() -> Non
     )
 
 
+def test_a_joint_name_a_log_cannot_carry_is_refused() -> None:
+    joints = ["j1", "j2", "j3", "j4", "j5", "wrist.3"]
+    assert refused(with_("joints", joints)).startswith(
+        "joints.5: must match the pattern ^[A-Za-z][A-Za-z0-9_/]{0,63}$, got 'wrist.3'"
+    )
+
+
 def test_a_name_that_is_no_plug_in_name_is_refused() -> None:
     assert refused(with_("name", "My Arm")).startswith("name: must match the pattern")
 
