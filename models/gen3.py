@@ -60,11 +60,13 @@ DEFAULT_GAINS = PDGains(
     kd=tuple(round(limit / 15, 2) for limit in TORQUE_LIMITS),
 )
 
+# Home: the flange pointing down over the iiwa's default centre, joints 1, 3, 5 as in Menagerie's
+# home (the arm in the x-z plane); the box of centres is the one whose corners the kit reaches.
 WORKSPACE = Workspace(
-    home=(0.0, 0.49093, math.pi, -1.72259, 0.0, -0.92807, math.pi),
-    center=(0.45, 0.0, 0.3),
-    low=(0.4, -0.1, 0.25),
-    high=(0.5, 0.1, 0.35),
+    home=(0.0, 0.64556, math.pi, -1.26055, 0.0, -1.23549, math.pi),
+    center=(0.55, 0.0, 0.35),
+    low=(0.45, -0.1, 0.3),
+    high=(0.55, 0.1, 0.4),
 )
 
 ROBOT = MjcfArm(

@@ -66,6 +66,9 @@ class MjcfArm:
     flange_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
     inertial_sets: tuple[str, ...] = ("menagerie",)
     flange: str = "flange"
+    # Each hinge's (low, high) range, rad, where the maker's is not ±limits.position (the
+    # Panda's joints 4 and 6); None: ±limits.position on every hinge.
+    position_ranges: tuple[tuple[float, float], ...] | None = None
     # Postures at which the springs' modes are analysed, besides home: the arm at zero.
     spring_postures: tuple[tuple[float, ...], ...] = field(default=())
 
@@ -128,10 +131,6 @@ def _compile(arm: MjcfArm, spec: PlantSpec) -> mujoco.MjModel:
 
 def _describe(arm: MjcfArm, spec: PlantSpec) -> mujoco.MjSpec:
     """The plant `spec` (resolved) describes, not yet compiled."""
-    if spec.inertials not in arm.inertial_sets:
-        raise ValueError(
-            f"inertials: {arm.name} has {', '.join(arm.inertial_sets)}, not {spec.inertials!r}"
-        )
     mj = mujoco.MjSpec.from_string(arm.mjcf.read_text())
     mj.option.timestep = CONTROL_PERIOD / spec.substeps
     # The iiwa's integrator (implicit in damping, so friction costs no stability).
@@ -189,7 +188,7 @@ def _drive(
     the joints are flexible."""
     name, torque = arm.joint_names[i], arm.limits.torque[i]
     position = arm.limits.position[i]
-    hinge.range = [-position, position]
+    hinge.range = [-position, position] if arm.position_ranges is None else arm.position_ranges[i]
     hinge.limited = mujoco.mjtLimited.mjLIMITED_TRUE
     hinge.armature = spec.rotor_inertia[i]
     hinge.frictionloss = 0.0  # the Coulomb part is the tick loop's, as for the iiwa

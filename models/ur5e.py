@@ -64,12 +64,13 @@ DEFAULT_GAINS = PDGains(
     kd=tuple(round(limit / 15, 2) for limit in TORQUE_LIMITS),
 )
 
-# Menagerie's home (the tool pointing down, the arm over +x); the box of centres around it.
+# Menagerie's home (the tool pointing down, the arm over +x); the iiwa 14's default centre and
+# box of centres, every corner reached (the kit checks).
 WORKSPACE = Workspace(
     home=(-math.pi / 2, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0),
-    center=(0.45, 0.13, 0.35),
-    low=(0.4, 0.0, 0.3),
-    high=(0.5, 0.25, 0.4),
+    center=(0.55, 0.0, 0.35),
+    low=(0.5, -0.15, 0.3),
+    high=(0.65, 0.15, 0.45),
 )
 
 ROBOT = MjcfArm(

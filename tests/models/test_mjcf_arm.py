@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from gainfarm.models import ur5e
+from gainfarm.models import PlantError, ur5e
 from gainfarm.models.mjcf_arm import PAYLOAD_RADIUS
 from gainfarm.schemas.robot import Friction, LoadData, PlantSpec
 
@@ -96,7 +96,9 @@ def test_the_build_is_cached_per_plant_and_its_step_is_the_tick_over_substeps() 
 
 
 def test_an_inertial_set_the_arm_lacks_is_refused_naming_the_field() -> None:
-    with pytest.raises(ValueError, match=r"^inertials: ur5e has menagerie, not 'cad'$"):
+    with pytest.raises(
+        PlantError, match=r"^inertials: ur5e has no set 'cad' \(it has menagerie\)$"
+    ):
         ARM.build(plant(inertials="cad"))
 
 
