@@ -120,7 +120,7 @@ def robot_from_file(path: Path) -> MjcfArm:
         name=described.name,
         mjcf=_prepared(_beside(path, described.model, "model"), described),
         joint_names=described.joints,
-        limits=JointLimits(**described.limits.model_dump()),
+        limits=_limits(described),
         default_gains=described.default_gains,
         workspace=Workspace(**described.workspace.model_dump()),
         torque_interface=TorqueInterface(**described.torque_interface.model_dump()),
@@ -128,11 +128,22 @@ def robot_from_file(path: Path) -> MjcfArm:
         rated_payload=described.rated_payload,
         uncertainty=_uncertainty(path, described),
         flange=described.flange.site or FLANGE,
+        position_ranges=described.limits.position_range,
     )
     with _held(arm):
         _check_plant(arm, described)
         _check_reach(arm)
     return arm
+
+
+def _limits(described: RobotFile) -> JointLimits:
+    limits = described.limits
+    return JointLimits(
+        torque=limits.torque,
+        speed=limits.speed,
+        position=limits.excursion(),
+        acceleration=limits.acceleration,
+    )
 
 
 def register_file(path: Path) -> str:

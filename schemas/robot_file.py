@@ -49,6 +49,10 @@ Stiffnesses = _numbers(0, 1e7)  # N·m/rad: schemas.robot's Stiffness bound
 Dampings = _numbers(0, 1e5, strict=False)  # N·m·s/rad
 Inertias = _numbers(0, 1e3)  # kg·m²: a rotor must turn some (flexible joints)
 Frictions = _numbers(0, 1e4, strict=False)
+Angle = Annotated[float, Field(allow_inf_nan=False, ge=-10, le=10)]  # rad, as Positions
+PositionRanges = Annotated[
+    tuple[tuple[Angle, Angle], ...], Field(min_length=1, max_length=MAX_JOINTS)
+]
 Angles = Annotated[
     tuple[Annotated[float, Field(allow_inf_nan=False)], ...],
     Field(min_length=1, max_length=MAX_JOINTS),
@@ -91,12 +95,36 @@ class FlangeTable(_Table):
 
 
 class LimitsTable(_Table):
-    """The data sheet's limits, one per joint: model files carry none of them reliably."""
+    """The data sheet's limits, one per joint: model files carry none of them reliably. A
+    joint's angles are ±position, or, for an arm whose joints are not symmetric (the Panda's
+    fourth), position_range's (lowest, highest): one of the two."""
 
     torque: Torques  # type: ignore[valid-type]
     speed: Speeds  # type: ignore[valid-type]
-    position: Positions  # type: ignore[valid-type]
+    position: Positions | None = None  # type: ignore[valid-type]
+    position_range: PositionRanges | None = None
     acceleration: Accelerations  # type: ignore[valid-type]
+
+    def check(self) -> None:
+        """ValueError naming the field unless the angles are given one way, each range rising."""
+        if (self.position is None) == (self.position_range is None):
+            raise ValueError("limits.position: give it, or limits.position_range (not both)")
+        for i, (lowest, highest) in enumerate(self.position_range or ()):
+            if not lowest < highest:
+                raise ValueError(
+                    f"limits.position_range.{i}: lowest {lowest:g} rad is not below highest "
+                    f"{highest:g} rad"
+                )
+
+    def ranges(self) -> tuple[tuple[float, float], ...]:
+        """Each joint's (lowest, highest) angle, rad."""
+        if self.position_range is not None:
+            return self.position_range
+        return tuple((-limit, limit) for limit in self.position or ())
+
+    def excursion(self) -> tuple[float, ...]:
+        """Each joint's largest angle either way, rad (schemas.robot.JointLimits.position)."""
+        return tuple(max(-lowest, highest) for lowest, highest in self.ranges())
 
 
 class InterfaceTable(_Table):
@@ -185,6 +213,7 @@ class RobotFile(_Table):
             raise ValueError(f"model: {self.model!r} is neither an MJCF (.xml) nor a URDF (.urdf)")
         self._check_joint_names()
         self.flange.check()
+        self.limits.check()
         self.plant.check()
         count = len(self.joints)
         for field, values in self._per_joint().items():
@@ -207,17 +236,23 @@ class RobotFile(_Table):
                 )
 
     def _per_joint(self) -> dict[str, tuple[float, ...]]:
-        limits = {f"limits.{f}": getattr(self.limits, f) for f in LimitsTable.model_fields}
+        limits = {
+            f"limits.{f}": getattr(self.limits, f)
+            for f in LimitsTable.model_fields
+            if getattr(self.limits, f) is not None
+        }
         gains = {f"default_gains.{f}": getattr(self.default_gains, f) for f in ("kp", "kd")}
         return {**limits, **gains, "workspace.home": self.workspace.home, **self.plant.per_joint()}
 
     def _check_workspace(self) -> None:
         space = self.workspace
-        for joint, angle, limit in zip(self.joints, space.home, self.limits.position, strict=True):
-            if abs(angle) > limit:
+        ranges = self.limits.ranges()
+        for joint, angle, (lowest, highest) in zip(self.joints, space.home, ranges, strict=True):
+            if not lowest <= angle <= highest:
+                limit = f"±{highest:g}" if lowest == -highest else f"{lowest:g} to {highest:g}"
                 raise ValueError(
                     f"workspace.home: {joint} at {angle:g} rad is beyond its position limit "
-                    f"±{limit:g} rad"
+                    f"{limit} rad"
                 )
         if not all(a <= b for a, b in zip(space.low, space.high, strict=True)):
             raise ValueError(f"workspace.low: {space.low} is not below high {space.high}")

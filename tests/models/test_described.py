@@ -249,6 +249,18 @@ def flange_at_home(robot: Any) -> list[float]:
     return [*site.xpos.tolist(), *site.xmat.tolist()]
 
 
+def test_asymmetric_position_ranges_are_the_hinges(tmp_path: Path) -> None:
+    limits = dict(ur5e_description()["limits"])
+    del limits["position"]
+    ranges = [[-6.0, 6.0], [-6.0, 6.0], [-2.5, 3.0], [-6.0, 6.0], [-6.0, 6.0], [-6.0, 6.0]]
+    robot = robot_of(
+        register_file(write_arm6(tmp_path, limits=limits | {"position_range": ranges}))
+    )
+    model = robot.build(PlantSpec(robot=robot.name, joints="rigid"))
+    assert model.joint("elbow").range.tolist() == [-2.5, 3.0]
+    assert robot.limits.position[2] == 3.0  # the largest excursion either way
+
+
 # --- the plant numbers and ranges the description leaves out --------------------------------------
 
 

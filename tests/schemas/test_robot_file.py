@@ -68,7 +68,7 @@ def with_(path: str, value: Any) -> dict[str, Any]:
     if value is DELETE:
         del here[last]
     else:
-        here[last] = value
+        here[last] = copy.deepcopy(value)
     return table
 
 
@@ -195,6 +195,29 @@ def test_a_limit_beyond_any_arm_is_refused_as_a_unit_slip() -> None:
     assert refused(with_("limits.speed", speeds)).startswith(
         "limits.speed.0: must be at most 100, got 180 (and "
     )
+
+
+def test_angles_are_given_as_limits_or_as_ranges() -> None:
+    ranges = [[-6.28, 6.28], [-6.28, 6.28], [-0.5, 3.0], [-6.28, 6.28], [-6.28, 6.28], [-1, 1]]
+    both = with_("limits.position_range", ranges)
+    assert refused(both) == "limits.position: give it, or limits.position_range (not both)"
+    neither = with_("limits.position", DELETE)
+    assert refused(neither) == "limits.position: give it, or limits.position_range (not both)"
+    ranged = with_("limits.position_range", ranges)
+    del ranged["limits"]["position"]
+    described = read(ranged)
+    assert described.limits.ranges()[2] == (-0.5, 3.0)
+    assert described.limits.excursion()[2] == 3.0
+    ranged["workspace"]["home"] = [-1.57, -1.57, -1.0, -1.57, -1.57, 0.0]
+    assert refused(ranged) == (
+        "workspace.home: j3 at -1 rad is beyond its position limit -0.5 to 3 rad"
+    )
+    ranged["limits"]["position_range"][2] = [3.0, -0.5]
+    assert refused(ranged) == (
+        "limits.position_range.2: lowest 3 rad is not below highest -0.5 rad"
+    )
+    ranged["limits"]["position_range"] = ranges[:5]
+    assert refused(ranged).startswith("limits.position_range: 5 numbers for the 6 joints")
 
 
 def test_home_beyond_a_position_limit_is_named() -> None:
