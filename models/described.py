@@ -9,11 +9,12 @@ came from, so that a process starting workers can hand them `--robot FILE`.
 What of the model is kept: the bodies, their inertials, the named hinges and the collision geoms
 (a URDF's visuals MuJoCo drops, as it does by default, and its fixed joints it fuses), written
 out by MuJoCo with 6 significant digits (at most 5 µm in a metre, 5 mg in a kilogram). The
-model's actuators, sensors, tendons, equality constraints, contact pairs and keyframes go (the
-arm is driven by torque motors models/mjcf_arm.py adds, and touches nothing), and so do its other
-joints (a gripper's fingers, a free base), the bodies they moved welded where they stand. A
-URDF's <limit> becomes the hinge's range and actuator force range, and its velocity is not read:
-the description's limits are the arm's.
+model's actuators, sensors, tendons, equality constraints, contact pairs, keyframes and bodies'
+gravity compensation (gravcomp) go (the arm is driven by torque motors models/mjcf_arm.py adds,
+is held up by the robot's gravity model only, and touches nothing), and so do its other joints
+(a gripper's fingers, a free base), the bodies they moved welded where they stand. A URDF's
+<limit> becomes the hinge's range and actuator force range, and its velocity is not read: the
+description's limits are the arm's.
 
 Checks, each refused in one line naming the field (BadRobotFile): the file's form
 (schemas/robot_file.py); here, the model file readable and compiling, the joints there, hinges,
@@ -217,6 +218,11 @@ def _prepared(path: Path, described: RobotFile) -> Text:
         spec.delete(part)
     for part in spec.pairs:
         spec.delete(part)
+    for body in spec.bodies:
+        # MuJoCo's own gravity compensation of a body (Menagerie sets it on some arms) would hold
+        # the arm for nothing: the plant's gravity is compensated only by the robot's model, as
+        # its torque interface says.
+        body.gravcomp = 0.0
     _place_flange(spec, described, hinges[-1].parent)
     folder = Path(spec.modelfiledir or path.parent).resolve()
     spec.meshdir = str(folder / spec.meshdir)

@@ -362,6 +362,13 @@ def test_a_joint_the_description_leaves_out_is_welded(tmp_path: Path) -> None:
     assert model.nq == 6 and model.body("finger").mass[0] == pytest.approx(0.2)
 
 
+def test_mujoco_s_own_gravity_compensation_of_a_body_is_dropped(tmp_path: Path) -> None:
+    xml = write_arm6(tmp_path).parent.joinpath("arm6.xml").read_text()
+    xml = xml.replace('<body name="forearm_link"', '<body name="forearm_link" gravcomp="1"', 1)
+    robot = robot_of(register_file(write_arm6(tmp_path, xml=xml)))
+    assert not robot.build(PlantSpec(robot=robot.name)).body_gravcomp.any()
+
+
 def test_a_flange_the_model_lacks_or_that_does_not_move_with_the_last_joint_is_named(
     tmp_path: Path,
 ) -> None:
