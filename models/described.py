@@ -113,7 +113,8 @@ class Text(Traversable):
 
 def robot_from_file(path: Path) -> MjcfArm:
     """The arm `path` describes, checked (the module's docstring lists how); BadRobotFile in one
-    line naming the field if it cannot be built as described."""
+    line naming the field if it cannot be built as described. Not registered: a plant finds its
+    robot by name, so `register_file` it to run on it."""
     path = Path(path)
     described = _read(path)
     _check_name(described.name, path)

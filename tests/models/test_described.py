@@ -387,11 +387,15 @@ def test_a_model_that_is_missing_or_does_not_compile_is_named(tmp_path: Path) ->
     assert refused(path) == f"model: no file '{tmp_path / 'nowhere.xml'}'"
     path = write_arm6(tmp_path, xml="<mujoco><worldbody><body></mujoco>")
     assert refused(path).startswith("model: ")
-    massless = (
-        '<mujoco><worldbody><body name="b"><joint name="base_turn"/></body></worldbody></mujoco>'
+    xml = write_arm6(tmp_path).parent.joinpath("arm6.xml").read_text()
+    massless = xml.replace(
+        '<inertial mass="2.275" pos="0 0 0.196" diaginertia="0.0311796 0.0311796 0.004095"/>',
+        '<inertial mass="0" pos="0 0 0.196" diaginertia="0 0 0"/>',
     )
-    path = write_arm6(tmp_path, xml=massless, joints=["base_turn"])
-    assert refused(path).startswith("limits.torque: 6 numbers for the 1 joints")
+    assert massless != xml
+    assert refused(write_arm6(tmp_path, xml=massless)) == (
+        "model: mass and inertia of moving bodies must be larger than mjMINVAL"
+    )
 
 
 def test_a_workspace_out_of_reach_is_named(tmp_path: Path) -> None:
