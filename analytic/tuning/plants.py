@@ -14,7 +14,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from gainfarm.models import min_substeps
+from gainfarm.models import min_substeps, resolve
 from gainfarm.schemas.documents import QUOTED, BadDocument, load_toml
 from gainfarm.schemas.robot import N_JOINTS, PlantSpec
 from gainfarm.schemas.wire import describe
@@ -123,6 +123,7 @@ def variants(
     own sensor noise seed and the physics steps its springs need (at least the nominal's)."""
     table = ranges() if uncertainty is None else uncertainty
     rng = np.random.default_rng([seed, 0x706C616E7473, stream])  # "plants", its own stream
+    nominal = resolve(nominal)  # the numbers a draw scales, written out
     drawn = []
     for _ in range(count):
         values = nominal.model_dump()
@@ -180,7 +181,7 @@ def corner(
     ranges) at its low or high end, every joint alike; the others nominal. KeyError for a range
     the table has not."""
     table = ranges() if uncertainty is None else uncertainty
-    values = nominal.model_dump()
+    values = resolve(nominal).model_dump()
     for name, end in ends.items():
         item = table[name]
         size = N_JOINTS if item.per_joint else 1
