@@ -145,6 +145,7 @@ def _limits(described: RobotFile) -> JointLimits:
         speed=limits.speed,
         position=limits.excursion(),
         acceleration=limits.acceleration,
+        position_range=limits.position_range,
     )
 
 

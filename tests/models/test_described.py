@@ -259,6 +259,7 @@ def test_asymmetric_position_ranges_are_the_hinges(tmp_path: Path) -> None:
     model = robot.build(PlantSpec(robot=robot.name, joints="rigid"))
     assert model.joint("elbow").range.tolist() == [-2.5, 3.0]
     assert robot.limits.position[2] == 3.0  # the largest excursion either way
+    assert robot.limits.ranges[2] == (-2.5, 3.0)
 
 
 # --- the plant numbers and ranges the description leaves out --------------------------------------
