@@ -110,8 +110,8 @@ def iiwa_urdf() -> str:
     root = ElementTree.fromstring(urdf())
     for link in root.iter("link"):
         body = bodies.get(link.get("name", ""))
-        if body is None:
-            continue  # the flange: a frame, no mass
+        if body is None or link.find("inertial") is not None:
+            continue  # the flange (a frame, no mass), or a link that has its inertial
         inertial = ElementTree.SubElement(link, "inertial")
         w, x, y, z = model.body_iquat[body]
         rpy = Rotation.from_quat([x, y, z, w]).as_euler("xyz")
