@@ -167,7 +167,14 @@ class PlantTable(_Table):
     coulomb: Frictions | None = None  # type: ignore[valid-type]
 
     def check(self) -> None:
-        """ValueError naming the field if a number is missing with no rule to fill it in."""
+        """ValueError naming the field if a number is missing with no rule to fill it in, or a
+        rule's numbers are not labelled assumptions (as every physical number of the project's
+        carries a source or says it is one)."""
+        if self.rule is not None and "assumption" not in self.source.lower():
+            raise ValueError(
+                f"plant.source: the {self.rule} rule's numbers are assumptions: say so "
+                "(e.g. 'assumption: the iiwa 14's, scaled by torque limit')"
+            )
         if self.rule is None:
             for field in ("stiffness_presets", *PLANT_LISTS):
                 if getattr(self, field) is None:

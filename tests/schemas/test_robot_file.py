@@ -138,6 +138,14 @@ def test_a_plant_number_missing_without_a_rule_is_named() -> None:
     )
 
 
+def test_a_rule_s_numbers_must_be_labelled_assumptions() -> None:
+    assert refused(with_("plant.source", "the data sheet")) == (
+        "plant.source: the torque-scaled rule's numbers are assumptions: say so (e.g. "
+        "'assumption: the iiwa 14's, scaled by torque limit')"
+    )
+    assert read(with_("plant.source", "Assumption: ours")).plant.source == "Assumption: ours"
+
+
 def test_an_unknown_field_is_named() -> None:
     assert refused(with_("colour", "orange")).startswith("unknown field 'colour' (known: name,")
     assert refused(with_("limits.jerk", [1.0] * 6)) == "limits: unknown field 'jerk'"
