@@ -443,15 +443,17 @@ def _check_reach(arm: MjcfArm) -> None:
     reach = float(np.linalg.norm(np.diff(anchors, axis=0), axis=1).sum())
     site = data.site(arm.flange)
     wrist = site.xmat.reshape(3, 3).T @ (anchors[-1] - site.xpos)  # in the flange's frame
-    # Flange z down: the wrist lies wrist_z above the point, `across` off it horizontally.
+    # Flange z down: the last joint's anchor lies -wrist[2] above the point (behind the flange)
+    # and `across` off it horizontally, at whatever heading.
     across = float(np.hypot(wrist[0], wrist[1]))
     space = arm.workspace
-    for field, point in (("center", space.center), *(("low", c) for c in space.corners())):
+    corner = "workspace.low/high: corner"
+    points = [("workspace.center", space.center), *((corner, c) for c in space.corners())]
+    for where, point in points:
         offset = np.asarray(point) - anchors[0]
         horizontal = abs(float(np.hypot(offset[0], offset[1])) - across)
         needed = float(np.hypot(horizontal, offset[2] - wrist[2]))
         if needed > reach + REACH_SLACK:
-            where = "workspace.center" if field == "center" else "workspace.low/high: corner"
             raise BadRobotFile(
                 f"{where} {tuple(round(v, 3) for v in point)} is out of the arm's reach with the "
                 f"flange pointing down ({needed:.3f} m from the first joint, it reaches "
