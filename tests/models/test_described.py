@@ -370,6 +370,19 @@ def test_mujoco_s_own_gravity_compensation_of_a_body_is_dropped(tmp_path: Path) 
     assert not robot.build(PlantSpec(robot=robot.name)).body_gravcomp.any()
 
 
+def test_a_flange_site_of_the_model_is_the_flange(tmp_path: Path) -> None:
+    """The same flange as the body and offset give, written into the model as a site."""
+    body_form = flange_at_home(robot_of(register_file(write_arm6(tmp_path))))
+    described.forget("my_arm")
+    xml = write_arm6(tmp_path).parent.joinpath("arm6.xml").read_text()
+    pos, quat = ur5e.ROBOT.flange_pos, ur5e.ROBOT.flange_quat
+    site = f'<site name="tool0" pos="{" ".join(map(str, pos))}" quat="{" ".join(map(str, quat))}"/>'
+    xml = re.sub(r'(<body name="wrist_3_link"[^>]*>)', r"\1" + site, xml, count=1)
+    robot = robot_of(register_file(write_arm6(tmp_path, xml=xml, flange={"site": "tool0"})))
+    assert robot.flange == "tool0"
+    assert flange_at_home(robot) == pytest.approx(body_form, abs=1e-9)
+
+
 def test_a_flange_the_model_lacks_or_that_does_not_move_with_the_last_joint_is_named(
     tmp_path: Path,
 ) -> None:
