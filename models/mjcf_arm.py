@@ -66,9 +66,6 @@ class MjcfArm:
     flange_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
     inertial_sets: tuple[str, ...] = ("menagerie",)
     flange: str = "flange"
-    # Each hinge's (low, high) range, rad, where the maker's is not ±limits.position (the
-    # Panda's joints 4 and 6); None: ±limits.position on every hinge.
-    position_ranges: tuple[tuple[float, float], ...] | None = None
     # Postures at which the springs' modes are analysed, besides home: the arm at zero.
     spring_postures: tuple[tuple[float, ...], ...] = field(default=())
 
@@ -187,8 +184,7 @@ def _drive(
     """Joint i's limits, rotor and friction on its hinge, its torque motor, and its spring if
     the joints are flexible."""
     name, torque = arm.joint_names[i], arm.limits.torque[i]
-    position = arm.limits.position[i]
-    hinge.range = [-position, position] if arm.position_ranges is None else arm.position_ranges[i]
+    hinge.range = list(arm.limits.ranges[i])  # the maker's, asymmetric where it is (the Panda's)
     hinge.limited = mujoco.mjtLimited.mjLIMITED_TRUE
     hinge.armature = spec.rotor_inertia[i]
     hinge.frictionloss = 0.0  # the Coulomb part is the tick loop's, as for the iiwa

@@ -25,7 +25,7 @@ POSITION_RANGES = (
 TORQUE_LIMITS = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
 SPEED_LIMITS = (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61)
 ACCELERATION_LIMITS = (15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0)
-# JointLimits holds symmetric ranges: each joint's widest excursion (the hinges get the ranges).
+# Each joint's widest excursion either way (JointLimits.position; position_range the ranges).
 POSITION_LIMITS = tuple(max(-low, high) for low, high in POSITION_RANGES)
 RATED_PAYLOAD = 3.0  # kg, Franka Emika's Panda data sheet
 
@@ -81,6 +81,7 @@ ROBOT = MjcfArm(
         speed=SPEED_LIMITS,
         position=POSITION_LIMITS,
         acceleration=ACCELERATION_LIMITS,
+        position_range=POSITION_RANGES,
     ),
     default_gains=DEFAULT_GAINS,
     workspace=WORKSPACE,
@@ -89,7 +90,6 @@ ROBOT = MjcfArm(
     rated_payload=RATED_PAYLOAD,
     uncertainty=files("gainfarm.models").joinpath("uncertainty_panda.toml"),
     file_joints=tuple(f"joint{i}" for i in range(1, 8)),
-    position_ranges=POSITION_RANGES,
     # franka_description's panda_link8, the flange: 0.107 m out along joint 7's axis, z outwards;
     # turned as Menagerie's attachment site (the hand's mount), 135° about it, so that joint 7
     # at the middle of its range (π/4, the ready pose's) holds the tool as the trajectories do.

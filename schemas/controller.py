@@ -1,10 +1,11 @@
 """A tuned controller as a file, and the gains files the command lines read.
 
-`analytic export RUN` writes one front member as a `Controller`: its 14 gains with the joints
-they belong to and their units, its objectives, and the run it came from, as JSON or YAML (the
-same document). `worker episode --gains FILE` and `analytic batch --gains FILE` read either
-(`read_gains`), as `analytic batch` has always read a JSON list of {"kp": [7], "kd": [7]}
-candidates. It lives in the contract
+`analytic export RUN` writes one front member as a `Controller`: its gains, a Kp and a Kd per
+joint of its arm, with the joints they belong to (the arm's own names) and their units, what it
+assumes of the arm (its torque interface), its objectives, and the run it came from, as JSON or
+YAML (the same document). `worker episode --gains FILE` and `analytic batch --gains FILE` read
+either (`read_gains`), as `analytic batch` has always read a JSON list of {"kp": [...], "kd":
+[...]} candidates; a controller of another arm's joints is refused. It lives in the contract
 because the worker reads it and never imports the analytic layer.
 
 Bad files are refused in the user's words, not pydantic's: which candidate, which gain of which
@@ -12,6 +13,7 @@ joint, and what is wrong with it.
 """
 
 import json
+import re
 from typing import Any, Literal, Self
 
 import yaml
@@ -20,7 +22,14 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from gainfarm.schemas.documents import BadDocument, load_json, load_yaml, quoted
 from gainfarm.schemas.gains import PDGains, PerJointGains
 from gainfarm.schemas.limits import Limits
-from gainfarm.schemas.robot import JOINT_NAMES, MAX_JOINTS, PlantSpec
+from gainfarm.schemas.robot import (
+    JOINT_NAMES,
+    MAX_JOINTS,
+    ROBOT_PATTERN,
+    PlantSpec,
+    Robot,
+    TorqueInterface,
+)
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.schemas.wire import describe
 
@@ -30,7 +39,8 @@ LAW = (
     "u = Kp (q_des − θ) + Kd (q̇_des − θ̇) per joint, every control period; θ, θ̇: the measured "
     "joint angle and velocity (motor side on the realistic plant), q_des, q̇_des: the reference; "
     "on a plant whose interface is fri (source.model.interface) u is the torque commanded on "
-    "top of the robot's own gravity compensation, as KUKA's FRI torque mode takes it"
+    "top of the robot's own gravity compensation, as its torque interface takes it "
+    "(assumes.torque_interface: KUKA's FRI torque mode on the iiwa)"
 )
 
 
@@ -137,43 +147,71 @@ class Assumptions(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    joints: str = Field(description="what A1..A7 are, and that they are to be mapped")
+    joints: str = Field(description="which arm's joints the gains are, and in what order")
     gravity_compensation: str = Field(description="whether the robot adds its own under u")
     feedback: str = Field(description="the angle and velocity the law reads")
     update_rate_hz: int = Field(gt=0, description="how often the law runs")
+    # None: a file from before the arms, whose text says KUKA's FRI (the iiwa 14's).
+    torque_interface: str | None = Field(
+        None,
+        exclude_if=lambda value: value is None,
+        description="the arm's torque interface, as its maker names it, and what it does with "
+        "a torque command",
+    )
 
     @classmethod
-    def of(cls, plant: PlantSpec, control_period: float = CONTROL_PERIOD) -> "Assumptions":
-        """The assumptions of gains tuned on `model`."""
-        fri = plant.interface == "fri"
+    def of(
+        cls, plant: PlantSpec, robot: Robot, control_period: float = CONTROL_PERIOD
+    ) -> "Assumptions":
+        """The assumptions of gains tuned on `plant`, a plant of `robot` (the arm it names)."""
+        interface, names = robot.torque_interface, robot.joint_names
         return cls(
-            joints="A1..A7 are the LBR iiwa 14's axes from base to flange: map them to your "
-            "robot's joint names (lbr_iiwa_joint_1..7, say), in that order",
-            gravity_compensation=(
-                "the robot's own: KUKA's FRI torque mode adds its gravity model, and u is the "
-                "torque commanded on top of it"
-                if fri
-                else "none: u is the whole motor torque (a plain PD); behind FRI torque mode the "
-                "robot would add its gravity compensation to it, and the gains were not tuned so"
-            ),
+            joints=f"{names[0]}..{names[-1]} are {robot.name}'s {len(names)} joints from base "
+            "to flange, as its description names them (the joint states' names): the gains are "
+            "in that order; map the names if your robot's description names them otherwise",
+            gravity_compensation=_gravity_text(plant, interface),
             feedback=(
-                "the motor-side joint angle, as the iiwa's encoders report it, and its velocity "
-                "as the mean of the last differences of that angle"
+                "the motor-side joint angle, as the arm's motor encoders report it, and its "
+                "velocity as the mean of the last differences of that angle"
                 if plant.feedback == "motor"
                 else "the link-side joint angle and its velocity"
             ),
             update_rate_hz=round(1 / control_period),
+            torque_interface=f"{interface.name}: {interface.description}",
         )
 
 
+def _gravity_text(plant: PlantSpec, interface: TorqueInterface) -> str:
+    """Who adds the arm's gravity torque under u: the robot's torque interface (a plant whose
+    interface is fri simulates one that does, whichever the arm), or no one (a plain PD)."""
+    if plant.interface == "fri":
+        if interface.adds_gravity:
+            return (
+                f"the robot's own: {interface.name} adds its gravity model, and u is the torque "
+                "commanded on top of it"
+            )
+        return (
+            f"the robot's own, as the plant simulated it; {interface.name} adds none: add the "
+            "arm's gravity torque to u before commanding it"
+        )
+    if interface.adds_gravity:
+        return (
+            f"none: u is the whole motor torque (a plain PD); {interface.name} would add its "
+            "gravity compensation to it, and the gains were not tuned so"
+        )
+    return f"none: u is the whole motor torque (a plain PD), as {interface.name} takes it"
+
+
 class Controller(BaseModel):
-    """One tuned PD controller of the iiwa 14, as `analytic export` writes it."""
+    """One tuned PD controller of an arm (source.model.robot), as `analytic export` writes it:
+    a gain pair per joint of the arm, named as its joint states name them."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     format: Literal["gainfarm-controller/1"] = FORMAT
     law: str = LAW
     control_period: float = Field(CONTROL_PERIOD, description="s")
+    # The arm's joint names; by default the iiwa 14's, as every file before the arms named them.
     joints: tuple[str, ...] = Field(JOINT_NAMES, min_length=1, max_length=MAX_JOINTS)
     kp: PerJointGains
     kd: PerJointGains
@@ -203,6 +241,11 @@ class Controller(BaseModel):
     def gains(self) -> PDGains:
         return PDGains(kp=self.kp, kd=self.kd)
 
+    @property
+    def robot(self) -> str:
+        """The arm it was tuned for: its run's plant's robot."""
+        return self.source.model.robot
+
 
 class BadGains(ValueError):
     """A gains file that is not one: the message says where and what, in one line."""
@@ -212,7 +255,8 @@ def read_gains(raw: bytes, joints: tuple[str, ...] = JOINT_NAMES) -> list[PDGain
     """The candidates in a gains file, JSON or YAML (`analytic export --format yaml` writes the
     same document): a list whose items are {"kp", "kd"} objects or exported controllers, or one
     such object alone, each with a gain per one of `joints` (the robot's; the iiwa 14's by
-    default). BadGains, in plain words, otherwise."""
+    default): a controller whose joints are not these, another arm's, is refused. BadGains, in
+    plain words, otherwise."""
     if raw.startswith(b"kp1,"):  # the header of front.csv (analytic.records)
         raise BadGains(
             "a run's front.csv, not a controller: `analytic export RUN --member N` writes its "
@@ -244,8 +288,8 @@ def read_controller(raw: bytes) -> "Controller | None":
 
 
 _EXPECTED = (
-    'expected a controller from `analytic export` or a list of {"kp": [7 numbers], '
-    '"kd": [7 numbers]}'
+    'expected a controller from `analytic export` or a list of {"kp": [a number per joint], '
+    '"kd": [a number per joint]}'
 )
 
 
@@ -286,7 +330,9 @@ def _candidate(item: Any, where: str, joints: tuple[str, ...]) -> PDGains:
     if not isinstance(item, dict):
         raise BadGains(f'{where}expected an object with "kp" and "kd", got {type(item).__name__}')
     if "format" in item and isinstance(item.get("joints"), list | tuple):
-        joints = tuple(str(joint) for joint in item["joints"]) or joints  # the file's own
+        theirs = tuple(str(joint) for joint in item["joints"])
+        if theirs and theirs != tuple(joints):
+            raise BadGains(where + _another_arm(item, theirs, joints))
     # The count first, said against the robot's joints: the contract takes any count.
     counts = [
         _count(name, len(value), joints)
@@ -302,6 +348,20 @@ def _candidate(item: Any, where: str, joints: tuple[str, ...]) -> PDGains:
         return PDGains.model_validate(item)
     except ValidationError as error:
         raise BadGains(where + problem(error, joints)) from None
+
+
+def _another_arm(item: dict, theirs: tuple[str, ...], joints: tuple[str, ...]) -> str:
+    """A controller of another arm, said in a line: whose it is and whose joints are wanted."""
+    source = item.get("source")
+    model = source.get("model") if isinstance(source, dict) else None
+    robot = model.get("robot") if isinstance(model, dict) else None
+    # A name of the robots' form is said as it is; anything else is the file's, quoted.
+    named = isinstance(robot, str) and re.fullmatch(ROBOT_PATTERN, robot)
+    whose = f"{robot}'s" if named else "another arm's"
+    return (
+        f"a controller of {whose} {len(theirs)} joints ({quoted(theirs[0])}..{quoted(theirs[-1])}"
+        f"), not of this arm's {len(joints)} ({joints[0]}..{joints[-1]})"
+    )
 
 
 def _more(more: int) -> str:

@@ -67,13 +67,14 @@ class RobotDescription:
 
     urdf: str  # /robot_description's text
     frames: tuple[Frame, ...]  # /tf's transforms, in the order of `rotations`' second axis
-    # Joint angles (n, 7) -> (n, len(frames), 4): each frame's rotation at each row, x y z w.
+    # Joint angles (n, joints) -> (n, len(frames), 4): each frame's rotation at each row, x y z w.
     rotations: Callable[[np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
 class EpisodeLog:
-    """One row per 2 ms control tick. Joint arrays are (n, 7), positions (n, 3), SI units."""
+    """One row per 2 ms control tick. Joint arrays are (n, joints), one column per joint its
+    metadata names (EpisodeMetadata.joint_names); positions (n, 3); SI units."""
 
     t: np.ndarray  # simulated time since the episode started, s
     q: np.ndarray  # measured link-side joint positions, rad

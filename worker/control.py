@@ -16,9 +16,9 @@ from gainfarm.schemas.gains import PDGains
 
 @dataclass(frozen=True)
 class PDController:
-    kp: np.ndarray  # (7,) N·m/rad
-    kd: np.ndarray  # (7,) N·m·s/rad
-    torque_limits: np.ndarray  # (7,) N·m, symmetric saturation
+    kp: np.ndarray  # (joints,) N·m/rad
+    kd: np.ndarray  # (joints,) N·m·s/rad
+    torque_limits: np.ndarray  # (joints,) N·m, symmetric saturation
 
     @classmethod
     def from_gains(cls, gains: PDGains, torque_limits: np.ndarray) -> "PDController":

@@ -5,6 +5,7 @@ from typing import Any
 
 import click
 
+from gainfarm.analytic.commands.shared import robot_read
 from gainfarm.cli import options
 from gainfarm.cli.app import CliError
 
@@ -29,11 +30,13 @@ PORT = 5006  # analytic.view.dashboard.DASHBOARD_PORT
     show_default=True,
     help="the page's port, on 127.0.0.1",
 )
+@robot_read("the runs", help="the arm whose runs to show", default="every arm's")
 def dashboard(**given: Any) -> None:
     """Watch tuning runs and their farm live, in a web page on this machine: each run's front
     and hypervolume curve, the farm's workers, queue and throughput. RUNS are run directories,
     or directories holding runs (an experiment's, runs/), whose new runs join the page as they
-    start  [default: runs]. Until Ctrl-C."""
+    start  [default: runs]; with --robot, only the runs of that arm (a FILE: your own arm, whose
+    runs the page can then read). Until Ctrl-C."""
     if given["tls"] is not None and not given["connect"]:  # before the work's imports (Bokeh)
         raise CliError("--tls needs --connect: the farm to watch")
     # start-up: the work loads when the command runs, not to parse it or show its --help

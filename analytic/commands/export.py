@@ -5,7 +5,7 @@ from typing import Any
 
 import click
 
-from gainfarm.analytic.commands.shared import prechecked
+from gainfarm.analytic.commands.shared import prechecked, robot_read
 
 # Held here, not imported, so that parsing and --help load nothing heavy: tests/analytic/commands/
 # test_held_defaults.py keeps each equal to its source's.
@@ -36,9 +36,10 @@ FORMATS = ("json", "yaml", "ros2_control")  # analytic.view.export.FORMATS
 @click.option(
     "--out", type=click.Path(path_type=Path), help="file to write  [default: standard output]"
 )
+@robot_read("the run")
 def export(**given: Any) -> None:
-    """Write a run's controller: one front member's gains, with its joints, units, scores and
-    the run it came from."""
+    """Write a run's controller: one front member's gains, with its arm's joints, units, what it
+    assumes of the arm, its scores and the run it came from."""
     prechecked(given, "run_dir")  # before the work's imports: the contract, MuJoCo, pymoo
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.export import export as work

@@ -5,6 +5,8 @@ from typing import Any
 
 import click
 
+from gainfarm.analytic.commands.shared import robot_read
+
 # Held here, not imported, so that parsing and --help load nothing heavy: tests/analytic/commands/
 # test_held_defaults.py keeps each equal to its source's.
 # analytic.view.replay's DEFAULT_FPS, DEFAULT_WIDTH and DEFAULT_HEIGHT
@@ -35,9 +37,10 @@ FPS, WIDTH, HEIGHT = 30, 640, 480
     show_default=True,
     help="pixels, even",
 )
+@robot_read("the log")
 def replay(**given: Any) -> None:
-    """Render an episode log as a video: the arm (MuJoCo, offscreen), the reference path (green)
-    and the path the flange took (magenta)."""
+    """Render an episode log as a video: the arm it ran (MuJoCo, offscreen), the reference path
+    (green) and the path the flange took (magenta)."""
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.replay import replay as work
 

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import TypeVar
 
 import click
+from click.core import ParameterSource
 
 from gainfarm import plugins
 from gainfarm.analytic.tuning import defaults
@@ -216,3 +217,26 @@ def algorithm_names() -> tuple[str, ...]:
     """The optimisers a run may name: the built-in ones and the installed plug-ins' (their
     metadata read, none imported, so pymoo does not load to parse a command line)."""
     return plugins.names(plugins.ALGORITHMS)
+
+
+def robot_read(what: str, help: str | None = None, default: str | None = None) -> Callable[[F], F]:
+    """--robot NAME|FILE (options.robot) on a command that reads the arm from its input
+    (`what`: "the run", "the log", "the twin"): left out, the arm is the input's, and the
+    parameter is None; given, the input must be of that arm (a FILE registers one's own arm,
+    so that its input can be read at all). `help` and `default` say it otherwise."""
+
+    def decorate(command: F) -> F:
+        command = options.robot(help=help or f"the arm {what} is of")(command)
+        option = command.__click_params__[-1]  # type: ignore[attr-defined]  # click's list
+        option.show_default = default or f"{what}'s"
+        named = option.callback
+
+        def given(ctx: click.Context, param: click.Parameter, value: str) -> str | None:
+            name = named(ctx, param, value) if named is not None else value
+            left_out = ctx.get_parameter_source(param.name or "") is ParameterSource.DEFAULT
+            return None if left_out else name
+
+        option.callback = given
+        return command
+
+    return decorate

@@ -5,7 +5,7 @@ from typing import Any
 
 import click
 
-from gainfarm.analytic.commands.shared import bag_topics, farm_options, prechecked
+from gainfarm.analytic.commands.shared import bag_topics, farm_options, prechecked, robot_read
 from gainfarm.cli import options
 
 REPORT = "validation.json"
@@ -31,6 +31,7 @@ REPORT = "validation.json"
 )
 @bag_topics
 @click.option("--json", "as_json", is_flag=True, help="print the report as one JSON object")
+@robot_read("the twin")
 def validate(**given: Any) -> None:
     """Replay LOGS, an arm's episodes (held out of the calibration), through TWIN and the
     --nominal plant on the farm: per joint, the simulation error of q and of the joint torque

@@ -25,7 +25,8 @@ Every model a test or a script may want to read is named (`Bokeh.documents[0]
 .get_model_by_name(NAME)` in the page): "farm" (the farm's line), "farm-series" (its sources'
 columns t, jobs_per_s, queued, busy); "chosen-runs" (the runs compared), "overlay" and "fronts"
 (the comparison's sources); "inspect" (the run inspected), "recommendation", "members" (the table's
-source, columns members.COLUMNS; its selection is the member chosen), "table", "export" (the
+source, columns members.columns(its arm's joints); its selection is the member chosen), "table",
+"export" (the
 chosen member's files), "episode-choice", "episode" (which episode, from where) and
 "episode-joints", "episode-error", "episode-torques" (its series); and for each run, by its path
 as given: "run:PATH" (its line), "history:PATH", "front:PATH", "evaluated:PATH",
@@ -74,11 +75,7 @@ from gainfarm.analytic.tuning.records import (
 from gainfarm.analytic.tuning.run import RunProgress
 from gainfarm.analytic.tuning.termination import expected_generations
 from gainfarm.analytic.view.figures import log_view, x_view
-from gainfarm.analytic.view.members import (
-    COLUMNS,
-    robustness_text,
-    table,
-)
+from gainfarm.analytic.view.members import columns, joints_of, robustness_text, table
 from gainfarm.analytic.view.progress import duration_text, left_text
 from gainfarm.analytic.view.reports import recommendation_text, run_title
 from gainfarm.analytic.view.run_report import advice_text
@@ -142,12 +139,13 @@ class RunView:
     # for the comparison.
     config: RunConfig | None = None
     members: tuple[FrontMember, ...] = ()
-    table: dict[str, list] = field(default_factory=lambda: {name: [] for name in COLUMNS})
+    table: dict[str, list] = field(default_factory=lambda: {name: [] for name in columns(())})
     recommendation: str = ""
     normalised: dict[str, list[float]] = field(default_factory=lambda: {"x": [], "y": []})
     # The front's axes: the run's first two objectives, named with their units.
     axes: tuple[str, str] = PAPER_AXES
     titles: tuple[str, str] = ("f_acc (mm)", "f_t ((N·m)²)")  # the table's objective columns
+    joints: tuple[str, ...] = ()  # its arm's joint names: the table's gains, the episode's lines
 
 
 # A run's lock state not read yet: the functions below read it themselves (Watch.runs reads it
@@ -230,6 +228,7 @@ def run_view(directory: Path, held: "bool | None" = UNREAD) -> RunView:
         {"x": x, "y": y},
         axes_of(record.config.objectives),
         tuple(column_title(o) for o in declarations(record.config.objectives[:2])),
+        joints_of(record.config.plant, len(record.front[0].kp) if record.front else None),
     )
 
 
@@ -386,8 +385,9 @@ def farm_line(farm: BrokerStatus) -> str:
 
 
 class Watch:
-    """What every page shows, shared: the runs under `roots`, re-read when their files change,
-    and the farm the `session` reaches (None: not watched), asked by a thread of its own."""
+    """What every page shows, shared: the runs under `roots` (those of the arm `robot`, if
+    named), re-read when their files change, and the farm the `session` reaches (None: not
+    watched), asked by a thread of its own."""
 
     def __init__(
         self,
@@ -395,8 +395,10 @@ class Watch:
         session: zenoh.Session | None,
         where: str = "",
         clock: Callable[[], float] = time.monotonic,
+        robot: str | None = None,
     ):
         self.roots = list(roots)
+        self.robot = robot
         self.session = session
         self.where = where
         self.clock = clock
@@ -456,7 +458,10 @@ class Watch:
                 cached = (version, run_view(directory, held[directory]))
                 with self._lock:
                     self._views[directory] = cached
-            views.append((directory, *cached))
+            if self.robot is None or (
+                cached[1].config is not None and cached[1].config.plant.robot == self.robot
+            ):
+                views.append((directory, *cached))
         return views
 
 

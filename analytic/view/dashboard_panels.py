@@ -26,17 +26,18 @@ from gainfarm.analytic.tuning.evolution import F_T_FLOOR, REFERENCE_POINT
 from gainfarm.analytic.tuning.records import FrontMember
 from gainfarm.analytic.view.dashboard import PAPER_AXES, RunView
 from gainfarm.analytic.view.members import (
-    COLUMNS,
-    EMPTY_SERIES,
-    GAINS,
     SCORES,
+    columns,
+    empty_series,
     episode,
     export_links,
+    gain_columns,
     series,
     slots,
 )
+from gainfarm.models import robot_of
+from gainfarm.plugins import PluginError
 from gainfarm.schemas.limits import MEASURED
-from gainfarm.schemas.robot import JOINT_NAMES
 
 WIDE = {"sizing_mode": "stretch_width"}  # the window's width, shared by a row's plots
 TABLE_ROWS_SHOWN = 12  # the member table's rows in view; more scroll
@@ -256,11 +257,13 @@ class Inspector:
         self.found: dict[str, tuple[object, RunView]] = {}  # every run: version, view
         self.choice = Select(name="inspect", title="run inspected", options=[], value="")
         self.recommendation = Div(name="recommendation", text="", **WIDE)
-        self.members = ColumnDataSource({name: [] for name in COLUMNS}, name="members")
+        # Until a run is inspected, no arm: no gains' columns, no joints' lines.
+        self.joints: tuple[str, ...] = ()
+        self.members = ColumnDataSource({name: [] for name in columns(())}, name="members")
         self.table = DataTable(
             name="table",
             source=self.members,
-            columns=table_columns(),
+            columns=table_columns(()),
             sortable=True,
             selectable=True,
             index_position=None,
@@ -271,16 +274,10 @@ class Inspector:
         self.export = Div(name="export", text=NOTHING_CHOSEN, **WIDE)
         self.episode_choice = Select(name="episode-choice", title="episode", options=[])
         self.episode = Div(name="episode", text="", **WIDE)
-        self.joints = ColumnDataSource(EMPTY_SERIES["joints"], name="episode-joints")
-        self.error = ColumnDataSource(EMPTY_SERIES["error"], name="episode-error")
-        self.torques = ColumnDataSource(EMPTY_SERIES["torques"], name="episode-torques")
-        angles = figure(
-            title="joint angles: measured (solid), reference (dashed)",
-            x_axis_label="time (s)",
-            y_axis_label="rad",
-            height=300,
-            **WIDE,
-        )
+        empty = empty_series(())
+        self.angles = ColumnDataSource(empty["joints"], name="episode-joints")
+        self.error = ColumnDataSource(empty["error"], name="episode-error")
+        self.torques = ColumnDataSource(empty["torques"], name="episode-torques")
         error = figure(
             title="tracking error: distance from the desired point",
             x_axis_label="time (s)",
@@ -289,6 +286,26 @@ class Inspector:
             **WIDE,
         )
         error.line("t", "error_mm", source=self.error, line_width=2)
+        self.error_plot = error
+        self.plots = row(*self._joint_plots(()), **WIDE)
+        self.layout = column(
+            self.choice, self.recommendation, self.table, self.export, self.episode_choice,
+            self.episode, self.plots, **WIDE,
+        )  # fmt: skip
+        self.choice.on_change("value", lambda _attr, _old, _new: self.refresh())
+        self.members.selected.on_change("indices", lambda _attr, _old, _new: self.pick())
+        self.episode_choice.on_change("value", lambda _attr, _old, _new: self.plot())
+
+    def _joint_plots(self, joints: tuple[str, ...]) -> list[Any]:
+        """The episode's plots for an arm of `joints`: its angles, the error, its torques; a
+        line per joint (made anew when an arm of other joints is inspected)."""
+        angles = figure(
+            title="joint angles: measured (solid), reference (dashed)",
+            x_axis_label="time (s)",
+            y_axis_label="rad",
+            height=300,
+            **WIDE,
+        )
         torques = figure(
             title="torques: command (solid), measured (dashed)",
             x_axis_label="time (s)",
@@ -296,22 +313,27 @@ class Inspector:
             height=300,
             **WIDE,
         )
-        for j, joint in enumerate(JOINT_NAMES):
-            solid = {"color": COLOURS[j], "legend_label": joint}
+        for j, joint in enumerate(joints):
+            solid = {"color": COLOURS[j % len(COLOURS)], "legend_label": joint}
             dashed = {**solid, "line_dash": "dashed"}  # one legend entry hides both
-            angles.line("t", f"q_{joint}", source=self.joints, **solid)
-            angles.line("t", f"q_des_{joint}", source=self.joints, **dashed)
+            angles.line("t", f"q_{joint}", source=self.angles, **solid)
+            angles.line("t", f"q_des_{joint}", source=self.angles, **dashed)
             torques.line("t", f"u_{joint}", source=self.torques, **solid)
             torques.line("t", f"tau_{joint}", source=self.torques, **dashed)
         for plot in (angles, torques):
-            _legend_beside(plot)
-        self.layout = column(
-            self.choice, self.recommendation, self.table, self.export, self.episode_choice,
-            self.episode, row(angles, error, torques, **WIDE), **WIDE,
-        )  # fmt: skip
-        self.choice.on_change("value", lambda _attr, _old, _new: self.refresh())
-        self.members.selected.on_change("indices", lambda _attr, _old, _new: self.pick())
-        self.episode_choice.on_change("value", lambda _attr, _old, _new: self.plot())
+            if plot.legend:  # none before an arm is inspected
+                _legend_beside(plot)
+        return [angles, self.error_plot, torques]
+
+    def _arm(self, joints: tuple[str, ...]) -> None:
+        """The table's gains and the episode's lines for the inspected run's arm, `joints`."""
+        if joints == self.joints:
+            return
+        self.joints = joints
+        self.table.columns = table_columns(joints)
+        empty = empty_series(joints)
+        self.angles.data, self.torques.data = empty["joints"], empty["torques"]
+        self.plots.children = self._joint_plots(joints)
 
     def show(self, found: list[tuple[Path, object, RunView]]) -> None:
         names = [str(directory) for directory, _, _ in found]
@@ -331,6 +353,7 @@ class Inspector:
         self.run, self.view = Path(self.choice.value), view
         self.shown = (self.choice.value, version)
         self.recommendation.text = html.escape(view.recommendation)
+        self._arm(view.joints)
         self.members.data = view.table
         titles = dict(zip(SCORES, view.titles, strict=True))  # the run's objectives
         for item in self.table.columns:
@@ -382,25 +405,35 @@ class Inspector:
         if view.config.plant.interface == "fri":  # what the dashed torques hold
             said += (
                 " Its measured torques hold the gravity torque the robot's own "
-                "compensation adds under the command (FRI torque mode)."
+                f"compensation adds under the command ({_interface(view)})."
             )
         self.episode.text = html.escape(said)
-        drawn = series(found) if found is not None else EMPTY_SERIES
+        drawn = series(found, view.joints) if found is not None else empty_series(view.joints)
         for (source, _), name in zip(
             self._episode_sources(), ("joints", "error", "torques"), strict=True
         ):
             source.data = drawn[name]
 
     def _episode_sources(self) -> list[tuple[Any, dict]]:
+        empty = empty_series(self.joints)
         return [
-            (self.joints, EMPTY_SERIES["joints"]),
-            (self.error, EMPTY_SERIES["error"]),
-            (self.torques, EMPTY_SERIES["torques"]),
+            (self.angles, empty["joints"]),
+            (self.error, empty["error"]),
+            (self.torques, empty["torques"]),
         ]
 
 
-def table_columns() -> list[TableColumn]:
-    """The member table's columns, each sortable."""
+def _interface(view: RunView) -> str:
+    """The run's arm's torque interface by its maker's name (FRI torque mode, the iiwa's)."""
+    assert view.config is not None
+    try:
+        return robot_of(view.config.plant).torque_interface.name
+    except PluginError:
+        return f"{view.config.plant.robot}'s torque interface"
+
+
+def table_columns(joints: tuple[str, ...]) -> list[TableColumn]:
+    """The member table's columns for a run of an arm of `joints`, each sortable."""
 
     def numeric(field: str, title: str, fmt: str, width: int = 70) -> TableColumn:
         return TableColumn(
@@ -409,15 +442,26 @@ def table_columns() -> list[TableColumn]:
 
     # Widths that hold their headers and values whole (the table scrolls sideways); a measure's
     # title is its name's first word ("saturated", for saturated_fraction).
+    gains = gain_columns(joints)
     return [
         TableColumn(field="row", title="row", width=45),
         TableColumn(field="picked", title="picked", width=170),
         numeric("f_acc_mm", "f_acc (mm)", "0.000", 95),
         numeric("f_t", "f_t ((N·m)²)", "0.0000", 105),
-        *(numeric(name, name.replace("_", " "), "0", 70) for name in GAINS[: len(JOINT_NAMES)]),
-        *(numeric(name, name.replace("_", " "), "0.00", 65) for name in GAINS[len(JOINT_NAMES) :]),
+        *(numeric(name, _title(name), "0", _width(name, 70)) for name in gains[: len(joints)]),
+        *(numeric(name, _title(name), "0.00", _width(name, 65)) for name in gains[len(joints) :]),
         *(numeric(name, name.split("_")[0], "0.000", 90) for name in MEASURED),
         TableColumn(field="limits", title="limits", width=110),
         TableColumn(field="validation", title="validation", width=200),
         TableColumn(field="held_out", title="held-out plants", width=520),
     ]
+
+
+def _title(gain: str) -> str:
+    """A gain's column title: "kp A1", "kd shoulder_pan_joint"."""
+    return gain.replace("_", " ", 1)
+
+
+def _width(gain: str, least: int) -> int:
+    """A gain's column width, px: its title whole (some 7 px a character), at least `least`."""
+    return max(least, 7 * len(_title(gain)) + 10)

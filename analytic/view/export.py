@@ -4,9 +4,11 @@ A run's front offers many controllers; `picks` names them: the recommended membe
 compromise among those that dominate the default gains: what `controller` takes unless told
 otherwise), the knee (the best compromise of the whole front), the most accurate and the
 smoothest. `controller` makes any member a `schemas.controller.Controller`
-(gains, joints, units, objectives, provenance) and `render` writes it as JSON (what `analytic
-batch --gains` and `worker episode --gains` read), as the same document in YAML, or as a
-ros2_control parameter file.
+(gains, the arm's joints, units, what it assumes of the arm, objectives, provenance) and `render`
+writes it as JSON (what `analytic batch --gains` and `worker episode --gains` read), as the same
+document in YAML, or as a ros2_control parameter file naming the arm's joints. The arm is the
+run's (its plant's robot), looked up here: a run of an arm not installed (nor registered from
+its description file, `--robot FILE`) is refused in one line.
 
 The picks are gainfarm.analytic.tuning.picks' (one rule for every reader of a run).
 """
@@ -41,6 +43,8 @@ from gainfarm.analytic.tuning.records import (
     sorted_front,
 )
 from gainfarm.cli.words import counted
+from gainfarm.models import PlantError, plant_preset, resolve, robot_of
+from gainfarm.plugins import PluginError
 from gainfarm.schemas.controller import (
     Assumptions,
     Controller,
@@ -51,9 +55,9 @@ from gainfarm.schemas.controller import (
 )
 from gainfarm.schemas.documents import read_bounded
 from gainfarm.schemas.episode import DEFAULT_OBJECTIVES
-from gainfarm.schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.limits import MEASURED
-from gainfarm.schemas.robot import PLANTS, PlantSpec
+from gainfarm.schemas.robot import PLANTS, PlantSpec, Robot
 from gainfarm.schemas.wire import one_line
 
 MEMBERS = ("recommended", "knee", "accurate", "smooth")
@@ -81,11 +85,28 @@ class BadMember(ValueError):
 
 
 def plant_name(plant: PlantSpec) -> str:
-    """realistic or ideal if `plant` is that plant (whatever its joints), else custom."""
-    for name, named in PLANTS.items():
-        if plant == named.model_copy(update={"joints": plant.joints}):
-            return name
+    """realistic, plain or ideal if `plant` is that plant of its robot (whatever its joints),
+    with its per-joint numbers left to the robot or written out (a run's config resolves them);
+    else custom."""
+    for name in PLANTS:
+        try:
+            named = plant_preset(name, plant.robot).model_copy(update={"joints": plant.joints})
+            if resolve(plant) == resolve(named):
+                return name
+        except (PluginError, PlantError, ValueError):  # a robot not here, a plant it cannot be
+            return "custom"
     return "custom"
+
+
+def run_robot(plant: PlantSpec) -> Robot:
+    """The arm a run's `plant` names; BadRun, in one line, if it is not installed here."""
+    try:
+        return robot_of(plant)
+    except PluginError as error:
+        raise BadRun(
+            f"its arm {plant.robot!r} is not here ({error}); a robot of your own: give its "
+            "description file, --robot FILE"
+        ) from None
 
 
 def pick(
@@ -132,14 +153,28 @@ def pick(
     return pick_at(front, "row", row - 1)
 
 
-def baseline_of(directory: Path) -> Baseline | None:
+def joints_of(plant: PlantSpec, count: int | None = None) -> tuple[str, ...]:
+    """The joint names of the arm `plant` names. If it is not installed here (a run of another
+    machine's arm) or has not `count` joints (the gains a member has), `count` joints numbered
+    from 1, so that the gains still show."""
+    try:
+        names = robot_of(plant).joint_names
+    except PluginError:
+        names = ()
+    if count is None or len(names) == count:
+        return names
+    return tuple(f"joint{k}" for k in range(1, count + 1))
+
+
+def baseline_of(directory: Path, defaults: PDGains) -> Baseline | None:
     """The default gains' scores in the run at `directory` (baseline.json); None if it has none,
-    or one that is unreadable or of other gains (a run's `baseline` would score them again)."""
+    or one that is unreadable or of other gains than `defaults`, its arm's (a run's `baseline`
+    would score them again)."""
     try:
         found = read_baseline(Path(directory) / BASELINE_JSON)
     except (OSError, ValueError):
         return None
-    return found if found.gains == DEFAULT_GAINS else None
+    return found if found.gains == defaults else None
 
 
 def controller(directory: Path, which: str = "recommended") -> Controller:
@@ -167,7 +202,8 @@ def controller(directory: Path, which: str = "recommended") -> Controller:
                 "limits yet (report.md says which ones they broke)"
             )
         raise BadRun(f"{str(directory)!r} has no front yet: no generation has finished")
-    chosen = pick(front, which, baseline_of(directory), advice_in(directory))
+    robot = run_robot(config.plant)
+    chosen = pick(front, which, baseline_of(directory, robot.default_gains), advice_in(directory))
     member = chosen.member
     measured = _measures(directory, member)
     if measured and config.limits.violated(measured):  # a front from before the limits
@@ -177,6 +213,7 @@ def controller(directory: Path, which: str = "recommended") -> Controller:
         )
     evaluations = history[-1].evaluations if history else 0
     return Controller(
+        joints=robot.joint_names,
         kp=member.kp,
         kd=member.kd,
         member=Member(
@@ -192,7 +229,7 @@ def controller(directory: Path, which: str = "recommended") -> Controller:
             held_out=_held_out(directory, member),
         ),
         limits=config.limits if measured else None,
-        assumes=Assumptions.of(config.plant),
+        assumes=Assumptions.of(config.plant, robot),
         source=Source(
             run_id=identity.run_id if identity is not None else "",
             directory=str(directory),
@@ -260,7 +297,8 @@ def ros2_control(controller: Controller) -> str:
     joint_trajectory_controller with `command_interfaces: [effort]`: it then runs a PID per
     joint, u = p·e + i·∫e + d·(q̇_ref − q̇) + ff_velocity_scale·q̇_ref, which with i = 0 and
     ff_velocity_scale = 0 is the episodes' PD law. Every gain is written as a float: ROS 2
-    parameters are typed, and an integer would be refused for these doubles.
+    parameters are typed, and an integer would be refused for these doubles. The joints are the
+    controller's (the arm's joint names, as its ROS 2 description names them).
     """
     member, source = controller.member, controller.source
     trajectories = ", ".join(f"{t.kind} {t.duration:g} s" for t in source.trajectories)
@@ -291,19 +329,26 @@ def ros2_control(controller: Controller) -> str:
     diverged = " (diverged: the scores are a penalty)" if member.diverged else ""
     # A member chosen by its row is "row N" already: the row is said once.
     picked = "" if member.selected == f"row {member.row}" else f": {member.selected}"
-    header = [
-        "# ros2_control parameters: the iiwa 14's joint PD gains tuned by gainfarm, run on the",
-        "# effort interface by joint_trajectory_controller (its PID with i = 0 is a PD).",
+    header = textwrap.wrap(
+        f"ros2_control parameters: {source.model.robot}'s joint PD gains tuned by gainfarm, run "
+        "on the effort interface by joint_trajectory_controller (its PID with i = 0 is a PD).",
+        100,
+        initial_indent="# ",
+        subsequent_indent="# ",
+    )
+    header += [
         f"# Run {source.run_id or '(no run id)'} ({source.directory}), front.csv row "
         f"{member.row}{picked}.",
         f"# Tuned on {trajectories}, {source.plant} plant: {member_text(member)}{diverged}.",
         "# p in N·m/rad, d in N·m·s/rad; the episodes ran the law at "
         f"{round(1 / controller.control_period)} Hz, as update_rate does here.",
     ]
-    assumes = controller.assumes or Assumptions.of(source.model, controller.control_period)
+    assumes = controller.assumes or _assumptions(controller)
     header.append("# What it assumes (the JSON's `assumes` says the same):")
+    interface = () if assumes.torque_interface is None else (assumes.torque_interface,)
     for fact in (
         f"joints: {assumes.joints}.",
+        *(f"torque interface: {said}." for said in interface),
         f"gravity compensation: {assumes.gravity_compensation}.",
         f"feedback: {assumes.feedback}.",
         f"update rate: {assumes.update_rate_hz} Hz (update_rate below).",
@@ -316,6 +361,16 @@ def ros2_control(controller: Controller) -> str:
         )
     body = yaml.safe_dump(parameters, sort_keys=False, default_flow_style=None, width=100)
     return "\n".join(header) + "\n" + body
+
+
+def _assumptions(controller: Controller) -> Assumptions:
+    """What a controller file from before `assumes` took for granted: its arm's, if installed
+    here; else the iiwa 14's, the one arm such files were of."""
+    try:
+        robot = robot_of(controller.source.model)
+    except PluginError:
+        robot = robot_of(PlantSpec())
+    return Assumptions.of(controller.source.model, robot, controller.control_period)
 
 
 def point_groups(

@@ -6,7 +6,8 @@ Rows are front.csv's (most accurate first, numbered from 1), so a row named on t
 the run keeps of it (front.json's `logs`, in episodes/: the run fetches the front's logs from
 the workers that made them as it writes its records); one the run has not kept (its worker let
 it go first, or a run that keeps none) is simulated again here, episodes being deterministic,
-and the page says so.
+and the page says so. Gains and series are per joint of the run's arm, named by its joint names
+(its plant's robot: `joints_of`), whatever their count.
 """
 
 import base64
@@ -25,7 +26,14 @@ from gainfarm.analytic.tuning.declared import declarations, shown_unit
 from gainfarm.analytic.tuning.picks import Pick
 from gainfarm.analytic.tuning.records import EPISODES, FEEDFORWARD, FrontMember, sorted_front
 from gainfarm.analytic.tuning.run import slot_of
-from gainfarm.analytic.view.export import FORMATS, BadMember, BadRun, controller, render
+from gainfarm.analytic.view.export import (
+    FORMATS,
+    BadMember,
+    BadRun,
+    controller,
+    joints_of,
+    render,
+)
 from gainfarm.cli.words import counted
 from gainfarm.models.dynamics import MAX_FILE_BYTES, feedforward_from_bytes
 from gainfarm.schemas.documents import quoted, read_bounded
@@ -33,14 +41,23 @@ from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.limits import MEASURED
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, decode_episode, read_episode
-from gainfarm.schemas.robot import JOINT_NAMES
 
-# The table's columns, in its order: the row, the picks it is, its scores, its gains, its safety
-# measures (schemas.limits), how its episodes were checked, and how it fared on held-out plants.
+# The table's columns, in its order: the row, the picks it is, its scores, its gains (a Kp and a
+# Kd per joint of the run's arm: `gain_columns`), its safety measures (schemas.limits), how its
+# episodes were checked, and how it fared on held-out plants.
 SCORES = ("f_acc_mm", "f_t")
-GAINS = tuple(f"{gain}_{joint}" for gain in ("kp", "kd") for joint in JOINT_NAMES)
 TEXTS = ("picked", "limits", "validation", "held_out")
-COLUMNS = ("row", *SCORES, *GAINS, *MEASURED, *TEXTS)
+
+
+def gain_columns(joints: Sequence[str]) -> tuple[str, ...]:
+    """The gains' columns of an arm of `joints`: kp_JOINT for each joint, then kd_JOINT."""
+    return tuple(f"{gain}_{joint}" for gain in ("kp", "kd") for joint in joints)
+
+
+def columns(joints: Sequence[str]) -> tuple[str, ...]:
+    """The member table's columns, in its order, for a run of an arm of `joints`."""
+    return ("row", *SCORES, *gain_columns(joints), *MEASURED, *TEXTS)
+
 
 # The files one member's export offers: `analytic export`'s formats, each under its file name.
 FILE_NAMES = {"json": "controller.json", "yaml": "controller.yaml", "ros2_control": "ros2.yaml"}
@@ -49,33 +66,36 @@ FILE_NAMES = {"json": "controller.json", "yaml": "controller.yaml", "ros2_contro
 def table(
     front: Sequence[FrontMember], chosen: Sequence[Pick], config: RunConfig, check: dict | None
 ) -> dict[str, list]:
-    """The member table's columns (COLUMNS): one row per member of `front`, front.csv's order.
-    `chosen`: the run's picks; `check`: its check.json (None: not checked)."""
+    """The member table's columns (`columns` of the run's arm's joints): one row per member of
+    `front`, front.csv's order. `chosen`: the run's picks; `check`: its check.json (None: not
+    checked)."""
     members = sorted_front(front)
+    names = joints_of(config.plant, len(members[0].kp) if members else None)
+    gains = gain_columns(names)
     named: dict[int, list[str]] = {}
     for pick in chosen:
         named.setdefault(pick.row, []).append(pick.name)
     checked = (check or {}).get("controllers", ())
     held = {(tuple(item["kp"]), tuple(item["kd"])): item for item in checked}
-    columns: dict[str, list] = {name: [] for name in COLUMNS}
+    found: dict[str, list] = {name: [] for name in columns(names)}
     for row, member in enumerate(members, start=1):
-        columns["row"].append(row)
+        found["row"].append(row)
         # The run's first two objectives, in their own sense and shown unit (f_acc in mm); the
         # columns keep the paper's keys, the dashboard's titles name the run's objectives.
         first, second = declarations(member.names[:2])
-        columns["f_acc_mm"].append(member.named[first.name] * shown_unit(first)[1])
-        columns["f_t"].append(member.named[second.name] * shown_unit(second)[1])
-        for name, gain in zip(GAINS, member.kp + member.kd, strict=True):
-            columns[name].append(gain)
+        found["f_acc_mm"].append(member.named[first.name] * shown_unit(first)[1])
+        found["f_t"].append(member.named[second.name] * shown_unit(second)[1])
+        for name, gain in zip(gains, member.kp + member.kd, strict=True):
+            found[name].append(gain)
         measured = member.measures + (math.nan,) * (len(MEASURED) - len(member.measures))
         for name, value in zip(MEASURED, measured, strict=True):
-            columns[name].append(value)
-        columns["picked"].append(", ".join(named.get(row, ())))
-        columns["limits"].append(_limits(member, config))
-        columns["validation"].append(_validation(member))
+            found[name].append(value)
+        found["picked"].append(", ".join(named.get(row, ())))
+        found["limits"].append(_limits(member, config))
+        found["validation"].append(_validation(member))
         item = held.get((member.kp, member.kd))
-        columns["held_out"].append(held_out_text(item, check["plants"]) if item and check else "")
-    return columns
+        found["held_out"].append(held_out_text(item, check["plants"]) if item and check else "")
+    return found
 
 
 def _limits(member: FrontMember, config: RunConfig) -> str:
@@ -266,15 +286,20 @@ def _feedforward(directory: Path):  # -> gainfarm.models.dynamics.DynamicsModel
     return feedforward_from_bytes(read_bounded(directory / FEEDFORWARD, MAX_FILE_BYTES))
 
 
-def series(log: EpisodeLog) -> dict[str, dict[str, list[float]]]:
-    """The episode as the page plots it, against time: "joints" (each joint's angle q_A1.. and
-    its reference q_des_A1.., rad), "error" (the end effector's distance from the desired
-    point, mm: what f_acc averages) and "torques" (each joint's command u_A1.. and its measured
-    torque tau_A1.., N·m)."""
+def series(
+    log: EpisodeLog, names: Sequence[str] | None = None
+) -> dict[str, dict[str, list[float]]]:
+    """The episode as the page plots it, against time, its arm's joints named `names` (by
+    default its robot's joint names, as `joints_of` finds them): "joints"
+    (each joint's angle q_JOINT and its reference q_des_JOINT, rad), "error" (the end effector's
+    distance from the desired point, mm: what f_acc averages) and "torques" (each joint's
+    command u_JOINT and its measured torque tau_JOINT, N·m)."""
+    if names is None:
+        names = joints_of(log.metadata.spec.plant, log.q.shape[1])
     t = log.t.tolist()
     joints: dict[str, list[float]] = {"t": t}
     torques: dict[str, list[float]] = {"t": t}
-    for j, joint in enumerate(JOINT_NAMES):
+    for j, joint in enumerate(names):
         joints[f"q_{joint}"] = log.q[:, j].tolist()
         joints[f"q_des_{joint}"] = log.q_des[:, j].tolist()
         torques[f"u_{joint}"] = log.u[:, j].tolist()
@@ -283,8 +308,10 @@ def series(log: EpisodeLog) -> dict[str, dict[str, list[float]]]:
     return {"joints": joints, "error": {"t": t, "error_mm": error}, "torques": torques}
 
 
-EMPTY_SERIES = {
-    "joints": {"t": [], **{f"{q}_{j}": [] for q in ("q", "q_des") for j in JOINT_NAMES}},
-    "error": {"t": [], "error_mm": []},
-    "torques": {"t": [], **{f"{u}_{j}": [] for u in ("u", "tau") for j in JOINT_NAMES}},
-}
+def empty_series(names: Sequence[str]) -> dict[str, dict[str, list[float]]]:
+    """`series`' columns with no point: nothing chosen, for an arm of joints `names`."""
+    return {
+        "joints": {"t": [], **{f"{q}_{j}": [] for q in ("q", "q_des") for j in names}},
+        "error": {"t": [], "error_mm": []},
+        "torques": {"t": [], **{f"{u}_{j}": [] for u in ("u", "tau") for j in names}},
+    }

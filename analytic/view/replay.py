@@ -1,6 +1,7 @@
 """`analytic replay`: an episode log as a video of the arm following its path.
 
-MuJoCo draws the arm at the logged joint angles, offscreen, with the reference path (the logged
+MuJoCo draws the arm the log names (its plant's robot: the robot's own rigid model, whatever its
+joints) at the logged joint angles, offscreen, with the reference path (the logged
 desired flange positions, green) and the path the flange took so far (magenta) added to its
 scene, and the time and tracking error written in a corner; PyAV (FFmpeg's libx264, in the
 `render` extra) encodes the frames as H.264 in an MP4. The video is made in memory and written
@@ -24,10 +25,11 @@ import mujoco
 import numpy as np
 
 from gainfarm.edges.files import write_atomically
-from gainfarm.models import RIGID_MJCF
+from gainfarm.models import robot_of
+from gainfarm.plugins import PluginError
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, read_episode
-from gainfarm.schemas.robot import JOINT_NAMES
+from gainfarm.schemas.robot import PlantSpec
 
 DEFAULT_FPS = 30
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480
@@ -50,6 +52,11 @@ INSET_ALPHA = 0.25
 INSET_SHARE = 0.36  # of the frame's width and height
 INSET_MARKER = 0.025  # the markers' radius in the close-up, as a share of its distance
 FLANGE_RGBA = (1.0, 1.0, 1.0, 1.0)  # where the flange is, in the close-up: white
+# An arm's geoms its model leaves MuJoCo's default grey (Menagerie's collision shapes, whose
+# meshes are not vendored) are drawn in the iiwa's orange: grey on the grey floor is hard to see.
+DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)
+ARM_RGBA = (0.9, 0.45, 0.1, 1.0)
+BONE_RADIUS = 0.035  # m: a link without a shape of its own, drawn as a bone (`_bones`)
 
 
 class ReplayError(ValueError):
@@ -62,8 +69,10 @@ def replay(
     fps: int = DEFAULT_FPS,
     width: int = DEFAULT_WIDTH,
     height: int = DEFAULT_HEIGHT,
+    robot: str | None = None,
 ) -> int:
-    """Render the episode at `log_path` to the MP4 `out`; return the number of frames."""
+    """Render the episode at `log_path` to the MP4 `out`; return the number of frames. `robot`:
+    the arm the log must be of (None: whichever it names)."""
     if width % 2 or height % 2:  # H.264 in 4:2:0 halves the colour planes
         raise ReplayError(f"{'--width' if width % 2 else '--height'}: must be even")
     _check_writable(Path(out))
@@ -75,6 +84,16 @@ def replay(
         raise ReplayError(f"{str(log_path)!r}: {error.strerror or error}") from None
     if log.ticks == 0:
         raise ReplayError(f"{log_path}: the episode ran no tick: nothing to show")
+    arm = log.metadata.spec.plant.robot
+    if robot is not None and robot != arm:
+        raise ReplayError(f"--robot: {str(log_path)!r} is an episode of {arm}, not of {robot}")
+    try:
+        robot_of(arm)
+    except PluginError:
+        raise ReplayError(
+            f"LOG: {str(log_path)!r} is an episode of {arm!r}, an arm not installed here: give "
+            "its description file, --robot FILE"
+        ) from None
     ticks = frame_ticks(log.t, fps)
     video = encode(render(log, ticks, width, height), fps, width, height)
     try:
@@ -92,10 +111,11 @@ def frame_ticks(t: np.ndarray, fps: int) -> np.ndarray:
 
 
 def render(log: EpisodeLog, ticks: np.ndarray, width: int, height: int) -> list[np.ndarray]:
-    """The frames (height, width, 3 uint8), one per tick of `ticks`."""
-    model = _scene_model(width, height)
+    """The frames (height, width, 3 uint8), one per tick of `ticks`, of the arm the log names."""
+    robot = log.metadata.spec.plant.robot
+    model = _scene_model(robot, width, height)
     data = mujoco.MjData(model)
-    hinges = [model.joint(name).qposadr[0] for name in JOINT_NAMES]
+    hinges = [model.joint(name).qposadr[0] for name in robot_of(robot).joint_names]
     reference = _path(log.ee_des)
     line_width = max(2.0, height / 160)  # pixels: 3 at 480 lines
     context = _gl_context(width, height)
@@ -105,6 +125,7 @@ def render(log: EpisodeLog, ticks: np.ndarray, width: int, height: int) -> list[
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, graphics)
         scene = mujoco.MjvScene(model, maxgeom=1000 + 2 * MAX_SEGMENTS)
         camera, option = mujoco.MjvCamera(), mujoco.MjvOption()
+        option.geomgroup[:] = 1  # every group: an arm's shapes may be in any (UR5e's in 3)
         camera.type = mujoco.mjtCamera.mjCAMERA_FREE
         for name, value in CAMERA.items():
             setattr(camera, name, value)
@@ -203,10 +224,16 @@ def _check_writable(out: Path) -> None:
         raise ReplayError(f"--out: cannot write {str(out)!r}: {error.strerror or error}") from None
 
 
-def _scene_model(width: int, height: int) -> mujoco.MjModel:
-    """The rigid arm (every variant's bodies and geoms), on a floor under a sky, with an
-    offscreen buffer of the video's size."""
-    spec = mujoco.MjSpec.from_string(RIGID_MJCF.read_text())
+def _scene_model(robot: str, width: int, height: int) -> mujoco.MjModel:
+    """The rigid arm `robot` names (every variant's bodies and geoms), on a floor under a sky,
+    with an offscreen buffer of the video's size."""
+    spec = robot_of(robot).describe(PlantSpec(robot=robot, joints="rigid"))
+    for geom in spec.geoms:
+        if tuple(geom.rgba) == DEFAULT_RGBA and not geom.material:
+            geom.rgba = ARM_RGBA
+    _bones(spec.worldbody)
+    if not spec.lights:  # lit as the iiwa's model is (Menagerie's files leave their lights out)
+        spec.worldbody.add_light(pos=[0.0, 0.0, 3.0], dir=[0.0, 0.0, -1.0])
     spec.visual.global_.offwidth, spec.visual.global_.offheight = width, height
     spec.add_texture(
         name="sky",
@@ -239,6 +266,36 @@ def _scene_model(width: int, height: int) -> mujoco.MjModel:
     spec.visual.quality.offsamples = 0
     model = spec.compile()
     return model
+
+
+def _bones(parent: mujoco.MjsBody) -> None:
+    """A link its model gives no shape (a model vendored without its meshes, as Menagerie's
+    Gen3) drawn as a bone: a capsule from its origin to each of its links', a ball if it has
+    none; so that every arm shows, whatever its file draws. Visual only: contacts are off."""
+    for body in parent.bodies:
+        if not body.geoms:
+            ends = [np.asarray(child.pos, dtype=float) for child in body.bodies]
+            for end in ends:
+                if np.linalg.norm(end) > BONE_RADIUS:
+                    body.add_geom(
+                        type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+                        fromto=[0.0, 0.0, 0.0, *end],
+                        size=[BONE_RADIUS, 0.0, 0.0],
+                        rgba=ARM_RGBA,
+                        contype=0,
+                        conaffinity=0,
+                        density=0.0,
+                    )
+            if not body.geoms:
+                body.add_geom(
+                    type=mujoco.mjtGeom.mjGEOM_SPHERE,
+                    size=[BONE_RADIUS, 0.0, 0.0],
+                    rgba=ARM_RGBA,
+                    contype=0,
+                    conaffinity=0,
+                    density=0.0,
+                )
+        _bones(body)
 
 
 def _gl_context(width: int, height: int) -> object:

@@ -34,6 +34,8 @@ from gainfarm.analytic.tuning.records import (
 from gainfarm.analytic.view.export import Pick, plant_name, point_groups
 from gainfarm.cli.words import counted
 from gainfarm.edges.files import write_atomically
+from gainfarm.models import robot_of
+from gainfarm.plugins import PluginError
 from gainfarm.schemas.controller import UNITS
 from gainfarm.schemas.episode import DEFAULT_OBJECTIVES
 from gainfarm.schemas.objectives import DIVERGED_TICK_ERROR
@@ -107,7 +109,27 @@ def run_setup(config: RunConfig) -> list[str]:
         f"{config.objectives[0]} {config.reference_point[0]} {first.unit}".rstrip()
         + ", "
         f"{config.objectives[1]} {config.reference_point[1]}",
+        arm_text(config.plant),
     ]
+
+
+def arm_text(plant: PlantSpec) -> str:
+    """The arm a plant is of, as a report says it: its joints, and its torque interface (what
+    the robot does with a torque command, and whether the plant has it add gravity)."""
+    try:
+        robot = robot_of(plant)
+    except PluginError:
+        return f"arm {plant.robot} (not installed here)"
+    joints, interface = robot.joint_names, robot.torque_interface
+    adds = (
+        "adding its own gravity model under the command"
+        if plant.interface == "fri"
+        else "without gravity compensation (interface torque: the command is the motor torque)"
+    )
+    return (
+        f"arm {robot.name}: {counted(len(joints), 'joint')} ({joints[0]}..{joints[-1]}), "
+        f"behind {interface.name} ({interface.description}), simulated {adds}"
+    )
 
 
 AGGREGATE_TEXT = {
@@ -131,23 +153,26 @@ def _duration(seconds: float) -> str:
 
 
 def gains_text(member: FrontMember) -> str:
-    """A member's 14 gains on one short line: 'kp 2000 2000 1200 … / kd 20 20 15 …'."""
+    """A member's gains on one short line: 'kp 2000 2000 1200 … / kd 20 20 15 …'."""
     kp = " ".join(f"{gain:.4g}" for gain in member.kp)
     kd = " ".join(f"{gain:.4g}" for gain in member.kd)
     return f"kp {kp} / kd {kd}"
 
 
-UNITS_LINE = (
-    f"Units: kp in {UNITS['kp']} and kd in {UNITS['kd']}, one per joint "
-    f"{JOINT_NAMES[0]}..{JOINT_NAMES[-1]}; f_acc is the mean end-effector error (front.csv: m; "
-    "here: mm), f_t the mean squared torque change per 2 ms tick in (N·m)²."
-)
-
-
-def units_line(names: Sequence[str] = DEFAULT_OBJECTIVES) -> str:
-    """What the report's numbers are: the paper's UNITS_LINE, or each objective's declaration."""
+def units_line(
+    names: Sequence[str] = DEFAULT_OBJECTIVES, joints: Sequence[str] = JOINT_NAMES
+) -> str:
+    """What the report's numbers are, for an arm of `joints` (the default arm's, the iiwa 14's,
+    unless said): the paper's objectives, or each objective's declaration."""
+    gains = (
+        f"Units: kp in {UNITS['kp']} and kd in {UNITS['kd']}, one per joint "
+        f"{joints[0]}..{joints[-1]}"
+    )
     if tuple(names) == DEFAULT_OBJECTIVES:
-        return UNITS_LINE
+        return (
+            f"{gains}; f_acc is the mean end-effector error (front.csv: m; here: mm), f_t the "
+            "mean squared torque change per 2 ms tick in (N·m)²."
+        )
     said = "; ".join(
         f"{o.name} is the {o.description}, in {o.unit}"
         + (f" (here: {shown_unit(o)[0]})" if shown_unit(o)[0] != o.unit else "")
@@ -155,10 +180,7 @@ def units_line(names: Sequence[str] = DEFAULT_OBJECTIVES) -> str:
         else f"{o.name}: {o.description}"
         for o in declarations(names)
     )
-    return (
-        f"Units: kp in {UNITS['kp']} and kd in {UNITS['kd']}, one per joint "
-        f"{JOINT_NAMES[0]}..{JOINT_NAMES[-1]}; {said}."
-    )
+    return f"{gains}; {said}."
 
 
 def diverged_note(names: Sequence[str] = DEFAULT_OBJECTIVES) -> str:
@@ -289,18 +311,20 @@ def controllers_section(
     baseline: Baseline | None,
     run_dir: str = "RUN",
     front: Sequence[FrontMember] = (),
+    joints: Sequence[str] = JOINT_NAMES,
 ) -> list[str]:
     """The report's answer to "which controller?": the recommended member (or the one closest
     to it), the knee, the most accurate and the smoothest member with their gains, beside the
     default gains; the members that dominate the defaults; how the picks are chosen, and how to
-    take one out of the run. `picks` are `analytic.tuning.picks.picks(front, baseline)`."""
+    take one out of the run. `picks` are `analytic.tuning.picks.picks(front, baseline)`;
+    `joints` the arm's (the default arm's, the iiwa 14's, unless said)."""
     lines = ["## The controller to use", ""]
     if not picks:
         return [*lines, "No front yet.", ""]
     names = picks[0].member.names
     lines += [
         f"| | front.csv row | {_titles(names)} | kp ({UNITS['kp']}) "
-        f"{JOINT_NAMES[0]}..{JOINT_NAMES[-1]} | kd ({UNITS['kd']}) |",
+        f"{joints[0]}..{joints[-1]} | kd ({UNITS['kd']}) |",
         "|---|---:|---:|---:|---|---|",
     ]
     for chosen in picks:
@@ -343,7 +367,7 @@ def controllers_section(
         "configuration; `--member knee|accurate|smooth|N` another member (N: its front.csv "
         "row).",
         "",
-        units_line(names),
+        units_line(names, joints),
         "",
     ]
     return lines
@@ -369,12 +393,13 @@ def report_markdown(
     run_dir: str = "RUN",
     validation: ValidationRecord | None = None,
     advice: str | None = None,
+    joints: Sequence[str] = JOINT_NAMES,
 ) -> str:
     """The text of report.md (see `write_report`)."""
     lines = [f"# {title}", ""]
     if picks:  # first the recommendation: what to use, or that nothing here beats the defaults
         lines += [advice or recommendation_text(picks, baseline), ""]
-        lines += controllers_section(picks, baseline, run_dir, front)
+        lines += controllers_section(picks, baseline, run_dir, front, joints)
     lines += ["## Configuration", ""]
     lines += [f"- {line}" for line in config_lines] or ["- (none given)"]
     lines += ["", "## Summary", ""]
@@ -412,13 +437,13 @@ def report_markdown(
             "gains are shown; front.csv lists each, at full precision).",
             "",
             f"| # (front.csv row) | {_titles(members[0].names)} | members | gains: kp "
-            f"({UNITS['kp']}) / kd ({UNITS['kd']}), {JOINT_NAMES[0]}..{JOINT_NAMES[-1]} |",
+            f"({UNITS['kp']}) / kd ({UNITS['kd']}), {joints[0]}..{joints[-1]} |",
             "|---:|---:|---:|---:|---|",
             *(front_table_row(row, members[row - 1], count) for row, count in groups),
         ]
         if any(member.diverged for member in members):
             lines += ["", diverged_note(members[0].names)]
-        lines += ["", units_line(members[0].names)]
+        lines += ["", units_line(members[0].names, joints)]
     else:
         lines.append("No members yet.")
     if validation is not None:
@@ -452,12 +477,14 @@ def write_report(
     run_dir: str = "RUN",
     validation: ValidationRecord | None = None,
     advice: str | None = None,
+    joints: Sequence[str] = JOINT_NAMES,
 ) -> None:
     """A short report.md at `path`: first the recommendation (`advice`, the held-out check's, if
     given; else the recommended member, or that none dominates the default gains), then the
     controller to use (`picks`, computed beside the default gains' `baseline`; `run_dir` for the
     export command it shows), configuration,
     summary, the front as a table (members with identical scores on one line), the figures.
+    `joints`: the arm's joint names, which the gains are of (the iiwa 14's unless said).
 
     `converged` is the caller's one line on why the run stopped (or that it has not),
     e.g. "converged after 240 evaluations (hypervolume gain < 0.1% over 3 generations)". The
@@ -475,6 +502,7 @@ def write_report(
         run_dir=run_dir,
         validation=validation,
         advice=advice,
+        joints=joints,
     )
     write_atomically(Path(path), text.encode("utf-8"))
 
@@ -529,8 +557,8 @@ def validation_section(validation: ValidationRecord, members: Sequence[FrontMemb
 
 
 def plant_text(plant: PlantSpec) -> str:
-    """Which plant a run simulated: a named one, or a custom one, and its joints."""
+    """Which plant a run simulated: its arm, a named plant or a custom one, and its joints."""
     name = plant_name(plant)
     if name == "custom":
-        return f"custom plant (see config.json), {plant.joints} joints"
-    return f"{name} plant, {plant.joints} joints"
+        return f"{plant.robot}, custom plant (see config.json), {plant.joints} joints"
+    return f"{plant.robot}, {name} plant, {plant.joints} joints"

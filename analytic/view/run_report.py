@@ -19,6 +19,7 @@ from gainfarm.analytic.tuning.evolution import hypervolume
 from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import HYPERVOLUME_PNG, PARETO_PNG, REPORT_MD, FrontMember
 from gainfarm.analytic.tuning.run import TuningRun
+from gainfarm.analytic.view.export import joints_of
 from gainfarm.analytic.view.figures import plot_hypervolume, plot_pareto
 from gainfarm.analytic.view.reports import run_setup, run_title, write_report
 from gainfarm.cli.words import counted
@@ -52,6 +53,7 @@ def write_run_report(run: TuningRun, figures: bool = True) -> None:
         run_dir=str(run.directory),
         validation=run.validation(),
         advice=advice_text(record),
+        joints=joints_of(run.config.plant, len(front[0].kp) if front else None),
     )
     report = run.directory / REPORT_MD
     sections = [

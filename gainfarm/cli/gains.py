@@ -8,17 +8,22 @@ import click
 
 from gainfarm.cli.app import CliError
 from gainfarm.schemas.gains import PDGains, outside_search, saturating
-from gainfarm.schemas.robot import PlantSpec
+from gainfarm.schemas.robot import PlantSpec, Robot
 
 
 def refuse_saturating(
-    candidates: Sequence[PDGains], plant: PlantSpec, path: Path | None = None
+    candidates: Sequence[PDGains],
+    plant: PlantSpec,
+    path: Path | None = None,
+    robot: Robot | None = None,
 ) -> None:
     """One line for the first candidate with a gain that saturates its motor on one encoder
     count of `model`: every tick of its episodes would saturate. It names --gains and the file
-    (and the candidate, if the file holds several), or the option --kp or --kd without a file."""
+    (and the candidate, if the file holds several), or the option --kp or --kd without a file.
+    `robot`: the plant's (its joints and torque limits; None: the iiwa 14)."""
+    arm = () if robot is None else (robot.joint_names, robot.limits.torque)
     for number, gains in enumerate(candidates, start=1):
-        found = saturating(gains, plant)
+        found = saturating(gains, plant, *arm)
         if found is None:
             continue
         which, joint, gain = found
@@ -31,14 +36,19 @@ def refuse_saturating(
 
 
 def warn_far_outside_search(
-    program: str, candidates: Sequence[PDGains], path: Path | None = None
+    program: str,
+    candidates: Sequence[PDGains],
+    path: Path | None = None,
+    robot: Robot | None = None,
 ) -> None:
     """One line on stderr for the first candidate with gains orders of magnitude outside what
     the farm searches: its episodes run (a user may mean them), but such gains are more often a
     slip of units or of an exponent. It names --gains and the file (and the candidate, if the
-    file holds several), or the option --kp or --kd without a file."""
+    file holds several), or the option --kp or --kd without a file. `robot`: whose default gains
+    the search space is built on (None: the iiwa 14's)."""
+    arm = () if robot is None else (robot.default_gains, robot.joint_names)
     for number, gains in enumerate(candidates, start=1):
-        found = outside_search(gains)
+        found = outside_search(gains, *arm)
         if found is None:
             continue
         # The phrase starts with the gain's name, kp or kd: the option that gave it.

@@ -353,6 +353,15 @@ def _robot(ctx: click.Context, param: click.Parameter, value: str) -> str:
     names = plugins.names(plugins.ROBOTS)
     if value in names:
         return value
+    if Path(value).suffix == ".toml" or Path(value).is_file():
+        # start-up: MuJoCo and the contract load only when a description file is given
+        from gainfarm.models.described import register_file
+        from gainfarm.schemas.robot_file import BadRobotFile
+
+        try:
+            return register_file(Path(value))
+        except BadRobotFile as error:
+            raise CliError(f"--robot: {value}: {error}") from None
     raise click.BadParameter(
         f"{value!r} is no robot here (these are: {', '.join(names)}) and no description file",
         param_hint="'--robot'",

@@ -50,6 +50,14 @@ def test_episode_bench_prints_its_ratios_to_the_physics() -> None:
 
 
 @pytest.mark.slow
+def test_references_prints_each_arms_shares_of_its_limits() -> None:
+    done = bench("references.py", "--robots", "iiwa14,ur5e", timeout=300)
+    shares = figures(r"\| (?:iiwa14|ur5e) \| \w+ \| [0-9.]+ \| ([0-9.]+) \(", done.stdout)
+    assert len(shares) == 8  # two arms, four kinds
+    figures(rf"largest share: {NUMBER}", done.stdout)
+
+
+@pytest.mark.slow
 def test_encode_bench_prints_the_logs_share_of_its_episode() -> None:
     done = bench("encode_bench.py", "--quick", timeout=300)
     assert len(figures(rf"log/episode \([^)]*\): {NUMBER}", done.stdout)) == 2

@@ -31,14 +31,6 @@ class TestThePandaPassesTheKit(RobotChecks):
     def robot(self) -> Robot:
         return panda.ROBOT
 
-    @pytest.mark.xfail(
-        strict=True,
-        reason="JointLimits.position is symmetric (±position); the Panda's joint 4 turns from "
-        "-3.0718 to -0.0698 rad, which its hinge keeps: the contract needs a low bound",
-    )
-    def test_builds(self, robot: Robot) -> None:
-        super().test_builds(robot)
-
 
 def test_the_panda_is_installed_as_a_seven_joint_robot_with_the_ros_names() -> None:
     robot = robot_of("panda")

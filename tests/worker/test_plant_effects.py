@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from gainfarm.models import compile_model
+from gainfarm.models import compile_model, resolve
 from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec
 from gainfarm.schemas.objectives import score
 from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT, Friction, PlantSpec, Sensors
@@ -116,7 +116,7 @@ def test_sensor_noise_is_reproducible_from_the_seed_and_differs_between_seeds():
 
 def test_encoders_report_whole_counts_and_velocity_from_their_differences(tracking_log):
     sensors = tracking_log.metadata.spec.plant.sensors
-    encoders = Encoders(sensors)
+    encoders = Encoders(sensors, tracking_log.q.shape[1])
     for angles, velocities in (
         (tracking_log.q, tracking_log.qd),
         (tracking_log.theta, tracking_log.theta_d),
@@ -159,7 +159,7 @@ def test_on_the_ideal_elastic_plant_the_log_explains_its_own_torque_command():
     for k in range(len(qdd)):
         data.qpos[:], data.qvel[:], data.qacc[:] = log.q[k], log.qd[k], qdd[k]
         mujoco.mj_inverse(links, data)
-        explained[k] = data.qfrc_inverse + np.array(spec.plant.rotor_inertia) * thetadd[k]
+        explained[k] = data.qfrc_inverse + np.array(resolve(spec.plant).rotor_inertia) * thetadd[k]
     u = log.u[:-1]
     nmse = ((explained - u) ** 2).mean(axis=0) / u.var(axis=0)
     assert nmse.max() < 1e-5, nmse

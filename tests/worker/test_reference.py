@@ -5,7 +5,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from gainfarm.models import FLANGE, compile_model
+from gainfarm import plugins
+from gainfarm.models import FLANGE, compile_model, robot_of
 from gainfarm.schemas import CONTROL_PERIOD, PlantSpec, TrajectoryKind, TrajectorySpec
 from gainfarm.schemas.robot import ACCELERATION_LIMITS, POSITION_LIMITS, SPEED_LIMITS
 from gainfarm.worker import reference as reference_module
@@ -14,14 +15,16 @@ from gainfarm.worker.ik import (
     REACH_TOLERANCE,
     READY_POSTURE,
     UnreachablePath,
+    ready_posture,
 )
 from gainfarm.worker.reference import (
     InfeasibleReference,
+    default_duration,
     path_progress,
     reference_for,
     shortest_duration,
 )
-from gainfarm.worker.trajectories import path_points, rest_points, tool_yaw, twist_angle
+from gainfarm.worker.trajectories import Kind, path_points, rest_points, tool_yaw, twist_angle
 from gainfarm.worker.trajectories.fourier import FOURIER_FLOOR
 
 POSITION = np.array(POSITION_LIMITS)
@@ -91,7 +94,7 @@ def test_too_fast_a_path_is_refused_naming_its_shortest_feasible_duration(kind, 
         reference_for(spec)
     assert isinstance(refused.value, ValueError)
     match = re.fullmatch(
-        rf"the {duration:g} s {kind} is too fast for the iiwa 14: A[1-7] would need "
+        rf"the {duration:g} s {kind} is too fast for iiwa14: A[1-7] would need "
         r"(\d+\.\d\d)x its (speed|acceleration) limit; "
         r"the shortest feasible duration is (\d+\.\d) s",
         str(refused.value),
@@ -227,3 +230,116 @@ def test_references_are_cached_and_read_only():
 def test_a_path_out_of_reach_is_a_clear_error():
     with pytest.raises(UnreachablePath, match="unreachable"):
         reference_for(TrajectorySpec(center=(1.5, 0.0, 0.4), duration=3.0))
+
+
+# --- any arm -------------------------------------------------------------------------------
+
+
+def robot_flange_poses(robot: str, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The robot's flange positions and orientations at q, by MuJoCo's kinematics of its own
+    rigid model, built apart from the worker's."""
+    arm = robot_of(robot)
+    model = arm.build(PlantSpec(robot=robot, joints="rigid", inertials=arm.inertial_sets[0]))
+    data = mujoco.MjData(model)
+    positions, rotations = np.empty((len(q), 3)), np.empty((len(q), 3, 3))
+    for k, qk in enumerate(q):
+        data.qpos[:] = qk
+        mujoco.mj_kinematics(model, data)
+        positions[k] = data.site(arm.flange).xpos
+        rotations[k] = data.site(arm.flange).xmat.reshape(3, 3)
+    return positions, rotations
+
+
+@pytest.mark.parametrize("robot", ["ur5e", "panda", "gen3"])
+@pytest.mark.parametrize("kind", ["spiral", "pyramid", "fourier"])
+def test_each_arms_reference_is_its_own_within_its_limits_and_on_its_path(robot, kind):
+    arm = robot_of(robot)
+    spec = TrajectorySpec(kind=kind, duration=6.0, center=arm.workspace.center)
+    ref = reference_for(spec, robot)
+    joints = len(arm.joint_names)
+    assert ref.q.shape == ref.qd.shape == ref.qdd.shape == (spec.ticks, joints)
+    model_ranges = model_joint_ranges(robot)
+    assert np.all(ref.q >= model_ranges[:, 0]) and np.all(ref.q <= model_ranges[:, 1])
+    assert np.all(np.abs(ref.qd).max(axis=0) <= np.array(arm.limits.speed))
+    assert np.all(np.abs(ref.qdd).max(axis=0) <= np.array(arm.limits.acceleration))
+    positions, _ = robot_flange_poses(robot, ref.q)
+    if kind != "fourier":  # the Cartesian path, held by the arm's own kinematics
+        np.testing.assert_array_equal(ref.ee, path_points(spec, path_progress(spec, robot)))
+        assert np.abs(positions - ref.ee).max() < REACH_TOLERANCE
+    else:  # where its flange is, about the arm's own home, at rest at both ends
+        np.testing.assert_allclose(positions, ref.ee, atol=1e-12)
+        np.testing.assert_allclose(ref.q[0], arm.workspace.home, atol=1e-12)
+        np.testing.assert_allclose(ref.q[-1], arm.workspace.home, atol=1e-9)
+
+
+def model_joint_ranges(robot: str) -> np.ndarray:
+    """(joints, 2): the robot's hinges' ranges in its own rigid model."""
+    return robot_of(robot).build(PlantSpec(robot=robot, joints="rigid")).jnt_range
+
+
+def test_the_same_spec_on_two_arms_is_two_references():
+    spec = TrajectorySpec(kind="fourier", duration=2.0)
+    iiwa, ur5e = reference_for(spec), reference_for(spec, "ur5e")
+    assert iiwa.q.shape[1] == 7 and ur5e.q.shape[1] == 6
+    np.testing.assert_array_equal(reference_for(spec, "iiwa14").q, iiwa.q)  # the default robot
+
+
+@pytest.mark.parametrize("robot", ["iiwa14", "ur5e", "panda", "gen3"])
+def test_the_first_joint_turns_the_arm_to_face_a_path(robot):
+    """ready_posture(yaw): only the first joint moves from home, and the flange's heading about
+    the base's vertical turns by as much as the heading asked does."""
+    arm = robot_of(robot)
+    home = np.array(arm.workspace.home)
+    at_home = robot_flange_poses(robot, home[None, :])[0][0]
+    heading = np.arctan2(at_home[1], at_home[0])
+    for turn in (-0.4, 0.3):
+        posture = ready_posture(heading + turn, robot)
+        np.testing.assert_array_equal(posture[1:], home[1:])
+        there = robot_flange_poses(robot, posture[None, :])[0][0]
+        assert np.arctan2(there[1], there[0]) == pytest.approx(heading + turn, abs=1e-6)
+        assert np.hypot(*there[:2]) == pytest.approx(np.hypot(*at_home[:2]), abs=1e-9)
+
+
+def test_an_arm_with_a_slow_wrist_takes_longer_by_default_and_the_iiwa_its_5_s():
+    """default_duration: 5 s, or the shortest 0.5 s step within 0.9 of the limits (the Gen3's
+    wrist turns the default twist at 0.97 of its limit in 5 s)."""
+    for kind in ("spiral", "random", "pyramid", "fourier"):
+        assert default_duration(TrajectorySpec(kind=kind)) == 5.0
+    gen3 = robot_of("gen3")
+    spiral = TrajectorySpec(center=gen3.workspace.center)
+    assert shortest_duration(spiral, "gen3") / 0.9 > 5.0
+    longer = default_duration(spiral, "gen3")
+    assert longer == 5.5
+    ref = reference_for(spiral.model_copy(update={"duration": longer}), "gen3")
+    share = np.abs(ref.qd).max(axis=0) / np.array(gen3.limits.speed)
+    assert 0.8 < share.max() <= 0.9
+
+
+def test_a_path_too_fast_for_an_arm_names_the_arm_and_its_joint():
+    center = robot_of("ur5e").workspace.center
+    with pytest.raises(InfeasibleReference) as refused:
+        reference_for(TrajectorySpec(duration=1.0, center=center), "ur5e")
+    assert re.fullmatch(
+        r"the 1 s spiral is too fast for ur5e: \w+_joint would need [0-9.]+x its (speed|"
+        r"acceleration) limit; the shortest feasible duration is 2\.3 s",
+        str(refused.value),
+    ), str(refused.value)
+
+
+def test_a_joint_motion_of_another_joint_count_is_refused_naming_the_arm():
+    def seven(spec, t):  # a kind written for the iiwa 14 alone: (spec, t), seven columns
+        still = np.zeros((len(t), 7))
+        return np.tile(READY_POSTURE, (len(t), 1)), still, still
+
+    plugins.register(
+        plugins.TRAJECTORIES, "seven", Kind(joint_motion=seven, shortest_duration=lambda s: 0.1)
+    )
+    try:
+        spec = TrajectorySpec(kind="seven", duration=0.5)
+        assert reference_for(spec).q.shape == (spec.ticks, 7)
+        with pytest.raises(
+            ValueError, match=r"not q, qd, qdd of \(251, 6\) finite values for ur5e"
+        ):
+            reference_for(spec, "ur5e")
+    finally:
+        plugins.unregister(plugins.TRAJECTORIES, "seven")

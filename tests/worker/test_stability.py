@@ -7,6 +7,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from gainfarm.models import resolve
 from gainfarm.models.urdf import description
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
@@ -162,7 +163,7 @@ UNDER_DAMPED = PDGains(
     kd=tuple(k * f for k, f in zip(DEFAULT_GAINS.kd, (0.1, 0.1, 1, 1, 1, 1, 1), strict=True)),
 )
 TOP_DELAY = 2  # ticks: the top of models/uncertainty.toml's `delay` range (the nominal is 1)
-ROTOR_10X = PlantSpec(rotor_inertia=tuple(10 * r for r in PlantSpec().rotor_inertia))
+ROTOR_10X = PlantSpec(rotor_inertia=tuple(10 * r for r in resolve(PlantSpec()).rotor_inertia))
 
 
 def test_the_default_gains_track_with_damping_to_spare_two_ticks_late() -> None:

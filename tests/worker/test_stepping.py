@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gainfarm.models import min_substeps
+from gainfarm.models import min_substeps, plant_preset, resolve, robot_of
 from gainfarm.models.urdf import description
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.episode_log import EpisodeLog
@@ -16,7 +16,7 @@ from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.mcap_episode import episode_bytes
 from gainfarm.schemas.robot import IDEAL_PLANT, PLAIN_PLANT, REALISTIC_PLANT
 from gainfarm.worker.episode import compensation, simulate_all
-from gainfarm.worker.job import simulate, simulate_batch
+from gainfarm.worker.job import drawing, simulate, simulate_batch
 from gainfarm.worker.reference import reference_for
 from tests.helpers import SOFT_GAINS, TRACKING_GAINS, short_spec
 
@@ -87,7 +87,7 @@ def test_plant_variants_of_one_layout_and_other_physics_steps_each_log_their_own
     # physics steps a tick: a stack that stepped them all by its first's gave another episode.
     plants = []
     for factor in (1.0, 2.0, 0.5, 3.0):
-        stiffer = tuple(factor * k for k in REALISTIC_PLANT.stiffness)
+        stiffer = tuple(factor * k for k in resolve(REALISTIC_PLANT).stiffness)
         plant = REALISTIC_PLANT.model_copy(update={"stiffness": stiffer})
         plants.append(plant.model_copy(update={"substeps": min_substeps(plant)}))
     assert len({plant.substeps for plant in plants}) == 3
@@ -158,3 +158,40 @@ def test_a_job_on_a_robot_not_here_is_refused_naming_it() -> None:
     (outcome,) = simulate_batch([elsewhere])
     assert outcome.status.value == "refused"
     assert "gainfarm.robots: no plug-in named 'xarm7' here" in outcome.reason
+
+
+def test_arms_of_other_joint_counts_log_the_same_bytes_alone_and_batched_together() -> None:
+    """UR5e (6 joints) and Panda (7) episodes, on each loop (exact and sensed, behind the
+    robot's gravity compensation or not), batched with iiwa ones: each stack is of one arm,
+    and every episode logs what it logs alone."""
+    specs = []
+    for index, robot in enumerate(("ur5e", "panda", "iiwa14")):
+        arm = robot_of(robot)
+        for plant in ("realistic", "plain", "ideal"):
+            trajectory = TrajectorySpec(kind="fourier", duration=0.5, seed=index)
+            specs.append(
+                EpisodeSpec(
+                    gains=arm.default_gains,
+                    trajectory=trajectory,
+                    plant=plant_preset(plant, robot),
+                )
+            )
+    prepared = []
+    for spec in specs:
+        reference = reference_for(spec.trajectory, spec.plant.robot)
+        prepared.append((spec, reference, compensation(spec, reference)))
+    alone = [simulate_all([episode])[0] for episode in prepared]
+    assert [log.q.shape[1] for log in alone] == [6] * 3 + [7] * 6
+    assert not any(log.metadata.diverged for log in alone)
+    digests = [_log_digest(log) for log in alone]
+    assert len(set(digests)) == len(digests)
+    rng = random.Random(7)
+    for _ in range(3):
+        chosen = rng.choices(range(len(specs)), k=rng.randint(4, 2 * len(specs)))
+        batched = simulate_all([prepared[index] for index in chosen], rng.choice((1, 2)))
+        assert [_log_digest(log) for log in batched] == [digests[index] for index in chosen]
+
+
+def _log_digest(log: EpisodeLog) -> str:
+    """Any arm's log, as its worker encodes it (the iiwa drawn, the others not)."""
+    return hashlib.sha256(episode_bytes(log, drawing(log.metadata.spec.plant.robot))).hexdigest()

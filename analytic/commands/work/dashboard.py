@@ -18,6 +18,7 @@ def dashboard(
     tls: Path | None,
     participant: str | None,
     port: int,
+    robot: str | None,
 ) -> None:
     """`analytic dashboard` with its options as parsed (analytic/commands/dashboard.py)."""
     for root in runs:
@@ -34,7 +35,7 @@ def dashboard(
         except (ValueError, ConnectionError) as error:
             raise CliError(f"--connect: {error}") from None
     try:
-        with Watch(runs or (Path("runs"),), session, ", ".join(connect)) as watch:
+        with Watch(runs or (Path("runs"),), session, ", ".join(connect), robot=robot) as watch:
             try:
                 server = serve_dashboard(watch, port)
             except OSError as error:

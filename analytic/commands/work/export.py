@@ -9,7 +9,7 @@ from gainfarm.cli.app import CliError
 from gainfarm.edges.files import write_atomically
 
 
-def export(run_dir: Path, member: str, fmt: str, out: Path | None) -> None:
+def export(run_dir: Path, member: str, fmt: str, out: Path | None, robot: str | None) -> None:
     """`analytic export` with its options as parsed (analytic/commands/export.py)."""
     if not (run_dir / CONFIG_JSON).is_file():
         raise CliError(f"{str(run_dir)!r} holds no run (no {CONFIG_JSON})")
@@ -24,6 +24,8 @@ def export(run_dir: Path, member: str, fmt: str, out: Path | None) -> None:
         raise CliError(str(error)) from None
     except exporting.BadMember as error:
         raise CliError(f"--member: {error}") from None
+    if robot is not None and robot != chosen.robot:
+        raise CliError(f"--robot: {str(run_dir)!r} is a run of {chosen.robot}, not of {robot}")
     content = exporting.render(chosen, fmt)
     if out is None:
         click.echo(content.decode(), nl=False)

@@ -20,11 +20,13 @@ from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.cli import values
 from gainfarm.cli.app import CliError
 from gainfarm.edges.files import write_atomically
+from gainfarm.models import plant_preset, robot_of
+from gainfarm.plugins import PluginError
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import JOINT_NAMES
+from gainfarm.schemas.robot import PLANTS
 from gainfarm.schemas.wire import BadMessage
 
 if TYPE_CHECKING:
@@ -49,11 +51,13 @@ def validate(
     commands: str,
     motor_states: str,
     as_json: bool,
+    robot: str | None,
 ) -> None:
     """`analytic validate` with its options as parsed (analytic/commands/validate.py)."""
     identity = check_farm(connect, local, tls, participant)
     twin_plant = values.plant_file(str(twin), option="TWIN").plant  # of a robot here, too
-    nominal_plant = values.model_spec(nominal, option="--nominal")
+    arm = _arm(twin_plant, robot, twin)
+    nominal_plant = _nominal(nominal, arm)
     topics = Topics(joint_states, commands, motor_states)
     try:
         candidates = [item for path in played for item in read_played(path)]
@@ -117,7 +121,35 @@ def validate(
     if as_json:
         click.echo(json.dumps(report))
         return
-    _show(report, out)
+    _show(report, out, robot_of(arm).joint_names)
+
+
+def _arm(twin_plant: "PlantSpec", robot: str | None, twin: Path) -> str:
+    """The arm validated: the twin's, which --robot (if given) must be; one line if it is
+    another, or not installed here."""
+    arm = twin_plant.robot
+    if robot is not None and robot != arm:
+        raise CliError(f"--robot: TWIN {str(twin)!r} is a twin of {arm}, not of {robot}")
+    try:
+        robot_of(arm)
+    except PluginError:
+        raise CliError(
+            f"TWIN: {str(twin)!r} is a twin of {arm!r}, an arm not installed here: give its "
+            "description file, --robot FILE"
+        ) from None
+    return arm
+
+
+def _nominal(nominal: str, arm: str) -> "PlantSpec":
+    """--nominal as a plant of `arm`: a named plant its, a plant file one of it (else one line)."""
+    if nominal in PLANTS:
+        return plant_preset(nominal, arm)
+    plant = values.model_spec(nominal, option="--nominal")
+    if plant.robot != arm:
+        raise CliError(
+            f"--nominal: {nominal!r} is a plant of {plant.robot}, not of the twin's {arm}"
+        )
+    return plant
 
 
 def _logged(
@@ -128,6 +160,11 @@ def _logged(
     log = read_log(path, topics)
     if not isinstance(log, EpisodeLog):  # a robot's bag
         return as_episode(log, played_by(log, played), nominal)
+    if log.metadata.spec.plant.robot != nominal.robot:
+        raise BadLog(
+            f"{str(path)!r} is an episode of {log.metadata.spec.plant.robot}, not of the "
+            f"twin's {nominal.robot}"
+        )
     if log.metadata.spec.feedforward is not None:
         raise BadLog(
             f"{str(path)!r}: its controller adds a feed-forward model; validate replays PD "
@@ -136,7 +173,7 @@ def _logged(
     return log
 
 
-def _show(report: dict, out: Path) -> None:
+def _show(report: dict, out: Path, joints: tuple[str, ...]) -> None:
     summary = report["summary"]
     table = Table(
         "joint",
@@ -147,7 +184,7 @@ def _show(report: dict, out: Path) -> None:
         "τ nominal (N·m)",
         title=f"simulation error of {len(report['episodes'])} logged episodes (RMS)",
     )
-    for j, name in enumerate(JOINT_NAMES):
+    for j, name in enumerate(joints):
         twin_q, nominal_q = summary["twin"]["q_rms"][j], summary["nominal"]["q_rms"][j]
         table.add_row(
             name,

@@ -3,6 +3,7 @@ chromedriver) loads the page while a real run tunes on a real farm (a broker on 
 worker process), and sees the run's front, its hypervolume curve and the farm's line change
 without a reload; bad input is one line."""
 
+import base64
 import contextlib
 import json
 import os
@@ -17,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from selenium import webdriver
 from selenium.common.exceptions import WebDriverException
 from selenium.webdriver.chrome.service import Service
@@ -396,7 +398,7 @@ def test_runs_compare_and_a_member_is_inspected_exported_and_its_episode_plotted
         assert state["episode"] == (
             f"row {row}, trajectory 1 (0.5 s fourier) on the nominal plant: its log, "
             f"{members[row - 1].logs[0]}. Its measured torques hold the gravity torque the "
-            "robot&#x27;s own compensation adds under the command (FRI torque mode)."
+            "robot&#x27;s own compensation adds under the command (KUKA FRI torque mode)."
         )
         assert state["ticks"] == kept.ticks
         assert np.allclose(state["error_mm"], np.linalg.norm(kept.ee - kept.ee_des, axis=1) * 1e3)
@@ -454,3 +456,93 @@ def test_a_run_says_when_it_has_no_recommendation_or_held_out_check_yet(tmp_path
         (run / name).unlink()  # stopped before its first record
     assert run_view(run).line.endswith("no generation recorded; stopped: `analytic resume` "
                                        "continues it")  # fmt: skip
+
+
+UR5E_JOINTS = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
+
+
+def arm_state(browser: webdriver.Chrome) -> dict:
+    """The inspected run's arm as the page holds it: the table's columns and titles, the
+    episode's series, the plots' legends."""
+    return browser.execute_script(
+        """
+        const doc = Bokeh.documents[0];
+        if (doc === undefined) return null;
+        const named = (name) => doc.get_model_by_name(name);
+        const legends = [...doc.all_models].filter((m) => m.items !== undefined && m.click_policy);
+        return {
+            inspect: named("inspect").value,
+            members: Object.keys(named("members").data),
+            titles: named("table").columns.map((column) => column.title),
+            joints: Object.keys(named("episode-joints").data),
+            torques: Object.keys(named("episode-torques").data),
+            ticks: named("episode-joints").data.t.length,
+            legends: legends.map((legend) => legend.items.map((item) => item.label.value)),
+            episode: named("episode").text,
+            export: named("export").text,
+        };
+        """
+    )
+
+
+def until_arm(browser: webdriver.Chrome, holds, timeout: float = 60) -> dict:
+    """The page's arm (`arm_state`) once `holds` of it."""
+    state = None
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        with contextlib.suppress(WebDriverException):
+            state = arm_state(browser)
+            if state is not None and holds(state):
+                return state
+        time.sleep(0.2)
+    raise AssertionError(f"the page never got there: {json.dumps(state)[:3000]}")
+
+
+@pytest.mark.slow
+def test_a_ur5e_run_is_shown_with_its_six_joints(tmp_path: Path, browser) -> None:
+    """A run of the UR5e (6 joints) beside one of the iiwa (7): the page shows each with its own
+    arm's joints (the table's gains, the episode's lines, the exported files), and --robot
+    shows only one arm's runs."""
+    runs = tmp_path / "runs"
+    for name, arm in (("iiwa", "iiwa14"), ("ur5e", "ur5e")):
+        made = analytic("start", *QUICK, "--robot", arm, "--out", str(runs / name), cwd=tmp_path)
+        assert made.returncode == 0, made.stderr
+    ur5e, iiwa = str(runs / "ur5e"), str(runs / "iiwa")
+    gains = [f"{gain}_{joint}" for gain in ("kp", "kd") for joint in UR5E_JOINTS]
+    with dashboard(str(runs), cwd=tmp_path) as address:
+        browser.get(address)
+        until(browser, lambda s: sorted(s["runs"]) == sorted([ur5e, iiwa]))
+        js(browser, "named('inspect').value = arguments[0];", ur5e)
+        state = until_arm(
+            browser, lambda s: s["inspect"] == ur5e and "kp_elbow_joint" in s["members"]
+        )
+        assert [name for name in state["members"] if name[:3] in ("kp_", "kd_")] == gains
+        assert "kp shoulder_pan_joint" in state["titles"] and "kp A1" not in state["titles"]
+        js(browser, "named('members').selected.indices = [0];")
+        until(browser, lambda s: s["ticks"] > 0 and "row 1 as" in s["export"])
+        state = arm_state(browser)
+        assert state["joints"] == ["t", *(f"q{d}_{j}" for j in UR5E_JOINTS for d in ("", "_des"))]
+        assert state["torques"] == ["t", *(f"{u}_{j}" for j in UR5E_JOINTS for u in ("u", "tau"))]
+        # The angles' and the torques' legends, a line per joint; none of the iiwa's left.
+        assert state["legends"].count(list(UR5E_JOINTS)) == 2
+        assert not any("A1" in items for items in state["legends"])
+        assert "(UR direct torque control)" in state["episode"]
+        # The member's ros2_control file, as the page offers it, names the UR5e's joints.
+        [encoded] = re.findall(r'name="export-ros2_control"[^>]*base64,([^"]+)"', state["export"])
+        ros2 = yaml.safe_load(base64.b64decode(encoded))["pd_effort_controller"]
+        assert ros2["ros__parameters"]["joints"] == list(UR5E_JOINTS)
+        # And back to the iiwa: its seven joints again.
+        js(browser, "named('inspect').value = arguments[0];", iiwa)
+        state = until_arm(browser, lambda s: s["inspect"] == iiwa and "kp A7" in s["titles"])
+        assert "kp shoulder_pan_joint" not in state["titles"]
+    with dashboard(str(runs), "--robot", "ur5e", cwd=tmp_path) as address:
+        browser.get(address)
+        state = until(browser, lambda s: s["runs"] == [ur5e])
+        assert state["inspect"] == ur5e

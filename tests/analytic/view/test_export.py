@@ -30,6 +30,7 @@ from gainfarm.analytic.view.export import (
     point_groups,
     render,
 )
+from gainfarm.models import robot_of
 from gainfarm.models.iiwa14 import RIGID_MJCF
 from gainfarm.schemas.controller import FORMAT, UNITS, Assumptions, Controller, read_gains
 from gainfarm.schemas.gains import DEFAULT_GAINS
@@ -248,11 +249,15 @@ def test_the_files_say_what_running_the_gains_assumes(hand_made: Path) -> None:
     exported = controller(hand_made, "knee")
     assumes = Controller.model_validate_json(render(exported, "json")).assumes
     assert assumes is not None and assumes.update_rate_hz == 500
-    assert "map them to your robot's joint names" in assumes.joints
-    assert "FRI torque mode adds its gravity model" in assumes.gravity_compensation  # realistic
+    assert assumes.joints.startswith("A1..A7 are iiwa14's 7 joints from base to flange")
+    assert "map the names if your robot's description names them otherwise" in assumes.joints
+    assert "KUKA FRI torque mode adds its gravity model" in assumes.gravity_compensation
+    assert assumes.torque_interface is not None
+    assert assumes.torque_interface.startswith("KUKA FRI torque mode: the robot adds")
     assert assumes.feedback.startswith("the motor-side joint angle")
-    plain = Assumptions.of(PlantSpec(interface="torque", feedback="link"))
+    plain = Assumptions.of(PlantSpec(interface="torque", feedback="link"), robot_of("iiwa14"))
     assert plain.gravity_compensation.startswith("none: u is the whole motor torque")
+    assert "KUKA FRI torque mode would add its gravity compensation" in plain.gravity_compensation
     assert plain.feedback == "the link-side joint angle and its velocity"
     # The ros2_control file says the same in its comments, each fact on lines of its own.
     comments = [
@@ -260,7 +265,12 @@ def test_the_files_say_what_running_the_gains_assumes(hand_made: Path) -> None:
     ]
     said = " ".join(line[4:] for line in comments[comments.index(
         "# What it assumes (the JSON's `assumes` says the same):") + 1 :])  # fmt: skip
-    for fact in (assumes.joints, assumes.gravity_compensation, assumes.feedback):
+    for fact in (
+        assumes.joints,
+        assumes.torque_interface,
+        assumes.gravity_compensation,
+        assumes.feedback,
+    ):
         assert fact in said
     assert "update rate: 500 Hz" in said
 

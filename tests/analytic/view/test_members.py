@@ -16,7 +16,6 @@ from gainfarm.analytic.tuning.picks import picks
 from gainfarm.analytic.tuning.records import read_front, read_run
 from gainfarm.analytic.view.export import FORMATS, baseline_of
 from gainfarm.analytic.view.members import (
-    COLUMNS,
     Slot,
     episode,
     export_links,
@@ -25,8 +24,13 @@ from gainfarm.analytic.view.members import (
     slots,
     table,
 )
+from gainfarm.analytic.view.members import (
+    columns as member_columns,
+)
 from gainfarm.cli.words import counted
+from gainfarm.models import robot_of
 from gainfarm.schemas.mcap_episode import read_episode
+from gainfarm.schemas.robot import JOINT_NAMES
 from tests.helpers import analytic
 
 # Two trajectories' worth of slots: one trajectory on the nominal plant and a variant, and a
@@ -51,9 +55,10 @@ def test_the_table_is_front_csv_with_each_rows_picks_checks_and_held_out_results
     record = read_run(run_dir)
     check = read_check(run_dir)
     assert check is not None
-    named = picks(record.front, baseline_of(run_dir), advice_of(check))
+    defaults = robot_of(record.config.plant).default_gains  # the run arm's
+    named = picks(record.front, baseline_of(run_dir, defaults), advice_of(check))
     columns = table(record.front, named, record.config, check)
-    assert list(columns) == list(COLUMNS)
+    assert list(columns) == list(member_columns(JOINT_NAMES))
     front = read_front(run_dir / "front.csv")
     assert columns["row"] == list(range(1, len(front) + 1))
     for k, member in enumerate(front):

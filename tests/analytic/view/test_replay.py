@@ -4,6 +4,8 @@ reference path drawn; bad input is one line and leaves nothing behind."""
 
 import ctypes.util
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import av
@@ -12,6 +14,7 @@ import pytest
 
 from gainfarm.analytic.view import replay
 from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.mcap_episode import read_episode
 from tests.helpers import analytic, needs, write_log
 
 FPS, WIDTH, HEIGHT = 5, 480, 360
@@ -131,3 +134,37 @@ def test_bad_input_is_one_line_and_writes_nothing(episode: Path, tmp_path: Path)
         assert message in run.stderr and "Traceback" not in run.stderr
     assert sorted(os.listdir(tmp_path)) == before
     assert os.listdir(directory) == []
+
+
+@pytest.mark.slow
+def test_replay_draws_the_arm_the_log_ran_a_ur5e_of_six_joints(tmp_path: Path) -> None:
+    """A UR5e episode (6 joints, written by `worker episode --robot ur5e`) is drawn as the UR5e:
+    its log names the arm, whose model draws it; asked for as another arm, it is refused."""
+    episode = tmp_path / "ur5e.mcap"
+    one_second = ("--trajectory", "fourier", "--duration", "1", "--out", str(episode))
+    made = subprocess.run(
+        [sys.executable, "-m", "gainfarm.worker", "episode", "--robot", "ur5e", *one_second],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=300,
+    )
+    assert made.returncode == 0, made.stderr
+    out = tmp_path / "ur5e.mp4"
+    size = ("--width", str(WIDTH), "--height", str(HEIGHT))
+    run = analytic(
+        "replay", str(episode), "--out", str(out), "--fps", str(FPS), *size, cwd=tmp_path
+    )
+    assert run.returncode == 0, run.stderr
+    with av.open(str(out)) as container:
+        frames = [frame.to_ndarray(format="rgb24") for frame in container.decode(video=0)]
+    assert len(frames) == 6  # 0 to 1 s at 5 frames a second
+    for frame in frames:
+        assert colours(frame)["orange"] > 1_000  # the UR5e's links (1,300 to 1,600 pixels)
+    log = read_episode(episode)
+    assert log.metadata.spec.plant.robot == "ur5e" and log.q.shape[1] == 6
+    refused = analytic("replay", str(episode), "--out", str(out), "--robot", "iiwa14", cwd=tmp_path)
+    assert refused.returncode == 2
+    assert refused.stderr == (
+        f"analytic: error: --robot: {str(episode)!r} is an episode of ur5e, not of iiwa14\n"
+    )

@@ -15,6 +15,7 @@ from gainfarm.analytic.view.reports import (
     front_table_row,
     plant_text,
     recommendation_text,
+    run_setup,
     run_title,
     write_report,
 )
@@ -181,12 +182,12 @@ def test_a_failed_report_write_leaves_the_old_file_whole(
 def test_a_report_names_the_plant_it_was_simulated_on():
     from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
 
-    assert plant_text(REALISTIC_PLANT) == "realistic plant, flexible joints"
+    assert plant_text(REALISTIC_PLANT) == "iiwa14, realistic plant, flexible joints"
     assert plant_text(IDEAL_PLANT.model_copy(update={"joints": "rigid"})) == (
-        "ideal plant, rigid joints"
+        "iiwa14, ideal plant, rigid joints"
     )
     custom = REALISTIC_PLANT.model_copy(update={"delay": 3})
-    assert plant_text(custom).startswith("custom plant")
+    assert plant_text(custom).startswith("iiwa14, custom plant")
 
 
 def test_the_report_names_the_controller_to_use_beside_the_default_gains(tmp_path: Path) -> None:
@@ -317,15 +318,16 @@ def test_a_runs_title_says_what_it_was_tuned_on() -> None:
         trajectories=(TrajectorySpec(duration=3.0), TrajectorySpec(kind="pyramid", duration=3.0)),
     )
     assert run_title(generic).startswith(
-        "generic controller on spiral, pyramid 3 s, realistic plant, flexible joints, "
+        "generic controller on spiral, pyramid 3 s, iiwa14, realistic plant, flexible joints, "
         "population 16\n"
     )
     mixed = RunConfig(
         trajectories=(TrajectorySpec(duration=3.0), TrajectorySpec(kind="random", duration=4.0)),
         plant=PLANTS["ideal"],
     )
-    assert "on spiral 3 s, random 4 s, ideal plant, flexible joints, population 30" in run_title(
-        mixed
+    assert (
+        "on spiral 3 s, random 4 s, iiwa14, ideal plant, flexible joints, population 30"
+        in run_title(mixed)
     )
 
 
@@ -377,3 +379,53 @@ def test_a_check_cut_by_its_budget_says_how_many_plants_of_those_asked_and_why()
     )
     for line in held_out_lines(cut, 14):
         assert len(line) <= 80, line  # the terminal's closing lines, as test_cli's live line
+
+
+UR5E_JOINTS = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
+
+
+def test_a_ur5e_report_names_its_arm_its_joints_and_its_torque_interface(tmp_path: Path) -> None:
+    """A run of the UR5e (6 joints): its report's setup names the arm and what its controller
+    does with a torque command; its tables and units its joints, not the iiwa's."""
+    config = RunConfig(plant=PLANTS["realistic"].model_copy(update={"robot": "ur5e"}))
+    setup = run_setup(config)
+    assert setup[2].startswith("ur5e, realistic plant, flexible joints")
+    assert setup[3].startswith(
+        "arm ur5e: 6 joints (shoulder_pan_joint..wrist_3_joint), behind UR direct torque "
+        "control (URScript direct_torque"
+    )
+    assert setup[3].endswith("simulated adding its own gravity model under the command")
+    assert "iiwa" not in " ".join(setup) and "KUKA" not in " ".join(setup)
+    plain = config.model_copy(
+        update={"plant": config.plant.model_copy(update={"interface": "torque"})}
+    )
+    assert run_setup(plain)[3].endswith("without gravity compensation (interface torque: the "
+                                        "command is the motor torque)")  # fmt: skip
+    six = (1000.0, 1000.0, 1000.0, 187.0, 187.0, 187.0)
+    front = [
+        FrontMember(kp=six, kd=tuple(k / 100 for k in six), objectives=(0.001 * n, 1.0 / n))
+        for n in (1, 2, 3)
+    ]
+    write_report(
+        tmp_path / "report.md",
+        title="a UR5e run",
+        config_lines=setup,
+        history=SAMPLE_HISTORY,
+        front=front,
+        converged=SAMPLE_CONVERGED,
+        picks=picks(front),
+        joints=UR5E_JOINTS,
+    )
+    text = (tmp_path / "report.md").read_text()
+    assert "kp (N·m/rad) shoulder_pan_joint..wrist_3_joint | kd" in text  # the picks' table
+    assert "kd (N·m·s/rad), shoulder_pan_joint..wrist_3_joint |" in text  # the front's
+    assert "one per joint shoulder_pan_joint..wrist_3_joint; f_acc" in text  # the units
+    assert "A1" not in text and "A7" not in text
+    assert "| 1000 1000 1000 187 187 187 | 10 10 10 1.87 1.87 1.87 |" in text
