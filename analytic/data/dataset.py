@@ -348,8 +348,8 @@ def tick_columns(episode_id: str, log: EpisodeLog) -> dict[str, np.ndarray]:
 
 
 def joints_of(log: EpisodeLog) -> tuple[str, ...]:
-    """The joints of the arm an episode ran on: its columns' names."""
-    return robot_of(log.metadata.spec.plant).joint_names
+    """The joints of the arm an episode ran on, as its log names them: its columns' names."""
+    return tuple(log.metadata.joint_names)
 
 
 def arm_of(chosen: Sequence[ChosenRun]) -> str:

@@ -59,13 +59,12 @@ def model_spec(plant: str, joints: str | None = None, option: str = "--plant") -
         spec = PLANTS[plant]
         return spec if joints is None else spec.model_copy(update={"joints": joints})
     spec = plant_file(plant, option).plant
-    # start-up: MuJoCo (models.iiwa14) loads only for a readable plant file, whose springs it
-    # checks
-    from gainfarm.models.iiwa14 import check_substeps
+    # start-up: MuJoCo (models) loads only for a readable plant file, whose springs it checks
+    from gainfarm.models import compile_model
 
     spec = spec if joints is None else spec.model_copy(update={"joints": joints})
     try:  # here, not in the middle of a run: a file's springs its physics step cannot hold
-        check_substeps(spec)
+        compile_model(spec)  # the named robot's build refuses them (any arm's, not the iiwa's)
     except ValueError as error:
         raise CliError(f"{option}: {plant!r}: {error}") from None
     return spec
