@@ -43,6 +43,7 @@ class RunConfig(BaseModel):
     trajectories: tuple[TrajectorySpec, ...] = Field((TrajectorySpec(),), min_length=1)
     plant: PlantSpec = Field(
         default_factory=PlantSpec,
+        validate_default=True,  # the default plant written out too, as a given one is
         # "model" in files written before the plant had its own word (docs/architecture.md)
         validation_alias=AliasChoices("plant", "model"),
     )
