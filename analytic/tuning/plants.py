@@ -3,8 +3,8 @@
 The ranges are data: the robot's own (`Robot.uncertainty`; the iiwa 14's is
 models/uncertainty.toml, each with its source or labelled an assumption), or a file of the same
 form (`--uncertainty FILE`). A per-joint range names one pair per joint of the robot it is drawn
-for (checked when drawn: a table alone names no robot). `variants` draws K plants from them once, from
-the run's seed, so every candidate meets the same K (common random numbers: a difference between
+for (checked when drawn: a table alone names no robot). `variants` draws K plants from them
+once, from the run's seed, so every candidate meets the same K (common random numbers: a difference between
 two candidates is theirs, not the draw's). Pure: numbers in, PlantSpecs out.
 """
 
@@ -91,7 +91,6 @@ def _show(bound: Bound) -> str:
 
 class BadUncertainty(ValueError):
     """An uncertainty file that is not one: the message says where and what, in one line."""
-
 
 
 def ranges(text: str | None = None, robot: str = DEFAULT_ROBOT) -> dict[str, Range]:

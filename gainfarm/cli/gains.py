@@ -7,8 +7,9 @@ from pathlib import Path
 import click
 
 from gainfarm.cli.app import CliError
+from gainfarm.models import robot_of
 from gainfarm.schemas.gains import PDGains, outside_search, saturating
-from gainfarm.schemas.robot import PlantSpec
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec
 
 
 def refuse_saturating(
@@ -17,8 +18,9 @@ def refuse_saturating(
     """One line for the first candidate with a gain that saturates its motor on one encoder
     count of `model`: every tick of its episodes would saturate. It names --gains and the file
     (and the candidate, if the file holds several), or the option --kp or --kd without a file."""
+    robot = robot_of(plant)  # its joints and motors
     for number, gains in enumerate(candidates, start=1):
-        found = saturating(gains, plant)
+        found = saturating(gains, plant, robot.joint_names, robot.limits.torque)
         if found is None:
             continue
         which, joint, gain = found
@@ -31,14 +33,19 @@ def refuse_saturating(
 
 
 def warn_far_outside_search(
-    program: str, candidates: Sequence[PDGains], path: Path | None = None
+    program: str,
+    candidates: Sequence[PDGains],
+    path: Path | None = None,
+    robot: str = DEFAULT_ROBOT,
 ) -> None:
     """One line on stderr for the first candidate with gains orders of magnitude outside what
     the farm searches: its episodes run (a user may mean them), but such gains are more often a
     slip of units or of an exponent. It names --gains and the file (and the candidate, if the
-    file holds several), or the option --kp or --kd without a file."""
+    file holds several), or the option --kp or --kd without a file. The search space is
+    `robot`'s."""
+    arm = robot_of(robot)
     for number, gains in enumerate(candidates, start=1):
-        found = outside_search(gains)
+        found = outside_search(gains, arm.default_gains, arm.joint_names)
         if found is None:
             continue
         # The phrase starts with the gain's name, kp or kd: the option that gave it.

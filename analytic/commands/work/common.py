@@ -13,9 +13,39 @@ from gainfarm.cli import values
 from gainfarm.cli.app import CliError
 from gainfarm.schemas.documents import BadDocument, read_bounded
 from gainfarm.schemas.plant_file import PlantFile
-from gainfarm.schemas.robot import PLANTS, PlantSpec
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PLANTS, PlantSpec
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.wire import describe, one_line
+
+
+def robot_plant(plant: str, joints: str | None, robot: str) -> PlantSpec:
+    """--plant's PlantSpec on --robot's arm: a preset (realistic, plain, ideal) of `robot`, or a
+    plant file's (a calibrated twin names its own robot); with --joints if given. One line
+    naming the option if --robot names another arm than the twin's."""
+    if plant not in PLANTS:
+        spec = values.model_spec(plant, joints)
+        if robot != DEFAULT_ROBOT and spec.robot != robot:
+            raise CliError(
+                f"--robot: {robot}, but --plant {plant!r} is a twin of {spec.robot} (a twin of "
+                "one arm is no plant of another)"
+            )
+        return spec
+    # start-up: the robot's module (MuJoCo) loads once the cheaper options are checked
+    from gainfarm.models import plant_preset
+
+    spec = plant_preset(plant, robot)
+    return spec if joints is None else spec.model_copy(update={"joints": joints})
+
+
+def centre(center: str | None, robot: str) -> str:
+    """--center as given, or else (None) the centre of the robot's workspace, where its default
+    trajectories lie (--center's form: x,y,z in m)."""
+    if center is not None:
+        return center
+    # start-up: the robot's module (MuJoCo) loads once the cheaper options are checked
+    from gainfarm.models import robot_of
+
+    return ",".join(repr(float(v)) for v in robot_of(robot).workspace.center)
 
 
 def _uncertainty(plant_file: PlantFile, nominal: PlantSpec) -> dict:
