@@ -4,8 +4,8 @@ The ranges are data: the robot's own (`Robot.uncertainty`; the iiwa 14's is
 models/uncertainty.toml, each with its source or labelled an assumption), or a file of the same
 form (`--uncertainty FILE`). A per-joint range names one pair per joint of the robot it is drawn
 for (checked when drawn: a table alone names no robot). `variants` draws K plants from them
-once, from the run's seed, so every candidate meets the same K (common random numbers: a difference between
-two candidates is theirs, not the draw's). Pure: numbers in, PlantSpecs out.
+once, from the run's seed, so every candidate meets the same K (common random numbers: a
+difference between two candidates is theirs, not the draw's). Pure: numbers in, PlantSpecs out.
 """
 
 import tomllib
