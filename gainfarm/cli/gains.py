@@ -7,7 +7,6 @@ from pathlib import Path
 import click
 
 from gainfarm.cli.app import CliError
-from gainfarm.models import robot_of
 from gainfarm.schemas.gains import PDGains, outside_search, saturating
 from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec
 
@@ -18,6 +17,9 @@ def refuse_saturating(
     """One line for the first candidate with a gain that saturates its motor on one encoder
     count of `model`: every tick of its episodes would saturate. It names --gains and the file
     (and the candidate, if the file holds several), or the option --kp or --kd without a file."""
+    # start-up: the robot's module (MuJoCo) loads when gains are checked, not with the command
+    from gainfarm.models import robot_of
+
     robot = robot_of(plant)  # its joints and motors
     for number, gains in enumerate(candidates, start=1):
         found = saturating(gains, plant, robot.joint_names, robot.limits.torque)
@@ -43,6 +45,9 @@ def warn_far_outside_search(
     slip of units or of an exponent. It names --gains and the file (and the candidate, if the
     file holds several), or the option --kp or --kd without a file. The search space is
     `robot`'s."""
+    # start-up: as in refuse_saturating
+    from gainfarm.models import robot_of
+
     arm = robot_of(robot)
     for number, gains in enumerate(candidates, start=1):
         found = outside_search(gains, arm.default_gains, arm.joint_names)

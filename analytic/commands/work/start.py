@@ -16,6 +16,7 @@ from gainfarm.analytic.commands.work.common import (
 )
 from gainfarm.analytic.evaluators.local import LocalFarm
 from gainfarm.analytic.tuning import defaults
+from gainfarm.analytic.tuning.algorithms import STEADY_STATE, steady_state_refusal
 from gainfarm.analytic.tuning.records import CONFIG_JSON
 from gainfarm.cli import options, values
 from gainfarm.cli.app import CliError
@@ -66,6 +67,8 @@ def start(
     objectives = _objectives(objective_names, torque_measure)
     identity = check_farm(connect, local, tls, participant)
     limits = values.limits_from(limits_file, min_damping)
+    if asynchronous and algorithm not in STEADY_STATE:  # before the robot's module loads MuJoCo
+        raise CliError(f"--async: {steady_state_refusal(algorithm)}")
     nominal = values.with_load(robot_plant(plant, joints, robot), payload, payload_com, plant)
     where = centre(center, nominal.robot)
     trajectories = values.trajectories(kinds, duration, trajectory_seed, where, size)
