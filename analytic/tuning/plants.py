@@ -224,10 +224,20 @@ def stepped(plant: PlantSpec) -> PlantSpec:
     """`plant` with the physics steps its springs need (at least its own), validated: a spring
     too stiff for PlantSpec's most steps per tick is refused (ValidationError, naming
     substeps), never simulated in millions of steps."""
-    needed = min_substeps(plant)
+    needed = _min_substeps(plant)
     if needed <= plant.substeps:
         return plant
     return PlantSpec.model_validate({**plant.model_dump(), "substeps": needed})
+
+
+def _min_substeps(plant: PlantSpec) -> int:
+    """The fewest physics steps per tick `plant`'s springs need, by its robot's own rule (every
+    shipped arm has one: `min_substeps`), or the iiwa 14's module's; a plug-in without one keeps
+    the steps it is given."""
+    own = getattr(robot_of(plant), "min_substeps", None)
+    if own is not None:
+        return int(own(plant))
+    return min_substeps(plant) if plant.robot == DEFAULT_ROBOT else plant.substeps
 
 
 # The designed plants robust tuning scores every candidate on first (`design`): two opposite

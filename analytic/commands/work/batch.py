@@ -64,9 +64,9 @@ def batch(
     arm = robot_of(model)
     candidates = _candidates(gains_file, arm.default_gains, arm.joint_names)
     # Episodes that saturate every tick are refused, as `worker episode` refuses them.
-    refuse_saturating(candidates, model, gains_file)
+    refuse_saturating(candidates, model, gains_file, arm)
     if gains_file is not None:
-        warn_far_outside_search("analytic", candidates, gains_file, model.robot)
+        warn_far_outside_search("analytic", candidates, gains_file, arm)
     where = centre(center, model.robot)
     trajectories = values.trajectories(kinds, duration, trajectory_seed, where, size)
     followable(trajectories, robot=model.robot)
