@@ -66,7 +66,7 @@ ORDER: dict[str, tuple[str, ...]] = {
         "sensitivity",
         "feedforward",
     ),
-    ROBOTS: ("iiwa14",),
+    ROBOTS: ("iiwa14", "panda", "ur5e", "gen3"),
 }
 
 

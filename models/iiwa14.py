@@ -25,6 +25,7 @@ from importlib.resources import files
 import mujoco
 import numpy as np
 
+from gainfarm.models import elastic
 from gainfarm.models.robots import resolve
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.robot import (
@@ -71,11 +72,8 @@ CAD_INERTIALS: dict[str, tuple[float, tuple[float, float, float, float] | None]]
 READY_POSTURE = (0.0, 0.5, 0.0, -1.6, 0.0, 1.0, 0.0)
 UPRIGHT_POSTURE = (0.0,) * 7
 
-# MuJoCo integrates joint stiffness explicitly and joint damping implicitly. For one spring of
-# stiffness K and damping D on an effective inertia m, its step dt is stable while
-# K dt² < 4 m + 2 D dt (with D = 0: ω·dt < 2). Requiring a quarter of that bound keeps it well
-# inside (with D = 0: ω·dt ≤ 1, a frequency error under 5 %).
-MAX_STEP_RATIO = 0.25
+# The largest step ratio K dt² / (4 m + 2 D dt) a spring may have (models/elastic.py says why).
+MAX_STEP_RATIO = elastic.MAX_STEP_RATIO
 
 
 # The "menagerie" inertial set (the default): the open set's masses and centres of mass (30.6 kg
@@ -189,16 +187,9 @@ def check_substeps(spec: PlantSpec, model: mujoco.MjModel | None = None) -> None
     """Raise ValueError, in one line, if `spec.substeps` is too few for its joint springs."""
     if spec.joints != "flexible":
         return
-    ratios = step_ratios(spec, model)
-    if ratios.max() <= MAX_STEP_RATIO:
-        return
-    worst = int(ratios.argmax())
     spec = resolve(spec)
-    raise ValueError(
-        f"substeps={spec.substeps} is too few for {JOINT_NAMES[worst]}'s joint spring "
-        f"(K = {spec.stiffness[worst]:g} N·m/rad): this plant needs substeps >= "
-        f"{min_substeps(spec, model)}"
-    )
+    inertia = effective_inertias(spec, model)
+    elastic.check_substeps(spec.substeps, spec.stiffness, spec.spring_damping, inertia, JOINT_NAMES)
 
 
 def min_substeps(spec: PlantSpec, model: mujoco.MjModel | None = None) -> int:
@@ -208,17 +199,7 @@ def min_substeps(spec: PlantSpec, model: mujoco.MjModel | None = None) -> int:
         return 1
     spec = resolve(spec)
     inertia = effective_inertias(spec, model)
-    stiffness, damping = np.asarray(spec.stiffness), np.asarray(spec.spring_damping)
-    # The longest step with K dt² = MAX_STEP_RATIO (4 m + 2 D dt): the quadratic's positive root.
-    a, b = MAX_STEP_RATIO * 2 * damping, MAX_STEP_RATIO * 4 * inertia
-    longest = (a + np.sqrt(a**2 + 4 * stiffness * b)) / (2 * stiffness)
-    if not longest.min() > 0:
-        joint = JOINT_NAMES[int(longest.argmin())]
-        raise ValueError(f"{joint}'s spring turns no inertia and has no damping: no step fits it")
-    substeps = max(1, int(np.ceil(CONTROL_PERIOD / longest.min())))
-    while _step_ratios(spec, inertia, CONTROL_PERIOD / substeps).max() > MAX_STEP_RATIO:
-        substeps += 1  # only ever rounding at the boundary
-    return substeps
+    return elastic.min_substeps(spec.stiffness, spec.spring_damping, inertia, JOINT_NAMES)
 
 
 def step_ratios(spec: PlantSpec, model: mujoco.MjModel | None = None) -> np.ndarray:
@@ -226,12 +207,9 @@ def step_ratios(spec: PlantSpec, model: mujoco.MjModel | None = None) -> np.ndar
     joint's spring is stable below 1; `compile_model` wants every one at most MAX_STEP_RATIO.
     m is the spring's effective inertia (`effective_inertias`)."""
     spec = resolve(spec)
-    return _step_ratios(spec, effective_inertias(spec, model), CONTROL_PERIOD / spec.substeps)
-
-
-def _step_ratios(spec: PlantSpec, inertia: np.ndarray, dt: float) -> np.ndarray:
-    stiffness, damping = np.asarray(spec.stiffness), np.asarray(spec.spring_damping)
-    return stiffness * dt**2 / (4 * inertia + 2 * damping * dt)
+    inertia = effective_inertias(spec, model)
+    dt = CONTROL_PERIOD / spec.substeps
+    return elastic.step_ratios(spec.stiffness, spec.spring_damping, inertia, dt)
 
 
 def effective_inertias(spec: PlantSpec, model: mujoco.MjModel | None = None) -> np.ndarray:
@@ -241,23 +219,7 @@ def effective_inertias(spec: PlantSpec, model: mujoco.MjModel | None = None) -> 
     """
     if model is None:
         model = build_spec(spec.model_copy(update={"joints": "flexible"})).compile()
-    motor = np.array([model.joint(f"{name}_motor").id for name in JOINT_NAMES])
-    spring = np.array([model.joint(f"{name}_spring").id for name in JOINT_NAMES])
-    m_dof, s_dof = model.jnt_dofadr[motor], model.jnt_dofadr[spring]
-    data = mujoco.MjData(model)
-    mass_matrix = np.zeros((model.nv, model.nv))
-    inertia = np.full(len(JOINT_NAMES), np.inf)
-    for posture in (READY_POSTURE, UPRIGHT_POSTURE):
-        data.qpos[model.jnt_qposadr[motor]] = posture  # springs relaxed
-        mujoco.mj_forward(model, data)
-        mujoco.mj_fullM(model, data, mass_matrix)
-        coupling = mass_matrix[m_dof, s_dof]
-        # The spring's Schur complement: the motor hinge turns with it, the other joints held.
-        schur = mass_matrix[s_dof, s_dof] - coupling**2 / mass_matrix[m_dof, m_dof]
-        # Without a rotor (B = 0) the spring turns nothing: zero, not a rounding error's residue.
-        schur[schur <= 1e-12 * mass_matrix[s_dof, s_dof]] = 0.0
-        inertia = np.minimum(inertia, schur)
-    return inertia
+    return elastic.effective_inertias(model, JOINT_NAMES, (READY_POSTURE, UPRIGHT_POSTURE))
 
 
 def elastic_modes(spec: PlantSpec, posture: tuple[float, ...] = READY_POSTURE) -> np.ndarray:
@@ -352,6 +314,10 @@ class Iiwa14:
 
     def gravity_spec(self, spec: PlantSpec) -> PlantSpec:
         return gravity_spec(spec)
+
+    def min_substeps(self, spec: PlantSpec) -> int:
+        # As every MjcfArm has: the fewest physics steps per tick its springs need.
+        return min_substeps(spec)
 
     def __repr__(self) -> str:
         return "<robot iiwa14>"

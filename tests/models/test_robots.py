@@ -27,7 +27,7 @@ class TestTheIiwa14PassesTheKit(RobotChecks):
 
 def test_the_plant_s_robot_is_the_iiwa14_by_default_and_found_by_its_name() -> None:
     assert PlantSpec().robot == DEFAULT_ROBOT == "iiwa14"
-    assert plugins.builtin_names(plugins.ROBOTS) == ("iiwa14",)
+    assert plugins.builtin_names(plugins.ROBOTS)[0] == "iiwa14"  # the default first
     assert robot_of(PlantSpec()) is robot_of("iiwa14") is iiwa14.ROBOT
     assert isinstance(iiwa14.ROBOT, Robot)
 
@@ -47,9 +47,10 @@ def test_the_models_builders_are_the_named_robot_s() -> None:
 
 def test_a_robot_not_here_is_refused_in_one_line_naming_what_there_is() -> None:
     with pytest.raises(plugins.PluginError) as refused:
-        compile_model(PlantSpec(robot="panda"))
+        compile_model(PlantSpec(robot="xarm7"))
+    there = ", ".join(plugins.names(plugins.ROBOTS))
     assert str(refused.value) == (
-        "gainfarm.robots: no plug-in named 'panda' here (there are iiwa14); "
+        f"gainfarm.robots: no plug-in named 'xarm7' here (there are {there}); "
         "install the distribution that provides it"
     )
 
@@ -72,6 +73,6 @@ def test_the_contract_checks_a_robot_name_s_form_only() -> None:
 
 
 def test_a_run_on_a_robot_not_here_is_refused_naming_it() -> None:
-    with pytest.raises(ValidationError, match="no plug-in named 'panda' here"):
-        RunConfig(plant=PlantSpec(robot="panda"))
+    with pytest.raises(ValidationError, match="no plug-in named 'xarm7' here"):
+        RunConfig(plant=PlantSpec(robot="xarm7"))
     assert RunConfig().plant.robot == "iiwa14"

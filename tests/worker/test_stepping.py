@@ -153,8 +153,8 @@ def test_a_batch_times_each_episode_by_its_share(threads: int) -> None:
 
 def test_a_job_on_a_robot_not_here_is_refused_naming_it() -> None:
     elsewhere = short_spec(duration=0.5).model_copy(
-        update={"plant": REALISTIC_PLANT.model_copy(update={"robot": "panda"})}
+        update={"plant": REALISTIC_PLANT.model_copy(update={"robot": "xarm7"})}
     )
     (outcome,) = simulate_batch([elsewhere])
     assert outcome.status.value == "refused"
-    assert "gainfarm.robots: no plug-in named 'panda' here" in outcome.reason
+    assert "gainfarm.robots: no plug-in named 'xarm7' here" in outcome.reason

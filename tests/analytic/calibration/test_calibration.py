@@ -230,13 +230,13 @@ def test_a_worker_runs_an_episode_on_the_twin(calibrated: dict, tmp_path: Path) 
 
 def test_bad_input_is_one_line_and_writes_nothing(calibrated: dict, tmp_path: Path) -> None:
     logs = [str(p) for p in calibrated["logs"][:2]]
-    other = tmp_path / "ur5e.toml"
-    other.write_text('[plant]\nrobot = "ur5e"\n')
+    other = tmp_path / "xarm7.toml"
+    other.write_text('[plant]\nrobot = "xarm7"\n')
     not_a_log = tmp_path / "notes.mcap"
     not_a_log.write_text("hello")
     out = tmp_path / "twin.toml"
     cases = {
-        ("--plant", "no plug-in named 'ur5e'"): [*logs, "--plant", str(other), "--out", str(out)],
+        ("--plant", "no plug-in named 'xarm7'"): [*logs, "--plant", str(other), "--out", str(out)],
         ("notes.mcap", "not"): [str(not_a_log), "--out", str(out)],
         ("missing.mcap", "no such file"): [str(tmp_path / "missing.mcap"), "--out", str(out)],
         ("--out", "does not exist"): [*logs, "--out", str(tmp_path / "no" / "twin.toml")],
@@ -255,7 +255,7 @@ def test_bad_input_is_one_line_and_writes_nothing(calibrated: dict, tmp_path: Pa
     ):
         done = analytic("validate", *arguments, "--out", str(tmp_path / "v"), cwd=tmp_path)
         assert done.returncode != 0 and len(done.stderr.splitlines()) == 1, done.stderr
-        assert says in done.stderr and "no plug-in named 'ur5e'" in done.stderr, done.stderr
+        assert says in done.stderr and "no plug-in named 'xarm7'" in done.stderr, done.stderr
     assert not (tmp_path / "v").exists()
 
 
@@ -283,10 +283,10 @@ def test_what_is_neither_a_log_nor_a_bag_is_one_line_naming_it(tmp_path: Path) -
 
 def test_a_plant_file_from_another_robot_is_refused_in_one_line(tmp_path: Path) -> None:
     # The contract reads it (a robot is a plug-in); a command line here has no such robot.
-    assert read_plant_file(b'[plant]\nrobot = "ur5e"\n').plant.robot == "ur5e"
-    (tmp_path / "ur5e.toml").write_text('[plant]\nrobot = "ur5e"\n')
-    with pytest.raises(CliError, match=r"ur5e\.toml': gainfarm\.robots: no plug-in named 'ur5e'"):
-        plant_file(str(tmp_path / "ur5e.toml"))
+    assert read_plant_file(b'[plant]\nrobot = "xarm7"\n').plant.robot == "xarm7"
+    (tmp_path / "xarm7.toml").write_text('[plant]\nrobot = "xarm7"\n')
+    with pytest.raises(CliError, match=r"xarm7\.toml': gainfarm\.robots: no plug-in named 'xarm7'"):
+        plant_file(str(tmp_path / "xarm7.toml"))
     with pytest.raises(BadPlantFile, match=r"plant\.robot: must match"):
         read_plant_file(b'[plant]\nrobot = "UR5e"\n')
     with pytest.raises(BadPlantFile, match="not TOML"):
