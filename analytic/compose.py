@@ -29,8 +29,10 @@ from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import CONFIG_JSON, REPORT_MD
 from gainfarm.analytic.tuning.run import RunProgress, TuningRun
 from gainfarm.cli import interrupts
+from gainfarm.schemas.episode import EpisodeSpec
+from gainfarm.schemas.limits import Limits, measures
 from gainfarm.schemas.objectives import balancing_weights, plant_scales
-from gainfarm.schemas.robot import DEFAULT_ROBOT
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import NAME_PATTERN, describe
@@ -437,6 +439,34 @@ def balanced(config: RunConfig, feedforward: bytes | None = None) -> RunConfig:
         ]
         update["plant_scales"] = plant_scales(each, plants)
     return RunConfig.model_validate(config.model_dump() | update)
+
+
+def defaults_hold(
+    trajectories: Sequence[TrajectorySpec], limits: Limits, objectives: tuple[str, str]
+) -> Callable[[PlantSpec], bool]:
+    """Whether the robot's default gains keep to `limits` on a plant, on every one of
+    `trajectories` (simulated in this process: an episode each): what a designed corner of
+    robust tuning must let them do (analytic.tuning.plants.held_design)."""
+
+    def holds(plant: PlantSpec) -> bool:
+        # start-up: the robot's module loads with the plant's first episode
+        from gainfarm.models import robot_of
+
+        defaults = robot_of(plant).default_gains
+        specs = {
+            f"t{index}": EpisodeSpec(
+                gains=defaults, trajectory=trajectory, plant=plant, objectives=objectives
+            )
+            for index, trajectory in enumerate(trajectories)
+        }
+        with InProcessEvaluator() as evaluator:
+            evaluator.submit(specs)
+            scores = [result.scores for result in evaluator.results()]
+        if any(score is None or score.diverged for score in scores):
+            return False
+        return not limits.violated(measures(scores))
+
+    return holds
 
 
 def claim(directory: Path) -> Callable[[], None]:

@@ -9,14 +9,14 @@ difference between two candidates is theirs, not the draw's). Pure: numbers in, 
 """
 
 import tomllib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from importlib.resources import files
 from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from gainfarm.models import min_substeps, resolve, robot_of
+from gainfarm.models import resolve, robot_of
 from gainfarm.schemas.documents import QUOTED, BadDocument, load_toml
 from gainfarm.schemas.robot import DEFAULT_ROBOT, MAX_JOINTS, PlantSpec
 from gainfarm.schemas.wire import describe
@@ -203,11 +203,15 @@ End = Literal["low", "high"]
 
 
 def corner(
-    nominal: PlantSpec, ends: dict[str, End], uncertainty: dict[str, Range] | None = None
+    nominal: PlantSpec,
+    ends: dict[str, End],
+    uncertainty: dict[str, Range] | None = None,
+    share: float = 1.0,
 ) -> PlantSpec:
     """`nominal` with each range `ends` names (a key of `uncertainty`, default its robot's
-    ranges) at its low or high end, every joint alike; the others nominal. KeyError for a range
-    the table has not."""
+    ranges) at its low or high end, every joint alike, or `share` of the way there from the
+    nominal plant (a log range's factor on its logarithm); the others nominal. KeyError for a
+    range the table has not."""
     table = _for(nominal, uncertainty)
     joints = len(robot_of(nominal).joint_names)
     values = resolve(nominal).model_dump()  # the robot's own numbers, written out to move
@@ -215,29 +219,36 @@ def corner(
         item = table[name]
         size = joints if item.per_joint else 1
         bound = np.asarray(getattr(item, end), dtype=float)
-        _move(values, item, np.broadcast_to(bound, (size,)) if bound.ndim == 0 else bound)
+        bound = np.broadcast_to(bound, (size,)) if bound.ndim == 0 else bound
+        _move(values, item, _partway(values, item, bound, share))
     plant = PlantSpec.model_validate(values)
     return stepped(plant)
+
+
+def _partway(values: dict, item: Range, bound: np.ndarray, share: float) -> np.ndarray:
+    """The draw that moves `item`'s field of the dumped spec `values` `share` of the way from
+    its nominal value to `bound` (1: `bound` itself)."""
+    if share == 1.0:
+        return bound
+    if not item.absolute:  # a factor on the nominal value: 1 is the nominal
+        return bound**share if item.draw == "log" else 1.0 + share * (bound - 1.0)
+    *parents, name = item.field.split(".")
+    holder = values
+    for parent in parents:
+        holder = holder.get(parent) or {}
+    current = np.asarray(holder.get(name, 0.0), dtype=float)
+    moved = current + share * (bound - current)
+    return np.round(moved) if item.draw == "integer" else moved
 
 
 def stepped(plant: PlantSpec) -> PlantSpec:
     """`plant` with the physics steps its springs need (at least its own), validated: a spring
     too stiff for PlantSpec's most steps per tick is refused (ValidationError, naming
     substeps), never simulated in millions of steps."""
-    needed = _min_substeps(plant)
+    needed = robot_of(plant).min_substeps(plant)  # its springs', by its robot's rule
     if needed <= plant.substeps:
         return plant
     return PlantSpec.model_validate({**plant.model_dump(), "substeps": needed})
-
-
-def _min_substeps(plant: PlantSpec) -> int:
-    """The fewest physics steps per tick `plant`'s springs need, by its robot's own rule (every
-    shipped arm has one: `min_substeps`), or the iiwa 14's module's; a plug-in without one keeps
-    the steps it is given."""
-    own = getattr(robot_of(plant), "min_substeps", None)
-    if own is not None:
-        return int(own(plant))
-    return min_substeps(plant) if plant.robot == DEFAULT_ROBOT else plant.substeps
 
 
 # The designed plants robust tuning scores every candidate on first (`design`): two opposite
@@ -281,17 +292,55 @@ CORNERS: dict[str, dict[str, End]] = {
 
 
 def design(
-    nominal: PlantSpec, count: int, seed: int, uncertainty: dict[str, Range] | None = None
+    nominal: PlantSpec,
+    count: int,
+    seed: int,
+    uncertainty: dict[str, Range] | None = None,
+    shares: Sequence[float] = (),
 ) -> tuple[PlantSpec, ...]:
     """The `count` plants robust tuning scores every candidate on besides `nominal`: the
-    CORNERS first (as many as `count` allows; a range `uncertainty` lacks stays nominal there),
-    then random draws (`variants`, TUNING stream). Each has its own sensor noise seed, drawn from
-    `seed`."""
+    CORNERS first (as many as `count` allows; a range `uncertainty` lacks stays nominal there;
+    each `shares` of the way from the nominal plant, 1 if not given: `held_design`), then random
+    draws (`variants`, TUNING stream). Each has its own sensor noise seed, drawn from `seed`."""
     table = _for(nominal, uncertainty)
     rng = np.random.default_rng([seed, 0x636F726E657273])  # "corners": a stream of its own
     designed = []
-    for ends in list(CORNERS.values())[:count]:
-        plant = corner(nominal, {name: end for name, end in ends.items() if name in table}, table)
+    for index, ends in enumerate(list(CORNERS.values())[:count]):
+        share = shares[index] if index < len(shares) else 1.0
+        chosen = {name: end for name, end in ends.items() if name in table}
+        plant = corner(nominal, chosen, table, share)
         sensors = plant.sensors.model_copy(update={"seed": int(rng.integers(2**63))})
         designed.append(plant.model_copy(update={"sensors": sensors}))
     return (*designed, *variants(nominal, count - len(designed), seed, table))
+
+
+# How often `held_design` halves a corner's way from the nominal plant: at most to an eighth.
+HALVINGS = 3
+
+
+def held_design(
+    nominal: PlantSpec,
+    count: int,
+    seed: int,
+    holds: Callable[[PlantSpec], bool],
+    uncertainty: dict[str, Range] | None = None,
+) -> tuple[tuple[PlantSpec, ...], tuple[float, ...]]:
+    """`design`'s plants with each corner where the robot's default gains hold (`holds`: they
+    keep to the run's limits there), and each corner's share of the way to the ranges' ends.
+
+    The corners are the most adverse plants the factory controller still keeps to the limits on
+    (the iiwa 14's are, at the ranges' ends: CORNERS); on an arm whose ranges reach further (the
+    UR5e's rotors, 0.25-4x), a corner at their ends can be one the default gains break, and then
+    no candidate can be judged against them. Such a corner is moved half the way back to the
+    nominal plant, up to HALVINGS times; one the default gains break even then is kept there (the
+    check says what they break)."""
+    shares = []
+    for index in range(min(count, len(CORNERS))):
+        share = 1.0
+        for _ in range(HALVINGS):
+            plant = design(nominal, index + 1, seed, uncertainty, (*shares, share))[index]
+            if holds(plant):
+                break
+            share /= 2
+        shares.append(share)
+    return design(nominal, count, seed, uncertainty, shares), tuple(shares)

@@ -3,8 +3,10 @@ variants, the farm's identity, a RunConfig's complaint naming its option. Loaded
 runs (pydantic and the contract), before anything heavier: a bad option is refused before
 MuJoCo, Zenoh, pymoo or matplotlib load."""
 
+from collections.abc import Callable
 from pathlib import Path
 
+import click
 from pydantic import ValidationError
 
 from gainfarm.analytic.commands.shared import farm_rules
@@ -65,17 +67,21 @@ def plants_from(
     held_out: bool = False,
     plant: str | None = None,
     designed: bool = False,
+    holds: "Callable[[PlantSpec], bool] | None" = None,
 ) -> tuple[PlantSpec, ...]:
     """--plants K variants of `nominal` (`held_out`: --check-plants M of them, on the seed's
-    other stream; `designed`: robust tuning's, the corners first), drawn from --uncertainty
-    FILE's ranges, else from those of the plant file --plant names (a calibrated twin's), else
-    the shipped ones; or one line naming the option."""
+    other stream; `designed`: robust tuning's, the corners first, each where the default gains
+    still hold if `holds` says so: plants.held_design), drawn from --uncertainty FILE's ranges,
+    else from those of the plant file --plant names (a calibrated twin's), else the robot's own;
+    or one line naming the option."""
     # start-up: MuJoCo (a variant's physics step) loads once the cheaper options are checked
     from gainfarm.analytic.tuning.plants import (
+        CORNERS,
         HELD_OUT,
         TUNING,
         BadUncertainty,
         design,
+        held_design,
         ranges,
         ranges_of,
         variants,
@@ -84,6 +90,16 @@ def plants_from(
     stream = HELD_OUT if held_out else TUNING
 
     def drawn(table: "dict | None") -> tuple[PlantSpec, ...]:
+        if designed and holds is not None:
+            found, shares = held_design(nominal, count, seed, holds, table)
+            for name, share in zip(CORNERS, shares, strict=False):
+                if share < 1:  # said: the run's plants are not the ranges' ends
+                    click.echo(
+                        f"--plants: the {name} corner {share:g} of the way to the ranges' ends, "
+                        f"where {nominal.robot}'s default gains keep to the limits",
+                        err=True,
+                    )
+            return found
         if designed:
             return design(nominal, count, seed, table)
         return variants(nominal, count, seed, table, stream)

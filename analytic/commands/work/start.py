@@ -99,9 +99,11 @@ def start(
         # start-up: MuJoCo, Zenoh, pymoo and rich load once the options are checked (but the
         # variants', which need MuJoCo), while the local farm starts
         from gainfarm.analytic.commands.work import tuning
+        from gainfarm.analytic.compose import defaults_hold
 
+        holds = defaults_hold(trajectories, limits, objectives)
         fields["plants"] = plants_from(
-            plants, uncertainty_file, nominal, seed, plant=plant, designed=True
+            plants, uncertainty_file, nominal, seed, plant=plant, designed=True, holds=holds
         )
         fields["check_plants"] = plants_from(
             check_plants, uncertainty_file, nominal, seed, held_out=True, plant=plant
