@@ -2,6 +2,7 @@
 physics, alone and in batches; and of scoring a log from its bytes.
 
     python bench/episode_bench.py [--quick] [--repeats 5] [--duration 5] [--batches 1,8,32,128]
+                                  [--robots iiwa14,ur5e,...]
 
 The anchor is the physics the episode ran: its per-step `ctrl` and `qfrc_applied` (the motors'
 commands, their friction), recorded as the episode stepped, replayed through MuJoCo's own
@@ -15,6 +16,12 @@ episode a candidate of its own (the default gains times 0.8-1.2); then the large
 every core, in wall time per episode. Each case is timed in interleaved repeats in one run and
 the fastest repeat taken (the cost of the work itself; the shared machine only ever adds), so
 that the ratios compare like with like; the medians are printed beside it.
+
+Then the same per arm (`--robots`, every installed one by default), each on its own spiral at
+its workspace centre with its own default gains, on its own realistic plant: its physics
+replayed, an episode alone and episodes in a batch (the largest of --batches up to 32), each a
+ratio to that arm's own physics, and the batch's ratio against the iiwa 14's (issue 49's target:
+within 10 %). All arms in one run, their repeats interleaved.
 """
 
 import os
@@ -26,16 +33,18 @@ from collections.abc import Callable
 import click
 import mujoco
 import numpy as np
-from common import print_table, scaled_gains
+from common import print_table
 from mujoco import rollout
 
+from gainfarm import plugins
+from gainfarm.models import plant_preset, robot_of
 from gainfarm.models.urdf import description
-from gainfarm.schemas import EpisodeSpec, TrajectorySpec
+from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec
 from gainfarm.schemas.episode_log import EpisodeLog
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.mcap_episode import decode_episode, episode_bytes
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT
+from gainfarm.schemas.robot import DEFAULT_ROBOT, IDEAL_PLANT, REALISTIC_PLANT
 from gainfarm.worker.episode import Prepared, compensation, run_episode, simulate_all
 from gainfarm.worker.job import simulate, simulate_batch
 from gainfarm.worker.plant import Plant
@@ -67,7 +76,7 @@ def physics(spec: EpisodeSpec) -> Callable[[], None]:
     """The episode's physics replayed in C; checked to retrace the episode first."""
     log, drives = recorded_physics(spec)
     plant = Plant(spec.plant)
-    plant.reset(reference_for(spec.trajectory).q[0])
+    plant.reset(reference_for(spec.trajectory, spec.plant.robot).q[0])
     signature = mujoco.mjtState.mjSTATE_FULLPHYSICS
     initial = np.empty(mujoco.mj_stateSize(plant.model, signature))
     mujoco.mj_getState(plant.model, plant.data, initial, signature)
@@ -98,21 +107,24 @@ def physics(spec: EpisodeSpec) -> Callable[[], None]:
 
 
 def candidates(spec: EpisodeSpec, count: int, seed: int = 0) -> list[EpisodeSpec]:
-    """`count` episodes of `spec`'s path and plant, each a candidate of its own."""
+    """`count` episodes of `spec`'s path and plant, each a candidate of its own: its gains times
+    0.8-1.2, joint by joint (the iiwa's as they always were: its kp's factors, then its kd's)."""
     rng = random.Random(seed)
+    gains = spec.gains
 
-    def factors() -> list[float]:
-        return [rng.uniform(0.8, 1.2) for _ in DEFAULT_GAINS.kp]
+    def scaled(values: tuple[float, ...]) -> tuple[float, ...]:
+        return tuple(value * rng.uniform(0.8, 1.2) for value in values)
 
     return [
-        spec.model_copy(update={"gains": scaled_gains(factors(), factors())}) for _ in range(count)
+        spec.model_copy(update={"gains": PDGains(kp=scaled(gains.kp), kd=scaled(gains.kd))})
+        for _ in range(count)
     ]
 
 
 def prepared(specs: list[EpisodeSpec]) -> list[Prepared]:
     out = []
     for spec in specs:
-        reference = reference_for(spec.trajectory)
+        reference = reference_for(spec.trajectory, spec.plant.robot)
         out.append((spec, reference, compensation(spec, reference)))
     return out
 
@@ -138,8 +150,13 @@ def _batches(text: str) -> list[int]:
     help="s per episode",
 )
 @click.option("--batches", default="1,8,32,128", show_default=True, help="batch sizes")
-def main(quick: bool, repeats: int, duration: float, batches: str) -> None:
+@click.option(
+    "--robots",
+    help="the arms of the per-arm table, comma-separated  [default: every installed one]",
+)
+def main(quick: bool, repeats: int, duration: float, batches: str, robots: str | None) -> None:
     sizes = _batches(batches)
+    arms = _robots(robots)
     if quick:
         repeats, duration, sizes = 2, 1.0, [1, 8]
     kind = "fourier" if duration < 3 else "spiral"  # a Cartesian path needs some 3 s
@@ -211,6 +228,87 @@ def main(quick: bool, repeats: int, duration: float, batches: str) -> None:
     whole = fastest[f"jobs, batch of {batch}"]
     print(f"real-time factor, one thread (jobs, batch of {batch}): {duration / whole:.0f}x")
     print(f"bytes per episode: {len(logged):,}")
+    print()
+    per_arm(arms, repeats, duration, batch)
+
+
+def _robots(text: str | None) -> list[str]:
+    """--robots' arms (the iiwa 14 first: the others are compared with it), each installed."""
+    names = plugins.names(plugins.ROBOTS) if text is None else tuple(text.split(","))
+    for name in names:
+        try:
+            robot_of(name)
+        except plugins.PluginError as error:
+            raise click.BadParameter(str(error), param_hint="'--robots'") from None
+    return [DEFAULT_ROBOT, *(name for name in names if name != DEFAULT_ROBOT)]
+
+
+def arm_episode(robot: str, duration: float) -> EpisodeSpec:
+    """An arm's episode as the per-arm table runs it: its spiral (the fourier kind, shorter than
+    a Cartesian path can be) at its workspace centre, its default gains, its realistic plant."""
+    arm = robot_of(robot)
+    kind = "fourier" if duration < 3 else "spiral"
+    trajectory = TrajectorySpec(kind=kind, duration=duration, center=arm.workspace.center)
+    return EpisodeSpec(
+        gains=arm.default_gains, trajectory=trajectory, plant=plant_preset("realistic", robot)
+    )
+
+
+def per_arm(robots: list[str], repeats: int, duration: float, batch: int) -> None:
+    """Each arm's episode, alone and in a batch, against its own physics; the batch's ratio
+    against the iiwa 14's. All arms' cases interleaved in each repeat."""
+    cases: dict[tuple[str, str], tuple[Callable[[], object], int]] = {}
+    plants = {}
+    for robot in robots:
+        spec = arm_episode(robot, duration)
+        plants[robot] = _substeps(spec)
+        episodes = prepared(candidates(spec, batch))
+        cases[robot, "physics"] = (physics(spec), 1)
+        cases[robot, "alone"] = (lambda s=spec: run_episode(s), 1)
+        cases[robot, "batch"] = (lambda e=episodes: simulate_all(e), batch)
+    times: dict[tuple[str, str], list[float]] = {name: [] for name in cases}
+    for _ in range(repeats):
+        for name, (case, count) in cases.items():
+            start = time.process_time()
+            case()
+            times[name].append((time.process_time() - start) / count)
+    fastest = {name: min(values) for name, values in times.items()}
+    ratio = {robot: fastest[robot, "batch"] / fastest[robot, "physics"] for robot in robots}
+    print(
+        f"per arm: its {duration:g} s path at its workspace centre, its default gains, its "
+        f"realistic plant; CPU time per episode, the fastest of {repeats}\n"
+    )
+    print_table(
+        (
+            "arm",
+            "joints",
+            "physics steps per tick",
+            "physics ms",
+            "episode alone x physics",
+            f"batch of {batch} x physics",
+            "against the iiwa 14's",
+        ),
+        "lrrrrrr",
+        (
+            (
+                robot,
+                str(len(robot_of(robot).joint_names)),
+                str(plants[robot]),
+                f"{fastest[robot, 'physics'] * 1000:.2f}",
+                f"{fastest[robot, 'alone'] / fastest[robot, 'physics']:.2f}",
+                f"{ratio[robot]:.2f}",
+                f"{ratio[robot] / ratio[DEFAULT_ROBOT]:.2f}",
+            )
+            for robot in robots
+        ),
+    )
+    worst = max(abs(ratio[robot] / ratio[DEFAULT_ROBOT] - 1) for robot in robots)
+    print(f"\nthe farthest arm's batch ratio from the iiwa 14's: {worst:.0%} (target <= 10 %)")
+
+
+def _substeps(spec: EpisodeSpec) -> int:
+    """The physics steps a tick of the spec's plant takes (its robot's resolved plant's)."""
+    return Plant(spec.plant).substeps
 
 
 if __name__ == "__main__":

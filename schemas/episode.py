@@ -5,7 +5,7 @@ from typing import Annotated, Any, Self
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, model_validator
 
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.robot import PlantSpec
+from gainfarm.schemas.robot import JOINT_NAMES, MAX_JOINTS, SPEED_LIMITS, PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, KIND_PATTERN, TrajectorySpec
 
 # The paper's two objectives, computed from the log by schemas/objectives/. An episode may name
@@ -64,8 +64,18 @@ class EpisodeSpec(BaseModel):
         return self
 
 
+# A joint's name as a log carries it (its JointState messages name the joints): a ROS name's
+# characters, bounded, so that a hostile log cannot name a joint a megabyte long.
+JointName = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_/]{0,63}$")]
+SpeedLimit = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+
+
 class EpisodeMetadata(BaseModel):
-    """The MCAP metadata record of an episode log: its spec, provenance and outcome."""
+    """The MCAP metadata record of an episode log: its spec, provenance and outcome, and what the
+    log's readers need of its robot (`spec.plant.robot` names it), which the contract cannot
+    look up: its joints' names and its speed limits, beside the torque limits the episode ran
+    with. An iiwa 14's log leaves out its names and speeds (their defaults), so its bytes are
+    those it had before arms were many; a log from before reads as the iiwa 14's."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -73,7 +83,20 @@ class EpisodeMetadata(BaseModel):
     control_period: float = CONTROL_PERIOD
     ticks_planned: int = Field(ge=1)
     ticks_run: int = Field(ge=0)
-    torque_limits: tuple[float, ...]
+    torque_limits: tuple[float, ...] = Field(max_length=MAX_JOINTS)
+    joint_names: tuple[JointName, ...] = Field(
+        JOINT_NAMES,
+        min_length=1,
+        max_length=MAX_JOINTS,
+        exclude_if=lambda names: tuple(names) == JOINT_NAMES,
+        description="the robot's joints, base to flange, as its JointState messages name them",
+    )
+    speed_limits: tuple[SpeedLimit, ...] = Field(
+        SPEED_LIMITS,
+        max_length=MAX_JOINTS,
+        exclude_if=lambda speeds: tuple(speeds) == SPEED_LIMITS,
+        description="rad/s, the robot's data-sheet speed limit per joint (the speed measure's)",
+    )
     diverged: bool
     divergence: str = Field("", description="why the episode stopped early, if it did")
     versions: dict[str, str]
@@ -88,6 +111,17 @@ class EpisodeMetadata(BaseModel):
         description="least damping ratio of the closed loop linearised at poses along the "
         "reference (worker.stability); None in logs from before it was measured",
     )
+
+    @model_validator(mode="after")
+    def _one_number_per_joint(self) -> Self:
+        joints = len(self.joint_names)
+        for name in ("torque_limits", "speed_limits"):
+            if len(getattr(self, name)) != joints:
+                raise ValueError(f"{name}: one per joint of {', '.join(self.joint_names)}")
+        gains = len(self.spec.gains.kp)
+        if gains != joints:
+            raise ValueError(f"spec.gains: {gains} pairs for {joints} joints")
+        return self
 
 
 class Scores(BaseModel):

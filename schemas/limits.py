@@ -23,8 +23,9 @@ after the others: MEASURED). It is one more constraint, g = min_damping − damp
 five above (null: not checked, and not a constraint). A damping ratio is already a dimensionless
 number in [−1, 1], and a share of a lower bound would blow up at the natural bound 0.
 
-The defaults are argued from measurements (bench/limit_measures.py --variants 8): each keeps
-the default gains feasible on the 5 s spiral, fourier and pyramid paths, on the nominal plant and
+The defaults are argued from measurements of the iiwa 14 (bench/limit_measures.py --variants 8),
+and are shares of each arm's own limits, which its logs carry (EpisodeMetadata): each keeps the
+default gains feasible on the 5 s spiral, fourier and pyramid paths, on the nominal plant and
 on robust runs' plant variants (where the default gains run away on some variant, as on 4 of the
 9 seeds measured, they break the torque step, chatter and speed limits, whatever these are).
 A run's config.json from before a limit existed does not check it (RunConfig), so a resumed run
@@ -82,10 +83,11 @@ class Limits(BaseModel):
 
     torque_step: Limit | None = Field(
         0.1,
-        # Assumption: KUKA publishes no torque rate. A tenth of the joint's limit in 2 ms (32
-        # N·m on A1, 4 N·m on A7) is 11 times the default gains' largest step and 6 times that
-        # of the smooth controllers measured (bench/limit_measures.py); the chattering ones step
-        # by 0.44 to 2 (a real arm's safety stop would trip).
+        # Assumption: KUKA publishes no torque rate; the same share serves every arm. A tenth of
+        # the joint's limit in 2 ms (on the iiwa 14: 32 N·m on A1, 4 on A7) is 11 times the
+        # default gains' largest step and 6 times that of the smooth controllers measured
+        # (bench/limit_measures.py); the chattering ones step by 0.44 to 2 (a real arm's safety
+        # stop would trip).
         description="largest torque change in one tick, share of the joint's torque limit "
         "(assumption: KUKA publishes no torque rate)",
     )
@@ -97,17 +99,17 @@ class Limits(BaseModel):
     )
     speed: Limit | None = Field(
         1.0,
-        # Source: KUKA's LBR iiwa 14 R820 data sheet (schemas.robot.SPEED_LIMITS), which the
-        # measure is a share of, checked with SPEED_TOLERANCE (10 %) over it: a reference may
-        # use the full rated speed (worker.reference), and a real arm's speed monitor is set a
-        # little above what its planner commands. The default gains reach 0.52 (5 s spiral),
-        # 0.57 (5 s pyramid), 0.89 (fourier, its reference at 0.85) and 1.005 (a 3 s pyramid,
-        # its reference at 0.91) on the realistic plant; at most 0.91 on the 5 s paths on robust
-        # runs' variants. A reference at the full rated speed (a path at its shortest duration:
-        # 0.98) they overshoot to 1.05 (spiral) and 1.11 (pyramid): such a path wants planning a
-        # little slower. Chattering controllers reach 2.5 to 11 (bench/limit_measures.py
-        # --variants 8).
-        description="largest measured joint speed, share of KUKA's data-sheet speed limit "
+        # Source: the robot's data sheet (its Robot.limits.speed, which every log carries: the iiwa
+        # 14's is KUKA's LBR iiwa 14 R820 data sheet), which the measure is a share of, checked with
+        # SPEED_TOLERANCE (10 %) over it: a reference may use the full rated speed
+        # (worker.reference), and a real arm's speed monitor is set a little above what its planner
+        # commands. The default gains reach 0.52 (5 s spiral), 0.57 (5 s pyramid), 0.89 (fourier,
+        # its reference at 0.85) and 1.005 (a 3 s pyramid, its reference at 0.91) on the realistic
+        # plant; at most 0.91 on the 5 s paths on robust runs' variants. A reference at the full
+        # rated speed (a path at its shortest duration: 0.98) they overshoot to 1.05 (spiral) and
+        # 1.11 (pyramid): such a path wants planning a little slower. Chattering controllers reach
+        # 2.5 to 11 (bench/limit_measures.py --variants 8).
+        description="largest measured joint speed, share of the robot's data-sheet speed limit "
         "(source: the data sheet; checked with a 10 % tolerance for a controller's overshoot of "
         "a reference at up to the rated speed, an assumption)",
     )

@@ -89,6 +89,7 @@ from gainfarm.schemas.mcap_layout import (
     UNREADABLE,
     ZSTD_LEVEL,
     NotAnEpisodeLog,
+    TickLayout,
     schema_text,
     tf_layout,
     tick_layout,
@@ -99,10 +100,12 @@ from gainfarm.schemas.wire import MAX_EPISODE_BYTES
 # --- writing ----------------------------------------------------------------------------------
 
 
-def episode_bytes(log: EpisodeLog, robot: RobotDescription) -> bytes:
+def episode_bytes(log: EpisodeLog, robot: RobotDescription | None) -> bytes:
     """The whole file, in the order and with the records mcap.writer.Writer would emit for it;
-    `robot` draws the arm on /robot_description and /tf. (To a file: the caller writes these
-    bytes, whole or not at all: gainfarm.edges.files.write_atomically.)
+    `robot` draws the arm on /robot_description and /tf (None: an arm with no description to
+    draw it, whose log carries neither). Its JointState messages name the joints its metadata
+    names (EpisodeMetadata.joint_names). (To a file: the caller writes these bytes, whole or not
+    at all: gainfarm.edges.files.write_atomically.)
 
     One RecordBuilder holds the whole file from the magic on, so its count is the file offset
     that indexes point at. Two deliberate differences from what the old Writer-based code wrote:
@@ -110,7 +113,7 @@ def episode_bytes(log: EpisodeLog, robot: RobotDescription) -> bytes:
     right after the Header (the Writer puts it wherever its chunk buffer stands), so that a
     reader streaming the file knows what it is before the data arrives.
     """
-    layout = tick_layout()
+    layout = tick_layout(log.metadata.joint_names)
     log_times = np.round(log.t * NANOSECONDS).astype(np.uint64)
     schemas, channels = _definitions()
     out = RecordBuilder()
@@ -118,20 +121,26 @@ def episode_bytes(log: EpisodeLog, robot: RobotDescription) -> bytes:
     Header(profile=PROFILE, library=LIBRARY).write(out)
     metadata_index = _write_metadata(out, log.metadata)
     compressor = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_checksum=True)
-    _check_columns(log)  # first: no byte is written of a malformed log
+    _check_columns(log, layout)  # first: no byte is written of a malformed log
     chunk_indexes = []
     counts = {}
+    # The definitions of every channel open the first chunk.
+    prefix = _definition_records() if log.ticks else b""
     if log.ticks:
+        counts = {channel.id: log.ticks for channel in channels[: len(CHANNELS)]}
+    if log.ticks and robot is not None:
         # First the description and the transforms, so that a tool reading the file from its
-        # start draws the arm before the data plays; the definitions of every channel open it.
-        prefix = _definition_records()
+        # start draws the arm before the data plays.
         content, indexes = _derived_messages(log, log_times, len(prefix), robot)
         chunk_indexes.append(_write_chunk(out, compressor, prefix + content, indexes))
-        counts = {channel.id: log.ticks for channel in channels[: len(CHANNELS)]}
         counts |= {channel_id: len(times) for channel_id, times, _ in indexes}
+        prefix = b""
     for part in _chunk_parts(log.ticks, layout.size):
-        content = _records(log, log_times, part).view(np.uint8)
-        tick_offsets = layout.size * np.arange(part.stop - part.start, dtype=np.uint64)
+        content = _records(log, log_times, part, layout).view(np.uint8)
+        first = len(prefix)
+        if prefix:  # no description: the definitions open the first chunk of ticks
+            content, prefix = np.concatenate([np.frombuffer(prefix, np.uint8), content]), b""
+        tick_offsets = first + layout.size * np.arange(part.stop - part.start, dtype=np.uint64)
         indexes = [
             (channel_id, log_times[part], tick_offsets + layout.record_offset(channel.topic))
             for channel_id, channel in enumerate(CHANNELS, start=1)
@@ -224,9 +233,9 @@ def _metadata_record(metadata: EpisodeMetadata) -> dict[str, str]:
     return {key: json.dumps(value) for key, value in metadata.model_dump(mode="json").items()}
 
 
-def _check_columns(log: EpisodeLog) -> None:
+def _check_columns(log: EpisodeLog, layout: TickLayout) -> None:
     """Each column must be one row per tick of the numbers its message field holds."""
-    fields = tick_layout().dtype
+    fields = layout.dtype
     for channel in CHANNELS:
         data = fields[channel.topic]["data"]
         for field, attribute in channel.fields:
@@ -249,19 +258,22 @@ class _Ticks(threading.local):
 
     ticks: np.ndarray | None = None  # template ticks, as many as the longest chunk yet
     times: tuple[int, bytes] | None = None  # (first sequence, log times) the ticks carry
+    layout: TickLayout | None = None  # the arm's whose template the ticks are
 
 
 _TICKS = _Ticks()
 
 
-def _records(log: EpisodeLog, log_times: np.ndarray, part: slice) -> np.ndarray:
+def _records(log: EpisodeLog, log_times: np.ndarray, part: slice, layout: TickLayout) -> np.ndarray:
     """The Message records of the ticks `part` as one structured array: template copies,
     filled in. (Valid until this thread's next call: they are to be compressed at once.)"""
-    layout = tick_layout()
     count = part.stop - part.start
-    if _TICKS.ticks is None or len(_TICKS.ticks) < count:  # at most a chunk's, per thread
+    if (
+        _TICKS.ticks is None or len(_TICKS.ticks) < count or _TICKS.layout is not layout
+    ):  # at most a chunk's, per thread, of the last arm's layout
         _TICKS.ticks = np.tile(layout.template, count).view(layout.dtype)
         _TICKS.times = None
+        _TICKS.layout = layout
     ticks = _TICKS.ticks[:count]
     times = (part.start, log_times[part].tobytes())
     if _TICKS.times != times:
@@ -617,7 +629,8 @@ def _decompression_bound(path: str, metadata: EpisodeMetadata) -> int:
     ticks, planned = metadata.ticks_run, metadata.spec.trajectory.ticks
     if ticks > planned:
         raise NotAnEpisodeLog(f"{path}: {ticks} ticks run, more than the {planned} of its path")
-    return min(ticks * tick_layout().size + MAX_DEFINITION_BYTES, MAX_EPISODE_BYTES)
+    size = tick_layout(metadata.joint_names).size
+    return min(ticks * size + MAX_DEFINITION_BYTES, MAX_EPISODE_BYTES)
 
 
 def _read_messages(path: str, content: bytes, summary: Summary, bound: int) -> bytes:
@@ -694,8 +707,9 @@ def _messages(records: bytes) -> memoryview:
 
 
 def _assemble(path: str, metadata: EpisodeMetadata, messages: bytes) -> EpisodeLog:
-    """View the Message records as ticks, check them against the template, slice out columns."""
-    layout = tick_layout()
+    """View the Message records as ticks, check them against the template of the arm its
+    metadata names, slice out columns."""
+    layout = tick_layout(metadata.joint_names)
     ticks = metadata.ticks_run
     if len(messages) != ticks * layout.size:
         raise NotAnEpisodeLog(

@@ -4,7 +4,7 @@ the /tf message's layout, built once. Why the layout is fixed: mcap_episode.py's
 
 import struct
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, lru_cache
 
 import numpy as np
 import zstandard
@@ -21,7 +21,12 @@ from gainfarm.schemas.episode_log import (
     Channel,
     Frame,
 )
-from gainfarm.schemas.robot import JOINT_NAMES, N_JOINTS
+from gainfarm.schemas.robot import JOINT_NAMES
+
+# The layouts of the arms a process writes or reads (one per joint names: an arm's JointState
+# messages name its joints), at most this many kept: a log names its own, so a stream of hostile
+# logs may not grow the cache without bound.
+LAYOUTS = 16
 
 NANOSECONDS = 1_000_000_000
 CHUNK_SIZE = 4 * 1024 * 1024  # uncompressed bytes of messages per chunk, at most (~7.5 s of ticks)
@@ -151,21 +156,22 @@ def schema_text(message_type: str) -> str:
     return text
 
 
-@cache
-def channel_layout(channel: Channel) -> ChannelLayout:
-    """Encode one message with recognisable sentinel numbers and find where they landed."""
+@lru_cache(maxsize=LAYOUTS * 8)
+def channel_layout(channel: Channel, joint_names: tuple[str, ...] = JOINT_NAMES) -> ChannelLayout:
+    """Encode one message, of an arm with joints `joint_names`, with recognisable sentinel
+    numbers and find where they landed."""
     store = typestore()
     types = store.types
     stamp = types["builtin_interfaces/msg/Time"](sec=0x5EC0_5EC0, nanosec=0x0A0B_0C0D)
     header = types["std_msgs/msg/Header"](stamp=stamp, frame_id=channel.frame_id)
     sentinels = {
-        field: 7.25e9 + 1000.0 * i + np.arange(N_JOINTS if field != "point" else 3)
+        field: 7.25e9 + 1000.0 * i + np.arange(len(joint_names) if field != "point" else 3)
         for i, (field, _) in enumerate(channel.fields)
     }
     if channel.message_type.endswith("JointState"):
         empty = np.zeros(0)
         arrays = {f: sentinels.get(f, empty) for f in ("position", "velocity", "effort")}
-        message = types[channel.message_type](header=header, name=list(JOINT_NAMES), **arrays)
+        message = types[channel.message_type](header=header, name=list(joint_names), **arrays)
     else:
         x, y, z = sentinels["point"]
         point = types["geometry_msgs/msg/Point"](x=x, y=y, z=z)
@@ -183,18 +189,22 @@ def channel_layout(channel: Channel) -> ChannelLayout:
     return ChannelLayout(np.frombuffer(bytes(template), np.uint8), stamp_offset, offsets)
 
 
-@cache
-def tick_layout() -> TickLayout:
-    """Lay out one tick's Message records; the mcap library writes the template's records."""
+@lru_cache(maxsize=LAYOUTS)
+def tick_layout(joint_names: tuple[str, ...] = JOINT_NAMES) -> TickLayout:
+    """Lay out one tick's Message records of an arm with joints `joint_names` (the iiwa 14's by
+    default); the mcap library writes the template's records."""
     dtype = np.dtype(
         [
-            (channel.topic, [*MESSAGE_HEADER, ("data", channel_layout(channel).dtype())])
+            (
+                channel.topic,
+                [*MESSAGE_HEADER, ("data", channel_layout(channel, joint_names).dtype())],
+            )
             for channel in CHANNELS
         ]
     )
     builder = RecordBuilder()
     for channel_id, channel in enumerate(CHANNELS, start=1):
-        data = channel_layout(channel).template.tobytes()
+        data = channel_layout(channel, joint_names).template.tobytes()
         Message(channel_id=channel_id, log_time=0, data=data, publish_time=0, sequence=0).write(
             builder
         )

@@ -13,16 +13,17 @@ from gainfarm.cli import options
 from gainfarm.cli.app import CliError, parse_numbers, program_group, run_app
 
 # Held here, not imported, so that parsing and --help load nothing heavy (Zenoh, cryptography,
-# pydantic): tests/cli/test_held_defaults.py keeps each equal to its source's.
-JOINTS = 7  # schemas.robot.N_JOINTS
-# schemas.gains.DEFAULT_GAINS's kp and kd, as --kp and --kd take them
-KP = "2000,2000,1200,1200,400,200,100"
-KD = "20,20,15,15,4,2,1"
+# pydantic): the most joints a robot may have (schemas.robot.MAX_JOINTS), which --kp and --kd
+# are checked against before the robot is loaded (its own joint count, after).
+MAX_JOINTS = 32
 
 
-def gains(option: str, text: str) -> tuple[float, ...]:
-    """--kp's or --kd's gains, one per joint, finite and non-negative; or one line naming it."""
-    values = parse_numbers(option, text, JOINTS)
+def gains(option: str, text: str, joints: int | None = None) -> tuple[float, ...]:
+    """--kp's or --kd's gains, finite and non-negative, one per joint (`joints` of them, once
+    the robot is known); or one line naming the option."""
+    values = parse_numbers(option, text, joints)
+    if len(values) > MAX_JOINTS:
+        raise CliError(f"{option}: {len(values)} gains, more than any arm's {MAX_JOINTS} joints")
     if not all(math.isfinite(v) and v >= 0 for v in values):
         raise CliError(f"{option}: gains must be finite and non-negative, got {text!r}")
     return values
@@ -41,26 +42,25 @@ def app() -> None:
     show_default=True,
     help="where to write the MCAP episode log",
 )
+@options.robot("the arm the episode runs on")
 @options.trajectory()
 @options.duration()
 @click.option(
     "--kp",
-    default=KP,
-    show_default=True,
-    help="7 gains A1..A7, N·m/rad",
+    help="one gain per joint of the robot, base to flange, N·m/rad  [default: the robot's "
+    "default gains]",
 )
 @click.option(
     "--kd",
-    default=KD,
-    show_default=True,
-    help="7 gains A1..A7, N·m·s/rad",
+    help="one gain per joint of the robot, base to flange, N·m·s/rad  [default: the robot's "
+    "default gains]",
 )
 @click.option(
     "--gains",
     "gains_file",
     type=click.Path(path_type=Path),
     help="the gains from a file instead of --kp/--kd: a controller from `analytic export` (JSON "
-    'or YAML), or one {"kp": [7], "kd": [7]} object',
+    'or YAML), or one {"kp": [...], "kd": [...]} object, a gain per joint of the robot',
 )
 @options.joints()
 @options.plant()
@@ -76,11 +76,14 @@ def app() -> None:
 )
 @click.option("--json", "as_json", is_flag=True, help="print the scores as one JSON object")
 def episode(**given: Any) -> None:
-    """Simulate one PD episode on the iiwa 14, write its MCAP log and print its scores."""
+    """Simulate one PD episode on the arm --robot names (the iiwa 14 by default), write its MCAP
+    log and print its scores. --center defaults to the robot's workspace centre, --duration to
+    the kind's default on the robot: 5 s, or longer on an arm that needs it to stay within 90 %
+    of its speed and acceleration limits (the Kinova Gen3's spiral and pyramid: 5.5 s)."""
     # What a parse can refuse, refused before the work's imports (the contract, MuJoCo).
-    if given["gains_file"] is None:
-        gains("--kp", given["kp"])
-        gains("--kd", given["kd"])
+    for option in ("kp", "kd"):
+        if given[option] is not None:
+            gains(f"--{option}", given[option])
     parse_numbers("--center", given["center"], 3)
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.worker.commands import episode as work
@@ -118,9 +121,14 @@ def episode(**given: Any) -> None:
     help="threads stepping a batch's episodes, each on a core  [default: every core this "
     "process may use]",
 )
+@options.robot(
+    "an arm to serve besides the installed ones, given by its description file (a worker "
+    "serves every installed arm a job names)"
+)
 @options.log_level()
 def start(**given: Any) -> None:
-    """Serve a farm: ask the broker for jobs while free, run them, return their results.
+    """Serve a farm: ask the broker for jobs while free, run them, return their results. A job
+    on an arm this worker lacks (neither installed nor --robot FILE) is refused with the reason.
 
     A job's episode log goes with its result if the job asks for it; else the worker keeps it
     in memory (--log-memory; the least recently used go first) for its study to fetch.

@@ -18,6 +18,7 @@ import click
 from click.core import ParameterSource
 from pydantic import ValidationError
 
+from gainfarm import plugins
 from gainfarm.cli import values
 from gainfarm.cli.app import CliError, setup_logging
 from gainfarm.cli.gains import refuse_saturating, warn_far_outside_search
@@ -43,10 +44,11 @@ if TYPE_CHECKING:
 
 def episode(
     out: Path,
+    robot: str,
     trajectory: str,
     duration: float,
-    kp: str,
-    kd: str,
+    kp: str | None,
+    kd: str | None,
     gains_file: Path | None,
     joints: str,
     plant: str,
@@ -61,13 +63,26 @@ def episode(
     as_json: bool,
 ) -> None:
     """`worker episode` with its options as parsed (worker/cli.py)."""
-    gains, controller = _file_gains(gains_file) if gains_file is not None else (None, None)
+    # start-up: the robot's plug-in (its joints, centre and gains) loads MuJoCo; options a parse
+    # refuses were refused before this (worker/cli.py)
+    from gainfarm.models import robot_of
+
+    model = values.model_spec(plant, joints) if plant not in PLANTS else None
+    robot = _robot_of_plant(robot, model, plant)
+    arm = robot_of(robot)
+    gains, controller = (
+        _file_gains(gains_file, arm.joint_names) if gains_file is not None else (None, None)
+    )
+    if not _given("center"):  # the robot's own workspace centre, exactly
+        center = ",".join(repr(float(v)) for v in arm.workspace.center)
     (path,) = values.trajectories([trajectory], duration, trajectory_seed, center, size)
-    model = values.with_load(values.model_spec(plant, joints), payload, payload_com, plant)
+    model = _plant_of(plant, joints, robot, model)
+    model = values.with_load(model, payload, payload_com, plant)
     if as_tuned:
         if payload is not None:
             raise CliError("--payload: --as-tuned runs the controller on its own plant")
         path, model = _as_tuned(controller, gains_file)
+        arm = robot_of(model.robot)
     elif controller is not None:
         _warn_if_not_as_tuned(controller, gains_file, path, model)
     learned = values.feedforward_model(feedforward)
@@ -80,12 +95,13 @@ def episode(
         on = "the plant --as-tuned runs" if as_tuned else _plant_named(model)
         raise CliError(
             f"--gravity-compensation: {on} already adds the robot's own gravity compensation "
-            "(KUKA's FRI torque mode); with --plant plain or --plant ideal the PD's torque is "
-            "the whole motor torque, and this flag adds it"
+            f"({arm.torque_interface.name}); with --plant plain or --plant ideal the PD's torque "
+            "is the whole motor torque, and this flag adds it"
         )
+    joint_count = len(arm.joint_names)
     try:
         spec = EpisodeSpec(
-            gains=gains or PDGains(kp=gains_option("--kp", kp), kd=gains_option("--kd", kd)),
+            gains=gains or _option_gains(kp, kd, arm.default_gains, joint_count, arm.name),
             trajectory=path,
             plant=model,
             gravity_compensation=gravity_compensation,
@@ -93,28 +109,106 @@ def episode(
         )
     except ValidationError as error:
         raise CliError(describe(error)) from None
-    refuse_saturating([spec.gains], spec.plant, gains_file)
-    warn_far_outside_search("worker", [spec.gains], gains_file)
+    if len(spec.gains.kp) != joint_count:
+        raise CliError(
+            f"--gains: {str(gains_file)!r} holds {len(spec.gains.kp)} gains of each kind, for "
+            f"{arm.name}'s {joint_count} joints"
+        )
+    _check_plant(spec.plant, plant)
+    refuse_saturating([spec.gains], spec.plant, gains_file, arm)
+    warn_far_outside_search("worker", [spec.gains], gains_file, arm)
     if not out.parent.is_dir():
         raise CliError(f"--out: directory {str(out.parent)!r} does not exist")
     # The simulation, its IK and references, the log's URDF (but --feedforward's and a plant
     # file's, which need MuJoCo, are checked by now):
     # start-up: MuJoCo loads once the options are checked
-    from gainfarm.models.urdf import description
     from gainfarm.worker import ik, reference
     from gainfarm.worker.episode import run_episode
+    from gainfarm.worker.job import drawing
 
     try:
+        if not as_tuned and not _given("duration"):  # the robot's default for the kind
+            trajectory = spec.trajectory
+            chosen = reference.default_duration(trajectory, spec.plant.robot)
+            spec = spec.model_copy(
+                update={"trajectory": trajectory.model_copy(update={"duration": chosen})}
+            )
         log = run_episode(spec, learned[1] if learned is not None else None)
     except ik.UnreachablePath as error:
         raise CliError(f"{'--as-tuned' if as_tuned else '--center/--size'}: {error}") from None
     except reference.InfeasibleReference as error:
         raise CliError(f"{'--as-tuned' if as_tuned else '--duration'}: {error}") from None
     try:
-        write_atomically(out, episode_bytes(log, description()))
+        write_atomically(out, episode_bytes(log, drawing(spec.plant.robot)))
     except OSError as error:
         raise CliError(f"--out: cannot write {str(out)!r}: {error.strerror}") from None
     show_scores(score(log), out, as_json)
+
+
+def _given(name: str) -> bool:
+    """Whether the option of parameter `name` was given on the command line."""
+    source = click.get_current_context().get_parameter_source(name)
+    return source is ParameterSource.COMMANDLINE
+
+
+def _robot_of_plant(robot: str, model: "PlantSpec | None", plant: str) -> str:
+    """The episode's robot: --robot's, or a plant file's own arm (a twin is of one arm); both
+    given and different: one line naming them."""
+    if model is None or model.robot == robot:
+        return robot
+    if _given("robot"):
+        raise CliError(
+            f"--robot: {robot!r}, but the plant file {plant!r} is a plant of {model.robot!r}"
+        )
+    return model.robot
+
+
+def _plant_of(plant: str, joints: str | None, robot: str, model: "PlantSpec | None") -> "PlantSpec":
+    """--plant's PlantSpec on the robot: a named plant is that preset of the robot's
+    (models.plant_preset), a plant file its own (already read: `model`)."""
+    if model is not None:
+        return model
+    # start-up: MuJoCo, as the robot's (loaded by now)
+    from gainfarm.models import plant_preset
+
+    preset = plant_preset(plant, robot)
+    return preset if joints is None else preset.model_copy(update={"joints": joints})
+
+
+def _check_plant(spec: "PlantSpec", plant: str) -> None:
+    """One line naming --plant (or --payload) if the robot cannot be this plant: a per-joint
+    number of another count, an inertial set it lacks, a payload past its rating, springs its
+    physics step cannot hold."""
+    # start-up: MuJoCo, as the robot's (loaded by now)
+    from gainfarm.models import PlantError, resolve, robot_of
+
+    try:
+        resolved = resolve(spec)
+    except PlantError as error:
+        field, said = str(error).split(": ", 1)
+        if field == "payload":  # the told load's, or a plant file's untold payload
+            raise CliError(f"--payload: {said}") from None
+        raise CliError(f"--plant: {error}") from None
+    try:
+        robot_of(spec).build(resolved)
+    except ValueError as error:
+        raise CliError(f"--plant: {plant!r}: {error}") from None
+
+
+def _option_gains(
+    kp: str | None, kd: str | None, defaults: "PDGains", joints: int, robot: str
+) -> "PDGains":
+    """--kp and --kd, each the robot's default gains if not given, one per joint of it."""
+    chosen = []
+    for option, text, default in (("--kp", kp, defaults.kp), ("--kd", kd, defaults.kd)):
+        if text is None:
+            chosen.append(tuple(default))
+            continue
+        given = gains_option(option, text)
+        if len(given) != joints:
+            raise CliError(f"{option}: {len(given)} gains for {robot}'s {joints} joints")
+        chosen.append(given)
+    return PDGains(kp=chosen[0], kd=chosen[1])
 
 
 def start(
@@ -124,9 +218,12 @@ def start(
     model_cache: Path | None,
     log_memory: int,
     threads: int | None,
+    robot: str,
     log_level: str,
 ) -> None:
-    """`worker start` with its options as parsed (worker/cli.py)."""
+    """`worker start` with its options as parsed (worker/cli.py). `robot` is registered in this
+    process already, if it came from a description file (gainfarm.cli.options.robot): the
+    worker serves it beside every installed arm."""
     setup_logging("worker", log_level)
     # On a secure farm the router lets a worker lease only under its certificate's name.
     identity = values.identity(tls, "worker", name, name_option="--name")
@@ -179,10 +276,11 @@ def start(
         tries = 0
         with cobot:
             log.info(
-                "worker %s serving %s on %s",
+                "worker %s serving %s on %s, arms %s",
                 name,
                 ", ".join(connect),
                 counted(cobot.threads, "thread"),
+                ", ".join(plugins.names(plugins.ROBOTS)),
             )
             done = cobot.serve_until(stop)
         log.info("worker %s stopped after %d jobs", name, done)
@@ -225,9 +323,10 @@ def cores() -> int:
     return len(os.sched_getaffinity(0))
 
 
-def _file_gains(path: Path) -> "tuple[PDGains, Controller | None]":
-    """--gains: the one controller in the file (and the file as a Controller, if it is an
-    exported one); --kp and --kd may not be given beside it."""
+def _file_gains(path: Path, joints: tuple[str, ...]) -> "tuple[PDGains, Controller | None]":
+    """--gains: the one controller in the file, a gain per one of `joints` (the robot's), and
+    the file as a Controller, if it is an exported one; --kp and --kd may not be given beside
+    it."""
     context = click.get_current_context()
     given = [
         f"--{name}"
@@ -243,7 +342,7 @@ def _file_gains(path: Path) -> "tuple[PDGains, Controller | None]":
     except BadDocument as error:
         raise CliError(f"--gains: {str(path)!r}: {error}") from None
     try:
-        candidates = read_gains(raw)
+        candidates = read_gains(raw, joints)
     except BadGains as error:
         raise CliError(f"--gains: {str(path)!r}: {error}") from None
     if len(candidates) != 1:
@@ -339,13 +438,16 @@ def _described(trajectory: "TrajectorySpec", fields: "list[str] | None" = None) 
 
 
 def _plant_named(plant: "PlantSpec", joints: bool = False) -> str:
-    """'the realistic plant' (a named plant with any joints), or 'a custom plant'; with `joints`,
-    which joints it has: 'the realistic plant with rigid joints'."""
+    """'the realistic plant' (a named plant of its robot, with any joints), or 'a custom plant';
+    with `joints`, which joints it has: 'the realistic plant with rigid joints'."""
+    # start-up: MuJoCo, as the robot's (loaded by now)
+    from gainfarm.models import plant_preset
+
     name = next(
         (
             f"the {name} plant"
-            for name, spec in PLANTS.items()
-            if spec.model_copy(update={"joints": plant.joints}) == plant
+            for name in PLANTS
+            if plant_preset(name, plant.robot).model_copy(update={"joints": plant.joints}) == plant
         ),
         "a custom plant",
     )

@@ -22,7 +22,7 @@ from gainfarm.models import resolve
 from gainfarm.models.dynamics import DynamicsModel, friction_torque, plant_spec, true_model
 from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
-from gainfarm.schemas.robot import DEFAULT_ROBOT, JOINT_NAMES, LoadData, PlantSpec
+from gainfarm.schemas.robot import DEFAULT_ROBOT, LoadData, PlantSpec
 from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
 from gainfarm.worker.control import PDController
 from gainfarm.worker.plant import Plant, RobotGravity
@@ -39,7 +39,7 @@ class MissingModel(ValueError):
 def run_episode(spec: EpisodeSpec, model: DynamicsModel | None = None) -> EpisodeLog:
     """Simulate `spec` and return its log. A diverging episode is stopped early and flagged.
     `model` is the inverse-dynamics model the spec's `feedforward` names, if it names one."""
-    reference = reference_for(spec.trajectory)
+    reference = reference_for(spec.trajectory, spec.plant.robot)
     return simulate(spec, reference, compensation(spec, reference, model))
 
 
@@ -89,7 +89,7 @@ def true_compensation(
     motor_angles = reference.q
     if deflection and plant.joints == "flexible" and plant.feedback == "motor":
         links = plant_spec(plant).model_copy(
-            update={"rotor_inertia": (0.0,) * len(JOINT_NAMES), "friction": None}
+            update={"rotor_inertia": (0.0,) * reference.q.shape[1], "friction": None}
         )
         carried = true_model(links).inverse(reference.q, reference.qd, reference.qdd)
         bend = carried / np.asarray(plant.stiffness)
@@ -190,14 +190,18 @@ def _log(spec: EpisodeSpec, run: Stepped) -> EpisodeLog:
         if spec.plant.sensors.exact:
             readings = _exact_readings(plant, state, applied, motor)
         else:
-            counts = run.measured[: run.window + ticks_run, : len(JOINT_NAMES)]
-            encoders = Encoders(spec.plant.sensors)
+            counts = run.measured[: run.window + ticks_run, : plant.joints]
+            encoders = Encoders(spec.plant.sensors, plant.joints)
             readings = _sensed_readings(plant, encoders, state, counts, applied, motor)
     metadata = EpisodeMetadata(
         spec=spec,
         ticks_planned=run.ticks,
         ticks_run=ticks_run,
         torque_limits=tuple(plant.torque_limits.tolist()),
+        # What the log's readers need of its robot and cannot look up (the contract knows no
+        # robot): its joints' names and speed limits (an iiwa 14's leave them out: as before).
+        joint_names=plant.robot.joint_names,
+        speed_limits=plant.robot.limits.speed,
         diverged=bool(run.divergence),
         divergence=run.divergence,
         versions=software_versions(),
@@ -226,7 +230,7 @@ def _exact(plant: PlantSpec) -> bool:
 
 
 def motor_torque(log: EpisodeLog) -> np.ndarray:
-    """(ticks, 7) N·m the motors exerted, from the log alone: behind FRI, its command `u` plus
+    """(ticks, joints) N·m the motors exerted, from the log alone: behind FRI, its command `u` plus
     the robot's gravity model at the angles the robot measured (the fed-back side's, as logged:
     the loop's very numbers), clamped to the torque limits as the robot does; on a plain torque
     interface, `u` itself. What a model of the arm's dynamics predicts."""
@@ -245,8 +249,9 @@ def gravity_for(
     load: LoadData | None = None,
     robot: str = DEFAULT_ROBOT,
 ) -> np.ndarray:
-    """The gravity feed-forward of `trajectory`'s reference, computed once per worker."""
-    torques = gravity_torques(reference_for(trajectory).q, inertials, load, robot)
+    """The gravity feed-forward of `trajectory`'s reference on `robot`, computed once per
+    worker: the robot's own gravity model (`RobotGravity`) at the reference's angles."""
+    torques = gravity_torques(reference_for(trajectory, robot).q, inertials, load, robot)
     torques.flags.writeable = False
     return torques
 
@@ -270,8 +275,8 @@ class _Sensing:
     """
 
     encoders: Encoders
-    measure: np.ndarray  # (width, nx + 14): a tick's measurement = measure @ row
-    pd_law: np.ndarray  # (7, width · (window + 1)): the command = pd_law @ recent measurements
+    measure: np.ndarray  # (width, nx + 2·joints): a tick's measurement = measure @ row
+    pd_law: np.ndarray  # (joints, width · (window + 1)): command = pd_law @ recent measurements
     window: int  # rows of past measurements the PD law reads besides the current one
     quantised: bool
     slip: slice  # where θ̇ / smoothing sits in a measurement
@@ -282,9 +287,9 @@ class _Sensing:
 
     @classmethod
     def of(cls, plant: Plant, controller: PDController) -> "_Sensing":
-        n, nq, nx = len(JOINT_NAMES), plant.model.nq, plant.model.nq + plant.model.nv
+        n, nq, nx = plant.joints, plant.model.nq, plant.model.nq + plant.model.nv
         spec = plant.spec
-        encoders = Encoders(spec.sensors)
+        encoders = Encoders(spec.sensors, n)
         exact = spec.sensors.exact
         sensed = 2 * n if exact else n  # angles and velocities, or counts of angles
         measure = np.zeros((sensed + 2 * n, nx + 2 * n))
@@ -313,8 +318,9 @@ class _Sensing:
         return cls(encoders, measure, pd_law, window, quantised, slip)
 
     def rows(self, plant: Plant, feedforward: np.ndarray) -> np.ndarray:
-        """(ticks, nx + 14) rows with the noise and feed-forward filled in, the state to come."""
-        n, nx = len(JOINT_NAMES), plant.model.nq + plant.model.nv
+        """(ticks, nx + 2·joints) rows with the noise and feed-forward filled in, the state to
+        come."""
+        n, nx = plant.joints, plant.model.nq + plant.model.nv
         rows = np.zeros((len(feedforward), nx + 2 * n))
         if not plant.spec.sensors.exact:
             side = LINK if plant.spec.feedback == "link" else MOTOR
@@ -327,7 +333,7 @@ class _Sensing:
         angles matter: the PD law reads nothing else from past measurements)."""
         rest = np.zeros(self.width)
         if not plant.spec.sensors.exact:
-            rest[: len(JOINT_NAMES)] = self.encoders.counts(plant.feedback_map @ plant.data.qpos)
+            rest[: plant.joints] = self.encoders.counts(plant.feedback_map @ plant.data.qpos)
         return rest
 
 
@@ -378,7 +384,7 @@ def _sensed_readings(
             side_counts = encoders.padded(measured, encoders.counts(angles[0]))
         readings[side] = encoders.read(side_counts)
     torque = _joint_torque(plant, qpos, qvel, motor)
-    torque_noise = noise(spec.sensors, TORQUE, ticks, spec.sensors.torque_noise)
+    torque_noise = noise(spec.sensors, TORQUE, ticks, spec.sensors.torque_noise, plant.joints)
     return {
         "q": readings["link"][0],
         "qd": readings["link"][1],

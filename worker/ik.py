@@ -1,22 +1,25 @@
 """System layer, part 2: joint positions that put the flange on a path with a given orientation.
 
-Damped least squares on the 6-D pose error (position and orientation), with a posture term in the
-Jacobian's one-dimensional null space (the elbow's self-motion) so that the redundant degree of
-freedom settles at the point of the self-motion nearest a comfortable posture. Each sample is
-warm-started from the previous ones and solved to convergence, not to a loose tolerance: the
-solution is then a smooth function of the path, which its derivatives (the reference's joint
-speeds and accelerations) need.
+Damped least squares on the 6-D pose error (position and orientation), with a posture term in
+the Jacobian's null space (a 7-joint arm's elbow self-motion; a 6-joint arm has none) so that a
+redundant degree of freedom settles at the point of the self-motion nearest a comfortable
+posture. Each sample is warm-started from the previous ones and solved to convergence, not to a
+loose tolerance: the solution is then a smooth function of the path, which its derivatives (the
+reference's joint speeds and accelerations) need.
 """
+
+import math
+from functools import cache
 
 import mujoco
 import numpy as np
 
-from gainfarm.models import robot_of
+from gainfarm.models import compile_model, robot_of
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec
 
 # The default robot's (the iiwa 14's) home: the ready posture, the flange pointing down over the
-# workspace centre. A reference is of the default robot's until the plant's is passed (issue 49).
-_ROBOT = robot_of()
-READY_POSTURE = np.array(_ROBOT.workspace.home)
+# workspace centre (each robot's is its `workspace.home`: `home`).
+READY_POSTURE = np.array(robot_of().workspace.home)
 DAMPING = 1e-2  # λ of the damped pseudo-inverse: only matters near singular postures
 POSTURE_GAIN = 1.0  # the full step to the self-motion's point nearest the posture, per iteration
 MAX_STEP = 0.2  # rad per iteration: keeps the first, far-from-posture solve on its branch
@@ -29,21 +32,64 @@ ORIENTATION_TOLERANCE = 1e-3  # rad
 RANGE_MARGIN = 0.05  # rad kept clear of each joint's mechanical limit
 MAX_ITERATIONS = 50
 FIRST_SAMPLE_ITERATIONS = 500
-_A1_RANGE = _ROBOT.limits.position[0]
+# A first joint whose axis is within this of the vertical turns the whole arm about it (cos 2.6°).
+VERTICAL = 0.999
+# A heading is rounded to this many decimals of a radian: a home facing +x is exactly 0 whatever
+# the last bits of its kinematics (far finer than any path's placement).
+HEADING_DECIMALS = 9
 
 
 class UnreachablePath(ValueError):
     """The path leaves the workspace the arm can reach within its joint limits."""
 
 
-def ready_posture(yaw: float = 0.0) -> np.ndarray:
-    """The ready posture turned about the vertical by `yaw` (A1): the elbow faces the path.
+def kinematic_model(robot: str = DEFAULT_ROBOT) -> mujoco.MjModel:
+    """The robot's rigid chain, one hinge per joint: kinematics do not depend on the elastic
+    joints' numbers nor on the inertials, so this one model serves every plant of the robot."""
+    sets = robot_of(robot).inertial_sets
+    return compile_model(PlantSpec(robot=robot, joints="rigid", substeps=1, inertials=sets[0]))
 
-    A path behind the robot (A1 cannot turn the last 10° to face it) gets A1's furthest turn.
+
+def home(robot: str = DEFAULT_ROBOT) -> np.ndarray:
+    """The robot's home posture (its workspace's), a fresh array."""
+    return np.array(robot_of(robot).workspace.home, dtype=float)
+
+
+def ready_posture(yaw: float = 0.0, robot: str = DEFAULT_ROBOT) -> np.ndarray:
+    """The robot's home turned about the vertical so that the arm faces heading `yaw` (rad, from
+    the base's x axis): the elbow faces the path.
+
+    The rule holds for any serial arm whose first joint turns about the vertical (the iiwa's A1,
+    the UR5e's shoulder pan, ...): turning that joint by Δ turns the whole arm by ±Δ (the sign
+    of its axis), so it turns by the angle from the flange's heading at home to `yaw`. A heading
+    the first joint cannot reach gets its furthest turn; an arm whose first axis is not vertical
+    is left at home (the inverse kinematics then finds its own way).
     """
-    posture = READY_POSTURE.copy()
-    posture[0] = np.clip(yaw, -_A1_RANGE + RANGE_MARGIN, _A1_RANGE - RANGE_MARGIN)
+    posture = home(robot)
+    sign, heading, reach = facing(robot)
+    if sign == 0.0:
+        return posture
+    turn = math.remainder(yaw - heading, 2.0 * math.pi)  # the shorter way round
+    posture[0] = np.clip(posture[0] + sign * turn, -reach, reach)
     return posture
+
+
+@cache
+def facing(robot: str) -> tuple[float, float, float]:
+    """(the sign of the first joint's axis against the vertical, or 0 if it is not vertical;
+    the flange's heading at home about that axis, rad; how far the first joint may turn, rad)."""
+    model = kinematic_model(robot)
+    arm = robot_of(robot)
+    data = mujoco.MjData(model)
+    data.qpos[:] = arm.workspace.home
+    mujoco.mj_kinematics(model, data)
+    axis, anchor = data.xaxis[0], data.xanchor[0]
+    reach = arm.limits.position[0] - RANGE_MARGIN
+    if abs(axis[2]) < VERTICAL:
+        return 0.0, 0.0, reach
+    offset = data.site_xpos[model.site(arm.flange).id] - anchor
+    heading = round(math.atan2(offset[1], offset[0]), HEADING_DECIMALS) + 0.0
+    return math.copysign(1.0, axis[2]), heading, reach
 
 
 def orientation_error(rotation: np.ndarray, desired: np.ndarray) -> np.ndarray:
@@ -100,11 +146,12 @@ def solve_path(
             error[3:] = orientation_error(data.site_xmat[site_id].reshape(3, 3), rotation)
             mujoco.mj_jacSite(model, data, jac[:3], jac[3:], site_id)
             u, sigma, vt = np.linalg.svd(jac)
-            # Damped pseudo-inverse for the task; the exact null space (the 7th right singular
-            # vector) for the posture, so the posture never pulls the flange off its pose.
+            # Damped pseudo-inverse for the task; the exact null space (the right singular
+            # vectors past the 6th: one on a 7-joint arm, none on a 6-joint one) for the
+            # posture, so the posture never pulls the flange off its pose.
             step = vt[:6].T @ ((sigma / (sigma**2 + DAMPING**2)) * (u.T @ error))
-            null = vt[6]
-            step += POSTURE_GAIN * null * (null @ (posture - q))
+            for null in vt[6:]:
+                step += POSTURE_GAIN * null * (null @ (posture - q))
             norm = np.linalg.norm(step)
             if norm > MAX_STEP:
                 step *= MAX_STEP / norm

@@ -5,8 +5,10 @@ simulated; they equal the scores of the log decoded from its MCAP bytes exactly 
 
 A job that cannot run is a result too (status failed, with the reason), never an exception that
 would take the worker down: the farm goes on serving, and the analytic side learns why. A job
-that names a plug-in this worker lacks (a trajectory kind, an objective: gainfarm.plugins) is
-refused, the reason naming the plug-in, before anything is simulated.
+that names a plug-in this worker lacks (a robot, a trajectory kind, an objective:
+gainfarm.plugins), a plant its robot cannot be (models.PlantError: a per-joint number of another
+joint count, an inertial set it lacks, a payload past its rating) or gains without one pair per
+joint of its robot is refused, the reason saying which, before anything is simulated.
 """
 
 import hashlib
@@ -15,13 +17,14 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 from gainfarm import plugins
-from gainfarm.models import robot_of
+from gainfarm.models import PlantError, resolve, robot_of
 from gainfarm.models.dynamics import DynamicsModel
 from gainfarm.models.urdf import description
 from gainfarm.schemas.episode import EpisodeSpec, Scores
-from gainfarm.schemas.episode_log import EpisodeLog
+from gainfarm.schemas.episode_log import EpisodeLog, RobotDescription
 from gainfarm.schemas.mcap_episode import episode_bytes
 from gainfarm.schemas.objectives import Objective, score
+from gainfarm.schemas.robot import DEFAULT_ROBOT
 from gainfarm.schemas.wire import JobStatus, Lease, Result, Timings, WireScores
 from gainfarm.worker.episode import Prepared, compensation, simulate_all
 from gainfarm.worker.feedforward import ModelUnavailable
@@ -75,14 +78,13 @@ def simulate_batch(
     outcomes: dict[int, Outcome] = {}
     for index, spec in enumerate(specs):
         began = time.perf_counter()
-        try:
-            objectives_of(spec)
-        except plugins.PluginError as error:
+        refusal = refused(spec)
+        if refusal is not None:
             took = Timings(simulate_s=time.perf_counter() - began, encode_s=0.0)
-            outcomes[index] = Outcome(JobStatus.refused, str(error), b"", took)
+            outcomes[index] = Outcome(JobStatus.refused, refusal, b"", took)
             continue
         try:
-            reference = reference_for(spec.trajectory)
+            reference = reference_for(spec.trajectory, spec.plant.robot)
             learned = _model(spec, models[index])
             prepared[index] = (spec, reference, compensation(spec, reference, learned))
         except Exception as error:
@@ -96,6 +98,30 @@ def simulate_batch(
         timings = outcome.timings.model_copy(update={"simulate_s": share})
         outcomes[index] = replace(outcome, timings=timings)
     return [outcomes[index] for index in range(len(specs))]
+
+
+def refused(spec: EpisodeSpec) -> str | None:
+    """Why this worker refuses the job, in one line, or None: a plug-in it lacks (its robot
+    first), a plant its robot cannot be, gains not one pair per joint of its robot."""
+    try:
+        objectives_of(spec)
+        resolve(spec.plant)
+    except (plugins.PluginError, PlantError) as error:
+        return str(error)
+    robot = robot_of(spec.plant)
+    joints, pairs = len(robot.joint_names), len(spec.gains.kp)
+    if pairs != joints:
+        return (
+            f"gains: {pairs} Kp/Kd pairs for {robot.name}'s {joints} joints "
+            f"({', '.join(robot.joint_names)})"
+        )
+    return None
+
+
+def drawing(robot: str) -> RobotDescription | None:
+    """What draws the arm in its log for ROS tools (/robot_description and /tf): models/urdf.py
+    describes the iiwa 14; another arm's log carries its columns without a drawing."""
+    return description() if robot == DEFAULT_ROBOT else None
 
 
 def _model(spec: EpisodeSpec, model: Callable[[str], DynamicsModel] | None) -> DynamicsModel | None:
@@ -134,7 +160,7 @@ def _outcome(log: EpisodeLog, simulate_s: float = 0.0) -> Outcome:
     reason = log.metadata.divergence
     began = time.perf_counter()
     try:  # scores the wire cannot carry (not finite) would be a bug: the job fails, not all
-        content = episode_bytes(log, description())
+        content = episode_bytes(log, drawing(log.metadata.spec.plant.robot))
         scores: Scores | None = score(log, objectives_of(log.metadata.spec))
         WireScores(**scores.model_dump())
     except Exception as error:  # a plug-in objective's too: a stranger's code

@@ -31,7 +31,7 @@ class Plant:
         self.data = mujoco.MjData(self.model)
         self.substeps = spec.substeps
         self.link_map = _link_map(self.model, self.robot.joint_names)
-        driven = self.model.actuator_trnid[:, 0]  # the hinge each motor turns, A1..A7
+        driven = self.model.actuator_trnid[:, 0]  # the hinge each motor turns, base to flange
         self.motor_map = np.zeros_like(self.link_map)
         self.motor_map[np.arange(len(driven)), self.model.jnt_qposadr[driven]] = 1.0
         self.torque_limits = self.model.actuator_ctrlrange[:, 1].copy()
@@ -40,10 +40,15 @@ class Plant:
         stride = int(dofs[1] - dofs[0])
         if not np.array_equal(dofs, dofs[0] + stride * np.arange(len(dofs))):
             raise AssertionError("the motors' hinges are not evenly spaced in the model")
-        # qfrc_applied[motor_dof_slice] is a view of the motors' generalised forces, A1..A7
+        # qfrc_applied[motor_dof_slice] is a view of the motors' generalised forces, in order
         self.motor_dof_slice = slice(int(dofs[0]), int(dofs[-1]) + 1, stride)
         self._driven_qpos = self.model.jnt_qposadr[driven]
         self.flange = self.model.site(self.robot.flange).id
+
+    @property
+    def joints(self) -> int:
+        """The robot's joint count."""
+        return len(self.robot.joint_names)
 
     @property
     def elastic(self) -> bool:
@@ -61,8 +66,8 @@ class Plant:
         mujoco.mj_forward(self.model, self.data)
 
     def joint_torque(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
-        """(n, 7) torque each elastic joint transmits from motor to link, K (θ − q) + D (θ̇ − q̇):
-        what its torque sensor measures, and what drives the link side."""
+        """(n, joints) torque each elastic joint transmits from motor to link,
+        K (θ − q) + D (θ̇ − q̇): what its torque sensor measures, and what drives the link side."""
         stiffness = np.asarray(self.spec.stiffness)
         damping = np.asarray(self.spec.spring_damping)
         spring = (self.motor_map - self.link_map).T  # θ − q: minus the spring hinge's angle
@@ -71,11 +76,13 @@ class Plant:
 
 
 def _link_map(model: mujoco.MjModel, joint_names: tuple[str, ...]) -> np.ndarray:
-    """Sum every hinge of link i (its one hinge, or motor + spring) into joint i's angle."""
+    """Sum every hinge of link i (its one hinge, or motor + spring) into joint i's angle. A
+    joint's name may hold underscores (the UR5e's shoulder_pan_joint): the flexible variant's
+    suffixes are taken off, not split at."""
     link_map = np.zeros((len(joint_names), model.nq))
     for j in range(model.njnt):
-        joint_index = joint_names.index(model.joint(j).name.split("_")[0])
-        link_map[joint_index, model.jnt_qposadr[j]] = 1.0
+        name = model.joint(j).name.removesuffix("_motor").removesuffix("_spring")
+        link_map[joint_names.index(name), model.jnt_qposadr[j]] = 1.0
     return link_map
 
 

@@ -17,30 +17,32 @@ from functools import lru_cache
 
 import numpy as np
 
-from gainfarm.schemas.robot import N_JOINTS, Sensors
+from gainfarm.schemas.robot import Sensors
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 
 LINK, MOTOR, TORQUE = range(3)  # the noise streams: link encoders, motor encoders, torque sensors
 
 
-def noise(sensors: Sensors, stream: int, ticks: int, scale: float) -> np.ndarray:
-    """(ticks, 7) Gaussian noise of standard deviation `scale` from the sensors' seed."""
-    return _standard_noise(sensors.seed, stream, ticks) * scale
+def noise(sensors: Sensors, stream: int, ticks: int, scale: float, joints: int) -> np.ndarray:
+    """(ticks, joints) Gaussian noise of standard deviation `scale` from the sensors' seed."""
+    return _standard_noise(sensors.seed, stream, ticks, joints) * scale
 
 
 @lru_cache(maxsize=12)  # three streams of four plants' sensors
-def _standard_noise(seed: int, stream: int, ticks: int) -> np.ndarray:
+def _standard_noise(seed: int, stream: int, ticks: int, joints: int) -> np.ndarray:
     """Every episode with the same sensors meets the same noise: drawn once per worker."""
-    drawn = np.random.default_rng([seed, stream]).standard_normal((ticks, N_JOINTS))
+    drawn = np.random.default_rng([seed, stream]).standard_normal((ticks, joints))
     drawn.flags.writeable = False
     return drawn
 
 
 @dataclass(frozen=True)
 class Encoders:
-    """Measured angles in counts: c = rint(angle / resolution + noise / resolution)."""
+    """Measured angles in counts: c = rint(angle / resolution + noise / resolution), of an arm
+    of `joints` joints."""
 
     sensors: Sensors
+    joints: int
 
     @property
     def count(self) -> float:
@@ -57,7 +59,7 @@ class Encoders:
 
     def noise(self, stream: int, ticks: int) -> np.ndarray:
         """The encoders' noise in units of measurement."""
-        return noise(self.sensors, stream, ticks, self.sensors.noise / self.count)
+        return noise(self.sensors, stream, ticks, self.sensors.noise / self.count, self.joints)
 
     def counts(self, angles: np.ndarray, noise_counts: np.ndarray | float = 0.0) -> np.ndarray:
         raw = angles / self.count + noise_counts
@@ -77,9 +79,9 @@ class Encoders:
     def pd_gains(self, kp: np.ndarray, kd: np.ndarray) -> np.ndarray:
         """G with Kp·angle + Kd·velocity = G @ (c_(k−w), …, c_k), the window of padded counts
         ending at tick k: the PD law on measured angles as one matrix-vector product."""
-        w = self.window
-        gains = np.zeros((N_JOINTS, N_JOINTS * (w + 1)))
+        w, n = self.window, self.joints
+        gains = np.zeros((n, n * (w + 1)))
         rate = kd * self.count / (w * CONTROL_PERIOD)
-        gains[:, N_JOINTS * w :] = np.diag(kp * self.count + rate)
-        gains[:, :N_JOINTS] -= np.diag(rate)
+        gains[:, n * w :] = np.diag(kp * self.count + rate)
+        gains[:, :n] -= np.diag(rate)
         return gains

@@ -86,7 +86,6 @@ POSES = 5
 EPSILON = 1e-6  # finite-difference step: rad, rad/s, N·m
 # Forward differences: the same ζ to 6 digits as central ones, at half the cost (bench/damping.py).
 CENTERED = False
-N = 7
 
 
 def least_damping(
@@ -95,7 +94,7 @@ def least_damping(
     """The least damping ratio over the closed loop's modes at `poses` poses along the
     reference: ≤ 0 if the loop is unstable at one of them. Rounded to 1e-6 (a margin needs no
     more), so that hosts whose linear algebra differs in the last bits log the same number."""
-    reference = reference_for(spec.trajectory) if reference is None else reference
+    reference = reference_for(spec.trajectory, spec.plant.robot) if reference is None else reference
     plant, gravity = _scratch(spec.plant, threading.get_ident())
     loop = ClosedLoop(plant, PDController.from_gains(spec.gains, plant.torque_limits), gravity)
     least = 1.0
@@ -161,7 +160,7 @@ def margins(
     tracking damping also at a command `delay` in ticks (default: the spec's own), at the
     `poses` poses least_damping uses. Pure: the plant's linearisations are cached per (plant,
     pose), so every delay, and least_damping, shares them."""
-    reference = reference_for(spec.trajectory) if reference is None else reference
+    reference = reference_for(spec.trajectory, spec.plant.robot) if reference is None else reference
     nominal = spec.plant.delay
     delay = nominal if delay is None else delay
     if delay < 0:
@@ -346,16 +345,16 @@ class ClosedLoop:
         self.delay = spec.delay if delay is None else delay
         if self.delay < 0:
             raise ValueError(f"delay {self.delay}: a command cannot act before it is made")
-        nv = model.nv
-        self.nx = 2 * nv
+        nv, n = model.nv, plant.joints
+        self.nx, self.joints = 2 * nv, n
         # The measured angles from the state (qpos, qvel); the PD law's gains on the state and
         # on the oldest angle of the window.
-        self.measured = np.hstack([plant.feedback_map, np.zeros((N, nv))])
+        self.measured = np.hstack([plant.feedback_map, np.zeros((n, nv))])
         kp, kd = np.diag(controller.kp), np.diag(controller.kd)
         if spec.sensors.exact:
-            rates = np.hstack([np.zeros((N, nv)), plant.feedback_map])
+            rates = np.hstack([np.zeros((n, nv)), plant.feedback_map])
             self.law = -kp @ self.measured - kd @ rates
-            self.oldest = np.zeros((N, N))
+            self.oldest = np.zeros((n, n))
         else:
             per_tick = kd / (self.window * CONTROL_PERIOD)
             self.law = -(kp + per_tick) @ self.measured
@@ -363,7 +362,7 @@ class ClosedLoop:
 
     @property
     def size(self) -> int:
-        return self.nx + N * (self.window + self.delay)
+        return self.nx + self.joints * (self.window + self.delay)
 
     def at(self, qpos: np.ndarray, qvel: np.ndarray, motor_torque: np.ndarray) -> np.ndarray:
         """The closed loop's transition matrix at the state (qpos, qvel), the motors' torque
@@ -373,16 +372,16 @@ class ClosedLoop:
 
     def closed(self, plant: "Linearised") -> np.ndarray:
         """The closed loop's transition matrix, the plant's part of it `plant` (linearise)."""
-        nx, w, d = self.nx, self.window, self.delay
+        nx, w, d, n = self.nx, self.window, self.delay, self.joints
         # The command's dependence on the loop's state z = (x, y_{k−1}..y_{k−w}, c_{k−1}..c_{k−d}).
-        command = np.zeros((N, self.size))
+        command = np.zeros((n, self.size))
         command[:, :nx] = self.law
         if w:
-            command[:, nx + N * (w - 1) : nx + N * w] = self.oldest
-        applied = command.copy() if d == 0 else np.zeros((N, self.size))
+            command[:, nx + n * (w - 1) : nx + n * w] = self.oldest
+        applied = command.copy() if d == 0 else np.zeros((n, self.size))
         if d:  # the command of d ticks ago acts now
-            start = nx + N * w + N * (d - 1)
-            applied[:, start : start + N] = np.eye(N)
+            start = nx + n * w + n * (d - 1)
+            applied[:, start : start + n] = np.eye(n)
         if plant.gravity is not None:  # the robot's gravity model at the measured angles
             applied[:, :nx] += plant.gravity
         applied[:, :nx] += plant.friction
@@ -390,19 +389,19 @@ class ClosedLoop:
         loop[:nx, :nx] = plant.a
         loop[:nx] += plant.b @ applied
         if w:  # this tick's measured angle joins the window, the others age by one
-            loop[nx : nx + N, :nx] = self.measured
-            loop[nx + N : nx + N * w, nx : nx + N * (w - 1)] = np.eye(N * (w - 1))
+            loop[nx : nx + n, :nx] = self.measured
+            loop[nx + n : nx + n * w, nx : nx + n * (w - 1)] = np.eye(n * (w - 1))
         if d:  # this tick's command joins the delay line
-            base = nx + N * w
-            loop[base : base + N] = command
-            loop[base + N : base + N * d, base : base + N * (d - 1)] = np.eye(N * (d - 1))
+            base = nx + n * w
+            loop[base : base + n] = command
+            loop[base + n : base + n * d, base : base + n * (d - 1)] = np.eye(n * (d - 1))
         return loop
 
 
 @dataclass(frozen=True)
 class Linearised:
     """A tick of the plant linearised at a pose: x' = a x + b u, u the motors' torque, and the
-    parts of that torque the state moves besides the PD law (each (7, nx), on x): the robot's
+    parts of that torque the state moves besides the PD law (each (joints, nx), on x): the robot's
     gravity model at the measured angles (FRI; else None) and the motors' Coulomb friction
     from this tick's velocity. None of it depends on the gains."""
 
@@ -421,20 +420,20 @@ def linearise(
 ) -> Linearised:
     """The plant's part of the loop at the state (qpos, qvel), the motors' torque `motor_torque`;
     `gravity` the robot's gravity model (FRI), else None."""
-    friction = plant.spec.friction
+    friction, n = plant.spec.friction, plant.joints
     motor_velocity = plant.motor_map @ qvel
-    coulomb = np.zeros(N)
-    slope = np.zeros(N)
+    coulomb = np.zeros(n)
+    slope = np.zeros(n)
     if friction is not None:  # qfrc_applied = −c·tanh(θ̇ / s), from this tick's velocity
         c, s = np.asarray(friction.coulomb), friction.smoothing
         coulomb = -c * np.tanh(motor_velocity / s)
         slope = -c / s / np.cosh(motor_velocity / s) ** 2
     plant_a, plant_b = _tick(plant, qpos, qvel, motor_torque - coulomb, coulomb)
-    measured = np.hstack([plant.feedback_map, np.zeros((N, plant.model.nv))])
+    measured = np.hstack([plant.feedback_map, np.zeros((n, plant.model.nv))])
     by_gravity = None
     if gravity is not None:
         by_gravity = _gravity_slope(gravity, measured[:, : len(qpos)] @ qpos) @ measured
-    by_friction = slope[:, None] * np.hstack([np.zeros((N, len(qpos))), plant.motor_map])
+    by_friction = slope[:, None] * np.hstack([np.zeros((n, len(qpos))), plant.motor_map])
     return Linearised(plant_a, plant_b, by_gravity, by_friction)
 
 
@@ -460,9 +459,10 @@ def _tick(
 
 def _gravity_slope(gravity: RobotGravity, angles: np.ndarray) -> np.ndarray:
     """∂(robot's gravity torque)/∂(measured angles) at `angles`, by central differences."""
-    steps = EPSILON * np.eye(N)
+    n = len(angles)
+    steps = EPSILON * np.eye(n)
     torques = gravity.at(np.vstack([angles + steps, angles - steps]))
-    return (torques[:N] - torques[N:]).T / (2 * EPSILON)
+    return (torques[:n] - torques[n:]).T / (2 * EPSILON)
 
 
 @lru_cache(maxsize=64)

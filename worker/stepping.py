@@ -33,7 +33,6 @@ import mujoco
 import numpy as np
 from mujoco.batch import Batch
 
-from gainfarm.schemas.robot import JOINT_NAMES
 from gainfarm.schemas.trajectory import CONTROL_PERIOD
 from gainfarm.worker.plant import ArmsGravity, Plant, RobotGravity
 from gainfarm.worker.reference import Reference
@@ -43,12 +42,11 @@ MAX_JOINT_ERROR = 1.0  # rad: a tracking error this large is a lost arm, not a t
 _STATE = mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL  # what a tick senses
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION  # a world's whole state, as a batch holds it
 _VELOCITY = mujoco.mjtStage.mjSTAGE_VEL  # a batch's stages computed after a step
-N = len(JOINT_NAMES)
 # Worlds stepped together at most: beyond some 32 a tick's arrays and worlds no longer stay in
 # the caches and each tick costs more than it saves (on the Batch: 32, 64 and 128 worlds cost
 # 46.5, 48.6 and 50.3 ms an episode; per-world calls before it, 128 cost 2x).
 MAX_STACK = 32
-STACK_BYTES = 256 * 2**20  # a stack's logs at most: 32 episodes of up to 30 s, 7 of 120 s
+STACK_BYTES = 256 * 2**20  # a stack's logs at most: 32 iiwa episodes of up to 30 s, 7 of 120 s
 
 
 @dataclass
@@ -79,10 +77,12 @@ class Stepped:
     ticks_run: int = 0
     divergence: str = ""
     state: np.ndarray = field(default_factory=lambda: np.empty(0))  # (ticks, nx) qpos, qvel
-    command: np.ndarray = field(default_factory=lambda: np.empty(0))  # (ticks, 7), unclamped
+    command: np.ndarray = field(default_factory=lambda: np.empty(0))  # (ticks, joints), unclamped
     flange: np.ndarray = field(default_factory=lambda: np.empty(0))  # (ticks, 3)
     measured: np.ndarray = field(default_factory=lambda: np.empty(0))  # (window + ticks, width)
-    compensation: np.ndarray = field(default_factory=lambda: np.empty(0))  # (ticks, 7) gravity's
+    compensation: np.ndarray = field(
+        default_factory=lambda: np.empty(0)
+    )  # (ticks, joints) gravity's
 
     @property
     def ticks(self) -> int:
@@ -163,8 +163,11 @@ def _fitting(stack: list[Stepped]) -> int:
     flange positions: as many floats a tick as an episode's row and measurement, and ten)."""
     episode = max(stack, key=lambda episode: episode.ticks)
     width = 0 if episode.measure is None else episode.measure.shape[0]
-    width += N if episode.fri else 0  # the robot's gravity model, logged too
-    floats = episode.ticks * (episode.plant.model.nq + episode.plant.model.nv + 2 * N + width + 10)
+    joints = episode.plant.joints
+    width += joints if episode.fri else 0  # the robot's gravity model, logged too
+    floats = episode.ticks * (
+        episode.plant.model.nq + episode.plant.model.nv + 2 * joints + width + 10
+    )
     return max(1, STACK_BYTES // (8 * floats))
 
 
@@ -228,15 +231,15 @@ def _exact_loop(stack: list[Stepped]) -> None:
     MuJoCo clamps each command to the motor's ctrlrange when applying it; the log keeps it
     unclamped, and the episode clamps it in bulk, exactly as MuJoCo did."""
     count, ticks = len(stack), max(episode.ticks for episode in stack)
-    nx = stack[0].plant.model.nq + stack[0].plant.model.nv
-    gains = np.stack([episode.gains for episode in stack])  # (B, 7, nx)
-    term = np.zeros((ticks, count, N))
+    nx, n = stack[0].plant.model.nq + stack[0].plant.model.nv, stack[0].plant.joints
+    gains = np.stack([episode.gains for episode in stack])  # (B, joints, nx)
+    term = np.zeros((ticks, count, n))
     for index, episode in enumerate(stack):
         term[: episode.ticks, index] = episode.term
-    states, commands, flanges = (np.empty((ticks, count, width)) for width in (nx, N, 3))
-    feedback = np.empty((count, N, 1))
+    states, commands, flanges = (np.empty((ticks, count, width)) for width in (nx, n, 3))
+    feedback = np.empty((count, n, 1))
     worlds = _Worlds(stack)
-    sensed, command, site = worlds.sensed, worlds.drive[:, :N], worlds.site
+    sensed, command, site = worlds.sensed, worlds.drive[:, :n], worlds.site
     columns, fed_back = states[:, :, :, None], feedback[:, :, 0]
     matmul, subtract, copy = np.matmul, np.subtract, np.copyto
     with np.errstate(all="ignore"):  # a diverging world computes on until its block ends
@@ -266,11 +269,12 @@ def _sensed_loop(stack: list[Stepped]) -> None:
     first = stack[0]
     count, ticks = len(stack), max(episode.ticks for episode in stack)
     nx, nu = first.plant.model.nq + first.plant.model.nv, first.plant.model.nu
+    n = first.plant.joints
     assert first.measure is not None
     width, window, delay = len(first.measure), first.window, first.plant.spec.delay
-    measure = np.stack([episode.measure for episode in stack])  # (B, width, nx + 14)
-    law = np.stack([episode.gains for episode in stack])  # (B, 7, width · (window + 1))
-    rows = np.zeros((ticks, count, nx + 2 * N))
+    measure = np.stack([episode.measure for episode in stack])  # (B, width, nx + 2n)
+    law = np.stack([episode.gains for episode in stack])  # (B, n, width · (window + 1))
+    rows = np.zeros((ticks, count, nx + 2 * n))
     measured = np.zeros((count, window + ticks, width))  # by episode: windows are contiguous
     for index, episode in enumerate(stack):
         rows[: episode.ticks, index] = episode.term
@@ -281,7 +285,7 @@ def _sensed_loop(stack: list[Stepped]) -> None:
         shape=(ticks, count, width * (window + 1), 1),
         strides=(width * item, measured.strides[0], item, item),
     )
-    commands, flanges = np.empty((ticks, count, N)), np.empty((ticks, count, 3))
+    commands, flanges = np.empty((ticks, count, n)), np.empty((ticks, count, 3))
     worlds = _Worlds(stack)
     sensed, site = worlds.sensed, worlds.site
     applied = worlds.drive[:, :nu]
@@ -294,11 +298,11 @@ def _sensed_loop(stack: list[Stepped]) -> None:
         limits = np.stack([episode.plant.torque_limits for episode in stack])
         lowest = -limits
         gravity = ArmsGravity([episode.plant.spec for episode in stack])
-        compensations = np.empty((ticks, count, N))
+        compensations = np.empty((ticks, count, n))
     # Views by tick: rows' state columns, rows and measurements as columns, the angles, θ̇ / s.
     states, row_columns = rows[:, :, :nx], rows[:, :, :, None]
     ahead = measured[:, window:].swapaxes(0, 1)  # (ticks, B, width), no copy
-    measurements, angles, rates = ahead[:, :, :, None], ahead[:, :, :N], ahead[:, :, first.slip]
+    measurements, angles, rates = ahead[:, :, :, None], ahead[:, :, :n], ahead[:, :, first.slip]
     command_columns = commands[:, :, :, None]
     matmul, multiply, rint, tanh, copy = np.matmul, np.multiply, np.rint, np.tanh, np.copyto
     cap, floor, add = np.minimum, np.maximum, np.add  # np.clip as two ufuncs, without its wrappers
@@ -342,10 +346,10 @@ def _sensed_loop(stack: list[Stepped]) -> None:
 def _exact_alone(episode: Stepped) -> None:
     plant, ticks = episode.plant, episode.ticks
     model, data = plant.model, plant.data
-    nx = model.nq + model.nv
-    states, commands, flanges = (np.empty((ticks, width)) for width in (nx, N, 3))
+    nx, n = model.nq + model.nv, plant.joints
+    states, commands, flanges = (np.empty((ticks, width)) for width in (nx, n, 3))
     ctrl, site = data.ctrl, data.site_xpos[plant.flange]
-    feedback = np.empty(N)
+    feedback = np.empty(n)
     sense, step = mujoco.mj_getState, mujoco.mj_step
     dot, subtract, copy = np.dot, np.subtract, np.copyto
     gains, remaining = episode.gains, plant.substeps - 1
@@ -374,7 +378,7 @@ def _exact_alone(episode: Stepped) -> None:
 def _sensed_alone(episode: Stepped) -> None:
     plant, ticks, window = episode.plant, episode.ticks, episode.window
     model, data = plant.model, plant.data
-    nx = model.nq + model.nv
+    nx, n = model.nq + model.nv, plant.joints
     assert episode.measure is not None
     width = len(episode.measure)
     rows = episode.term
@@ -386,7 +390,7 @@ def _sensed_alone(episode: Stepped) -> None:
         shape=(ticks, width * (window + 1)),
         strides=(width * flat.itemsize, flat.itemsize),
     )
-    commands, flanges = np.empty((ticks, N)), np.empty((ticks, 3))
+    commands, flanges = np.empty((ticks, n)), np.empty((ticks, 3))
     delayed = [commands[max(k - plant.spec.delay, 0)] for k in range(ticks)]
     ctrl, site = data.ctrl, data.site_xpos[plant.flange]
     motor_force = data.qfrc_applied[plant.motor_dof_slice]  # a view: writes land in MuJoCo
@@ -397,10 +401,10 @@ def _sensed_alone(episode: Stepped) -> None:
     remaining = plant.substeps - 1
     states = rows[:, :nx]
     measurements = measured[window:]
-    angles, rates = measurements[:, :N], measurements[:, episode.slip]
+    angles, rates = measurements[:, :n], measurements[:, episode.slip]
     gravity = RobotGravity(plant.spec) if episode.fri else None
     unit, limits = episode.unit, plant.torque_limits
-    compensations = np.empty((ticks, N)) if gravity is not None else commands  # unused if not
+    compensations = np.empty((ticks, n)) if gravity is not None else commands  # unused if not
     clip, add = np.clip, np.add
     for start, stop in _blocks(episode):
         block = zip(

@@ -26,13 +26,33 @@ import mujoco
 import numpy as np
 
 from gainfarm import plugins
+from gainfarm.analytic.tuning.plants import BadUncertainty, ranges
 from gainfarm.schemas.episode import EpisodeSpec
-from gainfarm.schemas.robot import REALISTIC_PLANT, PlantSpec, Robot
-from gainfarm.schemas.trajectory import CONTROL_PERIOD, TrajectorySpec
+from gainfarm.schemas.robot import (
+    REALISTIC_PLANT,
+    STIFFNESS_PRESET_NAMES,
+    PlantSpec,
+    Robot,
+    TorqueInterface,
+)
+from gainfarm.schemas.trajectory import (
+    CONTROL_PERIOD,
+    MAX_DURATION,
+    TrajectoryKind,
+    TrajectorySpec,
+)
 from gainfarm.worker.episode import simulate
 from gainfarm.worker.ik import UnreachablePath, solve_path
 from gainfarm.worker.plant import Plant, RobotGravity
-from gainfarm.worker.reference import Reference
+from gainfarm.worker.reference import (
+    DEFAULT_SHARE,
+    InfeasibleReference,
+    Reference,
+    arm_of,
+    default_duration,
+    forget_robots,
+    reference_for,
+)
 from gainfarm.worker.trajectories import path_points, tool_rotations
 
 # Holding still: an episode this long on the realistic plant (behind the robot's own gravity
@@ -79,6 +99,47 @@ def check_limits(robot: Robot) -> None:
         if abs(angle) > limit
     ]
     assert not outside, f"workspace home: {', '.join(outside)} beyond the position limit"
+
+
+def check_members(robot: Robot) -> None:
+    """What a plant and a farm read of the robot besides its limits: its plant defaults one
+    number per joint (each stiffness preset too, the default one of them), non-negative, the
+    rotors' inertia positive; its torque interface said; its inertial sets named, each building
+    the arm; a positive, finite rated payload; its uncertainty ranges file parsing as
+    models/uncertainty.toml's form."""
+    joints = len(robot.joint_names)
+    defaults = robot.plant_defaults
+    presets = dict(defaults.stiffness_presets)
+    assert set(presets) <= set(STIFFNESS_PRESET_NAMES), (
+        f"stiffness presets {sorted(presets)}: only {', '.join(STIFFNESS_PRESET_NAMES)}"
+    )
+    assert defaults.stiffness in presets, f"default stiffness {defaults.stiffness!r}: no preset"
+    per_joint = {f"stiffness preset {name}": values for name, values in presets.items()}
+    per_joint |= {
+        name: getattr(defaults, name)
+        for name in ("spring_damping", "rotor_inertia", "viscous", "coulomb")
+    }
+    for name, values in per_joint.items():
+        assert len(values) == joints, f"plant defaults' {name}: {len(values)} for {joints} joints"
+        assert all(math.isfinite(v) and v >= 0 for v in values), f"{name}: {values}"
+    assert min(defaults.rotor_inertia) > 0, "rotor_inertia: an elastic joint's rotor needs one"
+    interface = robot.torque_interface
+    assert isinstance(interface, TorqueInterface), f"torque_interface: {interface!r}"
+    assert interface.name.strip() and interface.description.strip(), "torque_interface: unsaid"
+    assert isinstance(interface.adds_gravity, bool), "torque_interface.adds_gravity: a bool"
+    sets = robot.inertial_sets
+    assert sets and all(re.fullmatch(plugins.NAME_PATTERN, name) for name in sets), (
+        f"inertial_sets {sets!r}: one at least, each {plugins.NAME_RULE}"
+    )
+    payload = robot.rated_payload
+    assert math.isfinite(payload) and payload > 0, f"rated_payload {payload!r}: positive, finite"
+    try:
+        ranges(robot.uncertainty.read_text())
+    except (OSError, BadUncertainty) as error:
+        raise AssertionError(f"uncertainty {robot.uncertainty}: {error}") from None
+    with findable(robot):
+        for name in sets:
+            robot.build(nominal(robot, joints="rigid").model_copy(update={"inertials": name}))
 
 
 def check_builds(robot: Robot) -> None:
@@ -176,13 +237,54 @@ def check_workspace(robot: Robot) -> None:
                 raise AssertionError(f"workspace point {point}: {error}") from None
 
 
+def check_references(robot: Robot) -> None:
+    """Every built-in kind's default reference on the robot (TrajectorySpec's defaults, centred
+    on the workspace centre, at the kind's default duration on the robot: 5 s, or longer where
+    the arm needs it, within the spec's bounds) is built by the worker, stays within the joints'
+    ranges and uses at most DEFAULT_SHARE (0.9) of each joint's speed and acceleration limit."""
+    with findable(robot):
+        arm = arm_of(robot.name)
+        try:
+            for kind in TrajectoryKind:
+                spec = TrajectorySpec(kind=kind.value, center=robot.workspace.center)
+                try:
+                    duration = default_duration(spec, robot.name)
+                    assert duration <= MAX_DURATION, (
+                        f"the default {kind.value}: {duration:g} s to stay within "
+                        f"{DEFAULT_SHARE:g} of the limits, beyond {MAX_DURATION:g} s"
+                    )
+                    spec = spec.model_copy(update={"duration": duration})
+                    reference = reference_for(spec, robot.name)
+                except (UnreachablePath, InfeasibleReference) as error:
+                    raise AssertionError(f"the default {kind.value}: {error}") from None
+                outside = (reference.q < arm.low) | (reference.q > arm.high)
+                assert not outside.any(), (
+                    f"the default {kind.value}: {arm.joint(int(outside.any(axis=0).argmax()))} "
+                    "leaves its range"
+                )
+                for values, limits, what, bound in (
+                    (reference.qd, arm.speed, "speed limit", DEFAULT_SHARE),
+                    (reference.qdd, arm.acceleration, "acceleration limit", DEFAULT_SHARE),
+                ):
+                    share = np.abs(values).max(axis=0) / limits
+                    joint = int(share.argmax())
+                    assert share[joint] <= bound, (
+                        f"the default {kind.value}: {arm.joint(joint)} at {share[joint]:.2f} "
+                        f"of its {what} (at most {bound:g})"
+                    )
+        finally:  # a robot registered for the checks only leaves nothing cached of it
+            forget_robots()
+
+
 CHECKS: tuple[Callable[[Robot], None], ...] = (
     check_name,
     check_limits,
+    check_members,
     check_builds,
     check_holds_still,
     check_gravity,
     check_workspace,
+    check_references,
 )
 
 
@@ -201,6 +303,9 @@ class RobotChecks:
     def test_limits(self, robot: Robot) -> None:
         check_limits(robot)
 
+    def test_members(self, robot: Robot) -> None:
+        check_members(robot)
+
     def test_builds(self, robot: Robot) -> None:
         check_builds(robot)
 
@@ -212,6 +317,9 @@ class RobotChecks:
 
     def test_workspace(self, robot: Robot) -> None:
         check_workspace(robot)
+
+    def test_references(self, robot: Robot) -> None:
+        check_references(robot)
 
 
 def nominal(robot: Robot, joints: str) -> PlantSpec:

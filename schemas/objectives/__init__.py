@@ -4,13 +4,14 @@ and a candidate's objectives over its trajectory set.
 They live in the contract because every package must agree on them: a worker prints the scores of
 the episode it ran (`worker episode`) exactly as the analytic side scores the same log.
 
-Each objective is an `Objective` (declaration.py): a scoring function of the log and what it is,
-its name, unit, direction and a line for reports. The built-ins are declared a module each, as a
-third party's would be: f_acc (accuracy.py, the mean Cartesian error, m), f_t (torque_change.py,
-the mean squared torque change per tick, (N·m)²) and f_t_joint (joint_torque_change.py, f_t with
-each joint weighed by its torque limit). A diverged episode is scored as if every tick it did
-not run had the worst error and the worst torque change, so it is never preferred to one that
-finished, and the later it diverged the less it is penalised.
+Each objective is an `Objective` (declaration.py): a scoring function of the log and what it is, its
+name, unit, direction and a line for reports. The built-ins are declared a module each, as a third
+party's would be: f_acc (accuracy.py, the mean Cartesian error, m), f_t (torque_change.py, the mean
+squared torque change per tick, (N·m)²) and f_t_joint (joint_torque_change.py, f_t with each joint
+weighed by its torque limit). Every number of the robot they read (its torque and speed limits) is
+its log's own (EpisodeMetadata): any arm, any joint count. A diverged episode is scored as if every
+tick it did not run had the worst error and the worst torque change, so it is never preferred to one
+that finished, and the later it diverged the less it is penalised.
 
 And the safety measures schemas.limits bounds, from the ticks run (a diverged episode's too):
 
@@ -49,7 +50,6 @@ from gainfarm.schemas.objectives.declaration import (
 )
 from gainfarm.schemas.objectives.joint_torque_change import f_t_joint, joint_weights
 from gainfarm.schemas.objectives.torque_change import f_t
-from gainfarm.schemas.robot import SPEED_LIMITS
 
 __all__ = [
     "DIVERGED_TICK_ERROR",
@@ -144,11 +144,11 @@ def torque_step(log: EpisodeLog) -> float:
 
 
 def speed(log: EpisodeLog) -> float:
-    """The largest measured joint speed, as a share of its data-sheet limit (SPEED_LIMITS),
-    at most SPEED_CAP."""
+    """The largest measured joint speed, as a share of its data-sheet limit (the robot's, as its
+    log carries them: EpisodeMetadata.speed_limits), at most SPEED_CAP."""
     if not log.ticks:
         return 0.0
-    share = float(np.max(np.abs(log.qd) / np.asarray(SPEED_LIMITS)))
+    share = float(np.max(np.abs(log.qd) / np.asarray(log.metadata.speed_limits)))
     return min(share, SPEED_CAP)
 
 

@@ -32,7 +32,7 @@ f_t = Objective(
     direction=MINIMISE,
     description="mean squared torque change per tick",
     # Beyond a diverged episode's worst: every joint swinging limit to limit every tick is
-    # Σ (2 τmax_j)² ≈ 1.4e6 (N·m)² on the iiwa 14.
+    # Σ (2 τmax_j)² ≈ 1.4e6 (N·m)² on the iiwa 14, any arm of this class alike.
     no_episode=1e12,
     function=mean_squared_change,
 )

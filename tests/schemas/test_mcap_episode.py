@@ -18,8 +18,9 @@ from mcap.writer import Writer
 from mcap_ros2.reader import read_ros2_messages
 from scipy.spatial.transform import Rotation
 
-from gainfarm.models import RIGID_MJCF
+from gainfarm.models import RIGID_MJCF, plant_preset, robot_of
 from gainfarm.models.urdf import description, urdf
+from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.episode_log import CHANNELS, TF_EVERY, EpisodeLog, Frame, RobotDescription
 from gainfarm.schemas.mcap_episode import (
     NotAnEpisodeLog,
@@ -28,6 +29,7 @@ from gainfarm.schemas.mcap_episode import (
     read_episode,
 )
 from gainfarm.schemas.robot import JOINT_NAMES
+from gainfarm.worker.episode import run_episode
 
 ARRAYS = ("t", "q", "qd", "tau", "u", "theta", "theta_d", "q_des", "qd_des", "ee", "ee_des")
 LINKS = ["base", *(f"link{i}" for i in range(1, 8)), "flange"]
@@ -311,3 +313,79 @@ def test_the_contract_draws_whatever_robot_it_is_given(tracking_log):
     wrong = RobotDescription(robot.urdf, frames[:1], rotations)
     with pytest.raises(ValueError, match="one x y z w per /tf tick and frame"):
         episode_bytes(tracking_log, wrong)
+
+
+# --- any arm: the log names its joints, and reads back for 6 as for 7 ---------------------------
+
+
+@pytest.fixture(scope="module")
+def ur5e_log() -> EpisodeLog:
+    """A real 1 s episode of the UR5e (6 joints) on its realistic plant, default gains."""
+    robot = robot_of("ur5e")
+    trajectory = TrajectorySpec(kind="fourier", duration=1.0)
+    spec = EpisodeSpec(
+        gains=robot.default_gains, trajectory=trajectory, plant=plant_preset("realistic", "ur5e")
+    )
+    return run_episode(spec)
+
+
+UR5E_JOINTS = [
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+]
+
+
+def test_a_six_joint_log_names_its_joints_and_round_trips(ur5e_log, tmp_path):
+    assert ur5e_log.q.shape == (ur5e_log.ticks, 6)
+    assert list(ur5e_log.metadata.joint_names) == UR5E_JOINTS
+    path = tmp_path / "ur5e.mcap"
+    path.write_bytes(episode_bytes(ur5e_log, None))  # no drawing of the UR5e: columns only
+    back = read_episode(path)
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(back, name), getattr(ur5e_log, name), name)
+    assert back.metadata == ur5e_log.metadata
+    assert back.metadata.spec.plant.robot == "ur5e"
+    # An independent ROS 2 decoder reads the same: the JointState messages name the UR5e's joints.
+    decoded: dict[str, list] = {}
+    for message in read_ros2_messages(str(path)):
+        decoded.setdefault(message.channel.topic, []).append(message)
+    assert {topic: len(m) for topic, m in decoded.items()} == {
+        channel.topic: ur5e_log.ticks for channel in CHANNELS
+    }
+    for topic in ("/joint_states", "/joint_commands", "/motor_states", "/joint_reference"):
+        assert list(decoded[topic][0].ros_msg.name) == UR5E_JOINTS, topic
+    states = decoded["/joint_states"]
+    np.testing.assert_array_equal([m.ros_msg.position for m in states], ur5e_log.q)
+    commands = decoded["/joint_commands"]
+    np.testing.assert_array_equal([m.ros_msg.effort for m in commands], ur5e_log.u)
+
+
+def test_logs_of_two_arms_encoded_on_one_thread_are_each_their_own(ur5e_log, tracking_log):
+    # The writer's per-thread ticks are of the last arm's layout: they are made again for another.
+    first = episode_bytes(tracking_log, description())
+    other = episode_bytes(ur5e_log, None)
+    assert episode_bytes(tracking_log, description()) == first
+    assert episode_bytes(ur5e_log, None) == other
+    assert decode_episode(other).metadata.joint_names == tuple(UR5E_JOINTS)
+
+
+def test_an_iiwa_log_leaves_out_its_joint_names_and_speeds_as_logs_before_did(tracking_log):
+    # Its metadata's bytes are those of a log written before arms were many, which read as the
+    # iiwa 14's: joint names A1..A7 and its data sheet's speed limits.
+    record = tracking_log.metadata.model_dump_json()
+    assert "joint_names" not in record and "speed_limits" not in record
+    back = decode_episode(episode_bytes(tracking_log, description())).metadata
+    assert back.joint_names == JOINT_NAMES
+
+
+def test_a_log_whose_names_or_limits_miscount_its_joints_is_refused(ur5e_log):
+    too_few = ur5e_log.metadata.model_dump() | {"speed_limits": (1.0,) * 5}
+    with pytest.raises(ValueError, match="speed_limits: one per joint"):
+        type(ur5e_log.metadata).model_validate(too_few)
+    iiwa_names = ur5e_log.metadata.model_dump() | {"joint_names": JOINT_NAMES}
+    with pytest.raises(ValueError, match="torque_limits: one per joint"):
+        type(ur5e_log.metadata).model_validate(iiwa_names)

@@ -59,6 +59,47 @@ def test_the_per_joint_torque_measure_weighs_each_joints_change_by_its_limit():
     assert f_t_joint(diverged) == pytest.approx((3 * f_t_joint(log) + 2 * worst) / 5)
 
 
+def test_a_six_joint_log_is_scored_by_its_own_limits():
+    """A UR5e-like log (6 joints, its limits in its metadata, as the worker writes them): the
+    torque measures and the speed are shares of its own limits, hand computed."""
+    torque, speed = (150.0, 150.0, 150.0, 28.0, 28.0, 28.0), (3.0,) * 6
+    names = ("j1", "j2", "j3", "j4", "j5", "j6")
+    log = crafted_log()
+    u = np.zeros((3, 6))
+    u[1, 0], u[2, 5] = 15.0, 28.0  # 0.1 of j1's limit, then j6 from 0 to its limit
+    qd = np.zeros((3, 6))
+    qd[1, 3] = 1.5  # half j4's speed limit
+    metadata = log.metadata.model_copy(
+        update={
+            "spec": log.metadata.spec.model_copy(
+                update={"gains": log.metadata.spec.gains.model_copy(update={"kp": (1,) * 6})}
+            ),
+            "torque_limits": torque,
+            "speed_limits": speed,
+            "joint_names": names,
+        }
+    )
+    six = dataclasses.replace(
+        log,
+        u=u,
+        tau=u,
+        qd=qd,
+        q=qd * 0,
+        theta=qd * 0,
+        theta_d=qd * 0,
+        q_des=qd * 0,
+        qd_des=qd * 0,
+        metadata=metadata,
+    )
+    scores = score(six)
+    assert scores.f_t == pytest.approx((15.0**2 + 15.0**2 + 28.0**2) / 3)
+    assert scores.torque_step == pytest.approx(1.0)  # j6: its whole limit in one tick
+    assert scores.speed == pytest.approx(0.5)
+    assert scores.saturated_fraction == pytest.approx(1 / 3)
+    # f_t_joint weighs j6 by (150 / 28)²: its step counts as 28 · 150 / 28 = 150 N·m.
+    assert f_t_joint(six) == pytest.approx((15.0**2 + 15.0**2 + 150.0**2) / 3)
+
+
 def test_diverged_episodes_score_worse_than_finished_ones(tracking_log, diverged_log):
     finished, diverged = score(tracking_log), score(diverged_log)
     assert diverged.f_acc > finished.f_acc and diverged.f_t > finished.f_t

@@ -24,6 +24,11 @@ class Broken:
         self.default_gains = iiwa14.ROBOT.default_gains
         self.workspace = iiwa14.ROBOT.workspace
         self.flange = iiwa14.ROBOT.flange
+        self.plant_defaults = iiwa14.ROBOT.plant_defaults
+        self.torque_interface = iiwa14.ROBOT.torque_interface
+        self.inertial_sets = iiwa14.ROBOT.inertial_sets
+        self.rated_payload = iiwa14.ROBOT.rated_payload
+        self.uncertainty = iiwa14.ROBOT.uncertainty
         self.gravity_inertials: str | None = None
         for key, value in changes.items():
             setattr(self, key, value)
@@ -47,7 +52,42 @@ def test_an_unbroken_copy_passes_every_check_and_is_forgotten_after() -> None:
 
 
 LIMITS = iiwa14.ROBOT.limits
+DEFAULTS = iiwa14.ROBOT.plant_defaults
 FAULTS = [
+    (
+        kit.check_members,
+        {"plant_defaults": dataclasses.replace(DEFAULTS, coulomb=DEFAULTS.coulomb[:6])},
+        "plant defaults' coulomb: 6 for 7 joints",
+    ),
+    (
+        kit.check_members,
+        {"plant_defaults": dataclasses.replace(DEFAULTS, stiffness="firm")},
+        "default stiffness 'firm': no preset",
+    ),
+    (kit.check_members, {"rated_payload": 0.0}, "rated_payload 0.0"),
+    (kit.check_members, {"inertial_sets": ()}, "inertial_sets (): one at least"),
+    (
+        kit.check_members,
+        {"uncertainty": iiwa14.ROBOT.uncertainty.parent.joinpath("no-such-ranges.toml")},
+        "no-such-ranges.toml",
+    ),
+    (
+        # A robot fifty times slower than the iiwa: its default spiral (2.6 s on the iiwa, 128 s
+        # on it) would take 142 s to stay within 0.9 of its speed limits, beyond any
+        # trajectory's 120.
+        kit.check_references,
+        {"limits": dataclasses.replace(LIMITS, speed=tuple(0.02 * v for v in LIMITS.speed))},
+        "the default spiral: 142 s to stay within 0.9 of the limits, beyond 120 s",
+    ),
+    (
+        kit.check_references,
+        {
+            "workspace": dataclasses.replace(
+                iiwa14.WORKSPACE, center=(1.2, 0.0, 0.35), high=(1.2, 0.15, 0.45)
+            )
+        },
+        "the default spiral: the path is unreachable",
+    ),
     (kit.check_name, {"name": "Broken Arm"}, "robot name 'Broken Arm'"),
     (kit.check_limits, {"limits": dataclasses.replace(LIMITS, speed=LIMITS.speed[:6])}, "speed"),
     (kit.check_limits, {"limits": dataclasses.replace(LIMITS, torque=(0.0,) * 7)}, "torque"),

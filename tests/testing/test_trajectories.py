@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from gainfarm import plugins
+from gainfarm.models import robot_of
 from gainfarm.schemas.robot import ACCELERATION_LIMITS, SPEED_LIMITS
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.testing.trajectories import (
@@ -35,6 +36,23 @@ SENSIBLE = [
 
 class TestEveryBuiltInKind(TrajectoryChecks):
     @pytest.fixture(name="spec", params=SENSIBLE, ids=lambda spec: f"{spec.kind}-{spec.seed}")
+    def _spec(self, request: pytest.FixtureRequest) -> TrajectorySpec:
+        return request.param
+
+
+# The UR5e (6 joints): every kind in its workspace, about its own centre.
+UR5E_CENTER = robot_of("ur5e").workspace.center
+ON_THE_UR5E = [
+    TrajectorySpec(kind=kind, duration=4.0, seed=seed, center=UR5E_CENTER)
+    for kind in plugins.builtin_names(plugins.TRAJECTORIES)
+    for seed in (0, 3)
+]
+
+
+class TestEveryBuiltInKindOnTheUR5e(TrajectoryChecks):
+    robot = "ur5e"
+
+    @pytest.fixture(name="spec", params=ON_THE_UR5E, ids=lambda spec: f"{spec.kind}-{spec.seed}")
     def _spec(self, request: pytest.FixtureRequest) -> TrajectorySpec:
         return request.param
 

@@ -5,6 +5,10 @@ import subprocess
 import sys
 
 import pytest
+from mcap_ros2.reader import read_ros2_messages
+
+from gainfarm.models import robot_of
+from gainfarm.schemas.mcap_episode import read_episode
 
 WORKER = [sys.executable, "-c", "from gainfarm.worker.cli import main; main()"]
 ANALYTIC = [sys.executable, "-c", "from gainfarm.analytic.cli import main; main()"]
@@ -51,11 +55,66 @@ def test_human_readable_scores(tmp_path):
 
 SEVEN = "1,1,1,1,1,1,1"
 
+UR5E_JOINTS = [
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+]
+
+
+@pytest.mark.slow
+def test_a_six_joint_episode_on_the_ur5e_logs_its_joints(tmp_path):
+    """`worker episode --robot ur5e`: its default spiral at its workspace centre, its default
+    gains, its realistic plant; the log, read by an independent ROS 2 decoder, names its six
+    joints, and the analytic side scores it as the worker did."""
+    out = tmp_path / "ur5e.mcap"
+    simulated = run(WORKER, "episode", "--robot", "ur5e", "--out", str(out), "--json")
+    assert simulated.returncode == 0, simulated.stderr
+    worker_scores = json.loads(simulated.stdout)
+    assert worker_scores["diverged"] is False and worker_scores["ticks"] == 2501
+    names = {}
+    for message in read_ros2_messages(str(out)):
+        if message.channel.topic not in names:
+            names[message.channel.topic] = list(getattr(message.ros_msg, "name", []))
+    assert names["/joint_states"] == names["/joint_commands"] == UR5E_JOINTS
+    log = read_episode(out)
+    assert log.q.shape == (2501, 6) and list(log.metadata.joint_names) == UR5E_JOINTS
+    assert log.metadata.spec.plant.robot == "ur5e"
+    assert log.metadata.spec.trajectory.center == robot_of("ur5e").workspace.center
+    assert log.metadata.spec.gains == robot_of("ur5e").default_gains
+    evaluated = run(ANALYTIC, "evaluate", str(out), "--json")
+    assert evaluated.returncode == 0, evaluated.stderr
+    assert json.loads(evaluated.stdout) == worker_scores
+
+
+@pytest.mark.parametrize(
+    ("args", "line"),
+    [
+        (["--kp", SEVEN], "--kp: 7 gains for ur5e's 6 joints"),
+        (["--robot", "iiwa14", "--kd", "1,1,1,1,1,1"], "--kd: 6 gains for iiwa14's 7 joints"),
+        (["--payload", "6"], "--payload: 6 kg is beyond ur5e's rated 5 kg"),
+    ],
+)
+def test_gains_and_loads_are_counted_against_the_robots_joints(tmp_path, args, line):
+    result = run(WORKER, "episode", "--robot", "ur5e", "--out", str(tmp_path / "e.mcap"), *args)
+    assert result.returncode == 2
+    assert result.stderr == f"worker: error: {line}\n"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_robot_this_installation_lacks_is_one_line(tmp_path):
+    result = run(WORKER, "episode", "--robot", "nosucharm", "--out", str(tmp_path / "e.mcap"))
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert result.stderr.count("\n") <= 2 and "'nosucharm' is no robot here" in result.stderr
+
 
 @pytest.mark.parametrize(
     ("args", "says"),
     [
-        (["--kp", "1,2,3"], "expected 7 numbers"),
+        (["--kp", "1,2,3"], "--kp: 3 gains for iiwa14's 7 joints"),
         (["--center", "1,2"], "expected 3 numbers"),
         (["--size", "-0.1"], "size"),
         (["--kd", "1,1,1,1,1,1,nan"], "finite and non-negative"),
@@ -106,12 +165,12 @@ def test_unreachable_path_is_a_clear_error(tmp_path):
         (
             ["--gravity-compensation"],
             "--gravity-compensation: the realistic plant already adds the robot's own gravity "
-            "compensation (KUKA's FRI torque mode); with --plant plain or --plant ideal the PD's "
+            "compensation (KUKA FRI torque mode); with --plant plain or --plant ideal the PD's "
             "torque is the whole motor torque, and this flag adds it",
         ),
         (
             ["--trajectory", "spiral", "--duration", "1"],
-            "--duration: the 1 s spiral is too fast for the iiwa 14: A7 would need 2.55x its "
+            "--duration: the 1 s spiral is too fast for iiwa14: A7 would need 2.55x its "
             "speed limit; the shortest feasible duration is 2.6 s",
         ),
     ],

@@ -5,12 +5,13 @@ import hashlib
 
 import pytest
 
+from gainfarm.models import plant_preset, robot_of
 from gainfarm.models.dynamics import digest, rigid_prior, to_bytes
-from gainfarm.schemas import EpisodeSpec, TrajectorySpec
+from gainfarm.schemas import EpisodeSpec, PDGains, TrajectorySpec
 from gainfarm.schemas.episode import Scores
 from gainfarm.schemas.mcap_episode import decode_episode
 from gainfarm.schemas.objectives import score
-from gainfarm.schemas.robot import IDEAL_PLANT, PLAIN_PLANT
+from gainfarm.schemas.robot import IDEAL_PLANT, PLAIN_PLANT, PlantSpec
 from gainfarm.schemas.wire import Job, JobStatus, Lease, Result, WireScores
 from gainfarm.worker.job import execute, simulate
 from tests.helpers import SOFT_GAINS, WEAK_GAINS, short_spec
@@ -46,6 +47,65 @@ def test_the_scores_of_the_episode_are_those_of_its_encoded_log_exactly(name: st
     assert outcome.scores == score(decoded)  # every float equal, not merely close
     assert outcome.scores.diverged == (name == "diverged")
     assert outcome.scores.ticks == decoded.ticks == decoded.metadata.ticks_run
+
+
+UR5E = robot_of("ur5e")
+
+
+def ur5e_spec(**plant: object) -> EpisodeSpec:
+    """A short UR5e (6 joints) episode on its realistic plant, its default gains."""
+    return EpisodeSpec(
+        gains=UR5E.default_gains,
+        trajectory=TrajectorySpec(kind="fourier", duration=0.5),
+        plant=plant_preset("realistic", "ur5e").model_copy(update=plant),
+    )
+
+
+def test_a_six_joint_job_logs_its_arm_and_scores_as_its_log() -> None:
+    outcome = simulate(ur5e_spec())
+    assert outcome.status == JobStatus.ok, outcome.reason
+    decoded = decode_episode(outcome.content)
+    assert decoded.metadata.joint_names == UR5E.joint_names
+    assert decoded.metadata.spec.plant.robot == "ur5e"
+    assert decoded.metadata.torque_limits == UR5E.limits.torque
+    assert decoded.q.shape == (decoded.ticks, 6)
+    assert outcome.scores == score(decoded)
+
+
+@pytest.mark.parametrize(
+    ("spec", "reason"),
+    [
+        (
+            EpisodeSpec(gains=UR5E.default_gains, plant=PlantSpec(robot="nosucharm")),
+            "gainfarm.robots: no plug-in named 'nosucharm'",
+        ),
+        (
+            short_spec().model_copy(update={"plant": PlantSpec(rotor_inertia=(0.1,) * 6)}),
+            "rotor_inertia: 6 numbers for iiwa14's 7 joints",
+        ),
+        (
+            short_spec().model_copy(update={"plant": PlantSpec(inertials="cad", robot="ur5e")}),
+            "inertials: ur5e has no set 'cad'",
+        ),
+        (ur5e_spec(payload=6.0), "payload: 6 kg is beyond ur5e's rated 5 kg"),
+        (
+            ur5e_spec().model_copy(update={"gains": short_spec().gains}),
+            "gains: 7 Kp/Kd pairs for ur5e's 6 joints (shoulder_pan_joint, ",
+        ),
+        (
+            short_spec().model_copy(update={"gains": PDGains(kp=(1.0,) * 6, kd=(1.0,) * 6)}),
+            "gains: 6 Kp/Kd pairs for iiwa14's 7 joints",
+        ),
+    ],
+    ids=["robot", "per-joint", "inertials", "payload", "gains-ur5e", "gains-iiwa"],
+)
+def test_a_job_its_robot_cannot_run_is_refused_with_the_reason(
+    spec: EpisodeSpec, reason: str
+) -> None:
+    result, content = execute(lease(spec), "w")
+    assert result.status == JobStatus.refused
+    assert reason in result.reason and "\n" not in result.reason
+    assert result.scores is None and content == b""
 
 
 def lease(spec: EpisodeSpec, keep_log: bool = False) -> Lease:

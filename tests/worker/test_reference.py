@@ -91,7 +91,7 @@ def test_too_fast_a_path_is_refused_naming_its_shortest_feasible_duration(kind, 
         reference_for(spec)
     assert isinstance(refused.value, ValueError)
     match = re.fullmatch(
-        rf"the {duration:g} s {kind} is too fast for the iiwa 14: A[1-7] would need "
+        rf"the {duration:g} s {kind} is too fast for iiwa14: A[1-7] would need "
         r"(\d+\.\d\d)x its (speed|acceleration) limit; "
         r"the shortest feasible duration is (\d+\.\d) s",
         str(refused.value),

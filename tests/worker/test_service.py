@@ -18,9 +18,11 @@ from gainfarm.analytic.evaluators.local import free_port, spawn_worker
 from gainfarm.broker.service import Broker
 from gainfarm.edges.parts import fetch_parts
 from gainfarm.edges.transport import open_session
-from gainfarm.schemas import EpisodeSpec, keys
+from gainfarm.models import plant_preset, robot_of
+from gainfarm.schemas import EpisodeSpec, TrajectorySpec, keys
 from gainfarm.schemas.mcap_episode import decode_episode
 from gainfarm.schemas.objectives import score
+from gainfarm.schemas.robot import PlantSpec
 from gainfarm.schemas.wire import (
     MAX_EPISODE_BYTES,
     Job,
@@ -133,6 +135,50 @@ def test_a_worker_process_serves_jobs_and_a_failing_job_does_not_stop_it(
     assert fetched is not None and hashlib.sha256(fetched).hexdigest() == kept.digest
     assert decode_episode(fetched).metadata.spec == short_spec(seed=1)
     assert broker.queue.jobs_done == 3
+
+
+@pytest.mark.slow
+def test_a_worker_serves_a_six_joint_arm_and_refuses_an_arm_it_lacks(
+    broker: Broker, session: zenoh.Session
+) -> None:
+    """Over real Zenoh, a real `worker start`: a UR5e job runs (its log names the UR5e's six
+    joints); a job on an arm this installation lacks, and one whose gains miscount its arm's
+    joints, are refused with the reason, and the worker goes on serving."""
+    inbox = Inbox(session, "s")
+    _token = open_study(session, broker, "s")
+    worker = spawn(broker.endpoints[0], "cobot-arms")
+    ur5e = robot_of("ur5e")
+    six = EpisodeSpec(
+        gains=ur5e.default_gains,
+        trajectory=TrajectorySpec(kind="fourier", duration=0.5),
+        plant=plant_preset("realistic", "ur5e"),
+    )
+    try:
+        submit(
+            session,
+            "s",
+            {
+                "nowhere": six.model_copy(update={"plant": PlantSpec(robot="nosucharm")}),
+                "miscounted": six.model_copy(update={"gains": short_spec().gains}),
+                "ur5e": six,
+            },
+        )
+        wait_for(lambda: len(inbox.received) == 3, timeout=60, what="the results")
+        ran = next(result for result, _ in inbox.received if result.job_id == "ur5e")
+        content = fetch_log(session, keys.log("s", "cobot-arms", ran.digest))
+    finally:
+        worker.terminate()
+        assert worker.wait(15) == 0
+    results = {result.job_id: result for result, _ in inbox.received}
+    nowhere, miscounted = results["nowhere"], results["miscounted"]
+    assert nowhere.status == JobStatus.refused and "'nosucharm'" in nowhere.reason
+    assert "gainfarm.robots" in nowhere.reason
+    assert miscounted.status == JobStatus.refused
+    assert "gains: 7 Kp/Kd pairs for ur5e's 6 joints" in miscounted.reason
+    assert ran.status == JobStatus.ok and ran.worker == "cobot-arms" and content is not None
+    log = decode_episode(content)
+    assert log.metadata.joint_names == ur5e.joint_names and log.q.shape[1] == 6
+    assert ran.scores is not None and ran.scores.model_dump() == score(log).model_dump()
 
 
 def _zenoh_shared_memory() -> list[str]:

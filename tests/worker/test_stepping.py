@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gainfarm.models import min_substeps
+from gainfarm.models import min_substeps, resolve
 from gainfarm.models.urdf import description
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.episode_log import EpisodeLog
@@ -87,7 +87,7 @@ def test_plant_variants_of_one_layout_and_other_physics_steps_each_log_their_own
     # physics steps a tick: a stack that stepped them all by its first's gave another episode.
     plants = []
     for factor in (1.0, 2.0, 0.5, 3.0):
-        stiffer = tuple(factor * k for k in REALISTIC_PLANT.stiffness)
+        stiffer = tuple(factor * k for k in resolve(REALISTIC_PLANT).stiffness)
         plant = REALISTIC_PLANT.model_copy(update={"stiffness": stiffer})
         plants.append(plant.model_copy(update={"substeps": min_substeps(plant)}))
     assert len({plant.substeps for plant in plants}) == 3

@@ -15,6 +15,7 @@ Nothing here or in worker/reference.py branches on a kind's name: what a kind do
 hooks say.
 """
 
+import inspect
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
@@ -23,6 +24,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from gainfarm import plugins
+from gainfarm.schemas.robot import Robot
 from gainfarm.schemas.trajectory import CONTROL_PERIOD_NS, TrajectorySpec
 
 # The flange frame pointing straight down (columns: its x, y, z axes in the base frame): the
@@ -68,8 +70,14 @@ class Path(Protocol):
     def __call__(self, spec: TrajectorySpec, u: np.ndarray) -> np.ndarray: ...
 
 
-# A joint-space motion: q, qd, qdd (len(t), 7) in rad, rad/s, rad/s² at the times t (s).
-JointMotion = Callable[[TrajectorySpec, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+# A joint-space motion: q, qd, qdd (len(t), joints) in rad, rad/s, rad/s² at the times t (s),
+# of the robot given (its home, limits and kinematics: the fourier kind's); a kind written
+# before robots were many takes (spec, t) alone, and is then the iiwa 14's.
+Motion = tuple[np.ndarray, np.ndarray, np.ndarray]
+JointMotion = (
+    Callable[[TrajectorySpec, np.ndarray, Robot], Motion]
+    | Callable[[TrajectorySpec, np.ndarray], Motion]
+)
 
 
 @dataclass(frozen=True)
@@ -84,9 +92,11 @@ class Kind:
     - `rests(spec)`: the progress values, increasing from 0 to 1, at which the arm comes to rest
       (the pyramid's corners); between two of them it moves along one rest-to-rest minimum-jerk
       segment. Without it: the two ends.
-    - `joint_motion(spec, t)`: a joint-space motion (the fourier kind): q, qd, qdd at the tick times
-      `t`, starting and ending at rest; the worker checks it against the robot's ranges and
-      limits and computes the flange's path from it.
+    - `joint_motion(spec, t, robot)`: a joint-space motion (the fourier kind): q, qd, qdd at the
+      tick times `t` for `robot` (a schemas.robot.Robot: one column per joint), starting and
+      ending at rest; the worker checks it against the robot's ranges and limits and computes
+      the flange's path from it. (A `joint_motion(spec, t)` of two parameters is taken too: it
+      knows one arm, and a worker refuses its motion on an arm of another joint count.)
     - `shortest_duration(spec)`: a joint-space kind's shortest feasible duration, s, which the
       worker names when it refuses a spec as too fast (a Cartesian kind's it measures itself).
     """
@@ -114,6 +124,25 @@ def kind_of(spec: TrajectorySpec) -> Kind:
             "function nor a Kind with either a path or a joint motion"
         )
     return kind
+
+
+def joint_motion(kind: Kind, spec: TrajectorySpec, t: np.ndarray, robot: Robot) -> Motion:
+    """The kind's joint motion at the times `t` on `robot`, called as its hook takes it."""
+    if kind.joint_motion is None:
+        raise ValueError(f"trajectory kind {spec.kind!r} has no joint motion")
+    if _takes_robot(kind.joint_motion):
+        return kind.joint_motion(spec, t, robot)  # type: ignore[call-arg]
+    return kind.joint_motion(spec, t)  # type: ignore[call-arg]
+
+
+def _takes_robot(hook: Callable[..., Motion]) -> bool:
+    """Whether a joint-motion hook takes the robot: a third positional parameter, or *args."""
+    try:
+        parameters = inspect.signature(hook).parameters.values()
+    except (TypeError, ValueError):  # no signature to read (a builtin): the newer form
+        return True
+    positional = [p for p in parameters if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    return len(positional) >= 3 or any(p.kind == p.VAR_POSITIONAL for p in parameters)
 
 
 def label(spec: TrajectorySpec) -> str:
@@ -189,8 +218,9 @@ def twist_angle(spec: TrajectorySpec, s: np.ndarray) -> np.ndarray:
 def tool_yaw(spec: TrajectorySpec) -> float:
     """The tool frame's heading about the vertical, rad: facing the path's centre from the base.
 
-    A1 turns toward the centre anyway; turning the tool frame with it keeps A7 near zero wherever
-    the path is, so the twist, not the path's placement, is what A7 has to do.
+    The arm's first joint turns toward the centre anyway (worker.ik.ready_posture); turning the
+    tool frame with it keeps the last joint near its home angle wherever the path is, so the
+    twist, not the path's placement, is what the last joint has to do.
     """
     return float(np.arctan2(spec.center[1], spec.center[0]))
 

@@ -1,22 +1,15 @@
-"""The fourier kind: every joint moves by a seeded finite Fourier series around the ready
+"""The fourier kind: every joint moves by a seeded finite Fourier series around the robot's home
 posture, the identification standard, given directly in joint space and always feasible (it
-scales itself into the robot's limits at any duration)."""
+scales itself into the robot's limits at any duration), for any number of joints."""
 
 import math
 
 import mujoco
 import numpy as np
 
-from gainfarm.models import FLANGE, compile_model
-from gainfarm.schemas.robot import (
-    ACCELERATION_LIMITS,
-    N_JOINTS,
-    POSITION_LIMITS,
-    SPEED_LIMITS,
-    PlantSpec,
-)
+from gainfarm.schemas.robot import Robot
 from gainfarm.schemas.trajectory import MIN_DURATION, TrajectorySpec
-from gainfarm.worker.ik import READY_POSTURE
+from gainfarm.worker.ik import kinematic_model
 from gainfarm.worker.trajectories import Kind
 
 # The share of each joint's speed and acceleration limit it may use, its largest excursion from
@@ -30,10 +23,6 @@ _FOURIER_SHRINK = 0.9  # per try, until the flange clears the floor
 # Samples of the episode's fraction at which the series' peaks are found (as
 # worker.reference.LIMIT_SAMPLES: finer than the control ticks of any duration up to 20 s).
 _PEAK_SAMPLES = 10001
-_KINEMATIC_MODEL = PlantSpec(joints="rigid", substeps=1)  # kinematics only: the rigid chain
-_POSITION = np.array(POSITION_LIMITS)
-_SPEED = np.array(SPEED_LIMITS)
-_ACCELERATION = np.array(ACCELERATION_LIMITS)
 
 
 def fourier_coefficients(spec: TrajectorySpec, joints: int) -> tuple[np.ndarray, np.ndarray]:
@@ -73,35 +62,44 @@ def fourier_series(
     return position, velocity, acceleration
 
 
-def motion(spec: TrajectorySpec, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """q, qd, qdd at the times `t`: the seeded series, each joint scaled to its binding limit.
+def motion(
+    spec: TrajectorySpec, t: np.ndarray, robot: Robot
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """q, qd, qdd at the times `t` on `robot`: the seeded series, each joint scaled to its
+    binding limit.
 
     One period per episode (base frequency 1/duration). Each joint's amplitude is the largest
     that keeps it within FOURIER_SHARE of its speed and acceleration limits, FOURIER_SPAN of the
-    ready posture and FOURIER_RANGE_MARGIN inside its range; then all joints shrink together
-    until the flange stays FOURIER_FLOOR above the floor.
+    robot's home posture and FOURIER_RANGE_MARGIN inside its range; then all joints shrink
+    together until the flange stays FOURIER_FLOOR above the floor.
     """
-    a, b = fourier_coefficients(spec, N_JOINTS)
+    home = np.array(robot.workspace.home, dtype=float)
+    limits = robot.limits
+    speed, acceleration = (
+        np.array(values, dtype=float) for values in (limits.speed, limits.acceleration)
+    )
+    model = kinematic_model(robot.name)
+    low, high = model.jnt_range[:, 0], model.jnt_range[:, 1]  # its hinges' (need not be ±)
+    a, b = fourier_coefficients(spec, len(robot.joint_names))
     x, dx, ddx = fourier_series(a, b, np.linspace(0.0, 1.0, _PEAK_SAMPLES))
-    room_up = np.minimum(FOURIER_SPAN, _POSITION - FOURIER_RANGE_MARGIN - READY_POSTURE)
-    room_down = np.minimum(FOURIER_SPAN, _POSITION - FOURIER_RANGE_MARGIN + READY_POSTURE)
+    room_up = np.minimum(FOURIER_SPAN, high - FOURIER_RANGE_MARGIN - home)
+    room_down = np.minimum(FOURIER_SPAN, -low - FOURIER_RANGE_MARGIN + home)
     tiny = np.finfo(float).tiny
     duration = spec.duration
     scale = np.min(
         [
             room_up / np.maximum(x.max(axis=0), tiny),
             room_down / np.maximum(-x.min(axis=0), tiny),
-            FOURIER_SHARE * _SPEED * duration / np.maximum(np.abs(dx).max(axis=0), tiny),
-            FOURIER_SHARE * _ACCELERATION * duration**2 / np.maximum(np.abs(ddx).max(axis=0), tiny),
+            FOURIER_SHARE * speed * duration / np.maximum(np.abs(dx).max(axis=0), tiny),
+            FOURIER_SHARE * acceleration * duration**2 / np.maximum(np.abs(ddx).max(axis=0), tiny),
         ],
         axis=0,
     )
     x, dx, ddx = fourier_series(a, b, np.clip(t / duration, 0.0, 1.0))
-    model = compile_model(_KINEMATIC_MODEL)
     data = mujoco.MjData(model)
-    site = model.site(FLANGE).id
+    site = model.site(robot.flange).id
     while True:
-        q = READY_POSTURE + x * scale
+        q = home + x * scale
         if _lowest(model, data, site, q) >= FOURIER_FLOOR:
             break
         scale = scale * _FOURIER_SHRINK

@@ -262,7 +262,7 @@ def test_a_generic_start_is_balanced_by_the_default_gains_unless_told_not_to(
         (["--generations", "2", "--evaluations", "10"], "--generations and --evaluations exclude"),
         (["--local", "--connect", "tcp/127.0.0.1:7447"], "exclude each other"),
         (["--duration", "500"], "--duration: must be at most 120, got 500"),
-        (["--duration", "1"], "--duration: the 1 s spiral is too fast for the iiwa 14"),
+        (["--duration", "1"], "--duration: the 1 s spiral is too fast for iiwa14"),
         (["--trajectory", "pyramid", "--duration", "2"], "shortest feasible duration is 2.8 s"),
         (["--center", "2,0,0.4"], "--center/--size: the path is unreachable"),
         (["--trajectory-seed", "-1"], "--trajectory-seed"),
