@@ -391,11 +391,7 @@ def check_followable(trajectories: Iterable[TrajectorySpec], robot: str = DEFAUL
 
     for trajectory in trajectories:
         try:
-            # The default robot's reference is the one-argument call's, whichever worker/ runs.
-            if robot == DEFAULT_ROBOT:
-                reference.reference_for(trajectory)
-            else:
-                reference.reference_for(trajectory, robot)
+            reference.reference_for(trajectory, robot)
         except reference.InfeasibleReference as error:
             raise CannotStart(str(error), "duration") from None
         except ik.UnreachablePath as error:

@@ -46,7 +46,8 @@ DEADLINE = 600.0  # s: analytic.evaluators.farm.DEFAULT_DEADLINE
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object per evaluation")
 def batch(**given: Any) -> None:
     """Evaluate candidate gains on trajectories through the farm; keep and score every episode."""
-    given = unless_default(given, "center")  # not given: the robot's workspace centre
+    # Not given: the robot's workspace centre, and each kind's default duration on it.
+    given = unless_default(given, "center", "duration")
     prechecked(given)  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.batch import batch as work

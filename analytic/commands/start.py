@@ -141,7 +141,8 @@ def start(**given: Any) -> None:
     Stops after --generations, after --evaluations, or (by default) when the hypervolume has
     stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
     """
-    given = unless_default(given, "center")  # not given: the robot's workspace centre
+    # Not given: the robot's workspace centre, and each kind's default duration on it.
+    given = unless_default(given, "center", "duration")
     prechecked(given)  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.start import start as work

@@ -21,7 +21,7 @@ from gainfarm.cli.words import counted
 from gainfarm.schemas.episode import DEFAULT_OBJECTIVES, EpisodeSpec
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.limits import Limits
-from gainfarm.schemas.robot import PlantSpec
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
 
 if TYPE_CHECKING:
@@ -162,16 +162,24 @@ class RunConfig(BaseModel):
     @model_validator(mode="before")
     @classmethod
     def _centred_on_the_robot(cls, data: Any) -> Any:
-        # No trajectory given: the default one, placed at the centre of the robot's workspace
-        # (a file written before other arms always names its trajectories).
+        # No trajectory given: the default one, placed at the centre of the robot's workspace,
+        # of its default duration there (a file written before other arms always names its
+        # trajectories).
         if not isinstance(data, dict) or "trajectories" in data:
             return data
         plant = data.get("plant", data.get("model"))
         name = plant.robot if isinstance(plant, PlantSpec) else (plant or {}).get("robot")
         if not isinstance(name, str) or name not in plugins.names(plugins.ROBOTS):
             return data  # the plant's own check says what is wrong with it
-        centre = _robot(name).workspace.center
-        return {**data, "trajectories": (TrajectorySpec(center=centre),)}
+        trajectory = TrajectorySpec(center=_robot(name).workspace.center)
+        if name != DEFAULT_ROBOT:  # the iiwa 14's is the standard 5 s (RunConfig() stays cheap)
+            # start-up: the references (SciPy, MuJoCo) load for another arm's default only
+            from gainfarm.worker.reference import default_duration
+
+            trajectory = trajectory.model_copy(
+                update={"duration": default_duration(trajectory, name)}
+            )
+        return {**data, "trajectories": (trajectory,)}
 
     @field_validator("limits", mode="before")
     @classmethod

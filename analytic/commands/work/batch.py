@@ -10,7 +10,13 @@ from rich.console import Console
 from rich.table import Table
 
 from gainfarm.analytic.commands.shared import farm_problem
-from gainfarm.analytic.commands.work.common import centre, check_farm, robot_plant
+from gainfarm.analytic.commands.work.common import (
+    centre,
+    check_farm,
+    on_the_robot,
+    robot_plant,
+)
+from gainfarm.analytic.commands.work.start import STANDARD
 from gainfarm.analytic.commands.work.tuning import claimed, farm, followable, study_name
 from gainfarm.analytic.evaluators.batch import EVALUATIONS, batch_jobs, run_batch
 from gainfarm.analytic.evaluators.farm import FarmClient
@@ -38,7 +44,7 @@ def batch(
     workers: int | None,
     gains_file: Path | None,
     kinds: tuple[str, ...],
-    duration: float,
+    duration: float | None,
     trajectory_seed: int,
     center: str | None,
     size: float,
@@ -52,8 +58,8 @@ def batch(
     deadline: float,
     as_json: bool,
 ) -> None:
-    """`analytic batch` with its options as parsed (analytic/commands/batch.py); `center` None:
-    the robot's workspace centre."""
+    """`analytic batch` with its options as parsed (analytic/commands/batch.py); `center` and
+    `duration` None: the robot's workspace centre and each kind's default duration on it."""
     if not connect and not local:  # batch has no default farm
         raise CliError("say where the farm is: --connect ENDPOINT or --local")
     identity = check_farm(connect, local, tls, participant)
@@ -68,7 +74,8 @@ def batch(
     if gains_file is not None:
         warn_far_outside_search("analytic", candidates, gains_file, arm)
     where = centre(center, model.robot)
-    trajectories = values.trajectories(kinds, duration, trajectory_seed, where, size)
+    given = values.trajectories(kinds, duration or STANDARD, trajectory_seed, where, size)
+    trajectories = on_the_robot(given, duration, model.robot)
     followable(trajectories, robot=model.robot)
     learned = values.feedforward_model(feedforward)
     models = {digest(learned[0]): learned[0]} if learned is not None else {}

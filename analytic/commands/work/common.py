@@ -17,6 +17,7 @@ from gainfarm.schemas.documents import BadDocument, read_bounded
 from gainfarm.schemas.plant_file import PlantFile
 from gainfarm.schemas.robot import DEFAULT_ROBOT, PLANTS, PlantSpec
 from gainfarm.schemas.security import TlsIdentity
+from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import describe, one_line
 
 
@@ -48,6 +49,22 @@ def centre(center: str | None, robot: str) -> str:
     from gainfarm.models import robot_of
 
     return ",".join(repr(float(v)) for v in robot_of(robot).workspace.center)
+
+
+def on_the_robot(
+    trajectories: "tuple[TrajectorySpec, ...]", duration: float | None, robot: str
+) -> "tuple[TrajectorySpec, ...]":
+    """The trajectories with --duration as given, or else (None) each kind's default duration
+    on the robot (worker.reference.default_duration: 5 s, or longer on an arm too slow for it
+    within its limits' share)."""
+    if duration is not None:
+        return trajectories
+    # start-up: the references (SciPy, MuJoCo) load once the cheaper options are checked
+    from gainfarm.worker.reference import default_duration
+
+    return tuple(
+        t.model_copy(update={"duration": default_duration(t, robot)}) for t in trajectories
+    )
 
 
 def _uncertainty(plant_file: PlantFile, nominal: PlantSpec) -> dict:

@@ -11,6 +11,7 @@ from gainfarm.analytic.commands.work.common import (
     centre,
     check_farm,
     make_config,
+    on_the_robot,
     plants_from,
     robot_plant,
 )
@@ -20,12 +21,15 @@ from gainfarm.analytic.tuning.algorithms import STEADY_STATE, steady_state_refus
 from gainfarm.analytic.tuning.records import CONFIG_JSON
 from gainfarm.cli import options, values
 from gainfarm.cli.app import CliError
+from gainfarm.schemas.trajectory import TrajectorySpec
+
+STANDARD = TrajectorySpec.model_fields["duration"].default  # a trajectory's, before the robot's
 
 
 def start(
     pop: int,
     kinds: tuple[str, ...],
-    duration: float,
+    duration: float | None,
     trajectory_seed: int,
     center: str | None,
     size: float,
@@ -61,8 +65,8 @@ def start(
     spot_checks: float | None,
     balance: bool,
 ) -> None:
-    """`analytic start` with its options as parsed (analytic/commands/start.py); `center` None:
-    the robot's workspace centre."""
+    """`analytic start` with its options as parsed (analytic/commands/start.py); `center` and
+    `duration` None: the robot's workspace centre and each kind's default duration on it."""
     options.check_load(payload, payload_com)
     objectives = _objectives(objective_names, torque_measure)
     identity = check_farm(connect, local, tls, participant)
@@ -71,7 +75,8 @@ def start(
         raise CliError(f"--async: {steady_state_refusal(algorithm)}")
     nominal = values.with_load(robot_plant(plant, joints, robot), payload, payload_com, plant)
     where = centre(center, nominal.robot)
-    trajectories = values.trajectories(kinds, duration, trajectory_seed, where, size)
+    given = values.trajectories(kinds, duration or STANDARD, trajectory_seed, where, size)
+    trajectories = on_the_robot(given, duration, nominal.robot)
     if out is not None and (out / CONFIG_JSON).exists():  # `tune` would resume it: a start does not
         raise CliError(f"--out: {str(out)!r} already holds a run; resume it or choose another")
     fields = {
