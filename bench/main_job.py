@@ -310,6 +310,7 @@ def arms_advice(arms: Sequence[str], options: Sequence[str]) -> list[Advised]:
             command = analytic_command(sys.executable)
             case = run_case(arm, command, ["--robot", arm, *options], out / arm)
             found.append(advised(arm, case, out / arm))
+            print(f"  {found[-1]}", file=sys.stderr, flush=True)  # each as it comes
     finally:
         shutil.rmtree(out, ignore_errors=True)
     return found
