@@ -446,8 +446,9 @@ def defaults_hold(
 
     def holds(plant: PlantSpec) -> bool:
         # start-up: the robot's module loads with the plant's first episode
-        from gainfarm.models import robot_of
+        from gainfarm.models import resolve, robot_of
 
+        plant = resolve(plant)  # as the worker logs it, which the evaluator checks
         defaults = robot_of(plant).default_gains
         specs = {
             f"t{index}": EpisodeSpec(
