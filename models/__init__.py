@@ -2,8 +2,8 @@
 its robot (`robot_of`). The iiwa 14 (models/iiwa14.py: the rigid MJCF and the elastic-joint
 variant generated from it) is the built-in one.
 
-`compile_model` and `build_spec` build the robot the plant names; the other names are the iiwa
-14's, kept here for the code that still assumes its 7 joints (docs/robot.md).
+`compile_model`, `build_spec`, `resolve`, `min_substeps` and `plant_preset` are the named robot's;
+the other names are the iiwa 14's (its postures, inertial sets and step analysis).
 """
 
 from gainfarm.models.iiwa14 import (
@@ -16,13 +16,13 @@ from gainfarm.models.iiwa14 import (
     check_substeps,
     effective_inertias,
     elastic_modes,
-    min_substeps,
     step_ratios,
 )
 from gainfarm.models.robots import (
     PlantError,
     build_spec,
     compile_model,
+    min_substeps,
     plant_preset,
     resolve,
     robot_of,

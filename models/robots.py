@@ -11,6 +11,7 @@ from functools import lru_cache
 import mujoco
 
 from gainfarm import plugins
+from gainfarm.models import elastic
 from gainfarm.schemas.robot import DEFAULT_ROBOT, IDEAL_PLANT, PLANTS, Friction, PlantSpec, Robot
 
 
@@ -107,6 +108,24 @@ def plant_preset(name: str, robot: str = DEFAULT_ROBOT) -> PlantSpec:
     if spec.inertials not in sets:
         spec = spec.model_copy(update={"inertials": sets[0]})
     return spec if name != "ideal" or spec.robot != DEFAULT_ROBOT else IDEAL_PLANT
+
+
+def min_substeps(spec: PlantSpec) -> int:
+    """The fewest physics steps per 2 ms tick that integrate the joint springs of `spec`'s arm
+    well (models/elastic.py); 1 for rigid joints. The robot's own `min_substeps` where it has one
+    (the built-in arms), else from its flexible model at home and at zero, by the flexible
+    model's hinge names (`J_motor`, `J_spring`), which the worker reads too."""
+    robot = robot_of(spec)
+    own = getattr(robot, "min_substeps", None)
+    if own is not None:
+        return own(spec)
+    spec = resolve(spec)
+    if spec.joints != "flexible":
+        return 1
+    model = robot.describe(spec).compile()  # not `build`: that refuses too few substeps
+    postures = (robot.workspace.home, (0.0,) * len(robot.joint_names))
+    inertia = elastic.effective_inertias(model, robot.joint_names, postures)
+    return elastic.min_substeps(spec.stiffness, spec.spring_damping, inertia, robot.joint_names)
 
 
 def compile_model(spec: PlantSpec) -> mujoco.MjModel:

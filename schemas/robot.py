@@ -53,13 +53,22 @@ ACCELERATION_LIMITS = (8.57, 8.57, 8.74, 11.36, 12.23, 15.72, 15.72)
 
 @dataclass(frozen=True)
 class JointLimits:
-    """A robot's published limits, one number per joint, in its joints' order. Positions are
-    symmetric about zero (each joint turns ±position)."""
+    """A robot's published limits, one number per joint, in its joints' order. A joint turns
+    ±position, unless `position_range` gives its (lowest, highest) angles (the Panda's fourth
+    joint turns from -176° to -4°): then `position` is its largest excursion either way."""
 
     torque: tuple[float, ...]  # N·m: the motors' saturation
     speed: tuple[float, ...]  # rad/s
     position: tuple[float, ...]  # rad
     acceleration: tuple[float, ...]  # rad/s²
+    position_range: tuple[tuple[float, float], ...] | None = None  # rad, where not ±position
+
+    @property
+    def ranges(self) -> tuple[tuple[float, float], ...]:
+        """Each joint's (lowest, highest) angle, rad."""
+        if self.position_range is not None:
+            return self.position_range
+        return tuple((-limit, limit) for limit in self.position)
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from gainfarm.models import resolve, robot_of
+from gainfarm.models import min_substeps, resolve, robot_of
 from gainfarm.schemas.documents import QUOTED, BadDocument, load_toml
 from gainfarm.schemas.robot import DEFAULT_ROBOT, MAX_JOINTS, PlantSpec
 from gainfarm.schemas.wire import describe
@@ -137,9 +137,10 @@ def variants(
     table = _for(nominal, uncertainty)
     joints = len(robot_of(nominal).joint_names)
     rng = np.random.default_rng([seed, 0x706C616E7473, stream])  # "plants", its own stream
+    nominal = resolve(nominal)  # the numbers a draw scales, written out
     drawn = []
     for _ in range(count):
-        values = resolve(nominal).model_dump()  # the robot's own numbers, written out to move
+        values = nominal.model_dump()
         for item in table.values():
             _apply(values, item, rng, joints)
         values["sensors"]["seed"] = int(rng.integers(2**63))
@@ -214,7 +215,7 @@ def corner(
     range the table has not."""
     table = _for(nominal, uncertainty)
     joints = len(robot_of(nominal).joint_names)
-    values = resolve(nominal).model_dump()  # the robot's own numbers, written out to move
+    values = resolve(nominal).model_dump()
     for name, end in ends.items():
         item = table[name]
         size = joints if item.per_joint else 1
@@ -245,7 +246,7 @@ def stepped(plant: PlantSpec) -> PlantSpec:
     """`plant` with the physics steps its springs need (at least its own), validated: a spring
     too stiff for PlantSpec's most steps per tick is refused (ValidationError, naming
     substeps), never simulated in millions of steps."""
-    needed = robot_of(plant).min_substeps(plant)  # its springs', by its robot's rule
+    needed = min_substeps(plant)
     if needed <= plant.substeps:
         return plant
     return PlantSpec.model_validate({**plant.model_dump(), "substeps": needed})
