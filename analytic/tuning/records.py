@@ -454,14 +454,16 @@ def read_front(path: Path) -> list[FrontMember]:
 
 
 def front_joints(path: Path) -> int:
-    """The joint count a front.csv's header names (its kp1..kpN columns); the iiwa 14's seven
-    for a header of no such form (then `read_front` refuses it, naming what it expected)."""
+    """The joint count a front.csv's header names (its kp1..kpN, kd1..kdN columns); the iiwa
+    14's seven for a header of no such form (then `read_front` refuses it, naming what it
+    expected)."""
     with Path(path).open(newline="", encoding="utf-8") as stream:
         header = next(csv.reader(stream), [])
     joints = 0
     while joints < len(header) and header[joints] == f"kp{joints + 1}":
         joints += 1
-    return joints if 1 <= joints <= MAX_JOINTS else N_JOINTS
+    whole = tuple(header[: 2 * joints]) == gains_fields(joints)  # kd1..kdN follow
+    return joints if whole and 1 <= joints <= MAX_JOINTS else N_JOINTS
 
 
 # evaluated.csv's columns after the objectives', and those of the versions before.
