@@ -46,7 +46,7 @@ from gainfarm.analytic.tuning.picks import dominates, picks
 from gainfarm.analytic.tuning.plants import ranges
 from gainfarm.analytic.tuning.records import BASELINE_JSON, RunRecord, read_baseline
 from gainfarm.analytic.view.figures import new_figure, save_png
-from gainfarm.models import min_substeps
+from gainfarm.models import min_substeps, resolve
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec
 from gainfarm.schemas.wire import describe
@@ -113,7 +113,7 @@ def moved(plant: PlantSpec, setting: Setting) -> PlantSpec:
     """`plant` with `setting`'s parameter moved, and the physics steps its springs need;
     ValueError (one line) if the plant has no such number or the result is no plant."""
     parameter = setting.parameter
-    values = plant.model_dump()
+    values = resolve(plant).model_dump()  # the robot's own numbers, written out to move
     *parents, name = parameter.field.split(".")
     holder = values
     for parent in parents:
