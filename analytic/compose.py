@@ -29,8 +29,10 @@ from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import CONFIG_JSON, REPORT_MD
 from gainfarm.analytic.tuning.run import RunProgress, TuningRun
 from gainfarm.cli import interrupts
-from gainfarm.schemas.gains import DEFAULT_GAINS
+from gainfarm.schemas.episode import EpisodeSpec
+from gainfarm.schemas.limits import Limits, measures
 from gainfarm.schemas.objectives import balancing_weights, plant_scales
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import NAME_PATTERN, describe
@@ -156,7 +158,7 @@ def make_run(
             run.close()
             raise ValueError(f"{directory} holds a run of another configuration")
         return run, None
-    check_followable(config.trajectories)
+    check_followable(config.trajectories, config.robot)
     if config.balance and _unbalanced(config):
         config = balanced(config, feedforward)
     forget = claim(directory)
@@ -350,7 +352,7 @@ def _evaluator(
     except ValueError as error:  # its feed-forward model file is missing or another
         raise CannotStart(f"{str(run.directory)!r}: {error}", "out") from None
     if not connect:
-        farm = farm or LocalFarm(workers)
+        farm = farm or LocalFarm(workers, robot=run.config.robot)
         stopping.callback(farm.stop)
     with contextlib.ExitStack() as stack:
         try:
@@ -381,15 +383,15 @@ def new_directory() -> Path:
     return Path("runs") / time.strftime("%Y%m%d-%H%M%S")
 
 
-def check_followable(trajectories: Iterable[TrajectorySpec]) -> None:
-    """CannotStart, in one line, for a trajectory the iiwa cannot follow (out of reach, or too
+def check_followable(trajectories: Iterable[TrajectorySpec], robot: str = DEFAULT_ROBOT) -> None:
+    """CannotStart, in one line, for a trajectory `robot` cannot follow (out of reach, or too
     fast for its limits), before any job is sent: every episode of it would fail."""
     # start-up: SciPy's interpolation loads when a new run is checked, not with `tune`
     from gainfarm.worker import ik, reference
 
     for trajectory in trajectories:
         try:
-            reference.reference_for(trajectory)
+            reference.reference_for(trajectory, robot)
         except reference.InfeasibleReference as error:
             raise CannotStart(str(error), "duration") from None
         except ik.UnreachablePath as error:
@@ -407,7 +409,8 @@ def balanced(config: RunConfig, feedforward: bytes | None = None) -> RunConfig:
     pairs = [(t, p) for t in range(len(config.trajectories)) for p in range(plants)]
     models = {config.feedforward: feedforward} if config.feedforward and feedforward else {}
     with InProcessEvaluator(models=models) as evaluator:
-        evaluator.submit({f"t{t}-p{p}": config.episode_spec(DEFAULT_GAINS, t, p) for t, p in pairs})
+        defaults = config.default_gains  # the robot's
+        evaluator.submit({f"t{t}-p{p}": config.episode_spec(defaults, t, p) for t, p in pairs})
         found = {result.job_id: result.scores for result in evaluator.results()}
     update = {}
     if len(config.trajectories) > 1 and config.objective_weights is None:
@@ -432,6 +435,35 @@ def balanced(config: RunConfig, feedforward: bytes | None = None) -> RunConfig:
         ]
         update["plant_scales"] = plant_scales(each, plants)
     return RunConfig.model_validate(config.model_dump() | update)
+
+
+def defaults_hold(
+    trajectories: Sequence[TrajectorySpec], limits: Limits, objectives: tuple[str, str]
+) -> Callable[[PlantSpec], bool]:
+    """Whether the robot's default gains keep to `limits` on a plant, on every one of
+    `trajectories` (simulated in this process: an episode each): what a designed corner of
+    robust tuning must let them do (analytic.tuning.plants.held_design)."""
+
+    def holds(plant: PlantSpec) -> bool:
+        # start-up: the robot's module loads with the plant's first episode
+        from gainfarm.models import resolve, robot_of
+
+        plant = resolve(plant)  # as the worker logs it, which the evaluator checks
+        defaults = robot_of(plant).default_gains
+        specs = {
+            f"t{index}": EpisodeSpec(
+                gains=defaults, trajectory=trajectory, plant=plant, objectives=objectives
+            )
+            for index, trajectory in enumerate(trajectories)
+        }
+        with InProcessEvaluator() as evaluator:
+            evaluator.submit(specs)
+            scores = [result.scores for result in evaluator.results()]
+        if any(score is None or score.diverged for score in scores):
+            return False
+        return not limits.violated(measures(scores))
+
+    return holds
 
 
 def claim(directory: Path) -> Callable[[], None]:

@@ -4,6 +4,7 @@ Optuna's own parallel loop with the same evaluation. All measured in one run of 
 
     python bench/main_job.py [--evaluations 600] [--pop 30] [--workers N] [--plants 8]
                              [--baseline-python PATH] [--quick]
+    python bench/main_job.py --arms iiwa14,ur5e,panda,gen3 [--evaluations E] [--workers N]
 
 Three cases, each a process tree started from here and measured whole (wall time from its start
 to its end, start-up included; CPU time of every process in it, from getrusage(RUSAGE_CHILDREN)
@@ -21,6 +22,14 @@ once each has been waited for):
 
 - robust run: the same `analytic start` with `--plants K` (each candidate also on K plant
   variants: K + 1 episodes an evaluation), at the same evaluations.
+
+With --arms NAME,NAME...: the advice instead, per arm. The README's main job (`analytic start
+--pop 30`: robust, to convergence, its advice checked on 64 held-out plants) with `--robot NAME`
+for each arm, one after the other; printed, one table: per arm, the controller the check
+recommends (or the default gains, if none held) and its held-out median and worst f_acc against
+the arm's default gains', whether both are at most theirs (issue 49's target: every arm), and
+whether the arm's torque interface adds gravity compensation (PD + gravity compensation, as the
+iiwa's FRI does) or the PD is all.
 
 The anchor: one episode's physics stepped in one C call: the default gains' episode on the run's
 first path and plant, its recorded motor torques and friction replayed through MuJoCo's
@@ -55,9 +64,12 @@ import click
 from common import SPAWN, print_table
 from episode_bench import physics
 
+from gainfarm import plugins
+from gainfarm.analytic.tuning.check import read_check
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.run import TuningRun
 from gainfarm.analytic.tuning.search_space import SearchSpace
+from gainfarm.models import robot_of
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.objectives import objectives
@@ -241,6 +253,111 @@ def tree_case(name: str, target: Callable[..., None], *args: object) -> Case:
     return measured(name, lambda: done.value, run)
 
 
+# --- the advice on every arm --------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Advised:
+    """One arm's main job: what its check advised and how it and the default gains fared held
+    out (m)."""
+
+    arm: str
+    joints: int
+    gravity: bool  # the arm's torque interface adds gravity compensation to the PD
+    case: Case
+    advice: str  # "row N" of front.csv, or "default gains" (no member held)
+    plants: int
+    median: float
+    worst: float
+    default_median: float
+    default_worst: float
+
+    @property
+    def holds(self) -> bool:
+        return self.median <= self.default_median and self.worst <= self.default_worst
+
+
+def advised(arm: str, case: Case, out: Path) -> Advised:
+    """What the check of the run in `out` (an `analytic start --robot arm`) advised."""
+    record = read_check(out)
+    if record is None:
+        raise click.ClickException(f"{arm}: the run in {out} has no held-out check")
+    by_name = {item["name"]: item for item in record["controllers"]}
+    default = by_name["default gains"]
+    chosen = by_name.get("recommended", default)
+    robot = robot_of(arm)
+    return Advised(
+        arm=arm,
+        joints=len(robot.joint_names),
+        gravity=robot.torque_interface.adds_gravity,
+        case=case,
+        advice="default gains" if chosen is default else f"row {chosen['row']}",
+        plants=record["plants"],
+        median=chosen["median_f_acc"],
+        worst=chosen["worst_f_acc"],
+        default_median=default["median_f_acc"],
+        default_worst=default["worst_f_acc"],
+    )
+
+
+def arms_advice(arms: Sequence[str], options: Sequence[str]) -> list[Advised]:
+    """The main job (`analytic start --robot ARM` with `options`) on each of `arms`."""
+    found = []
+    out = Path(tempfile.mkdtemp(prefix="gainfarm-main-job-arms-"))
+    try:
+        for arm in arms:
+            print(f"analytic start --robot {arm} {' '.join(options)} ...", file=sys.stderr)
+            command = analytic_command(sys.executable)
+            case = run_case(arm, command, ["--robot", arm, *options], out / arm)
+            found.append(advised(arm, case, out / arm))
+            print(f"  {found[-1]}", file=sys.stderr, flush=True)  # each as it comes
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+    return found
+
+
+def print_advice(found: Sequence[Advised], options: Sequence[str]) -> None:
+    mm = lambda metres: f"{1000 * metres:.2f}"  # noqa: E731
+    print(f"analytic start --robot ARM {' '.join(options)} (the README's main job), one run")
+    print_table(
+        (
+            "arm",
+            "joints",
+            "PD +",
+            "evaluations",
+            "wall s",
+            "advice",
+            "held out",
+            "median mm",
+            "default median mm",
+            "worst mm",
+            "default worst mm",
+            "at most the defaults'",
+        ),
+        "lrlrrlrrrrrl",
+        (
+            (
+                a.arm,
+                str(a.joints),
+                "gravity compensation" if a.gravity else "nothing",
+                str(a.case.evaluations),
+                f"{a.case.wall_s:.0f}",
+                a.advice,
+                str(a.plants),
+                mm(a.median),
+                mm(a.default_median),
+                mm(a.worst),
+                mm(a.default_worst),
+                "yes" if a.holds else "NO",
+            )
+            for a in found
+        ),
+    )
+    held = sum(a.holds for a in found)
+    said = "the advice's held-out median and worst at most the default gains'"
+    print(f"{said}: {held} of {len(found)} arms")
+
+
 # --- the command -------------------------------------------------------------------------------
 
 
@@ -271,6 +388,12 @@ def tree_case(name: str, target: Callable[..., None], *args: object) -> Case:
 )
 @click.option("--quick", is_flag=True, help="a CI-sized run: 60 evaluations, population 10")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option(
+    "--arms",
+    metavar="NAME,NAME...",
+    help="instead: the README's main job with --robot NAME for each arm, and its advice held out "
+    "against the default gains' (--evaluations: a budget, not convergence)",
+)
 def main(
     evaluations: int | None,
     pop: int | None,
@@ -279,7 +402,20 @@ def main(
     plants: int,
     quick: bool,
     seed: int,
+    arms: str | None,
 ) -> None:
+    if arms is not None:
+        names = [name.strip() for name in arms.split(",") if name.strip()]
+        for name in names:
+            try:
+                plugins.check_name(plugins.ROBOTS, name)
+            except plugins.PluginError as error:
+                raise click.BadParameter(str(error), param_hint="'--arms'") from None
+        options = ["--pop", str(pop or 30), "--seed", str(seed)]
+        options += ["--evaluations", str(evaluations)] if evaluations else []
+        options += ["--workers", str(workers)] if workers else []
+        print_advice(arms_advice(names, options), options)
+        return
     if importlib.util.find_spec("optuna") is None:
         raise click.ClickException("Optuna is needed: pip install -e '.[bench]'")
     budget = evaluations or (60 if quick else 600)

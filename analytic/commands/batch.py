@@ -5,7 +5,7 @@ from typing import Any
 
 import click
 
-from gainfarm.analytic.commands.shared import farm_options, prechecked
+from gainfarm.analytic.commands.shared import farm_options, prechecked, unless_default
 from gainfarm.cli import options
 
 # Held here, not imported, so that parsing and --help load nothing heavy: tests/analytic/commands/
@@ -20,12 +20,13 @@ DEADLINE = 600.0  # s: analytic.evaluators.farm.DEFAULT_DEADLINE
     "gains_file",
     type=click.Path(path_type=Path),
     help="the candidates: a controller from `analytic export` (JSON or YAML), a list of "
-    '{"kp": [7], "kd": [7]} objects, or a run\'s front.csv (every member)  '
-    "[default: the default gains]",
+    '{"kp": [...], "kd": [...]} objects (one gain per joint of the arm), or a run\'s front.csv '
+    "(every member)  [default: the arm's default gains]",
 )
 @options.trajectory(multiple=True, help="repeat for several")
 @options.duration()
 @options.placement()
+@options.robot("the arm the candidates run on")
 @options.joints(help=None)
 @options.plant()
 @options.load()
@@ -45,6 +46,8 @@ DEADLINE = 600.0  # s: analytic.evaluators.farm.DEFAULT_DEADLINE
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object per evaluation")
 def batch(**given: Any) -> None:
     """Evaluate candidate gains on trajectories through the farm; keep and score every episode."""
+    # Not given: the robot's workspace centre, and each kind's default duration on it.
+    given = unless_default(given, "center", "duration")
     prechecked(given)  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.batch import batch as work

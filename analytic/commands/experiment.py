@@ -44,6 +44,7 @@ def _shared_options(duration: float | None) -> list[click.Parameter]:
             if duration is not None
             else []
         ),
+        options.robot("the arm the experiment's runs tune"),
         options.plant(),
         options.load(),
         options.limits(),

@@ -146,6 +146,18 @@ FILES = {
 }
 
 
+def unless_default(given: dict, *names: str) -> dict:
+    """`given` with each of the options `names` None where the command line left it at its
+    default: what the work then takes from the robot (--center: its workspace's centre)."""
+    context = click.get_current_context()
+    left = {
+        name: None
+        for name in names
+        if context.get_parameter_source(name) is click.ParameterSource.DEFAULT
+    }
+    return given | left
+
+
 def prechecked(given: dict, runs: str | None = None) -> None:
     """What a parse or a stat can refuse of a command's options, refused before its work is
     imported (the contract's pydantic and NumPy, then MuJoCo, Zenoh, pymoo): the farm options'

@@ -12,6 +12,7 @@ from gainfarm.analytic.commands.shared import (
     prechecked,
     robustness,
     termination_options,
+    unless_default,
 )
 from gainfarm.analytic.tuning import defaults
 from gainfarm.cli import options
@@ -34,6 +35,7 @@ from gainfarm.cli import options
     help="NSGA-II's seed",
 )
 @termination_options()
+@options.robot("the arm to tune")
 @options.joints()
 @options.plant()
 @options.load()
@@ -133,12 +135,14 @@ from gainfarm.cli import options
     "trajectory and the worst plant would dominate",
 )
 def start(**given: Any) -> None:
-    """Tune the 14 PD gains with NSGA-II (or --algorithm) on the farm: maximise accuracy,
-    minimise torque steps.
+    """Tune the arm's PD gains (a Kp and a Kd per joint) with NSGA-II (or --algorithm) on the
+    farm: maximise accuracy, minimise torque steps.
 
     Stops after --generations, after --evaluations, or (by default) when the hypervolume has
     stopped growing. Ctrl-C stops cleanly; `analytic resume RUN` goes on.
     """
+    # Not given: the robot's workspace centre, and each kind's default duration on it.
+    given = unless_default(given, "center", "duration")
     prechecked(given)  # before the work's imports: the contract, MuJoCo, Zenoh, pymoo
     # start-up: the work loads when the command runs, not to parse it or show its --help
     from gainfarm.analytic.commands.work.start import start as work

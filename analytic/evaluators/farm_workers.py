@@ -1,7 +1,8 @@
 """Which workers get a study's jobs: none for those the client distrusts (caught claiming scores
 their logs do not have), leaves out (their results never came), or refuses (strangers to the
-local farm it started, `own_workers`), and none that need a plug-in for a worker that refused a
-job lacking it; and how many connected workers are left to run them."""
+local farm it started, `own_workers`), and none that need a plug-in (an arm, a trajectory kind,
+an objective) for a worker that refused a job lacking it; and how many connected workers are
+left to run them."""
 
 import logging
 from collections.abc import Callable, Collection
@@ -98,13 +99,15 @@ class Workers:
 
 
 def needs(spec: EpisodeSpec) -> tuple[str, ...]:
-    """The plug-ins a job needs by name: its trajectory kind, then its objectives."""
-    return (spec.trajectory.kind, *spec.objectives)
+    """The plug-ins a job needs by name: its robot (its plant's), its trajectory kind, then its
+    objectives. A worker that refused a job of one arm may still run another's."""
+    return (spec.plant.robot, spec.trajectory.kind, *spec.objectives)
 
 
 def lacked_here(spec: EpisodeSpec) -> bool:
     """Whether this process lacks a plug-in the job needs (cannot load it either)."""
     try:
+        plugins.load(plugins.ROBOTS, spec.plant.robot)
         plugins.load(plugins.TRAJECTORIES, spec.trajectory.kind)
         plugins.load_plugins(plugins.OBJECTIVES, spec.objectives)
     except PluginError:

@@ -26,6 +26,10 @@ connects, and the broker listens well before that; one that finds it not yet lis
 again at once), and a run may submit as soon as the broker serves: its first jobs wait for the
 workers in the broker's queue. Started one after the other, the processes' imports were most of
 a local run's first 5 s.
+
+A farm started for a run of an arm a robot description file describes (`--robot FILE`: the arm is
+registered in the analytic process alone) hands its workers the same file (`robot_options`), so
+that they serve that arm too; the shipped arms and installed plug-ins need nothing.
 """
 
 import contextlib
@@ -39,6 +43,8 @@ import tempfile
 import threading
 import time
 from collections.abc import Iterator, Sequence
+
+from gainfarm import plugins
 
 STOP_SECONDS = 15.0  # a worker finishes its episode before leaving; longer than that is a hang
 # A worker imports MuJoCo and Zenoh before it joins: a few seconds on a loaded machine.
@@ -92,6 +98,21 @@ def spawn_worker(
         ],
         stdin=subprocess.DEVNULL,
     )
+
+
+def robot_options(robot: str | None) -> tuple[str, ...]:
+    """A worker's options to serve `robot` (a name; None: whatever its jobs name): `--robot FILE`
+    for an arm a description file describes (`gainfarm.models.described.source_of`), which a
+    worker process knows only if told; nothing for a shipped arm or an installed plug-in."""
+    if robot is None or robot in plugins.builtin_names(plugins.ROBOTS):
+        return ()
+    try:
+        # start-up: the described arms' registry loads only for a farm of an arm not shipped
+        from gainfarm.models.described import source_of
+    except ImportError:  # an installation without description files: every arm is a plug-in
+        return ()
+    source = source_of(robot)
+    return () if source is None else ("--robot", str(source))
 
 
 def stop_workers(workers: list[subprocess.Popen]) -> None:
@@ -164,16 +185,20 @@ def _await(
 
 @contextlib.contextmanager
 def farm_endpoints(
-    connect: Sequence[str] = (), workers: int | None = None, farm: "LocalFarm | None" = None
+    connect: Sequence[str] = (),
+    workers: int | None = None,
+    farm: "LocalFarm | None" = None,
+    robot: str | None = None,
 ) -> Iterator[list[str]]:
     """Where the farm is: the broker at `connect`, or else `farm` (a local farm started
-    already), or else a local farm of `workers` processes started for the block. A local farm
+    already), or else a local farm of `workers` processes of `robot` started for the block. A
+    local farm
     yields once its broker serves, its workers joining meanwhile, and begins to stop as the
     block ends (`LocalFarm.stop` waits for it)."""
     if connect:
         yield list(connect)
         return
-    farm = farm or LocalFarm(workers)
+    farm = farm or LocalFarm(workers, robot=robot)
     try:
         yield [farm.ready(joined=False)]
     finally:
@@ -185,9 +210,12 @@ class LocalFarm:
     once, as the object is made: the broker listens well before a worker has imported what it
     runs, and a caller that imports and checks meanwhile finds the farm up. `endpoint`: its
     broker's Unix socket, in a directory of this user's alone (`private_endpoint`); `names`:
-    its workers'. Stop it with `stop` (or use it as a context manager)."""
+    its workers'. `robot`: the arm its runs are of, if known (its workers are told its
+    description file, `robot_options`). Stop it with `stop` (or use it as a context manager)."""
 
-    def __init__(self, workers: int | None = None, lease_seconds: float = 60.0):
+    def __init__(
+        self, workers: int | None = None, lease_seconds: float = 60.0, robot: str | None = None
+    ):
         self.endpoint, self.directory = private_endpoint()
         cores = len(os.sched_getaffinity(0))
         count = workers or cores
@@ -198,9 +226,10 @@ class LocalFarm:
         try:
             self.broker = spawn_broker(self.endpoint, "--lease-seconds", str(lease_seconds))
             threads = str(max(1, cores // count))
+            arm = robot_options(robot)
             for name in self.names:
                 self.workers.append(
-                    spawn_worker(self.endpoint, name, "warning", "--threads", threads)
+                    spawn_worker(self.endpoint, name, "warning", "--threads", threads, *arm)
                 )
         except BaseException:
             self.stop()
@@ -240,9 +269,11 @@ class LocalFarm:
 
 
 @contextlib.contextmanager
-def local_farm(workers: int | None = None, lease_seconds: float = 60.0) -> Iterator[str]:
-    """Run a broker process and `workers` worker processes (None: one per core); yield the
-    endpoint to connect to once every worker has joined. The broker stops last, once every
-    worker has handed in its job."""
-    with LocalFarm(workers, lease_seconds) as farm:
+def local_farm(
+    workers: int | None = None, lease_seconds: float = 60.0, robot: str | None = None
+) -> Iterator[str]:
+    """Run a broker process and `workers` worker processes (None: one per core) of `robot`
+    (LocalFarm); yield the endpoint to connect to once every worker has joined. The broker
+    stops last, once every worker has handed in its job."""
+    with LocalFarm(workers, lease_seconds, robot) as farm:
         yield farm.ready()

@@ -87,7 +87,7 @@ from gainfarm.analytic.tuning.evolution import ALGORITHMS, OBJECTIVE_SCALINGS, o
 from gainfarm.analytic.tuning.records import RunRecord
 from gainfarm.analytic.tuning.search_space import SearchSpace
 from gainfarm.analytic.tuning.termination import Termination
-from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
+from gainfarm.schemas.gains import PDGains
 
 NAME = "algorithms"
 DEFAULT_BUDGET = 600  # evaluations per run: 20 generations of the default population of 30
@@ -126,9 +126,9 @@ def baseline_points(
 ) -> tuple[list[PDGains], list[Point], Point]:
     """The classical rule's controllers for the base plant, and their points and the default
     gains' on the base trajectory, simulated once (one cross-evaluation, "baselines")."""
-    classical = classical_baseline(base.plant)
+    classical = classical_baseline(base.plant, space=base.space)
     points = experiment.evaluate_gains(
-        "baselines", [*classical.gains, DEFAULT_GAINS], base.trajectories[0], base
+        "baselines", [*classical.gains, base.default_gains], base.trajectories[0], base
     )
     return classical.gains, points[:-1], points[-1]
 

@@ -21,10 +21,10 @@ import mujoco
 import numpy as np
 
 from gainfarm.analytic.tuning.search_space import SearchSpace
+from gainfarm.models import compile_model, robot_of
 from gainfarm.models.dynamics import rigid_spec
-from gainfarm.models.iiwa14 import READY_POSTURE, compile_model
 from gainfarm.schemas.gains import PDGains
-from gainfarm.schemas.robot import N_JOINTS, PlantSpec
+from gainfarm.schemas.robot import PlantSpec
 
 OMEGAS = (5.0, 10.0, 15.0, 20.0, 30.0, 40.0, 60.0, 80.0)  # rad/s: the default gains' are 29-60
 DAMPINGS = (0.7, 1.0)
@@ -40,17 +40,21 @@ class ClassicalGains:
 
 
 def joint_inertias(
-    plant: PlantSpec | None = None, posture: Sequence[float] = READY_POSTURE
+    plant: PlantSpec | None = None, posture: Sequence[float] | None = None
 ) -> np.ndarray:
     """M_ii, kg·m², per joint: the diagonal of the mass matrix of `plant`'s rigid arm
-    (models.dynamics.rigid_spec: rotor inertias as armature) at `posture`."""
-    model = compile_model(rigid_spec(plant or PlantSpec()))
+    (models.dynamics.rigid_spec: rotor inertias as armature) at `posture` (default: the
+    robot's home, its workspace's)."""
+    plant = plant or PlantSpec()
+    robot = robot_of(plant)
+    joints = len(robot.joint_names)
+    model = compile_model(rigid_spec(plant))
     data = mujoco.MjData(model)
-    data.qpos[:N_JOINTS] = posture
+    data.qpos[:joints] = robot.workspace.home if posture is None else posture
     mujoco.mj_forward(model, data)
     mass_matrix = np.zeros((model.nv, model.nv))
     mujoco.mj_fullM(model, data, mass_matrix)
-    return np.diag(mass_matrix)[:N_JOINTS].copy()
+    return np.diag(mass_matrix)[:joints].copy()
 
 
 def rule(inertia: Sequence[float], omega: float, zeta: float) -> tuple[np.ndarray, np.ndarray]:
@@ -86,5 +90,8 @@ def classical_baseline(
     dampings: Sequence[float] = DAMPINGS,
     space: SearchSpace | None = None,
 ) -> ClassicalGains:
-    """The rule's controllers for `plant`'s arm at the ready posture."""
+    """The rule's controllers for `plant`'s arm at its home posture, clipped to `space`
+    (default: the search space around the robot's default gains)."""
+    plant = plant or PlantSpec()
+    space = space or SearchSpace.around(robot_of(plant).default_gains)
     return classical_gains(joint_inertias(plant), omegas, dampings, space)

@@ -595,6 +595,8 @@ def every_trajectory(base: RunConfig, options: Mapping[str, Any]) -> list[Trajec
 
 EXPERIMENT = ExperimentSpec(
     name="dataset-value",
+    robots=("iiwa14",),  # one arm's by design, as yet
+    only_on="its learners read the iiwa 14's joint columns and dynamics (analytic/data)",
     summary="whether tuned controllers' data teach the arm's dynamics better, at equal ticks",
     run=run,
     options=(

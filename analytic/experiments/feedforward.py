@@ -587,6 +587,8 @@ def every_trajectory(base: RunConfig, options: Mapping[str, Any]) -> list[Trajec
 
 EXPERIMENT = ExperimentSpec(
     name="feedforward",
+    robots=("iiwa14",),  # one arm's by design, as yet
+    only_on="its learned models and the true-model anchor are the iiwa 14's (analytic/data)",
     summary="the learned feed-forward against PD + gravity compensation and the true model's",
     run=run,
     options=(

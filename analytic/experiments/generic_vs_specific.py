@@ -53,7 +53,6 @@ from gainfarm.analytic.experiments.runner import ALL_KINDS, Experiment
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.view.figures import new_figure, save_png
 from gainfarm.edges.files import write_atomically
-from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.objectives import balancing_weights
 from gainfarm.schemas.trajectory import TrajectoryKind, TrajectorySpec
 
@@ -149,7 +148,7 @@ def default_points(
             kind: functools.partial(
                 experiment.evaluate_gains,
                 f"default-gains-on-{kind.value}",
-                [DEFAULT_GAINS],
+                [base.default_gains],
                 TrajectorySpec(kind=kind, duration=duration),
                 base,
             )

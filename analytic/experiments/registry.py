@@ -70,6 +70,16 @@ class ExperimentSpec:
         _base_trajectories
     )
     trajectory_option: str = "--duration"
+    # The arms it runs on, by name (None: any, the robot it is given). An experiment that is
+    # one arm's by design names it and says why (`only_on`); another arm is refused in one line.
+    robots: tuple[str, ...] | None = None
+    only_on: str = ""
+
+    def refusal(self, robot: str) -> str | None:
+        """Why the experiment does not run on `robot`, in one line; None if it does."""
+        if self.robots is None or robot in self.robots:
+            return None
+        return f"{self.name} runs on {', '.join(self.robots)} only, not {robot}: {self.only_on}"
 
 
 def numbers(kind: Callable[[float], T]) -> Callable[[str], list[T]]:

@@ -46,9 +46,9 @@ from gainfarm.analytic.tuning.picks import dominates, picks
 from gainfarm.analytic.tuning.plants import ranges
 from gainfarm.analytic.tuning.records import BASELINE_JSON, RunRecord, read_baseline
 from gainfarm.analytic.view.figures import new_figure, save_png
-from gainfarm.models import min_substeps
-from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
-from gainfarm.schemas.robot import PlantSpec
+from gainfarm.models import min_substeps, resolve
+from gainfarm.schemas.gains import PDGains
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec
 from gainfarm.schemas.wire import describe
 
 NAME = "sensitivity"
@@ -113,7 +113,7 @@ def moved(plant: PlantSpec, setting: Setting) -> PlantSpec:
     """`plant` with `setting`'s parameter moved, and the physics steps its springs need;
     ValueError (one line) if the plant has no such number or the result is no plant."""
     parameter = setting.parameter
-    values = plant.model_dump()
+    values = resolve(plant).model_dump()  # the robot's own numbers, written out to move
     *parents, name = parameter.field.split(".")
     holder = values
     for parent in parents:
@@ -226,7 +226,7 @@ def run(
                 (key, rep): functools.partial(
                     experiment.evaluate_gains,
                     f"{key}-rep{rep}-nominal-controller",
-                    [outcomes[(NOMINAL, rep)].gains, DEFAULT_GAINS],
+                    [outcomes[(NOMINAL, rep)].gains, base.default_gains],
                     trajectory,
                     configs[key],
                 )
@@ -257,7 +257,7 @@ def run(
                 {SPACE: (normalisation.ideal, normalisation.nadir)},
             ),
             "plants: the nominal one and, one parameter at a time, "
-            + "; ".join(stated_ranges(parameters)),
+            + "; ".join(stated_ranges(parameters, base.robot)),
             f"each moved plant against the nominal: Mann-Whitney U; Holm's adjustment over all "
             f"{len(compared)} comparisons (one family; stats.csv holds the unadjusted p-values)",
         ],
@@ -267,9 +267,10 @@ def run(
     )
 
 
-def stated_ranges(names: Sequence[str]) -> list[str]:
-    """Each parameter's settings beside the range models/uncertainty.toml states for it."""
-    table = ranges()
+def stated_ranges(names: Sequence[str], robot: str = DEFAULT_ROBOT) -> list[str]:
+    """Each parameter's settings beside the range the robot's uncertainty ranges state for it
+    (the iiwa 14's: models/uncertainty.toml)."""
+    table = ranges(robot=robot)
     lines = []
     for name in names:
         p = PARAMETERS[name]

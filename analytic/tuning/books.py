@@ -238,7 +238,8 @@ class Books:
         )
         write_atomically(self.directory / FRONT_JSON, front_json(rows, self.validation()))
         write_atomically(self.directory / PROVENANCE_CSV, provenance_csv(rows))
-        write_atomically(self.directory / FRONT_CSV, front_csv(rows, names))
+        joints = len(self.config.arm.joint_names)
+        write_atomically(self.directory / FRONT_CSV, front_csv(rows, names, joints))
         write_atomically(self.directory / HISTORY_CSV, history_csv(self.state.history, names))
 
     def validation(self) -> ValidationRecord:

@@ -53,7 +53,7 @@ from gainfarm.analytic.tuning.run import TuningRun
 from gainfarm.cli.words import counted
 from gainfarm.edges.files import interrupts_deferred, write_atomically
 from gainfarm.schemas.episode import EpisodeSpec, Scores
-from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
+from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.limits import measures
 from gainfarm.schemas.objectives import objectives
 from gainfarm.schemas.robot import PlantSpec
@@ -141,13 +141,14 @@ def _check(
     if not plants or not front:
         return []
     baseline = run.baseline()
-    ranked = _candidates(front, baseline)
+    defaults = run.config.default_gains  # the robot's
+    ranked = _candidates(front, baseline, defaults)
     first = {}
     for index in ranked[:1]:
         first.setdefault(front[index].gains, ("candidate", index + 1))
     knee = knee_index(front)
     first.setdefault(front[knee].gains, ("knee", knee + 1))
-    first[DEFAULT_GAINS] = ("default gains", None)  # a member that is them is checked as them
+    first[defaults] = ("default gains", None)  # a member that is them is checked as them
     trajectories = len(run.config.trajectories)
     ran = run.state.evolution.evaluations * trajectories * (1 + len(run.config.plants))
     budget = int(CHECK_SHARE * ran)
@@ -264,21 +265,24 @@ def _job_id(run: TuningRun, index: int, number: int, plant: int) -> str:
     return f"{run.job_prefix()}check-c{index}-t{number}-h{plant}"
 
 
-def _candidates(front: Sequence[FrontMember], baseline: Baseline | None) -> list[int]:
+def _candidates(
+    front: Sequence[FrontMember], baseline: Baseline | None, defaults: PDGains
+) -> list[int]:
     """The indices of the sorted `front` that may be recommended, best first: those that
-    dominate the default gains as the run scored them, in the knee's order (picks); the member
-    closest to dominating them alone if none does, so that the check says how far it is."""
+    dominate the robot's default gains (`defaults`) as the run scored them, in the knee's order
+    (picks); the member closest to dominating them alone if none does, so that the check says
+    how far it is."""
     if baseline is None:
         return [knee_index(front)]
     ranked = ranked_dominating(front, baseline) or [closest_index(front, baseline)]
     # NSGA-II starts from the default gains: a member that is them (to the decision space's
     # rounding) is no candidate to replace them.
-    return [i for i in ranked if not _are_the_defaults(front[i].gains)]
+    return [i for i in ranked if not _are_the_defaults(front[i].gains, defaults)]
 
 
-def _are_the_defaults(gains: PDGains) -> bool:
+def _are_the_defaults(gains: PDGains, defaults: PDGains) -> bool:
     mine = np.array(gains.kp + gains.kd)
-    return bool(np.allclose(mine, DEFAULT_GAINS.kp + DEFAULT_GAINS.kd, rtol=1e-9, atol=0))
+    return bool(np.allclose(mine, defaults.kp + defaults.kd, rtol=1e-9, atol=0))
 
 
 def _round(

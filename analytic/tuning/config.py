@@ -1,6 +1,10 @@
-"""A tuning run's configuration: everything that decides its outcome, validated as a whole."""
+"""A tuning run's configuration: everything that decides its outcome, validated as a whole.
 
-from typing import Annotated, Literal, Self
+A run tunes one robot, the one its plant names (`plant.robot`): its variants are of the same
+robot, its default trajectory is centred on the robot's workspace centre when none is given, and
+the gains it is handed have one pair per joint of it."""
+
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Self
 
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -17,8 +21,12 @@ from gainfarm.cli.words import counted
 from gainfarm.schemas.episode import DEFAULT_OBJECTIVES, EpisodeSpec
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.limits import Limits
-from gainfarm.schemas.robot import PlantSpec
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PlantSpec
 from gainfarm.schemas.trajectory import TrajectorySpec
+
+if TYPE_CHECKING:
+    from gainfarm.analytic.tuning.search_space import SearchSpace
+    from gainfarm.schemas.robot import Robot
 
 PositiveFinite = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
@@ -35,6 +43,7 @@ class RunConfig(BaseModel):
     trajectories: tuple[TrajectorySpec, ...] = Field((TrajectorySpec(),), min_length=1)
     plant: PlantSpec = Field(
         default_factory=PlantSpec,
+        validate_default=True,  # the default plant written out too, as a given one is
         # "model" in files written before the plant had its own word (docs/architecture.md)
         validation_alias=AliasChoices("plant", "model"),
     )
@@ -150,6 +159,28 @@ class RunConfig(BaseModel):
         "0.99 (analytic.evaluators.replication.sized_rate; the run's records keep the rate)",
     )
 
+    @model_validator(mode="before")
+    @classmethod
+    def _centred_on_the_robot(cls, data: Any) -> Any:
+        # No trajectory given: the default one, placed at the centre of the robot's workspace,
+        # of its default duration there (a file written before other arms always names its
+        # trajectories).
+        if not isinstance(data, dict) or "trajectories" in data:
+            return data
+        plant = data.get("plant", data.get("model"))
+        name = plant.robot if isinstance(plant, PlantSpec) else (plant or {}).get("robot")
+        if not isinstance(name, str) or name not in plugins.names(plugins.ROBOTS):
+            return data  # the plant's own check says what is wrong with it
+        trajectory = TrajectorySpec(center=_robot(name).workspace.center)
+        if name != DEFAULT_ROBOT:  # the iiwa 14's is the standard 5 s (RunConfig() stays cheap)
+            # start-up: the references (SciPy, MuJoCo) load for another arm's default only
+            from gainfarm.worker.reference import default_duration
+
+            trajectory = trajectory.model_copy(
+                update={"duration": default_duration(trajectory, name)}
+            )
+        return {**data, "trajectories": (trajectory,)}
+
     @field_validator("limits", mode="before")
     @classmethod
     def _as_they_were(cls, limits: object) -> object:
@@ -187,6 +218,16 @@ class RunConfig(BaseModel):
             plugins.check_name(plugins.ROBOTS, plant.robot)
         return tuple(_resolved(plant) for plant in plants)
 
+    @model_validator(mode="after")
+    def _one_robot(self) -> Self:
+        for field in ("plants", "check_plants"):
+            other = next((p.robot for p in getattr(self, field) if p.robot != self.robot), None)
+            if other is not None:
+                raise ValueError(
+                    f"{field}: a variant of {other}, not of the run's robot {self.robot}"
+                )
+        return self
+
     @field_validator("trajectories")
     @classmethod
     def _kinds_here(cls, trajectories: tuple[TrajectorySpec, ...]) -> tuple[TrajectorySpec, ...]:
@@ -219,9 +260,40 @@ class RunConfig(BaseModel):
     def termination(self) -> Termination:
         return Termination(self.generations, self.evaluations, self.tolerance, self.window)
 
+    @property
+    def robot(self) -> str:
+        """The name of the robot the run tunes (its plant's)."""
+        return self.plant.robot
+
+    @property
+    def arm(self) -> "Robot":
+        """The robot the run tunes, loaded (its plug-in)."""
+        return _robot(self.robot)
+
+    @property
+    def default_gains(self) -> PDGains:
+        """The robot's default gains: the search space's centre, what the run is judged
+        against (the baseline, the held-out check) and its first population's first member."""
+        return self.arm.default_gains
+
+    @property
+    def space(self) -> "SearchSpace":
+        """The gains the run searches: the space around the robot's default gains."""
+        # start-up: the search space imports numpy, which `from gainfarm import RunConfig` spares
+        from gainfarm.analytic.tuning.search_space import SearchSpace
+
+        return SearchSpace.around(self.default_gains)
+
     def episode_spec(self, gains: PDGains, trajectory: int, plant: int = 0) -> EpisodeSpec:
         """The episode of `gains` on the run's trajectory `trajectory` (0-based) and plant
-        `plant` (0: the nominal, k: the k-th variant): what the run scores a candidate by."""
+        `plant` (0: the nominal, k: the k-th variant): what the run scores a candidate by.
+        ValueError if the gains are not one pair per joint of the run's robot."""
+        joints = self.arm.joint_names
+        if len(gains.kp) != len(joints):
+            raise ValueError(
+                f"gains: {len(gains.kp)} pairs for {self.robot}'s {len(joints)} joints "
+                f"({', '.join(joints)})"
+            )
         return EpisodeSpec(
             gains=gains,
             trajectory=self.trajectories[trajectory],
@@ -247,6 +319,14 @@ class RunConfig(BaseModel):
     @property
     def mode(self) -> str:
         return "specific" if len(self.trajectories) == 1 else "generic"
+
+
+def _robot(name: str) -> "Robot":
+    """The robot plug-in `name` (models.robot_of)."""
+    # start-up: the robots' modules import MuJoCo, which `from gainfarm import RunConfig` spares
+    from gainfarm.models.robots import robot_of
+
+    return robot_of(name)
 
 
 def _resolved(plant: PlantSpec) -> PlantSpec:

@@ -109,14 +109,22 @@ def optimiser(
 
 
 class FromTheDefaults(FloatRandomSampling):
-    """pymoo's random sampling with the default gains as the first sample (`Evolution`'s
+    """pymoo's random sampling with the robot's default gains as the first sample (`Evolution`'s
     `from_defaults`): a tuning starts from the factory's controller, which it is judged against
     (analytic.tuning.picks), so the front holds it or what dominates it. The other samples are
     the ones random sampling draws, the same random state."""
 
+    # The gains as plain numbers (Kp then Kd; a checkpoint pickles them): the iiwa 14's for a
+    # checkpoint from before other arms, which holds none.
+    defaults: tuple[float, ...] = DEFAULT_GAINS.kp + DEFAULT_GAINS.kd
+
+    def __init__(self, defaults: PDGains = DEFAULT_GAINS) -> None:
+        super().__init__()
+        self.defaults = tuple(defaults.kp + defaults.kd)
+
     def _do(self, problem: Problem, n_samples: int, *args: Any, **kwargs: Any) -> np.ndarray:
         x = super()._do(problem, n_samples, *args, **kwargs)
-        x[0] = np.clip(np.log10(DEFAULT_GAINS.kp + DEFAULT_GAINS.kd), problem.xl, problem.xu)
+        x[0] = np.clip(np.log10(self.defaults), problem.xl, problem.xu)
         return x
 
 
@@ -135,6 +143,7 @@ class Evolution:
         reference: tuple[float, float] = REFERENCE_POINT,
         constraints: int = 0,
         from_defaults: bool = False,
+        defaults: PDGains = DEFAULT_GAINS,
     ):
         """Generational algorithms ask a whole generation at a time. NSGA-II's steady-state
         variant (mu + 1) asks one offspring at a time (ask_one) and takes each result as it
@@ -145,6 +154,8 @@ class Evolution:
         `constraints`: how many constraint values each point is told with (none: unconstrained).
         `from_defaults`: a pymoo algorithm's first population holds the default gains
         (FromTheDefaults); the others (TPE, random sampling, a plug-in's) sample as they do.
+        `defaults`: the robot's default gains, which `space` is built around (the iiwa 14's,
+        its space, by default).
         """
         if objective_scaling not in OBJECTIVE_SCALINGS:
             raise ValueError(
@@ -160,7 +171,7 @@ class Evolution:
         initialization = getattr(self.algorithm, "initialization", None)
         if from_defaults and hasattr(initialization, "sampling"):
             # Read at the first ask, not at set-up: the algorithm is otherwise as it was made.
-            initialization.sampling = FromTheDefaults()
+            initialization.sampling = FromTheDefaults(defaults)
         self._asked = None
         self.generation = 0
         self.evaluations = 0

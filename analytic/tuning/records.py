@@ -45,7 +45,7 @@ from gainfarm.schemas.episode import DEFAULT_OBJECTIVES
 from gainfarm.schemas.gains import PDGains
 from gainfarm.schemas.limits import BEFORE_LAG, DAMPING, MEASURED, Limits, named
 from gainfarm.schemas.objectives import Objective
-from gainfarm.schemas.robot import N_JOINTS
+from gainfarm.schemas.robot import MAX_JOINTS, N_JOINTS
 from gainfarm.schemas.trajectory import KIND_PATTERN
 
 # The names a run directory uses; the report links to the figures by these relative names.
@@ -68,10 +68,18 @@ EPISODES = "episodes"
 # in the paper's run, so its files read as they did before objectives could be chosen. Each
 # holds the objective in its own sense (a maximised one as it is, not as the optimiser is told).
 HISTORY_LEAD = ("generation", "evaluations", "hypervolume")
-GAINS_FIELDS = (
-    *(f"kp{joint}" for joint in range(1, N_JOINTS + 1)),
-    *(f"kd{joint}" for joint in range(1, N_JOINTS + 1)),
-)
+
+
+def gains_fields(joints: int = N_JOINTS) -> tuple[str, ...]:
+    """The gains' columns of a robot of `joints` joints: kp1..kpN, then kd1..kdN (the iiwa
+    14's seven by default, as every run before other arms wrote them)."""
+    return (
+        *(f"kp{joint}" for joint in range(1, joints + 1)),
+        *(f"kd{joint}" for joint in range(1, joints + 1)),
+    )
+
+
+GAINS_FIELDS = gains_fields()
 
 
 def history_fields(names: Sequence[str] = DEFAULT_OBJECTIVES) -> tuple[str, ...]:
@@ -79,10 +87,12 @@ def history_fields(names: Sequence[str] = DEFAULT_OBJECTIVES) -> tuple[str, ...]
     return (*HISTORY_LEAD, *(f"best_{name}" for name in names), "wall_seconds")
 
 
-def front_fields(names: Sequence[str] = DEFAULT_OBJECTIVES) -> tuple[str, ...]:
-    """front.csv's header (before the `diverged` column, a front.csv was read as members none
-    of whose episodes diverged)."""
-    return (*GAINS_FIELDS, *names, "diverged")
+def front_fields(
+    names: Sequence[str] = DEFAULT_OBJECTIVES, joints: int = N_JOINTS
+) -> tuple[str, ...]:
+    """front.csv's header for a robot of `joints` joints (before the `diverged` column, a
+    front.csv was read as members none of whose episodes diverged)."""
+    return (*gains_fields(joints), *names, "diverged")
 
 
 HISTORY_FIELDS = history_fields()
@@ -249,9 +259,11 @@ class FrontMember(NamedObjectives):
     def __post_init__(self) -> None:
         for name in ("kp", "kd"):
             gains = tuple(float(gain) for gain in getattr(self, name))
-            if len(gains) != N_JOINTS:
-                raise ValueError(f"{name} needs {N_JOINTS} gains, got {len(gains)}")
+            if not 1 <= len(gains) <= MAX_JOINTS:
+                raise ValueError(f"{name} needs one gain per joint, got {len(gains)}")
             object.__setattr__(self, name, gains)
+        if len(self.kp) != len(self.kd):
+            raise ValueError(f"kp has {len(self.kp)} gains and kd {len(self.kd)}: one per joint")
         _set_objectives(self)
         if not isinstance(self.diverged, bool):
             raise ValueError(f"diverged must be true or false, got {self.diverged!r}")
@@ -340,12 +352,16 @@ def history_csv(history: Sequence[HistoryRow], names: Sequence[str] | None = Non
     )
 
 
-def front_csv(front: Sequence[FrontMember], names: Sequence[str] | None = None) -> bytes:
+def front_csv(
+    front: Sequence[FrontMember], names: Sequence[str] | None = None, joints: int = N_JOINTS
+) -> bytes:
     """front.csv's content, sorted by the first objective then the second so equal fronts give
-    byte-identical files; `names`: the run's objectives, if there is no member to say them."""
+    byte-identical files; `names` and `joints`: the run's objectives and its robot's joint count,
+    if there is no member to say them."""
     names = names or (front[0].names if front else DEFAULT_OBJECTIVES)
+    joints = len(front[0].kp) if front else joints
     return _csv_bytes(
-        front_fields(names),
+        front_fields(names, joints),
         (
             (
                 *map(_exact, member.kp),
@@ -419,20 +435,35 @@ def read_history(path: Path) -> list[HistoryRow]:
 
 def read_front(path: Path) -> list[FrontMember]:
     """front.csv as written by `front_csv`, in file order (already sorted by the first
-    objective); its objectives are the header's."""
-    names = _objective_columns(path, GAINS_FIELDS, [("diverged",), ()])
+    objective); its objectives and its robot's joint count are the header's."""
+    joints = front_joints(path)
+    names = _objective_columns(path, gains_fields(joints), [("diverged",), ()])
     maximised = maximised_among(names)
+    fields = front_fields(names, joints)
     return [
         FrontMember(
-            kp=tuple(float(row[f"kp{joint}"]) for joint in range(1, N_JOINTS + 1)),
-            kd=tuple(float(row[f"kd{joint}"]) for joint in range(1, N_JOINTS + 1)),
+            kp=tuple(float(row[f"kp{joint}"]) for joint in range(1, joints + 1)),
+            kd=tuple(float(row[f"kd{joint}"]) for joint in range(1, joints + 1)),
             objectives=_told(names, [row[name] for name in names]),
             diverged=_flag(row.get("diverged", "false"), path),
             names=names,
             maximised=maximised,
         )
-        for row in _read_rows(path, front_fields(names), front_fields(names)[:-1])
+        for row in _read_rows(path, fields, fields[:-1])
     ]
+
+
+def front_joints(path: Path) -> int:
+    """The joint count a front.csv's header names (its kp1..kpN, kd1..kdN columns); the iiwa
+    14's seven for a header of no such form (then `read_front` refuses it, naming what it
+    expected)."""
+    with Path(path).open(newline="", encoding="utf-8") as stream:
+        header = next(csv.reader(stream), [])
+    joints = 0
+    while joints < len(header) and header[joints] == f"kp{joints + 1}":
+        joints += 1
+    whole = tuple(header[: 2 * joints]) == gains_fields(joints)  # kd1..kdN follow
+    return joints if whole and 1 <= joints <= MAX_JOINTS else N_JOINTS
 
 
 # evaluated.csv's columns after the objectives', and those of the versions before.

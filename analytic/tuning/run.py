@@ -74,7 +74,6 @@ from gainfarm.analytic.tuning.steady_state import SteadyState
 from gainfarm.edges.files import Lock, Locked, remove_leftovers, write_atomically
 from gainfarm.models.dynamics import digest
 from gainfarm.schemas.documents import read_bounded
-from gainfarm.schemas.gains import DEFAULT_GAINS
 
 # Where they were before the run's parts had modules of their own, and are imported from still.
 __all__ = [
@@ -288,19 +287,20 @@ class TuningRun:
                 kept = read_baseline(path)
             except ValueError:
                 kept = None
-            if kept is not None and kept.gains == DEFAULT_GAINS:
+            if kept is not None and kept.gains == self.config.default_gains:
                 return kept
         if evaluator is None:
             return None
         jobs = job_ids(self.config, "baseline")
-        specs = {job_id: episode_spec(self.config, DEFAULT_GAINS, job_id) for job_id in jobs}
+        defaults = self.config.default_gains
+        specs = {job_id: episode_spec(self.config, defaults, job_id) for job_id in jobs}
         evaluator.submit(specs)
         found = {result.job_id: result for result in evaluator.results()}
         rulings = self._refereeing.referee_baseline(evaluator, found)
         self.replay_without_caught(evaluator)
         scores = [found[job_id].scores if job_id in found else None for job_id in jobs]
         baseline = Baseline(
-            gains=DEFAULT_GAINS,
+            gains=defaults,
             objectives=candidate_objectives(self.config, scores),
             names=self.config.objectives,
             maximised=maximised(self.config.objectives),

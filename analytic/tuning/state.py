@@ -99,10 +99,12 @@ def evolution_of(config: RunConfig) -> Evolution:
     return Evolution(
         config.pop,
         config.seed,
+        space=config.space,
         steady_state=config.asynchronous,
         algorithm=config.algorithm,
         objective_scaling=config.objective_scaling,
         reference=config.reference_point,
         constraints=config.limits.count,
         from_defaults=config.from_defaults,
+        defaults=config.default_gains,
     )

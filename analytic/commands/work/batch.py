@@ -10,11 +10,17 @@ from rich.console import Console
 from rich.table import Table
 
 from gainfarm.analytic.commands.shared import farm_problem
-from gainfarm.analytic.commands.work.common import check_farm
+from gainfarm.analytic.commands.work.common import (
+    centre,
+    check_farm,
+    on_the_robot,
+    robot_plant,
+)
+from gainfarm.analytic.commands.work.start import STANDARD
 from gainfarm.analytic.commands.work.tuning import claimed, farm, followable, study_name
 from gainfarm.analytic.evaluators.batch import EVALUATIONS, batch_jobs, run_batch
 from gainfarm.analytic.evaluators.farm import FarmClient
-from gainfarm.analytic.tuning.records import FRONT_FIELDS, read_front
+from gainfarm.analytic.tuning.records import front_joints, read_front
 from gainfarm.analytic.view.progress import Display
 from gainfarm.cli import interrupts, values
 from gainfarm.cli.app import CliError
@@ -23,7 +29,6 @@ from gainfarm.cli.scores import DIVERGED_TEXT, print_title
 from gainfarm.models.dynamics import digest
 from gainfarm.schemas.controller import BadGains, read_gains
 from gainfarm.schemas.documents import BadDocument, read_bounded
-from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.wire import BadMessage
 
 if TYPE_CHECKING:
@@ -39,10 +44,11 @@ def batch(
     workers: int | None,
     gains_file: Path | None,
     kinds: tuple[str, ...],
-    duration: float,
+    duration: float | None,
     trajectory_seed: int,
-    center: str,
+    center: str | None,
     size: float,
+    robot: str,
     joints: str,
     plant: str,
     payload: float | None,
@@ -52,25 +58,32 @@ def batch(
     deadline: float,
     as_json: bool,
 ) -> None:
-    """`analytic batch` with its options as parsed (analytic/commands/batch.py)."""
+    """`analytic batch` with its options as parsed (analytic/commands/batch.py); `center` and
+    `duration` None: the robot's workspace centre and each kind's default duration on it."""
     if not connect and not local:  # batch has no default farm
         raise CliError("say where the farm is: --connect ENDPOINT or --local")
     identity = check_farm(connect, local, tls, participant)
-    candidates = _candidates(gains_file)
-    model = values.with_load(values.model_spec(plant, joints), payload, payload_com, plant)
+    model = values.with_load(robot_plant(plant, joints, robot), payload, payload_com, plant)
+    # start-up: the robot's module (MuJoCo) is loaded by now, for the plant
+    from gainfarm.models import robot_of
+
+    arm = robot_of(model)
+    candidates = _candidates(gains_file, arm.default_gains, arm.joint_names)
     # Episodes that saturate every tick are refused, as `worker episode` refuses them.
-    refuse_saturating(candidates, model, gains_file)
+    refuse_saturating(candidates, model, gains_file, arm)
     if gains_file is not None:
-        warn_far_outside_search("analytic", candidates, gains_file)
-    trajectories = values.trajectories(kinds, duration, trajectory_seed, center, size)
-    followable(trajectories)
+        warn_far_outside_search("analytic", candidates, gains_file, arm)
+    where = centre(center, model.robot)
+    given = values.trajectories(kinds, duration or STANDARD, trajectory_seed, where, size)
+    trajectories = on_the_robot(given, duration, model.robot)
+    followable(trajectories, robot=model.robot)
     learned = values.feedforward_model(feedforward)
     models = {digest(learned[0]): learned[0]} if learned is not None else {}
     jobs = batch_jobs(candidates, trajectories, model, *models)
     run_dir = run_dir or Path("runs") / time.strftime("batch-%Y%m%d-%H%M%S")
     if (run_dir / EVALUATIONS).exists():
         raise CliError(f"--run-dir: {str(run_dir)!r} already holds a batch; choose another")
-    with claimed(run_dir, "--run-dir") as keep, farm(connect, workers) as endpoints:
+    with claimed(run_dir, "--run-dir") as keep, farm(connect, workers, model.robot) as endpoints:
         try:
             client = FarmClient(
                 endpoints,
@@ -104,18 +117,24 @@ def batch(
         _print_evaluations(evaluations, run_dir, EVALUATIONS)
 
 
-def _candidates(path: Path | None) -> list["PDGains"]:
-    """--gains' candidates: an exported controller or a list of gains, JSON or YAML
-    (schemas.controller.read_gains), or every member of a run's front.csv."""
+def _candidates(path: Path | None, defaults: "PDGains", joints: tuple[str, ...]) -> list["PDGains"]:
+    """--gains' candidates for an arm of `joints` (its `defaults` if none): an exported
+    controller or a list of gains, JSON or YAML (schemas.controller.read_gains), or every member
+    of a run's front.csv; one line if they are not one pair per joint."""
     if path is None:
-        return [DEFAULT_GAINS]
+        return [defaults]
     try:
         raw = read_bounded(path)
     except OSError as error:
         raise CliError(f"--gains: cannot read {str(path)!r}: {error.strerror}") from None
     except BadDocument as error:
         raise CliError(f"--gains: {str(path)!r}: {error}") from None
-    if raw.startswith(FRONT_FIELDS[0].encode() + b","):  # a CSV whose header is front.csv's
+    if raw.startswith(b"kp1,"):  # a CSV whose header is front.csv's
+        if front_joints(path) != len(joints):
+            raise CliError(
+                f"--gains: {str(path)!r} is a front of a {front_joints(path)}-joint arm, not of "
+                f"the {len(joints)} joints of --robot's ({', '.join(joints)})"
+            )
         try:
             front = read_front(path)
         except ValueError as error:
@@ -126,7 +145,7 @@ def _candidates(path: Path | None) -> list["PDGains"]:
             raise CliError(f"--gains: {str(path)!r} is a front.csv with no members")
         return [member.gains for member in front]
     try:
-        return read_gains(raw)
+        return read_gains(raw, joints)
     except BadGains as error:
         raise CliError(f"--gains: {str(path)!r}: {error}") from None
 

@@ -3,8 +3,10 @@ variants, the farm's identity, a RunConfig's complaint naming its option. Loaded
 runs (pydantic and the contract), before anything heavier: a bad option is refused before
 MuJoCo, Zenoh, pymoo or matplotlib load."""
 
+from collections.abc import Callable
 from pathlib import Path
 
+import click
 from pydantic import ValidationError
 
 from gainfarm.analytic.commands.shared import farm_rules
@@ -13,9 +15,56 @@ from gainfarm.cli import values
 from gainfarm.cli.app import CliError
 from gainfarm.schemas.documents import BadDocument, read_bounded
 from gainfarm.schemas.plant_file import PlantFile
-from gainfarm.schemas.robot import PLANTS, PlantSpec
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PLANTS, PlantSpec
 from gainfarm.schemas.security import TlsIdentity
+from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import describe, one_line
+
+
+def robot_plant(plant: str, joints: str | None, robot: str) -> PlantSpec:
+    """--plant's PlantSpec on --robot's arm: a preset (realistic, plain, ideal) of `robot`, or a
+    plant file's (a calibrated twin names its own robot); with --joints if given. One line
+    naming the option if --robot names another arm than the twin's."""
+    if plant not in PLANTS:
+        spec = values.model_spec(plant, joints)
+        if robot != DEFAULT_ROBOT and spec.robot != robot:
+            raise CliError(
+                f"--robot: {robot}, but --plant {plant!r} is a twin of {spec.robot} (a twin of "
+                "one arm is no plant of another)"
+            )
+        return spec
+    # start-up: the robot's module (MuJoCo) loads once the cheaper options are checked
+    from gainfarm.models import plant_preset
+
+    spec = plant_preset(plant, robot)
+    return spec if joints is None else spec.model_copy(update={"joints": joints})
+
+
+def centre(center: str | None, robot: str) -> str:
+    """--center as given, or else (None) the centre of the robot's workspace, where its default
+    trajectories lie (--center's form: x,y,z in m)."""
+    if center is not None:
+        return center
+    # start-up: the robot's module (MuJoCo) loads once the cheaper options are checked
+    from gainfarm.models import robot_of
+
+    return ",".join(repr(float(v)) for v in robot_of(robot).workspace.center)
+
+
+def on_the_robot(
+    trajectories: "tuple[TrajectorySpec, ...]", duration: float | None, robot: str
+) -> "tuple[TrajectorySpec, ...]":
+    """The trajectories with --duration as given, or else (None) each kind's default duration
+    on the robot (worker.reference.default_duration: 5 s, or longer on an arm too slow for it
+    within its limits' share)."""
+    if duration is not None:
+        return trajectories
+    # start-up: the references (SciPy, MuJoCo) load once the cheaper options are checked
+    from gainfarm.worker.reference import default_duration
+
+    return tuple(
+        t.model_copy(update={"duration": default_duration(t, robot)}) for t in trajectories
+    )
 
 
 def _uncertainty(plant_file: PlantFile, nominal: PlantSpec) -> dict:
@@ -35,17 +84,21 @@ def plants_from(
     held_out: bool = False,
     plant: str | None = None,
     designed: bool = False,
+    holds: "Callable[[PlantSpec], bool] | None" = None,
 ) -> tuple[PlantSpec, ...]:
     """--plants K variants of `nominal` (`held_out`: --check-plants M of them, on the seed's
-    other stream; `designed`: robust tuning's, the corners first), drawn from --uncertainty
-    FILE's ranges, else from those of the plant file --plant names (a calibrated twin's), else
-    the shipped ones; or one line naming the option."""
+    other stream; `designed`: robust tuning's, the corners first, each where the default gains
+    still hold if `holds` says so: plants.held_design), drawn from --uncertainty FILE's ranges,
+    else from those of the plant file --plant names (a calibrated twin's), else the robot's own;
+    or one line naming the option."""
     # start-up: MuJoCo (a variant's physics step) loads once the cheaper options are checked
     from gainfarm.analytic.tuning.plants import (
+        CORNERS,
         HELD_OUT,
         TUNING,
         BadUncertainty,
         design,
+        held_design,
         ranges,
         ranges_of,
         variants,
@@ -54,6 +107,16 @@ def plants_from(
     stream = HELD_OUT if held_out else TUNING
 
     def drawn(table: "dict | None") -> tuple[PlantSpec, ...]:
+        if designed and holds is not None:
+            found, shares = held_design(nominal, count, seed, holds, table)
+            for name, share in zip(CORNERS, shares, strict=False):
+                if share < 1:  # said: the run's plants are not the ranges' ends
+                    click.echo(
+                        f"--plants: the {name} corner {share:g} of the way to the ranges' ends, "
+                        f"where {nominal.robot}'s default gains keep to the limits",
+                        err=True,
+                    )
+            return found
         if designed:
             return design(nominal, count, seed, table)
         return variants(nominal, count, seed, table, stream)

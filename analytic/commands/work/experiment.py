@@ -8,7 +8,7 @@ from pydantic import ValidationError
 from rich.console import Console
 
 from gainfarm.analytic.commands.shared import farm_problem, refuse_under_a_file, unwritable
-from gainfarm.analytic.commands.work.common import check_farm, config_problem
+from gainfarm.analytic.commands.work.common import check_farm, config_problem, robot_plant
 from gainfarm.analytic.commands.work.tuning import followable, own_farm, study_name
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.experiments.registry import ExperimentSpec
@@ -18,7 +18,8 @@ from gainfarm.analytic.tuning.run import RunBusy
 from gainfarm.analytic.view.progress import Display
 from gainfarm.cli import interrupts, options
 from gainfarm.cli.app import CliError
-from gainfarm.cli.values import limits_from, model_spec, with_load
+from gainfarm.cli.values import limits_from, with_load
+from gainfarm.models import robot_of
 from gainfarm.schemas.trajectory import TrajectorySpec
 
 # Without a terminal, an experiment's progress is a plain line this often at most: its runs go
@@ -30,6 +31,7 @@ def run(
     spec: ExperimentSpec,
     reps: int,
     pop: int,
+    robot: str,
     plant: str,
     generations: int | None,
     evaluations: int | None,
@@ -50,6 +52,10 @@ def run(
     options.check_load(payload, payload_com)
     identity = check_farm(connect, local, tls, participant)
     limits = limits_from(limits_file)
+    nominal = with_load(robot_plant(plant, None, robot), payload, payload_com, plant)
+    refused = spec.refusal(nominal.robot)
+    if refused is not None:
+        raise CliError(f"--robot: {refused}")
     chosen: dict[str, object] = {}
     for option in spec.options:
         text = given[option.parameter]
@@ -60,12 +66,15 @@ def run(
         except ValueError as error:
             raise CliError(f"{option.flag}: {error}") from None
     try:
+        centre = robot_of(nominal).workspace.center  # the arm's default trajectory's
         base = RunConfig(
             pop=pop,
             trajectories=(
-                TrajectorySpec() if duration is None else TrajectorySpec(duration=duration),
+                TrajectorySpec(center=centre)
+                if duration is None
+                else TrajectorySpec(duration=duration, center=centre),
             ),
-            plant=with_load(model_spec(plant), payload, payload_com, plant),
+            plant=nominal,
             limits=limits,
             generations=generations,
             evaluations=evaluations,
@@ -77,7 +86,7 @@ def run(
         raise CliError(config_problem(error)) from None
     except ValueError as error:
         raise CliError(str(error)) from None
-    followable(trajectories, spec.trajectory_option)
+    followable(trajectories, spec.trajectory_option, nominal.robot)
     refuse_under_a_file(out, "--out")
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -93,7 +102,7 @@ def run(
 
     try:
         with (
-            own_farm(connect, workers) as (endpoints, own_workers),
+            own_farm(connect, workers, nominal.robot) as (endpoints, own_workers),
             Display(console, hushed=interrupts.INTERRUPTED.is_set) as display,
         ):
             display.show(spec.name)

@@ -7,24 +7,36 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from gainfarm import plugins
-from gainfarm.analytic.commands.work.common import check_farm, make_config, plants_from
+from gainfarm.analytic.commands.work.common import (
+    centre,
+    check_farm,
+    make_config,
+    on_the_robot,
+    plants_from,
+    robot_plant,
+)
 from gainfarm.analytic.evaluators.local import LocalFarm
 from gainfarm.analytic.tuning import defaults
+from gainfarm.analytic.tuning.algorithms import STEADY_STATE, steady_state_refusal
 from gainfarm.analytic.tuning.records import CONFIG_JSON
 from gainfarm.cli import options, values
 from gainfarm.cli.app import CliError
+from gainfarm.schemas.trajectory import TrajectorySpec
+
+STANDARD = TrajectorySpec.model_fields["duration"].default  # a trajectory's, before the robot's
 
 
 def start(
     pop: int,
     kinds: tuple[str, ...],
-    duration: float,
+    duration: float | None,
     trajectory_seed: int,
-    center: str,
+    center: str | None,
     size: float,
     seed: int,
     generations: int | None,
     evaluations: int | None,
+    robot: str,
     joints: str,
     plant: str,
     payload: float | None,
@@ -53,13 +65,18 @@ def start(
     spot_checks: float | None,
     balance: bool,
 ) -> None:
-    """`analytic start` with its options as parsed (analytic/commands/start.py)."""
+    """`analytic start` with its options as parsed (analytic/commands/start.py); `center` and
+    `duration` None: the robot's workspace centre and each kind's default duration on it."""
     options.check_load(payload, payload_com)
     objectives = _objectives(objective_names, torque_measure)
     identity = check_farm(connect, local, tls, participant)
     limits = values.limits_from(limits_file, min_damping)
-    trajectories = values.trajectories(kinds, duration, trajectory_seed, center, size)
-    nominal = values.with_load(values.model_spec(plant, joints), payload, payload_com, plant)
+    if asynchronous and algorithm not in STEADY_STATE:  # before the robot's module loads MuJoCo
+        raise CliError(f"--async: {steady_state_refusal(algorithm)}")
+    nominal = values.with_load(robot_plant(plant, joints, robot), payload, payload_com, plant)
+    where = centre(center, nominal.robot)
+    given = values.trajectories(kinds, duration or STANDARD, trajectory_seed, where, size)
+    trajectories = on_the_robot(given, duration, nominal.robot)
     if out is not None and (out / CONFIG_JSON).exists():  # `tune` would resume it: a start does not
         raise CliError(f"--out: {str(out)!r} already holds a run; resume it or choose another")
     fields = {
@@ -83,13 +100,15 @@ def start(
     }
     make_config(fields)  # what the config alone refuses, before the variants load MuJoCo
     learned = values.feedforward_model(feedforward)
-    with _farm(connect, workers) as farm:
+    with _farm(connect, workers, nominal.robot) as farm:
         # start-up: MuJoCo, Zenoh, pymoo and rich load once the options are checked (but the
         # variants', which need MuJoCo), while the local farm starts
         from gainfarm.analytic.commands.work import tuning
+        from gainfarm.analytic.compose import defaults_hold
 
+        holds = defaults_hold(trajectories, limits, objectives)
         fields["plants"] = plants_from(
-            plants, uncertainty_file, nominal, seed, plant=plant, designed=True
+            plants, uncertainty_file, nominal, seed, plant=plant, designed=True, holds=holds
         )
         fields["check_plants"] = plants_from(
             check_plants, uncertainty_file, nominal, seed, held_out=True, plant=plant
@@ -116,7 +135,9 @@ def _objectives(names: tuple[str, ...], torque_measure: str) -> tuple[str, str]:
 
 
 @contextlib.contextmanager
-def _farm(connect: tuple[str, ...], workers: int | None) -> "Iterator[LocalFarm | None]":
+def _farm(
+    connect: tuple[str, ...], workers: int | None, robot: str
+) -> "Iterator[LocalFarm | None]":
     """Without --connect, a local farm started before the heavy imports: its processes start
     while this one imports and checks the run (a second or two), so it serves by the time the
     first jobs are ready. `tune` stops it when done with it; this block, if `tune` never used it
@@ -124,5 +145,5 @@ def _farm(connect: tuple[str, ...], workers: int | None) -> "Iterator[LocalFarm 
     if connect:
         yield None
         return
-    with LocalFarm(workers) as farm:
+    with LocalFarm(workers, robot=robot) as farm:
         yield farm

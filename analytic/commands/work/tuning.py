@@ -43,6 +43,7 @@ from gainfarm.cli.app import CliError
 from gainfarm.cli.words import counted
 from gainfarm.models.dynamics import digest
 from gainfarm.schemas.limits import tally
+from gainfarm.schemas.robot import DEFAULT_ROBOT
 from gainfarm.schemas.security import TlsIdentity
 from gainfarm.schemas.trajectory import TrajectorySpec
 from gainfarm.schemas.wire import one_line
@@ -55,16 +56,19 @@ def study_name(directory: Path, identity: TlsIdentity | None) -> str:
 
 
 @contextlib.contextmanager
-def farm(connect: tuple[str, ...], workers: int | None) -> Iterator[list[str]]:
-    """The endpoints to use: the given broker's, or else a local farm's (a local farm that
-    cannot start is one line; what goes wrong later in the block is not relabelled)."""
-    with own_farm(connect, workers) as (endpoints, _):
+def farm(
+    connect: tuple[str, ...], workers: int | None, robot: str | None = None
+) -> Iterator[list[str]]:
+    """The endpoints to use: the given broker's, or else a local farm's, of `robot` if known
+    (a local farm that cannot start is one line; what goes wrong later in the block is not
+    relabelled)."""
+    with own_farm(connect, workers, robot) as (endpoints, _):
         yield endpoints
 
 
 @contextlib.contextmanager
 def own_farm(
-    connect: tuple[str, ...], workers: int | None
+    connect: tuple[str, ...], workers: int | None, robot: str | None = None
 ) -> Iterator[tuple[list[str], frozenset[str] | None]]:
     """As `farm`, with the names of a local farm's workers (None with --connect): the only
     workers whose results a client of it takes (FarmClient's `own_workers`)."""
@@ -73,7 +77,7 @@ def own_farm(
         return
     with contextlib.ExitStack() as stack:
         try:
-            local = stack.enter_context(LocalFarm(workers))
+            local = stack.enter_context(LocalFarm(workers, robot=robot))
             endpoint = local.ready()
         except (ValueError, ConnectionError, FarmUnavailable) as error:
             raise CliError(f"local farm: {error}") from None
@@ -110,11 +114,13 @@ def claimed(directory: Path, option: str) -> Iterator[Callable[[], None]]:
         raise
 
 
-def followable(trajectories: Iterable[TrajectorySpec], option: str = "--duration") -> None:
-    """Refuse, in one line, a trajectory the iiwa cannot follow (out of reach, or too fast for
+def followable(
+    trajectories: Iterable[TrajectorySpec], option: str = "--duration", robot: str = DEFAULT_ROBOT
+) -> None:
+    """Refuse, in one line, a trajectory `robot` cannot follow (out of reach, or too fast for
     its limits) before any job is sent: every episode of it would fail."""
     try:
-        check_followable(trajectories)
+        check_followable(trajectories, robot)
     except CannotStart as error:
         raise CliError(f"{start_option(error.part, option)}: {error}") from None
 

@@ -16,10 +16,11 @@ from pathlib import Path
 
 import pytest
 
+from gainfarm import plugins
 from gainfarm.analytic.compose import FarmOptions, tune
 from gainfarm.analytic.evaluators.farm import FarmClient
 from gainfarm.analytic.evaluators.inprocess import InProcessEvaluator
-from gainfarm.analytic.evaluators.local import LocalFarm, stop_workers
+from gainfarm.analytic.evaluators.local import LocalFarm, robot_options, stop_workers
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import read_front_json
 from gainfarm.analytic.tuning.run import TuningRun
@@ -126,3 +127,10 @@ def test_a_forger_of_this_user_on_a_local_farm_is_refused_and_the_front_is_the_c
     assert ran and ran <= set(farm.names)
     provenance = (tuning.directory / "provenance.csv").read_text()
     assert "forger" not in provenance and farm.names[0] in provenance
+
+
+def test_a_shipped_arms_workers_are_told_no_description_file() -> None:
+    # A worker has every shipped arm (its plug-ins): only a described arm's file is passed on.
+    for name in plugins.builtin_names(plugins.ROBOTS):
+        assert robot_options(name) == ()
+    assert robot_options(None) == ()

@@ -12,6 +12,7 @@ from gainfarm.analytic.experiments.runner import Experiment
 from gainfarm.analytic.experiments.statistics import holm_adjusted
 from gainfarm.analytic.tuning.config import RunConfig
 from gainfarm.analytic.tuning.records import BASELINE_JSON, read_baseline
+from gainfarm.models import resolve
 from gainfarm.schemas import TrajectorySpec
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT, PlantSpec
@@ -108,7 +109,7 @@ def test_a_shift_the_data_show_is_one_and_an_equal_plant_survives() -> None:
 
 
 def test_each_setting_moves_its_own_numbers_only() -> None:
-    nominal = REALISTIC_PLANT.model_dump()
+    nominal = resolve(REALISTIC_PLANT).model_dump()  # the robot's numbers, as they are moved
     for setting in sens.settings_of(list(sens.PARAMETERS)):
         moved = sens.moved(REALISTIC_PLANT, setting).model_dump()
         changed = {k for k in nominal if moved[k] != nominal[k]}
@@ -117,8 +118,9 @@ def test_each_setting_moves_its_own_numbers_only() -> None:
         assert changed == ({field, "substeps"} if setting.label == "stiffness ×2" else {field})
     assert sens.moved(REALISTIC_PLANT, sens.settings_of(["mass"])[0]).mass_scale == (0.9,) * 7
     coulomb = sens.moved(REALISTIC_PLANT, sens.settings_of(["coulomb"])[1]).friction
-    assert coulomb and REALISTIC_PLANT.friction
-    assert coulomb.coulomb == tuple(2 * c for c in REALISTIC_PLANT.friction.coulomb)
+    written = resolve(REALISTIC_PLANT).friction
+    assert coulomb and written and written.coulomb
+    assert coulomb.coulomb == tuple(2 * c for c in written.coulomb)
 
 
 def test_parameters_are_named_once_each_and_fit_the_plant() -> None:

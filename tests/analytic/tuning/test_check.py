@@ -139,6 +139,8 @@ def test_a_member_that_is_the_default_gains_is_no_candidate_to_replace_them() ->
     baseline = Baseline(gains=DEFAULT_GAINS, objectives=(2e-3, 0.1), diverged=False)
     them = FrontMember(kp=defaults.kp, kd=defaults.kd, objectives=(2e-3, 0.1))
     other = _front_member(1, 1e-3, 0.3)
-    assert _candidates([other, them], baseline) == []  # the closest is them: none is left
+    assert (
+        _candidates([other, them], baseline, DEFAULT_GAINS) == []
+    )  # the closest is them: none is left
     better = _front_member(2, 1.5e-3, 0.09)
-    assert _candidates([other, better, them], baseline) == [1]
+    assert _candidates([other, better, them], baseline, DEFAULT_GAINS) == [1]

@@ -19,13 +19,16 @@ from gainfarm.analytic.tuning.plants import (
     variants,
 )
 from gainfarm.analytic.tuning.run import TuningRun
-from gainfarm.models import compile_model
+from gainfarm.models import compile_model, resolve
 from gainfarm.schemas import Scores, TrajectorySpec
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.objectives import objectives
 from gainfarm.schemas.robot import IDEAL_PLANT, REALISTIC_PLANT, LoadData
 from gainfarm.worker.plant import gravity_spec
 from tests.helpers import analytic
+
+# The realistic plant with its robot's numbers written out, as the variants are.
+NOMINAL = resolve(REALISTIC_PLANT)
 
 
 def _scores(f_acc: float, f_t: float) -> Scores:
@@ -39,7 +42,7 @@ def test_variants_stay_in_their_ranges_and_the_robots_model_stays_nominal() -> N
     assert drawn == variants(REALISTIC_PLANT, 12, seed=3)  # deterministic in the seed
     assert drawn != variants(REALISTIC_PLANT, 12, seed=4)
     assert len(set(drawn)) == 12
-    nominal = REALISTIC_PLANT
+    nominal = NOMINAL
     for plant in drawn:
         assert all(0.85 <= scale <= 1.15 for scale in plant.mass_scale)
         assert 0.0 <= plant.payload <= 3.0 and plant.delay in (0, 1, 2)
@@ -64,15 +67,15 @@ def test_the_design_puts_the_corners_first_at_their_ranges_ends_then_random_draw
     assert heavy.payload == table["payload"].high and light.payload == table["payload"].low
     assert heavy.delay == light.delay == table["delay"].high  # both late by the range's top
     assert heavy.mass_scale == (table["mass_scale"].high,) * 7
-    rotor = np.divide(light.rotor_inertia, REALISTIC_PLANT.rotor_inertia)
+    rotor = np.divide(light.rotor_inertia, NOMINAL.rotor_inertia)
     assert np.allclose(rotor, table["rotor_inertia"].low)
-    assert heavy.rotor_inertia == REALISTIC_PLANT.rotor_inertia  # fast paths stay feasible
-    softer = np.divide(heavy.stiffness, REALISTIC_PLANT.stiffness)
+    assert heavy.rotor_inertia == NOMINAL.rotor_inertia  # fast paths stay feasible
+    softer = np.divide(heavy.stiffness, NOMINAL.stiffness)
     assert np.allclose(softer, table["stiffness"].low)
-    stiffness = np.divide(light.stiffness, REALISTIC_PLANT.stiffness)
+    stiffness = np.divide(light.stiffness, NOMINAL.stiffness)
     assert np.allclose(stiffness, table["stiffness"].high)
     # Only what a corner names moves: its sensors keep the nominal noise, on a seed of its own.
-    assert heavy.spring_damping == REALISTIC_PLANT.spring_damping
+    assert heavy.spring_damping == NOMINAL.spring_damping
     assert heavy.sensors.noise == REALISTIC_PLANT.sensors.noise
     assert len({REALISTIC_PLANT.sensors.seed, heavy.sensors.seed, light.sensors.seed}) == 3
     assert gravity_spec(heavy) == gravity_spec(REALISTIC_PLANT)  # the robot knows none of it
@@ -104,7 +107,7 @@ def test_each_shipped_range_names_its_source_or_says_it_is_an_assumption() -> No
         ("[a", "not TOML"),
         (
             '[a]\nfield = "stiffness"\ndraw = "log"\nlow = [1, 1]\nhigh = 2\nwhy = "w"',
-            "low: one number, or 7 with per_joint = true",
+            "low: one number, or one per joint with per_joint = true",
         ),
         (
             '[a]\nfield = "stiffness"\nper_joint = true\ndraw = "log"\nlow = [1, 1, 1, 1, 1, 1, 3]'
@@ -128,7 +131,7 @@ def test_per_joint_bounds_draw_each_joint_within_its_own() -> None:
         '[d]\nfield = "delay"\nabsolute = true\ndraw = "integer"\nlow = 2\nhigh = 2\nwhy = "w"\n'
     )
     drawn = variants(REALISTIC_PLANT, 32, seed=5, uncertainty=table)
-    factors = np.array([p.stiffness for p in drawn]) / np.asarray(REALISTIC_PLANT.stiffness)
+    factors = np.array([p.stiffness for p in drawn]) / np.asarray(NOMINAL.stiffness)
     assert np.all(factors >= np.asarray(low) * (1 - 1e-12))
     assert np.all(factors <= np.asarray(high) * (1 + 1e-12))
     assert np.ptp(factors[:, 1]) > 1.0 and np.ptp(factors[:, 2]) == 0  # each joint its own

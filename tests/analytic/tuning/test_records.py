@@ -77,9 +77,27 @@ def test_ties_in_both_objectives_are_ordered_by_the_gains() -> None:
     assert front_csv([a, b]) == front_csv([b, a])
 
 
-def test_a_member_needs_seven_gains_of_each_kind() -> None:
-    with pytest.raises(ValueError, match="kd needs 7"):
+def test_a_member_needs_one_gain_of_each_kind_per_joint() -> None:
+    with pytest.raises(ValueError, match="kp has 7 gains and kd 6"):
         FrontMember(kp=KP, kd=KD[:6], objectives=(0.01, 1.0))
+    with pytest.raises(ValueError, match="kp needs one gain per joint, got 0"):
+        FrontMember(kp=(), kd=(), objectives=(0.01, 1.0))
+
+
+def test_a_six_joint_front_is_written_and_read_with_its_own_columns(tmp_path: Path) -> None:
+    six = [
+        FrontMember(kp=KP[:6], kd=KD[:6], objectives=(0.01, 1.0)),
+        FrontMember(kp=KP[1:], kd=KD[1:], objectives=(0.02, 0.5)),
+    ]
+    (tmp_path / "front.csv").write_bytes(front_csv(six))
+    header = (tmp_path / "front.csv").read_text().splitlines()[0].split(",")
+    assert header[:12] == [*(f"kp{j}" for j in range(1, 7)), *(f"kd{j}" for j in range(1, 7))]
+    assert header[12:] == ["f_acc", "f_t", "diverged"]
+    assert read_front(tmp_path / "front.csv") == six
+    # An empty front says its robot's joint count in its header all the same.
+    (tmp_path / "empty.csv").write_bytes(front_csv([], joints=6))
+    assert (tmp_path / "empty.csv").read_text().startswith("kp1,kp2,kp3,kp4,kp5,kp6,kd1,")
+    assert read_front(tmp_path / "empty.csv") == []
 
 
 def test_reading_a_csv_of_another_format_is_refused(tmp_path: Path) -> None:

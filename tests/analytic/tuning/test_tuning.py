@@ -12,6 +12,7 @@ from gainfarm.analytic.compose import CannotStart, balanced
 from gainfarm.analytic.evaluators.farm import FarmUnavailable
 from gainfarm.analytic.evaluators.local import free_port
 from gainfarm.cli import values
+from gainfarm.models import resolve
 from gainfarm.schemas import TrajectorySpec
 from tests.analytic.toy import toy_scores
 
@@ -129,5 +130,6 @@ def test_a_run_s_defaults_are_analytic_start_s() -> None:
     assert given["kinds"] == (trajectory.kind,) and given["duration"] == trajectory.duration
     assert given["trajectory_seed"] == trajectory.seed and given["size"] == trajectory.size
     assert given["center"] == ",".join(f"{value:g}" for value in trajectory.center)
-    assert values.model_spec(given["plant"], given["joints"]) == config.plant
+    assert resolve(values.model_spec(given["plant"], given["joints"])) == config.plant
+    assert given["robot"] == config.robot == "iiwa14"
     assert given["balance"] is True and given["generations"] is given["evaluations"] is None
