@@ -87,7 +87,7 @@ def episode(
         arm = robot_of(model.robot)
     elif controller is not None:
         _warn_if_not_as_tuned(controller, gains_file, path, model)
-    learned = values.feedforward_model(feedforward)
+    learned = values.feedforward_model(feedforward, robot)
     if learned is not None and gravity_compensation:
         raise CliError(
             "--feedforward and --gravity-compensation exclude each other: "

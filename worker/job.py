@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 
 from gainfarm import plugins
 from gainfarm.models import PlantError, resolve, robot_of
-from gainfarm.models.dynamics import DynamicsModel
+from gainfarm.models.dynamics import DynamicsModel, WrongRobot, check_robot
 from gainfarm.models.urdf import description
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.episode_log import EpisodeLog, RobotDescription
@@ -130,7 +130,10 @@ def _model(spec: EpisodeSpec, model: Callable[[str], DynamicsModel] | None) -> D
         raise ModelUnavailable(
             f"feed-forward model {spec.feedforward[:12]}: this worker cannot fetch models"
         )
-    return model(spec.feedforward)
+    try:  # a model of another arm, even of as many joints, computes torques for other links
+        return check_robot(model(spec.feedforward), spec.plant)
+    except WrongRobot as error:
+        raise ModelUnavailable(f"feed-forward model {spec.feedforward[:12]}: {error}") from None
 
 
 def _episodes(prepared: list[Prepared], threads: int) -> list[Outcome]:

@@ -105,9 +105,11 @@ def plant_file(plant: str, option: str = "--plant") -> "PlantFile":
     return read
 
 
-def feedforward_model(path: Path | None) -> tuple[bytes, "DynamicsModel"] | None:
+def feedforward_model(
+    path: Path | None, robot: str | None = None
+) -> tuple[bytes, "DynamicsModel"] | None:
     """--feedforward's model file as bytes (jobs name it by their SHA-256) and decoded; it must
-    be an inverse-dynamics model of the seven joints."""
+    be an inverse-dynamics model, of the arm `robot` names if given."""
     if path is None:
         return None
     # start-up: MuJoCo (models.dynamics) loads only for --feedforward
@@ -121,7 +123,7 @@ def feedforward_model(path: Path | None) -> tuple[bytes, "DynamicsModel"] | None
     except BadDocument as error:
         raise CliError(f"--feedforward: {str(file)!r}: {error}") from None
     try:
-        model = dynamics.feedforward_from_bytes(raw)
+        model = dynamics.feedforward_from_bytes(raw, robot)
     except dynamics.BadDynamicsModel as error:
         raise CliError(f"--feedforward: {str(file)!r}: {error}") from None
     return raw, model

@@ -77,7 +77,7 @@ def batch(
     given = values.trajectories(kinds, duration or STANDARD, trajectory_seed, where, size)
     trajectories = on_the_robot(given, duration, model.robot)
     followable(trajectories, robot=model.robot)
-    learned = values.feedforward_model(feedforward)
+    learned = values.feedforward_model(feedforward, model.robot)
     models = {digest(learned[0]): learned[0]} if learned is not None else {}
     jobs = batch_jobs(candidates, trajectories, model, *models)
     run_dir = run_dir or Path("runs") / time.strftime("batch-%Y%m%d-%H%M%S")

@@ -99,7 +99,7 @@ def start(
         "balance": balance,
     }
     make_config(fields)  # what the config alone refuses, before the variants load MuJoCo
-    learned = values.feedforward_model(feedforward)
+    learned = values.feedforward_model(feedforward, nominal.robot)
     with _farm(connect, workers, nominal.robot) as farm:
         # start-up: MuJoCo, Zenoh, pymoo and rich load once the options are checked (but the
         # variants', which need MuJoCo), while the local farm starts

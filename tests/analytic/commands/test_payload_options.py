@@ -9,6 +9,7 @@ import pytest
 from gainfarm.analytic.calibration.twin import write_text
 from gainfarm.analytic.commands.work.common import plants_from
 from gainfarm.cli import options, values
+from gainfarm.models import resolve
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.plant_file import PlantFile
 from gainfarm.schemas.robot import MAX_LOAD_OFFSET, RATED_PAYLOAD, LoadData, PlantSpec
@@ -66,11 +67,11 @@ def test_an_episode_runs_on_the_load_it_was_told(tmp_path: Path) -> None:
     done = subprocess.run([*command, "--out", str(tmp_path / "ep.mcap")], capture_output=True)
     assert done.returncode == 0, done.stderr
     model = read_episode(tmp_path / "ep.mcap").metadata.spec.plant
-    assert model == PlantSpec(load=LoadData(mass=5.0, com=(0.0, 0.01, 0.1)))
+    assert model == resolve(PlantSpec(load=LoadData(mass=5.0, com=(0.0, 0.01, 0.1))))
     # --payload 0: told of none, the very spec (and JSON) of no option at all.
     done = subprocess.run([*WORKER, *SHORT, "--payload", "0", "--out", str(tmp_path / "0.mcap")])
     assert done.returncode == 0
-    assert read_episode(tmp_path / "0.mcap").metadata.spec.plant == PlantSpec()
+    assert read_episode(tmp_path / "0.mcap").metadata.spec.plant == resolve(PlantSpec())
 
 
 def twin(path: Path, payload: float, load: LoadData | None = None) -> Path:
