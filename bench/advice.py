@@ -31,6 +31,7 @@ import click
 import numpy as np
 
 from gainfarm.analytic.tuning.config import RunConfig
+from gainfarm.models import resolve
 from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.gains import DEFAULT_GAINS, PDGains
 from gainfarm.schemas.limits import Limits, measures
@@ -45,7 +46,7 @@ PATHS = {
     "fourier 6 s": TrajectorySpec(kind="fourier", duration=6.0),
     "pyramid 4 s": TrajectorySpec(kind="pyramid", duration=4.0),
 }
-NOMINAL = PlantSpec()
+NOMINAL = resolve(PlantSpec())  # its numbers written out, for the variants to scale
 CHANGES = {
     "payload 2 kg": {"payload": 2.0},
     "delay 2": {"delay": 2},

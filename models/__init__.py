@@ -26,6 +26,7 @@ from gainfarm.models.robots import (
     plant_preset,
     resolve,
     robot_of,
+    written_out,
 )
 
 __all__ = [
@@ -46,4 +47,5 @@ __all__ = [
     "resolve",
     "robot_of",
     "step_ratios",
+    "written_out",
 ]

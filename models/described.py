@@ -130,7 +130,6 @@ def robot_from_file(path: Path) -> MjcfArm:
         rated_payload=described.rated_payload,
         uncertainty=_uncertainty(path, described),
         flange=described.flange.site or FLANGE,
-        position_ranges=described.limits.position_range,
     )
     with _held(arm):
         _check_plant(arm, described)

@@ -12,6 +12,7 @@ import mujoco
 
 from gainfarm import plugins
 from gainfarm.models import elastic
+from gainfarm.schemas.episode import EpisodeSpec
 from gainfarm.schemas.robot import DEFAULT_ROBOT, IDEAL_PLANT, PLANTS, Friction, PlantSpec, Robot
 
 
@@ -93,6 +94,13 @@ def resolve(spec: PlantSpec) -> PlantSpec:
     resolved = spec.model_copy(update={**written, "friction": friction})
     # Validated again: a robot's own numbers meet the contract's bounds like a file's.
     return PlantSpec.model_validate(resolved.model_dump())
+
+
+def written_out(spec: EpisodeSpec) -> EpisodeSpec:
+    """The episode `spec` with its plant written out (`resolve`): what its worker runs and logs,
+    which is what a log is checked against."""
+    plant = resolve(spec.plant)
+    return spec if plant == spec.plant else spec.model_copy(update={"plant": plant})
 
 
 def _given(values: tuple[float, ...] | None, default: tuple[float, ...]) -> tuple[float, ...]:

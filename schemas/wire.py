@@ -395,8 +395,9 @@ def describe(
     0.1, got 0'), and how many more there are; a rule about several fields (a model validator's)
     is its message alone. An unknown top-level field is called a `noun` ('unknown limit
     'torque_stp''), followed by the `known` names if given."""
-    first = error.errors()[0]
-    more = error.error_count() - 1
+    errors = _one_branch(error.errors())
+    first = errors[0]
+    more = len(errors) - 1
     suffix = f" (and {more} more problem{'s' if more > 1 else ''})" if more else ""
     loc = first["loc"]
     if not loc and first["type"] == "value_error":
@@ -408,6 +409,26 @@ def describe(
         return f"{parent}: {said}{suffix}" if parent else f"{said}{suffix}"
     where = ".".join(str(part) for part in loc) or "value"
     return f"{where}: {plainly(first)}{suffix}"
+
+
+def _one_branch(errors: list[ErrorDetails]) -> list[ErrorDetails]:
+    """The errors of a value as one form of a field that takes several (a plant's stiffness:
+    numbers or a preset's name) reads it: pydantic reports each form's, its name in the field's
+    path ('stiffness.tuple[constrained-float, ...].0'); the first error's form is the one kept,
+    and the forms' names leave the path."""
+    chosen: dict[tuple, str] = {}
+    kept: list[ErrorDetails] = []
+    for problem in errors:
+        path: list = []
+        same = True
+        for part in problem["loc"]:
+            if isinstance(part, str) and "[" in part:  # a form's name, not a field's
+                same = same and chosen.setdefault(tuple(path), part) == part
+            else:
+                path.append(part)
+        if same:
+            kept.append({**problem, "loc": tuple(path)})
+    return kept
 
 
 _BOUNDS = {

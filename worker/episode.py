@@ -18,7 +18,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from gainfarm.models import resolve
+from gainfarm.models import resolve, written_out
 from gainfarm.models.dynamics import DynamicsModel, friction_torque, plant_spec, true_model
 from gainfarm.schemas.episode import EpisodeMetadata, EpisodeSpec
 from gainfarm.schemas.episode_log import EpisodeLog
@@ -120,7 +120,7 @@ def simulate_all(
     worker.stepping); each log is the same, byte for byte, as if its episode ran alone. With
     `then`, each log's `then(log)` instead, computed on the thread that stepped it. A plant's
     numbers left to its robot are written out (models.resolve): the log says what ran."""
-    episodes = [(_resolved(spec), *rest) for spec, *rest in episodes]
+    episodes = [(written_out(spec), *rest) for spec, *rest in episodes]
     stepped = [_setup(*episode) for episode in episodes]
     index = {id(run): position for position, run in enumerate(stepped)}
     done: list = [None] * len(stepped)
@@ -132,11 +132,6 @@ def simulate_all(
 
     step_all(stepped, threads, finish)
     return done
-
-
-def _resolved(spec: EpisodeSpec) -> EpisodeSpec:
-    plant = resolve(spec.plant)
-    return spec if plant == spec.plant else spec.model_copy(update={"plant": plant})
 
 
 def _setup(spec: EpisodeSpec, reference: Reference, added: np.ndarray | None) -> Stepped:

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Protocol
 
 from gainfarm.edges.files import write_atomically
-from gainfarm.models import resolve
+from gainfarm.models import written_out
 from gainfarm.plugins import OBJECTIVES, load_plugins
 from gainfarm.schemas.episode import EpisodeSpec, Scores
 from gainfarm.schemas.mcap_episode import NotAnEpisodeLog, decode_episode
@@ -56,17 +56,11 @@ def accept_log(content: bytes, spec: EpisodeSpec, path: Path | None, source: str
     of `spec`, keep it at `path` (atomically; not at all without a path) and score it.
     NotAnEpisodeLog, naming `source`, if it is not a whole log of that episode."""
     episode = decode_episode(content, source)
-    if episode.metadata.spec != spec and episode.metadata.spec != _written_out(spec):
+    if episode.metadata.spec != spec and episode.metadata.spec != written_out(spec):
         raise NotAnEpisodeLog("the log is of another episode than the one submitted")
     if path is not None:
         write_atomically(path, content)
     return score(episode, load_plugins(OBJECTIVES, spec.objectives))  # a plug-in's too
-
-
-def _written_out(spec: EpisodeSpec) -> EpisodeSpec:
-    """`spec` as its worker logs it: the plant's numbers left to its robot written out."""
-    plant = resolve(spec.plant)
-    return spec if plant == spec.plant else spec.model_copy(update={"plant": plant})
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 import tomli_w
 
+from gainfarm.models import resolve
 from gainfarm.models.dynamics import MAX_FILE_BYTES as MAX_MODEL_BYTES
 from gainfarm.schemas.documents import MAX_DEPTH, MAX_TEXT_BYTES
 from gainfarm.schemas.episode_log import EpisodeLog
@@ -52,7 +53,7 @@ def plant_toml(**plant: object) -> str:
 
 def stiff_plant() -> str:
     # tomli_w writes 1e308 as it is: the file a person would write.
-    return plant_toml(stiffness=[1e308, *PlantSpec().stiffness[1:]])
+    return plant_toml(stiffness=[1e308, *resolve(PlantSpec()).stiffness[1:]])
 
 
 @dataclass(frozen=True)

@@ -74,7 +74,9 @@ def batch(
     if gains_file is not None:
         warn_far_outside_search("analytic", candidates, gains_file, arm)
     where = centre(center, model.robot)
-    given = values.trajectories(kinds, duration or STANDARD, trajectory_seed, where, size)
+    given = values.trajectories(
+        kinds, STANDARD if duration is None else duration, trajectory_seed, where, size
+    )
     trajectories = on_the_robot(given, duration, model.robot)
     followable(trajectories, robot=model.robot)
     learned = values.feedforward_model(feedforward, model.robot)

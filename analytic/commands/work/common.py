@@ -62,9 +62,17 @@ def on_the_robot(
     # start-up: the references (SciPy, MuJoCo) load once the cheaper options are checked
     from gainfarm.worker.reference import default_duration
 
-    return tuple(
-        t.model_copy(update={"duration": default_duration(t, robot)}) for t in trajectories
-    )
+    return tuple(_on_the_robot(t, robot, default_duration) for t in trajectories)
+
+
+def _on_the_robot(
+    trajectory: "TrajectorySpec", robot: str, default_duration: Callable
+) -> "TrajectorySpec":
+    try:
+        duration = default_duration(trajectory, robot)
+    except ValueError:  # a path out of reach: as given, for the reach check to refuse in one line
+        return trajectory
+    return trajectory.model_copy(update={"duration": duration})
 
 
 def _uncertainty(plant_file: PlantFile, nominal: PlantSpec) -> dict:

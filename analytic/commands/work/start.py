@@ -75,7 +75,9 @@ def start(
         raise CliError(f"--async: {steady_state_refusal(algorithm)}")
     nominal = values.with_load(robot_plant(plant, joints, robot), payload, payload_com, plant)
     where = centre(center, nominal.robot)
-    given = values.trajectories(kinds, duration or STANDARD, trajectory_seed, where, size)
+    given = values.trajectories(
+        kinds, STANDARD if duration is None else duration, trajectory_seed, where, size
+    )
     trajectories = on_the_robot(given, duration, nominal.robot)
     if out is not None and (out / CONFIG_JSON).exists():  # `tune` would resume it: a start does not
         raise CliError(f"--out: {str(out)!r} already holds a run; resume it or choose another")
@@ -106,6 +108,7 @@ def start(
         from gainfarm.analytic.commands.work import tuning
         from gainfarm.analytic.compose import defaults_hold
 
+        tuning.followable(trajectories, robot=nominal.robot)  # before a corner's episodes run
         holds = defaults_hold(trajectories, limits, objectives)
         fields["plants"] = plants_from(
             plants, uncertainty_file, nominal, seed, plant=plant, designed=True, holds=holds

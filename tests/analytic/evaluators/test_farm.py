@@ -23,6 +23,7 @@ from gainfarm.analytic.evaluators.local import (
     stop_workers,
 )
 from gainfarm.broker.service import Broker
+from gainfarm.models import written_out
 from gainfarm.models.dynamics import digest, rigid_prior, to_bytes
 from gainfarm.schemas import keys
 from gainfarm.schemas.episode import EpisodeSpec
@@ -63,7 +64,7 @@ def test_several_workers_share_a_batch_and_every_episode_is_kept_and_scored(
         assert result.status == "ok" and result.attempts == 1
         assert result.log == tmp_path / "episodes" / f"{result.job_id}.mcap"
         log = read_episode(result.log)
-        assert log.metadata.spec == specs[result.job_id]
+        assert log.metadata.spec == written_out(specs[result.job_id])
         assert score(log) == result.scores
     assert not list((tmp_path / "episodes").glob(".*"))  # no temporary files left behind
 
@@ -283,7 +284,9 @@ def test_bad_results_on_the_studys_key_are_ignored_or_reported(
         assert farm.ignored == 3 and farm.duplicates >= 1 and farm.unconfirmed == 1
     assert evaluations["j1"].status == "ok" and evaluations["j1"].attempts == 1
     assert evaluations["j1"].worker == "w"
-    assert read_episode(tmp_path / "episodes" / "j1.mcap").metadata.spec == short_spec()
+    assert read_episode(tmp_path / "episodes" / "j1.mcap").metadata.spec == written_out(
+        short_spec()
+    )
     assert evaluations["j2"].status == "ok" and evaluations["j2"].attempts == 1
 
 

@@ -26,6 +26,7 @@ from gainfarm.broker.certs import write_dev_credentials
 from gainfarm.broker.service import Broker
 from gainfarm.broker.status import BrokerUnavailable, query_status
 from gainfarm.edges.transport import open_session
+from gainfarm.models import written_out
 from gainfarm.schemas import TrajectorySpec, keys
 from gainfarm.schemas.mcap_episode import read_episode
 from gainfarm.schemas.security import TlsIdentity
@@ -200,7 +201,7 @@ def test_forged_results_over_the_budget_are_dropped_and_a_dropped_result_comes_a
         finally:
             stop_workers([worker])
         assert result.status == "ok" and result.worker == "w" and result.attempts == 1
-        assert read_episode(result.log).metadata.spec == short_spec()
+        assert read_episode(result.log).metadata.spec == written_out(short_spec())
         assert broker.queue.jobs_done == 2  # it ran again
         assert farm.unconfirmed == 1 and farm.held_bytes == 0
         assert farm.peak_held_bytes <= len(first) + 10
