@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from gainfarm import plugins
 from gainfarm.models import RIGID_MJCF, robot_of
+from gainfarm.models.ur5e import JOINT_NAMES as UR5E_JOINT_NAMES
 from gainfarm.models.urdf import WORLD, description, rotations, tree, urdf
 from gainfarm.schemas.robot import JOINT_NAMES, POSITION_LIMITS, PlantSpec
 
@@ -34,14 +35,7 @@ FRAMES = {
     ],
     "panda": [*(f"link{i}" for i in range(8)), "attachment", "flange"],
 }
-UR5E_JOINTS = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
+UR5E_JOINTS = UR5E_JOINT_NAMES
 
 
 def postures(arm: str) -> list[np.ndarray]:

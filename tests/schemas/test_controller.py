@@ -5,6 +5,7 @@ import json
 import pytest
 import yaml
 
+from gainfarm.models.ur5e import JOINT_NAMES as UR5E_JOINT_NAMES
 from gainfarm.schemas.controller import (
     BadGains,
     Controller,
@@ -22,14 +23,7 @@ SOFT = PDGains(kp=(100.0,) * 7, kd=(1.0,) * 7)
 
 
 # The UR5e's joints, as ur_description names them: a 6-joint arm's.
-UR5E = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
+UR5E = UR5E_JOINT_NAMES
 
 
 def exported(gains: PDGains, joints: tuple[str, ...] = JOINT_NAMES, robot: str = "iiwa14") -> dict:

@@ -20,6 +20,7 @@ from mcap_ros2.reader import read_ros2_messages
 from scipy.spatial.transform import Rotation
 
 from gainfarm.models import RIGID_MJCF, plant_preset, robot_of
+from gainfarm.models.ur5e import JOINT_NAMES as UR5E_JOINT_NAMES
 from gainfarm.models.urdf import description, urdf
 from gainfarm.schemas import EpisodeSpec, TrajectorySpec
 from gainfarm.schemas.episode_log import CHANNELS, TF_EVERY, EpisodeLog, Frame, RobotDescription
@@ -330,14 +331,7 @@ def ur5e_log() -> EpisodeLog:
     return run_episode(spec)
 
 
-UR5E_JOINTS = [
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-]
+UR5E_JOINTS = list(UR5E_JOINT_NAMES)
 
 
 def test_a_six_joint_log_names_its_joints_and_round_trips(ur5e_log, tmp_path):

@@ -8,6 +8,7 @@ import pytest
 from mcap_ros2.reader import read_ros2_messages
 
 from gainfarm.models import robot_of
+from gainfarm.models.ur5e import JOINT_NAMES as UR5E_JOINT_NAMES
 from gainfarm.schemas.mcap_episode import read_episode
 
 WORKER = [sys.executable, "-c", "from gainfarm.worker.cli import main; main()"]
@@ -55,14 +56,7 @@ def test_human_readable_scores(tmp_path):
 
 SEVEN = "1,1,1,1,1,1,1"
 
-UR5E_JOINTS = [
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-]
+UR5E_JOINTS = list(UR5E_JOINT_NAMES)
 
 
 @pytest.mark.slow

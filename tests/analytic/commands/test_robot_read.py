@@ -12,18 +12,12 @@ import yaml
 
 from gainfarm.analytic.commands.work import validate as validating
 from gainfarm.analytic.tuning.records import FrontMember, front_csv
+from gainfarm.models.ur5e import JOINT_NAMES as UR5E_JOINT_NAMES
 from gainfarm.schemas.episode_log import EpisodeLog
 from tests.analytic.samples import KD, KP
 from tests.helpers import analytic, write_log
 
-UR5E_JOINTS = [
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-]
+UR5E_JOINTS = list(UR5E_JOINT_NAMES)
 
 
 def iiwa_run(directory: Path) -> Path:

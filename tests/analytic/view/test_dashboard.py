@@ -28,6 +28,7 @@ from gainfarm.analytic.tuning.records import HISTORY_CSV, read_front, read_histo
 from gainfarm.analytic.view.dashboard import find_runs, live_first, run_state, run_view
 from gainfarm.analytic.view.members import FILE_NAMES
 from gainfarm.broker.service import Broker
+from gainfarm.models.ur5e import JOINT_NAMES as UR5E_JOINT_NAMES
 from tests.helpers import analytic, needs
 
 CHROMIUM, CHROMEDRIVER = shutil.which("chromium"), shutil.which("chromedriver")
@@ -458,14 +459,7 @@ def test_a_run_says_when_it_has_no_recommendation_or_held_out_check_yet(tmp_path
                                        "continues it")  # fmt: skip
 
 
-UR5E_JOINTS = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
+UR5E_JOINTS = UR5E_JOINT_NAMES
 
 
 def arm_state(browser: webdriver.Chrome) -> dict:

@@ -19,6 +19,7 @@ from gainfarm.analytic.view.reports import (
     run_title,
     write_report,
 )
+from gainfarm.models.ur5e import JOINT_NAMES as UR5E_JOINT_NAMES
 from gainfarm.schemas.gains import DEFAULT_GAINS
 from gainfarm.schemas.robot import PLANTS
 from gainfarm.schemas.trajectory import TrajectorySpec
@@ -381,14 +382,7 @@ def test_a_check_cut_by_its_budget_says_how_many_plants_of_those_asked_and_why()
         assert len(line) <= 80, line  # the terminal's closing lines, as test_cli's live line
 
 
-UR5E_JOINTS = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
+UR5E_JOINTS = UR5E_JOINT_NAMES
 
 
 def test_a_ur5e_report_names_its_arm_its_joints_and_its_torque_interface(tmp_path: Path) -> None:
