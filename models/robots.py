@@ -13,7 +13,7 @@ import mujoco
 from gainfarm import plugins
 from gainfarm.models import elastic
 from gainfarm.schemas.episode import EpisodeSpec
-from gainfarm.schemas.robot import DEFAULT_ROBOT, IDEAL_PLANT, PLANTS, Friction, PlantSpec, Robot
+from gainfarm.schemas.robot import DEFAULT_ROBOT, PLANTS, Friction, PlantSpec, Robot
 
 
 class PlantError(ValueError):
@@ -113,9 +113,7 @@ def plant_preset(name: str, robot: str = DEFAULT_ROBOT) -> PlantSpec:
     them, else its default set."""
     spec = PLANTS[name].model_copy(update={"robot": robot})
     sets = robot_of(robot).inertial_sets
-    if spec.inertials not in sets:
-        spec = spec.model_copy(update={"inertials": sets[0]})
-    return spec if name != "ideal" or spec.robot != DEFAULT_ROBOT else IDEAL_PLANT
+    return spec if spec.inertials in sets else spec.model_copy(update={"inertials": sets[0]})
 
 
 def min_substeps(spec: PlantSpec) -> int:
